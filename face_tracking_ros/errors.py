@@ -1,0 +1,28 @@
+"""Error types of face_tracking_ros.
+
+Every error the package raises on bad input derives from :class:`FaceTrackingError`, so callers
+(nodes, the command line) can catch one type and report its message, which always names the
+offending file, topic, field or parameter.
+"""
+
+from __future__ import annotations
+
+
+class FaceTrackingError(Exception):
+    """Base class of every error raised by face_tracking_ros."""
+
+
+class InputError(FaceTrackingError):
+    """An input array, image or message is malformed (shape, dtype, encoding, NaN, size)."""
+
+
+class ConfigError(FaceTrackingError):
+    """A parameter or command-line argument is out of range or inconsistent."""
+
+
+class ModelFileError(FaceTrackingError):
+    """A model, gallery or classifier file is missing, malformed or of another format version."""
+
+
+class BagError(FaceTrackingError):
+    """A bag is missing, truncated, corrupt or lacks the topics asked for."""

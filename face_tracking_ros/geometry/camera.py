@@ -1,0 +1,179 @@
+"""Pinhole and rectified stereo cameras described the way sensor_msgs/CameraInfo describes them.
+
+Projection (eq. 2) uses the 3x4 projection matrix P of CameraInfo, which maps points in the
+camera's optical frame (x right, y down, z forward, metres) to pixels of the rectified image. For
+the right camera of a rectified stereo rig, ``P[0, 3] = -fx * B`` with baseline B in metres, and
+points are expressed in the left (reference) camera frame, as ROS specifies.
+
+This module has no ROS imports: :meth:`PinholeCamera.from_camera_info` reads any object with the
+CameraInfo fields (an rclpy message, a rosbags message or a simple namespace).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import cv2
+import numpy as np
+
+from face_tracking_ros.errors import InputError
+
+
+@dataclass(frozen=True)
+class PinholeCamera:
+    """A calibrated camera: image size, intrinsics K, distortion D, projection P.
+
+    Attributes:
+        width: image width, px.
+        height: image height, px.
+        k: (3, 3) intrinsic matrix of the raw image.
+        p: (3, 4) projection matrix of the rectified image (eq. 2).
+        d: distortion coefficients of ``distortion_model`` (empty or zeros for none).
+        distortion_model: 'plumb_bob', 'rational_polynomial' or '' (none).
+        r: (3, 3) rectification rotation.
+    """
+
+    width: int
+    height: int
+    k: np.ndarray
+    p: np.ndarray
+    d: np.ndarray = field(default_factory=lambda: np.zeros(5))
+    distortion_model: str = 'plumb_bob'
+    r: np.ndarray = field(default_factory=lambda: np.eye(3))
+
+    def __post_init__(self) -> None:
+        """Validate shapes and values."""
+        _require(self.width > 0 and self.height > 0, f'image size {self.width}x{self.height}')
+        _require(np.shape(self.k) == (3, 3), f'K has shape {np.shape(self.k)}, not (3, 3)')
+        _require(np.shape(self.p) == (3, 4), f'P has shape {np.shape(self.p)}, not (3, 4)')
+        arrays = (self.k, self.p, self.d, self.r)
+        _require(all(np.all(np.isfinite(a)) for a in arrays), 'K, P, D or R holds NaN or Inf')
+        _require(self.p[0, 0] > 0 and self.p[1, 1] > 0, 'P has a zero focal length (uncalibrated)')
+
+    @classmethod
+    def from_camera_info(cls, info: Any) -> PinholeCamera:
+        """Build from a sensor_msgs/CameraInfo-like object (fields width, height, k, d, p, r).
+
+        Raises:
+            InputError: for a zero (uncalibrated) or malformed CameraInfo.
+        """
+        k = np.asarray(info.k, dtype=float).reshape(3, 3)
+        p = np.asarray(info.p, dtype=float).reshape(3, 4)
+        if not np.any(p):
+            p = np.hstack([k, np.zeros((3, 1))])
+        return cls(
+            width=int(info.width),
+            height=int(info.height),
+            k=k,
+            p=p,
+            d=np.asarray(info.d, dtype=float),
+            distortion_model=str(info.distortion_model),
+            r=np.asarray(info.r, dtype=float).reshape(3, 3) if np.any(info.r) else np.eye(3),
+        )
+
+    @classmethod
+    def ideal(
+        cls, width: int = 640, height: int = 480, focal: float = 600.0, tx: float = 0.0
+    ) -> PinholeCamera:
+        """A distortion-free camera with the principal point at the image centre.
+
+        Args:
+            width: image width, px.
+            height: image height, px.
+            focal: focal length fx = fy, px.
+            tx: ``P[0, 3]``, i.e. ``-fx * B`` for the right camera of a stereo rig, px*m.
+        """
+        k = np.array([[focal, 0.0, (width - 1) / 2.0], [0.0, focal, (height - 1) / 2.0], [0, 0, 1]])
+        p = np.hstack([k, np.array([[tx], [0.0], [0.0]])])
+        return cls(width=width, height=height, k=k, p=p, d=np.zeros(5))
+
+    @property
+    def focal(self) -> float:
+        """Mean rectified focal length (fx + fy) / 2, px."""
+        return float(0.5 * (self.p[0, 0] + self.p[1, 1]))
+
+    @property
+    def has_distortion(self) -> bool:
+        """True if D is non-zero, i.e. raw images must be rectified before eq. 2 applies."""
+        return bool(np.any(self.d))
+
+    def project(self, points: np.ndarray) -> np.ndarray:
+        """Project (N, 3) camera-frame points (m) to (N, 2) rectified pixels (eq. 2)."""
+        homogeneous = points @ self.p[:, :3].T + self.p[:, 3]
+        return homogeneous[:, :2] / homogeneous[:, 2:3]
+
+    def project_with_jacobian(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Project points and differentiate: returns (N, 2) pixels and (N, 2, 3) d(u, v)/dX."""
+        homogeneous = points @ self.p[:, :3].T + self.p[:, 3]
+        depth = homogeneous[:, 2:3]
+        pixels = homogeneous[:, :2] / depth
+        jacobian = (self.p[None, :2, :3] - pixels[:, :, None] * self.p[None, 2:3, :3]) / depth[
+            :, :, None
+        ]
+        return pixels, jacobian
+
+    def rectify_maps(self) -> tuple[np.ndarray, np.ndarray]:
+        """cv2.remap maps taking the raw (distorted) image to the rectified image of P."""
+        return cv2.initUndistortRectifyMap(
+            self.k, self.d, self.r, self.p[:, :3], (self.width, self.height), cv2.CV_32FC1
+        )
+
+    def camera_info_fields(self) -> dict[str, Any]:
+        """The CameraInfo fields of this camera (lists, row-major), for message conversion."""
+        return {
+            'width': self.width,
+            'height': self.height,
+            'distortion_model': self.distortion_model,
+            'd': [float(v) for v in self.d],
+            'k': [float(v) for v in self.k.ravel()],
+            'r': [float(v) for v in self.r.ravel()],
+            'p': [float(v) for v in self.p.ravel()],
+        }
+
+
+@dataclass(frozen=True)
+class StereoRig:
+    """A rectified stereo pair: both cameras share R and intrinsics; the right one has Tx != 0.
+
+    Points are in the left camera's optical frame, metres.
+    """
+
+    left: PinholeCamera
+    right: PinholeCamera
+
+    def __post_init__(self) -> None:
+        """Check that the pair is rectified and sizes match."""
+        left, right = self.left, self.right
+        same_size = (left.width, left.height) == (right.width, right.height)
+        _require(same_size, f'left {left.width}x{left.height} != right {right.width}x{right.height}')
+        _require(right.p[0, 3] < 0, 'right P[0,3] must be -fx*B < 0 for a rectified stereo pair')
+
+    @property
+    def baseline(self) -> float:
+        """Baseline B = -P_right[0, 3] / fx, metres."""
+        return float(-self.right.p[0, 3] / self.right.p[0, 0])
+
+    @classmethod
+    def ideal(
+        cls, width: int = 640, height: int = 480, focal: float = 600.0, baseline: float = 0.11
+    ) -> StereoRig:
+        """An ideal rectified rig with the given baseline (m)."""
+        return cls(
+            left=PinholeCamera.ideal(width, height, focal),
+            right=PinholeCamera.ideal(width, height, focal, tx=-focal * baseline),
+        )
+
+    def triangulate(self, left_px: np.ndarray, right_px: np.ndarray) -> np.ndarray:
+        """Triangulate (N, 2) left and right rectified pixels into (N, 3) left-frame points."""
+        homogeneous = cv2.triangulatePoints(
+            self.left.p, self.right.p, left_px.T.astype(float), right_px.T.astype(float)
+        )
+        return (homogeneous[:3] / homogeneous[3]).T
+
+
+def _require(condition: bool, problem: str) -> None:
+    """Raise InputError naming the camera problem unless condition holds."""
+    if not condition:
+        msg = f'invalid camera: {problem}'
+        raise InputError(msg)

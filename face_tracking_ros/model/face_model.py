@@ -1,0 +1,133 @@
+"""The face model of eq. 3: X = mean_shape + S sigma + A alpha, with the Gaussian prior of §4.1.
+
+Shapes are flattened node-major: a mesh of N nodes is a (3N,) vector ``[x0, y0, z0, x1, ...]`` in
+the face frame (see :mod:`face_tracking_ros.model.topology`), metres. ``shape_basis`` S is (3N, p)
+and ``action_basis`` A is (3N, q), each with orthonormal columns.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from face_tracking_ros.errors import ModelFileError
+from face_tracking_ros.model.topology import MeshTopology, mesh_topology
+
+ORTHONORMALITY_TOLERANCE = 1e-6
+
+
+@dataclass(frozen=True)
+class FaceModel:
+    """Mean shape, identity and expression bases and their prior (eq. 3, §4.1).
+
+    Attributes:
+        node_names: N node names (the topology's order).
+        mean_shape: (3N,) mean neutral face, metres.
+        shape_basis: (3N, p) identity basis S, orthonormal columns.
+        action_basis: (3N, q) expression basis A, orthonormal columns.
+        shape_eigenvalues: (p,) variances of sigma over the training subjects, m^2.
+        action_eigenvalues: (q,) variances of alpha over the training frames, m^2.
+        sigma_prior_covariance: (p, p) Gaussian prior covariance of sigma (§4.1), m^2.
+        alpha_prior_covariance: (q, q) Gaussian prior covariance of alpha (§4.1), m^2.
+        method: name of the learning method that made the model (e.g. 'seed', 'joint').
+        metadata: free JSON-serialisable facts (training set, iterations, date).
+    """
+
+    node_names: tuple[str, ...]
+    mean_shape: np.ndarray
+    shape_basis: np.ndarray
+    action_basis: np.ndarray
+    shape_eigenvalues: np.ndarray
+    action_eigenvalues: np.ndarray
+    sigma_prior_covariance: np.ndarray
+    alpha_prior_covariance: np.ndarray
+    method: str = 'seed'
+    metadata: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        """Validate shapes, finiteness and orthonormality; errors name the faulty field."""
+        validate_model_arrays(self)
+
+    @property
+    def num_nodes(self) -> int:
+        """Number of mesh nodes N."""
+        return len(self.node_names)
+
+    @property
+    def p(self) -> int:
+        """Dimension of the identity subspace."""
+        return int(self.shape_basis.shape[1])
+
+    @property
+    def q(self) -> int:
+        """Dimension of the expression subspace."""
+        return int(self.action_basis.shape[1])
+
+    @property
+    def topology(self) -> MeshTopology:
+        """Mesh topology with this model's node count."""
+        return mesh_topology(self.num_nodes)
+
+    def shape(self, sigma: np.ndarray | None = None, alpha: np.ndarray | None = None) -> np.ndarray:
+        """Eq. 3: the (N, 3) mesh in the face frame for identity sigma and expression alpha."""
+        flat = self.mean_shape.copy()
+        if sigma is not None:
+            flat += self.shape_basis @ np.asarray(sigma, dtype=float)
+        if alpha is not None:
+            flat += self.action_basis @ np.asarray(alpha, dtype=float)
+        return flat.reshape(-1, 3)
+
+    def identity_shape(self, sigma: np.ndarray) -> np.ndarray:
+        """(N, 3) neutral mesh of identity sigma: eq. 3 with alpha = 0."""
+        return self.shape(sigma=sigma)
+
+    def action_basis_nodes(self) -> np.ndarray:
+        """A reshaped to (N, 3, q): the expression derivative dX_i/d alpha of eq. 3."""
+        return self.action_basis.reshape(self.num_nodes, 3, self.q)
+
+    def shape_basis_nodes(self) -> np.ndarray:
+        """S reshaped to (N, 3, p): the identity derivative dX_i/d sigma of eq. 3."""
+        return self.shape_basis.reshape(self.num_nodes, 3, self.p)
+
+
+def validate_model_arrays(model: FaceModel) -> None:
+    """Check a model's arrays.
+
+    Raises:
+        ModelFileError: naming the field that has the wrong shape, NaN or non-orthonormal columns.
+    """
+    n3 = 3 * len(model.node_names)
+    if len(model.node_names) not in (19, 34):
+        _fail(f'node count is {len(model.node_names)}; supported meshes have 19 or 34 nodes')
+    expected_names = mesh_topology(len(model.node_names)).node_names
+    if tuple(model.node_names) != expected_names:
+        _fail(f'node names {tuple(model.node_names)} differ from the topology {expected_names}')
+    _check(model.mean_shape, 'mean_shape', (n3,))
+    _check(model.shape_basis, 'shape_basis', (n3, None))
+    _check(model.action_basis, 'action_basis', (n3, None))
+    p, q = model.shape_basis.shape[1], model.action_basis.shape[1]
+    _check(model.shape_eigenvalues, 'shape_eigenvalues', (p,))
+    _check(model.action_eigenvalues, 'action_eigenvalues', (q,))
+    _check(model.sigma_prior_covariance, 'sigma_prior_covariance', (p, p))
+    _check(model.alpha_prior_covariance, 'alpha_prior_covariance', (q, q))
+    for name, basis in (('shape_basis', model.shape_basis), ('action_basis', model.action_basis)):
+        gram_error = np.abs(basis.T @ basis - np.eye(basis.shape[1])).max(initial=0.0)
+        if gram_error > ORTHONORMALITY_TOLERANCE:
+            _fail(f'{name} is not orthonormal (max |B^T B - I| = {gram_error:.2e})')
+
+
+def _check(array: np.ndarray, name: str, shape: tuple[int | None, ...]) -> None:
+    """Raise ModelFileError unless array has the given shape (None = any) and is finite."""
+    actual = np.shape(array)
+    if len(actual) != len(shape) or any(e is not None and a != e for a, e in zip(actual, shape)):
+        _fail(f'{name} has shape {actual}, expected {shape}')
+    if not np.all(np.isfinite(array)):
+        _fail(f'{name} holds NaN or Inf')
+
+
+def _fail(problem: str) -> None:
+    """Raise the model validation error."""
+    msg = f'invalid face model: {problem}'
+    raise ModelFileError(msg)
