@@ -1,0 +1,26 @@
+"""Image helpers shared by the monocular and stereo trackers.
+
+Grey conversion (:mod:`.gray`), float32 Gaussian pyramids (:mod:`.pyramid`) and sub-pixel sampling
+of patches with their image gradients through one ``cv2.remap`` call (:mod:`.sampling`).
+"""
+
+from face_tracking_ros.imaging.gray import SUPPORTED_ENCODINGS, to_gray
+from face_tracking_ros.imaging.pyramid import ImagePyramid
+from face_tracking_ros.imaging.sampling import (
+    inside_image,
+    sample_patches,
+    sample_points,
+    sample_with_gradient,
+    square_offsets,
+)
+
+__all__ = [
+    'SUPPORTED_ENCODINGS',
+    'ImagePyramid',
+    'inside_image',
+    'sample_patches',
+    'sample_points',
+    'sample_with_gradient',
+    'square_offsets',
+    'to_gray',
+]

@@ -1,0 +1,1 @@
+"""Face trackers: the monocular model-based tracker of eq. 6 and what they share."""

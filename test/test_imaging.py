@@ -1,0 +1,159 @@
+"""Tests of face_tracking_ros.imaging: grey conversion, pyramids, sub-pixel sampling."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from face_tracking_ros.errors import InputError
+from face_tracking_ros.imaging import (
+    ImagePyramid,
+    inside_image,
+    sample_patches,
+    sample_points,
+    sample_with_gradient,
+    square_offsets,
+    to_gray,
+)
+
+
+def _ramp(height: int = 60, width: int = 80) -> np.ndarray:
+    """A linear image I(x, y) = 0.7 x + 1.3 y + 5, float32."""
+    rows, cols = np.mgrid[0:height, 0:width].astype(np.float32)
+    return (0.7 * cols + 1.3 * rows + 5.0).astype(np.float32)
+
+
+def test_to_gray_mono8_is_a_view_and_colour_orders_agree() -> None:
+    rng = np.random.default_rng(0)
+    rgb = rng.integers(0, 256, (12, 16, 3), dtype=np.uint8)
+    mono = rgb[:, :, 0].copy()
+    assert to_gray(mono, 'mono8').base is mono or to_gray(mono, 'mono8') is mono
+    assert np.array_equal(to_gray(mono[:, :, None], 'mono8'), mono)
+    from_rgb = to_gray(rgb, 'rgb8')
+    assert from_rgb.shape == (12, 16) and from_rgb.dtype == np.uint8
+    assert np.array_equal(from_rgb, to_gray(rgb[:, :, ::-1].copy(), 'bgr8'))
+    # ITU-R 601 luma of pure red is 0.299 * 255.
+    red = np.zeros((2, 2, 3), np.uint8)
+    red[..., 0] = 255
+    assert abs(int(to_gray(red, 'rgb8')[0, 0]) - 76) <= 1
+
+
+@pytest.mark.parametrize(
+    ('array', 'encoding', 'match'),
+    [
+        (np.zeros((4, 4), np.uint8), 'yuv422', 'unsupported image encoding'),
+        (np.zeros((4, 4), np.uint16), 'mono8', 'must be uint8'),
+        (np.zeros((4, 4, 3), np.uint8), 'mono8', r'must be \(H, W\)'),
+        (np.zeros((4, 4), np.uint8), 'rgb8', r'must be \(H, W, 3\)'),
+        (np.zeros((0, 4, 3), np.uint8), 'bgr8', r'must be \(H, W, 3\)'),
+    ],
+)
+def test_to_gray_rejects_bad_input(array: np.ndarray, encoding: str, match: str) -> None:
+    with pytest.raises(InputError, match=match):
+        to_gray(array, encoding)
+
+
+def test_pyramid_levels_and_coordinates() -> None:
+    image = np.zeros((96, 128), np.uint8)
+    image[40:44, 70:74] = 255  # blob centred at (71.5, 41.5)
+    pyramid = ImagePyramid.build(image, 3)
+    assert pyramid.num_levels == 3 and pyramid.shape == (96, 128)
+    assert [lvl.shape for lvl in pyramid.levels] == [(96, 128), (48, 64), (24, 32)]
+    assert all(lvl.dtype == np.float32 for lvl in pyramid.levels)
+    for level in range(3):
+        img = pyramid.levels[level]
+        rows, cols = np.mgrid[0 : img.shape[0], 0 : img.shape[1]]
+        centroid = np.array([(img * cols).sum(), (img * rows).sum()]) / img.sum()
+        expected = ImagePyramid.to_level(np.array([71.5, 41.5]), level)
+        assert np.allclose(centroid, expected, atol=0.02), (level, centroid, expected)
+
+
+@pytest.mark.parametrize(
+    ('image', 'levels', 'match'),
+    [
+        (np.zeros((10, 10, 3)), 1, 'grey image'),
+        (np.zeros((24, 40)), 3, 'cannot build 3 pyramid levels'),
+        (np.zeros((32, 32)), 0, 'cannot build 0'),
+        (np.full((16, 16), np.nan), 1, 'NaN'),
+    ],
+)
+def test_pyramid_rejects_bad_input(image: np.ndarray, levels: int, match: str) -> None:
+    with pytest.raises(InputError, match=match):
+        ImagePyramid.build(image, levels)
+
+
+def test_sample_points_is_exact_on_a_ramp_and_keeps_shape() -> None:
+    image = _ramp()
+    rng = np.random.default_rng(1)
+    points = rng.uniform([0, 0], [79, 59], size=(3, 5000, 2))  # > 4096: folded map
+    values = sample_points(image, points)
+    assert values.shape == (3, 5000) and values.dtype == np.float32
+    expected = 0.7 * points[..., 0] + 1.3 * points[..., 1] + 5.0
+    assert np.abs(values - expected).max() < 1e-3
+    assert sample_points(image, np.zeros((0, 2))).shape == (0,)
+
+
+def test_sample_points_replicates_the_border() -> None:
+    image = _ramp()
+    assert sample_points(image, np.array([[-5.0, 0.0]]))[0] == pytest.approx(5.0)
+    assert sample_points(image, np.array([[79.0, 70.0]]))[0] == pytest.approx(
+        0.7 * 79 + 1.3 * 59 + 5
+    )
+
+
+@pytest.mark.parametrize(
+    ('image', 'points', 'match'),
+    [
+        (np.zeros((8, 8)), np.zeros((1, 2)), 'float32'),
+        (np.zeros((8, 8, 2), np.float32), np.zeros((1, 2)), r'\(H, W\) float32'),
+        (np.zeros((8, 8), np.float32), np.zeros((1, 3)), r'\(\.\.\., 2\)'),
+        (np.zeros((8, 8), np.float32), np.array([[np.nan, 1.0]]), 'NaN'),
+    ],
+)
+def test_sample_points_rejects_bad_input(
+    image: np.ndarray, points: np.ndarray, match: str
+) -> None:
+    with pytest.raises(InputError, match=match):
+        sample_points(image, points)
+
+
+def test_sample_patches_matches_pointwise_sampling() -> None:
+    rng = np.random.default_rng(2)
+    image = rng.uniform(0, 255, (50, 60)).astype(np.float32)
+    offsets = square_offsets(2, 0.5)
+    assert offsets.shape == (25, 2)
+    assert np.array_equal(offsets[0], [-1.0, -1.0]) and np.array_equal(offsets[1], [-0.5, -1.0])
+    centres = rng.uniform(5, 40, (7, 2))
+    patches = sample_patches(image, centres, offsets)
+    assert patches.shape == (7, 25)
+    direct = sample_points(image, (centres[:, None, :] + offsets[None]).reshape(-1, 2))
+    assert np.allclose(patches.ravel(), direct, atol=1e-4)
+
+
+def test_square_offsets_rejects_bad_size() -> None:
+    with pytest.raises(InputError, match='half size'):
+        square_offsets(-1)
+    with pytest.raises(InputError, match='step > 0'):
+        square_offsets(2, 0.0)
+
+
+def test_sample_with_gradient_on_ramp_and_smooth_image() -> None:
+    points = np.random.default_rng(3).uniform(3, 50, (40, 2))
+    values, gradient = sample_with_gradient(_ramp(), points)
+    assert np.allclose(gradient, [0.7, 1.3], atol=1e-3)
+    assert np.allclose(values, 0.7 * points[:, 0] + 1.3 * points[:, 1] + 5, atol=1e-3)
+    # A smooth sinusoid: central differences match the analytic derivative to O(h^2).
+    rows, cols = np.mgrid[0:64, 0:64].astype(np.float64)
+    wave = 100 * np.sin(cols / 9.0) * np.cos(rows / 7.0)
+    _, grad = sample_with_gradient(wave.astype(np.float32), points)
+    x, y = points[:, 0], points[:, 1]
+    expected = np.stack(
+        [100 / 9 * np.cos(x / 9) * np.cos(y / 7), -100 / 7 * np.sin(x / 9) * np.sin(y / 7)], 1
+    )
+    assert np.abs(grad - expected).max() < 0.25  # of gradients up to 14 grey levels / px
+
+
+def test_inside_image() -> None:
+    points = np.array([[0.0, 0.0], [9.0, 4.0], [9.5, 4.0], [2.0, 2.0], [-0.1, 3.0]])
+    assert inside_image(points, (5, 10)).tolist() == [True, True, False, True, False]
+    assert inside_image(points, (5, 10), margin=2.0).tolist() == [False, False, False, True, False]
