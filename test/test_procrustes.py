@@ -1,0 +1,136 @@
+"""Weighted rigid Procrustes and generalised Procrustes against known transforms."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from face_tracking_ros.errors import InputError
+from face_tracking_ros.geometry.procrustes import generalized_procrustes, rigid_align
+from face_tracking_ros.model.topology import Group, mesh_topology
+
+
+def _random_poses(rng: np.random.Generator, count: int) -> tuple[np.ndarray, np.ndarray]:
+    rotations = Rotation.from_rotvec(rng.normal(scale=0.4, size=(count, 3))).as_matrix()
+    translations = rng.normal(scale=0.1, size=(count, 3))
+    return rotations, translations
+
+
+def test_recovers_known_transform_exactly():
+    rng = np.random.default_rng(0)
+    face = mesh_topology(34).reference_shape
+    rotations, translations = _random_poses(rng, 5)
+    moved = np.einsum('fab,nb->fna', rotations, face) + translations[:, None, :]
+    result = rigid_align(face, moved)
+    assert np.allclose(result.rotation, rotations, atol=1e-12)
+    assert np.allclose(result.t, translations, atol=1e-12)
+    assert np.allclose(result.aligned, moved, atol=1e-12)
+    assert np.all(result.rms < 1e-12)
+
+
+def test_identical_meshes_give_identity_transform():
+    face = mesh_topology(19).reference_shape
+    result = rigid_align(face, face)
+    assert np.allclose(result.rotation, np.eye(3), atol=1e-14)
+    assert np.allclose(result.t, 0.0, atol=1e-14)
+
+
+def test_weighted_rotation_matches_scipy_align_vectors():
+    rng = np.random.default_rng(1)
+    topology = mesh_topology(34)
+    weights = topology.alignment_weights()
+    source = topology.reference_shape + rng.normal(scale=0.004, size=(34, 3))
+    rotation, _ = _random_poses(rng, 1)
+    target = source @ rotation[0].T + 0.02 + rng.normal(scale=0.004, size=(34, 3))
+    result = rigid_align(source, target, weights)
+    w = weights / weights.sum()
+    centred_source = source - w @ source
+    centred_target = target - w @ target
+    expected, _ = Rotation.align_vectors(centred_target, centred_source, weights=weights)
+    assert np.allclose(result.rotation, expected.as_matrix(), atol=1e-10)
+    assert np.allclose(result.t, w @ target - result.rotation @ (w @ source), atol=1e-12)
+
+
+def test_reflected_target_still_gives_a_rotation():
+    face = mesh_topology(34).reference_shape
+    mirrored = face * np.array([-1.0, 1.0, 1.0])
+    result = rigid_align(face, mirrored)
+    assert np.allclose(np.linalg.det(result.rotation), 1.0)
+    assert np.allclose(result.rotation @ result.rotation.T, np.eye(3), atol=1e-12)
+    assert result.rms > 0.01
+
+
+def test_zero_weight_nodes_do_not_move_the_alignment():
+    rng = np.random.default_rng(2)
+    topology = mesh_topology(34)
+    face = topology.reference_shape
+    weights = topology.alignment_weights()
+    mouth = topology.group_mask(Group.MOUTH)
+    weights[mouth] = 0.0
+    rotations, translations = _random_poses(rng, 1)
+    target = face @ rotations[0].T + translations[0]
+    target[mouth] += rng.normal(scale=0.02, size=(int(mouth.sum()), 3))
+    result = rigid_align(face, target, weights)
+    assert np.allclose(result.rotation, rotations[0], atol=1e-12)
+    assert np.allclose(result.t, translations[0], atol=1e-12)
+
+
+def test_batched_equals_pairwise():
+    rng = np.random.default_rng(3)
+    sources = rng.normal(scale=0.05, size=(4, 19, 3))
+    targets = rng.normal(scale=0.05, size=(4, 19, 3))
+    batched = rigid_align(sources, targets)
+    for k in range(4):
+        single = rigid_align(sources[k], targets[k])
+        assert np.allclose(batched.rotation[k], single.rotation, atol=1e-12)
+        assert np.allclose(batched.rms[k], single.rms, atol=1e-12)
+
+
+def test_generalized_procrustes_aligns_moved_copies_to_the_reference():
+    rng = np.random.default_rng(4)
+    topology = mesh_topology(34)
+    face = topology.reference_shape
+    rotations, translations = _random_poses(rng, 30)
+    noise = rng.normal(scale=0.0005, size=(30, 34, 3))
+    meshes = np.einsum('fab,fnb->fna', rotations, face + noise) + translations[:, None, :]
+    result = generalized_procrustes(meshes, topology.alignment_weights(), reference=face)
+    assert result.converged
+    assert result.iterations <= 10
+    # Every aligned mesh is its noisy copy of the face, up to the noise level.
+    assert np.abs(result.aligned - (face + noise)).max() < 0.002
+    assert np.sqrt(np.mean(np.sum((result.mean - face) ** 2, axis=1))) < 0.0003
+    undone = np.einsum('fab,fnb->fna', result.rotation, meshes) + result.t[:, None, :]
+    assert np.allclose(undone, result.aligned, atol=1e-12)
+
+
+def test_generalized_procrustes_defaults_to_first_mesh_gauge():
+    rng = np.random.default_rng(5)
+    face = mesh_topology(19).reference_shape
+    rotations, translations = _random_poses(rng, 6)
+    meshes = np.einsum('fab,nb->fna', rotations, face) + translations[:, None, :]
+    result = generalized_procrustes(meshes)
+    assert np.allclose(result.mean, meshes[0], atol=1e-9)
+    assert np.allclose(result.aligned, meshes[0], atol=1e-9)
+
+
+@pytest.mark.parametrize(
+    ('source', 'target', 'weights', 'match'),
+    [
+        (np.zeros((19, 2)), np.zeros((19, 3)), None, r'source must have shape'),
+        (np.zeros((19, 3)), np.zeros((34, 3)), None, r'source has 19 nodes but target has 34'),
+        (np.full((19, 3), np.nan), np.zeros((19, 3)), None, r'source holds NaN'),
+        (np.zeros((19, 3)), np.full((19, 3), np.inf), None, r'target holds NaN or Inf'),
+        (np.zeros((19, 3)), np.zeros((19, 3)), -np.ones(19), r'non-negative'),
+        (np.zeros((19, 3)), np.zeros((19, 3)), np.ones(18), r'weights must be 19'),
+        (np.zeros((19, 3)), np.zeros((19, 3)), np.eye(19)[0] + np.eye(19)[1], r'at least 3'),
+    ],
+)
+def test_rigid_align_rejects_bad_input(source, target, weights, match):
+    with pytest.raises(InputError, match=match):
+        rigid_align(source, target, weights)
+
+
+def test_generalized_procrustes_rejects_a_single_mesh_without_stack():
+    with pytest.raises(InputError, match=r'non-empty \(F, N, 3\) stack'):
+        generalized_procrustes(np.zeros((19, 3)))
