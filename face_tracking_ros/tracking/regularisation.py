@@ -1,0 +1,209 @@
+"""The regularisation terms of eq. 5 that keep the stereo-tracked mesh whole (seed §3.3).
+
+For the nodes X_c^i(n) of frame n (left camera frame, metres), with dX^i = X^i(n) - X^i(n-1):
+
+    E_reg = sum_i rho_i ||dX^i||^2
+          + sum_(i,j) beta_ij ||dX^i - dX^j||^2
+          + sum_(i,j) delta_ij (||X^i - X^j||^2 - ||X^i(1) - X^j(1)||^2)^2
+
+over the edges (i, j) of the mesh triangulation. The terms are written as least-squares residuals
+``r`` with ``E_reg = r . r`` so a Gauss-Newton solver can stack them with the image terms of eq. 4.
+
+Units: image terms are sums of squared grey levels, so rho and beta are in grey^2 / m^2. The raw
+delta_ij of eq. 5 is in grey^2 / m^6; it is set from a stiffness ``delta`` in grey^2 / m^2 as
+``delta_ij = delta * s_ij / (2 L_ij)^2`` with L_ij the frame-1 edge length, so that a stretch dL
+of any edge costs about ``delta * s_ij * dL^2`` whatever the edge length.
+
+Stiffness per node and edge comes from the anatomical group (:class:`~.topology.Group`): rigid
+parts (eyes, eye corners, nose) are stiff, lips and brows soft, as §3.3 prescribes (an edge takes
+the softer of its two nodes).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from face_tracking_ros.errors import ConfigError, InputError
+from face_tracking_ros.model.topology import Group, MeshTopology
+
+DEFAULT_GROUP_STIFFNESS: dict[Group, float] = {
+    Group.EYE: 1.0,
+    Group.EYE_CORNER: 1.0,
+    Group.NOSE: 1.0,
+    Group.EDGE: 0.5,
+    Group.BROW: 0.2,
+    Group.MOUTH: 0.05,
+}
+
+
+@dataclass(frozen=True)
+class RegularisationConfig:
+    """Weights of eq. 5.
+
+    Attributes:
+        rho: rho_i of the stiffest nodes: cost of a node's motion, grey^2 / m^2.
+        beta: beta_ij of the stiffest edges: cost of differential motion, grey^2 / m^2.
+        delta: stiffness of the stiffest edges against stretching from frame 1, grey^2 / m^2
+            (delta_ij = delta * s_ij / (2 L_ij)^2, see the module docstring).
+        group_stiffness: factor s in [0, 1] per anatomical group scaling rho_i (node's group)
+            and beta_ij, delta_ij (the softer of the two nodes' groups).
+    """
+
+    rho: float = 2e7
+    beta: float = 2e8
+    delta: float = 2e8
+    group_stiffness: Mapping[Group, float] = field(
+        default_factory=lambda: dict(DEFAULT_GROUP_STIFFNESS)
+    )
+
+    def __post_init__(self) -> None:
+        """Validate the weights.
+
+        Raises:
+            ConfigError: for a negative or non-finite weight or a missing group.
+        """
+        for name in ('rho', 'beta', 'delta'):
+            value = getattr(self, name)
+            if not np.isfinite(value) or value < 0:
+                msg = f'regularisation weight {name} must be finite and >= 0, got {value}'
+                raise ConfigError(msg)
+        missing = [g.value for g in Group if g not in self.group_stiffness]
+        if missing:
+            msg = f'group_stiffness lacks the groups {missing}'
+            raise ConfigError(msg)
+        bad = {g.value: s for g, s in self.group_stiffness.items() if not 0.0 <= s <= 1.0}
+        if bad:
+            msg = f'group_stiffness factors must lie in [0, 1], got {bad}'
+            raise ConfigError(msg)
+
+
+@dataclass(frozen=True)
+class Regulariser:
+    """Eq. 5 for one tracking run: weights fixed at frame 1.
+
+    Attributes:
+        edges: (E, 2) node index pairs (i, j).
+        rho: (N,) rho_i, grey^2 / m^2.
+        beta: (E,) beta_ij, grey^2 / m^2.
+        delta: (E,) delta_ij of eq. 5, grey^2 / m^6.
+        first_sq_lengths: (E,) ||X^i(1) - X^j(1)||^2, m^2.
+        linear_jacobian: (3N + 3E, 3N) constant Jacobian of the rho and beta residuals.
+        linear_hessian: (3N, 3N) its J^T J.
+    """
+
+    edges: np.ndarray
+    rho: np.ndarray
+    beta: np.ndarray
+    delta: np.ndarray
+    first_sq_lengths: np.ndarray
+    linear_jacobian: np.ndarray
+    linear_hessian: np.ndarray
+
+    @classmethod
+    def build(
+        cls, topology: MeshTopology, config: RegularisationConfig, first_nodes: np.ndarray
+    ) -> Regulariser:
+        """Per-node and per-edge weights of eq. 5 for a mesh whose frame-1 nodes are given.
+
+        Args:
+            topology: the mesh topology (its edges and node groups).
+            config: the base weights and group stiffness.
+            first_nodes: (N, 3) nodes X_c(1) of frame 1, m.
+
+        Raises:
+            InputError: if first_nodes is not a finite (N, 3) array or has coincident edge nodes.
+        """
+        first_nodes = np.asarray(first_nodes, dtype=float)
+        if first_nodes.shape != (topology.num_nodes, 3) or not np.all(np.isfinite(first_nodes)):
+            msg = f'first_nodes must be finite ({topology.num_nodes}, 3), got {first_nodes.shape}'
+            raise InputError(msg)
+        edges = np.asarray(topology.edges)
+        stiffness = np.array([config.group_stiffness[g] for g in topology.groups])
+        edge_stiffness = np.minimum(stiffness[edges[:, 0]], stiffness[edges[:, 1]])
+        vectors = first_nodes[edges[:, 0]] - first_nodes[edges[:, 1]]
+        sq_lengths = np.einsum('ed,ed->e', vectors, vectors)
+        if np.any(sq_lengths <= 0):
+            msg = 'first_nodes has two connected nodes at the same position'
+            raise InputError(msg)
+        rho = config.rho * stiffness
+        beta = config.beta * edge_stiffness
+        linear = _linear_jacobian(edges, rho, beta)
+        return cls(
+            edges=edges,
+            rho=rho,
+            beta=beta,
+            delta=config.delta * edge_stiffness / (4.0 * sq_lengths),
+            first_sq_lengths=sq_lengths,
+            linear_jacobian=linear,
+            linear_hessian=linear.T @ linear,
+        )
+
+    def residuals(self, nodes: np.ndarray, previous: np.ndarray) -> np.ndarray:
+        """Residual vector r of eq. 5 with E_reg = r . r.
+
+        Args:
+            nodes: (N, 3) X_c(n), m.
+            previous: (N, 3) X_c(n-1), m.
+
+        Returns:
+            (3N + 3E + E,) residuals: rho terms, beta terms, delta terms, grey levels.
+        """
+        stretch, _ = self._stretch(nodes)
+        return np.concatenate([self.linear_jacobian @ (nodes - previous).ravel(), stretch])
+
+    def jacobian(self, nodes: np.ndarray) -> np.ndarray:
+        """Dense Jacobian dr/dX of :meth:`residuals`, (3N + 4E, 3N), node-major columns."""
+        _, stretch_jacobian = self._stretch(nodes)
+        return np.vstack([self.linear_jacobian, stretch_jacobian])
+
+    def normal_equations(
+        self, nodes: np.ndarray, previous: np.ndarray
+    ) -> tuple[float, np.ndarray, np.ndarray]:
+        """Gauss-Newton terms of eq. 5 at the current nodes.
+
+        The rho and beta residuals are linear in the motion, so their share of J^T J is the
+        constant :attr:`linear_hessian` and their share of J^T r is that matrix times the motion.
+
+        Args:
+            nodes: (N, 3) X_c(n), m.
+            previous: (N, 3) X_c(n-1), m.
+
+        Returns:
+            ``(cost, hessian, gradient)``: E_reg; J^T J (3N, 3N); J^T r (3N,), node-major.
+        """
+        motion = (nodes - previous).ravel()
+        stretch, stretch_jacobian = self._stretch(nodes)
+        linear_gradient = self.linear_hessian @ motion
+        cost = float(motion @ linear_gradient + stretch @ stretch)
+        hessian = self.linear_hessian + stretch_jacobian.T @ stretch_jacobian
+        return cost, hessian, linear_gradient + stretch_jacobian.T @ stretch
+
+    def _stretch(self, nodes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The delta residuals (E,) and their Jacobian (E, 3N)."""
+        i, j = self.edges[:, 0], self.edges[:, 1]
+        differences = nodes[i] - nodes[j]
+        sqrt_delta = np.sqrt(self.delta)
+        stretch = sqrt_delta * (
+            np.einsum('ed,ed->e', differences, differences) - self.first_sq_lengths
+        )
+        jacobian = np.zeros((self.edges.shape[0], nodes.size))
+        rows = np.arange(self.edges.shape[0])[:, None]
+        gradient = 2.0 * sqrt_delta[:, None] * differences
+        jacobian[rows, 3 * i[:, None] + np.arange(3)] = gradient
+        jacobian[rows, 3 * j[:, None] + np.arange(3)] = -gradient
+        return stretch, jacobian
+
+
+def _linear_jacobian(edges: np.ndarray, rho: np.ndarray, beta: np.ndarray) -> np.ndarray:
+    """Constant Jacobian (3N + 3E, 3N) of the rho and beta residuals with respect to dX."""
+    n, e = rho.shape[0], edges.shape[0]
+    eye = np.eye(3)
+    jacobian = np.zeros((n + e, 3, n, 3))
+    jacobian[np.arange(n), :, np.arange(n), :] = np.sqrt(rho)[:, None, None] * eye
+    sqrt_beta = np.sqrt(beta)[:, None, None] * eye
+    jacobian[n + np.arange(e), :, edges[:, 0], :] = sqrt_beta
+    jacobian[n + np.arange(e), :, edges[:, 1], :] = -sqrt_beta
+    return jacobian.reshape(3 * (n + e), 3 * n)

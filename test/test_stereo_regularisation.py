@@ -1,0 +1,121 @@
+"""Tests of the eq. 5 regularisation of the stereo tracker."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from face_tracking_ros.errors import ConfigError, InputError
+from face_tracking_ros.model.topology import Group, mesh_topology
+from face_tracking_ros.tracking.regularisation import (
+    DEFAULT_GROUP_STIFFNESS,
+    RegularisationConfig,
+    Regulariser,
+)
+
+
+def _face(seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Frame-1, previous and current 34-node meshes 0.6 m in front of the camera, m."""
+    rng = np.random.default_rng(seed)
+    first = mesh_topology(34).reference_shape + np.array([0.0, 0.0, 0.6])
+    previous = first + rng.normal(0, 0.002, first.shape)
+    current = previous + rng.normal(0, 0.002, first.shape)
+    return first, previous, current
+
+
+def test_jacobian_matches_finite_differences() -> None:
+    first, previous, current = _face(0)
+    regulariser = Regulariser.build(mesh_topology(34), RegularisationConfig(), first)
+    jacobian = regulariser.jacobian(current)
+    step = 1e-7
+    numeric = np.empty_like(jacobian)
+    for k in range(current.size):
+        plus, minus = current.copy().ravel(), current.copy().ravel()
+        plus[k] += step
+        minus[k] -= step
+        numeric[:, k] = (
+            regulariser.residuals(plus.reshape(-1, 3), previous)
+            - regulariser.residuals(minus.reshape(-1, 3), previous)
+        ) / (2 * step)
+    scale = np.abs(jacobian).max()
+    assert np.abs(numeric - jacobian).max() < 1e-6 * scale
+
+
+def test_normal_equations_equal_the_stacked_residuals() -> None:
+    first, previous, current = _face(1)
+    regulariser = Regulariser.build(mesh_topology(34), RegularisationConfig(), first)
+    residuals = regulariser.residuals(current, previous)
+    jacobian = regulariser.jacobian(current)
+    cost, hessian, gradient = regulariser.normal_equations(current, previous)
+    assert cost == pytest.approx(residuals @ residuals, rel=1e-10)
+    assert np.allclose(hessian, jacobian.T @ jacobian, rtol=1e-10, atol=1e-6)
+    assert np.allclose(gradient, jacobian.T @ residuals, rtol=1e-10, atol=1e-9)
+
+
+def test_eq5_values_by_hand() -> None:
+    """One edge stretched by dL costs about delta * s * dL^2; a still mesh costs nothing."""
+    first, _, _ = _face(2)
+    topology = mesh_topology(34)
+    config = RegularisationConfig(rho=0.0, beta=0.0, delta=1e8)
+    regulariser = Regulariser.build(topology, config, first)
+    assert regulariser.normal_equations(first, first)[0] == 0.0
+    # Move the chin 1 mm straight down: every edge touching it stretches by dL_e.
+    chin = topology.index('chin')
+    moved = first.copy()
+    moved[chin, 1] += 0.001
+    expected = 0.0
+    for (i, j), delta_ij in zip(topology.edges, regulariser.delta):
+        if chin in (i, j):
+            length_0 = np.linalg.norm(first[i] - first[j])
+            length_1 = np.linalg.norm(moved[i] - moved[j])
+            stiffness = min(DEFAULT_GROUP_STIFFNESS[topology.groups[k]] for k in (i, j))
+            assert delta_ij * 4 * length_0**2 == pytest.approx(1e8 * stiffness)
+            expected += 1e8 * stiffness * (length_1 - length_0) ** 2
+    cost = regulariser.normal_equations(moved, first)[0]
+    assert cost == pytest.approx(expected, rel=0.05)
+
+
+def test_rigid_parts_are_stiffer_than_lips() -> None:
+    first, _, _ = _face(3)
+    topology = mesh_topology(34)
+    regulariser = Regulariser.build(topology, RegularisationConfig(), first)
+    groups = np.array([g.value for g in topology.groups])
+    assert regulariser.rho[groups == 'nose'].min() > regulariser.rho[groups == 'mouth'].max()
+    edge_groups = groups[topology.edges]
+    lip = np.all(edge_groups == 'mouth', axis=1)
+    rigid = np.all(np.isin(edge_groups, ['eye', 'eye_corner', 'nose']), axis=1)
+    assert lip.any() and rigid.any()
+    assert regulariser.beta[rigid].min() > regulariser.beta[lip].max()
+
+
+def test_gauss_newton_step_restores_a_translated_mesh_exactly() -> None:
+    """A rigid shift leaves the delta terms at zero; rho pulls the mesh back to X(n-1)."""
+    first, _, _ = _face(4)
+    regulariser = Regulariser.build(mesh_topology(34), RegularisationConfig(), first)
+    shifted = first + np.array([0.003, -0.001, 0.002])
+    cost, hessian, gradient = regulariser.normal_equations(shifted, first)
+    assert cost > 0
+    step = np.linalg.solve(hessian, -gradient)
+    assert np.abs(shifted.ravel() + step - first.ravel()).max() < 1e-12
+
+
+@pytest.mark.parametrize(
+    ('kwargs', 'match'),
+    [
+        ({'rho': -1.0}, 'rho must be finite'),
+        ({'delta': float('nan')}, 'delta must be finite'),
+        ({'group_stiffness': {Group.EYE: 1.0}}, 'lacks the groups'),
+        ({'group_stiffness': {**DEFAULT_GROUP_STIFFNESS, Group.EDGE: 2.0}}, r'in \[0, 1\]'),
+    ],
+)
+def test_config_rejects_bad_weights(kwargs: dict, match: str) -> None:
+    with pytest.raises(ConfigError, match=match):
+        RegularisationConfig(**kwargs)
+
+
+def test_build_rejects_bad_nodes() -> None:
+    topology = mesh_topology(19)
+    with pytest.raises(InputError, match=r'finite \(19, 3\)'):
+        Regulariser.build(topology, RegularisationConfig(), np.zeros((34, 3)))
+    with pytest.raises(InputError, match='same position'):
+        Regulariser.build(topology, RegularisationConfig(), np.zeros((19, 3)))
