@@ -18,9 +18,9 @@ from __future__ import annotations
 
 import argparse
 import ast
+from pathlib import Path
 import shutil
 import sys
-from pathlib import Path
 
 PACKAGE = 'face_tracking_ros'
 REPO = Path(__file__).resolve().parent.parent
@@ -35,7 +35,9 @@ sys.exit({function}())
 """
 
 
-def read_entry_points(setup_py: Path, names: tuple[str, ...] = ('TOOLS', 'NODES')) -> dict[str, str]:
+def read_entry_points(
+    setup_py: Path, names: tuple[str, ...] = ('TOOLS', 'NODES')
+) -> dict[str, str]:
     """Read the console-script dictionaries of setup.py without running it.
 
     Args:
@@ -50,11 +52,15 @@ def read_entry_points(setup_py: Path, names: tuple[str, ...] = ('TOOLS', 'NODES'
     """
     found: dict[str, dict[str, str]] = {}
     for statement in ast.parse(setup_py.read_text()).body:
-        if isinstance(statement, ast.AnnAssign | ast.Assign):
-            targets = statement.targets if isinstance(statement, ast.Assign) else [statement.target]
-            for target in targets:
-                if isinstance(target, ast.Name) and target.id in names:
-                    found[target.id] = ast.literal_eval(statement.value)
+        if isinstance(statement, ast.Assign):
+            targets = statement.targets
+        elif isinstance(statement, ast.AnnAssign) and statement.value is not None:
+            targets = [statement.target]
+        else:
+            continue
+        for target in targets:
+            if isinstance(target, ast.Name) and target.id in names:
+                found[target.id] = ast.literal_eval(statement.value)
     missing = [name for name in names if name not in found]
     if missing:
         raise ValueError(f'{setup_py}: no literal dict assigned to {", ".join(missing)}')
@@ -64,9 +70,10 @@ def read_entry_points(setup_py: Path, names: tuple[str, ...] = ('TOOLS', 'NODES'
 def write_launcher(path: Path, name: str, target: str, python: str) -> None:
     """Write one executable launcher calling ``target`` (``'module:function'``)."""
     module, function = target.split(':')
-    path.write_text(
-        LAUNCHER.format(python=python, package=PACKAGE, name=name, module=module, function=function)
+    text = LAUNCHER.format(
+        python=python, package=PACKAGE, name=name, module=module, function=function
     )
+    path.write_text(text)
     path.chmod(0o755)
 
 
@@ -92,7 +99,7 @@ def install(prefix: Path, repo: Path = REPO, python: str = sys.executable) -> li
     for profile in sorted((repo / 'config').glob('*.xml')):
         written.append(Path(shutil.copyfile(profile, share / 'config' / profile.name)))
     entry_points = read_entry_points(repo / 'setup.py')
-    for stale in set(p.name for p in lib.iterdir()) - set(entry_points):
+    for stale in {path.name for path in lib.iterdir()} - set(entry_points):
         (lib / stale).unlink()
     for name, target in entry_points.items():
         write_launcher(lib / name, name, target, python)
@@ -103,7 +110,9 @@ def install(prefix: Path, repo: Path = REPO, python: str = sys.executable) -> li
 def main() -> None:
     """Parse the command line and install into the prefix."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument('--prefix', type=Path, default=Path(sys.prefix), help='default: sys.prefix')
+    parser.add_argument(
+        '--prefix', type=Path, default=Path(sys.prefix), help='install prefix (default: the venv)'
+    )
     args = parser.parse_args()
     for path in install(args.prefix.resolve()):
         print(path)

@@ -1,0 +1,176 @@
+"""Write and read rosbag2 (MCAP) bags with the face_tracking typestore, without a ROS runtime.
+
+Example:
+    >>> with BagWriter(tmp / 'run1') as bag:
+    ...     bag.write('face/state', 'face_tracking_msgs/msg/FaceState', state, stamp_ns)
+    >>> for topic, msgtype, stamp_ns, msg in read_messages(tmp / 'run1', topics=['face/state']):
+    ...     ...
+
+Every failure of the underlying libraries (missing or truncated bag, unknown type, topic re-used
+with another type) is raised as :class:`~face_tracking_ros.errors.BagError` naming the bag.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Iterator
+from pathlib import Path
+import struct
+from types import TracebackType
+from typing import Any, NamedTuple, Protocol
+
+from rosbags.rosbag2 import Reader, ReaderError, StoragePlugin, Writer, WriterError
+from rosbags.rosbag2.writer import Connection
+from rosbags.typesys.store import Typestore
+
+from face_tracking_ros.errors import BagError
+from face_tracking_ros.io.typestore import typestore
+
+BAG_VERSION = 9  # rosbag2 metadata version written (Jazzy and later read it)
+NS_PER_S = 1_000_000_000
+
+
+class StampLike(Protocol):
+    """A ``builtin_interfaces/msg/Time``: rosbags, rclpy or any object with these fields."""
+
+    sec: int
+    nanosec: int
+
+
+class BagMessage(NamedTuple):
+    """One message read from a bag."""
+
+    topic: str
+    msgtype: str  # e.g. 'sensor_msgs/msg/Image'
+    stamp_ns: int  # bag receive time, ns since the epoch
+    msg: Any  # rosbags message dataclass
+
+
+def stamp_to_ns(stamp: StampLike) -> int:
+    """Convert a ``builtin_interfaces/msg/Time`` to integer nanoseconds since the epoch."""
+    return stamp.sec * NS_PER_S + stamp.nanosec
+
+
+def ns_to_stamp(ns: int) -> Any:
+    """Convert integer nanoseconds since the epoch to a rosbags ``builtin_interfaces/msg/Time``.
+
+    Raises:
+        ValueError: If ``ns`` is negative.
+    """
+    if ns < 0:
+        raise ValueError(f'stamp must be >= 0 ns, got {ns}')
+    sec, nanosec = divmod(ns, NS_PER_S)
+    return typestore().types['builtin_interfaces/msg/Time'](sec=sec, nanosec=nanosec)
+
+
+class BagWriter:
+    """Context manager writing a rosbag2 bag with MCAP storage.
+
+    Connections are created on first use of a topic. A topic keeps the type of its first message.
+    """
+
+    def __init__(self, path: Path | str, store: Typestore | None = None) -> None:
+        """Prepare a writer; the bag directory is created on ``__enter__``.
+
+        Args:
+            path: Bag directory to create; must not exist.
+            store: Typestore knowing every type written; default :func:`typestore`.
+        """
+        self.path = Path(path)
+        self._store = typestore() if store is None else store
+        self._writer = Writer(self.path, version=BAG_VERSION, storage_plugin=StoragePlugin.MCAP)
+        self._connections: dict[str, Connection] = {}
+
+    def __enter__(self) -> BagWriter:
+        """Open the bag for writing.
+
+        Raises:
+            BagError: If the bag cannot be created (e.g. the path exists).
+        """
+        try:
+            self._writer.open()
+        except WriterError as error:
+            raise BagError(f'{self.path}: cannot create bag: {error}') from None
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        traceback: TracebackType | None,
+    ) -> None:
+        """Close the bag, writing its metadata."""
+        self._writer.close()
+
+    def write(self, topic: str, msgtype: str, msg: Any, stamp_ns: int) -> None:
+        """Serialise one message to CDR and write it.
+
+        Args:
+            topic: Topic name, e.g. ``'face/state'``.
+            msgtype: Type name, e.g. ``'face_tracking_msgs/msg/FaceState'``.
+            msg: A rosbags message of that type (``typestore().types[msgtype](...)``).
+            stamp_ns: Record time, ns since the epoch.
+
+        Raises:
+            BagError: If the topic has another type, the type is unknown or ``msg`` does not
+                fit it.
+        """
+        try:
+            data = self._store.serialize_cdr(msg, msgtype)
+        except (KeyError, AttributeError, TypeError, ValueError, struct.error) as error:
+            message = f'{self.path}: cannot serialise {msgtype} on {topic}: {error}'
+            raise BagError(message) from None
+        self._writer.write(self._connection(topic, msgtype), stamp_ns, data)
+
+    def _connection(self, topic: str, msgtype: str) -> Connection:
+        """Return the connection of ``topic``, creating it on first use."""
+        connection = self._connections.get(topic)
+        if connection is None:
+            connection = self._writer.add_connection(topic, msgtype, typestore=self._store)
+            self._connections[topic] = connection
+        elif connection.msgtype != msgtype:
+            raise BagError(
+                f'{self.path}: topic {topic} has type {connection.msgtype}, cannot write {msgtype}'
+            )
+        return connection
+
+
+def read_messages(
+    path: Path | str, topics: Iterable[str] | None = None, store: Typestore | None = None
+) -> Iterator[BagMessage]:
+    """Read a rosbag2 bag (MCAP or SQLite 3) in record-time order.
+
+    Args:
+        path: Bag directory (holding ``metadata.yaml``).
+        topics: Topics to read; default all. Every one must be in the bag.
+        store: Typestore to deserialise with; default :func:`typestore`.
+
+    Yields:
+        One :class:`BagMessage` per message.
+
+    Raises:
+        BagError: If the bag is missing, truncated or corrupt, lacks a requested topic, or holds
+            a type the typestore does not know.
+    """
+    path = Path(path)
+    store = typestore() if store is None else store
+    try:
+        with Reader(path) as reader:
+            wanted = _select(reader, path, topics)
+            for connection, stamp_ns, data in reader.messages(connections=wanted):
+                msg = store.deserialize_cdr(data, connection.msgtype)
+                yield BagMessage(connection.topic, connection.msgtype, stamp_ns, msg)
+    except BagError:
+        raise
+    except (ReaderError, KeyError, ValueError, EOFError, OSError, struct.error) as error:
+        raise BagError(f'{path}: cannot read bag: {type(error).__name__}: {error}') from None
+
+
+def _select(reader: Reader, path: Path, topics: Iterable[str] | None) -> list[Connection]:
+    """Return the connections of ``topics`` (all if None), raising BagError for missing ones."""
+    if topics is None:
+        return list(reader.connections)
+    wanted = set(topics)
+    missing = wanted - {connection.topic for connection in reader.connections}
+    if missing:
+        raise BagError(f'{path}: no topic {", ".join(sorted(missing))} in bag')
+    return [connection for connection in reader.connections if connection.topic in wanted]
