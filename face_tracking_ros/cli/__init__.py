@@ -1,0 +1,1 @@
+"""The ``face-tracking`` command line: one module per subcommand, registered in cli/main.py."""

@@ -1,0 +1,67 @@
+"""Entry point of the ``face-tracking`` command.
+
+Each subcommand lives in its own module ``face_tracking_ros.cli.<name>`` that exposes::
+
+    def register(subparsers: argparse._SubParsersAction) -> None:
+        parser = subparsers.add_parser('<name>', help='...')
+        ...
+        parser.set_defaults(func=run)  # run(args: argparse.Namespace) -> int | None
+
+Add a subcommand by writing that module and adding its module name to :data:`SUBCOMMANDS`.
+A :class:`~face_tracking_ros.errors.FaceTrackingError` raised by a subcommand is printed as
+``error: <message>`` on stderr with exit status 2; other exceptions propagate (they are bugs).
+"""
+
+from __future__ import annotations
+
+import argparse
+from collections.abc import Sequence
+import importlib
+import sys
+
+from face_tracking_ros.errors import FaceTrackingError
+
+# Module names under face_tracking_ros.cli, one per subcommand, in help order.
+SUBCOMMANDS: tuple[str, ...] = ('msgs',)
+
+EXIT_ERROR = 2
+
+
+def build_parser(subcommands: Sequence[str] = SUBCOMMANDS) -> argparse.ArgumentParser:
+    """Build the argument parser with every subcommand registered.
+
+    Args:
+        subcommands: Module names under ``face_tracking_ros.cli``.
+
+    Returns:
+        The parser; parsed arguments carry ``func``, the subcommand's handler.
+    """
+    parser = argparse.ArgumentParser(
+        prog='face-tracking', description='3-D face tracking: offline tools of face_tracking_ros.'
+    )
+    subparsers = parser.add_subparsers(dest='command', metavar='COMMAND', required=True)
+    for name in subcommands:
+        importlib.import_module(f'{__package__}.{name}').register(subparsers)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run the ``face-tracking`` command.
+
+    Args:
+        argv: Arguments without the program name; default ``sys.argv[1:]``.
+
+    Returns:
+        The exit status: the subcommand's (0 if it returns None), or 2 on a FaceTrackingError.
+    """
+    args = build_parser().parse_args(argv)
+    try:
+        status = args.func(args)
+    except FaceTrackingError as error:
+        print(f'error: {error}', file=sys.stderr)
+        return EXIT_ERROR
+    return 0 if status is None else int(status)
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -1,0 +1,39 @@
+"""``face-tracking msgs``: list the face_tracking_msgs types, or print one's definition."""
+
+from __future__ import annotations
+
+import argparse
+
+from face_tracking_ros.errors import ConfigError
+from face_tracking_ros.io.typestore import custom_type_names, msg_dir, typestore
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    """Add the ``msgs`` subcommand."""
+    parser = subparsers.add_parser(
+        'msgs',
+        help='list the face_tracking_msgs message types known to the bag typestore',
+        description='List the face_tracking_msgs message types registered in the rosbags '
+        'typestore (and where their .msg text was found), or print the full definition of one.',
+    )
+    parser.add_argument(
+        'msgtype', nargs='?', help="type to print, e.g. 'face_tracking_msgs/msg/FaceState'"
+    )
+    parser.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> None:
+    """List the custom types, or print the definition of ``args.msgtype``.
+
+    Raises:
+        ConfigError: If ``args.msgtype`` is not a known type.
+    """
+    store = typestore()
+    if args.msgtype is None:
+        print(f'# from {msg_dir()}')
+        for name in custom_type_names():
+            print(name)
+        return
+    if args.msgtype not in store.fielddefs:
+        raise ConfigError(f'unknown message type {args.msgtype!r}')
+    print(store.generate_msgdef(args.msgtype)[0])
