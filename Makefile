@@ -1,0 +1,44 @@
+# The two commands of README.md: `make demo` and `make test`. Each does the set-up it needs.
+SHELL := /bin/bash
+VENV ?= .venv
+PYTHON := $(VENV)/bin/python
+ROS_DOMAIN_ID ?= 42
+
+# DDS stays on this host: see README.md, "DDS on this host".
+export ROS_AUTOMATIC_DISCOVERY_RANGE ?= LOCALHOST
+export ROS_DOMAIN_ID
+export FASTDDS_DEFAULT_PROFILES_FILE ?= $(CURDIR)/config/fastdds_profile.xml
+export AMENT_PREFIX_PATH := $(abspath $(VENV))$(if $(AMENT_PREFIX_PATH),:$(AMENT_PREFIX_PATH))
+
+.PHONY: setup test demo lint bench clean
+
+# $(call run_subcommand,NAME): run `face-tracking NAME --out out` if that subcommand is registered
+# (face_tracking_ros/cli/main.py, SUBCOMMANDS), else say so and fail: never a stand-in.
+define run_subcommand
+	@if $(PYTHON) -c 'import sys; from face_tracking_ros.cli.main import SUBCOMMANDS; \
+		sys.exit("$(1)" not in SUBCOMMANDS)'; then \
+		$(PYTHON) -m face_tracking_ros.cli.main $(1) --out out; \
+	else \
+		echo 'make $(1): no "$(1)" subcommand yet (face_tracking_ros/cli/$(1).py); nothing to run'; \
+		exit 1; \
+	fi
+endef
+
+setup:
+	VENV=$(abspath $(VENV)) bash tools/setup_env.sh
+
+test: setup
+	$(PYTHON) -m pytest
+
+demo: setup
+	$(call run_subcommand,demo)
+
+lint: setup
+	$(VENV)/bin/ruff check face_tracking_ros test tools setup.py
+	$(VENV)/bin/ruff format --check face_tracking_ros test tools setup.py
+
+bench: setup
+	$(call run_subcommand,bench)
+
+clean:
+	rm -rf $(VENV) build out .pytest_cache .ruff_cache
