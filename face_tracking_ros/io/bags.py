@@ -77,7 +77,7 @@ class BagWriter:
         """
         self.path = Path(path)
         self._store = typestore() if store is None else store
-        self._writer = Writer(self.path, version=BAG_VERSION, storage_plugin=StoragePlugin.MCAP)
+        self._writer: Writer | None = None
         self._connections: dict[str, Connection] = {}
 
     def __enter__(self) -> BagWriter:
@@ -87,9 +87,11 @@ class BagWriter:
             BagError: If the bag cannot be created (e.g. the path exists).
         """
         try:
-            self._writer.open()
+            writer = Writer(self.path, version=BAG_VERSION, storage_plugin=StoragePlugin.MCAP)
+            writer.open()
         except WriterError as error:
             raise BagError(f'{self.path}: cannot create bag: {error}') from None
+        self._writer = writer
         return self
 
     def __exit__(
@@ -99,7 +101,8 @@ class BagWriter:
         traceback: TracebackType | None,
     ) -> None:
         """Close the bag, writing its metadata."""
-        self._writer.close()
+        self._open_writer().close()
+        self._writer = None
 
     def write(self, topic: str, msgtype: str, msg: Any, stamp_ns: int) -> None:
         """Serialise one message to CDR and write it.
@@ -119,13 +122,20 @@ class BagWriter:
         except (KeyError, AttributeError, TypeError, ValueError, struct.error) as error:
             message = f'{self.path}: cannot serialise {msgtype} on {topic}: {error}'
             raise BagError(message) from None
-        self._writer.write(self._connection(topic, msgtype), stamp_ns, data)
+        self._open_writer().write(self._connection(topic, msgtype), stamp_ns, data)
+
+    def _open_writer(self) -> Writer:
+        """Return the rosbags writer, raising BagError outside the ``with`` block."""
+        if self._writer is None:
+            raise BagError(f'{self.path}: bag is not open (use BagWriter in a with statement)')
+        return self._writer
 
     def _connection(self, topic: str, msgtype: str) -> Connection:
         """Return the connection of ``topic``, creating it on first use."""
         connection = self._connections.get(topic)
         if connection is None:
-            connection = self._writer.add_connection(topic, msgtype, typestore=self._store)
+            writer = self._open_writer()
+            connection = writer.add_connection(topic, msgtype, typestore=self._store)
             self._connections[topic] = connection
         elif connection.msgtype != msgtype:
             raise BagError(

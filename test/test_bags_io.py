@@ -1,0 +1,130 @@
+"""Bags written by BagWriter read back, field for field, with read_messages and with mcap."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from mcap.reader import make_reader
+from mcap_ros2.decoder import DecoderFactory
+import pytest
+from rosbags.typesys.store import Typestore
+
+from face_tracking_ros.errors import BagError
+from face_tracking_ros.io.bags import BagWriter, ns_to_stamp, read_messages, stamp_to_ns
+
+from conftest import custom_msgtypes, sample_fields, to_plain, to_rosbags
+
+MSGTYPES = custom_msgtypes() + ['sensor_msgs/msg/Image', 'sensor_msgs/msg/CameraInfo']
+T0 = 1_700_000_000_123_456_789
+FACE_STATE = 'face_tracking_msgs/msg/FaceState'
+
+
+def topic_of(msgtype: str) -> str:
+    """A topic per type, e.g. 'sample/FaceState'."""
+    return f'sample/{msgtype.rsplit("/", 1)[1]}'
+
+
+@pytest.fixture
+def written(tmp_path: Path, store: Typestore) -> tuple[Path, list[tuple[str, str, int, dict]]]:
+    """A bag with two messages of every type, and what was written: (topic, type, ns, fields)."""
+    path = tmp_path / 'bag'
+    expected = []
+    with BagWriter(path) as bag:
+        for index, msgtype in enumerate(MSGTYPES * 2):
+            fields = sample_fields(store, msgtype, seed=index)
+            stamp_ns = T0 + index * 1_000_000
+            bag.write(topic_of(msgtype), msgtype, to_rosbags(store, msgtype, fields), stamp_ns)
+            expected.append((topic_of(msgtype), msgtype, stamp_ns, fields))
+    return path, expected
+
+
+def test_read_messages_returns_every_field(written: tuple, store: Typestore) -> None:
+    path, expected = written
+
+    got = [
+        (topic, msgtype, stamp_ns, to_plain(store, msgtype, msg))
+        for topic, msgtype, stamp_ns, msg in read_messages(path)
+    ]
+
+    assert got == expected
+
+
+def test_mcap_ros2_decodes_the_bag_independently(written: tuple, store: Typestore) -> None:
+    path, expected = written
+    (mcap_file,) = path.glob('*.mcap')
+
+    with mcap_file.open('rb') as stream:
+        reader = make_reader(stream, decoder_factories=[DecoderFactory()])
+        got = [
+            (channel.topic, schema.name, message.log_time, to_plain(store, schema.name, decoded))
+            for schema, channel, message, decoded in reader.iter_decoded_messages()
+        ]
+
+    assert got == expected
+
+
+def test_read_messages_filters_topics(written: tuple) -> None:
+    path, expected = written
+
+    got = [msgtype for _, msgtype, _, _ in read_messages(path, topics=[topic_of(FACE_STATE)])]
+
+    assert got == [FACE_STATE, FACE_STATE]
+
+
+def test_missing_topic_raises_bag_error(written: tuple) -> None:
+    path, _ = written
+
+    with pytest.raises(BagError, match='no topic face/nothing'):
+        list(read_messages(path, topics=['face/nothing']))
+
+
+def test_truncated_bag_raises_bag_error_naming_it(written: tuple) -> None:
+    path, _ = written
+    (mcap_file,) = path.glob('*.mcap')
+    mcap_file.write_bytes(mcap_file.read_bytes()[: mcap_file.stat().st_size // 2])
+
+    with pytest.raises(BagError, match=str(path)):
+        list(read_messages(path))
+
+
+def test_missing_bag_raises_bag_error(tmp_path: Path) -> None:
+    with pytest.raises(BagError, match='nowhere'):
+        list(read_messages(tmp_path / 'nowhere'))
+
+
+def test_existing_bag_is_not_overwritten(written: tuple) -> None:
+    path, _ = written
+
+    with pytest.raises(BagError, match='cannot create bag'), BagWriter(path):
+        pass
+
+
+def test_topic_keeps_its_type(tmp_path: Path, store: Typestore) -> None:
+    state = to_rosbags(store, FACE_STATE, sample_fields(store, FACE_STATE))
+    other = 'face_tracking_msgs/msg/ShapeParams'
+    shape = to_rosbags(store, other, sample_fields(store, other))
+
+    with BagWriter(tmp_path / 'bag') as bag:
+        bag.write('face/state', FACE_STATE, state, T0)
+        with pytest.raises(BagError, match='has type face_tracking_msgs/msg/FaceState'):
+            bag.write('face/state', other, shape, T0)
+
+
+def test_message_of_wrong_type_raises_bag_error(tmp_path: Path, store: Typestore) -> None:
+    other = 'face_tracking_msgs/msg/ShapeParams'
+    shape = to_rosbags(store, other, sample_fields(store, other))
+
+    with BagWriter(tmp_path / 'bag') as bag, pytest.raises(BagError, match='cannot serialise'):
+        bag.write('face/state', FACE_STATE, shape, T0)
+
+
+def test_stamp_conversions_are_inverse() -> None:
+    stamp = ns_to_stamp(T0)
+
+    assert (stamp.sec, stamp.nanosec) == (1_700_000_000, 123_456_789)
+    assert stamp_to_ns(stamp) == T0
+
+
+def test_negative_stamp_is_rejected() -> None:
+    with pytest.raises(ValueError, match='>= 0'):
+        ns_to_stamp(-1)
