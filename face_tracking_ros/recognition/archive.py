@@ -1,0 +1,148 @@
+"""Pickle-free files for recognition models: an ``.npz`` of arrays plus a JSON header.
+
+Layout: every array is one ``.npy`` member of the zip; the member ``header`` is a 0-d unicode
+array holding a JSON object with at least ``kind`` (what the file holds, e.g.
+``'identity_gallery'``) and ``format_version`` (an integer). Files are read with
+``allow_pickle=False``, so no file can execute code, and written to a temporary file in the target
+directory that is then renamed over the target (``os.replace``), so a crash never leaves a
+half-written file behind.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+import json
+import os
+from pathlib import Path
+import tempfile
+from typing import Any, NoReturn
+import zipfile
+
+import numpy as np
+
+from face_tracking_ros.errors import ModelFileError
+
+HEADER_KEY = 'header'
+
+
+@dataclass(frozen=True)
+class Archive:
+    """The decoded content of a recognition file.
+
+    Attributes:
+        path: where it was read from.
+        header: the JSON header (a dict with ``kind`` and ``format_version``).
+        arrays: every other member, by name.
+    """
+
+    path: Path
+    header: dict[str, Any]
+    arrays: dict[str, np.ndarray]
+
+    def array(self, name: str, shape: tuple[int | None, ...]) -> np.ndarray:
+        """A finite float member of the given shape (None = any length).
+
+        Raises:
+            ModelFileError: naming the file and the member if it is missing, of another shape or
+                not finite.
+        """
+        if name not in self.arrays:
+            self.fail(f'misses the array {name!r}')
+        value = self.arrays[name]
+        actual = value.shape
+        if len(actual) != len(shape) or any(
+            e is not None and a != e for a, e in zip(actual, shape, strict=True)
+        ):
+            self.fail(f'array {name!r} has shape {actual}, expected {shape}')
+        if not np.issubdtype(value.dtype, np.number) or not np.all(np.isfinite(value)):
+            self.fail(f'array {name!r} is not a finite numeric array')
+        return value.astype(float)
+
+    def field(self, name: str, kind: type) -> Any:
+        """A header field of the given JSON type.
+
+        Raises:
+            ModelFileError: naming the file and the field if it is missing or of another type.
+        """
+        value = self.header.get(name)
+        if not isinstance(value, kind):
+            self.fail(f'header field {name!r} is {value!r}, expected a {kind.__name__}')
+        return value
+
+    def fail(self, problem: str) -> NoReturn:
+        """Raise ModelFileError naming this file."""
+        msg = f'{self.path}: {problem}'
+        raise ModelFileError(msg)
+
+
+def save_archive(
+    path: str | os.PathLike[str],
+    kind: str,
+    format_version: int,
+    header: dict[str, Any],
+    arrays: dict[str, np.ndarray],
+) -> None:
+    """Write arrays and a JSON header atomically to ``path``.
+
+    Args:
+        path: target file (conventionally ``*.npz``); its directory must exist.
+        kind: what the file holds; checked on loading.
+        format_version: integer format version; checked on loading.
+        header: further JSON-serialisable fields.
+        arrays: numeric arrays by member name (not ``'header'``).
+    """
+    target = Path(path)
+    full_header = {'kind': kind, 'format_version': format_version, **header}
+    members = {HEADER_KEY: np.array(json.dumps(full_header, sort_keys=True))}
+    members.update({name: np.asarray(value) for name, value in arrays.items()})
+    handle, temp_name = tempfile.mkstemp(
+        dir=target.parent, prefix=f'.{target.name}.', suffix='.tmp'
+    )
+    try:
+        with os.fdopen(handle, 'wb') as stream:
+            np.savez(stream, **members)
+            stream.flush()
+            os.fsync(stream.fileno())
+        os.replace(temp_name, target)
+    except BaseException:
+        Path(temp_name).unlink(missing_ok=True)
+        raise
+
+
+def load_archive(path: str | os.PathLike[str], kind: str, format_version: int) -> Archive:
+    """Read a file written by :func:`save_archive` and check its kind and version.
+
+    Raises:
+        ModelFileError: if the file is missing, not an npz, holds pickled objects, lacks or has a
+            malformed header, or is of another kind or format version (both versions named).
+    """
+    source = Path(path)
+    try:
+        with np.load(source, allow_pickle=False) as data:
+            arrays = {name: data[name] for name in data.files}
+    except FileNotFoundError:
+        msg = f'{source}: no such file'
+        raise ModelFileError(msg) from None
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as error:
+        msg = f'{source}: not a readable pickle-free npz file ({error})'
+        raise ModelFileError(msg) from None
+    archive = Archive(path=source, header={}, arrays=arrays)
+    raw_header = arrays.pop(HEADER_KEY, None)
+    if raw_header is None or raw_header.shape != () or raw_header.dtype.kind != 'U':
+        archive.fail(f'has no JSON {HEADER_KEY!r} member')
+    try:
+        header = json.loads(str(raw_header))
+    except json.JSONDecodeError as error:
+        msg = f'{source}: header is not valid JSON ({error})'
+        raise ModelFileError(msg) from None
+    if not isinstance(header, dict):
+        archive.fail('header is not a JSON object')
+    archive = Archive(path=source, header=header, arrays=arrays)
+    if header.get('kind') != kind:
+        archive.fail(f'holds a {header.get("kind")!r}, expected a {kind!r}')
+    if header.get('format_version') != format_version:
+        archive.fail(
+            f'has format version {header.get("format_version")!r}; this code reads version '
+            f'{format_version}'
+        )
+    return archive

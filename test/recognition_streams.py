@@ -1,0 +1,112 @@
+"""Synthetic parameter streams for the recognition tests: sigma clusters and labelled alpha.
+
+Stand-ins for tracked parameters: every subject has a true sigma and a personal scale of each
+expression; every frame's estimate adds white noise plus slowly varying (AR(1)) tracking noise.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from face_tracking_ros.recognition.expression import EXPRESSION_LABELS
+
+FPS = 30.0
+
+
+@dataclass(frozen=True)
+class ExpressionWorld:
+    """Expression displacements in alpha space (q dims, metres) per non-neutral label."""
+
+    directions: dict[str, np.ndarray]
+
+    @classmethod
+    def make(cls, rng: np.random.Generator, q: int, amplitude: float = 0.012) -> ExpressionWorld:
+        """Random distinct directions; surprise = brow_raise + jaw_open as on a real face."""
+        base = {}
+        for label in ('smile', 'jaw_open', 'brow_raise', 'frown', 'pucker'):
+            direction = rng.normal(size=q)
+            base[label] = amplitude * direction / np.linalg.norm(direction)
+        base['surprise'] = 0.8 * (base['brow_raise'] + base['jaw_open'])
+        return cls(directions=base)
+
+
+@dataclass(frozen=True)
+class LabelledStream:
+    """One sequence: stamps (M,) s, parameters (M, d), labels (M,) str, intensity (M,)."""
+
+    times: np.ndarray
+    values: np.ndarray
+    labels: np.ndarray
+    intensity: np.ndarray
+
+
+def tracking_noise(rng: np.random.Generator, frames: int, dim: int, std: float) -> np.ndarray:
+    """(frames, dim) noise: half white, half AR(1) with a 0.3 s time constant, total std std."""
+    white = rng.normal(scale=std / np.sqrt(2.0), size=(frames, dim))
+    phi = np.exp(-1.0 / (0.3 * FPS))
+    drive = rng.normal(scale=std / np.sqrt(2.0) * np.sqrt(1.0 - phi**2), size=(frames, dim))
+    slow = np.zeros((frames, dim))
+    slow[0] = rng.normal(scale=std / np.sqrt(2.0), size=dim)
+    for m in range(1, frames):
+        slow[m] = phi * slow[m - 1] + drive[m]
+    return white + slow
+
+
+def expression_stream(
+    rng: np.random.Generator,
+    world: ExpressionWorld,
+    duration: float,
+    noise_std: float = 0.001,
+    subject_scale: float = 0.2,
+) -> LabelledStream:
+    """A sequence alternating neutral stretches and expressions with smooth onsets and offsets."""
+    frames = int(round(duration * FPS))
+    times = np.arange(frames) / FPS
+    labels = np.full(frames, 'neutral', dtype=object)
+    intensity = np.zeros(frames)
+    alpha = np.zeros((frames, len(next(iter(world.directions.values())))))
+    scales = {k: 1.0 + subject_scale * rng.uniform(-1, 1) for k in world.directions}
+    t = rng.uniform(0.3, 0.8)
+    while True:
+        label = EXPRESSION_LABELS[1 + rng.integers(len(EXPRESSION_LABELS) - 1)]
+        rise, hold, fall = rng.uniform(0.15, 0.3), rng.uniform(0.5, 1.2), rng.uniform(0.15, 0.3)
+        if t + rise + hold + fall > duration:
+            break
+        peak = rng.uniform(0.6, 1.0)
+        u = times - t
+        ramp_up = np.clip(u / rise, 0.0, 1.0)
+        ramp_down = np.clip((rise + hold + fall - u) / fall, 0.0, 1.0)
+        course = peak * np.minimum(_smoothstep(ramp_up), _smoothstep(ramp_down))
+        if label == 'jaw_open':  # talking: the jaw oscillates at ~4 Hz while open
+            course *= 0.7 + 0.3 * np.cos(2 * np.pi * 4.0 * np.clip(u, 0.0, None))
+        active = course > 0.0
+        labels[active] = label
+        intensity[active] = course[active]
+        alpha += course[:, None] * (scales[label] * world.directions[label])[None, :]
+        t += rise + hold + fall + rng.uniform(0.4, 1.2)
+    alpha += tracking_noise(rng, frames, alpha.shape[1], noise_std)
+    return LabelledStream(
+        times=times, values=alpha, labels=labels.astype(str), intensity=intensity
+    )
+
+
+def sigma_population(
+    rng: np.random.Generator, subjects: int, stds: tuple[float, ...]
+) -> np.ndarray:
+    """(subjects, p) true sigma drawn from N(0, diag(stds**2)), metres."""
+    return rng.normal(size=(subjects, len(stds))) * np.asarray(stds)[None, :]
+
+
+def sigma_stream(
+    rng: np.random.Generator, sigma_true: np.ndarray, duration: float, noise_std: float
+) -> np.ndarray:
+    """(M, p) tracked sigma estimates of one subject over ``duration`` seconds."""
+    frames = int(round(duration * FPS))
+    return sigma_true[None, :] + tracking_noise(rng, frames, len(sigma_true), noise_std)
+
+
+def _smoothstep(x: np.ndarray) -> np.ndarray:
+    """3x^2 - 2x^3 on [0, 1]."""
+    return x * x * (3.0 - 2.0 * x)
