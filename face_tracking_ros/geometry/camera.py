@@ -84,7 +84,9 @@ class PinholeCamera:
             focal: focal length fx = fy, px.
             tx: ``P[0, 3]``, i.e. ``-fx * B`` for the right camera of a stereo rig, px*m.
         """
-        k = np.array([[focal, 0.0, (width - 1) / 2.0], [0.0, focal, (height - 1) / 2.0], [0, 0, 1]])
+        k = np.array(
+            [[focal, 0.0, (width - 1) / 2.0], [0.0, focal, (height - 1) / 2.0], [0, 0, 1]]
+        )
         p = np.hstack([k, np.array([[tx], [0.0], [0.0]])])
         return cls(width=width, height=height, k=k, p=p, d=np.zeros(5))
 
@@ -146,7 +148,9 @@ class StereoRig:
         """Check that the pair is rectified and sizes match."""
         left, right = self.left, self.right
         same_size = (left.width, left.height) == (right.width, right.height)
-        _require(same_size, f'left {left.width}x{left.height} != right {right.width}x{right.height}')
+        _require(
+            same_size, f'left {left.width}x{left.height} != right {right.width}x{right.height}'
+        )
         _require(right.p[0, 3] < 0, 'right P[0,3] must be -fx*B < 0 for a rectified stereo pair')
 
     @property

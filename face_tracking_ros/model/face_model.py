@@ -70,7 +70,9 @@ class FaceModel:
         """Mesh topology with this model's node count."""
         return mesh_topology(self.num_nodes)
 
-    def shape(self, sigma: np.ndarray | None = None, alpha: np.ndarray | None = None) -> np.ndarray:
+    def shape(
+        self, sigma: np.ndarray | None = None, alpha: np.ndarray | None = None
+    ) -> np.ndarray:
         """Eq. 3: the (N, 3) mesh in the face frame for identity sigma and expression alpha."""
         flat = self.mean_shape.copy()
         if sigma is not None:

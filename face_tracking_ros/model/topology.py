@@ -124,7 +124,9 @@ class MeshTopology:
         try:
             return self.node_names.index(name)
         except ValueError:
-            msg = f'unknown node name {name!r}; the {self.num_nodes}-node mesh has {self.node_names}'
+            msg = (
+                f'unknown node name {name!r}; the {self.num_nodes}-node mesh has {self.node_names}'
+            )
             raise ConfigError(msg) from None
 
     def group_mask(self, *groups: Group) -> np.ndarray:

@@ -1,0 +1,419 @@
+"""Conversions between ROS messages and the arrays and dataclasses of the algorithm layer.
+
+The one place where message fields meet numpy. Readers accept rclpy and rosbags messages alike
+(same field names); writers build messages through a
+:class:`~face_tracking_ros.io.messages.MessageFactory`, so the live nodes and offline replay
+share this code. Every reader validates what it reads and raises
+:class:`~face_tracking_ros.errors.InputError` naming the message field at fault.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+import json
+from typing import Any
+
+import cv2
+import numpy as np
+
+from face_tracking_ros.errors import InputError
+from face_tracking_ros.geometry.camera import PinholeCamera
+from face_tracking_ros.geometry.rotation import omega_to_quaternion
+from face_tracking_ros.io.bags import stamp_to_ns
+from face_tracking_ros.io.messages import MessageFactory
+from face_tracking_ros.model.face_model import FaceModel
+from face_tracking_ros.model.topology import MeshTopology
+from face_tracking_ros.tracking.result import TrackResult
+
+# Supported raw encodings: number of channels and the OpenCV conversion to grey (None = is grey).
+_ENCODINGS: dict[str, tuple[int, int | None]] = {
+    'mono8': (1, None),
+    '8UC1': (1, None),
+    'rgb8': (3, cv2.COLOR_RGB2GRAY),
+    'bgr8': (3, cv2.COLOR_BGR2GRAY),
+    'rgba8': (4, cv2.COLOR_RGBA2GRAY),
+    'bgra8': (4, cv2.COLOR_BGRA2GRAY),
+}
+SUPPORTED_ENCODINGS = tuple(_ENCODINGS)
+
+
+def make_header(factory: MessageFactory, stamp_ns: int, frame_id: str) -> Any:
+    """A std_msgs/Header with the given stamp (ns) and frame."""
+    stamp = factory.make(
+        'builtin_interfaces/msg/Time',
+        sec=stamp_ns // 1_000_000_000,
+        nanosec=stamp_ns % 1_000_000_000,
+    )
+    return factory.make('std_msgs/msg/Header', stamp=stamp, frame_id=frame_id)
+
+
+def copy_header(factory: MessageFactory, header: Any) -> Any:
+    """A copy of ``header`` built by ``factory``: carries stamp and frame_id to the outputs."""
+    return make_header(factory, stamp_to_ns(header.stamp), str(header.frame_id))
+
+
+# --- images and cameras -------------------------------------------------------------------------
+
+
+def image_to_gray(msg: Any) -> np.ndarray:
+    """Grey (H, W) uint8 view of a sensor_msgs/Image in mono8, rgb8, bgr8, rgba8 or bgra8.
+
+    Raises:
+        InputError: for another encoding, or when height, width, step and data disagree.
+    """
+    encoding = str(msg.encoding)
+    if encoding not in _ENCODINGS:
+        msg_text = f'unsupported image encoding {encoding!r}; supported: {SUPPORTED_ENCODINGS}'
+        raise InputError(msg_text)
+    channels, conversion = _ENCODINGS[encoding]
+    height, width, step = int(msg.height), int(msg.width), int(msg.step)
+    data = np.frombuffer(msg.data, dtype=np.uint8)
+    if height <= 0 or width <= 0 or step < width * channels or data.size < step * height:
+        msg_text = (
+            f'image of {width}x{height} {encoding} has step {step} and {data.size} data bytes; '
+            f'needs step >= {width * channels} and {step * height} bytes'
+        )
+        raise InputError(msg_text)
+    pixels = data[: step * height].reshape(height, step)[:, : width * channels]
+    if conversion is None:
+        return pixels
+    return cv2.cvtColor(pixels.reshape(height, width, channels), conversion)
+
+
+def compressed_to_gray(msg: Any) -> np.ndarray:
+    """Grey (H, W) uint8 image decoded from a sensor_msgs/CompressedImage (JPEG or PNG).
+
+    Raises:
+        InputError: if the data does not decode.
+    """
+    gray = cv2.imdecode(np.frombuffer(msg.data, dtype=np.uint8), cv2.IMREAD_GRAYSCALE)
+    if gray is None:
+        msg_text = f'compressed image in format {msg.format!r} does not decode'
+        raise InputError(msg_text)
+    return gray
+
+
+def array_to_image(
+    factory: MessageFactory, header: Any, pixels: np.ndarray, encoding: str = ''
+) -> Any:
+    """A sensor_msgs/Image of an (H, W) mono8 or (H, W, 3) rgb8 uint8 array.
+
+    Args:
+        factory: message factory.
+        header: header of the image.
+        pixels: the image; its shape chooses mono8 or rgb8 unless ``encoding`` is given.
+        encoding: 'mono8', 'rgb8' or 'bgr8'; empty to choose from the shape.
+    """
+    pixels = np.ascontiguousarray(pixels, dtype=np.uint8)
+    channels = 1 if pixels.ndim == 2 else pixels.shape[2]
+    encoding = encoding or ('mono8' if channels == 1 else 'rgb8')
+    if _ENCODINGS.get(encoding, (None,))[0] != channels:
+        msg_text = f'array of shape {pixels.shape} cannot be encoded as {encoding!r}'
+        raise InputError(msg_text)
+    height, width = pixels.shape[:2]
+    return factory.make(
+        'sensor_msgs/msg/Image',
+        header=header,
+        height=height,
+        width=width,
+        encoding=encoding,
+        is_bigendian=0,
+        step=width * channels,
+        data=pixels.reshape(-1),
+    )
+
+
+def camera_from_info(msg: Any) -> PinholeCamera:
+    """A PinholeCamera from a sensor_msgs/CameraInfo.
+
+    Raises:
+        InputError: for an uncalibrated (all-zero K) or malformed CameraInfo.
+    """
+    if not np.any(np.asarray(msg.k, dtype=float)):
+        msg_text = 'camera_info has an all-zero K: the camera is not calibrated'
+        raise InputError(msg_text)
+    return PinholeCamera.from_camera_info(msg)
+
+
+def camera_to_info(factory: MessageFactory, header: Any, camera: PinholeCamera) -> Any:
+    """A sensor_msgs/CameraInfo describing ``camera``."""
+    fields = camera.camera_info_fields()
+    return factory.make(
+        'sensor_msgs/msg/CameraInfo',
+        header=header,
+        height=fields['height'],
+        width=fields['width'],
+        distortion_model=fields['distortion_model'],
+        d=np.asarray(fields['d'], dtype=float),
+        k=np.asarray(fields['k'], dtype=float),
+        r=np.asarray(fields['r'], dtype=float),
+        p=np.asarray(fields['p'], dtype=float),
+    )
+
+
+# --- points and poses ---------------------------------------------------------------------------
+
+
+def finite_vector(values: Any, field: str, length: int | None = None) -> np.ndarray:
+    """A finite float vector from a message field.
+
+    Raises:
+        InputError: naming ``field`` if a value is NaN or Inf or the length is not ``length``.
+    """
+    vector = np.asarray(values, dtype=float).ravel()
+    if length is not None and vector.size != length:
+        msg_text = f'{field} has {vector.size} values, expected {length}'
+        raise InputError(msg_text)
+    if not np.all(np.isfinite(vector)):
+        msg_text = f'{field} holds NaN or Inf: {vector}'
+        raise InputError(msg_text)
+    return vector
+
+
+def points_to_array(points: Any, field: str) -> np.ndarray:
+    """(N, 3) array of a geometry_msgs/Point list, validated finite."""
+    array = np.array([(p.x, p.y, p.z) for p in points], dtype=float).reshape(-1, 3)
+    return finite_vector(array, field).reshape(-1, 3)
+
+
+def array_to_points(factory: MessageFactory, array: np.ndarray) -> list[Any]:
+    """geometry_msgs/Point list of an (N, 2) or (N, 3) array (z = 0 for 2-D points)."""
+    array = np.asarray(array, dtype=float)
+    if array.shape[1] == 2:
+        array = np.hstack([array, np.zeros((len(array), 1))])
+    return [factory.make('geometry_msgs/msg/Point', x=x, y=y, z=z) for x, y, z in array.tolist()]
+
+
+def pose_msg(factory: MessageFactory, omega: np.ndarray, t: np.ndarray) -> Any:
+    """geometry_msgs/Pose of cam_T_face from rotation vector omega (rad) and translation t (m)."""
+    qx, qy, qz, qw = omega_to_quaternion(omega).tolist()
+    return factory.make(
+        'geometry_msgs/msg/Pose',
+        position=factory.make('geometry_msgs/msg/Point', x=t[0], y=t[1], z=t[2]),
+        orientation=factory.make('geometry_msgs/msg/Quaternion', x=qx, y=qy, z=qz, w=qw),
+    )
+
+
+# --- the face model -----------------------------------------------------------------------------
+
+
+def model_to_msg(factory: MessageFactory, header: Any, model: FaceModel) -> Any:
+    """face_tracking_msgs/FaceModel of a model (matrices flattened row-major)."""
+    return factory.make(
+        'face_tracking_msgs/msg/FaceModel',
+        header=header,
+        node_names=list(model.node_names),
+        mean_shape=model.mean_shape.astype(float),
+        shape_basis=model.shape_basis.ravel().astype(float),
+        action_basis=model.action_basis.ravel().astype(float),
+        shape_eigenvalues=model.shape_eigenvalues.astype(float),
+        action_eigenvalues=model.action_eigenvalues.astype(float),
+        sigma_prior_covariance=model.sigma_prior_covariance.ravel().astype(float),
+        alpha_prior_covariance=model.alpha_prior_covariance.ravel().astype(float),
+        p=model.p,
+        q=model.q,
+        method=model.method,
+        metadata_json=json.dumps(model.metadata, sort_keys=True),
+    )
+
+
+def model_from_msg(msg: Any) -> FaceModel:
+    """FaceModel from a face_tracking_msgs/FaceModel, validated.
+
+    Raises:
+        InputError: if array lengths disagree with N, p and q or metadata is not JSON.
+        ModelFileError: if the arrays do not form a valid model (NaN, non-orthonormal basis).
+    """
+    n3, p, q = 3 * len(msg.node_names), int(msg.p), int(msg.q)
+    try:
+        metadata = json.loads(msg.metadata_json) if msg.metadata_json else {}
+    except json.JSONDecodeError as error:
+        msg_text = f'FaceModel.metadata_json is not JSON: {error}'
+        raise InputError(msg_text) from None
+    return FaceModel(
+        node_names=tuple(msg.node_names),
+        mean_shape=_sized(msg.mean_shape, 'FaceModel.mean_shape', n3),
+        shape_basis=_sized(msg.shape_basis, 'FaceModel.shape_basis', n3 * p).reshape(n3, p),
+        action_basis=_sized(msg.action_basis, 'FaceModel.action_basis', n3 * q).reshape(n3, q),
+        shape_eigenvalues=_sized(msg.shape_eigenvalues, 'FaceModel.shape_eigenvalues', p),
+        action_eigenvalues=_sized(msg.action_eigenvalues, 'FaceModel.action_eigenvalues', q),
+        sigma_prior_covariance=_sized(
+            msg.sigma_prior_covariance, 'FaceModel.sigma_prior_covariance', p * p
+        ).reshape(p, p),
+        alpha_prior_covariance=_sized(
+            msg.alpha_prior_covariance, 'FaceModel.alpha_prior_covariance', q * q
+        ).reshape(q, q),
+        method=str(msg.method),
+        metadata=metadata,
+    )
+
+
+def _sized(values: Any, field: str, length: int) -> np.ndarray:
+    """Float array of exactly ``length`` values (NaN is left to model validation)."""
+    array = np.asarray(values, dtype=float).ravel()
+    if array.size != length:
+        msg_text = f'{field} has {array.size} values, expected {length}'
+        raise InputError(msg_text)
+    return array
+
+
+# --- ground truth -------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class TruthSample:
+    """One frame of synthetic ground truth (a face_tracking_msgs/FaceTruth).
+
+    Attributes:
+        stamp_ns: image time, ns.
+        subject_id: synthetic subject.
+        omega: (3,) rotation vector of cam_T_face, rad.
+        t: (3,) translation of cam_T_face, m.
+        alpha: true expression coefficients.
+        sigma: true identity coefficients.
+        nodes: (N, 3) true nodes in the camera frame, m.
+        label: expression label ('neutral' if none).
+        intensity: expression intensity in [0, 1].
+    """
+
+    stamp_ns: int
+    subject_id: str
+    omega: np.ndarray
+    t: np.ndarray
+    alpha: np.ndarray
+    sigma: np.ndarray
+    nodes: np.ndarray
+    label: str
+    intensity: float
+
+
+def truth_from_msg(msg: Any) -> TruthSample:
+    """TruthSample of a face_tracking_msgs/FaceTruth."""
+    position = msg.pose.position
+    return TruthSample(
+        stamp_ns=stamp_to_ns(msg.header.stamp),
+        subject_id=str(msg.subject_id),
+        omega=finite_vector(msg.omega, 'FaceTruth.omega', 3),
+        t=finite_vector([position.x, position.y, position.z], 'FaceTruth.pose.position', 3),
+        alpha=finite_vector(msg.alpha, 'FaceTruth.alpha'),
+        sigma=finite_vector(msg.sigma, 'FaceTruth.sigma'),
+        nodes=points_to_array(msg.nodes, 'FaceTruth.nodes'),
+        label=str(msg.expression_label),
+        intensity=float(msg.expression_intensity),
+    )
+
+
+# --- tracker outputs ----------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class FaceMessages:
+    """Every per-frame output message of a tracker for one face."""
+
+    state: Any
+    pose: Any
+    action: Any
+    shape: Any
+    mesh: Any
+    markers: Any
+
+
+def face_messages(
+    factory: MessageFactory,
+    header: Any,
+    face_id: str,
+    result: TrackResult,
+    topology: MeshTopology,
+) -> FaceMessages:
+    """The FaceState, PoseStamped, ActionParams, ShapeParams, FaceMesh and MarkerArray of a result.
+
+    Args:
+        factory: message factory.
+        header: header of the source image (stamp and frame_id are carried to every output).
+        face_id: tracker-assigned face identifier.
+        result: the tracker's estimate for this image.
+        topology: the mesh topology (node names and edges).
+    """
+    pose = pose_msg(factory, np.nan_to_num(result.omega), np.nan_to_num(result.t))
+    nodes = array_to_points(factory, np.nan_to_num(result.nodes_cam))
+    state = factory.make(
+        'face_tracking_msgs/msg/FaceState',
+        header=header,
+        face_id=face_id,
+        status=int(result.status),
+        pose=pose,
+        omega=np.nan_to_num(result.omega).astype(float),
+        alpha=np.asarray(result.alpha, dtype=float),
+        sigma=np.asarray(result.sigma, dtype=float),
+        node_names=list(topology.node_names),
+        nodes=nodes,
+        image_points=array_to_points(factory, np.nan_to_num(result.nodes_px)),
+        node_residuals=np.nan_to_num(result.node_residuals).astype(float),
+        mean_residual=float(np.nan_to_num(result.mean_residual)),
+        iterations=int(result.iterations),
+    )
+    return FaceMessages(
+        state=state,
+        pose=factory.make('geometry_msgs/msg/PoseStamped', header=header, pose=pose),
+        action=factory.make(
+            'face_tracking_msgs/msg/ActionParams',
+            header=header,
+            face_id=face_id,
+            alpha=np.asarray(result.alpha, dtype=float),
+        ),
+        shape=factory.make(
+            'face_tracking_msgs/msg/ShapeParams',
+            header=header,
+            face_id=face_id,
+            sigma=np.asarray(result.sigma, dtype=float),
+        ),
+        mesh=factory.make(
+            'face_tracking_msgs/msg/FaceMesh',
+            header=header,
+            face_id=face_id,
+            node_names=list(topology.node_names),
+            points=nodes,
+            edges=topology.edges.ravel().astype(np.uint32),
+        ),
+        markers=mesh_markers(factory, header, face_id, result.nodes_cam, topology),
+    )
+
+
+def mesh_markers(
+    factory: MessageFactory,
+    header: Any,
+    face_id: str,
+    nodes_cam: np.ndarray,
+    topology: MeshTopology,
+) -> Any:
+    """visualization_msgs/MarkerArray drawing the mesh: nodes as spheres, edges as lines (m)."""
+    points = array_to_points(factory, np.nan_to_num(nodes_cam))
+    edge_points = [points[i] for edge in topology.edges for i in edge]
+    identity = factory.make(
+        'geometry_msgs/msg/Pose', orientation=factory.make('geometry_msgs/msg/Quaternion', w=1.0)
+    )
+
+    def marker(marker_id: int, kind: int, size: float, color: tuple, pts: list) -> Any:
+        r, g, b = color
+        return factory.make(
+            'visualization_msgs/msg/Marker',
+            header=header,
+            ns=face_id,
+            id=marker_id,
+            type=kind,
+            action=0,
+            pose=identity,
+            scale=factory.make('geometry_msgs/msg/Vector3', x=size, y=size, z=size),
+            color=factory.make('std_msgs/msg/ColorRGBA', r=r, g=g, b=b, a=1.0),
+            points=pts,
+        )
+
+    sphere_list, line_list = 7, 5  # visualization_msgs/Marker.SPHERE_LIST, LINE_LIST
+    # Colours are exact in float32 (ColorRGBA), so rclpy and rosbags messages compare equal.
+    return factory.make(
+        'visualization_msgs/msg/MarkerArray',
+        markers=[
+            marker(0, sphere_list, 0.004, (1.0, 0.375, 0.125), points),
+            marker(1, line_list, 0.001, (0.125, 0.75, 1.0), edge_points),
+        ],
+    )

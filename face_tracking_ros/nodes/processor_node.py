@@ -1,0 +1,144 @@
+"""The ROS glue shared by every processing node: parameters, subscriptions, publishing, errors.
+
+A node module builds a :class:`~face_tracking_ros.processing.base.Processor` from its declared
+parameters and hands it to :class:`ProcessorNode`, which subscribes to the processor's input ports,
+publishes its outputs with each port's QoS, and turns a bad input message into one rate-limited
+log line and a diagnostic status instead of a crash.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+import dataclasses
+from typing import Any, TypeVar
+
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rcl_interfaces.msg import ParameterDescriptor
+import rclpy
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from rclpy.qos import (
+    DurabilityPolicy,
+    QoSProfile,
+    ReliabilityPolicy,
+    qos_profile_sensor_data,
+)
+
+from face_tracking_ros.errors import ConfigError, FaceTrackingError
+from face_tracking_ros.io.messages import RclpyMessages
+from face_tracking_ros.processing.base import Port, Processor, QosClass
+
+ConfigT = TypeVar('ConfigT')
+
+WARNING_PERIOD_S = 5.0
+
+_QOS = {
+    QosClass.SENSOR: qos_profile_sensor_data,
+    QosClass.RELIABLE: QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE),
+    QosClass.LATCHED: QoSProfile(
+        depth=1,
+        reliability=ReliabilityPolicy.RELIABLE,
+        durability=DurabilityPolicy.TRANSIENT_LOCAL,
+    ),
+}
+
+
+def declare_config(node: Node, config_type: type[ConfigT], prefix: str = '') -> ConfigT:
+    """Declare one ROS parameter per field of a frozen config dataclass and read them back.
+
+    Each field's default is the parameter's default and its ``metadata['description']`` the
+    parameter's description. The config's own validation runs on the values read.
+
+    Raises:
+        ConfigError: if the parameters do not form a valid config.
+    """
+    values = {}
+    for field in dataclasses.fields(config_type):  # type: ignore[arg-type]
+        default = field.default if field.default is not dataclasses.MISSING else None
+        if isinstance(default, tuple):
+            default = list(default)
+        descriptor = ParameterDescriptor(description=field.metadata.get('description', ''))
+        value = node.declare_parameter(prefix + field.name, default, descriptor).value
+        values[field.name] = tuple(value) if isinstance(value, list) else value
+    return config_type(**values)
+
+
+class ProcessorNode(Node):
+    """A node that runs a processor on its subscriptions and publishes what it returns."""
+
+    def __init__(self, name: str, make_processor: Callable[[Node, RclpyMessages], Processor]):
+        """Create the node, then its processor, subscriptions and publishers.
+
+        Args:
+            name: node name.
+            make_processor: builds the processor from the node (for parameters) and a factory.
+        """
+        super().__init__(name)
+        self._factory = RclpyMessages()
+        self._processor = make_processor(self, self._factory)
+        self._publishers = {port.topic: self._publisher(port) for port in self._processor.outputs}
+        self._on_demand = [port.topic for port in self._processor.outputs if port.on_demand]
+        self._diagnostics = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
+        self._subscriptions = [self._subscribe(port) for port in self._processor.inputs]
+
+    @property
+    def processor(self) -> Processor:
+        """The processor this node runs."""
+        return self._processor
+
+    def _publisher(self, port: Port) -> Any:
+        msg_class = self._factory.message_class(port.msgtype)
+        return self.create_publisher(msg_class, port.topic, _QOS[port.qos])
+
+    def _subscribe(self, port: Port) -> Any:
+        def callback(msg: Any) -> None:
+            self._handle(port.topic, msg)
+
+        msg_class = self._factory.message_class(port.msgtype)
+        return self.create_subscription(msg_class, port.topic, callback, _QOS[port.qos])
+
+    def _handle(self, topic: str, msg: Any) -> None:
+        """Run the processor on one message; publish its outputs or report the bad input."""
+        wanted = frozenset(
+            t for t in self._on_demand if self._publishers[t].get_subscription_count()
+        )
+        try:
+            outputs = self._processor.handle(topic, msg, wanted)
+        except FaceTrackingError as error:
+            self.get_logger().warning(f'{topic}: {error}', throttle_duration_sec=WARNING_PERIOD_S)
+            self._report(DiagnosticStatus.WARN, f'{topic}: {error}')
+            return
+        for output in outputs:
+            self._publishers[output.topic].publish(output.msg)
+
+    def _report(self, level: bytes, message: str) -> None:
+        """Publish one diagnostic status for this node."""
+        status = DiagnosticStatus(
+            level=level,
+            name=self.get_fully_qualified_name(),
+            message=message,
+            hardware_id='',
+            values=[KeyValue(key='node', value=self.get_name())],
+        )
+        array = DiagnosticArray(status=[status])
+        array.header.stamp = self.get_clock().now().to_msg()
+        self._diagnostics.publish(array)
+
+
+def run(make_node: Callable[[], Node], args: list[str] | None = None) -> None:
+    """Init rclpy, spin the node until shutdown, and clean up (the ros2/demos pattern)."""
+    rclpy.init(args=args)
+    node = None
+    try:
+        node = make_node()
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except ConfigError as error:
+        if node is None:
+            print(f'error: {error}')  # noqa: T201
+        raise SystemExit(2) from None
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()

@@ -1,0 +1,1 @@
+"""Message-in, message-out processors shared by the live nodes and offline bag replay."""

@@ -1,0 +1,78 @@
+"""The processor interface: what a node consumes and produces, independent of DDS.
+
+A processor turns one input message into zero or more output messages. The live node
+(:mod:`face_tracking_ros.nodes.processor_node`) subscribes to its input ports and publishes its
+outputs; offline replay (:mod:`face_tracking_ros.replay`) feeds it the messages of a bag and
+writes the outputs to another bag. Both run exactly the same :meth:`Processor.handle` code.
+
+Topics are relative names so users can remap them; each port states its QoS class.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from enum import IntEnum
+from typing import Any, Protocol
+
+
+class QosClass(IntEnum):
+    """QoS of a port: sensor data (best effort, depth 1), reliable results, or latched."""
+
+    SENSOR = 0
+    RELIABLE = 1
+    LATCHED = 2
+
+
+@dataclass(frozen=True)
+class Port:
+    """A topic a processor reads or writes.
+
+    Attributes:
+        topic: relative topic name, e.g. 'face/state'.
+        msgtype: ROS type name, e.g. 'face_tracking_msgs/msg/FaceState'.
+        qos: QoS class of the stream.
+        on_demand: output produced only while someone subscribes (e.g. overlay images).
+    """
+
+    topic: str
+    msgtype: str
+    qos: QosClass = QosClass.RELIABLE
+    on_demand: bool = False
+
+
+@dataclass(frozen=True)
+class Output:
+    """One message to publish (live) or write (replay) on ``topic``."""
+
+    topic: str
+    msg: Any
+
+
+class Processor(Protocol):
+    """What a node does with messages, with no ROS runtime involved."""
+
+    @property
+    def inputs(self) -> tuple[Port, ...]:
+        """Ports the processor consumes."""
+        ...
+
+    @property
+    def outputs(self) -> tuple[Port, ...]:
+        """Ports the processor produces."""
+        ...
+
+    def handle(self, topic: str, msg: Any, wanted: frozenset[str]) -> list[Output]:
+        """Process one input message.
+
+        Args:
+            topic: the input port's topic the message arrived on.
+            msg: the message (rclpy or rosbags; same fields).
+            wanted: on-demand output topics that currently have subscribers.
+
+        Returns:
+            Output messages, built with the processor's message factory.
+
+        Raises:
+            FaceTrackingError: for a bad input message; the caller logs it and carries on.
+        """
+        ...

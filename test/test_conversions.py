@@ -1,0 +1,167 @@
+"""Message <-> array conversions, built through both factories (rclpy and rosbags)."""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+from rclpy.serialization import deserialize_message
+
+from face_tracking_ros.errors import InputError, ModelFileError
+from face_tracking_ros.geometry.camera import PinholeCamera
+from face_tracking_ros.io import conversions
+from face_tracking_ros.io.messages import RclpyMessages, RosbagsMessages
+from face_tracking_ros.io.typestore import typestore
+from face_tracking_ros.model.face_model import FaceModel
+from face_tracking_ros.model.topology import mesh_topology
+from face_tracking_ros.tracking.result import TrackResult, TrackStatus
+
+STAMP_NS = 1_700_000_000_123_456_789
+
+
+def _result(num_nodes: int = 34, p: int = 2, q: int = 5) -> TrackResult:
+    rng = np.random.default_rng(3)
+    return TrackResult(
+        status=TrackStatus.TRACKING,
+        omega=np.array([0.1, -0.2, 0.05]),
+        t=np.array([0.01, -0.02, 0.65]),
+        alpha=rng.normal(size=q),
+        sigma=rng.normal(size=p),
+        nodes_cam=rng.normal(size=(num_nodes, 3)),
+        nodes_px=rng.uniform(0, 640, size=(num_nodes, 2)),
+        node_residuals=rng.uniform(0, 9, size=num_nodes),
+        mean_residual=4.5,
+        iterations=7,
+    )
+
+
+def _model(num_nodes: int = 19, p: int = 2, q: int = 3) -> FaceModel:
+    rng = np.random.default_rng(5)
+    basis, _ = np.linalg.qr(rng.normal(size=(3 * num_nodes, p + q)))
+    return FaceModel(
+        node_names=mesh_topology(num_nodes).node_names,
+        mean_shape=mesh_topology(num_nodes).reference_shape.ravel().copy(),
+        shape_basis=basis[:, :p],
+        action_basis=basis[:, p:],
+        shape_eigenvalues=np.array([4e-5, 1e-5]),
+        action_eigenvalues=np.array([9e-5, 3e-5, 1e-5]),
+        sigma_prior_covariance=np.diag([4e-5, 1e-5]),
+        alpha_prior_covariance=np.diag([9e-5, 3e-5, 1e-5]),
+        method='seed',
+        metadata={'subjects': 11},
+    )
+
+
+def _face_messages(factory):
+    header = conversions.make_header(factory, STAMP_NS, 'camera_optical')
+    return conversions.face_messages(factory, header, 'face_0', _result(), mesh_topology(34))
+
+
+@pytest.mark.parametrize('field', ['state', 'pose', 'action', 'shape', 'mesh', 'markers'])
+def test_both_factories_build_equal_messages(field):
+    store = typestore()
+    built_rosbags = getattr(_face_messages(RosbagsMessages(store)), field)
+    built_rclpy = getattr(_face_messages(RclpyMessages()), field)
+    msgtype = built_rosbags.__msgtype__
+    rosbags_bytes = bytes(store.serialize_cdr(built_rosbags, msgtype))
+    assert deserialize_message(rosbags_bytes, type(built_rclpy)) == built_rclpy
+
+
+def test_face_state_carries_result_and_header():
+    state = _face_messages(RosbagsMessages(typestore())).state
+    result = _result()
+    assert conversions.stamp_to_ns(state.header.stamp) == STAMP_NS
+    assert state.header.frame_id == 'camera_optical'
+    assert state.status == TrackStatus.TRACKING
+    np.testing.assert_allclose(state.omega, result.omega)
+    np.testing.assert_allclose(conversions.points_to_array(state.nodes, 'nodes'), result.nodes_cam)
+    assert list(state.node_names) == list(mesh_topology(34).node_names)
+    assert state.iterations == 7
+
+
+def test_model_round_trips_through_its_message():
+    model = _model()
+    factory = RosbagsMessages(typestore())
+    msg = conversions.model_to_msg(factory, conversions.make_header(factory, 0, 'face'), model)
+    back = conversions.model_from_msg(msg)
+    np.testing.assert_array_equal(back.shape_basis, model.shape_basis)
+    np.testing.assert_array_equal(back.alpha_prior_covariance, model.alpha_prior_covariance)
+    assert back.metadata == {'subjects': 11}
+    assert back.node_names == model.node_names
+
+
+def test_model_message_with_wrong_length_names_the_field():
+    factory = RosbagsMessages(typestore())
+    msg = conversions.model_to_msg(factory, conversions.make_header(factory, 0, 'face'), _model())
+    msg.action_basis = msg.action_basis[:-1]
+    with pytest.raises(InputError, match='FaceModel.action_basis has 170 values, expected 171'):
+        conversions.model_from_msg(msg)
+
+
+def test_model_message_with_nan_is_rejected():
+    factory = RosbagsMessages(typestore())
+    msg = conversions.model_to_msg(factory, conversions.make_header(factory, 0, 'face'), _model())
+    msg.mean_shape[4] = np.nan
+    with pytest.raises(ModelFileError, match='mean_shape holds NaN'):
+        conversions.model_from_msg(msg)
+
+
+@pytest.mark.parametrize('encoding', ['mono8', 'rgb8', 'bgr8'])
+def test_image_round_trip_gives_the_grey_image(encoding):
+    rng = np.random.default_rng(1)
+    gray = rng.integers(0, 256, size=(48, 64), dtype=np.uint8)
+    pixels = gray if encoding == 'mono8' else np.repeat(gray[:, :, None], 3, axis=2)
+    factory = RosbagsMessages(typestore())
+    msg = conversions.array_to_image(
+        factory, conversions.make_header(factory, 0, 'c'), pixels, encoding
+    )
+    np.testing.assert_array_equal(conversions.image_to_gray(msg), gray)
+
+
+def test_image_with_row_padding_is_cropped_to_width():
+    data = np.arange(4 * 8, dtype=np.uint8)  # 4 rows of 6 pixels, step 8
+    msg = SimpleNamespace(encoding='mono8', height=4, width=6, step=8, data=data)
+    np.testing.assert_array_equal(conversions.image_to_gray(msg), data.reshape(4, 8)[:, :6])
+
+
+def test_unsupported_encoding_is_named():
+    msg = SimpleNamespace(encoding='16UC1', height=2, width=2, step=4, data=np.zeros(8, np.uint8))
+    with pytest.raises(InputError, match="unsupported image encoding '16UC1'"):
+        conversions.image_to_gray(msg)
+
+
+def test_truncated_image_data_is_reported():
+    msg = SimpleNamespace(
+        encoding='rgb8', height=10, width=10, step=30, data=np.zeros(200, np.uint8)
+    )
+    with pytest.raises(InputError, match='needs step >= 30 and 300 bytes'):
+        conversions.image_to_gray(msg)
+
+
+def test_uncalibrated_camera_info_is_rejected():
+    info = SimpleNamespace(
+        width=640,
+        height=480,
+        k=np.zeros(9),
+        d=np.zeros(5),
+        p=np.zeros(12),
+        r=np.zeros(9),
+        distortion_model='plumb_bob',
+    )
+    with pytest.raises(InputError, match='all-zero K'):
+        conversions.camera_from_info(info)
+
+
+def test_camera_info_round_trip():
+    camera = PinholeCamera.ideal(320, 240, 300.0, tx=-33.0)
+    factory = RosbagsMessages(typestore())
+    msg = conversions.camera_to_info(factory, conversions.make_header(factory, 0, 'c'), camera)
+    back = conversions.camera_from_info(msg)
+    np.testing.assert_array_equal(back.p, camera.p)
+    assert (back.width, back.height) == (320, 240)
+
+
+def test_nan_in_a_vector_field_is_named():
+    with pytest.raises(InputError, match='ActionParams.alpha holds NaN'):
+        conversions.finite_vector([0.0, np.nan], 'ActionParams.alpha')
