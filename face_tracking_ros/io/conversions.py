@@ -19,22 +19,12 @@ import numpy as np
 from face_tracking_ros.errors import InputError
 from face_tracking_ros.geometry.camera import PinholeCamera
 from face_tracking_ros.geometry.rotation import omega_to_quaternion
+from face_tracking_ros.imaging.gray import encoding_channels, to_gray
 from face_tracking_ros.io.bags import stamp_to_ns
 from face_tracking_ros.io.messages import MessageFactory
 from face_tracking_ros.model.face_model import FaceModel
 from face_tracking_ros.model.topology import MeshTopology
 from face_tracking_ros.tracking.result import TrackResult
-
-# Supported raw encodings: number of channels and the OpenCV conversion to grey (None = is grey).
-_ENCODINGS: dict[str, tuple[int, int | None]] = {
-    'mono8': (1, None),
-    '8UC1': (1, None),
-    'rgb8': (3, cv2.COLOR_RGB2GRAY),
-    'bgr8': (3, cv2.COLOR_BGR2GRAY),
-    'rgba8': (4, cv2.COLOR_RGBA2GRAY),
-    'bgra8': (4, cv2.COLOR_BGRA2GRAY),
-}
-SUPPORTED_ENCODINGS = tuple(_ENCODINGS)
 
 
 def make_header(factory: MessageFactory, stamp_ns: int, frame_id: str) -> Any:
@@ -56,16 +46,13 @@ def copy_header(factory: MessageFactory, header: Any) -> Any:
 
 
 def image_to_gray(msg: Any) -> np.ndarray:
-    """Grey (H, W) uint8 view of a sensor_msgs/Image in mono8, rgb8, bgr8, rgba8 or bgra8.
+    """Grey (H, W) uint8 image of a sensor_msgs/Image in mono8, rgb8, bgr8, rgba8 or bgra8.
 
     Raises:
         InputError: for another encoding, or when height, width, step and data disagree.
     """
     encoding = str(msg.encoding)
-    if encoding not in _ENCODINGS:
-        msg_text = f'unsupported image encoding {encoding!r}; supported: {SUPPORTED_ENCODINGS}'
-        raise InputError(msg_text)
-    channels, conversion = _ENCODINGS[encoding]
+    channels = encoding_channels(encoding)
     height, width, step = int(msg.height), int(msg.width), int(msg.step)
     data = np.frombuffer(msg.data, dtype=np.uint8)
     if height <= 0 or width <= 0 or step < width * channels or data.size < step * height:
@@ -74,10 +61,8 @@ def image_to_gray(msg: Any) -> np.ndarray:
             f'needs step >= {width * channels} and {step * height} bytes'
         )
         raise InputError(msg_text)
-    pixels = data[: step * height].reshape(height, step)[:, : width * channels]
-    if conversion is None:
-        return pixels
-    return cv2.cvtColor(pixels.reshape(height, width, channels), conversion)
+    rows = data[: step * height].reshape(height, step)[:, : width * channels]
+    return to_gray(rows.reshape(height, width, channels), encoding)
 
 
 def compressed_to_gray(msg: Any) -> np.ndarray:
@@ -107,7 +92,7 @@ def array_to_image(
     pixels = np.ascontiguousarray(pixels, dtype=np.uint8)
     channels = 1 if pixels.ndim == 2 else pixels.shape[2]
     encoding = encoding or ('mono8' if channels == 1 else 'rgb8')
-    if _ENCODINGS.get(encoding, (None,))[0] != channels:
+    if encoding_channels(encoding) != channels:
         msg_text = f'array of shape {pixels.shape} cannot be encoded as {encoding!r}'
         raise InputError(msg_text)
     height, width = pixels.shape[:2]
