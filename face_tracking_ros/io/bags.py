@@ -184,3 +184,17 @@ def _select(reader: Reader, path: Path, topics: Iterable[str] | None) -> list[Co
     if missing:
         raise BagError(f'{path}: no topic {", ".join(sorted(missing))} in bag')
     return [connection for connection in reader.connections if connection.topic in wanted]
+
+
+def bag_topics(path: Path | str) -> dict[str, str]:
+    """Topics of a bag and their message types.
+
+    Raises:
+        BagError: If the bag is missing or its metadata cannot be read.
+    """
+    path = Path(path)
+    try:
+        with Reader(path) as reader:
+            return {connection.topic: connection.msgtype for connection in reader.connections}
+    except (ReaderError, KeyError, ValueError, EOFError, OSError, struct.error) as error:
+        raise BagError(f'{path}: cannot read bag: {type(error).__name__}: {error}') from None
