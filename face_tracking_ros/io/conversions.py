@@ -16,7 +16,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from face_tracking_ros.errors import InputError
+from face_tracking_ros.errors import ConfigError, InputError
 from face_tracking_ros.geometry.camera import PinholeCamera
 from face_tracking_ros.geometry.rotation import omega_to_quaternion
 from face_tracking_ros.imaging.gray import encoding_channels, to_gray
@@ -24,6 +24,7 @@ from face_tracking_ros.io.bags import stamp_to_ns
 from face_tracking_ros.io.messages import MessageFactory
 from face_tracking_ros.model.face_model import FaceModel
 from face_tracking_ros.model.topology import MeshTopology
+from face_tracking_ros.tracking.initialisation import Initialisation
 from face_tracking_ros.tracking.result import TrackResult
 
 
@@ -402,3 +403,21 @@ def mesh_markers(
             marker(1, line_list, 0.001, (0.125, 0.75, 1.0), edge_points),
         ],
     )
+
+
+def initialisation_from_reset(request: Any) -> Initialisation | None:
+    """The Initialisation of a ResetTracking request; None (automatic) when it is empty.
+
+    Raises:
+        ConfigError: if names and points disagree in number or are too few.
+    """
+    if not request.node_names and not request.points:
+        return None
+    if len(request.node_names) != len(request.points):
+        msg = f'{len(request.node_names)} node names but {len(request.points)} points'
+        raise ConfigError(msg)
+    points = {
+        name: [point.x, point.y]
+        for name, point in zip(request.node_names, request.points, strict=True)
+    }
+    return Initialisation.from_mapping({'nodes': points}, source='reset_tracking request')

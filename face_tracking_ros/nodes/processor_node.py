@@ -10,6 +10,8 @@ from __future__ import annotations
 
 from collections.abc import Callable
 import dataclasses
+import inspect
+import re
 from typing import Any, TypeVar
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
@@ -46,21 +48,52 @@ _QOS = {
 def declare_config(node: Node, config_type: type[ConfigT], prefix: str = '') -> ConfigT:
     """Declare one ROS parameter per field of a frozen config dataclass and read them back.
 
-    Each field's default is the parameter's default and its ``metadata['description']`` the
-    parameter's description. The config's own validation runs on the values read.
+    A field's default is the parameter's default and its entry in the class docstring's
+    ``Attributes:`` section is the parameter's description, so the algorithm layer documents each
+    tunable once. Nested config dataclasses become dotted parameters (``fit.max_iterations``).
+    The config's own validation runs on the values read.
 
     Raises:
         ConfigError: if the parameters do not form a valid config.
     """
-    values = {}
+    descriptions = attribute_descriptions(config_type)
+    values: dict[str, Any] = {}
     for field in dataclasses.fields(config_type):  # type: ignore[arg-type]
-        default = field.default if field.default is not dataclasses.MISSING else None
-        if isinstance(default, tuple):
-            default = list(default)
-        descriptor = ParameterDescriptor(description=field.metadata.get('description', ''))
+        default = (
+            field.default_factory()
+            if field.default is dataclasses.MISSING
+            and field.default_factory is not dataclasses.MISSING
+            else field.default
+        )
+        if dataclasses.is_dataclass(default):
+            values[field.name] = declare_config(node, type(default), f'{prefix}{field.name}.')
+            continue
+        descriptor = ParameterDescriptor(description=descriptions.get(field.name, ''))
         value = node.declare_parameter(prefix + field.name, default, descriptor).value
         values[field.name] = tuple(value) if isinstance(value, list) else value
     return config_type(**values)
+
+
+def attribute_descriptions(cls: type) -> dict[str, str]:
+    """Field descriptions from the ``Attributes:`` section of a Google-style class docstring."""
+    descriptions: dict[str, str] = {}
+    lines = inspect.cleandoc(cls.__doc__ or '').splitlines()
+    inside, name = False, ''
+    for line in lines:
+        if line.strip() == 'Attributes:':
+            inside = True
+            continue
+        if not inside:
+            continue
+        if line and not line.startswith(' '):
+            break
+        match = re.match(r'^ {4}(\w+)(?: \(.*?\))?: (.*)$', line)
+        if match:
+            name = match.group(1)
+            descriptions[name] = match.group(2).strip()
+        elif name and line.strip():
+            descriptions[name] += ' ' + line.strip()
+    return descriptions
 
 
 class ProcessorNode(Node):
