@@ -18,7 +18,7 @@ inputs_hash() {
     cd "$repo"
     "$python" --version
     find requirements.txt requirements-dev.txt constraints.txt setup.py setup.cfg package.xml \
-      resource config msg_defs tools -type f -print0 | sort -z | xargs -0 sha256sum
+      resource config msg_defs tools -type f -not -path '*/__pycache__/*' -print0 | sort -z | xargs -0 sha256sum
   ) | sha256sum | cut -d' ' -f1
 }
 
