@@ -10,12 +10,20 @@ readable; bad input messages are counted and reported, not fatal.
 from __future__ import annotations
 
 from collections import Counter
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
+from tqdm import tqdm
+
 from face_tracking_ros.errors import BagError, FaceTrackingError
+from face_tracking_ros.io.bags import BagWriter, bag_topics, message_count, read_messages
+from face_tracking_ros.io.messages import RosbagsMessages
+from face_tracking_ros.io.typestore import typestore
 from face_tracking_ros.processing.base import Port, Processor
+from face_tracking_ros.processing.parameters import OverrideParameters
+from face_tracking_ros.processing.registry import processor_factory
 
 Record = tuple[str, str, int, Any]  # (bag topic, msgtype, log time ns, message)
 
@@ -29,12 +37,14 @@ class ReplayStats:
         outputs: output messages written, per topic.
         errors: bad input messages, per error text (first 200 characters).
         interrupted: True if Ctrl-C stopped the replay early.
+        read_error: why the input bag stopped being readable part way ('' if it did not).
     """
 
     inputs: Counter[str] = field(default_factory=Counter)
     outputs: Counter[str] = field(default_factory=Counter)
     errors: Counter[str] = field(default_factory=Counter)
     interrupted: bool = False
+    read_error: str = ''
 
 
 def resolve_inputs(
@@ -103,8 +113,10 @@ def replay(
     output_types = {port.topic: port.msgtype for port in processor.outputs}
     wanted = frozenset(port.topic for port in processor.outputs if port.on_demand)
     stats = ReplayStats()
+    iterator = iter(records)
     try:
-        for bag_topic, msgtype, log_time, msg in records:
+        while (record := _next_readable(iterator, stats)) is not None:
+            bag_topic, msgtype, log_time, msg = record
             port_topic = topic_map.get(bag_topic)
             if port_topic is None:
                 continue
@@ -124,3 +136,63 @@ def replay(
     except KeyboardInterrupt:
         stats.interrupted = True
     return stats
+
+
+def replay_bag(
+    node: str,
+    bag: Path,
+    out: Path,
+    params: OverrideParameters,
+    remaps: Mapping[str, str] | None = None,
+    record_inputs: bool = False,
+    progress: bool = True,
+) -> ReplayStats:
+    """Replay a bag through a node's processor into a new MCAP bag.
+
+    Args:
+        node: node name, e.g. 'mono_tracker' (see :data:`processing.registry.PROCESSORS`).
+        bag: input rosbag2 directory.
+        out: output rosbag2 directory (must not exist).
+        params: the node's parameters (``--param name=value``).
+        remaps: processor input topic -> bag topic, where the automatic match is not wanted.
+        record_inputs: also copy the consumed input messages into ``out``.
+        progress: show a progress bar on stderr.
+
+    Returns:
+        What was read, written and rejected. A bag that becomes unreadable part way (e.g.
+        truncated) ends the replay early with ``stats.read_error`` set; ``out`` stays valid.
+
+    Raises:
+        BagError: if the bag cannot be opened or no topic matches the node's inputs.
+        ConfigError: for unknown parameters or a node without a processor.
+    """
+    processor = processor_factory(node)(params, RosbagsMessages(typestore()))
+    params.check_all_used()
+    topics = bag_topics(bag)
+    topic_map = resolve_inputs(processor.inputs, topics, remaps or {})
+    if not topic_map:
+        wanted = ', '.join(f'{p.topic} ({p.msgtype})' for p in processor.inputs)
+        msg = f'{bag}: no topic matches the inputs of {node}: {wanted}'
+        raise BagError(msg)
+    total = message_count(bag, topic_map)
+    with BagWriter(out) as writer, tqdm(total=total, unit='msg', disable=not progress) as bar:
+        stats = replay(
+            processor,
+            read_messages(bag, topics=list(topic_map)),
+            writer.write,
+            topic_map,
+            record_inputs,
+            on_step=bar.update,
+        )
+    return stats
+
+
+def _next_readable(iterator: Iterator[Record], stats: ReplayStats) -> Record | None:
+    """The next record, or None at the end or where the bag stops being readable."""
+    try:
+        return next(iterator)
+    except StopIteration:
+        return None
+    except BagError as error:
+        stats.read_error = str(error)
+        return None

@@ -192,9 +192,23 @@ def bag_topics(path: Path | str) -> dict[str, str]:
     Raises:
         BagError: If the bag is missing or its metadata cannot be read.
     """
-    path = Path(path)
+    return {connection.topic: connection.msgtype for connection in _connections(Path(path))}
+
+
+def message_count(path: Path | str, topics: Iterable[str]) -> int:
+    """Number of messages on ``topics`` in a bag, from its metadata.
+
+    Raises:
+        BagError: If the bag is missing or its metadata cannot be read.
+    """
+    wanted = set(topics)
+    return sum(c.msgcount for c in _connections(Path(path)) if c.topic in wanted)
+
+
+def _connections(path: Path) -> list[Connection]:
+    """The connections of a bag, read from its metadata."""
     try:
         with Reader(path) as reader:
-            return {connection.topic: connection.msgtype for connection in reader.connections}
+            return list(reader.connections)
     except (ReaderError, KeyError, ValueError, EOFError, OSError, struct.error) as error:
         raise BagError(f'{path}: cannot read bag: {type(error).__name__}: {error}') from None

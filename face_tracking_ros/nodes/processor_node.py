@@ -27,8 +27,9 @@ from rclpy.qos import (
 )
 
 from face_tracking_ros.errors import ConfigError, FaceTrackingError
-from face_tracking_ros.io.messages import RclpyMessages
+from face_tracking_ros.io.messages import MessageFactory, RclpyMessages
 from face_tracking_ros.processing.base import Port, Processor, QosClass
+from face_tracking_ros.processing.parameters import ParameterSource, field_default
 
 ConfigT = TypeVar('ConfigT')
 
@@ -45,33 +46,36 @@ _QOS = {
 }
 
 
-def declare_config(node: Node, config_type: type[ConfigT], prefix: str = '') -> ConfigT:
-    """Declare one ROS parameter per field of a frozen config dataclass and read them back.
+class NodeParameters:
+    """A :class:`ParameterSource` that declares ROS parameters on a node.
 
     A field's default is the parameter's default and its entry in the class docstring's
     ``Attributes:`` section is the parameter's description, so the algorithm layer documents each
-    tunable once. Nested config dataclasses become dotted parameters (``fit.max_iterations``).
-    The config's own validation runs on the values read.
-
-    Raises:
-        ConfigError: if the parameters do not form a valid config.
+    tunable once. Nested config dataclasses become dotted parameters (``tracker.fit.x``).
     """
-    descriptions = attribute_descriptions(config_type)
-    values: dict[str, Any] = {}
-    for field in dataclasses.fields(config_type):  # type: ignore[arg-type]
-        default = (
-            field.default_factory()
-            if field.default is dataclasses.MISSING
-            and field.default_factory is not dataclasses.MISSING
-            else field.default
-        )
-        if dataclasses.is_dataclass(default):
-            values[field.name] = declare_config(node, type(default), f'{prefix}{field.name}.')
-            continue
-        descriptor = ParameterDescriptor(description=descriptions.get(field.name, ''))
-        value = node.declare_parameter(prefix + field.name, default, descriptor).value
-        values[field.name] = tuple(value) if isinstance(value, list) else value
-    return config_type(**values)
+
+    def __init__(self, node: Node) -> None:
+        """Declare parameters on ``node``."""
+        self._node = node
+
+    def config(self, config_type: type[ConfigT], prefix: str = '') -> ConfigT:
+        """Declare ``prefix + field`` for every field, read the values and build the config.
+
+        Raises:
+            ConfigError: if the parameters do not form a valid config.
+        """
+        descriptions = attribute_descriptions(config_type)
+        values: dict[str, Any] = {}
+        for field in dataclasses.fields(config_type):  # type: ignore[arg-type]
+            default = field_default(field)
+            if dataclasses.is_dataclass(default):
+                values[field.name] = self.config(type(default), f'{prefix}{field.name}.')
+                continue
+            descriptor = ParameterDescriptor(description=descriptions.get(field.name, ''))
+            declared = default if not isinstance(default, tuple) else list(default)
+            value = self._node.declare_parameter(prefix + field.name, declared, descriptor).value
+            values[field.name] = tuple(value) if isinstance(value, list) else value
+        return config_type(**values)
 
 
 def attribute_descriptions(cls: type) -> dict[str, str]:
@@ -99,16 +103,18 @@ def attribute_descriptions(cls: type) -> dict[str, str]:
 class ProcessorNode(Node):
     """A node that runs a processor on its subscriptions and publishes what it returns."""
 
-    def __init__(self, name: str, make_processor: Callable[[Node, RclpyMessages], Processor]):
+    def __init__(
+        self, name: str, make_processor: Callable[[ParameterSource, MessageFactory], Processor]
+    ) -> None:
         """Create the node, then its processor, subscriptions and publishers.
 
         Args:
             name: node name.
-            make_processor: builds the processor from the node (for parameters) and a factory.
+            make_processor: builds the processor from the node's parameters and a factory.
         """
         super().__init__(name)
         self._factory = RclpyMessages()
-        self._processor = make_processor(self, self._factory)
+        self._processor = make_processor(NodeParameters(self), self._factory)
         self._publishers = {port.topic: self._publisher(port) for port in self._processor.outputs}
         self._on_demand = [port.topic for port in self._processor.outputs if port.on_demand]
         self._diagnostics = self.create_publisher(DiagnosticArray, '/diagnostics', 10)

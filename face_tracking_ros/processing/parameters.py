@@ -1,0 +1,99 @@
+"""Where a processor's configuration comes from: ROS parameters live, overrides offline.
+
+Config dataclasses of the algorithm layer are filled field by field from a
+:class:`ParameterSource`. The live node's source declares ROS parameters
+(:class:`face_tracking_ros.nodes.processor_node.NodeParameters`); offline replay uses
+:class:`OverrideParameters`, built from ``--param name=value`` options, with the same names
+(``tracker.epsilon``), so a replay is configured exactly like the node.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+import dataclasses
+from typing import Any, Protocol, TypeVar
+
+from face_tracking_ros.errors import ConfigError
+
+ConfigT = TypeVar('ConfigT')
+
+_TRUE = {'true', '1', 'yes', 'on'}
+_FALSE = {'false', '0', 'no', 'off'}
+
+
+class ParameterSource(Protocol):
+    """Gives the value of each field of a config dataclass."""
+
+    def config(self, config_type: type[ConfigT], prefix: str = '') -> ConfigT:
+        """Build ``config_type`` with parameters named ``prefix + field`` (nested: dotted)."""
+        ...
+
+
+def field_default(field: dataclasses.Field) -> Any:
+    """The default value of a dataclass field (calling its default factory if it has one)."""
+    if field.default is dataclasses.MISSING and field.default_factory is not dataclasses.MISSING:
+        return field.default_factory()
+    return field.default
+
+
+class OverrideParameters:
+    """Config defaults, overridden by ``name=value`` strings (offline replay, tests)."""
+
+    def __init__(self, overrides: Mapping[str, str] | None = None) -> None:
+        """Keep the overrides; :meth:`check_all_used` reports names no config field matched."""
+        self._overrides = dict(overrides or {})
+        self._used: set[str] = set()
+
+    @classmethod
+    def parse(cls, items: list[str] | None) -> OverrideParameters:
+        """From ``['tracker.epsilon=0.1', ...]``.
+
+        Raises:
+            ConfigError: for an item without ``=``.
+        """
+        overrides = {}
+        for item in items or []:
+            name, sep, value = item.partition('=')
+            if not sep or not name:
+                msg = f'parameter {item!r} must be written name=value'
+                raise ConfigError(msg)
+            overrides[name.strip()] = value.strip()
+        return cls(overrides)
+
+    def config(self, config_type: type[ConfigT], prefix: str = '') -> ConfigT:
+        """Build ``config_type`` from defaults and the matching overrides."""
+        values: dict[str, Any] = {}
+        for field in dataclasses.fields(config_type):  # type: ignore[arg-type]
+            default = field_default(field)
+            name = prefix + field.name
+            if dataclasses.is_dataclass(default):
+                values[field.name] = self.config(type(default), f'{name}.')
+            elif name in self._overrides:
+                self._used.add(name)
+                values[field.name] = _coerce(name, self._overrides[name], default)
+            else:
+                values[field.name] = default
+        return config_type(**values)
+
+    def check_all_used(self) -> None:
+        """Raise ConfigError naming overrides that matched no parameter."""
+        unused = sorted(set(self._overrides) - self._used)
+        if unused:
+            msg = f'unknown parameter(s): {", ".join(unused)}'
+            raise ConfigError(msg)
+
+
+def _coerce(name: str, text: str, default: Any) -> Any:
+    """Convert ``text`` to the type of ``default``."""
+    try:
+        if isinstance(default, bool):
+            lowered = text.lower()
+            if lowered not in _TRUE | _FALSE:
+                raise ValueError(text)
+            return lowered in _TRUE
+        if isinstance(default, tuple):
+            return tuple(float(v) for v in text.split(',') if v.strip())
+        return type(default)(text) if default is not None else text
+    except ValueError:
+        msg = f'parameter {name}={text!r} is not a valid {type(default).__name__}'
+        raise ConfigError(msg) from None
