@@ -12,11 +12,12 @@ import numpy as np
 
 from face_tracking_ros.errors import InputError
 
-# cv2.remap needs maps smaller than 32767 in each dimension; long point lists are folded.
+# cv2.remap needs maps smaller than 32767 in each dimension; other point sets are folded.
+_MAP_LIMIT = 32767
 _MAP_WIDTH = 4096
 
-# Central-difference stencil: centre, +x, -x, +y, -y (one pixel each).
-_STENCIL = np.array([[0, 0], [1, 0], [-1, 0], [0, 1], [0, -1]], dtype=np.float32)
+# Central-difference stencil: centre, +x, -x, +y, -y (one pixel each), as (5, 1, 2).
+_STENCIL = np.array([[0, 0], [1, 0], [-1, 0], [0, 1], [0, -1]], dtype=np.float32)[:, None, :]
 
 
 def square_offsets(half_size: int, step: float = 1.0) -> np.ndarray:
@@ -60,17 +61,20 @@ def sample_points(image: np.ndarray, points: np.ndarray) -> np.ndarray:
     if not np.all(np.isfinite(points)):
         msg = 'points hold NaN or Inf'
         raise InputError(msg)
+    lead = points.shape[:-1]
+    if len(lead) == 2 and 0 < min(lead) and max(lead) < _MAP_LIMIT:
+        return cv2.remap(image, points, None, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
     flat = points.reshape(-1, 2)
     count = flat.shape[0]
     if count == 0:
-        return np.zeros(points.shape[:-1], dtype=np.float32)
+        return np.zeros(lead, dtype=np.float32)
     width = min(count, _MAP_WIDTH)
     rows = -(-count // width)
     padded = np.zeros((rows * width, 2), dtype=np.float32)
     padded[:count] = flat
     maps = padded.reshape(rows, width, 2)
     samples = cv2.remap(image, maps, None, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-    return samples.reshape(-1)[:count].reshape(points.shape[:-1])
+    return samples.reshape(-1)[:count].reshape(lead)
 
 
 def sample_patches(image: np.ndarray, centres: np.ndarray, offsets: np.ndarray) -> np.ndarray:
@@ -105,11 +109,13 @@ def sample_with_gradient(image: np.ndarray, points: np.ndarray) -> tuple[np.ndar
         grey levels per pixel.
     """
     points = np.asarray(points, dtype=np.float32)
-    stencil = sample_points(image, points[..., None, :] + _STENCIL)
-    gradient = 0.5 * np.stack(
-        [stencil[..., 1] - stencil[..., 2], stencil[..., 3] - stencil[..., 4]], axis=-1
-    )
-    return stencil[..., 0], gradient
+    flat = points.reshape(-1, 2)
+    stencil = sample_points(image, flat[None, :, :] + _STENCIL)  # (5, K), rows contiguous
+    gradient = np.empty((flat.shape[0], 2), dtype=np.float32)
+    np.subtract(stencil[1], stencil[2], out=gradient[:, 0])
+    np.subtract(stencil[3], stencil[4], out=gradient[:, 1])
+    gradient *= 0.5
+    return stencil[0].reshape(points.shape[:-1]), gradient.reshape(points.shape)
 
 
 def inside_image(points: np.ndarray, shape: tuple[int, int], margin: float = 0.0) -> np.ndarray:

@@ -1,0 +1,306 @@
+"""Initialisation of the face model on an image from 2-D node positions (seed §3.5).
+
+The seed initialises the mesh on the first frame semi-automatically. Here the 2-D positions of a
+subset of named mesh nodes (at least :data:`MIN_INIT_NODES`) come from an init file, the
+``ResetTracking`` service or a landmark detector, as an :class:`Initialisation`. A model fit then
+turns them into the pose and parameters of eq. 1-3: ``cv2.solvePnP`` on the (identity) shape for
+the pose, then a least-squares refinement of pose, sigma and alpha with the Gaussian priors of
+§4.1.
+
+Init file (YAML or JSON; node names are those of :mod:`face_tracking_ros.model.topology`)::
+
+    # pixel positions (x = column, y = row) of mesh nodes in the first image
+    nodes:
+      right_eye: [281.5, 212.0]
+      left_eye: [358.0, 211.2]
+      nose_tip: [320.4, 262.9]
+      mouth_right: [291.0, 300.7]
+      mouth_left: [350.2, 300.1]
+      chin: [321.0, 356.3]
+    sigma: [0.004, -0.001]   # optional: a known (enrolled) identity, held fixed
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+import json
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+from scipy.linalg import block_diag, cholesky, solve_triangular
+from scipy.optimize import least_squares
+import yaml
+
+from face_tracking_ros.errors import ConfigError, InputError
+from face_tracking_ros.geometry.camera import PinholeCamera
+from face_tracking_ros.model.face_model import FaceModel
+from face_tracking_ros.model.topology import mesh_topology
+from face_tracking_ros.tracking.projection import POSE_DIM, project_with_jacobian
+
+MIN_INIT_NODES = 6
+
+
+@dataclass(frozen=True)
+class Initialisation:
+    """2-D positions of named mesh nodes in one image, and optionally a known identity.
+
+    Attributes:
+        node_names: K distinct node names, K >= 6.
+        points: (K, 2) pixel positions (x = column, y = row), px.
+        sigma: (p,) identity parameters to hold fixed (an enrolled identity), or None to fit them.
+    """
+
+    node_names: tuple[str, ...]
+    points: np.ndarray
+    sigma: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        """Check counts, shapes and finiteness; errors name the problem."""
+        count = len(self.node_names)
+        if count < MIN_INIT_NODES:
+            msg = f'initialisation needs at least {MIN_INIT_NODES} nodes, got {count}'
+            raise ConfigError(msg)
+        if len(set(self.node_names)) != count:
+            msg = f'initialisation repeats node names: {self.node_names}'
+            raise ConfigError(msg)
+        if np.shape(self.points) != (count, 2) or not np.all(np.isfinite(self.points)):
+            msg = f'initialisation points must be {count} finite (x, y) pairs, got {self.points}'
+            raise ConfigError(msg)
+        if self.sigma is not None and not np.all(np.isfinite(self.sigma)):
+            msg = f'initialisation sigma holds NaN or Inf: {self.sigma}'
+            raise ConfigError(msg)
+
+    @classmethod
+    def from_mapping(
+        cls, data: Mapping[str, Any], source: str = 'initialisation'
+    ) -> Initialisation:
+        """Build from the init-file mapping ``{'nodes': {name: [x, y]}, 'sigma': [...]}``.
+
+        Raises:
+            ConfigError: naming ``source`` and the faulty key or value.
+        """
+        if not isinstance(data, Mapping) or not isinstance(data.get('nodes'), Mapping):
+            msg = f'{source}: expected a mapping with a "nodes" mapping of node name to [x, y]'
+            raise ConfigError(msg)
+        unknown = set(data) - {'nodes', 'sigma'}
+        if unknown:
+            msg = f'{source}: unknown keys {sorted(unknown)}; allowed: nodes, sigma'
+            raise ConfigError(msg)
+        names, points = [], []
+        for name, value in data['nodes'].items():
+            if not _is_point(value):
+                msg = f'{source}: node {name!r} must be [x, y] in pixels, got {value!r}'
+                raise ConfigError(msg)
+            names.append(str(name))
+            points.append([float(v) for v in value])
+        sigma = data.get('sigma')
+        if sigma is not None and not _is_number_list(sigma):
+            msg = f'{source}: sigma must be a list of numbers, got {sigma!r}'
+            raise ConfigError(msg)
+        try:
+            return cls(
+                node_names=tuple(names),
+                points=np.array(points, dtype=float).reshape(-1, 2),
+                sigma=None if sigma is None else np.array(sigma, dtype=float),
+            )
+        except ConfigError as error:
+            raise ConfigError(f'{source}: {error}') from None
+
+    def node_indices(self, model: FaceModel) -> np.ndarray:
+        """(K,) indices of the named nodes in ``model``.
+
+        Raises:
+            ConfigError: naming a node the model does not have, or a sigma of the wrong length.
+        """
+        topology = mesh_topology(model.num_nodes)
+        if self.sigma is not None and np.shape(self.sigma) != (model.p,):
+            msg = f'initialisation sigma has shape {np.shape(self.sigma)}, model p = {model.p}'
+            raise ConfigError(msg)
+        return np.array([topology.index(name) for name in self.node_names], dtype=int)
+
+
+def load_init_file(path: str | Path) -> Initialisation:
+    """Read an init file (YAML, or JSON by the ``.json`` suffix); see the module docstring.
+
+    Raises:
+        ConfigError: if the file is missing, unparsable or malformed; the message names the file.
+    """
+    path = Path(path)
+    try:
+        text = path.read_text(encoding='utf-8')
+    except OSError as error:
+        msg = f'cannot read init file {path}: {error.strerror}'
+        raise ConfigError(msg) from None
+    try:
+        data = json.loads(text) if path.suffix.lower() == '.json' else yaml.safe_load(text)
+    except (json.JSONDecodeError, yaml.YAMLError) as error:
+        kind = 'JSON' if path.suffix.lower() == '.json' else 'YAML'
+        msg = f'init file {path} is not valid {kind}: {error}'
+        raise ConfigError(msg) from None
+    return Initialisation.from_mapping(data, source=f'init file {path}')
+
+
+def _is_point(value: Any) -> bool:
+    """True for a 2-element list of numbers."""
+    return _is_number_list(value) and len(value) == 2
+
+
+def _is_number_list(value: Any) -> bool:
+    """True for a list or tuple of ints and floats (not bools)."""
+    return isinstance(value, list | tuple) and all(
+        isinstance(v, int | float) and not isinstance(v, bool) for v in value
+    )
+
+
+@dataclass(frozen=True)
+class FitConfig:
+    """Weights of the model fit to 2-D points.
+
+    Attributes:
+        pixel_noise: standard deviation of the given 2-D points, px (> 0); scales the
+            reprojection residuals against the priors.
+        prior_weight: multiplier of the §4.1 Gaussian priors on sigma and alpha (>= 0).
+        fit_alpha: estimate alpha (expression) too; otherwise alpha = 0.
+        max_rms_px: a fit whose RMS reprojection error exceeds this is rejected, px (> 0): the
+            points do not look like a face of the model (wrong names, swapped points).
+    """
+
+    pixel_noise: float = 2.0
+    prior_weight: float = 1.0
+    fit_alpha: bool = True
+    max_rms_px: float = 10.0
+
+    def __post_init__(self) -> None:
+        """Validate ranges."""
+        if not (self.pixel_noise > 0 and self.prior_weight >= 0 and self.max_rms_px > 0):
+            msg = f'pixel_noise and max_rms_px must be > 0 and prior_weight >= 0, got {self}'
+            raise ConfigError(msg)
+
+
+@dataclass(frozen=True)
+class ModelFit:
+    """Pose and parameters of eq. 1-3 fitted to 2-D points.
+
+    Attributes:
+        omega: (3,) rotation vector, rad.
+        t: (3,) translation, m.
+        sigma: (p,) identity parameters.
+        alpha: (q,) expression parameters.
+        residuals_px: (K,) reprojection error of each given point, px.
+    """
+
+    omega: np.ndarray
+    t: np.ndarray
+    sigma: np.ndarray
+    alpha: np.ndarray
+    residuals_px: np.ndarray
+
+    @property
+    def rms_px(self) -> float:
+        """RMS reprojection error, px."""
+        return float(np.sqrt(np.mean(self.residuals_px**2)))
+
+
+def fit_model_to_points(
+    model: FaceModel,
+    camera: PinholeCamera,
+    init: Initialisation,
+    config: FitConfig | None = None,
+) -> ModelFit:
+    """Fit pose, sigma and alpha of eq. 1-3 to 2-D node positions.
+
+    Minimises ``sum_k ||x_k - pi(R (mean + S sigma + A alpha)_k + t)||^2 / pixel_noise^2 +
+    prior_weight (sigma' Sigma_s^-1 sigma + alpha' Sigma_a^-1 alpha)`` with
+    ``scipy.optimize.least_squares`` and the analytic Jacobian, starting from ``cv2.solvePnP``
+    (SQPnP) on the identity shape (the mean shape unless ``init.sigma`` is given).
+
+    Args:
+        model: the face model (eq. 3) with its priors (§4.1).
+        camera: the camera of the image the points were taken in.
+        init: the 2-D points (and optionally a fixed sigma).
+        config: weights; defaults to :class:`FitConfig()`.
+
+    Returns:
+        The :class:`ModelFit`.
+
+    Raises:
+        ConfigError: for node names the model lacks or a sigma of the wrong length.
+        InputError: if no pose puts the face in front of the camera.
+    """
+    config = config or FitConfig()
+    indices = init.node_indices(model)
+    sigma_fixed = init.sigma is not None
+    sigma0 = np.zeros(model.p) if init.sigma is None else np.asarray(init.sigma, dtype=float)
+    omega0, t0 = _pnp(model.identity_shape(sigma0)[indices], init.points, camera)
+    bases = [model.shape_basis_nodes()[indices]] if not sigma_fixed else []
+    whitening = [_whitening(model.sigma_prior_covariance)] if not sigma_fixed else []
+    if config.fit_alpha:
+        bases.append(model.action_basis_nodes()[indices])
+        whitening.append(_whitening(model.alpha_prior_covariance))
+    basis = np.concatenate(bases, axis=-1) if bases else None
+    prior = np.sqrt(config.prior_weight) * (
+        block_diag(*whitening) if whitening else np.zeros((0, 0))
+    )
+    base_shape = model.identity_shape(sigma0)[indices]
+
+    def unpack(params: np.ndarray) -> np.ndarray:
+        """Face-frame points of the given nodes for the coefficients in ``params``."""
+        if basis is None:
+            return base_shape
+        return base_shape + basis @ params[POSE_DIM:]
+
+    def residuals(params: np.ndarray) -> np.ndarray:
+        pixels = project_with_jacobian(camera, params[:3], params[3:6], unpack(params)).pixels
+        reprojection = (pixels - init.points).ravel() / config.pixel_noise
+        return np.concatenate([reprojection, prior @ params[POSE_DIM:]])
+
+    def jacobian(params: np.ndarray) -> np.ndarray:
+        projection = project_with_jacobian(camera, params[:3], params[3:6], unpack(params), basis)
+        data = projection.jacobian.reshape(-1, params.size) / config.pixel_noise
+        prior_rows = np.hstack([np.zeros((prior.shape[0], POSE_DIM)), prior])
+        return np.vstack([data, prior_rows])
+
+    coefficients = 0 if basis is None else basis.shape[-1]
+    start = np.concatenate([omega0, t0, np.zeros(coefficients)])
+    solution = least_squares(residuals, start, jac=jacobian, method='lm', x_scale='jac').x
+    omega, t, coefficient_values = solution[:3], solution[3:6], solution[POSE_DIM:]
+    sigma = sigma0 if sigma_fixed else coefficient_values[: model.p]
+    alpha = coefficient_values[coefficients - model.q :] if config.fit_alpha else np.zeros(model.q)
+    pixels = project_with_jacobian(camera, omega, t, unpack(solution)).pixels
+    fit = ModelFit(
+        omega=omega,
+        t=t,
+        sigma=np.asarray(sigma, dtype=float).copy(),
+        alpha=np.asarray(alpha, dtype=float).copy(),
+        residuals_px=np.linalg.norm(pixels - init.points, axis=1),
+    )
+    if not (np.all(np.isfinite(solution)) and t[2] > 0 and fit.rms_px <= config.max_rms_px):
+        msg = (
+            f'model fit to {len(indices)} points failed (t = {t} m, RMS error {fit.rms_px:.1f} '
+            f'px > {config.max_rms_px} px); check the init points'
+        )
+        raise InputError(msg)
+    return fit
+
+
+def _pnp(shape: np.ndarray, points: np.ndarray, camera: PinholeCamera) -> tuple[np.ndarray, ...]:
+    """Pose (omega, t) of ``shape`` (K, 3) seen at ``points`` (K, 2), by SQPnP then refinement."""
+    intrinsics = camera.p[:, :3]
+    found, rvec, tvec = cv2.solvePnP(
+        shape, points.astype(float), intrinsics, None, flags=cv2.SOLVEPNP_SQPNP
+    )
+    if not found or tvec[2, 0] <= 0:
+        msg = 'solvePnP found no pose in front of the camera for the init points'
+        raise InputError(msg)
+    rvec, tvec = cv2.solvePnPRefineLM(shape, points.astype(float), intrinsics, None, rvec, tvec)
+    return rvec.ravel(), tvec.ravel()
+
+
+def _whitening(covariance: np.ndarray) -> np.ndarray:
+    """W with W' W = covariance^-1 (inverse Cholesky factor); a tiny ridge keeps it finite."""
+    ridge = 1e-12 * max(float(np.trace(covariance)), 1e-30)
+    lower = cholesky(covariance + ridge * np.eye(len(covariance)), lower=True)
+    return solve_triangular(lower, np.eye(len(covariance)), lower=True)

@@ -1,0 +1,729 @@
+"""Monocular model-based tracking of pose and expression (seed §3.5, eq. 6, §4.4).
+
+For each new image I_n the tracker estimates the pose (omega, t) of eq. 1 and the expression alpha
+of eq. 3, with the identity sigma held fixed, by minimising eq. 6::
+
+    C_n = sum_(i, ROI) (1 - epsilon) (I_n(x_i(n)) - I_(n-1)(x_i(n-1)))^2
+                       + epsilon (I_n(x_i(n)) - I_1(x_i(1)))^2
+
+plus the §4.1/§4.4 Gaussian prior on alpha, ``lambda alpha' Sigma_alpha^-1 alpha``.
+
+Design, in the seed's terms:
+
+- Regions of interest are small 3-D surface patches fixed in the face frame around each node
+  (:mod:`.surface_patches`), projected through eq. 1-2 at frames n, n-1 and 1: they foreshorten
+  with out-of-plane rotation, so the templates of frames n-1 and 1 stay valid as the head turns.
+- Both terms of eq. 6 share ``I_n(x_i(n))``, so eq. 6 equals ``sum (I_n(x_i(n)) - T)^2`` plus a
+  constant, with the blended template ``T = (1 - epsilon) I_(n-1)(x(n-1)) + epsilon I_1(x(1))``:
+  one residual per sample, and the exact Gauss-Newton step of eq. 6.
+- Levenberg-Marquardt over (omega, t, alpha) (and sigma during the first ``sigma_frames`` frames),
+  coarse to fine on a Gaussian pyramid, with Huber IRLS weights, per-node visibility (nodes whose
+  normal turns away from the camera lose their weight) and analytic Jacobians: the image gradient
+  sampled on the patches times d pixel / d X_c (eq. 2) times d X_c / d(omega, t, alpha) (eq. 1, 3).
+- Loss of track (most nodes' residuals as large as their texture, too few visible nodes, an
+  ill-conditioned or non-finite solve) gives status LOST with the last valid estimate; the tracker
+  then re-acquires against the frame-1 templates from the last valid and the initial pose, or from
+  a fresh detection when a detector was given.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field, replace
+from typing import NamedTuple
+
+import numpy as np
+from scipy.linalg import LinAlgError, inv, solve
+
+from face_tracking_ros.errors import ConfigError, InputError
+from face_tracking_ros.geometry.camera import PinholeCamera
+from face_tracking_ros.geometry.rotation import rodrigues
+from face_tracking_ros.imaging import (
+    ImagePyramid,
+    inside_image,
+    sample_points,
+    sample_with_gradient,
+    square_offsets,
+)
+from face_tracking_ros.model.face_model import FaceModel
+from face_tracking_ros.model.topology import Group
+from face_tracking_ros.tracking.initialisation import (
+    FitConfig,
+    Initialisation,
+    fit_model_to_points,
+)
+from face_tracking_ros.tracking.projection import (
+    POSE_DIM,
+    photometric_jacobian,
+    project_with_jacobian,
+)
+from face_tracking_ros.tracking.result import TrackResult, TrackStatus
+from face_tracking_ros.tracking.surface_patches import node_frames, surface_patch_offsets
+
+Detector = Callable[[np.ndarray], Initialisation | None]
+"""A landmark detector: (H, W) uint8 grey image -> 2-D node positions, or None if no face."""
+
+_MIN_DEPTH = 0.05  # m; a face nearer the camera than this has diverged
+_MAD_TO_STD = 1.4826  # robust standard deviation from the median absolute deviation
+
+
+@dataclass(frozen=True)
+class MonoTrackerConfig:
+    """Tunables of the monocular tracker, each tied to its symbol.
+
+    Attributes:
+        epsilon: drift-monitoring weight epsilon of eq. 6, in [0, 1] (seed: 0.2).
+        pyramid_levels: number of Gaussian pyramid levels, coarse to fine (>= 1).
+        max_iterations: Levenberg-Marquardt iterations per pyramid level (>= 1).
+        patch_half_size: h; each node's ROI has (2 h + 1)^2 samples (>= 1).
+        patch_spacing_px: ROI sample spacing at level 0 and the initial depth, px (> 0); the ROI
+            is a 3-D patch, so its image size follows the face's distance and orientation.
+        edge_patch_shift: face-edge nodes' ROIs are shifted inwards by this fraction of h, so
+            they hold face texture rather than background (in [0, 1]).
+        huber_k: Huber threshold of the IRLS weights, in robust standard deviations (> 0).
+        residual_scale_floor: smallest robust residual scale s, grey levels (> 0).
+        prior_weight: lambda of the alpha prior ``lambda alpha' Sigma_alpha^-1 alpha`` (and of
+            the sigma prior while sigma is estimated), in units of squared residuals / s^2
+            (>= 0; 0 switches the prior off).
+        sigma_frames: frames after an initialisation during which sigma is estimated with the
+            pose, then held fixed (>= 0; 0 keeps the sigma of the initial fit or enrolment).
+        damping: initial Levenberg-Marquardt damping, relative to diag(H) (> 0).
+        convergence_px: a level stops when no sample moves more than this, level px (> 0).
+        visibility_cos: a node's weight ramps from 0 to 1 as the cosine between its outward
+            normal and the ray to the camera goes from this value to twice it (in [0, 0.5)).
+        lost_residual_ratio: a node fails when its RMS residual exceeds this multiple of its
+            template's standard deviation (> 0).
+        lost_node_fraction: LOST when more than this fraction of visible nodes fail (in (0, 1]).
+        min_visible_fraction: LOST when fewer nodes are visible and inside the image (in [0, 1]).
+        max_condition: LOST when the Jacobi-scaled normal matrix has a larger condition number
+            (> 1).
+        fit: the model fit to initialisation points (:class:`FitConfig`).
+    """
+
+    epsilon: float = 0.2
+    pyramid_levels: int = 3
+    max_iterations: int = 6
+    patch_half_size: int = 4
+    patch_spacing_px: float = 1.5
+    edge_patch_shift: float = 0.5
+    huber_k: float = 2.0
+    residual_scale_floor: float = 2.0
+    prior_weight: float = 1.0
+    sigma_frames: int = 0
+    damping: float = 1e-4
+    convergence_px: float = 0.01
+    visibility_cos: float = 0.1
+    lost_residual_ratio: float = 1.0
+    lost_node_fraction: float = 0.5
+    min_visible_fraction: float = 0.5
+    max_condition: float = 1e10
+    fit: FitConfig = field(default_factory=FitConfig)
+
+    def __post_init__(self) -> None:
+        """Validate every field; the error names the field and its value."""
+        checks = {
+            'epsilon': 0.0 <= self.epsilon <= 1.0,
+            'pyramid_levels': self.pyramid_levels >= 1,
+            'max_iterations': self.max_iterations >= 1,
+            'patch_half_size': self.patch_half_size >= 1,
+            'patch_spacing_px': self.patch_spacing_px > 0,
+            'edge_patch_shift': 0.0 <= self.edge_patch_shift <= 1.0,
+            'huber_k': self.huber_k > 0,
+            'residual_scale_floor': self.residual_scale_floor > 0,
+            'prior_weight': self.prior_weight >= 0,
+            'sigma_frames': self.sigma_frames >= 0,
+            'damping': self.damping > 0,
+            'convergence_px': self.convergence_px > 0,
+            'visibility_cos': 0.0 <= self.visibility_cos < 0.5,
+            'lost_residual_ratio': self.lost_residual_ratio > 0,
+            'lost_node_fraction': 0.0 < self.lost_node_fraction <= 1.0,
+            'min_visible_fraction': 0.0 <= self.min_visible_fraction <= 1.0,
+            'max_condition': self.max_condition > 1,
+        }
+        for name, ok in checks.items():
+            if not ok:
+                msg = f'invalid MonoTrackerConfig.{name} = {getattr(self, name)!r}'
+                raise ConfigError(msg)
+
+
+class _Params(NamedTuple):
+    """The estimated quantities of eq. 1 and 3."""
+
+    omega: np.ndarray
+    t: np.ndarray
+    alpha: np.ndarray
+    sigma: np.ndarray
+
+    def updated(self, step: np.ndarray, q: int) -> _Params:
+        """Parameters after a solver step over (omega, t, alpha[, sigma])."""
+        sigma_step = step[POSE_DIM + q :]
+        return _Params(
+            omega=self.omega + step[:3],
+            t=self.t + step[3:6],
+            alpha=self.alpha + step[POSE_DIM : POSE_DIM + q],
+            sigma=self.sigma + sigma_step if sigma_step.size else self.sigma,
+        )
+
+
+class _System(NamedTuple):
+    """Eq. 6 linearised at one parameter vector on one pyramid level."""
+
+    cost: float
+    hessian: np.ndarray
+    gradient: np.ndarray
+    pixel_jacobian: np.ndarray
+    scale: float
+
+
+class _Solution(NamedTuple):
+    """Outcome of the coarse-to-fine solve."""
+
+    params: _Params
+    fallback: _Params
+    fallback_cost: float
+    scale: float
+    iterations: int
+    costs: tuple[float, ...]
+    condition: float
+
+
+class _Templates(NamedTuple):
+    """Samples of every pyramid level at a pose, with node visibility and level-0 inside mask.
+
+    Attributes:
+        levels: (N, M) samples per level.
+        visibility: (N,) node visibility weights.
+        inside: (N, M) level-0 samples inside the image.
+    """
+
+    levels: tuple[np.ndarray, ...]
+    visibility: np.ndarray
+    inside: np.ndarray
+
+
+@dataclass
+class _Track:
+    """State of a running track."""
+
+    offsets: tuple[np.ndarray, ...]
+    normals: np.ndarray
+    first: _Templates
+    previous: _Templates
+    start: _Params
+    current: _Params
+    last_good: TrackResult
+    frames: int = 1
+    lost: bool = False
+
+
+class MonoTracker:
+    """Eq. 6 tracker of one face in a monocular image stream.
+
+    Args:
+        model: the face model (eq. 3) with its priors (§4.1).
+        camera: the camera; images must be rectified to its ``p`` and have its size.
+        config: tunables; defaults to :class:`MonoTrackerConfig()`.
+        detector: optional landmark detector for automatic (re-)initialisation.
+
+    Raises:
+        ConfigError: if the pyramid is too deep for the camera's image size.
+    """
+
+    def __init__(
+        self,
+        model: FaceModel,
+        camera: PinholeCamera,
+        config: MonoTrackerConfig | None = None,
+        detector: Detector | None = None,
+    ) -> None:
+        """Store the collaborators and precompute what does not change between frames."""
+        self._model = model
+        self._camera = camera
+        self._config = config or MonoTrackerConfig()
+        self._detector = detector
+        levels = self._config.pyramid_levels
+        if min(camera.width, camera.height) >> (levels - 1) < 16:
+            msg = (
+                f'pyramid_levels = {levels} is too deep for {camera.width}x{camera.height} images'
+            )
+            raise ConfigError(msg)
+        self._triangles = model.topology.triangles
+        self._edge_nodes = model.topology.group_mask(Group.EDGE)
+        self._action_basis = model.action_basis_nodes()  # (N, 3, q)
+        self._identity_action_basis = np.concatenate(
+            [self._action_basis, model.shape_basis_nodes()], axis=-1
+        )
+        weight = self._config.prior_weight
+        self._alpha_precision = weight * inv(model.alpha_prior_covariance)
+        self._sigma_precision = weight * inv(model.sigma_prior_covariance)
+        self._grid = square_offsets(self._config.patch_half_size)
+        self._init: Initialisation | None = None
+        self._use_init = False
+        self._track: _Track | None = None
+
+    @property
+    def config(self) -> MonoTrackerConfig:
+        """The tracker's configuration."""
+        return self._config
+
+    @property
+    def status(self) -> TrackStatus:
+        """INITIALIZING before a fit, LOST while re-acquiring, TRACKING otherwise."""
+        if self._track is None:
+            return TrackStatus.INITIALIZING
+        return TrackStatus.LOST if self._track.lost else TrackStatus.TRACKING
+
+    def reset(self, init: Initialisation | None = None) -> None:
+        """Drop the current track; the next image is initialised.
+
+        Args:
+            init: 2-D node positions in the next image (and optionally a fixed sigma). None
+                detects the face when the tracker has a detector, or re-uses the last
+                initialisation's points otherwise.
+        """
+        if init is not None:
+            self._init = init
+        self._use_init = init is not None or self._detector is None
+        self._track = None
+
+    def step(self, image: np.ndarray) -> TrackResult:
+        """Track the face into a new image.
+
+        Never raises on a bad frame: a malformed image, a failed fit or a lost face give a result
+        with status LOST (or INITIALIZING while no face has been found) and a ``reason``.
+
+        Args:
+            image: (H, W) grey image (uint8 or float, grey levels 0-255) of the camera's size.
+
+        Returns:
+            The :class:`TrackResult` of this image.
+        """
+        try:
+            pyramid = self._pyramid(image)
+            if self._track is None:
+                return self._initialise(pyramid)
+            if self._track.lost:
+                return self._reacquire(pyramid)
+            return self._follow(pyramid)
+        except (InputError, LinAlgError) as error:
+            return self._failure(str(error))
+
+    # --- initialisation and recovery -----------------------------------------------------------
+
+    def _initialise(self, pyramid: ImagePyramid) -> TrackResult:
+        """Fit the model to the init points (or a detection) and start a track on this image."""
+        init = self._init if self._use_init else self._detect(pyramid)
+        if init is None:
+            return self._failure('waiting for an initialisation (init points or a detection)')
+        try:
+            fit = fit_model_to_points(self._model, self._camera, init, self._config.fit)
+        except (InputError, ConfigError) as error:
+            return self._failure(f'initialisation failed: {error}')
+        params = _Params(fit.omega, fit.t, fit.alpha, fit.sigma)
+        offsets, normals = self._patch_offsets(params, pyramid.num_levels)
+        templates = self._templates(pyramid, params, offsets, normals)
+        residuals = np.zeros(self._model.num_nodes)
+        result = self._result(TrackStatus.TRACKING, params, residuals, 0, (), '')
+        self._track = _Track(
+            offsets=offsets,
+            normals=normals,
+            first=templates,
+            previous=templates,
+            start=params,
+            current=params,
+            last_good=result,
+        )
+        return result
+
+    def _detect(self, pyramid: ImagePyramid) -> Initialisation | None:
+        """Run the detector, if any, on the full-resolution grey image."""
+        if self._detector is None:
+            return None
+        return self._detector(np.clip(pyramid.levels[0], 0, 255).astype(np.uint8))
+
+    def _patch_offsets(
+        self, params: _Params, num_levels: int
+    ) -> tuple[tuple[np.ndarray, ...], np.ndarray]:
+        """Per-level (N, M, 3) face-frame ROI offsets and the (N, 3) node normals.
+
+        The ROI grid lies in each node's tangent plane with the spacing that gives
+        ``patch_spacing_px`` at the initial depth, doubled on every coarser level; face-edge
+        nodes' grids are shifted towards the face centre.
+        """
+        config = self._config
+        shape = self._model.identity_shape(params.sigma)
+        frames = node_frames(shape, self._triangles)
+        inward = np.einsum(
+            'eka,ea->ek',
+            frames[self._edge_nodes, :2],
+            shape.mean(axis=0) - shape[self._edge_nodes],
+        )
+        inward /= np.linalg.norm(inward, axis=1, keepdims=True)
+        grid = np.repeat(self._grid[None], len(shape), axis=0)
+        grid[self._edge_nodes] += inward[:, None, :] * (
+            config.edge_patch_shift * config.patch_half_size
+        )
+        spacing = config.patch_spacing_px * params.t[2] / self._camera.focal
+        base = surface_patch_offsets(frames, grid * spacing)
+        return tuple(base * float(1 << level) for level in range(num_levels)), frames[:, 2]
+
+    def _reacquire(self, pyramid: ImagePyramid) -> TrackResult:
+        """While LOST: solve against the frame-1 templates from candidate starts.
+
+        Candidates are a fresh detection (if a detector was given), the last valid estimate and
+        the initial fit; the first that passes the loss checks resumes the track.
+        """
+        track = self._track
+        detected = self._detect(pyramid)
+        candidates = [self._fit_or_none(detected)] if detected is not None else []
+        candidates += [_params_of(track.last_good), track.start]
+        reason = 'lost'
+        for start in (c for c in candidates if c is not None):
+            weights = track.first.visibility * self._visibility(start, track.normals)
+            result, templates = self._solve_frame(pyramid, start, track.first.levels, weights)
+            if result.ok:
+                self._accept(result, templates)
+                return result
+            reason = result.reason
+        return self._failure(f'lost: {reason}')
+
+    def _fit_or_none(self, init: Initialisation) -> _Params | None:
+        """Model fit of a detection, or None if it fails."""
+        try:
+            fit = fit_model_to_points(self._model, self._camera, init, self._config.fit)
+        except (InputError, ConfigError):
+            return None
+        return _Params(fit.omega, fit.t, fit.alpha, self._track.current.sigma)
+
+    # --- tracking ------------------------------------------------------------------------------
+
+    def _follow(self, pyramid: ImagePyramid) -> TrackResult:
+        """Track one frame (eq. 6) from the previous estimate."""
+        track = self._track
+        epsilon = self._config.epsilon * track.first.visibility[:, None]
+        blended = tuple(
+            prev + epsilon * (first - prev)
+            for prev, first in zip(track.previous.levels, track.first.levels, strict=True)
+        )
+        weights = np.minimum(
+            track.previous.visibility, self._visibility(track.current, track.normals)
+        )
+        free_sigma = track.frames <= self._config.sigma_frames
+        result, templates = self._solve_frame(pyramid, track.current, blended, weights, free_sigma)
+        if not result.ok:
+            return self._failure(f'lost: {result.reason}')
+        self._accept(result, templates)
+        return result
+
+    def _accept(self, result: TrackResult, templates: _Templates) -> None:
+        """Make a successful frame the previous frame of the next one."""
+        track = self._track
+        track.current = _params_of(result)
+        track.previous = templates
+        track.last_good = result
+        track.frames += 1
+        track.lost = False
+
+    def _solve_frame(
+        self,
+        pyramid: ImagePyramid,
+        start: _Params,
+        templates: tuple[np.ndarray, ...],
+        node_weights: np.ndarray,
+        free_sigma: bool = False,
+    ) -> tuple[TrackResult, _Templates]:
+        """Solve eq. 6 coarse to fine from ``start``; check the outcome for loss of track.
+
+        Returns:
+            The frame's result (TRACKING or LOST with a reason) and the templates sampled at the
+            solution (the next frame's I_(n-1) samples).
+        """
+        track = self._track
+        solution = self._solve(pyramid, start, templates, node_weights, free_sigma)
+        params = solution.params
+        sampled = self._templates(pyramid, params, track.offsets, track.normals)
+        residuals = sampled.levels[0] - templates[0]
+        weights = node_weights[:, None] * sampled.inside
+        cost = self._data_cost(residuals, weights, solution.scale) + self._prior_cost(
+            params, free_sigma
+        )
+        if cost > solution.fallback_cost:  # the last, unchecked step made things worse
+            params = solution.fallback
+            sampled = self._templates(pyramid, params, track.offsets, track.normals)
+            residuals = sampled.levels[0] - templates[0]
+        node_rms = np.sqrt(np.mean(residuals**2, axis=1))
+        reason = self._loss_reason(params, node_rms, templates[0], sampled.visibility, solution)
+        status = TrackStatus.LOST if reason else TrackStatus.TRACKING
+        costs = (*solution.costs, min(cost, solution.fallback_cost))
+        result = self._result(status, params, node_rms, solution.iterations, costs, reason)
+        return result, sampled
+
+    def _solve(
+        self,
+        pyramid: ImagePyramid,
+        start: _Params,
+        templates: tuple[np.ndarray, ...],
+        node_weights: np.ndarray,
+        free_sigma: bool,
+    ) -> _Solution:
+        """Levenberg-Marquardt on eq. 6 plus priors, from the coarsest level to level 0."""
+        config = self._config
+        q = self._model.q
+        params = start
+        costs: list[float] = []
+        for level in reversed(range(pyramid.num_levels)):
+            damping = config.damping
+            accepted: tuple[_Params, _System] | None = None
+            scale = None
+            for _ in range(config.max_iterations):
+                system = self._linearise(
+                    pyramid, level, params, templates[level], node_weights, free_sigma, scale
+                )
+                scale = system.scale
+                costs.append(system.cost)
+                if accepted is not None and system.cost > accepted[1].cost:
+                    params, system = accepted
+                    damping *= 10.0
+                else:
+                    accepted = (params, system)
+                    damping = max(0.1 * damping, 1e-9)
+                step = _damped_step(system, damping)
+                params = params.updated(step, q)
+                motion = np.abs(system.pixel_jacobian @ step).max(initial=0.0)
+                if motion < config.convergence_px:
+                    break
+        return _Solution(
+            params=params,
+            fallback=accepted[0],
+            condition=_condition(accepted[1].hessian),
+            fallback_cost=accepted[1].cost,
+            scale=accepted[1].scale,
+            iterations=len(costs),
+            costs=tuple(costs),
+        )
+
+    def _linearise(
+        self,
+        pyramid: ImagePyramid,
+        level: int,
+        params: _Params,
+        template: np.ndarray,
+        node_weights: np.ndarray,
+        free_sigma: bool,
+        scale: float | None,
+    ) -> _System:
+        """Residuals, Huber-weighted normal equations and cost of eq. 6 on one level.
+
+        Args:
+            pyramid: the current image I_n.
+            level: pyramid level.
+            params: linearisation point.
+            template: (N, M) blended template T of this level.
+            node_weights: (N,) visibility weights.
+            free_sigma: also differentiate with respect to sigma.
+            scale: the robust residual scale s, or None to estimate it from these residuals.
+        """
+        basis = self._identity_action_basis if free_sigma else self._action_basis
+        shape = self._model.shape(params.sigma, params.alpha)
+        points = shape[:, None, :] + self._track.offsets[level]
+        rotation, _ = rodrigues(params.omega)
+        points_cam = points @ rotation.T + params.t
+        level_scale = 1.0 / float(1 << level)
+        pixels = self._camera.project(points_cam.reshape(-1, 3)).reshape(*points.shape[:2], 2)
+        image = pyramid.levels[level]
+        values, gradient = sample_with_gradient(image, pixels * level_scale)
+        residuals = values - template
+        weights = node_weights[:, None] * inside_image(pixels * level_scale, image.shape, 1.0)
+        if scale is None:
+            active = np.abs(residuals[weights > 0])
+            spread = _MAD_TO_STD * float(np.median(active)) if active.size else 0.0
+            scale = max(self._config.residual_scale_floor, spread)
+        jacobian = photometric_jacobian(
+            self._camera, params.omega, points, points_cam, gradient * level_scale, basis
+        ).reshape(residuals.size, -1)
+        node_jacobian = project_with_jacobian(
+            self._camera, params.omega, params.t, shape, basis
+        ).jacobian
+        normalised = (residuals / scale).ravel()
+        huber = _huber_weights(normalised, self._config.huber_k) * weights.ravel()
+        weighted = jacobian * huber[:, None]
+        hessian = weighted.T @ jacobian / scale**2
+        gradient_vector = weighted.T @ residuals.ravel() / scale**2
+        prior_hessian, prior_gradient = self._prior_terms(params, free_sigma)
+        cost = self._data_cost(residuals, weights, scale) + self._prior_cost(params, free_sigma)
+        return _System(
+            cost=cost,
+            hessian=hessian + prior_hessian,
+            gradient=gradient_vector + prior_gradient,
+            pixel_jacobian=node_jacobian.reshape(-1, jacobian.shape[1]) * level_scale,
+            scale=scale,
+        )
+
+    def _prior_terms(self, params: _Params, free_sigma: bool) -> tuple[np.ndarray, np.ndarray]:
+        """Hessian and gradient (halved) of the alpha (and sigma) priors, padded to the pose."""
+        q = self._model.q
+        size = POSE_DIM + q + (self._model.p if free_sigma else 0)
+        hessian = np.zeros((size, size))
+        gradient = np.zeros(size)
+        blocks = [(self._alpha_precision, params.alpha)]
+        if free_sigma:
+            blocks.append((self._sigma_precision, params.sigma))
+        start = POSE_DIM
+        for precision, value in blocks:
+            stop = start + len(value)
+            hessian[start:stop, start:stop] = precision
+            gradient[start:stop] = precision @ value
+            start = stop
+        return hessian, gradient
+
+    def _prior_cost(self, params: _Params, free_sigma: bool) -> float:
+        """``alpha' L_a alpha`` (+ ``sigma' L_s sigma`` while sigma is free)."""
+        cost = float(params.alpha @ self._alpha_precision @ params.alpha)
+        if free_sigma:
+            cost += float(params.sigma @ self._sigma_precision @ params.sigma)
+        return cost
+
+    def _data_cost(self, residuals: np.ndarray, weights: np.ndarray, scale: float) -> float:
+        """Huber cost ``sum w rho(r / s)`` of (N, M) residuals with (N, M) weights."""
+        normalised = np.abs(residuals / scale)
+        k = self._config.huber_k
+        rho = np.where(normalised <= k, normalised**2, 2 * k * normalised - k * k)
+        return float(np.sum(weights * rho))
+
+    # --- checks, templates, results ------------------------------------------------------------
+
+    def _loss_reason(
+        self,
+        params: _Params,
+        node_rms: np.ndarray,
+        template: np.ndarray,
+        visibility: np.ndarray,
+        solution: _Solution,
+    ) -> str:
+        """Why this estimate is not a valid track ('' if it is)."""
+        config = self._config
+        values = np.concatenate([params.omega, params.t, params.alpha, params.sigma])
+        if not np.all(np.isfinite(values)) or params.t[2] < _MIN_DEPTH:
+            return 'the solver diverged'
+        if solution.condition > config.max_condition:
+            return f'ill-conditioned solve (condition {solution.condition:.1e})'
+        pixels = self._project_nodes(params)[1]
+        visible = (visibility > 0) & inside_image(
+            pixels, (self._camera.height, self._camera.width)
+        )
+        if visible.mean() < config.min_visible_fraction:
+            return f'only {visible.sum()} of {len(visible)} nodes visible in the image'
+        texture = np.maximum(template.std(axis=1), config.residual_scale_floor)
+        failing = (node_rms > config.lost_residual_ratio * texture) & visible
+        if failing.sum() > config.lost_node_fraction * visible.sum():
+            return f'{failing.sum()} of {visible.sum()} visible nodes do not match their templates'
+        return ''
+
+    def _templates(
+        self,
+        pyramid: ImagePyramid,
+        params: _Params,
+        offsets: tuple[np.ndarray, ...],
+        normals: np.ndarray,
+    ) -> _Templates:
+        """Samples of every level at ``params``'s ROIs, and the node visibility there."""
+        shape = self._model.shape(params.sigma, params.alpha)
+        rotation, _ = rodrigues(params.omega)
+        levels, inside = [], None
+        for level, image in enumerate(pyramid.levels):
+            points_cam = (shape[:, None, :] + offsets[level]) @ rotation.T + params.t
+            pixels = self._camera.project(points_cam.reshape(-1, 3)).reshape(
+                *points_cam.shape[:2], 2
+            )
+            pixels = ImagePyramid.to_level(pixels, level)
+            levels.append(sample_points(image, pixels))
+            if inside is None:
+                inside = inside_image(pixels, image.shape, margin=1.0)
+        return _Templates(tuple(levels), self._visibility(params, normals), inside)
+
+    def _visibility(self, params: _Params, normals: np.ndarray) -> np.ndarray:
+        """(N,) weights in [0, 1] from the angle between node normals and rays to the camera."""
+        rotation, _ = rodrigues(params.omega)
+        nodes, _ = self._project_nodes(params)
+        rays = nodes / np.linalg.norm(nodes, axis=1, keepdims=True)
+        facing = -np.einsum('na,na->n', normals @ rotation.T, rays)
+        low = self._config.visibility_cos
+        return np.clip((facing - low) / max(low, 1e-6), 0.0, 1.0)
+
+    def _project_nodes(self, params: _Params) -> tuple[np.ndarray, np.ndarray]:
+        """(N, 3) camera-frame nodes (eq. 1, 3) and their (N, 2) pixels (eq. 2)."""
+        shape = self._model.shape(params.sigma, params.alpha)
+        projection = project_with_jacobian(self._camera, params.omega, params.t, shape)
+        return projection.points_cam, projection.pixels
+
+    def _result(
+        self,
+        status: TrackStatus,
+        params: _Params,
+        node_residuals: np.ndarray,
+        iterations: int,
+        costs: tuple[float, ...],
+        reason: str,
+    ) -> TrackResult:
+        """A TrackResult for ``params``."""
+        nodes_cam, nodes_px = self._project_nodes(params)
+        return TrackResult(
+            status=status,
+            omega=params.omega.copy(),
+            t=params.t.copy(),
+            alpha=params.alpha.copy(),
+            sigma=params.sigma.copy(),
+            nodes_cam=nodes_cam,
+            nodes_px=nodes_px,
+            node_residuals=node_residuals,
+            mean_residual=float(np.mean(node_residuals)),
+            iterations=iterations,
+            cost_history=costs,
+            reason=reason,
+        )
+
+    def _failure(self, reason: str) -> TrackResult:
+        """LOST with the last valid estimate, or INITIALIZING before any."""
+        if self._track is None:
+            model = self._model
+            return TrackResult.empty(model.num_nodes, model.p, model.q, reason)
+        self._track.lost = True
+        return replace(self._track.last_good, status=TrackStatus.LOST, reason=reason)
+
+    def _pyramid(self, image: np.ndarray) -> ImagePyramid:
+        """Validate the image against the camera and build its pyramid."""
+        image = np.asarray(image)
+        expected = (self._camera.height, self._camera.width)
+        if image.shape != expected:
+            msg = f'image has shape {image.shape}; the camera expects a grey {expected} image'
+            raise InputError(msg)
+        return ImagePyramid.build(image, self._config.pyramid_levels)
+
+
+def _params_of(result: TrackResult) -> _Params:
+    """The parameters of a result."""
+    return _Params(result.omega, result.t, result.alpha, result.sigma)
+
+
+def _huber_weights(normalised: np.ndarray, k: float) -> np.ndarray:
+    """IRLS weights of the Huber loss at normalised residuals r / s: 1 inside k, k/|u| outside."""
+    magnitude = np.abs(normalised)
+    return np.where(magnitude <= k, 1.0, k / np.maximum(magnitude, k))
+
+
+def _damped_step(system: _System, damping: float) -> np.ndarray:
+    """Levenberg-Marquardt step ``-(H + lambda diag H)^-1 g``, solved Jacobi-scaled."""
+    if not np.all(np.isfinite(system.hessian)) or not np.all(np.isfinite(system.gradient)):
+        msg = 'non-finite normal equations'
+        raise LinAlgError(msg)
+    scaling = 1.0 / np.sqrt(np.maximum(np.diag(system.hessian), 1e-12))
+    scaled = system.hessian * scaling[:, None] * scaling[None, :]
+    damped = scaled + damping * np.eye(len(scaling))
+    return -scaling * solve(damped, system.gradient * scaling, assume_a='pos')
+
+
+def _condition(hessian: np.ndarray) -> float:
+    """Condition number of the Jacobi-scaled normal matrix (inf when singular)."""
+    scaling = 1.0 / np.sqrt(np.maximum(np.diag(hessian), 1e-12))
+    eigenvalues = np.linalg.eigvalsh(hessian * scaling[:, None] * scaling[None, :])
+    return float(eigenvalues[-1] / eigenvalues[0]) if eigenvalues[0] > 0 else float('inf')

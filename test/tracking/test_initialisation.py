@@ -1,0 +1,143 @@
+"""Init files and the model fit to 2-D points (tracking.initialisation)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from face_tracking_ros.errors import ConfigError, InputError
+from face_tracking_ros.geometry.camera import PinholeCamera
+from face_tracking_ros.tracking.initialisation import (
+    FitConfig,
+    Initialisation,
+    fit_model_to_points,
+    load_init_file,
+)
+from face_tracking_ros.tracking.projection import project_with_jacobian
+
+CAMERA = PinholeCamera.ideal()
+SIX = ('right_eye', 'left_eye', 'nose_tip', 'mouth_right', 'mouth_left', 'chin')
+
+
+def test_yaml_and_json_init_files_parse(tmp_path: Path) -> None:
+    text = (
+        '# first frame of the bag\n'
+        'nodes:\n'
+        + ''.join(f'  {name}: [{100 + i}.5, {200 + i}]\n' for i, name in enumerate(SIX))
+        + 'sigma: [0.004, -0.001]\n'
+    )
+    yaml_path = tmp_path / 'init.yaml'
+    yaml_path.write_text(text)
+    init = load_init_file(yaml_path)
+    assert init.node_names == SIX
+    assert np.array_equal(init.points[2], [102.5, 202.0])
+    assert np.array_equal(init.sigma, [0.004, -0.001])
+    json_path = tmp_path / 'init.json'
+    json_path.write_text(json.dumps({'nodes': dict(zip(SIX, init.points.tolist(), strict=True))}))
+    from_json = load_init_file(json_path)
+    assert from_json.sigma is None and np.array_equal(from_json.points, init.points)
+
+
+@pytest.mark.parametrize(
+    ('text', 'match'),
+    [
+        ('nodes: [1, 2]\n', 'expected a mapping with a "nodes" mapping'),
+        ('nodes: {a: [1, 2]}\nextra: 1\n', r"unknown keys \['extra'\]"),
+        ('nodes: {right_eye: [1, 2, 3]}\n', "node 'right_eye' must be \\[x, y\\]"),
+        ('nodes: {right_eye: [1, true]}\n', "node 'right_eye' must be \\[x, y\\]"),
+        ('nodes: {right_eye: [1, 2]}\n', 'at least 6 nodes, got 1'),
+        ('nodes: {a: [1, 2]}\nsigma: oops\n', 'sigma must be a list of numbers'),
+        ('nodes: {a: [1, 2]\n', 'is not valid YAML'),
+    ],
+)
+def test_bad_init_files_name_the_file_and_problem(tmp_path: Path, text: str, match: str) -> None:
+    path = tmp_path / 'bad.yaml'
+    path.write_text(text)
+    with pytest.raises(ConfigError, match=match) as info:
+        load_init_file(path)
+    assert str(path) in str(info.value)
+
+
+def test_missing_init_file(tmp_path: Path) -> None:
+    with pytest.raises(ConfigError, match='cannot read init file .*nope.yaml'):
+        load_init_file(tmp_path / 'nope.yaml')
+
+
+def test_initialisation_validation(model_factory) -> None:
+    points = np.zeros((6, 2))
+    with pytest.raises(ConfigError, match='repeats node names'):
+        Initialisation(('a',) * 6, points)
+    with pytest.raises(ConfigError, match='6 finite'):
+        Initialisation(SIX, np.full((6, 2), np.nan))
+    with pytest.raises(ConfigError, match='sigma holds NaN'):
+        Initialisation(SIX, points, sigma=np.array([np.inf]))
+    model = model_factory(num_nodes=19)
+    with pytest.raises(ConfigError, match="unknown node name 'chin'"):
+        Initialisation(SIX, points).node_indices(model)
+    with pytest.raises(ConfigError, match=r'sigma has shape \(1,\), model p = 3'):
+        Initialisation(SIX[:5] + ('nose_left',), points, sigma=np.ones(1)).node_indices(model)
+    with pytest.raises(ConfigError, match='pixel_noise and max_rms_px must be > 0'):
+        FitConfig(pixel_noise=0.0)
+
+
+def _truth_points(model, omega, t, sigma, alpha, noise=0.0, seed=0):
+    shape = model.shape(sigma, alpha)
+    pixels = project_with_jacobian(CAMERA, omega, t, shape).pixels
+    return (
+        pixels + np.random.default_rng(seed).normal(0.0, noise, pixels.shape) if noise else pixels
+    )
+
+
+def test_fit_recovers_pose_and_parameters_from_exact_points(model_factory) -> None:
+    model = model_factory()
+    omega, t = np.array([0.1, -0.3, 0.05]), np.array([0.03, -0.02, 0.65])
+    sigma, alpha = np.array([0.02, -0.01, 0.005]), np.array([0.01, 0.0, -0.008, 0.004])
+    init = Initialisation(model.node_names, _truth_points(model, omega, t, sigma, alpha))
+    fit = fit_model_to_points(model, CAMERA, init, FitConfig(prior_weight=0.0))
+    assert fit.rms_px < 1e-6
+    assert np.allclose(fit.omega, omega, atol=1e-6) and np.allclose(fit.t, t, atol=1e-6)
+    assert np.allclose(fit.sigma, sigma, atol=1e-5) and np.allclose(fit.alpha, alpha, atol=1e-5)
+
+
+def test_fit_with_noise_and_prior_beats_mean_shape_pnp(model_factory) -> None:
+    model = model_factory()
+    omega, t = np.array([-0.2, 0.4, 0.1]), np.array([-0.05, 0.04, 0.7])
+    sigma = 1.5 * np.sqrt(model.shape_eigenvalues)
+    alpha = np.zeros(model.q)
+    errors = {'fit': [], 'pnp': []}
+    for seed in range(5):
+        points = _truth_points(model, omega, t, sigma, alpha, noise=0.5, seed=seed)
+        init = Initialisation(model.node_names, points)
+        fit = fit_model_to_points(model, CAMERA, init, FitConfig(pixel_noise=0.5))
+        rigid = fit_model_to_points(
+            model,
+            CAMERA,
+            Initialisation(model.node_names, points, sigma=np.zeros(model.p)),
+            FitConfig(fit_alpha=False),
+        )
+        errors['fit'].append(np.degrees(np.abs(fit.omega - omega)).max())
+        errors['pnp'].append(np.degrees(np.abs(rigid.omega - omega)).max())
+    assert np.mean(errors['fit']) < 1.5
+    assert np.mean(errors['fit']) < 0.5 * np.mean(errors['pnp'])
+
+
+def test_fit_with_enrolled_sigma_and_subset(model_factory) -> None:
+    model = model_factory()
+    omega, t = np.array([0.0, 0.2, 0.0]), np.array([0.0, 0.0, 0.6])
+    sigma = np.array([0.01, 0.01, -0.01])
+    pixels = _truth_points(model, omega, t, sigma, np.zeros(model.q))
+    indices = [0, 1, 2, 5, 6, 11, 19, 22, 28]
+    names = tuple(model.node_names[i] for i in indices)
+    fit = fit_model_to_points(model, CAMERA, Initialisation(names, pixels[indices], sigma=sigma))
+    assert np.array_equal(fit.sigma, sigma)
+    assert fit.rms_px < 0.05 and np.allclose(fit.omega, omega, atol=2e-3)
+
+
+def test_fit_rejects_points_with_no_pose_in_front(model_factory) -> None:
+    model = model_factory()
+    collinear = np.column_stack([np.linspace(0, 600, 34), np.full(34, 240.0)])
+    with pytest.raises(InputError, match='check the init points|no pose in front'):
+        fit_model_to_points(model, CAMERA, Initialisation(model.node_names, collinear))

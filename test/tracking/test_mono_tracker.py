@@ -1,0 +1,181 @@
+"""MonoTracker (eq. 6) on images with known motion: a flat textured face seen by an ideal camera.
+
+A fronto-parallel planar face makes 2-D image warps exact 3-D motions: a shift of the image is a
+lateral translation, a zoom about the principal point a change of depth and a rotation about it a
+roll. These tests need no renderer.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+from face_tracking_ros.errors import ConfigError
+from face_tracking_ros.geometry.camera import PinholeCamera
+from face_tracking_ros.tracking.initialisation import Initialisation
+from face_tracking_ros.tracking.mono import MonoTracker, MonoTrackerConfig
+from face_tracking_ros.tracking.projection import project_with_jacobian
+from face_tracking_ros.tracking.result import TrackStatus
+
+CAMERA = PinholeCamera.ideal()
+DEPTH = 0.6
+CENTRE = (319.5, 239.5)
+
+
+@pytest.fixture
+def scene(model_factory, texture_factory):
+    """A planar model, a texture image and the init points of the model at depth 0.6 m."""
+    model = model_factory(planar=True)
+    t = np.array([0.0, 0.0, DEPTH])
+    pixels = project_with_jacobian(CAMERA, np.zeros(3), t, model.shape()).pixels
+    return model, texture_factory(), Initialisation(model.node_names, pixels)
+
+
+def _warp(image: np.ndarray, matrix: np.ndarray) -> np.ndarray:
+    return cv2.warpAffine(
+        image,
+        matrix.astype(np.float32),
+        (640, 480),
+        flags=cv2.INTER_CUBIC,
+        borderMode=cv2.BORDER_REFLECT,
+    )
+
+
+def _started(model, image, init, **config) -> MonoTracker:
+    tracker = MonoTracker(model, CAMERA, MonoTrackerConfig(**config))
+    tracker.reset(init)
+    first = tracker.step(image)
+    assert first.status == TrackStatus.TRACKING and first.iterations == 0
+    assert np.allclose(first.t, [0, 0, DEPTH], atol=1e-9)
+    return tracker
+
+
+def test_no_motion_gives_exactly_zero_motion(scene) -> None:
+    model, image, init = scene
+    tracker = _started(model, image, init, prior_weight=0.0)
+    start = tracker.step(image)
+    for _ in range(3):
+        result = tracker.step(image)
+        assert result.ok
+        assert np.array_equal(result.omega, start.omega) and np.array_equal(result.t, start.t)
+        assert np.array_equal(result.alpha, start.alpha)
+        assert result.mean_residual == 0.0
+    # With the alpha prior on, alpha starts at its mode 0 here, so nothing moves either.
+    tracker = _started(model, image, init)
+    assert np.abs(tracker.step(image).t - [0, 0, DEPTH]).max() < 1e-12
+
+
+@pytest.mark.parametrize('shift', [(3.0, -2.0), (-6.0, 5.0), (11.0, 0.0)])
+def test_image_shift_is_recovered_as_lateral_translation(scene, shift) -> None:
+    model, image, init = scene
+    tracker = _started(model, image, init)
+    result = tracker.step(_warp(image, np.array([[1, 0, shift[0]], [0, 1, shift[1]]])))
+    expected = np.array([shift[0], shift[1], 0.0]) * DEPTH / CAMERA.focal + [0, 0, DEPTH]
+    assert result.ok, result.reason
+    assert np.abs(result.t - expected).max() < 5e-5  # 0.05 mm of 3 to 11 mm
+    assert np.degrees(np.abs(result.omega)).max() < 0.05
+    assert np.abs(result.nodes_px - init.points - shift).max() < 0.05
+
+
+def test_zoom_is_recovered_as_depth_and_rotation_as_roll(scene) -> None:
+    model, image, init = scene
+    tracker = _started(model, image, init)
+    scale = 1.04
+    zoom = cv2.getRotationMatrix2D(CENTRE, 0.0, scale)
+    result = tracker.step(_warp(image, zoom))
+    assert result.ok, result.reason
+    assert abs(result.t[2] - DEPTH / scale) < 2e-4
+    # Out-of-plane angles of a flat face show only through perspective foreshortening.
+    assert np.degrees(np.abs(result.omega)).max() < 0.25
+    tracker = _started(model, image, init)
+    result = tracker.step(_warp(image, cv2.getRotationMatrix2D(CENTRE, -4.0, 1.0)))
+    assert result.ok, result.reason
+    assert abs(np.degrees(result.omega[2]) - 4.0) < 0.02
+    assert np.degrees(np.abs(result.omega[:2])).max() < 0.25
+
+
+def test_tracking_follows_a_drifting_image_without_drift(scene) -> None:
+    model, image, init = scene
+    tracker = _started(model, image, init)
+    for frame in range(1, 16):
+        shift = np.array([0.8 * frame, -0.5 * frame])
+        result = tracker.step(_warp(image, np.array([[1, 0, shift[0]], [0, 1, shift[1]]])))
+        assert result.ok, result.reason
+    expected = np.array([*shift, 0.0]) * DEPTH / CAMERA.focal + [0, 0, DEPTH]
+    assert np.abs(result.t - expected).max() < 1e-4
+
+
+def test_waits_for_an_initialisation_and_uses_a_detector(scene) -> None:
+    model, image, init = scene
+    tracker = MonoTracker(model, CAMERA)
+    waiting = tracker.step(image)
+    assert waiting.status == TrackStatus.INITIALIZING and 'waiting' in waiting.reason
+    assert np.all(np.isnan(waiting.nodes_px)) and tracker.status == TrackStatus.INITIALIZING
+    calls = []
+
+    def detector(gray: np.ndarray) -> Initialisation | None:
+        calls.append(gray.dtype)
+        return init if len(calls) > 1 else None
+
+    tracker = MonoTracker(model, CAMERA, detector=detector)
+    assert tracker.step(image).status == TrackStatus.INITIALIZING
+    assert tracker.step(image).status == TrackStatus.TRACKING
+    assert calls == [np.uint8, np.uint8]
+
+
+def test_bad_frames_give_lost_and_tracking_resumes(scene) -> None:
+    model, image, init = scene
+    tracker = _started(model, image, init)
+    wrong_size = tracker.step(np.zeros((240, 320), np.uint8))
+    assert wrong_size.status == TrackStatus.LOST and 'camera expects' in wrong_size.reason
+    assert np.allclose(wrong_size.t, [0, 0, DEPTH])  # the last valid estimate
+    resumed = tracker.step(image)
+    assert resumed.ok, resumed.reason
+
+
+def test_an_unrelated_image_is_lost_and_the_face_is_reacquired(scene, texture_factory) -> None:
+    model, image, init = scene
+    tracker = _started(model, image, init)
+    shifted = _warp(image, np.array([[1, 0, 4.0], [0, 1, 0.0]]))
+    assert tracker.step(shifted).ok
+    other = tracker.step(texture_factory(seed=7))
+    assert other.status == TrackStatus.LOST and 'do not match' in other.reason
+    assert tracker.status == TrackStatus.LOST
+    back = tracker.step(_warp(image, np.array([[1, 0, 7.0], [0, 1, 2.0]])))
+    assert back.ok, back.reason
+    assert np.abs(back.t[:2] - np.array([7.0, 2.0]) * DEPTH / CAMERA.focal).max() < 1e-4
+
+
+def test_a_face_leaving_the_image_is_lost(scene) -> None:
+    model, image, init = scene
+    tracker = _started(model, image, init, pyramid_levels=2)
+    blank = np.full((480, 640), 128, np.uint8)
+    gone = tracker.step(blank)
+    assert gone.status == TrackStatus.LOST
+
+
+@pytest.mark.parametrize(
+    ('field', 'value'),
+    [
+        ('epsilon', 1.5),
+        ('pyramid_levels', 0),
+        ('max_iterations', 0),
+        ('patch_half_size', 0),
+        ('patch_spacing_px', 0.0),
+        ('huber_k', -1.0),
+        ('prior_weight', -0.1),
+        ('sigma_frames', -1),
+        ('visibility_cos', 0.7),
+        ('lost_node_fraction', 0.0),
+        ('max_condition', 1.0),
+    ],
+)
+def test_config_errors_name_the_field(field, value) -> None:
+    with pytest.raises(ConfigError, match=f'MonoTrackerConfig.{field} = '):
+        MonoTrackerConfig(**{field: value})
+
+
+def test_too_deep_a_pyramid_is_a_config_error(model_factory) -> None:
+    with pytest.raises(ConfigError, match='too deep for 64x48'):
+        MonoTracker(model_factory(), PinholeCamera.ideal(64, 48), MonoTrackerConfig())

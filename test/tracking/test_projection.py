@@ -1,0 +1,92 @@
+"""Analytic Jacobians of eq. 1-3 against finite differences, and the surface patches."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from face_tracking_ros.errors import InputError
+from face_tracking_ros.geometry.camera import PinholeCamera
+from face_tracking_ros.model.topology import mesh_topology
+from face_tracking_ros.tracking.projection import photometric_jacobian, project_with_jacobian
+from face_tracking_ros.tracking.surface_patches import node_frames, surface_patch_offsets
+
+CAMERA = PinholeCamera.ideal()
+OMEGA = np.array([0.15, -0.35, 0.1])
+T = np.array([0.02, -0.01, 0.6])
+
+
+def _setup() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    rng = np.random.default_rng(0)
+    points = rng.normal(0.0, 0.05, (4, 5, 3))
+    basis = rng.normal(0.0, 1.0, (4, 3, 2))
+    coefficients = np.array([0.01, -0.02])
+    return points, basis, coefficients
+
+
+def _pixels(params: np.ndarray, points: np.ndarray, basis: np.ndarray) -> np.ndarray:
+    moved = points + (basis @ params[6:])[:, None, :]
+    return project_with_jacobian(CAMERA, params[:3], params[3:6], moved).pixels
+
+
+def test_projection_jacobian_matches_finite_differences() -> None:
+    points, basis, coefficients = _setup()
+    params = np.concatenate([OMEGA, T, coefficients])
+    moved = points + (basis @ coefficients)[:, None, :]
+    analytic = project_with_jacobian(CAMERA, OMEGA, T, moved, basis[:, None]).jacobian
+    assert analytic.shape == (4, 5, 2, 8)
+    step = 1e-7
+    numeric = np.stack(
+        [
+            (_pixels(params + e, points, basis) - _pixels(params - e, points, basis)) / (2 * step)
+            for e in np.eye(8) * step
+        ],
+        axis=-1,
+    )
+    assert np.abs(numeric - analytic).max() < 1e-4 * np.abs(analytic).max()
+
+
+def test_photometric_jacobian_is_the_gradient_contracted_chain_rule() -> None:
+    points, basis, _ = _setup()
+    gradient = np.random.default_rng(1).normal(0.0, 10.0, (4, 5, 2))
+    projection = project_with_jacobian(CAMERA, OMEGA, T, points, basis[:, None])
+    expected = np.einsum('nma,nmap->nmp', gradient, projection.jacobian)
+    actual = photometric_jacobian(CAMERA, OMEGA, points, projection.points_cam, gradient, basis)
+    assert actual.shape == (4, 5, 8)
+    assert np.abs(actual - expected).max() < 1e-9 * np.abs(expected).max()
+    no_basis = photometric_jacobian(CAMERA, OMEGA, points, projection.points_cam, gradient)
+    assert np.array_equal(no_basis, actual[..., :6])
+
+
+def test_node_frames_are_orthonormal_and_face_the_camera() -> None:
+    topology = mesh_topology(34)
+    frames = node_frames(topology.reference_shape, topology.triangles)
+    assert frames.shape == (34, 3, 3)
+    assert np.allclose(frames @ frames.transpose(0, 2, 1), np.eye(3), atol=1e-12)
+    assert np.all(frames[:, 2, 2] < 0)  # normals towards -z (a frontal camera)
+    assert np.all(frames[:, 0, 0] > 0.5) and np.all(frames[:, 1, 1] > 0.5)
+    # (x, y, -n) is right-handed like the face frame, so grids keep a frontal view's orientation.
+    assert np.allclose(np.linalg.det(frames), -1.0)
+    # Face-edge normals turn outwards: the right temple's normal points to the subject's right.
+    assert frames[topology.index('right_temple'), 2, 0] < -0.3
+    # A flat mesh has the normal -z everywhere.
+    flat = topology.reference_shape * [1, 1, 0]
+    assert np.allclose(node_frames(flat, topology.triangles)[:, 2], [0, 0, -1])
+
+
+def test_node_frames_reject_an_isolated_node() -> None:
+    topology = mesh_topology(19)
+    with pytest.raises(InputError, match=r'nodes \[18\] belong to no triangle'):
+        node_frames(
+            topology.reference_shape, topology.triangles[~np.any(topology.triangles == 18, 1)]
+        )
+
+
+def test_surface_patch_offsets_lie_in_the_tangent_planes() -> None:
+    topology = mesh_topology(34)
+    frames = node_frames(topology.reference_shape, topology.triangles)
+    grid = np.array([[0.0, 0.0], [0.002, 0.0], [0.0, 0.003]])
+    offsets = surface_patch_offsets(frames, grid)
+    assert offsets.shape == (34, 3, 3)
+    assert np.allclose(np.einsum('nma,na->nm', offsets, frames[:, 2]), 0.0, atol=1e-15)
+    assert np.allclose(np.linalg.norm(offsets, axis=2), [0.0, 0.002, 0.003])
