@@ -10,7 +10,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from face_tracking_ros.model.face_model import FaceModel
 from face_tracking_ros.recognition.expression import EXPRESSION_LABELS
+from face_tracking_ros.recognition.sequences import ParameterSequence
+from face_tracking_ros.synthetic.faces import FacePopulation
 
 FPS = 30.0
 
@@ -110,3 +113,43 @@ def sigma_stream(
 def _smoothstep(x: np.ndarray) -> np.ndarray:
     """3x^2 - 2x^3 on [0, 1]."""
     return x * x * (3.0 - 2.0 * x)
+
+
+def parameter_sequence(
+    rng: np.random.Generator,
+    world: ExpressionWorld,
+    subject_id: str,
+    sigma_true: np.ndarray,
+    duration: float,
+    alpha_noise: float = 0.0015,
+    sigma_noise: float = 0.002,
+) -> ParameterSequence:
+    """A labelled sequence of one subject: expression stream plus noisy sigma estimates."""
+    stream = expression_stream(rng, world, duration, noise_std=alpha_noise)
+    return ParameterSequence(
+        subject_id=subject_id,
+        times=stream.times,
+        sigma=sigma_stream(rng, sigma_true, duration, sigma_noise),
+        alpha=stream.values,
+        labels=stream.labels,
+        intensity=stream.intensity,
+    )
+
+
+def truth_model(population: FacePopulation, num_nodes: int = 34) -> FaceModel:
+    """A FaceModel whose S and A orthonormally span the population's true bases."""
+    truth = population.truth(num_nodes)
+    shape_basis = np.linalg.qr(truth.identity_basis)[0]
+    action_basis = truth.expression_span()
+    p, q = shape_basis.shape[1], action_basis.shape[1]
+    return FaceModel(
+        node_names=truth.node_names,
+        mean_shape=truth.mean_shape,
+        shape_basis=shape_basis,
+        action_basis=action_basis,
+        shape_eigenvalues=np.ones(p),
+        action_eigenvalues=np.ones(q),
+        sigma_prior_covariance=np.eye(p),
+        alpha_prior_covariance=np.eye(q),
+        method='truth',
+    )

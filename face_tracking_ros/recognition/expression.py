@@ -278,7 +278,7 @@ class ExpressionRecognizer:
 
 def _check_labels(labels: tuple[str, ...], error: type[Exception]) -> None:
     """Raise ``error`` for labels outside :data:`EXPRESSION_LABELS` or without 'neutral'."""
-    unknown = sorted(set(labels) - set(EXPRESSION_LABELS))
+    unknown = sorted(str(label) for label in set(labels) - set(EXPRESSION_LABELS))
     if unknown:
         msg = f'unknown expression label(s) {unknown}; known labels are {EXPRESSION_LABELS}'
         raise error(msg)

@@ -1,6 +1,8 @@
 """Short-term dynamics of a parameter stream: the features the expression classifier sees.
 
-For frame m, the window holds the frames with stamps in (t_m - window, t_m]. The feature vector
+For frame m, the window holds the frames with stamps in (t_m - window, t_m], a frame exactly on the
+open end (within :data:`STAMP_TOLERANCE`) left out, so a 1/6 s window at 30 fps always holds
+five frames whatever the rounding of the stamps. The feature vector
 is ``[x_m, mean of the window, slope of a least-squares line through the window]`` for a stream
 of d-dimensional parameters x (alpha for expressions, eq. 3), so it is (3d,): the current value,
 its smoothed level and its rate of change (units of x and x per second). The window is causal, so
@@ -15,6 +17,8 @@ import numpy as np
 
 from face_tracking_ros.errors import InputError
 
+STAMP_TOLERANCE = 1e-6  # s; stamps closer than this to the window's open end are outside
+
 
 def window_features(times: np.ndarray, values: np.ndarray) -> np.ndarray:
     """Features of the last frame of a window.
@@ -26,15 +30,12 @@ def window_features(times: np.ndarray, values: np.ndarray) -> np.ndarray:
     Returns:
         (3d,) ``[values[-1], mean, slope]``; the slope is 0 for a single frame.
     """
-    if len(times) < 2:
-        slope = np.zeros(values.shape[1])
-    else:
-        slope = np.polyfit(times - times[-1], values, 1)[0]
-    return np.concatenate([values[-1], values.mean(axis=0), slope])
+    offsets = (np.asarray(times, dtype=float) - times[-1])[None, :]
+    return _features(offsets, np.asarray(values, dtype=float)[None], np.ones_like(offsets))[0]
 
 
 def sequence_features(times: np.ndarray, values: np.ndarray, window: float) -> np.ndarray:
-    """Causal features of every frame of a sequence.
+    """Causal features of every frame of a sequence (vectorised :func:`window_features`).
 
     Args:
         times: (M,) stamps, s, strictly increasing.
@@ -58,10 +59,35 @@ def sequence_features(times: np.ndarray, values: np.ndarray, window: float) -> n
     if np.any(np.diff(times) <= 0.0):
         msg = 'stamps of a parameter sequence must increase strictly'
         raise InputError(msg)
-    starts = np.searchsorted(times, times - window, side='right')
-    return np.array(
-        [window_features(times[s : m + 1], values[s : m + 1]) for m, s in enumerate(starts)]
-    ).reshape(len(times), 3 * values.shape[1])
+    frames = np.arange(len(times))
+    starts = np.searchsorted(times, times - window + STAMP_TOLERANCE, side='right')
+    width = int(np.max(frames - starts, initial=0)) + 1
+    # Window of frame m, right-aligned in `width` columns: frames m - width + 1 .. m.
+    index = frames[:, None] - width + 1 + np.arange(width)[None, :]
+    inside = (index >= starts[:, None]).astype(float)
+    index = np.maximum(index, 0)
+    offsets = (times[index] - times[:, None]) * inside
+    return _features(offsets, values[index], inside)
+
+
+def _features(offsets: np.ndarray, values: np.ndarray, inside: np.ndarray) -> np.ndarray:
+    """Features of M right-aligned, masked windows.
+
+    Args:
+        offsets: (M, W) stamps minus the stamp of each window's last frame, s.
+        values: (M, W, d) parameters; the last column is the current frame.
+        inside: (M, W) 1 for frames in the window, 0 for padding.
+
+    Returns:
+        (M, 3d) ``[current, mean, least-squares slope]``.
+    """
+    count = inside.sum(axis=1)
+    mean = np.einsum('mw,mwd->md', inside, values) / count[:, None]
+    centred_t = (offsets - (inside * offsets).sum(axis=1, keepdims=True) / count[:, None]) * inside
+    spread = np.einsum('mw,mw->m', centred_t, centred_t)
+    covariance = np.einsum('mw,mwd->md', centred_t, values - mean[:, None, :])
+    slope = covariance / np.where(spread > 0.0, spread, np.inf)[:, None]
+    return np.hstack([values[:, -1], mean, slope])
 
 
 class SlidingWindow:
@@ -110,7 +136,7 @@ class SlidingWindow:
         if self._start is None:
             self._start = stamp
         self._samples.append((stamp, value))
-        while self._samples[0][0] <= stamp - self._length:
+        while self._samples[0][0] <= stamp - self._length + STAMP_TOLERANCE:
             self._samples.popleft()
 
     @property

@@ -29,7 +29,7 @@ from scipy.stats import chi2
 
 from face_tracking_ros.errors import ConfigError, InputError
 from face_tracking_ros.recognition.archive import load_archive, save_archive
-from face_tracking_ros.recognition.features import SlidingWindow
+from face_tracking_ros.recognition.features import STAMP_TOLERANCE, SlidingWindow
 from face_tracking_ros.recognition.gaussian import GaussianClasses
 from face_tracking_ros.recognition.validation import check_shapes
 
@@ -291,7 +291,7 @@ class IdentityRecognizer:
             InputError: if sigma is not a finite (p,) vector.
         """
         self._window.push(stamp, sigma)
-        if self._window.elapsed < self._config.window or not len(self._gallery):
+        if self._window.elapsed < self._config.window - STAMP_TOLERANCE or not len(self._gallery):
             return None
         return self._gallery.classify(self._window.values, self._config)
 

@@ -1,0 +1,203 @@
+"""Expression features and classifier: exact features, accuracy, online = batch, file, errors."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from recognition_streams import ExpressionWorld, parameter_sequence
+from sklearn.linear_model import LogisticRegression
+
+from face_tracking_ros.errors import ConfigError, InputError, ModelFileError
+from face_tracking_ros.recognition.archive import load_archive, save_archive
+from face_tracking_ros.recognition.evaluation import expression_accuracy
+from face_tracking_ros.recognition.expression import (
+    CLASSIFIER_FORMAT_VERSION,
+    CLASSIFIER_KIND,
+    EXPRESSION_LABELS,
+    ExpressionClassifier,
+    ExpressionRecognizer,
+    ExpressionTrainingConfig,
+    train_expression_classifier,
+)
+from face_tracking_ros.recognition.features import sequence_features, window_features
+from face_tracking_ros.recognition.sequences import ParameterSequence
+from face_tracking_ros.synthetic.faces import EXPRESSIONS
+
+Q = 5
+CONFIG = ExpressionTrainingConfig()
+
+
+@pytest.fixture(scope='module')
+def data() -> tuple[list[ParameterSequence], list[ParameterSequence]]:
+    """Six training and three test sequences of 20 s, alpha noise 1.5 mm."""
+    rng = np.random.default_rng(10)
+    world = ExpressionWorld.make(rng, Q)
+    sequences = [parameter_sequence(rng, world, f's{i}', np.zeros(2), 20.0) for i in range(9)]
+    return sequences[:6], sequences[6:]
+
+
+@pytest.fixture(scope='module')
+def classifier(data: tuple) -> ExpressionClassifier:
+    return train_expression_classifier(data[0], CONFIG)
+
+
+def test_labels_are_those_of_the_synthetic_world() -> None:
+    assert EXPRESSION_LABELS == EXPRESSIONS
+
+
+def test_window_features_of_a_line_are_exact() -> None:
+    times = np.array([0.0, 0.1, 0.2, 0.3])
+    values = np.stack([2.0 * times + 1.0, -times], axis=1)
+
+    features = window_features(times, values)
+
+    np.testing.assert_allclose(features, [1.6, -0.3, 1.3, -0.15, 2.0, -1.0], atol=1e-12)
+    np.testing.assert_array_equal(window_features(times[:1], values[:1]), [1.0, 0.0] * 2 + [0, 0])
+
+
+def test_sequence_features_are_causal_and_windowed() -> None:
+    rng = np.random.default_rng(11)
+    times = np.arange(20) / 30.0
+    values = rng.normal(size=(20, 3))
+
+    features = sequence_features(times, values, 0.1)
+    changed_future = values.copy()
+    changed_future[12:] += 5.0
+
+    np.testing.assert_array_equal(
+        sequence_features(times, changed_future, 0.1)[:12], features[:12]
+    )
+    np.testing.assert_allclose(features[10], window_features(times[8:11], values[8:11]))
+
+
+def test_held_out_accuracy_over_seven_classes(
+    data: tuple, classifier: ExpressionClassifier
+) -> None:
+    accuracy = expression_accuracy(classifier, data[1], CONFIG.min_intensity)
+
+    assert classifier.labels == EXPRESSION_LABELS
+    assert accuracy.clear >= 0.92
+    assert accuracy.balanced >= 0.9
+    assert accuracy.confusion.sum() == sum(
+        np.count_nonzero((s.labels == 'neutral') | (s.intensity >= 0.3)) for s in data[1]
+    )
+
+
+def test_online_recognizer_equals_batch(data: tuple, classifier: ExpressionClassifier) -> None:
+    sequence = data[1][0]
+    recognizer = ExpressionRecognizer(classifier)
+
+    online = [recognizer.update(t, a) for t, a in zip(sequence.times, sequence.alpha, strict=True)]
+
+    batch = classifier.sequence_probabilities(sequence.times, sequence.alpha)
+    np.testing.assert_allclose([s.probabilities for s in online], batch, atol=1e-12)
+    assert [s.label for s in online] == list(np.asarray(classifier.labels)[batch.argmax(axis=1)])
+    np.testing.assert_array_equal(online[-1].alpha, sequence.alpha[-1])
+
+
+def test_two_labels_give_the_logistic_probabilities(data: tuple) -> None:
+    sequences = [
+        ParameterSequence(s.subject_id, s.times, s.sigma, s.alpha, labels, s.intensity)
+        for s in data[0]
+        for labels in [np.where(np.isin(s.labels, ['smile', 'neutral']), s.labels, 'neutral')]
+    ]
+    config = ExpressionTrainingConfig(min_intensity=0.0)
+
+    classifier = train_expression_classifier(sequences, config)
+
+    x = np.vstack([sequence_features(s.times, s.alpha, config.window) for s in sequences])
+    y = np.concatenate([s.labels for s in sequences])
+    z = (x - x.mean(axis=0)) / x.std(axis=0)
+    reference = LogisticRegression(C=config.regularisation, max_iter=5000).fit(z, y)
+    assert classifier.labels == ('neutral', 'smile')
+    np.testing.assert_allclose(classifier.probabilities(x), reference.predict_proba(z), atol=1e-6)
+
+
+def test_file_round_trip(tmp_path: Path, data: tuple, classifier: ExpressionClassifier) -> None:
+    path = tmp_path / 'expressions.npz'
+
+    classifier.save(path)
+    loaded = ExpressionClassifier.load(path, Q)
+
+    assert loaded.labels == classifier.labels
+    assert loaded.window == classifier.window
+    sequence = data[1][0]
+    np.testing.assert_array_equal(
+        loaded.sequence_probabilities(sequence.times, sequence.alpha),
+        classifier.sequence_probabilities(sequence.times, sequence.alpha),
+    )
+
+
+def test_file_errors(tmp_path: Path, classifier: ExpressionClassifier) -> None:
+    path = tmp_path / 'expressions.npz'
+    classifier.save(path)
+    with pytest.raises(ModelFileError, match=r'trained for q=5 .* the model has q=7'):
+        ExpressionClassifier.load(path, 7)
+    archive = load_archive(path, CLASSIFIER_KIND, CLASSIFIER_FORMAT_VERSION)
+    header = {key: archive.header[key] for key in ('q', 'window', 'labels')}
+    save_archive(
+        path,
+        CLASSIFIER_KIND,
+        CLASSIFIER_FORMAT_VERSION,
+        {**header, 'labels': [*header['labels'][:-1], 'wink']},
+        archive.arrays,
+    )
+    with pytest.raises(ModelFileError, match=r"unknown expression label\(s\) \['wink'\]"):
+        ExpressionClassifier.load(path, Q)
+    save_archive(path, CLASSIFIER_KIND, CLASSIFIER_FORMAT_VERSION, header, {})
+    with pytest.raises(ModelFileError, match="misses the array 'feature_mean'"):
+        ExpressionClassifier.load(path, Q)
+    np.savez(path, header=np.array('{not json'), weights=np.zeros(3))
+    with pytest.raises(ModelFileError, match='not valid JSON'):
+        ExpressionClassifier.load(path, Q)
+    np.savez(path, header=np.array({'kind': 'x'}, dtype=object))
+    with pytest.raises(ModelFileError, match='not a readable pickle-free npz'):
+        ExpressionClassifier.load(path, Q)
+
+
+def test_training_errors(data: tuple) -> None:
+    sequence = data[0][0]
+
+    def relabelled(labels: np.ndarray) -> list[ParameterSequence]:
+        return [
+            ParameterSequence(
+                's', sequence.times, sequence.sigma, sequence.alpha, labels, sequence.intensity
+            )
+        ]
+
+    with pytest.raises(ConfigError, match='no training sequences'):
+        train_expression_classifier([], CONFIG)
+    wink = np.where(sequence.labels == 'smile', 'wink', sequence.labels)
+    with pytest.raises(ConfigError, match=r"unknown expression label\(s\) \['wink'\]"):
+        train_expression_classifier(relabelled(wink), CONFIG)
+    no_neutral = np.where(sequence.labels == 'neutral', 'smile', sequence.labels)
+    with pytest.raises(ConfigError, match="lack 'neutral'"):
+        train_expression_classifier(relabelled(no_neutral), CONFIG)
+    with pytest.raises(ConfigError, match='need neutral and an expression'):
+        train_expression_classifier(relabelled(np.full(len(wink), 'neutral')), CONFIG)
+    with pytest.raises(ConfigError, match='window'):
+        ExpressionTrainingConfig(window=0.0)
+    with pytest.raises(ConfigError, match='min_intensity'):
+        ExpressionTrainingConfig(min_intensity=1.0)
+    with pytest.raises(ConfigError, match='regularisation'):
+        ExpressionTrainingConfig(regularisation=0.0)
+
+
+def test_input_errors(classifier: ExpressionClassifier) -> None:
+    with pytest.raises(InputError, match=r'expected \(M, 15\) expression features'):
+        classifier.probabilities(np.zeros((2, 14)))
+    with pytest.raises(InputError, match='increase strictly'):
+        sequence_features(np.zeros(3), np.zeros((3, Q)), 0.1)
+    with pytest.raises(InputError, match=r'finite \(5,\) parameter vector'):
+        ExpressionRecognizer(classifier).update(0.0, np.zeros(4))
+    with pytest.raises(InputError, match='alpha has shape'):
+        ParameterSequence(
+            's',
+            np.arange(3.0),
+            np.zeros((3, 2)),
+            np.zeros((2, Q)),
+            np.array(['neutral'] * 3),
+            np.zeros(3),
+        )

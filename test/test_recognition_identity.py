@@ -1,0 +1,202 @@
+"""Identity gallery: Gaussian rule against hand computations, recognition rates, file, errors."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from recognition_streams import sigma_population, sigma_stream
+from scipy.spatial.distance import mahalanobis
+from scipy.stats import chi2
+
+from face_tracking_ros.errors import ConfigError, InputError, ModelFileError
+from face_tracking_ros.recognition.archive import save_archive
+from face_tracking_ros.recognition.identity import (
+    GALLERY_FORMAT_VERSION,
+    GALLERY_KIND,
+    UNKNOWN,
+    IdentityConfig,
+    IdentityGallery,
+    IdentityRecognizer,
+)
+
+P = 4
+# sigma std of the default synthetic population: sqrt(34) x (9, 6, 3.5, 2.5) mm RMS per node.
+STDS = tuple(np.sqrt(34) * np.array([9.0, 6.0, 3.5, 2.5]) * 1e-3)
+CONFIG = IdentityConfig()
+
+
+def enrolled(rng: np.random.Generator, subjects: int, noise: float) -> tuple:
+    """A gallery of subjects enrolled from 10 s of noisy sigma each, and their true sigma."""
+    truth = sigma_population(rng, subjects, STDS)
+    gallery = IdentityGallery.empty(P)
+    for i, sigma in enumerate(truth):
+        gallery = gallery.enroll(f'person_{i}', sigma_stream(rng, sigma, 10.0, noise), CONFIG)
+    return gallery, truth
+
+
+def test_rule_matches_hand_computed_mahalanobis_and_chi_square() -> None:
+    rng = np.random.default_rng(0)
+    samples = rng.normal(size=(50, P)) * 0.002 + 0.01
+    gallery = IdentityGallery.empty(P).enroll('ann', samples, CONFIG)
+    covariance = np.cov(samples, rowvar=False) + CONFIG.min_std**2 * np.eye(P)
+    probe = samples.mean(axis=0) + np.array([0.004, -0.002, 0.001, 0.0])
+
+    decision = gallery.classify(probe, CONFIG)
+
+    expected = mahalanobis(probe, samples.mean(axis=0), np.linalg.inv(covariance))
+    assert decision.distance == pytest.approx(expected, rel=1e-9)
+    assert expected**2 < chi2.ppf(CONFIG.acceptance, P)
+    assert decision.identity == 'ann'
+    far = gallery.classify(probe + 0.05, CONFIG)
+    assert far.identity == UNKNOWN
+    assert far.nearest == 'ann'
+    assert far.confidence == pytest.approx(chi2.cdf(far.distance**2, P))
+
+
+def test_enrolled_mean_is_recognised_at_distance_zero() -> None:
+    gallery, truth = enrolled(np.random.default_rng(1), 3, 0.002)
+
+    decision = gallery.classify(gallery.means[1], CONFIG)
+
+    assert decision.identity == 'person_1'
+    assert decision.distance == 0.0
+    assert decision.confidence > 0.99
+
+
+def test_eleven_subjects_recognised_after_one_second_and_strangers_rejected() -> None:
+    rng = np.random.default_rng(2)
+    gallery, truth = enrolled(rng, 11, 0.002)
+    strangers = sigma_population(rng, 30, STDS)
+
+    known = [
+        gallery.classify(sigma_stream(rng, sigma, 1.0, 0.002), CONFIG).identity == f'person_{i}'
+        for i, sigma in enumerate(truth)
+        for _ in range(5)
+    ]
+    rejected = [
+        gallery.classify(sigma_stream(rng, sigma, 1.0, 0.002), CONFIG).identity == UNKNOWN
+        for sigma in strangers
+    ]
+
+    assert np.mean(known) >= 0.95
+    assert np.mean(rejected) >= 0.9
+
+
+def test_re_enrolment_replaces_the_person() -> None:
+    rng = np.random.default_rng(3)
+    gallery = IdentityGallery.empty(P).enroll('ann', rng.normal(size=(5, P)), CONFIG)
+    gallery = gallery.enroll('bob', rng.normal(size=(5, P)), CONFIG)
+    new_samples = rng.normal(size=(8, P)) + 3.0
+
+    gallery = gallery.enroll('ann', new_samples, CONFIG)
+
+    assert gallery.names == ('bob', 'ann')
+    np.testing.assert_allclose(gallery.means[1], new_samples.mean(axis=0))
+    assert list(gallery.counts) == [5, 8]
+
+
+def test_single_sample_enrolment_uses_the_floor() -> None:
+    gallery = IdentityGallery.empty(2).enroll('ann', np.zeros((1, 2)), CONFIG)
+
+    np.testing.assert_allclose(gallery.covariances[0], CONFIG.min_std**2 * np.eye(2))
+
+
+def test_file_round_trip_keeps_every_field_and_leaves_no_temporary(tmp_path: Path) -> None:
+    gallery, _ = enrolled(np.random.default_rng(4), 3, 0.002)
+    path = tmp_path / 'gallery.npz'
+
+    gallery.save(path)
+    loaded = IdentityGallery.load(path, P)
+
+    assert loaded.names == gallery.names
+    for name in ('means', 'covariances', 'counts'):
+        np.testing.assert_array_equal(getattr(loaded, name), getattr(gallery, name))
+    assert sorted(p.name for p in tmp_path.iterdir()) == ['gallery.npz']
+
+
+def test_recognizer_waits_one_window_then_decides_and_enrols() -> None:
+    rng = np.random.default_rng(5)
+    gallery, truth = enrolled(rng, 3, 0.002)
+    recognizer = IdentityRecognizer(gallery, CONFIG)
+    stream = sigma_stream(rng, truth[2], 1.5, 0.002)
+    stamps = 100.0 + np.arange(len(stream)) / 30.0
+
+    decisions = [recognizer.update(t, s) for t, s in zip(stamps, stream, strict=True)]
+
+    assert all(d is None for d in decisions[:30])
+    assert all(d is not None and d.identity == 'person_2' for d in decisions[30:])
+    newcomer = sigma_population(rng, 1, STDS)[0]
+    recognizer.update(0.0, newcomer)  # an earlier stamp: a new face, the history restarts
+    assert recognizer.update(0.5, newcomer) is None
+    recognizer.enroll('carol')
+    assert recognizer.gallery.classify(newcomer, CONFIG).identity == 'carol'
+    assert recognizer.update(1.0, newcomer).identity == 'carol'
+
+
+def test_empty_gallery_errors(tmp_path: Path) -> None:
+    empty = IdentityGallery.empty(P)
+    with pytest.raises(ConfigError, match='gallery is empty'):
+        empty.classify(np.zeros(P), CONFIG)
+    with pytest.raises(ConfigError, match='refusing to save an empty'):
+        empty.save(tmp_path / 'g.npz')
+    save_archive(
+        tmp_path / 'g.npz',
+        GALLERY_KIND,
+        GALLERY_FORMAT_VERSION,
+        {'p': P, 'names': []},
+        {'means': np.zeros((0, P)), 'covariances': np.zeros((0, P, P)), 'counts': np.zeros(0)},
+    )
+    with pytest.raises(ModelFileError, match='no enrolled identities'):
+        IdentityGallery.load(tmp_path / 'g.npz', P)
+    recognizer = IdentityRecognizer(empty, CONFIG)
+    assert recognizer.update(0.0, np.zeros(P)) is None
+    with pytest.raises(ConfigError, match='no shape estimate'):
+        IdentityRecognizer(empty, CONFIG).enroll('ann')
+
+
+def test_file_errors(tmp_path: Path) -> None:
+    gallery, _ = enrolled(np.random.default_rng(6), 2, 0.002)
+    path = tmp_path / 'gallery.npz'
+    gallery.save(path)
+    with pytest.raises(ModelFileError, match=r'p=4, the model has p=3'):
+        IdentityGallery.load(path, 3)
+    with pytest.raises(ModelFileError, match='no such file'):
+        IdentityGallery.load(tmp_path / 'missing.npz', P)
+    (tmp_path / 'corrupt.npz').write_bytes(path.read_bytes()[:200])
+    with pytest.raises(ModelFileError, match='not a readable'):
+        IdentityGallery.load(tmp_path / 'corrupt.npz', P)
+    arrays = {
+        'means': gallery.means,
+        'covariances': -gallery.covariances,
+        'counts': gallery.counts,
+    }
+    header = {'p': P, 'names': list(gallery.names)}
+    save_archive(path, GALLERY_KIND, GALLERY_FORMAT_VERSION, header, arrays)
+    with pytest.raises(ModelFileError, match='not positive definite'):
+        IdentityGallery.load(path, P)
+    save_archive(path, GALLERY_KIND, GALLERY_FORMAT_VERSION + 1, header, arrays)
+    with pytest.raises(ModelFileError, match='format version 2; this code reads version 1'):
+        IdentityGallery.load(path, P)
+    save_archive(path, 'expression_classifier', 1, header, arrays)
+    with pytest.raises(ModelFileError, match="holds a 'expression_classifier'"):
+        IdentityGallery.load(path, P)
+
+
+def test_input_and_config_errors() -> None:
+    gallery = IdentityGallery.empty(P)
+    with pytest.raises(ConfigError, match="named 'unknown'"):
+        gallery.enroll(UNKNOWN, np.zeros((2, P)), CONFIG)
+    with pytest.raises(InputError, match=r'\(M >= 1, p=4\)'):
+        gallery.enroll('ann', np.zeros((2, 3)), CONFIG)
+    with pytest.raises(InputError, match='NaN'):
+        gallery.enroll('ann', np.full((2, P), np.nan), CONFIG)
+    with pytest.raises(InputError, match='means has shape'):
+        IdentityGallery(P, ('ann',), np.zeros((2, P)), np.zeros((1, P, P)), np.zeros(1))
+    with pytest.raises(ConfigError, match='min_std'):
+        IdentityConfig(min_std=0.0)
+    with pytest.raises(ConfigError, match='acceptance'):
+        IdentityConfig(acceptance=1.0)
+    with pytest.raises(ConfigError, match='window'):
+        IdentityConfig(window=-1.0)

@@ -1,0 +1,66 @@
+"""Fitting omega, t, sigma, alpha of a model to 3-D nodes (eq. 1, 3)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from recognition_streams import truth_model
+
+from face_tracking_ros.errors import InputError
+from face_tracking_ros.geometry.rotation import rodrigues
+from face_tracking_ros.recognition.node_fit import fit_model_to_nodes
+from face_tracking_ros.synthetic.faces import FacePopulation
+
+
+def posed(model, sigma, alpha, omega, t) -> np.ndarray:
+    """(F, N, 3) camera-frame meshes of eq. 1 and 3."""
+    shapes = model.mean_shape + sigma @ model.shape_basis.T + alpha @ model.action_basis.T
+    shapes = shapes.reshape(len(sigma), -1, 3)
+    return np.array([x @ rodrigues(o)[0].T + d for x, o, d in zip(shapes, omega, t, strict=True)])
+
+
+@pytest.mark.parametrize('num_nodes', [19, 34])
+def test_parameters_of_model_meshes_are_recovered(num_nodes: int) -> None:
+    rng = np.random.default_rng(30)
+    model = truth_model(FacePopulation('default', 0), num_nodes)
+    frames = 40
+    sigma = rng.normal(size=(frames, model.p)) * 0.03
+    alpha = rng.normal(size=(frames, model.q)) * 0.01
+    omega = rng.uniform(-0.5, 0.5, size=(frames, 3))
+    t = rng.normal(size=(frames, 3)) * 0.05 + [0.0, 0.0, 0.6]
+
+    fit = fit_model_to_nodes(model, posed(model, sigma, alpha, omega, t))
+
+    np.testing.assert_allclose(fit.sigma, sigma, atol=1e-6)
+    np.testing.assert_allclose(fit.alpha, alpha, atol=1e-6)
+    np.testing.assert_allclose(fit.omega, omega, atol=1e-6)
+    np.testing.assert_allclose(fit.t, t, atol=1e-6)
+    assert np.all(fit.rms < 1e-6)
+
+
+def test_rms_measures_what_the_model_cannot_explain() -> None:
+    rng = np.random.default_rng(31)
+    model = truth_model(FacePopulation('default', 0))
+    nodes = posed(
+        model,
+        np.zeros((200, model.p)),
+        np.zeros((200, model.q)),
+        np.zeros((200, 3)),
+        np.tile([0.0, 0.0, 0.6], (200, 1)),
+    )
+    noise = 0.001
+
+    fit = fit_model_to_nodes(model, nodes + rng.normal(scale=noise, size=nodes.shape))
+
+    # 3N - 6 - p - q of the 3N residual degrees of freedom remain: rms^2 ~ noise^2 (3N - D) / N.
+    dof = 3 * model.num_nodes - 6 - model.p - model.q
+    expected = noise * np.sqrt(dof / model.num_nodes)
+    assert np.sqrt(np.mean(fit.rms**2)) == pytest.approx(expected, rel=0.05)
+
+
+def test_input_errors() -> None:
+    model = truth_model(FacePopulation('default', 0), 19)
+    with pytest.raises(InputError, match=r'\(F >= 1, 19, 3\)'):
+        fit_model_to_nodes(model, np.zeros((2, 34, 3)))
+    with pytest.raises(InputError, match='NaN'):
+        fit_model_to_nodes(model, np.full((1, 19, 3), np.nan))
