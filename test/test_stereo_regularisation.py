@@ -64,7 +64,7 @@ def test_eq5_values_by_hand() -> None:
     moved = first.copy()
     moved[chin, 1] += 0.001
     expected = 0.0
-    for (i, j), delta_ij in zip(topology.edges, regulariser.delta):
+    for (i, j), delta_ij in zip(topology.edges, regulariser.delta, strict=True):
         if chin in (i, j):
             length_0 = np.linalg.norm(first[i] - first[j])
             length_1 = np.linalg.norm(moved[i] - moved[j])

@@ -28,6 +28,7 @@ import numpy as np
 
 from face_tracking_ros.errors import ConfigError, InputError
 from face_tracking_ros.model.topology import Group, MeshTopology
+from face_tracking_ros.tracking.block_assembly import scatter_blocks, scatter_vectors
 
 DEFAULT_GROUP_STIFFNESS: dict[Group, float] = {
     Group.EYE: 1.0,
@@ -156,7 +157,12 @@ class Regulariser:
 
     def jacobian(self, nodes: np.ndarray) -> np.ndarray:
         """Dense Jacobian dr/dX of :meth:`residuals`, (3N + 4E, 3N), node-major columns."""
-        _, stretch_jacobian = self._stretch(nodes)
+        _, gradient = self._stretch(nodes)
+        i, j = self.edges[:, 0], self.edges[:, 1]
+        rows = np.arange(self.edges.shape[0])[:, None]
+        stretch_jacobian = np.zeros((self.edges.shape[0], nodes.size))
+        stretch_jacobian[rows, 3 * i[:, None] + np.arange(3)] = gradient
+        stretch_jacobian[rows, 3 * j[:, None] + np.arange(3)] = -gradient
         return np.vstack([self.linear_jacobian, stretch_jacobian])
 
     def normal_equations(
@@ -166,6 +172,7 @@ class Regulariser:
 
         The rho and beta residuals are linear in the motion, so their share of J^T J is the
         constant :attr:`linear_hessian` and their share of J^T r is that matrix times the motion.
+        Each delta residual depends on two nodes only; its share is accumulated by 3x3 blocks.
 
         Args:
             nodes: (N, 3) X_c(n), m.
@@ -175,26 +182,28 @@ class Regulariser:
             ``(cost, hessian, gradient)``: E_reg; J^T J (3N, 3N); J^T r (3N,), node-major.
         """
         motion = (nodes - previous).ravel()
-        stretch, stretch_jacobian = self._stretch(nodes)
+        stretch, gradient = self._stretch(nodes)
         linear_gradient = self.linear_hessian @ motion
         cost = float(motion @ linear_gradient + stretch @ stretch)
-        hessian = self.linear_hessian + stretch_jacobian.T @ stretch_jacobian
-        return cost, hessian, linear_gradient + stretch_jacobian.T @ stretch
+        n = nodes.shape[0]
+        i, j = self.edges[:, 0], self.edges[:, 1]
+        outer = gradient[:, :, None] * gradient[:, None, :]
+        blocks = np.stack([outer, outer, -outer, -outer])
+        hessian = self.linear_hessian + scatter_blocks(
+            np.stack([i, j, i, j]), np.stack([i, j, j, i]), blocks, n
+        )
+        pull = stretch[:, None] * gradient
+        node_gradient = scatter_vectors(np.stack([i, j]), np.stack([pull, -pull]), n)
+        return cost, hessian, linear_gradient + node_gradient
 
     def _stretch(self, nodes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """The delta residuals (E,) and their Jacobian (E, 3N)."""
+        """The delta residuals (E,) and their gradient (E, 3) with respect to X^i (-X^j)."""
         i, j = self.edges[:, 0], self.edges[:, 1]
         differences = nodes[i] - nodes[j]
         sqrt_delta = np.sqrt(self.delta)
-        stretch = sqrt_delta * (
-            np.einsum('ed,ed->e', differences, differences) - self.first_sq_lengths
-        )
-        jacobian = np.zeros((self.edges.shape[0], nodes.size))
-        rows = np.arange(self.edges.shape[0])[:, None]
-        gradient = 2.0 * sqrt_delta[:, None] * differences
-        jacobian[rows, 3 * i[:, None] + np.arange(3)] = gradient
-        jacobian[rows, 3 * j[:, None] + np.arange(3)] = -gradient
-        return stretch, jacobian
+        squared = np.einsum('ed,ed->e', differences, differences)
+        stretch = sqrt_delta * (squared - self.first_sq_lengths)
+        return stretch, 2.0 * sqrt_delta[:, None] * differences
 
 
 def _linear_jacobian(edges: np.ndarray, rho: np.ndarray, beta: np.ndarray) -> np.ndarray:

@@ -1,0 +1,651 @@
+"""The stereo tracker of §3.3: the mesh nodes tracked in 3-D through rectified stereo sequences.
+
+Each frame, all 3N node coordinates X_c (left camera frame, m) are estimated jointly by
+Levenberg-Marquardt on
+
+    E(n) = sum_i E_i(n)                (eq. 4: left-left, right-right and the two cross-camera
+                                        terms weighted by gamma, over a patch around each node)
+         + texture term                (§4.2: the same temporal terms over the face texture
+                                        inside the mesh triangles)
+         + eq. 5 regularisation        (rho_i, beta_ij, delta_ij; :mod:`.regularisation`)
+
+coarse to fine on Gaussian pyramids of both images, with Huber weights on every image residual.
+Each image term is split (1 - epsilon) : epsilon between frame n - 1 and frame 1, the drift
+term of eq. 6, which stops the random walk of plain frame-to-frame tracking. The image terms and
+their sample layouts are in :mod:`.stereo_data`; initialisation by epipolar search in
+:mod:`.stereo_init`; the optional model fit (eq. 1-3) in :mod:`.mesh_fit`.
+
+The tracker never raises on a bad frame: it returns a :class:`StereoResult` whose status says
+what happened (:class:`~.result.TrackStatus`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.linalg import LinAlgError, cho_factor, cho_solve
+
+from face_tracking_ros.errors import ConfigError, FaceTrackingError, InputError
+from face_tracking_ros.geometry.camera import StereoRig
+from face_tracking_ros.geometry.procrustes import rigid_align
+from face_tracking_ros.imaging import ImagePyramid, inside_image
+from face_tracking_ros.model.face_model import FaceModel
+from face_tracking_ros.model.topology import Group, MeshTopology, mesh_topology
+from face_tracking_ros.tracking.mesh_fit import MeshFit, fit_model_to_nodes
+from face_tracking_ros.tracking.regularisation import RegularisationConfig, Regulariser
+from face_tracking_ros.tracking.result import TrackResult, TrackStatus
+from face_tracking_ros.tracking.stereo_data import (
+    NormalEquations,
+    SampleLayout,
+    image_normal_equations,
+    sample_templates,
+)
+from face_tracking_ros.tracking.stereo_init import StereoInitConfig, initial_nodes, node_normals
+
+LEFT, RIGHT = 0, 1
+
+
+@dataclass(frozen=True)
+class StereoTrackerConfig:
+    """Tunables of the stereo tracker, each tied to its symbol in the seed.
+
+    Attributes:
+        num_nodes: mesh size, 19 or 34.
+        gamma: weight of the cross-camera terms of eq. 4, in [0, 1].
+        epsilon: share of the frame-1 (drift) terms in every image term, in [0, 1).
+        texture_weight: weight of a face-texture sample relative to a node-patch sample (§4.2);
+            0 disables the texture term.
+        texture_subdivisions: barycentric grid order of the texture samples (>= 3).
+        patch_half_size: node patches are (2 h + 1)^2 samples about one pixel apart.
+        pyramid_levels: coarse-to-fine levels (1 = full resolution only).
+        max_iterations: Levenberg-Marquardt iterations per pyramid level.
+        step_tolerance: convergence when no node moves more than this in an iteration, m.
+        damping: initial Levenberg-Marquardt damping, relative to the Hessian diagonal.
+        huber_k: Huber threshold in robust standard deviations of the image residuals.
+        noise_floor: smallest robust standard deviation assumed for image residuals, grey levels.
+        lost_ratio: the track is LOST when the median over node patches of the residual RMS
+            divided by the template's contrast (about 1 for an unrelated image) exceeds this.
+        regularisation: the eq. 5 weights.
+        init: the epipolar search used at (re)initialisation.
+        fit_noise: node noise s of the model fit (eq. 1-3) when a model is loaded, m.
+    """
+
+    num_nodes: int = 34
+    gamma: float = 0.5
+    epsilon: float = 0.2
+    texture_weight: float = 0.5
+    texture_subdivisions: int = 6
+    patch_half_size: int = 5
+    pyramid_levels: int = 3
+    max_iterations: int = 6
+    step_tolerance: float = 2e-5
+    damping: float = 1e-4
+    huber_k: float = 1.345
+    noise_floor: float = 2.0
+    lost_ratio: float = 0.8
+    regularisation: RegularisationConfig = field(default_factory=RegularisationConfig)
+    init: StereoInitConfig = field(default_factory=StereoInitConfig)
+    fit_noise: float = 0.001
+
+    def __post_init__(self) -> None:
+        """Validate ranges.
+
+        Raises:
+            ConfigError: naming the first out-of-range tunable.
+        """
+        mesh_topology(self.num_nodes)
+        checks = (
+            ('gamma', 0.0 <= self.gamma <= 1.0),
+            ('epsilon', 0.0 <= self.epsilon < 1.0),
+            ('texture_weight', self.texture_weight >= 0.0),
+            ('texture_subdivisions', self.texture_subdivisions >= 3),
+            ('patch_half_size', self.patch_half_size >= 1),
+            ('pyramid_levels', self.pyramid_levels >= 1),
+            ('max_iterations', self.max_iterations >= 1),
+            ('step_tolerance', self.step_tolerance > 0.0),
+            ('damping', self.damping >= 0.0),
+            ('huber_k', self.huber_k > 0.0),
+            ('noise_floor', self.noise_floor > 0.0),
+            ('lost_ratio', self.lost_ratio > 0.0),
+            ('fit_noise', self.fit_noise > 0.0),
+        )
+        for name, ok in checks:
+            if not ok:
+                msg = f'stereo tracker parameter {name} is out of range: {getattr(self, name)}'
+                raise ConfigError(msg)
+
+
+@dataclass(frozen=True)
+class StereoResult:
+    """The stereo tracker's estimate for one stereo pair.
+
+    Attributes:
+        status: TRACKING when valid; LOST carries the last valid nodes; INITIALIZING before the
+            first pair after a reset.
+        nodes_cam: (N, 3) nodes X_c in the left camera frame, m.
+        left_px: (N, 2) node projections in the left image, px.
+        right_px: (N, 2) node projections in the right image, px.
+        left_residuals: (N,) RMS photometric residual of each node patch in the left image
+            against frame n - 1 (ZSSD), grey levels.
+        right_residuals: (N,) the same in the right image, grey levels.
+        mean_residual: mean of both residual arrays, grey levels.
+        iterations: Levenberg-Marquardt iterations spent, summed over levels.
+        cost_history: total cost E(n) after each accepted iteration.
+        fit: with a model loaded, the pose, sigma and alpha fitted to the nodes (eq. 1-3).
+        reason: why the status is not TRACKING ('' when tracking).
+    """
+
+    status: TrackStatus
+    nodes_cam: np.ndarray
+    left_px: np.ndarray
+    right_px: np.ndarray
+    left_residuals: np.ndarray
+    right_residuals: np.ndarray
+    mean_residual: float
+    iterations: int = 0
+    cost_history: tuple[float, ...] = ()
+    fit: MeshFit | None = None
+    reason: str = ''
+
+    @property
+    def ok(self) -> bool:
+        """True when the status is TRACKING."""
+        return self.status == TrackStatus.TRACKING
+
+    def as_track_result(self) -> TrackResult:
+        """The shared :class:`~.result.TrackResult` view (left camera; NaN pose without a fit)."""
+        fit = self.fit
+        nan3 = np.full(3, np.nan)
+        return TrackResult(
+            status=self.status,
+            omega=nan3 if fit is None else fit.omega,
+            t=nan3.copy() if fit is None else fit.t,
+            alpha=np.zeros(0) if fit is None else fit.alpha,
+            sigma=np.zeros(0) if fit is None else fit.sigma,
+            nodes_cam=self.nodes_cam,
+            nodes_px=self.left_px,
+            node_residuals=0.5 * (self.left_residuals + self.right_residuals),
+            mean_residual=self.mean_residual,
+            iterations=self.iterations,
+            cost_history=self.cost_history,
+            reason=self.reason,
+        )
+
+
+@dataclass(frozen=True)
+class TrackedSequence:
+    """Output of :func:`track_sequence` for the learner.
+
+    Attributes:
+        meshes: (F, N, 3) nodes per frame in the left camera frame, m (the last valid nodes on
+            frames that were not TRACKING; NaN before the first).
+        status: (F,) TrackStatus values.
+        results: the per-frame results.
+    """
+
+    meshes: np.ndarray
+    status: np.ndarray
+    results: tuple[StereoResult, ...]
+
+
+@dataclass(frozen=True)
+class _Templates:
+    """Grey levels (K, G, M) of one layout's samples in earlier images, per camera."""
+
+    previous: tuple[np.ndarray, np.ndarray]
+    first: tuple[np.ndarray, np.ndarray]
+
+
+@dataclass
+class _State:
+    """What the tracker carries from frame to frame."""
+
+    first_nodes: np.ndarray
+    nodes: np.ndarray
+    rotation: np.ndarray
+    pyramids: tuple[ImagePyramid, ImagePyramid]
+    layouts: tuple[SampleLayout, ...]
+    first_templates: tuple[tuple[tuple[np.ndarray, np.ndarray], ...], ...]
+    regulariser: Regulariser
+    noise: np.ndarray
+    result: StereoResult
+
+
+class StereoTracker:
+    """Tracks the N mesh nodes in 3-D through a rectified stereo sequence (eq. 4 and 5).
+
+    Usage: ``reset(left_px)`` with the nodes' pixel positions in the next left image (or
+    ``reset(None)`` with the automatic detector), then ``step(left, right)`` for every pair.
+    """
+
+    def __init__(
+        self, rig: StereoRig, config: StereoTrackerConfig, model: FaceModel | None = None
+    ) -> None:
+        """Set up the tracker.
+
+        Args:
+            rig: the rectified stereo rig (P matrices of both cameras).
+            config: the tunables.
+            model: optional face model; when given, every result carries the fit of eq. 1-3.
+
+        Raises:
+            ConfigError: if the model's node count differs from ``config.num_nodes``.
+        """
+        if model is not None and model.num_nodes != config.num_nodes:
+            msg = f'model has {model.num_nodes} nodes but the tracker is set to {config.num_nodes}'
+            raise ConfigError(msg)
+        self._rig = rig
+        self._config = config
+        self._model = model
+        self._topology: MeshTopology = mesh_topology(config.num_nodes)
+        self._texture_triangles = _texture_triangles(self._topology)
+        self._pending: np.ndarray | None = None
+        self._state: _State | None = None
+        self._status = TrackStatus.INITIALIZING
+        self._reason = 'not initialised: call reset() with the initial node positions'
+
+    @property
+    def topology(self) -> MeshTopology:
+        """The mesh topology being tracked."""
+        return self._topology
+
+    def reset(self, left_px: np.ndarray) -> None:
+        """Re-initialise on the next stereo pair from the nodes' left-image positions.
+
+        Args:
+            left_px: (N, 2) pixel positions of the nodes in the next left image; rows of NaN
+                for nodes not given (at least 6 must be given; the rest are filled in from the
+                reference face fitted to the given ones).
+
+        Raises:
+            InputError: if the array is not (N, 2) or gives fewer than 6 nodes.
+        """
+        left_px = np.asarray(left_px, dtype=float)
+        if left_px.shape != (self._topology.num_nodes, 2):
+            msg = f'left_px must be ({self._topology.num_nodes}, 2), got {left_px.shape}'
+            raise InputError(msg)
+        given = np.all(np.isfinite(left_px), axis=1)
+        if given.sum() < self._config.init.min_given_nodes:
+            msg = (
+                f'only {int(given.sum())} nodes given; at least '
+                f'{self._config.init.min_given_nodes} are needed'
+            )
+            raise InputError(msg)
+        self._pending = left_px
+        self._state = None
+        self._status = TrackStatus.INITIALIZING
+        self._reason = 'waiting for the first stereo pair after reset'
+
+    def step(self, left: np.ndarray, right: np.ndarray) -> StereoResult:
+        """Track one rectified stereo pair.
+
+        Args:
+            left: (H, W) grey left image (uint8 or float, grey levels 0-255).
+            right: (H, W) grey right image.
+
+        Returns:
+            The result; never raises on a bad frame (status LOST, reason set, state kept).
+        """
+        try:
+            pyramids = self._pyramids(left, right)
+        except InputError as error:
+            return self._not_tracking(TrackStatus.LOST, f'bad frame: {error}')
+        if self._pending is not None:
+            return self._initialise(pyramids)
+        if self._state is None:
+            return self._not_tracking(self._status, self._reason)
+        return self._track(pyramids)
+
+    # -- initialisation ----------------------------------------------------------------------
+
+    def _initialise(self, pyramids: tuple[ImagePyramid, ImagePyramid]) -> StereoResult:
+        """Triangulate the pending left-image nodes and start tracking on this pair."""
+        left_px, self._pending = self._pending, None
+        try:
+            nodes = initial_nodes(
+                self._rig,
+                pyramids[LEFT].levels[0],
+                pyramids[RIGHT].levels[0],
+                left_px,
+                self._topology,
+                self._config.init,
+            )
+        except FaceTrackingError as error:
+            self._status = TrackStatus.LOST
+            self._reason = f'initialisation failed: {error}'
+            return self._not_tracking(self._status, self._reason)
+        layouts = self._layouts(nodes)
+        rotation = np.eye(3)
+        first_templates = tuple(
+            tuple(
+                self._sample(pyramids, layout.points(nodes, rotation, level), level)
+                for layout in layouts
+            )
+            for level in range(self._config.pyramid_levels)
+        )
+        regulariser = Regulariser.build(self._topology, self._config.regularisation, nodes)
+        result = self._result(TrackStatus.TRACKING, nodes, None, 0, (), '')
+        self._state = _State(
+            first_nodes=nodes,
+            nodes=nodes,
+            rotation=rotation,
+            pyramids=pyramids,
+            layouts=layouts,
+            first_templates=first_templates,
+            regulariser=regulariser,
+            noise=np.full(len(layouts), self._config.noise_floor),
+            result=result,
+        )
+        return result
+
+    def _layouts(self, nodes: np.ndarray) -> tuple[SampleLayout, ...]:
+        """Node patches (always) and the face-texture samples (if texture_weight > 0)."""
+        config = self._config
+        normals = node_normals(nodes, self._topology.triangles)
+        spacing = nodes[:, 2] / self._rig.left.focal
+        layouts = [SampleLayout.node_patches(nodes, normals, spacing, config.patch_half_size)]
+        if config.texture_weight > 0:
+            layouts.append(
+                SampleLayout.triangle_texture(self._texture_triangles, config.texture_subdivisions)
+            )
+        return tuple(layouts)
+
+    # -- tracking ----------------------------------------------------------------------------
+
+    def _track(self, pyramids: tuple[ImagePyramid, ImagePyramid]) -> StereoResult:
+        """Solve eq. 4 + eq. 5 for this pair, coarse to fine, and update the state."""
+        state = self._state
+        assert state is not None
+        nodes = state.nodes
+        iterations = 0
+        history: list[float] = []
+        last: tuple[NormalEquations, ...] = ()
+        try:
+            for level in reversed(range(self._config.pyramid_levels)):
+                templates = self._level_templates(state, level)
+                nodes, spent, costs, last = self._solve_level(
+                    state, pyramids, templates, nodes, level
+                )
+                iterations += spent
+                history.extend(costs)
+        except (LinAlgError, FaceTrackingError, FloatingPointError) as error:
+            return self._lose(f'solver failed: {error}')
+        problem = self._check(nodes, last)
+        if problem:
+            return self._lose(problem)
+        state.noise = np.array(
+            [
+                max(self._config.noise_floor, float(np.nanmedian(np.concatenate(pair))))
+                for pair in zip(
+                    [t.group_rms for t in last[0::2]],
+                    [t.group_rms for t in last[1::2]],
+                    strict=True,
+                )
+            ]
+        )
+        state.rotation = rigid_align(
+            state.first_nodes, nodes, self._topology.alignment_weights()
+        ).rotation
+        state.nodes = nodes
+        state.pyramids = pyramids
+        result = self._result(TrackStatus.TRACKING, nodes, last, iterations, tuple(history), '')
+        state.result = result
+        return result
+
+    def _level_templates(self, state: _State, level: int) -> tuple[_Templates, ...]:
+        """Templates of every layout at ``level``: frame n - 1 (sampled now) and frame 1."""
+        return tuple(
+            _Templates(
+                previous=self._sample(
+                    state.pyramids, layout.points(state.nodes, state.rotation, level), level
+                ),
+                first=state.first_templates[level][index],
+            )
+            for index, layout in enumerate(state.layouts)
+        )
+
+    def _sample(
+        self, pyramids: tuple[ImagePyramid, ImagePyramid], points: np.ndarray, level: int
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Grey levels of sample points in the left and right images at ``level``."""
+        cameras = (self._rig.left, self._rig.right)
+        return tuple(  # type: ignore[return-value]
+            sample_templates(pyramids[c].levels[level], cameras[c], points, level)
+            for c in (LEFT, RIGHT)
+        )
+
+    def _solve_level(
+        self,
+        state: _State,
+        pyramids: tuple[ImagePyramid, ImagePyramid],
+        templates: tuple[_Templates, ...],
+        nodes: np.ndarray,
+        level: int,
+    ) -> tuple[np.ndarray, int, list[float], tuple[NormalEquations, ...]]:
+        """Levenberg-Marquardt at one pyramid level, from ``nodes``."""
+        config = self._config
+        damping = config.damping
+        cost, hessian, gradient, terms = self._normal_equations(
+            state, pyramids, templates, nodes, level
+        )
+        history = [cost]
+        iterations = 0
+        while iterations < config.max_iterations:
+            iterations += 1
+            augmented = hessian + damping * np.diag(np.diag(hessian))
+            step = cho_solve(cho_factor(augmented), -gradient).reshape(-1, 3)
+            candidate = nodes + step
+            trial = self._normal_equations(state, pyramids, templates, candidate, level)
+            if trial[0] <= cost:
+                nodes = candidate
+                cost, hessian, gradient, terms = trial
+                history.append(cost)
+                damping = max(damping / 10.0, 1e-9)
+                if np.abs(step).max() < config.step_tolerance:
+                    break
+            else:
+                damping *= 10.0
+                if damping > 1e3 or np.abs(step).max() < config.step_tolerance:
+                    break
+        return nodes, iterations, history[1:], terms
+
+    def _normal_equations(
+        self,
+        state: _State,
+        pyramids: tuple[ImagePyramid, ImagePyramid],
+        templates: tuple[_Templates, ...],
+        nodes: np.ndarray,
+        level: int,
+    ) -> tuple[float, np.ndarray, np.ndarray, tuple[NormalEquations, ...]]:
+        """Total cost, Hessian (3N, 3N) and gradient (3N,) of eq. 4 + texture + eq. 5."""
+        config = self._config
+        cost, hessian, gradient = state.regulariser.normal_equations(nodes, state.nodes)
+        n = nodes.shape[0]
+        cameras = (self._rig.left, self._rig.right)
+        terms: list[NormalEquations] = []
+        for index, (layout, template) in enumerate(zip(state.layouts, templates, strict=True)):
+            points = layout.points(nodes, state.rotation, level)
+            huber = config.huber_k * state.noise[index]
+            for camera in (LEFT, RIGHT):
+                stack, coefficients = self._template_stack(index, template, camera)
+                equations = image_normal_equations(
+                    pyramids[camera].levels[level],
+                    cameras[camera],
+                    layout,
+                    points,
+                    level,
+                    stack,
+                    coefficients,
+                    huber,
+                    n,
+                )
+                cost += equations.cost
+                hessian = hessian + equations.hessian
+                gradient = gradient + equations.gradient
+                terms.append(equations)
+        return cost, hessian, gradient, tuple(terms)
+
+    def _template_stack(
+        self, layout_index: int, templates: _Templates, camera: int
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Templates (K, G, M) and coefficients a_k for the image of ``camera``.
+
+        Node patches: eq. 4 (same camera 1 - gamma, other camera gamma) at frame n - 1 and
+        frame 1 in the ratio (1 - epsilon) : epsilon. Texture: same camera only, scaled by the
+        texture weight (the flat triangles are not the curved face, so the cross-camera terms
+        would be biased there).
+        """
+        config = self._config
+        other = 1 - camera
+        keep = 1.0 - config.epsilon
+        if layout_index == 0:
+            stack = (
+                templates.previous[camera],
+                templates.previous[other],
+                templates.first[camera],
+                templates.first[other],
+            )
+            same, cross = 1.0 - config.gamma, config.gamma
+            coefficients = (
+                keep * same,
+                keep * cross,
+                config.epsilon * same,
+                config.epsilon * cross,
+            )
+        else:
+            stack = (templates.previous[camera], templates.first[camera])
+            coefficients = (keep * config.texture_weight, config.epsilon * config.texture_weight)
+        return np.stack(stack), np.array(coefficients)
+
+    def _check(self, nodes: np.ndarray, terms: tuple[NormalEquations, ...]) -> str:
+        """Why the solution is not a valid track ('' if it is)."""
+        if not np.all(np.isfinite(nodes)):
+            return 'non-finite nodes'
+        if np.any(nodes[:, 2] <= 0):
+            return 'a node went behind the camera'
+        shape = (self._rig.left.height, self._rig.left.width)
+        for camera in (self._rig.left, self._rig.right):
+            if not np.all(inside_image(camera.project(nodes), shape)):
+                return 'a node left the image'
+        with np.errstate(invalid='ignore', divide='ignore'):
+            ratios = [t.group_rms / t.group_contrast for t in terms[:2]]
+        ratio = float(np.nanmedian(np.concatenate(ratios)))
+        if not ratio <= self._config.lost_ratio:
+            return f'patch residual / contrast {ratio:.2f} exceeds {self._config.lost_ratio}'
+        return ''
+
+    # -- results -----------------------------------------------------------------------------
+
+    def _result(
+        self,
+        status: TrackStatus,
+        nodes: np.ndarray,
+        terms: tuple[NormalEquations, ...] | None,
+        iterations: int,
+        history: tuple[float, ...],
+        reason: str,
+    ) -> StereoResult:
+        """Build a result; residuals are zero on the initial pair (it is its own template)."""
+        n = nodes.shape[0]
+        left_res = np.zeros(n) if terms is None else terms[0].group_rms
+        right_res = np.zeros(n) if terms is None else terms[1].group_rms
+        fit = None
+        if self._model is not None and status == TrackStatus.TRACKING:
+            fit = fit_model_to_nodes(self._model, nodes, noise=self._config.fit_noise)
+        return StereoResult(
+            status=status,
+            nodes_cam=nodes,
+            left_px=self._rig.left.project(nodes),
+            right_px=self._rig.right.project(nodes),
+            left_residuals=left_res,
+            right_residuals=right_res,
+            mean_residual=float(np.nanmean(np.concatenate([left_res, right_res]))),
+            iterations=iterations,
+            cost_history=history,
+            fit=fit,
+            reason=reason,
+        )
+
+    def _lose(self, reason: str) -> StereoResult:
+        """Drop the track: LOST until the next reset."""
+        self._status = TrackStatus.LOST
+        self._reason = f'track lost: {reason}'
+        self._state, previous = None, self._state
+        assert previous is not None
+        last = previous.result
+        return StereoResult(
+            status=TrackStatus.LOST,
+            nodes_cam=last.nodes_cam,
+            left_px=last.left_px,
+            right_px=last.right_px,
+            left_residuals=last.left_residuals,
+            right_residuals=last.right_residuals,
+            mean_residual=last.mean_residual,
+            reason=self._reason,
+        )
+
+    def _not_tracking(self, status: TrackStatus, reason: str) -> StereoResult:
+        """A result without a new estimate (the last valid nodes if any, else NaN)."""
+        n = self._topology.num_nodes
+        if self._state is not None:
+            last = self._state.result
+            nodes, left_px, right_px = last.nodes_cam, last.left_px, last.right_px
+        else:
+            nodes, left_px, right_px = (
+                np.full((n, 3), np.nan),
+                np.full((n, 2), np.nan),
+                np.full((n, 2), np.nan),
+            )
+        return StereoResult(
+            status=status,
+            nodes_cam=nodes,
+            left_px=left_px,
+            right_px=right_px,
+            left_residuals=np.full(n, np.nan),
+            right_residuals=np.full(n, np.nan),
+            mean_residual=float('nan'),
+            reason=reason,
+        )
+
+    def _pyramids(self, left: np.ndarray, right: np.ndarray) -> tuple[ImagePyramid, ImagePyramid]:
+        """Pyramids of both images, checked against the rig's image size."""
+        expected = (self._rig.left.height, self._rig.left.width)
+        for name, image in (('left', left), ('right', right)):
+            shape = np.shape(image)
+            if shape != expected:
+                msg = f'{name} image is {shape}, the rig expects {expected} grey images'
+                raise InputError(msg)
+        levels = self._config.pyramid_levels
+        return ImagePyramid.build(left, levels), ImagePyramid.build(right, levels)
+
+
+def track_sequence(
+    tracker: StereoTracker,
+    frames: Iterable[tuple[np.ndarray, np.ndarray]],
+    left_px: np.ndarray,
+) -> TrackedSequence:
+    """Track a whole stereo sequence from given initial node positions (for the learner).
+
+    Args:
+        tracker: a stereo tracker.
+        frames: (left, right) grey image pairs.
+        left_px: (N, 2) node positions in the first left image (NaN rows for unknown nodes).
+
+    Returns:
+        The (F, N, 3) meshes, (F,) statuses and the per-frame results.
+    """
+    tracker.reset(left_px)
+    results = tuple(tracker.step(left, right) for left, right in frames)
+    n = tracker.topology.num_nodes
+    meshes = np.array([r.nodes_cam for r in results]).reshape(len(results), n, 3)
+    status = np.array([int(r.status) for r in results], dtype=np.int64)
+    return TrackedSequence(meshes=meshes, status=status, results=results)
+
+
+def _texture_triangles(topology: MeshTopology) -> np.ndarray:
+    """Mesh triangles whose texture moves with the nodes: all but the inside of the mouth."""
+    mouth = topology.group_mask(Group.MOUTH)
+    keep = ~np.all(mouth[topology.triangles], axis=1)
+    return topology.triangles[keep]

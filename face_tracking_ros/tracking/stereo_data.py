@@ -1,0 +1,220 @@
+"""The image terms of the stereo tracker: eq. 4 over node patches, plus a face-texture term (§4.2).
+
+Every image sample is a 3-D point tied to up to three nodes: ``P = sum_k b_k X^(n_k) + o`` with
+barycentric weights b and an offset o, projected into a camera by eq. 2. A
+:class:`SampleLayout` holds G groups of M such samples:
+
+- node patches (the ROI of eq. 4): group i is node i alone (b = (1, 0, 0)) with offsets on a
+  small square grid in the node's tangent plane, so the patch is seen with the right perspective
+  in both cameras (a fronto-parallel square would be compressed differently in the two views on
+  the sloping cheeks and temples, which biases the cross-camera terms);
+- face texture (the seed's §4.2 remedy): group t is triangle t of the mesh, its samples on a
+  barycentric grid inside it (o = 0); a boundary node sliding along the face edge distorts the
+  texture of every triangle it belongs to, which this term sees.
+
+For a current image I_c of camera c, the cost of one group is a robust sum over its samples of
+
+    sum_k a_k rho_huber(I_c(P) - T_k - mean(I_c(P) - T_k))
+
+over templates T_k (the same samples in earlier images) with coefficients a_k: for node patches
+the four terms of eq. 4 ((1 - gamma) for the same camera, gamma for the other camera, at frame
+n - 1), each split (1 - epsilon) : epsilon with the same terms against frame 1 (the drift term
+of eq. 6 carried over to stereo). Removing each group's mean difference (ZSSD) makes the terms
+insensitive to a brightness offset between the cameras or over time. The Gauss-Newton
+normal equations are accumulated from per-node blocks (:mod:`.block_assembly`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from face_tracking_ros.geometry.camera import PinholeCamera
+from face_tracking_ros.imaging import inside_image, sample_with_gradient
+from face_tracking_ros.tracking.block_assembly import scatter_blocks, scatter_vectors
+
+
+@dataclass(frozen=True)
+class SampleLayout:
+    """G groups of M 3-D sample points tied to mesh nodes.
+
+    Attributes:
+        nodes: (G, 3) int node indices n_k of each group (repeated for a single-node group).
+        bary: (M, 3) barycentric weights b_k of each sample, rows sum to 1.
+        offsets: (G, M, 3) offsets o at pyramid level 0 in the frame-1 orientation, m.
+    """
+
+    nodes: np.ndarray
+    bary: np.ndarray
+    offsets: np.ndarray
+
+    @classmethod
+    def node_patches(
+        cls, nodes: np.ndarray, normals: np.ndarray, spacing: np.ndarray, half_size: int
+    ) -> SampleLayout:
+        """Square patches of (2 h + 1)^2 samples in each node's tangent plane (the ROI of eq. 4).
+
+        Args:
+            nodes: (N, 3) nodes, m (only their count is used).
+            normals: (N, 3) unit surface normals at the nodes.
+            spacing: (N,) sample spacing at level 0, m (about one pixel: depth / focal).
+            half_size: h, samples each side of the node.
+        """
+        num_nodes = nodes.shape[0]
+        axis = np.arange(-half_size, half_size + 1, dtype=float)
+        grid_v, grid_u = np.meshgrid(axis, axis, indexing='ij')
+        # In-plane axes: camera x projected on the tangent plane, then normal x u.
+        u = np.array([1.0, 0.0, 0.0]) - normals[:, 0:1] * normals
+        u /= np.linalg.norm(u, axis=1, keepdims=True)
+        v = np.cross(normals, u)
+        offsets = spacing[:, None, None] * (
+            grid_u.ravel()[None, :, None] * u[:, None, :]
+            + grid_v.ravel()[None, :, None] * v[:, None, :]
+        )
+        bary = np.zeros((axis.size**2, 3))
+        bary[:, 0] = 1.0
+        return cls(
+            nodes=np.repeat(np.arange(num_nodes)[:, None], 3, axis=1), bary=bary, offsets=offsets
+        )
+
+    @classmethod
+    def triangle_texture(cls, triangles: np.ndarray, subdivisions: int) -> SampleLayout:
+        """Samples on the barycentric grid of order ``subdivisions`` strictly inside each triangle.
+
+        Args:
+            triangles: (T, 3) node indices.
+            subdivisions: grid order s >= 3; each triangle gets (s - 1)(s - 2) / 2 samples.
+        """
+        i, j = np.meshgrid(np.arange(1, subdivisions), np.arange(1, subdivisions), indexing='ij')
+        keep = i + j < subdivisions
+        first, second = i[keep].astype(float), j[keep].astype(float)
+        bary = np.stack([first, second, subdivisions - first - second], axis=1) / subdivisions
+        triangles = np.asarray(triangles, dtype=np.int64)
+        return cls(
+            nodes=triangles, bary=bary, offsets=np.zeros((triangles.shape[0], bary.shape[0], 3))
+        )
+
+    def points(self, nodes: np.ndarray, rotation: np.ndarray, level: int) -> np.ndarray:
+        """3-D sample points (G, M, 3), m, for nodes (N, 3) and the patch orientation (3, 3).
+
+        Offsets are rotated by ``rotation`` (the head's rotation since frame 1) and scaled by
+        2**level so a patch keeps its size in pixels on every pyramid level.
+        """
+        corners = nodes[self.nodes]
+        return np.einsum('mk,gkd->gmd', self.bary, corners) + float(1 << level) * (
+            self.offsets @ rotation.T
+        )
+
+
+@dataclass(frozen=True)
+class NormalEquations:
+    """Gauss-Newton terms of an image term, by node blocks.
+
+    Attributes:
+        cost: robust cost, grey^2.
+        hessian: (3N, 3N) J^T W J, node-major, grey^2 / m^2.
+        gradient: (3N,) J^T W r, grey^2 / m.
+        group_rms: (G,) RMS of the leading (k = 0) ZSSD residual of each group, grey levels
+            (NaN if no sample of the group is inside the image).
+        group_contrast: (G,) standard deviation of the leading template in each group, grey
+            levels; ``group_rms / group_contrast`` is about 1 for an unrelated image.
+    """
+
+    cost: float
+    hessian: np.ndarray
+    gradient: np.ndarray
+    group_rms: np.ndarray
+    group_contrast: np.ndarray
+
+
+def sample_templates(
+    image: np.ndarray, camera: PinholeCamera, points: np.ndarray, level: int
+) -> np.ndarray:
+    """Grey levels (G, M) of an image (a pyramid level) at 3-D sample points (G, M, 3)."""
+    pixels = camera.project(points.reshape(-1, 3)) / float(1 << level)
+    values, _ = sample_with_gradient(image, pixels)
+    return values.reshape(points.shape[:2])
+
+
+def huber_scale(residuals: np.ndarray, floor: float) -> float:
+    """Robust scale of residuals: 1.4826 median |r| (the normal MAD), at least ``floor``."""
+    finite = residuals[np.isfinite(residuals)]
+    if finite.size == 0:
+        return floor
+    return max(floor, 1.4826 * float(np.median(np.abs(finite))))
+
+
+def image_normal_equations(
+    image: np.ndarray,
+    camera: PinholeCamera,
+    layout: SampleLayout,
+    points: np.ndarray,
+    level: int,
+    templates: np.ndarray,
+    coefficients: np.ndarray,
+    huber: float,
+    num_nodes: int,
+) -> NormalEquations:
+    """Robust ZSSD cost of one camera's image against templates, and its normal equations.
+
+    Args:
+        image: (H, W) float32 pyramid level ``level`` of the current image I_c.
+        camera: the camera of that image (its P maps left-frame points to level-0 pixels).
+        layout: the sample layout.
+        points: (G, M, 3) current sample points (:meth:`SampleLayout.points`), m.
+        level: pyramid level.
+        templates: (K, G, M) template grey levels T_k.
+        coefficients: (K,) a_k >= 0.
+        huber: Huber threshold, grey levels.
+        num_nodes: N.
+
+    Returns:
+        The cost, the normal equations by node blocks and the RMS of the k = 0 residual.
+    """
+    groups, samples = points.shape[:2]
+    scale = 1.0 / float(1 << level)
+    pixels, projection_jacobian = camera.project_with_jacobian(points.reshape(-1, 3))
+    pixels = pixels * scale
+    values, gradient = sample_with_gradient(image, pixels)
+    valid = (inside_image(pixels, image.shape, margin=1.0) & (points[..., 2].ravel() > 0)).reshape(
+        groups, samples
+    )
+    counts = valid.sum(axis=1)
+    # d I / d P per sample (G, M, 3), then per node slot (G, M, 3 slots * 3).
+    row = np.einsum('sa,sai->si', gradient, projection_jacobian).reshape(groups, samples, 3)
+    row *= scale
+    slots = layout.bary[None, :, :, None] * row[:, :, None, :]
+    slots = slots.reshape(groups, samples, 9) * valid[..., None]
+    safe_counts = np.maximum(counts, 1)[:, None]
+    slots -= valid[..., None] * (slots.sum(axis=1) / safe_counts)[:, None, :]
+
+    differences = values.reshape(groups, samples)[None] - templates
+    differences -= (differences * valid).sum(axis=2, keepdims=True) / safe_counts[None]
+    differences *= valid
+    magnitude = np.abs(differences)
+    robust = np.minimum(1.0, huber / np.maximum(magnitude, 1e-12))
+    weighted = coefficients[:, None, None] * robust
+    weight = weighted.sum(axis=0)
+    weighted_residual = (weighted * differences).sum(axis=0)
+    loss = np.where(magnitude <= huber, magnitude**2, 2.0 * huber * magnitude - huber**2)
+    cost = float(np.einsum('k,kgm->', coefficients, loss))
+
+    hessian_slots = np.swapaxes(slots * weight[..., None], 1, 2) @ slots  # (G, 9, 9)
+    gradient_slots = np.einsum('gms,gm->gs', slots, weighted_residual)  # (G, 9)
+    blocks = hessian_slots.reshape(groups, 3, 3, 3, 3).transpose(0, 1, 3, 2, 4)
+    rows = np.broadcast_to(layout.nodes[:, :, None], (groups, 3, 3))
+    cols = np.broadcast_to(layout.nodes[:, None, :], (groups, 3, 3))
+    hessian = scatter_blocks(rows, cols, blocks, num_nodes)
+    node_gradient = scatter_vectors(layout.nodes, gradient_slots.reshape(groups, 3, 3), num_nodes)
+    leading = templates[0] - (templates[0] * valid).sum(axis=1, keepdims=True) / safe_counts
+    with np.errstate(invalid='ignore', divide='ignore'):
+        group_rms = np.sqrt((differences[0] ** 2).sum(axis=1) / counts)
+        group_contrast = np.sqrt((valid * leading**2).sum(axis=1) / counts)
+    return NormalEquations(
+        cost=cost,
+        hessian=hessian,
+        gradient=node_gradient,
+        group_rms=group_rms,
+        group_contrast=group_contrast,
+    )

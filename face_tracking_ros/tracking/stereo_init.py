@@ -1,0 +1,298 @@
+"""Initialisation of the stereo tracker: left-image node positions to 3-D nodes (seed §3.3).
+
+The seed initialises the mesh on the first frame semi-automatically. Here the nodes' positions
+in the left image are given (an init file, a service call, or a landmark detector); each given
+node is found in the right image by normalised cross-correlation along its epipolar line (the
+same row of a rectified pair, ``cv2.matchTemplate``) within a depth range, triangulated
+(``StereoRig.triangulate``), and refined along its viewing ray by Gauss-Newton on the left-right
+difference of a patch lying in the face's tangent plane, which removes the bias that square
+windows have on sloping skin. Nodes not given, or whose match is weak or inconsistent with the
+face, take their position from the reference face of the topology fitted to the others (a
+similarity transform); their depth is then refined the same way.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from face_tracking_ros.errors import ConfigError, InputError
+from face_tracking_ros.geometry.camera import StereoRig
+from face_tracking_ros.geometry.procrustes import rigid_align
+from face_tracking_ros.imaging import sample_patches, sample_points, square_offsets
+from face_tracking_ros.model.topology import MeshTopology
+from face_tracking_ros.tracking.stereo_data import (
+    SampleLayout,
+    image_normal_equations,
+    sample_templates,
+)
+
+FLAT_STD = 0.5  # grey levels: a correlation window flatter than this cannot be matched
+
+
+@dataclass(frozen=True)
+class StereoInitConfig:
+    """Tunables of the stereo initialisation.
+
+    Attributes:
+        min_depth: nearest face distance searched along the epipolar line, m.
+        max_depth: farthest face distance searched, m.
+        match_half_size: correlation windows are (2 h + 1)^2 pixels.
+        min_score: normalised cross-correlation below which a match is rejected.
+        max_face_error: a triangulated node farther than this from the fitted reference face is
+            rejected as a mismatch, m.
+        min_given_nodes: fewest nodes that must be given (and matched).
+        refine_iterations: Gauss-Newton iterations of the depth refinement.
+        refine_half_size: the refinement patch is (2 h + 1)^2 samples in the tangent plane.
+    """
+
+    min_depth: float = 0.25
+    max_depth: float = 2.0
+    match_half_size: int = 7
+    min_score: float = 0.6
+    max_face_error: float = 0.025
+    min_given_nodes: int = 6
+    refine_iterations: int = 5
+    refine_half_size: int = 5
+
+    def __post_init__(self) -> None:
+        """Validate ranges.
+
+        Raises:
+            ConfigError: naming the first inconsistent tunable.
+        """
+        checks = (
+            ('min_depth', 0.0 < self.min_depth < self.max_depth),
+            ('match_half_size', self.match_half_size >= 2),
+            ('min_score', -1.0 <= self.min_score <= 1.0),
+            ('max_face_error', self.max_face_error > 0.0),
+            ('min_given_nodes', self.min_given_nodes >= 3),
+            ('refine_iterations', self.refine_iterations >= 0),
+            ('refine_half_size', self.refine_half_size >= 1),
+        )
+        for name, ok in checks:
+            if not ok:
+                msg = f'stereo init parameter {name} is out of range: {getattr(self, name)}'
+                raise ConfigError(msg)
+
+
+def epipolar_match(
+    rig: StereoRig,
+    left: np.ndarray,
+    right: np.ndarray,
+    left_px: np.ndarray,
+    config: StereoInitConfig,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Find left-image points in the right image along their epipolar lines.
+
+    Args:
+        rig: the rectified rig.
+        left: (H, W) float32 left image.
+        right: (H, W) float32 right image.
+        left_px: (K, 2) left pixel positions.
+        config: depth range, window size.
+
+    Returns:
+        ``(right_px, score)``: (K, 2) matched right positions (sub-pixel along the row) and the
+        (K,) normalised cross-correlation of each match.
+    """
+    h = config.match_half_size
+    offsets = square_offsets(h)
+    windows = sample_patches(left, left_px, offsets).reshape(-1, 2 * h + 1, 2 * h + 1)
+    near = _right_of_depth(rig, left_px, config.min_depth)
+    far = _right_of_depth(rig, left_px, config.max_depth)
+    right_px = np.full_like(left_px, np.nan, dtype=float)
+    scores = np.full(left_px.shape[0], -1.0)
+    for k in range(left_px.shape[0]):
+        start, stop = near[k, 0] - h, far[k, 0] + h
+        columns = start + np.arange(int(np.ceil(stop - start)) + 1, dtype=float)
+        rows = far[k, 1] + np.arange(-h, h + 1, dtype=float)
+        grid = np.stack(np.meshgrid(columns, rows), axis=-1)
+        strip = sample_points(right, grid)
+        if strip.shape[1] <= 2 * h + 1 or windows[k].std() < FLAT_STD:
+            continue
+        response = cv2.matchTemplate(strip, windows[k], cv2.TM_CCOEFF_NORMED)[0]
+        # Flat (zero-variance) stretches of the strip correlate as 1 in OpenCV: exclude them.
+        response[_window_std(strip, h) < FLAT_STD] = -1.0
+        best = int(np.argmax(response))
+        scores[k] = float(response[best])
+        right_px[k] = [columns[h] + best + _parabola_peak(response, best), far[k, 1]]
+    return right_px, scores
+
+
+def initial_nodes(
+    rig: StereoRig,
+    left: np.ndarray,
+    right: np.ndarray,
+    left_px: np.ndarray,
+    topology: MeshTopology,
+    config: StereoInitConfig,
+) -> np.ndarray:
+    """3-D nodes (N, 3) in the left camera frame, m, from their left-image positions.
+
+    Args:
+        rig: the rectified rig.
+        left: (H, W) float32 left image.
+        right: (H, W) float32 right image.
+        left_px: (N, 2) left pixel positions; NaN rows for nodes not given.
+        topology: the mesh (its reference face fills in missing nodes).
+        config: the initialisation tunables.
+
+    Raises:
+        InputError: if fewer than ``config.min_given_nodes`` nodes are given and matched, or a
+            given node lies outside the left image.
+    """
+    height, width = left.shape
+    given = np.all(np.isfinite(left_px), axis=1)
+    inside = (left_px[:, 0] >= 0) & (left_px[:, 0] <= width - 1)
+    inside &= (left_px[:, 1] >= 0) & (left_px[:, 1] <= height - 1)
+    if np.any(given & ~inside):
+        names = [topology.node_names[i] for i in np.flatnonzero(given & ~inside)]
+        msg = f'initial node positions outside the {width}x{height} left image: {names}'
+        raise InputError(msg)
+    right_px, scores = epipolar_match(rig, left, right, left_px[given], config)
+    matched = np.zeros(topology.num_nodes, dtype=bool)
+    matched[given] = scores >= config.min_score
+    triangulated = np.full((topology.num_nodes, 3), np.nan)
+    triangulated[given] = rig.triangulate(left_px[given], right_px)
+    reference = _fit_reference(topology, triangulated, matched, config)
+    consistent = matched & (
+        np.linalg.norm(triangulated - reference, axis=1) <= config.max_face_error
+    )
+    if consistent.sum() < config.min_given_nodes:
+        msg = (
+            f'only {int(consistent.sum())} of {int(given.sum())} given nodes were matched in the '
+            f'right image (need {config.min_given_nodes}); check the rig calibration and the '
+            'initial positions'
+        )
+        raise InputError(msg)
+    reference = _fit_reference(topology, triangulated, consistent, config)
+    nodes = np.where(consistent[:, None], triangulated, reference)
+    # Nodes given in the left image but not matched keep their left position at the face depth.
+    rays = _rays(rig, left_px)
+    rescue = given & ~consistent
+    nodes[rescue] = rays[rescue] * (reference[rescue, 2] / rays[rescue, 2])[:, None]
+    return refine_depths(rig, left, right, nodes, topology, config)
+
+
+def refine_depths(
+    rig: StereoRig,
+    left: np.ndarray,
+    right: np.ndarray,
+    nodes: np.ndarray,
+    topology: MeshTopology,
+    config: StereoInitConfig,
+) -> np.ndarray:
+    """Move each node along its left viewing ray to match its tangent-plane patch left-right.
+
+    Gauss-Newton on sum_m (I_R(pi_R(P_m)) - I_L(pi_L(P_m)))^2 over the depth of each node, with
+    the patch P_m in the tangent plane of the mesh at the node (eq. 4's cross term at frame 1).
+
+    Args:
+        rig: the rectified rig.
+        left: (H, W) float32 left image.
+        right: (H, W) float32 right image.
+        nodes: (N, 3) initial nodes, m.
+        topology: the mesh (its triangles give the tangent planes).
+        config: iterations and patch size.
+
+    Returns:
+        (N, 3) refined nodes, m (each on the same left viewing ray).
+    """
+    num_nodes = nodes.shape[0]
+    for _ in range(config.refine_iterations):
+        layout = SampleLayout.node_patches(
+            nodes,
+            node_normals(nodes, topology.triangles),
+            nodes[:, 2] / rig.left.focal,
+            config.refine_half_size,
+        )
+        points = layout.points(nodes, np.eye(3), 0)
+        template = sample_templates(left, rig.left, points, 0)
+        equations = image_normal_equations(
+            right, rig.right, layout, points, 0, template[None], np.ones(1), 1e6, num_nodes
+        )
+        rays = nodes / np.linalg.norm(nodes, axis=1, keepdims=True)
+        diagonal = np.arange(num_nodes)
+        blocks = equations.hessian.reshape(num_nodes, 3, num_nodes, 3)[diagonal, :, diagonal, :]
+        curvature = np.einsum('na,nab,nb->n', rays, blocks, rays)
+        slope = np.einsum('na,na->n', rays, equations.gradient.reshape(-1, 3))
+        with np.errstate(divide='ignore', invalid='ignore'):
+            step = np.where(curvature > 0, -slope / curvature, 0.0)
+        # A step larger than 2 cm is a wrong basin: keep the correlation estimate there.
+        step = np.where(np.abs(step) < 0.02, step, 0.0)
+        nodes = nodes + rays * step[:, None]
+    return nodes
+
+
+def node_normals(nodes: np.ndarray, triangles: np.ndarray) -> np.ndarray:
+    """Unit surface normals (N, 3) at the nodes, facing the camera (n . X < 0).
+
+    Each node's normal is the area-weighted sum of its triangles' normals, each oriented to face
+    the camera first (the triangulation of the frontal view has no consistent winding).
+    """
+    corners = nodes[triangles]
+    normals = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+    facing = np.einsum('td,td->t', normals, corners.mean(axis=1)) > 0
+    normals[facing] *= -1.0
+    sums = np.zeros_like(nodes)
+    for k in range(3):
+        np.add.at(sums, triangles[:, k], normals)
+    return sums / np.linalg.norm(sums, axis=1, keepdims=True)
+
+
+def _window_std(strip: np.ndarray, half_size: int) -> np.ndarray:
+    """Standard deviation of every full (2 h + 1)^2 window along a (2 h + 1, W) strip."""
+    size = 2 * half_size + 1
+    mean = cv2.boxFilter(strip, -1, (size, size), borderType=cv2.BORDER_ISOLATED)
+    mean_sq = cv2.boxFilter(strip * strip, -1, (size, size), borderType=cv2.BORDER_ISOLATED)
+    variance = (
+        mean_sq[half_size, half_size:-half_size] - mean[half_size, half_size:-half_size] ** 2
+    )
+    return np.sqrt(np.maximum(variance, 0.0))
+
+
+def _rays(rig: StereoRig, left_px: np.ndarray) -> np.ndarray:
+    """Left viewing rays (K, 3) with z = 1 through pixels (K, 2)."""
+    p = rig.left.p
+    x = (left_px[:, 0] - p[0, 2]) / p[0, 0]
+    y = (left_px[:, 1] - p[1, 2]) / p[1, 1]
+    return np.stack([x, y, np.ones_like(x)], axis=1)
+
+
+def _right_of_depth(rig: StereoRig, left_px: np.ndarray, depth: float) -> np.ndarray:
+    """Right-image pixels (K, 2) of the points at ``depth`` on the left viewing rays."""
+    return rig.right.project(_rays(rig, left_px) * depth)
+
+
+def _parabola_peak(response: np.ndarray, best: int) -> float:
+    """Sub-sample offset in [-0.5, 0.5] of a peak from the parabola through three samples."""
+    if best == 0 or best == response.size - 1:
+        return 0.0
+    before, at, after = response[best - 1], response[best], response[best + 1]
+    curvature = before - 2.0 * at + after
+    if curvature >= 0:
+        return 0.0
+    return float(np.clip(0.5 * (before - after) / curvature, -0.5, 0.5))
+
+
+def _fit_reference(
+    topology: MeshTopology, nodes: np.ndarray, use: np.ndarray, config: StereoInitConfig
+) -> np.ndarray:
+    """The reference face (N, 3) moved and scaled onto the nodes marked ``use``."""
+    if use.sum() < 3:
+        msg = (
+            f'only {int(use.sum())} nodes could be triangulated (need '
+            f'{config.min_given_nodes}); check the rig calibration and the initial positions'
+        )
+        raise InputError(msg)
+    reference = np.asarray(topology.reference_shape)
+    source, target = reference[use], nodes[use]
+    spread_source = np.linalg.norm(source - source.mean(axis=0))
+    spread_target = np.linalg.norm(target - target.mean(axis=0))
+    scale = spread_target / spread_source if spread_source > 0 else 1.0
+    weights = topology.alignment_weights()[use]
+    alignment = rigid_align(scale * source, target, weights)
+    return scale * reference @ alignment.rotation.T + alignment.t

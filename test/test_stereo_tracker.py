@@ -1,0 +1,205 @@
+"""Tests of the stereo tracker (eq. 4 and 5) on a textured plane seen by an ideal stereo rig.
+
+A plane needs no face renderer: both views are exact homographies of one texture, so every node
+placed on the plane has a known 3-D position in every frame.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+from face_tracking_ros.errors import ConfigError, InputError
+from face_tracking_ros.geometry.camera import PinholeCamera, StereoRig
+from face_tracking_ros.model.topology import mesh_topology
+from face_tracking_ros.tracking.result import TrackStatus
+from face_tracking_ros.tracking.stereo import StereoTracker, StereoTrackerConfig, track_sequence
+from face_tracking_ros.tracking.stereo_data import (
+    NormalEquations,
+    SampleLayout,
+    image_normal_equations,
+    sample_templates,
+)
+from face_tracking_ros.tracking.stereo_init import (
+    StereoInitConfig,
+    epipolar_match,
+    initial_nodes,
+)
+
+RIG = StereoRig.ideal()
+# A plane is no face: accept any depth difference from the reference face at initialisation.
+PLANE_INIT = StereoInitConfig(max_face_error=0.2)
+TEXEL = 0.0005  # m per texel
+
+
+def _texture(seed: int = 0, size: int = 512) -> np.ndarray:
+    """Multi-scale smooth noise in [30, 230] grey levels, float32."""
+    rng = np.random.default_rng(seed)
+    texture = np.zeros((size, size), np.float32)
+    for scale in (2, 4, 8, 16, 32):
+        noise = rng.normal(size=(size // scale + 2, size // scale + 2)).astype(np.float32)
+        texture += np.sqrt(scale) * cv2.resize(noise, (size, size), interpolation=cv2.INTER_CUBIC)
+    return (texture - texture.min()) / np.ptp(texture) * 200 + 30
+
+
+TEXTURE = _texture()
+
+
+class _Plane:
+    """A textured plane: origin (3,), in-plane unit axes e1, e2 (3,), in the left frame, m."""
+
+    def __init__(self, origin: np.ndarray, yaw: float = 0.3) -> None:
+        self.origin = np.asarray(origin, float)
+        self.e1 = np.array([np.cos(yaw), 0.0, np.sin(yaw)])
+        self.e2 = np.array([0.0, 1.0, 0.0])
+
+    def moved(self, shift: np.ndarray) -> _Plane:
+        plane = _Plane(self.origin + shift)
+        plane.e1, plane.e2 = self.e1, self.e2
+        return plane
+
+    def nodes(self) -> np.ndarray:
+        """The reference face's (x, y) laid on the plane: (34, 3), m."""
+        reference = mesh_topology(34).reference_shape
+        return self.origin + reference[:, :1] * self.e1 + reference[:, 1:2] * self.e2
+
+    def image(self, camera: PinholeCamera) -> np.ndarray:
+        """(H, W) float32 view of the plane (texture centred on the face, 45 mm below the eyes)."""
+        corner = self.origin + 0.045 * self.e2 - TEXTURE.shape[0] / 2 * TEXEL * (self.e1 + self.e2)
+        frame = np.stack([TEXEL * self.e1, TEXEL * self.e2, corner], axis=1)
+        homography = camera.p[:, :3] @ frame
+        homography[:, 2] += camera.p[:, 3]
+        size = (camera.width, camera.height)
+        return cv2.warpPerspective(TEXTURE, homography, size, flags=cv2.INTER_CUBIC)
+
+    def pair(self) -> tuple[np.ndarray, np.ndarray]:
+        return self.image(RIG.left), self.image(RIG.right)
+
+
+PLANE = _Plane([0.0, -0.03, 0.6])
+
+
+def _rms_mm(nodes: np.ndarray, truth: np.ndarray) -> float:
+    return float(np.sqrt(np.mean(np.sum((nodes - truth) ** 2, axis=1))) * 1000)
+
+
+def test_epipolar_match_and_initial_nodes_are_sub_pixel() -> None:
+    left, right = PLANE.pair()
+    truth = PLANE.nodes()
+    right_px, scores = epipolar_match(RIG, left, right, RIG.left.project(truth), PLANE_INIT)
+    assert scores.min() > 0.9
+    assert np.abs(right_px - RIG.right.project(truth)).max() < 0.3
+    # Half the nodes given: the rest come from the reference face, then depth refinement.
+    left_px = RIG.left.project(truth)
+    left_px[1::2] = np.nan
+    nodes = initial_nodes(RIG, left, right, left_px, mesh_topology(34), PLANE_INIT)
+    given = np.isfinite(left_px[:, 0])
+    assert np.linalg.norm(nodes[given] - truth[given], axis=1).max() < 0.0005
+    # The missing nodes lie on the plane at the reference face's (x, y) but its depth relief.
+    assert np.linalg.norm(nodes[~given] - truth[~given], axis=1).max() < 0.04
+
+
+def test_image_normal_equations_gradient_matches_finite_differences() -> None:
+    # Smooth sinusoidal images, so the central-difference image gradient is the true slope.
+    rows, cols = np.mgrid[0:480, 0:640].astype(np.float64)
+
+    def wave(phase: float) -> np.ndarray:
+        value = 50 * np.sin(cols / 13 + phase) * np.cos(rows / 9) + 30 * np.sin((cols + rows) / 21)
+        return (100 + value).astype(np.float32)
+
+    left, right = wave(0.0), wave(0.4)
+    truth = PLANE.nodes()
+    normals = np.tile([0.0, 0.0, -1.0], (34, 1))
+    layout = SampleLayout.node_patches(truth, normals, truth[:, 2] / 600, 3)
+    rotation = np.eye(3)
+    template = sample_templates(left, RIG.left, layout.points(truth, rotation, 0), 0)[None]
+    moved = truth + np.random.default_rng(0).normal(0, 0.0003, truth.shape)
+
+    def equations(nodes: np.ndarray) -> NormalEquations:
+        points = layout.points(nodes, rotation, 0)
+        return image_normal_equations(
+            right, RIG.right, layout, points, 0, template, np.ones(1), 1e6, 34
+        )
+
+    analytic = 2 * equations(moved).gradient  # d cost / dX = 2 J^T W r
+    step = 3e-4
+    numeric = np.empty_like(analytic)
+    for k in range(analytic.size):
+        plus, minus = moved.ravel().copy(), moved.ravel().copy()
+        plus[k] += step
+        minus[k] -= step
+        numeric[k] = (
+            equations(plus.reshape(-1, 3)).cost - equations(minus.reshape(-1, 3)).cost
+        ) / (2 * step)
+    assert np.linalg.norm(analytic - numeric) < 0.05 * np.linalg.norm(numeric)
+    # J^T J is symmetric positive semi-definite and its node blocks are 3x3.
+    hessian = equations(moved).hessian
+    assert np.allclose(hessian, hessian.T) and np.linalg.eigvalsh(hessian).min() > -1e-6
+
+
+def test_no_motion_gives_exactly_zero_motion() -> None:
+    left, right = PLANE.pair()
+    tracker = StereoTracker(RIG, StereoTrackerConfig(gamma=0.0, init=PLANE_INIT))
+    tracker.reset(RIG.left.project(PLANE.nodes()))
+    first = tracker.step(left, right)
+    assert first.status == TrackStatus.TRACKING
+    for _ in range(2):
+        again = tracker.step(left.copy(), right.copy())
+        assert again.status == TrackStatus.TRACKING
+        assert np.array_equal(again.nodes_cam, first.nodes_cam)
+
+
+def test_tracks_a_moving_plane_in_3d() -> None:
+    frames = [PLANE.moved(np.array([0.0015, -0.001, 0.003]) * k) for k in range(6)]
+    tracker = StereoTracker(RIG, StereoTrackerConfig(init=PLANE_INIT))
+    tracked = track_sequence(tracker, [f.pair() for f in frames], RIG.left.project(PLANE.nodes()))
+    assert tracked.meshes.shape == (6, 34, 3)
+    assert np.all(tracked.status == TrackStatus.TRACKING)
+    errors = [_rms_mm(mesh, f.nodes()) for mesh, f in zip(tracked.meshes, frames, strict=True)]
+    assert max(errors) < 0.5, errors
+    final = tracked.results[-1]
+    assert np.all(final.left_residuals < 10) and np.all(final.right_residuals < 10)
+    assert np.abs(final.left_px - RIG.left.project(frames[-1].nodes())).max() < 1.0
+
+
+def test_bad_frames_never_raise() -> None:
+    left, right = PLANE.pair()
+    tracker = StereoTracker(RIG, StereoTrackerConfig(init=PLANE_INIT))
+    before = tracker.step(left, right)
+    assert before.status == TrackStatus.INITIALIZING and 'reset' in before.reason
+    tracker.reset(RIG.left.project(PLANE.nodes()))
+    assert tracker.step(left, right).ok
+    wrong = tracker.step(left[:100], right)
+    assert wrong.status == TrackStatus.LOST and 'bad frame' in wrong.reason
+    assert np.all(np.isfinite(wrong.nodes_cam))
+    # The track survives a bad frame; a blank pair then loses it for good until reset.
+    assert tracker.step(left, right).ok
+    blank = np.zeros_like(left)
+    lost = tracker.step(blank + 255, blank)
+    assert lost.status == TrackStatus.LOST and 'lost' in lost.reason
+    assert tracker.step(left, right).status == TrackStatus.LOST
+
+
+def test_initialisation_failure_is_reported() -> None:
+    left, right = PLANE.pair()
+    tracker = StereoTracker(RIG, StereoTrackerConfig(init=PLANE_INIT))
+    tracker.reset(np.full((34, 2), 5.0))  # every node in the same corner, all matches equal
+    result = tracker.step(np.zeros_like(left), np.zeros_like(right))
+    assert result.status == TrackStatus.LOST and 'initialisation failed' in result.reason
+
+
+def test_reset_and_config_reject_bad_input() -> None:
+    tracker = StereoTracker(RIG, StereoTrackerConfig(init=PLANE_INIT))
+    with pytest.raises(InputError, match=r'\(34, 2\)'):
+        tracker.reset(np.zeros((19, 2)))
+    few = np.full((34, 2), np.nan)
+    few[:5] = 100.0
+    with pytest.raises(InputError, match='only 5 nodes given'):
+        tracker.reset(few)
+    with pytest.raises(ConfigError, match='gamma'):
+        StereoTrackerConfig(gamma=1.5)
+    with pytest.raises(ConfigError, match='num_nodes'):
+        StereoTrackerConfig(num_nodes=20)
+    with pytest.raises(ConfigError, match='min_depth'):
+        StereoInitConfig(min_depth=3.0)
