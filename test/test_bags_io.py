@@ -10,7 +10,15 @@ import pytest
 from rosbags.typesys.store import Typestore
 
 from face_tracking_ros.errors import BagError
-from face_tracking_ros.io.bags import BagWriter, ns_to_stamp, read_messages, stamp_to_ns
+from face_tracking_ros.io.bags import (
+    BagWriter,
+    bag_topics,
+    ns_to_stamp,
+    read_messages,
+    stamp_to_ns,
+)
+from face_tracking_ros.io.messages import RosbagsMessages
+from face_tracking_ros.io.typestore import typestore
 
 from conftest import custom_msgtypes, sample_fields, to_plain, to_rosbags
 
@@ -128,3 +136,14 @@ def test_stamp_conversions_are_inverse() -> None:
 def test_negative_stamp_is_rejected() -> None:
     with pytest.raises(ValueError, match='>= 0'):
         ns_to_stamp(-1)
+
+
+def test_bag_without_metadata_is_salvaged_from_its_mcap_file(tmp_path):
+    path = tmp_path / 'bag'
+    factory = RosbagsMessages(typestore())
+    with BagWriter(path) as bag:
+        for i in range(5):
+            bag.write('n', 'std_msgs/msg/Float64', factory.make('std_msgs/msg/Float64', data=i), i)
+    (path / 'metadata.yaml').unlink()
+    assert bag_topics(path) == {'n': 'std_msgs/msg/Float64'}
+    assert [m.msg.data for m in read_messages(path)] == [0, 1, 2, 3, 4]

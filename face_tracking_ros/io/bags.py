@@ -12,12 +12,17 @@ with another type) is raised as :class:`~face_tracking_ros.errors.BagError` nami
 
 from __future__ import annotations
 
+from collections import Counter
 from collections.abc import Iterable, Iterator
+import contextlib
 from pathlib import Path
 import struct
 from types import TracebackType
 from typing import Any, NamedTuple, Protocol
 
+from mcap.exceptions import McapError
+from mcap.records import Channel, Message, Schema
+from mcap.stream_reader import StreamReader
 from rosbags.rosbag2 import Reader, ReaderError, StoragePlugin, Writer, WriterError
 from rosbags.rosbag2.writer import Connection
 from rosbags.typesys.store import Typestore
@@ -27,6 +32,7 @@ from face_tracking_ros.io.typestore import typestore
 
 BAG_VERSION = 9  # rosbag2 metadata version written (Jazzy and later read it)
 NS_PER_S = 1_000_000_000
+_READ_ERRORS = (ReaderError, KeyError, ValueError, EOFError, OSError, struct.error)
 
 
 class StampLike(Protocol):
@@ -163,16 +169,90 @@ def read_messages(
     """
     path = Path(path)
     store = typestore() if store is None else store
+    reader = _open_reader(path)
+    if reader is None:
+        yield from _stream_mcap(path, topics, store)
+        return
     try:
-        with Reader(path) as reader:
-            wanted = _select(reader, path, topics)
-            for connection, stamp_ns, data in reader.messages(connections=wanted):
-                msg = store.deserialize_cdr(data, connection.msgtype)
-                yield BagMessage(connection.topic, connection.msgtype, stamp_ns, msg)
-    except BagError:
-        raise
-    except (ReaderError, KeyError, ValueError, EOFError, OSError, struct.error) as error:
+        wanted = _select(reader, path, topics)
+        for connection, stamp_ns, data in reader.messages(connections=wanted):
+            msg = store.deserialize_cdr(data, connection.msgtype)
+            yield BagMessage(connection.topic, connection.msgtype, stamp_ns, msg)
+    except _READ_ERRORS as error:
         raise BagError(f'{path}: cannot read bag: {type(error).__name__}: {error}') from None
+    finally:
+        reader.close()
+
+
+def _open_reader(path: Path) -> Reader | None:
+    """An open rosbags Reader (the caller closes it), or None for a damaged but streamable bag.
+
+    Raises:
+        BagError: If the bag can be read neither way.
+    """
+    try:
+        reader = Reader(path)
+        reader.open()
+    except _READ_ERRORS as error:
+        if _mcap_files(path):
+            return None
+        raise BagError(f'{path}: cannot read bag: {type(error).__name__}: {error}') from None
+    return reader
+
+
+def _mcap_files(path: Path) -> list[Path]:
+    """The MCAP files of a bag directory (or the file itself), sorted."""
+    if path.is_file() and path.suffix == '.mcap':
+        return [path]
+    return sorted(path.glob('*.mcap')) if path.is_dir() else []
+
+
+def _stream_mcap(
+    path: Path, topics: Iterable[str] | None, store: Typestore
+) -> Iterator[BagMessage]:
+    """Salvage a bag whose index or metadata is damaged: deserialise its streamed records."""
+    for topic, msgtype, log_time, data in _stream_records(path, topics):
+        yield BagMessage(topic, msgtype, log_time, store.deserialize_cdr(data, msgtype))
+
+
+def _stream_records(
+    path: Path, topics: Iterable[str] | None
+) -> Iterator[tuple[str, str, int, bytes]]:
+    """Stream the raw messages of a bag's MCAP files in file order, up to any damage.
+
+    A truncated MCAP file (e.g. a recorder killed by a power loss) has no summary, so rosbags
+    cannot open it; its records up to the damage are still valid. They are yielded, then a
+    BagError says where the damage is. ``metadata.yaml`` is not needed.
+
+    Yields:
+        (topic, msgtype, log time ns, CDR data).
+
+    Raises:
+        BagError: At the damage, naming the file and the number of messages recovered.
+    """
+    wanted = None if topics is None else set(topics)
+    channels: dict[int, tuple[str, str]] = {}
+    schemas: dict[int, str] = {}
+    count = 0
+    for file in _mcap_files(path):
+        try:
+            with file.open('rb') as stream:
+                for record in StreamReader(stream).records:
+                    if isinstance(record, Schema):
+                        schemas[record.id] = record.name
+                    elif isinstance(record, Channel):
+                        channels[record.id] = (record.topic, schemas.get(record.schema_id, ''))
+                    elif isinstance(record, Message) and record.channel_id in channels:
+                        topic, msgtype = channels[record.channel_id]
+                        if wanted is None or topic in wanted:
+                            count += 1
+                            yield topic, msgtype, record.log_time, record.data
+        except (McapError, *_READ_ERRORS) as error:
+            message = (
+                f'{file}: damaged MCAP file, {count} messages recovered before: '
+                f'{type(error).__name__}: {error}'
+            )
+            raise BagError(message) from None
 
 
 def _select(reader: Reader, path: Path, topics: Iterable[str] | None) -> list[Connection]:
@@ -206,9 +286,23 @@ def message_count(path: Path | str, topics: Iterable[str]) -> int:
 
 
 def _connections(path: Path) -> list[Connection]:
-    """The connections of a bag, read from its metadata."""
+    """The connections of a bag, from its metadata (or salvaged from a damaged MCAP file)."""
+    reader = _open_reader(path)
+    if reader is None:
+        return _salvaged_connections(path)
     try:
-        with Reader(path) as reader:
-            return list(reader.connections)
-    except (ReaderError, KeyError, ValueError, EOFError, OSError, struct.error) as error:
-        raise BagError(f'{path}: cannot read bag: {type(error).__name__}: {error}') from None
+        return list(reader.connections)
+    finally:
+        reader.close()
+
+
+def _salvaged_connections(path: Path) -> list[Connection]:
+    """Connections (topic, type, readable message count) of a damaged bag, by streaming it."""
+    counts: Counter[tuple[str, str]] = Counter()
+    with contextlib.suppress(BagError):
+        for topic, msgtype, _, _ in _stream_records(path, None):
+            counts[topic, msgtype] += 1
+    return [
+        Connection(i, topic, msgtype, None, '', n, None, None)  # type: ignore[arg-type]
+        for i, ((topic, msgtype), n) in enumerate(counts.items())
+    ]
