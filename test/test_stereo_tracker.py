@@ -13,6 +13,7 @@ import pytest
 from face_tracking_ros.errors import ConfigError, InputError
 from face_tracking_ros.geometry.camera import PinholeCamera, StereoRig
 from face_tracking_ros.model.topology import mesh_topology
+from face_tracking_ros.tracking.initialisation import Initialisation
 from face_tracking_ros.tracking.result import TrackStatus
 from face_tracking_ros.tracking.stereo import StereoTracker, StereoTrackerConfig, track_sequence
 from face_tracking_ros.tracking.stereo_data import (
@@ -110,8 +111,7 @@ def test_image_normal_equations_gradient_matches_finite_differences() -> None:
 
     left, right = wave(0.0), wave(0.4)
     truth = PLANE.nodes()
-    normals = np.tile([0.0, 0.0, -1.0], (34, 1))
-    layout = SampleLayout.node_patches(truth, normals, truth[:, 2] / 600, 3)
+    layout = SampleLayout.node_patches(truth, mesh_topology(34).triangles, truth[:, 2] / 600, 3)
     rotation = np.eye(3)
     template = sample_templates(left, RIG.left, layout.points(truth, rotation, 0), 0)[None]
     moved = truth + np.random.default_rng(0).normal(0, 0.0003, truth.shape)
@@ -161,6 +161,22 @@ def test_tracks_a_moving_plane_in_3d() -> None:
     final = tracked.results[-1]
     assert np.all(final.left_residuals < 10) and np.all(final.right_residuals < 10)
     assert np.abs(final.left_px - RIG.left.project(frames[-1].nodes())).max() < 1.0
+
+
+def test_reset_from_a_named_initialisation() -> None:
+    left, right = PLANE.pair()
+    truth = PLANE.nodes()
+    names = ('right_eye', 'left_eye', 'nose_tip', 'mouth_right', 'mouth_left', 'chin', 'left_jaw')
+    indices = [mesh_topology(34).index(name) for name in names]
+    init = Initialisation(node_names=names, points=RIG.left.project(truth)[indices])
+    tracker = StereoTracker(RIG, StereoTrackerConfig(init=PLANE_INIT))
+    tracker.reset(init)
+    result = tracker.step(left, right)
+    assert result.ok
+    # The tangent planes of the refinement come partly from the (curved) reference face: 1 mm.
+    assert np.linalg.norm(result.nodes_cam[indices] - truth[indices], axis=1).max() < 0.001
+    with pytest.raises(ConfigError, match='unknown node name'):
+        tracker.reset(Initialisation(node_names=(*names[:5], 'ear'), points=np.zeros((6, 2))))
 
 
 def test_bad_frames_never_raise() -> None:

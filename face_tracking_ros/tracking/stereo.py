@@ -13,7 +13,8 @@ coarse to fine on Gaussian pyramids of both images, with Huber weights on every 
 Each image term is split (1 - epsilon) : epsilon between frame n - 1 and frame 1, the drift
 term of eq. 6, which stops the random walk of plain frame-to-frame tracking. The image terms and
 their sample layouts are in :mod:`.stereo_data`; initialisation by epipolar search in
-:mod:`.stereo_init`; the optional model fit (eq. 1-3) in :mod:`.mesh_fit`.
+:mod:`.stereo_init`; the optional model fit (eq. 1-3) is
+:func:`face_tracking_ros.recognition.node_fit.fit_model_to_nodes`.
 
 The tracker never raises on a bad frame: it returns a :class:`StereoResult` whose status says
 what happened (:class:`~.result.TrackStatus`).
@@ -33,7 +34,8 @@ from face_tracking_ros.geometry.procrustes import rigid_align
 from face_tracking_ros.imaging import ImagePyramid, inside_image
 from face_tracking_ros.model.face_model import FaceModel
 from face_tracking_ros.model.topology import Group, MeshTopology, mesh_topology
-from face_tracking_ros.tracking.mesh_fit import MeshFit, fit_model_to_nodes
+from face_tracking_ros.recognition.node_fit import NodeFit, fit_model_to_nodes
+from face_tracking_ros.tracking.initialisation import Initialisation
 from face_tracking_ros.tracking.regularisation import RegularisationConfig, Regulariser
 from face_tracking_ros.tracking.result import TrackResult, TrackStatus
 from face_tracking_ros.tracking.stereo_data import (
@@ -42,9 +44,10 @@ from face_tracking_ros.tracking.stereo_data import (
     image_normal_equations,
     sample_templates,
 )
-from face_tracking_ros.tracking.stereo_init import StereoInitConfig, initial_nodes, node_normals
+from face_tracking_ros.tracking.stereo_init import StereoInitConfig, initial_nodes
 
 LEFT, RIGHT = 0, 1
+FIT_TOLERANCE = 1e-7  # m: change of the model fit's RMS at which its alternation stops
 
 
 @dataclass(frozen=True)
@@ -69,7 +72,6 @@ class StereoTrackerConfig:
             divided by the template's contrast (about 1 for an unrelated image) exceeds this.
         regularisation: the eq. 5 weights.
         init: the epipolar search used at (re)initialisation.
-        fit_noise: node noise s of the model fit (eq. 1-3) when a model is loaded, m.
     """
 
     num_nodes: int = 34
@@ -87,7 +89,6 @@ class StereoTrackerConfig:
     lost_ratio: float = 0.8
     regularisation: RegularisationConfig = field(default_factory=RegularisationConfig)
     init: StereoInitConfig = field(default_factory=StereoInitConfig)
-    fit_noise: float = 0.001
 
     def __post_init__(self) -> None:
         """Validate ranges.
@@ -109,7 +110,6 @@ class StereoTrackerConfig:
             ('huber_k', self.huber_k > 0.0),
             ('noise_floor', self.noise_floor > 0.0),
             ('lost_ratio', self.lost_ratio > 0.0),
-            ('fit_noise', self.fit_noise > 0.0),
         )
         for name, ok in checks:
             if not ok:
@@ -133,7 +133,8 @@ class StereoResult:
         mean_residual: mean of both residual arrays, grey levels.
         iterations: Levenberg-Marquardt iterations spent, summed over levels.
         cost_history: total cost E(n) after each accepted iteration.
-        fit: with a model loaded, the pose, sigma and alpha fitted to the nodes (eq. 1-3).
+        fit: with a model loaded, its pose, sigma and alpha fitted to the nodes (eq. 1-3), as a
+            one-frame :class:`~face_tracking_ros.recognition.node_fit.NodeFit`; else None.
         reason: why the status is not TRACKING ('' when tracking).
     """
 
@@ -146,7 +147,7 @@ class StereoResult:
     mean_residual: float
     iterations: int = 0
     cost_history: tuple[float, ...] = ()
-    fit: MeshFit | None = None
+    fit: NodeFit | None = None
     reason: str = ''
 
     @property
@@ -155,15 +156,14 @@ class StereoResult:
         return self.status == TrackStatus.TRACKING
 
     def as_track_result(self) -> TrackResult:
-        """The shared :class:`~.result.TrackResult` view (left camera; NaN pose without a fit)."""
+        """The shared :class:`~.result.TrackResult` (left camera; NaN pose without a model)."""
         fit = self.fit
-        nan3 = np.full(3, np.nan)
         return TrackResult(
             status=self.status,
-            omega=nan3 if fit is None else fit.omega,
-            t=nan3.copy() if fit is None else fit.t,
-            alpha=np.zeros(0) if fit is None else fit.alpha,
-            sigma=np.zeros(0) if fit is None else fit.sigma,
+            omega=np.full(3, np.nan) if fit is None else fit.omega[0],
+            t=np.full(3, np.nan) if fit is None else fit.t[0],
+            alpha=np.zeros(0) if fit is None else fit.alpha[0],
+            sigma=np.zeros(0) if fit is None else fit.sigma[0],
             nodes_cam=self.nodes_cam,
             nodes_px=self.left_px,
             node_residuals=0.5 * (self.left_residuals + self.right_residuals),
@@ -216,8 +216,8 @@ class _State:
 class StereoTracker:
     """Tracks the N mesh nodes in 3-D through a rectified stereo sequence (eq. 4 and 5).
 
-    Usage: ``reset(left_px)`` with the nodes' pixel positions in the next left image (or
-    ``reset(None)`` with the automatic detector), then ``step(left, right)`` for every pair.
+    Usage: ``reset(init)`` with the nodes' pixel positions in the next left image, then
+    ``step(left, right)`` for every pair.
     """
 
     def __init__(
@@ -251,18 +251,24 @@ class StereoTracker:
         """The mesh topology being tracked."""
         return self._topology
 
-    def reset(self, left_px: np.ndarray) -> None:
+    def reset(self, init: np.ndarray | Initialisation) -> None:
         """Re-initialise on the next stereo pair from the nodes' left-image positions.
 
         Args:
-            left_px: (N, 2) pixel positions of the nodes in the next left image; rows of NaN
-                for nodes not given (at least 6 must be given; the rest are filled in from the
-                reference face fitted to the given ones).
+            init: an :class:`~.initialisation.Initialisation` (named nodes from an init file,
+                the ResetTracking service or a detector), or an (N, 2) array of left-image pixel
+                positions with NaN rows for nodes not given. At least 6 nodes must be given;
+                the rest are filled in from the reference face fitted to the given ones.
 
         Raises:
             InputError: if the array is not (N, 2) or gives fewer than 6 nodes.
+            ConfigError: if an Initialisation names a node the mesh does not have.
         """
-        left_px = np.asarray(left_px, dtype=float)
+        if isinstance(init, Initialisation):
+            left_px = np.full((self._topology.num_nodes, 2), np.nan)
+            left_px[[self._topology.index(name) for name in init.node_names]] = init.points
+        else:
+            left_px = np.asarray(init, dtype=float)
         if left_px.shape != (self._topology.num_nodes, 2):
             msg = f'left_px must be ({self._topology.num_nodes}, 2), got {left_px.shape}'
             raise InputError(msg)
@@ -343,9 +349,11 @@ class StereoTracker:
     def _layouts(self, nodes: np.ndarray) -> tuple[SampleLayout, ...]:
         """Node patches (always) and the face-texture samples (if texture_weight > 0)."""
         config = self._config
-        normals = node_normals(nodes, self._topology.triangles)
         spacing = nodes[:, 2] / self._rig.left.focal
-        layouts = [SampleLayout.node_patches(nodes, normals, spacing, config.patch_half_size)]
+        patches = SampleLayout.node_patches(
+            nodes, self._topology.triangles, spacing, config.patch_half_size
+        )
+        layouts = [patches]
         if config.texture_weight > 0:
             layouts.append(
                 SampleLayout.triangle_texture(self._texture_triangles, config.texture_subdivisions)
@@ -552,8 +560,8 @@ class StereoTracker:
         left_res = np.zeros(n) if terms is None else terms[0].group_rms
         right_res = np.zeros(n) if terms is None else terms[1].group_rms
         fit = None
-        if self._model is not None and status == TrackStatus.TRACKING:
-            fit = fit_model_to_nodes(self._model, nodes, noise=self._config.fit_noise)
+        if self._model is not None:
+            fit = fit_model_to_nodes(self._model, nodes[None], tolerance=FIT_TOLERANCE)
         return StereoResult(
             status=status,
             nodes_cam=nodes,
@@ -624,19 +632,19 @@ class StereoTracker:
 def track_sequence(
     tracker: StereoTracker,
     frames: Iterable[tuple[np.ndarray, np.ndarray]],
-    left_px: np.ndarray,
+    init: np.ndarray | Initialisation,
 ) -> TrackedSequence:
     """Track a whole stereo sequence from given initial node positions (for the learner).
 
     Args:
         tracker: a stereo tracker.
         frames: (left, right) grey image pairs.
-        left_px: (N, 2) node positions in the first left image (NaN rows for unknown nodes).
+        init: the nodes in the first left image (see :meth:`StereoTracker.reset`).
 
     Returns:
         The (F, N, 3) meshes, (F,) statuses and the per-frame results.
     """
-    tracker.reset(left_px)
+    tracker.reset(init)
     results = tuple(tracker.step(left, right) for left, right in frames)
     n = tracker.topology.num_nodes
     meshes = np.array([r.nodes_cam for r in results]).reshape(len(results), n, 3)

@@ -31,8 +31,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from face_tracking_ros.geometry.camera import PinholeCamera
-from face_tracking_ros.imaging import inside_image, sample_with_gradient
+from face_tracking_ros.imaging import inside_image, sample_with_gradient, square_offsets
 from face_tracking_ros.tracking.block_assembly import scatter_blocks, scatter_vectors
+from face_tracking_ros.tracking.surface_patches import node_frames, surface_patch_offsets
 
 
 @dataclass(frozen=True)
@@ -51,31 +52,24 @@ class SampleLayout:
 
     @classmethod
     def node_patches(
-        cls, nodes: np.ndarray, normals: np.ndarray, spacing: np.ndarray, half_size: int
+        cls, nodes: np.ndarray, triangles: np.ndarray, spacing: np.ndarray, half_size: int
     ) -> SampleLayout:
         """Square patches of (2 h + 1)^2 samples in each node's tangent plane (the ROI of eq. 4).
 
         Args:
-            nodes: (N, 3) nodes, m (only their count is used).
-            normals: (N, 3) unit surface normals at the nodes.
+            nodes: (N, 3) nodes in the left camera frame, m.
+            triangles: (T, 3) the mesh triangles (they give the tangent planes).
             spacing: (N,) sample spacing at level 0, m (about one pixel: depth / focal).
             half_size: h, samples each side of the node.
         """
-        num_nodes = nodes.shape[0]
-        axis = np.arange(-half_size, half_size + 1, dtype=float)
-        grid_v, grid_u = np.meshgrid(axis, axis, indexing='ij')
-        # In-plane axes: camera x projected on the tangent plane, then normal x u.
-        u = np.array([1.0, 0.0, 0.0]) - normals[:, 0:1] * normals
-        u /= np.linalg.norm(u, axis=1, keepdims=True)
-        v = np.cross(normals, u)
-        offsets = spacing[:, None, None] * (
-            grid_u.ravel()[None, :, None] * u[:, None, :]
-            + grid_v.ravel()[None, :, None] * v[:, None, :]
-        )
-        bary = np.zeros((axis.size**2, 3))
+        frames = node_frames(nodes, triangles)
+        grid = spacing[:, None, None] * square_offsets(half_size).astype(float)[None]
+        bary = np.zeros((grid.shape[1], 3))
         bary[:, 0] = 1.0
         return cls(
-            nodes=np.repeat(np.arange(num_nodes)[:, None], 3, axis=1), bary=bary, offsets=offsets
+            nodes=np.repeat(np.arange(nodes.shape[0])[:, None], 3, axis=1),
+            bary=bary,
+            offsets=surface_patch_offsets(frames, grid),
         )
 
     @classmethod

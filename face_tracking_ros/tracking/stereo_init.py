@@ -204,10 +204,7 @@ def refine_depths(
     num_nodes = nodes.shape[0]
     for _ in range(config.refine_iterations):
         layout = SampleLayout.node_patches(
-            nodes,
-            node_normals(nodes, topology.triangles),
-            nodes[:, 2] / rig.left.focal,
-            config.refine_half_size,
+            nodes, topology.triangles, nodes[:, 2] / rig.left.focal, config.refine_half_size
         )
         points = layout.points(nodes, np.eye(3), 0)
         template = sample_templates(left, rig.left, points, 0)
@@ -225,22 +222,6 @@ def refine_depths(
         step = np.where(np.abs(step) < 0.02, step, 0.0)
         nodes = nodes + rays * step[:, None]
     return nodes
-
-
-def node_normals(nodes: np.ndarray, triangles: np.ndarray) -> np.ndarray:
-    """Unit surface normals (N, 3) at the nodes, facing the camera (n . X < 0).
-
-    Each node's normal is the area-weighted sum of its triangles' normals, each oriented to face
-    the camera first (the triangulation of the frontal view has no consistent winding).
-    """
-    corners = nodes[triangles]
-    normals = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
-    facing = np.einsum('td,td->t', normals, corners.mean(axis=1)) > 0
-    normals[facing] *= -1.0
-    sums = np.zeros_like(nodes)
-    for k in range(3):
-        np.add.at(sums, triangles[:, k], normals)
-    return sums / np.linalg.norm(sums, axis=1, keepdims=True)
 
 
 def _window_std(strip: np.ndarray, half_size: int) -> np.ndarray:
