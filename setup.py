@@ -14,7 +14,9 @@ from setuptools import find_packages, setup
 PACKAGE = 'face_tracking_ros'
 
 # ROS node executables: script name -> 'module:function'. One entry per node.
-NODES: dict[str, str] = {}
+NODES: dict[str, str] = {
+    'mono_tracker': 'face_tracking_ros.nodes.mono_tracker:main',
+}
 
 # Command-line tools that are not nodes.
 TOOLS: dict[str, str] = {
@@ -25,7 +27,7 @@ setup(
     name=PACKAGE,
     version='0.1.0',
     packages=find_packages(exclude=['test', 'test.*']),
-    package_data={PACKAGE: ['py.typed']},
+    package_data={PACKAGE: ['py.typed', 'data/*.npz']},
     data_files=[
         ('share/ament_index/resource_index/packages', [f'resource/{PACKAGE}']),
         (f'share/{PACKAGE}', ['package.xml']),

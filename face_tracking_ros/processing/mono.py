@@ -1,0 +1,182 @@
+"""Message-in, message-out monocular tracking: the body of the mono_tracker node and its replay.
+
+Inputs: ``image`` (sensor_msgs/Image, or CompressedImage on ``image/compressed``),
+``camera_info`` and, optionally, a latched ``face/model``. Outputs, one each per image, stamped
+with the image's header: ``face/state``, ``face/pose``, ``face/action``, ``face/shape``,
+``face/mesh_raw`` (FaceMesh), ``face/mesh`` (MarkerArray), and ``face/overlay`` while someone
+subscribes to it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from face_tracking_ros.data import default_model_path
+from face_tracking_ros.errors import InputError
+from face_tracking_ros.geometry.camera import PinholeCamera
+from face_tracking_ros.io import conversions
+from face_tracking_ros.io.messages import MessageFactory
+from face_tracking_ros.model.face_model import FaceModel
+from face_tracking_ros.model.model_file import load_model
+from face_tracking_ros.processing.base import Output, Port, QosClass
+from face_tracking_ros.processing.parameters import ParameterSource
+from face_tracking_ros.tracking.initialisation import Initialisation, load_init_file
+from face_tracking_ros.tracking.mono import MonoTracker, MonoTrackerConfig
+from face_tracking_ros.visualization.overlay import draw_mesh
+
+IMAGE = 'image'
+COMPRESSED_IMAGE = 'image/compressed'
+CAMERA_INFO = 'camera_info'
+MODEL = 'face/model'
+
+
+@dataclass(frozen=True)
+class MonoNodeConfig:
+    """Parameters of the mono_tracker node besides the tracker's own.
+
+    Attributes:
+        model_file: face model file (.npz); empty: the packaged default model. A model received
+            on face/model replaces it.
+        init_file: YAML or JSON file of node names to pixel positions in the first image
+            (semi-automatic initialisation); empty: automatic initialisation.
+        face_id: face_id of the outputs.
+        compressed: subscribe to image/compressed (sensor_msgs/CompressedImage) instead of image.
+    """
+
+    model_file: str = ''
+    init_file: str = ''
+    face_id: str = 'face_0'
+    compressed: bool = False
+
+
+class MonoProcessor:
+    """Runs :class:`~face_tracking_ros.tracking.mono.MonoTracker` on image messages."""
+
+    def __init__(
+        self,
+        factory: MessageFactory,
+        config: MonoNodeConfig,
+        tracker_config: MonoTrackerConfig,
+        model: FaceModel | None,
+        initialisation: Initialisation | None = None,
+    ) -> None:
+        """Wait for camera_info (and a model, if none is given) before tracking."""
+        self._factory = factory
+        self._config = config
+        self._tracker_config = tracker_config
+        self._model = model
+        self._initialisation = initialisation
+        self._camera: PinholeCamera | None = None
+        self._tracker: MonoTracker | None = None
+        image = (
+            Port(COMPRESSED_IMAGE, 'sensor_msgs/msg/CompressedImage', QosClass.SENSOR)
+            if (config.compressed)
+            else Port(IMAGE, 'sensor_msgs/msg/Image', QosClass.SENSOR)
+        )
+        self.inputs = (
+            image,
+            Port(CAMERA_INFO, 'sensor_msgs/msg/CameraInfo', QosClass.SENSOR),
+            Port(MODEL, 'face_tracking_msgs/msg/FaceModel', QosClass.LATCHED),
+        )
+        self.outputs = (
+            Port('face/state', 'face_tracking_msgs/msg/FaceState'),
+            Port('face/pose', 'geometry_msgs/msg/PoseStamped'),
+            Port('face/action', 'face_tracking_msgs/msg/ActionParams'),
+            Port('face/shape', 'face_tracking_msgs/msg/ShapeParams'),
+            Port('face/mesh_raw', 'face_tracking_msgs/msg/FaceMesh'),
+            Port('face/mesh', 'visualization_msgs/msg/MarkerArray'),
+            Port('face/overlay', 'sensor_msgs/msg/Image', QosClass.SENSOR, on_demand=True),
+        )
+
+    @property
+    def tracker(self) -> MonoTracker | None:
+        """The tracker, once camera_info and a model are known."""
+        return self._tracker
+
+    def reset(self, initialisation: Initialisation | None) -> None:
+        """Restart tracking from 2-D node positions, or automatically when None."""
+        self._initialisation = initialisation
+        if self._tracker is not None:
+            self._tracker.reset(initialisation)
+
+    def handle(self, topic: str, msg: Any, wanted: frozenset[str]) -> list[Output]:
+        """Process one message of an input port (see :class:`processing.base.Processor`)."""
+        if topic == CAMERA_INFO:
+            self._set_camera(conversions.camera_from_info(msg))
+            return []
+        if topic == MODEL:
+            self._model = conversions.model_from_msg(msg)
+            self._rebuild()
+            return []
+        gray = (
+            conversions.compressed_to_gray(msg)
+            if topic == COMPRESSED_IMAGE
+            else conversions.image_to_gray(msg)
+        )
+        return self._track(msg.header, gray, wanted)
+
+    def _set_camera(self, camera: PinholeCamera) -> None:
+        """Keep the camera; rebuild the tracker only when the calibration changed."""
+        if self._camera is None or not _same_camera(self._camera, camera):
+            self._camera = camera
+            self._rebuild()
+
+    def _rebuild(self) -> None:
+        if self._camera is not None and self._model is not None:
+            self._tracker = MonoTracker(self._model, self._camera, self._tracker_config)
+            self._tracker.reset(self._initialisation)
+
+    def _track(self, header: Any, gray: np.ndarray, wanted: frozenset[str]) -> list[Output]:
+        if self._camera is None:
+            msg = f'no calibration received on {CAMERA_INFO} yet; waiting (image dropped)'
+            raise InputError(msg)
+        if self._tracker is None:
+            msg = f'no face model yet: set the model_file parameter or publish one on {MODEL}'
+            raise InputError(msg)
+        camera = self._camera
+        if gray.shape != (camera.height, camera.width):
+            msg = (
+                f'image is {gray.shape[1]}x{gray.shape[0]} but camera_info says '
+                f'{camera.width}x{camera.height}'
+            )
+            raise InputError(msg)
+        result = self._tracker.step(gray)
+        out_header = conversions.copy_header(self._factory, header)
+        topology = self._tracker.model.topology
+        messages = conversions.face_messages(
+            self._factory, out_header, self._config.face_id, result, topology
+        )
+        outputs = [
+            Output('face/state', messages.state),
+            Output('face/pose', messages.pose),
+            Output('face/action', messages.action),
+            Output('face/shape', messages.shape),
+            Output('face/mesh_raw', messages.mesh),
+            Output('face/mesh', messages.markers),
+        ]
+        if 'face/overlay' in wanted:
+            canvas = draw_mesh(gray, result.nodes_px, topology.edges, result.status)
+            overlay = conversions.array_to_image(self._factory, out_header, canvas)
+            outputs.append(Output('face/overlay', overlay))
+        return outputs
+
+
+def _same_camera(a: PinholeCamera, b: PinholeCamera) -> bool:
+    """True if two cameras have the same size and projection."""
+    return (a.width, a.height) == (b.width, b.height) and np.allclose(a.p, b.p)
+
+
+def make_mono_processor(params: ParameterSource, factory: MessageFactory) -> MonoProcessor:
+    """The mono_tracker processor configured from parameters (node or replay).
+
+    Parameters: those of :class:`MonoNodeConfig`, and ``tracker.*`` those of
+    :class:`~face_tracking_ros.tracking.mono.MonoTrackerConfig`.
+    """
+    config = params.config(MonoNodeConfig)
+    tracker_config = params.config(MonoTrackerConfig, prefix='tracker.')
+    model = load_model(config.model_file or default_model_path())
+    init = load_init_file(config.init_file) if config.init_file else None
+    return MonoProcessor(factory, config, tracker_config, model, init)
