@@ -16,6 +16,7 @@ PACKAGE = 'face_tracking_ros'
 # ROS node executables: script name -> 'module:function'. One entry per node.
 NODES: dict[str, str] = {
     'mono_tracker': 'face_tracking_ros.nodes.mono_tracker:main',
+    'stereo_tracker': 'face_tracking_ros.nodes.stereo_tracker:main',
 }
 
 # Command-line tools that are not nodes.

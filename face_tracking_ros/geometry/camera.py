@@ -95,6 +95,12 @@ class PinholeCamera:
         """Mean rectified focal length (fx + fy) / 2, px."""
         return float(0.5 * (self.p[0, 0] + self.p[1, 1]))
 
+    def same_calibration(self, other: PinholeCamera) -> bool:
+        """True if ``other`` has the same image size and projection matrix P."""
+        return (self.width, self.height) == (other.width, other.height) and bool(
+            np.allclose(self.p, other.p)
+        )
+
     @property
     def has_distortion(self) -> bool:
         """True if D is non-zero, i.e. raw images must be rectified before eq. 2 applies."""

@@ -120,7 +120,7 @@ class MonoProcessor:
 
     def _set_camera(self, camera: PinholeCamera) -> None:
         """Keep the camera; rebuild the tracker only when the calibration changed."""
-        if self._camera is None or not _same_camera(self._camera, camera):
+        if self._camera is None or not self._camera.same_calibration(camera):
             self._camera = camera
             self._rebuild()
 
@@ -162,11 +162,6 @@ class MonoProcessor:
             overlay = conversions.array_to_image(self._factory, out_header, canvas)
             outputs.append(Output('face/overlay', overlay))
         return outputs
-
-
-def _same_camera(a: PinholeCamera, b: PinholeCamera) -> bool:
-    """True if two cameras have the same size and projection."""
-    return (a.width, a.height) == (b.width, b.height) and np.allclose(a.p, b.p)
 
 
 def make_mono_processor(params: ParameterSource, factory: MessageFactory) -> MonoProcessor:

@@ -19,6 +19,7 @@ ProcessorFactory = Callable[[ParameterSource, MessageFactory], Processor]
 
 PROCESSORS: dict[str, str] = {
     'mono_tracker': 'face_tracking_ros.processing.mono:make_mono_processor',
+    'stereo_tracker': 'face_tracking_ros.processing.stereo:make_stereo_processor',
 }
 
 

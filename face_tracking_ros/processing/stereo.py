@@ -1,0 +1,199 @@
+"""Message-in, message-out stereo tracking: the body of the stereo_tracker node and its replay.
+
+Inputs: ``left/image_raw``, ``left/camera_info``, ``right/image_raw``, ``right/camera_info``
+(rectified images) and, optionally, a latched ``face/model``. Left and right images are paired by
+exact stamp in a bounded queue; a stamp that never pairs is dropped and counted, never paired
+with another. Outputs per pair, stamped with the left image's header: ``face/mesh_raw``
+(FaceMesh, left camera frame), ``face/mesh`` (MarkerArray), ``face/state`` and, with a model,
+the fitted ``face/pose``, ``face/action`` and ``face/shape``.
+"""
+
+from __future__ import annotations
+
+from collections import OrderedDict
+from dataclasses import dataclass
+from typing import Any
+
+from face_tracking_ros.errors import InputError
+from face_tracking_ros.geometry.camera import PinholeCamera, StereoRig
+from face_tracking_ros.io import conversions
+from face_tracking_ros.io.bags import stamp_to_ns
+from face_tracking_ros.io.messages import MessageFactory
+from face_tracking_ros.model.face_model import FaceModel
+from face_tracking_ros.model.model_file import load_model
+from face_tracking_ros.processing.base import Output, Port, QosClass
+from face_tracking_ros.processing.parameters import ParameterSource
+from face_tracking_ros.tracking.initialisation import Initialisation, load_init_file
+from face_tracking_ros.tracking.stereo import StereoTracker, StereoTrackerConfig
+
+LEFT_IMAGE, RIGHT_IMAGE = 'left/image_raw', 'right/image_raw'
+LEFT_INFO, RIGHT_INFO = 'left/camera_info', 'right/camera_info'
+MODEL = 'face/model'
+
+
+@dataclass(frozen=True)
+class StereoNodeConfig:
+    """Parameters of the stereo_tracker node besides the tracker's own.
+
+    Attributes:
+        model_file: face model file (.npz) to fit pose, sigma and alpha to the tracked nodes;
+            empty: meshes only, unless a model arrives on face/model.
+        init_file: YAML or JSON file of node names to left-image pixel positions in the first
+            pair (semi-automatic initialisation).
+        face_id: face_id of the outputs.
+        pairing_queue: unpaired images kept per camera while waiting for the other camera's
+            image with the same stamp (>= 1).
+    """
+
+    model_file: str = ''
+    init_file: str = ''
+    face_id: str = 'face_0'
+    pairing_queue: int = 10
+
+
+class StereoProcessor:
+    """Pairs left and right images by stamp and runs :class:`StereoTracker` on each pair."""
+
+    def __init__(
+        self,
+        factory: MessageFactory,
+        config: StereoNodeConfig,
+        tracker_config: StereoTrackerConfig,
+        model: FaceModel | None,
+        initialisation: Initialisation | None,
+    ) -> None:
+        """Wait for both camera_info messages before tracking."""
+        self._factory = factory
+        self._config = config
+        self._tracker_config = tracker_config
+        self._model = model
+        self._initialisation = initialisation
+        self._cameras: dict[str, PinholeCamera] = {}
+        self._tracker: StereoTracker | None = None
+        self._waiting: dict[str, OrderedDict[int, Any]] = {
+            LEFT_IMAGE: OrderedDict(),
+            RIGHT_IMAGE: OrderedDict(),
+        }
+        self.unpaired = 0
+        self.inputs = (
+            Port(LEFT_IMAGE, 'sensor_msgs/msg/Image', QosClass.SENSOR),
+            Port(RIGHT_IMAGE, 'sensor_msgs/msg/Image', QosClass.SENSOR),
+            Port(LEFT_INFO, 'sensor_msgs/msg/CameraInfo', QosClass.SENSOR),
+            Port(RIGHT_INFO, 'sensor_msgs/msg/CameraInfo', QosClass.SENSOR),
+            Port(MODEL, 'face_tracking_msgs/msg/FaceModel', QosClass.LATCHED),
+        )
+        self.outputs = (
+            Port('face/mesh_raw', 'face_tracking_msgs/msg/FaceMesh'),
+            Port('face/mesh', 'visualization_msgs/msg/MarkerArray'),
+            Port('face/state', 'face_tracking_msgs/msg/FaceState'),
+            Port('face/pose', 'geometry_msgs/msg/PoseStamped'),
+            Port('face/action', 'face_tracking_msgs/msg/ActionParams'),
+            Port('face/shape', 'face_tracking_msgs/msg/ShapeParams'),
+        )
+
+    def reset(self, initialisation: Initialisation | None) -> None:
+        """Restart tracking from 2-D left-image node positions.
+
+        Raises:
+            InputError: for None: automatic initialisation needs the optional landmark detector,
+                which the stereo tracker does not run.
+        """
+        if initialisation is None:
+            msg = 'the stereo tracker needs 2-D node positions to (re)initialise'
+            raise InputError(msg)
+        self._initialisation = initialisation
+        if self._tracker is not None:
+            self._tracker.reset(initialisation)
+
+    def handle(self, topic: str, msg: Any, wanted: frozenset[str]) -> list[Output]:
+        """Process one message of an input port (see :class:`processing.base.Processor`)."""
+        if topic in (LEFT_INFO, RIGHT_INFO):
+            self._set_camera(topic, conversions.camera_from_info(msg))
+            return []
+        if topic == MODEL:
+            self._model = conversions.model_from_msg(msg)
+            self._rebuild()
+            return []
+        pair = self._pair(topic, msg)
+        return [] if pair is None else self._track(*pair)
+
+    def _set_camera(self, topic: str, camera: PinholeCamera) -> None:
+        old = self._cameras.get(topic)
+        if old is None or not old.same_calibration(camera):
+            self._cameras[topic] = camera
+            self._rebuild()
+
+    def _rebuild(self) -> None:
+        if len(self._cameras) < 2:
+            return
+        rig = StereoRig(self._cameras[LEFT_INFO], self._cameras[RIGHT_INFO])
+        self._tracker = StereoTracker(rig, self._tracker_config, self._model)
+        if self._initialisation is not None:
+            self._tracker.reset(self._initialisation)
+
+    def _pair(self, topic: str, msg: Any) -> tuple[Any, Any] | None:
+        """The (left, right) pair completed by this image, if any; older unpaired ones dropped."""
+        stamp = stamp_to_ns(msg.header.stamp)
+        other = self._waiting[RIGHT_IMAGE if topic == LEFT_IMAGE else LEFT_IMAGE]
+        if stamp in other:
+            match = other.pop(stamp)
+            for queue in self._waiting.values():
+                stale = [s for s in queue if s < stamp]
+                self.unpaired += len(stale)
+                for s in stale:
+                    del queue[s]
+            return (msg, match) if topic == LEFT_IMAGE else (match, msg)
+        queue = self._waiting[topic]
+        queue[stamp] = msg
+        while len(queue) > self._config.pairing_queue:
+            queue.popitem(last=False)
+            self.unpaired += 1
+        return None
+
+    def _track(self, left_msg: Any, right_msg: Any) -> list[Output]:
+        if len(self._cameras) < 2 or self._tracker is None:
+            msg = f'no calibration on {LEFT_INFO} and {RIGHT_INFO} yet; waiting (pair dropped)'
+            raise InputError(msg)
+        if self._initialisation is None:
+            msg = 'not initialised: set init_file or call reset_tracking with node positions'
+            raise InputError(msg)
+        left = conversions.image_to_gray(left_msg)
+        right = conversions.image_to_gray(right_msg)
+        camera = self._cameras[LEFT_INFO]
+        for name, image in (('left', left), ('right', right)):
+            if image.shape != (camera.height, camera.width):
+                msg = (
+                    f'{name} image is {image.shape[1]}x{image.shape[0]}, camera_info says '
+                    f'{camera.width}x{camera.height}'
+                )
+                raise InputError(msg)
+        result = self._tracker.step(left, right).as_track_result()
+        header = conversions.copy_header(self._factory, left_msg.header)
+        messages = conversions.face_messages(
+            self._factory, header, self._config.face_id, result, self._tracker.topology
+        )
+        outputs = [
+            Output('face/mesh_raw', messages.mesh),
+            Output('face/mesh', messages.markers),
+            Output('face/state', messages.state),
+        ]
+        if self._model is not None:
+            outputs += [
+                Output('face/pose', messages.pose),
+                Output('face/action', messages.action),
+                Output('face/shape', messages.shape),
+            ]
+        return outputs
+
+
+def make_stereo_processor(params: ParameterSource, factory: MessageFactory) -> StereoProcessor:
+    """The stereo_tracker processor configured from parameters (node or replay).
+
+    Parameters: those of :class:`StereoNodeConfig`, and ``tracker.*`` those of
+    :class:`~face_tracking_ros.tracking.stereo.StereoTrackerConfig`.
+    """
+    config = params.config(StereoNodeConfig)
+    tracker_config = params.config(StereoTrackerConfig, prefix='tracker.')
+    model = load_model(config.model_file) if config.model_file else None
+    init = load_init_file(config.init_file) if config.init_file else None
+    return StereoProcessor(factory, config, tracker_config, model, init)
