@@ -6,12 +6,15 @@ minimise the node distance
 
     sum_i || R(omega) (mean_i + S_i sigma + A_i alpha) + t - X_c^i ||^2
 
-(eq. 1 with eq. 3). The fit alternates two exact block minimisations of that same cost: the rigid
-pose by Procrustes (:func:`face_tracking_ros.geometry.procrustes.rigid_align`) given the shape,
-and sigma and alpha by linear least squares on the nodes brought into the face frame given the
-pose. The cost never increases; convergence is linear (the pose and the bases are coupled), so
-the loop runs until no frame's RMS node distance changes by more than ``tolerance`` (1 nm: on
-exact model meshes the parameters come out to about 1e-8). All frames are fitted at once.
+(eq. 1 with eq. 3). Start: the pose of the mean shape by Procrustes
+(:func:`face_tracking_ros.geometry.procrustes.rigid_align`), then sigma and alpha by linear least
+squares on the nodes brought into the face frame. Then Gauss-Newton on all of (omega, t, sigma,
+alpha) with the analytic Jacobian of eq. 1 and 3 (the ``cv2.Rodrigues`` derivatives of
+:func:`face_tracking_ros.geometry.rotation.rodrigues`) and a tiny Levenberg damping for
+bases that nearly contain a rigid motion; all frames are solved at once as a batch of small
+normal equations. It converges quadratically: on exact model meshes the parameters come out to
+about 1e-12 in 3 to 5 iterations. (Alternating the two block minimisations instead converges only
+linearly, in hundreds of iterations, because pose and bases are coupled.)
 """
 
 from __future__ import annotations
@@ -22,8 +25,10 @@ import numpy as np
 
 from face_tracking_ros.errors import InputError
 from face_tracking_ros.geometry.procrustes import rigid_align
-from face_tracking_ros.geometry.rotation import matrix_to_omega
+from face_tracking_ros.geometry.rotation import matrix_to_omega, rodrigues
 from face_tracking_ros.model.face_model import FaceModel
+
+LEVENBERG_DAMPING = 1e-9  # relative to the diagonal of the normal matrix
 
 
 @dataclass(frozen=True)
@@ -36,7 +41,7 @@ class NodeFit:
         sigma: (F, p) shape parameters.
         alpha: (F, q) action parameters.
         rms: (F,) RMS node distance of the fitted model to the meshes, m.
-        iterations: number of alternations made.
+        iterations: number of Gauss-Newton iterations made.
     """
 
     omega: np.ndarray
@@ -48,15 +53,15 @@ class NodeFit:
 
 
 def fit_model_to_nodes(
-    model: FaceModel, nodes: np.ndarray, tolerance: float = 1e-9, max_iterations: int = 300
+    model: FaceModel, nodes: np.ndarray, tolerance: float = 1e-12, max_iterations: int = 20
 ) -> NodeFit:
     """Fit omega, t, sigma and alpha of eq. 1 and 3 to meshes in the camera frame.
 
     Args:
         model: the face model (N nodes).
         nodes: (F, N, 3) meshes in the camera frame, in the model's node order, metres.
-        tolerance: stop when no frame's RMS node distance changes by more than this, m.
-        max_iterations: largest number of alternations.
+        tolerance: stop when no parameter of any frame changes by more than this (rad or m).
+        max_iterations: largest number of Gauss-Newton iterations.
 
     Raises:
         InputError: if nodes is not a finite (F, N, 3) array with F >= 1.
@@ -68,25 +73,67 @@ def fit_model_to_nodes(
     if not np.all(np.isfinite(nodes)):
         msg = 'nodes to fit hold NaN or Inf'
         raise InputError(msg)
+    frames = len(nodes)
     bases = np.hstack([model.shape_basis, model.action_basis])
-    solve = np.linalg.pinv(bases)
-    coefficients = np.zeros((len(nodes), bases.shape[1]))
-    rms = np.full(len(nodes), np.inf)
+    bases_nodes = bases.reshape(model.num_nodes, 3, -1)
+    mean = model.mean_shape.reshape(-1, 3)
+    pose = rigid_align(mean, nodes)
+    in_face = np.einsum('fba,fnb->fna', pose.rotation, nodes - pose.t[:, None, :])
+    coefficients = (in_face.reshape(frames, -1) - model.mean_shape) @ np.linalg.pinv(bases).T
+    omega = np.array([matrix_to_omega(rotation) for rotation in pose.rotation])
+    t = pose.t
     iterations, converged = 0, False
     while not converged and iterations < max_iterations:
         iterations += 1
-        shapes = (model.mean_shape + coefficients @ bases.T).reshape(len(nodes), -1, 3)
-        pose = rigid_align(shapes, nodes)
-        in_face = np.einsum('fba,fnb->fna', pose.rotation, nodes - pose.t[:, None, :])
-        coefficients = (in_face.reshape(len(nodes), -1) - model.mean_shape) @ solve.T
-        residual = in_face.reshape(len(nodes), -1) - model.mean_shape - coefficients @ bases.T
-        previous, rms = rms, np.sqrt(3.0 * np.mean(residual**2, axis=1))
-        converged = bool(np.max(np.abs(previous - rms)) < tolerance)
+        residual, jacobian = _residual_and_jacobian(
+            mean, bases_nodes, nodes, omega, t, coefficients
+        )
+        normal = np.swapaxes(jacobian, 1, 2) @ jacobian
+        damping = LEVENBERG_DAMPING * np.einsum('fii->fi', normal)
+        normal[:, np.arange(normal.shape[1]), np.arange(normal.shape[1])] += damping
+        gradient = np.swapaxes(jacobian, 1, 2) @ residual[..., None]
+        step = -np.linalg.solve(normal, gradient)[..., 0]
+        omega, t, coefficients = omega + step[:, :3], t + step[:, 3:6], coefficients + step[:, 6:]
+        converged = bool(np.max(np.abs(step)) < tolerance)
+    residual, _ = _residual_and_jacobian(mean, bases_nodes, nodes, omega, t, coefficients)
     return NodeFit(
-        omega=np.array([matrix_to_omega(rotation) for rotation in pose.rotation]),
-        t=pose.t,
+        omega=omega,
+        t=t,
         sigma=coefficients[:, : model.p],
         alpha=coefficients[:, model.p :],
-        rms=rms,
+        rms=np.sqrt(3.0 * np.mean(residual**2, axis=1)),
         iterations=iterations,
     )
+
+
+def _residual_and_jacobian(
+    mean: np.ndarray,
+    bases_nodes: np.ndarray,
+    nodes: np.ndarray,
+    omega: np.ndarray,
+    t: np.ndarray,
+    coefficients: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Residuals (F, 3N) of eq. 1 and 3 and their Jacobian (F, 3N, 6 + p + q).
+
+    Args:
+        mean: (N, 3) mean shape.
+        bases_nodes: (N, 3, D) the bases [S A] per node.
+        nodes: (F, N, 3) target meshes, camera frame.
+        omega: (F, 3) rotation vectors.
+        t: (F, 3) translations.
+        coefficients: (F, D) sigma then alpha.
+    """
+    frames, num_nodes = nodes.shape[:2]
+    shapes = mean + np.einsum('ncd,fd->fnc', bases_nodes, coefficients)
+    rotation, d_rotation = (np.array(a) for a in zip(*map(rodrigues, omega), strict=True))
+    residual = shapes @ np.swapaxes(rotation, 1, 2) + t[:, None, :] - nodes
+    jacobian = np.concatenate(
+        [
+            np.einsum('fkab,fnb->fnak', d_rotation, shapes),
+            np.broadcast_to(np.eye(3), (frames, num_nodes, 3, 3)),
+            rotation[:, None] @ bases_nodes[None],
+        ],
+        axis=3,
+    )
+    return residual.reshape(frames, -1), jacobian.reshape(frames, 3 * num_nodes, -1)
