@@ -17,6 +17,8 @@ PACKAGE = 'face_tracking_ros'
 NODES: dict[str, str] = {
     'mono_tracker': 'face_tracking_ros.nodes.mono_tracker:main',
     'stereo_tracker': 'face_tracking_ros.nodes.stereo_tracker:main',
+    'expression_recognizer': 'face_tracking_ros.nodes.expression_recognizer:main',
+    'identity_recognizer': 'face_tracking_ros.nodes.identity_recognizer:main',
 }
 
 # Command-line tools that are not nodes.

@@ -1,7 +1,8 @@
-"""Data files shipped with the package: the default face models learned from the synthetic world.
+"""Data files shipped with the package, made from the synthetic world by ``make default-data``.
 
-``default_model_path(num_nodes)`` is the model a tracker loads when no model file is given; it is
-made by ``make default-model`` (``face-tracking learn`` on a synthetic training population).
+``default_model_path(num_nodes)`` is the face model a tracker loads when no model file is given
+(``face-tracking learn`` on a synthetic training population); ``default_classifier_path()`` is
+the expression classifier trained for it (``face-tracking train-expressions``).
 """
 
 from __future__ import annotations
@@ -13,13 +14,27 @@ from face_tracking_ros.errors import ModelFileError
 
 
 def default_model_path(num_nodes: int = 34) -> Path:
-    """Path of the packaged default model with ``num_nodes`` nodes.
+    """Path of the packaged default face model with ``num_nodes`` nodes.
 
     Raises:
         ModelFileError: if the package was installed without it.
     """
-    path = Path(str(files(__name__) / f'default_model_{num_nodes}.npz'))
+    return _packaged(f'default_model_{num_nodes}.npz', 'model')
+
+
+def default_classifier_path() -> Path:
+    """Path of the packaged default expression classifier (for the 34-node default model).
+
+    Raises:
+        ModelFileError: if the package was installed without it.
+    """
+    return _packaged('default_expressions.npz', 'expression classifier')
+
+
+def _packaged(name: str, what: str) -> Path:
+    """Path of a packaged data file, checked to exist."""
+    path = Path(str(files(__name__) / name))
     if not path.is_file():
-        msg = f'the packaged default model {path} is missing; pass a model file instead'
+        msg = f'the packaged default {what} {path} is missing; pass a file instead'
         raise ModelFileError(msg)
     return path

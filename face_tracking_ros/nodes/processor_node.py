@@ -27,9 +27,10 @@ from rclpy.qos import (
 )
 
 from face_tracking_ros.errors import ConfigError, FaceTrackingError
-from face_tracking_ros.io.messages import MessageFactory, RclpyMessages
+from face_tracking_ros.io.messages import RclpyMessages
 from face_tracking_ros.processing.base import Port, Processor, QosClass
-from face_tracking_ros.processing.parameters import ParameterSource, field_default
+from face_tracking_ros.processing.parameters import field_default
+from face_tracking_ros.processing.registry import processor_factory
 
 ConfigT = TypeVar('ConfigT')
 
@@ -103,18 +104,11 @@ def attribute_descriptions(cls: type) -> dict[str, str]:
 class ProcessorNode(Node):
     """A node that runs a processor on its subscriptions and publishes what it returns."""
 
-    def __init__(
-        self, name: str, make_processor: Callable[[ParameterSource, MessageFactory], Processor]
-    ) -> None:
-        """Create the node, then its processor, subscriptions and publishers.
-
-        Args:
-            name: node name.
-            make_processor: builds the processor from the node's parameters and a factory.
-        """
+    def __init__(self, name: str) -> None:
+        """Create the node ``name``, the processor registered under that name, and its topics."""
         super().__init__(name)
         self._factory = RclpyMessages()
-        self._processor = make_processor(NodeParameters(self), self._factory)
+        self._processor = processor_factory(name)(NodeParameters(self), self._factory)
         self._publishers = {port.topic: self._publisher(port) for port in self._processor.outputs}
         self._on_demand = [port.topic for port in self._processor.outputs if port.on_demand]
         self._diagnostics = self.create_publisher(DiagnosticArray, '/diagnostics', 10)

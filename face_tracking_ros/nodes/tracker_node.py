@@ -9,7 +9,6 @@ from face_tracking_msgs.srv import ResetTracking
 from face_tracking_ros.errors import FaceTrackingError
 from face_tracking_ros.io import conversions
 from face_tracking_ros.nodes.processor_node import ProcessorNode
-from face_tracking_ros.processing.registry import processor_factory
 
 
 class TrackerNode(ProcessorNode):
@@ -17,7 +16,7 @@ class TrackerNode(ProcessorNode):
 
     def __init__(self, name: str) -> None:
         """Build the node ``name`` with the processor registered under that name."""
-        super().__init__(name, processor_factory(name))
+        super().__init__(name)
         self._reset = self.create_service(ResetTracking, 'reset_tracking', self._on_reset)
 
     def _on_reset(self, request: Any, response: Any) -> Any:

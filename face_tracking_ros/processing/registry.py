@@ -20,6 +20,8 @@ ProcessorFactory = Callable[[ParameterSource, MessageFactory], Processor]
 PROCESSORS: dict[str, str] = {
     'mono_tracker': 'face_tracking_ros.processing.mono:make_mono_processor',
     'stereo_tracker': 'face_tracking_ros.processing.stereo:make_stereo_processor',
+    'expression_recognizer': 'face_tracking_ros.processing.expression:make_expression_processor',
+    'identity_recognizer': 'face_tracking_ros.processing.identity:make_identity_processor',
 }
 
 

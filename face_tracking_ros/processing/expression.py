@@ -1,0 +1,120 @@
+"""Message-in, message-out expression recognition: the expression_recognizer node and its replay.
+
+Input: ``face/action`` (ActionParams) of one tracked face. Outputs: ``face/expression``
+(ExpressionEvent) at every onset and offset, and, while subscribed, ``face/expression_scores``
+(std_msgs/Float64MultiArray: one posterior per label, the labels in the layout's dimension
+label, comma-separated), both stamped with the input's header.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from face_tracking_ros.data import default_classifier_path, default_model_path
+from face_tracking_ros.io import conversions
+from face_tracking_ros.io.bags import stamp_to_ns
+from face_tracking_ros.io.messages import MessageFactory
+from face_tracking_ros.model.model_file import load_model
+from face_tracking_ros.processing.base import Output, Port
+from face_tracking_ros.processing.parameters import ParameterSource
+from face_tracking_ros.recognition.events import (
+    EventConfig,
+    ExpressionEvent,
+    ExpressionEventDetector,
+)
+from face_tracking_ros.recognition.expression import ExpressionClassifier, ExpressionRecognizer
+
+ACTION = 'face/action'
+EVENTS = 'face/expression'
+SCORES = 'face/expression_scores'
+NS_PER_S = 1e9
+
+
+@dataclass(frozen=True)
+class ExpressionNodeConfig:
+    """Parameters of the expression_recognizer node besides the event thresholds.
+
+    Attributes:
+        classifier_file: expression classifier file (``face-tracking train-expressions``);
+            empty: the packaged default, trained on the synthetic world for the default model.
+        model_file: face model the tracker uses (its q must match the classifier's); empty: the
+            packaged default model.
+    """
+
+    classifier_file: str = ''
+    model_file: str = ''
+
+
+class ExpressionProcessor:
+    """Turns a face's action parameters into expression events (§3.6, §4.5)."""
+
+    def __init__(
+        self, factory: MessageFactory, classifier: ExpressionClassifier, events: EventConfig
+    ) -> None:
+        """Classify with ``classifier``; emit events with the ``events`` hysteresis."""
+        self._factory = factory
+        self._recognizer = ExpressionRecognizer(classifier)
+        self._detector = ExpressionEventDetector(classifier.labels, events)
+        self._labels = ','.join(classifier.labels)
+        self.inputs = (Port(ACTION, 'face_tracking_msgs/msg/ActionParams'),)
+        self.outputs = (
+            Port(EVENTS, 'face_tracking_msgs/msg/ExpressionEvent'),
+            Port(SCORES, 'std_msgs/msg/Float64MultiArray', on_demand=True),
+        )
+
+    def handle(self, topic: str, msg: Any, wanted: frozenset[str]) -> list[Output]:
+        """Classify one ActionParams message; return its events (and scores if wanted)."""
+        alpha = conversions.finite_vector(msg.alpha, 'ActionParams.alpha')
+        scores = self._recognizer.update(stamp_to_ns(msg.header.stamp) / NS_PER_S, alpha)
+        header = conversions.copy_header(self._factory, msg.header)
+        outputs = [
+            Output(EVENTS, self._event_msg(header, msg.face_id, event))
+            for event in self._detector.update(scores)
+        ]
+        if SCORES in wanted:
+            outputs.append(Output(SCORES, self._scores_msg(scores.probabilities)))
+        return outputs
+
+    def _event_msg(self, header: Any, face_id: str, event: ExpressionEvent) -> Any:
+        return self._factory.make(
+            'face_tracking_msgs/msg/ExpressionEvent',
+            header=header,
+            face_id=face_id,
+            label=event.label,
+            event=int(event.kind),
+            confidence=event.confidence,
+            alpha=np.asarray(event.alpha, dtype=float),
+            duration=event.duration,
+        )
+
+    def _scores_msg(self, probabilities: np.ndarray) -> Any:
+        dim = self._factory.make(
+            'std_msgs/msg/MultiArrayDimension',
+            label=self._labels,
+            size=len(probabilities),
+            stride=len(probabilities),
+        )
+        layout = self._factory.make('std_msgs/msg/MultiArrayLayout', dim=[dim], data_offset=0)
+        return self._factory.make(
+            'std_msgs/msg/Float64MultiArray', layout=layout, data=probabilities.astype(float)
+        )
+
+
+def make_expression_processor(
+    params: ParameterSource, factory: MessageFactory
+) -> ExpressionProcessor:
+    """The expression_recognizer processor configured from parameters (node or replay).
+
+    Parameters: those of :class:`ExpressionNodeConfig`, and ``events.*`` those of
+    :class:`~face_tracking_ros.recognition.events.EventConfig`.
+    """
+    config = params.config(ExpressionNodeConfig)
+    events = params.config(EventConfig, prefix='events.')
+    model = load_model(config.model_file or default_model_path())
+    classifier_file = config.classifier_file or default_classifier_path()
+    return ExpressionProcessor(
+        factory, ExpressionClassifier.load(classifier_file, model.q), events
+    )

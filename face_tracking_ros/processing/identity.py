@@ -1,0 +1,144 @@
+"""Message-in, message-out identity recognition: the identity_recognizer node and its replay.
+
+Input: ``face/shape`` (ShapeParams) of one tracked face. Output: ``face/identity``
+(IdentityEvent) whenever the decision changes, stamped with the input's header. Enrolment
+(:meth:`IdentityProcessor.enroll`, the ``enroll_identity`` service) adds the tracked face to the
+gallery from its sigma estimates of the last ``duration`` seconds and saves the gallery.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from face_tracking_ros.data import default_model_path
+from face_tracking_ros.errors import ConfigError
+from face_tracking_ros.io import conversions
+from face_tracking_ros.io.bags import stamp_to_ns
+from face_tracking_ros.io.messages import MessageFactory
+from face_tracking_ros.model.model_file import load_model
+from face_tracking_ros.processing.base import Output, Port
+from face_tracking_ros.processing.parameters import ParameterSource
+from face_tracking_ros.recognition.features import SlidingWindow
+from face_tracking_ros.recognition.identity import (
+    IdentityConfig,
+    IdentityDecision,
+    IdentityGallery,
+    IdentityRecognizer,
+)
+
+SHAPE = 'face/shape'
+IDENTITY = 'face/identity'
+NS_PER_S = 1e9
+
+
+@dataclass(frozen=True)
+class IdentityNodeConfig:
+    """Parameters of the identity_recognizer node besides the decision's own.
+
+    Attributes:
+        gallery_file: the enrolment gallery; read at start if it exists, written after every
+            enrolment. Empty: an in-memory gallery, lost at exit.
+        model_file: face model the tracker uses (its p must match the gallery's); empty: the
+            packaged default model.
+        max_enroll_duration: longest enrolment (EnrollIdentity.duration) accepted, s (> 0); this
+            much sigma history is kept.
+    """
+
+    gallery_file: str = ''
+    model_file: str = ''
+    max_enroll_duration: float = 30.0
+
+
+class IdentityProcessor:
+    """Decides who the tracked face is from its sigma (§3.6) and enrols new people."""
+
+    def __init__(
+        self,
+        factory: MessageFactory,
+        gallery: IdentityGallery,
+        config: IdentityConfig,
+        node_config: IdentityNodeConfig,
+    ) -> None:
+        """Start from ``gallery``; decide on ``config.window`` seconds of sigma."""
+        if node_config.max_enroll_duration <= 0:
+            msg = f'max_enroll_duration must be > 0 s, got {node_config.max_enroll_duration}'
+            raise ConfigError(msg)
+        self._factory = factory
+        self._node_config = node_config
+        self._config = config
+        self._recognizer = IdentityRecognizer(gallery, config)
+        self._history = SlidingWindow(node_config.max_enroll_duration, gallery.p)
+        self._last: tuple[str, str] | None = None
+        self.inputs = (Port(SHAPE, 'face_tracking_msgs/msg/ShapeParams'),)
+        self.outputs = (Port(IDENTITY, 'face_tracking_msgs/msg/IdentityEvent'),)
+
+    @property
+    def gallery(self) -> IdentityGallery:
+        """The current gallery."""
+        return self._recognizer.gallery
+
+    def handle(self, topic: str, msg: Any, wanted: frozenset[str]) -> list[Output]:
+        """Add one sigma estimate; output an IdentityEvent if the decision changed."""
+        sigma = conversions.finite_vector(msg.sigma, 'ShapeParams.sigma')
+        stamp = stamp_to_ns(msg.header.stamp) / NS_PER_S
+        self._history.push(stamp, sigma)
+        decision = self._recognizer.update(stamp, sigma)
+        if decision is None or (msg.face_id, decision.identity) == self._last:
+            return []
+        self._last = (msg.face_id, decision.identity)
+        return [Output(IDENTITY, self._event_msg(msg, decision))]
+
+    def enroll(self, name: str, duration: float) -> int:
+        """Enrol the tracked face as ``name`` from its sigma of the last ``duration`` seconds.
+
+        Returns:
+            The number of sigma samples used.
+
+        Raises:
+            ConfigError: for a duration out of range, no samples yet, or a bad name.
+        """
+        if not 0 < duration <= self._node_config.max_enroll_duration:
+            limit = self._node_config.max_enroll_duration
+            msg = f'enrolment duration must be in (0, {limit}] s, got {duration}'
+            raise ConfigError(msg)
+        times, values = self._history.times, self._history.values
+        recent = values[times >= times[-1] - duration] if len(times) else values
+        if not len(recent):
+            msg = f'cannot enrol {name!r}: no shape estimate of the tracked face yet'
+            raise ConfigError(msg)
+        gallery = self.gallery.enroll(name, recent, self._config)
+        self._recognizer = IdentityRecognizer(gallery, self._config)
+        self._last = None
+        if self._node_config.gallery_file:
+            gallery.save(self._node_config.gallery_file)
+        return len(recent)
+
+    def _event_msg(self, msg: Any, decision: IdentityDecision) -> Any:
+        return self._factory.make(
+            'face_tracking_msgs/msg/IdentityEvent',
+            header=conversions.copy_header(self._factory, msg.header),
+            face_id=msg.face_id,
+            identity=decision.identity,
+            distance=decision.distance,
+            confidence=decision.confidence,
+        )
+
+
+def make_identity_processor(params: ParameterSource, factory: MessageFactory) -> IdentityProcessor:
+    """The identity_recognizer processor configured from parameters (node or replay).
+
+    Parameters: those of :class:`IdentityNodeConfig`, and ``identity.*`` those of
+    :class:`~face_tracking_ros.recognition.identity.IdentityConfig`.
+    """
+    node_config = params.config(IdentityNodeConfig)
+    config = params.config(IdentityConfig, prefix='identity.')
+    p = load_model(node_config.model_file or default_model_path()).p
+    gallery_file = node_config.gallery_file
+    gallery = (
+        IdentityGallery.load(gallery_file, p)
+        if gallery_file and Path(gallery_file).exists()
+        else IdentityGallery.empty(p)
+    )
+    return IdentityProcessor(factory, gallery, config, node_config)
