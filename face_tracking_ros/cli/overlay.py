@@ -1,0 +1,33 @@
+"""``face-tracking overlay BAG OUT --video FILE``: the input frames with the tracked mesh drawn."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from face_tracking_ros.io.series import load_states
+from face_tracking_ros.visualization.video import write_overlay_video
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    """Add the ``overlay`` subcommand."""
+    parser = subparsers.add_parser(
+        'overlay',
+        help='write a video of the input frames with the tracked mesh drawn',
+        description='Match the images of BAG with the FaceState outputs of OUT by stamp and '
+        'write them, with the mesh drawn (green tracking, red lost), as an MP4 or a GIF.',
+    )
+    parser.add_argument('bag', type=Path, help='input bag (images)')
+    parser.add_argument('out', type=Path, help='tracking output bag (face/state)')
+    parser.add_argument('--video', type=Path, required=True, help='output .mp4 or .gif')
+    parser.add_argument('--image-topic', help='image topic (default: the only one, or left)')
+    parser.add_argument('--every', type=int, default=1, help='use every n-th frame (default 1)')
+    parser.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> None:
+    """Write the video."""
+    count = write_overlay_video(
+        args.bag, load_states(args.out), args.video, args.image_topic, args.every
+    )
+    print(f'wrote {count} frames to {args.video}')

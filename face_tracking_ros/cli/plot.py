@@ -1,0 +1,31 @@
+"""``face-tracking plot OUT [--truth BAG] --png FILE``: pose, alpha and sigma over time."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from face_tracking_ros.io.series import has_truth, load_states, load_truth
+from face_tracking_ros.visualization.plots import plot_tracking
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    """Add the ``plot`` subcommand."""
+    parser = subparsers.add_parser(
+        'plot',
+        help='plot a tracking output bag (pose, alpha, sigma over time)',
+        description='Draw the FaceState series of a tracking output bag (face-tracking track or '
+        'replay, or a recorded bag) as a PNG: rotation angles, translation, alpha and sigma '
+        'over time, against the truth of a synthetic bag when given.',
+    )
+    parser.add_argument('out', type=Path, help='bag holding face/state')
+    parser.add_argument('--truth', type=Path, help='synthetic bag with truth/face')
+    parser.add_argument('--png', type=Path, required=True, help='PNG file to write')
+    parser.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> None:
+    """Write the plot."""
+    truth = load_truth(args.truth) if args.truth and has_truth(args.truth) else None
+    plot_tracking(load_states(args.out), truth, args.png)
+    print(f'wrote {args.png}')

@@ -1,0 +1,144 @@
+"""Time series read from bags: a tracker's FaceState outputs and the synthetic world's truth.
+
+Plots, overlays, accuracy reports and benchmarks read whole sequences as arrays, one row per
+frame, through these two loaders.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from face_tracking_ros.errors import BagError
+from face_tracking_ros.io import conversions
+from face_tracking_ros.io.bags import bag_topics, read_messages, stamp_to_ns
+
+STATE_TYPE = 'face_tracking_msgs/msg/FaceState'
+TRUTH_TYPE = 'face_tracking_msgs/msg/FaceTruth'
+
+
+@dataclass(frozen=True)
+class StateSeries:
+    """A tracker's estimates over a sequence (FaceState messages), F frames.
+
+    Attributes:
+        stamps: (F,) image stamps, ns.
+        status: (F,) TrackStatus values.
+        omega: (F, 3) rotation vectors, rad.
+        t: (F, 3) translations, m.
+        alpha: (F, q) action parameters.
+        sigma: (F, p) shape parameters.
+        nodes: (F, N, 3) nodes in the camera frame, m.
+        image_points: (F, N, 2) node projections, px.
+        mean_residual: (F,) mean photometric residual, grey levels.
+        iterations: (F,) solver iterations.
+    """
+
+    stamps: np.ndarray
+    status: np.ndarray
+    omega: np.ndarray
+    t: np.ndarray
+    alpha: np.ndarray
+    sigma: np.ndarray
+    nodes: np.ndarray
+    image_points: np.ndarray
+    mean_residual: np.ndarray
+    iterations: np.ndarray
+
+
+@dataclass(frozen=True)
+class TruthSeries:
+    """The synthetic world's truth over a sequence (FaceTruth messages), F frames.
+
+    Attributes:
+        stamps: (F,) image stamps, ns.
+        subject_id: the subject of the sequence.
+        omega: (F, 3) true rotation vectors, rad.
+        t: (F, 3) true translations, m.
+        alpha: (F, E) true expression coefficients.
+        sigma: (F, K) true identity coefficients.
+        nodes: (F, N, 3) true nodes in the camera frame, m.
+        labels: (F,) expression labels.
+        intensity: (F,) expression intensities in [0, 1].
+    """
+
+    stamps: np.ndarray
+    subject_id: str
+    omega: np.ndarray
+    t: np.ndarray
+    alpha: np.ndarray
+    sigma: np.ndarray
+    nodes: np.ndarray
+    labels: np.ndarray
+    intensity: np.ndarray
+
+
+def load_states(bag: Path, topic: str | None = None) -> StateSeries:
+    """The FaceState series of a bag (the only FaceState topic unless ``topic`` is given).
+
+    Raises:
+        BagError: if the bag has no (or several, with no ``topic``) FaceState topic.
+    """
+    topic = topic or _only_topic(bag, STATE_TYPE)
+    rows = [m.msg for m in read_messages(bag, topics=[topic])]
+    if not rows:
+        msg = f'{bag}: topic {topic} holds no FaceState message'
+        raise BagError(msg)
+    return StateSeries(
+        stamps=np.array([stamp_to_ns(r.header.stamp) for r in rows], dtype=np.int64),
+        status=np.array([r.status for r in rows], dtype=int),
+        omega=np.array([np.asarray(r.omega, dtype=float) for r in rows]),
+        t=np.array([[r.pose.position.x, r.pose.position.y, r.pose.position.z] for r in rows]),
+        alpha=np.array([np.asarray(r.alpha, dtype=float) for r in rows]),
+        sigma=np.array([np.asarray(r.sigma, dtype=float) for r in rows]),
+        nodes=np.array([_points(r.nodes) for r in rows]),
+        image_points=np.array([_points(r.image_points)[:, :2] for r in rows]),
+        mean_residual=np.array([r.mean_residual for r in rows], dtype=float),
+        iterations=np.array([r.iterations for r in rows], dtype=int),
+    )
+
+
+def load_truth(bag: Path) -> TruthSeries:
+    """The FaceTruth series of a synthetic bag.
+
+    Raises:
+        BagError: if the bag has no FaceTruth topic or it is empty.
+    """
+    topic = _only_topic(bag, TRUTH_TYPE)
+    samples = [conversions.truth_from_msg(m.msg) for m in read_messages(bag, topics=[topic])]
+    if not samples:
+        msg = f'{bag}: topic {topic} holds no FaceTruth message'
+        raise BagError(msg)
+    return TruthSeries(
+        stamps=np.array([s.stamp_ns for s in samples], dtype=np.int64),
+        subject_id=samples[0].subject_id,
+        omega=np.array([s.omega for s in samples]),
+        t=np.array([s.t for s in samples]),
+        alpha=np.array([s.alpha for s in samples]),
+        sigma=np.array([s.sigma for s in samples]),
+        nodes=np.array([s.nodes for s in samples]),
+        labels=np.array([s.label for s in samples]),
+        intensity=np.array([s.intensity for s in samples]),
+    )
+
+
+def has_truth(bag: Path) -> bool:
+    """True if the bag has a FaceTruth topic."""
+    return TRUTH_TYPE in bag_topics(bag).values()
+
+
+def _only_topic(bag: Path, msgtype: str) -> str:
+    """The one topic of ``msgtype`` in the bag."""
+    topics = [topic for topic, kind in bag_topics(bag).items() if kind == msgtype]
+    if len(topics) != 1:
+        found = ', '.join(topics) or 'none'
+        msg = f'{bag}: expected one {msgtype} topic, found {found}'
+        raise BagError(msg)
+    return topics[0]
+
+
+def _points(points: list) -> np.ndarray:
+    """(N, 3) array of geometry_msgs/Point (NaN-free by construction of the writers)."""
+    return np.array([(p.x, p.y, p.z) for p in points], dtype=float).reshape(-1, 3)

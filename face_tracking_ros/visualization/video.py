@@ -1,0 +1,107 @@
+"""Overlay videos: a bag's frames with the tracked mesh, as MP4 (OpenCV) or GIF (imageio)."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from pathlib import Path
+
+import cv2
+import imageio.v3 as iio
+import numpy as np
+
+from face_tracking_ros.errors import BagError, ConfigError
+from face_tracking_ros.io import conversions
+from face_tracking_ros.io.bags import bag_topics, read_messages, stamp_to_ns
+from face_tracking_ros.io.series import StateSeries
+from face_tracking_ros.model.topology import mesh_topology
+from face_tracking_ros.tracking.result import TrackStatus
+from face_tracking_ros.visualization.overlay import draw_mesh
+
+IMAGE_TYPE = 'sensor_msgs/msg/Image'
+
+
+def image_topic(bag: Path, requested: str | None = None) -> str:
+    """The image topic to draw on: ``requested``, else the only one, else the left camera's.
+
+    Raises:
+        BagError: if there is no image topic or the choice is ambiguous.
+    """
+    topics = [t for t, kind in bag_topics(bag).items() if kind == IMAGE_TYPE]
+    if requested:
+        if requested not in topics:
+            msg = f'{bag}: no image topic {requested}; image topics: {topics}'
+            raise BagError(msg)
+        return requested
+    left = [t for t in topics if 'left' in t]
+    if len(topics) == 1 or len(left) == 1:
+        return topics[0] if len(topics) == 1 else left[0]
+    msg = f'{bag}: choose the image topic (--image-topic) among {topics or "none"}'
+    raise BagError(msg)
+
+
+def overlay_frames(
+    bag: Path, states: StateSeries, topic: str | None = None, every: int = 1
+) -> Iterator[np.ndarray]:
+    """(H, W, 3) rgb frames of ``bag`` with the mesh of the state of the same stamp drawn."""
+    if every < 1:
+        msg = f'every must be >= 1, got {every}'
+        raise ConfigError(msg)
+    by_stamp = {int(stamp): i for i, stamp in enumerate(states.stamps)}
+    edges = mesh_topology(states.image_points.shape[1]).edges
+    chosen = image_topic(bag, topic)
+    for count, message in enumerate(read_messages(bag, topics=[chosen])):
+        index = by_stamp.get(stamp_to_ns(message.msg.header.stamp))
+        if index is None or count % every:
+            continue
+        gray = conversions.image_to_gray(message.msg)
+        status = TrackStatus(states.status[index])
+        label = f'{status.name.lower()}  frame {count}'
+        yield draw_mesh(gray, states.image_points[index], edges, status, label)
+
+
+def write_overlay_video(
+    bag: Path,
+    states: StateSeries,
+    video: Path,
+    topic: str | None = None,
+    every: int = 1,
+    fps: float = 30.0,
+) -> int:
+    """Write the overlay frames as ``.mp4`` (mp4v) or ``.gif``; returns the number of frames.
+
+    Raises:
+        ConfigError: for another file suffix.
+        BagError: if no frame of the bag has a state.
+    """
+    frames = overlay_frames(bag, states, topic, every)
+    if video.suffix == '.gif':
+        images = list(frames)
+        if images:
+            iio.imwrite(video, images, duration=1000 * every / fps, loop=0)
+        count = len(images)
+    elif video.suffix == '.mp4':
+        count = _write_mp4(frames, video, fps / every)
+    else:
+        msg = f'video file must end in .mp4 or .gif: {video}'
+        raise ConfigError(msg)
+    if not count:
+        msg = f'{bag}: no image has a tracking state of the same stamp'
+        raise BagError(msg)
+    return count
+
+
+def _write_mp4(frames: Iterator[np.ndarray], video: Path, fps: float) -> int:
+    """Stream rgb frames into an MP4 file."""
+    writer = None
+    count = 0
+    try:
+        for frame in frames:
+            if writer is None:
+                size = (frame.shape[1], frame.shape[0])
+                writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*'mp4v'), fps, size)
+            writer.write(cv2.cvtColor(frame, cv2.COLOR_RGB2BGR))
+            count += 1
+    finally:
+        if writer is not None:
+            writer.release()
+    return count
