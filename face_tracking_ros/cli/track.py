@@ -1,0 +1,145 @@
+"""``face-tracking track BAG --out OUT``: track a recorded sequence, mono or stereo, offline.
+
+The tracker is chosen from the bag's image topics (one: mono_tracker; a left and a right one:
+stereo_tracker) and runs through :func:`face_tracking_ros.replay.replay_bag`, i.e. the node's own
+code. When the bag holds synthetic truth, the accuracy against it is printed and, with
+``--report``, written as JSON.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import numpy as np
+
+from face_tracking_ros.cli.replay import add_replay_options, parse_remaps, print_stats
+from face_tracking_ros.data import default_model_path
+from face_tracking_ros.errors import BagError
+from face_tracking_ros.io.bags import bag_topics
+from face_tracking_ros.io.series import has_truth, load_states, load_truth
+from face_tracking_ros.model.model_file import load_model
+from face_tracking_ros.processing.parameters import OverrideParameters
+from face_tracking_ros.replay import replay_bag
+from face_tracking_ros.tracking.accuracy import TrackingAccuracy, tracking_accuracy
+
+IMAGE_TYPE = 'sensor_msgs/msg/Image'
+INFO_TYPE = 'sensor_msgs/msg/CameraInfo'
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    """Add the ``track`` subcommand."""
+    parser = subparsers.add_parser(
+        'track',
+        help='track the face in a recorded bag (mono or stereo) and score it against truth',
+        description='Run the mono or stereo tracker (chosen from the image topics) over a bag, '
+        'write its outputs to a new bag, and print the accuracy when the bag has truth.',
+    )
+    parser.add_argument('bag', type=Path, help='input rosbag2 directory')
+    parser.add_argument('--model', type=Path, help='face model file (default: packaged model)')
+    parser.add_argument('--init', type=Path, help='init file: node names -> pixel positions')
+    parser.add_argument('--image-topic', help='mono image topic (default: found by type)')
+    parser.add_argument('--camera-info-topic', help='mono camera_info topic')
+    parser.add_argument('--left-topic', help='stereo left image topic')
+    parser.add_argument('--right-topic', help='stereo right image topic')
+    parser.add_argument('--left-info-topic', help='stereo left camera_info topic')
+    parser.add_argument('--right-info-topic', help='stereo right camera_info topic')
+    parser.add_argument('--report', type=Path, help='write the accuracy as JSON')
+    add_replay_options(parser)
+    parser.set_defaults(func=run)
+
+
+def choose_tracker(bag: Path, args: argparse.Namespace) -> str:
+    """'stereo_tracker' if the bag has a left and a right image topic, else 'mono_tracker'.
+
+    Raises:
+        BagError: if the bag has no image topic.
+    """
+    images = [topic for topic, kind in bag_topics(bag).items() if kind == IMAGE_TYPE]
+    if not images:
+        msg = f'{bag}: no sensor_msgs/msg/Image topic to track'
+        raise BagError(msg)
+    if args.image_topic:
+        return 'mono_tracker'
+    has_pair = any('left' in t for t in images) and any('right' in t for t in images)
+    return 'stereo_tracker' if args.left_topic or has_pair else 'mono_tracker'
+
+
+def run(args: argparse.Namespace) -> int:
+    """Track, summarise, and score against truth when there is some."""
+    node = choose_tracker(args.bag, args)
+    params = list(args.param or [])
+    if args.model:
+        params.append(f'model_file={args.model}')
+    if args.init:
+        params.append(f'init_file={args.init}')
+    remaps = parse_remaps(args.remap)
+    options = {
+        'image': args.image_topic,
+        'camera_info': args.camera_info_topic,
+        'left/image_raw': args.left_topic,
+        'right/image_raw': args.right_topic,
+        'left/camera_info': args.left_info_topic,
+        'right/camera_info': args.right_info_topic,
+    }
+    remaps.update({port: topic for port, topic in options.items() if topic})
+    print(f'tracking {args.bag} with {node}')
+    stats = replay_bag(
+        node,
+        args.bag,
+        args.out,
+        OverrideParameters.parse(params),
+        remaps,
+        args.record_inputs,
+        progress=not args.quiet,
+    )
+    print_stats(stats, args.out)
+    if has_truth(args.bag) and stats.outputs['face/state']:
+        accuracy = score_against_truth(args.bag, args.out, args.model)
+        print(format_accuracy(accuracy))
+        if args.report:
+            args.report.write_text(json.dumps(accuracy.as_dict(), indent=2))
+    return 1 if stats.interrupted or stats.read_error else 0
+
+
+def score_against_truth(bag: Path, out: Path, model_file: Path | None) -> TrackingAccuracy:
+    """Accuracy of the FaceState outputs in ``out`` against the truth in ``bag``.
+
+    Raises:
+        BagError: if no output frame has a truth frame of the same stamp.
+    """
+    model = load_model(model_file or default_model_path())
+    states, truth = load_states(out), load_truth(bag)
+    index = {int(stamp): i for i, stamp in enumerate(truth.stamps)}
+    rows = [(i, index[int(s)]) for i, s in enumerate(states.stamps) if int(s) in index]
+    if not rows:
+        msg = f'{out}: no output frame has a truth frame of the same stamp in {bag}'
+        raise BagError(msg)
+    est, ref = np.array(rows).T
+    return tracking_accuracy(
+        model,
+        states.status[est],
+        states.omega[est],
+        states.t[est],
+        states.alpha[est],
+        states.nodes[est],
+        truth.nodes[ref][:, : model.num_nodes],
+    )
+
+
+def format_accuracy(accuracy: TrackingAccuracy) -> str:
+    """A short table of the accuracy figures."""
+    rotation = ' / '.join(f'{v:.2f}' for v in accuracy.rotation_mae_deg)
+    translation = ' / '.join(f'{v:.2f}' for v in accuracy.translation_mae_mm)
+    return '\n'.join(
+        [
+            f'frames {accuracy.frames}: tracked {accuracy.tracked}, lost {accuracy.lost}',
+            f'rotation MAE about x / y / z:    {rotation} deg',
+            f'translation MAE in x / y / z:    {translation} mm',
+            f'3-D node RMS:                    {accuracy.node_rms_mm:.2f} mm',
+            f'alpha RMS (% of range):          {accuracy.alpha_rms_percent:.1f} %',
+            f'drift (last 100 - first 100):    {accuracy.drift_deg:+.3f} deg',
+            f'jitter (frame-to-frame):         {accuracy.jitter_deg:.3f} deg',
+        ]
+    )
