@@ -1,0 +1,1 @@
+"""Geometry: rotations (Rodrigues), pinhole and stereo cameras (eq. 1 and 2), Procrustes."""

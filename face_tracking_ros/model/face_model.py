@@ -123,7 +123,9 @@ def validate_model_arrays(model: FaceModel) -> None:
 def _check(array: np.ndarray, name: str, shape: tuple[int | None, ...]) -> None:
     """Raise ModelFileError unless array has the given shape (None = any) and is finite."""
     actual = np.shape(array)
-    if len(actual) != len(shape) or any(e is not None and a != e for a, e in zip(actual, shape)):
+    if len(actual) != len(shape) or any(
+        e is not None and a != e for a, e in zip(actual, shape, strict=True)
+    ):
         _fail(f'{name} has shape {actual}, expected {shape}')
     if not np.all(np.isfinite(array)):
         _fail(f'{name} holds NaN or Inf')

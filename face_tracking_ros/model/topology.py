@@ -17,7 +17,7 @@ through the chin.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from enum import Enum
+from enum import StrEnum
 from functools import cache
 
 import numpy as np
@@ -26,8 +26,8 @@ from scipy.spatial import Delaunay
 from face_tracking_ros.errors import ConfigError
 
 
-class Group(str, Enum):
-    """Anatomical groups; they set Procrustes weights (§3.3) and regularisation stiffness (eq. 5)."""
+class Group(StrEnum):
+    """Anatomical groups: they set Procrustes weights (§3.3) and stiffness (eq. 5)."""
 
     EYE = 'eye'
     NOSE = 'nose'
