@@ -85,16 +85,50 @@ def test_held_out_accuracy_over_seven_classes(
     )
 
 
-def test_online_recognizer_equals_batch(data: tuple, classifier: ExpressionClassifier) -> None:
+def test_without_baseline_the_online_recognizer_equals_vectorised_features(data: tuple) -> None:
+    config = ExpressionTrainingConfig(calibration=0.0)
+    classifier = train_expression_classifier(data[0], config)
     sequence = data[1][0]
     recognizer = ExpressionRecognizer(classifier)
 
     online = [recognizer.update(t, a) for t, a in zip(sequence.times, sequence.alpha, strict=True)]
 
-    batch = classifier.sequence_probabilities(sequence.times, sequence.alpha)
-    np.testing.assert_allclose([s.probabilities for s in online], batch, atol=1e-12)
-    assert [s.label for s in online] == list(np.asarray(classifier.labels)[batch.argmax(axis=1)])
+    features = sequence_features(sequence.times, sequence.alpha, config.window)
+    np.testing.assert_allclose(
+        [s.probabilities for s in online], classifier.probabilities(features), atol=1e-12
+    )
     np.testing.assert_array_equal(online[-1].alpha, sequence.alpha[-1])
+
+
+def test_neutral_baseline_cancels_a_constant_alpha_offset(
+    data: tuple, classifier: ExpressionClassifier
+) -> None:
+    sequence = data[1][0]
+    offset = np.random.default_rng(12).normal(scale=0.01, size=Q)  # identity leaking into alpha
+
+    shifted = classifier.sequence_probabilities(sequence.times, sequence.alpha + offset)
+
+    reference = classifier.sequence_probabilities(sequence.times, sequence.alpha)
+    np.testing.assert_allclose(shifted, reference, atol=1e-9)
+    uncalibrated = train_expression_classifier(data[0], ExpressionTrainingConfig(calibration=0.0))
+    moved = uncalibrated.sequence_probabilities(sequence.times, sequence.alpha + offset)
+    assert (
+        np.abs(moved - uncalibrated.sequence_probabilities(sequence.times, sequence.alpha)).max()
+        > 0.5
+    )
+
+
+def test_a_new_track_restarts_window_and_baseline(classifier: ExpressionClassifier) -> None:
+    rng = np.random.default_rng(13)
+    times = np.arange(60) / 30.0
+    first, second = rng.normal(scale=0.01, size=(2, 60, Q))
+    recognizer = ExpressionRecognizer(classifier)
+    for t, a in zip(times, first, strict=True):
+        recognizer.update(t, a)
+
+    replayed = [recognizer.update(t, a).probabilities for t, a in zip(times, second, strict=True)]
+
+    np.testing.assert_array_equal(replayed, classifier.sequence_probabilities(times, second))
 
 
 def test_two_labels_give_the_logistic_probabilities(data: tuple) -> None:
@@ -103,7 +137,7 @@ def test_two_labels_give_the_logistic_probabilities(data: tuple) -> None:
         for s in data[0]
         for labels in [np.where(np.isin(s.labels, ['smile', 'neutral']), s.labels, 'neutral')]
     ]
-    config = ExpressionTrainingConfig(min_intensity=0.0)
+    config = ExpressionTrainingConfig(min_intensity=0.0, calibration=0.0)
 
     classifier = train_expression_classifier(sequences, config)
 
@@ -136,7 +170,7 @@ def test_file_errors(tmp_path: Path, classifier: ExpressionClassifier) -> None:
     with pytest.raises(ModelFileError, match=r'trained for q=5 .* the model has q=7'):
         ExpressionClassifier.load(path, 7)
     archive = load_archive(path, CLASSIFIER_KIND, CLASSIFIER_FORMAT_VERSION)
-    header = {key: archive.header[key] for key in ('q', 'window', 'labels')}
+    header = {key: archive.header[key] for key in ('q', 'window', 'calibration', 'labels')}
     save_archive(
         path,
         CLASSIFIER_KIND,
@@ -175,10 +209,14 @@ def test_training_errors(data: tuple) -> None:
     no_neutral = np.where(sequence.labels == 'neutral', 'smile', sequence.labels)
     with pytest.raises(ConfigError, match="lack 'neutral'"):
         train_expression_classifier(relabelled(no_neutral), CONFIG)
+    with pytest.raises(ConfigError, match="of 's' has no neutral frame for its baseline"):
+        train_expression_classifier([*data[0][1:], *relabelled(no_neutral)], CONFIG)
     with pytest.raises(ConfigError, match='need neutral and an expression'):
         train_expression_classifier(relabelled(np.full(len(wink), 'neutral')), CONFIG)
     with pytest.raises(ConfigError, match='window'):
         ExpressionTrainingConfig(window=0.0)
+    with pytest.raises(ConfigError, match='calibration'):
+        ExpressionTrainingConfig(calibration=-1.0)
     with pytest.raises(ConfigError, match='min_intensity'):
         ExpressionTrainingConfig(min_intensity=1.0)
     with pytest.raises(ConfigError, match='regularisation'):

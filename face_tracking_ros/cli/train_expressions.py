@@ -55,6 +55,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         '--window', type=float, default=defaults.window, help='feature window, s (%(default).3f)'
     )
     parser.add_argument(
+        '--calibration',
+        type=float,
+        default=defaults.calibration,
+        help='neutral calibration period at the start of each sequence, s; 0: none (%(default)s)',
+    )
+    parser.add_argument(
         '--min-intensity',
         type=float,
         default=defaults.min_intensity,
@@ -79,7 +85,10 @@ def run(args: argparse.Namespace) -> None:
         ModelFileError: if the model file is unusable.
     """
     config = ExpressionTrainingConfig(
-        window=args.window, min_intensity=args.min_intensity, regularisation=args.regularisation
+        window=args.window,
+        calibration=args.calibration,
+        min_intensity=args.min_intensity,
+        regularisation=args.regularisation,
     )
     model = load_model(args.model) if args.model is not None else None
     sequences = [seq for bag in args.bags for seq in truth_sequences(bag, args.topic, model)]

@@ -48,8 +48,8 @@ from face_tracking_ros.recognition.expression import (
     ExpressionRecognizer,
     ExpressionTrainingConfig,
     train_expression_classifier,
+    training_features,
 )
-from face_tracking_ros.recognition.features import sequence_features
 from face_tracking_ros.recognition.identity import (
     UNKNOWN,
     IdentityConfig,
@@ -227,21 +227,14 @@ def compare_expression_classifiers(
 ) -> dict[str, float]:
     """The measurement behind the choice of expression classifier: clear-frame accuracy of each.
 
-    Candidates, all on the same standardised window features of alpha: the linear softmax that
+    Candidates, all on the same standardised window features of alpha
+    (:func:`~face_tracking_ros.recognition.expression.training_features`, test frames too, so
+    with the truth-labelled neutral baseline and only clear frames): the linear softmax that
     :func:`train_expression_classifier` fits ('logistic'), an RBF SVM ('svm', Gokturk et al.),
     linear and quadratic discriminants ('lda', 'qda').
     """
-
-    def data(sequences: list[ParameterSequence], cut: bool) -> tuple[np.ndarray, np.ndarray]:
-        """Features and labels of clear frames (all frames of the wanted kind when cut)."""
-        x = np.vstack([sequence_features(s.times, s.alpha, config.window) for s in sequences])
-        y = np.concatenate([s.labels for s in sequences])
-        intensity = np.concatenate([s.intensity for s in sequences])
-        keep = (y == NEUTRAL) | (intensity >= config.min_intensity) if cut else slice(None)
-        return x[keep], y[keep]
-
-    x_train, y_train = data(train, cut=True)
-    x_test, y_test = data(test, cut=True)
+    x_train, y_train = training_features(train, config)
+    x_test, y_test = training_features(test, config)
     candidates = {
         'logistic': LogisticRegression(C=config.regularisation, max_iter=5000),
         'svm': SVC(C=10.0),

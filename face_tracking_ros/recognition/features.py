@@ -90,6 +90,15 @@ def _features(offsets: np.ndarray, values: np.ndarray, inside: np.ndarray) -> np
     return np.hstack([values[:, -1], mean, slope])
 
 
+def subtract_baselines(features: np.ndarray, baselines: np.ndarray) -> np.ndarray:
+    """(M, 3d) features relative to (M, d) baselines (value and mean blocks; slopes unchanged)."""
+    d = baselines.shape[1]
+    relative = features.copy()
+    relative[:, :d] -= baselines
+    relative[:, d : 2 * d] -= baselines
+    return relative
+
+
 class SlidingWindow:
     """The last ``length`` seconds of a stream of (stamp, vector) samples, for online use.
 
@@ -114,12 +123,16 @@ class SlidingWindow:
         self._samples.clear()
         self._start = None
 
-    def push(self, stamp: float, value: np.ndarray) -> None:
+    def push(self, stamp: float, value: np.ndarray) -> bool:
         """Add a sample and drop those older than ``stamp - length``.
 
         Args:
             stamp: s.
             value: (d,) finite vector.
+
+        Returns:
+            Whether this sample starts a new stream (first sample after creation, :meth:`clear`
+            or a stamp not later than the previous one).
 
         Raises:
             InputError: if value is not a finite (d,) vector or stamp is not finite.
@@ -133,11 +146,13 @@ class SlidingWindow:
             raise InputError(msg)
         if self._samples and stamp <= self._samples[-1][0]:
             self.clear()
-        if self._start is None:
+        started = self._start is None
+        if started:
             self._start = stamp
         self._samples.append((stamp, value))
         while self._samples[0][0] <= stamp - self._length + STAMP_TOLERANCE:
             self._samples.popleft()
+        return started
 
     @property
     def elapsed(self) -> float:
