@@ -145,7 +145,7 @@ class MonoProcessor:
             raise InputError(msg)
         result = self._tracker.step(gray)
         out_header = conversions.copy_header(self._factory, header)
-        topology = self._tracker.model.topology
+        topology = self._model.topology
         messages = conversions.face_messages(
             self._factory, out_header, self._config.face_id, result, topology
         )

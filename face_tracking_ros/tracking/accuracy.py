@@ -37,8 +37,9 @@ class TrackingAccuracy:
         rotation_mae_deg: (x, y, z) mean absolute rotation error, degrees.
         translation_mae_mm: (x, y, z) mean absolute translation error, mm.
         node_rms_mm: RMS 3-D node error in the camera frame, mm.
-        alpha_rms_percent: RMS alpha error per component as a percentage of that component's
-            range in the sequence, averaged over components (nan without expression).
+        alpha_rms_percent: RMS over frames of the alpha error's norm, as a percentage of alpha's
+            range in the sequence (the largest peak-to-peak range of a component of the
+            reference alpha); nan for a sequence without expression.
         drift_deg: mean rotation error (all axes) over the last 100 tracked frames minus that
             over the first 100, degrees (> 0: the error grows).
         jitter_deg: frame-to-frame noise of the rotation error, ``std(diff(error)) / sqrt(2)``
@@ -120,13 +121,12 @@ def _triple(values: np.ndarray) -> tuple[float, float, float]:
 
 
 def _alpha_rms_percent(estimated: np.ndarray, reference: np.ndarray) -> float:
-    """Mean over components of RMS error / range of the reference, in percent."""
-    spread = np.ptp(reference, axis=0)
-    used = spread > 1e-9
-    if not used.any():
+    """RMS of the alpha error norm as a percentage of the reference alpha's largest range."""
+    spread = float(np.ptp(reference, axis=0).max(initial=0.0))
+    if spread < 1e-9:
         return float('nan')
-    rms = np.sqrt(np.mean((estimated - reference) ** 2, axis=0))
-    return float(100 * np.mean(rms[used] / spread[used]))
+    rms = np.sqrt(np.mean(np.sum((estimated - reference) ** 2, axis=1)))
+    return float(100 * rms / spread)
 
 
 def _drift(error: np.ndarray) -> float:
