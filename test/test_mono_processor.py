@@ -1,0 +1,139 @@
+"""The mono_tracker processor (node body and replay) on rendered frames: outputs and bad input."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from face_tracking_ros.errors import InputError
+from face_tracking_ros.geometry.camera import PinholeCamera
+from face_tracking_ros.io import conversions
+from face_tracking_ros.io.messages import RosbagsMessages
+from face_tracking_ros.io.typestore import typestore
+from face_tracking_ros.model.face_model import FaceModel
+from face_tracking_ros.processing.mono import MonoNodeConfig, MonoProcessor
+from face_tracking_ros.synthetic.faces import FacePopulation
+from face_tracking_ros.synthetic.render import FacePose, FaceRenderer
+from face_tracking_ros.synthetic.texture import procedural_texture
+from face_tracking_ros.tracking.initialisation import Initialisation
+from face_tracking_ros.tracking.mono import MonoTrackerConfig
+from face_tracking_ros.tracking.result import TrackStatus
+
+CAMERA = PinholeCamera.ideal(320, 240, 300.0)
+FRAME_NS = 33_333_333
+
+
+def _true_model(population: FacePopulation) -> FaceModel:
+    """The population's own top-2 identity and expression subspaces as a FaceModel."""
+    truth = population.truth(34)
+    axes, variances = truth.identity_principal_axes()
+    shape_basis = axes[:, :2]
+    expressions = truth.expression_basis - shape_basis @ (shape_basis.T @ truth.expression_basis)
+    action_basis = np.linalg.qr(expressions)[0][:, :5]
+    return FaceModel(
+        node_names=truth.node_names,
+        mean_shape=truth.mean_shape,
+        shape_basis=shape_basis,
+        action_basis=action_basis,
+        shape_eigenvalues=variances[:2],
+        action_eigenvalues=np.full(5, 1e-4),
+        sigma_prior_covariance=np.diag(variances[:2]),
+        alpha_prior_covariance=np.diag(np.full(5, 1e-4)),
+    )
+
+
+@pytest.fixture(scope='module')
+def scene():
+    """Twelve frames of a subject turning its head, with the true nodes."""
+    population = FacePopulation(seed=4)
+    subject = population.subject(2)
+    renderer = FaceRenderer(procedural_texture(subject.appearance_seed))
+    background = np.full((CAMERA.height, CAMERA.width), 80, np.float32)
+    rng = np.random.default_rng(0)
+    frames, nodes = [], []
+    for f in range(12):
+        pose = FacePose(
+            population.nodes(subject, {}),
+            np.array([0.0, 0.02 * f, 0.0]),
+            np.array([0.0, 0.0, 0.6]),
+        )
+        frames.append(renderer.render(CAMERA, [pose], background, rng=rng))
+        nodes.append(pose.camera_nodes())
+    return _true_model(population), frames, np.array(nodes)
+
+
+def _processor(model: FaceModel, first_nodes: np.ndarray) -> MonoProcessor:
+    init = Initialisation(model.node_names, CAMERA.project(first_nodes))
+    factory = RosbagsMessages(typestore())
+    return MonoProcessor(factory, MonoNodeConfig(), MonoTrackerConfig(), model, init)
+
+
+def _image(pixels: np.ndarray, frame: int, encoding: str = 'mono8'):
+    factory = RosbagsMessages(typestore())
+    header = conversions.make_header(factory, frame * FRAME_NS, 'camera_optical')
+    return conversions.array_to_image(factory, header, pixels, encoding)
+
+
+def _info():
+    factory = RosbagsMessages(typestore())
+    return conversions.camera_to_info(factory, conversions.make_header(factory, 0, 'c'), CAMERA)
+
+
+def test_tracks_and_carries_stamp_and_frame(scene):
+    model, frames, nodes = scene
+    processor = _processor(model, nodes[0])
+    processor.handle('camera_info', _info(), frozenset())
+    for f, pixels in enumerate(frames):
+        outputs = processor.handle('image', _image(pixels, f), frozenset())
+    topics = [o.topic for o in outputs]
+    assert topics == [
+        'face/state',
+        'face/pose',
+        'face/action',
+        'face/shape',
+        'face/mesh_raw',
+        'face/mesh',
+    ]
+    state = outputs[0].msg
+    assert state.status == TrackStatus.TRACKING
+    assert conversions.stamp_to_ns(state.header.stamp) == 11 * FRAME_NS
+    assert state.header.frame_id == 'camera_optical'
+    # Monocular depth trades off against face size, so score what the image shows: the nodes'
+    # projections, against the true nodes' projections.
+    tracked_px = conversions.points_to_array(state.image_points, 'image_points')[:, :2]
+    error_px = np.linalg.norm(tracked_px - CAMERA.project(nodes[-1]), axis=1)
+    assert np.sqrt(np.mean(error_px**2)) < 1.5
+
+
+def test_overlay_only_while_wanted(scene):
+    model, frames, nodes = scene
+    processor = _processor(model, nodes[0])
+    processor.handle('camera_info', _info(), frozenset())
+    quiet = processor.handle('image', _image(frames[0], 0), frozenset())
+    wanted = processor.handle('image', _image(frames[1], 1), frozenset({'face/overlay'}))
+    assert 'face/overlay' not in [o.topic for o in quiet]
+    overlay = next(o.msg for o in wanted if o.topic == 'face/overlay')
+    assert (overlay.encoding, overlay.width, overlay.height) == ('rgb8', 320, 240)
+
+
+def test_image_before_camera_info_is_refused(scene):
+    model, frames, nodes = scene
+    with pytest.raises(InputError, match='no calibration received on camera_info'):
+        _processor(model, nodes[0]).handle('image', _image(frames[0], 0), frozenset())
+
+
+def test_image_of_another_size_than_camera_info_is_refused(scene):
+    model, frames, nodes = scene
+    processor = _processor(model, nodes[0])
+    processor.handle('camera_info', _info(), frozenset())
+    with pytest.raises(InputError, match='image is 160x120 but camera_info says 320x240'):
+        processor.handle('image', _image(frames[0][::2, ::2], 0), frozenset())
+
+
+def test_rgb_frames_track_like_mono(scene):
+    model, frames, nodes = scene
+    processor = _processor(model, nodes[0])
+    processor.handle('camera_info', _info(), frozenset())
+    rgb = np.repeat(frames[0][:, :, None], 3, axis=2)
+    outputs = processor.handle('image', _image(rgb, 0, 'rgb8'), frozenset())
+    assert outputs[0].msg.status == TrackStatus.TRACKING
