@@ -22,6 +22,7 @@ from face_tracking_ros.io.series import has_truth, load_states, load_truth
 from face_tracking_ros.model.model_file import load_model
 from face_tracking_ros.processing.parameters import OverrideParameters
 from face_tracking_ros.replay import replay_bag
+from face_tracking_ros.synthetic.clicks import clicks_from_bag, write_init_file
 from face_tracking_ros.tracking.accuracy import TrackingAccuracy, tracking_accuracy
 
 IMAGE_TYPE = 'sensor_msgs/msg/Image'
@@ -38,7 +39,15 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     parser.add_argument('bag', type=Path, help='input rosbag2 directory')
     parser.add_argument('--model', type=Path, help='face model file (default: packaged model)')
-    parser.add_argument('--init', type=Path, help='init file: node names -> pixel positions')
+    init = parser.add_mutually_exclusive_group()
+    init.add_argument('--init', type=Path, help='init file: node names -> pixel positions')
+    init.add_argument(
+        '--simulate-clicks',
+        type=float,
+        metavar='PX',
+        help="synthetic bags: initialise from the first frame's true nodes with PX pixels of "
+        'click noise (the semi-automatic initialisation, simulated); writes OUT.init.json',
+    )
     parser.add_argument('--image-topic', help='mono image topic (default: found by type)')
     parser.add_argument('--camera-info-topic', help='mono camera_info topic')
     parser.add_argument('--left-topic', help='stereo left image topic')
@@ -72,8 +81,12 @@ def run(args: argparse.Namespace) -> int:
     params = list(args.param or [])
     if args.model:
         params.append(f'model_file={args.model}')
-    if args.init:
-        params.append(f'init_file={args.init}')
+    init_file = args.init
+    if args.simulate_clicks is not None:
+        init_file = args.out.parent / f'{args.out.name}.init.json'
+        write_init_file(clicks_from_bag(args.bag, args.simulate_clicks), init_file)
+    if init_file:
+        params.append(f'init_file={init_file}')
     remaps = parse_remaps(args.remap)
     options = {
         'image': args.image_topic,

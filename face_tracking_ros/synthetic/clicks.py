@@ -1,0 +1,93 @@
+"""Simulated semi-automatic initialisation: the user's clicks on the first frame, from truth.
+
+The seed initialises both trackers semi-automatically: a person clicks the mesh nodes on the
+first image. For synthetic bags the clicks are simulated: the true nodes of the first frame,
+projected into the (left) camera, with Gaussian pixel noise like a careful user's, and written as
+an ordinary init file (see :mod:`face_tracking_ros.tracking.initialisation`), which the trackers
+read exactly as they read a hand-made one.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from face_tracking_ros.errors import BagError
+from face_tracking_ros.geometry.camera import PinholeCamera
+from face_tracking_ros.io import conversions
+from face_tracking_ros.io.bags import bag_topics, read_messages
+from face_tracking_ros.tracking.initialisation import Initialisation
+
+DEFAULT_CLICK_NOISE_PX = 1.0
+
+
+def simulated_clicks(
+    node_names: tuple[str, ...],
+    nodes_cam: np.ndarray,
+    camera: PinholeCamera,
+    noise_px: float = DEFAULT_CLICK_NOISE_PX,
+    rng: np.random.Generator | None = None,
+) -> Initialisation:
+    """The clicked positions of the visible nodes of one frame.
+
+    Args:
+        node_names: names of the N nodes.
+        nodes_cam: (N, 3) true nodes in the camera frame, m.
+        camera: the camera the clicks are made in (eq. 2).
+        noise_px: standard deviation of the click error, px.
+        rng: noise generator; None for no noise.
+    """
+    points = camera.project(nodes_cam)
+    if rng is not None and noise_px > 0:
+        points = points + rng.normal(0.0, noise_px, points.shape)
+    inside = (
+        (points[:, 0] >= 0)
+        & (points[:, 0] <= camera.width - 1)
+        & (points[:, 1] >= 0)
+        & (points[:, 1] <= camera.height - 1)
+    )
+    names = tuple(name for name, keep in zip(node_names, inside, strict=True) if keep)
+    return Initialisation(node_names=names, points=points[inside])
+
+
+def write_init_file(init: Initialisation, path: Path) -> Path:
+    """Write an init file (JSON) that :func:`load_init_file` reads back."""
+    nodes = {
+        name: [float(x), float(y)]
+        for name, (x, y) in zip(init.node_names, init.points, strict=True)
+    }
+    data: dict[str, object] = {'nodes': nodes}
+    if init.sigma is not None:
+        data['sigma'] = [float(v) for v in init.sigma]
+    path.write_text(json.dumps(data, indent=1))
+    return path
+
+
+def clicks_from_bag(
+    bag: Path, noise_px: float = DEFAULT_CLICK_NOISE_PX, seed: int = 0
+) -> Initialisation:
+    """Simulated clicks on the first frame of a synthetic bag (left camera for stereo).
+
+    Raises:
+        BagError: if the bag has no truth or no camera_info of the clicked camera.
+    """
+    topics = bag_topics(bag)
+    infos = sorted(t for t, kind in topics.items() if kind == 'sensor_msgs/msg/CameraInfo')
+    info_topic = next((t for t in infos if 'left' in t), infos[0] if infos else None)
+    truth_topic = next(
+        (t for t, k in topics.items() if k == 'face_tracking_msgs/msg/FaceTruth'), None
+    )
+    if info_topic is None or truth_topic is None:
+        msg = f'{bag}: simulated clicks need a CameraInfo and a FaceTruth topic'
+        raise BagError(msg)
+    first: dict[str, object] = {}
+    for message in read_messages(bag, topics=[info_topic, truth_topic]):
+        first.setdefault(message.topic, message.msg)
+        if len(first) == 2:
+            break
+    truth = conversions.truth_from_msg(first[truth_topic])
+    camera = conversions.camera_from_info(first[info_topic])
+    names = tuple(first[truth_topic].node_names)
+    return simulated_clicks(names, truth.nodes, camera, noise_px, np.random.default_rng(seed))
