@@ -88,19 +88,19 @@ def rigid_align(
         msg = f'source has {num_nodes} nodes but target has {target.shape[-2]}'
         raise InputError(msg)
     w = _normalised_weights(weights, num_nodes)
-    source_centroid = np.einsum('n,...nc->...c', w, source)
-    target_centroid = np.einsum('n,...nc->...c', w, target)
-    source_centred = source - source_centroid[..., None, :]
-    target_centred = target - target_centroid[..., None, :]
-    covariance = np.einsum('n,...na,...nb->...ab', w, source_centred, target_centred)
+    source_centroid = w @ source
+    target_centroid = w @ target
+    covariance = np.swapaxes(source - source_centroid[..., None, :], -1, -2) @ (
+        w[:, None] * (target - target_centroid[..., None, :])
+    )
     u, _, vt = np.linalg.svd(covariance)
-    d = np.sign(np.linalg.det(np.swapaxes(vt, -1, -2) @ np.swapaxes(u, -1, -2)))
+    d = np.sign(np.linalg.det(u @ vt))
     vt = vt.copy()
     vt[..., 2, :] *= d[..., None]
-    rotation = np.swapaxes(vt, -1, -2) @ np.swapaxes(u, -1, -2)
-    t = target_centroid - np.einsum('...ab,...b->...a', rotation, source_centroid)
-    aligned = np.einsum('...ab,...nb->...na', rotation, source) + t[..., None, :]
-    rms = np.sqrt(np.einsum('n,...n->...', w, np.sum((aligned - target) ** 2, axis=-1)))
+    rotation = np.swapaxes(u @ vt, -1, -2)
+    t = target_centroid - (rotation @ source_centroid[..., None])[..., 0]
+    aligned = source @ np.swapaxes(rotation, -1, -2) + t[..., None, :]
+    rms = np.sqrt(np.sum((aligned - target) ** 2, axis=-1) @ w)
     return RigidAlignment(rotation=rotation, t=t, aligned=aligned, rms=rms)
 
 

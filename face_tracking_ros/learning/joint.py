@@ -1,0 +1,170 @@
+"""Joint learning of identity and expression subspaces (issue 11): a within/between-subject model.
+
+The seed's §3.4 loop takes A from the residuals of every frame about mean_shape + S S^T (X -
+mean_shape). When faces differ in more identity directions than the p kept in S, the rest of each
+subject's identity stays in every residual and the residual PCA takes it into A; and because
+expressions partly move the face along identity directions, removing the S projection removes
+real expression too. This learner separates the two by the subject, not by the direction.
+
+Model. Every aligned frame X(s, f) (3N,) of subject s is
+
+    X(s, f) = neutral_s + A alpha(s, f) + e,    neutral_s = mean_shape + S sigma_s + r_s,
+
+with one neutral face per subject (sigma_s is shared by all of s's frames; r_s, orthogonal to S,
+is the identity the p-dimensional S cannot represent), alpha per frame, and expressions measured
+from the subject's own neutral face, so alpha = 0 is the neutral expression. This is the
+least-squares (zero-noise) counterpart of probabilistic LDA (Prince and Elder, ICCV 2007:
+x_ij = mu + F h_i + G w_ij + e_ij) with a full-rank between-subject term during learning and the
+expression origin anchored by the neutral labels instead of a zero-mean prior on w.
+
+Objective. Level 1, the within-subject fit, minimises over neutral_s, A (orthonormal, 3N x q)
+and alpha::
+
+    sum_{s,f} ||X(s, f) - neutral_s - A alpha(s, f)||^2
+        + lambda sum_{f labelled neutral} c(s, f) ||alpha(s, f)||^2
+
+The second term is a soft prior alpha ~ 0 on neutral-labelled frames; without it neutral_s and
+alpha would be defined only up to a shift along A. ``neutral_weight`` lambda sets its strength.
+Labels are not trusted blindly: c(s, f) are Cauchy weights 1 / (1 + (||alpha|| / k)^2) refreshed
+each iteration by iteratively reweighted least squares, with k = ``robust_scale`` times the median
+||alpha|| of the neutral-labelled frames, so a frame labelled neutral that is visibly expressive
+loses its pull. Each half-step is solved exactly:
+
+* A given the neutrals: alpha profiles out to alpha = A^T y / (1 + lambda c) with
+  y = X - neutral_s, and A is the q leading eigenvectors of sum_f y y^T / (1 + lambda c_f)
+  (1 for frames not labelled neutral);
+* neutral_s given A: its component orthogonal to A is the mean over all of s's frames of
+  (I - A A^T) X, and its component along A is the kappa-weighted mean of A^T X over s's
+  neutral-labelled frames, kappa = lambda c / (1 + lambda c).
+
+Level 2, the between-subject fit: mean_shape is the mean of the neutral_s (equal weight per
+subject) and S the p leading principal components of neutral_s - mean_shape, i.e. mean_shape and
+S minimise sum_s ||r_s||^2. sigma_s = S^T (neutral_s - mean_shape); the model's alpha prior is
+the second moment of the per-frame alpha of level 1.
+
+S and A need not be orthogonal to each other: an expression that moves the face along an
+identity direction keeps that component in A.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from face_tracking_ros.errors import ConfigError
+from face_tracking_ros.learning.result import LearningResult, assemble_result
+from face_tracking_ros.learning.seed import check_dimensions, choose_dimension
+from face_tracking_ros.learning.subspace import principal_components, subspace_similarity
+from face_tracking_ros.learning.training_set import TrainingSet
+
+
+@dataclass(frozen=True)
+class JointConfig:
+    """Parameters of the joint learner.
+
+    Attributes:
+        p: identity dimension; None chooses it by ``explained_variance``.
+        q: expression dimension.
+        explained_variance: share of the neutral-shape variance S must explain when p is None.
+        neutral_weight: lambda, the precision of the alpha ~ 0 prior on neutral-labelled frames
+            relative to the data term (dimensionless; > 0).
+        robust_scale: Cauchy scale k of the label weights, in medians of ||alpha|| over the
+            neutral-labelled frames; None trusts every label fully (c = 1).
+        tolerance: convergence when 1 - subspace similarity of A with the previous iteration
+            is below it and the neutrals moved less than ``tolerance`` metres RMS.
+        max_iterations: iteration limit.
+    """
+
+    p: int | None = 2
+    q: int = 5
+    explained_variance: float = 0.95
+    neutral_weight: float = 10.0
+    robust_scale: float | None = 3.0
+    tolerance: float = 1e-6
+    max_iterations: int = 100
+
+
+def learn_joint(training: TrainingSet, config: JointConfig | None = None) -> LearningResult:
+    """Learn mean shape, S and A by the within/between-subject decomposition above.
+
+    Args:
+        training: aligned training meshes (face frame), with neutral flags.
+        config: dimensions, prior and convergence; defaults as in :class:`JointConfig`.
+
+    Returns:
+        The model (method 'joint') and the iteration history.
+
+    Raises:
+        ConfigError: if there are fewer than p + 1 subjects, q is out of range or
+            neutral_weight is not positive.
+    """
+    config = config or JointConfig()
+    check_dimensions(training, config.p, config.q)
+    if not config.neutral_weight > 0.0:
+        msg = f'neutral_weight must be positive, got {config.neutral_weight}'
+        raise ConfigError(msg)
+    frames = training.flat()
+    neutral = training.subject_means(frames, training.neutral)
+    label_weight = training.neutral.astype(float)
+    history: list[float] = []
+    action_basis: np.ndarray | None = None
+    converged = False
+    while len(history) < config.max_iterations and not converged:
+        deviations = frames - neutral[training.subject_index]
+        shrink = 1.0 / (1.0 + config.neutral_weight * label_weight)
+        previous_basis = action_basis
+        action_basis = principal_components(deviations, config.q, sample_weights=shrink).basis
+        alpha = (deviations @ action_basis) * shrink[:, None]
+        if config.robust_scale is not None:
+            label_weight = _label_weights(alpha, training.neutral, config.robust_scale)
+        previous_neutral = neutral
+        neutral = _neutral_given_basis(
+            training, frames, action_basis, config.neutral_weight * label_weight
+        )
+        moved = float(np.sqrt(np.mean((neutral - previous_neutral) ** 2)))
+        change = (
+            1.0
+            if previous_basis is None
+            else (1.0 - subspace_similarity(action_basis, previous_basis))
+        )
+        history.append(max(change, moved))
+        converged = change < config.tolerance and moved < config.tolerance
+    mean_shape = neutral.mean(axis=0)
+    identity = principal_components(neutral - mean_shape, training.num_subjects - 1)
+    p = config.p or choose_dimension(identity.explained, config.explained_variance)
+    alpha = (frames - neutral[training.subject_index]) @ action_basis
+    return assemble_result(
+        training,
+        mean_shape=mean_shape,
+        shape_basis=identity.basis[:, :p],
+        action_basis=action_basis,
+        subject_neutral=neutral,
+        alpha=alpha,
+        method='joint',
+        history=history,
+        converged=converged,
+        metadata={
+            'tolerance': config.tolerance,
+            'neutral_weight': config.neutral_weight,
+            'robust_scale': config.robust_scale,
+        },
+    )
+
+
+def _label_weights(alpha: np.ndarray, neutral: np.ndarray, robust_scale: float) -> np.ndarray:
+    """Cauchy weights c of the neutral labels (0 for frames not labelled neutral)."""
+    norms = np.linalg.norm(alpha, axis=1)
+    scale = robust_scale * max(float(np.median(norms[neutral])), np.finfo(float).tiny)
+    return np.where(neutral, 1.0 / (1.0 + (norms / scale) ** 2), 0.0)
+
+
+def _neutral_given_basis(
+    training: TrainingSet, frames: np.ndarray, action_basis: np.ndarray, prior: np.ndarray
+) -> np.ndarray:
+    """Each subject's neutral minimising the level-1 objective for fixed A (S, 3N)."""
+    off_basis = frames - (frames @ action_basis) @ action_basis.T
+    kappa = prior / (1.0 + prior)
+    along = training.subject_means(frames @ action_basis * kappa[:, None], None)
+    along /= training.subject_means(kappa[:, None], None)
+    return training.subject_means(off_basis) + along @ action_basis.T

@@ -1,0 +1,182 @@
+"""Model learning exactly as the seed's §3.4 (Figure 4), with the §4.3 eigenvalue-weighted option.
+
+The loop, on meshes already aligned by :func:`~face_tracking_ros.learning.alignment.
+align_training_set` and flattened to vectors X(s, f) (3N,), metres:
+
+1. neutral_s: initially the mean of subject s's neutral-labelled frames;
+2. mean_shape = the mean of the neutral_s (equal weight per subject);
+3. S = the p leading principal components of the neutral_s - mean_shape (p given, or the
+   smallest p explaining ``explained_variance`` of the neutral variance);
+4. residual(s, f) = (I - S S^T)(X(s, f) - mean_shape): the frames minus the mean shape and the
+   contribution of the shape basis; A = the q leading principal components of the residuals
+   (second moment about zero: alpha = 0 is the neutral face in eq. 3);
+5. alpha(s, f) = the coding of X(s, f) - mean_shape on A, and neutral_s = the mean over all of
+   subject s's frames of X(s, f) - A alpha(s, f) ("subtract off the projection of the action
+   vectors from the mesh data ... averaged together for each subject");
+6. repeat from 2 until S and A stop changing.
+
+Coding in step 5:
+
+* ``eigenvalue_weighted=False`` (the seed): the orthogonal projection, alpha = A^T (X - mean).
+* ``eigenvalue_weighted=True`` (§4.3, after Costen et al.'s simultaneous extraction of
+  functional subspaces, which codes each sample jointly on all non-orthogonal subspaces with
+  eigenvalue weights before re-forming the ensembles): the maximum a-posteriori coding of
+  X - mean on [S A] under the Gaussian model X - mean = S sigma + A alpha + e with
+  sigma ~ N(0, diag(lambda_S)), alpha ~ N(0, diag(lambda_A)) and e ~ N(0, nu I)::
+
+      [sigma; alpha] = (C^T C + nu diag(lambda_S, lambda_A)^-1)^-1 C^T (X - mean),  C = [S A]
+
+  lambda_S and lambda_A are the current PCA eigenvalues of the two ensembles and nu is the
+  probabilistic-PCA noise variance of the residual ensemble (its discarded variance per
+  dimension, Tipping and Bishop 1999). Directions of A that S already explains, and weak action
+  components, are then removed only in proportion to their eigenvalues.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.linalg
+
+from face_tracking_ros.errors import ConfigError
+from face_tracking_ros.learning.result import LearningResult, assemble_result
+from face_tracking_ros.learning.subspace import principal_components, subspace_similarity
+from face_tracking_ros.learning.training_set import TrainingSet
+
+
+@dataclass(frozen=True)
+class SeedConfig:
+    """Parameters of the §3.4 learner.
+
+    Attributes:
+        p: identity dimension; None chooses it by ``explained_variance``.
+        q: expression dimension.
+        explained_variance: share of the neutral-shape variance S must explain when p is None.
+        eigenvalue_weighted: use the §4.3 eigenvalue-weighted coding (see the module docstring).
+        tolerance: convergence when 1 - subspace similarity of S and of A with the previous
+            iteration are both below it.
+        max_iterations: iteration limit.
+    """
+
+    p: int | None = 2
+    q: int = 5
+    explained_variance: float = 0.95
+    eigenvalue_weighted: bool = False
+    tolerance: float = 1e-6
+    max_iterations: int = 100
+
+
+def learn_seed(training: TrainingSet, config: SeedConfig | None = None) -> LearningResult:
+    """Learn mean shape, S and A by the §3.4 iteration (optionally §4.3-weighted).
+
+    Args:
+        training: aligned training meshes (face frame), with neutral flags.
+        config: dimensions and convergence; defaults as in :class:`SeedConfig`.
+
+    Returns:
+        The model (method 'seed' or 'seed-weighted') and the iteration history.
+
+    Raises:
+        ConfigError: if there are fewer than p + 1 subjects or q is out of range.
+    """
+    config = config or SeedConfig()
+    check_dimensions(training, config.p, config.q)
+    frames = training.flat()
+    neutral = training.subject_means(frames, training.neutral)
+    p = config.p
+    history: list[float] = []
+    previous: tuple[np.ndarray, np.ndarray] | None = None
+    converged = False
+    while len(history) < config.max_iterations and not converged:
+        mean_shape = neutral.mean(axis=0)
+        identity = principal_components(neutral - mean_shape, training.num_subjects - 1)
+        if p is None:
+            p = choose_dimension(identity.explained, config.explained_variance)
+        shape_basis = identity.basis[:, :p]
+        deviations = frames - mean_shape
+        residuals = deviations - (deviations @ shape_basis) @ shape_basis.T
+        action = principal_components(residuals, config.q)
+        if config.eigenvalue_weighted:
+            alpha = _weighted_alpha(
+                deviations,
+                shape_basis,
+                action.basis,
+                identity.variances[:p],
+                action.variances,
+                _noise_variance(residuals, action.variances),
+            )
+        else:
+            alpha = deviations @ action.basis
+        if previous is not None:
+            history.append(
+                max(
+                    1.0 - subspace_similarity(shape_basis, previous[0]),
+                    1.0 - subspace_similarity(action.basis, previous[1]),
+                )
+            )
+            converged = history[-1] < config.tolerance
+        else:
+            history.append(1.0)
+        previous = (shape_basis, action.basis)
+        model_neutral = neutral
+        neutral = training.subject_means(frames - alpha @ action.basis.T)
+    method = 'seed-weighted' if config.eigenvalue_weighted else 'seed'
+    return assemble_result(
+        training,
+        mean_shape=mean_shape,
+        shape_basis=shape_basis,
+        action_basis=action.basis,
+        subject_neutral=model_neutral,
+        alpha=alpha,
+        method=method,
+        history=history,
+        converged=converged,
+        metadata={'tolerance': config.tolerance},
+    )
+
+
+def choose_dimension(explained: np.ndarray, share: float) -> int:
+    """Smallest number of leading components whose explained shares sum to at least ``share``."""
+    return int(min(np.searchsorted(np.cumsum(explained), share - 1e-12) + 1, len(explained)))
+
+
+def check_dimensions(training: TrainingSet, p: int | None, q: int) -> None:
+    """Raise ConfigError unless p + 1 <= subjects and 1 <= q < 3N."""
+    needed = 2 if p is None else p + 1
+    if p is not None and p < 1:
+        msg = f'p must be at least 1, got {p}'
+        raise ConfigError(msg)
+    if training.num_subjects < needed:
+        msg = (
+            f'{training.num_subjects} subject(s) cannot give an identity subspace of p = {p}: '
+            f'at least p + 1 = {needed} subjects are needed'
+        )
+        raise ConfigError(msg)
+    if not 1 <= q < 3 * training.num_nodes:
+        msg = f'q must be between 1 and {3 * training.num_nodes - 1}, got {q}'
+        raise ConfigError(msg)
+
+
+def _noise_variance(residuals: np.ndarray, action_variances: np.ndarray) -> float:
+    """Probabilistic-PCA noise variance: residual variance left by A, per remaining dimension."""
+    total = np.sum(residuals**2) / len(residuals)
+    return max(float(total - action_variances.sum()), 0.0) / (
+        residuals.shape[1] - len(action_variances)
+    )
+
+
+def _weighted_alpha(
+    deviations: np.ndarray,
+    shape_basis: np.ndarray,
+    action_basis: np.ndarray,
+    shape_variances: np.ndarray,
+    action_variances: np.ndarray,
+    noise_variance: float,
+) -> np.ndarray:
+    """§4.3: alpha of the MAP coding of deviations on [S A] with eigenvalue priors (F, q)."""
+    coding = np.hstack([shape_basis, action_basis])
+    prior_precision = noise_variance / np.concatenate([shape_variances, action_variances])
+    normal = coding.T @ coding + np.diag(prior_precision)
+    coefficients = scipy.linalg.solve(normal, coding.T @ deviations.T, assume_a='pos')
+    return coefficients[shape_basis.shape[1] :].T
