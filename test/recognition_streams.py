@@ -71,7 +71,7 @@ def expression_stream(
     intensity = np.zeros(frames)
     alpha = np.zeros((frames, len(next(iter(world.directions.values())))))
     scales = {k: 1.0 + subject_scale * rng.uniform(-1, 1) for k in world.directions}
-    t = rng.uniform(0.6, 1.0)  # a track starts on a neutral face (the calibration period)
+    t = rng.uniform(0.3, 1.0)  # a track starts on a neutral face (the calibration period)
     while True:
         label = EXPRESSION_LABELS[1 + rng.integers(len(EXPRESSION_LABELS) - 1)]
         rise, hold, fall = rng.uniform(0.15, 0.3), rng.uniform(0.5, 1.2), rng.uniform(0.15, 0.3)
