@@ -59,9 +59,7 @@ NEUTRAL = EXPRESSION_LABELS[0]
 CLASSIFIER_KIND = 'expression_classifier'
 CLASSIFIER_FORMAT_VERSION = 1
 REFINE_POSTERIOR = 0.9  # neutral posterior above which a frame refines the neutral baseline
-BASELINE_MEMORY = (
-    300  # frames; the running mean of the baseline forgets beyond this (10 s at 30 Hz)
-)
+BASELINE_MEMORY = 300  # frames the baseline's running mean remembers (10 s at 30 Hz)
 
 
 @dataclass(frozen=True)
