@@ -11,7 +11,8 @@ node-major to (102,) in the face frame, metres. The 19-node mesh of §3.2 keeps 
 Truth parameterisation (what ``truth/face`` carries, and what learned models are scored against):
 
 - ``identity_basis_true`` (102, K) has orthonormal columns, ordered by decreasing variance;
-  ``sigma_true`` (K,) of a subject is drawn from N(0, diag(identity_variances_true)) in metres.
+  ``sigma_true`` (K,) of a subject is drawn independently per mode from a zero-mean normal
+  truncated at about +-2.3 std (no caricatures) with variance ``identity_variances_true``, m.
   Each column comes from a named, anatomically smooth deformation (face width, face length,
   nose projection, jaw width, eye spacing, brow height, lip fullness, ...), Gram-Schmidt
   orthonormalised in the preset's order. Mode k moves a node by ``sqrt(var_k / 34)`` RMS per
@@ -28,13 +29,13 @@ moves them only symmetrically along x and expressions do not move them at all: t
 every synthetic face is the one stated in :mod:`face_tracking_ros.model.topology`.
 
 Presets:
-    'default': four identity modes, 9, 6, 3.5 and 2.5 mm RMS, made orthogonal to the expression
-        span on both the 34- and the 19-node mesh: a world whose identity and expression are well
-        separated (the seed's assumption).
-    'realistic': twelve identity modes with a slowly decaying spectrum (12.6, 9.0, 5.8, 4.6, 3.7,
-        3.1, 2.4, 2.4, 2.0, 1.2, 1.0, 0.8 mm RMS) whose fields share directions with the
-        expressions (brow height and brow raise, chin height and jaw opening, mouth width and
-        smile or pucker), as on scan-derived face models (issue 11).
+    'default': four identity modes (face width, depth, nose projection, eye spacing), 9, 6, 3.5
+        and 2.5 mm RMS, made orthogonal to the expression span on both the 34- and the 19-node
+        mesh: a world whose identity and expression are well separated (the seed's assumption).
+    'realistic': thirteen identity modes with a slowly decaying spectrum (12.6, 9.0, 5.8, 4.6,
+        3.7, 3.1, 2.4, 2.4, 2.0, 1.2, 1.0, 0.8, 0.6 mm RMS), led by overall face size, whose fields
+        share directions with the expressions (brow height and brow raise, face length and jaw
+        opening, mouth width and smile or pucker), as on scan-derived face models (issue 11).
 """
 
 from __future__ import annotations
@@ -43,6 +44,7 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.stats import truncnorm
 
 from face_tracking_ros.errors import ConfigError
 from face_tracking_ros.model.topology import mesh_topology
@@ -56,6 +58,10 @@ ACTIVE_EXPRESSIONS = EXPRESSIONS[1:]
 PRESETS = ('default', 'realistic')
 
 NUM_NODES = 34
+# sigma_true is a normal truncated at +-2 of its own std (no caricatures), rescaled so that its
+# variance is the preset's.
+_TRUNCATION = 2.0
+_TRUNCATED_VARIANCE = float(truncnorm.var(-_TRUNCATION, _TRUNCATION))
 _EYE_CENTRES = ('right_eye', 'left_eye')
 
 # A field maps the (N, 3) reference nodes in millimetres to an (N, 3) displacement direction.
@@ -82,6 +88,7 @@ def _lateral(points: np.ndarray) -> np.ndarray:
 
 # Identity deformation fields, in mm of the reference face (topology: y down, z into the head).
 IDENTITY_FIELDS: dict[str, Field] = {
+    'face_size': lambda p: _field(p[:, 0], p[:, 1], p[:, 2]),
     'face_width': lambda p: _field(p[:, 0], 0.0, 0.0),
     'face_length': lambda p: _field(0.0, np.where(p[:, 1] > 0, p[:, 1], 0.3 * p[:, 1]), 0.0),
     'face_depth': lambda p: _field(0.0, 0.0, p[:, 2]),
@@ -106,23 +113,24 @@ IDENTITY_FIELDS: dict[str, Field] = {
 _PRESET_MODES: dict[str, tuple[tuple[str, float], ...]] = {
     'default': (
         ('face_width', 9.0),
-        ('face_length', 6.0),
+        ('face_depth', 6.0),
         ('nose_projection', 3.5),
         ('eye_spacing', 2.5),
     ),
     'realistic': (
-        ('face_width', 12.6),
-        ('face_length', 9.0),
-        ('face_depth', 5.8),
-        ('nose_projection', 4.6),
-        ('jaw_width', 3.7),
-        ('brow_height', 3.1),
+        ('face_size', 12.6),
+        ('face_width', 9.0),
+        ('face_length', 5.8),
+        ('face_depth', 4.6),
+        ('nose_projection', 3.7),
+        ('jaw_width', 3.1),
+        ('brow_height', 2.4),
         ('eye_spacing', 2.4),
-        ('lip_fullness', 2.4),
-        ('mouth_width', 2.0),
-        ('chin_projection', 1.2),
-        ('cheek_fullness', 1.0),
-        ('nose_deviation', 0.8),
+        ('lip_fullness', 2.0),
+        ('mouth_width', 1.2),
+        ('chin_projection', 1.0),
+        ('cheek_fullness', 0.8),
+        ('nose_deviation', 0.6),
     ),
 }
 
@@ -336,9 +344,10 @@ class FacePopulation:
             msg = f'subject index must be >= 0, got {index}'
             raise ConfigError(msg)
         rng = np.random.default_rng([self.seed, index])
-        sigma_true = rng.standard_normal(self.num_identity_modes) * np.sqrt(
-            self.identity_variances_true
+        standard = truncnorm.rvs(
+            -_TRUNCATION, _TRUNCATION, size=self.num_identity_modes, random_state=rng
         )
+        sigma_true = standard * np.sqrt(self.identity_variances_true / _TRUNCATED_VARIANCE)
         neutral = (self.mean_shape + self.identity_basis_true @ sigma_true).reshape(NUM_NODES, 3)
         return Subject(
             subject_id=f'subject_{index:02d}',

@@ -246,7 +246,8 @@ class FaceRenderer:
         drawn = maps[:, 0] * (column[covered] + x0) + maps[:, 1] * (row[covered] + y0) + maps[:, 2]
         visible[covered] = drawn >= raster.vertices[nodes[covered], 2] - tolerance
         normals = self._vertex_normals(raster.vertices)[nodes]
-        sight = raster.vertices[nodes] / np.linalg.norm(raster.vertices[nodes], axis=1)[:, None]
+        sight = raster.vertices[nodes] - _optical_centre(camera)
+        sight /= np.linalg.norm(sight, axis=1, keepdims=True)
         return visible & (-np.einsum('nd,nd->n', normals, sight) >= min_cosine)
 
     def _rasterise_pose(self, camera: PinholeCamera, pose: FacePose) -> _Raster | None:
@@ -294,7 +295,7 @@ class FaceRenderer:
         # Per triangle, an affine map from pixel (x, y, 1) to its attributes: atlas x, atlas y,
         # shading factor and highlight (barycentric interpolation written once per triangle).
         level = self.texture.level_for(1000.0 * float(np.median(vertices[:, 2])) / camera.focal)
-        diffuse, highlight = self._shading(vertices, lighting)
+        diffuse, highlight = self._shading(vertices - _optical_centre(camera), lighting)
         attributes = np.column_stack(
             [self.texture.pixel_coordinates(self.surface.uv, level), diffuse, 255.0 * highlight]
         )
@@ -324,7 +325,12 @@ class FaceRenderer:
         return normals / (np.linalg.norm(normals, axis=1, keepdims=True) + 1e-12)
 
     def _shading(self, vertices: np.ndarray, lighting: Lighting) -> tuple[np.ndarray, np.ndarray]:
-        """Per-vertex Lambert (ambient + diffuse) factor and Blinn-Phong highlight, (M,) each."""
+        """Per-vertex Lambert (ambient + diffuse) factor and Blinn-Phong highlight, (M,) each.
+
+        Args:
+            vertices: (M, 3) vertices relative to the viewing camera's optical centre, m.
+            lighting: the light.
+        """
         normals = self._vertex_normals(vertices)
         light = np.asarray(lighting.direction, dtype=float)
         light = light / np.linalg.norm(light)
@@ -420,6 +426,11 @@ class FaceRenderer:
             bank = rng.standard_normal(size, dtype=np.float32)
             self._noise_banks[shape] = bank
         return bank
+
+
+def _optical_centre(camera: PinholeCamera) -> np.ndarray:
+    """(3,) optical centre (m) of a camera in the frame of its P; (B, 0, 0) for a right one."""
+    return -np.linalg.solve(camera.p[:, :3], camera.p[:, 3])
 
 
 def _sample(atlas: np.ndarray, coords: np.ndarray) -> np.ndarray:

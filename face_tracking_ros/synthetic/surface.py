@@ -35,7 +35,7 @@ HEAD_CENTRE_Y = 0.0
 _RIM_DEPTH = 75.0  # z of the rim, mm (behind the face, near the ears)
 _FACE_DEPTH = -5.0  # z of the ellipsoid's front pole, mm
 
-# The neck: a half cylinder (front half) below the head, rigid in the face frame.
+# The neck: a half cylinder (front half) below the head; it moves with the skull.
 NECK_RADII = (56.0, 48.0)  # x and z semi-axes, mm
 NECK_CENTRE_Z = 64.0
 NECK_Y_RANGE = (60.0, 240.0)
@@ -164,13 +164,28 @@ def _node_interpolation(
     return weights[:, : len(node_uv)] + weights[:, len(node_uv) :] @ anchor_motion
 
 
+def _skull_motion(points: np.ndarray, reference_mm: np.ndarray) -> np.ndarray:
+    """(K, 34) motion of points rigid with the skull per unit node motion.
+
+    The points follow the least-squares affine motion of the rigid nodes (eye centres and
+    corners, temples, upper cheeks): identity changes such as a wider face move them, expressions
+    do not.
+    """
+    topology = mesh_topology(34)
+    rigid = [topology.index(name) for name in _RIGID_NODES]
+    design = np.hstack([reference_mm[rigid], np.ones((len(rigid), 1))])
+    motion = np.zeros((len(points), 34))
+    motion[:, rigid] = np.hstack([points, np.ones((len(points), 1))]) @ np.linalg.pinv(design)
+    return motion
+
+
 def _anchor_motion(anchor_xyz: np.ndarray, reference_mm: np.ndarray) -> np.ndarray:
     """(A, 34) motion of the skull anchors per unit node motion.
 
     Anchors beside and below the face follow the nearby face-edge nodes (Gaussian weights over
     uv distance), so the head's side follows the jaw and cheeks and never folds over them;
-    anchors on the cranium follow the least-squares affine motion of the rigid nodes, so
-    expressions leave the skull alone. The two blend between the temples and the forehead.
+    anchors on the cranium follow the skull (:func:`_skull_motion`), so expressions leave it
+    alone. The two blend between the temples and the forehead.
     """
     topology = mesh_topology(34)
     rigid = [topology.index(name) for name in _RIGID_NODES]
@@ -250,7 +265,7 @@ def head_surface() -> HeadSurface:
         rest_vertices=np.concatenate([head_xyz, neck_xyz]) / 1000.0,
         triangles=_counter_clockwise(triangles, uv),
         node_vertices=np.arange(len(node_uv)),
-        interpolation=np.concatenate([head_motion, np.zeros((len(neck_uv), len(node_uv)))]),
+        interpolation=np.concatenate([head_motion, _skull_motion(neck_xyz, reference_mm)]),
     )
     for array in (surface.uv, surface.rest_vertices, surface.triangles, surface.interpolation):
         array.setflags(write=False)

@@ -370,7 +370,7 @@ class _Canvas:
         """Beard stubble (dense dark dots) on chin, jaw and upper lip, if the subject has any."""
         if appearance.stubble <= 0.0:
             return
-        inside = outline_radius(np.stack([self.u, self.v], axis=-1)) < 0.9
+        inside = outline_radius(np.stack([self.u, self.v], axis=-1)) < 0.8
         lower = np.clip((self.v - 55.0) / 10.0, 0.0, 1.0) * inside * (np.abs(self.u) < 62)
         region = np.clip(lower + self.bump(0.0, 57.0, 16.0, 2.5), 0.0, 1.0)
         region = cv2.GaussianBlur(region.astype(np.float32), (0, 0), 3.0 / ATLAS_MM_PER_PX)

@@ -131,10 +131,10 @@ def test_truth_restricts_to_the_19_node_mesh():
     population = FacePopulation('realistic')
     truth = population.truth(19)
     assert truth.node_names == mesh_topology(19).node_names
-    assert truth.identity_basis.shape == (57, 12) and truth.expression_basis.shape == (57, 6)
+    assert truth.identity_basis.shape == (57, 13) and truth.expression_basis.shape == (57, 6)
     np.testing.assert_array_equal(truth.mean_shape, population.mean_shape[:57])
     axes, variances = truth.identity_principal_axes()
-    np.testing.assert_allclose(axes.T @ axes, np.eye(12), atol=1e-12)
+    np.testing.assert_allclose(axes.T @ axes, np.eye(13), atol=1e-12)
     covariance = truth.identity_basis @ np.diag(truth.identity_variances) @ truth.identity_basis.T
     np.testing.assert_allclose(axes @ np.diag(variances) @ axes.T, covariance, atol=1e-15)
 
