@@ -53,9 +53,9 @@ class RegularisationConfig:
             and beta_ij, delta_ij (the softer of the two nodes' groups).
     """
 
-    rho: float = 2e7
-    beta: float = 2e8
-    delta: float = 2e8
+    rho: float = 1e6
+    beta: float = 2e7
+    delta: float = 2e7
     group_stiffness: Mapping[Group, float] = field(
         default_factory=lambda: dict(DEFAULT_GROUP_STIFFNESS)
     )
