@@ -22,7 +22,15 @@ import sys
 from face_tracking_ros.errors import FaceTrackingError
 
 # Module names under face_tracking_ros.cli, one per subcommand, in help order.
-SUBCOMMANDS: tuple[str, ...] = ('msgs', 'track', 'replay', 'plot', 'overlay', 'train_expressions')
+SUBCOMMANDS: tuple[str, ...] = (
+    'msgs',
+    'synth',
+    'track',
+    'replay',
+    'plot',
+    'overlay',
+    'train_expressions',
+)
 
 EXIT_ERROR = 2
 
