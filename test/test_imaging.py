@@ -8,6 +8,8 @@ import pytest
 from face_tracking_ros.errors import InputError
 from face_tracking_ros.imaging import (
     ImagePyramid,
+    PhotometricModel,
+    PhotometricProjection,
     inside_image,
     sample_patches,
     sample_points,
@@ -157,3 +159,38 @@ def test_inside_image() -> None:
     points = np.array([[0.0, 0.0], [9.0, 4.0], [9.5, 4.0], [2.0, 2.0], [-0.1, 3.0]])
     assert inside_image(points, (5, 10)).tolist() == [True, True, False, True, False]
     assert inside_image(points, (5, 10), margin=2.0).tolist() == [False, False, False, True, False]
+
+
+@pytest.mark.parametrize('model', list(PhotometricModel))
+def test_photometric_projection_removes_exactly_its_brightness_changes(model) -> None:
+    rng = np.random.default_rng(4)
+    coordinates = square_offsets(3)
+    u, v = coordinates[:, 0], coordinates[:, 1]
+    template = rng.uniform(20, 230, (5, len(coordinates)))
+    projection = PhotometricProjection.of(template, model, coordinates)
+    changes = {
+        PhotometricModel.BIAS: 12.0 + 0 * template,
+        PhotometricModel.GAIN_BIAS: 0.3 * template - 7.0,
+        PhotometricModel.GAIN_FIELD: (0.2 + 0.01 * u - 0.02 * v) * template + 3 + 0.5 * v,
+    }
+    for removed, change in changes.items():
+        remaining = np.abs(projection.apply(change)).max() / np.abs(change).max()
+        assert (remaining < 1e-6) == (model >= removed), (model, removed, remaining)
+    # Idempotent, and (N, M, J) Jacobian-like arrays are projected column by column.
+    values = rng.normal(size=template.shape)
+    once = projection.apply(values)
+    assert np.allclose(projection.apply(once), once)
+    stacked = projection.apply(np.stack([values, 2 * values], axis=-1))
+    assert np.allclose(stacked[..., 1], 2 * once)
+
+
+def test_photometric_projection_of_a_flat_template_keeps_the_bias_only() -> None:
+    coordinates = square_offsets(2)
+    template = np.full((2, len(coordinates)), 80.0)
+    projection = PhotometricProjection.of(template, PhotometricModel.GAIN_FIELD, coordinates)
+    values = np.random.default_rng(5).normal(size=template.shape)
+    projected = projection.apply(values)
+    assert np.all(np.isfinite(projected))
+    assert np.allclose(projected.mean(axis=1), 0.0)
+    u = coordinates[:, 0]
+    assert np.abs(projection.apply(np.broadcast_to(u, template.shape).copy())).max() < 1e-9

@@ -1,10 +1,12 @@
 """Image helpers shared by the monocular and stereo trackers.
 
-Grey conversion (:mod:`.gray`), float32 Gaussian pyramids (:mod:`.pyramid`) and sub-pixel sampling
-of patches with their image gradients through one ``cv2.remap`` call (:mod:`.sampling`).
+Grey conversion (:mod:`.gray`), float32 Gaussian pyramids (:mod:`.pyramid`), sub-pixel sampling
+of patches with their image gradients through one ``cv2.remap`` call (:mod:`.sampling`) and
+patch residuals invariant to brightness changes (:mod:`.photometric`).
 """
 
 from face_tracking_ros.imaging.gray import SUPPORTED_ENCODINGS, to_gray
+from face_tracking_ros.imaging.photometric import PhotometricModel, PhotometricProjection
 from face_tracking_ros.imaging.pyramid import ImagePyramid
 from face_tracking_ros.imaging.sampling import (
     inside_image,
@@ -17,6 +19,8 @@ from face_tracking_ros.imaging.sampling import (
 __all__ = [
     'SUPPORTED_ENCODINGS',
     'ImagePyramid',
+    'PhotometricModel',
+    'PhotometricProjection',
     'inside_image',
     'sample_patches',
     'sample_points',

@@ -15,6 +15,8 @@ import numpy as np
 from face_tracking_ros.errors import InputError
 
 MIN_LEVEL_SIZE = 8
+# The 5-tap binomial kernel cv2.pyrDown smooths with before it drops every other pixel.
+_BINOMIAL = np.array([1.0, 4.0, 6.0, 4.0, 1.0], dtype=np.float32) / 16.0
 
 
 @dataclass(frozen=True)
@@ -29,12 +31,16 @@ class ImagePyramid:
     levels: tuple[np.ndarray, ...]
 
     @classmethod
-    def build(cls, gray: np.ndarray, num_levels: int) -> ImagePyramid:
+    def build(cls, gray: np.ndarray, num_levels: int, smooth_base: bool = False) -> ImagePyramid:
         """Build a pyramid of ``num_levels`` levels.
 
         Args:
             gray: (H, W) uint8 or float grey image.
             num_levels: number of levels, >= 1.
+            smooth_base: smooth level 0 with pyrDown's binomial kernel (sigma ~ 1 px). Bilinear
+                sampling of a sharp image is biased towards whole-pixel positions; smoothing
+                removes most of that bias at the cost of one filter pass. Level 1 is then level 0
+                decimated, identical to ``pyrDown`` of the unsmoothed image.
 
         Raises:
             InputError: if the image is not 2-D, not finite, or too small for the levels asked
@@ -52,7 +58,13 @@ class ImagePyramid:
             msg = 'pyramid input holds NaN or Inf'
             raise InputError(msg)
         levels = [base]
-        for _ in range(1, num_levels):
+        if smooth_base:
+            levels[0] = cv2.sepFilter2D(
+                base, -1, _BINOMIAL, _BINOMIAL, borderType=cv2.BORDER_REFLECT_101
+            )
+            if num_levels > 1:
+                levels.append(np.ascontiguousarray(levels[0][::2, ::2]))
+        while len(levels) < num_levels:
             levels.append(cv2.pyrDown(levels[-1]))
         return cls(levels=tuple(levels))
 

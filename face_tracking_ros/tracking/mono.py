@@ -40,6 +40,8 @@ from face_tracking_ros.geometry.camera import PinholeCamera
 from face_tracking_ros.geometry.rotation import rodrigues
 from face_tracking_ros.imaging import (
     ImagePyramid,
+    PhotometricModel,
+    PhotometricProjection,
     inside_image,
     sample_points,
     sample_with_gradient,
@@ -74,17 +76,27 @@ class MonoTrackerConfig:
     Attributes:
         epsilon: drift-monitoring weight epsilon of eq. 6, in [0, 1] (seed: 0.2).
         pyramid_levels: number of Gaussian pyramid levels, coarse to fine (>= 1).
+        smooth_base: smooth the full-resolution level (sigma ~ 1 px) against the bias of bilinear
+            sampling towards whole pixels (see :meth:`ImagePyramid.build`).
         max_iterations: Levenberg-Marquardt iterations per pyramid level (>= 1).
         patch_half_size: h; each node's ROI has (2 h + 1)^2 samples (>= 1).
         patch_spacing_px: ROI sample spacing at level 0 and the initial depth, px (> 0); the ROI
             is a 3-D patch, so its image size follows the face's distance and orientation.
         edge_patch_shift: face-edge nodes' ROIs are shifted inwards by this fraction of h, so
             they hold face texture rather than background (in [0, 1]).
+        photometric: brightness change of each ROI that eq. 6's residuals ignore: GAIN_FIELD
+            (gain and bias varying linearly across the ROI: shading of a turning head, light
+            and exposure changes), GAIN_BIAS, BIAS or NONE (the seed).
         huber_k: Huber threshold of the IRLS weights, in robust standard deviations (> 0).
         residual_scale_floor: smallest robust residual scale s, grey levels (> 0).
         prior_weight: lambda of the alpha prior ``lambda alpha' Sigma_alpha^-1 alpha`` (and of
             the sigma prior while sigma is estimated), in units of squared residuals / s^2
             (>= 0; 0 switches the prior off).
+        max_keyframes: most keyframes kept (>= 1). Eq. 6's drift term compares I_n with I_1; with
+            more than one, it compares with the keyframe whose pose is nearest the current one,
+            so templates are never seen from far off their own viewpoint (1: the seed's I_1).
+        keyframe_spacing: a successful frame becomes a keyframe when its rotation differs from
+            every keyframe's by more than this, rad (> 0).
         sigma_frames: frames after an initialisation during which sigma is estimated with the
             pose, then held fixed (>= 0; 0 keeps the sigma of the initial fit or enrolment).
         damping: initial Levenberg-Marquardt damping, relative to diag(H) (> 0).
@@ -92,9 +104,11 @@ class MonoTrackerConfig:
         visibility_cos: a node's weight ramps from 0 to 1 as the cosine between its outward
             normal and the ray to the camera goes from this value to twice it (in [0, 0.5)).
         lost_residual_ratio: a node fails when its RMS residual exceeds this multiple of its
-            template's standard deviation (> 0).
+            patch's standard deviation in the image, i.e. when about sqrt(1 - NCC^2) exceeds it
+            (> 0).
         lost_node_fraction: LOST when more than this fraction of visible nodes fail (in (0, 1]).
         min_visible_fraction: LOST when fewer nodes are visible and inside the image (in [0, 1]).
+        max_rotation_step: LOST when the rotation changes more than this in one frame, rad (> 0).
         max_condition: LOST when the Jacobi-scaled normal matrix has a larger condition number
             (> 1).
         fit: the model fit to initialisation points (:class:`FitConfig`).
@@ -102,20 +116,25 @@ class MonoTrackerConfig:
 
     epsilon: float = 0.2
     pyramid_levels: int = 3
+    smooth_base: bool = True
     max_iterations: int = 6
     patch_half_size: int = 4
     patch_spacing_px: float = 1.5
-    edge_patch_shift: float = 0.5
+    edge_patch_shift: float = 1.0
+    photometric: PhotometricModel = PhotometricModel.GAIN_FIELD
     huber_k: float = 2.0
     residual_scale_floor: float = 2.0
     prior_weight: float = 1.0
+    max_keyframes: int = 1
+    keyframe_spacing: float = 0.14
     sigma_frames: int = 0
     damping: float = 1e-4
     convergence_px: float = 0.01
     visibility_cos: float = 0.1
-    lost_residual_ratio: float = 1.0
+    lost_residual_ratio: float = 0.8
     lost_node_fraction: float = 0.5
     min_visible_fraction: float = 0.5
+    max_rotation_step: float = 0.35
     max_condition: float = 1e10
     fit: FitConfig = field(default_factory=FitConfig)
 
@@ -131,6 +150,8 @@ class MonoTrackerConfig:
             'huber_k': self.huber_k > 0,
             'residual_scale_floor': self.residual_scale_floor > 0,
             'prior_weight': self.prior_weight >= 0,
+            'max_keyframes': self.max_keyframes >= 1,
+            'keyframe_spacing': self.keyframe_spacing > 0,
             'sigma_frames': self.sigma_frames >= 0,
             'damping': self.damping > 0,
             'convergence_px': self.convergence_px > 0,
@@ -138,6 +159,7 @@ class MonoTrackerConfig:
             'lost_residual_ratio': self.lost_residual_ratio > 0,
             'lost_node_fraction': 0.0 < self.lost_node_fraction <= 1.0,
             'min_visible_fraction': 0.0 <= self.min_visible_fraction <= 1.0,
+            'max_rotation_step': self.max_rotation_step > 0,
             'max_condition': self.max_condition > 1,
         }
         for name, ok in checks.items():
@@ -201,13 +223,20 @@ class _Templates(NamedTuple):
     inside: np.ndarray
 
 
+class _Keyframe(NamedTuple):
+    """Templates sampled at a keyframe and the rotation R(omega) they were sampled at."""
+
+    rotation: np.ndarray
+    templates: _Templates
+
+
 @dataclass
 class _Track:
-    """State of a running track."""
+    """State of a running track; ``keyframes[0]`` holds frame 1 (the seed's I_1)."""
 
     offsets: tuple[np.ndarray, ...]
     normals: np.ndarray
-    first: _Templates
+    keyframes: list[_Keyframe]
     previous: _Templates
     start: _Params
     current: _Params
@@ -327,7 +356,7 @@ class MonoTracker:
         self._track = _Track(
             offsets=offsets,
             normals=normals,
-            first=templates,
+            keyframes=[_Keyframe(rodrigues(params.omega)[0], templates)],
             previous=templates,
             start=params,
             current=params,
@@ -346,32 +375,32 @@ class MonoTracker:
     ) -> tuple[tuple[np.ndarray, ...], np.ndarray]:
         """Per-level (N, M, 3) face-frame ROI offsets and the (N, 3) node normals.
 
-        The ROI grid lies in each node's tangent plane with the spacing that gives
-        ``patch_spacing_px`` at the initial depth, doubled on every coarser level; face-edge
-        nodes' grids are shifted towards the face centre.
+        Each ROI is a square grid in the face frame's x-y directions lifted onto the thin-plate
+        surface through the nodes, with the spacing that gives ``patch_spacing_px`` at the
+        initial depth, doubled on every coarser level; face-edge nodes' grids are shifted towards
+        the face centre so they cover skin rather than the background beyond the face edge.
         """
         config = self._config
         shape = self._model.identity_shape(params.sigma)
-        frames = node_frames(shape, self._triangles)
-        inward = np.einsum(
-            'eka,ea->ek',
-            frames[self._edge_nodes, :2],
-            shape.mean(axis=0) - shape[self._edge_nodes],
-        )
+        inward = shape[:, :2].mean(axis=0) - shape[self._edge_nodes, :2]
         inward /= np.linalg.norm(inward, axis=1, keepdims=True)
         grid = np.repeat(self._grid[None], len(shape), axis=0)
         grid[self._edge_nodes] += inward[:, None, :] * (
             config.edge_patch_shift * config.patch_half_size
         )
         spacing = config.patch_spacing_px * params.t[2] / self._camera.focal
-        base = surface_patch_offsets(frames, grid * spacing)
-        return tuple(base * float(1 << level) for level in range(num_levels)), frames[:, 2]
+        offsets = tuple(
+            surface_patch_offsets(shape, grid * (spacing * (1 << level)))
+            for level in range(num_levels)
+        )
+        return offsets, node_frames(shape, self._triangles)[:, 2]
 
     def _reacquire(self, pyramid: ImagePyramid) -> TrackResult:
-        """While LOST: solve against the frame-1 templates from candidate starts.
+        """While LOST: solve against keyframe templates alone from candidate starts.
 
         Candidates are a fresh detection (if a detector was given), the last valid estimate and
-        the initial fit; the first that passes the loss checks resumes the track.
+        the initial fit, each compared with its nearest keyframe; the first that passes the loss
+        checks resumes the track.
         """
         track = self._track
         detected = self._detect(pyramid)
@@ -379,8 +408,9 @@ class MonoTracker:
         candidates += [_params_of(track.last_good), track.start]
         reason = 'lost'
         for start in (c for c in candidates if c is not None):
-            weights = track.first.visibility * self._visibility(start, track.normals)
-            result, templates = self._solve_frame(pyramid, start, track.first.levels, weights)
+            keyframe = self._nearest_keyframe(start.omega).templates
+            weights = keyframe.visibility * self._visibility(start, track.normals)
+            result, templates = self._solve_frame(pyramid, start, keyframe.levels, weights)
             if result.ok:
                 self._accept(result, templates)
                 return result
@@ -400,10 +430,11 @@ class MonoTracker:
     def _follow(self, pyramid: ImagePyramid) -> TrackResult:
         """Track one frame (eq. 6) from the previous estimate."""
         track = self._track
-        epsilon = self._config.epsilon * track.first.visibility[:, None]
+        keyframe = self._nearest_keyframe(track.current.omega).templates
+        epsilon = self._config.epsilon * keyframe.visibility[:, None]
         blended = tuple(
-            prev + epsilon * (first - prev)
-            for prev, first in zip(track.previous.levels, track.first.levels, strict=True)
+            prev + epsilon * (key - prev)
+            for prev, key in zip(track.previous.levels, keyframe.levels, strict=True)
         )
         weights = np.minimum(
             track.previous.visibility, self._visibility(track.current, track.normals)
@@ -415,9 +446,24 @@ class MonoTracker:
         self._accept(result, templates)
         return result
 
+    def _nearest_keyframe(self, omega: np.ndarray) -> _Keyframe:
+        """The keyframe whose rotation is nearest R(omega)."""
+        return self._track.keyframes[int(np.argmax(self._keyframe_cosines(omega)))]
+
+    def _keyframe_cosines(self, omega: np.ndarray) -> np.ndarray:
+        """trace(R_k' R(omega)) of every keyframe k: larger means nearer (3 = same rotation)."""
+        rotation, _ = rodrigues(omega)
+        return np.array([np.sum(k.rotation * rotation) for k in self._track.keyframes])
+
     def _accept(self, result: TrackResult, templates: _Templates) -> None:
-        """Make a successful frame the previous frame of the next one."""
+        """Make a successful frame the previous frame of the next one, and maybe a keyframe."""
         track = self._track
+        config = self._config
+        if len(track.keyframes) < config.max_keyframes:
+            # trace(R) = 1 + 2 cos(angle)
+            nearest = np.max(self._keyframe_cosines(result.omega))
+            if nearest < 1.0 + 2.0 * np.cos(config.keyframe_spacing):
+                track.keyframes.append(_Keyframe(rodrigues(result.omega)[0], templates))
         track.current = _params_of(result)
         track.previous = templates
         track.last_good = result
@@ -442,7 +488,8 @@ class MonoTracker:
         solution = self._solve(pyramid, start, templates, node_weights, free_sigma)
         params = solution.params
         sampled = self._templates(pyramid, params, track.offsets, track.normals)
-        residuals = sampled.levels[0] - templates[0]
+        projection = PhotometricProjection.of(templates[0], self._config.photometric, self._grid)
+        residuals = projection.apply(sampled.levels[0] - templates[0])
         weights = node_weights[:, None] * sampled.inside
         cost = self._data_cost(residuals, weights, solution.scale) + self._prior_cost(
             params, free_sigma
@@ -450,9 +497,11 @@ class MonoTracker:
         if cost > solution.fallback_cost:  # the last, unchecked step made things worse
             params = solution.fallback
             sampled = self._templates(pyramid, params, track.offsets, track.normals)
-            residuals = sampled.levels[0] - templates[0]
+            residuals = projection.apply(sampled.levels[0] - templates[0])
         node_rms = np.sqrt(np.mean(residuals**2, axis=1))
-        reason = self._loss_reason(params, node_rms, templates[0], sampled.visibility, solution)
+        reason = self._loss_reason(
+            params, start, node_rms, sampled.levels[0], sampled.visibility, solution
+        )
         status = TrackStatus.LOST if reason else TrackStatus.TRACKING
         costs = (*solution.costs, min(cost, solution.fallback_cost))
         result = self._result(status, params, node_rms, solution.iterations, costs, reason)
@@ -472,12 +521,20 @@ class MonoTracker:
         params = start
         costs: list[float] = []
         for level in reversed(range(pyramid.num_levels)):
+            projection = PhotometricProjection.of(templates[level], config.photometric, self._grid)
             damping = config.damping
             accepted: tuple[_Params, _System] | None = None
             scale = None
             for _ in range(config.max_iterations):
                 system = self._linearise(
-                    pyramid, level, params, templates[level], node_weights, free_sigma, scale
+                    pyramid,
+                    level,
+                    params,
+                    templates[level],
+                    projection,
+                    node_weights,
+                    free_sigma,
+                    scale,
                 )
                 scale = system.scale
                 costs.append(system.cost)
@@ -508,6 +565,7 @@ class MonoTracker:
         level: int,
         params: _Params,
         template: np.ndarray,
+        projection: PhotometricProjection,
         node_weights: np.ndarray,
         free_sigma: bool,
         scale: float | None,
@@ -519,6 +577,7 @@ class MonoTracker:
             level: pyramid level.
             params: linearisation point.
             template: (N, M) blended template T of this level.
+            projection: the photometric invariance of the residuals for ``template``.
             node_weights: (N,) visibility weights.
             free_sigma: also differentiate with respect to sigma.
             scale: the robust residual scale s, or None to estimate it from these residuals.
@@ -532,7 +591,7 @@ class MonoTracker:
         pixels = self._camera.project(points_cam.reshape(-1, 3)).reshape(*points.shape[:2], 2)
         image = pyramid.levels[level]
         values, gradient = sample_with_gradient(image, pixels * level_scale)
-        residuals = values - template
+        residuals = projection.apply(values - template)
         weights = node_weights[:, None] * inside_image(pixels * level_scale, image.shape, 1.0)
         if scale is None:
             active = np.abs(residuals[weights > 0])
@@ -540,7 +599,8 @@ class MonoTracker:
             scale = max(self._config.residual_scale_floor, spread)
         jacobian = photometric_jacobian(
             self._camera, params.omega, points, points_cam, gradient * level_scale, basis
-        ).reshape(residuals.size, -1)
+        )
+        jacobian = projection.apply(jacobian).reshape(residuals.size, -1)
         node_jacobian = project_with_jacobian(
             self._camera, params.omega, params.t, shape, basis
         ).jacobian
@@ -595,16 +655,29 @@ class MonoTracker:
     def _loss_reason(
         self,
         params: _Params,
+        start: _Params,
         node_rms: np.ndarray,
-        template: np.ndarray,
+        samples: np.ndarray,
         visibility: np.ndarray,
         solution: _Solution,
     ) -> str:
-        """Why this estimate is not a valid track ('' if it is)."""
+        """Why this estimate is not a valid track ('' if it is).
+
+        Args:
+            params: the solution.
+            start: where the solver started (the previous frame's estimate).
+            node_rms: (N,) RMS of each node's (photometrically projected) residual.
+            samples: (N, M) level-0 samples of the image at the solution.
+            visibility: (N,) node visibility at the solution.
+            solution: the solver's outcome.
+        """
         config = self._config
         values = np.concatenate([params.omega, params.t, params.alpha, params.sigma])
         if not np.all(np.isfinite(values)) or params.t[2] < _MIN_DEPTH:
             return 'the solver diverged'
+        turn = _rotation_angle(start.omega, params.omega)
+        if turn > config.max_rotation_step:
+            return f'implausible motion ({np.degrees(turn):.0f} degrees in one frame)'
         if solution.condition > config.max_condition:
             return f'ill-conditioned solve (condition {solution.condition:.1e})'
         pixels = self._project_nodes(params)[1]
@@ -613,7 +686,9 @@ class MonoTracker:
         )
         if visible.mean() < config.min_visible_fraction:
             return f'only {visible.sum()} of {len(visible)} nodes visible in the image'
-        texture = np.maximum(template.std(axis=1), config.residual_scale_floor)
+        # The residual left after the brightness change is projected out, relative to the
+        # patch's own contrast: about sqrt(1 - NCC^2), near 1 for a patch that does not match.
+        texture = np.maximum(samples.std(axis=1), config.residual_scale_floor)
         failing = (node_rms > config.lost_residual_ratio * texture) & visible
         if failing.sum() > config.lost_node_fraction * visible.sum():
             return f'{failing.sum()} of {visible.sum()} visible nodes do not match their templates'
@@ -697,12 +772,18 @@ class MonoTracker:
         if image.shape != expected:
             msg = f'image has shape {image.shape}; the camera expects a grey {expected} image'
             raise InputError(msg)
-        return ImagePyramid.build(image, self._config.pyramid_levels)
+        return ImagePyramid.build(image, self._config.pyramid_levels, self._config.smooth_base)
 
 
 def _params_of(result: TrackResult) -> _Params:
     """The parameters of a result."""
     return _Params(result.omega, result.t, result.alpha, result.sigma)
+
+
+def _rotation_angle(omega_a: np.ndarray, omega_b: np.ndarray) -> float:
+    """Angle of the rotation between R(omega_a) and R(omega_b), rad."""
+    relative = rodrigues(omega_a)[0].T @ rodrigues(omega_b)[0]
+    return float(np.arccos(np.clip(0.5 * (np.trace(relative) - 1.0), -1.0, 1.0)))
 
 
 def _huber_weights(normalised: np.ndarray, k: float) -> np.ndarray:

@@ -82,11 +82,18 @@ def test_node_frames_reject_an_isolated_node() -> None:
         )
 
 
-def test_surface_patch_offsets_lie_in_the_tangent_planes() -> None:
+def test_surface_patch_offsets_lie_on_the_thin_plate_surface() -> None:
     topology = mesh_topology(34)
-    frames = node_frames(topology.reference_shape, topology.triangles)
-    grid = np.array([[0.0, 0.0], [0.002, 0.0], [0.0, 0.003]])
-    offsets = surface_patch_offsets(frames, grid)
+    shape = topology.reference_shape
+    right_eye, nose_tip = topology.index('right_eye'), topology.index('nose_tip')
+    to_nose = shape[nose_tip, :2] - shape[right_eye, :2]
+    grid = np.array([[0.0, 0.0], [0.002, 0.001], to_nose])
+    offsets = surface_patch_offsets(shape, grid)
     assert offsets.shape == (34, 3, 3)
-    assert np.allclose(np.einsum('nma,na->nm', offsets, frames[:, 2]), 0.0, atol=1e-15)
-    assert np.allclose(np.linalg.norm(offsets, axis=2), [0.0, 0.002, 0.003])
+    assert np.allclose(offsets[..., :2], np.broadcast_to(grid, (34, 3, 2)), atol=1e-15)
+    assert np.abs(offsets[:, 0]).max() < 1e-12  # the node itself
+    # The surface interpolates the nodes: from the right eye, the nose tip's (x, y) lands on it.
+    assert np.allclose(shape[right_eye] + offsets[right_eye, 2], shape[nose_tip], atol=1e-9)
+    # A flat mesh gives a flat surface.
+    flat = surface_patch_offsets(shape * [1, 1, 0], grid)
+    assert np.abs(flat[..., 2]).max() < 1e-12
