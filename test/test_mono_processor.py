@@ -116,10 +116,14 @@ def test_overlay_only_while_wanted(scene):
     assert (overlay.encoding, overlay.width, overlay.height) == ('rgb8', 320, 240)
 
 
-def test_image_before_camera_info_is_refused(scene):
+def test_image_before_camera_info_is_held_until_it_comes(scene):
     model, frames, nodes = scene
-    with pytest.raises(InputError, match='no calibration received on camera_info'):
-        _processor(model, nodes[0]).handle('image', _image(frames[0], 0), frozenset())
+    processor = _processor(model, nodes[0])
+    with pytest.raises(InputError, match='no calibration on camera_info yet: holding'):
+        processor.handle('image', _image(frames[0], 0), frozenset())
+    outputs = processor.handle('camera_info', _info(), frozenset())
+    assert conversions.stamp_to_ns(outputs[0].msg.header.stamp) == 0
+    assert outputs[0].msg.status == TrackStatus.TRACKING
 
 
 def test_image_of_another_size_than_camera_info_is_refused(scene):

@@ -4,7 +4,8 @@ Inputs: ``image`` (sensor_msgs/Image, or CompressedImage on ``image/compressed``
 ``camera_info`` and, optionally, a latched ``face/model``. Outputs, one each per image, stamped
 with the image's header: ``face/state``, ``face/pose``, ``face/action``, ``face/shape``,
 ``face/mesh_raw`` (FaceMesh), ``face/mesh`` (MarkerArray), and ``face/overlay`` while someone
-subscribes to it.
+subscribes to it. An image that arrives before the first camera_info is held (the latest one)
+and tracked as soon as the calibration arrives.
 """
 
 from __future__ import annotations
@@ -71,6 +72,7 @@ class MonoProcessor:
         self._initialisation = initialisation
         self._camera: PinholeCamera | None = None
         self._tracker: MonoTracker | None = None
+        self._held_image: tuple[Any, np.ndarray] | None = None
         image = (
             Port(COMPRESSED_IMAGE, 'sensor_msgs/msg/CompressedImage', QosClass.SENSOR)
             if (config.compressed)
@@ -106,7 +108,7 @@ class MonoProcessor:
         """Process one message of an input port (see :class:`processing.base.Processor`)."""
         if topic == CAMERA_INFO:
             self._set_camera(conversions.camera_from_info(msg))
-            return []
+            return self._track_held_image(wanted)
         if topic == MODEL:
             self._model = conversions.model_from_msg(msg)
             self._rebuild()
@@ -116,7 +118,20 @@ class MonoProcessor:
             if topic == COMPRESSED_IMAGE
             else conversions.image_to_gray(msg)
         )
+        if self._camera is None:
+            self._held_image = (msg.header, gray)
+            msg_text = (
+                f'no calibration on {CAMERA_INFO} yet: holding the latest image until it comes'
+            )
+            raise InputError(msg_text)
         return self._track(msg.header, gray, wanted)
+
+    def _track_held_image(self, wanted: frozenset[str]) -> list[Output]:
+        """Track the image that arrived before the first camera_info, once it has arrived."""
+        if self._held_image is None or self._tracker is None:
+            return []
+        (header, gray), self._held_image = self._held_image, None
+        return self._track(header, gray, wanted)
 
     def _set_camera(self, camera: PinholeCamera) -> None:
         """Keep the camera; rebuild the tracker only when the calibration changed."""
@@ -130,9 +145,6 @@ class MonoProcessor:
             self._tracker.reset(self._initialisation)
 
     def _track(self, header: Any, gray: np.ndarray, wanted: frozenset[str]) -> list[Output]:
-        if self._camera is None:
-            msg = f'no calibration received on {CAMERA_INFO} yet; waiting (image dropped)'
-            raise InputError(msg)
         if self._tracker is None:
             msg = f'no face model yet: set the model_file parameter or publish one on {MODEL}'
             raise InputError(msg)

@@ -74,6 +74,7 @@ class StereoProcessor:
             LEFT_IMAGE: OrderedDict(),
             RIGHT_IMAGE: OrderedDict(),
         }
+        self._held_pair: tuple[Any, Any] | None = None
         self.unpaired = 0
         self.inputs = (
             Port(LEFT_IMAGE, 'sensor_msgs/msg/Image', QosClass.SENSOR),
@@ -109,13 +110,26 @@ class StereoProcessor:
         """Process one message of an input port (see :class:`processing.base.Processor`)."""
         if topic in (LEFT_INFO, RIGHT_INFO):
             self._set_camera(topic, conversions.camera_from_info(msg))
-            return []
+            return self._track_held_pair()
         if topic == MODEL:
             self._model = conversions.model_from_msg(msg)
             self._rebuild()
             return []
         pair = self._pair(topic, msg)
+        if pair is not None and self._tracker is None:
+            self._held_pair = pair
+            msg_text = (
+                f'no calibration on {LEFT_INFO} and {RIGHT_INFO} yet: holding the latest pair'
+            )
+            raise InputError(msg_text)
         return [] if pair is None else self._track(*pair)
+
+    def _track_held_pair(self) -> list[Output]:
+        """Track the pair that arrived before its calibration, once the calibration is there."""
+        if self._held_pair is None or self._tracker is None:
+            return []
+        pair, self._held_pair = self._held_pair, None
+        return self._track(*pair)
 
     def _set_camera(self, topic: str, camera: PinholeCamera) -> None:
         old = self._cameras.get(topic)
@@ -151,9 +165,6 @@ class StereoProcessor:
         return None
 
     def _track(self, left_msg: Any, right_msg: Any) -> list[Output]:
-        if len(self._cameras) < 2 or self._tracker is None:
-            msg = f'no calibration on {LEFT_INFO} and {RIGHT_INFO} yet; waiting (pair dropped)'
-            raise InputError(msg)
         if self._initialisation is None:
             msg = 'not initialised: set init_file or call reset_tracking with node positions'
             raise InputError(msg)
