@@ -30,7 +30,7 @@ from face_tracking_ros.tracking.stereo_init import (
 
 RIG = StereoRig.ideal()
 # A plane is no face: accept any depth difference from the reference face at initialisation.
-PLANE_INIT = StereoInitConfig(max_face_error=0.2)
+PLANE_INIT = StereoInitConfig(max_face_error=0.2, max_boundary_error=0.2)
 TEXEL = 0.0005  # m per texel
 
 
@@ -88,7 +88,8 @@ def _rms_mm(nodes: np.ndarray, truth: np.ndarray) -> float:
 def test_epipolar_match_and_initial_nodes_are_sub_pixel() -> None:
     left, right = PLANE.pair()
     truth = PLANE.nodes()
-    right_px, scores = epipolar_match(RIG, left, right, RIG.left.project(truth), PLANE_INIT)
+    depths = (np.full(34, 0.3), np.full(34, 1.5))
+    right_px, scores = epipolar_match(RIG, left, right, RIG.left.project(truth), depths, 7)
     assert scores.min() > 0.9
     assert np.abs(right_px - RIG.right.project(truth)).max() < 0.3
     # Half the nodes given: the rest come from the reference face, then depth refinement.
@@ -98,7 +99,7 @@ def test_epipolar_match_and_initial_nodes_are_sub_pixel() -> None:
     given = np.isfinite(left_px[:, 0])
     assert np.linalg.norm(nodes[given] - truth[given], axis=1).max() < 0.0005
     # The missing nodes lie on the plane at the reference face's (x, y) but its depth relief.
-    assert np.linalg.norm(nodes[~given] - truth[~given], axis=1).max() < 0.04
+    assert np.linalg.norm(nodes[~given] - truth[~given], axis=1).max() < 0.06
 
 
 def test_image_normal_equations_gradient_matches_finite_differences() -> None:
@@ -111,7 +112,10 @@ def test_image_normal_equations_gradient_matches_finite_differences() -> None:
 
     left, right = wave(0.0), wave(0.4)
     truth = PLANE.nodes()
-    layout = SampleLayout.node_patches(truth, mesh_topology(34).triangles, truth[:, 2] / 600, 3)
+    one_sided = np.zeros(34, dtype=bool)
+    one_sided[::3] = True
+    layout = SampleLayout.node_patches(truth, truth[:, 2] / 600, 3, one_sided)
+    assert layout.mask[~one_sided].all() and 0.4 < layout.mask[one_sided].mean() < 0.7
     rotation = np.eye(3)
     template = sample_templates(left, RIG.left, layout.points(truth, rotation, 0), 0)[None]
     moved = truth + np.random.default_rng(0).normal(0, 0.0003, truth.shape)

@@ -57,6 +57,8 @@ class StereoTrackerConfig:
     Attributes:
         num_nodes: mesh size, 19 or 34.
         gamma: weight of the cross-camera terms of eq. 4, in [0, 1].
+        boundary_gamma: gamma of the face-boundary nodes, in [0, 1]: their left and right
+            views show different skin (the face turns away from the cameras there), §4.2.
         epsilon: share of the frame-1 (drift) terms in every image term, in [0, 1).
         texture_weight: weight of a face-texture sample relative to a node-patch sample (§4.2);
             0 disables the texture term.
@@ -76,6 +78,7 @@ class StereoTrackerConfig:
 
     num_nodes: int = 34
     gamma: float = 0.5
+    boundary_gamma: float = 0.0
     epsilon: float = 0.2
     texture_weight: float = 0.5
     texture_subdivisions: int = 6
@@ -99,6 +102,7 @@ class StereoTrackerConfig:
         mesh_topology(self.num_nodes)
         checks = (
             ('gamma', 0.0 <= self.gamma <= 1.0),
+            ('boundary_gamma', 0.0 <= self.boundary_gamma <= 1.0),
             ('epsilon', 0.0 <= self.epsilon < 1.0),
             ('texture_weight', self.texture_weight >= 0.0),
             ('texture_subdivisions', self.texture_subdivisions >= 3),
@@ -241,6 +245,7 @@ class StereoTracker:
         self._model = model
         self._topology: MeshTopology = mesh_topology(config.num_nodes)
         self._texture_triangles = _texture_triangles(self._topology)
+        self._boundary = self._topology.group_mask(Group.EDGE)
         self._pending: np.ndarray | None = None
         self._state: _State | None = None
         self._status = TrackStatus.INITIALIZING
@@ -351,7 +356,10 @@ class StereoTracker:
         config = self._config
         spacing = nodes[:, 2] / self._rig.left.focal
         patches = SampleLayout.node_patches(
-            nodes, self._topology.triangles, spacing, config.patch_half_size
+            nodes,
+            spacing,
+            config.patch_half_size,
+            self._boundary,
         )
         layouts = [patches]
         if config.texture_weight > 0:
@@ -515,7 +523,8 @@ class StereoTracker:
                 templates.first[camera],
                 templates.first[other],
             )
-            same, cross = 1.0 - config.gamma, config.gamma
+            cross = np.where(self._boundary, config.boundary_gamma, config.gamma)
+            same = 1.0 - cross
             coefficients = (
                 keep * same,
                 keep * cross,

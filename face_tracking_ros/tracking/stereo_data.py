@@ -5,9 +5,10 @@ barycentric weights b and an offset o, projected into a camera by eq. 2. A
 :class:`SampleLayout` holds G groups of M such samples:
 
 - node patches (the ROI of eq. 4): group i is node i alone (b = (1, 0, 0)) with offsets on a
-  small square grid in the node's tangent plane, so the patch is seen with the right perspective
-  in both cameras (a fronto-parallel square would be compressed differently in the two views on
-  the sloping cheeks and temples, which biases the cross-camera terms);
+  small grid lying on the face surface around the node (the thin-plate surface through the
+  nodes), so the patch is seen with the right perspective in both cameras (a fronto-parallel
+  square would be compressed differently in the two views on the sloping cheeks and temples,
+  which biases the cross-camera terms);
 - face texture (the seed's §4.2 remedy): group t is triangle t of the mesh, its samples on a
   barycentric grid inside it (o = 0); a boundary node sliding along the face edge distorts the
   texture of every triangle it belongs to, which this term sees.
@@ -33,7 +34,7 @@ import numpy as np
 from face_tracking_ros.geometry.camera import PinholeCamera
 from face_tracking_ros.imaging import inside_image, sample_with_gradient, square_offsets
 from face_tracking_ros.tracking.block_assembly import scatter_blocks, scatter_vectors
-from face_tracking_ros.tracking.surface_patches import node_frames, surface_patch_offsets
+from face_tracking_ros.tracking.surface_patches import surface_patch_offsets
 
 
 @dataclass(frozen=True)
@@ -44,32 +45,49 @@ class SampleLayout:
         nodes: (G, 3) int node indices n_k of each group (repeated for a single-node group).
         bary: (M, 3) barycentric weights b_k of each sample, rows sum to 1.
         offsets: (G, M, 3) offsets o at pyramid level 0 in the frame-1 orientation, m.
+        mask: (G, M) bool, the samples in use.
     """
 
     nodes: np.ndarray
     bary: np.ndarray
     offsets: np.ndarray
+    mask: np.ndarray
 
     @classmethod
     def node_patches(
-        cls, nodes: np.ndarray, triangles: np.ndarray, spacing: np.ndarray, half_size: int
+        cls,
+        nodes: np.ndarray,
+        spacing: np.ndarray,
+        half_size: int,
+        one_sided: np.ndarray,
     ) -> SampleLayout:
-        """Square patches of (2 h + 1)^2 samples in each node's tangent plane (the ROI of eq. 4).
+        """Patches of (2 h + 1)^2 samples on the face surface around each node (ROI of eq. 4).
+
+        The samples lie on a square grid in camera x and y about the node, lifted onto the
+        thin-plate surface through the nodes (:func:`.surface_patches.surface_patch_offsets`).
+
+        A node on the face boundary sees the face on one side only; beyond it lie the neck,
+        the ears or the background at other depths, which move differently in the two cameras
+        and over time. Its patch keeps only the samples on the face side: those whose offset
+        points towards the centroid of the mesh (§4.2).
 
         Args:
             nodes: (N, 3) nodes in the left camera frame, m.
-            triangles: (T, 3) the mesh triangles (they give the tangent planes).
             spacing: (N,) sample spacing at level 0, m (about one pixel: depth / focal).
             half_size: h, samples each side of the node.
+            one_sided: (N,) bool, the boundary nodes whose patch keeps the face side only.
         """
-        frames = node_frames(nodes, triangles)
         grid = spacing[:, None, None] * square_offsets(half_size).astype(float)[None]
+        offsets = surface_patch_offsets(nodes, grid)
+        inward = nodes.mean(axis=0) - nodes
+        facing = np.einsum('nmd,nd->nm', offsets, inward) >= 0.0
         bary = np.zeros((grid.shape[1], 3))
         bary[:, 0] = 1.0
         return cls(
             nodes=np.repeat(np.arange(nodes.shape[0])[:, None], 3, axis=1),
             bary=bary,
-            offsets=surface_patch_offsets(frames, grid),
+            offsets=offsets,
+            mask=facing | ~np.asarray(one_sided, dtype=bool)[:, None],
         )
 
     @classmethod
@@ -85,8 +103,12 @@ class SampleLayout:
         first, second = i[keep].astype(float), j[keep].astype(float)
         bary = np.stack([first, second, subdivisions - first - second], axis=1) / subdivisions
         triangles = np.asarray(triangles, dtype=np.int64)
+        shape = (triangles.shape[0], bary.shape[0])
         return cls(
-            nodes=triangles, bary=bary, offsets=np.zeros((triangles.shape[0], bary.shape[0], 3))
+            nodes=triangles,
+            bary=bary,
+            offsets=np.zeros((*shape, 3)),
+            mask=np.ones(shape, dtype=bool),
         )
 
     def points(self, nodes: np.ndarray, rotation: np.ndarray, level: int) -> np.ndarray:
@@ -159,7 +181,7 @@ def image_normal_equations(
         points: (G, M, 3) current sample points (:meth:`SampleLayout.points`), m.
         level: pyramid level.
         templates: (K, G, M) template grey levels T_k.
-        coefficients: (K,) a_k >= 0.
+        coefficients: (K,) a_k >= 0, or (K, G) for a coefficient per group.
         huber: Huber threshold, grey levels.
         num_nodes: N.
 
@@ -171,9 +193,8 @@ def image_normal_equations(
     pixels, projection_jacobian = camera.project_with_jacobian(points.reshape(-1, 3))
     pixels = pixels * scale
     values, gradient = sample_with_gradient(image, pixels)
-    valid = (inside_image(pixels, image.shape, margin=1.0) & (points[..., 2].ravel() > 0)).reshape(
-        groups, samples
-    )
+    valid = inside_image(pixels, image.shape, margin=1.0) & (points[..., 2].ravel() > 0)
+    valid = valid.reshape(groups, samples) & layout.mask
     counts = valid.sum(axis=1)
     # d I / d P per sample (G, M, 3), then per node slot (G, M, 3 slots * 3).
     row = np.einsum('sa,sai->si', gradient, projection_jacobian).reshape(groups, samples, 3)
@@ -188,11 +209,12 @@ def image_normal_equations(
     differences *= valid
     magnitude = np.abs(differences)
     robust = np.minimum(1.0, huber / np.maximum(magnitude, 1e-12))
-    weighted = coefficients[:, None, None] * robust
+    coefficients = np.asarray(coefficients, dtype=float).reshape(templates.shape[0], -1, 1)
+    weighted = coefficients * robust
     weight = weighted.sum(axis=0)
     weighted_residual = (weighted * differences).sum(axis=0)
     loss = np.where(magnitude <= huber, magnitude**2, 2.0 * huber * magnitude - huber**2)
-    cost = float(np.einsum('k,kgm->', coefficients, loss))
+    cost = float((coefficients * loss).sum())
 
     hessian_slots = np.swapaxes(slots * weight[..., None], 1, 2) @ slots  # (G, 9, 9)
     gradient_slots = np.einsum('gms,gm->gs', slots, weighted_residual)  # (G, 9)

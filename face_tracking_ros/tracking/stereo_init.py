@@ -5,8 +5,8 @@ in the left image are given (an init file, a service call, or a landmark detecto
 node is found in the right image by normalised cross-correlation along its epipolar line (the
 same row of a rectified pair, ``cv2.matchTemplate``) within a depth range, triangulated
 (``StereoRig.triangulate``), and refined along its viewing ray by Gauss-Newton on the left-right
-difference of a patch lying in the face's tangent plane, which removes the bias that square
-windows have on sloping skin. Nodes not given, or whose match is weak or inconsistent with the
+difference of a patch lying on the face surface, which removes the bias that square windows
+have on sloping skin. Nodes not given, or whose match is weak or inconsistent with the
 face, take their position from the reference face of the topology fitted to the others (a
 similarity transform); their depth is then refined the same way.
 """
@@ -22,7 +22,7 @@ from face_tracking_ros.errors import ConfigError, InputError
 from face_tracking_ros.geometry.camera import StereoRig
 from face_tracking_ros.geometry.procrustes import rigid_align
 from face_tracking_ros.imaging import sample_patches, sample_points, square_offsets
-from face_tracking_ros.model.topology import MeshTopology
+from face_tracking_ros.model.topology import Group, MeshTopology
 from face_tracking_ros.tracking.stereo_data import (
     SampleLayout,
     image_normal_equations,
@@ -30,6 +30,7 @@ from face_tracking_ros.tracking.stereo_data import (
 )
 
 FLAT_STD = 0.5  # grey levels: a correlation window flatter than this cannot be matched
+MIN_FIT_NODES = 4  # fewest inner nodes the reference face is fitted to
 
 
 @dataclass(frozen=True)
@@ -41,11 +42,13 @@ class StereoInitConfig:
         max_depth: farthest face distance searched, m.
         match_half_size: correlation windows are (2 h + 1)^2 pixels.
         min_score: normalised cross-correlation below which a match is rejected.
-        max_face_error: a triangulated node farther than this from the fitted reference face is
-            rejected as a mismatch, m.
+        max_face_error: an inner node farther than this from the reference face fitted to the
+            inner nodes is rejected as a mismatch, m.
+        max_boundary_error: the same for the face-boundary nodes, whose stereo matches are the
+            least reliable (the skin turns away from the cameras there), m.
         min_given_nodes: fewest nodes that must be given (and matched).
         refine_iterations: Gauss-Newton iterations of the depth refinement.
-        refine_half_size: the refinement patch is (2 h + 1)^2 samples in the tangent plane.
+        refine_half_size: the refinement patch is (2 h + 1)^2 samples on the face surface.
     """
 
     min_depth: float = 0.25
@@ -53,6 +56,7 @@ class StereoInitConfig:
     match_half_size: int = 7
     min_score: float = 0.6
     max_face_error: float = 0.025
+    max_boundary_error: float = 0.008
     min_given_nodes: int = 6
     refine_iterations: int = 5
     refine_half_size: int = 5
@@ -68,6 +72,7 @@ class StereoInitConfig:
             ('match_half_size', self.match_half_size >= 2),
             ('min_score', -1.0 <= self.min_score <= 1.0),
             ('max_face_error', self.max_face_error > 0.0),
+            ('max_boundary_error', self.max_boundary_error > 0.0),
             ('min_given_nodes', self.min_given_nodes >= 3),
             ('refine_iterations', self.refine_iterations >= 0),
             ('refine_half_size', self.refine_half_size >= 1),
@@ -83,7 +88,8 @@ def epipolar_match(
     left: np.ndarray,
     right: np.ndarray,
     left_px: np.ndarray,
-    config: StereoInitConfig,
+    depth_range: tuple[np.ndarray, np.ndarray],
+    half_size: int,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Find left-image points in the right image along their epipolar lines.
 
@@ -92,25 +98,26 @@ def epipolar_match(
         left: (H, W) float32 left image.
         right: (H, W) float32 right image.
         left_px: (K, 2) left pixel positions.
-        config: depth range, window size.
+        depth_range: (K,) nearest and (K,) farthest depths searched, m.
+        half_size: correlation windows are (2 h + 1)^2 pixels.
 
     Returns:
-        ``(right_px, score)``: (K, 2) matched right positions (sub-pixel along the row) and the
-        (K,) normalised cross-correlation of each match.
+        ``(right_px, score)``: (K, 2) matched right positions (sub-pixel along the row; NaN
+        where nothing could be matched) and the (K,) normalised cross-correlation of each match
+        (-1 where nothing could be matched).
     """
-    h = config.match_half_size
-    offsets = square_offsets(h)
-    windows = sample_patches(left, left_px, offsets).reshape(-1, 2 * h + 1, 2 * h + 1)
-    near = _right_of_depth(rig, left_px, config.min_depth)
-    far = _right_of_depth(rig, left_px, config.max_depth)
+    h = half_size
+    windows = sample_patches(left, left_px, square_offsets(h)).reshape(-1, 2 * h + 1, 2 * h + 1)
+    rays = _rays(rig, left_px)
+    near = rig.right.project(rays * depth_range[0][:, None])
+    far = rig.right.project(rays * depth_range[1][:, None])
     right_px = np.full_like(left_px, np.nan, dtype=float)
     scores = np.full(left_px.shape[0], -1.0)
     for k in range(left_px.shape[0]):
         start, stop = near[k, 0] - h, far[k, 0] + h
         columns = start + np.arange(int(np.ceil(stop - start)) + 1, dtype=float)
         rows = far[k, 1] + np.arange(-h, h + 1, dtype=float)
-        grid = np.stack(np.meshgrid(columns, rows), axis=-1)
-        strip = sample_points(right, grid)
+        strip = sample_points(right, np.stack(np.meshgrid(columns, rows), axis=-1))
         if strip.shape[1] <= 2 * h + 1 or windows[k].std() < FLAT_STD:
             continue
         response = cv2.matchTemplate(strip, windows[k], cv2.TM_CCOEFF_NORMED)[0]
@@ -132,6 +139,14 @@ def initial_nodes(
 ) -> np.ndarray:
     """3-D nodes (N, 3) in the left camera frame, m, from their left-image positions.
 
+    Two passes: every given node is searched over the whole depth range; the reference face is
+    fitted to the inner (non-boundary) matches, trimming the worst until all agree with it
+    within ``config.max_face_error``; boundary nodes must agree within
+    ``config.max_boundary_error``. The rejected nodes are searched again within that distance
+    of the fitted face. Nodes still unmatched (or not given) take the fitted face's position (a
+    given node keeps its left-image position at the face's depth); only matched nodes are then
+    refined.
+
     Args:
         rig: the rectified rig.
         left: (H, W) float32 left image.
@@ -152,29 +167,50 @@ def initial_nodes(
         names = [topology.node_names[i] for i in np.flatnonzero(given & ~inside)]
         msg = f'initial node positions outside the {width}x{height} left image: {names}'
         raise InputError(msg)
-    right_px, scores = epipolar_match(rig, left, right, left_px[given], config)
-    matched = np.zeros(topology.num_nodes, dtype=bool)
-    matched[given] = scores >= config.min_score
+    count = int(given.sum())
+    full_range = (np.full(count, config.min_depth), np.full(count, config.max_depth))
+    right_px, scores = epipolar_match(
+        rig, left, right, left_px[given], full_range, config.match_half_size
+    )
     triangulated = np.full((topology.num_nodes, 3), np.nan)
     triangulated[given] = rig.triangulate(left_px[given], right_px)
-    reference = _fit_reference(topology, triangulated, matched, config)
-    consistent = matched & (
-        np.linalg.norm(triangulated - reference, axis=1) <= config.max_face_error
-    )
+    matched = np.zeros(topology.num_nodes, dtype=bool)
+    matched[given] = scores >= config.min_score
+    boundary = topology.group_mask(Group.EDGE)
+    # The face is fitted to the inner nodes; boundary nodes are judged against it, more strictly.
+    inner = matched & ~boundary
+    reference = _trimmed_reference(topology, triangulated, inner, config)
+    tolerance = np.where(boundary, config.max_boundary_error, config.max_face_error)
+    distance = np.linalg.norm(triangulated - reference, axis=1)
+    consistent = inner | (matched & boundary & (distance <= tolerance))
+    retry = given & ~consistent
+    if retry.any():
+        rays = _rays(rig, left_px[retry])
+        depth = np.einsum('kd,kd->k', reference[retry], rays) / np.einsum('kd,kd->k', rays, rays)
+        band = tolerance[retry]
+        right_px, scores = epipolar_match(
+            rig, left, right, left_px[retry], (depth - band, depth + band), config.match_half_size
+        )
+        found = scores >= config.min_score
+        rematched = np.flatnonzero(retry)[found]
+        triangulated[rematched] = rig.triangulate(left_px[rematched], right_px[found])
+        consistent[rematched] = True
     if consistent.sum() < config.min_given_nodes:
         msg = (
-            f'only {int(consistent.sum())} of {int(given.sum())} given nodes were matched in the '
-            f'right image (need {config.min_given_nodes}); check the rig calibration and the '
-            'initial positions'
+            f'only {int(consistent.sum())} of {count} given nodes were matched in the right image '
+            f'consistently with a face (need {config.min_given_nodes}); check the rig calibration '
+            'and the initial positions'
         )
         raise InputError(msg)
-    reference = _fit_reference(topology, triangulated, consistent, config)
     nodes = np.where(consistent[:, None], triangulated, reference)
-    # Nodes given in the left image but not matched keep their left position at the face depth.
-    rays = _rays(rig, left_px)
     rescue = given & ~consistent
-    nodes[rescue] = rays[rescue] * (reference[rescue, 2] / rays[rescue, 2])[:, None]
-    return refine_depths(rig, left, right, nodes, topology, config)
+    rays = _rays(rig, left_px[rescue])
+    nodes[rescue] = rays * (reference[rescue, 2] / rays[:, 2])[:, None]
+    # Depth refinement corrects the matches only; their surface alone gives the patches' shape.
+    nodes[consistent] = refine_depths(
+        rig, left, right, nodes[consistent], topology.group_mask(Group.EDGE)[consistent], config
+    )
+    return nodes
 
 
 def refine_depths(
@@ -182,38 +218,38 @@ def refine_depths(
     left: np.ndarray,
     right: np.ndarray,
     nodes: np.ndarray,
-    topology: MeshTopology,
+    boundary: np.ndarray,
     config: StereoInitConfig,
 ) -> np.ndarray:
-    """Move each node along its left viewing ray to match its tangent-plane patch left-right.
+    """Move each node along its left viewing ray to match its surface patch left-right.
 
     Gauss-Newton on sum_m (I_R(pi_R(P_m)) - I_L(pi_L(P_m)))^2 over the depth of each node, with
-    the patch P_m in the tangent plane of the mesh at the node (eq. 4's cross term at frame 1).
+    the patch P_m on the surface through the nodes (eq. 4's cross term at frame 1).
 
     Args:
         rig: the rectified rig.
         left: (H, W) float32 left image.
         right: (H, W) float32 right image.
-        nodes: (N, 3) initial nodes, m.
-        topology: the mesh (its triangles give the tangent planes).
+        nodes: (K, 3) initial nodes, m (they also define the surface).
+        boundary: (K,) bool, the nodes on the face boundary (one-sided patches).
         config: iterations and patch size.
 
     Returns:
-        (N, 3) refined nodes, m (each on the same left viewing ray).
+        (K, 3) refined nodes, m (each on the same left viewing ray).
     """
-    num_nodes = nodes.shape[0]
+    count = nodes.shape[0]
     for _ in range(config.refine_iterations):
         layout = SampleLayout.node_patches(
-            nodes, topology.triangles, nodes[:, 2] / rig.left.focal, config.refine_half_size
+            nodes, nodes[:, 2] / rig.left.focal, config.refine_half_size, boundary
         )
         points = layout.points(nodes, np.eye(3), 0)
         template = sample_templates(left, rig.left, points, 0)
         equations = image_normal_equations(
-            right, rig.right, layout, points, 0, template[None], np.ones(1), 1e6, num_nodes
+            right, rig.right, layout, points, 0, template[None], np.ones(1), 1e6, count
         )
         rays = nodes / np.linalg.norm(nodes, axis=1, keepdims=True)
-        diagonal = np.arange(num_nodes)
-        blocks = equations.hessian.reshape(num_nodes, 3, num_nodes, 3)[diagonal, :, diagonal, :]
+        diagonal = np.arange(count)
+        blocks = equations.hessian.reshape(count, 3, count, 3)[diagonal, :, diagonal, :]
         curvature = np.einsum('na,nab,nb->n', rays, blocks, rays)
         slope = np.einsum('na,na->n', rays, equations.gradient.reshape(-1, 3))
         with np.errstate(divide='ignore', invalid='ignore'):
@@ -259,21 +295,40 @@ def _parabola_peak(response: np.ndarray, best: int) -> float:
     return float(np.clip(0.5 * (before - after) / curvature, -0.5, 0.5))
 
 
-def _fit_reference(
+def _trimmed_reference(
     topology: MeshTopology, nodes: np.ndarray, use: np.ndarray, config: StereoInitConfig
 ) -> np.ndarray:
+    """The reference face (N, 3) fitted to the nodes marked ``use``, trimming outliers.
+
+    The worst node is dropped from ``use`` (in place) until all agree with the fitted face
+    within ``config.max_face_error``.
+
+    Raises:
+        InputError: when fewer than ``config.min_given_nodes`` nodes remain.
+    """
+    while True:
+        if use.sum() < MIN_FIT_NODES:
+            msg = (
+                f'only {int(use.sum())} inner (non-boundary) nodes were matched in the right '
+                f'image consistently with a face (need {MIN_FIT_NODES}); check the rig '
+                'calibration and the initial positions'
+            )
+            raise InputError(msg)
+        reference = _fit_reference(topology, nodes, use)
+        errors = np.where(use, np.linalg.norm(nodes - reference, axis=1), -1.0)
+        worst = int(np.argmax(errors))
+        if errors[worst] <= config.max_face_error:
+            return reference
+        use[worst] = False
+
+
+def _fit_reference(topology: MeshTopology, nodes: np.ndarray, use: np.ndarray) -> np.ndarray:
     """The reference face (N, 3) moved and scaled onto the nodes marked ``use``."""
-    if use.sum() < 3:
-        msg = (
-            f'only {int(use.sum())} nodes could be triangulated (need '
-            f'{config.min_given_nodes}); check the rig calibration and the initial positions'
-        )
-        raise InputError(msg)
     reference = np.asarray(topology.reference_shape)
     source, target = reference[use], nodes[use]
     spread_source = np.linalg.norm(source - source.mean(axis=0))
     spread_target = np.linalg.norm(target - target.mean(axis=0))
-    scale = spread_target / spread_source if spread_source > 0 else 1.0
+    scale = spread_target / spread_source
     weights = topology.alignment_weights()[use]
     alignment = rigid_align(scale * source, target, weights)
     return scale * reference @ alignment.rotation.T + alignment.t
