@@ -6,6 +6,9 @@ Example:
     >>> for topic, msgtype, stamp_ns, msg in read_messages(tmp / 'run1', topics=['face/state']):
     ...     ...
 
+Messages already serialised to CDR (what DDS carries) go in and out unchanged with
+:meth:`BagWriter.write_raw` and :func:`read_raw`: the bag recorder and player never deserialise.
+
 Every failure of the underlying libraries (missing or truncated bag, unknown type, topic re-used
 with another type) is raised as :class:`~face_tracking_ros.errors.BagError` naming the bag.
 """
@@ -25,6 +28,8 @@ from mcap.records import Channel, Message, Schema
 from mcap.stream_reader import StreamReader
 from rosbags.rosbag2 import Reader, ReaderError, StoragePlugin, Writer, WriterError
 from rosbags.rosbag2.writer import Connection
+from rosbags.serde import SerdeError
+from rosbags.typesys.base import TypesysError
 from rosbags.typesys.store import Typestore
 
 from face_tracking_ros.errors import BagError
@@ -49,6 +54,15 @@ class BagMessage(NamedTuple):
     msgtype: str  # e.g. 'sensor_msgs/msg/Image'
     stamp_ns: int  # bag receive time, ns since the epoch
     msg: Any  # rosbags message dataclass
+
+
+class RawMessage(NamedTuple):
+    """One message read from a bag, still serialised."""
+
+    topic: str
+    msgtype: str  # e.g. 'sensor_msgs/msg/Image'
+    stamp_ns: int  # bag receive time, ns since the epoch
+    data: bytes  # CDR, with its 4-byte encapsulation header, as DDS carries it
 
 
 def stamp_to_ns(stamp: StampLike) -> int:
@@ -128,6 +142,21 @@ class BagWriter:
         except (KeyError, AttributeError, TypeError, ValueError, struct.error) as error:
             message = f'{self.path}: cannot serialise {msgtype} on {topic}: {error}'
             raise BagError(message) from None
+        self.write_raw(topic, msgtype, data, stamp_ns)
+
+    def write_raw(self, topic: str, msgtype: str, data: bytes, stamp_ns: int) -> None:
+        """Write one message already serialised to CDR (e.g. as received from DDS), unchanged.
+
+        Args:
+            topic: Topic name, e.g. ``'/face/state'``.
+            msgtype: Type name, e.g. ``'face_tracking_msgs/msg/FaceState'``; the typestore
+                must know it (its definition goes into the bag).
+            data: CDR bytes with their encapsulation header.
+            stamp_ns: Record time, ns since the epoch.
+
+        Raises:
+            BagError: If the topic has another type or the type is unknown.
+        """
         self._open_writer().write(self._connection(topic, msgtype), stamp_ns, data)
 
     def _open_writer(self) -> Writer:
@@ -141,7 +170,11 @@ class BagWriter:
         connection = self._connections.get(topic)
         if connection is None:
             writer = self._open_writer()
-            connection = writer.add_connection(topic, msgtype, typestore=self._store)
+            try:
+                connection = writer.add_connection(topic, msgtype, typestore=self._store)
+            except TypesysError as error:
+                message = f'{self.path}: cannot write {msgtype} on {topic}: {error}'
+                raise BagError(message) from None
             self._connections[topic] = connection
         elif connection.msgtype != msgtype:
             raise BagError(
@@ -167,17 +200,41 @@ def read_messages(
         BagError: If the bag is missing, truncated or corrupt, lacks a requested topic, or holds
             a type the typestore does not know.
     """
-    path = Path(path)
     store = typestore() if store is None else store
+    for topic, msgtype, stamp_ns, data in read_raw(path, topics):
+        try:
+            msg = store.deserialize_cdr(data, msgtype)
+        except (SerdeError, *_READ_ERRORS) as error:
+            message = f'{path}: cannot read bag: {topic}: {type(error).__name__}: {error}'
+            raise BagError(message) from None
+        yield BagMessage(topic, msgtype, stamp_ns, msg)
+
+
+def read_raw(path: Path | str, topics: Iterable[str] | None = None) -> Iterator[RawMessage]:
+    """Read the serialised messages of a rosbag2 bag (MCAP or SQLite 3) in record-time order.
+
+    A bag whose metadata or MCAP summary is damaged (e.g. cut off by a power loss) is streamed
+    in file order up to the damage, then the BagError says where the damage is.
+
+    Args:
+        path: Bag directory (holding ``metadata.yaml``).
+        topics: Topics to read; default all. Every one must be in the bag.
+
+    Yields:
+        One :class:`RawMessage` per message; no type needs to be known.
+
+    Raises:
+        BagError: If the bag is missing, truncated or corrupt, or lacks a requested topic.
+    """
+    path = Path(path)
     reader = _open_reader(path)
     if reader is None:
-        yield from _stream_mcap(path, topics, store)
+        yield from _stream_records(path, topics)
         return
     try:
         wanted = _select(reader, path, topics)
         for connection, stamp_ns, data in reader.messages(connections=wanted):
-            msg = store.deserialize_cdr(data, connection.msgtype)
-            yield BagMessage(connection.topic, connection.msgtype, stamp_ns, msg)
+            yield RawMessage(connection.topic, connection.msgtype, stamp_ns, data)
     except _READ_ERRORS as error:
         raise BagError(f'{path}: cannot read bag: {type(error).__name__}: {error}') from None
     finally:
@@ -207,17 +264,7 @@ def _mcap_files(path: Path) -> list[Path]:
     return sorted(path.glob('*.mcap')) if path.is_dir() else []
 
 
-def _stream_mcap(
-    path: Path, topics: Iterable[str] | None, store: Typestore
-) -> Iterator[BagMessage]:
-    """Salvage a bag whose index or metadata is damaged: deserialise its streamed records."""
-    for topic, msgtype, log_time, data in _stream_records(path, topics):
-        yield BagMessage(topic, msgtype, log_time, store.deserialize_cdr(data, msgtype))
-
-
-def _stream_records(
-    path: Path, topics: Iterable[str] | None
-) -> Iterator[tuple[str, str, int, bytes]]:
+def _stream_records(path: Path, topics: Iterable[str] | None) -> Iterator[RawMessage]:
     """Stream the raw messages of a bag's MCAP files in file order, up to any damage.
 
     A truncated MCAP file (e.g. a recorder killed by a power loss) has no summary, so rosbags
@@ -225,7 +272,7 @@ def _stream_records(
     BagError says where the damage is. ``metadata.yaml`` is not needed.
 
     Yields:
-        (topic, msgtype, log time ns, CDR data).
+        The raw messages, with their log time.
 
     Raises:
         BagError: At the damage, naming the file and the number of messages recovered.
@@ -246,7 +293,7 @@ def _stream_records(
                         topic, msgtype = channels[record.channel_id]
                         if wanted is None or topic in wanted:
                             count += 1
-                            yield topic, msgtype, record.log_time, record.data
+                            yield RawMessage(topic, msgtype, record.log_time, record.data)
         except (McapError, *_READ_ERRORS) as error:
             message = (
                 f'{file}: damaged MCAP file, {count} messages recovered before: '
