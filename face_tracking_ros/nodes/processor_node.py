@@ -10,8 +10,6 @@ from __future__ import annotations
 
 from collections.abc import Callable
 import dataclasses
-import inspect
-import re
 from typing import Any, TypeVar
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
@@ -29,7 +27,7 @@ from rclpy.qos import (
 from face_tracking_ros.errors import ConfigError, FaceTrackingError
 from face_tracking_ros.io.messages import RclpyMessages
 from face_tracking_ros.processing.base import Port, Processor, QosClass
-from face_tracking_ros.processing.parameters import field_default
+from face_tracking_ros.processing.parameters import attribute_descriptions, field_default
 from face_tracking_ros.processing.registry import processor_factory
 
 ConfigT = TypeVar('ConfigT')
@@ -77,28 +75,6 @@ class NodeParameters:
             value = self._node.declare_parameter(prefix + field.name, declared, descriptor).value
             values[field.name] = tuple(value) if isinstance(value, list) else value
         return config_type(**values)
-
-
-def attribute_descriptions(cls: type) -> dict[str, str]:
-    """Field descriptions from the ``Attributes:`` section of a Google-style class docstring."""
-    descriptions: dict[str, str] = {}
-    lines = inspect.cleandoc(cls.__doc__ or '').splitlines()
-    inside, name = False, ''
-    for line in lines:
-        if line.strip() == 'Attributes:':
-            inside = True
-            continue
-        if not inside:
-            continue
-        if line and not line.startswith(' '):
-            break
-        match = re.match(r'^ {4}(\w+)(?: \(.*?\))?: (.*)$', line)
-        if match:
-            name = match.group(1)
-            descriptions[name] = match.group(2).strip()
-        elif name and line.strip():
-            descriptions[name] += ' ' + line.strip()
-    return descriptions
 
 
 class ProcessorNode(Node):

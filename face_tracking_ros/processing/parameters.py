@@ -11,6 +11,8 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 import dataclasses
+import inspect
+import re
 from typing import Any, Protocol, TypeVar
 
 from face_tracking_ros.errors import ConfigError
@@ -97,3 +99,25 @@ def _coerce(name: str, text: str, default: Any) -> Any:
     except ValueError:
         msg = f'parameter {name}={text!r} is not a valid {type(default).__name__}'
         raise ConfigError(msg) from None
+
+
+def attribute_descriptions(cls: type) -> dict[str, str]:
+    """Field descriptions from the ``Attributes:`` section of a Google-style class docstring."""
+    descriptions: dict[str, str] = {}
+    lines = inspect.cleandoc(cls.__doc__ or '').splitlines()
+    inside, name = False, ''
+    for line in lines:
+        if line.strip() == 'Attributes:':
+            inside = True
+            continue
+        if not inside:
+            continue
+        if line and not line.startswith(' '):
+            break
+        match = re.match(r'^ {4}(\w+)(?: \(.*?\))?: (.*)$', line)
+        if match:
+            name = match.group(1)
+            descriptions[name] = match.group(2).strip()
+        elif name and line.strip():
+            descriptions[name] += ' ' + line.strip()
+    return descriptions
