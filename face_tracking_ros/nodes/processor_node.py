@@ -17,6 +17,7 @@ from rcl_interfaces.msg import ParameterDescriptor
 import rclpy
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
+from rclpy.parameter import Parameter
 from rclpy.qos import (
     DurabilityPolicy,
     QoSProfile,
@@ -45,6 +46,16 @@ _QOS = {
 }
 
 
+def _declared(default: Any) -> Any:
+    """The value to declare a parameter with; an empty tuple becomes a string-array type.
+
+    rclpy would type an empty list as a byte array and then refuse ``name:=[a, b]``.
+    """
+    if isinstance(default, tuple):
+        return list(default) if default else Parameter.Type.STRING_ARRAY
+    return default
+
+
 class NodeParameters:
     """A :class:`ParameterSource` that declares ROS parameters on a node.
 
@@ -71,9 +82,9 @@ class NodeParameters:
                 values[field.name] = self.config(type(default), f'{prefix}{field.name}.')
                 continue
             descriptor = ParameterDescriptor(description=descriptions.get(field.name, ''))
-            declared = default if not isinstance(default, tuple) else list(default)
+            declared = _declared(default)
             value = self._node.declare_parameter(prefix + field.name, declared, descriptor).value
-            values[field.name] = tuple(value) if isinstance(value, list) else value
+            values[field.name] = tuple(value or ()) if isinstance(default, tuple) else value
         return config_type(**values)
 
 
