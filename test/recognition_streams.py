@@ -1,7 +1,7 @@
 """Synthetic parameter streams for the recognition tests: sigma clusters and labelled alpha.
 
 Stand-ins for tracked parameters: every subject has a true sigma and a personal scale of each
-expression; every frame's estimate adds white noise plus slowly varying (AR(1)) tracking noise.
+expression; every frame's estimate adds the benchmark's tracking noise (white plus AR(1)).
 """
 
 from __future__ import annotations
@@ -11,6 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from face_tracking_ros.model.face_model import FaceModel
+from face_tracking_ros.recognition.benchmark import tracking_noise
 from face_tracking_ros.recognition.expression import EXPRESSION_LABELS
 from face_tracking_ros.recognition.sequences import ParameterSequence
 from face_tracking_ros.synthetic.faces import FacePopulation
@@ -45,18 +46,6 @@ class LabelledStream:
     intensity: np.ndarray
 
 
-def tracking_noise(rng: np.random.Generator, frames: int, dim: int, std: float) -> np.ndarray:
-    """(frames, dim) noise: half white, half AR(1) with a 0.3 s time constant, total std std."""
-    white = rng.normal(scale=std / np.sqrt(2.0), size=(frames, dim))
-    phi = np.exp(-1.0 / (0.3 * FPS))
-    drive = rng.normal(scale=std / np.sqrt(2.0) * np.sqrt(1.0 - phi**2), size=(frames, dim))
-    slow = np.zeros((frames, dim))
-    slow[0] = rng.normal(scale=std / np.sqrt(2.0), size=dim)
-    for m in range(1, frames):
-        slow[m] = phi * slow[m - 1] + drive[m]
-    return white + slow
-
-
 def expression_stream(
     rng: np.random.Generator,
     world: ExpressionWorld,
@@ -89,7 +78,7 @@ def expression_stream(
         intensity[active] = course[active]
         alpha += course[:, None] * (scales[label] * world.directions[label])[None, :]
         t += rise + hold + fall + rng.uniform(0.4, 1.2)
-    alpha += tracking_noise(rng, frames, alpha.shape[1], noise_std)
+    alpha += tracking_noise(rng, frames, alpha.shape[1], noise_std, FPS)
     return LabelledStream(
         times=times, values=alpha, labels=labels.astype(str), intensity=intensity
     )
@@ -107,7 +96,7 @@ def sigma_stream(
 ) -> np.ndarray:
     """(M, p) tracked sigma estimates of one subject over ``duration`` seconds."""
     frames = int(round(duration * FPS))
-    return sigma_true[None, :] + tracking_noise(rng, frames, len(sigma_true), noise_std)
+    return sigma_true[None, :] + tracking_noise(rng, frames, len(sigma_true), noise_std, FPS)
 
 
 def _smoothstep(x: np.ndarray) -> np.ndarray:
