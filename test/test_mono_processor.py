@@ -88,11 +88,11 @@ def test_tracks_and_carries_stamp_and_frame(scene):
     topics = [o.topic for o in outputs]
     assert topics == [
         'face/state',
+        'face/mesh_raw',
+        'face/mesh',
         'face/pose',
         'face/action',
         'face/shape',
-        'face/mesh_raw',
-        'face/mesh',
     ]
     state = outputs[0].msg
     assert state.status == TrackStatus.TRACKING

@@ -23,6 +23,7 @@ from face_tracking_ros.io.messages import MessageFactory
 from face_tracking_ros.model.face_model import FaceModel
 from face_tracking_ros.model.model_file import load_model
 from face_tracking_ros.processing.base import Output, Port, QosClass
+from face_tracking_ros.processing.face_outputs import MESH_PORTS, MODEL_PORTS, face_outputs
 from face_tracking_ros.processing.parameters import ParameterSource
 from face_tracking_ros.tracking.initialisation import Initialisation, load_init_file
 from face_tracking_ros.tracking.mono import MonoTracker, MonoTrackerConfig
@@ -84,12 +85,8 @@ class MonoProcessor:
             Port(MODEL, 'face_tracking_msgs/msg/FaceModel', QosClass.LATCHED),
         )
         self.outputs = (
-            Port('face/state', 'face_tracking_msgs/msg/FaceState'),
-            Port('face/pose', 'geometry_msgs/msg/PoseStamped'),
-            Port('face/action', 'face_tracking_msgs/msg/ActionParams'),
-            Port('face/shape', 'face_tracking_msgs/msg/ShapeParams'),
-            Port('face/mesh_raw', 'face_tracking_msgs/msg/FaceMesh'),
-            Port('face/mesh', 'visualization_msgs/msg/MarkerArray'),
+            *MESH_PORTS,
+            *MODEL_PORTS,
             Port('face/overlay', 'sensor_msgs/msg/Image', QosClass.SENSOR, on_demand=True),
         )
 
@@ -158,17 +155,7 @@ class MonoProcessor:
         result = self._tracker.step(gray)
         out_header = conversions.copy_header(self._factory, header)
         topology = self._model.topology
-        messages = conversions.face_messages(
-            self._factory, out_header, self._config.face_id, result, topology
-        )
-        outputs = [
-            Output('face/state', messages.state),
-            Output('face/pose', messages.pose),
-            Output('face/action', messages.action),
-            Output('face/shape', messages.shape),
-            Output('face/mesh_raw', messages.mesh),
-            Output('face/mesh', messages.markers),
-        ]
+        outputs = face_outputs(self._factory, out_header, self._config.face_id, result, topology)
         if 'face/overlay' in wanted:
             canvas = draw_mesh(gray, result.nodes_px, topology.edges, result.status)
             overlay = conversions.array_to_image(self._factory, out_header, canvas)

@@ -22,6 +22,7 @@ from face_tracking_ros.io.messages import MessageFactory
 from face_tracking_ros.model.face_model import FaceModel
 from face_tracking_ros.model.model_file import load_model
 from face_tracking_ros.processing.base import Output, Port, QosClass
+from face_tracking_ros.processing.face_outputs import MESH_PORTS, MODEL_PORTS, face_outputs
 from face_tracking_ros.processing.parameters import ParameterSource
 from face_tracking_ros.tracking.initialisation import Initialisation, load_init_file
 from face_tracking_ros.tracking.stereo import StereoTracker, StereoTrackerConfig
@@ -83,14 +84,7 @@ class StereoProcessor:
             Port(RIGHT_INFO, 'sensor_msgs/msg/CameraInfo', QosClass.SENSOR),
             Port(MODEL, 'face_tracking_msgs/msg/FaceModel', QosClass.LATCHED),
         )
-        self.outputs = (
-            Port('face/mesh_raw', 'face_tracking_msgs/msg/FaceMesh'),
-            Port('face/mesh', 'visualization_msgs/msg/MarkerArray'),
-            Port('face/state', 'face_tracking_msgs/msg/FaceState'),
-            Port('face/pose', 'geometry_msgs/msg/PoseStamped'),
-            Port('face/action', 'face_tracking_msgs/msg/ActionParams'),
-            Port('face/shape', 'face_tracking_msgs/msg/ShapeParams'),
-        )
+        self.outputs = (*MESH_PORTS, *MODEL_PORTS)
 
     def reset(self, initialisation: Initialisation | None) -> None:
         """Restart tracking from 2-D left-image node positions.
@@ -180,21 +174,9 @@ class StereoProcessor:
                 raise InputError(msg)
         result = self._tracker.step(left, right).as_track_result()
         header = conversions.copy_header(self._factory, left_msg.header)
-        messages = conversions.face_messages(
-            self._factory, header, self._config.face_id, result, self._tracker.topology
-        )
-        outputs = [
-            Output('face/mesh_raw', messages.mesh),
-            Output('face/mesh', messages.markers),
-            Output('face/state', messages.state),
-        ]
-        if self._model is not None:
-            outputs += [
-                Output('face/pose', messages.pose),
-                Output('face/action', messages.action),
-                Output('face/shape', messages.shape),
-            ]
-        return outputs
+        face_id, topology = self._config.face_id, self._tracker.topology
+        with_model = self._model is not None
+        return face_outputs(self._factory, header, face_id, result, topology, with_model)
 
 
 def make_stereo_processor(params: ParameterSource, factory: MessageFactory) -> StereoProcessor:
