@@ -1,45 +1,23 @@
-"""Training meshes drawn from the synthetic FacePopulation, for the learning tests and benchmark.
+"""Training meshes drawn from the synthetic world, for the learning tests and benchmark.
 
-Each sequence is one subject with an almost still head (the seed's training protocol, §3.3):
-neutral stretches alternate with labelled expression episodes (smooth onset, hold, offset), the
-head drifts by about a degree and a few millimetres, and every node gets white noise. Frames are
-returned in the camera frame, as a tracker or the truth topic would give them.
+The synthetic world's own pieces make the sequences: a :class:`FacePopulation` subject, the
+seed's training script (:meth:`ExpressionScript.training`: neutral first, then the expressions in
+turn) and a 'still' head trajectory (§3.3: subjects asked not to move). Nodes get white noise
+(the issue-4 protocol: 0.5 mm) and are returned in the camera frame, as the truth topic has them.
+No images are rendered, so this is fast.
 """
 
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
+from face_tracking_ros.geometry.rotation import rodrigues
 from face_tracking_ros.learning.training_set import NEUTRAL_LABEL, MeshSequence, TrainingSet
 from face_tracking_ros.synthetic.faces import ACTIVE_EXPRESSIONS, FacePopulation
+from face_tracking_ros.synthetic.motion import ExpressionScript, HeadTrajectory
 
 FPS = 30.0
-CAMERA_DISTANCE = 0.6  # m
-
-
-def expression_course(rng: np.random.Generator, frames: int) -> tuple[np.ndarray, tuple[str, ...]]:
-    """Intensities (frames, E) and labels of alternating neutral stretches and expressions."""
-    alpha = np.zeros((frames, len(ACTIVE_EXPRESSIONS)))
-    labels = [NEUTRAL_LABEL] * frames
-    f = int(rng.integers(10, 25))
-    while True:
-        rise, hold, fall = (int(round(FPS * rng.uniform(*span))) for span in _EPISODE)
-        if f + rise + hold + fall > frames:
-            break
-        which = int(rng.integers(len(ACTIVE_EXPRESSIONS)))
-        peak = rng.uniform(0.6, 1.0)
-        ramp = np.concatenate(
-            [np.linspace(0, 1, rise + 1)[1:], np.ones(hold), np.linspace(1, 0, fall + 1)[:-1]]
-        )
-        alpha[f : f + len(ramp), which] = peak * np.sin(0.5 * np.pi * ramp) ** 2
-        for k in range(f, f + len(ramp)):
-            labels[k] = ACTIVE_EXPRESSIONS[which]
-        f += len(ramp) + int(rng.integers(8, 30))
-    return alpha, tuple(labels)
-
-
-_EPISODE = ((0.15, 0.3), (0.5, 1.2), (0.15, 0.3))  # rise, hold, fall durations, s
+EXPRESSIONS_PER_SEQUENCE = 5
 
 
 def mesh_sequences(
@@ -57,27 +35,32 @@ def mesh_sequences(
         The sequences (subject-major) and the true alpha (total frames, E) in the same order.
     """
     rng = np.random.default_rng(seed)
+    times = np.arange(frames) / FPS
     result = []
     alphas = []
     for index in range(subjects):
         subject = population.subject(index)
         for k in range(sequences):
-            alpha, labels = expression_course(rng, frames)
-            nodes = subject.neutral_nodes + (alpha @ population.expression_basis_true.T).reshape(
-                frames, -1, 3
-            )
-            nodes = nodes[:, :num_nodes] + rng.normal(scale=noise, size=(frames, num_nodes, 3))
-            drift = np.cumsum(rng.normal(scale=0.002, size=(frames, 3)), axis=0)
-            rotation = Rotation.from_rotvec(
-                np.radians(rng.normal(scale=1.0, size=3)) + np.radians(0.3) * np.tanh(drift)
-            ).as_matrix()
-            t = np.array([0.0, 0.0, CAMERA_DISTANCE]) + rng.normal(scale=0.01, size=3)
-            t = t + 0.3 * np.tanh(drift) * 0.01
-            camera = np.einsum('fab,fnb->fna', rotation, nodes) + t[:, None, :]
-            neutral = np.array([label == NEUTRAL_LABEL for label in labels])
+            first = (index + EXPRESSIONS_PER_SEQUENCE * k) % len(ACTIVE_EXPRESSIONS)
+            script = ExpressionScript.training(frames / FPS, first=first)
+            states = [script.state(time) for time in times]
+            alpha = np.array([state.alpha for state in states])
+            trajectory = HeadTrajectory.random('still', rng)
+            nodes = [
+                population.nodes(subject, state.alpha)[:num_nodes] for state in states
+            ] + rng.normal(scale=noise, size=(frames, num_nodes, 3))
+            camera = np.empty_like(nodes)
+            for f, time in enumerate(times):
+                omega, t = trajectory.pose(time)
+                camera[f] = nodes[f] @ rodrigues(omega)[0].T + t
+            labels = tuple(state.label for state in states)
             result.append(
                 MeshSequence(
-                    subject.subject_id, camera, neutral, labels, f'{subject.subject_id}/{k}'
+                    subject.subject_id,
+                    camera,
+                    np.array([label == NEUTRAL_LABEL for label in labels]),
+                    labels,
+                    f'{subject.subject_id}/{k}',
                 )
             )
             alphas.append(alpha)

@@ -1,0 +1,92 @@
+"""The §3.4 learner (and its §4.3 eigenvalue-weighted option) against the synthetic population."""
+
+from __future__ import annotations
+
+from learning_population import training_set
+import numpy as np
+import pytest
+
+from face_tracking_ros.errors import ConfigError
+from face_tracking_ros.learning.alignment import align_training_set
+from face_tracking_ros.learning.evaluation import (
+    TrueSubspaces,
+    compare_with_truth,
+    population_truth,
+)
+from face_tracking_ros.learning.seed import SeedConfig, choose_dimension, learn_seed
+from face_tracking_ros.learning.subspace import subspace_similarity
+from face_tracking_ros.learning.training_set import TrainingSet
+
+
+@pytest.fixture(scope='module')
+def default_world() -> tuple[TrainingSet, TrueSubspaces]:
+    """Noise-free 'default' world: 4 identity modes orthogonal to the 6 expressions."""
+    training, population, alpha = training_set(
+        'default', 34, subjects=8, sequences=1, frames=150, noise=0.0
+    )
+    return align_training_set(training), population_truth(population, 34, range(8), alpha, 300)
+
+
+def test_recovers_well_separated_subspaces_when_p_and_q_match_the_world(default_world):
+    training, truth = default_world
+    result = learn_seed(training, SeedConfig(p=4, q=6))
+    comparison = compare_with_truth(result.model, truth)
+    assert comparison.shape_similarity > 0.995
+    # Not 1: expressions tilt the Procrustes alignment slightly differently on each face.
+    assert comparison.action_share > 0.95
+    assert result.converged and result.iterations <= 20
+    assert result.history[-1] < 1e-6
+    assert result.model.method == 'seed'
+
+
+def test_p_chosen_by_explained_variance(default_world):
+    training, _ = default_world
+    result = learn_seed(training, SeedConfig(p=None, explained_variance=0.999))
+    assert result.model.p == 4
+    assert choose_dimension(np.array([0.5, 0.3, 0.15, 0.05]), 0.8) == 2
+    assert choose_dimension(np.array([0.5, 0.3, 0.15, 0.05]), 0.81) == 3
+    assert choose_dimension(np.array([0.5, 0.3]), 0.99) == 2
+
+
+def test_model_prior_and_parameters_are_consistent(default_world):
+    training, _ = default_world
+    result = learn_seed(training)
+    model = result.model
+    assert (model.p, model.q) == (2, 5)
+    sigma = (result.subject_neutral - model.mean_shape) @ model.shape_basis
+    assert np.allclose(result.subject_sigma, sigma)
+    assert np.allclose(model.sigma_prior_covariance, sigma.T @ sigma / len(sigma))
+    assert np.allclose(model.shape_eigenvalues, np.diag(model.sigma_prior_covariance))
+    assert np.allclose(model.mean_shape, result.subject_neutral.mean(axis=0))
+    expected_alpha = (
+        training.flat() - model.mean_shape - sigma[training.subject_index] @ model.shape_basis.T
+    ) @ model.action_basis
+    assert np.allclose(result.frame_alpha, expected_alpha)
+    assert result.frame_sigma.shape == (len(training.meshes), 2)
+    assert model.metadata['subjects'] == list(training.subject_ids)
+    assert model.metadata['iterations'] == result.iterations
+
+
+def test_eigenvalue_weighted_option_converges_to_a_close_model(default_world):
+    training, _ = default_world
+    plain = learn_seed(training, SeedConfig(p=4, q=6))
+    weighted = learn_seed(training, SeedConfig(p=4, q=6, eigenvalue_weighted=True))
+    assert weighted.model.method == 'seed-weighted'
+    assert weighted.converged and weighted.iterations <= 20
+    # On a world with orthogonal subspaces and no noise the weighting changes almost nothing.
+    assert subspace_similarity(weighted.model.action_basis, plain.model.action_basis) > 0.999
+
+
+@pytest.mark.parametrize(
+    ('config', 'match'),
+    [
+        (SeedConfig(p=8), r'8 subject\(s\) cannot give an identity subspace of p = 8'),
+        (SeedConfig(p=0), r'p must be at least 1'),
+        (SeedConfig(q=0), r'q must be between 1 and 101, got 0'),
+        (SeedConfig(q=102), r'q must be between 1 and 101, got 102'),
+    ],
+)
+def test_bad_dimensions(default_world, config, match):
+    training, _ = default_world
+    with pytest.raises(ConfigError, match=match):
+        learn_seed(training, config)
