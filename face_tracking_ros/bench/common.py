@@ -1,0 +1,86 @@
+"""What every benchmark shares: options, timing summaries, one-core pinning and process memory."""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+import os
+from pathlib import Path
+import time
+
+import numpy as np
+
+ONE_CORE_ENV = {'OMP_NUM_THREADS': '1', 'OPENBLAS_NUM_THREADS': '1', 'MKL_NUM_THREADS': '1'}
+"""Thread limits for a benchmark process; set before numpy is imported (in the child's env)."""
+
+BENCH_CORE = 0  # the core the measured code runs on
+DRIVER_CORE = 1  # the core of live-benchmark drivers (publisher, subscriber), when there is one
+
+
+@dataclass(frozen=True)
+class BenchOptions:
+    """How a benchmark runs.
+
+    Attributes:
+        quick: the smoke-test sizes (seconds, not minutes).
+        work_dir: directory for the files a benchmark writes (bags, models), created if missing.
+        minutes: duration of the soak run, min.
+        domain_id: ROS_DOMAIN_ID of the live benchmarks' DDS traffic.
+        seed: seed of every synthetic scene and random draw.
+    """
+
+    quick: bool = False
+    work_dir: Path = Path('out/bench')
+    minutes: float = 30.0
+    domain_id: int = 70
+    seed: int = 0
+
+
+def skipped(reason: str) -> dict[str, str]:
+    """The JSON entry of a benchmark piece that cannot run yet, with why."""
+    return {'skipped': reason}
+
+
+def timing_summary(seconds: Sequence[float]) -> dict[str, float]:
+    """Median and 99th percentile of per-call times, ms, with the sample count."""
+    ms = 1000.0 * np.asarray(seconds, dtype=float)
+    return {
+        'median_ms': float(np.median(ms)),
+        'p99_ms': float(np.percentile(ms, 99)),
+        'mean_ms': float(ms.mean()),
+        'samples': int(ms.size),
+    }
+
+
+def time_calls(calls: Sequence[Callable[[], object]]) -> list[float]:
+    """Wall time of each call, in order, s (``time.perf_counter``)."""
+    durations = []
+    for call in calls:
+        start = time.perf_counter()
+        call()
+        durations.append(time.perf_counter() - start)
+    return durations
+
+
+def pin_to_core(core: int = BENCH_CORE) -> int:
+    """Pin the calling process to one core (the lowest available if ``core`` is not); its id."""
+    available = sorted(os.sched_getaffinity(0))
+    chosen = core if core in available else available[0]
+    os.sched_setaffinity(0, {chosen})
+    return chosen
+
+
+def proc_status_mb(pid: int, field: str) -> float:
+    """A memory field of /proc/<pid>/status (e.g. 'VmHWM' peak RSS, 'VmRSS'), MB (2^20 bytes).
+
+    Returns:
+        The value, or NaN once the process is gone.
+    """
+    try:
+        lines = Path(f'/proc/{pid}/status').read_text().splitlines()
+    except (FileNotFoundError, ProcessLookupError):
+        return float('nan')
+    for line in lines:
+        if line.startswith(f'{field}:'):
+            return int(line.split()[1]) / 1024.0
+    return float('nan')

@@ -1,0 +1,97 @@
+"""Per-frame compute of the mono and stereo trackers and of the LK+PnP baseline (issue 9).
+
+For each image size and mesh size, a stereo sequence of the test subject is rendered first; the
+mono tracker and the baseline run on its left images, the stereo tracker on the pairs, each
+initialised from the same simulated clicks. Only ``step()`` is timed (``time.perf_counter``),
+the initialising first frame excluded. Targets (one core): mono <= 2 ms and stereo <= 5 ms per
+frame at 640x480.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+import importlib
+from typing import Any
+
+import numpy as np
+
+from face_tracking_ros.bench.common import BenchOptions, skipped, time_calls, timing_summary
+from face_tracking_ros.bench.world import (
+    RenderedSequence,
+    learned_model,
+    render_sequence,
+    scene_config,
+)
+from face_tracking_ros.model.face_model import FaceModel
+from face_tracking_ros.synthetic.scenes import Kind
+from face_tracking_ros.tracking.mono import MonoTracker
+from face_tracking_ros.tracking.result import TrackStatus
+from face_tracking_ros.tracking.stereo import StereoTracker, StereoTrackerConfig
+
+SIZES = ((320, 240), (640, 480), (1280, 720))
+QUICK_SIZES = ((320, 240),)
+NODE_COUNTS = (19, 34)
+FRAMES, QUICK_FRAMES = 40, 5
+BASELINE_MODULE = 'face_tracking_ros.tracking.baseline'
+
+
+def run(options: BenchOptions) -> dict[str, Any]:
+    """Median and p99 step time of every tracker at every size; the baseline ratio.
+
+    Returns:
+        ``{'<W>x<H>': {'<N>_nodes': {'mono': {...}, 'stereo': {...}, 'baseline': {...},
+        'mono_over_baseline': ratio}}}`` (times in ms; ``tracked`` is the share of frames with
+        status TRACKING).
+    """
+    sizes = QUICK_SIZES if options.quick else SIZES
+    frames = QUICK_FRAMES if options.quick else FRAMES
+    models = {n: learned_model(n, options.seed).model for n in NODE_COUNTS}
+    results: dict[str, Any] = {}
+    for width, height in sizes:
+        config = scene_config(Kind.STEREO, width, height, frames + 1, options.seed)
+        sequence = render_sequence(config)
+        results[f'{width}x{height}'] = {
+            f'{n}_nodes': _one_size(sequence, models[n], options.seed) for n in NODE_COUNTS
+        }
+    return results
+
+
+def _one_size(sequence: RenderedSequence, model: FaceModel, seed: int) -> dict[str, Any]:
+    """The three trackers on one rendered sequence with one model."""
+    init = sequence.initialisation(model.node_names, seed)
+    left, right = sequence.images('left'), sequence.images('right')
+    mono = MonoTracker(model, sequence.reference)
+    mono.reset(init)
+    stereo = StereoTracker(sequence.rig(), StereoTrackerConfig(num_nodes=model.num_nodes), model)
+    stereo.reset(init)
+    figures: dict[str, Any] = {
+        'mono': _timed(lambda f: mono.step(left[f]).status, len(left)),
+        'stereo': _timed(lambda f: stereo.step(left[f], right[f]).status, len(left)),
+    }
+    baseline = _baseline(model, sequence)
+    if baseline is None:
+        figures['baseline'] = skipped(f'{BASELINE_MODULE} (LK+PnP baseline) is not written yet')
+        return figures
+    baseline.reset(init)
+    figures['baseline'] = _timed(lambda f: baseline.step(left[f]).status, len(left))
+    figures['mono_over_baseline'] = figures['mono']['median_ms'] / figures['baseline']['median_ms']
+    return figures
+
+
+def _timed(step: Callable[[int], TrackStatus], frames: int) -> dict[str, Any]:
+    """Run ``step(0)`` (initialisation, untimed), then time ``step(f)`` for the other frames."""
+    step(0)
+    statuses: list[TrackStatus] = []
+    durations = time_calls([lambda f=f: statuses.append(step(f)) for f in range(1, frames)])
+    summary: dict[str, Any] = timing_summary(durations)
+    summary['tracked'] = float(np.mean([s == TrackStatus.TRACKING for s in statuses]))
+    return summary
+
+
+def _baseline(model: FaceModel, sequence: RenderedSequence) -> Any:
+    """The LK+PnP baseline tracker on the reference camera, or None until it exists."""
+    try:
+        module = importlib.import_module(BASELINE_MODULE)
+    except ModuleNotFoundError:
+        return None
+    return module.BaselineTracker(model, sequence.reference)
