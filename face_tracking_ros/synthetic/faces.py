@@ -28,14 +28,22 @@ The eye centres define the face frame (origin midway between them, x along them)
 moves them only symmetrically along x and expressions do not move them at all: the face frame of
 every synthetic face is the one stated in :mod:`face_tracking_ros.model.topology`.
 
-Presets:
-    'default': four identity modes (face width, depth, nose projection, eye spacing), 9, 6, 3.5
-        and 2.5 mm RMS, made orthogonal to the expression span on both the 34- and the 19-node
+Presets (mode RMS per node at one std, 34 nodes):
+    'default': four identity modes (face width, depth, nose projection, eye spacing) of 4.5, 3.0,
+        1.75 and 1.25 mm, made orthogonal to the expression span on both the 34- and the 19-node
         mesh: a world whose identity and expression are well separated (the seed's assumption).
-    'realistic': thirteen identity modes with a slowly decaying spectrum (12.6, 9.0, 5.8, 4.6,
-        3.7, 3.1, 2.4, 2.4, 2.0, 1.2, 1.0, 0.8, 0.6 mm RMS), led by overall face size, whose fields
-        share directions with the expressions (brow height and brow raise, face length and jaw
-        opening, mouth width and smile or pucker), as on scan-derived face models (issue 11).
+    'realistic': thirteen identity modes led by overall face size, 6.3, 4.5, 2.9, 2.3, 1.85, 1.55,
+        1.2, 1.2, 1.0, 0.6, 0.5, 0.4 and 0.3 mm: the slowly decaying spectrum of issue 11 (12.6,
+        9.0, 5.8, ... mm) at half its scale, with fields that share directions with the
+        expressions (brow height and brow raise, face length and jaw opening, mouth width and
+        smile or pucker), as on scan-derived face models.
+
+Both spectra are half the figures of the issue and brief: at full scale the first mode changes
+the size or width of a face by about 25 % per standard deviation, and faces two deviations out
+collapse (a 50 % smaller face); at half scale every drawn face stays a plausible adult face. The
+expression displacements (jaw drop 18 mm, mouth corners 14 mm at full intensity) are about half
+of issue 11's expression spectrum too, so the ratio of identity to expression variance, which
+decides how much identity leaks into a learned expression basis, is kept.
 """
 
 from __future__ import annotations
@@ -112,25 +120,25 @@ IDENTITY_FIELDS: dict[str, Field] = {
 # (mode name, RMS per node at one standard deviation in mm), in Gram-Schmidt order.
 _PRESET_MODES: dict[str, tuple[tuple[str, float], ...]] = {
     'default': (
-        ('face_width', 9.0),
-        ('face_depth', 6.0),
-        ('nose_projection', 3.5),
-        ('eye_spacing', 2.5),
+        ('face_width', 4.5),
+        ('face_depth', 3.0),
+        ('nose_projection', 1.75),
+        ('eye_spacing', 1.25),
     ),
     'realistic': (
-        ('face_size', 12.6),
-        ('face_width', 9.0),
-        ('face_length', 5.8),
-        ('face_depth', 4.6),
-        ('nose_projection', 3.7),
-        ('jaw_width', 3.1),
-        ('brow_height', 2.4),
-        ('eye_spacing', 2.4),
-        ('lip_fullness', 2.0),
-        ('mouth_width', 1.2),
-        ('chin_projection', 1.0),
-        ('cheek_fullness', 0.8),
-        ('nose_deviation', 0.6),
+        ('face_size', 6.3),
+        ('face_width', 4.5),
+        ('face_length', 2.9),
+        ('face_depth', 2.3),
+        ('nose_projection', 1.85),
+        ('jaw_width', 1.55),
+        ('brow_height', 1.2),
+        ('eye_spacing', 1.2),
+        ('lip_fullness', 1.0),
+        ('mouth_width', 0.6),
+        ('chin_projection', 0.5),
+        ('cheek_fullness', 0.4),
+        ('nose_deviation', 0.3),
     ),
 }
 

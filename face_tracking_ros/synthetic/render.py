@@ -216,39 +216,54 @@ class FaceRenderer:
         self,
         camera: PinholeCamera,
         pose: FacePose,
-        tolerance: float = 0.002,
+        tolerance: float = 0.001,
         min_cosine: float = 0.2,
     ) -> np.ndarray:
         """Which of the 34 nodes the camera sees clearly (not hidden, not grazing, in the image).
 
-        A node is visible if its pixel lies in the image, the surface drawn there is no more
-        than ``tolerance`` (m) nearer to the camera than the node, and the surface at the node
-        faces the camera (cosine between its normal and the line of sight >= ``min_cosine``):
-        nodes on the silhouette, like the far face edge at large yaw, do not count.
+        A node is visible if the four pixels around its projection (the support of a bilinear
+        read there) all show the node's own surface: a triangle that has the node as a vertex, or
+        a surface point within ``tolerance`` (m) of the node's depth. It must also face the
+        camera (cosine between its normal and the line of sight >= ``min_cosine``). Nodes hidden
+        by the nose or cheek, on the face's silhouette (the far face edge at large yaw) or off
+        the image do not count.
 
         Returns:
             (34,) bool.
         """
         raster = self._rasterise_pose(camera, pose)
         nodes = self.surface.node_vertices
-        visible = np.zeros(len(nodes), bool)
         if raster is None:
-            return visible
+            return np.zeros(len(nodes), bool)
         x0, y0, x1, y1 = raster.box
-        column, row = (np.round(raster.pixels[nodes]).astype(np.int64) - [x0, y0]).T
+        corner = np.floor(raster.pixels[nodes]).astype(np.int64)
+        offsets = np.array([[0, 0], [1, 0], [0, 1], [1, 1]])
+        support = corner[:, None, :] + offsets[None]  # (34, 4, 2) pixel (x, y)
+        column, row = support[..., 0] - x0, support[..., 1] - y0
         inside = (column >= 0) & (column < x1 - x0) & (row >= 0) & (row < y1 - y0)
-        slot = np.full(len(nodes), -1)
+        slot = np.full(column.shape, -1)
         slot[inside] = raster.ids[row[inside], column[inside]]
         covered = slot >= 0
         triangles = self.surface.triangles[raster.front]
-        depth = raster.vertices[:, 2:3]
-        maps = _affine_attribute_maps(raster.pixels, triangles, depth)[slot[covered], 0]
-        drawn = maps[:, 0] * (column[covered] + x0) + maps[:, 1] * (row[covered] + y0) + maps[:, 2]
-        visible[covered] = drawn >= raster.vertices[nodes[covered], 2] - tolerance
+        own = np.zeros(column.shape, bool)
+        own[covered] = np.any(
+            triangles[slot[covered]] == np.repeat(nodes, 4).reshape(-1, 4)[covered][:, None],
+            axis=1,
+        )
+        maps = _affine_attribute_maps(raster.pixels, triangles, raster.vertices[:, 2:3])
+        drawn = np.full(column.shape, -np.inf)
+        chosen = maps[slot[covered], 0]
+        drawn[covered] = (
+            chosen[:, 0] * support[..., 0][covered]
+            + chosen[:, 1] * support[..., 1][covered]
+            + chosen[:, 2]
+        )
+        near = np.abs(drawn - raster.vertices[nodes, 2][:, None]) <= tolerance
         normals = self._vertex_normals(raster.vertices)[nodes]
         sight = raster.vertices[nodes] - _optical_centre(camera)
         sight /= np.linalg.norm(sight, axis=1, keepdims=True)
-        return visible & (-np.einsum('nd,nd->n', normals, sight) >= min_cosine)
+        facing = -np.einsum('nd,nd->n', normals, sight) >= min_cosine
+        return np.all(covered & (own | near), axis=1) & facing
 
     def _rasterise_pose(self, camera: PinholeCamera, pose: FacePose) -> _Raster | None:
         """Move the surface to a pose (eq. 1), project it (eq. 2) and build its id buffer.

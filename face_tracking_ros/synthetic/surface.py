@@ -8,9 +8,9 @@ exactly to wherever the node goes: the node IS the feature.
 
 Vertices move linearly with the nodes (the deformation part of eq. 3 made dense)::
 
-    vertices = rest_vertices + interpolation @ (nodes - reference_nodes)
+    vertices[:, c] = rest_vertices[:, c] + interpolation[c] @ (nodes - reference_nodes)[:, c]
 
-``interpolation`` (M, 34) is a thin-plate spline over uv through the nodes and through anchor
+``interpolation`` (3, M, 34) is a thin-plate spline over uv through the nodes and through anchor
 points on the skull rim and forehead; the anchors follow the least-squares affine motion of the
 rigid nodes (eye centres, eye corners, temples, upper cheeks), so an expression deforms the face
 but not the skull, while an identity change (a wider face) widens the whole head.
@@ -75,7 +75,7 @@ class HeadSurface:
         triangles: (T, 3) vertex indices, counter-clockwise in uv (y down), i.e. front-facing
             when their projection is counter-clockwise in the image.
         node_vertices: (34,) index of the vertex that is each mesh node.
-        interpolation: (M, 34) dense motion per unit node motion (same for x, y and z).
+        interpolation: (3, M, 34) dense motion per unit node motion, for x, y and z.
     """
 
     uv: np.ndarray
@@ -91,8 +91,8 @@ class HeadSurface:
 
     def vertices(self, nodes: np.ndarray) -> np.ndarray:
         """(M, 3) face-frame vertices (m) of a face whose 34 nodes are ``nodes`` (34, 3), m."""
-        reference = mesh_topology(34).reference_shape
-        return self.rest_vertices + self.interpolation @ (nodes - reference)
+        motion = nodes - mesh_topology(34).reference_shape
+        return self.rest_vertices + np.einsum('cmn,nc->mc', self.interpolation, motion)
 
 
 def outline_radius(uv: np.ndarray) -> np.ndarray:
@@ -150,13 +150,13 @@ def _head_uv(node_uv: np.ndarray) -> np.ndarray:
 def _node_interpolation(
     head_uv: np.ndarray, node_uv: np.ndarray, anchor_uv: np.ndarray, anchor_motion: np.ndarray
 ) -> np.ndarray:
-    """(M, 34) thin-plate-spline weights of head vertices on node motion (anchors follow nodes).
+    """(3, M, 34) thin-plate-spline weights of head vertices on node motion, per coordinate.
 
     Args:
         head_uv: (M, 2) vertex uv, mm.
         node_uv: (34, 2) node uv, mm.
         anchor_uv: (A, 2) anchor uv, mm.
-        anchor_motion: (A, 34) anchor motion per unit node motion.
+        anchor_motion: (3, A, 34) anchor motion per unit node motion.
     """
     controls = np.concatenate([node_uv, anchor_uv])
     spline = RBFInterpolator(controls, np.eye(len(controls)), kernel='thin_plate_spline')
@@ -165,22 +165,28 @@ def _node_interpolation(
 
 
 def _skull_motion(points: np.ndarray, reference_mm: np.ndarray) -> np.ndarray:
-    """(K, 34) motion of points rigid with the skull per unit node motion.
+    """(3, K, 34) motion of points rigid with the skull per unit node motion, per coordinate.
 
-    The points follow the least-squares affine motion of the rigid nodes (eye centres and
-    corners, temples, upper cheeks): identity changes such as a wider face move them, expressions
-    do not.
+    Each coordinate c follows the least-squares scale and shift of coordinate c of the rigid
+    nodes (eye centres and corners, temples, upper cheeks) about their centroid m:
+    ``d_c = b_c + s_c (p_c - m_c)``. Identity changes such as a wider or larger face move the
+    points; expressions, which leave the rigid nodes alone, do not. Scale and shift only (no
+    shear): the points lie far outside the rigid nodes, where a full affine fit would extrapolate
+    wildly.
     """
     topology = mesh_topology(34)
     rigid = [topology.index(name) for name in _RIGID_NODES]
-    design = np.hstack([reference_mm[rigid], np.ones((len(rigid), 1))])
-    motion = np.zeros((len(points), 34))
-    motion[:, rigid] = np.hstack([points, np.ones((len(points), 1))]) @ np.linalg.pinv(design)
+    centred = reference_mm[rigid] - reference_mm[rigid].mean(axis=0)  # (R, 3)
+    offsets = points - reference_mm[rigid].mean(axis=0)  # (K, 3)
+    motion = np.zeros((3, len(points), 34))
+    for c in range(3):
+        scale = centred[:, c] / np.sum(centred[:, c] ** 2)  # s_c per unit motion of each node
+        motion[c][:, rigid] = 1.0 / len(rigid) + np.outer(offsets[:, c], scale)
     return motion
 
 
 def _anchor_motion(anchor_xyz: np.ndarray, reference_mm: np.ndarray) -> np.ndarray:
-    """(A, 34) motion of the skull anchors per unit node motion.
+    """(3, A, 34) motion of the skull anchors per unit node motion, per coordinate.
 
     Anchors beside and below the face follow the nearby face-edge nodes (Gaussian weights over
     uv distance), so the head's side follows the jaw and cheeks and never folds over them;
@@ -188,19 +194,13 @@ def _anchor_motion(anchor_xyz: np.ndarray, reference_mm: np.ndarray) -> np.ndarr
     alone. The two blend between the temples and the forehead.
     """
     topology = mesh_topology(34)
-    rigid = [topology.index(name) for name in _RIGID_NODES]
-    design = np.hstack([reference_mm[rigid], np.ones((len(rigid), 1))])
-    skull = np.zeros((len(anchor_xyz), 34))
-    skull[:, rigid] = np.hstack([anchor_xyz, np.ones((len(anchor_xyz), 1))]) @ np.linalg.pinv(
-        design
-    )
     edge = np.flatnonzero(topology.group_mask(Group.EDGE))
     distance = np.linalg.norm(anchor_xyz[:, None, :2] - reference_mm[None, edge, :2], axis=2)
     closeness = np.exp(-0.5 * (distance / _EDGE_FOLLOW_RADIUS) ** 2)
     sides = np.zeros((len(anchor_xyz), 34))
     sides[:, edge] = closeness / closeness.sum(axis=1, keepdims=True)
     lower = np.clip((anchor_xyz[:, 1:2] - _CRANIUM_Y) / (_TEMPLE_Y - _CRANIUM_Y), 0.0, 1.0)
-    return lower * sides + (1.0 - lower) * skull
+    return lower * sides + (1.0 - lower) * _skull_motion(anchor_xyz, reference_mm)
 
 
 def _neck_mesh(first_index: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -253,7 +253,7 @@ def head_surface() -> HeadSurface:
     head_motion = _node_interpolation(
         head_uv, node_uv, anchor_uv, _anchor_motion(anchor_xyz, reference_mm)
     )
-    head_motion[: len(node_uv)] = np.eye(len(node_uv))
+    head_motion[:, : len(node_uv)] = np.eye(len(node_uv))
     head_triangles = Delaunay(head_uv).simplices
     centroids = head_uv[head_triangles].mean(axis=1)
     head_triangles = head_triangles[outline_radius(centroids) < 1.0]
@@ -265,7 +265,7 @@ def head_surface() -> HeadSurface:
         rest_vertices=np.concatenate([head_xyz, neck_xyz]) / 1000.0,
         triangles=_counter_clockwise(triangles, uv),
         node_vertices=np.arange(len(node_uv)),
-        interpolation=np.concatenate([head_motion, _skull_motion(neck_xyz, reference_mm)]),
+        interpolation=np.concatenate([head_motion, _skull_motion(neck_xyz, reference_mm)], 1),
     )
     for array in (surface.uv, surface.rest_vertices, surface.triangles, surface.interpolation):
         array.setflags(write=False)

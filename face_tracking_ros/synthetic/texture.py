@@ -34,6 +34,8 @@ ATLAS_EXTENT = (372.0, 372.0)
 ATLAS_MM_PER_PX = 0.25
 ATLAS_LEVELS = 4
 MIN_PHOTO_NODES = 10
+_WARP_STEP = 8  # coarse-grid step of the photo warp, atlas pixels (divides the atlas size)
+_WARP_CENTRE = (_WARP_STEP - 1) / 2  # fine pixel of coarse sample 0 under cv2.resize
 
 # cv2 draws in fixed point with 4 fractional bits: features sit to 1/16 atlas pixel.
 _SHIFT = 4
@@ -170,11 +172,19 @@ def photo_texture(
     uv = np.array([reference[name] for name in node_pixels])
     pixels = np.array([node_pixels[name] for name in node_pixels], dtype=float)
     warp = RBFInterpolator(uv, pixels, kernel='thin_plate_spline', smoothing=0.0)
-    u, v = atlas_uv()
-    step = 8  # the warp is smooth: evaluate on a coarse grid and upsample
-    coarse = warp(np.stack([u[::step, ::step], v[::step, ::step]], axis=-1).reshape(-1, 2))
-    coarse = coarse.reshape(*u[::step, ::step].shape, 2).astype(np.float32)
-    maps = cv2.resize(coarse, u.shape[::-1], interpolation=cv2.INTER_LINEAR)
+    # The warp is smooth: evaluate it on a grid 8 times coarser and upsample. cv2.resize puts
+    # coarse sample k at fine pixel 8 k + 3.5, which is where the coarse grid is evaluated.
+    rows, cols = atlas_uv()[0].shape
+    u = ATLAS_ORIGIN[0] + ATLAS_MM_PER_PX * (
+        _WARP_STEP * np.arange(cols // _WARP_STEP) + _WARP_CENTRE
+    )
+    v = ATLAS_ORIGIN[1] + ATLAS_MM_PER_PX * (
+        _WARP_STEP * np.arange(rows // _WARP_STEP) + _WARP_CENTRE
+    )
+    coarse_u, coarse_v = np.meshgrid(u, v)
+    coarse = warp(np.stack([coarse_u, coarse_v], axis=-1).reshape(-1, 2))
+    coarse = coarse.reshape(*coarse_u.shape, 2).astype(np.float32)
+    maps = cv2.resize(coarse, (cols, rows), interpolation=cv2.INTER_LINEAR)
     rgb_photo = photo if photo.ndim == 3 else cv2.cvtColor(photo, cv2.COLOR_GRAY2RGB)
     atlas = cv2.remap(
         rgb_photo, maps[..., 0], maps[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT

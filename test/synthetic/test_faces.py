@@ -29,12 +29,12 @@ def test_identity_basis_is_orthonormal_with_decreasing_variance(preset: str, min
 
 def test_default_rms_spectrum_matches_the_preset():
     rms = FacePopulation('default').truth(34).identity_rms_mm()
-    np.testing.assert_allclose(rms, [9.0, 6.0, 3.5, 2.5], rtol=1e-9)
+    np.testing.assert_allclose(rms, [4.5, 3.0, 1.75, 1.25], rtol=1e-9)
 
 
 def test_realistic_spectrum_decays_slowly_over_ten_modes():
     rms = FacePopulation('realistic').truth(34).identity_rms_mm()
-    np.testing.assert_allclose(rms[:10], [12.6, 9.0, 5.8, 4.6, 3.7, 3.1, 2.4, 2.4, 2.0, 1.2])
+    np.testing.assert_allclose(2 * rms[:10], [12.6, 9.0, 5.8, 4.6, 3.7, 3.1, 2.4, 2.4, 2.0, 1.2])
 
 
 def _share_of_expressions_in_identity(population: FacePopulation, num_nodes: int) -> float:
