@@ -96,7 +96,9 @@ class ProcessorNode(Node):
         super().__init__(name)
         self._factory = RclpyMessages()
         self._processor = processor_factory(name)(NodeParameters(self), self._factory)
-        self._publishers = {port.topic: self._publisher(port) for port in self._processor.outputs}
+        self._output_publishers = {
+            port.topic: self._publisher(port) for port in self._processor.outputs
+        }
         self._on_demand = [port.topic for port in self._processor.outputs if port.on_demand]
         self._diagnostics = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
         self._subscriptions = [self._subscribe(port) for port in self._processor.inputs]
@@ -120,7 +122,7 @@ class ProcessorNode(Node):
     def _handle(self, topic: str, msg: Any) -> None:
         """Run the processor on one message; publish its outputs or report the bad input."""
         wanted = frozenset(
-            t for t in self._on_demand if self._publishers[t].get_subscription_count()
+            t for t in self._on_demand if self._output_publishers[t].get_subscription_count()
         )
         try:
             outputs = self._processor.handle(topic, msg, wanted)
@@ -129,7 +131,7 @@ class ProcessorNode(Node):
             self._report(DiagnosticStatus.WARN, f'{topic}: {error}')
             return
         for output in outputs:
-            self._publishers[output.topic].publish(output.msg)
+            self._output_publishers[output.topic].publish(output.msg)
 
     def _report(self, level: bytes, message: str) -> None:
         """Publish one diagnostic status for this node."""
