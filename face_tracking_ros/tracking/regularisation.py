@@ -165,6 +165,12 @@ class Regulariser:
         stretch_jacobian[rows, 3 * j[:, None] + np.arange(3)] = -gradient
         return np.vstack([self.linear_jacobian, stretch_jacobian])
 
+    def cost(self, nodes: np.ndarray, previous: np.ndarray) -> float:
+        """E_reg of eq. 5 for nodes (N, 3) and previous nodes (N, 3), m."""
+        motion = (nodes - previous).ravel()
+        stretch, _ = self._stretch(nodes)
+        return float(motion @ self.linear_hessian @ motion + stretch @ stretch)
+
     def normal_equations(
         self, nodes: np.ndarray, previous: np.ndarray
     ) -> tuple[float, np.ndarray, np.ndarray]:

@@ -41,6 +41,7 @@ from face_tracking_ros.tracking.result import TrackResult, TrackStatus
 from face_tracking_ros.tracking.stereo_data import (
     NormalEquations,
     SampleLayout,
+    image_cost,
     image_normal_equations,
     sample_templates,
 )
@@ -66,7 +67,8 @@ class StereoTrackerConfig:
         patch_half_size: node patches are (2 h + 1)^2 samples about one pixel apart.
         pyramid_levels: coarse-to-fine levels (1 = full resolution only).
         max_iterations: Levenberg-Marquardt iterations per pyramid level.
-        step_tolerance: convergence when no node moves more than this in an iteration, m.
+        step_tolerance: a level has converged when no node's projection moves more than this
+            in an iteration, pixels of that level.
         damping: initial Levenberg-Marquardt damping, relative to the Hessian diagonal.
         huber_k: Huber threshold in robust standard deviations of the image residuals.
         noise_floor: smallest robust standard deviation assumed for image residuals, grey levels.
@@ -85,7 +87,7 @@ class StereoTrackerConfig:
     patch_half_size: int = 5
     pyramid_levels: int = 3
     max_iterations: int = 6
-    step_tolerance: float = 2e-5
+    step_tolerance: float = 0.03
     damping: float = 1e-4
     huber_k: float = 1.345
     noise_floor: float = 2.0
@@ -453,19 +455,57 @@ class StereoTracker:
             augmented = hessian + damping * np.diag(np.diag(hessian))
             step = cho_solve(cho_factor(augmented), -gradient).reshape(-1, 3)
             candidate = nodes + step
-            trial = self._normal_equations(state, pyramids, templates, candidate, level)
-            if trial[0] <= cost:
+            small = self._pixel_motion(nodes, candidate) < config.step_tolerance * (1 << level)
+            trial = self._cost(state, pyramids, templates, candidate, level)
+            if trial <= cost:
                 nodes = candidate
-                cost, hessian, gradient, terms = trial
-                history.append(cost)
+                history.append(trial)
                 damping = max(damping / 10.0, 1e-9)
-                if np.abs(step).max() < config.step_tolerance:
+                if small:
                     break
+                cost, hessian, gradient, terms = self._normal_equations(
+                    state, pyramids, templates, nodes, level
+                )
             else:
                 damping *= 10.0
-                if damping > 1e3 or np.abs(step).max() < config.step_tolerance:
+                if damping > 1e3 or small:
                     break
         return nodes, iterations, history[1:], terms
+
+    def _pixel_motion(self, nodes: np.ndarray, moved: np.ndarray) -> float:
+        """Largest image motion of a node between two estimates, in either camera, px."""
+        return max(
+            float(np.abs(camera.project(moved) - camera.project(nodes)).max())
+            for camera in (self._rig.left, self._rig.right)
+        )
+
+    def _cost(
+        self,
+        state: _State,
+        pyramids: tuple[ImagePyramid, ImagePyramid],
+        templates: tuple[_Templates, ...],
+        nodes: np.ndarray,
+        level: int,
+    ) -> float:
+        """E(n) of eq. 4 + texture + eq. 5 at ``nodes``, without derivatives."""
+        cost = state.regulariser.cost(nodes, state.nodes)
+        cameras = (self._rig.left, self._rig.right)
+        for index, (layout, template) in enumerate(zip(state.layouts, templates, strict=True)):
+            points = layout.points(nodes, state.rotation, level)
+            huber = self._config.huber_k * state.noise[index]
+            for camera in (LEFT, RIGHT):
+                stack, coefficients = self._template_stack(index, template, camera)
+                cost += image_cost(
+                    pyramids[camera].levels[level],
+                    cameras[camera],
+                    layout,
+                    points,
+                    level,
+                    stack,
+                    coefficients,
+                    huber,
+                )
+        return cost
 
     def _normal_equations(
         self,

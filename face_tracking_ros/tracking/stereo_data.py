@@ -32,7 +32,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from face_tracking_ros.geometry.camera import PinholeCamera
-from face_tracking_ros.imaging import inside_image, sample_with_gradient, square_offsets
+from face_tracking_ros.imaging import (
+    inside_image,
+    sample_points,
+    sample_with_gradient,
+    square_offsets,
+)
 from face_tracking_ros.tracking.block_assembly import scatter_blocks, scatter_vectors
 from face_tracking_ros.tracking.surface_patches import surface_patch_offsets
 
@@ -111,16 +116,21 @@ class SampleLayout:
             mask=np.ones(shape, dtype=bool),
         )
 
+    @property
+    def slot_count(self) -> int:
+        """Nodes each group depends on: 1 for node patches, 3 for triangles."""
+        return 1 if not np.any(self.bary[:, 1:]) else 3
+
     def points(self, nodes: np.ndarray, rotation: np.ndarray, level: int) -> np.ndarray:
         """3-D sample points (G, M, 3), m, for nodes (N, 3) and the patch orientation (3, 3).
 
         Offsets are rotated by ``rotation`` (the head's rotation since frame 1) and scaled by
         2**level so a patch keeps its size in pixels on every pyramid level.
         """
-        corners = nodes[self.nodes]
-        return np.einsum('mk,gkd->gmd', self.bary, corners) + float(1 << level) * (
-            self.offsets @ rotation.T
-        )
+        offsets = float(1 << level) * (self.offsets @ rotation.T)
+        if self.slot_count == 1:
+            return nodes[self.nodes[:, 0]][:, None, :] + offsets
+        return np.einsum('mk,gkd->gmd', self.bary, nodes[self.nodes]) + offsets
 
 
 @dataclass(frozen=True)
@@ -161,6 +171,23 @@ def huber_scale(residuals: np.ndarray, floor: float) -> float:
     return max(floor, 1.4826 * float(np.median(np.abs(finite))))
 
 
+def image_cost(
+    image: np.ndarray,
+    camera: PinholeCamera,
+    layout: SampleLayout,
+    points: np.ndarray,
+    level: int,
+    templates: np.ndarray,
+    coefficients: np.ndarray,
+    huber: float,
+) -> float:
+    """The robust cost of :func:`image_normal_equations` alone (no derivatives), grey^2."""
+    pixels = camera.project(points.reshape(-1, 3)) / float(1 << level)
+    values = sample_points(image, pixels)
+    valid = _valid(pixels, image.shape, points, layout)
+    return _robust_residuals(values, valid, templates, coefficients, huber)[3]
+
+
 def image_normal_equations(
     image: np.ndarray,
     camera: PinholeCamera,
@@ -193,36 +220,31 @@ def image_normal_equations(
     pixels, projection_jacobian = camera.project_with_jacobian(points.reshape(-1, 3))
     pixels = pixels * scale
     values, gradient = sample_with_gradient(image, pixels)
-    valid = inside_image(pixels, image.shape, margin=1.0) & (points[..., 2].ravel() > 0)
-    valid = valid.reshape(groups, samples) & layout.mask
+    valid = _valid(pixels, image.shape, points, layout)
     counts = valid.sum(axis=1)
-    # d I / d P per sample (G, M, 3), then per node slot (G, M, 3 slots * 3).
-    row = np.einsum('sa,sai->si', gradient, projection_jacobian).reshape(groups, samples, 3)
-    row *= scale
-    slots = layout.bary[None, :, :, None] * row[:, :, None, :]
-    slots = slots.reshape(groups, samples, 9) * valid[..., None]
     safe_counts = np.maximum(counts, 1)[:, None]
+    differences, weight, weighted_residual, cost = _robust_residuals(
+        values, valid, templates, coefficients, huber
+    )
+    # d I / d P per sample (G, M, 3), then per node slot (G, M, S slots * 3); a single-node
+    # layout has one slot, a triangle layout three.
+    slot_count = layout.slot_count
+    row = gradient[:, :1] * projection_jacobian[:, 0] + gradient[:, 1:] * projection_jacobian[:, 1]
+    row = row.reshape(groups, samples, 3) * scale
+    slots = layout.bary[None, :, :slot_count, None] * row[:, :, None, :]
+    slots = slots.reshape(groups, samples, 3 * slot_count) * valid[..., None]
     slots -= valid[..., None] * (slots.sum(axis=1) / safe_counts)[:, None, :]
-
-    differences = values.reshape(groups, samples)[None] - templates
-    differences -= (differences * valid).sum(axis=2, keepdims=True) / safe_counts[None]
-    differences *= valid
-    magnitude = np.abs(differences)
-    robust = np.minimum(1.0, huber / np.maximum(magnitude, 1e-12))
-    coefficients = np.asarray(coefficients, dtype=float).reshape(templates.shape[0], -1, 1)
-    weighted = coefficients * robust
-    weight = weighted.sum(axis=0)
-    weighted_residual = (weighted * differences).sum(axis=0)
-    loss = np.where(magnitude <= huber, magnitude**2, 2.0 * huber * magnitude - huber**2)
-    cost = float((coefficients * loss).sum())
-
-    hessian_slots = np.swapaxes(slots * weight[..., None], 1, 2) @ slots  # (G, 9, 9)
-    gradient_slots = np.einsum('gms,gm->gs', slots, weighted_residual)  # (G, 9)
-    blocks = hessian_slots.reshape(groups, 3, 3, 3, 3).transpose(0, 1, 3, 2, 4)
-    rows = np.broadcast_to(layout.nodes[:, :, None], (groups, 3, 3))
-    cols = np.broadcast_to(layout.nodes[:, None, :], (groups, 3, 3))
+    hessian_slots = np.swapaxes(slots * weight[..., None], 1, 2) @ slots
+    gradient_slots = np.matmul(weighted_residual[:, None, :], slots)[:, 0]
+    shape = (groups, slot_count, 3, slot_count, 3)
+    blocks = hessian_slots.reshape(shape).transpose(0, 1, 3, 2, 4)
+    nodes = layout.nodes[:, :slot_count]
+    rows = np.broadcast_to(nodes[:, :, None], shape[:2] + (slot_count,))
+    cols = np.broadcast_to(nodes[:, None, :], shape[:2] + (slot_count,))
     hessian = scatter_blocks(rows, cols, blocks, num_nodes)
-    node_gradient = scatter_vectors(layout.nodes, gradient_slots.reshape(groups, 3, 3), num_nodes)
+    node_gradient = scatter_vectors(
+        nodes, gradient_slots.reshape(groups, slot_count, 3), num_nodes
+    )
     leading = templates[0] - (templates[0] * valid).sum(axis=1, keepdims=True) / safe_counts
     with np.errstate(invalid='ignore', divide='ignore'):
         group_rms = np.sqrt((differences[0] ** 2).sum(axis=1) / counts)
@@ -233,4 +255,43 @@ def image_normal_equations(
         gradient=node_gradient,
         group_rms=group_rms,
         group_contrast=group_contrast,
+    )
+
+
+def _valid(
+    pixels: np.ndarray, shape: tuple[int, int], points: np.ndarray, layout: SampleLayout
+) -> np.ndarray:
+    """(G, M) samples in use: in the layout's mask, in front of the camera, inside the image."""
+    valid = inside_image(pixels, shape, margin=1.0) & (points[..., 2].ravel() > 0)
+    return valid.reshape(points.shape[:2]) & layout.mask
+
+
+def _robust_residuals(
+    values: np.ndarray,
+    valid: np.ndarray,
+    templates: np.ndarray,
+    coefficients: np.ndarray,
+    huber: float,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+    """ZSSD residuals against each template and their Huber-weighted combination.
+
+    Returns:
+        ``(differences, weight, weighted_residual, cost)``: (K, G, M) residuals with each
+        group's mean removed (0 where not valid); (G, M) total weight sum_k a_k w_k; (G, M)
+        sum_k a_k w_k r_k; the robust cost sum_k a_k rho_huber(r_k).
+    """
+    counts = np.maximum(valid.sum(axis=1), 1)[:, None]
+    differences = values.reshape(valid.shape)[None] - templates
+    differences -= (differences * valid).sum(axis=2, keepdims=True) / counts[None]
+    differences *= valid
+    magnitude = np.abs(differences)
+    robust = np.minimum(1.0, huber / np.maximum(magnitude, 1e-12))
+    coefficients = np.asarray(coefficients, dtype=float).reshape(templates.shape[0], -1, 1)
+    weighted = coefficients * robust
+    loss = np.where(magnitude <= huber, magnitude**2, 2.0 * huber * magnitude - huber**2)
+    return (
+        differences,
+        weighted.sum(axis=0),
+        (weighted * differences).sum(axis=0),
+        float((coefficients * loss).sum()),
     )
