@@ -19,6 +19,8 @@ NODES: dict[str, str] = {
     'stereo_tracker': 'face_tracking_ros.nodes.stereo_tracker:main',
     'expression_recognizer': 'face_tracking_ros.nodes.expression_recognizer:main',
     'identity_recognizer': 'face_tracking_ros.nodes.identity_recognizer:main',
+    'bag_player': 'face_tracking_ros.nodes.bag_player:main',
+    'bag_recorder': 'face_tracking_ros.nodes.bag_recorder:main',
 }
 
 # Command-line tools that are not nodes.
