@@ -45,7 +45,7 @@ class TrackedSequence:
         t: (F, 3) translations, m.
         alpha: (F, q) action parameters.
         nodes: (F, N, 3) nodes in the camera frame, m.
-        seconds: (F,) wall-clock time of each ``step``, s.
+        seconds: (F,) CPU time of each ``step`` (``time.process_time``), s.
     """
 
     status: np.ndarray
@@ -64,8 +64,9 @@ class TrackerEvaluation:
         accuracy: errors against truth (:class:`TrackingAccuracy`).
         angle_std_deg: (x, y, z) standard deviation of the estimated rotation angles over the
             tracked frames, degrees: the jitter of a still head (meaningful on still sequences).
-        ms_median: median compute time per frame, ms (first frame excluded).
-        ms_p95: 95th percentile of the compute time per frame, ms.
+        ms_median: median CPU time per frame, ms (first frame excluded); all threads of the
+            process count, so set ``cv2.setNumThreads(1)`` to measure one core.
+        ms_p95: 95th percentile of the CPU time per frame, ms.
     """
 
     accuracy: TrackingAccuracy
@@ -90,9 +91,9 @@ def run_tracker(
     tracker.reset(init)
     results, seconds = [], []
     for image in images:
-        start = time.perf_counter()
+        start = time.process_time()
         results.append(tracker.step(image))
-        seconds.append(time.perf_counter() - start)
+        seconds.append(time.process_time() - start)
     if not results:
         msg = 'no images to track'
         raise InputError(msg)

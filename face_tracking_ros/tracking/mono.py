@@ -100,7 +100,9 @@ class MonoTrackerConfig:
         sigma_frames: frames after an initialisation during which sigma is estimated with the
             pose, then held fixed (>= 0; 0 keeps the sigma of the initial fit or enrolment).
         damping: initial Levenberg-Marquardt damping, relative to diag(H) (> 0).
-        convergence_px: a level stops when no sample moves more than this, level px (> 0).
+        convergence_px: a level stops when no node moves more than this, level px (> 0).
+        jacobian_refresh_px: the Jacobian is re-evaluated after the nodes have moved this far
+            since it was last evaluated, level px (> 0).
         visibility_cos: a node's weight ramps from 0 to 1 as the cosine between its outward
             normal and the ray to the camera goes from this value to twice it (in [0, 0.5)).
         lost_residual_ratio: a node fails when its RMS residual exceeds this multiple of its
@@ -117,7 +119,7 @@ class MonoTrackerConfig:
     epsilon: float = 0.2
     pyramid_levels: int = 3
     smooth_base: bool = True
-    max_iterations: int = 6
+    max_iterations: int = 4
     patch_half_size: int = 4
     patch_spacing_px: float = 1.5
     edge_patch_shift: float = 1.0
@@ -130,6 +132,7 @@ class MonoTrackerConfig:
     sigma_frames: int = 0
     damping: float = 1e-4
     convergence_px: float = 0.01
+    jacobian_refresh_px: float = 0.5
     visibility_cos: float = 0.1
     lost_residual_ratio: float = 0.8
     lost_node_fraction: float = 0.5
@@ -155,6 +158,7 @@ class MonoTrackerConfig:
             'sigma_frames': self.sigma_frames >= 0,
             'damping': self.damping > 0,
             'convergence_px': self.convergence_px > 0,
+            'jacobian_refresh_px': self.jacobian_refresh_px > 0,
             'visibility_cos': 0.0 <= self.visibility_cos < 0.5,
             'lost_residual_ratio': self.lost_residual_ratio > 0,
             'lost_node_fraction': 0.0 < self.lost_node_fraction <= 1.0,
@@ -187,13 +191,24 @@ class _Params(NamedTuple):
         )
 
 
+class _Linearisation(NamedTuple):
+    """Jacobians at a linearisation point on one pyramid level.
+
+    Attributes:
+        jacobian: (N M, P) derivative of the projected residuals, grey levels per parameter.
+        node_jacobian: (2 N, P) derivative of the node pixels, level px per parameter.
+    """
+
+    jacobian: np.ndarray
+    node_jacobian: np.ndarray
+
+
 class _System(NamedTuple):
-    """Eq. 6 linearised at one parameter vector on one pyramid level."""
+    """Eq. 6 normal equations at one parameter vector on one pyramid level."""
 
     cost: float
     hessian: np.ndarray
     gradient: np.ndarray
-    pixel_jacobian: np.ndarray
     scale: float
 
 
@@ -515,25 +530,32 @@ class MonoTracker:
         node_weights: np.ndarray,
         free_sigma: bool,
     ) -> _Solution:
-        """Levenberg-Marquardt on eq. 6 plus priors, from the coarsest level to level 0."""
+        """Levenberg-Marquardt on eq. 6 plus priors, from the coarsest level to level 0.
+
+        The Jacobian is evaluated where a level starts and re-evaluated only once the samples
+        have moved ``jacobian_refresh_px`` since; the iterations in between only sample the
+        image (one ``cv2.remap`` of the ROI points each).
+        """
         config = self._config
         q = self._model.q
         params = start
         costs: list[float] = []
         for level in reversed(range(pyramid.num_levels)):
             projection = PhotometricProjection.of(templates[level], config.photometric, self._grid)
+            linear = self._linearise(pyramid, level, params, projection, free_sigma)
             damping = config.damping
             accepted: tuple[_Params, _System] | None = None
             scale = None
+            moved = 0.0
             for _ in range(config.max_iterations):
-                system = self._linearise(
+                system = self._evaluate(
                     pyramid,
                     level,
                     params,
                     templates[level],
                     projection,
                     node_weights,
-                    free_sigma,
+                    linear,
                     scale,
                 )
                 scale = system.scale
@@ -546,9 +568,13 @@ class MonoTracker:
                     damping = max(0.1 * damping, 1e-9)
                 step = _damped_step(system, damping)
                 params = params.updated(step, q)
-                motion = np.abs(system.pixel_jacobian @ step).max(initial=0.0)
+                motion = np.abs(linear.node_jacobian @ step).max(initial=0.0)
                 if motion < config.convergence_px:
                     break
+                moved += motion
+                if moved > config.jacobian_refresh_px:
+                    linear = self._linearise(pyramid, level, params, projection, free_sigma)
+                    moved = 0.0
         return _Solution(
             params=params,
             fallback=accepted[0],
@@ -564,10 +590,54 @@ class MonoTracker:
         pyramid: ImagePyramid,
         level: int,
         params: _Params,
+        projection: PhotometricProjection,
+        free_sigma: bool,
+    ) -> _Linearisation:
+        """The Jacobian of eq. 6's photometrically projected residuals at ``params``.
+
+        Image gradient (sampled on the ROIs only) x d pixel / d X_c (eq. 2) x d X_c / d(omega,
+        t, alpha[, sigma]) (eq. 1, 3), then ``1 - P`` of the photometric model.
+        """
+        basis = self._identity_action_basis if free_sigma else self._action_basis
+        shape = self._model.shape(params.sigma, params.alpha)
+        points, points_cam, pixels = self._roi_points(params, level)
+        level_scale = 1.0 / float(1 << level)
+        _, gradient = sample_with_gradient(pyramid.levels[level], pixels)
+        jacobian = photometric_jacobian(
+            self._camera, params.omega, points, points_cam, gradient * level_scale, basis
+        )
+        node_jacobian = project_with_jacobian(
+            self._camera, params.omega, params.t, shape, basis
+        ).jacobian
+        return _Linearisation(
+            jacobian=projection.apply(jacobian).reshape(-1, jacobian.shape[-1]),
+            node_jacobian=node_jacobian.reshape(-1, jacobian.shape[-1]) * level_scale,
+        )
+
+    def _roi_points(
+        self, params: _Params, level: int, offsets: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(N, M, 3) face-frame and camera-frame ROI points (eq. 1, 3), (N, M, 2) level pixels.
+
+        ``offsets`` are the level's (N, M, 3) ROI offsets, by default the track's.
+        """
+        shape = self._model.shape(params.sigma, params.alpha)
+        offsets = self._track.offsets[level] if offsets is None else offsets
+        points = shape[:, None, :] + offsets
+        rotation, _ = rodrigues(params.omega)
+        points_cam = (points.reshape(-1, 3) @ rotation.T + params.t).reshape(points.shape)
+        pixels = self._camera.project(points_cam.reshape(-1, 3)) * (1.0 / float(1 << level))
+        return points, points_cam, pixels.reshape(*points.shape[:2], 2)
+
+    def _evaluate(
+        self,
+        pyramid: ImagePyramid,
+        level: int,
+        params: _Params,
         template: np.ndarray,
         projection: PhotometricProjection,
         node_weights: np.ndarray,
-        free_sigma: bool,
+        linear: _Linearisation,
         scale: float | None,
     ) -> _System:
         """Residuals, Huber-weighted normal equations and cost of eq. 6 on one level.
@@ -575,47 +645,31 @@ class MonoTracker:
         Args:
             pyramid: the current image I_n.
             level: pyramid level.
-            params: linearisation point.
+            params: where to evaluate.
             template: (N, M) blended template T of this level.
             projection: the photometric invariance of the residuals for ``template``.
             node_weights: (N,) visibility weights.
-            free_sigma: also differentiate with respect to sigma.
+            linear: the Jacobian (from a nearby linearisation point).
             scale: the robust residual scale s, or None to estimate it from these residuals.
         """
-        basis = self._identity_action_basis if free_sigma else self._action_basis
-        shape = self._model.shape(params.sigma, params.alpha)
-        points = shape[:, None, :] + self._track.offsets[level]
-        rotation, _ = rodrigues(params.omega)
-        points_cam = points @ rotation.T + params.t
-        level_scale = 1.0 / float(1 << level)
-        pixels = self._camera.project(points_cam.reshape(-1, 3)).reshape(*points.shape[:2], 2)
+        _, _, pixels = self._roi_points(params, level)
         image = pyramid.levels[level]
-        values, gradient = sample_with_gradient(image, pixels * level_scale)
-        residuals = projection.apply(values - template)
-        weights = node_weights[:, None] * inside_image(pixels * level_scale, image.shape, 1.0)
+        residuals = projection.apply(sample_points(image, pixels) - template)
+        weights = node_weights[:, None] * inside_image(pixels, image.shape, 1.0)
         if scale is None:
             active = np.abs(residuals[weights > 0])
             spread = _MAD_TO_STD * float(np.median(active)) if active.size else 0.0
             scale = max(self._config.residual_scale_floor, spread)
-        jacobian = photometric_jacobian(
-            self._camera, params.omega, points, points_cam, gradient * level_scale, basis
-        )
-        jacobian = projection.apply(jacobian).reshape(residuals.size, -1)
-        node_jacobian = project_with_jacobian(
-            self._camera, params.omega, params.t, shape, basis
-        ).jacobian
         normalised = (residuals / scale).ravel()
         huber = _huber_weights(normalised, self._config.huber_k) * weights.ravel()
-        weighted = jacobian * huber[:, None]
-        hessian = weighted.T @ jacobian / scale**2
-        gradient_vector = weighted.T @ residuals.ravel() / scale**2
+        weighted = linear.jacobian * huber[:, None]
+        free_sigma = linear.jacobian.shape[1] > POSE_DIM + self._model.q
         prior_hessian, prior_gradient = self._prior_terms(params, free_sigma)
         cost = self._data_cost(residuals, weights, scale) + self._prior_cost(params, free_sigma)
         return _System(
             cost=cost,
-            hessian=hessian + prior_hessian,
-            gradient=gradient_vector + prior_gradient,
-            pixel_jacobian=node_jacobian.reshape(-1, jacobian.shape[1]) * level_scale,
+            hessian=weighted.T @ linear.jacobian / scale**2 + prior_hessian,
+            gradient=weighted.T @ residuals.ravel() / scale**2 + prior_gradient,
             scale=scale,
         )
 
@@ -702,15 +756,9 @@ class MonoTracker:
         normals: np.ndarray,
     ) -> _Templates:
         """Samples of every level at ``params``'s ROIs, and the node visibility there."""
-        shape = self._model.shape(params.sigma, params.alpha)
-        rotation, _ = rodrigues(params.omega)
         levels, inside = [], None
         for level, image in enumerate(pyramid.levels):
-            points_cam = (shape[:, None, :] + offsets[level]) @ rotation.T + params.t
-            pixels = self._camera.project(points_cam.reshape(-1, 3)).reshape(
-                *points_cam.shape[:2], 2
-            )
-            pixels = ImagePyramid.to_level(pixels, level)
+            _, _, pixels = self._roi_points(params, level, offsets[level])
             levels.append(sample_points(image, pixels))
             if inside is None:
                 inside = inside_image(pixels, image.shape, margin=1.0)
