@@ -12,11 +12,12 @@ import time
 
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
+from rosbags.typesys.store import Typestore
 
-from face_tracking_ros.io.bags import BagWriter, read_raw
+from face_tracking_ros.io.bags import BagWriter, read_messages
 from face_tracking_ros.io.typestore import typestore
 
-from conftest import REPO, sample_fields, to_rosbags
+from conftest import REPO, sample_fields, to_plain, to_rosbags
 
 TIMEOUT_S = 20.0
 T0 = 1_700_000_000_000_000_000
@@ -83,9 +84,10 @@ def write_bag(path: Path, records: Iterable[tuple[str, str, int, int]]) -> None:
             bag.write(topic, msgtype, message, T0 + offset_ms * 1_000_000)
 
 
-def raw_by_topic(path: Path) -> dict[str, list[bytes]]:
-    """The CDR bytes of every message of a bag, per topic name without a leading '/'."""
-    messages: dict[str, list[bytes]] = {}
-    for message in read_raw(path):
-        messages.setdefault(message.topic.lstrip('/'), []).append(message.data)
+def plain_by_topic(store: Typestore, path: Path) -> dict[str, list[dict]]:
+    """The fields of every message of a bag, per topic name without a leading '/'."""
+    messages: dict[str, list[dict]] = {}
+    for message in read_messages(path):
+        fields = to_plain(store, message.msgtype, message.msg)
+        messages.setdefault(message.topic.lstrip('/'), []).append(fields)
     return messages
