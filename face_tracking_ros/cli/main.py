@@ -25,6 +25,7 @@ from face_tracking_ros.errors import FaceTrackingError
 SUBCOMMANDS: tuple[str, ...] = (
     'msgs',
     'synth',
+    'learn',
     'track',
     'replay',
     'plot',

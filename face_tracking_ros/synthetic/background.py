@@ -16,7 +16,8 @@ import numpy as np
 from face_tracking_ros.errors import ConfigError
 from face_tracking_ros.geometry.camera import PinholeCamera
 
-_MARGIN = 96  # extra backdrop columns on each side, covering stereo shifts, px
+_MARGIN = 96  # extra backdrop columns on each side at the nominal scale (stereo shifts), px
+_NOMINAL_HEIGHT = 480  # rows at which the clutter is painted
 
 
 @dataclass(frozen=True)
@@ -26,10 +27,12 @@ class Backdrop:
     Attributes:
         image: (H, W + 2 margin, 3) float32 RGB in [0, 255], as seen by a camera with P[0, 3] = 0.
         depth: distance of the wall from the reference camera, m.
+        margin: extra columns on each side of the image, px.
     """
 
     image: np.ndarray
     depth: float
+    margin: int
 
     @classmethod
     def cluttered(cls, width: int, height: int, seed: int, depth: float = 2.5) -> Backdrop:
@@ -42,11 +45,16 @@ class Backdrop:
             msg = f'backdrop needs a positive size and depth, got {width}x{height} at {depth} m'
             raise ConfigError(msg)
         rng = np.random.default_rng(seed)
-        image = _wall(rng, width + 2 * _MARGIN, height)
+        # Painted at the nominal 480-row scale, then resized: clutter keeps its look at any size.
+        scale = height / _NOMINAL_HEIGHT
+        margin = int(np.ceil(_MARGIN * scale))
+        nominal_width = round((width + 2 * margin) / scale)
+        image = _wall(rng, nominal_width, _NOMINAL_HEIGHT)
         for paint in (_window, _shelves, _frames, _plant, _cable):
             paint(rng, image)
         image = cv2.GaussianBlur(image, (0, 0), 1.1)  # out of focus behind the subject
-        return cls(image=image, depth=depth)
+        image = cv2.resize(image, (width + 2 * margin, height), interpolation=cv2.INTER_AREA)
+        return cls(image=image, depth=depth, margin=margin)
 
     def view(self, camera: PinholeCamera, encoding: str) -> np.ndarray:
         """The wall as ``camera`` sees it: (H, W) or (H, W, 3) float32 in [0, 255].
@@ -55,7 +63,7 @@ class Backdrop:
             camera: a camera of the rig (its ``P[0, 3]`` sets the shift).
             encoding: 'mono8' or 'rgb8'.
         """
-        shift = camera.p[0, 3] / self.depth - _MARGIN
+        shift = camera.p[0, 3] / self.depth - self.margin
         warp = np.array([[1.0, 0.0, shift], [0.0, 1.0, 0.0]])
         image = cv2.warpAffine(
             self.image, warp, (camera.width, camera.height), flags=cv2.INTER_LINEAR,

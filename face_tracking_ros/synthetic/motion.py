@@ -160,7 +160,7 @@ class ExpressionSegment:
         return self.start + self.rise + self.hold + self.fall
 
     def intensity(self, time: float) -> float:
-        """Intensity in [0, peak] at ``time`` s (0 outside the segment)."""
+        """Intensity in [0, peak] at ``time`` s (0 outside the segment); continuous in time."""
         local = time - self.start
         if local <= 0.0 or time >= self.end:
             return 0.0
@@ -168,11 +168,15 @@ class ExpressionSegment:
             return self.peak * 0.5 * (1.0 - np.cos(np.pi * local / self.rise))
         local -= self.rise
         if local < self.hold:
-            if not self.talk:
-                return self.peak
-            return self.peak * (0.65 + 0.35 * np.cos(2.0 * np.pi * _TALK_HZ * local))
+            return self._apex(local)
         local -= self.hold
-        return self.peak * 0.5 * (1.0 + np.cos(np.pi * local / self.fall))
+        return self._apex(self.hold) * 0.5 * (1.0 + np.cos(np.pi * local / self.fall))
+
+    def _apex(self, local: float) -> float:
+        """Intensity ``local`` s into the apex: the peak, or a talking oscillation below it."""
+        if not self.talk:
+            return self.peak
+        return self.peak * (0.65 + 0.35 * np.cos(2.0 * np.pi * _TALK_HZ * local))
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,80 @@
+"""Tests of head trajectories and expression scripts (motion.py)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from face_tracking_ros.errors import ConfigError
+from face_tracking_ros.synthetic.faces import ACTIVE_EXPRESSIONS
+from face_tracking_ros.synthetic.motion import (
+    FREE_ANGLE_LIMITS,
+    STILL_ANGLE_LIMIT,
+    ExpressionScript,
+    HeadTrajectory,
+)
+
+TIMES = np.linspace(0.0, 60.0, 1201)
+
+
+@pytest.mark.parametrize('seed', range(5))
+def test_free_motion_stays_in_the_working_volume_at_human_speed(seed: int):
+    trajectory = HeadTrajectory.random('free', np.random.default_rng(seed))
+    angles = np.array([trajectory.angles(t) for t in TIMES])
+    positions = np.array([trajectory.pose(t)[1] for t in TIMES])
+    assert np.all(np.abs(angles) <= FREE_ANGLE_LIMITS + 1e-12)
+    assert np.max(np.abs(angles[:, 1])) > np.radians(10.0)  # it does move
+    assert np.all(np.ptp(positions, axis=0) <= 0.15)
+    assert np.all((positions[:, 2] >= 0.5) & (positions[:, 2] <= 0.8))
+    speed = np.abs(np.diff(angles, axis=0)) / np.diff(TIMES)[:, None]
+    assert np.max(speed) < np.radians(120.0)
+
+
+@pytest.mark.parametrize('seed', range(5))
+def test_still_motion_is_a_small_residual_sway(seed: int):
+    trajectory = HeadTrajectory.random('still', np.random.default_rng(seed), lateral_offset=0.055)
+    angles = np.array([trajectory.angles(t) for t in TIMES])
+    positions = np.array([trajectory.pose(t)[1] for t in TIMES])
+    assert np.max(np.abs(angles)) <= STILL_ANGLE_LIMIT < np.radians(1.0)
+    assert np.max(np.abs(positions - trajectory.centre)) <= 0.003
+    assert abs(trajectory.centre[0] - 0.055) <= 0.02
+
+
+def test_unknown_motion_raises():
+    with pytest.raises(ConfigError, match="unknown motion 'jumping'"):
+        HeadTrajectory.random('jumping', np.random.default_rng(0))
+
+
+def test_training_script_starts_neutral_and_plays_expressions_in_turn():
+    script = ExpressionScript.training(duration=12.0, first=2)
+    labels = [script.state(t).label for t in np.arange(0.0, 12.0, 0.1)]
+    assert set(labels[:24]) == {'neutral'}  # the first 20 %
+    played = [s.label for s in script.segments]
+    assert played == [ACTIVE_EXPRESSIONS[(2 + k) % 6] for k in range(len(played))]
+    assert len(played) == 4
+    apex = script.segments[0].start + script.segments[0].rise + 0.5 * script.segments[0].hold
+    state = script.state(apex)
+    assert state.label == played[0] and state.intensity == pytest.approx(1.0)
+    np.testing.assert_array_equal(state.alpha, np.eye(6)[ACTIVE_EXPRESSIONS.index(played[0])])
+
+
+def test_short_training_script_still_has_a_neutral_start_and_one_expression():
+    script = ExpressionScript.training(duration=1.0)
+    assert len(script.segments) == 1 and script.segments[0].start >= 0.5
+    assert script.state(0.2).label == 'neutral'
+
+
+@pytest.mark.parametrize('seed', range(4))
+def test_random_script_has_onsets_offsets_and_neutral_between(seed: int):
+    script = ExpressionScript.random(30.0, np.random.default_rng(seed))
+    assert len(script.segments) >= 4
+    for before, after in zip(script.segments, script.segments[1:], strict=False):
+        assert after.start >= before.end + 0.3
+    assert script.segments[-1].end <= 30.0
+    states = [script.state(t) for t in np.arange(0.0, 30.0, 0.02)]
+    intensities = np.array([s.intensity for s in states])
+    assert np.all((intensities >= 0.0) & (intensities <= 1.0))
+    assert np.max(np.abs(np.diff(intensities))) < 0.2  # smooth onsets and offsets
+    for state in states:
+        assert (state.label == 'neutral') == (state.intensity == 0.0)
+        assert np.count_nonzero(state.alpha) == (state.label != 'neutral')

@@ -1,0 +1,161 @@
+"""Tests of synthetic scenes, bags and the ``face-tracking synth`` command."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from mcap.reader import make_reader
+from mcap_ros2.decoder import DecoderFactory
+import numpy as np
+import pytest
+
+from face_tracking_ros.cli.main import main
+from face_tracking_ros.errors import ConfigError
+from face_tracking_ros.geometry.rotation import omega_to_quaternion
+from face_tracking_ros.io.bags import read_messages
+from face_tracking_ros.synthetic.faces import FacePopulation
+from face_tracking_ros.synthetic.recording import TRUTH_TOPIC, record
+from face_tracking_ros.synthetic.scenes import SceneConfig, SequenceRenderer, SyntheticFrame
+
+SMALL = {'width': 160, 'height': 120, 'focal': 150.0, 'frames': 3, 'fps': 15.0}
+
+
+@pytest.fixture(scope='module')
+def stereo_frames() -> list[SyntheticFrame]:
+    config = SceneConfig(kind='stereo', motion='free', seed=2, **{**SMALL, 'frames': 6})
+    return list(SequenceRenderer(config, 0).frames(0))
+
+
+def test_stereo_truth_satisfies_the_rectified_epipolar_constraint(stereo_frames):
+    config = SceneConfig(kind='stereo', seed=2, **SMALL)
+    cameras = config.cameras()
+    for frame in stereo_frames:
+        nodes = frame.truth.nodes_camera
+        left, right = cameras['left'].project(nodes), cameras['right'].project(nodes)
+        np.testing.assert_allclose(left[:, 1], right[:, 1], atol=1e-9)  # same row
+        disparity = left[:, 0] - right[:, 0]
+        np.testing.assert_allclose(disparity, config.focal * config.baseline / nodes[:, 2])
+        assert frame.images['left'].shape == (120, 160) and frame.images['left'].dtype == np.uint8
+
+
+def test_frame_truth_is_eq3_with_true_bases_posed_by_eq1(stereo_frames):
+    population = FacePopulation('default', seed=2)
+    subject = population.subject(0)
+    for frame in stereo_frames:
+        truth = frame.truth
+        np.testing.assert_allclose(truth.nodes_face, population.nodes(subject, truth.alpha))
+        np.testing.assert_array_equal(truth.sigma, subject.sigma_true)
+        assert frame.stamp_ns == 1_700_000_000 * 10**9 + round(frame.index * 1e9 / 15.0)
+        assert set(truth.visible) == {'left', 'right'} and truth.visible['left'].shape == (34,)
+
+
+def _bag_bytes(root: Path) -> dict[str, bytes]:
+    return {
+        str(p.relative_to(root)): p.read_bytes() for p in sorted(root.rglob('*')) if p.is_file()
+    }
+
+
+def test_same_seed_gives_byte_identical_bags(tmp_path):
+    config = SceneConfig(kind='mono', subjects=2, seed=5, **SMALL)
+    record(config, tmp_path / 'a')
+    record(config, tmp_path / 'b')
+    first, second = _bag_bytes(tmp_path / 'a'), _bag_bytes(tmp_path / 'b')
+    assert len(first) == 4  # two bags, each metadata.yaml + one .mcap
+    assert first == second
+    record(SceneConfig(kind='mono', subjects=2, seed=6, **SMALL), tmp_path / 'c')
+    assert _bag_bytes(tmp_path / 'c') != first
+
+
+def test_bags_round_trip_through_rosbags_and_the_mcap_reader(tmp_path):
+    frames: list[SyntheticFrame] = []
+    config = SceneConfig(kind='stereo', seed=1, **SMALL)
+    [bag] = record(config, tmp_path, on_frame=frames.append)
+    assert bag.frames == 3 and bag.path.name == 'subject_00_seq_00'
+    messages = list(read_messages(bag.path))
+    topics = {m.topic for m in messages}
+    assert topics == {
+        'left/image_raw', 'left/camera_info', 'right/image_raw', 'right/camera_info', TRUTH_TOPIC
+    }  # fmt: skip
+    truths = [m.msg for m in messages if m.topic == TRUTH_TOPIC]
+    images = [m.msg for m in messages if m.topic == 'right/image_raw']
+    infos = [m.msg for m in messages if m.topic == 'right/camera_info']
+    for frame, truth, image, info in zip(frames, truths, images, infos, strict=True):
+        expected = frame.truth
+        assert (
+            truth.subject_id == 'subject_00'
+            and truth.header.frame_id == 'left_camera_optical_frame'
+        )
+        np.testing.assert_array_equal(truth.omega, expected.omega)
+        np.testing.assert_array_equal(truth.alpha, expected.alpha)
+        np.testing.assert_array_equal(truth.sigma, expected.sigma)
+        nodes = np.array([(p.x, p.y, p.z) for p in truth.nodes])
+        np.testing.assert_array_equal(nodes, expected.nodes_camera)
+        quaternion = [truth.pose.orientation.x, truth.pose.orientation.y,
+                      truth.pose.orientation.z, truth.pose.orientation.w]  # fmt: skip
+        np.testing.assert_allclose(quaternion, omega_to_quaternion(expected.omega))
+        assert truth.expression_label == expected.label
+        assert truth.expression_intensity == expected.intensity
+        assert (image.encoding, image.height, image.width, image.step) == ('mono8', 120, 160, 160)
+        np.testing.assert_array_equal(image.data.reshape(120, 160), frame.images['right'])
+        assert info.p[3] == pytest.approx(-150.0 * 0.11)
+    mcap_truths = []
+    with next(bag.path.glob('*.mcap')).open('rb') as stream:
+        reader = make_reader(stream, decoder_factories=[DecoderFactory()])
+        for _, channel, message, decoded in reader.iter_decoded_messages():
+            if channel.topic == TRUTH_TOPIC:
+                mcap_truths.append((message.log_time, decoded))
+    assert [t for t, _ in mcap_truths] == [f.stamp_ns for f in frames]
+    for (_, decoded), frame in zip(mcap_truths, frames, strict=True):
+        assert decoded.expression_label == frame.truth.label
+        np.testing.assert_array_equal(decoded.sigma, frame.truth.sigma)
+
+
+def test_synth_command_writes_bags_and_a_contact_sheet(tmp_path, capsys):
+    status = main([
+        'synth', '--kind', 'mono', '--frames', '2', '--size', '160x120', '--focal', '150',
+        '--motion', 'free', '--seed', '3', '--out', str(tmp_path / 'bags'),
+    ])  # fmt: skip
+    assert status == 0
+    assert (tmp_path / 'bags' / 'subject_00_seq_00' / 'metadata.yaml').is_file()
+    assert '1 bags, 2 frames' in capsys.readouterr().out
+
+
+@pytest.mark.parametrize(
+    ('arguments', 'message'),
+    [
+        (['--subjects', '0'], 'subjects must be >= 1, got 0'),
+        (['--frames', '0'], 'frames must be >= 1, got 0'),
+        (['--fps', '0'], r'fps must be in \(0, 120\]'),
+        (
+            ['--texture', 'missing.png', '--texture-nodes', 'missing.json'],
+            'texture file not found',
+        ),
+        (['--texture', 'missing.png'], 'needs its node positions'),
+        (['--baseline', '0.3'], r'baseline must be in \[0.1, 0.12\] m'),
+    ],
+)
+def test_bad_arguments_give_clear_errors(tmp_path, capsys, arguments, message):
+    status = main(['synth', '--out', str(tmp_path), *arguments])
+    assert status == 2
+    err = capsys.readouterr().err
+    assert err.startswith('error: ')
+    import re
+
+    assert re.search(message, err)
+    with pytest.raises(ConfigError):
+        SceneConfig(**{'subjects': 0})
+
+
+def test_scene_config_rejects_bad_values():
+    with pytest.raises(ConfigError, match="unknown kind 'fisheye'"):
+        SceneConfig(kind='fisheye')
+    with pytest.raises(ConfigError, match="unknown motion 'dance'"):
+        SceneConfig(motion='dance')
+    with pytest.raises(ConfigError, match="unknown population preset 'huge'"):
+        SceneConfig(population='huge')
+    with pytest.raises(ConfigError, match="unknown image encoding 'yuv422'"):
+        SceneConfig(encoding='yuv422')
+    with pytest.raises(ConfigError, match='seed must be >= 0'):
+        SceneConfig(seed=-1)
+    with pytest.raises(ConfigError, match='sequence index must be >= 0'):
+        next(SequenceRenderer(SceneConfig(**SMALL), 0).frames(-1))
