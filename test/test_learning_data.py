@@ -59,6 +59,7 @@ def test_subject_means_and_without_subject():
     assert np.allclose(training.subject_means(values, mask), [[0, 1], [8, 9], [10, 11]])
     reduced = training.without_subject(1)
     assert reduced.subject_ids == ('a', 'c')
+    assert reduced.subject_sources == ('a.bag', 'c.bag')
     assert reduced.subject_index.tolist() == [0, 0, 1]
     assert np.array_equal(reduced.meshes, training.meshes[[0, 1, 5]])
 
@@ -73,8 +74,14 @@ def test_subject_means_and_without_subject():
         ),
         ([_sequence('a', meshes=np.zeros((4, 20, 3)))], r"'a'.*20 nodes; supported: \(19, 34\)"),
         ([_sequence('a', meshes=np.zeros((0, 19, 3)))], r'non-empty \(F, N, 3\) stack'),
-        ([_sequence('a'), _sequence('b', nodes=34)], r"different node counts \('a': 19, 'b': 34"),
-        ([_sequence('a', neutral=np.zeros(4, bool))], r"subject 'a' has no neutral frames"),
+        (
+            [_sequence('a'), _sequence('b', nodes=34)],
+            r"different node counts \(subject 'a' \(a\.bag\): 19, subject 'b' \(b\.bag\): 34",
+        ),
+        (
+            [_sequence('a', neutral=np.zeros(4, bool))],
+            r"subject 'a' \(a\.bag\) has no neutral frames",
+        ),
         ([_sequence('a', neutral=np.ones(3, bool))], r'3 neutral flags for 4 frames'),
         ([_sequence('a', labels=('neutral',))], r'1 labels for 4 frames'),
     ],

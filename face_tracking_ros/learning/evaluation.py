@@ -32,7 +32,7 @@ true faces through the same generalised Procrustes before their PCA.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable, Mapping, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import asdict, dataclass
 
 import numpy as np
@@ -41,6 +41,7 @@ from sklearn.neighbors import NearestCentroid
 
 from face_tracking_ros.geometry.procrustes import generalized_procrustes, rigid_align
 from face_tracking_ros.learning.alignment import AlignmentConfig
+from face_tracking_ros.learning.methods import Learner
 from face_tracking_ros.learning.result import LearningResult
 from face_tracking_ros.learning.subspace import (
     PrincipalComponents,
@@ -52,7 +53,6 @@ from face_tracking_ros.model.face_model import FaceModel
 from face_tracking_ros.model.topology import mesh_topology
 from face_tracking_ros.synthetic.faces import FacePopulation
 
-Learner = Callable[[TrainingSet], LearningResult]
 IDENTITY_FIT_ITERATIONS = 20
 
 

@@ -178,5 +178,5 @@ def _weighted_alpha(
     coding = np.hstack([shape_basis, action_basis])
     prior_precision = noise_variance / np.concatenate([shape_variances, action_variances])
     normal = coding.T @ coding + np.diag(prior_precision)
-    coefficients = scipy.linalg.solve(normal, coding.T @ deviations.T, assume_a='pos')
+    coefficients = scipy.linalg.cho_solve(scipy.linalg.cho_factor(normal), coding.T @ deviations.T)
     return coefficients[shape_basis.shape[1] :].T

@@ -8,7 +8,7 @@ Frames of all subjects are stored flat, with per-frame index arrays, so the lear
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import cached_property
 
 import numpy as np
@@ -50,6 +50,7 @@ class TrainingSet:
         subject_ids: the S subject identifiers, in order of first appearance.
         sequence_index: (F,) int, which sequence of its subject each frame comes from (0, 1, ...).
         labels: (F,) str expression labels, or None when unknown.
+        subject_sources: per subject, where its frames came from (bag paths), for messages.
     """
 
     meshes: np.ndarray
@@ -58,6 +59,7 @@ class TrainingSet:
     subject_ids: tuple[str, ...]
     sequence_index: np.ndarray
     labels: np.ndarray | None = None
+    subject_sources: tuple[str, ...] | None = None
 
     def __post_init__(self) -> None:
         """Validate the pooled arrays; errors name the subject at fault."""
@@ -75,7 +77,8 @@ class TrainingSet:
                 msg = f'subject {subject!r} has no frames'
                 raise InputError(msg)
             if not np.any(self.neutral[mine]):
-                msg = f'subject {subject!r} has no neutral frames'
+                sources = f' ({self.subject_sources[s]})' if self.subject_sources else ''
+                msg = f'subject {subject!r}{sources} has no neutral frames'
                 raise InputError(msg)
 
     @classmethod
@@ -93,7 +96,7 @@ class TrainingSet:
             raise InputError(msg)
         node_counts = {_check_sequence(sequence) for sequence in sequences}
         if len(node_counts) > 1:
-            counts = ', '.join(f'{s.subject_id!r}: {s.meshes.shape[1]}' for s in sequences)
+            counts = ', '.join(f'{_where(s)}: {s.meshes.shape[1]}' for s in sequences)
             msg = f'sequences have different node counts ({counts})'
             raise InputError(msg)
         subject_ids = tuple(dict.fromkeys(sequence.subject_id for sequence in sequences))
@@ -114,6 +117,10 @@ class TrainingSet:
             labels=np.concatenate([np.asarray(s.labels, dtype=str) for s in sequences])
             if has_labels
             else None,
+            subject_sources=tuple(
+                ', '.join(s.source for s in sequences if s.subject_id == subject and s.source)
+                for subject in subject_ids
+            ),
         )
 
     @property
@@ -156,32 +163,39 @@ class TrainingSet:
         """The training set with one subject (by index) left out, for leave-one-out tests."""
         keep = self.subject_index != subject
         index = self.subject_index[keep]
-        return TrainingSet(
+        return replace(
+            self,
             meshes=self.meshes[keep],
             subject_index=np.where(index > subject, index - 1, index),
             neutral=self.neutral[keep],
-            subject_ids=self.subject_ids[:subject] + self.subject_ids[subject + 1 :],
+            subject_ids=_drop(self.subject_ids, subject),
             sequence_index=self.sequence_index[keep],
             labels=None if self.labels is None else self.labels[keep],
+            subject_sources=None
+            if self.subject_sources is None
+            else _drop(self.subject_sources, subject),
         )
 
     def with_meshes(self, meshes: np.ndarray) -> TrainingSet:
         """The same frames with other node positions (e.g. after alignment)."""
-        return TrainingSet(
-            meshes=meshes,
-            subject_index=self.subject_index,
-            neutral=self.neutral,
-            subject_ids=self.subject_ids,
-            sequence_index=self.sequence_index,
-            labels=self.labels,
-        )
+        return replace(self, meshes=meshes)
+
+
+def _drop(items: tuple[str, ...], index: int) -> tuple[str, ...]:
+    """The tuple without entry ``index``."""
+    return items[:index] + items[index + 1 :]
+
+
+def _where(sequence: MeshSequence) -> str:
+    """'subject 'x' (source)' for error messages."""
+    return f'subject {sequence.subject_id!r}' + (
+        f' ({sequence.source})' if sequence.source else ''
+    )
 
 
 def _check_sequence(sequence: MeshSequence) -> int:
     """Validate one sequence and return its node count."""
-    where = f'subject {sequence.subject_id!r}' + (
-        f' ({sequence.source})' if sequence.source else ''
-    )
+    where = _where(sequence)
     meshes = np.asarray(sequence.meshes)
     if meshes.ndim != 3 or meshes.shape[-1] != 3 or meshes.shape[0] == 0:
         msg = f'{where}: meshes must be a non-empty (F, N, 3) stack, got shape {meshes.shape}'

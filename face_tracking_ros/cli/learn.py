@@ -1,0 +1,353 @@
+"""``face-tracking learn``: learn a face model from bags of 3-D meshes and report its quality.
+
+Input bags hold one of:
+
+* ``face_tracking_msgs/FaceTruth`` (synthetic truth, default topic ``truth/face``): nodes in the
+  camera frame, subject id and expression label per frame; frames labelled 'neutral' are the
+  neutral frames of §3.4;
+* ``face_tracking_msgs/FaceMesh`` or ``FaceState`` (a tracker's meshes): the subject is
+  ``--subject`` or the bag's directory name, and the first ``--neutral-frames`` frames of each
+  bag are taken as neutral.
+
+The meshes are aligned (§3.3), the model is learned by ``--method`` (default ``joint``, issue 11;
+``seed`` is the paper's §3.4), the evaluation of :mod:`face_tracking_ros.learning.evaluation`
+runs for every compared method, and the command writes the model file, a JSON report and, with
+``--plots``, PNG figures (Figure 5-like sigma scatter per method, comparison, convergence).
+"""
+
+from __future__ import annotations
+
+import argparse
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
+import json
+from pathlib import Path
+import time
+from typing import Any
+
+import numpy as np
+
+from face_tracking_ros.errors import BagError, ConfigError, InputError
+from face_tracking_ros.io.bags import bag_topics, read_messages
+from face_tracking_ros.io.conversions import points_to_array, truth_from_msg
+from face_tracking_ros.learning.alignment import align_training_set
+from face_tracking_ros.learning.evaluation import (
+    Evaluation,
+    TrueSubspaces,
+    comparison_table,
+    evaluate,
+    population_truth,
+)
+from face_tracking_ros.learning.methods import (
+    DEFAULT_EXPLAINED_VARIANCE,
+    DEFAULT_METHOD,
+    METHODS,
+    make_learner,
+)
+from face_tracking_ros.learning.plots import (
+    plot_comparison,
+    plot_convergence,
+    plot_sigma_scatter,
+)
+from face_tracking_ros.learning.result import LearningResult
+from face_tracking_ros.learning.training_set import NEUTRAL_LABEL, MeshSequence, TrainingSet
+from face_tracking_ros.model.model_file import save_model
+from face_tracking_ros.model.topology import SUPPORTED_NODE_COUNTS
+from face_tracking_ros.synthetic.faces import PRESETS, FacePopulation
+
+TRUTH_TYPE = 'face_tracking_msgs/msg/FaceTruth'
+MESH_TYPES = ('face_tracking_msgs/msg/FaceMesh', 'face_tracking_msgs/msg/FaceState')
+DEFAULT_TOPICS = ('truth/face', 'face/mesh_raw', 'face/state')
+
+
+@dataclass(frozen=True)
+class BagMeshes:
+    """Meshes of one subject read from one bag.
+
+    Attributes:
+        sequence: the meshes, neutral flags and labels.
+        alpha: (F, E) true alpha when the bag holds truth, else None.
+    """
+
+    sequence: MeshSequence
+    alpha: np.ndarray | None
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    """Add the ``learn`` subcommand."""
+    parser = subparsers.add_parser(
+        'learn',
+        help='learn a face model (mean shape, S, A, prior) from bags of 3-D meshes',
+        description=__doc__.split('\n\n')[0],
+    )
+    parser.add_argument('bags', nargs='+', type=Path, metavar='BAG', help='bags of meshes')
+    parser.add_argument('--out', required=True, type=Path, help='model file to write (.npz)')
+    parser.add_argument('--report', required=True, type=Path, help='JSON report to write')
+    parser.add_argument('--nodes', type=int, choices=SUPPORTED_NODE_COUNTS, help='mesh nodes')
+    parser.add_argument('--p', type=int, default=2, help='identity dimension (%(default)s)')
+    parser.add_argument(
+        '--explained-variance',
+        type=float,
+        help='choose p as the fewest identity modes explaining this share (overrides --p)',
+    )
+    parser.add_argument('--q', type=int, default=5, help='expression dimension (%(default)s)')
+    parser.add_argument('--method', choices=METHODS, default=DEFAULT_METHOD)
+    parser.add_argument(
+        '--compare',
+        nargs='*',
+        choices=METHODS,
+        default=list(METHODS),
+        help='methods to evaluate side by side (default: all; none: only --method)',
+    )
+    parser.add_argument('--plots', type=Path, help='directory receiving PNG figures')
+    parser.add_argument('--topic', help=f'mesh topic (default: first of {DEFAULT_TOPICS})')
+    parser.add_argument('--subject', help='subject id for FaceMesh/FaceState bags')
+    parser.add_argument(
+        '--neutral-frames',
+        type=int,
+        default=0,
+        help='FaceMesh/FaceState bags: the first K frames of each bag are neutral',
+    )
+    parser.add_argument(
+        '--add-noise',
+        type=float,
+        default=0.0,
+        help='white noise added to every node coordinate, m (e.g. 0.0005 for the issue-4 '
+        'protocol on exact truth meshes); seeded by --seed',
+    )
+    parser.add_argument('--seed', type=int, default=0, help='seed of --add-noise')
+    parser.add_argument(
+        '--truth-population',
+        metavar='PRESET[:SEED]',
+        help=f'synthetic population of the bags ({", ".join(PRESETS)}): adds the comparison '
+        'with the true subspaces to the report',
+    )
+    parser.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> None:
+    """Read, align, learn, evaluate, write."""
+    _check_arguments(args)
+    rng = np.random.default_rng(args.seed)
+    bag_meshes = [item for bag in args.bags for item in read_bag_meshes(bag, args)]
+    sequences = [item.sequence for item in bag_meshes]
+    if args.add_noise > 0.0:
+        sequences = [_with_noise(sequence, args.add_noise, rng) for sequence in sequences]
+    training = TrainingSet.from_sequences(sequences)
+    print(
+        f'read {len(training.meshes)} meshes of {training.num_nodes} nodes, '
+        f'{training.num_subjects} subjects, {int(training.neutral.sum())} neutral frames'
+    )
+    start = time.perf_counter()
+    aligned = align_training_set(training)
+    align_seconds = time.perf_counter() - start
+    truth = _truth(args, aligned, bag_meshes)
+    share = args.explained_variance
+    p = args.p if share is None else None
+    methods = list(dict.fromkeys([args.method, *args.compare]))
+    results: dict[str, LearningResult] = {}
+    evaluations: dict[str, Evaluation] = {}
+    report_methods: dict[str, Any] = {}
+    for method in methods:
+        learner = make_learner(method, p, args.q, share or DEFAULT_EXPLAINED_VARIANCE)
+        start = time.perf_counter()
+        results[method] = learner(aligned)
+        learn_seconds = time.perf_counter() - start
+        print(f'{method}: learned in {learn_seconds:.3f} s, evaluating (leave one subject out)')
+        evaluation, loo, _ = evaluate(aligned, learner, results[method], truth)
+        evaluations[method] = evaluation
+        report_methods[method] = {
+            **evaluation.as_dict(),
+            'learn_seconds': learn_seconds,
+            'history': results[method].history.tolist(),
+            'loo_per_subject': {
+                'subjects': list(aligned.subject_ids),
+                'shape_similarity': loo.shape_similarity.tolist(),
+                'action_similarity': loo.action_similarity.tolist(),
+                'mean_variation_percent': loo.mean_variation_percent.tolist(),
+                'neutral_rms_mm': loo.neutral_rms_mm.tolist(),
+            },
+        }
+    print(comparison_table(evaluations))
+    model = results[args.method].model
+    metadata = {**model.metadata, 'bags': [str(bag) for bag in args.bags]}
+    saved = save_model(replace(model, metadata=metadata), args.out)
+    print(f'model ({args.method}, p={model.p}, q={model.q}) written to {saved}')
+    plots = _plots(args.plots, aligned, results, evaluations) if args.plots else []
+    report = {
+        'model': str(saved),
+        'method': args.method,
+        'bags': [str(bag) for bag in args.bags],
+        'subjects': list(aligned.subject_ids),
+        'frames': len(aligned.meshes),
+        'nodes': aligned.num_nodes,
+        'align_seconds': align_seconds,
+        'methods': report_methods,
+        'plots': [str(path) for path in plots],
+    }
+    _write_json(args.report, report)
+    print(f'report written to {args.report}')
+
+
+def read_bag_meshes(bag: Path, args: argparse.Namespace) -> list[BagMeshes]:
+    """The meshes of one bag, one entry per subject found in it.
+
+    Raises:
+        BagError: if the bag lacks the topic or holds no message on it.
+        InputError: naming the bag, topic and message index of a malformed message.
+        ConfigError: if neutral frames cannot be determined for mesh (non-truth) bags.
+    """
+    topics = bag_topics(bag)
+    topic = args.topic or next((name for name in DEFAULT_TOPICS if name in topics), None)
+    if topic is None or topic not in topics:
+        wanted = args.topic or ' or '.join(DEFAULT_TOPICS)
+        msg = f'{bag}: no topic {wanted} in bag (topics: {", ".join(sorted(topics)) or "none"})'
+        raise BagError(msg)
+    msgtype = topics[topic]
+    if msgtype != TRUTH_TYPE and msgtype not in MESH_TYPES:
+        msg = f'{bag}: topic {topic} has type {msgtype}; expected FaceTruth, FaceMesh or FaceState'
+        raise BagError(msg)
+    frames: dict[str, list[tuple[np.ndarray, str, np.ndarray | None]]] = {}
+    for index, message in enumerate(read_messages(bag, [topic])):
+        try:
+            subject, nodes, label, alpha = mesh_from_message(message.msg, msgtype)
+        except InputError as error:
+            msg = f'{bag}: {topic} message {index}: {error}'
+            raise InputError(msg) from None
+        frames.setdefault(subject or args.subject or bag.name, []).append((nodes, label, alpha))
+    if not frames:
+        msg = f'{bag}: no message on {topic}'
+        raise BagError(msg)
+    result = []
+    for subject, items in frames.items():
+        counts = {len(nodes) for nodes, _, _ in items}
+        if len(counts) > 1:
+            msg = f'{bag}: {topic} meshes of subject {subject!r} have node counts {sorted(counts)}'
+            raise InputError(msg)
+        meshes = np.array([nodes for nodes, _, _ in items])
+        meshes = _select_nodes(meshes, args.nodes, f'{bag}: {topic}')
+        labels = tuple(label for _, label, _ in items)
+        if msgtype == TRUTH_TYPE:
+            neutral = np.array([label == NEUTRAL_LABEL for label in labels])
+            alpha = np.array([alpha for _, _, alpha in items])
+        else:
+            neutral = np.arange(len(meshes)) < args.neutral_frames
+            labels, alpha = None, None
+        sequence = MeshSequence(subject, meshes, neutral, labels, str(bag))
+        result.append(BagMeshes(sequence, alpha))
+    return result
+
+
+def mesh_from_message(msg: Any, msgtype: str) -> tuple[str | None, np.ndarray, str, Any]:
+    """Subject id, (N, 3) nodes (m), expression label and true alpha of one mesh message.
+
+    FaceTruth gives all four; FaceMesh and FaceState give the nodes only (subject None, label
+    '', alpha None). A candidate for :mod:`face_tracking_ros.io.conversions`.
+
+    Raises:
+        InputError: naming the field of a NaN or malformed value.
+    """
+    if msgtype == TRUTH_TYPE:
+        truth = truth_from_msg(msg)
+        return truth.subject_id, truth.nodes, truth.label, truth.alpha
+    field = 'FaceMesh.points' if msgtype == MESH_TYPES[0] else 'FaceState.nodes'
+    points = msg.points if msgtype == MESH_TYPES[0] else msg.nodes
+    return None, points_to_array(points, field), '', None
+
+
+def _check_arguments(args: argparse.Namespace) -> None:
+    """Range checks the parser cannot express."""
+    if args.p < 1 or args.q < 1:
+        msg = f'--p and --q must be >= 1, got p={args.p}, q={args.q}'
+        raise ConfigError(msg)
+    if args.explained_variance is not None and not 0.0 < args.explained_variance <= 1.0:
+        msg = f'--explained-variance must be in (0, 1], got {args.explained_variance}'
+        raise ConfigError(msg)
+    if args.neutral_frames < 0 or args.add_noise < 0.0:
+        msg = '--neutral-frames and --add-noise must not be negative'
+        raise ConfigError(msg)
+    if args.plots is not None and not args.plots.is_dir():
+        msg = f'--plots {args.plots} is not a directory'
+        raise ConfigError(msg)
+
+
+def _select_nodes(meshes: np.ndarray, num_nodes: int | None, where: str) -> np.ndarray:
+    """Keep the first ``num_nodes`` nodes (the 19-node mesh is a prefix of the 34-node one)."""
+    if meshes.shape[1] not in SUPPORTED_NODE_COUNTS:
+        msg = f'{where}: meshes have {meshes.shape[1]} nodes; supported: {SUPPORTED_NODE_COUNTS}'
+        raise InputError(msg)
+    if num_nodes is None:
+        return meshes
+    if num_nodes > meshes.shape[1]:
+        msg = f'{where}: --nodes {num_nodes} but the meshes have only {meshes.shape[1]} nodes'
+        raise ConfigError(msg)
+    return meshes[:, :num_nodes]
+
+
+def _with_noise(sequence: MeshSequence, noise: float, rng: np.random.Generator) -> MeshSequence:
+    """The sequence with white node noise of standard deviation ``noise`` metres."""
+    noisy = sequence.meshes + rng.normal(scale=noise, size=sequence.meshes.shape)
+    return MeshSequence(
+        sequence.subject_id, noisy, sequence.neutral, sequence.labels, sequence.source
+    )
+
+
+def _truth(
+    args: argparse.Namespace, training: TrainingSet, bag_meshes: Sequence[BagMeshes]
+) -> TrueSubspaces | None:
+    """The population's true subspaces for ``--truth-population``, or None."""
+    if not args.truth_population:
+        return None
+    preset, _, seed = args.truth_population.partition(':')
+    if preset not in PRESETS or (seed and not seed.isdigit()):
+        msg = f'--truth-population must be PRESET[:SEED] with PRESET in {PRESETS}'
+        raise ConfigError(msg)
+    population = FacePopulation(preset, int(seed or 0))
+    indices = []
+    for subject in training.subject_ids:
+        number = subject.removeprefix('subject_')
+        if not number.isdigit():
+            msg = f'subject {subject!r} is not a synthetic subject id (subject_NN)'
+            raise ConfigError(msg)
+        indices.append(int(number))
+    alphas = [item.alpha for item in bag_meshes]
+    alpha = None if any(a is None for a in alphas) else np.concatenate(alphas)
+    return population_truth(population, training.num_nodes, indices, alpha)
+
+
+def _plots(
+    directory: Path,
+    training: TrainingSet,
+    results: dict[str, LearningResult],
+    evaluations: dict[str, Evaluation],
+) -> list[Path]:
+    """Write the PNG figures of the report."""
+    paths = [
+        plot_sigma_scatter(
+            result.frame_sigma,
+            training.subject_index,
+            training.subject_ids,
+            directory / f'sigma_{method}.png',
+            title=f'sigma of every training frame, {method} model (cf. seed Figure 5)',
+        )
+        for method, result in results.items()
+    ]
+    paths.append(plot_comparison(evaluations, directory / 'comparison.png'))
+    paths.append(plot_convergence(results, directory / 'convergence.png'))
+    return paths
+
+
+def _write_json(path: Path, report: dict[str, Any]) -> None:
+    """Write the report; NaN (a figure that does not apply) becomes null."""
+    path.write_text(json.dumps(_json_safe(report), indent=2) + '\n')
+
+
+def _json_safe(value: Any) -> Any:
+    """Replace NaN floats by None in nested dicts and lists."""
+    if isinstance(value, dict):
+        return {key: _json_safe(item) for key, item in value.items()}
+    if isinstance(value, list | tuple):
+        return [_json_safe(item) for item in value]
+    if isinstance(value, float) and np.isnan(value):
+        return None
+    return value

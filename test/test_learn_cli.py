@@ -1,0 +1,181 @@
+"""``face-tracking learn`` on small FaceTruth and FaceMesh bags: outputs and every error branch."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from learning_population import mesh_sequences
+import numpy as np
+import pytest
+
+from face_tracking_ros.cli.main import main
+from face_tracking_ros.io import conversions
+from face_tracking_ros.io.bags import BagWriter
+from face_tracking_ros.io.messages import RosbagsMessages
+from face_tracking_ros.io.typestore import typestore
+from face_tracking_ros.learning.training_set import MeshSequence
+from face_tracking_ros.model.model_file import load_model
+from face_tracking_ros.model.topology import mesh_topology
+from face_tracking_ros.synthetic.faces import FacePopulation
+
+TRUTH_TYPE = 'face_tracking_msgs/msg/FaceTruth'
+MESH_TYPE = 'face_tracking_msgs/msg/FaceMesh'
+START_NS = 1_700_000_000_000_000_000
+
+
+def _write_bag(path: Path, sequence: MeshSequence, alpha: np.ndarray, kind: str = 'truth') -> Path:
+    factory = RosbagsMessages(typestore())
+    names = list(mesh_topology(sequence.meshes.shape[1]).node_names)
+    with BagWriter(path) as bag:
+        for f, nodes in enumerate(sequence.meshes):
+            stamp = START_NS + f * 33_000_000
+            header = conversions.make_header(factory, stamp, 'camera')
+            points = conversions.array_to_points(factory, nodes)
+            if kind == 'truth':
+                message = factory.make(
+                    TRUTH_TYPE,
+                    header=header,
+                    subject_id=sequence.subject_id,
+                    alpha=alpha[f],
+                    node_names=names,
+                    nodes=points,
+                    expression_label=sequence.labels[f],
+                )
+                bag.write('truth/face', TRUTH_TYPE, message, stamp)
+            else:
+                message = factory.make(MESH_TYPE, header=header, node_names=names, points=points)
+                bag.write('face/mesh_raw', MESH_TYPE, message, stamp)
+    return path
+
+
+@pytest.fixture(scope='module')
+def world() -> tuple[list[MeshSequence], np.ndarray]:
+    return mesh_sequences(FacePopulation('default'), 34, subjects=4, sequences=1, frames=75)
+
+
+@pytest.fixture(scope='module')
+def truth_bags(tmp_path_factory, world) -> list[Path]:
+    sequences, alpha = world
+    directory = tmp_path_factory.mktemp('bags')
+    frames = len(sequences[0].meshes)
+    return [
+        _write_bag(directory / s.subject_id, s, alpha[k * frames : (k + 1) * frames])
+        for k, s in enumerate(sequences)
+    ]
+
+
+def test_learns_compares_and_writes_model_report_and_plots(tmp_path, truth_bags, capsys):
+    model_path, report_path = tmp_path / 'face.npz', tmp_path / 'report.json'
+    status = main(
+        ['learn', *map(str, truth_bags), '--out', str(model_path), '--report', str(report_path)]
+        + ['--nodes', '19', '--q', '3', '--plots', str(tmp_path), '--truth-population', 'default']
+        + ['--add-noise', '0.0005']
+    )
+    assert status == 0
+    out = capsys.readouterr().out
+    assert 'read 300 meshes of 19 nodes, 4 subjects' in out
+    assert 'share of A in true expr. span' in out
+    model = load_model(model_path)
+    assert (model.method, model.num_nodes, model.p, model.q) == ('joint', 19, 2, 3)
+    assert model.metadata['bags'] == [str(bag) for bag in truth_bags]
+    report = json.loads(report_path.read_text())
+    assert list(report['methods']) == ['joint', 'seed', 'seed-weighted']
+    joint = report['methods']['joint']
+    assert joint['truth']['action_share'] > 0.95
+    assert joint['identity_accuracy'] is None  # one sequence per subject: not measurable
+    assert len(joint['loo_per_subject']['neutral_rms_mm']) == 4
+    assert report['subjects'] == [s.name for s in truth_bags]
+    for plot in report['plots']:
+        assert Path(plot).read_bytes()[:8] == b'\x89PNG\r\n\x1a\n'
+    assert {Path(plot).name for plot in report['plots']} >= {
+        'sigma_joint.png',
+        'sigma_seed.png',
+        'comparison.png',
+        'convergence.png',
+    }
+
+
+def test_seed_method_alone(tmp_path, truth_bags):
+    model_path = tmp_path / 'seed.npz'
+    status = main(
+        ['learn', *map(str, truth_bags), '--out', str(model_path)]
+        + ['--report', str(tmp_path / 'r.json'), '--method', 'seed', '--compare', '--q', '3']
+    )
+    assert status == 0
+    assert load_model(model_path).method == 'seed'
+    report = json.loads((tmp_path / 'r.json').read_text())
+    assert list(report['methods']) == ['seed']
+    assert report['methods']['seed']['truth'] is None
+
+
+def test_mesh_bags_with_first_frames_neutral(tmp_path, world):
+    sequences, alpha = world
+    bags = [
+        _write_bag(tmp_path / f'person{k}', s, alpha, kind='mesh') for k, s in enumerate(sequences)
+    ]
+    args = ['learn', *map(str, bags), '--out', str(tmp_path / 'm.npz')]
+    args += ['--report', str(tmp_path / 'r.json'), '--compare', '--q', '3']
+    assert main([*args, '--neutral-frames', '10']) == 0
+    report = json.loads((tmp_path / 'r.json').read_text())
+    assert report['subjects'] == ['person0', 'person1', 'person2', 'person3']
+    assert report['methods']['joint']['expression_accuracy'] is None
+
+
+def _error(args: list[str], capsys) -> str:
+    assert main(args) == 2
+    return capsys.readouterr().err
+
+
+def test_errors_name_the_bag_topic_or_subject(tmp_path, truth_bags, world, capsys):
+    sequences, alpha = world
+    out = ['--out', str(tmp_path / 'm.npz'), '--report', str(tmp_path / 'r.json')]
+    bags = list(map(str, truth_bags))
+
+    err = _error(['learn', *bags, *out, '--topic', 'nope'], capsys)
+    assert f'{truth_bags[0]}: no topic nope in bag (topics: truth/face)' in err
+
+    err = _error(['learn', *bags, *out, '--p', '4'], capsys)
+    assert '4 subject(s) cannot give an identity subspace of p = 4' in err
+
+    smiling = sequences[0].__class__(
+        'grumpy', sequences[0].meshes, np.zeros(75, bool), ('smile',) * 75, ''
+    )
+    bag = _write_bag(tmp_path / 'grumpy', smiling, alpha)
+    err = _error(['learn', str(bag), *bags, *out], capsys)
+    assert f"subject 'grumpy' ({bag}) has no neutral frames" in err
+
+    broken = sequences[1].meshes.copy()
+    broken[7, 3, 1] = np.nan
+    bag = _write_bag(
+        tmp_path / 'broken',
+        sequences[1].__class__(
+            'subject_01', broken, sequences[1].neutral, sequences[1].labels, ''
+        ),
+        alpha,
+    )
+    err = _error(['learn', str(bag), *out], capsys)
+    assert f'{bag}: truth/face message 7: FaceTruth.nodes holds NaN' in err
+
+    small = sequences[2].__class__(
+        'small', sequences[2].meshes[:, :19], sequences[2].neutral, sequences[2].labels, ''
+    )
+    bag = _write_bag(tmp_path / 'small', small, alpha)
+    err = _error(['learn', str(bag), *bags, *out], capsys)
+    assert 'different node counts' in err and f"subject 'small' ({bag}): 19" in err
+
+    err = _error(['learn', str(bag), *out, '--nodes', '34'], capsys)
+    assert f'{bag}: truth/face: --nodes 34 but the meshes have only 19 nodes' in err
+
+    mesh_bag = _write_bag(tmp_path / 'anon', sequences[3], alpha, kind='mesh')
+    err = _error(['learn', str(mesh_bag), *bags, *out], capsys)
+    assert f"subject 'anon' ({mesh_bag}) has no neutral frames" in err
+
+    err = _error(['learn', *bags, *out, '--truth-population', 'weird'], capsys)
+    assert '--truth-population must be PRESET[:SEED]' in err
+
+    err = _error(['learn', *bags, *out, '--plots', str(tmp_path / 'absent')], capsys)
+    assert 'is not a directory' in err
+
+    err = _error(['learn', str(tmp_path / 'missing'), *out], capsys)
+    assert 'missing' in err
