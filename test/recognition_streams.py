@@ -7,9 +7,15 @@ expression; every frame's estimate adds the benchmark's tracking noise (white pl
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
+from face_tracking_ros.geometry.rotation import rodrigues
+from face_tracking_ros.io.bags import BagWriter
+from face_tracking_ros.io.conversions import array_to_points, make_header, pose_msg
+from face_tracking_ros.io.messages import RosbagsMessages
+from face_tracking_ros.io.typestore import typestore
 from face_tracking_ros.model.face_model import FaceModel
 from face_tracking_ros.recognition.benchmark import tracking_noise
 from face_tracking_ros.recognition.expression import EXPRESSION_LABELS
@@ -17,6 +23,8 @@ from face_tracking_ros.recognition.sequences import ParameterSequence
 from face_tracking_ros.synthetic.faces import FacePopulation
 
 FPS = 30.0
+TRUTH = 'truth/face'
+FACE_TRUTH = 'face_tracking_msgs/msg/FaceTruth'
 
 
 @dataclass(frozen=True)
@@ -142,3 +150,36 @@ def truth_model(population: FacePopulation, num_nodes: int = 34) -> FaceModel:
         alpha_prior_covariance=np.eye(q),
         method='truth',
     )
+
+
+def write_truth_bag(
+    path: Path, population: FacePopulation, subject: int, seed: int, duration: float = 12.0
+) -> None:
+    """A bag of FaceTruth at 30 fps: expressions with onsets/offsets, a slowly moving head."""
+    rng = np.random.default_rng(seed)
+    stream = expression_stream(rng, ExpressionWorld.make(rng, 1), duration, noise_std=0.0)
+    person = population.subject(subject)
+    factory = RosbagsMessages(typestore())
+    with BagWriter(path) as bag:
+        for m, (time, label, level) in enumerate(
+            zip(stream.times, stream.labels, stream.intensity, strict=True)
+        ):
+            weights = {label: level} if label != 'neutral' else {}
+            omega = 0.1 * np.sin([time, 0.7 * time, 0.3 * time])
+            t = np.array([0.02 * np.sin(time), 0.0, 0.6])
+            nodes = population.nodes(person, weights) @ rodrigues(omega)[0].T + t
+            stamp_ns = 10**9 + m * 33_333_333
+            msg = factory.make(
+                FACE_TRUTH,
+                header=make_header(factory, stamp_ns, 'camera'),
+                subject_id=person.subject_id,
+                pose=pose_msg(factory, omega, t),
+                omega=omega,
+                alpha=population.alpha(weights),
+                sigma=person.sigma_true,
+                node_names=list(population.node_names),
+                nodes=array_to_points(factory, nodes),
+                expression_label=str(label),
+                expression_intensity=float(level),
+            )
+            bag.write(TRUTH, FACE_TRUTH, msg, stamp_ns)

@@ -6,54 +6,15 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from recognition_streams import ExpressionWorld, expression_stream, truth_model
+from recognition_streams import truth_model, write_truth_bag
 
 from face_tracking_ros.cli import main as cli
 from face_tracking_ros.cli.train_expressions import truth_sequences
 from face_tracking_ros.errors import BagError
-from face_tracking_ros.geometry.rotation import rodrigues
-from face_tracking_ros.io.bags import BagWriter
-from face_tracking_ros.io.conversions import array_to_points, make_header, pose_msg
-from face_tracking_ros.io.messages import RosbagsMessages
-from face_tracking_ros.io.typestore import typestore
 from face_tracking_ros.model.model_file import save_model
 from face_tracking_ros.recognition.evaluation import expression_accuracy
 from face_tracking_ros.recognition.expression import ExpressionClassifier
 from face_tracking_ros.synthetic.faces import ACTIVE_EXPRESSIONS, FacePopulation
-
-TRUTH = 'truth/face'
-FACE_TRUTH = 'face_tracking_msgs/msg/FaceTruth'
-
-
-def write_truth_bag(path: Path, population: FacePopulation, subject: int, seed: int) -> None:
-    """A 12 s bag of FaceTruth at 30 fps: expressions with onsets/offsets, a slowly moving head."""
-    rng = np.random.default_rng(seed)
-    stream = expression_stream(rng, ExpressionWorld.make(rng, 1), 12.0, noise_std=0.0)
-    person = population.subject(subject)
-    factory = RosbagsMessages(typestore())
-    with BagWriter(path) as bag:
-        for m, (time, label, level) in enumerate(
-            zip(stream.times, stream.labels, stream.intensity, strict=True)
-        ):
-            weights = {label: level} if label != 'neutral' else {}
-            omega = 0.1 * np.sin([time, 0.7 * time, 0.3 * time])
-            t = np.array([0.02 * np.sin(time), 0.0, 0.6])
-            nodes = population.nodes(person, weights) @ rodrigues(omega)[0].T + t
-            stamp_ns = 10**9 + m * 33_333_333
-            msg = factory.make(
-                FACE_TRUTH,
-                header=make_header(factory, stamp_ns, 'camera'),
-                subject_id=person.subject_id,
-                pose=pose_msg(factory, omega, t),
-                omega=omega,
-                alpha=population.alpha(weights),
-                sigma=person.sigma_true,
-                node_names=list(population.node_names),
-                nodes=array_to_points(factory, nodes),
-                expression_label=str(label),
-                expression_intensity=float(level),
-            )
-            bag.write(TRUTH, FACE_TRUTH, msg, stamp_ns)
 
 
 @pytest.fixture(scope='module')

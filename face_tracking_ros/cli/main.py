@@ -31,6 +31,7 @@ SUBCOMMANDS: tuple[str, ...] = (
     'plot',
     'overlay',
     'train_expressions',
+    'recognition_report',
 )
 
 EXIT_ERROR = 2

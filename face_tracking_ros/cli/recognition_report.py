@@ -1,0 +1,137 @@
+"""``face-tracking recognition-report``: identity, expression and event figures on tracked bags.
+
+Each input is a pair ``TRACKED=TRUTH``: a tracker's output bag (FaceState on ``face/state``, as
+written by ``face-tracking track``) and the synthetic bag it tracked (FaceTruth on
+``truth/face``); frames are matched by stamp and only frames the tracker reports as TRACKING are
+used. People of the ``--enrol`` pairs are enrolled from their tracked sigma; ``--test`` pairs
+(the same people, other sequences) and ``--strangers`` pairs (people never enrolled) are
+classified in 1-s windows; expressions are recognised with the ``--classifier`` file on the test
+and stranger pairs; the separation table (§4.5) is computed on tracked parameters, enrolling and
+training on the ``--enrol`` pairs.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import numpy as np
+
+from face_tracking_ros.errors import BagError
+from face_tracking_ros.io.bags import read_messages
+from face_tracking_ros.io.conversions import stamp_to_ns, truth_from_msg
+from face_tracking_ros.recognition.evaluation import (
+    detect_events,
+    enroll_sequences,
+    expression_accuracy,
+    identity_accuracy,
+    merge_scores,
+    score_events,
+    separation_experiment,
+    truth_segments,
+)
+from face_tracking_ros.recognition.events import EventConfig
+from face_tracking_ros.recognition.expression import ExpressionClassifier, ExpressionTrainingConfig
+from face_tracking_ros.recognition.identity import IdentityConfig
+from face_tracking_ros.recognition.sequences import ParameterSequence
+
+STATE_TOPIC = 'face/state'
+TRUTH_TOPIC = 'truth/face'
+STATUS_TRACKING = 1
+NS_PER_S = 1e9
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    """Add the ``recognition-report`` subcommand."""
+    parser = subparsers.add_parser(
+        'recognition-report',
+        help='identity, expression and event accuracy on tracked bags against their truth',
+        description='Score identity (enrolled from tracked sigma), expressions, expression '
+        'events and the separation table on tracker output bags paired with their truth bags.',
+    )
+    pair = {'type': _pair, 'nargs': '+', 'metavar': 'TRACKED=TRUTH'}
+    parser.add_argument('--enrol', required=True, help='pairs to enrol and train on', **pair)
+    parser.add_argument('--test', required=True, help='other sequences of those people', **pair)
+    parser.add_argument('--strangers', default=[], help='people never enrolled', **pair)
+    parser.add_argument('--classifier', required=True, type=Path, help='expression classifier')
+    parser.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> None:
+    """Print the report.
+
+    Raises:
+        BagError: if a bag is unreadable, lacks its topic or no frame pairs up.
+        ModelFileError: if the classifier does not match the tracked alpha.
+    """
+    enrol, test, strangers = (
+        [tracked_sequence(tracked, truth) for tracked, truth in pairs]
+        for pairs in (args.enrol, args.test, args.strangers)
+    )
+    classifier = ExpressionClassifier.load(args.classifier, enrol[0].alpha.shape[1])
+    identity_config = IdentityConfig()
+    gallery = enroll_sequences(enrol, identity_config)
+    identity = identity_accuracy(gallery, test, strangers, identity_config)
+    print(
+        f'identity after {identity_config.window:.0f} s ({identity.windows} windows): '
+        f'{100 * identity.closed_set:.1f} % closed set, {100 * identity.open_set:.1f} % with '
+        f'rejection; strangers rejected {100 * identity.rejection:.1f} %'
+    )
+    scored = test + strangers
+    accuracy = expression_accuracy(classifier, scored)
+    print(
+        f'expressions: {100 * accuracy.clear:.1f} % clear frames, '
+        f'{100 * accuracy.all_frames:.1f} % all frames, {100 * accuracy.balanced:.1f} % balanced'
+    )
+    events = [detect_events(classifier, s, EventConfig()) for s in scored]
+    for level, name in ((0.0, 'label start'), (0.5, 'half intensity')):
+        score = merge_scores(
+            [
+                score_events(e, truth_segments(s, level))
+                for e, s in zip(events, scored, strict=True)
+            ]
+        )
+        latency = 1000 * (np.mean(score.latencies) if len(score.latencies) else np.nan)
+        print(f'events (onset at {name}): F1 {score.f1:.3f}, mean onset latency {latency:.0f} ms')
+    print(separation_experiment(enrol, test, identity_config, ExpressionTrainingConfig()).format())
+
+
+def tracked_sequence(tracked: Path, truth: Path) -> ParameterSequence:
+    """Tracked sigma and alpha of a tracker output bag with the labels of its truth bag.
+
+    Raises:
+        BagError: if a bag cannot be read, lacks its topic, or no TRACKING frame has truth.
+    """
+    labels = {}
+    subject = ''
+    for message in read_messages(truth, topics=[TRUTH_TOPIC]):
+        sample = truth_from_msg(message.msg)
+        labels[sample.stamp_ns] = (sample.label, sample.intensity)
+        subject = sample.subject_id
+    frames = [
+        message.msg
+        for message in read_messages(tracked, topics=[STATE_TOPIC])
+        if message.msg.status == STATUS_TRACKING
+        and stamp_to_ns(message.msg.header.stamp) in labels
+    ]
+    if not frames:
+        msg = f'{tracked}: no TRACKING {STATE_TOPIC} frame has a truth frame in {truth}'
+        raise BagError(msg)
+    stamps = [stamp_to_ns(frame.header.stamp) for frame in frames]
+    return ParameterSequence(
+        subject_id=subject,
+        times=np.array(stamps, dtype=float) / NS_PER_S,
+        sigma=np.array([frame.sigma for frame in frames], dtype=float),
+        alpha=np.array([frame.alpha for frame in frames], dtype=float),
+        labels=np.array([labels[stamp][0] for stamp in stamps]),
+        intensity=np.array([labels[stamp][1] for stamp in stamps]),
+    )
+
+
+def _pair(text: str) -> tuple[Path, Path]:
+    """Parse ``TRACKED=TRUTH``."""
+    tracked, separator, truth = text.partition('=')
+    if not separator or not tracked or not truth:
+        msg = f'expected TRACKED=TRUTH bag paths, got {text!r}'
+        raise argparse.ArgumentTypeError(msg)
+    return Path(tracked), Path(truth)

@@ -1,0 +1,128 @@
+"""``face-tracking recognition-report`` on tracker-like output bags paired with truth bags."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from recognition_streams import truth_model, write_truth_bag
+
+from face_tracking_ros.cli import main as cli
+from face_tracking_ros.cli.recognition_report import tracked_sequence
+from face_tracking_ros.cli.train_expressions import truth_sequences
+from face_tracking_ros.errors import BagError
+from face_tracking_ros.io.bags import BagWriter, read_messages
+from face_tracking_ros.io.conversions import make_header, stamp_to_ns
+from face_tracking_ros.io.messages import RosbagsMessages
+from face_tracking_ros.io.typestore import typestore
+from face_tracking_ros.recognition.benchmark import (
+    BenchmarkConfig,
+    synthetic_sequences,
+    tracking_noise,
+)
+from face_tracking_ros.recognition.expression import (
+    ExpressionTrainingConfig,
+    train_expression_classifier,
+)
+from face_tracking_ros.synthetic.faces import FacePopulation
+
+FACE_STATE = 'face_tracking_msgs/msg/FaceState'
+LOST_EVERY = 10  # every 10th frame of the fake tracker is LOST
+
+
+def write_state_bag(path: Path, truth: Path, model, seed: int) -> None:
+    """A fake tracker output: the model fitted to the truth nodes plus parameter noise."""
+    (sequence,) = truth_sequences(truth, model=model)
+    rng = np.random.default_rng(seed)
+    frames = len(sequence.times)
+    sigma = sequence.sigma + tracking_noise(rng, frames, model.p, 0.001, 30.0)
+    alpha = sequence.alpha + tracking_noise(rng, frames, model.q, 0.001, 30.0)
+    stamps = [m.stamp_ns for m in read_messages(truth, topics=['truth/face'])]
+    factory = RosbagsMessages(typestore())
+    with BagWriter(path) as bag:
+        for m, stamp_ns in enumerate(stamps):
+            msg = factory.make(
+                FACE_STATE,
+                header=make_header(factory, stamp_ns, 'camera'),
+                status=2 if m % LOST_EVERY == 0 else 1,
+                sigma=sigma[m],
+                alpha=alpha[m],
+            )
+            bag.write('face/state', FACE_STATE, msg, stamp_ns)
+
+
+@pytest.fixture(scope='module')
+def pairs(tmp_path_factory: pytest.TempPathFactory) -> dict:
+    """Truth and fake-tracked bags: people 0-2 twice (enrol, test), people 3-4 once.
+
+    The classifier is trained on noisy truth of people 5-7 playing the training scripts.
+    """
+    root = tmp_path_factory.mktemp('report')
+    population = FacePopulation('default', 0)
+    model = truth_model(population, 34)
+    made: dict[str, list[str]] = {'enrol': [], 'test': [], 'strangers': []}
+    plan = [(i, 'enrol') for i in range(3)] + [(i, 'test') for i in range(3)]
+    plan += [(i, 'strangers') for i in (3, 4)]
+    for k, (person, role) in enumerate(plan):
+        truth, tracked = root / f'truth_{k}', root / f'tracked_{k}'
+        write_truth_bag(truth, population, person, seed=60 + k, duration=6.0)
+        write_state_bag(tracked, truth, model, seed=k)
+        made[role].append(f'{tracked}={truth}')
+    scenario = BenchmarkConfig(duration=20.0, node_noise=0.001)
+    rng = np.random.default_rng(7)
+    training = synthetic_sequences(population, model, range(5, 8), 1, True, scenario, rng)
+    train_expression_classifier(training, ExpressionTrainingConfig()).save(root / 'classifier.npz')
+    made['classifier'] = [str(root / 'classifier.npz')]
+    return made
+
+
+def test_report_on_tracked_bags(pairs: dict, capsys: pytest.CaptureFixture) -> None:
+    status = cli.main(
+        [
+            'recognition-report',
+            '--enrol', *pairs['enrol'],
+            '--test', *pairs['test'],
+            '--strangers', *pairs['strangers'],
+            '--classifier', pairs['classifier'][0],
+        ]
+    )  # fmt: skip
+
+    out = capsys.readouterr().out
+    assert status == 0
+    assert 'identity after 1 s (15 windows): 100.0 % closed set, 100.0 % with rejection' in out
+    assert 'strangers rejected 100.0 %' in out
+    clear = float(out.split('expressions: ')[1].split(' %')[0])
+    assert clear >= 90.0
+    assert 'identity   sigma      100.0%' in out
+
+
+def test_tracked_sequence_keeps_tracking_frames_matched_by_stamp(pairs: dict) -> None:
+    tracked, truth = (Path(p) for p in pairs['test'][0].split('='))
+
+    sequence = tracked_sequence(tracked, truth)
+
+    truth_stamps = [m.stamp_ns for m in read_messages(truth, topics=['truth/face'])]
+    kept = [s for m, s in enumerate(truth_stamps) if m % LOST_EVERY]
+    np.testing.assert_allclose(sequence.times, np.array(kept) / 1e9)
+    assert sequence.subject_id == 'subject_00'
+    labels = {
+        stamp_to_ns(m.msg.header.stamp): m.msg.expression_label
+        for m in read_messages(truth, topics=['truth/face'])
+    }
+    assert list(sequence.labels) == [labels[s] for s in kept]
+
+
+def test_errors(pairs: dict, tmp_path: Path) -> None:
+    tracked, truth = (Path(p) for p in pairs['test'][0].split('='))
+    other_truth = Path(pairs['strangers'][0].split('=')[1])
+    with BagWriter(tmp_path / 'later') as bag:
+        factory = RosbagsMessages(typestore())
+        state = factory.make(FACE_STATE, header=make_header(factory, 5, 'c'), status=1)
+        bag.write('face/state', FACE_STATE, state, 5)
+    with pytest.raises(BagError, match='no TRACKING face/state frame has a truth frame'):
+        tracked_sequence(tmp_path / 'later', other_truth)
+    with pytest.raises(BagError, match='no topic face/state'):
+        tracked_sequence(truth, truth)
+    with pytest.raises(SystemExit):
+        cli.main(['recognition-report', '--enrol', str(tracked), '--test', 'x=y'])
