@@ -10,12 +10,11 @@ frame at 640x480.
 from __future__ import annotations
 
 from collections.abc import Callable
-import importlib
 from typing import Any
 
 import numpy as np
 
-from face_tracking_ros.bench.common import BenchOptions, skipped, time_calls, timing_summary
+from face_tracking_ros.bench.common import BenchOptions, time_calls, timing_summary
 from face_tracking_ros.bench.world import (
     RenderedSequence,
     learned_model,
@@ -24,6 +23,7 @@ from face_tracking_ros.bench.world import (
 )
 from face_tracking_ros.model.face_model import FaceModel
 from face_tracking_ros.synthetic.scenes import Kind
+from face_tracking_ros.tracking.baseline import LKPnPTracker
 from face_tracking_ros.tracking.mono import MonoTracker
 from face_tracking_ros.tracking.result import TrackStatus
 from face_tracking_ros.tracking.stereo import StereoTracker, StereoTrackerConfig
@@ -32,7 +32,6 @@ SIZES = ((320, 240), (640, 480), (1280, 720))
 QUICK_SIZES = ((320, 240),)
 NODE_COUNTS = (19, 34)
 FRAMES, QUICK_FRAMES = 40, 5
-BASELINE_MODULE = 'face_tracking_ros.tracking.baseline'
 
 
 def run(options: BenchOptions) -> dict[str, Any]:
@@ -68,10 +67,7 @@ def _one_size(sequence: RenderedSequence, model: FaceModel, seed: int) -> dict[s
         'mono': _timed(lambda f: mono.step(left[f]).status, len(left)),
         'stereo': _timed(lambda f: stereo.step(left[f], right[f]).status, len(left)),
     }
-    baseline = _baseline(model, sequence)
-    if baseline is None:
-        figures['baseline'] = skipped(f'{BASELINE_MODULE} (LK+PnP baseline) is not written yet')
-        return figures
+    baseline = LKPnPTracker(model, sequence.reference)
     baseline.reset(init)
     figures['baseline'] = _timed(lambda f: baseline.step(left[f]).status, len(left))
     figures['mono_over_baseline'] = figures['mono']['median_ms'] / figures['baseline']['median_ms']
@@ -86,12 +82,3 @@ def _timed(step: Callable[[int], TrackStatus], frames: int) -> dict[str, Any]:
     summary: dict[str, Any] = timing_summary(durations)
     summary['tracked'] = float(np.mean([s == TrackStatus.TRACKING for s in statuses]))
     return summary
-
-
-def _baseline(model: FaceModel, sequence: RenderedSequence) -> Any:
-    """The LK+PnP baseline tracker on the reference camera, or None until it exists."""
-    try:
-        module = importlib.import_module(BASELINE_MODULE)
-    except ModuleNotFoundError:
-        return None
-    return module.BaselineTracker(model, sequence.reference)

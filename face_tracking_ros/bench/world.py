@@ -19,7 +19,12 @@ from face_tracking_ros.learning.alignment import align_training_set
 from face_tracking_ros.learning.result import LearningResult
 from face_tracking_ros.learning.seed import SeedConfig, learn_seed
 from face_tracking_ros.learning.training_set import NEUTRAL_LABEL, TrainingSet
-from face_tracking_ros.model.model_file import save_model
+from face_tracking_ros.model.model_file import load_model, save_model
+from face_tracking_ros.recognition.benchmark import BenchmarkConfig, synthetic_sequences
+from face_tracking_ros.recognition.expression import (
+    ExpressionTrainingConfig,
+    train_expression_classifier,
+)
 from face_tracking_ros.synthetic.clicks import clicks_from_bag, simulated_clicks, write_init_file
 from face_tracking_ros.synthetic.faces import ACTIVE_EXPRESSIONS, FacePopulation
 from face_tracking_ros.synthetic.recording import bag_name, record
@@ -46,7 +51,8 @@ def training_set(
 
     Each frame is eq. 3 with the true bases (one random expression at a random intensity, or
     neutral), posed by eq. 1 with a random small rotation about a point 0.6 m ahead, plus
-    Gaussian node noise. Vectorised: 10^6 frames take seconds.
+    Gaussian node noise. Each subject's frames form two sequences (first and second half).
+    Vectorised: 10^6 frames take seconds.
 
     Args:
         population: the true population.
@@ -78,7 +84,7 @@ def training_set(
         subject_index=subject_index,
         neutral=neutral,
         subject_ids=tuple(population.subject(s + 1).subject_id for s in range(subjects)),
-        sequence_index=np.zeros(total, dtype=int),
+        sequence_index=np.tile(np.arange(frames_per_subject) >= frames_per_subject // 2, subjects),
         labels=labels,
     )
 
@@ -187,3 +193,26 @@ def recorded_bag(work_dir: Path, config: SceneConfig) -> tuple[Path, Path]:
             record(config, scene_dir)
         write_init_file(clicks_from_bag(bag, CLICK_NOISE_PX, config.seed), init_file)
     return bag, init_file
+
+
+def classifier_file(work_dir: Path, seed: int, subjects: int = 4) -> Path:
+    """An expression classifier for the 34-node benchmark model (written once, then reused).
+
+    Trained like ``face-tracking train-expressions`` on the recognition benchmark's training
+    scripts of subjects 0..``subjects``-1 (true nodes with tracking noise, fitted to the model).
+    """
+    path = Path(work_dir) / f'expressions_34_seed{seed}.npz'
+    if not path.is_file():
+        model = load_model(model_file(work_dir, 34, seed))
+        config = BenchmarkConfig(seed=seed, subjects=subjects, duration=10.0)
+        sequences = synthetic_sequences(
+            FacePopulation(seed=seed),
+            model,
+            range(subjects),
+            1,
+            True,
+            config,
+            np.random.default_rng(seed),
+        )
+        train_expression_classifier(sequences, ExpressionTrainingConfig()).save(path)
+    return path

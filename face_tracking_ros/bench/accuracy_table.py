@@ -1,0 +1,147 @@
+"""The accuracy table on the synthetic world: mono, stereo, baseline, learning, recognition.
+
+- Trackers: one rendered 640x480 stereo sequence of the unseen test subject moving freely; the
+  mono tracker and the LK+PnP baseline run on its left images, the stereo tracker on the pairs,
+  all from the same simulated clicks and the same learned 34-node model. Mono and baseline are
+  scored by :func:`tracking_accuracy` (pose against the model fitted to the true nodes, node
+  RMS, alpha, drift, jitter), stereo by :func:`evaluate_stereo` (node RMS, reprojection, drift).
+- Learning: the benchmark model's §3.4 learner against the population's true subspaces
+  (:func:`evaluate`: LOO stability, truth similarity, identity / expression from sigma / alpha).
+- Recognition: the issue 7 scenario of :func:`run_benchmark` with this model (identity windows,
+  expressions of held-out subjects, events).
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict
+from typing import Any
+
+import numpy as np
+
+from face_tracking_ros.bench.common import BenchOptions
+from face_tracking_ros.bench.world import (
+    learned_model,
+    render_sequence,
+    scene_config,
+    training_set,
+)
+from face_tracking_ros.learning.alignment import align_training_set
+from face_tracking_ros.learning.evaluation import evaluate, population_truth
+from face_tracking_ros.learning.seed import learn_seed
+from face_tracking_ros.model.face_model import FaceModel
+from face_tracking_ros.recognition.benchmark import BenchmarkConfig, run_benchmark
+from face_tracking_ros.synthetic.faces import FacePopulation
+from face_tracking_ros.synthetic.scenes import Kind
+from face_tracking_ros.tracking.accuracy import tracking_accuracy
+from face_tracking_ros.tracking.baseline import LKPnPTracker
+from face_tracking_ros.tracking.mono import MonoTracker
+from face_tracking_ros.tracking.result import TrackResult
+from face_tracking_ros.tracking.stereo import StereoTracker, StereoTrackerConfig
+from face_tracking_ros.tracking.stereo_evaluation import evaluate_stereo
+
+WIDTH, HEIGHT = 640, 480
+NUM_NODES = 34
+FRAMES, QUICK_FRAMES = 150, 8
+LEARNING_SUBJECTS, LEARNING_FRAMES = 11, 200
+RECOGNITION = BenchmarkConfig(subjects=11, strangers=11, duration=20.0)
+QUICK_RECOGNITION = BenchmarkConfig(subjects=3, strangers=2, training_sequences=1, duration=6.0)
+
+
+def run(options: BenchOptions) -> dict[str, Any]:
+    """Every row of the accuracy table.
+
+    Returns:
+        ``{'mono': {...}, 'baseline': {...}, 'stereo': {...}, 'learning': {...},
+        'recognition': {...}}``; lengths in mm, angles in degrees, shares in [0, 1].
+    """
+    model = learned_model(NUM_NODES, options.seed).model
+    frames = QUICK_FRAMES if options.quick else FRAMES
+    sequence = render_sequence(scene_config(Kind.STEREO, WIDTH, HEIGHT, frames, options.seed))
+    truth = sequence.true_nodes(NUM_NODES)
+    init = sequence.initialisation(model.node_names, options.seed)
+    left, right = sequence.images('left'), sequence.images('right')
+    mono = MonoTracker(model, sequence.reference)
+    mono.reset(init)
+    table: dict[str, Any] = {
+        'scene': f'{WIDTH}x{HEIGHT} stereo, {frames} frames at 30 fps, free head motion',
+        'mono': _scored(model, [mono.step(image) for image in left], truth),
+    }
+    baseline = LKPnPTracker(model, sequence.reference)
+    baseline.reset(init)
+    table['baseline'] = _scored(model, [baseline.step(image) for image in left], truth)
+    stereo = StereoTracker(sequence.rig(), StereoTrackerConfig(num_nodes=NUM_NODES), model)
+    stereo.reset(init)
+    results = [stereo.step(a, b) for a, b in zip(left, right, strict=True)]
+    stereo_figures = evaluate_stereo(
+        np.stack([r.nodes_cam for r in results]),
+        truth,
+        sequence.rig(),
+        model.topology,
+        np.array([r.status for r in results]),
+    )
+    table['stereo'] = _in_mm(asdict(stereo_figures))
+    table['learning'] = _learning(options.seed)
+    table['recognition'] = _recognition(
+        model, QUICK_RECOGNITION if options.quick else RECOGNITION, options.seed
+    )
+    return table
+
+
+def _scored(model: FaceModel, results: list[TrackResult], truth: np.ndarray) -> dict[str, Any]:
+    """Tracking accuracy of a mono-like tracker's results against the true nodes."""
+    accuracy = tracking_accuracy(
+        model,
+        np.array([r.status for r in results]),
+        np.stack([r.omega for r in results]),
+        np.stack([r.t for r in results]),
+        np.stack([r.alpha for r in results]),
+        np.stack([r.nodes_cam for r in results]),
+        truth,
+    )
+    return accuracy.as_dict()
+
+
+def _in_mm(figures: dict[str, Any]) -> dict[str, Any]:
+    """Stereo figures with their lengths in mm (keys get an ``_mm`` suffix)."""
+    lengths = {'node_rms', 'drift', 'max_drift', 'boundary_slip', 'boundary_slip_rms'}
+    converted: dict[str, Any] = {}
+    for key, value in figures.items():
+        if key in lengths:
+            converted[f'{key}_mm'] = 1000.0 * value
+        elif key == 'node_rms_by_group':
+            converted['node_rms_by_group_mm'] = {k: 1000.0 * v for k, v in value.items()}
+        elif key == 'max_reprojection':
+            converted['max_reprojection_px'] = value
+        else:
+            converted[key] = value
+    return converted
+
+
+def _learning(seed: int) -> dict[str, Any]:
+    """The §3.4 learner's figures on the benchmark training set against the truth."""
+    population = FacePopulation(seed=seed)
+    training = align_training_set(
+        training_set(
+            population, NUM_NODES, LEARNING_SUBJECTS, LEARNING_FRAMES, np.random.default_rng(seed)
+        )
+    )
+    truth = population_truth(population, NUM_NODES, range(1, LEARNING_SUBJECTS + 1))
+    evaluation, _, _ = evaluate(training, learn_seed, truth=truth)
+    return evaluation.as_dict()
+
+
+def _recognition(model: FaceModel, config: BenchmarkConfig, seed: int) -> dict[str, Any]:
+    """Identity, expression and event figures of the issue 7 scenario with this model."""
+    config = BenchmarkConfig(**{**asdict(config), 'seed': seed})
+    report = run_benchmark(model, config)
+    return {
+        'identity_closed_set': report.identity.closed_set,
+        'identity_open_set': report.identity.open_set,
+        'stranger_rejection': report.identity.rejection,
+        'identity_windows': report.identity.windows,
+        'expression_clear_frames': report.expression.clear,
+        'expression_balanced': report.expression.balanced,
+        'event_f1': report.events_from_label_start.f1,
+        'event_precision': report.events_from_label_start.precision,
+        'event_recall': report.events_from_label_start.recall,
+    }

@@ -1,0 +1,105 @@
+"""Peak resident memory (VmHWM) of every node process while it works (issue 9).
+
+The mono pipeline runs as it would on a robot: mono_tracker fed rendered 640x480 images at 30 Hz,
+identity_recognizer and expression_recognizer on its outputs, and bag_recorder recording the
+face topics; then stereo_tracker is fed 640x480 pairs at 10 Hz on its own. Each node's peak RSS
+is read from /proc/<pid>/status before it is stopped. A node that is not installed yet is
+reported as skipped.
+"""
+
+from __future__ import annotations
+
+import shutil
+from typing import Any
+
+from face_tracking_ros.bench.common import DRIVER_CORE, BenchOptions, pin_to_core, skipped
+from face_tracking_ros.bench.live import Driver, NodeProcess, tracker_inputs
+from face_tracking_ros.bench.world import classifier_file
+from face_tracking_ros.errors import ConfigError
+from face_tracking_ros.synthetic.scenes import Kind
+
+WIDTH, HEIGHT = 640, 480
+FRAMES = 30
+MONO_RATE_HZ, STEREO_RATE_HZ = 30.0, 10.0
+SECONDS, QUICK_SECONDS = 15.0, 2.0
+RECORDED_TOPICS = '[face/state, face/action, face/shape, face/expression, face/identity]'
+
+
+def run(options: BenchOptions) -> dict[str, Any]:
+    """Peak RSS per node, MB, with the run each was measured in.
+
+    Returns:
+        ``{'<node>': {'peak_rss_mb': m, 'run': '...'} | {'skipped': reason}}``.
+    """
+    pin_to_core(DRIVER_CORE)
+    seconds = QUICK_SECONDS if options.quick else SECONDS
+    work = options.work_dir
+    streams, params = tracker_inputs(work, Kind.MONO, WIDTH, HEIGHT, FRAMES, options.seed)
+    recording = work / 'memory_recording'
+    shutil.rmtree(recording, ignore_errors=True)
+    model = {'model_file': params['model_file']}
+    pipeline = {
+        'mono_tracker': params,
+        'identity_recognizer': model,
+        'expression_recognizer': {**model, 'classifier_file': classifier_file(work, options.seed)},
+        'bag_recorder': {'output': recording, 'topics': RECORDED_TOPICS},
+    }
+    mono_run = f'mono pipeline, {WIDTH}x{HEIGHT} at {MONO_RATE_HZ:g} Hz for {seconds:g} s'
+    results = _measure(pipeline, streams, MONO_RATE_HZ, seconds, options, mono_run)
+    streams, params = tracker_inputs(work, Kind.STEREO, WIDTH, HEIGHT, FRAMES, options.seed)
+    stereo_run = f'stereo pairs {WIDTH}x{HEIGHT} at {STEREO_RATE_HZ:g} Hz for {seconds:g} s'
+    results.update(
+        _measure({'stereo_tracker': params}, streams, STEREO_RATE_HZ, seconds, options, stereo_run)
+    )
+    return results
+
+
+def _measure(
+    nodes: dict[str, dict[str, object]],
+    streams: list,
+    rate_hz: float,
+    seconds: float,
+    options: BenchOptions,
+    description: str,
+) -> dict[str, Any]:
+    """Start the nodes that are installed, drive them, read their peak RSS, stop them."""
+    results: dict[str, Any] = {}
+    running: list[NodeProcess] = []
+    for name, params in nodes.items():
+        try:
+            running.append(
+                NodeProcess(name, params, options.domain_id, options.work_dir / f'{name}.log')
+            )
+        except ConfigError as error:
+            results[name] = skipped(str(error))
+    driver = Driver(streams, name='bench_memory_driver')
+    try:
+        running = _connected(driver, running, results)
+        if running:
+            driver.run(rate_hz, seconds)
+        for node in running:
+            results[node.name] = {'peak_rss_mb': node.peak_rss_mb(), 'run': description}
+    finally:
+        driver.close()
+        for node in running:
+            node.stop()
+    return results
+
+
+def _connected(
+    driver: Driver, nodes: list[NodeProcess], results: dict[str, Any]
+) -> list[NodeProcess]:
+    """Wait for the nodes; those that die at start-up are reported as failed and left out."""
+    while nodes:
+        try:
+            driver.wait_for(nodes)
+        except ConfigError:
+            dead = [node for node in nodes if not node.alive()]
+            if not dead:
+                raise
+            for node in dead:
+                results[node.name] = {'failed': f'exited at start-up: {node.tail(2)}'}
+            nodes = [node for node in nodes if node.alive()]
+        else:
+            break
+    return nodes
