@@ -201,9 +201,7 @@ def compare_with_truth(model: FaceModel, truth: TrueSubspaces) -> TruthCompariso
     sample = float('nan')
     if truth.subject_neutrals is not None:
         faces = truth.subject_neutrals.reshape(len(truth.subject_neutrals), -1, 3)
-        sample = subspace_similarity(
-            shape, project(aligned_principal_axes(faces, model.p).basis)
-        )
+        sample = subspace_similarity(shape, project(aligned_principal_axes(faces, model.p).basis))
     return TruthComparison(
         shape_similarity=subspace_similarity(shape, _leading_span(identity, model.p)),
         shape_sample_similarity=sample,
