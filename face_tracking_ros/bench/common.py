@@ -6,6 +6,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 import os
 from pathlib import Path
+import sys
 import time
 
 import numpy as np
@@ -13,6 +14,7 @@ import numpy as np
 ONE_CORE_ENV = {'OMP_NUM_THREADS': '1', 'OPENBLAS_NUM_THREADS': '1', 'MKL_NUM_THREADS': '1'}
 """Thread limits for a benchmark process; set before numpy is imported (in the child's env)."""
 
+PROFILE = Path(__file__).resolve().parents[2] / 'config' / 'fastdds_profile.xml'
 BENCH_CORE = 0  # the core the measured code runs on
 DRIVER_CORE = 1  # the core of live-benchmark drivers (publisher, subscriber), when there is one
 
@@ -84,3 +86,18 @@ def proc_status_mb(pid: int, field: str) -> float:
         if line.startswith(f'{field}:'):
             return int(line.split()[1]) / 1024.0
     return float('nan')
+
+
+def dds_env(domain_id: int) -> dict[str, str]:
+    """The environment of a benchmark process: one BLAS thread, loopback DDS on ``domain_id``.
+
+    The Fast DDS profile and AMENT_PREFIX_PATH already set are kept; otherwise the package's
+    loopback profile and the interpreter's prefix are used.
+    """
+    env = dict(os.environ)
+    env.update(ONE_CORE_ENV)
+    env['ROS_DOMAIN_ID'] = str(domain_id)
+    env['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
+    env.setdefault('FASTDDS_DEFAULT_PROFILES_FILE', str(PROFILE))
+    env.setdefault('AMENT_PREFIX_PATH', sys.prefix)
+    return env

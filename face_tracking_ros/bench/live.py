@@ -27,7 +27,7 @@ from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 
-from face_tracking_ros.bench.common import BENCH_CORE, ONE_CORE_ENV, proc_status_mb
+from face_tracking_ros.bench.common import BENCH_CORE, dds_env, proc_status_mb
 from face_tracking_ros.bench.world import model_file, render_sequence, scene_config
 from face_tracking_ros.errors import ConfigError
 from face_tracking_ros.geometry.camera import PinholeCamera
@@ -39,22 +39,10 @@ from face_tracking_ros.synthetic.recording import CAMERA_TOPICS
 from face_tracking_ros.synthetic.scenes import Kind
 from face_tracking_ros.tracking.result import TrackStatus
 
-PROFILE = Path(__file__).resolve().parents[2] / 'config' / 'fastdds_profile.xml'
 STATE_TOPIC = 'face/state'
 STARTUP_TIMEOUT = 30.0  # s, for a node to subscribe and publish
 STOP_TIMEOUT = 10.0  # s, for a node to exit after SIGINT
 LATE_GRACE = 1.0  # s, waited after the last image for its state
-
-
-def dds_env(domain_id: int) -> dict[str, str]:
-    """The environment of a live benchmark process: loopback DDS on ``domain_id``, one thread."""
-    env = dict(os.environ)
-    env.update(ONE_CORE_ENV)
-    env['ROS_DOMAIN_ID'] = str(domain_id)
-    env['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
-    env.setdefault('FASTDDS_DEFAULT_PROFILES_FILE', str(PROFILE))
-    env.setdefault('AMENT_PREFIX_PATH', sys.prefix)
-    return env
 
 
 class NodeProcess:
