@@ -18,11 +18,11 @@ from face_tracking_ros.synthetic.faces import FacePopulation
 
 def test_small_scenario_reaches_the_targets_with_the_true_model() -> None:
     model = truth_model(FacePopulation('default', 0), 19)
-    config = BenchmarkConfig(subjects=4, strangers=2, duration=13.0)
+    config = BenchmarkConfig(subjects=3, strangers=2, duration=13.0)
 
     report = run_benchmark(model, config)
 
-    assert report.identity.windows == 4 * 13
+    assert report.identity.windows == 3 * 13
     assert report.identity.open_set >= 0.95
     assert report.identity.rejection >= 0.9
     assert report.expression.clear >= 0.92

@@ -28,7 +28,7 @@ def streams() -> dict[str, list]:
 
     def sequences(subjects: range, count: int) -> list:
         return [
-            parameter_sequence(rng, world, f's{i:02d}', sigma[i], 8.0)
+            parameter_sequence(rng, world, f's{i:02d}', sigma[i], 6.0)
             for i in subjects
             for _ in range(count)
         ]
@@ -69,7 +69,7 @@ def test_identity_comparison_scores_both_rules(streams: dict[str, list]) -> None
     )
 
     assert set(scores) == {'mahalanobis', 'svm'}
-    assert scores['mahalanobis'].windows == scores['svm'].windows == 11 * 8
+    assert scores['mahalanobis'].windows == scores['svm'].windows == 11 * 6
     assert scores['mahalanobis'].open_set >= 0.95
     assert scores['mahalanobis'].rejection >= 0.9
 
@@ -88,5 +88,5 @@ def test_decision_windows_are_whole_seconds(streams: dict[str, list]) -> None:
 
     windows = list(decision_windows([sequence], 1.0))
 
-    assert len(windows) == 8
+    assert len(windows) == 6
     assert all(values.shape == (30, len(STDS)) for _, values in windows)
