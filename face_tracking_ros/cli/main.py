@@ -32,6 +32,7 @@ SUBCOMMANDS: tuple[str, ...] = (
     'overlay',
     'train_expressions',
     'recognition_report',
+    'bench',
 )
 
 EXIT_ERROR = 2

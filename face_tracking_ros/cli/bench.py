@@ -1,0 +1,238 @@
+"""``face-tracking bench [--quick] [--json OUT] [--only NAME ...]``: the benchmark suite.
+
+Runs the benchmarks of :mod:`face_tracking_ros.bench` (each in its own process on one core; see
+:mod:`face_tracking_ros.bench.runner`), writes every figure to one JSON file and prints the
+headline table (the one in README.md, "Performance"). ``--only soak --minutes 30`` is the soak
+run of issue 10; it is not part of the default set.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+from typing import Any
+
+from face_tracking_ros.bench.common import BenchOptions
+from face_tracking_ros.bench.runner import BENCHMARKS, DEFAULT_BENCHMARKS, run_benchmarks
+
+TABLE_SIZE = '640x480'
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    """Add the ``bench`` subcommand."""
+    parser = subparsers.add_parser(
+        'bench',
+        help='speed, scaling, memory and accuracy benchmarks with their baseline (JSON)',
+        description='Run the benchmark suite on the synthetic world, one core per benchmark, '
+        'and write the results as JSON.',
+    )
+    parser.add_argument('--quick', action='store_true', help='smoke-test sizes (seconds)')
+    parser.add_argument('--json', type=Path, help='results file (default: OUT/bench/results.json)')
+    parser.add_argument(
+        '--out', type=Path, default=Path('out'), help='output directory (default: out)'
+    )
+    parser.add_argument(
+        '--only',
+        nargs='+',
+        choices=BENCHMARKS,
+        metavar='NAME',
+        help=f'run only these benchmarks: {", ".join(BENCHMARKS)} (default: all but soak)',
+    )
+    parser.add_argument(
+        '--minutes', type=float, default=BenchOptions.minutes, help='soak duration, min'
+    )
+    parser.add_argument(
+        '--domain-id', type=int, default=BenchOptions.domain_id, help='ROS_DOMAIN_ID of live runs'
+    )
+    parser.add_argument('--seed', type=int, default=BenchOptions.seed, help='synthetic world seed')
+    parser.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run, write the JSON, print the table; 1 if a benchmark failed."""
+    work_dir = args.out / 'bench'
+    options = BenchOptions(args.quick, work_dir, args.minutes, args.domain_id, args.seed)
+    results = run_benchmarks(args.only or DEFAULT_BENCHMARKS, options)
+    path = args.json or work_dir / 'results.json'
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(results, indent=1))
+    print(format_table(results))
+    print(f'results: {path}')
+    failed = [name for name, r in results['benchmarks'].items() if 'failed' in r]
+    for name in failed:
+        print(f'{name} failed: {results["benchmarks"][name]["failed"]}')
+    return 1 if failed else 0
+
+
+def format_table(results: dict[str, Any]) -> str:
+    """The headline figures as a Markdown table (one row per figure present in the results)."""
+    rows = [('Figure', 'Measured', 'Target')]
+    benchmarks = results['benchmarks']
+    rows += _speed_rows(benchmarks.get('tracker_speed', {}))
+    rows += _replay_rows(benchmarks.get('replay_throughput', {}))
+    rows += _live_rows(benchmarks.get('live_latency', {}))
+    rows += _learner_rows(benchmarks.get('learner_scaling', {}))
+    rows += _memory_rows(benchmarks.get('memory', {}))
+    rows += _accuracy_rows(benchmarks.get('accuracy_table', {}))
+    rows += _soak_rows(benchmarks.get('soak', {}))
+    lines = [f'| {" | ".join(row)} |' for row in rows]
+    lines.insert(1, '| --- | --- | --- |')
+    return '\n'.join(lines)
+
+
+def _speed_rows(speed: dict[str, Any]) -> list[tuple[str, str, str]]:
+    rows = []
+    for size, by_nodes in speed.items():
+        if not isinstance(by_nodes, dict):
+            continue
+        for nodes, figures in by_nodes.items():
+            for tracker, target in (('mono', '<= 2 ms'), ('stereo', '<= 5 ms'), ('baseline', '')):
+                f = figures.get(tracker, {})
+                if 'median_ms' in f:
+                    rows.append(
+                        (
+                            f'{tracker} step, {size}, {nodes.replace("_", " ")}',
+                            f'{f["median_ms"]:.1f} ms median, {f["p99_ms"]:.1f} ms p99',
+                            target if size == TABLE_SIZE else '',
+                        )
+                    )
+            if 'mono_over_baseline' in figures:
+                rows.append(
+                    (
+                        f'mono / baseline time, {size}, {nodes.replace("_", " ")}',
+                        f'{figures["mono_over_baseline"]:.1f}x',
+                        '',
+                    )
+                )
+    return rows
+
+
+def _replay_rows(replay: dict[str, Any]) -> list[tuple[str, str, str]]:
+    return [
+        (
+            f'offline replay, {kind}, {f["size"]}',
+            f'{f["frames_per_s"]:.1f} frames/s = {f["x_real_time"]:.2f}x real time (30 fps)',
+            '>= 30x' if kind == 'mono' else '',
+        )
+        for kind, f in replay.items()
+        if isinstance(f, dict) and 'frames_per_s' in f
+    ]
+
+
+def _live_rows(live: dict[str, Any]) -> list[tuple[str, str, str]]:
+    if 'at_30hz' not in live:
+        return []
+    f = live['at_30hz']
+    return [
+        (
+            f'live latency image -> face/state, {live["size"]} at 30 Hz, {f["seconds"]:g} s',
+            f'{f["latency_p50_ms"]:.0f} ms p50, {f["latency_p99_ms"]:.0f} ms p99, '
+            f'{f["dropped"]} of {f["published"]} dropped',
+            'p99 <= 10 ms, no drops',
+        ),
+        (
+            'highest rate without drops (stepped)',
+            f'{live["max_rate_without_drops_hz"]:g} Hz',
+            '>= 30 Hz',
+        ),
+    ]
+
+
+def _learner_rows(learner: dict[str, Any]) -> list[tuple[str, str, str]]:
+    rows = [
+        (
+            f'learner, {r["meshes"]:,} meshes, {r["subjects"]} subjects',
+            f'align {r["align_s"]:.2f} s + learn {r["seed_s"]:.2f} s',
+            '',
+        )
+        for r in learner.get('meshes', [])
+    ]
+    if 'meshes_exponent' in learner:
+        e = learner['meshes_exponent']
+        rows.append(
+            (
+                'learner scaling exponent (time ~ meshes^k)',
+                f'align k = {e["align_s"]:.2f}, learn k = {e["seed_s"]:.2f}',
+                'k = 1 (linear)',
+            )
+        )
+    return rows
+
+
+def _memory_rows(memory: dict[str, Any]) -> list[tuple[str, str, str]]:
+    return [
+        (f'peak RSS, {node}', f'{f["peak_rss_mb"]:.0f} MB' if 'peak_rss_mb' in f else _why(f), '')
+        for node, f in memory.items()
+        if isinstance(f, dict)
+    ]
+
+
+def _accuracy_rows(table: dict[str, Any]) -> list[tuple[str, str, str]]:
+    rows = []
+    for tracker in ('mono', 'baseline'):
+        f = table.get(tracker, {})
+        if 'node_rms_mm' in f:
+            rotation = ' / '.join(f'{v:.2f}' for v in f['rotation_mae_deg'])
+            rows.append(
+                (
+                    f'{tracker} accuracy ({table["scene"]})',
+                    f'node RMS {f["node_rms_mm"]:.1f} mm, rotation MAE {rotation} deg, '
+                    f'{f["tracked"]}/{f["frames"]} tracked',
+                    '',
+                )
+            )
+    f = table.get('stereo', {})
+    if 'node_rms_mm' in f:
+        rows.append(
+            (
+                'stereo accuracy (same scene)',
+                f'node RMS {f["node_rms_mm"]:.1f} mm, max reprojection '
+                f'{f["max_reprojection_px"]:.1f} px, drift {f["drift_mm"]:.1f} mm',
+                '',
+            )
+        )
+    f = table.get('learning', {})
+    if 'loo_shape_similarity' in f:
+        rows.append(
+            (
+                'learning (§3.4) vs truth',
+                f'LOO similarity S {f["loo_shape_similarity"]:.3f}, A '
+                f'{f["loo_action_similarity"]:.3f}; truth S {f["truth"]["shape_similarity"]:.3f}'
+                f', A {f["truth"]["action_similarity"]:.3f}',
+                '',
+            )
+        )
+    f = table.get('recognition', {})
+    if 'identity_closed_set' in f:
+        rows.append(
+            (
+                'recognition',
+                f'identity {100 * f["identity_closed_set"]:.0f} % (open set '
+                f'{100 * f["identity_open_set"]:.0f} %), expressions '
+                f'{100 * f["expression_clear_frames"]:.0f} % clear frames, event F1 '
+                f'{f["event_f1"]:.2f}',
+                '',
+            )
+        )
+    return rows
+
+
+def _soak_rows(soak: dict[str, Any]) -> list[tuple[str, str, str]]:
+    if 'rss_growth_mb' not in soak:
+        return []
+    return [
+        (
+            f'soak, {soak["minutes"]:g} min at 30 Hz',
+            f'RSS growth {soak["rss_growth_mb"]:+.1f} MB, latency p50 trend '
+            f'{soak["latency_p50_slope_ms_per_min"]:+.2f} ms/min, recorder missed '
+            f'{soak["recorder_missing"]} of {soak["received"]}',
+            '< 5 MB, no growth, none missed',
+        )
+    ]
+
+
+def _why(entry: dict[str, Any]) -> str:
+    """'skipped: ...' or 'failed: ...' (first 80 characters)."""
+    key = 'skipped' if 'skipped' in entry else 'failed'
+    return f'{key}: {str(entry.get(key, ""))[:80]}'
