@@ -10,20 +10,28 @@ plus the §4.1/§4.4 Gaussian prior on alpha, ``lambda alpha' Sigma_alpha^-1 alp
 
 Design, in the seed's terms:
 
-- Regions of interest are small 3-D surface patches fixed in the face frame around each node
-  (:mod:`.surface_patches`), projected through eq. 1-2 at frames n, n-1 and 1: they foreshorten
-  with out-of-plane rotation, so the templates of frames n-1 and 1 stay valid as the head turns.
+- Regions of interest are small 3-D surface patches fixed in the face frame around each node, on
+  the thin-plate surface through the nodes (:mod:`.surface_patches`), projected through eq. 1-2
+  at frames n, n-1 and 1: they foreshorten with out-of-plane rotation, so the templates of frames
+  n-1 and 1 stay comparable as the head turns (the seed's §4.4 weak point).
 - Both terms of eq. 6 share ``I_n(x_i(n))``, so eq. 6 equals ``sum (I_n(x_i(n)) - T)^2`` plus a
   constant, with the blended template ``T = (1 - epsilon) I_(n-1)(x(n-1)) + epsilon I_1(x(1))``:
   one residual per sample, and the exact Gauss-Newton step of eq. 6.
+- Residuals ignore a brightness gain and bias varying linearly across each ROI
+  (:mod:`~face_tracking_ros.imaging.photometric`): the shading of a turning head under a fixed
+  light changes far more than eq. 6's brightness constancy allows.
 - Levenberg-Marquardt over (omega, t, alpha) (and sigma during the first ``sigma_frames`` frames),
   coarse to fine on a Gaussian pyramid, with Huber IRLS weights, per-node visibility (nodes whose
   normal turns away from the camera lose their weight) and analytic Jacobians: the image gradient
-  sampled on the patches times d pixel / d X_c (eq. 2) times d X_c / d(omega, t, alpha) (eq. 1, 3).
-- Loss of track (most nodes' residuals as large as their texture, too few visible nodes, an
-  ill-conditioned or non-finite solve) gives status LOST with the last valid estimate; the tracker
-  then re-acquires against the frame-1 templates from the last valid and the initial pose, or from
-  a fresh detection when a detector was given.
+  sampled on the patches times d pixel / d X_c (eq. 2) times d X_c / d(omega, t, alpha) (eq. 1, 3),
+  evaluated where a pyramid level starts and refreshed after half a pixel of motion.
+- Optionally (``max_keyframes`` > 1) the drift term compares with the keyframe nearest in
+  rotation instead of frame 1. Measured on synthetic sequences it does worse than I_1 alone
+  (keyframes inherit the error of the pose they were taken at), so it is off by default.
+- Loss of track (most nodes' patches uncorrelated with their templates, too few visible nodes,
+  an implausible jump, an ill-conditioned or non-finite solve) gives status LOST with the last
+  valid estimate; the tracker then re-acquires against the keyframe templates from the last
+  valid and the initial pose, or from a fresh detection when a detector was given.
 """
 
 from __future__ import annotations
