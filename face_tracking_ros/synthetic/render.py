@@ -198,6 +198,36 @@ class FaceRenderer:
             InputError: for no poses, a background of the wrong shape, or a face behind the
                 camera.
         """
+        image, _ = self._render(camera, poses, background, lighting, occluders, rng)
+        return image
+
+    def render_with_visibility(
+        self,
+        camera: PinholeCamera,
+        poses: Sequence[FacePose],
+        background: np.ndarray,
+        lighting: Lighting | None = None,
+        occluders: Sequence[Occluder] = (),
+        rng: np.random.Generator | None = None,
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`render`, and :meth:`visible_nodes` of the middle pose from the same raster.
+
+        Returns:
+            ``(image, visible)``: the image and the (34,) bool visibility of the nodes.
+        """
+        image, rasters = self._render(camera, poses, background, lighting, occluders, rng)
+        return image, self._visibility(camera, rasters[len(rasters) // 2])
+
+    def _render(
+        self,
+        camera: PinholeCamera,
+        poses: Sequence[FacePose],
+        background: np.ndarray,
+        lighting: Lighting | None,
+        occluders: Sequence[Occluder],
+        rng: np.random.Generator | None,
+    ) -> tuple[np.ndarray, list[_Raster | None]]:
+        """Render an image; also return the raster of each pose."""
         if not poses:
             raise InputError('render needs at least one face pose')
         expected = (camera.height, camera.width) + ((3,) if self.encoding == 'rgb8' else ())
@@ -206,11 +236,11 @@ class FaceRenderer:
             raise InputError(msg)
         lighting = Lighting() if lighting is None else lighting
         image = background.astype(np.float32, copy=True)
-        layers = [self._face_layer(camera, pose, lighting) for pose in poses]
-        self._composite(image, layers)
+        rasters = [self._rasterise_pose(camera, pose) for pose in poses]
+        self._composite(image, [self._face_layer(camera, r, lighting) for r in rasters])
         for occluder in occluders:
             self._draw_occluder(image, occluder)
-        return self._expose(image, rng)
+        return self._expose(image, rng), rasters
 
     def visible_nodes(
         self,
@@ -231,7 +261,16 @@ class FaceRenderer:
         Returns:
             (34,) bool.
         """
-        raster = self._rasterise_pose(camera, pose)
+        return self._visibility(camera, self._rasterise_pose(camera, pose), tolerance, min_cosine)
+
+    def _visibility(
+        self,
+        camera: PinholeCamera,
+        raster: _Raster | None,
+        tolerance: float = 0.001,
+        min_cosine: float = 0.2,
+    ) -> np.ndarray:
+        """The (34,) visibility of :meth:`visible_nodes` from a pose's raster."""
         nodes = self.surface.node_vertices
         if raster is None:
             return np.zeros(len(nodes), bool)
@@ -299,9 +338,10 @@ class FaceRenderer:
         ids = _rasterise(pixels - [x0, y0], triangles[front], (y1 - y0, x1 - x0))
         return _Raster(vertices=vertices, pixels=pixels, front=front, box=box, ids=ids)
 
-    def _face_layer(self, camera: PinholeCamera, pose: FacePose, lighting: Lighting) -> _Layer:
-        """Rasterise, shade and texture the face at one pose."""
-        raster = self._rasterise_pose(camera, pose)
+    def _face_layer(
+        self, camera: PinholeCamera, raster: _Raster | None, lighting: Lighting
+    ) -> _Layer:
+        """Shade and texture the face of one pose's raster."""
         if raster is None:
             return _Layer((0, 0, 0, 0), np.zeros((0, 0), np.float32), np.zeros((0, 0), np.float32))
         vertices, pixels, ids = raster.vertices, raster.pixels, raster.ids

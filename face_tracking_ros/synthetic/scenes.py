@@ -245,10 +245,10 @@ class SequenceRenderer:
             time = index / config.fps
             poses = [self._pose(trajectory, script, sample) for sample in self._instants(time)]
             state = script.state(time)
-            images = {}
+            images, visible = {}, {}
             for number, (name, camera) in enumerate(self.cameras.items()):
                 occluders = () if occluder is None else occluder.at(time, camera, poses[0])
-                images[name] = self.renderer.render(
+                images[name], visible[name] = self.renderer.render_with_visibility(
                     camera,
                     poses,
                     backgrounds[name],
@@ -256,7 +256,7 @@ class SequenceRenderer:
                     occluders,
                     rng=np.random.default_rng((*seeds, index, number)),
                 )
-            pose = self._pose(trajectory, script, time)
+            pose = poses[len(poses) // 2]  # the frame's instant, mid-exposure
             truth = FrameTruth(
                 subject_id=subject.subject_id,
                 omega=pose.omega,
@@ -267,10 +267,7 @@ class SequenceRenderer:
                 nodes_camera=pose.camera_nodes(),
                 label=state.label,
                 intensity=state.intensity,
-                visible={
-                    name: self.renderer.visible_nodes(camera, pose)
-                    for name, camera in self.cameras.items()
-                },
+                visible=visible,
             )
             yield SyntheticFrame(index, config.stamp_ns(index), images, truth)
 

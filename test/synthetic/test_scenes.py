@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+import re
 
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
@@ -56,13 +57,13 @@ def _bag_bytes(root: Path) -> dict[str, bytes]:
 
 
 def test_same_seed_gives_byte_identical_bags(tmp_path):
-    config = SceneConfig(kind='mono', subjects=2, seed=5, **SMALL)
+    config = SceneConfig(kind='mono', sequences=2, seed=5, **SMALL)
     record(config, tmp_path / 'a')
     record(config, tmp_path / 'b')
     first, second = _bag_bytes(tmp_path / 'a'), _bag_bytes(tmp_path / 'b')
     assert len(first) == 4  # two bags, each metadata.yaml + one .mcap
     assert first == second
-    record(SceneConfig(kind='mono', subjects=2, seed=6, **SMALL), tmp_path / 'c')
+    record(SceneConfig(kind='mono', sequences=2, seed=6, **SMALL), tmp_path / 'c')
     assert _bag_bytes(tmp_path / 'c') != first
 
 
@@ -139,11 +140,7 @@ def test_bad_arguments_give_clear_errors(tmp_path, capsys, arguments, message):
     assert status == 2
     err = capsys.readouterr().err
     assert err.startswith('error: ')
-    import re
-
     assert re.search(message, err)
-    with pytest.raises(ConfigError):
-        SceneConfig(**{'subjects': 0})
 
 
 def test_scene_config_rejects_bad_values():
