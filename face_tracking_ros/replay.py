@@ -9,8 +9,8 @@ readable; bad input messages are counted and reported, not fatal.
 
 from __future__ import annotations
 
-from collections import Counter
-from collections.abc import Callable, Iterable, Iterator, Mapping
+from collections import Counter, deque
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -21,7 +21,7 @@ from face_tracking_ros.errors import BagError, FaceTrackingError
 from face_tracking_ros.io.bags import BagWriter, bag_topics, message_count, read_messages
 from face_tracking_ros.io.messages import RosbagsMessages
 from face_tracking_ros.io.typestore import typestore
-from face_tracking_ros.processing.base import Port, Processor
+from face_tracking_ros.processing.base import Output, Port, Processor
 from face_tracking_ros.processing.parameters import OverrideParameters
 from face_tracking_ros.processing.registry import processor_factory
 
@@ -90,28 +90,33 @@ def _match(port: Port, bag_topics: Mapping[str, str]) -> str | None:
 
 
 def replay(
-    processor: Processor,
+    processors: Sequence[Processor],
     records: Iterable[Record],
     write: Callable[[str, str, Any, int], None],
     topic_map: Mapping[str, str],
     record_inputs: bool = False,
     on_step: Callable[[], None] | None = None,
+    on_output: Callable[[Output, int], None] | None = None,
 ) -> ReplayStats:
-    """Feed bag records to a processor and write its outputs.
+    """Feed bag records to processors, route outputs between them, and write every output.
+
+    Several processors form a graph as the nodes would over DDS: an output on topic T is also
+    delivered, at once and in order, to every other processor with an input port T (e.g. a
+    tracker's ``face/action`` to the expression recogniser).
 
     Args:
-        processor: the node's processor.
+        processors: the nodes' processors.
         records: (bag topic, msgtype, log time ns, message), in log-time order.
         write: ``write(topic, msgtype, msg, log_time_ns)`` into the output bag (BagWriter.write).
         topic_map: bag topic -> processor input topic (see :func:`resolve_inputs`).
         record_inputs: also write the input messages, under their bag topics.
         on_step: called after each input message (progress bars).
+        on_output: called with every output and its log time as it is produced.
 
     Returns:
         The counts of what was read, written and rejected.
     """
-    output_types = {port.topic: port.msgtype for port in processor.outputs}
-    wanted = frozenset(port.topic for port in processor.outputs if port.on_demand)
+    output_types = {port.topic: port.msgtype for p in processors for port in p.outputs}
     stats = ReplayStats()
     iterator = iter(records)
     try:
@@ -123,14 +128,18 @@ def replay(
             if record_inputs:
                 write(bag_topic, msgtype, msg, log_time)
             stats.inputs[port_topic] += 1
-            try:
-                outputs = processor.handle(port_topic, msg, wanted)
-            except FaceTrackingError as error:
-                stats.errors[f'{port_topic}: {error}'[:200]] += 1
-                outputs = []
-            for output in outputs:
-                write(output.topic, output_types[output.topic], output.msg, log_time)
-                stats.outputs[output.topic] += 1
+            pending = deque([(None, Output(port_topic, msg))])
+            while pending:
+                source, message = pending.popleft()
+                for processor in processors:
+                    if processor is source or not _consumes(processor, message.topic):
+                        continue
+                    for output in _handle(processor, message, stats):
+                        write(output.topic, output_types[output.topic], output.msg, log_time)
+                        stats.outputs[output.topic] += 1
+                        if on_output is not None:
+                            on_output(output, log_time)
+                        pending.append((processor, output))
             if on_step is not None:
                 on_step()
     except KeyboardInterrupt:
@@ -138,53 +147,75 @@ def replay(
     return stats
 
 
+def _consumes(processor: Processor, topic: str) -> bool:
+    """True if one of the processor's input ports is ``topic``."""
+    return any(port.topic == topic for port in processor.inputs)
+
+
+def _handle(processor: Processor, message: Output, stats: ReplayStats) -> list[Output]:
+    """The processor's outputs for one message; a bad input is counted, not raised."""
+    wanted = frozenset(port.topic for port in processor.outputs if port.on_demand)
+    try:
+        return processor.handle(message.topic, message.msg, wanted)
+    except FaceTrackingError as error:
+        stats.errors[f'{message.topic}: {error}'[:200]] += 1
+        return []
+
+
 def replay_bag(
-    node: str,
+    nodes: Sequence[str],
     bag: Path,
     out: Path,
     params: OverrideParameters,
     remaps: Mapping[str, str] | None = None,
     record_inputs: bool = False,
     progress: bool = True,
+    on_output: Callable[[Output, int], None] | None = None,
 ) -> ReplayStats:
-    """Replay a bag through a node's processor into a new MCAP bag.
+    """Replay a bag through one node's processor, or a graph of several, into a new MCAP bag.
 
     Args:
-        node: node name, e.g. 'mono_tracker' (see :data:`processing.registry.PROCESSORS`).
+        nodes: node names, e.g. ('mono_tracker', 'expression_recognizer') (see
+            :data:`processing.registry.PROCESSORS`); parameters are shared by name, so
+            node-specific ones can be given as ``model_file`` once for all.
         bag: input rosbag2 directory.
         out: output rosbag2 directory (must not exist).
-        params: the node's parameters (``--param name=value``).
+        params: the nodes' parameters (``--param name=value``).
         remaps: processor input topic -> bag topic, where the automatic match is not wanted.
         record_inputs: also copy the consumed input messages into ``out``.
         progress: show a progress bar on stderr.
+        on_output: called with every output as it is produced (e.g. to print events).
 
     Returns:
         What was read, written and rejected. A bag that becomes unreadable part way (e.g.
         truncated) ends the replay early with ``stats.read_error`` set; ``out`` stays valid.
 
     Raises:
-        BagError: if the bag cannot be opened or no topic matches the node's inputs.
+        BagError: if the bag cannot be opened or no topic matches the nodes' inputs.
         ConfigError: for unknown parameters or a node without a processor.
     """
-    processor = processor_factory(node)(params, RosbagsMessages(typestore()))
+    factory = RosbagsMessages(typestore())
+    processors = [processor_factory(node)(params, factory) for node in nodes]
     params.check_all_used()
+    produced = {port.topic for p in processors for port in p.outputs}
+    external = [port for p in processors for port in p.inputs if port.topic not in produced]
     topics = bag_topics(bag)
-    topic_map = resolve_inputs(processor.inputs, topics, remaps or {})
+    topic_map = resolve_inputs(external, topics, remaps or {})
     if not topic_map:
-        wanted = ', '.join(f'{p.topic} ({p.msgtype})' for p in processor.inputs)
-        msg = f'{bag}: no topic matches the inputs of {node}: {wanted}'
+        wanted = ', '.join(f'{p.topic} ({p.msgtype})' for p in external)
+        msg = f'{bag}: no topic matches the inputs of {", ".join(nodes)}: {wanted}'
         raise BagError(msg)
     total = message_count(bag, topic_map)
     with BagWriter(out) as writer, tqdm(total=total, unit='msg', disable=not progress) as bar:
-        stats = replay(
-            processor,
+        return replay(
+            processors,
             read_messages(bag, topics=list(topic_map)),
             writer.write,
             topic_map,
             record_inputs,
             on_step=bar.update,
+            on_output=on_output,
         )
-    return stats
 
 
 def _next_readable(iterator: Iterator[Record], stats: ReplayStats) -> Record | None:

@@ -52,7 +52,7 @@ def recorded(tmp_path_factory):
 
 def _offline_states(bag, model_file, init_file, out):
     params = OverrideParameters({'model_file': str(model_file), 'init_file': str(init_file)})
-    replay_bag('mono_tracker', bag, out, params, progress=False)
+    replay_bag(['mono_tracker'], bag, out, params, progress=False)
     return {
         stamp_to_ns(m.msg.header.stamp): m.msg for m in read_messages(out, topics=['face/state'])
     }

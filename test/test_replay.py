@@ -59,7 +59,7 @@ def _write_images(
 
 def _run(bag: Path, out: Path, processor: MeanProcessor):
     with BagWriter(out) as writer:
-        return replay(processor, read_messages(bag), writer.write, {'/cam/image': 'image'})
+        return replay([processor], read_messages(bag), writer.write, {'/cam/image': 'image'})
 
 
 def test_inputs_match_by_name_then_by_type():
@@ -114,3 +114,34 @@ def test_ctrl_c_leaves_a_valid_output_bag(tmp_path):
     stats = _run(tmp_path / 'in', tmp_path / 'out', MeanProcessor(interrupt_at=11))
     assert stats.interrupted
     assert [m.msg.data for m in read_messages(tmp_path / 'out')] == [0, 1, 2, 4, 5, 6, 7, 8, 9]
+
+
+class DoublingProcessor:
+    """Consumes MeanProcessor's output and doubles it: a second node in the graph."""
+
+    def __init__(self) -> None:
+        """Read 'mean', write 'double'."""
+        self.inputs = (Port('mean', FLOAT),)
+        self.outputs = (Port('double', FLOAT),)
+        self._factory = RosbagsMessages(typestore())
+
+    def handle(self, topic, msg, wanted):
+        """Output twice the input."""
+        return [Output('double', self._factory.make(FLOAT, data=2 * msg.data))]
+
+
+def test_outputs_of_one_processor_feed_the_next(tmp_path):
+    _write_images(tmp_path / 'in', 5)
+    fired = []
+    with BagWriter(tmp_path / 'out') as writer:
+        stats = replay(
+            [MeanProcessor(), DoublingProcessor()],
+            read_messages(tmp_path / 'in'),
+            writer.write,
+            {'/cam/image': 'image'},
+            on_output=lambda output, stamp: fired.append((output.topic, output.msg.data)),
+        )
+    assert stats.outputs == {'mean': 4, 'double': 4}
+    assert fired[:4] == [('mean', 0), ('double', 0), ('mean', 1), ('double', 2)]
+    doubled = [m.msg.data for m in read_messages(tmp_path / 'out', topics=['double'])]
+    assert doubled == [0, 2, 4, 8]  # frame 3 is rejected by MeanProcessor

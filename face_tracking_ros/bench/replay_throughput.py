@@ -44,7 +44,7 @@ def run(options: BenchOptions) -> dict[str, Any]:
         shutil.rmtree(out, ignore_errors=True)
         params = OverrideParameters.parse([f'model_file={model}', f'init_file={init_file}'])
         start = time.perf_counter()
-        stats = replay_bag(node, bag, out, params, progress=False)
+        stats = replay_bag([node], bag, out, params, progress=False)
         seconds = time.perf_counter() - start
         images = stats.inputs[IMAGE_TOPIC[kind]]
         results[kind.value] = {

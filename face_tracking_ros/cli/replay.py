@@ -1,11 +1,19 @@
-"""``face-tracking replay NODE BAG --out OUT``: run a node's own code over a bag, without DDS."""
+"""``face-tracking replay NODE[,NODE...] BAG --out OUT``: run nodes' own code over a bag.
+
+Several nodes form a graph as they would over DDS: ``mono_tracker,expression_recognizer`` feeds
+the tracker's ``face/action`` to the recogniser. ``--echo TOPIC`` prints the messages produced on
+a topic as they fire (events in one line each).
+"""
 
 from __future__ import annotations
 
 import argparse
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 from face_tracking_ros.errors import ConfigError
+from face_tracking_ros.processing.base import Output
 from face_tracking_ros.processing.parameters import OverrideParameters
 from face_tracking_ros.processing.registry import PROCESSORS
 from face_tracking_ros.replay import ReplayStats, replay_bag
@@ -20,7 +28,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         'deterministically and as fast as the CPU allows, and write its outputs to a '
         'rosbag2/MCAP bag. Ctrl-C stops early and leaves a valid output bag.',
     )
-    parser.add_argument('node', choices=sorted(PROCESSORS), help='node to replay')
+    parser.add_argument(
+        'nodes',
+        type=_node_list,
+        metavar='NODE[,NODE...]',
+        help=f'node(s) to replay, connected by topic name: {", ".join(sorted(PROCESSORS))}',
+    )
     parser.add_argument('bag', type=Path, help='input rosbag2 directory')
     add_replay_options(parser)
     parser.set_defaults(func=run)
@@ -45,6 +58,13 @@ def add_replay_options(parser: argparse.ArgumentParser) -> None:
         '--record-inputs', action='store_true', help='also copy the input messages to the output'
     )
     parser.add_argument('--quiet', action='store_true', help='no progress bar')
+    parser.add_argument(
+        '--echo',
+        action='append',
+        default=[],
+        metavar='TOPIC',
+        help='print the messages produced on TOPIC as they fire (e.g. face/expression)',
+    )
 
 
 def parse_remaps(items: list[str] | None) -> dict[str, str]:
@@ -82,13 +102,50 @@ def print_stats(stats: ReplayStats, out: Path) -> None:
 def run(args: argparse.Namespace) -> int:
     """Replay the bag; exit status 1 if it was interrupted or partly unreadable."""
     stats = replay_bag(
-        args.node,
+        args.nodes,
         args.bag,
         args.out,
         OverrideParameters.parse(args.param),
         parse_remaps(args.remap),
         args.record_inputs,
         progress=not args.quiet,
+        on_output=echo(args.echo),
     )
     print_stats(stats, args.out)
     return 1 if stats.interrupted or stats.read_error else 0
+
+
+def _node_list(text: str) -> list[str]:
+    """``'a,b'`` -> ``['a', 'b']``, each a node with a processor."""
+    nodes = [name.strip() for name in text.split(',') if name.strip()]
+    unknown = [name for name in nodes if name not in PROCESSORS]
+    if not nodes or unknown:
+        msg = f'unknown node(s) {unknown or text!r}; choose from {", ".join(sorted(PROCESSORS))}'
+        raise argparse.ArgumentTypeError(msg)
+    return nodes
+
+
+def echo(topics: list[str]) -> Callable[[Output, int], None] | None:
+    """A replay callback printing the outputs on ``topics`` as they fire (None for no topics)."""
+    if not topics:
+        return None
+    wanted = set(topics)
+
+    def show(output: Output, log_time: int) -> None:
+        if output.topic in wanted:
+            print(f'{log_time / 1e9:14.3f} {output.topic:18s} {describe(output.msg)}')
+
+    return show
+
+
+def describe(msg: Any) -> str:
+    """One line for an event message; the message's repr for anything else."""
+    if hasattr(msg, 'label') and hasattr(msg, 'event'):
+        kind = 'ONSET ' if msg.event == 0 else 'OFFSET'
+        return (
+            f'{kind} {msg.label:<10s} confidence {msg.confidence:.2f} '
+            f'duration {msg.duration:.2f} s'
+        )
+    if hasattr(msg, 'identity'):
+        return f'{msg.identity:<12s} distance {msg.distance:.2f} confidence {msg.confidence:.2f}'
+    return repr(msg)

@@ -99,7 +99,7 @@ def run(args: argparse.Namespace) -> int:
     remaps.update({port: topic for port, topic in options.items() if topic})
     print(f'tracking {args.bag} with {node}')
     stats = replay_bag(
-        node,
+        [node],
         args.bag,
         args.out,
         OverrideParameters.parse(params),
