@@ -60,6 +60,7 @@ class StereoTrackerConfig:
         gamma: weight of the cross-camera terms of eq. 4, in [0, 1].
         boundary_gamma: gamma of the face-boundary nodes, in [0, 1]: their left and right
             views show different skin (the face turns away from the cameras there), §4.2.
+        boundary_one_sided: face-boundary nodes use the face side of their patch only (§4.2).
         epsilon: share of the frame-1 (drift) terms in every image term, in [0, 1).
         texture_weight: weight of a face-texture sample relative to a node-patch sample (§4.2);
             0 disables the texture term.
@@ -81,6 +82,7 @@ class StereoTrackerConfig:
     num_nodes: int = 34
     gamma: float = 0.5
     boundary_gamma: float = 0.0
+    boundary_one_sided: bool = True
     epsilon: float = 0.2
     texture_weight: float = 0.5
     texture_subdivisions: int = 6
@@ -361,7 +363,7 @@ class StereoTracker:
             nodes,
             spacing,
             config.patch_half_size,
-            self._boundary,
+            self._boundary & config.boundary_one_sided,
         )
         layouts = [patches]
         if config.texture_weight > 0:
