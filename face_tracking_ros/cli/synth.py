@@ -60,6 +60,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument(
         '--texture-nodes', type=Path, help='JSON {node name: [x, y]} of the photo node pixels'
     )
+    parser.add_argument(
+        '--distortion',
+        type=_coefficients,
+        default=(),
+        help='plumb_bob k1,k2,p1,p2,k3 of the cameras (raw images; default none)',
+    )
     parser.add_argument('--motion-blur', action='store_true', help='blur over the exposure')
     parser.add_argument('--occlusion', action='store_true', help='pass an occluder once')
     parser.add_argument(
@@ -95,6 +101,7 @@ def run(args: argparse.Namespace) -> None:
         texture_nodes=args.texture_nodes,
         motion_blur=args.motion_blur,
         occlusion=args.occlusion,
+        distortion=args.distortion,
     )
     if args.out is not None:
         started = time.perf_counter()
@@ -127,3 +134,13 @@ def _size(text: str) -> tuple[int, int]:
     except ValueError:
         raise argparse.ArgumentTypeError(f'size must be WIDTHxHEIGHT, got {text!r}') from None
     return width, height
+
+
+def _coefficients(text: str) -> tuple[float, ...]:
+    """Parse comma-separated numbers."""
+    try:
+        return tuple(float(part) for part in text.split(','))
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f'expected numbers like -0.2,0.05,0,0,0: {text!r}'
+        ) from None

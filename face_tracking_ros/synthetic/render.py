@@ -11,7 +11,8 @@ A frame is rendered in five steps:
    sampled with one ``cv2.remap`` call at the mip level that matches the face's image scale;
 4. the face is composited over the cluttered backdrop with an optics blur applied to the face
    and its coverage (anti-aliased edges); motion blur averages several poses over the exposure;
-   occluders (a hand, a mug, a pen) pass in front;
+   occluders (a hand, a mug, a pen) pass in front; a camera with lens distortion (D, e.g.
+   plumb_bob) gets the raw, distorted image, which its ``rectify_maps`` undo;
 5. sensor gain, signal-dependent noise and 8-bit quantisation.
 
 Projection uses the camera's P (eq. 2), so node ``i`` of a face is seen exactly where
@@ -159,6 +160,7 @@ class FaceRenderer:
         self.surface = head_surface() if surface is None else surface
         self._seed = seed
         self._noise_banks: dict[tuple[int, ...], np.ndarray] = {}
+        self._distortion_maps: dict[tuple[float, ...], tuple[np.ndarray, np.ndarray]] = {}
         triangles = self.surface.triangles
         rows = triangles.ravel()
         cols = np.repeat(np.arange(len(triangles)), 3)
@@ -240,7 +242,26 @@ class FaceRenderer:
         self._composite(image, [self._face_layer(camera, r, lighting) for r in rasters])
         for occluder in occluders:
             self._draw_occluder(image, occluder)
+        if camera.has_distortion:
+            image = cv2.remap(image, *self._raw_maps(camera), cv2.INTER_LINEAR)
         return self._expose(image, rng), rasters
+
+    def _raw_maps(self, camera: PinholeCamera) -> tuple[np.ndarray, np.ndarray]:
+        """cv2.remap maps taking the rendered (rectified, eq. 2) image to the camera's raw image.
+
+        The inverse of :meth:`PinholeCamera.rectify_maps`: raw pixel q shows the rectified
+        pixel ``cv2.undistortPoints(q, K, D, R, P)``. Computed once per camera.
+        """
+        key = tuple(np.concatenate([a.ravel() for a in (camera.k, camera.d, camera.r, camera.p)]))
+        maps = self._distortion_maps.get((camera.width, camera.height, *key))
+        if maps is None:
+            columns, rows = np.meshgrid(np.arange(camera.width), np.arange(camera.height))
+            raw = np.stack([columns, rows], axis=-1).reshape(-1, 1, 2).astype(np.float64)
+            rectified = cv2.undistortPoints(raw, camera.k, camera.d, R=camera.r, P=camera.p[:, :3])
+            rectified = rectified.reshape(camera.height, camera.width, 2).astype(np.float32)
+            maps = (rectified[..., 0], rectified[..., 1])
+            self._distortion_maps[(camera.width, camera.height, *key)] = maps
+        return maps
 
     def visible_nodes(
         self,

@@ -15,7 +15,7 @@ intensity, and which nodes each camera sees.
 from __future__ import annotations
 
 from collections.abc import Iterator
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from enum import Enum, StrEnum
 from pathlib import Path
 
@@ -78,6 +78,9 @@ class SceneConfig:
         texture_nodes: JSON of that photo's node pixels (required with ``texture``).
         motion_blur: average poses over half the frame period.
         occlusion: pass an occluder (hand, mug) in front of the face once per sequence.
+        distortion: plumb_bob coefficients (k1, k2, p1, p2, k3) of every camera; empty for
+            none. Images are then raw (distorted) and CameraInfo carries D; P stays the
+            rectified projection of the truth (eq. 2 after rectification).
     """
 
     kind: Kind | str = Kind.STEREO
@@ -97,6 +100,7 @@ class SceneConfig:
     texture_nodes: Path | None = None
     motion_blur: bool = False
     occlusion: bool = False
+    distortion: tuple[float, ...] = ()
 
     def __post_init__(self) -> None:
         """Validate every field; errors name the field and the accepted range."""
@@ -127,6 +131,9 @@ class SceneConfig:
         if (self.texture is None) != (self.texture_nodes is None):
             msg = 'a texture photo needs its node positions: give both texture and texture_nodes'
             raise ConfigError(msg)
+        if len(self.distortion) not in (0, 5) or not np.all(np.isfinite(self.distortion)):
+            msg = f'distortion must be 5 finite plumb_bob coefficients, got {self.distortion}'
+            raise ConfigError(msg)
         for name in ('texture', 'texture_nodes'):
             path = getattr(self, name)
             if path is not None and not Path(path).is_file():
@@ -141,9 +148,14 @@ class SceneConfig:
     def cameras(self) -> dict[str, PinholeCamera]:
         """The cameras by name: {'left', 'right'} for stereo, {'image'} for mono."""
         if self.kind is Kind.MONO:
-            return {'image': PinholeCamera.ideal(self.width, self.height, self.focal)}
-        rig = StereoRig.ideal(self.width, self.height, self.focal, self.baseline)
-        return {'left': rig.left, 'right': rig.right}
+            cameras = {'image': PinholeCamera.ideal(self.width, self.height, self.focal)}
+        else:
+            rig = StereoRig.ideal(self.width, self.height, self.focal, self.baseline)
+            cameras = {'left': rig.left, 'right': rig.right}
+        if not self.distortion:
+            return cameras
+        d = np.asarray(self.distortion, dtype=float)
+        return {name: replace(camera, d=d) for name, camera in cameras.items()}
 
     def stamp_ns(self, index: int) -> int:
         """Stamp of frame ``index``, ns since the epoch."""

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
 import json
 
 import cv2
@@ -123,6 +124,40 @@ def test_truth_nodes_land_on_features_in_the_right_camera_of_a_rig(phase_rendere
     error_px, visible = _node_errors_px(phase_renderers, rig.right, pose)
     assert visible.sum() >= 28
     assert np.max(error_px[visible]) < 0.5
+
+
+def test_distorted_camera_shows_nodes_at_their_distorted_projections(phase_renderers):
+    """With plumb_bob D the image is raw: a node appears where cv2.projectPoints puts it."""
+    distortion = np.array([-0.28, 0.09, 0.001, -0.001, 0.0])
+    camera = replace(CAMERA, d=distortion)
+    pose = _pose((5.0, -15.0, 5.0), {'smile': 0.7}, t=(0.1, 0.05, 0.55))
+    nodes = pose.camera_nodes()
+    raw, _ = cv2.projectPoints(nodes, np.zeros(3), np.zeros(3), camera.k, distortion)
+    raw = raw.reshape(-1, 2).astype(np.float32)
+    images = [
+        r.render(camera, [pose], np.zeros((camera.height, camera.width), np.float32), FLAT)
+        for r in phase_renderers
+    ]
+    samples = [
+        (cv2.remap(im.astype(np.float32), raw[None, :, 0], raw[None, :, 1], cv2.INTER_LINEAR)[0]
+         / 255.0 - 0.5) / 0.4
+        for im in images
+    ]  # fmt: skip
+    decoded = np.stack(
+        [np.arctan2(samples[0], samples[1]), np.arctan2(samples[2], samples[3])], axis=1
+    )
+    expected = 2 * np.pi * REFERENCE_UV_MM / PERIOD_MM
+    error_mm = np.angle(np.exp(1j * (decoded - expected))) * PERIOD_MM / (2 * np.pi)
+    error_px = np.linalg.norm(error_mm, axis=1) * camera.focal / (1000.0 * nodes[:, 2]) / FINE
+    visible = phase_renderers[0].visible_nodes(CAMERA, pose)
+    checked = [node for node in FEATURE_NODES if visible[node]]
+    assert len(checked) >= 12
+    assert np.max(error_px[checked]) < 0.5  # the raw image is the rendered one resampled once,
+    assert np.max(error_px[visible]) < 1.0  # so contour nodes read a little worse
+    rectified = cv2.remap(images[0], *camera.rectify_maps(), cv2.INTER_LINEAR)
+    ideal = phase_renderers[0].render(CAMERA, [pose], np.zeros_like(rectified, np.float32), FLAT)
+    face = ideal > 0
+    assert np.mean(np.abs(rectified[face].astype(float) - ideal[face])) < 2.0
 
 
 def test_large_yaw_hides_the_far_face_edge_and_shows_the_near_one(phase_renderers):

@@ -133,6 +133,7 @@ def test_synth_command_writes_bags_and_a_contact_sheet(tmp_path, capsys):
         ),
         (['--texture', 'missing.png'], 'needs its node positions'),
         (['--baseline', '0.3'], r'baseline must be in \[0.1, 0.12\] m'),
+        (['--distortion', '0.1,0.2'], 'distortion must be 5 finite plumb_bob coefficients'),
     ],
 )
 def test_bad_arguments_give_clear_errors(tmp_path, capsys, arguments, message):
