@@ -86,10 +86,10 @@ class StereoTrackerConfig:
     epsilon: float = 0.2
     texture_weight: float = 0.5
     texture_subdivisions: int = 6
-    patch_half_size: int = 5
+    patch_half_size: int = 3
     pyramid_levels: int = 3
     max_iterations: int = 6
-    step_tolerance: float = 0.03
+    step_tolerance: float = 0.1
     damping: float = 1e-4
     huber_k: float = 1.345
     noise_floor: float = 2.0

@@ -56,7 +56,7 @@ class StereoInitConfig:
     max_face_error: float = 0.025
     min_given_nodes: int = 6
     refine_iterations: int = 5
-    refine_half_size: int = 5
+    refine_half_size: int = 3
 
     def __post_init__(self) -> None:
         """Validate ranges.
