@@ -70,7 +70,7 @@ def test_learns_compares_and_writes_model_report_and_plots(tmp_path, truth_bags,
     status = main(
         ['learn', *map(str, truth_bags), '--out', str(model_path), '--report', str(report_path)]
         + ['--nodes', '19', '--q', '3', '--plots', str(tmp_path), '--truth-population', 'default']
-        + ['--add-noise', '0.0005']
+        + ['--add-noise', '0.0005', '--truth-samples', '200']
     )
     assert status == 0
     out = capsys.readouterr().out
@@ -120,6 +120,30 @@ def test_mesh_bags_with_first_frames_neutral(tmp_path, world):
     report = json.loads((tmp_path / 'r.json').read_text())
     assert report['subjects'] == ['person0', 'person1', 'person2', 'person3']
     assert report['methods']['joint']['expression_accuracy'] is None
+
+
+def test_mesh_bags_labelled_by_truth_bags(tmp_path, world, truth_bags, capsys):
+    sequences, alpha = world
+    bags = [
+        _write_bag(tmp_path / f'tracked{k}', s, alpha, kind='mesh')
+        for k, s in enumerate(sequences)
+    ]
+    args = ['learn', *map(str, bags), '--out', str(tmp_path / 'm.npz'), '--q', '3']
+    args += ['--report', str(tmp_path / 'r.json'), '--compare', '--truth', *map(str, truth_bags)]
+    assert main(args) == 0
+    report = json.loads((tmp_path / 'r.json').read_text())
+    assert report['subjects'] == [s.subject_id for s in sequences]
+    assert report['methods']['joint']['expression_accuracy'] is not None
+
+    err = _error([*args[:-1]], capsys)
+    assert '--truth names 3 bag(s) for 4 input bag(s)' in err
+    short = sequences[0].__class__(
+        'x', sequences[0].meshes[:5], np.ones(5, bool), ('neutral',) * 5
+    )
+    short_truth = _write_bag(tmp_path / 'short', short, alpha)
+    out = ['--out', str(tmp_path / 'm2.npz'), '--report', str(tmp_path / 'r2.json')]
+    err = _error(['learn', str(bags[1]), *out, '--truth', str(short_truth)], capsys)
+    assert f'{short_truth}: no truth/face message stamped' in err
 
 
 def _error(args: list[str], capsys) -> str:

@@ -5,8 +5,9 @@ Input bags hold one of:
 * ``face_tracking_msgs/FaceTruth`` (synthetic truth, default topic ``truth/face``): nodes in the
   camera frame, subject id and expression label per frame; frames labelled 'neutral' are the
   neutral frames of §3.4;
-* ``face_tracking_msgs/FaceMesh`` or ``FaceState`` (a tracker's meshes): the subject is
-  ``--subject`` or the bag's directory name, and the first ``--neutral-frames`` frames of each
+* ``face_tracking_msgs/FaceMesh`` or ``FaceState`` (a tracker's meshes): subject, label and
+  alpha come from ``--truth`` bags (matched by header stamp) when given; otherwise the subject is
+  ``--subject`` or the bag's directory name and the first ``--neutral-frames`` frames of each
   bag are taken as neutral.
 
 The meshes are aligned (§3.3), the model is learned by ``--method`` (default ``joint``, issue 11;
@@ -29,7 +30,12 @@ import numpy as np
 
 from face_tracking_ros.errors import BagError, ConfigError, InputError
 from face_tracking_ros.io.bags import bag_topics, read_messages
-from face_tracking_ros.io.conversions import points_to_array, truth_from_msg
+from face_tracking_ros.io.conversions import (
+    TruthSample,
+    points_to_array,
+    stamp_to_ns,
+    truth_from_msg,
+)
 from face_tracking_ros.learning.alignment import align_training_set
 from face_tracking_ros.learning.evaluation import (
     Evaluation,
@@ -57,7 +63,8 @@ from face_tracking_ros.synthetic.faces import PRESETS, FacePopulation
 
 TRUTH_TYPE = 'face_tracking_msgs/msg/FaceTruth'
 MESH_TYPES = ('face_tracking_msgs/msg/FaceMesh', 'face_tracking_msgs/msg/FaceState')
-DEFAULT_TOPICS = ('truth/face', 'face/mesh_raw', 'face/state')
+TRUTH_TOPIC = 'truth/face'
+DEFAULT_TOPICS = (TRUTH_TOPIC, 'face/mesh_raw', 'face/state')
 
 
 @dataclass(frozen=True)
@@ -103,6 +110,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument('--topic', help=f'mesh topic (default: first of {DEFAULT_TOPICS})')
     parser.add_argument('--subject', help='subject id for FaceMesh/FaceState bags')
     parser.add_argument(
+        '--truth',
+        nargs='+',
+        type=Path,
+        metavar='TRUTH_BAG',
+        help='one bag per BAG whose truth/face messages label the meshes of the same stamp '
+        '(subject, expression, alpha): e.g. the synthetic bags a tracker ran on',
+    )
+    parser.add_argument(
         '--neutral-frames',
         type=int,
         default=0,
@@ -122,6 +137,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help=f'synthetic population of the bags ({", ".join(PRESETS)}): adds the comparison '
         'with the true subspaces to the report',
     )
+    parser.add_argument(
+        '--truth-samples',
+        type=int,
+        default=2000,
+        help='population faces drawn to estimate the true identity axes (%(default)s)',
+    )
     parser.set_defaults(func=run)
 
 
@@ -129,7 +150,12 @@ def run(args: argparse.Namespace) -> None:
     """Read, align, learn, evaluate, write."""
     _check_arguments(args)
     rng = np.random.default_rng(args.seed)
-    bag_meshes = [item for bag in args.bags for item in read_bag_meshes(bag, args)]
+    truth_bags = args.truth or [None] * len(args.bags)
+    bag_meshes = [
+        item
+        for bag, truth_bag in zip(args.bags, truth_bags, strict=True)
+        for item in read_bag_meshes(bag, args, truth_bag)
+    ]
     sequences = [item.sequence for item in bag_meshes]
     if args.add_noise > 0.0:
         sequences = [_with_noise(sequence, args.add_noise, rng) for sequence in sequences]
@@ -189,13 +215,21 @@ def run(args: argparse.Namespace) -> None:
     print(f'report written to {args.report}')
 
 
-def read_bag_meshes(bag: Path, args: argparse.Namespace) -> list[BagMeshes]:
+def read_bag_meshes(
+    bag: Path, args: argparse.Namespace, truth_bag: Path | None = None
+) -> list[BagMeshes]:
     """The meshes of one bag, one entry per subject found in it.
 
+    Args:
+        bag: a bag of FaceTruth, FaceMesh or FaceState messages.
+        args: the command's arguments (topic, subject, neutral frames, nodes).
+        truth_bag: for mesh bags, a bag whose ``truth/face`` messages give the subject, label and
+            alpha of the mesh with the same header stamp (e.g. the synthetic bag a tracker ran on).
+
     Raises:
-        BagError: if the bag lacks the topic or holds no message on it.
+        BagError: if a bag lacks the topic, holds no message on it, or the truth bag has no
+            truth for a mesh's stamp.
         InputError: naming the bag, topic and message index of a malformed message.
-        ConfigError: if neutral frames cannot be determined for mesh (non-truth) bags.
     """
     topics = bag_topics(bag)
     topic = args.topic or next((name for name in DEFAULT_TOPICS if name in topics), None)
@@ -207,52 +241,73 @@ def read_bag_meshes(bag: Path, args: argparse.Namespace) -> list[BagMeshes]:
     if msgtype != TRUTH_TYPE and msgtype not in MESH_TYPES:
         msg = f'{bag}: topic {topic} has type {msgtype}; expected FaceTruth, FaceMesh or FaceState'
         raise BagError(msg)
-    frames: dict[str, list[tuple[np.ndarray, str, np.ndarray | None]]] = {}
+    truth = _truth_by_stamp(truth_bag) if truth_bag is not None else {}
+    frames: dict[str, list[tuple[np.ndarray, str | None, np.ndarray | None]]] = {}
     for index, message in enumerate(read_messages(bag, [topic])):
         try:
-            subject, nodes, label, alpha = mesh_from_message(message.msg, msgtype)
+            stamp_ns, nodes, sample = mesh_from_message(message.msg, msgtype)
         except InputError as error:
             msg = f'{bag}: {topic} message {index}: {error}'
             raise InputError(msg) from None
-        frames.setdefault(subject or args.subject or bag.name, []).append((nodes, label, alpha))
+        if truth_bag is not None:
+            sample = truth.get(stamp_ns)
+            if sample is None:
+                msg = f'{truth_bag}: no {TRUTH_TOPIC} message stamped {stamp_ns} ns for {bag}'
+                raise BagError(msg)
+        subject = sample.subject_id if sample else args.subject or bag.name
+        frames.setdefault(subject, []).append(
+            (nodes, sample.label if sample else None, sample.alpha if sample else None)
+        )
     if not frames:
         msg = f'{bag}: no message on {topic}'
         raise BagError(msg)
-    result = []
-    for subject, items in frames.items():
-        counts = {len(nodes) for nodes, _, _ in items}
-        if len(counts) > 1:
-            msg = f'{bag}: {topic} meshes of subject {subject!r} have node counts {sorted(counts)}'
-            raise InputError(msg)
-        meshes = np.array([nodes for nodes, _, _ in items])
-        meshes = _select_nodes(meshes, args.nodes, f'{bag}: {topic}')
-        labels = tuple(label for _, label, _ in items)
-        if msgtype == TRUTH_TYPE:
-            neutral = np.array([label == NEUTRAL_LABEL for label in labels])
-            alpha = np.array([alpha for _, _, alpha in items])
-        else:
-            neutral = np.arange(len(meshes)) < args.neutral_frames
-            labels, alpha = None, None
-        sequence = MeshSequence(subject, meshes, neutral, labels, str(bag))
-        result.append(BagMeshes(sequence, alpha))
-    return result
+    return [_bag_meshes(bag, topic, subject, items, args) for subject, items in frames.items()]
 
 
-def mesh_from_message(msg: Any, msgtype: str) -> tuple[str | None, np.ndarray, str, Any]:
-    """Subject id, (N, 3) nodes (m), expression label and true alpha of one mesh message.
+def mesh_from_message(msg: Any, msgtype: str) -> tuple[int, np.ndarray, TruthSample | None]:
+    """Header stamp (ns), (N, 3) nodes (m) and, for FaceTruth, the truth of one mesh message.
 
-    FaceTruth gives all four; FaceMesh and FaceState give the nodes only (subject None, label
-    '', alpha None). A candidate for :mod:`face_tracking_ros.io.conversions`.
+    A candidate for :mod:`face_tracking_ros.io.conversions`.
 
     Raises:
         InputError: naming the field of a NaN or malformed value.
     """
     if msgtype == TRUTH_TYPE:
         truth = truth_from_msg(msg)
-        return truth.subject_id, truth.nodes, truth.label, truth.alpha
+        return truth.stamp_ns, truth.nodes, truth
     field = 'FaceMesh.points' if msgtype == MESH_TYPES[0] else 'FaceState.nodes'
     points = msg.points if msgtype == MESH_TYPES[0] else msg.nodes
-    return None, points_to_array(points, field), '', None
+    return stamp_to_ns(msg.header.stamp), points_to_array(points, field), None
+
+
+def _truth_by_stamp(truth_bag: Path) -> dict[int, TruthSample]:
+    """The truth samples of a bag by header stamp."""
+    samples = (truth_from_msg(item.msg) for item in read_messages(truth_bag, [TRUTH_TOPIC]))
+    return {sample.stamp_ns: sample for sample in samples}
+
+
+def _bag_meshes(
+    bag: Path,
+    topic: str,
+    subject: str,
+    items: list[tuple[np.ndarray, str | None, np.ndarray | None]],
+    args: argparse.Namespace,
+) -> BagMeshes:
+    """One subject's meshes of a bag; neutral frames from labels, else the first K frames."""
+    counts = {len(nodes) for nodes, _, _ in items}
+    if len(counts) > 1:
+        msg = f'{bag}: {topic} meshes of subject {subject!r} have node counts {sorted(counts)}'
+        raise InputError(msg)
+    meshes = _select_nodes(
+        np.array([nodes for nodes, _, _ in items]), args.nodes, f'{bag}: {topic}'
+    )
+    if items[0][1] is None:
+        neutral = np.arange(len(meshes)) < args.neutral_frames
+        return BagMeshes(MeshSequence(subject, meshes, neutral, None, str(bag)), None)
+    labels = tuple(str(label) for _, label, _ in items)
+    neutral = np.array([label == NEUTRAL_LABEL for label in labels])
+    alpha = np.array([alpha for _, _, alpha in items])
+    return BagMeshes(MeshSequence(subject, meshes, neutral, labels, str(bag)), alpha)
 
 
 def _check_arguments(args: argparse.Namespace) -> None:
@@ -263,8 +318,11 @@ def _check_arguments(args: argparse.Namespace) -> None:
     if args.explained_variance is not None and not 0.0 < args.explained_variance <= 1.0:
         msg = f'--explained-variance must be in (0, 1], got {args.explained_variance}'
         raise ConfigError(msg)
-    if args.neutral_frames < 0 or args.add_noise < 0.0:
-        msg = '--neutral-frames and --add-noise must not be negative'
+    if args.neutral_frames < 0 or args.add_noise < 0.0 or args.truth_samples < 10:
+        msg = '--neutral-frames and --add-noise must not be negative, --truth-samples >= 10'
+        raise ConfigError(msg)
+    if args.truth is not None and len(args.truth) != len(args.bags):
+        msg = f'--truth names {len(args.truth)} bag(s) for {len(args.bags)} input bag(s)'
         raise ConfigError(msg)
     if args.plots is not None and not args.plots.is_dir():
         msg = f'--plots {args.plots} is not a directory'
@@ -312,7 +370,7 @@ def _truth(
         indices.append(int(number))
     alphas = [item.alpha for item in bag_meshes]
     alpha = None if any(a is None for a in alphas) else np.concatenate(alphas)
-    return population_truth(population, training.num_nodes, indices, alpha)
+    return population_truth(population, training.num_nodes, indices, alpha, args.truth_samples)
 
 
 def _plots(

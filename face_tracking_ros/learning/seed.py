@@ -37,7 +37,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.linalg
 
 from face_tracking_ros.errors import ConfigError
 from face_tracking_ros.learning.result import LearningResult, assemble_result
@@ -178,5 +177,7 @@ def _weighted_alpha(
     coding = np.hstack([shape_basis, action_basis])
     prior_precision = noise_variance / np.concatenate([shape_variances, action_variances])
     normal = coding.T @ coding + np.diag(prior_precision)
-    coefficients = scipy.linalg.cho_solve(scipy.linalg.cho_factor(normal), coding.T @ deviations.T)
+    # A (p + q)-square, well-conditioned system: its inverse is exact enough, and avoids LAPACK
+    # solver calls that multi-threaded OpenBLAS makes slow on a busy machine.
+    coefficients = np.linalg.inv(normal) @ (coding.T @ deviations.T)
     return coefficients[shape_basis.shape[1] :].T
