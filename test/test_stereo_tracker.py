@@ -190,6 +190,29 @@ def test_reset_from_a_named_initialisation() -> None:
         tracker.reset(Initialisation(node_names=(*names[:5], 'ear'), points=np.zeros((6, 2))))
 
 
+def test_automatic_initialisation_by_a_detector() -> None:
+    left, right = PLANE.pair()
+    truth = PLANE.nodes(19)
+    names = mesh_topology(19).node_names
+    answers = iter([None, Initialisation(node_names=names, points=RIG.left.project(truth))])
+    seen: list[np.ndarray] = []
+
+    def detector(gray: np.ndarray) -> Initialisation | None:
+        seen.append(gray)
+        return next(answers)
+
+    tracker = StereoTracker(RIG, PLANE_CONFIG, detector=detector)
+    tracker.reset()
+    waiting = tracker.step(left, right)
+    assert waiting.status == TrackStatus.INITIALIZING and 'none detected' in waiting.reason
+    found = tracker.step(left, right)
+    assert found.ok and np.linalg.norm(found.nodes_cam - truth, axis=1).max() < 0.0005
+    assert tracker.step(left, right).ok and len(seen) == 2  # no detection while tracking
+    assert seen[0].dtype == np.uint8 and seen[0].shape == left.shape
+    with pytest.raises(ConfigError, match='needs a landmark detector'):
+        StereoTracker(RIG, PLANE_CONFIG).reset()
+
+
 def test_bad_frames_never_raise() -> None:
     left, right = PLANE.pair()
     tracker = StereoTracker(RIG, StereoTrackerConfig(init=PLANE_INIT))

@@ -36,6 +36,7 @@ from face_tracking_ros.model.face_model import FaceModel
 from face_tracking_ros.model.topology import Group, MeshTopology, mesh_topology
 from face_tracking_ros.recognition.node_fit import NodeFit, fit_model_to_nodes
 from face_tracking_ros.tracking.initialisation import Initialisation
+from face_tracking_ros.tracking.mono import Detector
 from face_tracking_ros.tracking.regularisation import RegularisationConfig, Regulariser
 from face_tracking_ros.tracking.result import TrackResult, TrackStatus
 from face_tracking_ros.tracking.stereo_data import (
@@ -224,12 +225,17 @@ class _State:
 class StereoTracker:
     """Tracks the N mesh nodes in 3-D through a rectified stereo sequence (eq. 4 and 5).
 
-    Usage: ``reset(init)`` with the nodes' pixel positions in the next left image, then
-    ``step(left, right)`` for every pair.
+    Usage: ``reset(init)`` with the nodes' pixel positions in the next left image
+    (semi-automatic), or ``reset()`` with a landmark detector (automatic: the detector's nodes
+    in the next left image in which it finds a face), then ``step(left, right)`` for every pair.
     """
 
     def __init__(
-        self, rig: StereoRig, config: StereoTrackerConfig, model: FaceModel | None = None
+        self,
+        rig: StereoRig,
+        config: StereoTrackerConfig,
+        model: FaceModel | None = None,
+        detector: Detector | None = None,
     ) -> None:
         """Set up the tracker.
 
@@ -237,6 +243,9 @@ class StereoTracker:
             rig: the rectified stereo rig (P matrices of both cameras).
             config: the tunables.
             model: optional face model; when given, every result carries the fit of eq. 1-3.
+            detector: optional landmark detector (e.g.
+                :class:`~face_tracking_ros.tracking.detector.DlibLandmarkDetector`) for
+                automatic initialisation by ``reset()``.
 
         Raises:
             ConfigError: if the model's node count differs from ``config.num_nodes``.
@@ -247,10 +256,12 @@ class StereoTracker:
         self._rig = rig
         self._config = config
         self._model = model
+        self._detector = detector
         self._topology: MeshTopology = mesh_topology(config.num_nodes)
         self._texture_triangles = _texture_triangles(self._topology)
         self._boundary = self._topology.group_mask(Group.EDGE)
         self._pending: np.ndarray | None = None
+        self._detect = False
         self._state: _State | None = None
         self._status = TrackStatus.INITIALIZING
         self._reason = 'not initialised: call reset() with the initial node positions'
@@ -260,19 +271,35 @@ class StereoTracker:
         """The mesh topology being tracked."""
         return self._topology
 
-    def reset(self, init: np.ndarray | Initialisation) -> None:
+    def reset(self, init: np.ndarray | Initialisation | None = None) -> None:
         """Re-initialise on the next stereo pair from the nodes' left-image positions.
 
         Args:
             init: an :class:`~.initialisation.Initialisation` (named nodes from an init file,
                 the ResetTracking service or a detector), or an (N, 2) array of left-image pixel
                 positions with NaN rows for nodes not given. At least 6 nodes must be given;
-                the rest are filled in from the reference face fitted to the given ones.
+                the rest are filled in from the reference face fitted to the given ones. None:
+                run the detector on the coming left images until it finds a face.
 
         Raises:
             InputError: if the array is not (N, 2) or gives fewer than 6 nodes.
-            ConfigError: if an Initialisation names a node the mesh does not have.
+            ConfigError: if an Initialisation names a node the mesh does not have, or init is
+                None and the tracker has no detector.
         """
+        self._state = None
+        self._status = TrackStatus.INITIALIZING
+        self._reason = 'waiting for the first stereo pair after reset'
+        if init is None:
+            if self._detector is None:
+                msg = 'reset() without node positions needs a landmark detector'
+                raise ConfigError(msg)
+            self._pending, self._detect = None, True
+            return
+        self._pending = self._left_px(init)
+        self._detect = False
+
+    def _left_px(self, init: np.ndarray | Initialisation) -> np.ndarray:
+        """Validated (N, 2) left-image node positions (NaN rows: not given)."""
         if isinstance(init, Initialisation):
             left_px = np.full((self._topology.num_nodes, 2), np.nan)
             left_px[[self._topology.index(name) for name in init.node_names]] = init.points
@@ -288,10 +315,7 @@ class StereoTracker:
                 f'{self._config.init.min_given_nodes} are needed'
             )
             raise InputError(msg)
-        self._pending = left_px
-        self._state = None
-        self._status = TrackStatus.INITIALIZING
-        self._reason = 'waiting for the first stereo pair after reset'
+        return left_px
 
     def step(self, left: np.ndarray, right: np.ndarray) -> StereoResult:
         """Track one rectified stereo pair.
@@ -307,6 +331,8 @@ class StereoTracker:
             pyramids = self._pyramids(left, right)
         except InputError as error:
             return self._not_tracking(TrackStatus.LOST, f'bad frame: {error}')
+        if self._detect:
+            self._pending = self._detected(left)
         if self._pending is not None:
             return self._initialise(pyramids)
         if self._state is None:
@@ -314,6 +340,22 @@ class StereoTracker:
         return self._track(pyramids)
 
     # -- initialisation ----------------------------------------------------------------------
+
+    def _detected(self, left: np.ndarray) -> np.ndarray | None:
+        """Node positions the detector finds in the left image (None: no usable face yet)."""
+        assert self._detector is not None
+        gray = np.clip(np.asarray(left), 0, 255).astype(np.uint8)
+        try:
+            found = self._detector(gray)
+            left_px = None if found is None else self._left_px(found)
+        except FaceTrackingError as error:
+            self._reason = f'waiting for a face: {error}'
+            return None
+        if left_px is None:
+            self._reason = 'waiting for a face: none detected in the left image'
+            return None
+        self._detect = False
+        return left_px
 
     def _initialise(self, pyramids: tuple[ImagePyramid, ImagePyramid]) -> StereoResult:
         """Triangulate the pending left-image nodes and start tracking on this pair."""
