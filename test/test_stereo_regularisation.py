@@ -6,12 +6,8 @@ import numpy as np
 import pytest
 
 from face_tracking_ros.errors import ConfigError, InputError
-from face_tracking_ros.model.topology import Group, mesh_topology
-from face_tracking_ros.tracking.regularisation import (
-    DEFAULT_GROUP_STIFFNESS,
-    RegularisationConfig,
-    Regulariser,
-)
+from face_tracking_ros.model.topology import mesh_topology
+from face_tracking_ros.tracking.regularisation import RegularisationConfig, Regulariser
 
 
 def _face(seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -68,7 +64,8 @@ def test_eq5_values_by_hand() -> None:
         if chin in (i, j):
             length_0 = np.linalg.norm(first[i] - first[j])
             length_1 = np.linalg.norm(moved[i] - moved[j])
-            stiffness = min(DEFAULT_GROUP_STIFFNESS[topology.groups[k]] for k in (i, j))
+            factors = RegularisationConfig().group_stiffness()
+            stiffness = min(factors[topology.groups[k]] for k in (i, j))
             assert delta_ij * 4 * length_0**2 == pytest.approx(1e8 * stiffness)
             expected += 1e8 * stiffness * (length_1 - length_0) ** 2
     cost = regulariser.normal_equations(moved, first)[0]
@@ -104,8 +101,8 @@ def test_gauss_newton_step_restores_a_translated_mesh_exactly() -> None:
     [
         ({'rho': -1.0}, 'rho must be finite'),
         ({'delta': float('nan')}, 'delta must be finite'),
-        ({'group_stiffness': {Group.EYE: 1.0}}, 'lacks the groups'),
-        ({'group_stiffness': {**DEFAULT_GROUP_STIFFNESS, Group.EDGE: 2.0}}, r'in \[0, 1\]'),
+        ({'edge': 2.0}, r"must lie in \[0, 1\], got \{'edge': 2.0\}"),
+        ({'mouth': -0.1}, r"\{'mouth': -0.1\}"),
     ],
 )
 def test_config_rejects_bad_weights(kwargs: dict, match: str) -> None:

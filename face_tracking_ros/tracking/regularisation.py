@@ -21,8 +21,7 @@ the softer of its two nodes).
 
 from __future__ import annotations
 
-from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -30,55 +29,57 @@ from face_tracking_ros.errors import ConfigError, InputError
 from face_tracking_ros.model.topology import Group, MeshTopology
 from face_tracking_ros.tracking.block_assembly import scatter_blocks, scatter_vectors
 
-DEFAULT_GROUP_STIFFNESS: dict[Group, float] = {
-    Group.EYE: 1.0,
-    Group.EYE_CORNER: 1.0,
-    Group.NOSE: 1.0,
-    Group.EDGE: 0.5,
-    Group.BROW: 0.2,
-    Group.MOUTH: 0.05,
-}
-
 
 @dataclass(frozen=True)
 class RegularisationConfig:
-    """Weights of eq. 5.
+    """Weights of eq. 5 (plain numbers, so each is a ROS parameter of the stereo node).
 
     Attributes:
         rho: rho_i of the stiffest nodes: cost of a node's motion, grey^2 / m^2.
         beta: beta_ij of the stiffest edges: cost of differential motion, grey^2 / m^2.
         delta: stiffness of the stiffest edges against stretching from frame 1, grey^2 / m^2
             (delta_ij = delta * s_ij / (2 L_ij)^2, see the module docstring).
-        group_stiffness: factor s in [0, 1] per anatomical group scaling rho_i (node's group)
-            and beta_ij, delta_ij (the softer of the two nodes' groups).
+        eye: stiffness factor s in [0, 1] of the eye-centre nodes.
+        eye_corner: stiffness factor of the eye-corner nodes.
+        nose: stiffness factor of the nose nodes.
+        edge: stiffness factor of the face-edge nodes (jaw and chin move with the mouth).
+        brow: stiffness factor of the eyebrow nodes.
+        mouth: stiffness factor of the lip and mouth-corner nodes (the softest, §3.3).
     """
 
     rho: float = 1e6
     beta: float = 2e7
     delta: float = 2e7
-    group_stiffness: Mapping[Group, float] = field(
-        default_factory=lambda: dict(DEFAULT_GROUP_STIFFNESS)
-    )
+    eye: float = 1.0
+    eye_corner: float = 1.0
+    nose: float = 1.0
+    edge: float = 0.5
+    brow: float = 0.2
+    mouth: float = 0.05
 
     def __post_init__(self) -> None:
         """Validate the weights.
 
         Raises:
-            ConfigError: for a negative or non-finite weight or a missing group.
+            ConfigError: for a negative or non-finite weight, or a factor outside [0, 1].
         """
         for name in ('rho', 'beta', 'delta'):
             value = getattr(self, name)
             if not np.isfinite(value) or value < 0:
                 msg = f'regularisation weight {name} must be finite and >= 0, got {value}'
                 raise ConfigError(msg)
-        missing = [g.value for g in Group if g not in self.group_stiffness]
-        if missing:
-            msg = f'group_stiffness lacks the groups {missing}'
-            raise ConfigError(msg)
-        bad = {g.value: s for g, s in self.group_stiffness.items() if not 0.0 <= s <= 1.0}
+        bad = {g.value: s for g, s in self.group_stiffness().items() if not 0.0 <= s <= 1.0}
         if bad:
-            msg = f'group_stiffness factors must lie in [0, 1], got {bad}'
+            msg = f'group stiffness factors must lie in [0, 1], got {bad}'
             raise ConfigError(msg)
+
+    def group_stiffness(self) -> dict[Group, float]:
+        """The stiffness factor s of every anatomical group.
+
+        rho_i (the node's group) and beta_ij, delta_ij (the softer of the two nodes' groups) are
+        the base weights times s.
+        """
+        return {group: float(getattr(self, group.value)) for group in Group}
 
 
 @dataclass(frozen=True)
@@ -122,7 +123,8 @@ class Regulariser:
             msg = f'first_nodes must be finite ({topology.num_nodes}, 3), got {first_nodes.shape}'
             raise InputError(msg)
         edges = np.asarray(topology.edges)
-        stiffness = np.array([config.group_stiffness[g] for g in topology.groups])
+        factors = config.group_stiffness()
+        stiffness = np.array([factors[g] for g in topology.groups])
         edge_stiffness = np.minimum(stiffness[edges[:, 0]], stiffness[edges[:, 1]])
         vectors = first_nodes[edges[:, 0]] - first_nodes[edges[:, 1]]
         sq_lengths = np.einsum('ed,ed->e', vectors, vectors)
