@@ -244,7 +244,10 @@ class SequenceRenderer:
         offset = 0.5 * config.baseline if config.kind is Kind.STEREO else 0.0
         trajectory = HeadTrajectory.random(config.motion, rng, lateral_offset=offset)
         if config.motion is Motion.STILL:
-            script = ExpressionScript.training(config.duration, first=sequence_index)
+            # Subjects start at different expressions, so short sequences cover them all.
+            script = ExpressionScript.training(
+                config.duration, first=subject.index + sequence_index
+            )
         else:
             script = ExpressionScript.random(config.duration, rng)
         light = _LightPath.random(rng)
