@@ -97,6 +97,7 @@ def replay(
     record_inputs: bool = False,
     on_step: Callable[[], None] | None = None,
     on_output: Callable[[Output, int], None] | None = None,
+    wanted: frozenset[str] = frozenset(),
 ) -> ReplayStats:
     """Feed bag records to processors, route outputs between them, and write every output.
 
@@ -112,6 +113,7 @@ def replay(
         record_inputs: also write the input messages, under their bag topics.
         on_step: called after each input message (progress bars).
         on_output: called with every output and its log time as it is produced.
+        wanted: on-demand outputs to produce (e.g. 'face/overlay'), as if subscribed.
 
     Returns:
         The counts of what was read, written and rejected.
@@ -134,7 +136,7 @@ def replay(
                 for processor in processors:
                     if processor is source or not _consumes(processor, message.topic):
                         continue
-                    for output in _handle(processor, message, stats):
+                    for output in _handle(processor, message, wanted, stats):
                         write(output.topic, output_types[output.topic], output.msg, log_time)
                         stats.outputs[output.topic] += 1
                         if on_output is not None:
@@ -152,9 +154,10 @@ def _consumes(processor: Processor, topic: str) -> bool:
     return any(port.topic == topic for port in processor.inputs)
 
 
-def _handle(processor: Processor, message: Output, stats: ReplayStats) -> list[Output]:
+def _handle(
+    processor: Processor, message: Output, wanted: frozenset[str], stats: ReplayStats
+) -> list[Output]:
     """The processor's outputs for one message; a bad input is counted, not raised."""
-    wanted = frozenset(port.topic for port in processor.outputs if port.on_demand)
     try:
         return processor.handle(message.topic, message.msg, wanted)
     except FaceTrackingError as error:
@@ -171,6 +174,7 @@ def replay_bag(
     record_inputs: bool = False,
     progress: bool = True,
     on_output: Callable[[Output, int], None] | None = None,
+    wanted: frozenset[str] = frozenset(),
 ) -> ReplayStats:
     """Replay a bag through one node's processor, or a graph of several, into a new MCAP bag.
 
@@ -185,6 +189,7 @@ def replay_bag(
         record_inputs: also copy the consumed input messages into ``out``.
         progress: show a progress bar on stderr.
         on_output: called with every output as it is produced (e.g. to print events).
+        wanted: on-demand outputs to produce (e.g. 'face/overlay'); none by default.
 
     Returns:
         What was read, written and rejected. A bag that becomes unreadable part way (e.g.
@@ -206,6 +211,7 @@ def replay_bag(
         msg = f'{bag}: no topic matches the inputs of {", ".join(nodes)}: {wanted}'
         raise BagError(msg)
     total = message_count(bag, topic_map)
+    out.parent.mkdir(parents=True, exist_ok=True)
     with BagWriter(out) as writer, tqdm(total=total, unit='msg', disable=not progress) as bar:
         return replay(
             processors,
@@ -215,6 +221,7 @@ def replay_bag(
             record_inputs,
             on_step=bar.update,
             on_output=on_output,
+            wanted=wanted,
         )
 
 

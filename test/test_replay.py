@@ -27,7 +27,7 @@ class MeanProcessor:
     def __init__(self, interrupt_at: int = -1) -> None:
         """Raise KeyboardInterrupt on the ``interrupt_at``-th message (1-based; -1: never)."""
         self.inputs = (Port('image', IMAGE, QosClass.SENSOR),)
-        self.outputs = (Port('mean', FLOAT),)
+        self.outputs = (Port('mean', FLOAT), Port('preview', FLOAT, on_demand=True))
         self._factory = RosbagsMessages(typestore())
         self._seen = 0
         self._interrupt_at = interrupt_at
@@ -40,7 +40,10 @@ class MeanProcessor:
         if msg.header.frame_id == 'bad':
             raise InputError('frame marked bad')
         mean = float(conversions.image_to_gray(msg).mean())
-        return [Output('mean', self._factory.make(FLOAT, data=mean))]
+        outputs = [Output('mean', self._factory.make(FLOAT, data=mean))]
+        if 'preview' in wanted:
+            outputs.append(Output('preview', self._factory.make(FLOAT, data=-mean)))
+        return outputs
 
 
 def _write_images(
@@ -145,3 +148,21 @@ def test_outputs_of_one_processor_feed_the_next(tmp_path):
     assert fired[:4] == [('mean', 0), ('double', 0), ('mean', 1), ('double', 2)]
     doubled = [m.msg.data for m in read_messages(tmp_path / 'out', topics=['double'])]
     assert doubled == [0, 2, 4, 8]  # frame 3 is rejected by MeanProcessor
+
+
+def test_on_demand_outputs_only_when_wanted(tmp_path):
+    _write_images(tmp_path / 'in', 3)
+    for wanted, expected in (
+        (frozenset(), {'mean': 3}),
+        (frozenset({'preview'}), {'mean': 3, 'preview': 3}),
+    ):
+        out = tmp_path / f'out_{len(wanted)}'
+        with BagWriter(out) as writer:
+            stats = replay(
+                [MeanProcessor()],
+                read_messages(tmp_path / 'in'),
+                writer.write,
+                {'/cam/image': 'image'},
+                wanted=wanted,
+            )
+        assert stats.outputs == expected

@@ -32,6 +32,8 @@ SUBCOMMANDS: tuple[str, ...] = (
     'overlay',
     'train_expressions',
     'recognition_report',
+    'enroll',
+    'demo',
     'bench',
 )
 

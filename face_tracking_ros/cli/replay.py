@@ -59,6 +59,13 @@ def add_replay_options(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument('--quiet', action='store_true', help='no progress bar')
     parser.add_argument(
+        '--want',
+        action='append',
+        default=[],
+        metavar='TOPIC',
+        help='also produce this on-demand output (e.g. face/overlay), as if subscribed',
+    )
+    parser.add_argument(
         '--echo',
         action='append',
         default=[],
@@ -110,6 +117,7 @@ def run(args: argparse.Namespace) -> int:
         args.record_inputs,
         progress=not args.quiet,
         on_output=echo(args.echo),
+        wanted=frozenset(args.want),
     )
     print_stats(stats, args.out)
     return 1 if stats.interrupted or stats.read_error else 0

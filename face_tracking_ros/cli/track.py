@@ -9,6 +9,7 @@ code. When the bag holds synthetic truth, the accuracy against it is printed and
 from __future__ import annotations
 
 import argparse
+from dataclasses import asdict
 import json
 from pathlib import Path
 
@@ -17,13 +18,17 @@ import numpy as np
 from face_tracking_ros.cli.replay import add_replay_options, parse_remaps, print_stats
 from face_tracking_ros.data import default_model_path
 from face_tracking_ros.errors import BagError
-from face_tracking_ros.io.bags import bag_topics
+from face_tracking_ros.geometry.camera import StereoRig
+from face_tracking_ros.io.bags import bag_topics, read_messages
+from face_tracking_ros.io.conversions import camera_from_info
 from face_tracking_ros.io.series import has_truth, load_states, load_truth
 from face_tracking_ros.model.model_file import load_model
+from face_tracking_ros.model.topology import mesh_topology
 from face_tracking_ros.processing.parameters import OverrideParameters
 from face_tracking_ros.replay import replay_bag
 from face_tracking_ros.synthetic.clicks import clicks_from_bag, write_init_file
 from face_tracking_ros.tracking.accuracy import TrackingAccuracy, tracking_accuracy
+from face_tracking_ros.tracking.stereo_evaluation import StereoEvaluation, evaluate_stereo
 
 IMAGE_TYPE = 'sensor_msgs/msg/Image'
 INFO_TYPE = 'sensor_msgs/msg/CameraInfo'
@@ -82,6 +87,7 @@ def run(args: argparse.Namespace) -> int:
     if args.model:
         params.append(f'model_file={args.model}')
     init_file = args.init
+    args.out.parent.mkdir(parents=True, exist_ok=True)
     if args.simulate_clicks is not None:
         init_file = args.out.parent / f'{args.out.name}.init.json'
         write_init_file(clicks_from_bag(args.bag, args.simulate_clicks), init_file)
@@ -106,30 +112,78 @@ def run(args: argparse.Namespace) -> int:
         remaps,
         args.record_inputs,
         progress=not args.quiet,
+        wanted=frozenset(args.want),
     )
     print_stats(stats, args.out)
     if has_truth(args.bag) and stats.outputs['face/state']:
-        accuracy = score_against_truth(args.bag, args.out, args.model)
-        print(format_accuracy(accuracy))
+        if node == 'stereo_tracker':
+            evaluation = score_stereo_against_truth(args.bag, args.out)
+            print(evaluation.report())
+            report = asdict(evaluation)
+        else:
+            accuracy = score_against_truth(args.bag, args.out, args.model)
+            print(format_accuracy(accuracy))
+            report = accuracy.as_dict()
         if args.report:
-            args.report.write_text(json.dumps(accuracy.as_dict(), indent=2))
+            args.report.write_text(json.dumps(report, indent=2))
     return 1 if stats.interrupted or stats.read_error else 0
 
 
-def score_against_truth(bag: Path, out: Path, model_file: Path | None) -> TrackingAccuracy:
-    """Accuracy of the FaceState outputs in ``out`` against the truth in ``bag``.
+def score_stereo_against_truth(bag: Path, out: Path) -> StereoEvaluation:
+    """Stereo-tracked meshes in ``out`` against the truth in ``bag`` (issue 5's figures)."""
+    states, truth = load_states(out), load_truth(bag)
+    est, ref = _matching_frames(states.stamps, truth.stamps, bag, out)
+    nodes = states.nodes[est]
+    return evaluate_stereo(
+        nodes,
+        truth.nodes[ref][:, : nodes.shape[1]],
+        stereo_rig(bag),
+        mesh_topology(nodes.shape[1]),
+        states.status[est],
+    )
+
+
+def stereo_rig(bag: Path) -> StereoRig:
+    """The rig of a stereo bag, from the first left and right camera_info.
+
+    Raises:
+        BagError: if the bag lacks them.
+    """
+    infos = {t: None for t, kind in bag_topics(bag).items() if kind == INFO_TYPE}
+    for message in read_messages(bag, topics=list(infos)):
+        infos[message.topic] = infos[message.topic] or message.msg
+        if all(infos.values()):
+            break
+    left = next((m for t, m in infos.items() if 'left' in t and m is not None), None)
+    right = next((m for t, m in infos.items() if 'right' in t and m is not None), None)
+    if left is None or right is None:
+        msg = f'{bag}: no left and right camera_info to build the stereo rig'
+        raise BagError(msg)
+    return StereoRig(camera_from_info(left), camera_from_info(right))
+
+
+def _matching_frames(
+    stamps: np.ndarray, truth_stamps: np.ndarray, bag: Path, out: Path
+) -> tuple[np.ndarray, np.ndarray]:
+    """Indices of the output frames and of the truth frames with the same stamps.
 
     Raises:
         BagError: if no output frame has a truth frame of the same stamp.
     """
-    model = load_model(model_file or default_model_path())
-    states, truth = load_states(out), load_truth(bag)
-    index = {int(stamp): i for i, stamp in enumerate(truth.stamps)}
-    rows = [(i, index[int(s)]) for i, s in enumerate(states.stamps) if int(s) in index]
+    index = {int(stamp): i for i, stamp in enumerate(truth_stamps)}
+    rows = [(i, index[int(s)]) for i, s in enumerate(stamps) if int(s) in index]
     if not rows:
         msg = f'{out}: no output frame has a truth frame of the same stamp in {bag}'
         raise BagError(msg)
     est, ref = np.array(rows).T
+    return est, ref
+
+
+def score_against_truth(bag: Path, out: Path, model_file: Path | None) -> TrackingAccuracy:
+    """Accuracy of the mono FaceState outputs in ``out`` against the truth in ``bag``."""
+    model = load_model(model_file or default_model_path())
+    states, truth = load_states(out), load_truth(bag)
+    est, ref = _matching_frames(states.stamps, truth.stamps, bag, out)
     return tracking_accuracy(
         model,
         states.status[est],
