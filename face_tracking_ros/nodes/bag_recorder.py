@@ -6,7 +6,9 @@ Every ``discovery_period`` seconds the node looks at the ROS graph and subscribe
 topic it should record (the listed ones, or every topic but ``/rosout`` and
 ``/parameter_events``) as soon as the topic has a publisher. Subscriptions take the serialised
 CDR bytes (``raw=True``) and write them unchanged with :meth:`BagWriter.write_raw`, logged at
-the receive time on the node's clock (the bag time under ``use_sim_time``).
+the time DDS received them (the message info's ``received_timestamp``, system clock, ns since the
+epoch; not the time the callback ran, which lags behind under load; ``use_sim_time`` does not
+change it: the messages' own header stamps carry the bag time).
 
 QoS: like ``ros2 bag record``, a subscription matches the publishers it finds: reliable if every
 publisher is reliable (else best effort, which a best-effort camera needs), transient-local if
@@ -33,6 +35,7 @@ from typing import Any
 from rclpy.executors import Executor
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.subscription import MessageInfo
 from rosbags.typesys.store import Typestore
 
 from face_tracking_ros.errors import ConfigError
@@ -202,8 +205,8 @@ class BagRecorder(Node):
             self._skipped.add(topic)
             return
 
-        def record(data: bytes) -> None:
-            self._write(topic, msgtype, data)
+        def record(data: bytes, info: MessageInfo) -> None:
+            self._write(topic, msgtype, data, info['received_timestamp'])
 
         qos = subscription_qos(offered)
         msg_class = self._classes.message_class(msgtype)
@@ -213,9 +216,9 @@ class BagRecorder(Node):
             f'{qos.durability.name.lower()}'
         )
 
-    def _write(self, topic: str, msgtype: str, data: bytes) -> None:
-        """Write one received message at the receive time."""
-        self._bag.write_raw(topic, msgtype, data, self.get_clock().now().nanoseconds)
+    def _write(self, topic: str, msgtype: str, data: bytes, stamp_ns: int) -> None:
+        """Write one received message at its receive time."""
+        self._bag.write_raw(topic, msgtype, data, stamp_ns)
         self._counts[topic] += 1
 
 
