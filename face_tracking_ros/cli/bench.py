@@ -235,4 +235,4 @@ def _soak_rows(soak: dict[str, Any]) -> list[tuple[str, str, str]]:
 def _why(entry: dict[str, Any]) -> str:
     """'skipped: ...' or 'failed: ...' (first 80 characters)."""
     key = 'skipped' if 'skipped' in entry else 'failed'
-    return f'{key}: {str(entry.get(key, ""))[:80]}'
+    return f'{key}: {str(entry.get(key, ""))[:80]}'.replace('|', '/')

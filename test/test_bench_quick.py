@@ -1,0 +1,76 @@
+"""`face-tracking bench --quick`: a smoke run of the runner, a tracker, the learner and DDS.
+
+Runs tracker_speed, learner_scaling and live_latency at their quick sizes (each in its own
+pinned process, live over loopback DDS) and checks the JSON: every benchmark present, none
+failed, the headline figures there, and every number finite (NaN is written as null and only
+allowed where a figure does not apply). Timings are never asserted. The other benchmarks
+(replay, memory, accuracy, soak) run in `face-tracking bench` only (they take minutes).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+
+import pytest
+
+from face_tracking_ros.bench.common import BenchOptions
+from face_tracking_ros.bench.runner import finite_or_null, run_benchmarks
+from face_tracking_ros.cli.main import main
+from face_tracking_ros.errors import ConfigError
+
+QUICK = ('tracker_speed', 'learner_scaling', 'live_latency')
+
+
+def _numbers(value, path=''):
+    """Every (path, number) in a JSON value."""
+    if isinstance(value, dict):
+        for key, item in value.items():
+            yield from _numbers(item, f'{path}/{key}')
+    elif isinstance(value, list):
+        for index, item in enumerate(value):
+            yield from _numbers(item, f'{path}/{index}')
+    elif isinstance(value, int | float) and not isinstance(value, bool):
+        yield path, value
+
+
+def test_quick_run_writes_finite_figures(tmp_path):
+    out = tmp_path / 'results.json'
+    domain = os.environ.get('ROS_DOMAIN_ID', '42')
+    status = main(
+        ['bench', '--quick', '--out', str(tmp_path), '--json', str(out), '--domain-id', domain]
+        + ['--only', *QUICK]
+    )
+    results = json.loads(out.read_text())
+    assert status == 0, results['benchmarks']
+    assert set(results['benchmarks']) == set(QUICK)
+    assert results['machine']['nproc'] >= 1
+    speed = results['benchmarks']['tracker_speed']['320x240']
+    for nodes in ('19_nodes', '34_nodes'):
+        for tracker in ('mono', 'stereo', 'baseline'):
+            assert speed[nodes][tracker]['samples'] >= 1
+            assert speed[nodes][tracker]['p99_ms'] >= speed[nodes][tracker]['median_ms'] > 0
+        assert speed[nodes]['mono_over_baseline'] > 0
+    learner = results['benchmarks']['learner_scaling']
+    assert [row['meshes'] for row in learner['meshes']] == [1000, 10000]
+    live = results['benchmarks']['live_latency']
+    assert live['at_30hz']['published'] == 150
+    assert 0 <= live['at_30hz']['dropped'] <= live['at_30hz']['published']
+    assert live['at_30hz']['received'] > 0
+    assert live['node_peak_rss_mb'] > 0
+    numbers = list(_numbers(results))
+    assert len(numbers) > 50
+    assert all(math.isfinite(value) for _, value in numbers), numbers
+
+
+def test_unknown_benchmark_is_refused(tmp_path):
+    with pytest.raises(ConfigError, match=r"unknown benchmark\(s\) \['nope'\]"):
+        run_benchmarks(['nope'], BenchOptions(work_dir=tmp_path))
+
+
+def test_nan_and_infinity_become_null():
+    assert finite_or_null({'a': [1.0, float('nan')], 'b': (float('inf'), 2)}) == {
+        'a': [1.0, None],
+        'b': [None, 2],
+    }
