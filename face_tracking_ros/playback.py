@@ -242,6 +242,9 @@ class Playback:
         self._offset_ns = round(config.start_offset * NS_PER_S)
         self._counts: Counter[str] = Counter()
         self._last_clock_ns = -1
+        self._passes = 0
+        self._span_ns = 0
+        self._start_ns = clock.now_ns()
 
     def run(self, open_bag: Callable[[], Iterable[RawMessage]]) -> PlaybackSummary:
         """Play passes over ``open_bag()`` (called once per pass) until the end or a stop.
@@ -253,25 +256,29 @@ class Playback:
 
         Returns:
             What was played.
+
+        Raises:
+            BagError: If the bag stops being readable; :meth:`summary` tells what was played.
         """
-        start_ns = self._clock.now_ns()
-        passes, span_ns, stopped = 0, 0, False
+        self._start_ns = self._clock.now_ns()
         while True:
             published_before = self._counts.total()
             played = self._pass(open_bag())
             if played is None:
-                stopped = True
-                break
-            span_ns = played
-            passes += 1
+                return self.summary(stopped=True)
+            self._span_ns = played
+            self._passes += 1
             if not self._config.loop or self._counts.total() == published_before:
-                break
+                return self.summary(stopped=False)
+
+    def summary(self, stopped: bool) -> PlaybackSummary:
+        """What has been played so far; ``stopped`` says playback ended before its end."""
         return PlaybackSummary(
             counts=dict(self._counts),
-            passes=passes,
+            passes=self._passes,
             stopped=stopped,
-            bag_span_s=span_ns / NS_PER_S,
-            wall_s=(self._clock.now_ns() - start_ns) / NS_PER_S,
+            bag_span_s=self._span_ns / NS_PER_S,
+            wall_s=(self._clock.now_ns() - self._start_ns) / NS_PER_S,
         )
 
     def _pass(self, messages: Iterable[RawMessage]) -> int | None:

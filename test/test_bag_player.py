@@ -6,6 +6,7 @@ with a subscriber in this process, on loopback (conftest's environment).
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from pathlib import Path
 import signal
 
@@ -18,7 +19,9 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rosbags.typesys.store import Typestore
 
 from face_tracking_ros.errors import BagError, ConfigError
-from face_tracking_ros.io.bags import NS_PER_S, RawMessage
+from face_tracking_ros.io.bags import NS_PER_S, BagWriter, RawMessage
+from face_tracking_ros.io.messages import RosbagsMessages
+from face_tracking_ros.io.typestore import typestore
 from face_tracking_ros.playback import (
     CLOCK_PERIOD_S,
     Playback,
@@ -33,6 +36,7 @@ from conftest import rclpy_class, sample_fields, to_plain
 MS = 1_000_000
 FACE_STATE = 'face_tracking_msgs/msg/FaceState'
 FLOAT = 'std_msgs/msg/Float64'
+IMAGE = 'sensor_msgs/msg/Image'
 
 
 class FakeClock:
@@ -173,6 +177,22 @@ def test_stop_while_waiting_ends_playback_at_once() -> None:
     assert summary.stopped
     assert summary.passes == 0
     assert summary.describe().startswith('stopped: 2 messages on 1 topics')
+
+
+def test_a_bag_error_part_way_propagates_and_the_summary_tells_what_was_played() -> None:
+    def damaged() -> Iterator[RawMessage]:
+        yield from messages([0, 10])
+        raise BagError('bag.mcap: damaged MCAP file, 2 messages recovered before: EOF')
+
+    clock = FakeClock()
+    playback = Playback(config(), Sink(clock), clock)
+
+    with pytest.raises(BagError, match='2 messages recovered'):
+        playback.run(damaged)
+    summary = playback.summary(stopped=True)
+    assert summary.counts == {'a': 2}
+    assert summary.passes == 0
+    assert summary.wall_s == pytest.approx(0.01)
 
 
 # --- Topic selection and remapping (no DDS) ---
@@ -349,3 +369,26 @@ def test_bad_bag_or_parameter_gives_one_error_line_and_exit_code_2(
     errors = [line for line in output.splitlines() if '[ERROR]' in line]
     assert len(errors) == 1 and message in errors[0], output
     assert 'Traceback' not in output
+
+
+def test_truncated_bag_is_played_up_to_the_damage_then_exits_with_code_2(tmp_path: Path) -> None:
+    bag = tmp_path / 'bag'
+    factory = RosbagsMessages(typestore())
+    with BagWriter(bag) as writer:  # 4 MB: several MCAP chunks
+        for i in range(40):
+            image = factory.make(
+                IMAGE, height=1, width=100_000, data=np.full(100_000, i, np.uint8)
+            )
+            writer.write('image', IMAGE, image, T0 + i * MS)
+    (mcap_file,) = bag.glob('*.mcap')
+    mcap_file.write_bytes(mcap_file.read_bytes()[: mcap_file.stat().st_size // 2])
+
+    code, output = finish(start_node('bag_player', bag=bag, rate=10.0))
+
+    assert code == 2
+    errors = [line for line in output.splitlines() if '[ERROR]' in line]
+    assert len(errors) == 1, output
+    assert f'{mcap_file}: damaged MCAP file, ' in errors[0]
+    recovered = int(errors[0].split('damaged MCAP file, ')[1].split()[0])
+    assert 0 < recovered < 40
+    assert f'stopped: {recovered} messages on 1 topics' in output

@@ -121,13 +121,13 @@ class BagPlayer(Node):
 
     def _play(self) -> None:
         """The playback thread: wait for subscribers, then play the bag."""
+        playback = Playback(self._config, self, _StoppableClock(self._stop))
         try:
             if self._wait_for_subscribers():
-                playback = Playback(self._config, self, _StoppableClock(self._stop))
-                self._summary = playback.run(
-                    lambda: read_raw(self._config.bag, list(self._topic_publishers))
-                )
-        except FaceTrackingError as error:
+                topics = list(self._topic_publishers)
+                self._summary = playback.run(lambda: read_raw(self._config.bag, topics))
+        except FaceTrackingError as error:  # e.g. a bag damaged part way: report what played
+            self._summary = playback.summary(stopped=True)
             self._error = error
         finally:
             self._done.set()
