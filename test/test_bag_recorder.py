@@ -200,6 +200,7 @@ def test_recorder_keeps_every_message_received_until_sigterm(
         spin_until(node, lambda: all(p.get_subscription_count() for p in everyone))
         time.sleep(MATCH_SETTLE_S)
         sent: dict[str, list[dict]] = {f'/{topic}': [] for topic, _, _ in STREAMS}
+        first_sent_ns = time.time_ns()
         for index in range(N):
             for topic, msgtype, _ in STREAMS:
                 fields = sample_fields(store, msgtype, seed=100 * index + len(topic))
@@ -209,6 +210,7 @@ def test_recorder_keeps_every_message_received_until_sigterm(
         for topic, _, qos in STREAMS:
             if qos.reliability == ReliabilityPolicy.RELIABLE:
                 assert publishers[topic].wait_for_all_acked(ACK_TIMEOUT)
+        all_acked_ns = time.time_ns()
     finally:
         code, output = finish(process, signal.SIGTERM)
     node.destroy_node()
@@ -227,6 +229,8 @@ def test_recorder_keeps_every_message_received_until_sigterm(
         for schema, channel, _, decoded in reader.iter_decoded_messages(topics=list(types)):
             by_mcap[channel.topic].append(to_plain(store, schema.name, decoded))
     assert by_mcap == sent
+    stamps = [m.stamp_ns for m in read_raw(bag, topics=['/rec/state', '/rec/num'])]
+    assert first_sent_ns <= min(stamps) and max(stamps) <= all_acked_ns  # receive times
     assert f'/rec/state: {N}' in output
     assert 'recording /rec/model [face_tracking_msgs/msg/FaceModel] reliable transient_local' in (
         output
