@@ -358,6 +358,7 @@ def test_player_in_a_loop_stops_cleanly_on_sigint(tmp_path: Path) -> None:
     [
         ({'bag': '/nonexistent/bag'}, '/nonexistent/bag: cannot read bag'),
         ({'bag': '/nonexistent/bag', 'rate': 0.0}, 'parameter rate must be a finite number > 0'),
+        ({'bag': '/nonexistent/bag', 'rate': 2}, "parameter 'rate' to '2' of type 'INTEGER'"),
     ],
 )
 def test_bad_bag_or_parameter_gives_one_error_line_and_exit_code_2(

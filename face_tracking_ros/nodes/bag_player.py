@@ -35,7 +35,13 @@ from face_tracking_ros.io.bags import RawMessage, bag_topics, read_raw
 from face_tracking_ros.io.messages import RclpyMessages
 from face_tracking_ros.nodes.graceful import run_until_stopped
 from face_tracking_ros.nodes.processor_node import NodeParameters
-from face_tracking_ros.playback import Playback, PlaybackConfig, PlaybackSummary, plan_topics
+from face_tracking_ros.playback import (
+    Playback,
+    PlaybackConfig,
+    PlaybackSummary,
+    PlayedTopic,
+    plan_topics,
+)
 
 NODE_NAME = 'bag_player'
 LATCHED_TYPES = frozenset({'face_tracking_msgs/msg/FaceModel'})
@@ -69,8 +75,21 @@ class BagPlayer(Node):
         self._error: FaceTrackingError | None = None
         self._config = NodeParameters(self).config(PlaybackConfig)
         planned = plan_topics(self._config.bag, bag_topics(self._config.bag), self._config)
+        self._topic_publishers = self._create_publishers(planned)
+        self._clock_publisher = (
+            self.create_publisher(Clock, '/clock', CLOCK_QOS) if self._config.clock else None
+        )
+        self._thread = threading.Thread(target=self._play, name='bag_player', daemon=True)
+        self._thread.start()
+
+    def _create_publishers(self, planned: list[PlayedTopic]) -> dict[str, Any]:
+        """A publisher per played topic (by bag topic); types without an rclpy class are skipped.
+
+        Raises:
+            BagError: If no topic can be played.
+        """
         classes = RclpyMessages()
-        self._topic_publishers: dict[str, Any] = {}
+        publishers = {}
         for played in planned:
             try:
                 msg_class = classes.message_class(played.msgtype)
@@ -80,17 +99,11 @@ class BagPlayer(Node):
                 )
                 continue
             qos = LATCHED_QOS if played.msgtype in LATCHED_TYPES else MESSAGE_QOS
-            self._topic_publishers[played.topic] = self.create_publisher(
-                msg_class, played.output, qos
-            )
+            publishers[played.topic] = self.create_publisher(msg_class, played.output, qos)
             self.get_logger().info(f'{played.topic} -> {played.output} [{played.msgtype}]')
-        if not self._topic_publishers:
+        if not publishers:
             raise BagError(f'{self._config.bag}: no topic to play')
-        self._clock_publisher = (
-            self.create_publisher(Clock, '/clock', CLOCK_QOS) if self._config.clock else None
-        )
-        self._thread = threading.Thread(target=self._play, name='bag_player', daemon=True)
-        self._thread.start()
+        return publishers
 
     def finished(self) -> bool:
         """Whether playback has ended (the bag was played, or it failed)."""

@@ -15,6 +15,7 @@ import threading
 from typing import Protocol
 
 import rclpy
+from rclpy.exceptions import NameValidationException, ParameterException
 from rclpy.executors import Executor, SingleThreadedExecutor
 import rclpy.logging
 from rclpy.signals import SignalHandlerOptions
@@ -24,6 +25,9 @@ from face_tracking_ros.errors import FaceTrackingError
 SPIN_PERIOD_S = 0.1  # longest delay between a stop request and the end of the spin loop
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
 ERROR_EXIT_CODE = 2
+# What a user gets wrong: a bad bag or value (ours), a parameter of the wrong type
+# (e.g. rate:=2 for a float), an invalid topic name (e.g. in remap).
+USER_ERRORS = (FaceTrackingError, ParameterException, NameValidationException)
 
 
 class StoppableNode(Protocol):
@@ -57,7 +61,7 @@ def run_until_stopped(
         args: command-line arguments (``--ros-args ...``); default ``sys.argv``.
 
     Raises:
-        SystemExit: with code 2 after logging a FaceTrackingError (bad bag, bad parameter).
+        SystemExit: with code 2 after logging one of :data:`USER_ERRORS`.
     """
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     stop = threading.Event()
@@ -70,7 +74,7 @@ def run_until_stopped(
         while not (stop.is_set() or node.finished()):
             executor.spin_once(timeout_sec=SPIN_PERIOD_S)
         node.finish(executor)
-    except FaceTrackingError as error:
+    except USER_ERRORS as error:
         rclpy.logging.get_logger(name).error(str(error))
         raise SystemExit(ERROR_EXIT_CODE) from None
     finally:
