@@ -8,7 +8,10 @@ here and is tested with a fake clock.
 Timing: a pass maps bag time to wall time by ``wall = wall_origin + (stamp - bag_origin) / rate``,
 with ``bag_origin`` the first played message's stamp plus ``start_offset`` and ``wall_origin`` the
 moment the pass starts. Each message is published when its wall time comes; a message already
-late is published at once, so a slow consumer delays playback but never reorders it.
+late is published at once, so a slow consumer delays playback but never reorders it. ``/clock``
+gets each message's stamp just before the message and the interpolated bag time every
+:data:`CLOCK_PERIOD_S` in between; it never goes back within a pass, and jumps back to the start
+offset when a loop begins a new pass (as ``ros2 bag play --loop`` does).
 """
 
 from __future__ import annotations
