@@ -10,7 +10,7 @@ export ROS_DOMAIN_ID
 export FASTDDS_DEFAULT_PROFILES_FILE ?= $(CURDIR)/config/fastdds_profile.xml
 export AMENT_PREFIX_PATH := $(abspath $(VENV))$(if $(AMENT_PREFIX_PATH),:$(AMENT_PREFIX_PATH))
 
-.PHONY: setup test demo lint bench clean
+.PHONY: setup test demo lint bench clean default-data
 
 # $(call run_subcommand,NAME): run `face-tracking NAME --out out` if that subcommand is registered
 # (face_tracking_ros/cli/main.py, SUBCOMMANDS), else say so and fail: never a stand-in.
@@ -39,6 +39,10 @@ lint: setup
 
 bench: setup
 	$(call run_subcommand,bench)
+
+# The packaged default face models and expression classifier (committed; see the script).
+default-data: setup
+	PYTHON=$(abspath $(PYTHON)) bash tools/make_default_data.sh
 
 clean:
 	rm -rf $(VENV) build out .pytest_cache .ruff_cache

@@ -19,6 +19,7 @@ NODES: dict[str, str] = {
     'stereo_tracker': 'face_tracking_ros.nodes.stereo_tracker:main',
     'expression_recognizer': 'face_tracking_ros.nodes.expression_recognizer:main',
     'identity_recognizer': 'face_tracking_ros.nodes.identity_recognizer:main',
+    'learner': 'face_tracking_ros.nodes.learner:main',
     'bag_player': 'face_tracking_ros.nodes.bag_player:main',
     'bag_recorder': 'face_tracking_ros.nodes.bag_recorder:main',
 }

@@ -35,7 +35,7 @@ ConfigT = TypeVar('ConfigT')
 
 WARNING_PERIOD_S = 5.0
 
-_QOS = {
+QOS_PROFILES = {
     QosClass.SENSOR: qos_profile_sensor_data,
     QosClass.RELIABLE: QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE),
     QosClass.LATCHED: QoSProfile(
@@ -110,14 +110,14 @@ class ProcessorNode(Node):
 
     def _publisher(self, port: Port) -> Any:
         msg_class = self._factory.message_class(port.msgtype)
-        return self.create_publisher(msg_class, port.topic, _QOS[port.qos])
+        return self.create_publisher(msg_class, port.topic, QOS_PROFILES[port.qos])
 
     def _subscribe(self, port: Port) -> Any:
         def callback(msg: Any) -> None:
             self._handle(port.topic, msg)
 
         msg_class = self._factory.message_class(port.msgtype)
-        return self.create_subscription(msg_class, port.topic, callback, _QOS[port.qos])
+        return self.create_subscription(msg_class, port.topic, callback, QOS_PROFILES[port.qos])
 
     def _handle(self, topic: str, msg: Any) -> None:
         """Run the processor on one message; publish its outputs or report the bad input."""

@@ -1,0 +1,119 @@
+"""The learner node: learns a face model from recorded bags and publishes it, latched.
+
+It runs exactly what ``face-tracking learn`` runs (:mod:`face_tracking_ros.cli.learn`), with the
+node's parameters as the command's options: bags of 3-D meshes (synthetic truth, FaceMesh or
+FaceState) or raw stereo image bags, which it first tracks with the stereo tracker. It writes
+the model file and the JSON report, then publishes the model on ``face/model`` with
+transient-local durability, so trackers started later still receive it, and keeps spinning.
+"""
+
+from __future__ import annotations
+
+import argparse
+from dataclasses import dataclass
+from pathlib import Path
+
+from face_tracking_msgs.msg import FaceModel as FaceModelMsg
+from rclpy.node import Node
+
+from face_tracking_ros.cli import learn
+from face_tracking_ros.errors import ConfigError
+from face_tracking_ros.io import conversions
+from face_tracking_ros.io.messages import RclpyMessages
+from face_tracking_ros.model.model_file import load_model
+from face_tracking_ros.nodes.processor_node import QOS_PROFILES, NodeParameters, run
+from face_tracking_ros.processing.base import QosClass
+
+
+@dataclass(frozen=True)
+class LearnerConfig:
+    """Parameters of the learner node (the options of ``face-tracking learn``).
+
+    Attributes:
+        bags: bag directories to learn from.
+        bag_dir: a directory whose sub-directories are all bags to learn from (added to bags).
+        output: model file to write (.npz).
+        report: JSON report to write; empty: the model file's name with .json.
+        method: learning method: joint (default, issue 11), seed (§3.4) or seed-weighted (§4.3).
+        p: dimension of the identity subspace (sigma).
+        q: dimension of the expression subspace (alpha).
+        nodes: mesh nodes, 19 or 34; 0: as in the bags.
+        topic: mesh topic; empty: truth/face, face/mesh_raw or face/state, the first found.
+        subject: subject id of FaceMesh/FaceState bags; empty: each bag's directory name.
+        neutral_frames: FaceMesh/FaceState bags: the first K frames of each bag are neutral.
+        frame_id: frame_id of the published model's header (the face frame's name).
+    """
+
+    bags: tuple[str, ...] = ()
+    bag_dir: str = ''
+    output: str = 'face_model.npz'
+    report: str = ''
+    method: str = 'joint'
+    p: int = 2
+    q: int = 5
+    nodes: int = 0
+    topic: str = ''
+    subject: str = ''
+    neutral_frames: int = 0
+    frame_id: str = 'face'
+
+
+def learn_arguments(config: LearnerConfig) -> list[str]:
+    """The ``face-tracking learn`` arguments equivalent to the node's parameters.
+
+    Raises:
+        ConfigError: if no bag is given.
+    """
+    bags = [Path(bag) for bag in config.bags]
+    if config.bag_dir:
+        bags += sorted(path for path in Path(config.bag_dir).iterdir() if path.is_dir())
+    if not bags:
+        msg = 'no bags to learn from: set the bags or bag_dir parameter'
+        raise ConfigError(msg)
+    output = Path(config.output)
+    report = Path(config.report) if config.report else output.with_suffix('.json')
+    argv = [*map(str, bags), '--out', str(output), '--report', str(report)]
+    argv += ['--method', config.method, '--p', str(config.p), '--q', str(config.q)]
+    argv += ['--compare', '--neutral-frames', str(config.neutral_frames)]
+    options = {'--nodes': config.nodes or '', '--topic': config.topic, '--subject': config.subject}
+    for option, value in options.items():
+        if value:
+            argv += [option, str(value)]
+    return argv
+
+
+class LearnerNode(Node):
+    """Learns once at start-up, then serves the model on ``face/model`` (latched)."""
+
+    def __init__(self) -> None:
+        """Declare the parameters, learn, write the files and publish the model."""
+        super().__init__('learner')
+        config = NodeParameters(self).config(LearnerConfig)
+        parser = argparse.ArgumentParser(prog='learner')
+        learn.register(parser.add_subparsers())
+        args = parser.parse_args(['learn', *learn_arguments(config)])
+        self.get_logger().info(
+            f'learning: face-tracking learn {" ".join(learn_arguments(config))}'
+        )
+        args.func(args)
+        model = load_model(args.out)
+        factory = RclpyMessages()
+        stamp_ns = self.get_clock().now().nanoseconds
+        header = conversions.make_header(factory, stamp_ns, config.frame_id)
+        self._publisher = self.create_publisher(
+            FaceModelMsg, 'face/model', QOS_PROFILES[QosClass.LATCHED]
+        )
+        self._publisher.publish(conversions.model_to_msg(factory, header, model))
+        self.get_logger().info(
+            f'published {args.out} (method {model.method}, {model.num_nodes} nodes, '
+            f'p={model.p}, q={model.q}) on face/model, latched'
+        )
+
+
+def main(args: list[str] | None = None) -> None:
+    """Entry point of ``ros2 run face_tracking_ros learner``."""
+    run(LearnerNode, args)
+
+
+if __name__ == '__main__':
+    main()

@@ -1,0 +1,56 @@
+"""The learner node learns from bags, writes the model and serves it latched on face/model."""
+
+from __future__ import annotations
+
+import signal
+import time
+
+from bag_processes import finish, start_node
+from face_tracking_msgs.msg import FaceModel
+import numpy as np
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.node import Node
+
+from face_tracking_ros.io import conversions
+from face_tracking_ros.model.model_file import load_model
+from face_tracking_ros.nodes.processor_node import QOS_PROFILES
+from face_tracking_ros.processing.base import QosClass
+
+from conftest import REPO
+
+WAIT_S = 90.0
+
+
+def test_model_reaches_a_subscriber_that_starts_after_it_was_published(ros_context, tmp_path):
+    output = tmp_path / 'model.npz'
+    process = start_node(
+        'learner', bag_dir=REPO / 'bags' / 'stereo_train', output=output, method='seed', p=1
+    )
+    try:
+        deadline = time.monotonic() + WAIT_S
+        while not output.exists():  # learned and written: the message is out before we listen
+            assert process.poll() is None, finish(process)[1]
+            assert time.monotonic() < deadline, 'the learner wrote no model'
+            time.sleep(0.2)
+        time.sleep(1.0)
+        node = Node('late_tracker', context=ros_context)
+        executor = SingleThreadedExecutor(context=ros_context)
+        executor.add_node(node)
+        received = []
+        node.create_subscription(
+            FaceModel, 'face/model', received.append, QOS_PROFILES[QosClass.LATCHED]
+        )
+        while not received:
+            assert time.monotonic() < deadline, 'no model on face/model'
+            executor.spin_once(timeout_sec=0.1)
+        executor.shutdown()
+        node.destroy_node()
+    finally:
+        code, log = finish(process, stop=signal.SIGINT)
+    assert code == 0, log
+    published = conversions.model_from_msg(received[0])
+    written = load_model(output)
+    assert published.method == written.method == 'seed'
+    assert published.node_names == written.node_names
+    np.testing.assert_array_equal(published.shape_basis, written.shape_basis)
+    assert output.with_suffix('.json').exists()
