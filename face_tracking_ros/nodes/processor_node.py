@@ -101,7 +101,7 @@ class ProcessorNode(Node):
         }
         self._on_demand = [port.topic for port in self._processor.outputs if port.on_demand]
         self._diagnostics = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
-        self._subscriptions = [self._subscribe(port) for port in self._processor.inputs]
+        self._input_subscriptions = [self._subscribe(port) for port in self._processor.inputs]
 
     @property
     def processor(self) -> Processor:
