@@ -192,6 +192,8 @@ def steps(plan: DemoPlan, out: Path) -> list[tuple[str, list[str]]]:
                 str(out / 'learn.json'),
                 '--plots',
                 str(out / 'learn'),
+                '--compare',
+                'seed',
             ],
         ),
         (

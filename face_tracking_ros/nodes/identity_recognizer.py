@@ -22,7 +22,9 @@ class IdentityRecognizerNode(ProcessorNode):
     def __init__(self) -> None:
         """Build the node, its topics and the enrolment service."""
         super().__init__('identity_recognizer')
-        self._enroll = self.create_service(EnrollIdentity, 'enroll_identity', self._on_enroll)
+        self._enroll_service = self.create_service(
+            EnrollIdentity, 'enroll_identity', self._on_enroll
+        )
 
     def _on_enroll(self, request: Any, response: Any) -> Any:
         """Enrol the tracked face from its sigma of the last ``request.duration`` seconds."""

@@ -100,10 +100,10 @@ class LearnerNode(Node):
         factory = RclpyMessages()
         stamp_ns = self.get_clock().now().nanoseconds
         header = conversions.make_header(factory, stamp_ns, config.frame_id)
-        self._publisher = self.create_publisher(
+        self._model_publisher = self.create_publisher(
             FaceModelMsg, 'face/model', QOS_PROFILES[QosClass.LATCHED]
         )
-        self._publisher.publish(conversions.model_to_msg(factory, header, model))
+        self._model_publisher.publish(conversions.model_to_msg(factory, header, model))
         self.get_logger().info(
             f'published {args.out} (method {model.method}, {model.num_nodes} nodes, '
             f'p={model.p}, q={model.q}) on face/model, latched'

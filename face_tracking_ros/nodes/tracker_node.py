@@ -17,7 +17,7 @@ class TrackerNode(ProcessorNode):
     def __init__(self, name: str) -> None:
         """Build the node ``name`` with the processor registered under that name."""
         super().__init__(name)
-        self._reset = self.create_service(ResetTracking, 'reset_tracking', self._on_reset)
+        self._reset_service = self.create_service(ResetTracking, 'reset_tracking', self._on_reset)
 
     def _on_reset(self, request: Any, response: Any) -> Any:
         """Restart from the request's 2-D node positions, or automatically if it has none."""
