@@ -9,10 +9,12 @@ from recognition_streams import truth_model
 from face_tracking_ros.errors import ConfigError
 from face_tracking_ros.recognition.benchmark import (
     BenchmarkConfig,
+    identity_with_track_error,
     run_benchmark,
     synthetic_sequences,
     tracking_noise,
 )
+from face_tracking_ros.recognition.identity import IdentityConfig
 from face_tracking_ros.synthetic.faces import FacePopulation
 
 
@@ -26,8 +28,8 @@ def test_small_scenario_reaches_the_targets_with_the_true_model() -> None:
     assert report.identity.open_set >= 0.95
     assert report.identity.rejection >= 0.9
     assert report.expression.clear >= 0.92
-    assert report.events_from_half_intensity.f1 >= 0.9
-    assert np.mean(report.events_from_half_intensity.latencies) <= 0.15
+    assert report.events_from_half_rise.f1 >= 0.9
+    assert np.mean(report.events_from_half_rise.latencies) <= 0.15
     separation = report.separation
     assert separation.row('identity', 'sigma').accuracy >= 0.95
     assert separation.row('identity', 'alpha').accuracy <= 0.5
@@ -72,3 +74,15 @@ def test_config_errors() -> None:
         BenchmarkConfig(node_noise=-1.0)
     with pytest.raises(ConfigError, match='duration > 1 s'):
         BenchmarkConfig(duration=0.5)
+
+
+def test_identity_with_track_error_trades_acceptance_for_rejection() -> None:
+    track_std = np.array([0.6, 2.1, 2.3, 1.0]) * 1e-3
+
+    tight = identity_with_track_error(track_std, IdentityConfig(min_std=0.001), trials=4)
+    default = identity_with_track_error(track_std, IdentityConfig(), trials=4)
+
+    assert default.open_set >= 0.95
+    assert default.rejection >= 0.85
+    assert tight.open_set < default.open_set
+    assert tight.rejection >= default.rejection

@@ -142,6 +142,10 @@ def test_truth_segments_follow_labels_and_onset_level() -> None:
     for early, late in zip(starts, half, strict=True):
         assert early.label == late.label
         assert early.onset < late.onset < late.end == early.end
+        run = (sequence.times >= early.onset) & (sequence.times <= early.end)
+        peak = sequence.intensity[run].max()
+        m = int(np.searchsorted(sequence.times, late.onset))
+        assert sequence.intensity[m] >= 0.5 * peak > sequence.intensity[m - 1]
 
 
 def test_events_on_synthetic_streams_reach_f1_and_latency_targets() -> None:

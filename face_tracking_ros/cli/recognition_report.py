@@ -84,7 +84,7 @@ def run(args: argparse.Namespace) -> None:
         f'{100 * accuracy.all_frames:.1f} % all frames, {100 * accuracy.balanced:.1f} % balanced'
     )
     events = [detect_events(classifier, s, EventConfig()) for s in scored]
-    for level, name in ((0.0, 'label start'), (0.5, 'half intensity')):
+    for level, name in ((0.0, 'label start'), (0.5, 'half rise')):
         score = merge_scores(
             [
                 score_events(e, truth_segments(s, level))

@@ -14,13 +14,13 @@ from dataclasses import dataclass
 import json
 import os
 from pathlib import Path
-import tempfile
 from typing import Any, NoReturn
 import zipfile
 
 import numpy as np
 
 from face_tracking_ros.errors import ModelFileError
+from face_tracking_ros.io.atomic import write_npz_atomically
 
 HEADER_KEY = 'header'
 
@@ -95,18 +95,7 @@ def save_archive(
     full_header = {'kind': kind, 'format_version': format_version, **header}
     members = {HEADER_KEY: np.array(json.dumps(full_header, sort_keys=True))}
     members.update({name: np.asarray(value) for name, value in arrays.items()})
-    handle, temp_name = tempfile.mkstemp(
-        dir=target.parent, prefix=f'.{target.name}.', suffix='.tmp'
-    )
-    try:
-        with os.fdopen(handle, 'wb') as stream:
-            np.savez(stream, **members)
-            stream.flush()
-            os.fsync(stream.fileno())
-        os.replace(temp_name, target)
-    except BaseException:
-        Path(temp_name).unlink(missing_ok=True)
-        raise
+    write_npz_atomically(target, members)
 
 
 def load_archive(path: str | os.PathLike[str], kind: str, format_version: int) -> Archive:

@@ -11,10 +11,11 @@ Conventions of every score here:
   where the face is still nearly neutral, have no well-defined answer); the accuracy over all
   frames is reported too.
 - Events: a truth expression is a run of frames with the same non-neutral label; its onset is the
-  first frame of the run whose intensity reaches ``onset_level`` (0: the label's first frame). A
-  detected onset matches a truth expression of the same label if it falls between
-  ``onset - tolerance`` and the run's end; each is matched at most once (the earliest). Latency is
-  detected minus truth onset.
+  first frame of the run whose intensity reaches ``onset_level`` times the run's peak intensity
+  (0: the label's first frame, the very start of the rise; 0.5: the half-rise point, the usual
+  definition of a response's onset time). A detected onset matches a truth expression of the
+  same label if it falls between ``onset - tolerance`` and the run's end; each is matched at most
+  once (the earliest). Latency is detected minus truth onset.
 """
 
 from __future__ import annotations
@@ -80,15 +81,29 @@ class IdentityAccuracy:
 def enroll_sequences(
     sequences: list[ParameterSequence], config: IdentityConfig, parameter: Parameter = 'sigma'
 ) -> IdentityGallery:
-    """A gallery with every subject of ``sequences`` enrolled from all its frames."""
+    """A gallery with every subject of ``sequences`` enrolled from its decision-window means.
+
+    Each person is enrolled from the means of the consecutive ``config.window`` windows of its
+    sequences (:func:`decision_windows`), i.e. from samples of the very statistic that is
+    classified, so C_k is the spread of a window mean (per-frame noise averaged as in a decision)
+    plus the floor.
+
+    Raises:
+        ConfigError: if there are no sequences, or a subject has no full window.
+    """
     if not sequences:
         msg = 'no sequences to enrol identities from'
         raise ConfigError(msg)
-    dim = sequences[0].values(parameter).shape[1]
-    gallery = IdentityGallery.empty(dim)
+    gallery = IdentityGallery.empty(sequences[0].values(parameter).shape[1])
     for subject in sorted({s.subject_id for s in sequences}):
-        frames = [s.values(parameter) for s in sequences if s.subject_id == subject]
-        gallery = gallery.enroll(subject, np.vstack(frames), config)
+        mine = [s for s in sequences if s.subject_id == subject]
+        means = [
+            values.mean(axis=0) for _, values in decision_windows(mine, config.window, parameter)
+        ]
+        if not means:
+            msg = f'{subject!r} has no full {config.window} s window to enrol from'
+            raise ConfigError(msg)
+        gallery = gallery.enroll(subject, np.array(means), config)
     return gallery
 
 
@@ -306,8 +321,9 @@ def truth_segments(sequence: ParameterSequence, onset_level: float = 0.0) -> lis
         range(len(sequence.labels)), key=sequence.labels.__getitem__
     ):
         frames = np.fromiter(run, dtype=int)
-        reached = frames[sequence.intensity[frames] >= onset_level]
-        if label != NEUTRAL and len(reached):
+        peak = sequence.intensity[frames].max()
+        reached = frames[sequence.intensity[frames] >= onset_level * peak]
+        if label != NEUTRAL and peak > 0.0:
             segments.append(
                 Segment(
                     label, float(sequence.times[reached[0]]), float(sequence.times[frames[-1]])
