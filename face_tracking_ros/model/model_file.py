@@ -27,13 +27,13 @@ from __future__ import annotations
 import json
 import os
 from pathlib import Path
-import tempfile
 from typing import Any, NoReturn
 import zipfile
 
 import numpy as np
 
 from face_tracking_ros.errors import ModelFileError
+from face_tracking_ros.io.atomic import write_npz_atomically
 from face_tracking_ros.model.face_model import FaceModel
 
 FORMAT_NAME = 'face_tracking_ros.face_model'
@@ -78,7 +78,7 @@ def save_model(model: FaceModel, path: str | os.PathLike[str]) -> Path:
         raise ModelFileError(msg) from None
     arrays = {name: np.asarray(getattr(model, name), dtype=np.float64) for name in ARRAY_FIELDS}
     try:
-        _write_atomically(path, header_text, arrays)
+        write_npz_atomically(path, {'header': np.array(header_text), **arrays})
     except OSError as error:
         msg = f'{path}: cannot write the model file: {error}'
         raise ModelFileError(msg) from None
@@ -132,21 +132,6 @@ def load_model(path: str | os.PathLike[str]) -> FaceModel:
         )
     except ModelFileError as error:
         _fail(path, str(error))
-
-
-def _write_atomically(path: Path, header_text: str, arrays: dict[str, np.ndarray]) -> None:
-    """Write the archive to a temporary file beside ``path``, sync it, then rename it over."""
-    descriptor, name = tempfile.mkstemp(dir=path.parent, prefix=f'.{path.name}.', suffix='.tmp')
-    temporary = Path(name)
-    try:
-        with os.fdopen(descriptor, 'wb') as handle:
-            np.savez(handle, header=np.array(header_text), **arrays)
-            handle.flush()
-            os.fsync(handle.fileno())
-        os.replace(temporary, path)
-    except BaseException:
-        temporary.unlink(missing_ok=True)
-        raise
 
 
 def _read_header(path: Path, raw: np.ndarray) -> dict[str, Any]:
