@@ -1,13 +1,16 @@
 """Identity from the shape parameters sigma (seed §3.6, §4.5): an enrolment gallery and its rule.
 
 Each enrolled person k is a Gaussian in sigma space, N(mu_k, C_k): mu_k is the mean of the sigma
-estimates seen at enrolment and C_k their sample covariance plus a floor ``min_std**2 * I`` that
-stands for the tracker noise a single enrolment sequence cannot show (with sigma held fixed during
-tracking, §3.5, the sample covariance may even be zero). A face is observed for ``window`` seconds;
-the mean of its sigma estimates is assigned to the most likely person (Gaussian maximum
-likelihood, i.e. the Mahalanobis nearest class with the log-determinant term) and rejected as
-unknown when its squared Mahalanobis distance to that person exceeds the chi-square quantile
-``chi2.ppf(acceptance, p)``: a genuine face is accepted with probability ``acceptance``.
+samples given at enrolment and C_k their sample covariance plus a floor ``min_std**2 * I`` that
+stands for the error of one track's sigma estimate, which a single enrolment track cannot show
+(with sigma held fixed during tracking, §3.5, the sample covariance may even be zero). The best
+enrolment samples are means over decision windows (what
+:func:`~face_tracking_ros.recognition.evaluation.enroll_sequences` passes); per-frame estimates
+also work but overstate the spread of a window mean (a more lenient, safe, C_k). A face is
+observed for ``window`` seconds; the mean of its sigma estimates is assigned to the most likely
+person (Gaussian maximum likelihood, i.e. the Mahalanobis nearest class with the
+log-determinant term) and rejected as unknown when its squared Mahalanobis distance to that
+person exceeds the chi-square quantile ``chi2.ppf(acceptance, p)``.
 
 Why this rule and not an SVM (the seed cites SVMs for expressions): measured by
 :func:`face_tracking_ros.recognition.evaluation.compare_identity_classifiers` with 11 enrolled
@@ -160,7 +163,8 @@ class IdentityGallery:
 
         Args:
             name: the person's name; not empty, not :data:`UNKNOWN`.
-            sigmas: (M, p) sigma estimates of that person, M >= 1.
+            sigmas: (M, p) sigma samples of that person, M >= 1: decision-window means
+                (best) or per-frame estimates.
             config: supplies ``min_std``.
 
         Raises:
