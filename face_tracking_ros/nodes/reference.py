@@ -13,6 +13,9 @@ import dataclasses
 from pathlib import Path
 
 from face_tracking_ros.errors import ConfigError
+from face_tracking_ros.nodes.bag_recorder import RecorderConfig
+from face_tracking_ros.nodes.learner import LearnerConfig
+from face_tracking_ros.playback import PlaybackConfig
 from face_tracking_ros.processing.expression import ExpressionNodeConfig
 from face_tracking_ros.processing.identity import IdentityNodeConfig
 from face_tracking_ros.processing.mono import MonoNodeConfig
@@ -32,6 +35,9 @@ NODE_CONFIGS: dict[str, tuple[tuple[str, type], ...]] = {
     'stereo_tracker': (('', StereoNodeConfig), ('tracker.', StereoTrackerConfig)),
     'expression_recognizer': (('', ExpressionNodeConfig), ('events.', EventConfig)),
     'identity_recognizer': (('', IdentityNodeConfig), ('identity.', IdentityConfig)),
+    'learner': (('', LearnerConfig),),
+    'bag_player': (('', PlaybackConfig),),
+    'bag_recorder': (('', RecorderConfig),),
 }
 
 
