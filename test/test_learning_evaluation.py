@@ -109,7 +109,9 @@ def test_recognition_measures_on_separable_data():
     sigma = np.eye(3)[subjects][:, :2] * 0.01 + rng.normal(scale=0.0005, size=(120, 2))
     assert sigma_silhouette(sigma, subjects) > 0.8
     assert identity_accuracy(sigma, subjects, sequences) == 1.0
-    assert np.isnan(identity_accuracy(sigma, subjects, np.zeros(120, int)))
+    assert identity_accuracy(sigma, subjects, np.zeros(120, int)) == 1.0
+    drifting = sigma + np.tile(np.repeat([0.0, 0.02], 20), 3)[:, None]  # 2nd half moves away
+    assert identity_accuracy(drifting, subjects, np.zeros(120, int)) < 0.7
     labels = np.array(['neutral', 'smile', 'frown', 'surprise'])[np.arange(120) % 4]
     alpha = np.eye(4)[np.arange(120) % 4] * 0.01 + rng.normal(scale=0.001, size=(120, 4))
     assert expression_accuracy(alpha, labels, subjects) == 1.0
