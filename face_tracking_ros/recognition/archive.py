@@ -3,8 +3,8 @@
 Layout: every array is one ``.npy`` member of the zip; the member ``header`` is a 0-d unicode
 array holding a JSON object with at least ``kind`` (what the file holds, e.g.
 ``'identity_gallery'``) and ``format_version`` (an integer). Files are read with
-``allow_pickle=False``, so no file can execute code, and written to a temporary file in the target
-directory that is then renamed over the target (``os.replace``), so a crash never leaves a
+``allow_pickle=False``, so no file can execute code, and written atomically
+(:func:`face_tracking_ros.io.atomic.write_npz_atomically`), so a crash never leaves a
 half-written file behind.
 """
 
@@ -91,11 +91,10 @@ def save_archive(
         header: further JSON-serialisable fields.
         arrays: numeric arrays by member name (not ``'header'``).
     """
-    target = Path(path)
     full_header = {'kind': kind, 'format_version': format_version, **header}
     members = {HEADER_KEY: np.array(json.dumps(full_header, sort_keys=True))}
     members.update({name: np.asarray(value) for name, value in arrays.items()})
-    write_npz_atomically(target, members)
+    write_npz_atomically(Path(path), members)
 
 
 def load_archive(path: str | os.PathLike[str], kind: str, format_version: int) -> Archive:
