@@ -21,8 +21,9 @@ class LearningResult:
         model: the learned :class:`FaceModel` (eq. 3 with the §4.1 prior).
         iterations: iterations made.
         converged: whether the change fell below the tolerance.
-        history: (iterations,) change per iteration: the largest of 1 - similarity of S and of A
-            with the previous iteration's and the mean shape's RMS node move in metres.
+        history: (iterations,) subspace change per iteration: 1 - similarity with the previous
+            iteration's basis (the larger of S's and A's for the seed learner, A's for the joint
+            learner; 1 for the first iteration).
         subject_neutral: (S, 3N) final neutral-face estimate of each subject, metres.
         subject_sigma: (S, p) identity parameters of each subject's neutral, metres.
         frame_sigma: (F, p) sigma of each training frame from a least-squares fit of eq. 3 with
