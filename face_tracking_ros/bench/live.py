@@ -233,8 +233,16 @@ class Driver:
         with self._lock:
             self._received[conversions.stamp_to_ns(msg.header.stamp)] = (now, int(msg.status))
 
-    def wait_for(self, nodes: Sequence[NodeProcess], timeout: float = STARTUP_TIMEOUT) -> None:
+    def wait_for(
+        self,
+        nodes: Sequence[NodeProcess],
+        timeout: float = STARTUP_TIMEOUT,
+        state_subscribers: int = 1,
+    ) -> None:
         """Wait until every publisher has a subscriber and face/state a publisher.
+
+        ``state_subscribers`` is how many subscriptions face/state must have (this driver's
+        own included), e.g. 2 with a recorder.
 
         Raises:
             ConfigError: if a node died or the connections did not come up in time.
@@ -248,7 +256,11 @@ class Driver:
             subscribed = all(
                 pub.get_subscription_count() > 0 for pair in self._publishers for pub in pair
             )
-            if subscribed and self._node.count_publishers(STATE_TOPIC) > 0:
+            if (
+                subscribed
+                and self._node.count_publishers(STATE_TOPIC) > 0
+                and self._node.count_subscribers(STATE_TOPIC) >= state_subscribers
+            ):
                 return
             time.sleep(0.1)
         msg = f'nodes {[n.name for n in nodes]} did not connect within {timeout:g} s'

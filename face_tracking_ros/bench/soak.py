@@ -27,6 +27,7 @@ WINDOW_S = 10.0
 WARM_UP_S = 60.0
 QUICK_MINUTES = 0.5
 STATE_TOPIC = 'face/state'
+RECORDED_TOPIC = '/face/state'  # the recorder's name for it (resolved in the root namespace)
 
 
 def run(options: BenchOptions) -> dict[str, Any]:
@@ -53,7 +54,7 @@ def run(options: BenchOptions) -> dict[str, Any]:
     driver = Driver(streams, name='bench_soak_driver')
     windows: list[tuple[float, float, RunFigures]] = []
     try:
-        driver.wait_for([tracker, recorder])
+        driver.wait_for([tracker, recorder], state_subscribers=2)
         elapsed = 0.0
         while elapsed < 60.0 * minutes:
             figures = driver.run(RATE_HZ, WINDOW_S)
@@ -64,7 +65,7 @@ def run(options: BenchOptions) -> dict[str, Any]:
         driver.close()
         tracker.stop()
         recorder.stop()
-    recorded = sum(1 for _ in read_messages(recording, topics=[STATE_TOPIC]))
+    recorded = sum(1 for _ in read_messages(recording, topics=[RECORDED_TOPIC]))
     return _summary(windows, recorded, peaks, minutes)
 
 
