@@ -85,7 +85,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser = subparsers.add_parser(
         'learn',
         help='learn a face model (mean shape, S, A, prior) from bags of 3-D meshes',
-        description=__doc__.split('\n\n')[0],
+        description='Align 3-D training meshes (§3.3), learn mean shape, identity basis S, '
+        'expression basis A and their Gaussian prior, evaluate the methods side by side '
+        '(leave-one-subject-out, truth), write the model file, a JSON report and PNG plots.',
     )
     parser.add_argument('bags', nargs='+', type=Path, metavar='BAG', help='bags of meshes')
     parser.add_argument('--out', required=True, type=Path, help='model file to write (.npz)')
@@ -98,7 +100,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help='choose p as the fewest identity modes explaining this share (overrides --p)',
     )
     parser.add_argument('--q', type=int, default=5, help='expression dimension (%(default)s)')
-    parser.add_argument('--method', choices=METHODS, default=DEFAULT_METHOD)
+    parser.add_argument(
+        '--method',
+        choices=METHODS,
+        default=DEFAULT_METHOD,
+        help='learner whose model is written: joint (issue 11), seed (the paper, §3.4), '
+        'seed-weighted (§4.3); default %(default)s',
+    )
     parser.add_argument(
         '--compare',
         nargs='*',
