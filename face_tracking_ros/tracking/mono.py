@@ -41,7 +41,8 @@ from dataclasses import dataclass, field, replace
 from typing import NamedTuple
 
 import numpy as np
-from scipy.linalg import LinAlgError, inv, solve
+from numpy.linalg import LinAlgError
+from scipy.linalg import inv
 
 from face_tracking_ros.errors import ConfigError, InputError
 from face_tracking_ros.geometry.camera import PinholeCamera
@@ -309,6 +310,11 @@ class MonoTracker:
         self._alpha_precision = weight * inv(model.alpha_prior_covariance)
         self._sigma_precision = weight * inv(model.sigma_prior_covariance)
         self._grid = square_offsets(self._config.patch_half_size)
+        # Row scales of P per pyramid level: level l's pixels are level 0's times 2^-l.
+        self._level_rows = [
+            np.array([[1.0 / (1 << level)], [1.0 / (1 << level)], [1.0]])
+            for level in range(levels)
+        ]
         self._init: Initialisation | None = None
         self._use_init = False
         self._track: _Track | None = None
@@ -637,6 +643,24 @@ class MonoTracker:
         pixels = self._camera.project(points_cam.reshape(-1, 3)) * (1.0 / float(1 << level))
         return points, points_cam, pixels.reshape(*points.shape[:2], 2)
 
+    def _roi_pixels(
+        self, params: _Params, level: int, offsets: np.ndarray | None = None
+    ) -> np.ndarray:
+        """(N, M, 2) level pixels of the ROI points (eq. 1-3) alone, for sampling.
+
+        Eq. 1 and 2 fold into one map ``h = (P_3 R)(shape_n + offset) + P_3 t + p_4`` with the
+        level's 2^-l in the first two rows of P, so nodes and offsets are mapped separately and
+        no camera-frame point is formed.
+        """
+        shape = self._model.shape(params.sigma, params.alpha)
+        offsets = self._track.offsets[level] if offsets is None else offsets
+        rotation, _ = rodrigues(params.omega)
+        projection = self._camera.p * self._level_rows[level]
+        matrix = projection[:, :3] @ rotation
+        nodes = shape @ matrix.T + (projection[:, :3] @ params.t + projection[:, 3])
+        homogeneous = nodes[:, None, :] + offsets @ matrix.T
+        return homogeneous[..., :2] / homogeneous[..., 2:3]
+
     def _evaluate(
         self,
         pyramid: ImagePyramid,
@@ -660,7 +684,7 @@ class MonoTracker:
             linear: the Jacobian (from a nearby linearisation point).
             scale: the robust residual scale s, or None to estimate it from these residuals.
         """
-        _, _, pixels = self._roi_points(params, level)
+        pixels = self._roi_pixels(params, level)
         image = pyramid.levels[level]
         residuals = projection.apply(sample_points(image, pixels) - template)
         weights = node_weights[:, None] * inside_image(pixels, image.shape, 1.0)
@@ -766,7 +790,7 @@ class MonoTracker:
         """Samples of every level at ``params``'s ROIs, and the node visibility there."""
         levels, inside = [], None
         for level, image in enumerate(pyramid.levels):
-            _, _, pixels = self._roi_points(params, level, offsets[level])
+            pixels = self._roi_pixels(params, level, offsets[level])
             levels.append(sample_points(image, pixels))
             if inside is None:
                 inside = inside_image(pixels, image.shape, margin=1.0)
@@ -856,7 +880,7 @@ def _damped_step(system: _System, damping: float) -> np.ndarray:
     scaling = 1.0 / np.sqrt(np.maximum(np.diag(system.hessian), 1e-12))
     scaled = system.hessian * scaling[:, None] * scaling[None, :]
     damped = scaled + damping * np.eye(len(scaling))
-    return -scaling * solve(damped, system.gradient * scaling, assume_a='pos')
+    return -scaling * np.linalg.solve(damped, system.gradient * scaling)
 
 
 def _condition(hessian: np.ndarray) -> float:
