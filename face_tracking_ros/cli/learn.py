@@ -28,6 +28,7 @@ from typing import Any
 
 import numpy as np
 
+from face_tracking_ros.cli.track import is_stereo_bag
 from face_tracking_ros.errors import BagError, ConfigError, InputError
 from face_tracking_ros.io.bags import bag_topics, read_messages
 from face_tracking_ros.io.conversions import (
@@ -36,6 +37,7 @@ from face_tracking_ros.io.conversions import (
     stamp_to_ns,
     truth_from_msg,
 )
+from face_tracking_ros.io.series import has_truth
 from face_tracking_ros.learning.alignment import align_training_set
 from face_tracking_ros.learning.evaluation import (
     Evaluation,
@@ -59,6 +61,9 @@ from face_tracking_ros.learning.result import LearningResult
 from face_tracking_ros.learning.training_set import NEUTRAL_LABEL, MeshSequence, TrainingSet
 from face_tracking_ros.model.model_file import save_model
 from face_tracking_ros.model.topology import SUPPORTED_NODE_COUNTS
+from face_tracking_ros.processing.parameters import OverrideParameters
+from face_tracking_ros.replay import replay_bag
+from face_tracking_ros.synthetic.clicks import clicks_from_bag, write_init_file
 from face_tracking_ros.synthetic.faces import PRESETS, FacePopulation
 
 TRUTH_TYPE = 'face_tracking_msgs/msg/FaceTruth'
@@ -151,6 +156,31 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         default=2000,
         help='population faces drawn to estimate the true identity axes (%(default)s)',
     )
+    stereo = parser.add_argument_group(
+        'raw stereo bags', 'bags of left/right images are first tracked by the stereo tracker'
+    )
+    stereo.add_argument(
+        '--from-images',
+        action='store_true',
+        help='track the images of stereo bags even when they also hold truth meshes',
+    )
+    stereo.add_argument(
+        '--init-dir',
+        type=Path,
+        help='directory of init files <bag name>.yaml|.json (node name -> left-image pixels)',
+    )
+    stereo.add_argument(
+        '--simulate-clicks',
+        type=float,
+        metavar='PX',
+        help="synthetic bags: initialise from the first frame's true nodes with PX pixels of "
+        'click noise (written to --init-dir, default: next to the meshes)',
+    )
+    stereo.add_argument(
+        '--meshes-dir',
+        type=Path,
+        help='where the tracked mesh bags go (default: <report name>_meshes/ beside the report)',
+    )
     parser.set_defaults(func=run)
 
 
@@ -159,9 +189,14 @@ def run(args: argparse.Namespace) -> None:
     _check_arguments(args)
     rng = np.random.default_rng(args.seed)
     truth_bags = args.truth or [None] * len(args.bags)
+    mesh_bags = [mesh_bag(bag, args) for bag in args.bags]
+    truth_bags = [
+        bag if mesh is not bag and has_truth(bag) else truth
+        for bag, mesh, truth in zip(args.bags, mesh_bags, truth_bags, strict=True)
+    ]
     bag_meshes = [
         item
-        for bag, truth_bag in zip(args.bags, truth_bags, strict=True)
+        for bag, truth_bag in zip(mesh_bags, truth_bags, strict=True)
         for item in read_bag_meshes(bag, args, truth_bag)
     ]
     sequences = [item.sequence for item in bag_meshes]
@@ -221,6 +256,57 @@ def run(args: argparse.Namespace) -> None:
     }
     _write_json(args.report, report)
     print(f'report written to {args.report}')
+
+
+def mesh_bag(bag: Path, args: argparse.Namespace) -> Path:
+    """The bag of 3-D meshes to learn from: ``bag`` itself, or its stereo tracking.
+
+    A raw stereo bag (left and right images, no mesh topic; or any stereo bag with
+    ``--from-images``) is first tracked by the stereo
+    tracker (eq. 4, 5) through offline replay of the stereo_tracker node's own code, into
+    ``--meshes-dir``; it is initialised from ``--init-dir/<bag name>.{yaml,json}`` or, for
+    synthetic bags, from ``--simulate-clicks``.
+
+    Raises:
+        ConfigError: for a raw stereo bag without a way to initialise it.
+    """
+    topics = bag_topics(bag)
+    has_meshes = args.topic or any(name in topics for name in DEFAULT_TOPICS)
+    if not is_stereo_bag(topics) or (has_meshes and not args.from_images):
+        return bag  # meshes (or nothing: read_bag_meshes names the missing topic)
+    init_file = _init_file(bag, args)
+    out = _meshes_dir(args) / bag.name
+    print(f'{bag}: raw stereo images: tracking them into {out}')
+    params = OverrideParameters({'init_file': str(init_file)})
+    stats = replay_bag(['stereo_tracker'], bag, out, params, progress=False)
+    if not stats.outputs['face/mesh_raw']:
+        msg = f'{bag}: the stereo tracker produced no mesh ({dict(stats.errors)})'
+        raise BagError(msg)
+    return out
+
+
+def _meshes_dir(args: argparse.Namespace) -> Path:
+    """Where tracked mesh bags of raw stereo bags go."""
+    return args.meshes_dir or args.report.parent / f'{args.report.stem}_meshes'
+
+
+def _init_file(bag: Path, args: argparse.Namespace) -> Path:
+    """The init file of a raw stereo bag: from --init-dir, or simulated clicks."""
+    if args.init_dir is not None:
+        for suffix in ('.yaml', '.yml', '.json'):
+            candidate = args.init_dir / f'{bag.name}{suffix}'
+            if candidate.is_file():
+                return candidate
+    if args.simulate_clicks is not None:
+        directory = args.init_dir or _meshes_dir(args)
+        directory.mkdir(parents=True, exist_ok=True)
+        path = directory / f'{bag.name}.json'
+        return write_init_file(clicks_from_bag(bag, args.simulate_clicks), path)
+    msg = (
+        f'{bag} holds raw stereo images: give its initialisation with --init-dir '
+        f'(a {bag.name}.yaml node-name -> pixel file) or, for synthetic bags, --simulate-clicks'
+    )
+    raise ConfigError(msg)
 
 
 def read_bag_meshes(

@@ -9,6 +9,7 @@ code. When the bag holds synthetic truth, the accuracy against it is printed and
 from __future__ import annotations
 
 import argparse
+from collections.abc import Mapping
 from dataclasses import asdict
 import json
 from pathlib import Path
@@ -64,20 +65,25 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.set_defaults(func=run)
 
 
+def is_stereo_bag(topics: Mapping[str, str]) -> bool:
+    """True if a bag's topics (name -> type) hold a left and a right image stream."""
+    images = [topic for topic, kind in topics.items() if kind == IMAGE_TYPE]
+    return any('left' in t for t in images) and any('right' in t for t in images)
+
+
 def choose_tracker(bag: Path, args: argparse.Namespace) -> str:
     """'stereo_tracker' if the bag has a left and a right image topic, else 'mono_tracker'.
 
     Raises:
         BagError: if the bag has no image topic.
     """
-    images = [topic for topic, kind in bag_topics(bag).items() if kind == IMAGE_TYPE]
-    if not images:
+    topics = bag_topics(bag)
+    if IMAGE_TYPE not in topics.values():
         msg = f'{bag}: no sensor_msgs/msg/Image topic to track'
         raise BagError(msg)
     if args.image_topic:
         return 'mono_tracker'
-    has_pair = any('left' in t for t in images) and any('right' in t for t in images)
-    return 'stereo_tracker' if args.left_topic or has_pair else 'mono_tracker'
+    return 'stereo_tracker' if args.left_topic or is_stereo_bag(topics) else 'mono_tracker'
 
 
 def run(args: argparse.Namespace) -> int:

@@ -41,6 +41,10 @@ class LearnerConfig:
         topic: mesh topic; empty: truth/face, face/mesh_raw or face/state, the first found.
         subject: subject id of FaceMesh/FaceState bags; empty: each bag's directory name.
         neutral_frames: FaceMesh/FaceState bags: the first K frames of each bag are neutral.
+        from_images: track the images of stereo bags even when they also hold truth meshes.
+        init_dir: raw stereo bags: directory of init files <bag name>.yaml|.json.
+        simulate_clicks: synthetic raw stereo bags: initialise from the first frame's true nodes
+            with this many pixels of click noise; negative: off.
         frame_id: frame_id of the published model's header (the face frame's name).
     """
 
@@ -55,6 +59,9 @@ class LearnerConfig:
     topic: str = ''
     subject: str = ''
     neutral_frames: int = 0
+    from_images: bool = False
+    init_dir: str = ''
+    simulate_clicks: float = -1.0
     frame_id: str = 'face'
 
 
@@ -75,11 +82,17 @@ def learn_arguments(config: LearnerConfig) -> list[str]:
     argv = [*map(str, bags), '--out', str(output), '--report', str(report)]
     argv += ['--method', config.method, '--p', str(config.p), '--q', str(config.q)]
     argv += ['--compare', '--neutral-frames', str(config.neutral_frames)]
-    options = {'--nodes': config.nodes or '', '--topic': config.topic, '--subject': config.subject}
-    for option, value in options.items():
-        if value:
-            argv += [option, str(value)]
-    return argv
+    options = {
+        '--nodes': config.nodes or '',
+        '--topic': config.topic,
+        '--subject': config.subject,
+        '--init-dir': config.init_dir,
+        '--simulate-clicks': config.simulate_clicks if config.simulate_clicks >= 0 else '',
+    }
+    argv += [
+        item for option, value in options.items() if value != '' for item in (option, str(value))
+    ]
+    return argv + (['--from-images'] if config.from_images else [])
 
 
 class LearnerNode(Node):
