@@ -231,6 +231,7 @@ class _Solution(NamedTuple):
     iterations: int
     costs: tuple[float, ...]
     condition: float
+    projection: PhotometricProjection  # of the level-0 template, reused by the loss checks
 
 
 class _Templates(NamedTuple):
@@ -517,7 +518,7 @@ class MonoTracker:
         solution = self._solve(pyramid, start, templates, node_weights, free_sigma)
         params = solution.params
         sampled = self._templates(pyramid, params, track.offsets, track.normals)
-        projection = PhotometricProjection.of(templates[0], self._config.photometric, self._grid)
+        projection = solution.projection
         residuals = projection.apply(sampled.levels[0] - templates[0])
         weights = node_weights[:, None] * sampled.inside
         cost = self._data_cost(residuals, weights, solution.scale) + self._prior_cost(
@@ -597,6 +598,7 @@ class MonoTracker:
             scale=accepted[1].scale,
             iterations=len(costs),
             costs=tuple(costs),
+            projection=projection,
         )
 
     def _linearise(
