@@ -5,7 +5,9 @@ Inputs: ``image`` (sensor_msgs/Image, or CompressedImage on ``image/compressed``
 with the image's header: ``face/state``, ``face/pose``, ``face/action``, ``face/shape``,
 ``face/mesh_raw`` (FaceMesh), ``face/mesh`` (MarkerArray), and ``face/overlay`` while someone
 subscribes to it. An image that arrives before the first camera_info is held (the latest one)
-and tracked as soon as the calibration arrives.
+and tracked as soon as the calibration arrives. An image whose stamp repeats the last tracked
+one is refused; an earlier stamp (a looped bag, a restarted camera) resets the tracker, so the
+next image starts a new track from the initialisation.
 """
 
 from __future__ import annotations
@@ -16,9 +18,10 @@ from typing import Any
 import numpy as np
 
 from face_tracking_ros.data import default_model_path
-from face_tracking_ros.errors import InputError
+from face_tracking_ros.errors import ConfigError, InputError
 from face_tracking_ros.geometry.camera import PinholeCamera
 from face_tracking_ros.io import conversions
+from face_tracking_ros.io.bags import stamp_to_ns
 from face_tracking_ros.io.messages import MessageFactory
 from face_tracking_ros.model.face_model import FaceModel
 from face_tracking_ros.model.model_file import load_model
@@ -65,7 +68,13 @@ class MonoProcessor:
         model: FaceModel | None,
         initialisation: Initialisation | None = None,
     ) -> None:
-        """Wait for camera_info (and a model, if none is given) before tracking."""
+        """Wait for camera_info (and a model, if none is given) before tracking.
+
+        Raises:
+            ConfigError: if the initialisation names nodes the model lacks.
+        """
+        if model is not None:
+            _check_nodes(model, initialisation, ConfigError)
         self._factory = factory
         self._config = config
         self._tracker_config = tracker_config
@@ -74,6 +83,7 @@ class MonoProcessor:
         self._camera: PinholeCamera | None = None
         self._tracker: MonoTracker | None = None
         self._held_image: tuple[Any, np.ndarray] | None = None
+        self._last_stamp: int | None = None
         image = (
             Port(COMPRESSED_IMAGE, 'sensor_msgs/msg/CompressedImage', QosClass.SENSOR)
             if (config.compressed)
@@ -107,7 +117,9 @@ class MonoProcessor:
             self._set_camera(conversions.camera_from_info(msg))
             return self._track_held_image(wanted)
         if topic == MODEL:
-            self._model = conversions.model_from_msg(msg)
+            model = conversions.model_from_msg(msg)
+            _check_nodes(model, self._initialisation, InputError)
+            self._model = model
             self._rebuild()
             return []
         gray = (
@@ -152,6 +164,7 @@ class MonoProcessor:
                 f'{camera.width}x{camera.height}'
             )
             raise InputError(msg)
+        self._check_stamp(stamp_to_ns(header.stamp))
         result = self._tracker.step(gray)
         out_header = conversions.copy_header(self._factory, header)
         topology = self._model.topology
@@ -161,6 +174,41 @@ class MonoProcessor:
             overlay = conversions.array_to_image(self._factory, out_header, canvas)
             outputs.append(Output('face/overlay', overlay))
         return outputs
+
+    def _check_stamp(self, stamp_ns: int) -> None:
+        """Accept a later stamp; refuse a repeated one; reset the tracker on an earlier one.
+
+        Raises:
+            InputError: for a stamp not later than the last tracked image's.
+        """
+        last, self._last_stamp = self._last_stamp, stamp_ns
+        if last is None or stamp_ns > last:
+            return
+        if stamp_ns == last:
+            msg = f'image stamp {stamp_ns} ns repeats the previous image stamp: image skipped'
+            raise InputError(msg)
+        self._tracker.reset(self._initialisation)
+        msg = (
+            f'image stamp went back by {(last - stamp_ns) / 1e9:.3f} s (looped bag or restarted '
+            'camera): tracker reset, a new track starts with the next image'
+        )
+        raise InputError(msg)
+
+
+def _check_nodes(
+    model: FaceModel, initialisation: Initialisation | None, error: type[Exception]
+) -> None:
+    """Raise ``error`` if the initialisation names nodes the model lacks."""
+    if initialisation is None:
+        return
+    missing = sorted(set(initialisation.node_names) - set(model.node_names))
+    if missing:
+        names = ', '.join(missing[:4]) + (', ...' if len(missing) > 4 else '')
+        msg = (
+            f'the face model has {model.num_nodes} nodes but the initialisation names '
+            f'{len(missing)} nodes it lacks ({names}): model refused'
+        )
+        raise error(msg)
 
 
 def make_mono_processor(params: ParameterSource, factory: MessageFactory) -> MonoProcessor:
