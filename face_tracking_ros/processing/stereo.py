@@ -6,6 +6,11 @@ exact stamp in a bounded queue; a stamp that never pairs is dropped and counted,
 with another. Outputs per pair, stamped with the left image's header: ``face/mesh_raw``
 (FaceMesh, left camera frame), ``face/mesh`` (MarkerArray), ``face/state`` and, with a model,
 the fitted ``face/pose``, ``face/action`` and ``face/shape``.
+
+An image whose stamp repeats that of the last tracked pair is refused; one a little older (up to
+:data:`RESTART_JUMP_NS`, e.g. the late partner of a dropped image) is dropped as unpaired; a
+larger jump back (a looped bag, restarted cameras) resets the tracker to the initialisation and
+clears the pairing queues, and the new track starts with the pair of that image.
 """
 
 from __future__ import annotations
@@ -14,7 +19,7 @@ from collections import OrderedDict
 from dataclasses import dataclass
 from typing import Any
 
-from face_tracking_ros.errors import InputError
+from face_tracking_ros.errors import ConfigError, InputError
 from face_tracking_ros.geometry.camera import PinholeCamera, StereoRig
 from face_tracking_ros.io import conversions
 from face_tracking_ros.io.bags import stamp_to_ns
@@ -30,6 +35,7 @@ from face_tracking_ros.tracking.stereo import StereoTracker, StereoTrackerConfig
 LEFT_IMAGE, RIGHT_IMAGE = 'left/image_raw', 'right/image_raw'
 LEFT_INFO, RIGHT_INFO = 'left/camera_info', 'right/camera_info'
 MODEL = 'face/model'
+RESTART_JUMP_NS = 1_000_000_000  # an image stamp this much older than the last pair restarts
 
 
 @dataclass(frozen=True)
@@ -63,7 +69,13 @@ class StereoProcessor:
         model: FaceModel | None,
         initialisation: Initialisation | None,
     ) -> None:
-        """Wait for both camera_info messages before tracking."""
+        """Wait for both camera_info messages before tracking.
+
+        Raises:
+            ConfigError: if the model's node count differs from the tracker's ``num_nodes``.
+        """
+        if model is not None:
+            _check_nodes(model, tracker_config, ConfigError)
         self._factory = factory
         self._config = config
         self._tracker_config = tracker_config
@@ -76,6 +88,7 @@ class StereoProcessor:
             RIGHT_IMAGE: OrderedDict(),
         }
         self._held_pair: tuple[Any, Any] | None = None
+        self._last_stamp: int | None = None
         self.unpaired = 0
         self.inputs = (
             Port(LEFT_IMAGE, 'sensor_msgs/msg/Image', QosClass.SENSOR),
@@ -106,8 +119,12 @@ class StereoProcessor:
             self._set_camera(topic, conversions.camera_from_info(msg))
             return self._track_held_pair()
         if topic == MODEL:
-            self._model = conversions.model_from_msg(msg)
+            model = conversions.model_from_msg(msg)
+            _check_nodes(model, self._tracker_config, InputError)
+            self._model = model
             self._rebuild()
+            return []
+        if not self._check_stamp(topic, msg):
             return []
         pair = self._pair(topic, msg)
         if pair is not None and self._tracker is None:
@@ -126,9 +143,17 @@ class StereoProcessor:
         return self._track(*pair)
 
     def _set_camera(self, topic: str, camera: PinholeCamera) -> None:
+        """Keep a new calibration, unless it does not form a rectified rig with the other one.
+
+        Raises:
+            InputError: if the two calibrations do not form a rig (the old ones are kept).
+        """
         old = self._cameras.get(topic)
         if old is None or not old.same_calibration(camera):
-            self._cameras[topic] = camera
+            cameras = {**self._cameras, topic: camera}
+            if len(cameras) == 2:
+                StereoRig(cameras[LEFT_INFO], cameras[RIGHT_INFO])
+            self._cameras = cameras
             self._rebuild()
 
     def _rebuild(self) -> None:
@@ -138,6 +163,36 @@ class StereoProcessor:
         self._tracker = StereoTracker(rig, self._tracker_config, self._model)
         if self._initialisation is not None:
             self._tracker.reset(self._initialisation)
+
+    def _check_stamp(self, topic: str, msg: Any) -> bool:
+        """Whether an image may be paired: its stamp is later than the last tracked pair's.
+
+        A slightly older image is dropped as unpaired (False). A repeated stamp is refused; a
+        jump back by :data:`RESTART_JUMP_NS` or more resets the track and keeps the image.
+
+        Raises:
+            InputError: for a repeated stamp or a jump back.
+        """
+        stamp, last = stamp_to_ns(msg.header.stamp), self._last_stamp
+        if last is None or stamp > last:
+            return True
+        if stamp == last:
+            msg_text = f'{topic} stamp {stamp} ns repeats the previous pair stamp: image skipped'
+            raise InputError(msg_text)
+        if last - stamp < RESTART_JUMP_NS:
+            self.unpaired += 1
+            return False
+        self._last_stamp = None
+        for queue in self._waiting.values():
+            queue.clear()
+        self._waiting[topic][stamp] = msg
+        if self._tracker is not None and self._initialisation is not None:
+            self._tracker.reset(self._initialisation)
+        msg_text = (
+            f'{topic} stamp went back by {(last - stamp) / 1e9:.3f} s (looped bag or restarted '
+            'cameras): tracker reset, a new track starts with this pair'
+        )
+        raise InputError(msg_text)
 
     def _pair(self, topic: str, msg: Any) -> tuple[Any, Any] | None:
         """The (left, right) pair completed by this image, if any; older unpaired ones dropped."""
@@ -172,11 +227,24 @@ class StereoProcessor:
                     f'{camera.width}x{camera.height}'
                 )
                 raise InputError(msg)
+        self._last_stamp = stamp_to_ns(left_msg.header.stamp)
         result = self._tracker.step(left, right).as_track_result()
         header = conversions.copy_header(self._factory, left_msg.header)
         face_id, topology = self._config.face_id, self._tracker.topology
         with_model = self._model is not None
         return face_outputs(self._factory, header, face_id, result, topology, with_model)
+
+
+def _check_nodes(
+    model: FaceModel, tracker_config: StereoTrackerConfig, error: type[Exception]
+) -> None:
+    """Raise ``error`` if the model's node count differs from the tracker's."""
+    if model.num_nodes != tracker_config.num_nodes:
+        msg = (
+            f'model has {model.num_nodes} nodes but the tracker is set to '
+            f'{tracker_config.num_nodes} (tracker.num_nodes): model refused'
+        )
+        raise error(msg)
 
 
 def make_stereo_processor(params: ParameterSource, factory: MessageFactory) -> StereoProcessor:
