@@ -3,7 +3,9 @@
 Input: ``face/action`` (ActionParams) of one tracked face. Outputs: ``face/expression``
 (ExpressionEvent) at every onset and offset, and, while subscribed, ``face/expression_scores``
 (std_msgs/Float64MultiArray: one posterior per label, the labels in the layout's dimension
-label, comma-separated), both stamped with the input's header.
+label, comma-separated), both stamped with the input's header. A stamp not later than the
+previous one starts a new track: the feature window, the neutral baseline and the event state
+restart, without an event for the old track.
 """
 
 from __future__ import annotations
@@ -59,6 +61,7 @@ class ExpressionProcessor:
         self._recognizer = ExpressionRecognizer(classifier)
         self._detector = ExpressionEventDetector(classifier.labels, events)
         self._labels = ','.join(classifier.labels)
+        self._last_stamp: int | None = None
         self.inputs = (Port(ACTION, 'face_tracking_msgs/msg/ActionParams'),)
         self.outputs = (
             Port(EVENTS, 'face_tracking_msgs/msg/ExpressionEvent'),
@@ -68,7 +71,11 @@ class ExpressionProcessor:
     def handle(self, topic: str, msg: Any, wanted: frozenset[str]) -> list[Output]:
         """Classify one ActionParams message; return its events (and scores if wanted)."""
         alpha = conversions.finite_vector(msg.alpha, 'ActionParams.alpha')
-        scores = self._recognizer.update(stamp_to_ns(msg.header.stamp) / NS_PER_S, alpha)
+        stamp = stamp_to_ns(msg.header.stamp)
+        scores = self._recognizer.update(stamp / NS_PER_S, alpha)
+        if self._last_stamp is not None and stamp <= self._last_stamp:
+            self._detector.reset()
+        self._last_stamp = stamp
         header = conversions.copy_header(self._factory, msg.header)
         outputs = [
             Output(EVENTS, self._event_msg(header, msg.face_id, event))
