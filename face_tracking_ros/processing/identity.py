@@ -3,7 +3,9 @@
 Input: ``face/shape`` (ShapeParams) of one tracked face. Output: ``face/identity``
 (IdentityEvent) whenever the decision changes, stamped with the input's header. Enrolment
 (:meth:`IdentityProcessor.enroll`, the ``enroll_identity`` service) adds the tracked face to the
-gallery from its sigma estimates of the last ``duration`` seconds and saves the gallery.
+gallery from its sigma estimates of the last ``duration`` seconds and saves the gallery. A stamp
+not later than the previous one starts a new track: the decision window restarts and the next
+decision is published even if it names the same person.
 """
 
 from __future__ import annotations
@@ -83,7 +85,8 @@ class IdentityProcessor:
         """Add one sigma estimate; output an IdentityEvent if the decision changed."""
         sigma = conversions.finite_vector(msg.sigma, 'ShapeParams.sigma')
         stamp = stamp_to_ns(msg.header.stamp) / NS_PER_S
-        self._history.push(stamp, sigma)
+        if self._history.push(stamp, sigma):
+            self._last = None
         decision = self._recognizer.update(stamp, sigma)
         if decision is None or (msg.face_id, decision.identity) == self._last:
             return []
