@@ -64,3 +64,22 @@ def test_input_errors() -> None:
         fit_model_to_nodes(model, np.zeros((2, 34, 3)))
     with pytest.raises(InputError, match='NaN'):
         fit_model_to_nodes(model, np.full((1, 19, 3), np.nan))
+
+
+def test_zero_weight_nodes_are_ignored_by_the_fit() -> None:
+    rng = np.random.default_rng(32)
+    model = truth_model(FacePopulation('default', 0))
+    sigma, alpha = rng.normal(size=(1, model.p)) * 0.03, rng.normal(size=(1, model.q)) * 0.01
+    nodes = posed(model, sigma, alpha, np.array([[0.1, -0.2, 0.05]]), np.array([[0, 0, 0.6]]))
+    corrupted = nodes.copy()
+    corrupted[0, :4] += 0.02
+    weights = np.ones(model.num_nodes)
+    weights[:4] = 0.0
+
+    fit = fit_model_to_nodes(model, corrupted, weights=weights)
+
+    np.testing.assert_allclose(fit.alpha, alpha, atol=1e-6)
+    np.testing.assert_allclose(fit.sigma, sigma, atol=1e-6)
+    assert fit.rms[0] > 0.005  # rms counts every node, the corrupted ones too
+    with pytest.raises(InputError, match='weights'):
+        fit_model_to_nodes(model, nodes, weights=-weights)

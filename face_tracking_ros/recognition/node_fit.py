@@ -53,7 +53,11 @@ class NodeFit:
 
 
 def fit_model_to_nodes(
-    model: FaceModel, nodes: np.ndarray, tolerance: float = 1e-12, max_iterations: int = 20
+    model: FaceModel,
+    nodes: np.ndarray,
+    tolerance: float = 1e-12,
+    max_iterations: int = 20,
+    weights: np.ndarray | None = None,
 ) -> NodeFit:
     """Fit omega, t, sigma and alpha of eq. 1 and 3 to meshes in the camera frame.
 
@@ -62,9 +66,12 @@ def fit_model_to_nodes(
         nodes: (F, N, 3) meshes in the camera frame, in the model's node order, metres.
         tolerance: stop when no parameter of any frame changes by more than this (rad or m).
         max_iterations: largest number of Gauss-Newton iterations.
+        weights: optional (N,) non-negative node weights w_i of the squared node distances
+            (0: the node is ignored); None for equal weights. ``rms`` stays unweighted.
 
     Raises:
-        InputError: if nodes is not a finite (F, N, 3) array with F >= 1.
+        InputError: if nodes is not a finite (F, N, 3) array with F >= 1, or weights is not a
+            finite non-negative (N,) array.
     """
     nodes = np.asarray(nodes, dtype=float)
     if nodes.ndim != 3 or nodes.shape[1:] != (model.num_nodes, 3) or not len(nodes):
@@ -73,13 +80,21 @@ def fit_model_to_nodes(
     if not np.all(np.isfinite(nodes)):
         msg = 'nodes to fit hold NaN or Inf'
         raise InputError(msg)
+    w = np.ones(model.num_nodes) if weights is None else np.asarray(weights, dtype=float)
+    if w.shape != (model.num_nodes,) or not np.all(np.isfinite(w)) or np.any(w < 0):
+        msg = f'weights must be finite and >= 0 with shape ({model.num_nodes},)'
+        raise InputError(msg)
+    row_scale = np.repeat(np.sqrt(w), 3)
     frames = len(nodes)
     bases = np.hstack([model.shape_basis, model.action_basis])
     bases_nodes = bases.reshape(model.num_nodes, 3, -1)
     mean = model.mean_shape.reshape(-1, 3)
-    pose = rigid_align(mean, nodes)
+    pose = rigid_align(mean, nodes, w)
     in_face = np.einsum('fba,fnb->fna', pose.rotation, nodes - pose.t[:, None, :])
-    coefficients = (in_face.reshape(frames, -1) - model.mean_shape) @ np.linalg.pinv(bases).T
+    weighted_bases = row_scale[:, None] * bases
+    coefficients = ((in_face.reshape(frames, -1) - model.mean_shape) * row_scale) @ np.linalg.pinv(
+        weighted_bases
+    ).T
     omega = np.array([matrix_to_omega(rotation) for rotation in pose.rotation])
     t = pose.t
     iterations, converged = 0, False
@@ -88,6 +103,7 @@ def fit_model_to_nodes(
         residual, jacobian = _residual_and_jacobian(
             mean, bases_nodes, nodes, omega, t, coefficients
         )
+        residual, jacobian = residual * row_scale, jacobian * row_scale[:, None]
         normal = np.swapaxes(jacobian, 1, 2) @ jacobian
         damping = LEVENBERG_DAMPING * np.einsum('fii->fi', normal)
         normal[:, np.arange(normal.shape[1]), np.arange(normal.shape[1])] += damping

@@ -28,13 +28,16 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.linalg import LinAlgError, cho_factor, cho_solve
 
-from face_tracking_ros.errors import ConfigError, FaceTrackingError, InputError
+from face_tracking_ros.data import default_model_path
+from face_tracking_ros.errors import ConfigError, FaceTrackingError, InputError, ModelFileError
 from face_tracking_ros.geometry.camera import StereoRig
 from face_tracking_ros.geometry.procrustes import rigid_align
 from face_tracking_ros.imaging import ImagePyramid, inside_image
 from face_tracking_ros.model.face_model import FaceModel
+from face_tracking_ros.model.model_file import load_model
 from face_tracking_ros.model.topology import Group, MeshTopology, mesh_topology
 from face_tracking_ros.recognition.node_fit import NodeFit, fit_model_to_nodes
+from face_tracking_ros.tracking.action_prior import ActionPrior
 from face_tracking_ros.tracking.initialisation import Initialisation
 from face_tracking_ros.tracking.mono import Detector
 from face_tracking_ros.tracking.regularisation import RegularisationConfig, Regulariser
@@ -76,6 +79,9 @@ class StereoTrackerConfig:
         noise_floor: smallest robust standard deviation assumed for image residuals, grey levels.
         lost_ratio: the track is LOST when the median over node patches of the residual RMS
             divided by the template's contrast (about 1 for an unrelated image) exceeds this.
+        model_weight_edge: lambda_i of the face-model term (:mod:`.action_prior`) for the
+            face-edge nodes, grey^2 / m^2; 0 disables the term for them.
+        model_weight_inner: lambda_i of that term for the other nodes, grey^2 / m^2.
         regularisation: the eq. 5 weights.
         init: the epipolar search used at (re)initialisation.
     """
@@ -95,6 +101,8 @@ class StereoTrackerConfig:
     huber_k: float = 1.345
     noise_floor: float = 2.0
     lost_ratio: float = 0.8
+    model_weight_edge: float = 1e9
+    model_weight_inner: float = 1e8
     regularisation: RegularisationConfig = field(default_factory=RegularisationConfig)
     init: StereoInitConfig = field(default_factory=StereoInitConfig)
 
@@ -119,6 +127,8 @@ class StereoTrackerConfig:
             ('huber_k', self.huber_k > 0.0),
             ('noise_floor', self.noise_floor > 0.0),
             ('lost_ratio', self.lost_ratio > 0.0),
+            ('model_weight_edge', self.model_weight_edge >= 0.0),
+            ('model_weight_inner', self.model_weight_inner >= 0.0),
         )
         for name, ok in checks:
             if not ok:
@@ -218,6 +228,8 @@ class _State:
     layouts: tuple[SampleLayout, ...]
     first_templates: tuple[tuple[tuple[np.ndarray, np.ndarray], ...], ...]
     regulariser: Regulariser
+    prior: ActionPrior | None
+    theta: np.ndarray
     noise: np.ndarray
     result: StereoResult
 
@@ -243,12 +255,15 @@ class StereoTracker:
             rig: the rectified stereo rig (P matrices of both cameras).
             config: the tunables.
             model: optional face model; when given, every result carries the fit of eq. 1-3.
+                The face-model term uses its action basis (the packaged default model's when
+                None).
             detector: optional landmark detector (e.g.
                 :class:`~face_tracking_ros.tracking.detector.DlibLandmarkDetector`) for
                 automatic initialisation by ``reset()``.
 
         Raises:
-            ConfigError: if the model's node count differs from ``config.num_nodes``.
+            ConfigError: if the model's node count differs from ``config.num_nodes``, or the
+                face-model term is on, no model is given and the packaged one is missing.
         """
         if model is not None and model.num_nodes != config.num_nodes:
             msg = f'model has {model.num_nodes} nodes but the tracker is set to {config.num_nodes}'
@@ -256,6 +271,7 @@ class StereoTracker:
         self._rig = rig
         self._config = config
         self._model = model
+        self._prior_model = _prior_model(config, model)
         self._detector = detector
         self._topology: MeshTopology = mesh_topology(config.num_nodes)
         self._texture_triangles = _texture_triangles(self._topology)
@@ -383,6 +399,7 @@ class StereoTracker:
             for level in range(self._config.pyramid_levels)
         )
         regulariser = Regulariser.build(self._topology, self._config.regularisation, nodes)
+        prior, theta = self._action_prior(nodes)
         result = self._result(TrackStatus.TRACKING, nodes, None, 0, (), '')
         self._state = _State(
             first_nodes=nodes,
@@ -392,10 +409,20 @@ class StereoTracker:
             layouts=layouts,
             first_templates=first_templates,
             regulariser=regulariser,
+            prior=prior,
+            theta=theta,
             noise=np.full(len(layouts), self._config.noise_floor),
             result=result,
         )
         return result
+
+    def _action_prior(self, nodes: np.ndarray) -> tuple[ActionPrior | None, np.ndarray]:
+        """The face-model term for a run starting at ``nodes`` (None without weights)."""
+        config = self._config
+        weights = np.where(self._boundary, config.model_weight_edge, config.model_weight_inner)
+        if self._prior_model is None or not np.any(weights > 0):
+            return None, np.zeros(0)
+        return ActionPrior.build(self._prior_model, nodes, weights)
 
     def _layouts(self, nodes: np.ndarray) -> tuple[SampleLayout, ...]:
         """Node patches (always) and the face-texture samples (if texture_weight > 0)."""
@@ -533,6 +560,8 @@ class StereoTracker:
     ) -> float:
         """E(n) of eq. 4 + texture + eq. 5 at ``nodes``, without derivatives."""
         cost = state.regulariser.cost(nodes, state.nodes)
+        if state.prior is not None:
+            cost += state.prior.cost(nodes, state.theta)[0]
         cameras = (self._rig.left, self._rig.right)
         for index, (layout, template) in enumerate(zip(state.layouts, templates, strict=True)):
             points = layout.points(nodes, state.rotation, level)
@@ -562,6 +591,15 @@ class StereoTracker:
         """Total cost, Hessian (3N, 3N) and gradient (3N,) of eq. 4 + texture + eq. 5."""
         config = self._config
         cost, hessian, gradient = state.regulariser.normal_equations(nodes, state.nodes)
+        if state.prior is not None:
+            prior_cost, prior_hessian, prior_gradient, state.theta = state.prior.normal_equations(
+                nodes, state.theta
+            )
+            cost, hessian, gradient = (
+                cost + prior_cost,
+                hessian + prior_hessian,
+                gradient + prior_gradient,
+            )
         n = nodes.shape[0]
         cameras = (self._rig.left, self._rig.right)
         terms: list[NormalEquations] = []
@@ -743,6 +781,17 @@ def track_sequence(
     meshes = np.array([r.nodes_cam for r in results]).reshape(len(results), n, 3)
     status = np.array([int(r.status) for r in results], dtype=np.int64)
     return TrackedSequence(meshes=meshes, status=status, results=results)
+
+
+def _prior_model(config: StereoTrackerConfig, model: FaceModel | None) -> FaceModel | None:
+    """The model whose actions the face-model term uses: ``model``, else the packaged one."""
+    if model is not None or (config.model_weight_edge == 0 and config.model_weight_inner == 0):
+        return model
+    try:
+        return load_model(default_model_path(config.num_nodes))
+    except ModelFileError as error:
+        msg = f'the face-model term needs a model: {error} (or set its weights to 0)'
+        raise ConfigError(msg) from None
 
 
 def _texture_triangles(topology: MeshTopology) -> np.ndarray:

@@ -1,0 +1,141 @@
+"""A soft face-model term for the stereo tracker: the mesh deforms as the learned actions do.
+
+The stereo tracker's image terms (eq. 4) are weak where the face turns away from the cameras
+(the face-edge nodes, §4.2) and along the lips' horizontal contours; the eq. 5 terms only keep
+the mesh smooth. The learned action basis A (eq. 3) knows how such nodes move with the others:
+when the mouth opens, the chin drops. This term asks the tracked nodes X (N, 3), camera frame,
+m, to stay near the subject's frame-1 mesh animated by the model:
+
+    M(omega, t, alpha) = R(omega) (B + A alpha) + t          (eq. 1 and 3)
+
+where the base shape B is the frame-1 mesh in the face frame minus its own fitted action, so
+the subject's identity is its own (a learned S sigma would err by millimetres on an unseen
+face) and only the deformation comes from the model. The term is
+
+    E_model(X) = min over (omega, t, alpha) of  sum_i lambda_i ||X_i - M_i||^2
+
+(variable projection: the pose and alpha follow X). It is evaluated as
+``(X - X(1)) - (M - M(1))`` with M(1) the model at the frame-1 fit, which is the same up to
+rounding but exactly zero for an unmoved mesh (no motion gives exactly no motion). Its
+Gauss-Newton terms with respect to X are the gradient W (X - M) at the optimum and the
+Hessian W - W J (J^T W J)^-1 J^T W, with W the per-node weights lambda_i and
+J = dM / d(omega, t, alpha): motion along the model's own degrees of freedom (a head turn, an
+expression) costs nothing, motion off them costs lambda_i per m^2. Units: lambda_i in
+grey^2 / m^2, like eq. 5's rho.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from face_tracking_ros.geometry.rotation import rodrigues, rotate_with_jacobian
+from face_tracking_ros.model.face_model import FaceModel
+from face_tracking_ros.recognition.node_fit import fit_model_to_nodes
+
+FIT_ITERATIONS = 3  # Gauss-Newton steps of (omega, t, alpha), warm-started from the last fit
+ALPHA_DAMPING = 1e-9  # relative Levenberg damping on the normal matrix of the fit
+
+
+@dataclass(frozen=True)
+class ActionPrior:
+    """The model term of one tracking run (fixed at frame 1).
+
+    Attributes:
+        base: (N, 3) base shape B in the face frame, m.
+        action_basis: (N, 3, q) the model's A per node.
+        weights: (N,) lambda_i, grey^2 / m^2.
+        first_nodes: (N, 3) X(1), m.
+        first_model: (N, 3) M at the frame-1 parameters, m (X(1) up to rounding).
+    """
+
+    base: np.ndarray
+    action_basis: np.ndarray
+    weights: np.ndarray
+    first_nodes: np.ndarray
+    first_model: np.ndarray
+
+    @classmethod
+    def build(
+        cls, model: FaceModel, first_nodes: np.ndarray, weights: np.ndarray
+    ) -> tuple[ActionPrior, np.ndarray]:
+        """The term for a run whose frame-1 nodes are given, and its frame-1 parameters.
+
+        Args:
+            model: a face model of the tracked mesh (its A; its mean and S give the start).
+            first_nodes: (N, 3) frame-1 nodes X(1), camera frame, m.
+            weights: (N,) lambda_i, grey^2 / m^2.
+
+        Returns:
+            ``(prior, theta)``: the term and (6 + q,) parameters (omega, t, alpha) at frame 1,
+            at which it is exactly zero.
+        """
+        fit = fit_model_to_nodes(model, first_nodes[None], tolerance=1e-9)
+        omega, t, alpha = fit.omega[0], fit.t[0], fit.alpha[0]
+        action = model.action_basis_nodes()
+        rotated, _ = rotate_with_jacobian(-omega, first_nodes - t)
+        base = rotated - action @ alpha
+        theta = np.concatenate([omega, t, alpha])
+        partial = cls(base, action, np.asarray(weights, dtype=float), first_nodes, first_nodes)
+        first_model, _ = partial.model_nodes(theta)
+        prior = cls(base, action, partial.weights, first_nodes, first_model)
+        return prior, theta
+
+    def model_nodes(self, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """M(theta) (N, 3) and its Jacobian (3N, 6 + q) with respect to (omega, t, alpha)."""
+        omega, t, alpha = theta[:3], theta[3:6], theta[6:]
+        shape = self.base + self.action_basis @ alpha
+        rotated, d_omega = rotate_with_jacobian(omega, shape)
+        rotation, _ = rodrigues(omega)
+        n = shape.shape[0]
+        jacobian = np.concatenate(
+            [
+                d_omega,
+                np.broadcast_to(np.eye(3), (n, 3, 3)),
+                np.einsum('ab,nbq->naq', rotation, self.action_basis),
+            ],
+            axis=2,
+        )
+        return rotated + t, jacobian.reshape(3 * n, -1)
+
+    def fit(self, nodes: np.ndarray, theta: np.ndarray) -> np.ndarray:
+        """(omega, t, alpha) minimising the weighted node distance to ``nodes``, from ``theta``."""
+        row_weights = np.repeat(self.weights, 3)
+        for _ in range(FIT_ITERATIONS):
+            difference, jacobian = self._difference(nodes, theta)
+            weighted = jacobian * row_weights[:, None]
+            normal = jacobian.T @ weighted
+            normal[np.diag_indices_from(normal)] *= 1.0 + ALPHA_DAMPING
+            theta = theta + np.linalg.solve(normal, weighted.T @ difference)
+        return theta
+
+    def _difference(self, nodes: np.ndarray, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(3N,) X - M(theta) as (X - X(1)) - (M - M(1)), and dM/d theta (3N, 6 + q)."""
+        model_nodes, jacobian = self.model_nodes(theta)
+        difference = (nodes - self.first_nodes) - (model_nodes - self.first_model)
+        return difference.ravel(), jacobian
+
+    def cost(self, nodes: np.ndarray, theta: np.ndarray) -> tuple[float, np.ndarray]:
+        """E_model at ``nodes`` (refitting from ``theta``) and the fitted parameters."""
+        theta = self.fit(nodes, theta)
+        difference, _ = self._difference(nodes, theta)
+        return float(difference @ (np.repeat(self.weights, 3) * difference)), theta
+
+    def normal_equations(
+        self, nodes: np.ndarray, theta: np.ndarray
+    ) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
+        """Gauss-Newton terms of E_model at ``nodes`` (node-major, as eq. 5's).
+
+        Returns:
+            ``(cost, hessian, gradient, theta)``: E_model; (3N, 3N) W - W J (J^T W J)^-1 J^T W;
+            (3N,) W (X - M); the fitted parameters.
+        """
+        theta = self.fit(nodes, theta)
+        difference, jacobian = self._difference(nodes, theta)
+        row_weights = np.repeat(self.weights, 3)
+        weighted = jacobian * row_weights[:, None]
+        normal = jacobian.T @ weighted
+        hessian = np.diag(row_weights) - weighted @ np.linalg.solve(normal, weighted.T)
+        cost = float(difference @ (row_weights * difference))
+        return cost, hessian, row_weights * difference, theta

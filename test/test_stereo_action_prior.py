@@ -1,0 +1,59 @@
+"""The stereo tracker's face-model term (tracking.action_prior) against its definition."""
+
+from __future__ import annotations
+
+import numpy as np
+from recognition_streams import truth_model
+
+from face_tracking_ros.geometry.rotation import rodrigues
+from face_tracking_ros.synthetic.faces import FacePopulation
+from face_tracking_ros.tracking.action_prior import ActionPrior
+
+MODEL = truth_model(FacePopulation('default', 0))
+RNG = np.random.default_rng(40)
+SIGMA = RNG.normal(size=MODEL.p) * 0.03
+
+
+def _mesh(alpha: np.ndarray, omega: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """(N, 3) camera-frame nodes of eq. 1 and 3."""
+    shape = MODEL.mean_shape + MODEL.shape_basis @ SIGMA + MODEL.action_basis @ alpha
+    return shape.reshape(-1, 3) @ rodrigues(omega)[0].T + t
+
+
+FIRST = _mesh(np.zeros(MODEL.q), np.array([0.05, -0.1, 0.02]), np.array([0.0, 0.01, 0.6]))
+WEIGHTS = np.full(MODEL.num_nodes, 1e8)
+
+
+def test_no_motion_costs_exactly_nothing() -> None:
+    prior, theta = ActionPrior.build(MODEL, FIRST, WEIGHTS)
+    cost, hessian, gradient, refit = prior.normal_equations(FIRST, theta)
+    assert cost == 0.0 and not np.any(gradient) and np.array_equal(refit, theta)
+    assert np.allclose(hessian, hessian.T) and np.linalg.eigvalsh(hessian).min() > -1e-3
+
+
+def test_model_motion_is_free_and_other_motion_costs_lambda() -> None:
+    prior, theta = ActionPrior.build(MODEL, FIRST, WEIGHTS)
+    # A head turn and an expression: the model explains them, the cost stays ~0.
+    alpha = RNG.normal(size=MODEL.q) * 0.01
+    moved = _mesh(alpha, np.array([0.1, 0.05, 0.0]), np.array([0.01, 0.0, 0.62]))
+    cost, refit = prior.cost(moved, theta)
+    assert cost < 1e-6 * WEIGHTS[0] * 1e-6
+    np.testing.assert_allclose(refit[6:], alpha, atol=1e-4)
+    # One node pushed off the face by 1 mm: most of it is off the model, so it costs about
+    # lambda (1 mm)^2, and the gradient (d cost / dX = 2 g) matches finite differences.
+    pushed = moved.copy()
+    pushed[5] += [0.0, 0.0, 0.001]
+    cost, hessian, gradient, refit = prior.normal_equations(pushed, refit)
+    assert 0.5 * WEIGHTS[0] * 1e-6 < cost < WEIGHTS[0] * 1e-6
+    step = 1e-6
+    for k in (15, 16, 17, 40):
+        plus, minus = pushed.ravel().copy(), pushed.ravel().copy()
+        plus[k] += step
+        minus[k] -= step
+        numeric = (
+            prior.cost(plus.reshape(-1, 3), refit)[0] - prior.cost(minus.reshape(-1, 3), refit)[0]
+        ) / (2 * step)
+        assert abs(2 * gradient[k] - numeric) < 0.02 * abs(2 * gradient[15]) + 1e-3
+    # Gauss-Newton on the term alone puts the node back on the model in one step.
+    back = pushed.ravel() - np.linalg.lstsq(hessian, gradient, rcond=None)[0]
+    assert prior.cost(back.reshape(-1, 3), refit)[0] < 1e-3 * cost
