@@ -16,6 +16,7 @@ from face_tracking_ros.errors import ModelFileError
 from face_tracking_ros.model.topology import MeshTopology, mesh_topology
 
 ORTHONORMALITY_TOLERANCE = 1e-6
+COVARIANCE_TOLERANCE = 1e-9  # relative to the largest entry: asymmetry, negative eigenvalues
 
 
 @dataclass(frozen=True)
@@ -98,7 +99,9 @@ def validate_model_arrays(model: FaceModel) -> None:
     """Check a model's arrays.
 
     Raises:
-        ModelFileError: naming the field that has the wrong shape, NaN or non-orthonormal columns.
+        ModelFileError: naming the field that has the wrong shape, NaN, non-orthonormal columns,
+            a negative variance, or a prior covariance that is not symmetric positive
+            semi-definite.
     """
     n3 = 3 * len(model.node_names)
     if len(model.node_names) not in (19, 34):
@@ -118,6 +121,11 @@ def validate_model_arrays(model: FaceModel) -> None:
         gram_error = np.abs(basis.T @ basis - np.eye(basis.shape[1])).max(initial=0.0)
         if gram_error > ORTHONORMALITY_TOLERANCE:
             _fail(f'{name} is not orthonormal (max |B^T B - I| = {gram_error:.2e})')
+    for name in ('shape_eigenvalues', 'action_eigenvalues'):
+        if np.any(getattr(model, name) < 0.0):
+            _fail(f'{name} holds a negative variance')
+    for name in ('sigma_prior_covariance', 'alpha_prior_covariance'):
+        _check_covariance(getattr(model, name), name)
 
 
 def _check(array: np.ndarray, name: str, shape: tuple[int | None, ...]) -> None:
@@ -129,6 +137,15 @@ def _check(array: np.ndarray, name: str, shape: tuple[int | None, ...]) -> None:
         _fail(f'{name} has shape {actual}, expected {shape}')
     if not np.all(np.isfinite(array)):
         _fail(f'{name} holds NaN or Inf')
+
+
+def _check_covariance(covariance: np.ndarray, name: str) -> None:
+    """Raise ModelFileError unless the matrix is symmetric positive semi-definite."""
+    scale = np.abs(covariance).max(initial=0.0)
+    if np.abs(covariance - covariance.T).max(initial=0.0) > COVARIANCE_TOLERANCE * scale:
+        _fail(f'{name} is not symmetric')
+    if len(covariance) and np.linalg.eigvalsh(covariance).min() < -COVARIANCE_TOLERANCE * scale:
+        _fail(f'{name} is not positive semi-definite')
 
 
 def _fail(problem: str) -> None:
