@@ -71,10 +71,11 @@ class MonoProcessor:
         """Wait for camera_info (and a model, if none is given) before tracking.
 
         Raises:
-            ConfigError: if the initialisation names nodes the model lacks.
+            ConfigError: if the model has a singular prior covariance or lacks nodes the
+                initialisation names.
         """
         if model is not None:
-            _check_nodes(model, initialisation, ConfigError)
+            _check_model(model, initialisation, ConfigError)
         self._factory = factory
         self._config = config
         self._tracker_config = tracker_config
@@ -118,7 +119,7 @@ class MonoProcessor:
             return self._track_held_image(wanted)
         if topic == MODEL:
             model = conversions.model_from_msg(msg)
-            _check_nodes(model, self._initialisation, InputError)
+            _check_model(model, self._initialisation, InputError)
             self._model = model
             self._rebuild()
             return []
@@ -195,13 +196,21 @@ class MonoProcessor:
         raise InputError(msg)
 
 
-def _check_nodes(
+def _check_model(
     model: FaceModel, initialisation: Initialisation | None, error: type[Exception]
 ) -> None:
-    """Raise ``error`` if the initialisation names nodes the model lacks."""
-    if initialisation is None:
-        return
-    missing = sorted(set(initialisation.node_names) - set(model.node_names))
+    """Raise ``error`` if the tracker cannot use the model.
+
+    The tracker inverts the §4.1 prior covariances, so they must be positive definite, and the
+    initialisation's nodes must be nodes of the model.
+    """
+    for name in ('sigma_prior_covariance', 'alpha_prior_covariance'):
+        if np.linalg.eigvalsh(getattr(model, name)).min(initial=1.0) <= 0.0:
+            msg = f"the face model's {name} is singular (the tracker inverts it): model refused"
+            raise error(msg)
+    missing = (
+        sorted(set(initialisation.node_names) - set(model.node_names)) if initialisation else []
+    )
     if missing:
         names = ', '.join(missing[:4]) + (', ...' if len(missing) > 4 else '')
         msg = (

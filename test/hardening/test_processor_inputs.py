@@ -229,6 +229,13 @@ def test_mono_refuses_a_bad_model_message_and_keeps_its_model(scene, frames):
     small = _model_msg(_small_model(scene.model))
     with pytest.raises(InputError, match='19 nodes.*initialisation names 15 nodes it lacks'):
         processor.handle('face/model', small, NONE)
+    singular = replace(scene.model, alpha_prior_covariance=np.diag([1e-4, 1e-4, 0.0, 1e-4, 1e-4]))
+    with pytest.raises(InputError, match='alpha_prior_covariance is singular'):
+        processor.handle('face/model', _model_msg(singular), NONE)
+    indefinite = _model_msg(scene.model)
+    indefinite.sigma_prior_covariance[0] *= -1.0
+    with pytest.raises(FaceTrackingError, match='sigma_prior_covariance is not positive semi-def'):
+        processor.handle('face/model', indefinite, NONE)
     outputs = processor.handle('image', image_msg(frames[1].image, stamp(1)), NONE)
     assert _status(outputs) == TrackStatus.TRACKING
     assert len(outputs[0].msg.node_names) == 34
