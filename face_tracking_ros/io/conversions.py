@@ -115,6 +115,11 @@ def camera_from_info(msg: Any) -> PinholeCamera:
     Raises:
         InputError: for an uncalibrated (all-zero K) or malformed CameraInfo.
     """
+    for name, length in (('k', 9), ('r', 9), ('p', 12)):
+        size = np.size(getattr(msg, name))
+        if size != length:
+            msg_text = f'camera_info {name.upper()} has {size} values, expected {length}'
+            raise InputError(msg_text)
     if not np.any(np.asarray(msg.k, dtype=float)):
         msg_text = 'camera_info has an all-zero K: the camera is not calibrated'
         raise InputError(msg_text)
