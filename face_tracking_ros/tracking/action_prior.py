@@ -34,7 +34,7 @@ from face_tracking_ros.geometry.rotation import rodrigues, rotate_with_jacobian
 from face_tracking_ros.model.face_model import FaceModel
 from face_tracking_ros.recognition.node_fit import fit_model_to_nodes
 
-FIT_ITERATIONS = 3  # Gauss-Newton steps of (omega, t, alpha), warm-started from the last fit
+FIT_ITERATIONS = 1  # Gauss-Newton steps of (omega, t, alpha), warm-started from the last fit
 ALPHA_DAMPING = 1e-9  # relative Levenberg damping on the normal matrix of the fit
 
 

@@ -92,9 +92,9 @@ class StereoTrackerConfig:
     boundary_one_sided: bool = True
     epsilon: float = 0.2
     texture_weight: float = 0.5
-    texture_subdivisions: int = 6
+    texture_subdivisions: int = 4
     patch_half_size: int = 3
-    pyramid_levels: int = 3
+    pyramid_levels: int = 2
     max_iterations: int = 6
     step_tolerance: float = 0.1
     damping: float = 1e-4
