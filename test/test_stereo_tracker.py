@@ -10,7 +10,7 @@ import cv2
 import numpy as np
 import pytest
 
-from face_tracking_ros.errors import ConfigError, InputError
+from face_tracking_ros.errors import ConfigError, InputError, ModelFileError
 from face_tracking_ros.geometry.camera import PinholeCamera, StereoRig
 from face_tracking_ros.model.topology import Group, mesh_topology
 from face_tracking_ros.tracking.initialisation import Initialisation
@@ -253,3 +253,19 @@ def test_reset_and_config_reject_bad_input() -> None:
         StereoTrackerConfig(num_nodes=20)
     with pytest.raises(ConfigError, match='min_depth'):
         StereoInitConfig(min_depth=3.0)
+    with pytest.raises(ConfigError, match='model_weight_edge'):
+        StereoTrackerConfig(model_weight_edge=-1.0)
+    with pytest.raises(ConfigError, match='fit_edge_weight'):
+        StereoTrackerConfig(fit_edge_weight=2.0)
+
+
+def test_face_model_term_needs_a_model(monkeypatch: pytest.MonkeyPatch) -> None:
+    def missing(num_nodes: int) -> None:
+        raise ModelFileError(f'no default model of {num_nodes} nodes')
+
+    monkeypatch.setattr('face_tracking_ros.tracking.stereo.default_model_path', missing)
+    with pytest.raises(ConfigError, match='face-model term needs a model'):
+        StereoTracker(RIG, StereoTrackerConfig())
+    # Without the term no model is needed.
+    off = StereoTrackerConfig(model_weight_edge=0.0, model_weight_inner=0.0)
+    assert StereoTracker(RIG, off).topology.num_nodes == 34
