@@ -198,10 +198,17 @@ def read_messages(
 
     Raises:
         BagError: If the bag is missing, truncated or corrupt, lacks a requested topic, or holds
-            a type the typestore does not know.
+            a type the typestore does not know (naming the topic and type, when its first
+            message is reached).
     """
     store = typestore() if store is None else store
     for topic, msgtype, stamp_ns, data in read_raw(path, topics):
+        if msgtype not in store.types:
+            message = (
+                f'{path}: cannot read bag: {topic}: unknown message type {msgtype}; '
+                'read the other topics with topics=[...]'
+            )
+            raise BagError(message)
         try:
             msg = store.deserialize_cdr(data, msgtype)
         except (SerdeError, *_READ_ERRORS) as error:
