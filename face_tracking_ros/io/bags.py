@@ -282,13 +282,15 @@ def _stream_records(path: Path, topics: Iterable[str] | None) -> Iterator[RawMes
         The raw messages, with their log time.
 
     Raises:
-        BagError: At the damage, naming the file and the number of messages recovered.
+        BagError: At the damage, naming the file and the number of messages recovered; or, for
+            an undamaged file, if a requested topic is not in it.
     """
     wanted = None if topics is None else set(topics)
     channels: dict[int, tuple[str, str]] = {}
     schemas: dict[int, str] = {}
     count = 0
-    for file in _mcap_files(path):
+    files = _mcap_files(path)
+    for file in files:
         try:
             with file.open('rb') as stream:
                 for record in StreamReader(stream).records:
@@ -307,6 +309,9 @@ def _stream_records(path: Path, topics: Iterable[str] | None) -> Iterator[RawMes
                 f'{type(error).__name__}: {error}'
             )
             raise BagError(message) from None
+    missing = (wanted or set()) - {topic for topic, _ in channels.values()}
+    if missing:
+        raise BagError(f'{path}: no topic {", ".join(sorted(missing))} in bag')
 
 
 def _select(reader: Reader, path: Path, topics: Iterable[str] | None) -> list[Connection]:
