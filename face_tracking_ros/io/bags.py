@@ -31,6 +31,7 @@ from rosbags.rosbag2.writer import Connection
 from rosbags.serde import SerdeError
 from rosbags.typesys.base import TypesysError
 from rosbags.typesys.store import Typestore
+import yaml
 
 from face_tracking_ros.errors import BagError
 from face_tracking_ros.io.typestore import typestore
@@ -356,8 +357,11 @@ def _connections(path: Path) -> list[Connection]:
 
 
 def _salvaged_connections(path: Path) -> list[Connection]:
-    """Connections (topic, type, readable message count) of a damaged bag, by streaming it."""
-    counts: Counter[tuple[str, str]] = Counter()
+    """Connections (topic, type, readable message count) of a damaged bag, by streaming it.
+
+    Topics that ``metadata.yaml`` lists but the damaged file does not reach have a count of 0.
+    """
+    counts: Counter[tuple[str, str]] = Counter(dict.fromkeys(_metadata_topics(path).items(), 0))
     with contextlib.suppress(BagError):
         for topic, msgtype, _, _ in _stream_records(path, None):
             counts[topic, msgtype] += 1
@@ -365,3 +369,15 @@ def _salvaged_connections(path: Path) -> list[Connection]:
         Connection(i, topic, msgtype, None, '', n, None, None)  # type: ignore[arg-type]
         for i, ((topic, msgtype), n) in enumerate(counts.items())
     ]
+
+
+def _metadata_topics(path: Path) -> dict[str, str]:
+    """Topics and types listed by a bag's ``metadata.yaml`` ({} if it is missing or unreadable)."""
+    try:
+        info = yaml.safe_load((path / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
+        return {
+            entry['topic_metadata']['name']: entry['topic_metadata']['type']
+            for entry in info['topics_with_message_count']
+        }
+    except (OSError, yaml.YAMLError, KeyError, TypeError):
+        return {}
