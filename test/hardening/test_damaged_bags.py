@@ -1,0 +1,193 @@
+"""Damaged bags: cut at random offsets, no metadata.yaml, unknown types, missing topics.
+
+The readers yield what is readable, in order and unchanged, and say where and why they stopped;
+offline replay processes the readable part, says so and exits with status 1.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+import shutil
+
+from fault_scenes import CAMERA, image_msg, info_msg, stamp
+import numpy as np
+import pytest
+from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+
+from face_tracking_ros.cli.main import main
+from face_tracking_ros.errors import BagError
+from face_tracking_ros.io.bags import (
+    BagWriter,
+    bag_topics,
+    message_count,
+    read_messages,
+    read_raw,
+    stamp_to_ns,
+)
+from face_tracking_ros.io.messages import RosbagsMessages
+
+FRAMES = 40
+CUTS = 24
+IMAGE, INFO = 'sensor_msgs/msg/Image', 'sensor_msgs/msg/CameraInfo'
+
+
+@pytest.fixture(scope='module')
+def bag(tmp_path_factory) -> Path:
+    """40 frames of camera_info and a 320x240 noise image (~3 MB: several MCAP chunks)."""
+    path = tmp_path_factory.mktemp('bags') / 'camera'
+    rng = np.random.default_rng(0)
+    with BagWriter(path) as writer:
+        for f in range(FRAMES):
+            writer.write('/cam/camera_info', INFO, info_msg(CAMERA, stamp(f)), stamp(f))
+            pixels = rng.integers(0, 256, (CAMERA.height, CAMERA.width), dtype=np.uint8)
+            writer.write('/cam/image', IMAGE, image_msg(pixels, stamp(f)), stamp(f) + 1)
+    return path
+
+
+def _cut_copy(bag: Path, target: Path, fraction: float, keep_metadata: bool = True) -> Path:
+    """A copy of ``bag`` whose MCAP file is cut after ``fraction`` of its bytes."""
+    shutil.copytree(bag, target)
+    if not keep_metadata:
+        (target / 'metadata.yaml').unlink()
+    mcap_file = next(target.glob('*.mcap'))
+    data = mcap_file.read_bytes()
+    mcap_file.write_bytes(data[: round(fraction * len(data))])
+    return target
+
+
+def _read_until_damage(path: Path) -> tuple[list, str]:
+    """Raw messages read before the reader stopped, and its error ('' if it did not)."""
+    messages = []
+    try:
+        messages.extend(read_raw(path))
+    except BagError as error:
+        return messages, str(error)
+    return messages, ''
+
+
+def test_a_bag_cut_anywhere_yields_an_unchanged_prefix_and_says_where_it_stopped(bag, tmp_path):
+    original = list(read_raw(bag))
+    assert len(original) == 2 * FRAMES
+    fractions = np.sort(np.random.default_rng(1).uniform(0.0, 1.0, CUTS))
+    recovered = []
+    for n, fraction in enumerate(fractions):
+        cut = _cut_copy(bag, tmp_path / f'cut{n}', fraction, keep_metadata=n % 2 == 0)
+        messages, error = _read_until_damage(cut)
+        assert messages == original[: len(messages)], f'cut at {fraction:.3f}: not a prefix'
+        assert f'damaged MCAP file, {len(messages)} messages recovered before' in error
+        assert str(next(cut.glob('*.mcap'))) in error
+        # The salvaged bag's topics and counts describe exactly what is readable.
+        if messages:
+            readable = {m.topic: m.msgtype for m in messages}
+            assert bag_topics(cut) == readable
+            assert message_count(cut, readable) == len(messages)
+        recovered.append(len(messages))
+        shutil.rmtree(cut)
+    assert recovered == sorted(recovered), 'a longer file must not recover fewer messages'
+    assert recovered[-1] >= FRAMES, f'the last chunks should survive a late cut: {recovered}'
+
+
+def test_a_bag_cut_inside_its_header_reports_nothing_recovered(bag, tmp_path):
+    cut = _cut_copy(bag, tmp_path / 'cut', 4 / next(bag.glob('*.mcap')).stat().st_size)
+    messages, error = _read_until_damage(cut)
+    assert messages == []
+    assert 'damaged MCAP file, 0 messages recovered before' in error
+
+
+def test_an_empty_bag_directory_is_a_bag_error(tmp_path):
+    (tmp_path / 'empty').mkdir()
+    with pytest.raises(BagError, match='empty: cannot read bag'):
+        list(read_messages(tmp_path / 'empty'))
+
+
+def test_without_metadata_a_requested_topic_the_bag_lacks_is_named(bag, tmp_path):
+    copy = _cut_copy(bag, tmp_path / 'copy', 1.0, keep_metadata=False)
+    assert len(list(read_messages(copy, topics=['/cam/image']))) == FRAMES
+    with pytest.raises(BagError, match='no topic /cam/depth in bag'):
+        list(read_messages(copy, topics=['/cam/image', '/cam/depth']))
+
+
+@pytest.fixture(scope='module')
+def bag_with_unknown_type(tmp_path_factory) -> Path:
+    """Five Float64 on /n and five robot_msgs/msg/Battery (unknown to the project) on /battery."""
+    store = get_typestore(Stores.ROS2_JAZZY)
+    store.register(get_types_from_msg('float64 level\nstring note', 'robot_msgs/msg/Battery'))
+    factory = RosbagsMessages(store)
+    path = tmp_path_factory.mktemp('unknown') / 'bag'
+    with BagWriter(path, store=store) as writer:
+        for i in range(5):
+            battery = factory.make('robot_msgs/msg/Battery', level=0.9 - 0.1 * i, note='ok')
+            writer.write('/battery', 'robot_msgs/msg/Battery', battery, 10 * i)
+            number = factory.make('std_msgs/msg/Float64', data=float(i))
+            writer.write('/n', 'std_msgs/msg/Float64', number, 10 * i + 1)
+    return path
+
+
+def test_unknown_message_types_are_listed_named_and_other_topics_read(bag_with_unknown_type):
+    path = bag_with_unknown_type
+    assert bag_topics(path) == {'/battery': 'robot_msgs/msg/Battery', '/n': 'std_msgs/msg/Float64'}
+    assert [m.msg.data for m in read_messages(path, topics=['/n'])] == [0, 1, 2, 3, 4]
+    assert len(list(read_raw(path, topics=['/battery']))) == 5  # raw copies need no type
+    with pytest.raises(BagError, match='/battery: unknown message type robot_msgs/msg/Battery'):
+        list(read_messages(path))
+
+
+# --- offline replay -----------------------------------------------------------------------------
+
+
+def _replay(bag: Path, out: Path, capsys) -> tuple[int, str]:
+    status = main(['replay', 'mono_tracker', str(bag), '--out', str(out), '--quiet'])
+    return status, capsys.readouterr().out
+
+
+def test_replay_of_a_cut_bag_processes_the_readable_part_and_exits_1(bag, tmp_path, capsys):
+    tracked = []
+    for n, fraction in enumerate((0.3, 0.7, 0.95)):
+        cut = _cut_copy(bag, tmp_path / f'cut{n}', fraction)
+        readable = _read_until_damage(cut)[0]
+        images = [m.stamp_ns - 1 for m in readable if m.topic == '/cam/image']
+        infos = len(readable) - len(images)
+        status, output = _replay(cut, tmp_path / f'out{n}', capsys)
+        assert status == 1, output
+        read_line = f'read: {infos} camera_info, {len(images)} image' if readable else 'read: none'
+        assert read_line in output
+        assert 'input bag unreadable past this point, replayed the readable part' in output
+        assert f'damaged MCAP file, {len(readable)} messages recovered before' in output
+        out = tmp_path / f'out{n}'
+        states = list(read_messages(out, topics=['face/state'])) if images else []
+        assert [stamp_to_ns(m.msg.header.stamp) for m in states] == images
+        tracked.append(len(states))
+    assert tracked[-1] > 0, tracked
+
+
+def test_replay_of_a_bag_without_calibration_says_why_nothing_was_tracked(bag, tmp_path, capsys):
+    images_only = tmp_path / 'images'
+    with BagWriter(images_only) as writer:
+        for message in read_raw(bag, topics=['/cam/image']):
+            writer.write_raw(message.topic, message.msgtype, message.data, message.stamp_ns)
+    status, output = _replay(images_only, tmp_path / 'out', capsys)
+    assert status == 0
+    assert f'read: {FRAMES} image' in output
+    assert f'rejected {FRAMES}x: image: no calibration on camera_info yet' in output
+    assert list(read_messages(tmp_path / 'out')) == []
+
+
+def test_replay_of_a_bag_without_any_input_topic_names_what_it_needs(
+    bag_with_unknown_type, tmp_path, capsys
+):
+    status = main(['replay', 'mono_tracker', str(bag_with_unknown_type), '--out', 'x'])
+    assert status == 2
+    error = capsys.readouterr().err
+    assert 'no topic matches the inputs of mono_tracker' in error
+    assert 'image (sensor_msgs/msg/Image)' in error
+
+
+def test_a_cut_bag_is_decoded_up_to_the_damage(bag, tmp_path):
+    """read_messages on a cut bag deserialises exactly the raw messages read_raw yields."""
+    cut = _cut_copy(bag, tmp_path / 'cut', 0.5, keep_metadata=False)
+    raw, _ = _read_until_damage(cut)
+    decoded = []
+    with pytest.raises(BagError, match='damaged MCAP file'):
+        decoded.extend(read_messages(cut))
+    assert [(m.topic, m.stamp_ns) for m in decoded] == [(m.topic, m.stamp_ns) for m in raw]
+    assert all(m.msg.header.stamp.sec > 0 for m in decoded)
