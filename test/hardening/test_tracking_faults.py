@@ -1,0 +1,117 @@
+"""Faults on rendered sequences: the mono tracker says LOST and recovers within 1 s by itself.
+
+Scenes are 320x240 at 15 fps (see :mod:`fault_scenes`): a face that leaves the image and comes
+back, a full occlusion of 3 s, an abrupt change of light, five dropped frames while the head
+turns. The tracker is initialised once, on the first frame, and never reset.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+from fault_scenes import CAMERA, FPS, FaultScene
+import numpy as np
+import pytest
+
+from face_tracking_ros.synthetic.render import Lighting, Occluder
+from face_tracking_ros.tracking.mono import MonoTracker
+from face_tracking_ros.tracking.result import TrackStatus
+
+RECOVERY_FRAMES = round(1.0 * FPS)  # 1 s
+GOOD_PX = 3.0  # RMS node projection error of a correct estimate, px
+
+GAIN_FIELD_REASON = (
+    'with photometric=GAIN_FIELD (the default) the loss checks accept any region: a gain and '
+    'bias varying linearly across each ROI fit the backdrop or a hand as well as the face, so '
+    'the tracker reports TRACKING on them; BIAS, GAIN_BIAS and NONE all report LOST at once'
+)
+
+
+@dataclass(frozen=True)
+class Run:
+    """Per-frame status and RMS node projection error (px) of a tracked sequence."""
+
+    status: np.ndarray
+    error_px: np.ndarray
+
+    def good(self) -> np.ndarray:
+        """Frames tracked correctly: TRACKING and within GOOD_PX of the truth."""
+        return (self.status == TrackStatus.TRACKING) & (self.error_px < GOOD_PX)
+
+    def recovery_frames(self, visible_from: int) -> int:
+        """Frames from ``visible_from`` to the first frame after which every frame is good."""
+        bad = np.flatnonzero(~self.good()[visible_from:])
+        return 0 if not bad.size else int(bad[-1]) + 1
+
+
+@pytest.fixture(scope='module')
+def scene() -> FaultScene:
+    return FaultScene()
+
+
+def _track(scene: FaultScene, specs: Sequence[dict]) -> Run:
+    """Render each frame spec (keyword arguments of FaultScene.render) and track it."""
+    frames = [scene.render(noise_seed=n, **spec) for n, spec in enumerate(specs)]
+    tracker = MonoTracker(scene.model, CAMERA)
+    tracker.reset(scene.initialisation(frames[0]))
+    status, error = [], []
+    for frame in frames:
+        result = tracker.step(frame.image)
+        status.append(result.status)
+        offsets = result.nodes_px - CAMERA.project(frame.nodes)
+        error.append(np.sqrt(np.mean(np.sum(offsets**2, axis=1))))
+    return Run(np.array(status), np.nan_to_num(np.array(error), nan=np.inf))
+
+
+def _inside(scene: FaultScene, x: float) -> float:
+    """Fraction of the face's nodes inside the image at lateral offset x (m)."""
+    pixels = CAMERA.project(scene.render(x=x).nodes)
+    inside = (pixels >= 0).all(axis=1) & (pixels <= [CAMERA.width - 1, CAMERA.height - 1]).all(1)
+    return float(inside.mean())
+
+
+@pytest.mark.xfail(strict=True, reason=GAIN_FIELD_REASON)
+def test_a_face_leaving_the_image_is_lost_and_reacquired_within_1_s(scene):
+    # 2 s out to 0.5 m to the right (8 px per frame), 0.7 s away, 2 s back, 1 s still.
+    out = np.linspace(0.0, 0.5, 31)
+    xs = np.concatenate([np.zeros(5), out[1:], np.full(10, 0.5), out[::-1][1:], np.zeros(15)])
+    inside = np.array([_inside(scene, x) for x in xs])
+    run = _track(scene, [{'x': x} for x in xs])
+    gone = inside < 0.5
+    visible_again = int(np.flatnonzero(inside < 1.0)[-1]) + 1
+    assert run.good()[:10].all()
+    assert run.recovery_frames(visible_again) <= RECOVERY_FRAMES
+    falsely_tracking = int(np.sum(run.status[gone] == TrackStatus.TRACKING))
+    assert falsely_tracking == 0, f'TRACKING in {falsely_tracking} of {gone.sum()} frames'
+
+
+@pytest.mark.xfail(strict=True, reason=GAIN_FIELD_REASON)
+def test_a_face_hidden_for_3_s_is_lost_and_reacquired_within_1_s(scene):
+    hand = Occluder((160.0, 120.0), (110.0, 120.0), 0.0, (60.0, 70.0, 110.0), texture_seed=3)
+    hidden = round(3 * FPS)
+    run = _track(scene, [{}] * 8 + [{'occluders': (hand,)}] * hidden + [{}] * 20)
+    assert run.good()[:8].all()
+    assert run.recovery_frames(8 + hidden) <= RECOVERY_FRAMES
+    # Allow 0.2 s to notice the occlusion; from then on LOST until the hand has gone.
+    noticed = 8 + round(0.2 * FPS)
+    falsely_tracking = int(np.sum(run.status[noticed : 8 + hidden] == TrackStatus.TRACKING))
+    assert falsely_tracking == 0, f'TRACKING in {falsely_tracking} of {hidden} hidden frames'
+
+
+def test_an_abrupt_change_of_light_is_tracked_through(scene):
+    left = Lighting(direction=np.array([-0.6, -0.3, -0.74]))
+    right = Lighting(direction=np.array([0.6, -0.3, -0.74]), ambient=0.2, diffuse=1.0)
+    specs = [{'lighting': left if n < 10 else right, 'yaw': 0.01 * n} for n in range(30)]
+    run = _track(scene, specs)
+    assert run.good()[:10].all()
+    assert run.recovery_frames(10) <= RECOVERY_FRAMES
+    assert run.error_px[-1] < 2.5
+
+
+def test_dropped_frames_while_turning_are_tracked_through(scene):
+    # 0.6 rad/s yaw; frames 10-14 never arrive, so one step turns 0.24 rad.
+    run = _track(scene, [{'yaw': 0.04 * n} for n in range(30) if not 10 <= n < 15])
+    assert run.good()[:10].all()
+    assert run.recovery_frames(10) <= RECOVERY_FRAMES
+    assert run.error_px.max() < GOOD_PX
