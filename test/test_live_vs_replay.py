@@ -20,7 +20,6 @@ from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
 from rclpy.serialization import deserialize_message
 from sensor_msgs.msg import CameraInfo, Image
-from test_mono_processor import _true_model
 
 from face_tracking_ros.io.bags import read_messages, read_raw, stamp_to_ns
 from face_tracking_ros.model.model_file import save_model
@@ -30,6 +29,7 @@ from face_tracking_ros.synthetic.clicks import clicks_from_bag, write_init_file
 from face_tracking_ros.synthetic.faces import FacePopulation
 from face_tracking_ros.synthetic.recording import record
 from face_tracking_ros.synthetic.scenes import SceneConfig
+from face_tracking_ros.synthetic.true_model import true_face_model
 
 FRAMES = 12
 WAIT_S = 60.0
@@ -45,7 +45,7 @@ def recorded(tmp_path_factory):
     config = SceneConfig(kind='mono', frames=FRAMES, fps=15, width=320, height=240, focal=300.0)
     bag = record(config, root / 'bags')[0].path
     model_file = root / 'model.npz'
-    save_model(_true_model(FacePopulation(config.population, config.seed)), model_file)
+    save_model(true_face_model(FacePopulation(config.population, config.seed)), model_file)
     init_file = write_init_file(clicks_from_bag(bag, 0.5), root / 'init.json')
     return bag, model_file, init_file, root
 

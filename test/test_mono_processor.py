@@ -15,31 +15,13 @@ from face_tracking_ros.processing.mono import MonoNodeConfig, MonoProcessor
 from face_tracking_ros.synthetic.faces import FacePopulation
 from face_tracking_ros.synthetic.render import FacePose, FaceRenderer
 from face_tracking_ros.synthetic.texture import procedural_texture
+from face_tracking_ros.synthetic.true_model import true_face_model
 from face_tracking_ros.tracking.initialisation import Initialisation
 from face_tracking_ros.tracking.mono import MonoTrackerConfig
 from face_tracking_ros.tracking.result import TrackStatus
 
 CAMERA = PinholeCamera.ideal(320, 240, 300.0)
 FRAME_NS = 33_333_333
-
-
-def _true_model(population: FacePopulation) -> FaceModel:
-    """The population's own top-2 identity and expression subspaces as a FaceModel."""
-    truth = population.truth(34)
-    axes, variances = truth.identity_principal_axes()
-    shape_basis = axes[:, :2]
-    expressions = truth.expression_basis - shape_basis @ (shape_basis.T @ truth.expression_basis)
-    action_basis = np.linalg.qr(expressions)[0][:, :5]
-    return FaceModel(
-        node_names=truth.node_names,
-        mean_shape=truth.mean_shape,
-        shape_basis=shape_basis,
-        action_basis=action_basis,
-        shape_eigenvalues=variances[:2],
-        action_eigenvalues=np.full(5, 1e-4),
-        sigma_prior_covariance=np.diag(variances[:2]),
-        alpha_prior_covariance=np.diag(np.full(5, 1e-4)),
-    )
 
 
 @pytest.fixture(scope='module')
@@ -59,7 +41,7 @@ def scene():
         )
         frames.append(renderer.render(CAMERA, [pose], background, rng=rng))
         nodes.append(pose.camera_nodes())
-    return _true_model(population), frames, np.array(nodes)
+    return true_face_model(population), frames, np.array(nodes)
 
 
 def _processor(model: FaceModel, first_nodes: np.ndarray) -> MonoProcessor:

@@ -10,7 +10,7 @@ import pytest
 
 from face_tracking_ros.model.face_model import FaceModel
 from face_tracking_ros.model.topology import mesh_topology
-from face_tracking_ros.synthetic.faces import FacePopulation
+from face_tracking_ros.synthetic.true_model import true_face_model
 
 ModelFactory = Callable[..., FaceModel]
 
@@ -72,33 +72,7 @@ def texture_factory() -> Callable[..., np.ndarray]:
     return make_texture
 
 
-def true_model(population: FacePopulation, num_nodes: int = 34, p: int = 4) -> FaceModel:
-    """The synthetic population's true model as a FaceModel (what a perfect learner would give).
-
-    Shape basis: the top-p principal identity axes; action basis: the orthonormalised span of the
-    expression displacements; priors: the true identity covariance and that of expressions with
-    intensities of standard deviation 0.5, both expressed in these bases.
-    """
-    truth = population.truth(num_nodes)
-    identity = truth.identity_basis * np.sqrt(truth.identity_variances)
-    shape_basis = np.linalg.svd(identity, full_matrices=False)[0][:, :p]
-    expressions = 0.5 * truth.expression_basis
-    action_basis = np.linalg.svd(expressions, full_matrices=False)[0]
-    sigma_covariance = shape_basis.T @ identity @ identity.T @ shape_basis
-    alpha_covariance = action_basis.T @ expressions @ expressions.T @ action_basis
-    return FaceModel(
-        node_names=truth.node_names,
-        mean_shape=truth.mean_shape.copy(),
-        shape_basis=shape_basis,
-        action_basis=action_basis,
-        shape_eigenvalues=np.diag(sigma_covariance).copy(),
-        action_eigenvalues=np.diag(alpha_covariance).copy(),
-        sigma_prior_covariance=sigma_covariance,
-        alpha_prior_covariance=alpha_covariance,
-    )
-
-
 @pytest.fixture
 def true_model_factory() -> Callable[..., FaceModel]:
-    """:func:`true_model`."""
-    return true_model
+    """:func:`face_tracking_ros.synthetic.true_model.true_face_model`."""
+    return true_face_model
