@@ -1,0 +1,128 @@
+"""Model, gallery and classifier files: read without pickle, validated, versions named.
+
+Each file kind is written by its own saver, then damaged in one way (another format version, a
+pickled member, a NaN, a missing header, a cut at a random offset); loading must raise
+ModelFileError naming the file and the problem, never another exception.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+import json
+from pathlib import Path
+import re
+
+import numpy as np
+import pytest
+
+from face_tracking_ros.data import default_model_path
+from face_tracking_ros.errors import ModelFileError
+from face_tracking_ros.model.model_file import load_model, save_model
+from face_tracking_ros.recognition.expression import ExpressionClassifier
+from face_tracking_ros.recognition.identity import IdentityConfig, IdentityGallery
+
+
+def _model_file(path: Path) -> Callable[[], object]:
+    save_model(load_model(default_model_path()), path)
+    return lambda: load_model(path)
+
+
+def _gallery_file(path: Path) -> Callable[[], object]:
+    samples = np.random.default_rng(0).normal(0.0, 1e-3, (30, 2)) + [2e-3, -1e-3]
+    IdentityGallery.empty(2).enroll('alice', samples, IdentityConfig()).save(path)
+    return lambda: IdentityGallery.load(path, 2)
+
+
+def _classifier_file(path: Path) -> Callable[[], object]:
+    ExpressionClassifier(
+        labels=('neutral', 'smile'),
+        q=1,
+        window=0.2,
+        calibration=0.0,
+        feature_mean=np.zeros(3),
+        feature_scale=np.ones(3),
+        weights=np.array([[0.0, 0.0, 0.0], [20.0, 0.0, 0.0]]),
+        intercepts=np.array([0.0, -10.0]),
+    ).save(path)
+    return lambda: ExpressionClassifier.load(path, 1)
+
+
+KINDS = {'model': _model_file, 'gallery': _gallery_file, 'classifier': _classifier_file}
+
+
+@pytest.fixture(params=sorted(KINDS))
+def saved(request, tmp_path) -> tuple[Path, Callable[[], object]]:
+    """(path, load) of a freshly saved file of each kind."""
+    path = tmp_path / f'{request.param}.npz'
+    return path, KINDS[request.param](path)
+
+
+def _members(path: Path) -> dict[str, np.ndarray]:
+    with np.load(path, allow_pickle=False) as archive:
+        return {name: archive[name] for name in archive.files}
+
+
+def _rewrite(path: Path, members: dict[str, np.ndarray]) -> None:
+    with path.open('wb') as handle:
+        np.savez(handle, **members)
+
+
+def _header(members: dict[str, np.ndarray]) -> dict:
+    return json.loads(str(members['header']))
+
+
+def test_every_member_is_a_plain_array_readable_without_pickle(saved):
+    path, load = saved
+    members = _members(path)
+    assert all(array.dtype != object for array in members.values())
+    assert load() is not None
+
+
+def test_another_format_version_names_both_versions(saved):
+    path, load = saved
+    members = _members(path)
+    header = _header(members)
+    header['format_version'] = 7
+    _rewrite(path, {**members, 'header': np.array(json.dumps(header))})
+    with pytest.raises(ModelFileError, match=r'format version 7.*(version 1\b)') as error:
+        load()
+    assert str(path) in str(error.value)
+
+
+def test_a_pickled_member_is_refused(saved):
+    path, load = saved
+    members = _members(path)
+    name = next(n for n in members if n != 'header')
+    _rewrite(path, {**members, name: np.array([{'exec': 'code'}], dtype=object)})
+    with pytest.raises(ModelFileError, match='Object arrays cannot be loaded') as error:
+        load()
+    assert str(path) in str(error.value)
+
+
+def test_a_nan_in_an_array_is_refused_naming_it(saved):
+    path, load = saved
+    members = _members(path)
+    name = max((n for n in members if n != 'header'), key=lambda n: members[n].size)
+    damaged = members[name].astype(float)
+    damaged.flat[damaged.size // 2] = np.nan
+    _rewrite(path, {**members, name: damaged})
+    with pytest.raises(ModelFileError, match=f'{name}.*(NaN|finite)'):
+        load()
+
+
+def test_a_file_without_its_header_is_refused(saved):
+    path, load = saved
+    members = _members(path)
+    del members['header']
+    _rewrite(path, members)
+    with pytest.raises(ModelFileError, match='header'):
+        load()
+
+
+def test_a_file_cut_at_any_offset_is_a_model_file_error(saved):
+    path, load = saved
+    data = path.read_bytes()
+    for cut in np.random.default_rng(3).integers(0, len(data), 25):
+        path.write_bytes(data[:cut])
+        with pytest.raises(ModelFileError, match=re.escape(str(path))):
+            load()
