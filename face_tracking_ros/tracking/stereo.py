@@ -8,6 +8,8 @@ Levenberg-Marquardt on
          + texture term                (§4.2: the same temporal terms over the face texture
                                         inside the mesh triangles)
          + eq. 5 regularisation        (rho_i, beta_ij, delta_ij; :mod:`.regularisation`)
+         + face-model term             (the frame-1 mesh animated by the learned action basis,
+                                        eq. 1 and 3; :mod:`.action_prior`)
 
 coarse to fine on Gaussian pyramids of both images, with Huber weights on every image residual.
 Each image term is split (1 - epsilon) : epsilon between frame n - 1 and frame 1, the drift
