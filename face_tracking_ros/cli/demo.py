@@ -40,10 +40,10 @@ class DemoPlan:
         seed: seed of the world.
     """
 
-    subjects: int = 6
-    training_frames: int = 40
+    subjects: int = 11
+    training_frames: int = 60
     known: int = 2
-    test_frames: int = 120
+    test_frames: int = 240
     seed: int = 7
 
 

@@ -13,6 +13,7 @@ from pathlib import Path
 from typing import Any
 
 from face_tracking_ros.errors import ConfigError
+from face_tracking_ros.io.bags import read_raw
 from face_tracking_ros.processing.base import Output
 from face_tracking_ros.processing.parameters import OverrideParameters
 from face_tracking_ros.processing.registry import PROCESSORS
@@ -116,7 +117,7 @@ def run(args: argparse.Namespace) -> int:
         parse_remaps(args.remap),
         args.record_inputs,
         progress=not args.quiet,
-        on_output=echo(args.echo),
+        on_output=echo(args.echo, first_stamp(args.bag)),
         wanted=frozenset(args.want),
     )
     print_stats(stats, args.out)
@@ -133,17 +134,26 @@ def _node_list(text: str) -> list[str]:
     return nodes
 
 
-def echo(topics: list[str]) -> Callable[[Output, int], None] | None:
-    """A replay callback printing the outputs on ``topics`` as they fire (None for no topics)."""
+def echo(topics: list[str], start_ns: int) -> Callable[[Output, int], None] | None:
+    """A replay callback printing the outputs on ``topics`` as they fire (None for no topics).
+
+    Each line starts with the time since ``start_ns`` (the bag's first message), in seconds.
+    """
     if not topics:
         return None
     wanted = set(topics)
 
     def show(output: Output, log_time: int) -> None:
         if output.topic in wanted:
-            print(f'{log_time / 1e9:14.3f} {output.topic:18s} {describe(output.msg)}')
+            seconds = (log_time - start_ns) / 1e9
+            print(f't={seconds:8.3f} s  {output.topic:18s} {describe(output.msg)}')
 
     return show
+
+
+def first_stamp(bag: Path) -> int:
+    """Log time of a bag's first message, ns (0 for an empty bag)."""
+    return next((message.stamp_ns for message in read_raw(bag)), 0)
 
 
 def describe(msg: Any) -> str:
