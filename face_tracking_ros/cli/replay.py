@@ -9,10 +9,11 @@ from __future__ import annotations
 
 import argparse
 from collections.abc import Callable
+import contextlib
 from pathlib import Path
 from typing import Any
 
-from face_tracking_ros.errors import ConfigError
+from face_tracking_ros.errors import BagError, ConfigError
 from face_tracking_ros.io.bags import read_raw
 from face_tracking_ros.processing.base import Output
 from face_tracking_ros.processing.parameters import OverrideParameters
@@ -152,8 +153,13 @@ def echo(topics: list[str], start_ns: int) -> Callable[[Output, int], None] | No
 
 
 def first_stamp(bag: Path) -> int:
-    """Log time of a bag's first message, ns (0 for an empty bag)."""
-    return next((message.stamp_ns for message in read_raw(bag)), 0)
+    """Log time of a bag's first message, ns (0 for an empty bag or one damaged before it).
+
+    A damaged bag is not an error here: the replay itself reports the damage.
+    """
+    with contextlib.suppress(BagError):
+        return next((message.stamp_ns for message in read_raw(bag)), 0)
+    return 0
 
 
 def describe(msg: Any) -> str:
