@@ -16,11 +16,11 @@ from face_tracking_ros.geometry.camera import PinholeCamera
 from face_tracking_ros.io import conversions
 from face_tracking_ros.io.messages import RosbagsMessages
 from face_tracking_ros.io.typestore import typestore
-from face_tracking_ros.model.face_model import FaceModel
 from face_tracking_ros.synthetic.background import Backdrop
 from face_tracking_ros.synthetic.faces import FacePopulation
 from face_tracking_ros.synthetic.render import FacePose, FaceRenderer, Lighting, Occluder
 from face_tracking_ros.synthetic.texture import procedural_texture
+from face_tracking_ros.synthetic.true_model import true_face_model
 from face_tracking_ros.tracking.initialisation import Initialisation
 
 CAMERA = PinholeCamera.ideal(320, 240, 300.0)
@@ -29,25 +29,6 @@ FPS = 15.0
 FRAME_NS = round(1e9 / FPS)
 T0_NS = 1_700_000_000_000_000_000
 FACTORY = RosbagsMessages(typestore())
-
-
-def true_model(population: FacePopulation) -> FaceModel:
-    """The population's own top-2 identity and top-5 expression subspaces as a FaceModel."""
-    truth = population.truth(34)
-    axes, variances = truth.identity_principal_axes()
-    shape_basis = axes[:, :2]
-    expressions = truth.expression_basis - shape_basis @ (shape_basis.T @ truth.expression_basis)
-    action_basis = np.linalg.qr(expressions)[0][:, :5]
-    return FaceModel(
-        node_names=truth.node_names,
-        mean_shape=truth.mean_shape,
-        shape_basis=shape_basis,
-        action_basis=action_basis,
-        shape_eigenvalues=variances[:2],
-        action_eigenvalues=np.full(5, 1e-4),
-        sigma_prior_covariance=np.diag(variances[:2]),
-        alpha_prior_covariance=np.diag(np.full(5, 1e-4)),
-    )
 
 
 @dataclass(frozen=True)
@@ -68,7 +49,7 @@ class FaultScene:
         self._renderer = FaceRenderer(procedural_texture(self._subject.appearance_seed))
         self._backdrop = Backdrop.cluttered(CAMERA.width, CAMERA.height, seed + 5)
         self._nodes = self.population.nodes(self._subject, {})
-        self.model = true_model(self.population)
+        self.model = true_face_model(self.population)
 
     def render(
         self,

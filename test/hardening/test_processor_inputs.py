@@ -229,7 +229,9 @@ def test_mono_refuses_a_bad_model_message_and_keeps_its_model(scene, frames):
     small = _model_msg(_small_model(scene.model))
     with pytest.raises(InputError, match='19 nodes.*initialisation names 15 nodes it lacks'):
         processor.handle('face/model', small, NONE)
-    singular = replace(scene.model, alpha_prior_covariance=np.diag([1e-4, 1e-4, 0.0, 1e-4, 1e-4]))
+    variances = np.full(scene.model.q, 1e-4)
+    variances[-1] = 0.0
+    singular = replace(scene.model, alpha_prior_covariance=np.diag(variances))
     with pytest.raises(InputError, match='alpha_prior_covariance is singular'):
         processor.handle('face/model', _model_msg(singular), NONE)
     indefinite = _model_msg(scene.model)
