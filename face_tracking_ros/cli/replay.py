@@ -118,7 +118,7 @@ def run(args: argparse.Namespace) -> int:
         parse_remaps(args.remap),
         args.record_inputs,
         progress=not args.quiet,
-        on_output=echo(args.echo, first_stamp(args.bag)),
+        on_output=echo(args.echo, first_stamp(args.bag)) if args.echo else None,
         wanted=frozenset(args.want),
     )
     print_stats(stats, args.out)
@@ -135,13 +135,11 @@ def _node_list(text: str) -> list[str]:
     return nodes
 
 
-def echo(topics: list[str], start_ns: int) -> Callable[[Output, int], None] | None:
-    """A replay callback printing the outputs on ``topics`` as they fire (None for no topics).
+def echo(topics: list[str], start_ns: int) -> Callable[[Output, int], None]:
+    """A replay callback printing the outputs on ``topics`` as they fire.
 
     Each line starts with the time since ``start_ns`` (the bag's first message), in seconds.
     """
-    if not topics:
-        return None
     wanted = set(topics)
 
     def show(output: Output, log_time: int) -> None:
