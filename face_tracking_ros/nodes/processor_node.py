@@ -2,14 +2,17 @@
 
 A node module builds a :class:`~face_tracking_ros.processing.base.Processor` from its declared
 parameters and hands it to :class:`ProcessorNode`, which subscribes to the processor's input ports,
-publishes its outputs with each port's QoS, and turns a bad input message into one rate-limited
-log line and a diagnostic status instead of a crash.
+publishes its outputs with each port's QoS, and turns a bad input message into a WARN diagnostic
+status (and an unexpected exception, a bug, into an ERROR status) instead of a crash; the log
+gets one line per kind of problem per WARNING_PERIOD_S.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
 import dataclasses
+import time
+import traceback
 from typing import Any, TypeVar
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
@@ -33,7 +36,8 @@ from face_tracking_ros.processing.registry import processor_factory
 
 ConfigT = TypeVar('ConfigT')
 
-WARNING_PERIOD_S = 5.0
+WARNING_PERIOD_S = 5.0  # a problem of one kind is logged at most once per period
+PROBLEM_KIND_CHARS = 60  # problems whose messages start alike are one kind
 
 QOS_PROFILES = {
     QosClass.SENSOR: qos_profile_sensor_data,
@@ -101,6 +105,7 @@ class ProcessorNode(Node):
         }
         self._on_demand = [port.topic for port in self._processor.outputs if port.on_demand]
         self._diagnostics = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
+        self._last_logged: dict[str, float] = {}
         self._input_subscriptions = [self._subscribe(port) for port in self._processor.inputs]
 
     @property
@@ -127,11 +132,28 @@ class ProcessorNode(Node):
         try:
             outputs = self._processor.handle(topic, msg, wanted)
         except FaceTrackingError as error:
-            self.get_logger().warning(f'{topic}: {error}', throttle_duration_sec=WARNING_PERIOD_S)
-            self._report(DiagnosticStatus.WARN, f'{topic}: {error}')
+            self._problem(DiagnosticStatus.WARN, f'{topic}: {error}')
+            return
+        except Exception as error:  # noqa: BLE001 - a bug must not end a robot's perception
+            detail = ''.join(traceback.format_exception_only(error)).strip()
+            self._problem(DiagnosticStatus.ERROR, f'{topic}: unexpected error: {detail}')
             return
         for output in outputs:
             self._output_publishers[output.topic].publish(output.msg)
+
+    def _problem(self, level: bytes, message: str) -> None:
+        """Log a problem once per WARNING_PERIOD_S per kind, and report it on /diagnostics."""
+        now = time.monotonic()
+        kind = message[:PROBLEM_KIND_CHARS]
+        if now - self._last_logged.get(kind, -WARNING_PERIOD_S) >= WARNING_PERIOD_S:
+            self._last_logged[kind] = now
+            log = (
+                self.get_logger().error
+                if level == DiagnosticStatus.ERROR
+                else (self.get_logger().warning)
+            )
+            log(message)
+        self._report(level, message)
 
     def _report(self, level: bytes, message: str) -> None:
         """Publish one diagnostic status for this node."""
