@@ -16,6 +16,7 @@ from face_tracking_ros.geometry.camera import PinholeCamera
 from face_tracking_ros.io import conversions
 from face_tracking_ros.io.messages import RosbagsMessages
 from face_tracking_ros.io.typestore import typestore
+from face_tracking_ros.recognition.expression import ExpressionClassifier
 from face_tracking_ros.synthetic.background import Backdrop
 from face_tracking_ros.synthetic.faces import FacePopulation
 from face_tracking_ros.synthetic.render import FacePose, FaceRenderer, Lighting, Occluder
@@ -95,3 +96,17 @@ def info_msg(camera: PinholeCamera = CAMERA, stamp_ns: int = T0_NS) -> object:
 def stamp(frame: int) -> int:
     """Stamp of frame ``frame`` at :data:`FPS`, ns."""
     return T0_NS + frame * FRAME_NS
+
+
+def smile_classifier() -> ExpressionClassifier:
+    """A q = 1 classifier: 'smile' when alpha > 0.5 (posterior sigmoid(20 alpha - 10)))."""
+    return ExpressionClassifier(
+        labels=('neutral', 'smile'),
+        q=1,
+        window=0.2,
+        calibration=0.0,
+        feature_mean=np.zeros(3),
+        feature_scale=np.ones(3),
+        weights=np.array([[0.0, 0.0, 0.0], [20.0, 0.0, 0.0]]),
+        intercepts=np.array([0.0, -10.0]),
+    )

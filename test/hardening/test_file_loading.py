@@ -12,6 +12,7 @@ import json
 from pathlib import Path
 import re
 
+from fault_scenes import smile_classifier
 import numpy as np
 import pytest
 
@@ -34,16 +35,7 @@ def _gallery_file(path: Path) -> Callable[[], object]:
 
 
 def _classifier_file(path: Path) -> Callable[[], object]:
-    ExpressionClassifier(
-        labels=('neutral', 'smile'),
-        q=1,
-        window=0.2,
-        calibration=0.0,
-        feature_mean=np.zeros(3),
-        feature_scale=np.ones(3),
-        weights=np.array([[0.0, 0.0, 0.0], [20.0, 0.0, 0.0]]),
-        intercepts=np.array([0.0, -10.0]),
-    ).save(path)
+    smile_classifier().save(path)
     return lambda: ExpressionClassifier.load(path, 1)
 
 

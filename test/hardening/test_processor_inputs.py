@@ -16,6 +16,7 @@ from fault_scenes import (
     FaultScene,
     image_msg,
     info_msg,
+    smile_classifier,
     stamp,
 )
 import numpy as np
@@ -31,7 +32,6 @@ from face_tracking_ros.processing.identity import IdentityNodeConfig, IdentityPr
 from face_tracking_ros.processing.mono import MonoNodeConfig, MonoProcessor
 from face_tracking_ros.processing.stereo import StereoNodeConfig, StereoProcessor
 from face_tracking_ros.recognition.events import EventConfig, EventKind
-from face_tracking_ros.recognition.expression import ExpressionClassifier
 from face_tracking_ros.recognition.identity import IdentityConfig, IdentityGallery
 from face_tracking_ros.tracking.mono import MonoTrackerConfig
 from face_tracking_ros.tracking.result import TrackStatus
@@ -393,20 +393,6 @@ def test_stereo_model_of_another_node_count_is_refused(pairs, scene):
 # --- expression_recognizer ----------------------------------------------------------------------
 
 
-def _smile_classifier() -> ExpressionClassifier:
-    """A q = 1 classifier: 'smile' when alpha > 0.5 (posterior sigmoid(20 alpha - 10)))."""
-    return ExpressionClassifier(
-        labels=('neutral', 'smile'),
-        q=1,
-        window=0.2,
-        calibration=0.0,
-        feature_mean=np.zeros(3),
-        feature_scale=np.ones(3),
-        weights=np.array([[0.0, 0.0, 0.0], [20.0, 0.0, 0.0]]),
-        intercepts=np.array([0.0, -10.0]),
-    )
-
-
 def _action(alpha, stamp_ns, face_id='face_0'):
     header = conversions.make_header(FACTORY, stamp_ns, 'camera_optical')
     return FACTORY.make(
@@ -434,7 +420,7 @@ def _events(processor, alphas, start_s):
     ],
 )
 def test_expression_bad_alpha_is_named_and_recognition_goes_on(alpha, match):
-    processor = ExpressionProcessor(FACTORY, _smile_classifier(), EventConfig())
+    processor = ExpressionProcessor(FACTORY, smile_classifier(), EventConfig())
     assert _events(processor, [0.0] * 10, 10.0) == []
     with pytest.raises(InputError, match=match):
         processor.handle('face/action', _action(alpha, round(10.4e9)), NONE)
@@ -443,7 +429,7 @@ def test_expression_bad_alpha_is_named_and_recognition_goes_on(alpha, match):
 
 
 def test_expression_earlier_stamp_restarts_window_and_events():
-    processor = ExpressionProcessor(FACTORY, _smile_classifier(), EventConfig())
+    processor = ExpressionProcessor(FACTORY, smile_classifier(), EventConfig())
     first = _events(processor, [0.0] * 5 + [1.0] * 10, 20.0)
     assert [e.event for e in first] == [EventKind.ONSET]
     # The stream restarts 10 s earlier (a looped bag): no offset of the old track's smile with

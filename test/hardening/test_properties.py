@@ -25,6 +25,7 @@ from face_tracking_ros.io import conversions
 from face_tracking_ros.io.messages import RosbagsMessages
 from face_tracking_ros.io.typestore import typestore
 from face_tracking_ros.model.face_model import FaceModel
+from face_tracking_ros.model.model_file import ARRAY_FIELDS
 from face_tracking_ros.model.topology import mesh_topology
 
 FACTORY = RosbagsMessages(typestore())
@@ -238,17 +239,6 @@ def face_models(draw):
         method=draw(st.sampled_from(['seed', 'joint'])),
         metadata={'subjects': draw(st.lists(st.text(max_size=5), max_size=3))},
     )
-
-
-ARRAY_FIELDS = (
-    'mean_shape',
-    'shape_basis',
-    'action_basis',
-    'shape_eigenvalues',
-    'action_eigenvalues',
-    'sigma_prior_covariance',
-    'alpha_prior_covariance',
-)
 
 
 @FEW
