@@ -28,10 +28,19 @@ Design, in the seed's terms:
 - Optionally (``max_keyframes`` > 1) the drift term compares with the keyframe nearest in
   rotation instead of frame 1. Measured on synthetic sequences it does worse than I_1 alone
   (keyframes inherit the error of the pose they were taken at), so it is off by default.
-- Loss of track (most nodes' patches uncorrelated with their templates, too few visible nodes,
-  an implausible jump, an ill-conditioned or non-finite solve) gives status LOST with the last
-  valid estimate; the tracker then re-acquires against the keyframe templates from the last
-  valid and the initial pose, or from a fresh detection when a detector was given.
+- Loss of track gives status LOST with the last valid estimate. It is declared when most
+  textured nodes' ROIs do not match their templates, too few nodes are visible, the rotation
+  jumps, or the solve is ill-conditioned or non-finite. A node matches when its residual (the
+  brightness change projected out) is small against its ROI's texture in the image: what is
+  left of the ROI after removing the brightness change that needs no template (its mean and, for
+  GAIN_FIELD, its linear ramp, which alone fit a smooth backdrop or hand). An image ROI with no
+  texture above ``residual_scale_floor`` cannot confirm a textured template.
+- Recovery needs no detector. While LOST, each image is solved as the frame after the last
+  valid one (eq. 6 from its estimate and templates); if that fails, as when tracking fails,
+  it is solved against the keyframe templates alone from the initial pose translated onto the
+  best normalised cross-correlation of frame 1's inner face over the image, and from a fresh
+  detection when a detector was given. The keyframe-only solves, and every solve while LOST,
+  pass only at the stricter ``reacquire_residual_ratio``: they can settle a few pixels off.
 """
 
 from __future__ import annotations
@@ -40,6 +49,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from typing import NamedTuple
 
+import cv2
 import numpy as np
 from numpy.linalg import LinAlgError
 from scipy.linalg import inv
@@ -75,6 +85,9 @@ Detector = Callable[[np.ndarray], Initialisation | None]
 """A landmark detector: (H, W) uint8 grey image -> 2-D node positions, or None if no face."""
 
 _MIN_DEPTH = 0.05  # m; a face nearer the camera than this has diverged
+# Pyramid level of the search for a lost face (or the coarsest, if coarser): on the coarsest level
+# of a 320x240 image the inner face is 11x12 px and correlates as well with clutter.
+_SEARCH_LEVEL = 1
 _MAD_TO_STD = 1.4826  # robust standard deviation from the median absolute deviation
 
 
@@ -115,9 +128,14 @@ class MonoTrackerConfig:
         visibility_cos: a node's weight ramps from 0 to 1 as the cosine between its outward
             normal and the ray to the camera goes from this value to twice it (in [0, 0.5)).
         lost_residual_ratio: a node fails when its RMS residual exceeds this multiple of its
-            patch's standard deviation in the image, i.e. when about sqrt(1 - NCC^2) exceeds it
-            (> 0).
-        lost_node_fraction: LOST when more than this fraction of visible nodes fail (in (0, 1]).
+            ROI's texture in the image (the RMS left after removing its mean and, for
+            GAIN_FIELD, its linear ramp), i.e. when sqrt(1 - R^2) of the template's fit to that
+            texture exceeds it, or when that texture is below ``residual_scale_floor`` (> 0).
+        reacquire_residual_ratio: the same ratio for the solves that may resume a lost track
+            and for the keyframe-only solves tried when tracking fails (> 0). Stricter: such a
+            solve can settle a few px off the face, which later frames do not correct.
+        lost_node_fraction: LOST when more than this fraction of the visible nodes that show
+            texture (in the image or the template) fail (in (0, 1]).
         min_visible_fraction: LOST when fewer nodes are visible and inside the image (in [0, 1]).
         max_rotation_step: LOST when the rotation changes more than this in one frame, rad (> 0).
         max_condition: LOST when the Jacobi-scaled normal matrix has a larger condition number
@@ -143,7 +161,8 @@ class MonoTrackerConfig:
     convergence_px: float = 0.01
     jacobian_refresh_px: float = 0.5
     visibility_cos: float = 0.1
-    lost_residual_ratio: float = 0.8
+    lost_residual_ratio: float = 0.65
+    reacquire_residual_ratio: float = 0.3
     lost_node_fraction: float = 0.5
     min_visible_fraction: float = 0.5
     max_rotation_step: float = 0.35
@@ -170,6 +189,7 @@ class MonoTrackerConfig:
             'jacobian_refresh_px': self.jacobian_refresh_px > 0,
             'visibility_cos': 0.0 <= self.visibility_cos < 0.5,
             'lost_residual_ratio': self.lost_residual_ratio > 0,
+            'reacquire_residual_ratio': self.reacquire_residual_ratio > 0,
             'lost_node_fraction': 0.0 < self.lost_node_fraction <= 1.0,
             'min_visible_fraction': 0.0 <= self.min_visible_fraction <= 1.0,
             'max_rotation_step': self.max_rotation_step > 0,
@@ -255,6 +275,18 @@ class _Keyframe(NamedTuple):
     templates: _Templates
 
 
+class _FaceView(NamedTuple):
+    """Frame 1's inner face (the nodes off the face edge) on the search's pyramid level.
+
+    Attributes:
+        image: (h, w) crop of that level around the inner nodes.
+        corner: (2,) pixel (x, y) of the crop's top-left sample on that level.
+    """
+
+    image: np.ndarray
+    corner: np.ndarray
+
+
 @dataclass
 class _Track:
     """State of a running track; ``keyframes[0]`` holds frame 1 (the seed's I_1)."""
@@ -264,6 +296,7 @@ class _Track:
     keyframes: list[_Keyframe]
     previous: _Templates
     start: _Params
+    view: _FaceView
     current: _Params
     last_good: TrackResult
     frames: int = 1
@@ -311,6 +344,13 @@ class MonoTracker:
         self._alpha_precision = weight * inv(model.alpha_prior_covariance)
         self._sigma_precision = weight * inv(model.sigma_prior_covariance)
         self._grid = square_offsets(self._config.patch_half_size)
+        # The brightness change of a ROI that needs no template (a flat template's projection):
+        # its mean, and for GAIN_FIELD its linear ramp; what is left is the ROI's texture.
+        self._untextured = PhotometricProjection.of(
+            np.zeros((1, len(self._grid))),
+            max(self._config.photometric, PhotometricModel.BIAS),
+            self._grid,
+        )
         # Row scales of P per pyramid level: level l's pixels are level 0's times 2^-l.
         self._level_rows = [
             np.array([[1.0 / (1 << level)], [1.0 / (1 << level)], [1.0]])
@@ -361,8 +401,6 @@ class MonoTracker:
             pyramid = self._pyramid(image)
             if self._track is None:
                 return self._initialise(pyramid)
-            if self._track.lost:
-                return self._reacquire(pyramid)
             return self._follow(pyramid)
         except (InputError, LinAlgError) as error:
             return self._failure(str(error))
@@ -389,6 +427,7 @@ class MonoTracker:
             keyframes=[_Keyframe(rodrigues(params.omega)[0], templates)],
             previous=templates,
             start=params,
+            view=self._face_view(pyramid, result.nodes_px),
             current=params,
             last_good=result,
         )
@@ -425,27 +464,53 @@ class MonoTracker:
         )
         return offsets, node_frames(shape, self._triangles)[:, 2]
 
-    def _reacquire(self, pyramid: ImagePyramid) -> TrackResult:
-        """While LOST: solve against keyframe templates alone from candidate starts.
+    def _face_view(self, pyramid: ImagePyramid, nodes_px: np.ndarray) -> _FaceView:
+        """The crop of the search level spanned by the inner nodes, given (N, 2) level-0 pixels."""
+        level = min(_SEARCH_LEVEL, pyramid.num_levels - 1)
+        image = pyramid.levels[level]
+        size = np.array(image.shape[::-1])
+        inner = nodes_px[~self._edge_nodes] / float(1 << level)
+        low = np.clip(np.floor(inner.min(axis=0)), 0, size - 1).astype(int)
+        high = np.clip(np.ceil(inner.max(axis=0)) + 1, low + 1, size).astype(int)
+        return _FaceView(image[low[1] : high[1], low[0] : high[0]].copy(), low)
 
-        Candidates are a fresh detection (if a detector was given), the last valid estimate and
-        the initial fit, each compared with its nearest keyframe; the first that passes the loss
-        checks resumes the track.
+    def _reacquire(self, pyramid: ImagePyramid, reason: str) -> TrackResult:
+        """When eq. 6 from the last valid estimate fails: solve against keyframe templates alone.
+
+        Candidate starts are a fresh detection (if a detector was given) and the initial fit
+        moved to where the face is found by :meth:`_search`, each compared with its nearest
+        keyframe; the first that passes the loss checks at ``reacquire_residual_ratio`` resumes
+        the track, else the image is LOST for ``reason``.
         """
         track = self._track
         detected = self._detect(pyramid)
         candidates = [self._fit_or_none(detected)] if detected is not None else []
-        candidates += [_params_of(track.last_good), track.start]
-        reason = 'lost'
+        candidates.append(self._search(pyramid))
         for start in (c for c in candidates if c is not None):
             keyframe = self._nearest_keyframe(start.omega).templates
             weights = keyframe.visibility * self._visibility(start, track.normals)
-            result, templates = self._solve_frame(pyramid, start, keyframe.levels, weights)
+            result, templates = self._solve_frame(
+                pyramid, start, keyframe.levels, weights, self._config.reacquire_residual_ratio
+            )
             if result.ok:
                 self._accept(result, templates)
                 return result
-            reason = result.reason
         return self._failure(f'lost: {reason}')
+
+    def _search(self, pyramid: ImagePyramid) -> _Params:
+        """The initial fit translated parallel to the image plane onto frame 1's inner face.
+
+        The face is where its view correlates best with the image (normalised cross-correlation,
+        robust to a gain and bias), the shift of a pixel being ``t_z / f`` in x and y.
+        """
+        track = self._track
+        level = min(_SEARCH_LEVEL, pyramid.num_levels - 1)
+        scores = cv2.matchTemplate(pyramid.levels[level], track.view.image, cv2.TM_CCOEFF_NORMED)
+        best = np.unravel_index(np.argmax(scores), scores.shape)[::-1]
+        shift = (np.array(best) - track.view.corner) * float(1 << level)  # level-0 px
+        t = track.start.t.copy()
+        t[:2] += shift * t[2] / np.diag(self._camera.p)[:2]
+        return track.start._replace(t=t)
 
     def _fit_or_none(self, init: Initialisation) -> _Params | None:
         """Model fit of a detection, or None if it fails."""
@@ -458,7 +523,11 @@ class MonoTracker:
     # --- tracking ------------------------------------------------------------------------------
 
     def _follow(self, pyramid: ImagePyramid) -> TrackResult:
-        """Track one frame (eq. 6) from the previous estimate."""
+        """Track one frame (eq. 6) from the last valid estimate; if that fails, re-acquire.
+
+        While LOST this is the solve of the frame after the last valid one, checked at the
+        stricter ``reacquire_residual_ratio``.
+        """
         track = self._track
         keyframe = self._nearest_keyframe(track.current.omega).templates
         epsilon = self._config.epsilon * keyframe.visibility[:, None]
@@ -470,9 +539,13 @@ class MonoTracker:
             track.previous.visibility, self._visibility(track.current, track.normals)
         )
         free_sigma = track.frames <= self._config.sigma_frames
-        result, templates = self._solve_frame(pyramid, track.current, blended, weights, free_sigma)
+        config = self._config
+        ratio = config.reacquire_residual_ratio if track.lost else config.lost_residual_ratio
+        result, templates = self._solve_frame(
+            pyramid, track.current, blended, weights, ratio, free_sigma
+        )
         if not result.ok:
-            return self._failure(f'lost: {result.reason}')
+            return self._reacquire(pyramid, result.reason)
         self._accept(result, templates)
         return result
 
@@ -506,9 +579,12 @@ class MonoTracker:
         start: _Params,
         templates: tuple[np.ndarray, ...],
         node_weights: np.ndarray,
+        residual_ratio: float,
         free_sigma: bool = False,
     ) -> tuple[TrackResult, _Templates]:
         """Solve eq. 6 coarse to fine from ``start``; check the outcome for loss of track.
+
+        ``residual_ratio`` is the loss checks' ratio of a node's residual to its texture.
 
         Returns:
             The frame's result (TRACKING or LOST with a reason) and the templates sampled at the
@@ -530,7 +606,14 @@ class MonoTracker:
             residuals = projection.apply(sampled.levels[0] - templates[0])
         node_rms = np.sqrt(np.mean(residuals**2, axis=1))
         reason = self._loss_reason(
-            params, start, node_rms, sampled.levels[0], sampled.visibility, solution
+            params,
+            start,
+            node_rms,
+            sampled.levels[0],
+            templates[0],
+            sampled.visibility,
+            solution,
+            residual_ratio,
         )
         status = TrackStatus.LOST if reason else TrackStatus.TRACKING
         costs = (*solution.costs, min(cost, solution.fallback_cost))
@@ -746,8 +829,10 @@ class MonoTracker:
         start: _Params,
         node_rms: np.ndarray,
         samples: np.ndarray,
+        template: np.ndarray,
         visibility: np.ndarray,
         solution: _Solution,
+        residual_ratio: float,
     ) -> str:
         """Why this estimate is not a valid track ('' if it is).
 
@@ -756,8 +841,10 @@ class MonoTracker:
             start: where the solver started (the previous frame's estimate).
             node_rms: (N,) RMS of each node's (photometrically projected) residual.
             samples: (N, M) level-0 samples of the image at the solution.
+            template: (N, M) level-0 template they were compared with.
             visibility: (N,) node visibility at the solution.
             solution: the solver's outcome.
+            residual_ratio: a node fails when its residual exceeds this multiple of its texture.
         """
         config = self._config
         values = np.concatenate([params.omega, params.t, params.alpha, params.sigma])
@@ -774,13 +861,20 @@ class MonoTracker:
         )
         if visible.mean() < config.min_visible_fraction:
             return f'only {visible.sum()} of {len(visible)} nodes visible in the image'
-        # The residual left after the brightness change is projected out, relative to the
-        # patch's own contrast: about sqrt(1 - NCC^2), near 1 for a patch that does not match.
-        texture = np.maximum(samples.std(axis=1), config.residual_scale_floor)
-        failing = (node_rms > config.lost_residual_ratio * texture) & visible
-        if failing.sum() > config.lost_node_fraction * visible.sum():
-            return f'{failing.sum()} of {visible.sum()} visible nodes do not match their templates'
+        # Each node's residual against the texture of its ROI in the image: near 1 when the
+        # template explains none of it. Nodes flat in both the image and the template abstain.
+        floor = config.residual_scale_floor
+        image_texture = self._texture(samples)
+        votes = visible & (np.maximum(image_texture, self._texture(template)) > floor)
+        matched = (image_texture > floor) & (node_rms < residual_ratio * image_texture)
+        failing = votes & ~matched
+        if not votes.any() or failing.sum() > config.lost_node_fraction * votes.sum():
+            return f'{failing.sum()} of {votes.sum()} textured nodes do not match their templates'
         return ''
+
+    def _texture(self, samples: np.ndarray) -> np.ndarray:
+        """(N,) RMS of (N, M) ROI samples beyond the brightness change that needs no template."""
+        return np.sqrt(np.mean(self._untextured.apply(samples) ** 2, axis=1))
 
     def _templates(
         self,

@@ -150,6 +150,39 @@ def test_an_unrelated_image_is_lost_and_the_face_is_reacquired(scene, texture_fa
     assert np.abs(back.t[:2] - np.array([7.0, 2.0]) * DEPTH / CAMERA.focal).max() < 1e-4
 
 
+def test_a_face_back_elsewhere_is_found_by_the_search(scene, texture_factory) -> None:
+    # 180 px from where it was lost and started: beyond any solver's reach from those poses.
+    model, image, init = scene
+    tracker = _started(model, image, init)
+    assert tracker.step(texture_factory(seed=7)).status == TrackStatus.LOST
+    shift = np.array([150.0, 100.0])
+    back = tracker.step(_warp(image, np.array([[1, 0, shift[0]], [0, 1, shift[1]]])))
+    assert back.ok, back.reason
+    assert np.abs(back.t[:2] - shift * DEPTH / CAMERA.focal).max() < 1e-4
+
+
+def test_a_jump_beyond_the_solver_is_caught_by_the_search_in_the_same_image(scene) -> None:
+    model, image, init = scene
+    tracker = _started(model, image, init)
+    shift = np.array([60.0, -30.0])
+    jumped = tracker.step(_warp(image, np.array([[1, 0, shift[0]], [0, 1, shift[1]]])))
+    assert jumped.ok, jumped.reason
+    assert np.abs(jumped.t[:2] - shift * DEPTH / CAMERA.focal).max() < 1e-4
+
+
+def test_a_smooth_image_does_not_match_the_face(scene) -> None:
+    # A gain and bias varying linearly across each ROI fit a smooth image closely; what is left
+    # of its ROIs beyond a linear ramp is too little texture to confirm the templates. The
+    # motion check is off so that only the match of the ROIs decides.
+    model, image, init = scene
+    tracker = _started(model, image, init, max_rotation_step=3.1)
+    noise = np.random.default_rng(1).standard_normal((480, 640)).astype(np.float32)
+    smooth = cv2.GaussianBlur(noise, (0, 0), 10.0)
+    lost = tracker.step(128.0 + 60.0 * smooth / smooth.std())
+    assert lost.status == TrackStatus.LOST
+    assert 'do not match' in lost.reason
+
+
 def test_a_face_leaving_the_image_is_lost(scene) -> None:
     model, image, init = scene
     tracker = _started(model, image, init, pyramid_levels=2)
