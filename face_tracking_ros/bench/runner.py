@@ -35,6 +35,7 @@ BENCHMARKS = (
     'learner_scaling',
     'memory',
     'accuracy_table',
+    'mono_accuracy',
     'soak',
 )
 DEFAULT_BENCHMARKS = BENCHMARKS[:-1]  # the soak run only on request

@@ -75,6 +75,7 @@ def format_table(results: dict[str, Any]) -> str:
     rows += _learner_rows(benchmarks.get('learner_scaling', {}))
     rows += _memory_rows(benchmarks.get('memory', {}))
     rows += _accuracy_rows(benchmarks.get('accuracy_table', {}))
+    rows += _mono_accuracy_rows(benchmarks.get('mono_accuracy', {}))
     rows += _soak_rows(benchmarks.get('soak', {}))
     lines = [f'| {" | ".join(row)} |' for row in rows]
     lines.insert(1, '| --- | --- | --- |')
@@ -213,6 +214,40 @@ def _accuracy_rows(table: dict[str, Any]) -> list[tuple[str, str, str]]:
                 f'{100 * f["expression_clear_frames"]:.0f} % clear frames, event F1 '
                 f'{f["event_f1"]:.2f}',
                 '',
+            )
+        )
+    return rows
+
+
+MONO_TARGETS = {
+    'true_model': 'rotation <= 1.0 deg per axis; t <= 2 / 2 / 5 mm; alpha <= 15 %; drift <= 0.2',
+    'baseline': 'mono rotation error >= 2x lower',
+}
+
+
+def _mono_accuracy_rows(protocol: dict[str, Any]) -> list[tuple[str, str, str]]:
+    rows = []
+    for name, entry in protocol.get('rows', {}).items():
+        f = entry['mean']
+        rotation = ' / '.join(f'{v:.2f}' for v in f['rotation_mae_deg'])
+        translation = ' / '.join(f'{v:.1f}' for v in f['translation_mae_mm'])
+        alpha = f['alpha_rms_percent']
+        rows.append(
+            (
+                f'mono protocol, {name.replace("_", " ")} (mean of {len(entry["seeds"])} seed(s))',
+                f'rotation MAE {rotation} deg, t MAE {translation} mm, alpha '
+                f'{"n/a" if alpha is None else f"{alpha:.0f} %"}, drift {f["drift_deg"]:+.2f} '
+                f'deg, lost {f["lost"]:.0f}',
+                MONO_TARGETS.get(name, ''),
+            )
+        )
+    still = protocol.get('still', {}).get('mean')
+    if still:
+        rows.append(
+            (
+                'mono jitter, still head (frame-to-frame rotation noise)',
+                ' / '.join(f'{v:.3f}' for v in still['jitter_deg']) + ' deg (x / y / z)',
+                '<= 0.05 deg',
             )
         )
     return rows

@@ -1,0 +1,127 @@
+"""The monocular tracker's accuracy by issue 6's protocol, with its baseline and ablations.
+
+Each of three seeds gives a population and a 1000-frame 640x480 sequence at 30 fps of its
+held-out subject 0 moving freely (±35° yaw, ±25° pitch, ±20° roll, expressions), initialised
+from simulated clicks on the first frame (1 px noise). On the same frames run:
+
+- ``true_model``: the tracker with the population's own model (what a perfect learner gives), so
+  its figures are the tracker's own error;
+- ``learned_model``: the tracker with the benchmark's learned model (§3.4 on subjects 1-11);
+- ``baseline``: per-node pyramidal Lucas-Kanade plus ``solvePnP`` on the same true model;
+- ablations with the true model: ``epsilon_0`` (no drift term), ``prior_off`` (no §4.1 alpha
+  prior) and ``nodes_19`` (the seed's 19-node mesh).
+
+A still head of the same subject (300 frames, the training sway of ±0.8°) gives the jitter: the
+frame-to-frame noise of the rotation error (``jitter_deg``) and the standard deviation of the
+error itself (``error_std_deg``). Every figure is a mean over the seeds, next to each seed's.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from typing import Any
+
+import numpy as np
+
+from face_tracking_ros.bench.common import BenchOptions
+from face_tracking_ros.bench.world import learned_model, render_sequence, scene_config
+from face_tracking_ros.geometry.rotation import omega_to_angles
+from face_tracking_ros.model.face_model import FaceModel
+from face_tracking_ros.recognition.node_fit import fit_model_to_nodes
+from face_tracking_ros.synthetic.faces import FacePopulation
+from face_tracking_ros.synthetic.scenes import Kind
+from face_tracking_ros.synthetic.true_model import true_face_model
+from face_tracking_ros.tracking.baseline import LKPnPTracker
+from face_tracking_ros.tracking.evaluation import Tracker, evaluate_tracker, run_tracker
+from face_tracking_ros.tracking.mono import MonoTracker, MonoTrackerConfig
+from face_tracking_ros.tracking.result import TrackStatus
+
+SEEDS = 3
+FRAMES, QUICK_FRAMES = 1000, 20
+STILL_FRAMES, QUICK_STILL_FRAMES = 300, 10
+WIDTH, HEIGHT = 640, 480
+ABLATIONS = {
+    'epsilon_0': MonoTrackerConfig(epsilon=0.0),
+    'prior_off': MonoTrackerConfig(prior_weight=0.0),
+}
+
+
+def run(options: BenchOptions) -> dict[str, Any]:
+    """Every row of the protocol, per seed and averaged over the seeds.
+
+    Returns:
+        ``{'scene': str, 'rows': {row: {'mean': {...}, 'seeds': [{...}, ...]}},
+        'still': {'mean': {...}, 'seeds': [...]}}``; angles in degrees, lengths in mm.
+    """
+    seeds = [options.seed + k for k in range(1 if options.quick else SEEDS)]
+    frames = QUICK_FRAMES if options.quick else FRAMES
+    rows: dict[str, list[dict[str, Any]]] = {}
+    still: list[dict[str, Any]] = []
+    for seed in seeds:
+        for row, figures in _free_rows(seed, frames).items():
+            rows.setdefault(row, []).append(figures)
+        still.append(_still(seed, QUICK_STILL_FRAMES if options.quick else STILL_FRAMES))
+    return {
+        'scene': f'{WIDTH}x{HEIGHT} mono, {frames} frames at 30 fps, free head motion, '
+        f'held-out subject of seeds {seeds[0]}-{seeds[-1]}, 1 px clicks',
+        'rows': {row: {'mean': _mean(figures), 'seeds': figures} for row, figures in rows.items()},
+        'still': {'mean': _mean(still), 'seeds': still},
+    }
+
+
+def _free_rows(seed: int, frames: int) -> dict[str, dict[str, Any]]:
+    """Every tracker and ablation on one seed's free-motion sequence."""
+    sequence = render_sequence(scene_config(Kind.MONO, WIDTH, HEIGHT, frames, seed))
+    images = sequence.images('image')
+    camera = sequence.reference
+    population = FacePopulation(seed=seed)
+    true34, true19 = true_face_model(population, 34), true_face_model(population, 19)
+    learned = learned_model(34, seed).model
+    trackers: dict[str, tuple[Tracker, FaceModel]] = {
+        'true_model': (MonoTracker(true34, camera), true34),
+        'learned_model': (MonoTracker(learned, camera), learned),
+        'baseline': (LKPnPTracker(true34, camera), true34),
+        'nodes_19': (MonoTracker(true19, camera), true19),
+    }
+    trackers |= {
+        name: (MonoTracker(true34, camera, config), true34) for name, config in ABLATIONS.items()
+    }
+    rows = {}
+    for name, (tracker, model) in trackers.items():
+        init = sequence.initialisation(model.node_names, seed)
+        truth = sequence.true_nodes(model.num_nodes)
+        evaluation = evaluate_tracker(tracker, model, images, truth, init)
+        rows[name] = {**evaluation.accuracy.as_dict(), 'ms_median': evaluation.ms_median}
+    return rows
+
+
+def _still(seed: int, frames: int) -> dict[str, Any]:
+    """Jitter of the default tracker (true model) on a still head with expressions."""
+    config = replace(scene_config(Kind.MONO, WIDTH, HEIGHT, frames, seed), motion='still')
+    sequence = render_sequence(config)
+    model = true_face_model(FacePopulation(seed=seed), 34)
+    truth = sequence.true_nodes(34)
+    tracked = run_tracker(
+        MonoTracker(model, sequence.reference),
+        sequence.images('image'),
+        sequence.initialisation(model.node_names, seed),
+    )
+    ok = tracked.status == TrackStatus.TRACKING
+    reference = fit_model_to_nodes(model, truth[ok])
+    error = np.degrees(omega_to_angles(tracked.omega[ok]) - omega_to_angles(reference.omega))
+    return {
+        'tracked': int(ok.sum()),
+        'frames': frames,
+        'jitter_deg': (np.std(np.diff(error, axis=0), axis=0) / np.sqrt(2)).tolist(),
+        'error_std_deg': np.std(error, axis=0).tolist(),
+        'true_angle_std_deg': np.degrees(omega_to_angles(reference.omega)).std(axis=0).tolist(),
+    }
+
+
+def _mean(per_seed: list[dict[str, Any]]) -> dict[str, Any]:
+    """The mean over seeds of every numeric figure (per axis for triples)."""
+    mean: dict[str, Any] = {}
+    for key, value in per_seed[0].items():
+        if isinstance(value, int | float | list | tuple) and not isinstance(value, bool):
+            mean[key] = np.mean([np.asarray(s[key], dtype=float) for s in per_seed], axis=0)
+    return {key: value.tolist() for key, value in mean.items()}
