@@ -70,7 +70,7 @@ def test_truth_compared_with_itself_is_perfect(truth):
     model = _model(mean, truth.identity_axes[:, :2], expressions[:, :5])
     comparison = compare_with_truth(model, truth)
     # Not exactly 1: the truth axes keep a trace of rigid motion that the comparison removes.
-    assert comparison.shape_similarity == pytest.approx(1.0, abs=1e-4)
+    assert comparison.shape_similarity == pytest.approx(1.0, abs=5e-4)
     assert comparison.action_share == pytest.approx(1.0, abs=1e-9)
     # Six training subjects do not share the population's top-2 axes exactly.
     assert 0.5 < comparison.shape_sample_similarity < 1.0

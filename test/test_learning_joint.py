@@ -56,9 +56,11 @@ def test_keeps_identity_out_of_the_expression_subspace(realistic_world):
     seed = compare_with_truth(learn_seed(training).model, truth)
     assert joint.action_share > 0.99
     assert joint.action_similarity > 0.98
-    assert seed.action_share < 0.7  # the §3.4 loop mixes leftover identity into A (issue 11)
-    # S is the top-2 principal subspace of the subjects' true neutral faces (aligned likewise).
+    assert seed.action_share < 0.6  # the §3.4 loop mixes leftover identity into A (issue 11)
+    # S is the top-2 principal subspace of the subjects' true neutral faces (aligned likewise),
+    # close to the population's: eleven subjects are enough to separate its top-2 axes.
     assert joint.shape_sample_similarity > 0.99
+    assert joint.shape_similarity > 0.93
 
 
 def _mislabel(training: TrainingSet, alpha: np.ndarray, share: float) -> TrainingSet:

@@ -10,16 +10,19 @@ node-major to (102,) in the face frame, metres. The 19-node mesh of §3.2 keeps 
 
 Truth parameterisation (what ``truth/face`` carries, and what learned models are scored against):
 
-- ``identity_basis_true`` (102, K) has orthonormal columns, ordered by decreasing variance;
-  ``sigma_true`` (K,) of a subject is drawn independently per mode from a zero-mean normal
-  truncated at about +-2.3 std (no caricatures) with variance ``identity_variances_true``, m.
-  Each column comes from a named, anatomically smooth deformation (face width, face length,
+- ``identity_basis_true`` (102, K): one column per identity mode, ordered by decreasing
+  variance; ``sigma_true`` (K,) of a subject is drawn independently per mode from a zero-mean
+  normal truncated at about +-2.3 std (no caricatures) with variance ``identity_variances_true``,
+  m^2. Each column comes from a named, anatomically smooth deformation (face width, face length,
   nose projection, jaw width, eye spacing, brow height, lip fullness, ...), Gram-Schmidt
-  orthonormalised in the preset's order. Mode k moves a node by ``sqrt(var_k / 34)`` RMS per
-  node at one standard deviation: the "mm RMS" figures of the presets.
+  orthonormalised in the preset's order on the preset's mesh: all 34 nodes ('default') or the
+  seed's 19 nodes ('realistic'), the columns carrying the same combinations of the fields to the
+  other nodes. On that mesh the columns are orthonormal and are the principal axes of the
+  identity covariance, with the preset's figures as its spectrum.
 - ``expression_basis_true`` (102, E) holds one displacement field per named non-neutral
-  expression (:data:`EXPRESSIONS` without 'neutral'), each at full intensity; its columns are
-  not orthonormal. ``alpha_true`` (E,) is the intensity of each expression, in [0, 1].
+  expression (:data:`EXPRESSIONS` without 'neutral'), each at full intensity (the same fields
+  in both presets, scaled by the preset); its columns are not orthonormal. ``alpha_true`` (E,)
+  is the intensity of each expression, in [0, 1].
 - A learned model has its own bases, mean and parameters; compare subspaces (e.g. the top-p
   principal axes of the identity covariance from :meth:`TruthBases.identity_principal_axes`),
   never raw coefficients.
@@ -28,22 +31,30 @@ The eye centres define the face frame (origin midway between them, x along them)
 moves them only symmetrically along x and expressions do not move them at all: the face frame of
 every synthetic face is the one stated in :mod:`face_tracking_ros.model.topology`.
 
-Presets (mode RMS per node at one std, 34 nodes):
+Presets:
     'default': four identity modes (face width, depth, nose projection, eye spacing) of 4.5, 3.0,
-        1.75 and 1.25 mm, made orthogonal to the expression span on both the 34- and the 19-node
-        mesh: a world whose identity and expression are well separated (the seed's assumption).
-    'realistic': thirteen identity modes led by overall face size, 6.3, 4.5, 2.9, 2.3, 1.85, 1.55,
-        1.2, 1.2, 1.0, 0.6, 0.5, 0.4 and 0.3 mm: the slowly decaying spectrum of issue 11 (12.6,
-        9.0, 5.8, ... mm) at half its scale, with fields that share directions with the
-        expressions (brow height and brow raise, face length and jaw opening, mouth width and
-        smile or pucker), as on scan-derived face models.
+        1.75 and 1.25 mm RMS per node at one std on the 34 nodes, made orthogonal to the
+        expression span on both the 34- and the 19-node mesh: a world whose identity and
+        expression are well separated (the seed's assumption). Expression displacements at full
+        intensity: jaw drop 18 mm, mouth corners 14 mm.
+    'realistic': issue 11's world. Thirteen identity modes led by overall face size whose
+        spectrum at the 19 seed nodes (square roots of the covariance eigenvalues, i.e. the norm
+        over the 57 coordinates of each mode at one std) is the issue's 12.6, 9.0, 5.8, 4.6,
+        3.7, 3.1, 2.4, 2.4, 2.0 and 1.2 mm, then 0.6, 0.5 and 0.4 mm for jaw width, cheek
+        fullness and chin projection, which lie mostly outside those nodes (on all 34 nodes:
+        21.9, 16.8, 12.5, 5.3, 5.1, ... mm). The fields share directions with the expressions
+        (brow height and brow raise, face length and jaw opening, mouth width and smile or
+        pucker): about 70 % of the expression span lies in the identity span at 19 nodes, 50 % at
+        34. One std of face size scales the face by 5 %; over 3000 drawn faces the brow-to-chin
+        height varies by 5.8 % (std), the mouth width by 10 %. Expressions are the default's
+        scaled by 0.677 (jaw drop 12 mm, mouth corners 9.4 mm), so that their leading mode at 19
+        nodes (intensities of std 0.5, as in :mod:`~face_tracking_ros.synthetic.true_model`) is
+        the issue's 14.3 mm: 14.3, 11.0, 9.1, 4.8, 2.8 and 1.0 mm against the issue's 14.3, 8.2,
+        3.6, 2.9, 1.3 and 0.7 (six named expressions of independent intensity cannot give its
+        steeper tail).
 
-Both spectra are half the figures of the issue and brief: at full scale the first mode changes
-the size or width of a face by about 25 % per standard deviation, and faces two deviations out
-collapse (a 50 % smaller face); at half scale every drawn face stays a plausible adult face. The
-expression displacements (jaw drop 18 mm, mouth corners 14 mm at full intensity) are about half
-of issue 11's expression spectrum too, so the ratio of identity to expression variance, which
-decides how much identity leaks into a learned expression basis, is kept.
+The default's figures are half of those first chosen for it: at full scale its first mode changed
+the width of a face by about 25 % per standard deviation.
 """
 
 from __future__ import annotations
@@ -52,6 +63,7 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.linalg import solve_triangular
 from scipy.stats import truncnorm
 
 from face_tracking_ros.errors import ConfigError
@@ -117,34 +129,69 @@ IDENTITY_FIELDS: dict[str, Field] = {
     'nose_deviation': lambda p: _field(_bump(p, 0.0, 45.0, 16.0, mirror=False), 0.0, 0.0),
 }
 
-# (mode name, RMS per node at one standard deviation in mm), in Gram-Schmidt order.
-_PRESET_MODES: dict[str, tuple[tuple[str, float], ...]] = {
-    'default': (
-        ('face_width', 4.5),
-        ('face_depth', 3.0),
-        ('nose_projection', 1.75),
-        ('eye_spacing', 1.25),
+
+@dataclass(frozen=True)
+class _Preset:
+    """How a preset builds its identity modes and scales its expressions.
+
+    Attributes:
+        modes: (field name, standard deviation of the mode in mm), in Gram-Schmidt order.
+        nodes: mesh (34 or 19 nodes) on which the fields are orthonormalised; there the principal
+            axes of the identity covariance are the modes themselves.
+        per_node: the figures are RMS node displacements at one standard deviation (True), or
+            the norm over all 3N coordinates of that mesh (False: the square roots of the
+            covariance eigenvalues, the usual "spectrum" of a face model).
+        separated: identity made orthogonal to the expression span first.
+        expression_scale: factor on the full-intensity expression displacements.
+    """
+
+    modes: tuple[tuple[str, float], ...]
+    nodes: int
+    per_node: bool
+    separated: bool
+    expression_scale: float
+
+
+_PRESETS: dict[str, _Preset] = {
+    'default': _Preset(
+        modes=(
+            ('face_width', 4.5),
+            ('face_depth', 3.0),
+            ('nose_projection', 1.75),
+            ('eye_spacing', 1.25),
+        ),
+        nodes=NUM_NODES,
+        per_node=True,
+        separated=True,
+        expression_scale=1.0,
     ),
-    'realistic': (
-        ('face_size', 6.3),
-        ('face_width', 4.5),
-        ('face_length', 2.9),
-        ('face_depth', 2.3),
-        ('nose_projection', 1.85),
-        ('jaw_width', 1.55),
-        ('brow_height', 1.2),
-        ('eye_spacing', 1.2),
-        ('lip_fullness', 1.0),
-        ('mouth_width', 0.6),
-        ('chin_projection', 0.5),
-        ('cheek_fullness', 0.4),
-        ('nose_deviation', 0.3),
+    'realistic': _Preset(
+        modes=(
+            ('face_size', 12.6),
+            ('face_width', 9.0),
+            ('face_length', 5.8),
+            ('face_depth', 4.6),
+            ('nose_projection', 3.7),
+            ('brow_height', 3.1),
+            ('eye_spacing', 2.4),
+            ('lip_fullness', 2.4),
+            ('mouth_width', 2.0),
+            ('nose_deviation', 1.2),
+            ('jaw_width', 0.6),
+            ('cheek_fullness', 0.5),
+            ('chin_projection', 0.4),
+        ),
+        nodes=19,
+        per_node=False,
+        separated=False,
+        expression_scale=0.677,
     ),
 }
 
-# Per-node expression displacements at full intensity, mm: {node name: (dx, dy, dz)} on the
-# subject's right side and the midline; left-side nodes mirror x. Mouth corners move up, back and
-# out in a smile; the lower lip, chin and jaw drop when the jaw opens; and so on.
+# Per-node expression displacements at full intensity before the preset's scale, mm:
+# {node name: (dx, dy, dz)} on the subject's right side and the midline; left-side nodes mirror x.
+# Mouth corners move up, back and out in a smile; the lower lip, chin and jaw drop when the jaw
+# opens; and so on.
 _EXPRESSION_NODE_MOTION: dict[str, dict[str, tuple[float, float, float]]] = {
     'smile': {
         'mouth_right': (-8.0, -9.0, 7.0),
@@ -238,7 +285,8 @@ class TruthBases:
     Attributes:
         node_names: N node names.
         mean_shape: (3N,) population mean face (the reference face), metres.
-        identity_basis: (3N, K) identity directions; orthonormal columns at N = 34 only.
+        identity_basis: (3N, K) identity directions; orthonormal columns only on the preset's
+            mesh (34 nodes for 'default', 19 for 'realistic').
         identity_variances: (K,) variances of sigma_true, m^2.
         identity_mode_names: K names of the anatomical fields the modes came from.
         expression_basis: (3N, E) full-intensity displacement of each active expression, metres.
@@ -288,8 +336,8 @@ class FacePopulation:
     """A deterministic population of synthetic subjects with true identity and expression bases.
 
     Args:
-        preset: 'default' (four well-separated identity modes) or 'realistic' (twelve modes
-            with a slowly decaying spectrum, partly shared with expressions).
+        preset: 'default' (four well-separated identity modes) or 'realistic' (thirteen modes
+            with issue 11's slowly decaying spectrum, partly shared with expressions).
         seed: seed of every subject's sigma_true and appearance; subject i does not depend on how
             many subjects are drawn.
 
@@ -309,24 +357,23 @@ class FacePopulation:
         self.seed = seed
         self._topology = mesh_topology(NUM_NODES)
         reference_mm = 1000.0 * self._topology.reference_shape
-        self.expression_basis_true = np.stack(
+        spec = _PRESETS[preset]
+        self.expression_basis_true = spec.expression_scale * np.stack(
             [_expression_field(name) / 1000.0 for name in ACTIVE_EXPRESSIONS], axis=1
         )
-        modes = _PRESET_MODES[preset]
         fields = np.stack(
             [
                 self._pin_eye_centres(IDENTITY_FIELDS[name](reference_mm)).ravel()
-                for name, _ in modes
+                for name, _ in spec.modes
             ],
             axis=1,
         )
-        if preset == 'default':
+        if spec.separated:
             fields = _orthogonal_to_expressions(fields, self.expression_basis_true)
-        basis, triangular = np.linalg.qr(fields)
-        self.identity_basis_true = basis * np.sign(np.diag(triangular))
-        rms_m = np.array([rms for _, rms in modes]) / 1000.0
-        self.identity_variances_true = NUM_NODES * rms_m**2
-        self.identity_mode_names = tuple(name for name, _ in modes)
+        self.identity_basis_true = _gram_schmidt(fields, 3 * spec.nodes)
+        std_m = np.array([std for _, std in spec.modes]) / 1000.0
+        self.identity_variances_true = (spec.nodes if spec.per_node else 1) * std_m**2
+        self.identity_mode_names = tuple(name for name, _ in spec.modes)
         self.mean_shape = self._topology.reference_shape.ravel().copy()
         for array in (self.identity_basis_true, self.identity_variances_true, self.mean_shape):
             array.setflags(write=False)
@@ -417,6 +464,19 @@ class FacePopulation:
         spread = 0.5 * (pinned[left, 0] - pinned[right, 0])
         pinned[[right, left]] = [[-spread, 0.0, 0.0], [spread, 0.0, 0.0]]
         return pinned
+
+
+def _gram_schmidt(fields: np.ndarray, rows: int) -> np.ndarray:
+    """Gram-Schmidt of (102, K) fields on their first ``rows`` coordinates, carried to all.
+
+    Returns the combinations of the fields, in their order, whose first ``rows`` coordinates are
+    orthonormal (each column keeps the sign of its own field); the other coordinates follow the
+    same combinations, so every column is a smooth deformation of the whole face.
+    """
+    basis, triangular = np.linalg.qr(fields[:rows])
+    signs = np.sign(np.diag(triangular))
+    carried = solve_triangular(signs[:, None] * triangular, fields[rows:].T, trans='T').T
+    return np.vstack([basis * signs, carried])
 
 
 def _orthogonal_to_expressions(fields: np.ndarray, expressions: np.ndarray) -> np.ndarray:
