@@ -24,10 +24,13 @@ Measures (all computed on aligned training meshes; see each function):
 
 The true identity subspace must be expressed in the learner's gauge. Procrustes alignment rotates
 every face by an angle that depends on its shape (a deeper face pitches differently under the
-eye/nose weights), a second-order effect that first-order rigid-direction removal misses: on
-the realistic preset it moves the aligned neutral faces by about 0.4 mm RMS from the truth and
-costs about 10 % of the top-2 identity variance. :func:`aligned_principal_axes` therefore puts
-true faces through the same generalised Procrustes before their PCA.
+eye/nose weights), a second-order effect that first-order rigid-direction removal misses. It
+grows with the square of the identity spread: on 2000 faces of the realistic preset, after
+first-order removal, the aligned faces stay 0.04 mm RMS from the true ones at 19 nodes and the
+true top-2 subspace scores 0.999 against the aligned faces' (0.991 at 34 nodes); with the
+realistic preset's earlier, about twice as wide spectrum it was 0.22 mm and 0.958.
+:func:`aligned_principal_axes` therefore puts true faces through the same generalised Procrustes
+before their PCA.
 """
 
 from __future__ import annotations

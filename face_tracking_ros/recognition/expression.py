@@ -11,12 +11,13 @@ Why this classifier: measured with
 :func:`face_tracking_ros.recognition.evaluation.compare_expression_classifiers` in
 :func:`~face_tracking_ros.recognition.benchmark.run_benchmark` on held-out subjects (nodes with
 1.5 mm tracking noise projected onto the model; default preset with the true bases / realistic
-preset with a learned p = 4 seed model / realistic preset with a learned p = 4 joint model), the
-linear softmax scored 99.5 / 96.6 / 98.6 % of clear frames, an RBF SVM (the classifier of
-Gokturk et al., cited in §2.5) 98.9 / 95.7 / 98.6 %, a quadratic discriminant 99.3 / 96.4 /
-98.6 % and a linear discriminant 93.7 / 90.1 / 92.9 %. The softmax is as accurate as the best,
-gives calibrated posteriors (the event confidences) and persists as two small arrays; the SVM
-needs its support vectors and a calibration step for probabilities.
+preset with a learned p = 4 seed model / realistic preset with a learned p = 4 joint model, both
+learned with q = 5 from 11 subjects' true meshes with 0.5 mm noise, two 380-frame training
+sequences each), the linear softmax scored 99.5 / 95.1 / 96.9 % of clear frames, an RBF SVM (the
+classifier of Gokturk et al., cited in §2.5) 98.9 / 94.7 / 96.3 %, a quadratic discriminant
+99.3 / 95.2 / 96.8 % and a linear discriminant 93.7 / 89.6 / 90.9 %. The softmax is as accurate
+as the best (within 0.1 point), gives calibrated posteriors (the event confidences) and persists
+as two small arrays; the SVM needs its support vectors and a calibration step for probabilities.
 
 Neutral baseline: alpha is taken relative to the face's own neutral alpha (class
 :class:`NeutralBaseline`): the mean alpha of the first ``calibration`` seconds of the track (the
@@ -26,8 +27,9 @@ memory of :data:`BASELINE_MEMORY` frames (so it follows slow tracker drift). In 
 baseline of a sequence is the mean alpha of its neutral-labelled frames. A learned model whose
 action basis also carries identity (too few shape modes for the population, issue 11) gives every
 face its own constant alpha offset: on held-out subjects of the realistic synthetic population
-with a learned p = 4, q = 5 seed model, the baseline lifts the clear-frame accuracy from 69.0 %
-to 96.1 % and the event F1 from 0.75 to 0.92. ``calibration`` 0 turns the baseline off.
+with that learned p = 4, q = 5 seed model, the baseline lifts the clear-frame accuracy from
+72.2 % to 93.8 % and the event F1 (onset at half rise) from 0.60 to 0.94. ``calibration`` 0 turns
+the baseline off.
 
 Frames labelled with an expression whose intensity is below ``min_intensity`` (the first and last
 moments of an onset or offset, where the face is still almost neutral) are left out of training.
