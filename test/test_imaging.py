@@ -70,6 +70,22 @@ def test_pyramid_levels_and_coordinates() -> None:
         assert np.allclose(centroid, expected, atol=0.02), (level, centroid, expected)
 
 
+@pytest.mark.parametrize('smooth_base', [False, True])
+def test_pyramid_rebuilt_into_a_previous_one_equals_a_new_one(smooth_base: bool) -> None:
+    rng = np.random.default_rng(3)
+    first, second = rng.integers(0, 256, size=(2, 61, 83), dtype=np.uint8)
+    previous = ImagePyramid.build(first, 3, smooth_base)
+    arrays = [id(level) for level in previous.levels]
+    rebuilt = ImagePyramid.build(second, 3, smooth_base, reuse=previous)
+    fresh = ImagePyramid.build(second, 3, smooth_base)
+    assert [id(level) for level in rebuilt.levels] == arrays
+    for got, expected in zip(rebuilt.levels, fresh.levels, strict=True):
+        np.testing.assert_array_equal(got, expected)
+    # A pyramid of another size or kind is not reused.
+    other = ImagePyramid.build(second, 2, not smooth_base, reuse=rebuilt)
+    assert not {id(level) for level in other.levels} & set(arrays)
+
+
 @pytest.mark.parametrize(
     ('image', 'levels', 'match'),
     [

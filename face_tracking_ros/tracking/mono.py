@@ -316,6 +316,7 @@ class MonoTracker:
             np.array([[1.0 / (1 << level)], [1.0 / (1 << level)], [1.0]])
             for level in range(levels)
         ]
+        self._buffers: ImagePyramid | None = None  # the previous frame's, rebuilt in place
         self._init: Initialisation | None = None
         self._use_init = False
         self._track: _Track | None = None
@@ -848,13 +849,16 @@ class MonoTracker:
         return replace(self._track.last_good, status=TrackStatus.LOST, reason=reason)
 
     def _pyramid(self, image: np.ndarray) -> ImagePyramid:
-        """Validate the image against the camera and build its pyramid."""
+        """Validate the image against the camera and build its pyramid (into the last one's)."""
         image = np.asarray(image)
         expected = (self._camera.height, self._camera.width)
         if image.shape != expected:
             msg = f'image has shape {image.shape}; the camera expects a grey {expected} image'
             raise InputError(msg)
-        return ImagePyramid.build(image, self._config.pyramid_levels, self._config.smooth_base)
+        self._buffers = ImagePyramid.build(
+            image, self._config.pyramid_levels, self._config.smooth_base, reuse=self._buffers
+        )
+        return self._buffers
 
 
 def _params_of(result: TrackResult) -> _Params:
