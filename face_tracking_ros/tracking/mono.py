@@ -49,11 +49,13 @@ from face_tracking_ros.geometry.camera import PinholeCamera
 from face_tracking_ros.geometry.rotation import rodrigues
 from face_tracking_ros.imaging import (
     ImagePyramid,
+    PhotometricInvariance,
     PhotometricModel,
     PhotometricProjection,
     inside_image,
-    sample_points,
-    sample_with_gradient,
+    inside_xy,
+    sample_gradient_xy,
+    sample_xy,
     square_offsets,
 )
 from face_tracking_ros.model.face_model import FaceModel
@@ -66,7 +68,6 @@ from face_tracking_ros.tracking.initialisation import (
 from face_tracking_ros.tracking.projection import (
     POSE_DIM,
     photometric_jacobian,
-    project_with_jacobian,
 )
 from face_tracking_ros.tracking.result import TrackResult, TrackStatus
 from face_tracking_ros.tracking.surface_patches import node_frames, surface_patch_offsets
@@ -200,15 +201,36 @@ class _Params(NamedTuple):
         )
 
 
+class _Level(NamedTuple):
+    """One pyramid level of a frame's solve: what stays fixed while it runs.
+
+    Attributes:
+        index: the level l.
+        image: (H_l, W_l) float32 level of I_n.
+        camera: (3, 4) projection matrix P of level pixels (its first two rows times 2^-l).
+        offsets: (3, N, M) ROI offsets of the level, face frame, component-major, m.
+        template: (N, M) blended template T of the level.
+        projection: the photometric invariance of the residuals for ``template``.
+    """
+
+    index: int
+    image: np.ndarray
+    camera: np.ndarray
+    offsets: np.ndarray
+    template: np.ndarray
+    projection: PhotometricProjection
+
+
 class _Linearisation(NamedTuple):
     """Jacobians at a linearisation point on one pyramid level.
 
     Attributes:
-        jacobian: (N M, P) derivative of the projected residuals, grey levels per parameter.
+        jacobian_t: (P, N M) transposed derivative of the projected residuals, grey levels per
+            parameter (rows contiguous, for the weighted products of the normal equations).
         node_jacobian: (2 N, P) derivative of the node pixels, level px per parameter.
     """
 
-    jacobian: np.ndarray
+    jacobian_t: np.ndarray
     node_jacobian: np.ndarray
 
 
@@ -257,7 +279,10 @@ class _Keyframe(NamedTuple):
 
 @dataclass
 class _Track:
-    """State of a running track; ``keyframes[0]`` holds frame 1 (the seed's I_1)."""
+    """State of a running track; ``keyframes[0]`` holds frame 1 (the seed's I_1).
+
+    ``offsets`` holds each level's (3, N, M) ROI offsets, component-major.
+    """
 
     offsets: tuple[np.ndarray, ...]
     normals: np.ndarray
@@ -311,11 +336,13 @@ class MonoTracker:
         self._alpha_precision = weight * inv(model.alpha_prior_covariance)
         self._sigma_precision = weight * inv(model.sigma_prior_covariance)
         self._grid = square_offsets(self._config.patch_half_size)
-        # Row scales of P per pyramid level: level l's pixels are level 0's times 2^-l.
-        self._level_rows = [
-            np.array([[1.0 / (1 << level)], [1.0 / (1 << level)], [1.0]])
+        self._invariance = PhotometricInvariance.of(self._config.photometric, self._grid)
+        # P of each pyramid level: level l's pixels are level 0's times 2^-l.
+        self._level_cameras = [
+            camera.p * np.array([[1.0 / (1 << level)], [1.0 / (1 << level)], [1.0]])
             for level in range(levels)
         ]
+        self._prior_hessians = {free: self._prior_hessian(free) for free in (False, True)}
         self._buffers: ImagePyramid | None = None  # the previous frame's, rebuilt in place
         self._init: Initialisation | None = None
         self._use_init = False
@@ -404,7 +431,7 @@ class MonoTracker:
     def _patch_offsets(
         self, params: _Params, num_levels: int
     ) -> tuple[tuple[np.ndarray, ...], np.ndarray]:
-        """Per-level (N, M, 3) face-frame ROI offsets and the (N, 3) node normals.
+        """Per-level (3, N, M) face-frame ROI offsets (component-major) and the (N, 3) normals.
 
         Each ROI is a square grid in the face frame's x-y directions lifted onto the thin-plate
         surface through the nodes, with the spacing that gives ``patch_spacing_px`` at the
@@ -421,7 +448,9 @@ class MonoTracker:
         )
         spacing = config.patch_spacing_px * params.t[2] / self._camera.focal
         offsets = tuple(
-            surface_patch_offsets(shape, grid * (spacing * (1 << level)))
+            np.ascontiguousarray(
+                surface_patch_offsets(shape, grid * (spacing * (1 << level))).transpose(2, 0, 1)
+            )
             for level in range(num_levels)
         )
         return offsets, node_frames(shape, self._triangles)[:, 2]
@@ -556,24 +585,22 @@ class MonoTracker:
         q = self._model.q
         params = start
         costs: list[float] = []
-        for level in reversed(range(pyramid.num_levels)):
-            projection = PhotometricProjection.of(templates[level], config.photometric, self._grid)
-            linear = self._linearise(pyramid, level, params, projection, free_sigma)
+        for index in reversed(range(pyramid.num_levels)):
+            level = _Level(
+                index=index,
+                image=pyramid.levels[index],
+                camera=self._level_cameras[index],
+                offsets=self._track.offsets[index],
+                template=templates[index],
+                projection=self._invariance.projection(templates[index]),
+            )
+            linear = self._linearise(level, params, free_sigma)
             damping = config.damping
             accepted: tuple[_Params, _System] | None = None
             scale = None
             moved = 0.0
             for _ in range(config.max_iterations):
-                system = self._evaluate(
-                    pyramid,
-                    level,
-                    params,
-                    templates[level],
-                    projection,
-                    node_weights,
-                    linear,
-                    scale,
-                )
+                system = self._evaluate(level, params, node_weights, linear, scale)
                 scale = system.scale
                 costs.append(system.cost)
                 if accepted is not None and system.cost > accepted[1].cost:
@@ -589,7 +616,7 @@ class MonoTracker:
                     break
                 moved += motion
                 if moved > config.jacobian_refresh_px:
-                    linear = self._linearise(pyramid, level, params, projection, free_sigma)
+                    linear = self._linearise(level, params, free_sigma)
                     moved = 0.0
         return _Solution(
             params=params,
@@ -599,78 +626,63 @@ class MonoTracker:
             scale=accepted[1].scale,
             iterations=len(costs),
             costs=tuple(costs),
-            projection=projection,
+            projection=level.projection,
         )
 
-    def _linearise(
-        self,
-        pyramid: ImagePyramid,
-        level: int,
-        params: _Params,
-        projection: PhotometricProjection,
-        free_sigma: bool,
-    ) -> _Linearisation:
+    def _linearise(self, level: _Level, params: _Params, free_sigma: bool) -> _Linearisation:
         """The Jacobian of eq. 6's photometrically projected residuals at ``params``.
 
         Image gradient (sampled on the ROIs only) x d pixel / d X_c (eq. 2) x d X_c / d(omega,
         t, alpha[, sigma]) (eq. 1, 3), then ``1 - P`` of the photometric model.
         """
         basis = self._identity_action_basis if free_sigma else self._action_basis
-        shape = self._model.shape(params.sigma, params.alpha)
-        points, points_cam, pixels = self._roi_points(params, level)
-        level_scale = 1.0 / float(1 << level)
-        _, gradient = sample_with_gradient(pyramid.levels[level], pixels)
-        jacobian = photometric_jacobian(
-            self._camera, params.omega, points, points_cam, gradient * level_scale, basis
-        )
-        node_jacobian = project_with_jacobian(
-            self._camera, params.omega, params.t, shape, basis
-        ).jacobian
-        return _Linearisation(
-            jacobian=projection.apply(jacobian).reshape(-1, jacobian.shape[-1]),
-            node_jacobian=node_jacobian.reshape(-1, jacobian.shape[-1]) * level_scale,
-        )
-
-    def _roi_points(
-        self, params: _Params, level: int, offsets: np.ndarray | None = None
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(N, M, 3) face-frame and camera-frame ROI points (eq. 1, 3), (N, M, 2) level pixels.
-
-        ``offsets`` are the level's (N, M, 3) ROI offsets, by default the track's.
-        """
-        shape = self._model.shape(params.sigma, params.alpha)
-        offsets = self._track.offsets[level] if offsets is None else offsets
-        points = shape[:, None, :] + offsets
         rotation, _ = rodrigues(params.omega)
-        points_cam = (points.reshape(-1, 3) @ rotation.T + params.t).reshape(points.shape)
-        pixels = self._camera.project(points_cam.reshape(-1, 3)) * (1.0 / float(1 << level))
-        return points, points_cam, pixels.reshape(*points.shape[:2], 2)
+        shape = self._model.shape(params.sigma, params.alpha)
+        # R P of the ROI points P = shape_n + offset (eq. 1, 3), and their level pixels (eq. 2).
+        rotated_nodes = rotation @ shape.T
+        rotated = (rotation @ level.offsets.reshape(3, -1)).reshape(level.offsets.shape)
+        rotated += rotated_nodes[:, :, None]
+        x, y = _dehomogenise(_transform(level.camera, rotated, params.t))
+        gradient = sample_gradient_xy(level.image, x, y)
+        level_scale = 1.0 / float(1 << level.index)
+        gradient *= level_scale
+        jacobian = photometric_jacobian(
+            self._camera, params.omega, rotated, params.t, gradient, basis
+        )
+        # The node pixels' Jacobian is that of the images x and y (gradients (1, 0) and (0, 1)).
+        node_jacobian = photometric_jacobian(
+            self._camera,
+            params.omega,
+            np.repeat(rotated_nodes[:, :, None], 2, axis=2),
+            params.t,
+            np.broadcast_to(np.eye(2)[:, None, :] * level_scale, (2, len(shape), 2)),
+            basis,
+        )
+        return _Linearisation(
+            jacobian_t=level.projection.apply(jacobian).reshape(len(jacobian), -1),
+            node_jacobian=node_jacobian.reshape(len(jacobian), -1).T,
+        )
 
-    def _roi_pixels(
-        self, params: _Params, level: int, offsets: np.ndarray | None = None
-    ) -> np.ndarray:
-        """(N, M, 2) level pixels of the ROI points (eq. 1-3) alone, for sampling.
+    def _roi_pixels(self, params: _Params, camera: np.ndarray, offsets: np.ndarray) -> np.ndarray:
+        """(2, N, M) level pixels (x row, then y row) of the ROI points (eq. 1-3), for sampling.
 
         Eq. 1 and 2 fold into one map ``h = (P_3 R)(shape_n + offset) + P_3 t + p_4`` with the
-        level's 2^-l in the first two rows of P, so nodes and offsets are mapped separately and
-        no camera-frame point is formed.
+        level's ``camera`` P, so nodes and the (3, N, M) ``offsets`` are mapped separately and no
+        camera-frame point is formed.
         """
         shape = self._model.shape(params.sigma, params.alpha)
-        offsets = self._track.offsets[level] if offsets is None else offsets
         rotation, _ = rodrigues(params.omega)
-        projection = self._camera.p * self._level_rows[level]
-        matrix = projection[:, :3] @ rotation
-        nodes = shape @ matrix.T + (projection[:, :3] @ params.t + projection[:, 3])
-        homogeneous = nodes[:, None, :] + offsets @ matrix.T
-        return homogeneous[..., :2] / homogeneous[..., 2:3]
+        matrix = camera[:, :3] @ rotation
+        homogeneous = (matrix @ offsets.reshape(3, -1)).reshape(offsets.shape)
+        homogeneous += (matrix @ shape.T + (camera[:, :3] @ params.t + camera[:, 3])[:, None])[
+            :, :, None
+        ]
+        return _dehomogenise(homogeneous)
 
     def _evaluate(
         self,
-        pyramid: ImagePyramid,
-        level: int,
+        level: _Level,
         params: _Params,
-        template: np.ndarray,
-        projection: PhotometricProjection,
         node_weights: np.ndarray,
         linear: _Linearisation,
         scale: float | None,
@@ -678,52 +690,48 @@ class MonoTracker:
         """Residuals, Huber-weighted normal equations and cost of eq. 6 on one level.
 
         Args:
-            pyramid: the current image I_n.
-            level: pyramid level.
+            level: the pyramid level, with its template and photometric projection.
             params: where to evaluate.
-            template: (N, M) blended template T of this level.
-            projection: the photometric invariance of the residuals for ``template``.
             node_weights: (N,) visibility weights.
             linear: the Jacobian (from a nearby linearisation point).
             scale: the robust residual scale s, or None to estimate it from these residuals.
         """
-        pixels = self._roi_pixels(params, level)
-        image = pyramid.levels[level]
-        residuals = projection.apply(sample_points(image, pixels) - template)
-        weights = node_weights[:, None] * inside_image(pixels, image.shape, 1.0)
+        x, y = self._roi_pixels(params, level.camera, level.offsets)
+        residuals = level.projection.apply(sample_xy(level.image, x, y) - level.template)
+        weights = node_weights[:, None] * inside_xy(x, y, level.image.shape, 1.0)
         if scale is None:
             active = np.abs(residuals[weights > 0])
             spread = _MAD_TO_STD * float(np.median(active)) if active.size else 0.0
             scale = max(self._config.residual_scale_floor, spread)
         normalised = (residuals / scale).ravel()
         huber = _huber_weights(normalised, self._config.huber_k) * weights.ravel()
-        weighted = linear.jacobian * huber[:, None]
-        free_sigma = linear.jacobian.shape[1] > POSE_DIM + self._model.q
-        prior_hessian, prior_gradient = self._prior_terms(params, free_sigma)
+        weighted_t = linear.jacobian_t * huber
+        free_sigma = linear.jacobian_t.shape[0] > POSE_DIM + self._model.q
         cost = self._data_cost(residuals, weights, scale) + self._prior_cost(params, free_sigma)
         return _System(
             cost=cost,
-            hessian=weighted.T @ linear.jacobian / scale**2 + prior_hessian,
-            gradient=weighted.T @ residuals.ravel() / scale**2 + prior_gradient,
+            hessian=weighted_t @ linear.jacobian_t.T / scale**2 + self._prior_hessians[free_sigma],
+            gradient=weighted_t @ residuals.ravel() / scale**2
+            + self._prior_gradient(params, free_sigma),
             scale=scale,
         )
 
-    def _prior_terms(self, params: _Params, free_sigma: bool) -> tuple[np.ndarray, np.ndarray]:
-        """Hessian and gradient (halved) of the alpha (and sigma) priors, padded to the pose."""
+    def _prior_hessian(self, free_sigma: bool) -> np.ndarray:
+        """Hessian (halved) of the alpha (and sigma) priors, padded to the pose."""
         q = self._model.q
         size = POSE_DIM + q + (self._model.p if free_sigma else 0)
         hessian = np.zeros((size, size))
-        gradient = np.zeros(size)
-        blocks = [(self._alpha_precision, params.alpha)]
+        hessian[POSE_DIM : POSE_DIM + q, POSE_DIM : POSE_DIM + q] = self._alpha_precision
         if free_sigma:
-            blocks.append((self._sigma_precision, params.sigma))
-        start = POSE_DIM
-        for precision, value in blocks:
-            stop = start + len(value)
-            hessian[start:stop, start:stop] = precision
-            gradient[start:stop] = precision @ value
-            start = stop
-        return hessian, gradient
+            hessian[POSE_DIM + q :, POSE_DIM + q :] = self._sigma_precision
+        return hessian
+
+    def _prior_gradient(self, params: _Params, free_sigma: bool) -> np.ndarray:
+        """Gradient (halved) of the alpha (and sigma) priors, padded to the pose."""
+        blocks = [np.zeros(POSE_DIM), self._alpha_precision @ params.alpha]
+        if free_sigma:
+            blocks.append(self._sigma_precision @ params.sigma)
+        return np.concatenate(blocks)
 
     def _prior_cost(self, params: _Params, free_sigma: bool) -> float:
         """``alpha' L_a alpha`` (+ ``sigma' L_s sigma`` while sigma is free)."""
@@ -793,10 +801,10 @@ class MonoTracker:
         """Samples of every level at ``params``'s ROIs, and the node visibility there."""
         levels, inside = [], None
         for level, image in enumerate(pyramid.levels):
-            pixels = self._roi_pixels(params, level, offsets[level])
-            levels.append(sample_points(image, pixels))
+            x, y = self._roi_pixels(params, self._level_cameras[level], offsets[level])
+            levels.append(sample_xy(image, x, y))
             if inside is None:
-                inside = inside_image(pixels, image.shape, margin=1.0)
+                inside = inside_xy(x, y, image.shape, margin=1.0)
         return _Templates(tuple(levels), self._visibility(params, normals), inside)
 
     def _visibility(self, params: _Params, normals: np.ndarray) -> np.ndarray:
@@ -811,8 +819,8 @@ class MonoTracker:
     def _project_nodes(self, params: _Params) -> tuple[np.ndarray, np.ndarray]:
         """(N, 3) camera-frame nodes (eq. 1, 3) and their (N, 2) pixels (eq. 2)."""
         shape = self._model.shape(params.sigma, params.alpha)
-        projection = project_with_jacobian(self._camera, params.omega, params.t, shape)
-        return projection.points_cam, projection.pixels
+        points_cam = shape @ rodrigues(params.omega)[0].T + params.t
+        return points_cam, self._camera.project(points_cam)
 
     def _result(
         self,
@@ -859,6 +867,19 @@ class MonoTracker:
             image, self._config.pyramid_levels, self._config.smooth_base, reuse=self._buffers
         )
         return self._buffers
+
+
+def _transform(camera: np.ndarray, rotated: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """(3, ...) homogeneous pixels ``P_3 (R P + t) + p_4`` (eq. 1-2) of (3, ...) points R P."""
+    projection = camera[:, :3]
+    homogeneous = (projection @ rotated.reshape(3, -1)).reshape(rotated.shape)
+    homogeneous += (projection @ t + camera[:, 3]).reshape(3, *(1,) * (rotated.ndim - 1))
+    return homogeneous
+
+
+def _dehomogenise(homogeneous: np.ndarray) -> np.ndarray:
+    """(2, ...) pixels (x, y) of (3, ...) homogeneous pixels."""
+    return homogeneous[:2] / homogeneous[2]
 
 
 def _params_of(result: TrackResult) -> _Params:
