@@ -211,6 +211,7 @@ class _Level(NamedTuple):
         offsets: (3, N, M) ROI offsets of the level, face frame, component-major, m.
         template: (N, M) blended template T of the level.
         projection: the photometric invariance of the residuals for ``template``.
+        visibility: (N, M) the node visibility weight of every sample.
     """
 
     index: int
@@ -219,6 +220,7 @@ class _Level(NamedTuple):
     offsets: np.ndarray
     template: np.ndarray
     projection: PhotometricProjection
+    visibility: np.ndarray
 
 
 class _Linearisation(NamedTuple):
@@ -227,11 +229,21 @@ class _Linearisation(NamedTuple):
     Attributes:
         jacobian_t: (P, N M) transposed derivative of the projected residuals, grey levels per
             parameter (rows contiguous, for the weighted products of the normal equations).
+        hessian: (P, P) ``J' V J`` with the samples' visibility weights V alone; the normal
+            equations of an iteration correct it for the samples whose weight differs.
         node_jacobian: (2 N, P) derivative of the node pixels, level px per parameter.
     """
 
     jacobian_t: np.ndarray
+    hessian: np.ndarray
     node_jacobian: np.ndarray
+
+
+class _Sampled(NamedTuple):
+    """One level's samples of the ROIs at a pose, and which lie inside the image."""
+
+    samples: np.ndarray  # (N, M) float32
+    inside: np.ndarray  # (N, M) bool, at least 1 px inside
 
 
 class _System(NamedTuple):
@@ -241,6 +253,8 @@ class _System(NamedTuple):
     hessian: np.ndarray
     gradient: np.ndarray
     scale: float
+    sampled: _Sampled
+    residuals: np.ndarray  # (N, M), photometrically projected
 
 
 class _Solution(NamedTuple):
@@ -249,6 +263,8 @@ class _Solution(NamedTuple):
     params: _Params
     fallback: _Params
     fallback_cost: float
+    fallback_sampled: _Sampled  # level 0 at the fallback, and its residuals
+    fallback_residuals: np.ndarray
     scale: float
     iterations: int
     costs: tuple[float, ...]
@@ -547,17 +563,17 @@ class MonoTracker:
         track = self._track
         solution = self._solve(pyramid, start, templates, node_weights, free_sigma)
         params = solution.params
-        sampled = self._templates(pyramid, params, track.offsets, track.normals)
+        first = self._sample(pyramid.levels[0], params, 0, track.offsets[0])
         projection = solution.projection
-        residuals = projection.apply(sampled.levels[0] - templates[0])
-        weights = node_weights[:, None] * sampled.inside
+        residuals = projection.apply(first.samples - templates[0])
+        weights = node_weights[:, None] * first.inside
         cost = self._data_cost(residuals, weights, solution.scale) + self._prior_cost(
             params, free_sigma
         )
         if cost > solution.fallback_cost:  # the last, unchecked step made things worse
             params = solution.fallback
-            sampled = self._templates(pyramid, params, track.offsets, track.normals)
-            residuals = projection.apply(sampled.levels[0] - templates[0])
+            first, residuals = solution.fallback_sampled, solution.fallback_residuals
+        sampled = self._templates(pyramid, params, track.offsets, track.normals, first)
         node_rms = np.sqrt(np.mean(residuals**2, axis=1))
         reason = self._loss_reason(
             params, start, node_rms, sampled.levels[0], sampled.visibility, solution
@@ -593,6 +609,7 @@ class MonoTracker:
                 offsets=self._track.offsets[index],
                 template=templates[index],
                 projection=self._invariance.projection(templates[index]),
+                visibility=np.repeat(node_weights[:, None], templates[index].shape[1], axis=1),
             )
             linear = self._linearise(level, params, free_sigma)
             damping = config.damping
@@ -600,7 +617,7 @@ class MonoTracker:
             scale = None
             moved = 0.0
             for _ in range(config.max_iterations):
-                system = self._evaluate(level, params, node_weights, linear, scale)
+                system = self._evaluate(level, params, linear, scale)
                 scale = system.scale
                 costs.append(system.cost)
                 if accepted is not None and system.cost > accepted[1].cost:
@@ -623,6 +640,8 @@ class MonoTracker:
             fallback=accepted[0],
             condition=_condition(accepted[1].hessian),
             fallback_cost=accepted[1].cost,
+            fallback_sampled=accepted[1].sampled,
+            fallback_residuals=accepted[1].residuals,
             scale=accepted[1].scale,
             iterations=len(costs),
             costs=tuple(costs),
@@ -658,8 +677,10 @@ class MonoTracker:
             np.broadcast_to(np.eye(2)[:, None, :] * level_scale, (2, len(shape), 2)),
             basis,
         )
+        jacobian_t = level.projection.apply(jacobian).reshape(len(jacobian), -1)
         return _Linearisation(
-            jacobian_t=level.projection.apply(jacobian).reshape(len(jacobian), -1),
+            jacobian_t=jacobian_t,
+            hessian=(jacobian_t * level.visibility.ravel()) @ jacobian_t.T,
             node_jacobian=node_jacobian.reshape(len(jacobian), -1).T,
         )
 
@@ -683,37 +704,44 @@ class MonoTracker:
         self,
         level: _Level,
         params: _Params,
-        node_weights: np.ndarray,
         linear: _Linearisation,
         scale: float | None,
     ) -> _System:
         """Residuals, Huber-weighted normal equations and cost of eq. 6 on one level.
 
+        ``J' W J`` is the linearisation's ``J' V J`` plus the columns of the samples whose IRLS
+        weight W (Huber times visibility times inside the image) differs from their visibility V.
+
         Args:
-            level: the pyramid level, with its template and photometric projection.
+            level: the pyramid level, with its template, photometric projection and visibility.
             params: where to evaluate.
-            node_weights: (N,) visibility weights.
             linear: the Jacobian (from a nearby linearisation point).
             scale: the robust residual scale s, or None to estimate it from these residuals.
         """
-        x, y = self._roi_pixels(params, level.camera, level.offsets)
-        residuals = level.projection.apply(sample_xy(level.image, x, y) - level.template)
-        weights = node_weights[:, None] * inside_xy(x, y, level.image.shape, 1.0)
+        sampled = self._sample(level.image, params, level.index, level.offsets)
+        residuals = level.projection.apply(sampled.samples - level.template)
+        weights = level.visibility * sampled.inside
         if scale is None:
             active = np.abs(residuals[weights > 0])
             spread = _MAD_TO_STD * float(np.median(active)) if active.size else 0.0
             scale = max(self._config.residual_scale_floor, spread)
-        normalised = (residuals / scale).ravel()
-        huber = _huber_weights(normalised, self._config.huber_k) * weights.ravel()
-        weighted_t = linear.jacobian_t * huber
+        magnitude = np.abs(residuals / scale)
+        k = self._config.huber_k
+        irls = (_huber_weights(magnitude, k) * weights).ravel()
+        change = irls - level.visibility.ravel()
+        changed = np.flatnonzero(change)
+        columns = linear.jacobian_t[:, changed]
         free_sigma = linear.jacobian_t.shape[0] > POSE_DIM + self._model.q
-        cost = self._data_cost(residuals, weights, scale) + self._prior_cost(params, free_sigma)
+        data_cost = float(np.sum(weights * _huber_rho(magnitude, k)))
         return _System(
-            cost=cost,
-            hessian=weighted_t @ linear.jacobian_t.T / scale**2 + self._prior_hessians[free_sigma],
-            gradient=weighted_t @ residuals.ravel() / scale**2
+            cost=data_cost + self._prior_cost(params, free_sigma),
+            hessian=(linear.hessian + (columns * change[changed]) @ columns.T) / scale**2
+            + self._prior_hessians[free_sigma],
+            gradient=linear.jacobian_t @ (irls * residuals.ravel()) / scale**2
             + self._prior_gradient(params, free_sigma),
             scale=scale,
+            sampled=sampled,
+            residuals=residuals,
         )
 
     def _prior_hessian(self, free_sigma: bool) -> np.ndarray:
@@ -742,10 +770,7 @@ class MonoTracker:
 
     def _data_cost(self, residuals: np.ndarray, weights: np.ndarray, scale: float) -> float:
         """Huber cost ``sum w rho(r / s)`` of (N, M) residuals with (N, M) weights."""
-        normalised = np.abs(residuals / scale)
-        k = self._config.huber_k
-        rho = np.where(normalised <= k, normalised**2, 2 * k * normalised - k * k)
-        return float(np.sum(weights * rho))
+        return float(np.sum(weights * _huber_rho(np.abs(residuals / scale), self._config.huber_k)))
 
     # --- checks, templates, results ------------------------------------------------------------
 
@@ -797,15 +822,25 @@ class MonoTracker:
         params: _Params,
         offsets: tuple[np.ndarray, ...],
         normals: np.ndarray,
+        first: _Sampled | None = None,
     ) -> _Templates:
-        """Samples of every level at ``params``'s ROIs, and the node visibility there."""
-        levels, inside = [], None
-        for level, image in enumerate(pyramid.levels):
+        """Samples of every level at ``params``'s ROIs, and the node visibility there.
+
+        ``first`` is level 0 at ``params`` when it has been sampled already.
+        """
+        first = first or self._sample(pyramid.levels[0], params, 0, offsets[0])
+        levels = [first.samples]
+        for level in range(1, pyramid.num_levels):
             x, y = self._roi_pixels(params, self._level_cameras[level], offsets[level])
-            levels.append(sample_xy(image, x, y))
-            if inside is None:
-                inside = inside_xy(x, y, image.shape, margin=1.0)
-        return _Templates(tuple(levels), self._visibility(params, normals), inside)
+            levels.append(sample_xy(pyramid.levels[level], x, y))
+        return _Templates(tuple(levels), self._visibility(params, normals), first.inside)
+
+    def _sample(
+        self, image: np.ndarray, params: _Params, level: int, offsets: np.ndarray
+    ) -> _Sampled:
+        """Level ``level``'s samples of the ROIs (with the level's (3, N, M) offsets)."""
+        x, y = self._roi_pixels(params, self._level_cameras[level], offsets)
+        return _Sampled(sample_xy(image, x, y), inside_xy(x, y, image.shape, margin=1.0))
 
     def _visibility(self, params: _Params, normals: np.ndarray) -> np.ndarray:
         """(N,) weights in [0, 1] from the angle between node normals and rays to the camera."""
@@ -893,10 +928,14 @@ def _rotation_angle(omega_a: np.ndarray, omega_b: np.ndarray) -> float:
     return float(np.arccos(np.clip(0.5 * (np.trace(relative) - 1.0), -1.0, 1.0)))
 
 
-def _huber_weights(normalised: np.ndarray, k: float) -> np.ndarray:
-    """IRLS weights of the Huber loss at normalised residuals r / s: 1 inside k, k/|u| outside."""
-    magnitude = np.abs(normalised)
+def _huber_weights(magnitude: np.ndarray, k: float) -> np.ndarray:
+    """IRLS weights of the Huber loss at |r| / s: 1 inside k, k / |u| outside."""
     return np.where(magnitude <= k, 1.0, k / np.maximum(magnitude, k))
+
+
+def _huber_rho(magnitude: np.ndarray, k: float) -> np.ndarray:
+    """The Huber loss rho at |r| / s: u^2 inside k, 2 k |u| - k^2 outside."""
+    return np.where(magnitude <= k, magnitude**2, 2 * k * magnitude - k * k)
 
 
 def _damped_step(system: _System, damping: float) -> np.ndarray:
