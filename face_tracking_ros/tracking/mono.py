@@ -666,7 +666,7 @@ class MonoTracker:
         level_scale = 1.0 / float(1 << level.index)
         gradient *= level_scale
         jacobian = photometric_jacobian(
-            self._camera, params.omega, rotated, params.t, gradient, basis
+            self._camera, params.omega, rotated, params.t, gradient, basis, level.projection.apply
         )
         # The node pixels' Jacobian is that of the images x and y (gradients (1, 0) and (0, 1)).
         node_jacobian = photometric_jacobian(
@@ -677,7 +677,7 @@ class MonoTracker:
             np.broadcast_to(np.eye(2)[:, None, :] * level_scale, (2, len(shape), 2)),
             basis,
         )
-        jacobian_t = level.projection.apply(jacobian).reshape(len(jacobian), -1)
+        jacobian_t = jacobian.reshape(len(jacobian), -1)
         return _Linearisation(
             jacobian_t=jacobian_t,
             hessian=(jacobian_t * level.visibility.ravel()) @ jacobian_t.T,

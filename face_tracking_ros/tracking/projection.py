@@ -10,6 +10,7 @@ the analytic derivatives of :func:`~face_tracking_ros.geometry.rotation.rotate_w
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import NamedTuple
 
 import numpy as np
@@ -80,15 +81,16 @@ def photometric_jacobian(
     t: np.ndarray,
     gradient: np.ndarray,
     basis: np.ndarray | None = None,
+    project: Callable[[np.ndarray], np.ndarray] | None = None,
 ) -> np.ndarray:
     """Derivative of image samples ``I(pi(R(omega) P + t))`` with respect to (omega, t, c).
 
     The chain rule of :func:`project_with_jacobian` contracted with the image gradient first,
-    ``h = (dpi/dX_c)' grad I``, so no per-sample 2x3 or 3x3 matrices are formed: the omega columns
-    are ``h' dR/domega_k P = j_k . (R P x h)`` (with ``dR/domega_k = [j_k]x R``), the t columns
-    ``h`` and the coefficient columns ``(R' h)' dP/dc``. Arrays are component-major (one
-    contiguous row per coordinate or parameter), so every step is a 3x3 product or an operation
-    on whole rows.
+    ``h = (dpi/dX_c)' grad I``, so no per-sample 2x3 or 3x3 matrices are formed: the omega rows
+    are ``h' dR/domega_k P = j_k . (R P x h)`` (with ``dR/domega_k = [j_k]x R``), the t rows
+    ``h`` and the coefficient rows ``(R' h)' dP/dc``. Arrays are component-major (one contiguous
+    row per coordinate or parameter), so every step is a 3x3 product or an operation on whole
+    rows.
 
     Args:
         camera: the camera of eq. 2.
@@ -98,6 +100,10 @@ def photometric_jacobian(
         t: (3,) translation of eq. 1, m.
         gradient: (2, N, M) image gradient (d/dx, d/dy) at their pixels, grey levels / px.
         basis: (N, 3, c) derivative dP/dc shared by the M points of each node, or None.
+        project: a linear map of (J, N, M) stacks acting on each node's M samples alone (a
+            photometric projection); the result is then the Jacobian of the mapped samples.
+            Every row is a combination of the six rows ``R P x h`` and ``h`` with coefficients
+            constant over a node's samples, so only those six are mapped.
 
     Returns:
         (6 + c, N, M) Jacobian, one row per parameter: grey levels per rad, per m and per unit
@@ -115,11 +121,19 @@ def photometric_jacobian(
     h = projection[:2].T @ flat_gradient
     h -= projection[2][:, None] * along
     h *= inverse_depth
-    # Row k of the omega block: h . (j_k x R P) with [j_k]x = dR/domega_k R', for all k at once.
-    turned = ((d_rotation @ rotation.T).reshape(9, 3) @ flat).reshape(3, 3, -1)
-    blocks = [np.sum(turned * h, axis=1), h]
+    x, y, z = flat
+    rows = np.stack([y * h[2] - z * h[1], z * h[0] - x * h[2], x * h[1] - y * h[0], *h])
+    if project is not None:
+        rows = project(rows.reshape(6, *rotated.shape[1:])).reshape(6, -1)
+    blocks = [_left_jacobian(rotation, d_rotation).T @ rows[:3], rows[3:]]
     if basis is not None:
-        rotated_h = (rotation.T @ h).reshape(3, count, -1).transpose(1, 0, 2)  # (N, 3, M)
+        rotated_h = (rotation.T @ rows[3:]).reshape(3, count, -1).transpose(1, 0, 2)  # (N, 3, M)
         coefficients = np.matmul(basis.transpose(0, 2, 1), rotated_h)  # (N, c, M)
         blocks.append(coefficients.transpose(1, 0, 2).reshape(basis.shape[-1], -1))
     return np.concatenate(blocks, axis=0).reshape(-1, *rotated.shape[1:])
+
+
+def _left_jacobian(rotation: np.ndarray, d_rotation: np.ndarray) -> np.ndarray:
+    """(3, 3) matrix J with columns j_k such that dR/domega_k = [j_k]x R (from cv2's dR)."""
+    generators = d_rotation @ rotation.T  # (3, 3, 3), each skew-symmetric
+    return np.stack([generators[:, 2, 1], generators[:, 0, 2], generators[:, 1, 0]], axis=0)
