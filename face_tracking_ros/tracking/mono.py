@@ -729,8 +729,8 @@ class MonoTracker:
         k = self._config.huber_k
         irls = (_huber_weights(magnitude, k) * weights).ravel()
         change = irls - level.visibility.ravel()
-        changed = np.flatnonzero(change)
-        columns = linear.jacobian_t[:, changed]
+        changed = change != 0.0
+        columns = np.compress(changed, linear.jacobian_t, axis=1)
         free_sigma = linear.jacobian_t.shape[0] > POSE_DIM + self._model.q
         data_cost = float(np.sum(weights * _huber_rho(magnitude, k)))
         return _System(
@@ -930,7 +930,7 @@ def _rotation_angle(omega_a: np.ndarray, omega_b: np.ndarray) -> float:
 
 def _huber_weights(magnitude: np.ndarray, k: float) -> np.ndarray:
     """IRLS weights of the Huber loss at |r| / s: 1 inside k, k / |u| outside."""
-    return np.where(magnitude <= k, 1.0, k / np.maximum(magnitude, k))
+    return np.minimum(1.0, k / np.maximum(magnitude, k))
 
 
 def _huber_rho(magnitude: np.ndarray, k: float) -> np.ndarray:
@@ -940,13 +940,14 @@ def _huber_rho(magnitude: np.ndarray, k: float) -> np.ndarray:
 
 def _damped_step(system: _System, damping: float) -> np.ndarray:
     """Levenberg-Marquardt step ``-(H + lambda diag H)^-1 g``, solved Jacobi-scaled."""
-    if not np.all(np.isfinite(system.hessian)) or not np.all(np.isfinite(system.gradient)):
+    hessian, gradient = system.hessian, system.gradient
+    if not (np.isfinite(hessian).all() and np.isfinite(gradient).all()):
         msg = 'non-finite normal equations'
         raise LinAlgError(msg)
-    scaling = 1.0 / np.sqrt(np.maximum(np.diag(system.hessian), 1e-12))
-    scaled = system.hessian * scaling[:, None] * scaling[None, :]
-    damped = scaled + damping * np.eye(len(scaling))
-    return -scaling * np.linalg.solve(damped, system.gradient * scaling)
+    scaling = 1.0 / np.sqrt(np.maximum(hessian.diagonal(), 1e-12))
+    damped = hessian * scaling[:, None] * scaling[None, :]
+    damped.flat[:: len(scaling) + 1] += damping
+    return -scaling * np.linalg.solve(damped, gradient * scaling)
 
 
 def _condition(hessian: np.ndarray) -> float:
