@@ -12,10 +12,10 @@ from face_tracking_ros.imaging import (
     PhotometricProjection,
     inside_image,
     inside_xy,
-    sample_gradient_xy,
     sample_patches,
     sample_points,
     sample_with_gradient,
+    sample_with_gradient_xy,
     sample_xy,
     square_offsets,
     to_gray,
@@ -181,8 +181,11 @@ def test_separate_coordinates_sample_exactly_like_interleaved_points(shape) -> N
     points = rng.uniform(-2, 52, (*shape, 2))
     x, y = points[..., 0], points[..., 1]
     np.testing.assert_array_equal(sample_xy(image, x, y), sample_points(image, points))
-    _, gradient = sample_with_gradient(image, points)
-    np.testing.assert_array_equal(sample_gradient_xy(image, x, y), np.moveaxis(gradient, -1, 0))
+    values, gradient = sample_with_gradient(image, points)
+    values_xy, gradient_xy = sample_with_gradient_xy(image, x, y)
+    np.testing.assert_array_equal(values_xy, values)
+    np.testing.assert_array_equal(values_xy, sample_xy(image, x, y))
+    np.testing.assert_array_equal(gradient_xy, np.moveaxis(gradient, -1, 0))
     np.testing.assert_array_equal(
         inside_xy(x, y, image.shape, 1.5), inside_image(points, image.shape, 1.5)
     )

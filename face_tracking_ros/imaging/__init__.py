@@ -15,10 +15,10 @@ from face_tracking_ros.imaging.pyramid import ImagePyramid
 from face_tracking_ros.imaging.sampling import (
     inside_image,
     inside_xy,
-    sample_gradient_xy,
     sample_patches,
     sample_points,
     sample_with_gradient,
+    sample_with_gradient_xy,
     sample_xy,
     square_offsets,
 )
@@ -31,10 +31,10 @@ __all__ = [
     'PhotometricProjection',
     'inside_image',
     'inside_xy',
-    'sample_gradient_xy',
     'sample_patches',
     'sample_points',
     'sample_with_gradient',
+    'sample_with_gradient_xy',
     'sample_xy',
     'square_offsets',
     'to_gray',

@@ -141,8 +141,10 @@ def sample_with_gradient(image: np.ndarray, points: np.ndarray) -> tuple[np.ndar
     return samples[0].reshape(points.shape[:-1]), gradient.reshape(points.shape)
 
 
-def sample_gradient_xy(image: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """The gradient of :func:`sample_with_gradient` alone, at separate x and y coordinates.
+def sample_with_gradient_xy(
+    image: np.ndarray, x: np.ndarray, y: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`sample_with_gradient` at separate x and y coordinates.
 
     Args:
         image: (H, W) float32 image.
@@ -150,13 +152,15 @@ def sample_gradient_xy(image: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.nd
         y: (...) row coordinates, px, of x's shape.
 
     Returns:
+        ``(values, gradient)``: values (...) float32 (equal to :func:`sample_xy`'s), gradient
         (2, ...) float32 (dI/dx, dI/dy), grey levels per pixel.
     """
     x = np.asarray(x, dtype=np.float32)
-    samples = _stencil_samples(image, x.ravel(), np.asarray(y, dtype=np.float32).ravel(), False)
+    y = np.asarray(y, dtype=np.float32)
+    samples = _stencil_samples(image, x.ravel(), y.ravel(), centre=True)
     gradient = np.empty((2, x.size), dtype=np.float32)
     _central_differences(samples, gradient)
-    return gradient.reshape(2, *x.shape)
+    return samples[0].reshape(x.shape), gradient.reshape(2, *x.shape)
 
 
 def _stencil_samples(image: np.ndarray, x: np.ndarray, y: np.ndarray, centre: bool) -> np.ndarray:

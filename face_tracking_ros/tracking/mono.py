@@ -54,7 +54,7 @@ from face_tracking_ros.imaging import (
     PhotometricProjection,
     inside_image,
     inside_xy,
-    sample_gradient_xy,
+    sample_with_gradient_xy,
     sample_xy,
     square_offsets,
 )
@@ -223,10 +223,19 @@ class _Level(NamedTuple):
     visibility: np.ndarray
 
 
+class _Sampled(NamedTuple):
+    """One level's samples of the ROIs at a pose, and which lie inside the image."""
+
+    samples: np.ndarray  # (N, M) float32
+    inside: np.ndarray  # (N, M) bool, at least 1 px inside
+
+
 class _Linearisation(NamedTuple):
     """Jacobians at a linearisation point on one pyramid level.
 
     Attributes:
+        params: the linearisation point.
+        sampled: the level's samples at ``params`` (taken with the gradient).
         jacobian_t: (P, N M) transposed derivative of the projected residuals, grey levels per
             parameter (rows contiguous, for the weighted products of the normal equations).
         hessian: (P, P) ``J' V J`` with the samples' visibility weights V alone; the normal
@@ -234,16 +243,11 @@ class _Linearisation(NamedTuple):
         node_jacobian: (2 N, P) derivative of the node pixels, level px per parameter.
     """
 
+    params: _Params
+    sampled: _Sampled
     jacobian_t: np.ndarray
     hessian: np.ndarray
     node_jacobian: np.ndarray
-
-
-class _Sampled(NamedTuple):
-    """One level's samples of the ROIs at a pose, and which lie inside the image."""
-
-    samples: np.ndarray  # (N, M) float32
-    inside: np.ndarray  # (N, M) bool, at least 1 px inside
 
 
 class _System(NamedTuple):
@@ -661,8 +665,8 @@ class MonoTracker:
         rotated_nodes = rotation @ shape.T
         rotated = (rotation @ level.offsets.reshape(3, -1)).reshape(level.offsets.shape)
         rotated += rotated_nodes[:, :, None]
-        x, y = _dehomogenise(_transform(level.camera, rotated, params.t))
-        gradient = sample_gradient_xy(level.image, x, y)
+        x, y = self._roi_pixels(params, level.camera, level.offsets)
+        samples, gradient = sample_with_gradient_xy(level.image, x, y)
         level_scale = 1.0 / float(1 << level.index)
         gradient *= level_scale
         jacobian = photometric_jacobian(
@@ -679,6 +683,8 @@ class MonoTracker:
         )
         jacobian_t = jacobian.reshape(len(jacobian), -1)
         return _Linearisation(
+            params=params,
+            sampled=_Sampled(samples, inside_xy(x, y, level.image.shape, margin=1.0)),
             jacobian_t=jacobian_t,
             hessian=(jacobian_t * level.visibility.ravel()) @ jacobian_t.T,
             node_jacobian=node_jacobian.reshape(len(jacobian), -1).T,
@@ -718,7 +724,11 @@ class MonoTracker:
             linear: the Jacobian (from a nearby linearisation point).
             scale: the robust residual scale s, or None to estimate it from these residuals.
         """
-        sampled = self._sample(level.image, params, level.index, level.offsets)
+        sampled = (
+            linear.sampled
+            if params is linear.params
+            else self._sample(level.image, params, level.index, level.offsets)
+        )
         residuals = level.projection.apply(sampled.samples - level.template)
         weights = level.visibility * sampled.inside
         if scale is None:
@@ -902,14 +912,6 @@ class MonoTracker:
             image, self._config.pyramid_levels, self._config.smooth_base, reuse=self._buffers
         )
         return self._buffers
-
-
-def _transform(camera: np.ndarray, rotated: np.ndarray, t: np.ndarray) -> np.ndarray:
-    """(3, ...) homogeneous pixels ``P_3 (R P + t) + p_4`` (eq. 1-2) of (3, ...) points R P."""
-    projection = camera[:, :3]
-    homogeneous = (projection @ rotated.reshape(3, -1)).reshape(rotated.shape)
-    homogeneous += (projection @ t + camera[:, 3]).reshape(3, *(1,) * (rotated.ndim - 1))
-    return homogeneous
 
 
 def _dehomogenise(homogeneous: np.ndarray) -> np.ndarray:
