@@ -669,25 +669,27 @@ class MonoTracker:
         samples, gradient = sample_with_gradient_xy(level.image, x, y)
         level_scale = 1.0 / float(1 << level.index)
         gradient *= level_scale
+        # Two more samples per node, at the node with "image gradients" (1, 0) and (0, 1): their
+        # rows are the node pixels' Jacobian; the photometric projection leaves them out.
+        count, size = x.shape
+        points = np.concatenate([rotated, np.repeat(rotated_nodes[:, :, None], 2, axis=2)], 2)
+        unit = np.broadcast_to(np.eye(2)[:, None, :] * level_scale, (2, count, 2))
+        gradients = np.concatenate([gradient, unit], axis=2)
+
+        def project(rows: np.ndarray) -> np.ndarray:
+            roi = level.projection.apply(rows[..., :size])
+            return np.concatenate([roi, rows[..., size:]], axis=2)
+
         jacobian = photometric_jacobian(
-            self._camera, params.omega, rotated, params.t, gradient, basis, level.projection.apply
+            self._camera, params.omega, points, params.t, gradients, basis, project
         )
-        # The node pixels' Jacobian is that of the images x and y (gradients (1, 0) and (0, 1)).
-        node_jacobian = photometric_jacobian(
-            self._camera,
-            params.omega,
-            np.repeat(rotated_nodes[:, :, None], 2, axis=2),
-            params.t,
-            np.broadcast_to(np.eye(2)[:, None, :] * level_scale, (2, len(shape), 2)),
-            basis,
-        )
-        jacobian_t = jacobian.reshape(len(jacobian), -1)
+        jacobian_t = np.ascontiguousarray(jacobian[..., :size]).reshape(len(jacobian), -1)
         return _Linearisation(
             params=params,
             sampled=_Sampled(samples, inside_xy(x, y, level.image.shape, margin=1.0)),
             jacobian_t=jacobian_t,
             hessian=(jacobian_t * level.visibility.ravel()) @ jacobian_t.T,
-            node_jacobian=node_jacobian.reshape(len(jacobian), -1).T,
+            node_jacobian=jacobian[..., size:].reshape(len(jacobian), -1).T,
         )
 
     def _roi_pixels(self, params: _Params, camera: np.ndarray, offsets: np.ndarray) -> np.ndarray:
