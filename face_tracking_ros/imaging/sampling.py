@@ -16,8 +16,9 @@ from face_tracking_ros.errors import InputError
 _MAP_LIMIT = 32767
 _MAP_WIDTH = 4096
 
-# Central-difference stencil: +x, -x, +y, -y (one pixel each), as (dx, dy) shifts.
-_STENCIL = ((1, 0), (-1, 0), (0, 1), (0, -1))
+# Central-difference stencil: the point, then +x, -x, +y, -y (one pixel each), as (5, 1) shifts.
+_STENCIL_X = np.array([0, 1, -1, 0, 0], dtype=np.float32)[:, None]
+_STENCIL_Y = np.array([0, 0, 0, 1, -1], dtype=np.float32)[:, None]
 
 
 def square_offsets(half_size: int, step: float = 1.0) -> np.ndarray:
@@ -135,7 +136,7 @@ def sample_with_gradient(image: np.ndarray, points: np.ndarray) -> tuple[np.ndar
     """
     points = np.asarray(points, dtype=np.float32)
     flat = points.reshape(-1, 2)
-    samples = _stencil_samples(image, flat[:, 0], flat[:, 1], centre=True)
+    samples = _stencil_samples(image, flat[:, 0], flat[:, 1])
     gradient = np.empty((flat.shape[0], 2), dtype=np.float32)
     _central_differences(samples, gradient.T)
     return samples[0].reshape(points.shape[:-1]), gradient.reshape(points.shape)
@@ -157,18 +158,15 @@ def sample_with_gradient_xy(
     """
     x = np.asarray(x, dtype=np.float32)
     y = np.asarray(y, dtype=np.float32)
-    samples = _stencil_samples(image, x.ravel(), y.ravel(), centre=True)
+    samples = _stencil_samples(image, x.ravel(), y.ravel())
     gradient = np.empty((2, x.size), dtype=np.float32)
     _central_differences(samples, gradient)
     return samples[0].reshape(x.shape), gradient.reshape(2, *x.shape)
 
 
-def _stencil_samples(image: np.ndarray, x: np.ndarray, y: np.ndarray, centre: bool) -> np.ndarray:
-    """(S, K) samples at (K,) float32 points shifted by the stencil (after the point itself)."""
-    shifts = (((0, 0),) if centre else ()) + _STENCIL
-    map_x = np.stack([x + dx for dx, _ in shifts])
-    map_y = np.stack([y + dy for _, dy in shifts])
-    return sample_xy(image, map_x, map_y)  # rows contiguous
+def _stencil_samples(image: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """(5, K) samples at (K,) float32 points and at the stencil's shifts of them."""
+    return sample_xy(image, x + _STENCIL_X, y + _STENCIL_Y)  # rows contiguous
 
 
 def _central_differences(samples: np.ndarray, gradient: np.ndarray) -> None:
