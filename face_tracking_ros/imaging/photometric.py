@@ -77,12 +77,13 @@ class PhotometricInvariance:
 
     Attributes:
         model: the brightness changes to ignore.
-        centred: (2, M) patch coordinates (u, v) minus their means.
+        gains: (G, M) the gain fields ``[1, u, v]`` (``[1]`` for GAIN_BIAS, none below) that
+            multiply the contrast, with (u, v) the patch coordinates minus their means.
         fixed: (M, F) orthonormal columns of the template-independent changes.
     """
 
     model: PhotometricModel
-    centred: np.ndarray
+    gains: np.ndarray
     fixed: np.ndarray
 
     @classmethod
@@ -94,32 +95,30 @@ class PhotometricInvariance:
         if model == PhotometricModel.GAIN_FIELD:
             columns += list(centred)
         fixed = _orthonormal(np.stack(columns, axis=1)) if columns else np.zeros((size, 0))
-        return cls(model=model, centred=centred, fixed=fixed)
+        gains = np.stack(columns) if model >= PhotometricModel.GAIN_BIAS else np.zeros((0, size))
+        return cls(model=model, gains=gains, fixed=fixed)
 
     def projection(self, template: np.ndarray) -> PhotometricProjection:
         """The projection for (N, M) templates (one patch of M samples per row)."""
         count, size = template.shape
-        fixed = np.broadcast_to(self.fixed.T, (count, *self.fixed.T.shape))  # (N, F, M)
-        if self.model < PhotometricModel.GAIN_BIAS:
-            return PhotometricProjection(basis=fixed.transpose(0, 2, 1).copy())
+        fixed, first = self.fixed.T, len(self.fixed.T)  # (F, M)
+        rows = np.empty((count, first + len(self.gains), size))  # the basis, transposed
+        rows[:, :first] = fixed
+        if not len(self.gains):
+            return PhotometricProjection(basis=rows.transpose(0, 2, 1))
         contrast = template - template.mean(axis=1, keepdims=True)
-        if self.model == PhotometricModel.GAIN_FIELD:
-            columns = contrast[:, None, :] * np.concatenate([np.ones((1, size)), self.centred])
-        else:
-            columns = contrast[:, None, :]
+        columns = (contrast[:, None, :] * self.gains).reshape(-1, size)
         # Orthogonal to the fixed columns (twice: Gram-Schmidt keeps orthogonality so), then to
         # each other; a column's norm after that is QR's |R_jj|, compared with |R_00| = sqrt(M).
-        flat = columns.reshape(-1, size)
         for _ in range(2):
-            flat = flat - (flat @ self.fixed) @ self.fixed.T
+            columns = columns - (columns @ self.fixed) @ fixed
         threshold = 1e-6 * np.sqrt(size)
-        found: list[np.ndarray] = []
-        for column in flat.reshape(columns.shape).transpose(1, 0, 2):
-            for other in found:
+        for row, column in enumerate(columns.reshape(count, -1, size).transpose(1, 0, 2), first):
+            for other in rows.transpose(1, 0, 2)[first:row]:
                 column = column - np.einsum('nm,nm->n', column, other)[:, None] * other
-            norm = np.sqrt(np.einsum('nm,nm->n', column, column))[:, None]
-            found.append(np.where(norm > threshold, column / np.maximum(norm, threshold), 0.0))
-        rows = np.concatenate([fixed, np.stack(found, axis=1)], axis=1)
+            norm = np.sqrt(np.einsum('nm,nm->n', column, column))
+            rows[:, row] = column / np.maximum(norm, threshold)[:, None]
+            rows[norm <= threshold, row] = 0.0  # a column the template does not need
         return PhotometricProjection(basis=rows.transpose(0, 2, 1))
 
 
