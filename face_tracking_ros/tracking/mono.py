@@ -857,7 +857,7 @@ class MonoTracker:
     def _visibility(self, params: _Params, normals: np.ndarray) -> np.ndarray:
         """(N,) weights in [0, 1] from the angle between node normals and rays to the camera."""
         rotation, _ = rodrigues(params.omega)
-        nodes, _ = self._project_nodes(params)
+        nodes = self._model.shape(params.sigma, params.alpha) @ rotation.T + params.t
         rays = nodes / np.linalg.norm(nodes, axis=1, keepdims=True)
         facing = -np.einsum('na,na->n', normals @ rotation.T, rays)
         low = self._config.visibility_cos
