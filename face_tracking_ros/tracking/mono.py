@@ -364,6 +364,7 @@ class MonoTracker:
         ]
         self._prior_hessians = {free: self._prior_hessian(free) for free in (False, True)}
         self._buffers: ImagePyramid | None = None  # the previous frame's, rebuilt in place
+        self._posed: tuple[_Params | None, tuple[np.ndarray, np.ndarray]] = (None, ())
         self._init: Initialisation | None = None
         self._use_init = False
         self._track: _Track | None = None
@@ -659,8 +660,7 @@ class MonoTracker:
         t, alpha[, sigma]) (eq. 1, 3), then ``1 - P`` of the photometric model.
         """
         basis = self._identity_action_basis if free_sigma else self._action_basis
-        rotation, _ = rodrigues(params.omega)
-        shape = self._model.shape(params.sigma, params.alpha)
+        rotation, shape = self._pose(params)
         # R P of the ROI points P = shape_n + offset (eq. 1, 3), and their level pixels (eq. 2).
         rotated_nodes = rotation @ shape.T
         rotated = (rotation @ level.offsets.reshape(3, -1)).reshape(level.offsets.shape)
@@ -699,8 +699,7 @@ class MonoTracker:
         level's ``camera`` P, so nodes and the (3, N, M) ``offsets`` are mapped separately and no
         camera-frame point is formed.
         """
-        shape = self._model.shape(params.sigma, params.alpha)
-        rotation, _ = rodrigues(params.omega)
+        rotation, shape = self._pose(params)
         matrix = camera[:, :3] @ rotation
         homogeneous = (matrix @ offsets.reshape(3, -1)).reshape(offsets.shape)
         homogeneous += (matrix @ shape.T + (camera[:, :3] @ params.t + camera[:, 3])[:, None])[
@@ -856,17 +855,28 @@ class MonoTracker:
 
     def _visibility(self, params: _Params, normals: np.ndarray) -> np.ndarray:
         """(N,) weights in [0, 1] from the angle between node normals and rays to the camera."""
-        rotation, _ = rodrigues(params.omega)
-        nodes = self._model.shape(params.sigma, params.alpha) @ rotation.T + params.t
+        rotation, shape = self._pose(params)
+        nodes = shape @ rotation.T + params.t
         rays = nodes / np.linalg.norm(nodes, axis=1, keepdims=True)
         facing = -np.einsum('na,na->n', normals @ rotation.T, rays)
         low = self._config.visibility_cos
         return np.clip((facing - low) / max(low, 1e-6), 0.0, 1.0)
 
+    def _pose(self, params: _Params) -> tuple[np.ndarray, np.ndarray]:
+        """R(omega) (eq. 1) and the (N, 3) shape (eq. 3) of ``params``.
+
+        The last parameter vector's are kept: one is projected several times (its evaluation,
+        linearisation, templates, visibility, result).
+        """
+        if params is not self._posed[0]:
+            rotation, _ = rodrigues(params.omega)
+            self._posed = (params, (rotation, self._model.shape(params.sigma, params.alpha)))
+        return self._posed[1]
+
     def _project_nodes(self, params: _Params) -> tuple[np.ndarray, np.ndarray]:
         """(N, 3) camera-frame nodes (eq. 1, 3) and their (N, 2) pixels (eq. 2)."""
-        shape = self._model.shape(params.sigma, params.alpha)
-        points_cam = shape @ rodrigues(params.omega)[0].T + params.t
+        rotation, shape = self._pose(params)
+        points_cam = shape @ rotation.T + params.t
         return points_cam, self._camera.project(points_cam)
 
     def _result(
