@@ -363,6 +363,11 @@ class MonoTracker:
             for level in range(levels)
         ]
         self._prior_hessians = {free: self._prior_hessian(free) for free in (False, True)}
+        # Per level, the "image gradients" (1, 0) and (0, 1) of the node samples (_linearise).
+        self._node_gradients = [
+            np.broadcast_to(np.eye(2)[:, None, :] / (1 << level), (2, model.num_nodes, 2))
+            for level in range(levels)
+        ]
         self._buffers: ImagePyramid | None = None  # the previous frame's, rebuilt in place
         self._posed: tuple[_Params | None, tuple[np.ndarray, np.ndarray]] = (None, ())
         self._init: Initialisation | None = None
@@ -671,10 +676,9 @@ class MonoTracker:
         gradient *= level_scale
         # Two more samples per node, at the node with "image gradients" (1, 0) and (0, 1): their
         # rows are the node pixels' Jacobian; the photometric projection leaves them out.
-        count, size = x.shape
+        size = x.shape[1]
         points = np.concatenate([rotated, np.repeat(rotated_nodes[:, :, None], 2, axis=2)], 2)
-        unit = np.broadcast_to(np.eye(2)[:, None, :] * level_scale, (2, count, 2))
-        gradients = np.concatenate([gradient, unit], axis=2)
+        gradients = np.concatenate([gradient, self._node_gradients[level.index]], axis=2)
 
         def project(rows: np.ndarray) -> np.ndarray:
             roi = level.projection.apply(rows[..., :size])
@@ -734,7 +738,7 @@ class MonoTracker:
         weights = level.visibility * sampled.inside
         if scale is None:
             active = np.abs(residuals[weights > 0])
-            spread = _MAD_TO_STD * float(np.median(active)) if active.size else 0.0
+            spread = _MAD_TO_STD * _median(active) if active.size else 0.0
             scale = max(self._config.residual_scale_floor, spread)
         magnitude = np.abs(residuals / scale)
         k = self._config.huber_k
@@ -940,6 +944,15 @@ def _rotation_angle(omega_a: np.ndarray, omega_b: np.ndarray) -> float:
     """Angle of the rotation between R(omega_a) and R(omega_b), rad."""
     relative = rodrigues(omega_a)[0].T @ rodrigues(omega_b)[0]
     return float(np.arccos(np.clip(0.5 * (np.trace(relative) - 1.0), -1.0, 1.0)))
+
+
+def _median(values: np.ndarray) -> float:
+    """``np.median`` of a non-empty 1-D array, by one partial sort."""
+    half = values.size // 2
+    if values.size % 2:
+        return float(np.partition(values, half)[half])
+    low, high = np.partition(values, (half - 1, half))[half - 1 : half + 1]
+    return float((low + high) / 2)
 
 
 def _huber_weights(magnitude: np.ndarray, k: float) -> np.ndarray:
