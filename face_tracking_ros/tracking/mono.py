@@ -369,7 +369,7 @@ class MonoTracker:
             for level in range(levels)
         ]
         self._buffers: ImagePyramid | None = None  # the previous frame's, rebuilt in place
-        self._posed: tuple[_Params | None, tuple[np.ndarray, np.ndarray]] = (None, ())
+        self._posed: tuple[_Params, tuple[np.ndarray, np.ndarray]] | None = None  # _pose's
         self._init: Initialisation | None = None
         self._use_init = False
         self._track: _Track | None = None
@@ -872,7 +872,7 @@ class MonoTracker:
         The last parameter vector's are kept: one is projected several times (its evaluation,
         linearisation, templates, visibility, result).
         """
-        if params is not self._posed[0]:
+        if self._posed is None or params is not self._posed[0]:
             rotation, _ = rodrigues(params.omega)
             self._posed = (params, (rotation, self._model.shape(params.sigma, params.alpha)))
         return self._posed[1]
