@@ -239,6 +239,20 @@ def test_photometric_projection_equals_the_projector_of_all_brightness_columns()
     assert np.allclose(projection.basis.transpose(0, 2, 1) @ projection.basis, np.eye(6))
 
 
+def test_photometric_projections_made_at_once_and_split_equal_separate_ones() -> None:
+    rng = np.random.default_rng(8)
+    coordinates = square_offsets(3)
+    templates = rng.uniform(20, 230, (3, 4, len(coordinates)))
+    together = PhotometricProjection.of(
+        np.concatenate(templates), PhotometricModel.GAIN_FIELD, coordinates
+    ).split(3)
+    values = rng.normal(size=(2, 4, len(coordinates)))
+    for template, projection in zip(templates, together, strict=True):
+        alone = PhotometricProjection.of(template, PhotometricModel.GAIN_FIELD, coordinates)
+        np.testing.assert_allclose(projection.basis, alone.basis, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(projection.apply(values), alone.apply(values), atol=1e-12)
+
+
 def test_photometric_projection_of_a_flat_template_keeps_the_bias_only() -> None:
     coordinates = square_offsets(2)
     template = np.full((2, len(coordinates)), 80.0)

@@ -54,6 +54,15 @@ class PhotometricProjection:
         """
         return PhotometricInvariance.of(model, coordinates).projection(template)
 
+    def split(self, parts: int) -> tuple[PhotometricProjection, ...]:
+        """The projections of ``parts`` equal consecutive blocks of the patches.
+
+        Several templates' projections are cheaper made at once (one call on all their patches)
+        and split afterwards; each patch's projection depends on its own template alone.
+        """
+        blocks = np.split(self._basis_t, parts)
+        return tuple(PhotometricProjection(basis=block.transpose(0, 2, 1)) for block in blocks)
+
     def apply(self, values: np.ndarray) -> np.ndarray:
         """``(1 - P) values`` for (N, M) residuals or (J, N, M) stacks of them (Jacobian rows)."""
         if self.basis.shape[-1] == 0:

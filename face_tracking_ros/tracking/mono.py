@@ -611,6 +611,7 @@ class MonoTracker:
         q = self._model.q
         params = start
         costs: list[float] = []
+        projections = self._invariance.projection(np.concatenate(templates)).split(len(templates))
         for index in reversed(range(pyramid.num_levels)):
             level = _Level(
                 index=index,
@@ -618,7 +619,7 @@ class MonoTracker:
                 camera=self._level_cameras[index],
                 offsets=self._track.offsets[index],
                 template=templates[index],
-                projection=self._invariance.projection(templates[index]),
+                projection=projections[index],
                 visibility=np.repeat(node_weights[:, None], templates[index].shape[1], axis=1),
             )
             linear = self._linearise(level, params, free_sigma)
