@@ -110,7 +110,9 @@ class MonoTrackerConfig:
         sigma_frames: frames after an initialisation during which sigma is estimated with the
             pose, then held fixed (>= 0; 0 keeps the sigma of the initial fit or enrolment).
         damping: initial Levenberg-Marquardt damping, relative to diag(H) (> 0).
-        convergence_px: a level stops when no node moves more than this, level px (> 0).
+        convergence_px: level 0 stops when no node moves more than this, level px (> 0).
+        coarse_convergence_px: a coarser level stops when no node moves more than this, level
+            px (> 0); it only has to bring the next level within its reach.
         jacobian_refresh_px: the Jacobian is re-evaluated after the nodes have moved this far
             since it was last evaluated, level px (> 0).
         visibility_cos: a node's weight ramps from 0 to 1 as the cosine between its outward
@@ -142,6 +144,7 @@ class MonoTrackerConfig:
     sigma_frames: int = 0
     damping: float = 1e-4
     convergence_px: float = 0.01
+    coarse_convergence_px: float = 0.1
     jacobian_refresh_px: float = 0.5
     visibility_cos: float = 0.1
     lost_residual_ratio: float = 0.8
@@ -168,6 +171,7 @@ class MonoTrackerConfig:
             'sigma_frames': self.sigma_frames >= 0,
             'damping': self.damping > 0,
             'convergence_px': self.convergence_px > 0,
+            'coarse_convergence_px': self.coarse_convergence_px > 0,
             'jacobian_refresh_px': self.jacobian_refresh_px > 0,
             'visibility_cos': 0.0 <= self.visibility_cos < 0.5,
             'lost_residual_ratio': self.lost_residual_ratio > 0,
@@ -624,6 +628,7 @@ class MonoTracker:
             )
             linear = self._linearise(level, params, free_sigma)
             damping = config.damping
+            converged = config.coarse_convergence_px if index else config.convergence_px
             accepted: tuple[_Params, _System] | None = None
             scale = None
             moved = 0.0
@@ -640,7 +645,7 @@ class MonoTracker:
                 step = _damped_step(system, damping)
                 params = params.updated(step, q)
                 motion = np.abs(linear.node_jacobian @ step).max(initial=0.0)
-                if motion < config.convergence_px:
+                if motion < converged:
                     break
                 moved += motion
                 if moved > config.jacobian_refresh_px:
