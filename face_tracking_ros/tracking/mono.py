@@ -24,7 +24,8 @@ Design, in the seed's terms:
   coarse to fine on a Gaussian pyramid, with Huber IRLS weights, per-node visibility (nodes whose
   normal turns away from the camera lose their weight) and analytic Jacobians: the image gradient
   sampled on the patches times d pixel / d X_c (eq. 2) times d X_c / d(omega, t, alpha) (eq. 1, 3),
-  evaluated where a pyramid level starts and refreshed after half a pixel of motion.
+  evaluated where a pyramid level starts and refreshed after half a pixel of motion. A level
+  ends when the nodes stop moving or a step raises the cost.
 - Optionally (``max_keyframes`` > 1) the drift term compares with the keyframe nearest in
   rotation instead of frame 1. Measured on synthetic sequences it does worse than I_1 alone
   (keyframes inherit the error of the pose they were taken at), so it is off by default.
@@ -609,7 +610,9 @@ class MonoTracker:
 
         The Jacobian is evaluated where a level starts and re-evaluated only once the samples
         have moved ``jacobian_refresh_px`` since; the iterations in between only sample the
-        image (one ``cv2.remap`` of the ROI points each).
+        image (one ``cv2.remap`` of the ROI points each). A level ends when the nodes stop moving
+        (``convergence_px``, ``coarse_convergence_px``) or at the first step that raises the
+        cost: with the damping this small, a retry with more of it moves to about the same point.
         """
         config = self._config
         q = self._model.q
@@ -637,11 +640,10 @@ class MonoTracker:
                 scale = system.scale
                 costs.append(system.cost)
                 if accepted is not None and system.cost > accepted[1].cost:
-                    params, system = accepted
-                    damping *= 10.0
-                else:
-                    accepted = (params, system)
-                    damping = max(0.1 * damping, 1e-9)
+                    params = accepted[0]  # no lower cost within reach: the level ends here
+                    break
+                accepted = (params, system)
+                damping = max(0.1 * damping, 1e-9)
                 step = _damped_step(system, damping)
                 params = params.updated(step, q)
                 motion = np.abs(linear.node_jacobian @ step).max(initial=0.0)
