@@ -11,9 +11,12 @@ from face_tracking_ros.imaging import (
     PhotometricModel,
     PhotometricProjection,
     inside_image,
+    inside_xy,
     sample_patches,
     sample_points,
     sample_with_gradient,
+    sample_with_gradient_xy,
+    sample_xy,
     square_offsets,
     to_gray,
 )
@@ -68,6 +71,22 @@ def test_pyramid_levels_and_coordinates() -> None:
         centroid = np.array([(img * cols).sum(), (img * rows).sum()]) / img.sum()
         expected = ImagePyramid.to_level(np.array([71.5, 41.5]), level)
         assert np.allclose(centroid, expected, atol=0.02), (level, centroid, expected)
+
+
+@pytest.mark.parametrize('smooth_base', [False, True])
+def test_pyramid_rebuilt_into_a_previous_one_equals_a_new_one(smooth_base: bool) -> None:
+    rng = np.random.default_rng(3)
+    first, second = rng.integers(0, 256, size=(2, 61, 83), dtype=np.uint8)
+    previous = ImagePyramid.build(first, 3, smooth_base)
+    arrays = [id(level) for level in previous.levels]
+    rebuilt = ImagePyramid.build(second, 3, smooth_base, reuse=previous)
+    fresh = ImagePyramid.build(second, 3, smooth_base)
+    assert [id(level) for level in rebuilt.levels] == arrays
+    for got, expected in zip(rebuilt.levels, fresh.levels, strict=True):
+        np.testing.assert_array_equal(got, expected)
+    # A pyramid of another size or kind is not reused.
+    other = ImagePyramid.build(second, 2, not smooth_base, reuse=rebuilt)
+    assert not {id(level) for level in other.levels} & set(arrays)
 
 
 @pytest.mark.parametrize(
@@ -155,6 +174,27 @@ def test_sample_with_gradient_on_ramp_and_smooth_image() -> None:
     assert np.abs(grad - expected).max() < 0.25  # of gradients up to 14 grey levels / px
 
 
+@pytest.mark.parametrize('shape', [(6, 7), (3, 5000), (2, 3, 4), (11,)])
+def test_separate_coordinates_sample_exactly_like_interleaved_points(shape) -> None:
+    rng = np.random.default_rng(6)
+    image = rng.uniform(0, 255, (40, 50)).astype(np.float32)
+    points = rng.uniform(-2, 52, (*shape, 2))
+    x, y = points[..., 0], points[..., 1]
+    np.testing.assert_array_equal(sample_xy(image, x, y), sample_points(image, points))
+    values, gradient = sample_with_gradient(image, points)
+    values_xy, gradient_xy = sample_with_gradient_xy(image, x, y)
+    np.testing.assert_array_equal(values_xy, values)
+    np.testing.assert_array_equal(values_xy, sample_xy(image, x, y))
+    np.testing.assert_array_equal(gradient_xy, np.moveaxis(gradient, -1, 0))
+    np.testing.assert_array_equal(
+        inside_xy(x, y, image.shape, 1.5), inside_image(points, image.shape, 1.5)
+    )
+    with pytest.raises(InputError, match='differ in shape'):
+        sample_xy(image, x, y[..., :1])
+    with pytest.raises(InputError, match='NaN or Inf'):
+        sample_xy(image, np.full(shape, np.nan), y)
+
+
 def test_inside_image() -> None:
     points = np.array([[0.0, 0.0], [9.0, 4.0], [9.5, 4.0], [2.0, 2.0], [-0.1, 3.0]])
     assert inside_image(points, (5, 10)).tolist() == [True, True, False, True, False]
@@ -176,12 +216,41 @@ def test_photometric_projection_removes_exactly_its_brightness_changes(model) ->
     for removed, change in changes.items():
         remaining = np.abs(projection.apply(change)).max() / np.abs(change).max()
         assert (remaining < 1e-6) == (model >= removed), (model, removed, remaining)
-    # Idempotent, and (N, M, J) Jacobian-like arrays are projected column by column.
+    # Idempotent, and (J, N, M) Jacobian-like arrays are projected row by row.
     values = rng.normal(size=template.shape)
     once = projection.apply(values)
     assert np.allclose(projection.apply(once), once)
-    stacked = projection.apply(np.stack([values, 2 * values], axis=-1))
-    assert np.allclose(stacked[..., 1], 2 * once)
+    stacked = projection.apply(np.stack([values, 2 * values]))
+    assert np.allclose(stacked[1], 2 * once)
+
+
+def test_photometric_projection_equals_the_projector_of_all_brightness_columns() -> None:
+    rng = np.random.default_rng(7)
+    coordinates = square_offsets(4)
+    template = rng.uniform(20, 230, (6, len(coordinates)))
+    u, v = (np.broadcast_to(c, template.shape) for c in coordinates.T)
+    contrast = template - template.mean(axis=1, keepdims=True)
+    columns = np.stack([np.ones_like(u), u, v, contrast, contrast * u, contrast * v], axis=-1)
+    basis = np.linalg.qr(columns)[0]  # (N, M, 6), every column independent here
+    values = rng.normal(size=(3, *template.shape))
+    expected = values - np.einsum('nmk,nlk,jnl->jnm', basis, basis, values)
+    projection = PhotometricProjection.of(template, PhotometricModel.GAIN_FIELD, coordinates)
+    assert np.abs(projection.apply(values) - expected).max() < 1e-12
+    assert np.allclose(projection.basis.transpose(0, 2, 1) @ projection.basis, np.eye(6))
+
+
+def test_photometric_projections_made_at_once_and_split_equal_separate_ones() -> None:
+    rng = np.random.default_rng(8)
+    coordinates = square_offsets(3)
+    templates = rng.uniform(20, 230, (3, 4, len(coordinates)))
+    together = PhotometricProjection.of(
+        np.concatenate(templates), PhotometricModel.GAIN_FIELD, coordinates
+    ).split(3)
+    values = rng.normal(size=(2, 4, len(coordinates)))
+    for template, projection in zip(templates, together, strict=True):
+        alone = PhotometricProjection.of(template, PhotometricModel.GAIN_FIELD, coordinates)
+        np.testing.assert_allclose(projection.basis, alone.basis, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(projection.apply(values), alone.apply(values), atol=1e-12)
 
 
 def test_photometric_projection_of_a_flat_template_keeps_the_bias_only() -> None:

@@ -6,25 +6,36 @@ patch residuals invariant to brightness changes (:mod:`.photometric`).
 """
 
 from face_tracking_ros.imaging.gray import SUPPORTED_ENCODINGS, to_gray
-from face_tracking_ros.imaging.photometric import PhotometricModel, PhotometricProjection
+from face_tracking_ros.imaging.photometric import (
+    PhotometricInvariance,
+    PhotometricModel,
+    PhotometricProjection,
+)
 from face_tracking_ros.imaging.pyramid import ImagePyramid
 from face_tracking_ros.imaging.sampling import (
     inside_image,
+    inside_xy,
     sample_patches,
     sample_points,
     sample_with_gradient,
+    sample_with_gradient_xy,
+    sample_xy,
     square_offsets,
 )
 
 __all__ = [
     'SUPPORTED_ENCODINGS',
     'ImagePyramid',
+    'PhotometricInvariance',
     'PhotometricModel',
     'PhotometricProjection',
     'inside_image',
+    'inside_xy',
     'sample_patches',
     'sample_points',
     'sample_with_gradient',
+    'sample_with_gradient_xy',
+    'sample_xy',
     'square_offsets',
     'to_gray',
 ]

@@ -10,7 +10,7 @@ g and b, and its Jacobian is exactly ``(1 - P) dI/dtheta``. A still image still 
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from enum import IntEnum
 
 import numpy as np
@@ -31,10 +31,15 @@ class PhotometricProjection:
 
     Attributes:
         basis: (N, M, K) orthonormal columns spanning each patch's brightness changes (K = 0
-            for NONE).
+            for NONE); columns a template does not need (a flat template's gain) are zero.
     """
 
     basis: np.ndarray
+    _basis_t: np.ndarray = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        """Keep a contiguous (N, K, M) transpose of the basis for :meth:`apply`."""
+        object.__setattr__(self, '_basis_t', np.ascontiguousarray(self.basis.transpose(0, 2, 1)))
 
     @classmethod
     def of(
@@ -47,29 +52,87 @@ class PhotometricProjection:
             model: the brightness changes to ignore.
             coordinates: (M, 2) patch coordinates (u, v) of the samples, any unit (GAIN_FIELD).
         """
-        count, size = template.shape
-        if model == PhotometricModel.NONE:
-            return cls(basis=np.zeros((count, size, 0)))
-        columns = [np.ones((count, size))]
-        if model == PhotometricModel.GAIN_FIELD:
-            u, v = (np.broadcast_to(c - c.mean(), (count, size)) for c in coordinates.T)
-            columns += [u, v]
-        if model in (PhotometricModel.GAIN_BIAS, PhotometricModel.GAIN_FIELD):
-            contrast = template - template.mean(axis=1, keepdims=True)
-            columns.append(contrast)
-            if model == PhotometricModel.GAIN_FIELD:
-                columns += [contrast * u, contrast * v]
-        stacked = np.stack(columns, axis=-1)
-        basis, triangular = np.linalg.qr(stacked)
-        # Columns that add nothing (a flat template) are dropped by zeroing them.
-        scale = np.abs(np.diagonal(triangular, axis1=1, axis2=2))
-        keep = scale > 1e-6 * np.maximum(scale[:, :1], 1e-12)
-        return cls(basis=basis * keep[:, None, :])
+        return PhotometricInvariance.of(model, coordinates).projection(template)
+
+    def split(self, parts: int) -> tuple[PhotometricProjection, ...]:
+        """The projections of ``parts`` equal consecutive blocks of the patches.
+
+        Several templates' projections are cheaper made at once (one call on all their patches)
+        and split afterwards; each patch's projection depends on its own template alone.
+        """
+        blocks = np.split(self._basis_t, parts)
+        return tuple(PhotometricProjection(basis=block.transpose(0, 2, 1)) for block in blocks)
 
     def apply(self, values: np.ndarray) -> np.ndarray:
-        """``(1 - P) values`` for (N, M) or (N, M, J) arrays (residuals or Jacobian columns)."""
+        """``(1 - P) values`` for (N, M) residuals or (J, N, M) stacks of them (Jacobian rows)."""
         if self.basis.shape[-1] == 0:
             return values
-        matrix = values if values.ndim == 3 else values[..., None]
-        projected = matrix - self.basis @ (self.basis.transpose(0, 2, 1) @ matrix)
-        return projected if values.ndim == 3 else projected[..., 0]
+        stack = values if values.ndim == 3 else values[None]
+        per_node = stack.transpose(1, 0, 2)  # (N, J, M)
+        correction = (per_node @ self.basis) @ self._basis_t
+        projected = stack - correction.transpose(1, 0, 2)
+        return projected if values.ndim == 3 else projected[0]
+
+
+@dataclass(frozen=True)
+class PhotometricInvariance:
+    """A photometric model on one patch layout: makes the projection of any template.
+
+    The span of a patch's brightness changes is ``[1, u, v]`` (or ``[1]``), the same for every
+    patch, plus ``[c, c u, c v]`` (or ``[c]``) of the template's contrast c = T - mean(T). The
+    fixed part is orthonormalised once; per template only the contrast columns are
+    orthogonalised against it (twice) and each other (modified Gram-Schmidt), so a projection
+    costs a few (N, M) array operations instead of a QR of every patch.
+
+    Attributes:
+        model: the brightness changes to ignore.
+        gains: (G, M) the gain fields ``[1, u, v]`` (``[1]`` for GAIN_BIAS, none below) that
+            multiply the contrast, with (u, v) the patch coordinates minus their means.
+        fixed: (M, F) orthonormal columns of the template-independent changes.
+    """
+
+    model: PhotometricModel
+    gains: np.ndarray
+    fixed: np.ndarray
+
+    @classmethod
+    def of(cls, model: PhotometricModel, coordinates: np.ndarray) -> PhotometricInvariance:
+        """The invariance for patches with (M, 2) sample coordinates (u, v), any unit."""
+        centred = np.stack([c - c.mean() for c in np.asarray(coordinates).T])
+        size = centred.shape[1]
+        columns = [np.ones(size)] if model != PhotometricModel.NONE else []
+        if model == PhotometricModel.GAIN_FIELD:
+            columns += list(centred)
+        fixed = _orthonormal(np.stack(columns, axis=1)) if columns else np.zeros((size, 0))
+        gains = np.stack(columns) if model >= PhotometricModel.GAIN_BIAS else np.zeros((0, size))
+        return cls(model=model, gains=gains, fixed=fixed)
+
+    def projection(self, template: np.ndarray) -> PhotometricProjection:
+        """The projection for (N, M) templates (one patch of M samples per row)."""
+        count, size = template.shape
+        fixed, first = self.fixed.T, len(self.fixed.T)  # (F, M)
+        rows = np.empty((count, first + len(self.gains), size))  # the basis, transposed
+        rows[:, :first] = fixed
+        if not len(self.gains):
+            return PhotometricProjection(basis=rows.transpose(0, 2, 1))
+        contrast = template - template.mean(axis=1, keepdims=True)
+        columns = (contrast[:, None, :] * self.gains).reshape(-1, size)
+        # Orthogonal to the fixed columns (twice: Gram-Schmidt keeps orthogonality so), then to
+        # each other; a column's norm after that is QR's |R_jj|, compared with |R_00| = sqrt(M).
+        for _ in range(2):
+            columns = columns - (columns @ self.fixed) @ fixed
+        threshold = 1e-6 * np.sqrt(size)
+        for row, column in enumerate(columns.reshape(count, -1, size).transpose(1, 0, 2), first):
+            for other in rows.transpose(1, 0, 2)[first:row]:
+                column = column - np.einsum('nm,nm->n', column, other)[:, None] * other
+            norm = np.sqrt(np.einsum('nm,nm->n', column, column))
+            rows[:, row] = column / np.maximum(norm, threshold)[:, None]
+            rows[norm <= threshold, row] = 0.0  # a column the template does not need
+        return PhotometricProjection(basis=rows.transpose(0, 2, 1))
+
+
+def _orthonormal(columns: np.ndarray) -> np.ndarray:
+    """Orthonormal (M, K) basis of the span of (M, K) columns; dependent columns become zero."""
+    basis, triangular = np.linalg.qr(columns)
+    scale = np.abs(np.diagonal(triangular))
+    return basis * (scale > 1e-6 * max(scale[0], 1e-12))

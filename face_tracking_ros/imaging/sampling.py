@@ -16,8 +16,9 @@ from face_tracking_ros.errors import InputError
 _MAP_LIMIT = 32767
 _MAP_WIDTH = 4096
 
-# Central-difference stencil: centre, +x, -x, +y, -y (one pixel each), as (5, 1, 2).
-_STENCIL = np.array([[0, 0], [1, 0], [-1, 0], [0, 1], [0, -1]], dtype=np.float32)[:, None, :]
+# Central-difference stencil: the point, then +x, -x, +y, -y (one pixel each), as (5, 1) shifts.
+_STENCIL_X = np.array([0, 1, -1, 0, 0], dtype=np.float32)[:, None]
+_STENCIL_Y = np.array([0, 0, 0, 1, -1], dtype=np.float32)[:, None]
 
 
 def square_offsets(half_size: int, step: float = 1.0) -> np.ndarray:
@@ -51,29 +52,54 @@ def sample_points(image: np.ndarray, points: np.ndarray) -> np.ndarray:
     Raises:
         InputError: if the image is not 2-D float32 or the points are not (..., 2) and finite.
     """
-    if image.ndim != 2 or image.dtype != np.float32:
-        msg = f'image must be (H, W) float32, got {image.shape} {image.dtype}'
-        raise InputError(msg)
     points = np.asarray(points, dtype=np.float32)
     if points.ndim < 1 or points.shape[-1] != 2:
         msg = f'points must have shape (..., 2), got {points.shape}'
         raise InputError(msg)
-    if not np.all(np.isfinite(points)):
+    return sample_xy(image, points[..., 0], points[..., 1])
+
+
+def sample_xy(image: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """:func:`sample_points` for points given as separate x and y coordinate arrays.
+
+    ``cv2.remap`` takes the two coordinate maps separately, so points computed row by row (all
+    x, then all y) need not be interleaved first.
+
+    Args:
+        image: (H, W) float32 image.
+        x: (...) column coordinates, px.
+        y: (...) row coordinates, px, of x's shape.
+
+    Returns:
+        (...) float32 samples.
+
+    Raises:
+        InputError: if the image is not 2-D float32, or x and y differ in shape or hold NaN or Inf.
+    """
+    if image.ndim != 2 or image.dtype != np.float32:
+        msg = f'image must be (H, W) float32, got {image.shape} {image.dtype}'
+        raise InputError(msg)
+    x = np.asarray(x, dtype=np.float32)
+    y = np.asarray(y, dtype=np.float32)
+    if x.shape != y.shape:
+        msg = f'x and y coordinates differ in shape: {x.shape} and {y.shape}'
+        raise InputError(msg)
+    if not (np.all(np.isfinite(x)) and np.all(np.isfinite(y))):
         msg = 'points hold NaN or Inf'
         raise InputError(msg)
-    lead = points.shape[:-1]
+    lead = x.shape
     if len(lead) == 2 and 0 < min(lead) and max(lead) < _MAP_LIMIT:
-        return cv2.remap(image, points, None, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-    flat = points.reshape(-1, 2)
-    count = flat.shape[0]
+        return cv2.remap(image, x, y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    count = x.size
     if count == 0:
         return np.zeros(lead, dtype=np.float32)
     width = min(count, _MAP_WIDTH)
     rows = -(-count // width)
-    padded = np.zeros((rows * width, 2), dtype=np.float32)
-    padded[:count] = flat
-    maps = padded.reshape(rows, width, 2)
-    samples = cv2.remap(image, maps, None, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    maps = np.zeros((2, rows * width), dtype=np.float32)
+    maps[0, :count] = x.ravel()
+    maps[1, :count] = y.ravel()
+    map_x, map_y = maps.reshape(2, rows, width)
+    samples = cv2.remap(image, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
     return samples.reshape(-1)[:count].reshape(lead)
 
 
@@ -110,17 +136,55 @@ def sample_with_gradient(image: np.ndarray, points: np.ndarray) -> tuple[np.ndar
     """
     points = np.asarray(points, dtype=np.float32)
     flat = points.reshape(-1, 2)
-    stencil = sample_points(image, flat[None, :, :] + _STENCIL)  # (5, K), rows contiguous
+    samples = _stencil_samples(image, flat[:, 0], flat[:, 1])
     gradient = np.empty((flat.shape[0], 2), dtype=np.float32)
-    np.subtract(stencil[1], stencil[2], out=gradient[:, 0])
-    np.subtract(stencil[3], stencil[4], out=gradient[:, 1])
+    _central_differences(samples, gradient.T)
+    return samples[0].reshape(points.shape[:-1]), gradient.reshape(points.shape)
+
+
+def sample_with_gradient_xy(
+    image: np.ndarray, x: np.ndarray, y: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`sample_with_gradient` at separate x and y coordinates.
+
+    Args:
+        image: (H, W) float32 image.
+        x: (...) column coordinates, px.
+        y: (...) row coordinates, px, of x's shape.
+
+    Returns:
+        ``(values, gradient)``: values (...) float32 (equal to :func:`sample_xy`'s), gradient
+        (2, ...) float32 (dI/dx, dI/dy), grey levels per pixel.
+    """
+    x = np.asarray(x, dtype=np.float32)
+    y = np.asarray(y, dtype=np.float32)
+    samples = _stencil_samples(image, x.ravel(), y.ravel())
+    gradient = np.empty((2, x.size), dtype=np.float32)
+    _central_differences(samples, gradient)
+    return samples[0].reshape(x.shape), gradient.reshape(2, *x.shape)
+
+
+def _stencil_samples(image: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """(5, K) samples at (K,) float32 points and at the stencil's shifts of them."""
+    return sample_xy(image, x + _STENCIL_X, y + _STENCIL_Y)  # rows contiguous
+
+
+def _central_differences(samples: np.ndarray, gradient: np.ndarray) -> None:
+    """Write half the differences of the +-x and +-y stencil rows into the (2, K) gradient."""
+    np.subtract(samples[-4], samples[-3], out=gradient[0])
+    np.subtract(samples[-2], samples[-1], out=gradient[1])
     gradient *= 0.5
-    return stencil[0].reshape(points.shape[:-1]), gradient.reshape(points.shape)
 
 
 def inside_image(points: np.ndarray, shape: tuple[int, int], margin: float = 0.0) -> np.ndarray:
     """Boolean mask (...) of points at least ``margin`` px inside an image of shape (H, W)."""
     points = np.asarray(points)
+    return inside_xy(points[..., 0], points[..., 1], shape, margin)
+
+
+def inside_xy(
+    x: np.ndarray, y: np.ndarray, shape: tuple[int, int], margin: float = 0.0
+) -> np.ndarray:
+    """:func:`inside_image` for points given as separate x and y coordinate arrays."""
     height, width = shape
-    x, y = points[..., 0], points[..., 1]
     return (x >= margin) & (y >= margin) & (x <= width - 1 - margin) & (y <= height - 1 - margin)

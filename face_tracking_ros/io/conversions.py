@@ -325,7 +325,8 @@ def face_messages(
         result: the tracker's estimate for this image.
         topology: the mesh topology (node names and edges).
     """
-    pose = pose_msg(factory, np.nan_to_num(result.omega), np.nan_to_num(result.t))
+    omega = np.nan_to_num(result.omega).astype(float)
+    pose = pose_msg(factory, omega, np.nan_to_num(result.t))
     nodes = array_to_points(factory, np.nan_to_num(result.nodes_cam))
     state = factory.make(
         'face_tracking_msgs/msg/FaceState',
@@ -333,7 +334,7 @@ def face_messages(
         face_id=face_id,
         status=int(result.status),
         pose=pose,
-        omega=np.nan_to_num(result.omega).astype(float),
+        omega=omega,
         alpha=np.asarray(result.alpha, dtype=float),
         sigma=np.asarray(result.sigma, dtype=float),
         node_names=list(topology.node_names),
@@ -366,7 +367,7 @@ def face_messages(
             points=nodes,
             edges=topology.edges.ravel().astype(np.uint32),
         ),
-        markers=mesh_markers(factory, header, face_id, result.nodes_cam, topology),
+        markers=mesh_markers(factory, header, face_id, nodes, topology),
     )
 
 
@@ -374,11 +375,18 @@ def mesh_markers(
     factory: MessageFactory,
     header: Any,
     face_id: str,
-    nodes_cam: np.ndarray,
+    points: list[Any],
     topology: MeshTopology,
 ) -> Any:
-    """visualization_msgs/MarkerArray drawing the mesh: nodes as spheres, edges as lines (m)."""
-    points = array_to_points(factory, np.nan_to_num(nodes_cam))
+    """visualization_msgs/MarkerArray drawing the mesh: nodes as spheres, edges as lines (m).
+
+    Args:
+        factory: message factory.
+        header: header of the markers.
+        face_id: the marker namespace.
+        points: the N nodes as geometry_msgs/Point (camera frame, m), shared with the FaceMesh.
+        topology: the mesh topology (its edges).
+    """
     edge_points = [points[i] for edge in topology.edges for i in edge]
     identity = factory.make(
         'geometry_msgs/msg/Pose', orientation=factory.make('geometry_msgs/msg/Quaternion', w=1.0)

@@ -24,7 +24,8 @@ Design, in the seed's terms:
   coarse to fine on a Gaussian pyramid, with Huber IRLS weights, per-node visibility (nodes whose
   normal turns away from the camera lose their weight) and analytic Jacobians: the image gradient
   sampled on the patches times d pixel / d X_c (eq. 2) times d X_c / d(omega, t, alpha) (eq. 1, 3),
-  evaluated where a pyramid level starts and refreshed after half a pixel of motion.
+  evaluated where a pyramid level starts and refreshed after half a pixel of motion. A level
+  ends when the nodes stop moving or a step raises the cost.
 - Optionally (``max_keyframes`` > 1) the drift term compares with the keyframe nearest in
   rotation instead of frame 1. Measured on synthetic sequences it does worse than I_1 alone
   (keyframes inherit the error of the pose they were taken at), so it is off by default.
@@ -59,11 +60,13 @@ from face_tracking_ros.geometry.camera import PinholeCamera
 from face_tracking_ros.geometry.rotation import rodrigues
 from face_tracking_ros.imaging import (
     ImagePyramid,
+    PhotometricInvariance,
     PhotometricModel,
     PhotometricProjection,
     inside_image,
-    sample_points,
-    sample_with_gradient,
+    inside_xy,
+    sample_with_gradient_xy,
+    sample_xy,
     square_offsets,
 )
 from face_tracking_ros.model.face_model import FaceModel
@@ -76,7 +79,6 @@ from face_tracking_ros.tracking.initialisation import (
 from face_tracking_ros.tracking.projection import (
     POSE_DIM,
     photometric_jacobian,
-    project_with_jacobian,
 )
 from face_tracking_ros.tracking.result import TrackResult, TrackStatus
 from face_tracking_ros.tracking.surface_patches import node_frames, surface_patch_offsets
@@ -122,7 +124,9 @@ class MonoTrackerConfig:
         sigma_frames: frames after an initialisation during which sigma is estimated with the
             pose, then held fixed (>= 0; 0 keeps the sigma of the initial fit or enrolment).
         damping: initial Levenberg-Marquardt damping, relative to diag(H) (> 0).
-        convergence_px: a level stops when no node moves more than this, level px (> 0).
+        convergence_px: level 0 stops when no node moves more than this, level px (> 0).
+        coarse_convergence_px: a coarser level stops when no node moves more than this, level
+            px (> 0); it only has to bring the next level within its reach.
         jacobian_refresh_px: the Jacobian is re-evaluated after the nodes have moved this far
             since it was last evaluated, level px (> 0).
         visibility_cos: a node's weight ramps from 0 to 1 as the cosine between its outward
@@ -159,6 +163,7 @@ class MonoTrackerConfig:
     sigma_frames: int = 0
     damping: float = 1e-4
     convergence_px: float = 0.01
+    coarse_convergence_px: float = 0.1
     jacobian_refresh_px: float = 0.5
     visibility_cos: float = 0.1
     lost_residual_ratio: float = 0.65
@@ -186,6 +191,7 @@ class MonoTrackerConfig:
             'sigma_frames': self.sigma_frames >= 0,
             'damping': self.damping > 0,
             'convergence_px': self.convergence_px > 0,
+            'coarse_convergence_px': self.coarse_convergence_px > 0,
             'jacobian_refresh_px': self.jacobian_refresh_px > 0,
             'visibility_cos': 0.0 <= self.visibility_cos < 0.5,
             'lost_residual_ratio': self.lost_residual_ratio > 0,
@@ -220,15 +226,52 @@ class _Params(NamedTuple):
         )
 
 
+class _Level(NamedTuple):
+    """One pyramid level of a frame's solve: what stays fixed while it runs.
+
+    Attributes:
+        index: the level l.
+        image: (H_l, W_l) float32 level of I_n.
+        camera: (3, 4) projection matrix P of level pixels (its first two rows times 2^-l).
+        offsets: (3, N, M) ROI offsets of the level, face frame, component-major, m.
+        template: (N, M) blended template T of the level.
+        projection: the photometric invariance of the residuals for ``template``.
+        visibility: (N, M) the node visibility weight of every sample.
+    """
+
+    index: int
+    image: np.ndarray
+    camera: np.ndarray
+    offsets: np.ndarray
+    template: np.ndarray
+    projection: PhotometricProjection
+    visibility: np.ndarray
+
+
+class _Sampled(NamedTuple):
+    """One level's samples of the ROIs at a pose, and which lie inside the image."""
+
+    samples: np.ndarray  # (N, M) float32
+    inside: np.ndarray  # (N, M) bool, at least 1 px inside
+
+
 class _Linearisation(NamedTuple):
     """Jacobians at a linearisation point on one pyramid level.
 
     Attributes:
-        jacobian: (N M, P) derivative of the projected residuals, grey levels per parameter.
+        params: the linearisation point.
+        sampled: the level's samples at ``params`` (taken with the gradient).
+        jacobian_t: (P, N M) transposed derivative of the projected residuals, grey levels per
+            parameter (rows contiguous, for the weighted products of the normal equations).
+        hessian: (P, P) ``J' V J`` with the samples' visibility weights V alone; the normal
+            equations of an iteration correct it for the samples whose weight differs.
         node_jacobian: (2 N, P) derivative of the node pixels, level px per parameter.
     """
 
-    jacobian: np.ndarray
+    params: _Params
+    sampled: _Sampled
+    jacobian_t: np.ndarray
+    hessian: np.ndarray
     node_jacobian: np.ndarray
 
 
@@ -239,6 +282,8 @@ class _System(NamedTuple):
     hessian: np.ndarray
     gradient: np.ndarray
     scale: float
+    sampled: _Sampled
+    residuals: np.ndarray  # (N, M), photometrically projected
 
 
 class _Solution(NamedTuple):
@@ -247,6 +292,8 @@ class _Solution(NamedTuple):
     params: _Params
     fallback: _Params
     fallback_cost: float
+    fallback_sampled: _Sampled  # level 0 at the fallback, and its residuals
+    fallback_residuals: np.ndarray
     scale: float
     iterations: int
     costs: tuple[float, ...]
@@ -289,7 +336,10 @@ class _FaceView(NamedTuple):
 
 @dataclass
 class _Track:
-    """State of a running track; ``keyframes[0]`` holds frame 1 (the seed's I_1)."""
+    """State of a running track; ``keyframes[0]`` holds frame 1 (the seed's I_1).
+
+    ``offsets`` holds each level's (3, N, M) ROI offsets, component-major.
+    """
 
     offsets: tuple[np.ndarray, ...]
     normals: np.ndarray
@@ -351,11 +401,20 @@ class MonoTracker:
             max(self._config.photometric, PhotometricModel.BIAS),
             self._grid,
         )
-        # Row scales of P per pyramid level: level l's pixels are level 0's times 2^-l.
-        self._level_rows = [
-            np.array([[1.0 / (1 << level)], [1.0 / (1 << level)], [1.0]])
+        self._invariance = PhotometricInvariance.of(self._config.photometric, self._grid)
+        # P of each pyramid level: level l's pixels are level 0's times 2^-l.
+        self._level_cameras = [
+            camera.p * np.array([[1.0 / (1 << level)], [1.0 / (1 << level)], [1.0]])
             for level in range(levels)
         ]
+        self._prior_hessians = {free: self._prior_hessian(free) for free in (False, True)}
+        # Per level, the "image gradients" (1, 0) and (0, 1) of the node samples (_linearise).
+        self._node_gradients = [
+            np.broadcast_to(np.eye(2)[:, None, :] / (1 << level), (2, model.num_nodes, 2))
+            for level in range(levels)
+        ]
+        self._buffers: ImagePyramid | None = None  # the previous frame's, rebuilt in place
+        self._posed: tuple[_Params, tuple[np.ndarray, np.ndarray]] | None = None  # _pose's
         self._init: Initialisation | None = None
         self._use_init = False
         self._track: _Track | None = None
@@ -442,7 +501,7 @@ class MonoTracker:
     def _patch_offsets(
         self, params: _Params, num_levels: int
     ) -> tuple[tuple[np.ndarray, ...], np.ndarray]:
-        """Per-level (N, M, 3) face-frame ROI offsets and the (N, 3) node normals.
+        """Per-level (3, N, M) face-frame ROI offsets (component-major) and the (N, 3) normals.
 
         Each ROI is a square grid in the face frame's x-y directions lifted onto the thin-plate
         surface through the nodes, with the spacing that gives ``patch_spacing_px`` at the
@@ -459,7 +518,9 @@ class MonoTracker:
         )
         spacing = config.patch_spacing_px * params.t[2] / self._camera.focal
         offsets = tuple(
-            surface_patch_offsets(shape, grid * (spacing * (1 << level)))
+            np.ascontiguousarray(
+                surface_patch_offsets(shape, grid * (spacing * (1 << level))).transpose(2, 0, 1)
+            )
             for level in range(num_levels)
         )
         return offsets, node_frames(shape, self._triangles)[:, 2]
@@ -593,17 +654,17 @@ class MonoTracker:
         track = self._track
         solution = self._solve(pyramid, start, templates, node_weights, free_sigma)
         params = solution.params
-        sampled = self._templates(pyramid, params, track.offsets, track.normals)
+        first = self._sample(pyramid.levels[0], params, 0, track.offsets[0])
         projection = solution.projection
-        residuals = projection.apply(sampled.levels[0] - templates[0])
-        weights = node_weights[:, None] * sampled.inside
+        residuals = projection.apply(first.samples - templates[0])
+        weights = node_weights[:, None] * first.inside
         cost = self._data_cost(residuals, weights, solution.scale) + self._prior_cost(
             params, free_sigma
         )
         if cost > solution.fallback_cost:  # the last, unchecked step made things worse
             params = solution.fallback
-            sampled = self._templates(pyramid, params, track.offsets, track.normals)
-            residuals = projection.apply(sampled.levels[0] - templates[0])
+            first, residuals = solution.fallback_sampled, solution.fallback_residuals
+        sampled = self._templates(pyramid, params, track.offsets, track.normals, first)
         node_rms = np.sqrt(np.mean(residuals**2, axis=1))
         reason = self._loss_reason(
             params,
@@ -632,180 +693,179 @@ class MonoTracker:
 
         The Jacobian is evaluated where a level starts and re-evaluated only once the samples
         have moved ``jacobian_refresh_px`` since; the iterations in between only sample the
-        image (one ``cv2.remap`` of the ROI points each).
+        image (one ``cv2.remap`` of the ROI points each). A level ends when the nodes stop moving
+        (``convergence_px``, ``coarse_convergence_px``) or at the first step that raises the
+        cost: with the damping this small, a retry with more of it moves to about the same point.
         """
         config = self._config
         q = self._model.q
         params = start
         costs: list[float] = []
-        for level in reversed(range(pyramid.num_levels)):
-            projection = PhotometricProjection.of(templates[level], config.photometric, self._grid)
-            linear = self._linearise(pyramid, level, params, projection, free_sigma)
+        projections = self._invariance.projection(np.concatenate(templates)).split(len(templates))
+        for index in reversed(range(pyramid.num_levels)):
+            level = _Level(
+                index=index,
+                image=pyramid.levels[index],
+                camera=self._level_cameras[index],
+                offsets=self._track.offsets[index],
+                template=templates[index],
+                projection=projections[index],
+                visibility=np.repeat(node_weights[:, None], templates[index].shape[1], axis=1),
+            )
+            linear = self._linearise(level, params, free_sigma)
             damping = config.damping
+            converged = config.coarse_convergence_px if index else config.convergence_px
             accepted: tuple[_Params, _System] | None = None
             scale = None
             moved = 0.0
             for _ in range(config.max_iterations):
-                system = self._evaluate(
-                    pyramid,
-                    level,
-                    params,
-                    templates[level],
-                    projection,
-                    node_weights,
-                    linear,
-                    scale,
-                )
+                system = self._evaluate(level, params, linear, scale)
                 scale = system.scale
                 costs.append(system.cost)
                 if accepted is not None and system.cost > accepted[1].cost:
-                    params, system = accepted
-                    damping *= 10.0
-                else:
-                    accepted = (params, system)
-                    damping = max(0.1 * damping, 1e-9)
+                    params = accepted[0]  # no lower cost within reach: the level ends here
+                    break
+                accepted = (params, system)
+                damping = max(0.1 * damping, 1e-9)
                 step = _damped_step(system, damping)
                 params = params.updated(step, q)
                 motion = np.abs(linear.node_jacobian @ step).max(initial=0.0)
-                if motion < config.convergence_px:
+                if motion < converged:
                     break
                 moved += motion
                 if moved > config.jacobian_refresh_px:
-                    linear = self._linearise(pyramid, level, params, projection, free_sigma)
+                    linear = self._linearise(level, params, free_sigma)
                     moved = 0.0
         return _Solution(
             params=params,
             fallback=accepted[0],
             condition=_condition(accepted[1].hessian),
             fallback_cost=accepted[1].cost,
+            fallback_sampled=accepted[1].sampled,
+            fallback_residuals=accepted[1].residuals,
             scale=accepted[1].scale,
             iterations=len(costs),
             costs=tuple(costs),
-            projection=projection,
+            projection=level.projection,
         )
 
-    def _linearise(
-        self,
-        pyramid: ImagePyramid,
-        level: int,
-        params: _Params,
-        projection: PhotometricProjection,
-        free_sigma: bool,
-    ) -> _Linearisation:
+    def _linearise(self, level: _Level, params: _Params, free_sigma: bool) -> _Linearisation:
         """The Jacobian of eq. 6's photometrically projected residuals at ``params``.
 
         Image gradient (sampled on the ROIs only) x d pixel / d X_c (eq. 2) x d X_c / d(omega,
         t, alpha[, sigma]) (eq. 1, 3), then ``1 - P`` of the photometric model.
         """
         basis = self._identity_action_basis if free_sigma else self._action_basis
-        shape = self._model.shape(params.sigma, params.alpha)
-        points, points_cam, pixels = self._roi_points(params, level)
-        level_scale = 1.0 / float(1 << level)
-        _, gradient = sample_with_gradient(pyramid.levels[level], pixels)
+        rotation, shape = self._pose(params)
+        # R P of the ROI points P = shape_n + offset (eq. 1, 3), and their level pixels (eq. 2).
+        rotated_nodes = rotation @ shape.T
+        rotated = (rotation @ level.offsets.reshape(3, -1)).reshape(level.offsets.shape)
+        rotated += rotated_nodes[:, :, None]
+        x, y = self._roi_pixels(params, level.camera, level.offsets)
+        samples, gradient = sample_with_gradient_xy(level.image, x, y)
+        level_scale = 1.0 / float(1 << level.index)
+        gradient *= level_scale
+        # Two more samples per node, at the node with "image gradients" (1, 0) and (0, 1): their
+        # rows are the node pixels' Jacobian; the photometric projection leaves them out.
+        size = x.shape[1]
+        points = np.concatenate([rotated, np.repeat(rotated_nodes[:, :, None], 2, axis=2)], 2)
+        gradients = np.concatenate([gradient, self._node_gradients[level.index]], axis=2)
+
+        def project(rows: np.ndarray) -> np.ndarray:
+            roi = level.projection.apply(rows[..., :size])
+            return np.concatenate([roi, rows[..., size:]], axis=2)
+
         jacobian = photometric_jacobian(
-            self._camera, params.omega, points, points_cam, gradient * level_scale, basis
+            self._camera, params.omega, points, params.t, gradients, basis, project
         )
-        node_jacobian = project_with_jacobian(
-            self._camera, params.omega, params.t, shape, basis
-        ).jacobian
+        jacobian_t = np.ascontiguousarray(jacobian[..., :size]).reshape(len(jacobian), -1)
         return _Linearisation(
-            jacobian=projection.apply(jacobian).reshape(-1, jacobian.shape[-1]),
-            node_jacobian=node_jacobian.reshape(-1, jacobian.shape[-1]) * level_scale,
+            params=params,
+            sampled=_Sampled(samples, inside_xy(x, y, level.image.shape, margin=1.0)),
+            jacobian_t=jacobian_t,
+            hessian=(jacobian_t * level.visibility.ravel()) @ jacobian_t.T,
+            node_jacobian=jacobian[..., size:].reshape(len(jacobian), -1).T,
         )
 
-    def _roi_points(
-        self, params: _Params, level: int, offsets: np.ndarray | None = None
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(N, M, 3) face-frame and camera-frame ROI points (eq. 1, 3), (N, M, 2) level pixels.
-
-        ``offsets`` are the level's (N, M, 3) ROI offsets, by default the track's.
-        """
-        shape = self._model.shape(params.sigma, params.alpha)
-        offsets = self._track.offsets[level] if offsets is None else offsets
-        points = shape[:, None, :] + offsets
-        rotation, _ = rodrigues(params.omega)
-        points_cam = (points.reshape(-1, 3) @ rotation.T + params.t).reshape(points.shape)
-        pixels = self._camera.project(points_cam.reshape(-1, 3)) * (1.0 / float(1 << level))
-        return points, points_cam, pixels.reshape(*points.shape[:2], 2)
-
-    def _roi_pixels(
-        self, params: _Params, level: int, offsets: np.ndarray | None = None
-    ) -> np.ndarray:
-        """(N, M, 2) level pixels of the ROI points (eq. 1-3) alone, for sampling.
+    def _roi_pixels(self, params: _Params, camera: np.ndarray, offsets: np.ndarray) -> np.ndarray:
+        """(2, N, M) level pixels (x row, then y row) of the ROI points (eq. 1-3), for sampling.
 
         Eq. 1 and 2 fold into one map ``h = (P_3 R)(shape_n + offset) + P_3 t + p_4`` with the
-        level's 2^-l in the first two rows of P, so nodes and offsets are mapped separately and
-        no camera-frame point is formed.
+        level's ``camera`` P, so nodes and the (3, N, M) ``offsets`` are mapped separately and no
+        camera-frame point is formed.
         """
-        shape = self._model.shape(params.sigma, params.alpha)
-        offsets = self._track.offsets[level] if offsets is None else offsets
-        rotation, _ = rodrigues(params.omega)
-        projection = self._camera.p * self._level_rows[level]
-        matrix = projection[:, :3] @ rotation
-        nodes = shape @ matrix.T + (projection[:, :3] @ params.t + projection[:, 3])
-        homogeneous = nodes[:, None, :] + offsets @ matrix.T
-        return homogeneous[..., :2] / homogeneous[..., 2:3]
+        rotation, shape = self._pose(params)
+        matrix = camera[:, :3] @ rotation
+        homogeneous = (matrix @ offsets.reshape(3, -1)).reshape(offsets.shape)
+        homogeneous += (matrix @ shape.T + (camera[:, :3] @ params.t + camera[:, 3])[:, None])[
+            :, :, None
+        ]
+        return _dehomogenise(homogeneous)
 
     def _evaluate(
         self,
-        pyramid: ImagePyramid,
-        level: int,
+        level: _Level,
         params: _Params,
-        template: np.ndarray,
-        projection: PhotometricProjection,
-        node_weights: np.ndarray,
         linear: _Linearisation,
         scale: float | None,
     ) -> _System:
         """Residuals, Huber-weighted normal equations and cost of eq. 6 on one level.
 
+        ``J' W J`` is the linearisation's ``J' V J`` plus the columns of the samples whose IRLS
+        weight W (Huber times visibility times inside the image) differs from their visibility V.
+
         Args:
-            pyramid: the current image I_n.
-            level: pyramid level.
+            level: the pyramid level, with its template, photometric projection and visibility.
             params: where to evaluate.
-            template: (N, M) blended template T of this level.
-            projection: the photometric invariance of the residuals for ``template``.
-            node_weights: (N,) visibility weights.
             linear: the Jacobian (from a nearby linearisation point).
             scale: the robust residual scale s, or None to estimate it from these residuals.
         """
-        pixels = self._roi_pixels(params, level)
-        image = pyramid.levels[level]
-        residuals = projection.apply(sample_points(image, pixels) - template)
-        weights = node_weights[:, None] * inside_image(pixels, image.shape, 1.0)
+        sampled = (
+            linear.sampled
+            if params is linear.params
+            else self._sample(level.image, params, level.index, level.offsets)
+        )
+        residuals = level.projection.apply(sampled.samples - level.template)
+        weights = level.visibility * sampled.inside
         if scale is None:
             active = np.abs(residuals[weights > 0])
-            spread = _MAD_TO_STD * float(np.median(active)) if active.size else 0.0
+            spread = _MAD_TO_STD * _median(active) if active.size else 0.0
             scale = max(self._config.residual_scale_floor, spread)
-        normalised = (residuals / scale).ravel()
-        huber = _huber_weights(normalised, self._config.huber_k) * weights.ravel()
-        weighted = linear.jacobian * huber[:, None]
-        free_sigma = linear.jacobian.shape[1] > POSE_DIM + self._model.q
-        prior_hessian, prior_gradient = self._prior_terms(params, free_sigma)
-        cost = self._data_cost(residuals, weights, scale) + self._prior_cost(params, free_sigma)
+        magnitude = np.abs(residuals / scale)
+        k = self._config.huber_k
+        irls = (_huber_weights(magnitude, k) * weights).ravel()
+        change = irls - level.visibility.ravel()
+        changed = change != 0.0
+        columns = np.compress(changed, linear.jacobian_t, axis=1)
+        free_sigma = linear.jacobian_t.shape[0] > POSE_DIM + self._model.q
+        data_cost = float(np.sum(weights * _huber_rho(magnitude, k)))
         return _System(
-            cost=cost,
-            hessian=weighted.T @ linear.jacobian / scale**2 + prior_hessian,
-            gradient=weighted.T @ residuals.ravel() / scale**2 + prior_gradient,
+            cost=data_cost + self._prior_cost(params, free_sigma),
+            hessian=(linear.hessian + (columns * change[changed]) @ columns.T) / scale**2
+            + self._prior_hessians[free_sigma],
+            gradient=linear.jacobian_t @ (irls * residuals.ravel()) / scale**2
+            + self._prior_gradient(params, free_sigma),
             scale=scale,
+            sampled=sampled,
+            residuals=residuals,
         )
 
-    def _prior_terms(self, params: _Params, free_sigma: bool) -> tuple[np.ndarray, np.ndarray]:
-        """Hessian and gradient (halved) of the alpha (and sigma) priors, padded to the pose."""
+    def _prior_hessian(self, free_sigma: bool) -> np.ndarray:
+        """Hessian (halved) of the alpha (and sigma) priors, padded to the pose."""
         q = self._model.q
         size = POSE_DIM + q + (self._model.p if free_sigma else 0)
         hessian = np.zeros((size, size))
-        gradient = np.zeros(size)
-        blocks = [(self._alpha_precision, params.alpha)]
+        hessian[POSE_DIM : POSE_DIM + q, POSE_DIM : POSE_DIM + q] = self._alpha_precision
         if free_sigma:
-            blocks.append((self._sigma_precision, params.sigma))
-        start = POSE_DIM
-        for precision, value in blocks:
-            stop = start + len(value)
-            hessian[start:stop, start:stop] = precision
-            gradient[start:stop] = precision @ value
-            start = stop
-        return hessian, gradient
+            hessian[POSE_DIM + q :, POSE_DIM + q :] = self._sigma_precision
+        return hessian
+
+    def _prior_gradient(self, params: _Params, free_sigma: bool) -> np.ndarray:
+        """Gradient (halved) of the alpha (and sigma) priors, padded to the pose."""
+        blocks = [np.zeros(POSE_DIM), self._alpha_precision @ params.alpha]
+        if free_sigma:
+            blocks.append(self._sigma_precision @ params.sigma)
+        return np.concatenate(blocks)
 
     def _prior_cost(self, params: _Params, free_sigma: bool) -> float:
         """``alpha' L_a alpha`` (+ ``sigma' L_s sigma`` while sigma is free)."""
@@ -816,10 +876,7 @@ class MonoTracker:
 
     def _data_cost(self, residuals: np.ndarray, weights: np.ndarray, scale: float) -> float:
         """Huber cost ``sum w rho(r / s)`` of (N, M) residuals with (N, M) weights."""
-        normalised = np.abs(residuals / scale)
-        k = self._config.huber_k
-        rho = np.where(normalised <= k, normalised**2, 2 * k * normalised - k * k)
-        return float(np.sum(weights * rho))
+        return float(np.sum(weights * _huber_rho(np.abs(residuals / scale), self._config.huber_k)))
 
     # --- checks, templates, results ------------------------------------------------------------
 
@@ -882,30 +939,51 @@ class MonoTracker:
         params: _Params,
         offsets: tuple[np.ndarray, ...],
         normals: np.ndarray,
+        first: _Sampled | None = None,
     ) -> _Templates:
-        """Samples of every level at ``params``'s ROIs, and the node visibility there."""
-        levels, inside = [], None
-        for level, image in enumerate(pyramid.levels):
-            pixels = self._roi_pixels(params, level, offsets[level])
-            levels.append(sample_points(image, pixels))
-            if inside is None:
-                inside = inside_image(pixels, image.shape, margin=1.0)
-        return _Templates(tuple(levels), self._visibility(params, normals), inside)
+        """Samples of every level at ``params``'s ROIs, and the node visibility there.
+
+        ``first`` is level 0 at ``params`` when it has been sampled already.
+        """
+        first = first or self._sample(pyramid.levels[0], params, 0, offsets[0])
+        levels = [first.samples]
+        for level in range(1, pyramid.num_levels):
+            x, y = self._roi_pixels(params, self._level_cameras[level], offsets[level])
+            levels.append(sample_xy(pyramid.levels[level], x, y))
+        return _Templates(tuple(levels), self._visibility(params, normals), first.inside)
+
+    def _sample(
+        self, image: np.ndarray, params: _Params, level: int, offsets: np.ndarray
+    ) -> _Sampled:
+        """Level ``level``'s samples of the ROIs (with the level's (3, N, M) offsets)."""
+        x, y = self._roi_pixels(params, self._level_cameras[level], offsets)
+        return _Sampled(sample_xy(image, x, y), inside_xy(x, y, image.shape, margin=1.0))
 
     def _visibility(self, params: _Params, normals: np.ndarray) -> np.ndarray:
         """(N,) weights in [0, 1] from the angle between node normals and rays to the camera."""
-        rotation, _ = rodrigues(params.omega)
-        nodes, _ = self._project_nodes(params)
+        rotation, shape = self._pose(params)
+        nodes = shape @ rotation.T + params.t
         rays = nodes / np.linalg.norm(nodes, axis=1, keepdims=True)
         facing = -np.einsum('na,na->n', normals @ rotation.T, rays)
         low = self._config.visibility_cos
         return np.clip((facing - low) / max(low, 1e-6), 0.0, 1.0)
 
+    def _pose(self, params: _Params) -> tuple[np.ndarray, np.ndarray]:
+        """R(omega) (eq. 1) and the (N, 3) shape (eq. 3) of ``params``.
+
+        The last parameter vector's are kept: one is projected several times (its evaluation,
+        linearisation, templates, visibility, result).
+        """
+        if self._posed is None or params is not self._posed[0]:
+            rotation, _ = rodrigues(params.omega)
+            self._posed = (params, (rotation, self._model.shape(params.sigma, params.alpha)))
+        return self._posed[1]
+
     def _project_nodes(self, params: _Params) -> tuple[np.ndarray, np.ndarray]:
         """(N, 3) camera-frame nodes (eq. 1, 3) and their (N, 2) pixels (eq. 2)."""
-        shape = self._model.shape(params.sigma, params.alpha)
-        projection = project_with_jacobian(self._camera, params.omega, params.t, shape)
-        return projection.points_cam, projection.pixels
+        rotation, shape = self._pose(params)
+        points_cam = shape @ rotation.T + params.t
+        return points_cam, self._camera.project(points_cam)
 
     def _result(
         self,
@@ -942,13 +1020,21 @@ class MonoTracker:
         return replace(self._track.last_good, status=TrackStatus.LOST, reason=reason)
 
     def _pyramid(self, image: np.ndarray) -> ImagePyramid:
-        """Validate the image against the camera and build its pyramid."""
+        """Validate the image against the camera and build its pyramid (into the last one's)."""
         image = np.asarray(image)
         expected = (self._camera.height, self._camera.width)
         if image.shape != expected:
             msg = f'image has shape {image.shape}; the camera expects a grey {expected} image'
             raise InputError(msg)
-        return ImagePyramid.build(image, self._config.pyramid_levels, self._config.smooth_base)
+        self._buffers = ImagePyramid.build(
+            image, self._config.pyramid_levels, self._config.smooth_base, reuse=self._buffers
+        )
+        return self._buffers
+
+
+def _dehomogenise(homogeneous: np.ndarray) -> np.ndarray:
+    """(2, ...) pixels (x, y) of (3, ...) homogeneous pixels."""
+    return homogeneous[:2] / homogeneous[2]
 
 
 def _params_of(result: TrackResult) -> _Params:
@@ -962,21 +1048,35 @@ def _rotation_angle(omega_a: np.ndarray, omega_b: np.ndarray) -> float:
     return float(np.arccos(np.clip(0.5 * (np.trace(relative) - 1.0), -1.0, 1.0)))
 
 
-def _huber_weights(normalised: np.ndarray, k: float) -> np.ndarray:
-    """IRLS weights of the Huber loss at normalised residuals r / s: 1 inside k, k/|u| outside."""
-    magnitude = np.abs(normalised)
-    return np.where(magnitude <= k, 1.0, k / np.maximum(magnitude, k))
+def _median(values: np.ndarray) -> float:
+    """``np.median`` of a non-empty 1-D array, by one partial sort."""
+    half = values.size // 2
+    if values.size % 2:
+        return float(np.partition(values, half)[half])
+    low, high = np.partition(values, (half - 1, half))[half - 1 : half + 1]
+    return float((low + high) / 2)
+
+
+def _huber_weights(magnitude: np.ndarray, k: float) -> np.ndarray:
+    """IRLS weights of the Huber loss at |r| / s: 1 inside k, k / |u| outside."""
+    return np.minimum(1.0, k / np.maximum(magnitude, k))
+
+
+def _huber_rho(magnitude: np.ndarray, k: float) -> np.ndarray:
+    """The Huber loss rho at |r| / s: u^2 inside k, 2 k |u| - k^2 outside."""
+    return np.where(magnitude <= k, magnitude**2, 2 * k * magnitude - k * k)
 
 
 def _damped_step(system: _System, damping: float) -> np.ndarray:
     """Levenberg-Marquardt step ``-(H + lambda diag H)^-1 g``, solved Jacobi-scaled."""
-    if not np.all(np.isfinite(system.hessian)) or not np.all(np.isfinite(system.gradient)):
+    hessian, gradient = system.hessian, system.gradient
+    if not (np.isfinite(hessian).all() and np.isfinite(gradient).all()):
         msg = 'non-finite normal equations'
         raise LinAlgError(msg)
-    scaling = 1.0 / np.sqrt(np.maximum(np.diag(system.hessian), 1e-12))
-    scaled = system.hessian * scaling[:, None] * scaling[None, :]
-    damped = scaled + damping * np.eye(len(scaling))
-    return -scaling * np.linalg.solve(damped, system.gradient * scaling)
+    scaling = 1.0 / np.sqrt(np.maximum(hessian.diagonal(), 1e-12))
+    damped = hessian * scaling[:, None] * scaling[None, :]
+    damped.flat[:: len(scaling) + 1] += damping
+    return -scaling * np.linalg.solve(damped, gradient * scaling)
 
 
 def _condition(hessian: np.ndarray) -> float:

@@ -10,6 +10,7 @@ the analytic derivatives of :func:`~face_tracking_ros.geometry.rotation.rotate_w
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import NamedTuple
 
 import numpy as np
@@ -76,45 +77,60 @@ def project_with_jacobian(
 def photometric_jacobian(
     camera: PinholeCamera,
     omega: np.ndarray,
-    points: np.ndarray,
-    points_cam: np.ndarray,
+    rotated: np.ndarray,
+    t: np.ndarray,
     gradient: np.ndarray,
     basis: np.ndarray | None = None,
+    project: Callable[[np.ndarray], np.ndarray] | None = None,
 ) -> np.ndarray:
     """Derivative of image samples ``I(pi(R(omega) P + t))`` with respect to (omega, t, c).
 
     The chain rule of :func:`project_with_jacobian` contracted with the image gradient first,
-    ``h = (dpi/dX_c)' grad I``, so no per-sample 2x3 or 3x3 matrices are formed: the omega columns
-    are ``h' dR/domega_k P = j_k . (R P x h)`` (with ``dR/domega_k = [j_k]x R``), the t columns
-    ``h`` and the coefficient columns ``(R' h)' dP/dc``.
+    ``h = (dpi/dX_c)' grad I``, so no per-sample 2x3 or 3x3 matrices are formed: the omega rows
+    are ``h' dR/domega_k P = j_k . (R P x h)`` (with ``dR/domega_k = [j_k]x R``), the t rows
+    ``h`` and the coefficient rows ``(R' h)' dP/dc``. Arrays are component-major (one contiguous
+    row per coordinate or parameter), so every step is a 3x3 product or an operation on whole
+    rows.
 
     Args:
         camera: the camera of eq. 2.
         omega: (3,) rotation vector of eq. 1, rad.
-        points: (N, M, 3) face-frame points P, m.
-        points_cam: (N, M, 3) their camera-frame positions X_c (eq. 1), m.
-        gradient: (N, M, 2) image gradient at their pixels, grey levels / px.
-        basis: (N, 3, c) derivative dP/dc shared by the M points of each row, or None.
+        rotated: (3, N, M) face-frame points P rotated into the camera frame, R(omega) P, m (the
+            camera-frame points of eq. 1 are ``rotated + t``).
+        t: (3,) translation of eq. 1, m.
+        gradient: (2, N, M) image gradient (d/dx, d/dy) at their pixels, grey levels / px.
+        basis: (N, 3, c) derivative dP/dc shared by the M points of each node, or None.
+        project: a linear map of (J, N, M) stacks acting on each node's M samples alone (a
+            photometric projection); the result is then the Jacobian of the mapped samples.
+            Every row is a combination of the six rows ``R P x h`` and ``h`` with coefficients
+            constant over a node's samples, so only those six are mapped.
 
     Returns:
-        (N, M, 6 + c) Jacobian, grey levels per rad, per m and per unit coefficient.
+        (6 + c, N, M) Jacobian, one row per parameter: grey levels per rad, per m and per unit
+        coefficient.
     """
     rotation, d_rotation = rodrigues(omega)
-    lead = points.shape[:-1]
-    flat_cam = points_cam.reshape(-1, 3)
-    flat_gradient = gradient.reshape(-1, 2).astype(float)
-    projection = camera.p
-    homogeneous = flat_cam @ projection[:, :3].T + projection[:, 3]
-    depth = homogeneous[:, 2:3]
-    along = np.sum(flat_gradient * homogeneous[:, :2], axis=1, keepdims=True) / depth
-    h = (flat_gradient @ projection[:2, :3] - along * projection[2, :3]) / depth
-    # dR/domega_k = [j_k]x R, so h' dR/domega_k P = j_k . (R P x h), with R P = X_c - t.
-    rotated = points.reshape(-1, 3) @ rotation.T
-    blocks = [np.cross(rotated, h) @ _left_jacobian(rotation, d_rotation), h]
+    count = rotated.shape[1]
+    flat = rotated.reshape(3, -1)
+    flat_gradient = gradient.reshape(2, -1).astype(float)
+    projection = camera.p[:, :3]
+    homogeneous = projection @ flat
+    homogeneous += (projection @ np.asarray(t, dtype=float) + camera.p[:, 3])[:, None]
+    inverse_depth = 1.0 / homogeneous[2]
+    along = (flat_gradient[0] * homogeneous[0] + flat_gradient[1] * homogeneous[1]) * inverse_depth
+    h = projection[:2].T @ flat_gradient
+    h -= projection[2][:, None] * along
+    h *= inverse_depth
+    x, y, z = flat
+    rows = np.stack([y * h[2] - z * h[1], z * h[0] - x * h[2], x * h[1] - y * h[0], *h])
+    if project is not None:
+        rows = project(rows.reshape(6, *rotated.shape[1:])).reshape(6, -1)
+    blocks = [_left_jacobian(rotation, d_rotation).T @ rows[:3], rows[3:]]
     if basis is not None:
-        rotated_h = (h @ rotation).reshape(*lead, 3)
-        blocks.append(np.matmul(rotated_h, basis).reshape(h.shape[0], -1))
-    return np.concatenate(blocks, axis=1).reshape(*lead, -1)
+        rotated_h = (rotation.T @ rows[3:]).reshape(3, count, -1).transpose(1, 0, 2)  # (N, 3, M)
+        coefficients = np.matmul(basis.transpose(0, 2, 1), rotated_h)  # (N, c, M)
+        blocks.append(coefficients.transpose(1, 0, 2).reshape(basis.shape[-1], -1))
+    return np.concatenate(blocks, axis=0).reshape(-1, *rotated.shape[1:])
 
 
 def _left_jacobian(rotation: np.ndarray, d_rotation: np.ndarray) -> np.ndarray:

@@ -197,6 +197,7 @@ def test_a_face_leaving_the_image_is_lost(scene) -> None:
         ('epsilon', 1.5),
         ('pyramid_levels', 0),
         ('max_iterations', 0),
+        ('coarse_convergence_px', 0.0),
         ('patch_half_size', 0),
         ('patch_spacing_px', 0.0),
         ('huber_k', -1.0),

@@ -51,11 +51,22 @@ def test_photometric_jacobian_is_the_gradient_contracted_chain_rule() -> None:
     gradient = np.random.default_rng(1).normal(0.0, 10.0, (4, 5, 2))
     projection = project_with_jacobian(CAMERA, OMEGA, T, points, basis[:, None])
     expected = np.einsum('nma,nmap->nmp', gradient, projection.jacobian)
-    actual = photometric_jacobian(CAMERA, OMEGA, points, projection.points_cam, gradient, basis)
-    assert actual.shape == (4, 5, 8)
-    assert np.abs(actual - expected).max() < 1e-9 * np.abs(expected).max()
-    no_basis = photometric_jacobian(CAMERA, OMEGA, points, projection.points_cam, gradient)
-    assert np.array_equal(no_basis, actual[..., :6])
+    rotated = (projection.points_cam - T).transpose(2, 0, 1)
+    actual = photometric_jacobian(CAMERA, OMEGA, rotated, T, gradient.transpose(2, 0, 1), basis)
+    assert actual.shape == (8, 4, 5)
+    assert np.abs(actual - expected.transpose(2, 0, 1)).max() < 1e-9 * np.abs(expected).max()
+    no_basis = photometric_jacobian(CAMERA, OMEGA, rotated, T, gradient.transpose(2, 0, 1))
+    assert np.array_equal(no_basis, actual[:6])
+    # A linear map of each node's samples (a photometric projection) maps every row alike.
+    mixing = np.random.default_rng(2).normal(size=(4, 5, 5))
+
+    def project(rows: np.ndarray) -> np.ndarray:
+        return np.einsum('nml,jnl->jnm', mixing, rows)
+
+    mapped = photometric_jacobian(
+        CAMERA, OMEGA, rotated, T, gradient.transpose(2, 0, 1), basis, project
+    )
+    assert np.abs(mapped - project(actual)).max() < 1e-9 * np.abs(expected).max()
 
 
 def test_node_frames_are_orthonormal_and_face_the_camera() -> None:
