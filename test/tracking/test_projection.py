@@ -9,7 +9,11 @@ from face_tracking_ros.errors import InputError
 from face_tracking_ros.geometry.camera import PinholeCamera
 from face_tracking_ros.model.topology import mesh_topology
 from face_tracking_ros.tracking.projection import photometric_jacobian, project_with_jacobian
-from face_tracking_ros.tracking.surface_patches import node_frames, surface_patch_offsets
+from face_tracking_ros.tracking.surface_patches import (
+    node_frames,
+    patch_basis,
+    surface_patch_offsets,
+)
 
 CAMERA = PinholeCamera.ideal()
 OMEGA = np.array([0.15, -0.35, 0.1])
@@ -108,3 +112,30 @@ def test_surface_patch_offsets_lie_on_the_thin_plate_surface() -> None:
     # A flat mesh gives a flat surface.
     flat = surface_patch_offsets(shape * [1, 1, 0], grid)
     assert np.abs(flat[..., 2]).max() < 1e-12
+
+
+def test_patch_basis_carries_node_motion_to_the_samples() -> None:
+    topology = mesh_topology(34)
+    shape = topology.reference_shape
+    grid = np.array([[0.0, 0.0], [0.003, -0.002], [-0.004, 0.004]])
+    offsets = surface_patch_offsets(shape, grid)
+    rng = np.random.default_rng(0)
+    # Column 0 moves every node the same affine way (a stretch plus a shift): every sample
+    # follows it exactly. Column 1 moves one node only: the samples around it follow partly.
+    affine = np.array([[0.1, 0.02, 0.0], [0.0, -0.05, 0.0], [0.03, 0.01, 0.0]])
+    stretch = shape @ affine.T + [0.001, -0.002, 0.0005]
+    lip = topology.index('lower_lip')
+    single = np.zeros_like(shape)
+    single[lip] = rng.normal(size=3) * 0.003
+    basis = np.stack([stretch, single], axis=-1)  # (N, 3, 2)
+    dense = patch_basis(shape, offsets, basis)
+    assert dense.shape == (34, 3, 3, 2)
+    samples = shape[:, None, :] + offsets
+    expected = samples @ affine.T + [0.001, -0.002, 0.0005] - stretch[:, None, :]
+    assert np.allclose(dense[..., 0], expected, atol=1e-12)
+    assert np.abs(dense[:, 0]).max() < 1e-12  # a node's own sample moves with the node
+    # Samples near the lip node move towards its motion, those of far nodes hardly at all.
+    near = dense[lip, 1:, :, 1] + single[lip]
+    assert np.all(np.einsum('ma,a->m', near, single[lip]) > 0.3 * single[lip] @ single[lip])
+    far = topology.index('left_brow_outer')
+    assert np.abs(dense[far, :, :, 1]).max() < 0.1 * np.abs(single[lip]).max()
