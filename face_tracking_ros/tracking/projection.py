@@ -82,6 +82,7 @@ def photometric_jacobian(
     gradient: np.ndarray,
     basis: np.ndarray | None = None,
     project: Callable[[np.ndarray], np.ndarray] | None = None,
+    sample_basis: np.ndarray | None = None,
 ) -> np.ndarray:
     """Derivative of image samples ``I(pi(R(omega) P + t))`` with respect to (omega, t, c).
 
@@ -104,6 +105,10 @@ def photometric_jacobian(
             photometric projection); the result is then the Jacobian of the mapped samples.
             Every row is a combination of the six rows ``R P x h`` and ``h`` with coefficients
             constant over a node's samples, so only those six are mapped.
+        sample_basis: (c, 3, N, S) derivative dP/dc of the first S points of each node beyond
+            ``basis`` (component-major; points past S have none), for points that move with the
+            coefficients other than rigidly with their node. Its rows are mapped by ``project``
+            too.
 
     Returns:
         (6 + c, N, M) Jacobian, one row per parameter: grey levels per rad, per m and per unit
@@ -123,14 +128,39 @@ def photometric_jacobian(
     h *= inverse_depth
     x, y, z = flat
     rows = np.stack([y * h[2] - z * h[1], z * h[0] - x * h[2], x * h[1] - y * h[0], *h])
+    extra = None if sample_basis is None else _sample_rows(rotation.T @ h, sample_basis, rotated)
     if project is not None:
         rows = project(rows.reshape(6, *rotated.shape[1:])).reshape(6, -1)
+        extra = None if extra is None else project(extra).reshape(len(extra), -1)
     blocks = [_left_jacobian(rotation, d_rotation).T @ rows[:3], rows[3:]]
     if basis is not None:
         rotated_h = (rotation.T @ rows[3:]).reshape(3, count, -1).transpose(1, 0, 2)  # (N, 3, M)
         coefficients = np.matmul(basis.transpose(0, 2, 1), rotated_h)  # (N, c, M)
-        blocks.append(coefficients.transpose(1, 0, 2).reshape(basis.shape[-1], -1))
+        coefficients = coefficients.transpose(1, 0, 2).reshape(basis.shape[-1], -1)
+        blocks.append(
+            coefficients if extra is None else coefficients + extra.reshape(len(extra), -1)
+        )
     return np.concatenate(blocks, axis=0).reshape(-1, *rotated.shape[1:])
+
+
+def _sample_rows(
+    rotated_h: np.ndarray, sample_basis: np.ndarray, rotated: np.ndarray
+) -> np.ndarray:
+    """(c, N, M) rows ``(R' h)' dP/dc`` of the per-point ``sample_basis`` (zero past its S points).
+
+    Args:
+        rotated_h: (3, N M) the chain ``R' h`` of every point.
+        sample_basis: (c, 3, N, S) per-point derivatives of the first S points of each node.
+        rotated: (3, N, M) the points (for their layout).
+    """
+    count, size = rotated.shape[1:]
+    used = sample_basis.shape[-1]
+    chain = rotated_h.reshape(3, count, size)[:, :, :used]
+    rows = np.zeros((len(sample_basis), count, size))
+    products = rows[:, :, :used]
+    for axis in range(3):
+        products += sample_basis[:, axis] * chain[axis]
+    return rows
 
 
 def _left_jacobian(rotation: np.ndarray, d_rotation: np.ndarray) -> np.ndarray:
