@@ -245,8 +245,8 @@ def _mono_accuracy_rows(protocol: dict[str, Any]) -> list[tuple[str, str, str]]:
     if still:
         rows.append(
             (
-                'mono jitter, still head (frame-to-frame rotation noise)',
-                ' / '.join(f'{v:.3f}' for v in still['jitter_deg']) + ' deg (x / y / z)',
+                'mono jitter, static head (std of the rotation angles)',
+                ' / '.join(f'{v:.3f}' for v in still['angle_std_deg']) + ' deg (x / y / z)',
                 '<= 0.05 deg',
             )
         )

@@ -50,7 +50,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         choices=[m.value for m in Motion],
         default='still',
         help='still: training (head still, neutral start, expressions in turn); '
-        'free: test (free head motion, random expressions)',
+        'free: test (free head motion, random expressions); '
+        'static: head, neutral face and light fixed, only sensor noise (jitter)',
     )
     parser.add_argument('--size', type=_size, default=(640, 480), help='WIDTHxHEIGHT, px')
     parser.add_argument('--encoding', choices=ENCODINGS, default='mono8')

@@ -11,6 +11,8 @@ Head motion (eq. 1's omega(t) and t(t)) is a sum of a few random sinusoids per d
   is 50 to 80 cm away). Peak angular speeds are tens of degrees per second, as in conversation.
 - 'still' (training sequences, the seed's §3.3 protocol): the head is meant to stay still; a slow
   residual sway of at most 0.8 deg per axis and 3 mm per axis remains.
+- 'static' (jitter measurements): head, expression and light held fixed; from frame to frame
+  only the sensor noise changes.
 
 Expression scripts give, per instant, the expression being played (its label, 'neutral' between
 expressions), its intensity in [0, 1] (raised-cosine onset, apex, raised-cosine offset) and the
@@ -46,6 +48,7 @@ class Motion(StrEnum):
 
     STILL = 'still'
     FREE = 'free'
+    STATIC = 'static'
 
 
 @dataclass(frozen=True)
@@ -81,7 +84,7 @@ class HeadTrajectory:
 
     Attributes:
         centre: (3,) mean position of the face-frame origin, camera frame, m.
-        motion: 'still' or 'free'.
+        motion: 'still', 'free' or 'static'.
         angle_waves: pitch, yaw and roll about their zero, radians.
         shift_waves: offset of the face-frame origin from ``centre``, m.
     """
@@ -98,7 +101,7 @@ class HeadTrajectory:
         """A random trajectory of the given kind.
 
         Args:
-            motion: 'still' or 'free'.
+            motion: 'still', 'free' or 'static'.
             rng: randomness.
             lateral_offset: x of the working volume's centre, m (half the baseline for a
                 stereo rig, so both cameras see the face).
@@ -119,8 +122,13 @@ class HeadTrajectory:
             angles = _Sinusoids.random(rng, FREE_ANGLE_LIMITS, _FREQUENCIES)
             shift = _Sinusoids.random(rng, np.full(3, FREE_HALF_SIZE), _FREQUENCIES)
         else:
-            angles = _Sinusoids.random(rng, np.full(3, STILL_ANGLE_LIMIT), _STILL_FREQUENCIES)
-            shift = _Sinusoids.random(rng, np.full(3, STILL_SHIFT_LIMIT), _STILL_FREQUENCIES)
+            scale = 0.0 if motion is Motion.STATIC else 1.0
+            angles = _Sinusoids.random(
+                rng, np.full(3, scale * STILL_ANGLE_LIMIT), _STILL_FREQUENCIES
+            )
+            shift = _Sinusoids.random(
+                rng, np.full(3, scale * STILL_SHIFT_LIMIT), _STILL_FREQUENCIES
+            )
         return cls(centre=centre, motion=motion, angle_waves=angles, shift_waves=shift)
 
     def angles(self, time: float) -> np.ndarray:

@@ -67,8 +67,9 @@ class SceneConfig:
         fps: frame rate, Hz, in (0, 120].
         seed: seed of the population and of every sequence, >= 0.
         population: population preset, 'default' or 'realistic'.
-        motion: 'still' (training: head still, neutral start, expressions in turn) or 'free'
-            (test: free head motion, random expressions).
+        motion: 'still' (training: head still, neutral start, expressions in turn), 'free'
+            (test: free head motion, random expressions) or 'static' (head, neutral face and
+            light fixed: only the sensor noise changes, for jitter).
         width: image width, px.
         height: image height, px.
         encoding: 'mono8' or 'rgb8'.
@@ -248,9 +249,13 @@ class SequenceRenderer:
             script = ExpressionScript.training(
                 config.duration, first=subject.index + sequence_index
             )
-        else:
+        elif config.motion is Motion.FREE:
             script = ExpressionScript.random(config.duration, rng)
+        else:
+            script = ExpressionScript(segments=())
         light = _LightPath.random(rng)
+        if config.motion is Motion.STATIC:
+            light = replace(light, rate=0.0)
         occluder = _OccluderPass.random(rng, config) if config.occlusion else None
         backdrop = Backdrop.cluttered(config.width, config.height, int(rng.integers(2**31)))
         backgrounds = {

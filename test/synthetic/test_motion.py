@@ -13,6 +13,7 @@ from face_tracking_ros.synthetic.motion import (
     ExpressionScript,
     HeadTrajectory,
 )
+from face_tracking_ros.synthetic.scenes import Kind, SceneConfig, SequenceRenderer
 
 TIMES = np.linspace(0.0, 60.0, 1201)
 
@@ -78,3 +79,14 @@ def test_random_script_has_onsets_offsets_and_neutral_between(seed: int):
     for state in states:
         assert (state.label == 'neutral') == (state.intensity == 0.0)
         assert np.count_nonzero(state.alpha) == (state.label != 'neutral')
+
+
+def test_static_motion_holds_head_and_face_while_the_sensor_noise_changes():
+    config = SceneConfig(kind=Kind.MONO, motion='static', frames=3, width=160, height=120)
+    frames = list(SequenceRenderer(config, 0).frames(0))
+    first, last = frames[0], frames[-1]
+    np.testing.assert_array_equal(first.truth.nodes_camera, last.truth.nodes_camera)
+    assert first.truth.label == last.truth.label == 'neutral'
+    difference = first.images['image'].astype(float) - last.images['image'].astype(float)
+    assert 0.5 < difference.std() < 6.0  # sensor noise only: a few grey levels
+    assert abs(difference.mean()) < 0.5  # the light does not change
