@@ -59,3 +59,24 @@ def test_model_motion_is_free_and_other_motion_costs_lambda() -> None:
     # Gauss-Newton on the term alone puts the node back on the model in one step.
     back = pushed.ravel() - np.linalg.lstsq(hessian, gradient, rcond=None)[0]
     assert prior.cost(back.reshape(-1, 3), refit)[0] < 1e-3 * cost
+
+
+def test_moved_term_follows_the_refined_first_nodes() -> None:
+    prior, theta = ActionPrior.build(MODEL, FIRST, WEIGHTS)
+    shift = np.zeros_like(FIRST)
+    shift[25:, 2] = RNG.normal(scale=0.005, size=FIRST.shape[0] - 25)  # face-edge depths
+    moved = prior.moved(shift)
+    # The moved frame-1 mesh costs (almost exactly) nothing in the moved term, a lot in the
+    # original one, since a depth change of single nodes is off the model.
+    cost, _, gradient, _ = moved.normal_equations(FIRST + shift, theta)
+    assert cost < 1e-12 and np.abs(gradient).max() < 1e-3
+    assert prior.cost(FIRST + shift, theta)[0] > 0.1 * WEIGHTS[0] * np.sum(shift**2)
+    # A head turn and an expression of the moved mesh stay free.
+    alpha = RNG.normal(size=MODEL.q) * 0.01
+    first_rotation = rodrigues(np.array([0.05, -0.1, 0.02]))[0]
+    omega = np.array([0.1, 0.05, 0.0])
+    turned = _mesh(alpha, omega, np.array([0.01, 0.0, 0.62]))
+    turned = turned + (shift @ first_rotation) @ rodrigues(omega)[0].T  # the shift, face frame
+    for _ in range(5):
+        theta = moved.fit(turned, theta)
+    assert moved.cost(turned, theta)[0] < 1e-6 * WEIGHTS[0] * 1e-6

@@ -13,6 +13,7 @@ import pytest
 from face_tracking_ros.errors import ConfigError, InputError, ModelFileError
 from face_tracking_ros.geometry.camera import PinholeCamera, StereoRig
 from face_tracking_ros.model.topology import Group, mesh_topology
+from face_tracking_ros.tracking.depth_refinement import DepthRefinement, depth_evidence
 from face_tracking_ros.tracking.initialisation import Initialisation
 from face_tracking_ros.tracking.result import TrackStatus
 from face_tracking_ros.tracking.stereo import StereoTracker, StereoTrackerConfig, track_sequence
@@ -98,9 +99,11 @@ def test_epipolar_match_and_initial_nodes_are_sub_pixel() -> None:
     topology = mesh_topology(34)
     left_px = RIG.left.project(truth)
     left_px[1::2] = np.nan
-    nodes = initial_nodes(RIG, left, right, left_px, topology, PLANE_INIT)
+    initial = initial_nodes(RIG, left, right, left_px, topology, PLANE_INIT)
+    nodes = initial.nodes
     given = np.isfinite(left_px[:, 0])
     matched = given & ~topology.group_mask(Group.EDGE)
+    np.testing.assert_array_equal(initial.matched, matched)  # every given inner node matched
     assert np.linalg.norm(nodes[matched] - truth[matched], axis=1).max() < 0.0005
     # Given boundary nodes keep their left-image position at the fitted face's depth.
     boundary = given & topology.group_mask(Group.EDGE)
@@ -269,3 +272,74 @@ def test_face_model_term_needs_a_model(monkeypatch: pytest.MonkeyPatch) -> None:
     # Without the term no model is needed.
     off = StereoTrackerConfig(model_weight_edge=0.0, model_weight_inner=0.0)
     assert StereoTracker(RIG, off).topology.num_nodes == 34
+
+
+def _noisy_pair(rng: np.random.Generator, plane: _Plane = PLANE) -> tuple[np.ndarray, np.ndarray]:
+    """The plane's views with independent sensor noise of 2 grey levels."""
+    return tuple(  # type: ignore[return-value]
+        (image + rng.normal(0.0, 2.0, image.shape)).astype(np.float32) for image in plane.pair()
+    )
+
+
+def _patch_sq(layout: SampleLayout, image: np.ndarray, other: np.ndarray, nodes: np.ndarray):
+    """Mean squared ZSSD residual (N,) of each node patch between two left images."""
+    points = layout.points(nodes, np.eye(3), 0)
+    difference = sample_templates(image, RIG.left, points, 0) - sample_templates(
+        other, RIG.left, points, 0
+    )
+    difference -= difference.mean(axis=1, keepdims=True)
+    return np.mean(difference**2, axis=1)
+
+
+def test_depth_refinement_pools_noisy_pairs_into_the_true_depths() -> None:
+    rng = np.random.default_rng(5)
+    truth = PLANE.nodes()
+    rays = truth / np.linalg.norm(truth, axis=1, keepdims=True)
+    offsets = np.zeros(34)
+    offsets[[10, 20, 30]] = [-0.003, 0.002, 0.003]  # m along the rays, within the linear range
+    nodes = truth + offsets[:, None] * rays
+    layout = SampleLayout.node_patches(nodes, nodes[:, 2] / RIG.left.focal, 3, np.zeros(34, bool))
+    refinement = DepthRefinement.start(nodes, np.full(34, 0.005))
+    max_step = np.full(34, 0.002)
+    previous = _noisy_pair(rng)[0]
+    steps = []
+    for _ in range(15):
+        left, right = _noisy_pair(rng)
+        evidence = depth_evidence(RIG, left, right, layout, nodes, rays, np.eye(3), 6.0)
+        temporal = _patch_sq(layout, left, previous, nodes)
+        step = refinement.update(evidence, temporal, 2.0 * np.sqrt(2.0), max_step, 2.0)
+        assert np.all(np.abs(step) <= max_step)
+        nodes = nodes + step[:, None] * rays
+        steps.append(step)
+        previous = left
+    error = np.einsum('nd,nd->n', nodes - truth, rays)
+    # One pair measures a depth to about a millimetre here; fifteen pooled pairs to 0.2 mm.
+    assert np.sqrt(np.mean(error**2)) < 0.0002 and np.abs(error).max() < 0.0006
+    np.testing.assert_allclose(refinement.correction, -offsets, atol=0.0006)
+    assert np.all(refinement.information > 1.0 / 0.005**2)
+    # The first pair moves the displaced nodes by up to max_step, the last ones barely move.
+    assert np.abs(steps[0][[10, 20, 30]]).min() > 0.001
+    assert np.abs(steps[-1]).max() < 0.0002
+
+
+def test_depth_refinement_ignores_views_that_disagree() -> None:
+    rng = np.random.default_rng(6)
+    truth = PLANE.nodes()
+    rays = truth / np.linalg.norm(truth, axis=1, keepdims=True)
+    layout = SampleLayout.node_patches(truth, truth[:, 2] / RIG.left.focal, 3, np.zeros(34, bool))
+    refinement = DepthRefinement.start(truth, np.full(34, 0.002))
+    previous = _noisy_pair(rng)[0]
+    # The right camera sees another surface (an occluder, or skin beyond the rim).
+    other = _Plane([0.01, -0.03, 0.6], yaw=-0.4)
+    nodes = truth
+    for _ in range(10):
+        left = _noisy_pair(rng)[0]
+        right = _noisy_pair(rng, other)[1]
+        evidence = depth_evidence(RIG, left, right, layout, nodes, rays, np.eye(3), 6.0)
+        temporal = _patch_sq(layout, left, previous, nodes)
+        step = refinement.update(evidence, temporal, 2.8, np.full(34, 0.002), 2.0)
+        nodes = nodes + step[:, None] * rays
+        previous = left
+    # The gate closes at once: no node moves, none gains information.
+    assert not np.any(refinement.correction)
+    np.testing.assert_array_equal(refinement.information, np.full(34, 1.0 / 0.002**2))

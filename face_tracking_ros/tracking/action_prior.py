@@ -26,7 +26,7 @@ grey^2 / m^2, like eq. 5's rho.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -48,6 +48,7 @@ class ActionPrior:
         weights: (N,) lambda_i, grey^2 / m^2.
         first_nodes: (N, 3) X(1), m.
         first_model: (N, 3) M at the frame-1 parameters, m (X(1) up to rounding).
+        first_rotation: (3, 3) R(omega) of the frame-1 parameters.
     """
 
     base: np.ndarray
@@ -55,6 +56,7 @@ class ActionPrior:
     weights: np.ndarray
     first_nodes: np.ndarray
     first_model: np.ndarray
+    first_rotation: np.ndarray
 
     @classmethod
     def build(
@@ -77,10 +79,25 @@ class ActionPrior:
         rotated, _ = rotate_with_jacobian(-omega, first_nodes - t)
         base = rotated - action @ alpha
         theta = np.concatenate([omega, t, alpha])
-        partial = cls(base, action, np.asarray(weights, dtype=float), first_nodes, first_nodes)
+        rotation, _ = rodrigues(omega)
+        weights = np.asarray(weights, dtype=float)
+        partial = cls(base, action, weights, first_nodes, first_nodes, rotation)
         first_model, _ = partial.model_nodes(theta)
-        prior = cls(base, action, partial.weights, first_nodes, first_model)
+        prior = cls(base, action, weights, first_nodes, first_model, rotation)
         return prior, theta
+
+    def moved(self, shift: np.ndarray) -> ActionPrior:
+        """The term for frame-1 nodes X(1) + ``shift`` (N, 3), m, at the same parameters.
+
+        The base shape moves by the shift brought into the face frame, so M at the frame-1
+        parameters moves with X(1) and the term stays exactly zero for an unmoved mesh.
+        """
+        return replace(
+            self,
+            base=self.base + shift @ self.first_rotation,
+            first_nodes=self.first_nodes + shift,
+            first_model=self.first_model + shift,
+        )
 
     def model_nodes(self, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """M(theta) (N, 3) and its Jacobian (3N, 6 + q) with respect to (omega, t, alpha)."""

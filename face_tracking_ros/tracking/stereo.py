@@ -13,9 +13,12 @@ Levenberg-Marquardt on
 
 coarse to fine on Gaussian pyramids of both images, with Huber weights on every image residual.
 Each image term is split (1 - epsilon) : epsilon between frame n - 1 and frame 1, the drift
-term of eq. 6, which stops the random walk of plain frame-to-frame tracking. The image terms and
-their sample layouts are in :mod:`.stereo_data`; initialisation by epipolar search in
-:mod:`.stereo_init`; the optional model fit (eq. 1-3) is
+term of eq. 6, which stops the random walk of plain frame-to-frame tracking. After each pair the
+left-right evidence of that pair is pooled into the frame-1 node depths, which the face-model
+term, eq. 5 and the frame-1 templates follow (:mod:`.depth_refinement`): one pair measures the
+depth of weakly textured skin and of the face-edge nodes only to millimetres.
+The image terms and their sample layouts are in :mod:`.stereo_data`; initialisation by epipolar
+search in :mod:`.stereo_init`; the optional model fit (eq. 1-3) is
 :func:`face_tracking_ros.recognition.node_fit.fit_model_to_nodes`.
 
 The tracker never raises on a bad frame: it returns a :class:`StereoResult` whose status says
@@ -40,6 +43,7 @@ from face_tracking_ros.model.model_file import load_model
 from face_tracking_ros.model.topology import Group, MeshTopology, mesh_topology
 from face_tracking_ros.recognition.node_fit import NodeFit, fit_model_to_nodes
 from face_tracking_ros.tracking.action_prior import ActionPrior
+from face_tracking_ros.tracking.depth_refinement import DepthRefinement, depth_evidence
 from face_tracking_ros.tracking.initialisation import Initialisation
 from face_tracking_ros.tracking.mono import Detector
 from face_tracking_ros.tracking.regularisation import RegularisationConfig, Regulariser
@@ -84,6 +88,14 @@ class StereoTrackerConfig:
         model_weight_edge: lambda_i of the face-model term (:mod:`.action_prior`) for the
             face-edge nodes, grey^2 / m^2; 0 disables the term for them.
         model_weight_inner: lambda_i of that term for the other nodes, grey^2 / m^2.
+        refine_depths: pool the left-right evidence of every pair in the frame-1 node depths
+            (:mod:`.depth_refinement`).
+        matched_depth_std: standard deviation of a stereo-matched node's initial depth, m.
+        placed_depth_std: standard deviation of the initial depth of a node placed from the
+            reference face (face-edge nodes, unmatched nodes), m.
+        depth_gate: a node gets no depth update while its accumulated left-right residual
+            exceeds this multiple of its residual between consecutive images.
+        depth_step_px: largest depth change per pair, in pixels of disparity.
         fit_edge_weight: weight in [0, 1] of the face-edge nodes, against 1 for the others, in
             the model fit reported with each result (their depth is the least certain: on a
             150-frame free-motion sequence 0.1 brings the fitted rotation from 4.0 to 1.5
@@ -109,6 +121,11 @@ class StereoTrackerConfig:
     lost_ratio: float = 0.8
     model_weight_edge: float = 1e9
     model_weight_inner: float = 1e8
+    refine_depths: bool = True
+    matched_depth_std: float = 0.001
+    placed_depth_std: float = 0.005
+    depth_gate: float = 2.0
+    depth_step_px: float = 0.5
     fit_edge_weight: float = 0.1
     regularisation: RegularisationConfig = field(default_factory=RegularisationConfig)
     init: StereoInitConfig = field(default_factory=StereoInitConfig)
@@ -136,6 +153,10 @@ class StereoTrackerConfig:
             ('lost_ratio', self.lost_ratio > 0.0),
             ('model_weight_edge', self.model_weight_edge >= 0.0),
             ('model_weight_inner', self.model_weight_inner >= 0.0),
+            ('matched_depth_std', self.matched_depth_std > 0.0),
+            ('placed_depth_std', self.placed_depth_std > 0.0),
+            ('depth_gate', self.depth_gate > 0.0),
+            ('depth_step_px', self.depth_step_px > 0.0),
             ('fit_edge_weight', 0.0 <= self.fit_edge_weight <= 1.0),
         )
         for name, ok in checks:
@@ -163,6 +184,9 @@ class StereoResult:
         fit: with a model loaded, its pose, sigma and alpha fitted to the nodes (eq. 1-3), as a
             one-frame :class:`~face_tracking_ros.recognition.node_fit.NodeFit`; else None.
         reason: why the status is not TRACKING ('' when tracking).
+        first_nodes: (N, 3) the frame-1 nodes as refined up to this pair
+            (:mod:`.depth_refinement`), m; None before the first pair.
+        rotation: (3, 3) the head's rotation since frame 1; None before the first pair.
     """
 
     status: TrackStatus
@@ -176,6 +200,8 @@ class StereoResult:
     cost_history: tuple[float, ...] = ()
     fit: NodeFit | None = None
     reason: str = ''
+    first_nodes: np.ndarray | None = None
+    rotation: np.ndarray | None = None
 
     @property
     def ok(self) -> bool:
@@ -207,7 +233,8 @@ class TrackedSequence:
 
     Attributes:
         meshes: (F, N, 3) nodes per frame in the left camera frame, m (the last valid nodes on
-            frames that were not TRACKING; NaN before the first).
+            frames that were not TRACKING; NaN before the first), with the frame-1 depths as
+            refined over the whole sequence (:mod:`.depth_refinement`) applied to every frame.
         status: (F,) TrackStatus values.
         results: the per-frame results.
     """
@@ -232,6 +259,7 @@ class _State:
     first_nodes: np.ndarray
     nodes: np.ndarray
     rotation: np.ndarray
+    first_pyramids: tuple[ImagePyramid, ImagePyramid]
     pyramids: tuple[ImagePyramid, ImagePyramid]
     layouts: tuple[SampleLayout, ...]
     first_templates: tuple[tuple[tuple[np.ndarray, np.ndarray], ...], ...]
@@ -239,6 +267,7 @@ class _State:
     prior: ActionPrior | None
     theta: np.ndarray
     noise: np.ndarray
+    depths: DepthRefinement | None
     result: StereoResult
 
 
@@ -384,45 +413,57 @@ class StereoTracker:
     def _initialise(self, pyramids: tuple[ImagePyramid, ImagePyramid]) -> StereoResult:
         """Triangulate the pending left-image nodes and start tracking on this pair."""
         left_px, self._pending = self._pending, None
+        config = self._config
         try:
-            nodes = initial_nodes(
+            initial = initial_nodes(
                 self._rig,
                 pyramids[LEFT].levels[0],
                 pyramids[RIGHT].levels[0],
                 left_px,
                 self._topology,
-                self._config.init,
+                config.init,
             )
         except FaceTrackingError as error:
             self._status = TrackStatus.LOST
             self._reason = f'initialisation failed: {error}'
             return self._not_tracking(self._status, self._reason)
+        nodes = initial.nodes
         layouts = self._layouts(nodes)
+        prior, theta = self._action_prior(nodes)
+        depth_std = np.where(initial.matched, config.matched_depth_std, config.placed_depth_std)
+        result = self._result(nodes, nodes, np.eye(3), None)
+        self._state = _State(
+            first_nodes=nodes,
+            nodes=nodes,
+            rotation=np.eye(3),
+            first_pyramids=pyramids,
+            pyramids=pyramids,
+            layouts=layouts,
+            first_templates=self._first_templates(pyramids, layouts, nodes),
+            regulariser=Regulariser.build(self._topology, config.regularisation, nodes),
+            prior=prior,
+            theta=theta,
+            noise=np.full(len(layouts), config.noise_floor),
+            depths=DepthRefinement.start(nodes, depth_std) if config.refine_depths else None,
+            result=result,
+        )
+        return result
+
+    def _first_templates(
+        self,
+        pyramids: tuple[ImagePyramid, ImagePyramid],
+        layouts: tuple[SampleLayout, ...],
+        first_nodes: np.ndarray,
+    ) -> tuple[tuple[tuple[np.ndarray, np.ndarray], ...], ...]:
+        """Frame-1 templates of every layout at every level, sampled at the frame-1 nodes."""
         rotation = np.eye(3)
-        first_templates = tuple(
+        return tuple(
             tuple(
-                self._sample(pyramids, layout.points(nodes, rotation, level), level)
+                self._sample(pyramids, layout.points(first_nodes, rotation, level), level)
                 for layout in layouts
             )
             for level in range(self._config.pyramid_levels)
         )
-        regulariser = Regulariser.build(self._topology, self._config.regularisation, nodes)
-        prior, theta = self._action_prior(nodes)
-        result = self._result(TrackStatus.TRACKING, nodes, None, 0, (), '')
-        self._state = _State(
-            first_nodes=nodes,
-            nodes=nodes,
-            rotation=rotation,
-            pyramids=pyramids,
-            layouts=layouts,
-            first_templates=first_templates,
-            regulariser=regulariser,
-            prior=prior,
-            theta=theta,
-            noise=np.full(len(layouts), self._config.noise_floor),
-            result=result,
-        )
-        return result
 
     def _action_prior(self, nodes: np.ndarray) -> tuple[ActionPrior | None, np.ndarray]:
         """The face-model term for a run starting at ``nodes`` (None without weights)."""
@@ -482,14 +523,70 @@ class StereoTracker:
                 )
             ]
         )
-        state.rotation = rigid_align(
-            state.first_nodes, nodes, self._topology.alignment_weights()
-        ).rotation
+        state.rotation = self._rotation(state.first_nodes, nodes)
+        if state.depths is not None:
+            nodes = self._refine_depths(state, pyramids, nodes, last[0])
         state.nodes = nodes
         state.pyramids = pyramids
-        result = self._result(TrackStatus.TRACKING, nodes, last, iterations, tuple(history), '')
+        result = self._result(
+            nodes, state.first_nodes, state.rotation, last, iterations, tuple(history)
+        )
         state.result = result
         return result
+
+    def _rotation(self, first_nodes: np.ndarray, nodes: np.ndarray) -> np.ndarray:
+        """The head's rotation since frame 1 (weighted Procrustes of the nodes, §3.3)."""
+        return rigid_align(first_nodes, nodes, self._topology.alignment_weights()).rotation
+
+    def _refine_depths(
+        self,
+        state: _State,
+        pyramids: tuple[ImagePyramid, ImagePyramid],
+        nodes: np.ndarray,
+        left_patches: NormalEquations,
+    ) -> np.ndarray:
+        """Pool this pair's left-right evidence in the frame-1 depths; return the moved nodes.
+
+        The frame-1 nodes move along their left viewing rays, the tracked nodes along the same
+        rays turned by the head rotation; the face-model term, eq. 5 and the frame-1
+        templates follow the frame-1 nodes.
+        """
+        assert state.depths is not None
+        config = self._config
+        directions = state.depths.rays @ state.rotation.T
+        evidence = depth_evidence(
+            self._rig,
+            pyramids[LEFT].levels[0],
+            pyramids[RIGHT].levels[0],
+            state.layouts[0],
+            nodes,
+            directions,
+            state.rotation,
+            config.huber_k * state.noise[0],
+        )
+        disparity_per_depth = self._rig.left.focal * self._rig.baseline / nodes[:, 2] ** 2
+        step = state.depths.update(
+            evidence,
+            left_patches.group_rms**2,
+            float(state.noise[0]),
+            config.depth_step_px / disparity_per_depth,
+            config.depth_gate,
+        )
+        if not np.any(step):
+            return nodes
+        shift = step[:, None] * state.depths.rays
+        state.first_nodes = state.first_nodes + shift
+        if state.prior is not None:
+            state.prior = state.prior.moved(shift)
+        state.regulariser = Regulariser.build(
+            self._topology, config.regularisation, state.first_nodes
+        )
+        state.first_templates = self._first_templates(
+            state.first_pyramids, state.layouts, state.first_nodes
+        )
+        nodes = nodes + step[:, None] * directions
+        state.rotation = self._rotation(state.first_nodes, nodes)
+        return nodes
 
     def _level_templates(self, state: _State, level: int) -> tuple[_Templates, ...]:
         """Templates of every layout at ``level``: frame n - 1 (sampled now) and frame 1."""
@@ -687,14 +784,14 @@ class StereoTracker:
 
     def _result(
         self,
-        status: TrackStatus,
         nodes: np.ndarray,
+        first_nodes: np.ndarray,
+        rotation: np.ndarray,
         terms: tuple[NormalEquations, ...] | None,
-        iterations: int,
-        history: tuple[float, ...],
-        reason: str,
+        iterations: int = 0,
+        history: tuple[float, ...] = (),
     ) -> StereoResult:
-        """Build a result; residuals are zero on the initial pair (it is its own template)."""
+        """A TRACKING result; residuals are zero on the initial pair (it is its own template)."""
         n = nodes.shape[0]
         left_res = np.zeros(n) if terms is None else terms[0].group_rms
         right_res = np.zeros(n) if terms is None else terms[1].group_rms
@@ -705,7 +802,7 @@ class StereoTracker:
                 self._model, nodes[None], tolerance=FIT_TOLERANCE, weights=weights
             )
         return StereoResult(
-            status=status,
+            status=TrackStatus.TRACKING,
             nodes_cam=nodes,
             left_px=self._rig.left.project(nodes),
             right_px=self._rig.right.project(nodes),
@@ -715,7 +812,8 @@ class StereoTracker:
             iterations=iterations,
             cost_history=history,
             fit=fit,
-            reason=reason,
+            first_nodes=first_nodes,
+            rotation=rotation,
         )
 
     def _lose(self, reason: str) -> StereoResult:
@@ -734,29 +832,26 @@ class StereoTracker:
             right_residuals=last.right_residuals,
             mean_residual=last.mean_residual,
             reason=self._reason,
+            first_nodes=last.first_nodes,
+            rotation=last.rotation,
         )
 
     def _not_tracking(self, status: TrackStatus, reason: str) -> StereoResult:
         """A result without a new estimate (the last valid nodes if any, else NaN)."""
         n = self._topology.num_nodes
-        if self._state is not None:
-            last = self._state.result
-            nodes, left_px, right_px = last.nodes_cam, last.left_px, last.right_px
-        else:
-            nodes, left_px, right_px = (
-                np.full((n, 3), np.nan),
-                np.full((n, 2), np.nan),
-                np.full((n, 2), np.nan),
-            )
+        last = None if self._state is None else self._state.result
+        nan = np.full((n, 3), np.nan)
         return StereoResult(
             status=status,
-            nodes_cam=nodes,
-            left_px=left_px,
-            right_px=right_px,
+            nodes_cam=nan if last is None else last.nodes_cam,
+            left_px=nan[:, :2] if last is None else last.left_px,
+            right_px=nan[:, :2] if last is None else last.right_px,
             left_residuals=np.full(n, np.nan),
             right_residuals=np.full(n, np.nan),
             mean_residual=float('nan'),
             reason=reason,
+            first_nodes=None if last is None else last.first_nodes,
+            rotation=None if last is None else last.rotation,
         )
 
     def _pyramids(self, left: np.ndarray, right: np.ndarray) -> tuple[ImagePyramid, ImagePyramid]:
@@ -778,6 +873,10 @@ def track_sequence(
 ) -> TrackedSequence:
     """Track a whole stereo sequence from given initial node positions (for the learner).
 
+    Offline, every frame gets the frame-1 depths refined over the whole sequence: the mesh of
+    pair n becomes ``X(n) + R(n) (X(1 | F) - X(1 | n))``, with X(1 | n) the frame-1 nodes as
+    refined up to pair n and R(n) the head rotation (:mod:`.depth_refinement`).
+
     Args:
         tracker: a stereo tracker.
         frames: (left, right) grey image pairs.
@@ -789,7 +888,15 @@ def track_sequence(
     tracker.reset(init)
     results = tuple(tracker.step(left, right) for left, right in frames)
     n = tracker.topology.num_nodes
-    meshes = np.array([r.nodes_cam for r in results]).reshape(len(results), n, 3)
+    refined = [r.first_nodes for r in results if r.first_nodes is not None]
+    meshes = np.array(
+        [
+            r.nodes_cam
+            if r.first_nodes is None or r.rotation is None
+            else r.nodes_cam + (refined[-1] - r.first_nodes) @ r.rotation.T
+            for r in results
+        ]
+    ).reshape(len(results), n, 3)
     status = np.array([int(r.status) for r in results], dtype=np.int64)
     return TrackedSequence(meshes=meshes, status=status, results=results)
 

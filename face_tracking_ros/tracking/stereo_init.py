@@ -125,6 +125,20 @@ def epipolar_match(
     return right_px, scores
 
 
+@dataclass(frozen=True)
+class InitialNodes:
+    """The 3-D nodes of the first pair and where each one's depth came from.
+
+    Attributes:
+        nodes: (N, 3) nodes in the left camera frame, m.
+        matched: (N,) bool, nodes whose depth is their own stereo match; the others' depth is
+            the fitted reference face's.
+    """
+
+    nodes: np.ndarray
+    matched: np.ndarray
+
+
 def initial_nodes(
     rig: StereoRig,
     left: np.ndarray,
@@ -132,7 +146,7 @@ def initial_nodes(
     left_px: np.ndarray,
     topology: MeshTopology,
     config: StereoInitConfig,
-) -> np.ndarray:
+) -> InitialNodes:
     """3-D nodes (N, 3) in the left camera frame, m, from their left-image positions.
 
     Inner nodes are matched by stereo in two passes: first over the whole depth range; the
@@ -196,7 +210,7 @@ def initial_nodes(
     nodes[placed] = rays * (reference[placed, 2] / rays[:, 2])[:, None]
     # Depth refinement corrects the matches only; their surface alone gives the patches' shape.
     nodes[matched] = refine_depths(rig, left, right, nodes[matched], config)
-    return nodes
+    return InitialNodes(nodes, matched)
 
 
 def refine_depths(
