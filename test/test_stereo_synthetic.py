@@ -37,7 +37,7 @@ def scene() -> tuple[StereoRig, list, np.ndarray, list, SequenceRenderer]:
 @pytest.fixture(scope='module')
 def tracked(scene):
     rig, pairs, truth, _, _ = scene
-    tracker = StereoTracker(rig, StereoTrackerConfig())
+    tracker = StereoTracker(rig, StereoTrackerConfig(refine_depths=True))
     return track_sequence(tracker, pairs, rig.left.project(truth[0]))
 
 
@@ -101,7 +101,7 @@ def test_depth_refinement_corrects_the_initial_depths(scene, tracked) -> None:
 def test_model_fit_gives_the_head_pose(scene) -> None:
     rig, pairs, truth, truths, renderer = scene
     model = truth_model(renderer.population)
-    tracker = StereoTracker(rig, StereoTrackerConfig(), model)
+    tracker = StereoTracker(rig, StereoTrackerConfig(refine_depths=True), model)
     tracker.reset(rig.left.project(truth[0]))
     results = [tracker.step(*pair) for pair in pairs[:3]]
     assert results[-1].fit is not None and results[-1].fit.rms[0] < 0.005
