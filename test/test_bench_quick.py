@@ -1,9 +1,9 @@
 """`face-tracking bench --quick`: a smoke run of the runner, a tracker, the learner and DDS.
 
-Runs tracker_speed, learner_scaling and live_latency at their quick sizes (each in its own
-pinned process, live over loopback DDS) and checks the JSON: every benchmark present, none
-failed, the headline figures there, and every number finite (NaN is written as null and only
-allowed where a figure does not apply). Timings are never asserted. The other benchmarks
+Runs tracker_speed, learner_scaling, live_latency and mono_accuracy at their quick sizes (each
+in its own pinned process, live over loopback DDS) and checks the JSON: every benchmark present,
+none failed, the headline figures there, and every number finite (NaN is written as null and
+only allowed where a figure does not apply). Timings are never asserted. The other benchmarks
 (replay, memory, accuracy, soak) run in `face-tracking bench` only (they take minutes).
 """
 
@@ -20,7 +20,7 @@ from face_tracking_ros.bench.runner import finite_or_null, run_benchmarks
 from face_tracking_ros.cli.main import main
 from face_tracking_ros.errors import ConfigError
 
-QUICK = ('tracker_speed', 'learner_scaling', 'live_latency')
+QUICK = ('tracker_speed', 'learner_scaling', 'live_latency', 'mono_accuracy')
 
 
 def _numbers(value, path=''):
@@ -59,6 +59,13 @@ def test_quick_run_writes_finite_figures(tmp_path):
     assert 0 <= live['at_30hz']['dropped'] <= live['at_30hz']['published']
     assert live['at_30hz']['received'] > 0
     assert live['node_peak_rss_mb'] > 0
+    protocol = results['benchmarks']['mono_accuracy']
+    rows = ('true_model', 'learned_model', 'baseline', 'nodes_19', 'epsilon_0', 'prior_off')
+    assert set(protocol['rows']) == set(rows)
+    for row in rows:
+        assert len(protocol['rows'][row]['seeds']) == 1
+        assert protocol['rows'][row]['mean']['frames'] == 20
+    assert len(protocol['still']['mean']['angle_std_deg']) == 3
     numbers = list(_numbers(results))
     assert len(numbers) > 50
     assert all(math.isfinite(value) for _, value in numbers), numbers
