@@ -144,8 +144,8 @@ class MonoTrackerConfig:
             every keyframe's by more than this, rad (> 0).
         sigma_frames: frames after an initialisation during which sigma is estimated with the
             pose, then held fixed (>= 0; 0 keeps the sigma of the initial fit or enrolment).
-            Against templates sampled at the initial sigma this is poorly posed: on the
-            1000-frame synthetic sequences 30 frames gave 7.5 degrees of pitch error and 100
+            Against templates sampled at the initial sigma this is poorly posed: on a
+            1000-frame synthetic sequence 30 frames gave 7.5 degrees of pitch error and 100
             frames 1.4 / 2.1 degrees (x / y) against 2.4 / 1.1 with 0, so 0 is the default.
         damping: initial Levenberg-Marquardt damping, relative to diag(H) (> 0).
         convergence_px: level 0 stops when no node moves more than this, level px (> 0).
