@@ -74,7 +74,8 @@ class SampleLayout:
         A node on the face boundary sees the face on one side only; beyond it lie the neck,
         the ears or the background at other depths, which move differently in the two cameras
         and over time. Its patch keeps only the samples on the face side: those whose offset
-        points towards the centroid of the mesh (§4.2).
+        points towards the centroid of the mesh (§4.2). The node's own sample lies on the rim
+        and is left out (its offset is zero but for rounding, whose sign must not decide).
 
         Args:
             nodes: (N, 3) nodes in the left camera frame, m.
@@ -85,7 +86,7 @@ class SampleLayout:
         grid = spacing[:, None, None] * square_offsets(half_size).astype(float)[None]
         offsets = surface_patch_offsets(nodes, grid)
         inward = nodes.mean(axis=0) - nodes
-        facing = np.einsum('nmd,nd->nm', offsets, inward) >= 0.0
+        facing = (np.einsum('nmd,nd->nm', offsets, inward) >= 0.0) & np.any(grid, axis=2)
         bary = np.zeros((grid.shape[1], 3))
         bary[:, 0] = 1.0
         return cls(
