@@ -22,11 +22,16 @@ Hessian W - W J (J^T W J)^-1 J^T W, with W the per-node weights lambda_i and
 J = dM / d(omega, t, alpha): motion along the model's own degrees of freedom (a head turn, an
 expression) costs nothing, motion off them costs lambda_i per m^2. Units: lambda_i in
 grey^2 / m^2, like eq. 5's rho.
+
+The solver evaluates the term at every trial point (:meth:`ActionPrior.evaluate` refits the
+parameters from the last fit, a :class:`ModelPoint` that keeps M and its Jacobian) and forms
+its normal equations only where it linearises, from that evaluation.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from typing import NamedTuple
 
 import numpy as np
 
@@ -36,6 +41,34 @@ from face_tracking_ros.recognition.node_fit import fit_model_to_nodes
 
 FIT_ITERATIONS = 1  # Gauss-Newton steps of (omega, t, alpha), warm-started from the last fit
 ALPHA_DAMPING = 1e-9  # relative Levenberg damping on the normal matrix of the fit
+
+
+class ModelPoint(NamedTuple):
+    """The animated mesh at one parameter vector.
+
+    Attributes:
+        theta: (6 + q,) parameters (omega, t, alpha).
+        nodes: (N, 3) M(theta), m.
+        jacobian: (3N, 6 + q) dM / d theta.
+    """
+
+    theta: np.ndarray
+    nodes: np.ndarray
+    jacobian: np.ndarray
+
+
+class PriorEvaluation(NamedTuple):
+    """E_model at some nodes.
+
+    Attributes:
+        cost: E_model, grey^2.
+        point: the model at the parameters fitted to the nodes.
+        difference: (3N,) X - M there, as (X - X(1)) - (M - M(1)), m.
+    """
+
+    cost: float
+    point: ModelPoint
+    difference: np.ndarray
 
 
 @dataclass(frozen=True)
@@ -82,8 +115,7 @@ class ActionPrior:
         rotation, _ = rodrigues(omega)
         weights = np.asarray(weights, dtype=float)
         partial = cls(base, action, weights, first_nodes, first_nodes, rotation)
-        first_model, _ = partial.model_nodes(theta)
-        prior = cls(base, action, weights, first_nodes, first_model, rotation)
+        prior = cls(base, action, weights, first_nodes, partial.point(theta).nodes, rotation)
         return prior, theta
 
     def moved(self, shift: np.ndarray) -> ActionPrior:
@@ -99,7 +131,7 @@ class ActionPrior:
             first_model=self.first_model + shift,
         )
 
-    def model_nodes(self, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def point(self, theta: np.ndarray) -> ModelPoint:
         """M(theta) (N, 3) and its Jacobian (3N, 6 + q) with respect to (omega, t, alpha)."""
         omega, t, alpha = theta[:3], theta[3:6], theta[6:]
         shape = self.base + self.action_basis @ alpha
@@ -114,45 +146,44 @@ class ActionPrior:
             ],
             axis=2,
         )
-        return rotated + t, jacobian.reshape(3 * n, -1)
+        return ModelPoint(theta, rotated + t, jacobian.reshape(3 * n, -1))
 
-    def fit(self, nodes: np.ndarray, theta: np.ndarray) -> np.ndarray:
-        """(omega, t, alpha) minimising the weighted node distance to ``nodes``, from ``theta``."""
+    def fit(self, nodes: np.ndarray, start: ModelPoint) -> ModelPoint:
+        """The model at (omega, t, alpha) minimising the weighted node distance to ``nodes``.
+
+        Warm-started from ``start`` (the last fit), FIT_ITERATIONS Gauss-Newton steps.
+        """
         row_weights = np.repeat(self.weights, 3)
+        point = start
         for _ in range(FIT_ITERATIONS):
-            difference, jacobian = self._difference(nodes, theta)
-            weighted = jacobian * row_weights[:, None]
-            normal = jacobian.T @ weighted
+            weighted = point.jacobian * row_weights[:, None]
+            normal = point.jacobian.T @ weighted
             normal[np.diag_indices_from(normal)] *= 1.0 + ALPHA_DAMPING
-            theta = theta + np.linalg.solve(normal, weighted.T @ difference)
-        return theta
+            point = self.point(
+                point.theta + np.linalg.solve(normal, weighted.T @ self._difference(nodes, point))
+            )
+        return point
 
-    def _difference(self, nodes: np.ndarray, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(3N,) X - M(theta) as (X - X(1)) - (M - M(1)), and dM/d theta (3N, 6 + q)."""
-        model_nodes, jacobian = self.model_nodes(theta)
-        difference = (nodes - self.first_nodes) - (model_nodes - self.first_model)
-        return difference.ravel(), jacobian
+    def evaluate(self, nodes: np.ndarray, start: ModelPoint) -> PriorEvaluation:
+        """E_model at ``nodes`` (N, 3), m, refitting the parameters from ``start``."""
+        point = self.fit(nodes, start)
+        difference = self._difference(nodes, point)
+        cost = float(difference @ (np.repeat(self.weights, 3) * difference))
+        return PriorEvaluation(cost, point, difference)
 
-    def cost(self, nodes: np.ndarray, theta: np.ndarray) -> tuple[float, np.ndarray]:
-        """E_model at ``nodes`` (refitting from ``theta``) and the fitted parameters."""
-        theta = self.fit(nodes, theta)
-        difference, _ = self._difference(nodes, theta)
-        return float(difference @ (np.repeat(self.weights, 3) * difference)), theta
-
-    def normal_equations(
-        self, nodes: np.ndarray, theta: np.ndarray
-    ) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
-        """Gauss-Newton terms of E_model at ``nodes`` (node-major, as eq. 5's).
+    def normal_equations(self, evaluation: PriorEvaluation) -> tuple[np.ndarray, np.ndarray]:
+        """Gauss-Newton terms of E_model at the evaluated nodes (node-major, as eq. 5's).
 
         Returns:
-            ``(cost, hessian, gradient, theta)``: E_model; (3N, 3N) W - W J (J^T W J)^-1 J^T W;
-            (3N,) W (X - M); the fitted parameters.
+            ``(hessian, gradient)``: (3N, 3N) W - W J (J^T W J)^-1 J^T W; (3N,) W (X - M).
         """
-        theta = self.fit(nodes, theta)
-        difference, jacobian = self._difference(nodes, theta)
+        jacobian = evaluation.point.jacobian
         row_weights = np.repeat(self.weights, 3)
         weighted = jacobian * row_weights[:, None]
         normal = jacobian.T @ weighted
         hessian = np.diag(row_weights) - weighted @ np.linalg.solve(normal, weighted.T)
-        cost = float(difference @ (row_weights * difference))
-        return cost, hessian, row_weights * difference, theta
+        return hessian, row_weights * evaluation.difference
+
+    def _difference(self, nodes: np.ndarray, point: ModelPoint) -> np.ndarray:
+        """(3N,) X - M(theta) as (X - X(1)) - (M - M(1))."""
+        return ((nodes - self.first_nodes) - (point.nodes - self.first_model)).ravel()
