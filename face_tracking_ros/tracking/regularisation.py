@@ -158,6 +158,11 @@ class Regulariser:
             self, delta=self.stretch_stiffness / (4.0 * sq_lengths), first_sq_lengths=sq_lengths
         )
 
+    @property
+    def stretches(self) -> bool:
+        """Whether any delta term is on (with delta = 0, the default, they all vanish)."""
+        return bool(np.any(self.delta))
+
     def residuals(self, nodes: np.ndarray, previous: np.ndarray) -> np.ndarray:
         """Residual vector r of eq. 5 with E_reg = r . r.
 
@@ -184,8 +189,11 @@ class Regulariser:
     def cost(self, nodes: np.ndarray, previous: np.ndarray) -> float:
         """E_reg of eq. 5 for nodes (N, 3) and previous nodes (N, 3), m."""
         motion = (nodes - previous).ravel()
+        cost = motion @ self.linear_hessian @ motion
+        if not self.stretches:
+            return float(cost)
         stretch, _ = self._stretch(nodes)
-        return float(motion @ self.linear_hessian @ motion + stretch @ stretch)
+        return float(cost + stretch @ stretch)
 
     def normal_equations(
         self, nodes: np.ndarray, previous: np.ndarray
@@ -204,8 +212,10 @@ class Regulariser:
             ``(cost, hessian, gradient)``: E_reg; J^T J (3N, 3N); J^T r (3N,), node-major.
         """
         motion = (nodes - previous).ravel()
-        stretch, gradient = self._stretch(nodes)
         linear_gradient = self.linear_hessian @ motion
+        if not self.stretches:
+            return float(motion @ linear_gradient), self.linear_hessian, linear_gradient
+        stretch, gradient = self._stretch(nodes)
         cost = float(motion @ linear_gradient + stretch @ stretch)
         n = nodes.shape[0]
         i, j = self.edges[:, 0], self.edges[:, 1]

@@ -713,9 +713,7 @@ class StereoTracker:
         iterations = 0
         while iterations < config.max_iterations:
             iterations += 1
-            augmented = system.hessian + damping * np.diag(np.diag(system.hessian))
-            step = cho_solve(cho_factor(augmented), -system.gradient).reshape(-1, 3)
-            candidate = nodes + step
+            candidate = nodes + _damped_step(system, damping)
             small = self._pixel_motion(nodes, candidate) < config.step_tolerance * (
                 1 << level.index
             )
@@ -907,6 +905,18 @@ def track_sequence(
     ).reshape(len(results), n, 3)
     status = np.array([int(r.status) for r in results], dtype=np.int64)
     return TrackedSequence(meshes=meshes, status=status, results=results)
+
+
+def _damped_step(system: _System, damping: float) -> np.ndarray:
+    """Levenberg-Marquardt step (N, 3): ``-(H + damping diag H)^-1 g``, by Cholesky.
+
+    The normal equations are finite: images are finite and non-finite sample points raise.
+    """
+    augmented = system.hessian.copy()
+    diagonal = np.diag_indices_from(augmented)
+    augmented[diagonal] += damping * system.hessian[diagonal]
+    factor = cho_factor(augmented, check_finite=False)
+    return cho_solve(factor, -system.gradient, check_finite=False).reshape(-1, 3)
 
 
 def _prior_model(config: StereoTrackerConfig, model: FaceModel | None) -> FaceModel | None:

@@ -214,15 +214,12 @@ class SampleSet:
 
     def points(self, nodes: np.ndarray, offsets: np.ndarray) -> np.ndarray:
         """(3, S) points ``sum_k b_k X^(n_k) + o`` for nodes (N, 3) and (3, S) offsets, m."""
-        columns = nodes.T
+        columns = np.ascontiguousarray(nodes.T)
         points = np.empty((3, self.size))
         for index, (gather, weights) in enumerate(zip(self.gather, self.weights, strict=True)):
             start, stop = self.bounds[index], self.bounds[index + 1]
-            placed = columns[:, gather[0]]
-            if len(gather) > 1:
-                placed = weights[0] * placed
-                for slot in range(1, len(gather)):
-                    placed += weights[slot] * columns[:, gather[slot]]
+            placed = np.take(columns, gather, axis=1)  # (3, k, S_l)
+            placed = placed[:, 0] if len(gather) == 1 else (placed * weights).sum(axis=1)
             np.add(placed, offsets[:, start:stop], out=points[:, start:stop])
         return points
 
