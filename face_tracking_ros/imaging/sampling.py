@@ -76,6 +76,11 @@ def sample_xy(image: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
     Raises:
         InputError: if the image is not 2-D float32, or x and y differ in shape or hold NaN or Inf.
     """
+    return _remap(image, *_checked(image, x, y))
+
+
+def _checked(image: np.ndarray, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The coordinates x and y as float32 arrays, checked as :func:`sample_xy` documents."""
     if image.ndim != 2 or image.dtype != np.float32:
         msg = f'image must be (H, W) float32, got {image.shape} {image.dtype}'
         raise InputError(msg)
@@ -87,6 +92,11 @@ def sample_xy(image: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
     if not (np.all(np.isfinite(x)) and np.all(np.isfinite(y))):
         msg = 'points hold NaN or Inf'
         raise InputError(msg)
+    return x, y
+
+
+def _remap(image: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Bilinear samples (...) at float32 coordinates x, y (...) of one shape (not checked)."""
     lead = x.shape
     if len(lead) == 2 and 0 < min(lead) and max(lead) < _MAP_LIMIT:
         return cv2.remap(image, x, y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
@@ -136,7 +146,7 @@ def sample_with_gradient(image: np.ndarray, points: np.ndarray) -> tuple[np.ndar
     """
     points = np.asarray(points, dtype=np.float32)
     flat = points.reshape(-1, 2)
-    samples = _stencil_samples(image, flat[:, 0], flat[:, 1])
+    samples = _stencil_samples(image, *_checked(image, flat[:, 0], flat[:, 1]))
     gradient = np.empty((flat.shape[0], 2), dtype=np.float32)
     _central_differences(samples, gradient.T)
     return samples[0].reshape(points.shape[:-1]), gradient.reshape(points.shape)
@@ -156,8 +166,7 @@ def sample_with_gradient_xy(
         ``(values, gradient)``: values (...) float32 (equal to :func:`sample_xy`'s), gradient
         (2, ...) float32 (dI/dx, dI/dy), grey levels per pixel.
     """
-    x = np.asarray(x, dtype=np.float32)
-    y = np.asarray(y, dtype=np.float32)
+    x, y = _checked(image, x, y)
     samples = _stencil_samples(image, x.ravel(), y.ravel())
     gradient = np.empty((2, x.size), dtype=np.float32)
     _central_differences(samples, gradient)
@@ -165,8 +174,8 @@ def sample_with_gradient_xy(
 
 
 def _stencil_samples(image: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """(5, K) samples at (K,) float32 points and at the stencil's shifts of them."""
-    return sample_xy(image, x + _STENCIL_X, y + _STENCIL_Y)  # rows contiguous
+    """(5, K) samples at (K,) checked float32 points and at the stencil's shifts of them."""
+    return _remap(image, x + _STENCIL_X, y + _STENCIL_Y)  # rows contiguous
 
 
 def _central_differences(samples: np.ndarray, gradient: np.ndarray) -> None:

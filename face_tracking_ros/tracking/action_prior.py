@@ -31,6 +31,7 @@ its normal equations only where it linearises, from that evaluation.
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from functools import cached_property
 from typing import NamedTuple
 
 import numpy as np
@@ -43,18 +44,38 @@ FIT_ITERATIONS = 1  # Gauss-Newton steps of (omega, t, alpha), warm-started from
 ALPHA_DAMPING = 1e-9  # relative Levenberg damping on the normal matrix of the fit
 
 
-class ModelPoint(NamedTuple):
-    """The animated mesh at one parameter vector.
+@dataclass(frozen=True)
+class ModelPoint:
+    """The animated mesh at one parameter vector, with the normal matrix of a fit from there.
 
     Attributes:
         theta: (6 + q,) parameters (omega, t, alpha).
         nodes: (N, 3) M(theta), m.
         jacobian: (3N, 6 + q) dM / d theta.
+        row_weights: (3N,) lambda_i of every coordinate.
     """
 
     theta: np.ndarray
     nodes: np.ndarray
     jacobian: np.ndarray
+    row_weights: np.ndarray
+
+    @cached_property
+    def weighted(self) -> np.ndarray:
+        """(3N, 6 + q) W J."""
+        return self.jacobian * self.row_weights[:, None]
+
+    @cached_property
+    def normal(self) -> np.ndarray:
+        """(6 + q, 6 + q) J^T W J."""
+        return self.jacobian.T @ self.weighted
+
+    @cached_property
+    def damped_normal(self) -> np.ndarray:
+        """J^T W J with the fit's relative Levenberg damping on its diagonal."""
+        normal = self.normal.copy()
+        normal[np.diag_indices_from(normal)] *= 1.0 + ALPHA_DAMPING
+        return normal
 
 
 class PriorEvaluation(NamedTuple):
@@ -82,6 +103,7 @@ class ActionPrior:
         first_nodes: (N, 3) X(1), m.
         first_model: (N, 3) M at the frame-1 parameters, m (X(1) up to rounding).
         first_rotation: (3, 3) R(omega) of the frame-1 parameters.
+        row_weights: (3N,) lambda_i of every coordinate.
     """
 
     base: np.ndarray
@@ -90,6 +112,7 @@ class ActionPrior:
     first_nodes: np.ndarray
     first_model: np.ndarray
     first_rotation: np.ndarray
+    row_weights: np.ndarray
 
     @classmethod
     def build(
@@ -114,9 +137,10 @@ class ActionPrior:
         theta = np.concatenate([omega, t, alpha])
         rotation, _ = rodrigues(omega)
         weights = np.asarray(weights, dtype=float)
-        partial = cls(base, action, weights, first_nodes, first_nodes, rotation)
-        prior = cls(base, action, weights, first_nodes, partial.point(theta).nodes, rotation)
-        return prior, theta
+        row_weights = np.repeat(weights, 3)
+        partial = cls(base, action, weights, first_nodes, first_nodes, rotation, row_weights)
+        first_model = partial.point(theta).nodes
+        return cls(base, action, weights, first_nodes, first_model, rotation, row_weights), theta
 
     def moved(self, shift: np.ndarray) -> ActionPrior:
         """The term for frame-1 nodes X(1) + ``shift`` (N, 3), m, at the same parameters.
@@ -146,29 +170,25 @@ class ActionPrior:
             ],
             axis=2,
         )
-        return ModelPoint(theta, rotated + t, jacobian.reshape(3 * n, -1))
+        return ModelPoint(theta, rotated + t, jacobian.reshape(3 * n, -1), self.row_weights)
 
     def fit(self, nodes: np.ndarray, start: ModelPoint) -> ModelPoint:
         """The model at (omega, t, alpha) minimising the weighted node distance to ``nodes``.
 
         Warm-started from ``start`` (the last fit), FIT_ITERATIONS Gauss-Newton steps.
         """
-        row_weights = np.repeat(self.weights, 3)
         point = start
         for _ in range(FIT_ITERATIONS):
-            weighted = point.jacobian * row_weights[:, None]
-            normal = point.jacobian.T @ weighted
-            normal[np.diag_indices_from(normal)] *= 1.0 + ALPHA_DAMPING
-            point = self.point(
-                point.theta + np.linalg.solve(normal, weighted.T @ self._difference(nodes, point))
-            )
+            difference = self._difference(nodes, point)
+            step = np.linalg.solve(point.damped_normal, point.weighted.T @ difference)
+            point = self.point(point.theta + step)
         return point
 
     def evaluate(self, nodes: np.ndarray, start: ModelPoint) -> PriorEvaluation:
         """E_model at ``nodes`` (N, 3), m, refitting the parameters from ``start``."""
         point = self.fit(nodes, start)
         difference = self._difference(nodes, point)
-        cost = float(difference @ (np.repeat(self.weights, 3) * difference))
+        cost = float(difference @ (self.row_weights * difference))
         return PriorEvaluation(cost, point, difference)
 
     def normal_equations(self, evaluation: PriorEvaluation) -> tuple[np.ndarray, np.ndarray]:
@@ -177,12 +197,10 @@ class ActionPrior:
         Returns:
             ``(hessian, gradient)``: (3N, 3N) W - W J (J^T W J)^-1 J^T W; (3N,) W (X - M).
         """
-        jacobian = evaluation.point.jacobian
-        row_weights = np.repeat(self.weights, 3)
-        weighted = jacobian * row_weights[:, None]
-        normal = jacobian.T @ weighted
-        hessian = np.diag(row_weights) - weighted @ np.linalg.solve(normal, weighted.T)
-        return hessian, row_weights * evaluation.difference
+        point = evaluation.point
+        weighted = point.weighted
+        hessian = np.diag(self.row_weights) - weighted @ np.linalg.solve(point.normal, weighted.T)
+        return hessian, self.row_weights * evaluation.difference
 
     def _difference(self, nodes: np.ndarray, point: ModelPoint) -> np.ndarray:
         """(3N,) X - M(theta) as (X - X(1)) - (M - M(1))."""

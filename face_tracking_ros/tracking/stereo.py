@@ -32,7 +32,8 @@ from dataclasses import dataclass, field
 from typing import NamedTuple
 
 import numpy as np
-from scipy.linalg import LinAlgError, cho_factor, cho_solve
+from scipy.linalg import LinAlgError
+from scipy.linalg.lapack import dpotrf, dpotrs
 
 from face_tracking_ros.data import default_model_path
 from face_tracking_ros.errors import ConfigError, FaceTrackingError, InputError, ModelFileError
@@ -57,6 +58,7 @@ from face_tracking_ros.tracking.stereo_data import (
     SampleLayout,
     SampleSet,
     group_statistics,
+    homogeneous_pixels,
     level_projections,
     node_blocks,
     robust_residuals,
@@ -734,10 +736,9 @@ class StereoTracker:
 
     def _pixel_motion(self, nodes: np.ndarray, moved: np.ndarray) -> float:
         """Largest image motion of a node between two estimates, in either camera, px."""
-        return max(
-            float(np.abs(camera.project(moved) - camera.project(nodes)).max())
-            for camera in (self._rig.left, self._rig.right)
-        )
+        homogeneous = homogeneous_pixels(self._projections[0], np.concatenate([nodes, moved]).T)
+        pixels = (homogeneous[:, :2] / homogeneous[:, 2:]).reshape(2, 2, 2, -1)
+        return float(np.abs(pixels[:, :, 1] - pixels[:, :, 0]).max())
 
     def _evaluate(self, state: _State, level: _Level, huber: Huber, nodes: np.ndarray) -> _Point:
         """E(n) of eq. 4 + texture + eq. 5 + face-model term at ``nodes``."""
@@ -915,8 +916,12 @@ def _damped_step(system: _System, damping: float) -> np.ndarray:
     augmented = system.hessian.copy()
     diagonal = np.diag_indices_from(augmented)
     augmented[diagonal] += damping * system.hessian[diagonal]
-    factor = cho_factor(augmented, check_finite=False)
-    return cho_solve(factor, -system.gradient, check_finite=False).reshape(-1, 3)
+    factor, info = dpotrf(augmented, lower=0, clean=0)  # the routines of cho_factor, cho_solve
+    if info != 0:
+        msg = f'damped normal matrix is not positive definite (LAPACK potrf info {info})'
+        raise LinAlgError(msg)
+    step, _ = dpotrs(factor, -system.gradient, lower=0)
+    return step.reshape(-1, 3)
 
 
 def _prior_model(config: StereoTrackerConfig, model: FaceModel | None) -> FaceModel | None:

@@ -325,6 +325,18 @@ def level_projections(cameras: Sequence[PinholeCamera], level: int) -> np.ndarra
     return projections
 
 
+def homogeneous_pixels(projections: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """(C, 3, S) homogeneous pixels ``P X`` of (3, S) points in C cameras (eq. 2).
+
+    Args:
+        projections: (C, 3, 4) projection matrices (:func:`level_projections`).
+        points: (3, S) points in the left camera frame, m.
+    """
+    count = len(projections)
+    linear = projections[:, :, :3].reshape(3 * count, 3)
+    return (linear @ points + projections[:, :, 3].reshape(-1, 1)).reshape(count, 3, -1)
+
+
 def sample_images(
     images: Sequence[np.ndarray],
     projections: np.ndarray,
@@ -341,7 +353,7 @@ def sample_images(
         mask: (S,) bool, the samples in use.
         with_gradient: sample the image gradients too.
     """
-    homogeneous = projections[:, :, :3] @ points + projections[:, :, 3:]
+    homogeneous = homogeneous_pixels(projections, points)
     pixels = homogeneous[:, :2] / homogeneous[:, 2:]
     values = np.empty((len(images), points.shape[1]), dtype=np.float32)
     gradient = np.empty((len(images), 2, points.shape[1]), dtype=np.float32)
@@ -438,10 +450,8 @@ def node_blocks(
         if len(slot_weights) > 1:
             bary = slot_weights.reshape(-1, 1, groups, size)
             group_rows = (bary * group_rows[:, None]).reshape(images, -1, groups, size)
-        else:
-            group_rows = group_rows.copy()
         mean = group_rows.sum(axis=-1, keepdims=True) / np.maximum(count, 1)[:, None, :, None]
-        group_rows -= group_valid[:, None] * mean
+        group_rows = group_rows - group_valid[:, None] * mean
         scaled = (group_rows * weight[:, None]).transpose(0, 2, 1, 3)
         blocks.append(np.matmul(scaled, group_rows.transpose(0, 2, 3, 1)).sum(axis=0))
         vectors.append(np.einsum('cgm,cigm->gi', weighted_residual, group_rows))
