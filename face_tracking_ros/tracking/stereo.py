@@ -63,6 +63,7 @@ from face_tracking_ros.tracking.stereo_data import (
     node_blocks,
     robust_residuals,
     sample_images,
+    sample_values,
 )
 from face_tracking_ros.tracking.stereo_init import StereoInitConfig, initial_nodes
 
@@ -516,13 +517,11 @@ class StereoTracker:
             offsets: (3, S) level-0 sample offsets (turned as at ``nodes``), m.
         """
         return tuple(
-            sample_images(
+            sample_values(
                 (pyramids[LEFT].levels[level], pyramids[RIGHT].levels[level]),
                 projections,
                 samples.points(nodes, float(1 << level) * offsets),
-                samples.mask,
-                with_gradient=False,
-            ).values
+            )
             for level, projections in enumerate(self._projections)
         )
 
@@ -700,7 +699,8 @@ class StereoTracker:
         """Levenberg-Marquardt at one pyramid level, from ``nodes``.
 
         Each trial point's evaluation samples the images with their gradients, so an accepted
-        point is linearised from it without sampling again.
+        point is linearised from it without sampling again (a step that ends the level is
+        evaluated without them).
 
         Returns:
             The nodes, the iterations spent, the accepted costs and the point of the last
@@ -719,7 +719,7 @@ class StereoTracker:
             small = self._pixel_motion(nodes, candidate) < config.step_tolerance * (
                 1 << level.index
             )
-            trial = self._evaluate(state, level, huber, candidate)
+            trial = self._evaluate(state, level, huber, candidate, with_gradient=not small)
             if trial.cost <= point.cost:
                 nodes, point = candidate, trial
                 history.append(trial.cost)
@@ -740,11 +740,24 @@ class StereoTracker:
         pixels = (homogeneous[:, :2] / homogeneous[:, 2:]).reshape(2, 2, 2, -1)
         return float(np.abs(pixels[:, :, 1] - pixels[:, :, 0]).max())
 
-    def _evaluate(self, state: _State, level: _Level, huber: Huber, nodes: np.ndarray) -> _Point:
-        """E(n) of eq. 4 + texture + eq. 5 + face-model term at ``nodes``."""
+    def _evaluate(
+        self,
+        state: _State,
+        level: _Level,
+        huber: Huber,
+        nodes: np.ndarray,
+        with_gradient: bool = True,
+    ) -> _Point:
+        """E(n) of eq. 4 + texture + eq. 5 + face-model term at ``nodes``.
+
+        The images are sampled with their gradients unless the point will not be linearised
+        (a converged level's last step).
+        """
         samples = state.samples
         points = samples.points(nodes, level.offsets)
-        sampled = sample_images(level.images, level.projections, points, samples.mask)
+        sampled = sample_images(
+            level.images, level.projections, points, samples.mask, with_gradient
+        )
         residuals = robust_residuals(samples, sampled, level.templates, state.coefficients, huber)
         cost = state.regulariser.cost(nodes, state.nodes)
         prior = None

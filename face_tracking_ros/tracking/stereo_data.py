@@ -300,21 +300,27 @@ class Huber(NamedTuple):
         threshold: (S,) k, grey levels.
         twice: (S,) 2 k.
         square: (S,) k^2.
+        inlier_bound: (S,) float32, the largest float32 <= k: a float32 |r| is within k exactly
+            when it is within this (a float32 comparison).
     """
 
     threshold: np.ndarray
     twice: np.ndarray
     square: np.ndarray
+    inlier_bound: np.ndarray
 
     @classmethod
     def of(cls, samples: SampleSet, thresholds: Sequence[float]) -> Huber:
         """One threshold per layout of ``samples``, grey levels."""
         sizes = np.diff(samples.bounds)
         thresholds = np.asarray(thresholds, dtype=float)
+        bound = thresholds.astype(np.float32)
+        bound = np.where(bound > thresholds, np.nextafter(bound, np.float32(-np.inf)), bound)
         return cls(
             threshold=np.repeat(thresholds, sizes),
             twice=np.repeat(2.0 * thresholds, sizes),
             square=np.repeat(thresholds**2, sizes),
+            inlier_bound=np.repeat(bound.astype(np.float32), sizes),
         )
 
 
@@ -355,20 +361,36 @@ def sample_images(
     """
     homogeneous = homogeneous_pixels(projections, points)
     pixels = homogeneous[:, :2] / homogeneous[:, 2:]
-    values = np.empty((len(images), points.shape[1]), dtype=np.float32)
-    gradient = np.empty((len(images), 2, points.shape[1]), dtype=np.float32)
-    for row, (image, (x, y)) in enumerate(zip(images, pixels, strict=True)):
-        if with_gradient:
+    if with_gradient:
+        values = np.empty((len(images), points.shape[1]), dtype=np.float32)
+        gradient = np.empty((len(images), 2, points.shape[1]), dtype=np.float32)
+        for row, (image, (x, y)) in enumerate(zip(images, pixels, strict=True)):
             values[row], gradient[row] = sample_with_gradient_xy(image, x, y)
-        else:
-            values[row] = sample_xy(image, x, y)
+    else:
+        values, gradient = _values(images, pixels), None
     inside = inside_xy(pixels[:, 0], pixels[:, 1], images[0].shape, margin=1.0)
     return Sampled(
         homogeneous=homogeneous,
         values=values,
-        gradient=gradient if with_gradient else None,
+        gradient=gradient,
         valid=inside & (points[2] > 0) & mask,
     )
+
+
+def sample_values(
+    images: Sequence[np.ndarray], projections: np.ndarray, points: np.ndarray
+) -> np.ndarray:
+    """(C, S) float32 grey levels of C images at (3, S) points (:func:`sample_images` values)."""
+    homogeneous = homogeneous_pixels(projections, points)
+    return _values(images, homogeneous[:, :2] / homogeneous[:, 2:])
+
+
+def _values(images: Sequence[np.ndarray], pixels: np.ndarray) -> np.ndarray:
+    """(C, S) float32 samples of C images at their (C, 2, S) pixels."""
+    values = np.empty(pixels[:, 0].shape, dtype=np.float32)
+    for row, (image, (x, y)) in enumerate(zip(images, pixels, strict=True)):
+        values[row] = sample_xy(image, x, y)
+    return values
 
 
 def robust_residuals(
@@ -397,10 +419,11 @@ def robust_residuals(
         group -= total / np.maximum(count, 1)[:, None, :, None]
     differences *= valid[:, None, :]
     magnitude = np.abs(differences)
-    robust = np.minimum(1.0, huber.threshold / np.maximum(magnitude, 1e-12))
+    with np.errstate(divide='ignore'):  # |r| = 0: weight 1
+        robust = np.minimum(1.0, huber.threshold / magnitude)
     weighted = coefficients * robust
     loss = np.where(
-        magnitude <= huber.threshold, magnitude**2, huber.twice * magnitude - huber.square
+        magnitude <= huber.inlier_bound, magnitude**2, huber.twice * magnitude - huber.square
     )
     return Residuals(
         differences=differences,
@@ -542,7 +565,7 @@ def depth_terms(
     """
     points = patches.points(nodes, patches.level_offsets(rotation, 0))
     left_projection, right_projection = level_projections((rig.left, rig.right), 0)
-    template = sample_images((left,), left_projection[None], points, patches.mask, False).values
+    template = sample_values((left,), left_projection[None], points)
     sampled = sample_images((right,), right_projection[None], points, patches.mask)
     coefficients = np.ones((1, patches.size))
     residuals = robust_residuals(
