@@ -89,7 +89,8 @@ class StereoTrackerConfig:
         pyramid_levels: coarse-to-fine levels (1 = full resolution only).
         max_iterations: Levenberg-Marquardt iterations per pyramid level.
         step_tolerance: a level has converged when no node's projection moves more than this
-            in an iteration, pixels of that level.
+            in an iteration, pixels of that level (on a coarse level that last step is taken
+            without evaluating its cost; the next level starts from it).
         damping: initial Levenberg-Marquardt damping, relative to the Hessian diagonal.
         huber_k: Huber threshold in robust standard deviations of the image residuals.
         noise_floor: smallest robust standard deviation assumed for image residuals, grey levels.
@@ -190,7 +191,8 @@ class StereoResult:
         right_residuals: (N,) the same in the right image, grey levels.
         mean_residual: mean of both residual arrays, grey levels.
         iterations: Levenberg-Marquardt iterations spent, summed over levels.
-        cost_history: total cost E(n) after each accepted iteration.
+        cost_history: total cost E(n) after each accepted iteration (a coarse level's last,
+            converged step is not evaluated).
         fit: with a model loaded, its pose, sigma and alpha fitted to the nodes (eq. 1-3), as a
             one-frame :class:`~face_tracking_ros.recognition.node_fit.NodeFit`; else None.
         reason: why the status is not TRACKING ('' when tracking).
@@ -700,7 +702,9 @@ class StereoTracker:
 
         Each trial point's evaluation samples the images with their gradients, so an accepted
         point is linearised from it without sampling again (a step that ends the level is
-        evaluated without them).
+        evaluated without them). On a coarse level, the step that ends it (smaller than
+        ``step_tolerance``) is taken without evaluating its cost: the next level evaluates
+        that point first anyway.
 
         Returns:
             The nodes, the iterations spent, the accepted costs and the point of the last
@@ -719,6 +723,9 @@ class StereoTracker:
             small = self._pixel_motion(nodes, candidate) < config.step_tolerance * (
                 1 << level.index
             )
+            if small and level.index > 0:
+                nodes = candidate  # the next level starts by evaluating it
+                break
             trial = self._evaluate(state, level, huber, candidate, with_gradient=not small)
             if trial.cost <= point.cost:
                 nodes, point = candidate, trial
