@@ -94,6 +94,14 @@ def _rms_mm(nodes: np.ndarray, truth: np.ndarray) -> float:
     return float(np.sqrt(np.mean(np.sum((nodes - truth) ** 2, axis=1))) * 1000)
 
 
+def test_triangulation_recovers_points_and_takes_an_empty_set() -> None:
+    truth = PLANE.nodes()
+    found = RIG.triangulate(RIG.left.project(truth), RIG.right.project(truth))
+    np.testing.assert_allclose(found, truth, atol=1e-9)
+    # An initialisation whose second epipolar search matches no node triangulates none.
+    assert RIG.triangulate(np.zeros((0, 2)), np.zeros((0, 2))).shape == (0, 3)
+
+
 def test_epipolar_match_and_initial_nodes_are_sub_pixel() -> None:
     left, right = PLANE.pair()
     truth = PLANE.nodes()
