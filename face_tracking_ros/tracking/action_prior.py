@@ -48,17 +48,40 @@ ALPHA_DAMPING = 1e-9  # relative Levenberg damping on the normal matrix of the f
 class ModelPoint:
     """The animated mesh at one parameter vector, with the normal matrix of a fit from there.
 
+    The Jacobian and what follows from it are made when first asked for: the solver needs them
+    only at the points it linearises at.
+
     Attributes:
         theta: (6 + q,) parameters (omega, t, alpha).
-        nodes: (N, 3) M(theta), m.
-        jacobian: (3N, 6 + q) dM / d theta.
+        nodes: (N, 3) M(theta) = R(omega) shape + t, m.
+        shape: (N, 3) B + A alpha in the face frame, m.
+        rotation: (3, 3) R(omega).
+        d_rotation: (3, 3, 3) dR / d omega_k.
+        action_basis: (N, 3, q) A.
         row_weights: (3N,) lambda_i of every coordinate.
     """
 
     theta: np.ndarray
     nodes: np.ndarray
-    jacobian: np.ndarray
+    shape: np.ndarray
+    rotation: np.ndarray
+    d_rotation: np.ndarray
+    action_basis: np.ndarray
     row_weights: np.ndarray
+
+    @cached_property
+    def jacobian(self) -> np.ndarray:
+        """(3N, 6 + q) dM / d(omega, t, alpha)."""
+        n = self.shape.shape[0]
+        jacobian = np.concatenate(
+            [
+                np.einsum('kab,nb->nak', self.d_rotation, self.shape),
+                np.broadcast_to(np.eye(3), (n, 3, 3)),
+                np.einsum('ab,nbq->naq', self.rotation, self.action_basis),
+            ],
+            axis=2,
+        )
+        return jacobian.reshape(3 * n, -1)
 
     @cached_property
     def weighted(self) -> np.ndarray:
@@ -156,21 +179,14 @@ class ActionPrior:
         )
 
     def point(self, theta: np.ndarray) -> ModelPoint:
-        """M(theta) (N, 3) and its Jacobian (3N, 6 + q) with respect to (omega, t, alpha)."""
+        """M(theta) (N, 3), with its Jacobian (3N, 6 + q) with respect to (omega, t, alpha)."""
         omega, t, alpha = theta[:3], theta[3:6], theta[6:]
         shape = self.base + self.action_basis @ alpha
-        rotated, d_omega = rotate_with_jacobian(omega, shape)
-        rotation, _ = rodrigues(omega)
-        n = shape.shape[0]
-        jacobian = np.concatenate(
-            [
-                d_omega,
-                np.broadcast_to(np.eye(3), (n, 3, 3)),
-                np.einsum('ab,nbq->naq', rotation, self.action_basis),
-            ],
-            axis=2,
+        rotation, d_rotation = rodrigues(omega)
+        nodes = shape @ rotation.T + t
+        return ModelPoint(
+            theta, nodes, shape, rotation, d_rotation, self.action_basis, self.row_weights
         )
-        return ModelPoint(theta, rotated + t, jacobian.reshape(3 * n, -1), self.row_weights)
 
     def fit(self, nodes: np.ndarray, start: ModelPoint) -> ModelPoint:
         """The model at (omega, t, alpha) minimising the weighted node distance to ``nodes``.

@@ -43,7 +43,7 @@ import numpy as np
 from face_tracking_ros.geometry.camera import PinholeCamera, StereoRig
 from face_tracking_ros.imaging import (
     inside_xy,
-    sample_with_gradient_xy,
+    sample_with_gradient_rows,
     sample_xy,
     square_offsets,
 )
@@ -362,10 +362,7 @@ def sample_images(
     homogeneous = homogeneous_pixels(projections, points)
     pixels = homogeneous[:, :2] / homogeneous[:, 2:]
     if with_gradient:
-        values = np.empty((len(images), points.shape[1]), dtype=np.float32)
-        gradient = np.empty((len(images), 2, points.shape[1]), dtype=np.float32)
-        for row, (image, (x, y)) in enumerate(zip(images, pixels, strict=True)):
-            values[row], gradient[row] = sample_with_gradient_xy(image, x, y)
+        values, gradient = sample_with_gradient_rows(images, pixels[:, 0], pixels[:, 1])
     else:
         values, gradient = _values(images, pixels), None
     inside = inside_xy(pixels[:, 0], pixels[:, 1], images[0].shape, margin=1.0)
