@@ -12,7 +12,6 @@ import pytest
 
 from face_tracking_ros.errors import ConfigError, InputError, ModelFileError
 from face_tracking_ros.geometry.camera import PinholeCamera, StereoRig
-from face_tracking_ros.imaging import sample_points
 from face_tracking_ros.model.topology import Group, mesh_topology
 from face_tracking_ros.tracking.depth_refinement import DepthRefinement, depth_evidence
 from face_tracking_ros.tracking.initialisation import Initialisation
@@ -28,6 +27,7 @@ from face_tracking_ros.tracking.stereo_data import (
     node_blocks,
     robust_residuals,
     sample_images,
+    sample_values,
 )
 from face_tracking_ros.tracking.stereo_init import (
     StereoInitConfig,
@@ -308,8 +308,10 @@ def _noisy_pair(rng: np.random.Generator, plane: _Plane = PLANE) -> tuple[np.nda
 
 def _patch_sq(layout: SampleLayout, image: np.ndarray, other: np.ndarray, nodes: np.ndarray):
     """Mean squared ZSSD residual (N,) of each node patch between two left images."""
-    pixels = RIG.left.project(layout.points(nodes, np.eye(3), 0).reshape(-1, 3))
-    difference = (sample_points(image, pixels) - sample_points(other, pixels)).reshape(34, -1)
+    patches = SampleSet.of((layout,), 34)
+    points = patches.points(nodes, patches.level_offsets(np.eye(3), 0))
+    values = sample_values((image, other), level_projections((RIG.left, RIG.left), 0), points)
+    difference = (values[0] - values[1]).reshape(34, -1)
     difference -= difference.mean(axis=1, keepdims=True)
     return np.mean(difference**2, axis=1)
 

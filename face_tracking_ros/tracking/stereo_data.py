@@ -131,17 +131,6 @@ class SampleLayout:
         """Nodes each group depends on: 1 for node patches, 3 for triangles."""
         return 1 if not np.any(self.bary[:, 1:]) else 3
 
-    def points(self, nodes: np.ndarray, rotation: np.ndarray, level: int) -> np.ndarray:
-        """3-D sample points (G, M, 3), m, for nodes (N, 3) and the patch orientation (3, 3).
-
-        Offsets are rotated by ``rotation`` (the head's rotation since frame 1) and scaled by
-        2**level so a patch keeps its size in pixels on every pyramid level.
-        """
-        offsets = float(1 << level) * (self.offsets @ rotation.T)
-        if self.slot_count == 1:
-            return nodes[self.nodes[:, 0]][:, None, :] + offsets
-        return np.einsum('mk,gkd->gmd', self.bary, nodes[self.nodes]) + offsets
-
 
 @dataclass(frozen=True)
 class SampleSet:
@@ -156,9 +145,9 @@ class SampleSet:
         gather: per layout, (k, S_l) node index of each of the k slots of every sample.
         weights: per layout, (k, S_l) barycentric weight b of each slot (k = 1: weight 1).
         offsets: (S, 3) offsets at level 0 in the frame-1 orientation, m.
-        block_index: per layout, (G_l 3k 3k,) flat index in the (3N, 3N) matrix of every entry of
-            its node blocks (:func:`node_blocks`).
-        vector_index: per layout, (G_l 3k,) index in the (3N,) vector of its node vectors.
+        block_index: (B,) flat index in the (3N, 3N) matrix of every entry of the layouts' node
+            blocks (:func:`node_blocks`), layout after layout.
+        vector_index: (V,) index in the (3N,) vector of every entry of their node vectors.
         num_nodes: N.
     """
 
@@ -205,10 +194,9 @@ class SampleSet:
         return int(self.bounds[-1])
 
     def level_offsets(self, rotation: np.ndarray, level: int) -> np.ndarray:
-        """(3, S) offsets turned by ``rotation`` (since frame 1) and scaled by 2**level, m.
+        """(3, S) offsets turned by ``rotation`` (the head's rotation since frame 1), m.
 
-        A patch so keeps its size in pixels on every pyramid level
-        (:meth:`SampleLayout.points`).
+        They are scaled by 2**level, so a patch keeps its size in pixels on every pyramid level.
         """
         return (float(1 << level) * (self.offsets @ rotation.T)).T
 
