@@ -15,6 +15,7 @@ from face_tracking_ros.imaging import (
     sample_patches,
     sample_points,
     sample_with_gradient,
+    sample_with_gradient_rows,
     sample_with_gradient_xy,
     sample_xy,
     square_offsets,
@@ -193,6 +194,22 @@ def test_separate_coordinates_sample_exactly_like_interleaved_points(shape) -> N
         sample_xy(image, x, y[..., :1])
     with pytest.raises(InputError, match='NaN or Inf'):
         sample_xy(image, np.full(shape, np.nan), y)
+
+
+def test_images_sampled_at_once_equal_each_sampled_alone() -> None:
+    rng = np.random.default_rng(7)
+    images = [rng.uniform(0, 255, (40, 50)).astype(np.float32) for _ in range(2)]
+    x, y = rng.uniform(-2, 52, (2, 2, 300))
+    values, gradient = sample_with_gradient_rows(images, x, y)
+    assert values.shape == (2, 300) and gradient.shape == (2, 2, 300)
+    for row, image in enumerate(images):
+        alone, alone_gradient = sample_with_gradient_xy(image, x[row], y[row])
+        np.testing.assert_array_equal(values[row], alone)
+        np.testing.assert_array_equal(gradient[row], alone_gradient)
+    with pytest.raises(InputError, match='for 2 images'):
+        sample_with_gradient_rows(images, x[:1], y[:1])
+    with pytest.raises(InputError, match='float32'):
+        sample_with_gradient_rows([images[0], images[1].astype(float)], x, y)
 
 
 def test_inside_image() -> None:

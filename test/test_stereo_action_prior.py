@@ -26,8 +26,10 @@ WEIGHTS = np.full(MODEL.num_nodes, 1e8)
 
 def test_no_motion_costs_exactly_nothing() -> None:
     prior, theta = ActionPrior.build(MODEL, FIRST, WEIGHTS)
-    cost, hessian, gradient, refit = prior.normal_equations(FIRST, theta)
-    assert cost == 0.0 and not np.any(gradient) and np.array_equal(refit, theta)
+    evaluation = prior.evaluate(FIRST, prior.point(theta))
+    hessian, gradient = prior.normal_equations(evaluation)
+    assert evaluation.cost == 0.0 and not np.any(gradient)
+    assert np.array_equal(evaluation.point.theta, theta)
     assert np.allclose(hessian, hessian.T) and np.linalg.eigvalsh(hessian).min() > -1e-3
 
 
@@ -36,29 +38,33 @@ def test_model_motion_is_free_and_other_motion_costs_lambda() -> None:
     # A head turn and an expression: the model explains them, the cost stays ~0.
     alpha = RNG.normal(size=MODEL.q) * 0.01
     moved = _mesh(alpha, np.array([0.1, 0.05, 0.0]), np.array([0.01, 0.0, 0.62]))
+    point = prior.point(theta)
     for _ in range(5):  # each fit is a warm-started Gauss-Newton step, as frame to frame
-        theta = prior.fit(moved, theta)
-    cost, refit = prior.cost(moved, theta)
-    assert cost < 1e-6 * WEIGHTS[0] * 1e-6
-    np.testing.assert_allclose(refit[6:], alpha, atol=1e-4)
+        point = prior.fit(moved, point)
+    evaluation = prior.evaluate(moved, point)
+    assert evaluation.cost < 1e-6 * WEIGHTS[0] * 1e-6
+    np.testing.assert_allclose(evaluation.point.theta[6:], alpha, atol=1e-4)
     # One node pushed off the face by 1 mm: most of it is off the model, so it costs about
     # lambda (1 mm)^2, and the gradient (d cost / dX = 2 g) matches finite differences.
     pushed = moved.copy()
     pushed[5] += [0.0, 0.0, 0.001]
-    cost, hessian, gradient, refit = prior.normal_equations(pushed, refit)
-    assert 0.5 * WEIGHTS[0] * 1e-6 < cost < WEIGHTS[0] * 1e-6
+    evaluation = prior.evaluate(pushed, evaluation.point)
+    hessian, gradient = prior.normal_equations(evaluation)
+    refit = evaluation.point
+    assert 0.5 * WEIGHTS[0] * 1e-6 < evaluation.cost < WEIGHTS[0] * 1e-6
     step = 1e-6
     for k in (15, 16, 17, 40):
         plus, minus = pushed.ravel().copy(), pushed.ravel().copy()
         plus[k] += step
         minus[k] -= step
         numeric = (
-            prior.cost(plus.reshape(-1, 3), refit)[0] - prior.cost(minus.reshape(-1, 3), refit)[0]
+            prior.evaluate(plus.reshape(-1, 3), refit).cost
+            - prior.evaluate(minus.reshape(-1, 3), refit).cost
         ) / (2 * step)
         assert abs(2 * gradient[k] - numeric) < 0.02 * abs(2 * gradient[15]) + 1e-3
     # Gauss-Newton on the term alone puts the node back on the model in one step.
     back = pushed.ravel() - np.linalg.lstsq(hessian, gradient, rcond=None)[0]
-    assert prior.cost(back.reshape(-1, 3), refit)[0] < 1e-3 * cost
+    assert prior.evaluate(back.reshape(-1, 3), refit).cost < 1e-3 * evaluation.cost
 
 
 def test_moved_term_follows_the_refined_first_nodes() -> None:
@@ -68,15 +74,18 @@ def test_moved_term_follows_the_refined_first_nodes() -> None:
     moved = prior.moved(shift)
     # The moved frame-1 mesh costs (almost exactly) nothing in the moved term, a lot in the
     # original one, since a depth change of single nodes is off the model.
-    cost, _, gradient, _ = moved.normal_equations(FIRST + shift, theta)
-    assert cost < 1e-12 and np.abs(gradient).max() < 1e-3
-    assert prior.cost(FIRST + shift, theta)[0] > 0.1 * WEIGHTS[0] * np.sum(shift**2)
+    evaluation = moved.evaluate(FIRST + shift, moved.point(theta))
+    _, gradient = moved.normal_equations(evaluation)
+    assert evaluation.cost < 1e-12 and np.abs(gradient).max() < 1e-3
+    original = prior.evaluate(FIRST + shift, prior.point(theta))
+    assert original.cost > 0.1 * WEIGHTS[0] * np.sum(shift**2)
     # A head turn and an expression of the moved mesh stay free.
     alpha = RNG.normal(size=MODEL.q) * 0.01
     first_rotation = rodrigues(np.array([0.05, -0.1, 0.02]))[0]
     omega = np.array([0.1, 0.05, 0.0])
     turned = _mesh(alpha, omega, np.array([0.01, 0.0, 0.62]))
     turned = turned + (shift @ first_rotation) @ rodrigues(omega)[0].T  # the shift, face frame
+    point = moved.point(theta)
     for _ in range(5):
-        theta = moved.fit(turned, theta)
-    assert moved.cost(turned, theta)[0] < 1e-6 * WEIGHTS[0] * 1e-6
+        point = moved.fit(turned, point)
+    assert moved.evaluate(turned, point).cost < 1e-6 * WEIGHTS[0] * 1e-6

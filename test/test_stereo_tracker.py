@@ -18,10 +18,16 @@ from face_tracking_ros.tracking.initialisation import Initialisation
 from face_tracking_ros.tracking.result import TrackStatus
 from face_tracking_ros.tracking.stereo import StereoTracker, StereoTrackerConfig, track_sequence
 from face_tracking_ros.tracking.stereo_data import (
-    NormalEquations,
+    Huber,
+    Residuals,
+    Sampled,
     SampleLayout,
-    image_normal_equations,
-    sample_templates,
+    SampleSet,
+    level_projections,
+    node_blocks,
+    robust_residuals,
+    sample_images,
+    sample_values,
 )
 from face_tracking_ros.tracking.stereo_init import (
     StereoInitConfig,
@@ -88,6 +94,14 @@ def _rms_mm(nodes: np.ndarray, truth: np.ndarray) -> float:
     return float(np.sqrt(np.mean(np.sum((nodes - truth) ** 2, axis=1))) * 1000)
 
 
+def test_triangulation_recovers_points_and_takes_an_empty_set() -> None:
+    truth = PLANE.nodes()
+    found = RIG.triangulate(RIG.left.project(truth), RIG.right.project(truth))
+    np.testing.assert_allclose(found, truth, atol=1e-9)
+    # An initialisation whose second epipolar search matches no node triangulates none.
+    assert RIG.triangulate(np.zeros((0, 2)), np.zeros((0, 2))).shape == (0, 3)
+
+
 def test_epipolar_match_and_initial_nodes_are_sub_pixel() -> None:
     left, right = PLANE.pair()
     truth = PLANE.nodes()
@@ -112,31 +126,43 @@ def test_epipolar_match_and_initial_nodes_are_sub_pixel() -> None:
     assert np.linalg.norm(nodes[~matched] - truth[~matched], axis=1).max() < 0.06
 
 
-def test_image_normal_equations_gradient_matches_finite_differences() -> None:
-    # Smooth sinusoidal images, so the central-difference image gradient is the true slope.
+def _wave(phase: float) -> np.ndarray:
+    """A smooth sinusoidal image, so the central-difference image gradient is the true slope."""
     rows, cols = np.mgrid[0:480, 0:640].astype(np.float64)
+    value = 50 * np.sin(cols / 13 + phase) * np.cos(rows / 9) + 30 * np.sin((cols + rows) / 21)
+    return (100 + value).astype(np.float32)
 
-    def wave(phase: float) -> np.ndarray:
-        value = 50 * np.sin(cols / 13 + phase) * np.cos(rows / 9) + 30 * np.sin((cols + rows) / 21)
-        return (100 + value).astype(np.float32)
 
-    left, right = wave(0.0), wave(0.4)
+@pytest.mark.parametrize('layout_kind', ['patches', 'texture'])
+def test_image_normal_equations_gradient_matches_finite_differences(layout_kind: str) -> None:
     truth = PLANE.nodes()
-    one_sided = np.zeros(34, dtype=bool)
-    one_sided[::3] = True
-    layout = SampleLayout.node_patches(truth, truth[:, 2] / 600, 3, one_sided)
-    assert layout.mask[~one_sided].all() and 0.4 < layout.mask[one_sided].mean() < 0.7
-    rotation = np.eye(3)
-    template = sample_templates(left, RIG.left, layout.points(truth, rotation, 0), 0)[None]
+    if layout_kind == 'patches':
+        one_sided = np.zeros(34, dtype=bool)
+        one_sided[::3] = True
+        layout = SampleLayout.node_patches(truth, truth[:, 2] / 600, 3, one_sided)
+        assert layout.mask[~one_sided].all() and 0.4 < layout.mask[one_sided].mean() < 0.7
+    else:  # three nodes per group
+        layout = SampleLayout.triangle_texture(mesh_topology(34).triangles, 4)
+    samples = SampleSet.of((layout,), 34)
+    offsets = samples.level_offsets(np.eye(3), 0)
+    projections = level_projections((RIG.left, RIG.right), 0)
+    # Both images against templates of both (eq. 4's four terms), Huber on the larger residuals.
+    earlier = (_wave(0.0), _wave(0.4))
+    current = (_wave(0.1), _wave(0.5))
+    sampled = sample_images(earlier, projections, samples.points(truth, offsets), samples.mask)
+    templates = np.stack([sampled.values, sampled.values[::-1]], axis=1)
+    coefficients = np.repeat([[0.6], [0.4]], samples.size, axis=1)
+    huber = Huber.of(samples, [15.0])
     moved = truth + np.random.default_rng(0).normal(0, 0.0003, truth.shape)
 
-    def equations(nodes: np.ndarray) -> NormalEquations:
-        points = layout.points(nodes, rotation, 0)
-        return image_normal_equations(
-            right, RIG.right, layout, points, 0, template, np.ones(1), 1e6, 34
-        )
+    def evaluate(nodes: np.ndarray) -> tuple[Sampled, Residuals]:
+        sampled = sample_images(current, projections, samples.points(nodes, offsets), samples.mask)
+        return sampled, robust_residuals(samples, sampled, templates, coefficients, huber)
 
-    analytic = 2 * equations(moved).gradient  # d cost / dX = 2 J^T W r
+    sampled, residuals = evaluate(moved)
+    assert np.mean(residuals.weight < 1.0) > 0.05  # some samples beyond the Huber threshold
+    hessian, gradient = samples.assemble(*node_blocks(samples, sampled, residuals, projections))
+    analytic = 2 * gradient  # d cost / dX = 2 J^T W r
     step = 3e-4
     numeric = np.empty_like(analytic)
     for k in range(analytic.size):
@@ -144,11 +170,10 @@ def test_image_normal_equations_gradient_matches_finite_differences() -> None:
         plus[k] += step
         minus[k] -= step
         numeric[k] = (
-            equations(plus.reshape(-1, 3)).cost - equations(minus.reshape(-1, 3)).cost
+            evaluate(plus.reshape(-1, 3))[1].cost - evaluate(minus.reshape(-1, 3))[1].cost
         ) / (2 * step)
     assert np.linalg.norm(analytic - numeric) < 0.05 * np.linalg.norm(numeric)
-    # J^T J is symmetric positive semi-definite and its node blocks are 3x3.
-    hessian = equations(moved).hessian
+    # J^T W J is symmetric positive semi-definite.
     assert np.allclose(hessian, hessian.T) and np.linalg.eigvalsh(hessian).min() > -1e-6
 
 
@@ -283,10 +308,10 @@ def _noisy_pair(rng: np.random.Generator, plane: _Plane = PLANE) -> tuple[np.nda
 
 def _patch_sq(layout: SampleLayout, image: np.ndarray, other: np.ndarray, nodes: np.ndarray):
     """Mean squared ZSSD residual (N,) of each node patch between two left images."""
-    points = layout.points(nodes, np.eye(3), 0)
-    difference = sample_templates(image, RIG.left, points, 0) - sample_templates(
-        other, RIG.left, points, 0
-    )
+    patches = SampleSet.of((layout,), 34)
+    points = patches.points(nodes, patches.level_offsets(np.eye(3), 0))
+    values = sample_values((image, other), level_projections((RIG.left, RIG.left), 0), points)
+    difference = (values[0] - values[1]).reshape(34, -1)
     difference -= difference.mean(axis=1, keepdims=True)
     return np.mean(difference**2, axis=1)
 
@@ -299,13 +324,14 @@ def test_depth_refinement_pools_noisy_pairs_into_the_true_depths() -> None:
     offsets[[10, 20, 30]] = [-0.003, 0.002, 0.003]  # m along the rays, within the linear range
     nodes = truth + offsets[:, None] * rays
     layout = SampleLayout.node_patches(nodes, nodes[:, 2] / RIG.left.focal, 3, np.zeros(34, bool))
+    patches = SampleSet.of((layout,), 34)
     refinement = DepthRefinement.start(nodes, np.full(34, 0.005))
     max_step = np.full(34, 0.002)
     previous = _noisy_pair(rng)[0]
     steps = []
     for _ in range(15):
         left, right = _noisy_pair(rng)
-        evidence = depth_evidence(RIG, left, right, layout, nodes, rays, np.eye(3), 6.0)
+        evidence = depth_evidence(RIG, left, right, patches, nodes, rays, np.eye(3), 6.0)
         temporal = _patch_sq(layout, left, previous, nodes)
         step = refinement.update(evidence, temporal, 2.0 * np.sqrt(2.0), max_step, 2.0)
         assert np.all(np.abs(step) <= max_step)
@@ -327,6 +353,7 @@ def test_depth_refinement_ignores_views_that_disagree() -> None:
     truth = PLANE.nodes()
     rays = truth / np.linalg.norm(truth, axis=1, keepdims=True)
     layout = SampleLayout.node_patches(truth, truth[:, 2] / RIG.left.focal, 3, np.zeros(34, bool))
+    patches = SampleSet.of((layout,), 34)
     refinement = DepthRefinement.start(truth, np.full(34, 0.002))
     previous = _noisy_pair(rng)[0]
     # The right camera sees another surface (an occluder, or skin beyond the rim).
@@ -335,7 +362,7 @@ def test_depth_refinement_ignores_views_that_disagree() -> None:
     for _ in range(10):
         left = _noisy_pair(rng)[0]
         right = _noisy_pair(rng, other)[1]
-        evidence = depth_evidence(RIG, left, right, layout, nodes, rays, np.eye(3), 6.0)
+        evidence = depth_evidence(RIG, left, right, patches, nodes, rays, np.eye(3), 6.0)
         temporal = _patch_sq(layout, left, previous, nodes)
         step = refinement.update(evidence, temporal, 2.8, np.full(34, 0.002), 2.0)
         nodes = nodes + step[:, None] * rays

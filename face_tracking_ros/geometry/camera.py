@@ -176,6 +176,8 @@ class StereoRig:
 
     def triangulate(self, left_px: np.ndarray, right_px: np.ndarray) -> np.ndarray:
         """Triangulate (N, 2) left and right rectified pixels into (N, 3) left-frame points."""
+        if len(left_px) == 0:  # cv2.triangulatePoints returns None for no points
+            return np.zeros((0, 3))
         homogeneous = cv2.triangulatePoints(
             self.left.p, self.right.p, left_px.T.astype(float), right_px.T.astype(float)
         )

@@ -7,6 +7,8 @@ nearest border pixel (use :func:`inside_image` to know which ones).
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import cv2
 import numpy as np
 
@@ -76,9 +78,24 @@ def sample_xy(image: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
     Raises:
         InputError: if the image is not 2-D float32, or x and y differ in shape or hold NaN or Inf.
     """
+    return _remap(image, *_checked(image, x, y))
+
+
+def _checked(image: np.ndarray, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The coordinates x and y as float32 arrays, checked as :func:`sample_xy` documents."""
+    _check_image(image)
+    return _coordinates(x, y)
+
+
+def _check_image(image: np.ndarray) -> None:
+    """Raise InputError unless ``image`` is a (H, W) float32 array."""
     if image.ndim != 2 or image.dtype != np.float32:
         msg = f'image must be (H, W) float32, got {image.shape} {image.dtype}'
         raise InputError(msg)
+
+
+def _coordinates(x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The coordinates as float32 arrays of one shape, finite (else InputError)."""
     x = np.asarray(x, dtype=np.float32)
     y = np.asarray(y, dtype=np.float32)
     if x.shape != y.shape:
@@ -87,6 +104,11 @@ def sample_xy(image: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
     if not (np.all(np.isfinite(x)) and np.all(np.isfinite(y))):
         msg = 'points hold NaN or Inf'
         raise InputError(msg)
+    return x, y
+
+
+def _remap(image: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Bilinear samples (...) at float32 coordinates x, y (...) of one shape (not checked)."""
     lead = x.shape
     if len(lead) == 2 and 0 < min(lead) and max(lead) < _MAP_LIMIT:
         return cv2.remap(image, x, y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
@@ -136,7 +158,7 @@ def sample_with_gradient(image: np.ndarray, points: np.ndarray) -> tuple[np.ndar
     """
     points = np.asarray(points, dtype=np.float32)
     flat = points.reshape(-1, 2)
-    samples = _stencil_samples(image, flat[:, 0], flat[:, 1])
+    samples = _stencil_samples(image, *_checked(image, flat[:, 0], flat[:, 1]))
     gradient = np.empty((flat.shape[0], 2), dtype=np.float32)
     _central_differences(samples, gradient.T)
     return samples[0].reshape(points.shape[:-1]), gradient.reshape(points.shape)
@@ -156,23 +178,53 @@ def sample_with_gradient_xy(
         ``(values, gradient)``: values (...) float32 (equal to :func:`sample_xy`'s), gradient
         (2, ...) float32 (dI/dx, dI/dy), grey levels per pixel.
     """
-    x = np.asarray(x, dtype=np.float32)
-    y = np.asarray(y, dtype=np.float32)
+    x, y = _checked(image, x, y)
     samples = _stencil_samples(image, x.ravel(), y.ravel())
     gradient = np.empty((2, x.size), dtype=np.float32)
     _central_differences(samples, gradient)
     return samples[0].reshape(x.shape), gradient.reshape(2, *x.shape)
 
 
+def sample_with_gradient_rows(
+    images: Sequence[np.ndarray], x: np.ndarray, y: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`sample_with_gradient_xy` of C images at once, image c at row c of the points.
+
+    Args:
+        images: C (H, W) float32 images.
+        x: (C, K) column coordinates, px.
+        y: (C, K) row coordinates, px.
+
+    Returns:
+        ``(values, gradient)``: (C, K) float32 values and (C, 2, K) float32 gradients (dI/dx,
+        dI/dy), each row equal to :func:`sample_with_gradient_xy`'s in its image.
+
+    Raises:
+        InputError: as :func:`sample_xy`, or if x is not (C, K).
+    """
+    x, y = _coordinates(x, y)
+    if x.shape[:1] != (len(images),) or x.ndim != 2:
+        msg = f'points must be (C, K) for {len(images)} images, got {x.shape}'
+        raise InputError(msg)
+    maps_x, maps_y = x[:, None, :] + _STENCIL_X, y[:, None, :] + _STENCIL_Y  # (C, 5, K)
+    samples = np.empty(maps_x.shape, dtype=np.float32)
+    for row, image in enumerate(images):
+        _check_image(image)
+        samples[row] = _remap(image, maps_x[row], maps_y[row])
+    gradient = np.empty((len(images), 2, x.shape[1]), dtype=np.float32)
+    _central_differences(samples, gradient)
+    return samples[:, 0], gradient
+
+
 def _stencil_samples(image: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """(5, K) samples at (K,) float32 points and at the stencil's shifts of them."""
-    return sample_xy(image, x + _STENCIL_X, y + _STENCIL_Y)  # rows contiguous
+    """(5, K) samples at (K,) checked float32 points and at the stencil's shifts of them."""
+    return _remap(image, x + _STENCIL_X, y + _STENCIL_Y)  # rows contiguous
 
 
 def _central_differences(samples: np.ndarray, gradient: np.ndarray) -> None:
-    """Write half the differences of the +-x and +-y stencil rows into the (2, K) gradient."""
-    np.subtract(samples[-4], samples[-3], out=gradient[0])
-    np.subtract(samples[-2], samples[-1], out=gradient[1])
+    """Half the differences of the +-x and +-y stencil rows (..., 5, K) into the (..., 2, K)."""
+    np.subtract(samples[..., -4, :], samples[..., -3, :], out=gradient[..., 0, :])
+    np.subtract(samples[..., -2, :], samples[..., -1, :], out=gradient[..., 1, :])
     gradient *= 0.5
 
 

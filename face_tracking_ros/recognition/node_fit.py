@@ -105,13 +105,13 @@ def fit_model_to_nodes(
         )
         residual, jacobian = residual * row_scale, jacobian * row_scale[:, None]
         normal = np.swapaxes(jacobian, 1, 2) @ jacobian
-        damping = LEVENBERG_DAMPING * np.einsum('fii->fi', normal)
-        normal[:, np.arange(normal.shape[1]), np.arange(normal.shape[1])] += damping
+        diagonal = np.einsum('fii->fi', normal)  # a view
+        diagonal += LEVENBERG_DAMPING * diagonal
         gradient = np.swapaxes(jacobian, 1, 2) @ residual[..., None]
         step = -np.linalg.solve(normal, gradient)[..., 0]
         omega, t, coefficients = omega + step[:, :3], t + step[:, 3:6], coefficients + step[:, 6:]
         converged = bool(np.max(np.abs(step)) < tolerance)
-    residual, _ = _residual_and_jacobian(mean, bases_nodes, nodes, omega, t, coefficients)
+    residual = _residual(mean, bases_nodes, nodes, omega, t, coefficients)[0]
     return NodeFit(
         omega=omega,
         t=t,
@@ -141,9 +141,9 @@ def _residual_and_jacobian(
         coefficients: (F, D) sigma then alpha.
     """
     frames, num_nodes = nodes.shape[:2]
-    shapes = mean + np.einsum('ncd,fd->fnc', bases_nodes, coefficients)
-    rotation, d_rotation = (np.array(a) for a in zip(*map(rodrigues, omega), strict=True))
-    residual = shapes @ np.swapaxes(rotation, 1, 2) + t[:, None, :] - nodes
+    residual, shapes, rotation, d_rotation = _residual(
+        mean, bases_nodes, nodes, omega, t, coefficients
+    )
     jacobian = np.concatenate(
         [
             np.einsum('fkab,fnb->fnak', d_rotation, shapes),
@@ -152,4 +152,24 @@ def _residual_and_jacobian(
         ],
         axis=3,
     )
-    return residual.reshape(frames, -1), jacobian.reshape(frames, 3 * num_nodes, -1)
+    return residual, jacobian.reshape(frames, 3 * num_nodes, -1)
+
+
+def _residual(
+    mean: np.ndarray,
+    bases_nodes: np.ndarray,
+    nodes: np.ndarray,
+    omega: np.ndarray,
+    t: np.ndarray,
+    coefficients: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Residuals (F, 3N) of eq. 1 and 3 (arguments as :func:`_residual_and_jacobian`'s).
+
+    Returns:
+        ``(residual, shapes, rotation, d_rotation)``: also the (F, N, 3) face-frame shapes and
+        the (F, 3, 3) R(omega) and (F, 3, 3, 3) dR/d omega they were posed with.
+    """
+    shapes = mean + np.einsum('ncd,fd->fnc', bases_nodes, coefficients)
+    rotation, d_rotation = (np.array(a) for a in zip(*map(rodrigues, omega), strict=True))
+    residual = shapes @ np.swapaxes(rotation, 1, 2) + t[:, None, :] - nodes
+    return residual.reshape(len(nodes), -1), shapes, rotation, d_rotation

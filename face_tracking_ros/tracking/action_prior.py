@@ -22,11 +22,17 @@ Hessian W - W J (J^T W J)^-1 J^T W, with W the per-node weights lambda_i and
 J = dM / d(omega, t, alpha): motion along the model's own degrees of freedom (a head turn, an
 expression) costs nothing, motion off them costs lambda_i per m^2. Units: lambda_i in
 grey^2 / m^2, like eq. 5's rho.
+
+The solver evaluates the term at every trial point (:meth:`ActionPrior.evaluate` refits the
+parameters from the last fit, a :class:`ModelPoint` that keeps M and its Jacobian) and forms
+its normal equations only where it linearises, from that evaluation.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from functools import cached_property
+from typing import NamedTuple
 
 import numpy as np
 
@@ -36,6 +42,77 @@ from face_tracking_ros.recognition.node_fit import fit_model_to_nodes
 
 FIT_ITERATIONS = 1  # Gauss-Newton steps of (omega, t, alpha), warm-started from the last fit
 ALPHA_DAMPING = 1e-9  # relative Levenberg damping on the normal matrix of the fit
+
+
+@dataclass(frozen=True)
+class ModelPoint:
+    """The animated mesh at one parameter vector, with the normal matrix of a fit from there.
+
+    The Jacobian and what follows from it are made when first asked for: the solver needs them
+    only at the points it linearises at.
+
+    Attributes:
+        theta: (6 + q,) parameters (omega, t, alpha).
+        nodes: (N, 3) M(theta) = R(omega) shape + t, m.
+        shape: (N, 3) B + A alpha in the face frame, m.
+        rotation: (3, 3) R(omega).
+        d_rotation: (3, 3, 3) dR / d omega_k.
+        action_basis: (N, 3, q) A.
+        row_weights: (3N,) lambda_i of every coordinate.
+    """
+
+    theta: np.ndarray
+    nodes: np.ndarray
+    shape: np.ndarray
+    rotation: np.ndarray
+    d_rotation: np.ndarray
+    action_basis: np.ndarray
+    row_weights: np.ndarray
+
+    @cached_property
+    def jacobian(self) -> np.ndarray:
+        """(3N, 6 + q) dM / d(omega, t, alpha)."""
+        n = self.shape.shape[0]
+        jacobian = np.concatenate(
+            [
+                np.einsum('kab,nb->nak', self.d_rotation, self.shape),
+                np.broadcast_to(np.eye(3), (n, 3, 3)),
+                np.einsum('ab,nbq->naq', self.rotation, self.action_basis),
+            ],
+            axis=2,
+        )
+        return jacobian.reshape(3 * n, -1)
+
+    @cached_property
+    def weighted(self) -> np.ndarray:
+        """(3N, 6 + q) W J."""
+        return self.jacobian * self.row_weights[:, None]
+
+    @cached_property
+    def normal(self) -> np.ndarray:
+        """(6 + q, 6 + q) J^T W J."""
+        return self.jacobian.T @ self.weighted
+
+    @cached_property
+    def damped_normal(self) -> np.ndarray:
+        """J^T W J with the fit's relative Levenberg damping on its diagonal."""
+        normal = self.normal.copy()
+        normal[np.diag_indices_from(normal)] *= 1.0 + ALPHA_DAMPING
+        return normal
+
+
+class PriorEvaluation(NamedTuple):
+    """E_model at some nodes.
+
+    Attributes:
+        cost: E_model, grey^2.
+        point: the model at the parameters fitted to the nodes.
+        difference: (3N,) X - M there, as (X - X(1)) - (M - M(1)), m.
+    """
+
+    cost: float
+    point: ModelPoint
+    difference: np.ndarray
 
 
 @dataclass(frozen=True)
@@ -49,6 +126,7 @@ class ActionPrior:
         first_nodes: (N, 3) X(1), m.
         first_model: (N, 3) M at the frame-1 parameters, m (X(1) up to rounding).
         first_rotation: (3, 3) R(omega) of the frame-1 parameters.
+        row_weights: (3N,) lambda_i of every coordinate.
     """
 
     base: np.ndarray
@@ -57,6 +135,7 @@ class ActionPrior:
     first_nodes: np.ndarray
     first_model: np.ndarray
     first_rotation: np.ndarray
+    row_weights: np.ndarray
 
     @classmethod
     def build(
@@ -81,10 +160,10 @@ class ActionPrior:
         theta = np.concatenate([omega, t, alpha])
         rotation, _ = rodrigues(omega)
         weights = np.asarray(weights, dtype=float)
-        partial = cls(base, action, weights, first_nodes, first_nodes, rotation)
-        first_model, _ = partial.model_nodes(theta)
-        prior = cls(base, action, weights, first_nodes, first_model, rotation)
-        return prior, theta
+        row_weights = np.repeat(weights, 3)
+        partial = cls(base, action, weights, first_nodes, first_nodes, rotation, row_weights)
+        first_model = partial.point(theta).nodes
+        return cls(base, action, weights, first_nodes, first_model, rotation, row_weights), theta
 
     def moved(self, shift: np.ndarray) -> ActionPrior:
         """The term for frame-1 nodes X(1) + ``shift`` (N, 3), m, at the same parameters.
@@ -99,60 +178,46 @@ class ActionPrior:
             first_model=self.first_model + shift,
         )
 
-    def model_nodes(self, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """M(theta) (N, 3) and its Jacobian (3N, 6 + q) with respect to (omega, t, alpha)."""
+    def point(self, theta: np.ndarray) -> ModelPoint:
+        """M(theta) (N, 3), with its Jacobian (3N, 6 + q) with respect to (omega, t, alpha)."""
         omega, t, alpha = theta[:3], theta[3:6], theta[6:]
         shape = self.base + self.action_basis @ alpha
-        rotated, d_omega = rotate_with_jacobian(omega, shape)
-        rotation, _ = rodrigues(omega)
-        n = shape.shape[0]
-        jacobian = np.concatenate(
-            [
-                d_omega,
-                np.broadcast_to(np.eye(3), (n, 3, 3)),
-                np.einsum('ab,nbq->naq', rotation, self.action_basis),
-            ],
-            axis=2,
+        rotation, d_rotation = rodrigues(omega)
+        nodes = shape @ rotation.T + t
+        return ModelPoint(
+            theta, nodes, shape, rotation, d_rotation, self.action_basis, self.row_weights
         )
-        return rotated + t, jacobian.reshape(3 * n, -1)
 
-    def fit(self, nodes: np.ndarray, theta: np.ndarray) -> np.ndarray:
-        """(omega, t, alpha) minimising the weighted node distance to ``nodes``, from ``theta``."""
-        row_weights = np.repeat(self.weights, 3)
+    def fit(self, nodes: np.ndarray, start: ModelPoint) -> ModelPoint:
+        """The model at (omega, t, alpha) minimising the weighted node distance to ``nodes``.
+
+        Warm-started from ``start`` (the last fit), FIT_ITERATIONS Gauss-Newton steps.
+        """
+        point = start
         for _ in range(FIT_ITERATIONS):
-            difference, jacobian = self._difference(nodes, theta)
-            weighted = jacobian * row_weights[:, None]
-            normal = jacobian.T @ weighted
-            normal[np.diag_indices_from(normal)] *= 1.0 + ALPHA_DAMPING
-            theta = theta + np.linalg.solve(normal, weighted.T @ difference)
-        return theta
+            difference = self._difference(nodes, point)
+            step = np.linalg.solve(point.damped_normal, point.weighted.T @ difference)
+            point = self.point(point.theta + step)
+        return point
 
-    def _difference(self, nodes: np.ndarray, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(3N,) X - M(theta) as (X - X(1)) - (M - M(1)), and dM/d theta (3N, 6 + q)."""
-        model_nodes, jacobian = self.model_nodes(theta)
-        difference = (nodes - self.first_nodes) - (model_nodes - self.first_model)
-        return difference.ravel(), jacobian
+    def evaluate(self, nodes: np.ndarray, start: ModelPoint) -> PriorEvaluation:
+        """E_model at ``nodes`` (N, 3), m, refitting the parameters from ``start``."""
+        point = self.fit(nodes, start)
+        difference = self._difference(nodes, point)
+        cost = float(difference @ (self.row_weights * difference))
+        return PriorEvaluation(cost, point, difference)
 
-    def cost(self, nodes: np.ndarray, theta: np.ndarray) -> tuple[float, np.ndarray]:
-        """E_model at ``nodes`` (refitting from ``theta``) and the fitted parameters."""
-        theta = self.fit(nodes, theta)
-        difference, _ = self._difference(nodes, theta)
-        return float(difference @ (np.repeat(self.weights, 3) * difference)), theta
-
-    def normal_equations(
-        self, nodes: np.ndarray, theta: np.ndarray
-    ) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
-        """Gauss-Newton terms of E_model at ``nodes`` (node-major, as eq. 5's).
+    def normal_equations(self, evaluation: PriorEvaluation) -> tuple[np.ndarray, np.ndarray]:
+        """Gauss-Newton terms of E_model at the evaluated nodes (node-major, as eq. 5's).
 
         Returns:
-            ``(cost, hessian, gradient, theta)``: E_model; (3N, 3N) W - W J (J^T W J)^-1 J^T W;
-            (3N,) W (X - M); the fitted parameters.
+            ``(hessian, gradient)``: (3N, 3N) W - W J (J^T W J)^-1 J^T W; (3N,) W (X - M).
         """
-        theta = self.fit(nodes, theta)
-        difference, jacobian = self._difference(nodes, theta)
-        row_weights = np.repeat(self.weights, 3)
-        weighted = jacobian * row_weights[:, None]
-        normal = jacobian.T @ weighted
-        hessian = np.diag(row_weights) - weighted @ np.linalg.solve(normal, weighted.T)
-        cost = float(difference @ (row_weights * difference))
-        return cost, hessian, row_weights * difference, theta
+        point = evaluation.point
+        weighted = point.weighted
+        hessian = np.diag(self.row_weights) - weighted @ np.linalg.solve(point.normal, weighted.T)
+        return hessian, self.row_weights * evaluation.difference
+
+    def _difference(self, nodes: np.ndarray, point: ModelPoint) -> np.ndarray:
+        """(3N,) X - M(theta) as (X - X(1)) - (M - M(1))."""
+        return ((nodes - self.first_nodes) - (point.nodes - self.first_model)).ravel()

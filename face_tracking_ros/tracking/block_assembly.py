@@ -1,9 +1,10 @@
 """Assembly of Gauss-Newton normal equations from per-node 3x3 blocks.
 
-The stereo tracker's unknowns are the 3N node coordinates, ordered node-major. Image and
-regularisation terms each touch a few nodes, so their J^T J and J^T r arrive as small blocks;
-these helpers add them into the dense (3N, 3N) matrix and (3N,) vector with one ``np.bincount``
-each, which is far faster than ``np.add.at`` for the few thousand blocks of a frame.
+The stereo tracker's unknowns are the 3N node coordinates, ordered node-major. The eq. 5 terms
+each touch two nodes, so their J^T J and J^T r arrive as small blocks; these helpers add them
+into the dense (3N, 3N) matrix and (3N,) vector with one ``np.bincount`` each, which is far
+faster than ``np.add.at``. (The image terms' blocks, the same every frame in number and place,
+are added the same way with indices made once: ``stereo_data.SampleSet.assemble``.)
 """
 
 from __future__ import annotations

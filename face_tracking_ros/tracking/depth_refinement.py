@@ -43,11 +43,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from face_tracking_ros.geometry.camera import StereoRig
-from face_tracking_ros.tracking.stereo_data import (
-    SampleLayout,
-    image_normal_equations,
-    sample_templates,
-)
+from face_tracking_ros.tracking.stereo_data import SampleSet, depth_terms
 
 CORRECTION_SIGMAS = 3.0  # largest total depth correction, in initial standard deviations
 
@@ -144,7 +140,7 @@ def depth_evidence(
     rig: StereoRig,
     left: np.ndarray,
     right: np.ndarray,
-    layout: SampleLayout,
+    patches: SampleSet,
     nodes: np.ndarray,
     directions: np.ndarray,
     rotation: np.ndarray,
@@ -156,23 +152,14 @@ def depth_evidence(
         rig: the rectified rig.
         left: (H, W) float32 full-resolution left image of the pair.
         right: (H, W) float32 right image.
-        layout: the node patches (one group per node).
+        patches: the node patches alone (one group per node).
         nodes: (N, 3) tracked nodes, m.
         directions: (N, 3) unit directions of the depth changes (R(n) u_i).
         rotation: (3, 3) patch orientation (the head's rotation since frame 1).
         huber: Huber threshold, grey levels.
     """
-    n = nodes.shape[0]
-    points = layout.points(nodes, rotation, 0)
-    template = sample_templates(left, rig.left, points, 0)
-    equations = image_normal_equations(
-        right, rig.right, layout, points, 0, template[None], np.ones(1), huber, n
-    )
-    index = np.arange(n)
-    blocks = equations.hessian.reshape(n, 3, n, 3)[index, :, index, :]
-    curvature = np.einsum('na,nab,nb->n', directions, blocks, directions)
-    slope = np.einsum('na,na->n', directions, equations.gradient.reshape(n, 3))
-    counts = np.maximum(layout.mask.sum(axis=1), 1)
+    terms = depth_terms(rig, left, right, patches, nodes, directions, rotation, huber)
+    counts = np.maximum(patches.layouts[0].mask.sum(axis=1), 1)
     with np.errstate(invalid='ignore', divide='ignore'):
-        explained = np.where(curvature > 0, slope**2 / curvature, 0.0) / counts
-    return DepthEvidence(slope, curvature, equations.group_rms**2 - explained)
+        explained = np.where(terms.curvature > 0, terms.slope**2 / terms.curvature, 0.0) / counts
+    return DepthEvidence(terms.slope, terms.curvature, terms.rms**2 - explained)

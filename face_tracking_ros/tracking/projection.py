@@ -121,11 +121,7 @@ def photometric_jacobian(
     projection = camera.p[:, :3]
     homogeneous = projection @ flat
     homogeneous += (projection @ np.asarray(t, dtype=float) + camera.p[:, 3])[:, None]
-    inverse_depth = 1.0 / homogeneous[2]
-    along = (flat_gradient[0] * homogeneous[0] + flat_gradient[1] * homogeneous[1]) * inverse_depth
-    h = projection[:2].T @ flat_gradient
-    h -= projection[2][:, None] * along
-    h *= inverse_depth
+    h = space_gradient(projection, homogeneous, flat_gradient)
     x, y, z = flat
     rows = np.stack([y * h[2] - z * h[1], z * h[0] - x * h[2], x * h[1] - y * h[0], *h])
     extra = None if sample_basis is None else _sample_rows(rotation.T @ h, sample_basis, rotated)
@@ -141,6 +137,33 @@ def photometric_jacobian(
             coefficients if extra is None else coefficients + extra.reshape(len(extra), -1)
         )
     return np.concatenate(blocks, axis=0).reshape(-1, *rotated.shape[1:])
+
+
+def space_gradient(
+    projection: np.ndarray, homogeneous: np.ndarray, gradient: np.ndarray
+) -> np.ndarray:
+    """The image gradient carried to the camera-frame point: ``h = (d pi / d X_c)^T grad I``.
+
+    With ``x = (P X)_(1, 2) / (P X)_3`` (eq. 2), ``d x / d X = (P_(1, 2) - x P_3) / (P X)_3``, so
+    ``h = (P_(1, 2)^T g - (g . x) P_3) / (P X)_3``: the change of a sample's grey level per metre
+    of its point's motion. Leading axes of all three arrays broadcast (one per camera, say).
+
+    Args:
+        projection: (..., 3, 3) the left 3x3 part of a camera's P, px (per m).
+        homogeneous: (..., 3, K) ``P X`` of K points, homogeneous pixels.
+        gradient: (..., 2, K) float64 image gradient at their pixels, grey levels / px.
+
+    Returns:
+        (..., 3, K) h, grey levels / m.
+    """
+    inverse_depth = 1.0 / homogeneous[..., 2, :]
+    along = (
+        gradient[..., 0, :] * homogeneous[..., 0, :] + gradient[..., 1, :] * homogeneous[..., 1, :]
+    ) * inverse_depth
+    h = np.swapaxes(projection[..., :2, :], -1, -2) @ gradient
+    h -= projection[..., 2, :, None] * along[..., None, :]
+    h *= inverse_depth[..., None, :]
+    return h
 
 
 def _sample_rows(

@@ -21,7 +21,7 @@ the softer of its two nodes).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -94,6 +94,7 @@ class Regulariser:
         rho: (N,) rho_i, grey^2 / m^2.
         beta: (E,) beta_ij, grey^2 / m^2.
         delta: (E,) delta_ij of eq. 5, grey^2 / m^6.
+        stretch_stiffness: (E,) delta times the edge's stiffness factor s_ij, grey^2 / m^2.
         first_sq_lengths: (E,) ||X^i(1) - X^j(1)||^2, m^2.
         linear_jacobian: (3N + 3E, 3N) constant Jacobian of the rho and beta residuals.
         linear_hessian: (3N, 3N) its J^T J.
@@ -103,6 +104,7 @@ class Regulariser:
     rho: np.ndarray
     beta: np.ndarray
     delta: np.ndarray
+    stretch_stiffness: np.ndarray
     first_sq_lengths: np.ndarray
     linear_jacobian: np.ndarray
     linear_hessian: np.ndarray
@@ -129,23 +131,37 @@ class Regulariser:
         factors = config.group_stiffness()
         stiffness = np.array([factors[g] for g in topology.groups])
         edge_stiffness = np.minimum(stiffness[edges[:, 0]], stiffness[edges[:, 1]])
-        vectors = first_nodes[edges[:, 0]] - first_nodes[edges[:, 1]]
-        sq_lengths = np.einsum('ed,ed->e', vectors, vectors)
-        if np.any(sq_lengths <= 0):
-            msg = 'first_nodes has two connected nodes at the same position'
-            raise InputError(msg)
         rho = config.rho * stiffness
         beta = config.beta * edge_stiffness
         linear = _linear_jacobian(edges, rho, beta)
+        stretch_stiffness = config.delta * edge_stiffness
+        sq_lengths = _sq_lengths(edges, first_nodes)
         return cls(
             edges=edges,
             rho=rho,
             beta=beta,
-            delta=config.delta * edge_stiffness / (4.0 * sq_lengths),
+            delta=stretch_stiffness / (4.0 * sq_lengths),
+            stretch_stiffness=stretch_stiffness,
             first_sq_lengths=sq_lengths,
             linear_jacobian=linear,
             linear_hessian=linear.T @ linear,
         )
+
+    def moved(self, first_nodes: np.ndarray) -> Regulariser:
+        """The same weights for other frame-1 nodes (N, 3), m: only the delta terms change.
+
+        Raises:
+            InputError: if first_nodes has coincident edge nodes.
+        """
+        sq_lengths = _sq_lengths(self.edges, first_nodes)
+        return replace(
+            self, delta=self.stretch_stiffness / (4.0 * sq_lengths), first_sq_lengths=sq_lengths
+        )
+
+    @property
+    def stretches(self) -> bool:
+        """Whether any delta term is on (with delta = 0, the default, they all vanish)."""
+        return bool(np.any(self.delta))
 
     def residuals(self, nodes: np.ndarray, previous: np.ndarray) -> np.ndarray:
         """Residual vector r of eq. 5 with E_reg = r . r.
@@ -173,8 +189,11 @@ class Regulariser:
     def cost(self, nodes: np.ndarray, previous: np.ndarray) -> float:
         """E_reg of eq. 5 for nodes (N, 3) and previous nodes (N, 3), m."""
         motion = (nodes - previous).ravel()
+        cost = motion @ self.linear_hessian @ motion
+        if not self.stretches:
+            return float(cost)
         stretch, _ = self._stretch(nodes)
-        return float(motion @ self.linear_hessian @ motion + stretch @ stretch)
+        return float(cost + stretch @ stretch)
 
     def normal_equations(
         self, nodes: np.ndarray, previous: np.ndarray
@@ -193,8 +212,10 @@ class Regulariser:
             ``(cost, hessian, gradient)``: E_reg; J^T J (3N, 3N); J^T r (3N,), node-major.
         """
         motion = (nodes - previous).ravel()
-        stretch, gradient = self._stretch(nodes)
         linear_gradient = self.linear_hessian @ motion
+        if not self.stretches:
+            return float(motion @ linear_gradient), self.linear_hessian, linear_gradient
+        stretch, gradient = self._stretch(nodes)
         cost = float(motion @ linear_gradient + stretch @ stretch)
         n = nodes.shape[0]
         i, j = self.edges[:, 0], self.edges[:, 1]
@@ -215,6 +236,20 @@ class Regulariser:
         squared = np.einsum('ed,ed->e', differences, differences)
         stretch = sqrt_delta * (squared - self.first_sq_lengths)
         return stretch, 2.0 * sqrt_delta[:, None] * differences
+
+
+def _sq_lengths(edges: np.ndarray, first_nodes: np.ndarray) -> np.ndarray:
+    """(E,) squared edge lengths ||X^i(1) - X^j(1)||^2, m^2.
+
+    Raises:
+        InputError: if an edge has zero length.
+    """
+    vectors = first_nodes[edges[:, 0]] - first_nodes[edges[:, 1]]
+    sq_lengths = np.einsum('ed,ed->e', vectors, vectors)
+    if np.any(sq_lengths <= 0):
+        msg = 'first_nodes has two connected nodes at the same position'
+        raise InputError(msg)
+    return sq_lengths
 
 
 def _linear_jacobian(edges: np.ndarray, rho: np.ndarray, beta: np.ndarray) -> np.ndarray:

@@ -30,9 +30,11 @@ from __future__ import annotations
 
 from collections.abc import Iterable
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
-from scipy.linalg import LinAlgError, cho_factor, cho_solve
+from scipy.linalg import LinAlgError
+from scipy.linalg.lapack import dpotrf, dpotrs
 
 from face_tracking_ros.data import default_model_path
 from face_tracking_ros.errors import ConfigError, FaceTrackingError, InputError, ModelFileError
@@ -43,18 +45,26 @@ from face_tracking_ros.model.face_model import FaceModel
 from face_tracking_ros.model.model_file import load_model
 from face_tracking_ros.model.topology import Group, MeshTopology, mesh_topology
 from face_tracking_ros.recognition.node_fit import NodeFit, fit_model_to_nodes
-from face_tracking_ros.tracking.action_prior import ActionPrior
+from face_tracking_ros.tracking.action_prior import ActionPrior, ModelPoint, PriorEvaluation
 from face_tracking_ros.tracking.depth_refinement import DepthRefinement, depth_evidence
 from face_tracking_ros.tracking.initialisation import Initialisation
 from face_tracking_ros.tracking.mono import Detector
 from face_tracking_ros.tracking.regularisation import RegularisationConfig, Regulariser
 from face_tracking_ros.tracking.result import TrackResult, TrackStatus
 from face_tracking_ros.tracking.stereo_data import (
-    NormalEquations,
+    GroupStatistics,
+    Huber,
+    Residuals,
+    Sampled,
     SampleLayout,
-    image_cost,
-    image_normal_equations,
-    sample_templates,
+    SampleSet,
+    group_statistics,
+    homogeneous_pixels,
+    level_projections,
+    node_blocks,
+    robust_residuals,
+    sample_images,
+    sample_values,
 )
 from face_tracking_ros.tracking.stereo_init import StereoInitConfig, initial_nodes
 
@@ -80,7 +90,8 @@ class StereoTrackerConfig:
         pyramid_levels: coarse-to-fine levels (1 = full resolution only).
         max_iterations: Levenberg-Marquardt iterations per pyramid level.
         step_tolerance: a level has converged when no node's projection moves more than this
-            in an iteration, pixels of that level.
+            in an iteration, pixels of that level (on a coarse level that last step is taken
+            without evaluating its cost; the next level starts from it).
         damping: initial Levenberg-Marquardt damping, relative to the Hessian diagonal.
         huber_k: Huber threshold in robust standard deviations of the image residuals.
         noise_floor: smallest robust standard deviation assumed for image residuals, grey levels.
@@ -186,7 +197,8 @@ class StereoResult:
         right_residuals: (N,) the same in the right image, grey levels.
         mean_residual: mean of both residual arrays, grey levels.
         iterations: Levenberg-Marquardt iterations spent, summed over levels.
-        cost_history: total cost E(n) after each accepted iteration.
+        cost_history: total cost E(n) after each accepted iteration (a coarse level's last,
+            converged step is not evaluated).
         fit: with a model loaded, its pose, sigma and alpha fitted to the nodes (eq. 1-3), as a
             one-frame :class:`~face_tracking_ros.recognition.node_fit.NodeFit`; else None.
         reason: why the status is not TRACKING ('' when tracking).
@@ -250,31 +262,57 @@ class TrackedSequence:
     results: tuple[StereoResult, ...]
 
 
-@dataclass(frozen=True)
-class _Templates:
-    """Grey levels (K, G, M) of one layout's samples in earlier images, per camera."""
-
-    previous: tuple[np.ndarray, np.ndarray]
-    first: tuple[np.ndarray, np.ndarray]
-
-
 @dataclass
 class _State:
-    """What the tracker carries from frame to frame."""
+    """What the tracker carries from frame to frame.
+
+    Sample arrays run along the sample axis of ``samples`` (node patches, then the face
+    texture); template arrays are (2, S) float32, left image then right, one per pyramid level.
+    """
 
     first_nodes: np.ndarray
     nodes: np.ndarray
     rotation: np.ndarray
     first_pyramids: tuple[ImagePyramid, ImagePyramid]
-    pyramids: tuple[ImagePyramid, ImagePyramid]
-    layouts: tuple[SampleLayout, ...]
-    first_templates: tuple[tuple[tuple[np.ndarray, np.ndarray], ...], ...]
+    samples: SampleSet
+    patches: SampleSet  # the node patches alone (depth refinement)
+    coefficients: np.ndarray  # (4, S) a_k of the templates of :meth:`StereoTracker._level`
+    offsets: np.ndarray  # (3, S) level-0 sample offsets turned by ``rotation``
+    first_templates: tuple[np.ndarray, ...]
+    previous_templates: tuple[np.ndarray, ...]  # frame n - 1 at ``nodes``
     regulariser: Regulariser
     prior: ActionPrior | None
-    theta: np.ndarray
+    theta: ModelPoint | None  # the face-model term's last fit
     noise: np.ndarray
     depths: DepthRefinement | None
     result: StereoResult
+
+
+class _Level(NamedTuple):
+    """One pyramid level of the current pair, with everything its iterations share."""
+
+    index: int
+    images: tuple[np.ndarray, np.ndarray]
+    projections: np.ndarray  # (2, 3, 4) P of eq. 2 onto this level
+    offsets: np.ndarray  # (3, S) sample offsets at this level
+    templates: np.ndarray  # (2, K, S) float32 T_k of each image
+
+
+class _Point(NamedTuple):
+    """E(n) of eq. 4 + texture + eq. 5 + face-model term at some nodes."""
+
+    nodes: np.ndarray
+    cost: float
+    sampled: Sampled
+    residuals: Residuals
+    prior: PriorEvaluation | None
+
+
+class _System(NamedTuple):
+    """Gauss-Newton normal equations (node-major) at a point."""
+
+    hessian: np.ndarray  # (3N, 3N)
+    gradient: np.ndarray  # (3N,)
 
 
 class StereoTracker:
@@ -319,6 +357,11 @@ class StereoTracker:
         self._topology: MeshTopology = mesh_topology(config.num_nodes)
         self._texture_triangles = _texture_triangles(self._topology)
         self._boundary = self._topology.group_mask(Group.EDGE)
+        cameras = (rig.left, rig.right)
+        self._projections = tuple(
+            level_projections(cameras, level) for level in range(config.pyramid_levels)
+        )
+        self._spare: tuple[ImagePyramid, ImagePyramid] | None = None
         self._pending: np.ndarray | None = None
         self._detect = False
         self._state: _State | None = None
@@ -393,10 +436,15 @@ class StereoTracker:
         if self._detect:
             self._pending = self._detected(left)
         if self._pending is not None:
-            return self._initialise(pyramids)
-        if self._state is None:
-            return self._not_tracking(self._status, self._reason)
-        return self._track(pyramids)
+            result = self._initialise(pyramids)
+        elif self._state is None:
+            result = self._not_tracking(self._status, self._reason)
+        else:
+            result = self._track(pyramids)
+        # Only frame 1's pyramids are kept; the others' arrays take the next pair.
+        kept = self._state is not None and self._state.first_pyramids is pyramids
+        self._spare = None if kept else pyramids
+        return result
 
     # -- initialisation ----------------------------------------------------------------------
 
@@ -435,6 +483,9 @@ class StereoTracker:
             return self._not_tracking(self._status, self._reason)
         nodes = initial.nodes
         layouts = self._layouts(nodes)
+        samples = SampleSet.of(layouts, self._topology.num_nodes)
+        offsets = samples.level_offsets(np.eye(3), 0)
+        templates = self._templates(pyramids, samples, nodes, offsets)
         prior, theta = self._action_prior(nodes)
         depth_std = np.where(initial.matched, config.matched_depth_std, config.placed_depth_std)
         result = self._result(nodes, nodes, np.eye(3), None)
@@ -443,33 +494,67 @@ class StereoTracker:
             nodes=nodes,
             rotation=np.eye(3),
             first_pyramids=pyramids,
-            pyramids=pyramids,
-            layouts=layouts,
-            first_templates=self._first_templates(pyramids, layouts, nodes),
+            samples=samples,
+            patches=SampleSet.of(layouts[:1], self._topology.num_nodes),
+            coefficients=self._coefficients(samples),
+            offsets=offsets,
+            first_templates=templates,
+            previous_templates=templates,
             regulariser=Regulariser.build(self._topology, config.regularisation, nodes),
             prior=prior,
-            theta=theta,
+            theta=None if prior is None else prior.point(theta),
             noise=np.full(len(layouts), config.noise_floor),
             depths=DepthRefinement.start(nodes, depth_std) if config.refine_depths else None,
             result=result,
         )
         return result
 
-    def _first_templates(
+    def _templates(
         self,
         pyramids: tuple[ImagePyramid, ImagePyramid],
-        layouts: tuple[SampleLayout, ...],
-        first_nodes: np.ndarray,
-    ) -> tuple[tuple[tuple[np.ndarray, np.ndarray], ...], ...]:
-        """Frame-1 templates of every layout at every level, sampled at the frame-1 nodes."""
-        rotation = np.eye(3)
+        samples: SampleSet,
+        nodes: np.ndarray,
+        offsets: np.ndarray,
+    ) -> tuple[np.ndarray, ...]:
+        """(2, S) grey levels of the samples in both images at every level (the templates).
+
+        Args:
+            pyramids: the pyramids of the pair sampled.
+            samples: the sample set.
+            nodes: (N, 3) nodes, m.
+            offsets: (3, S) level-0 sample offsets (turned as at ``nodes``), m.
+        """
         return tuple(
-            tuple(
-                self._sample(pyramids, layout.points(first_nodes, rotation, level), level)
-                for layout in layouts
+            sample_values(
+                (pyramids[LEFT].levels[level], pyramids[RIGHT].levels[level]),
+                projections,
+                samples.points(nodes, float(1 << level) * offsets),
             )
-            for level in range(self._config.pyramid_levels)
+            for level, projections in enumerate(self._projections)
         )
+
+    def _coefficients(self, samples: SampleSet) -> np.ndarray:
+        """(4, S) a_k of every sample, for the templates of :meth:`_level`.
+
+        Node patches: eq. 4 (same camera 1 - gamma, other camera gamma) at frame n - 1 and
+        frame 1 in the ratio (1 - epsilon) : epsilon. Texture: same camera only, scaled by the
+        texture weight (the flat triangles are not the curved face, so the cross-camera terms
+        would be biased there).
+        """
+        config = self._config
+        keep = 1.0 - config.epsilon
+        cross = np.where(self._boundary, config.boundary_gamma, config.gamma)
+        same = 1.0 - cross
+        patches = np.array(
+            [keep * same, keep * cross, config.epsilon * same, config.epsilon * cross]
+        )
+        columns = [np.repeat(patches, samples.layouts[0].mask.shape[1], axis=1)]
+        if len(samples.layouts) > 1:
+            texture = [keep * config.texture_weight, 0.0, config.epsilon * config.texture_weight]
+            columns.append(
+                np.repeat(np.array([*texture, 0.0])[:, None], samples.layouts[1].mask.size, axis=1)
+            )
+        return np.concatenate(columns, axis=1)
 
     def _action_prior(self, nodes: np.ndarray) -> tuple[ActionPrior | None, np.ndarray]:
         """The face-model term for a run starting at ``nodes`` (None without weights)."""
@@ -502,40 +587,36 @@ class StereoTracker:
         """Solve eq. 4 + eq. 5 for this pair, coarse to fine, and update the state."""
         state = self._state
         assert state is not None
+        config = self._config
+        huber = Huber.of(state.samples, config.huber_k * state.noise)
         nodes = state.nodes
         iterations = 0
         history: list[float] = []
-        last: tuple[NormalEquations, ...] = ()
         try:
-            for level in reversed(range(self._config.pyramid_levels)):
-                templates = self._level_templates(state, level)
-                nodes, spent, costs, last = self._solve_level(
-                    state, pyramids, templates, nodes, level
-                )
+            for index in reversed(range(config.pyramid_levels)):
+                level = self._level(state, pyramids, index)
+                nodes, spent, costs, linearised = self._solve_level(state, level, huber, nodes)
                 iterations += spent
                 history.extend(costs)
         except (LinAlgError, FaceTrackingError, FloatingPointError) as error:
             return self._lose(f'solver failed: {error}')
-        problem = self._check(nodes, last)
+        statistics = group_statistics(
+            state.samples, linearised.sampled, linearised.residuals, level.templates[:, 0]
+        )
+        problem = self._check(nodes, statistics)
         if problem:
             return self._lose(problem)
         state.noise = np.array(
-            [
-                max(self._config.noise_floor, float(np.nanmedian(np.concatenate(pair))))
-                for pair in zip(
-                    [t.group_rms for t in last[0::2]],
-                    [t.group_rms for t in last[1::2]],
-                    strict=True,
-                )
-            ]
+            [max(config.noise_floor, float(np.nanmedian(rms))) for rms in statistics.rms]
         )
         state.rotation = self._rotation(state.first_nodes, nodes)
         if state.depths is not None:
-            nodes = self._refine_depths(state, pyramids, nodes, last[0])
+            nodes = self._refine_depths(state, pyramids, nodes, statistics.rms[0][LEFT])
         state.nodes = nodes
-        state.pyramids = pyramids
+        state.offsets = state.samples.level_offsets(state.rotation, 0)
+        state.previous_templates = self._templates(pyramids, state.samples, nodes, state.offsets)
         result = self._result(
-            nodes, state.first_nodes, state.rotation, last, iterations, tuple(history)
+            nodes, state.first_nodes, state.rotation, statistics, iterations, tuple(history)
         )
         state.result = result
         return result
@@ -549,13 +630,19 @@ class StereoTracker:
         state: _State,
         pyramids: tuple[ImagePyramid, ImagePyramid],
         nodes: np.ndarray,
-        left_patches: NormalEquations,
+        left_rms: np.ndarray,
     ) -> np.ndarray:
         """Pool this pair's left-right evidence in the frame-1 depths; return the moved nodes.
 
         The frame-1 nodes move along their left viewing rays, the tracked nodes along the same
         rays turned by the head rotation; the face-model term, eq. 5 and the frame-1
         templates follow the frame-1 nodes.
+
+        Args:
+            state: the state (frame-1 nodes, rotation, depth evidence so far).
+            pyramids: this pair's pyramids.
+            nodes: (N, 3) the solution for this pair, m.
+            left_rms: (N,) RMS residual of each node patch against the previous left image.
         """
         assert state.depths is not None
         config = self._config
@@ -564,7 +651,7 @@ class StereoTracker:
             self._rig,
             pyramids[LEFT].levels[0],
             pyramids[RIGHT].levels[0],
-            state.layouts[0],
+            state.patches,
             nodes,
             directions,
             state.rotation,
@@ -573,7 +660,7 @@ class StereoTracker:
         disparity_per_depth = self._rig.left.focal * self._rig.baseline / nodes[:, 2] ** 2
         step = state.depths.update(
             evidence,
-            left_patches.group_rms**2,
+            left_rms**2,
             float(state.noise[0]),
             config.depth_step_px / disparity_per_depth,
             config.depth_gate,
@@ -582,194 +669,130 @@ class StereoTracker:
             return nodes
         shift = step[:, None] * state.depths.rays
         state.first_nodes = state.first_nodes + shift
-        if state.prior is not None:
+        if state.prior is not None and state.theta is not None:
             state.prior = state.prior.moved(shift)
-        state.regulariser = Regulariser.build(
-            self._topology, config.regularisation, state.first_nodes
-        )
-        state.first_templates = self._first_templates(
-            state.first_pyramids, state.layouts, state.first_nodes
+            state.theta = state.prior.point(state.theta.theta)
+        state.regulariser = state.regulariser.moved(state.first_nodes)
+        state.first_templates = self._templates(
+            state.first_pyramids,
+            state.samples,
+            state.first_nodes,
+            state.samples.level_offsets(np.eye(3), 0),
         )
         nodes = nodes + step[:, None] * directions
         state.rotation = self._rotation(state.first_nodes, nodes)
         return nodes
 
-    def _level_templates(self, state: _State, level: int) -> tuple[_Templates, ...]:
-        """Templates of every layout at ``level``: frame n - 1 (sampled now) and frame 1."""
-        return tuple(
-            _Templates(
-                previous=self._sample(
-                    state.pyramids, layout.points(state.nodes, state.rotation, level), level
-                ),
-                first=state.first_templates[level][index],
-            )
-            for index, layout in enumerate(state.layouts)
-        )
+    def _level(
+        self, state: _State, pyramids: tuple[ImagePyramid, ImagePyramid], index: int
+    ) -> _Level:
+        """Pyramid level ``index`` of the pair with its templates T_k (k = 0..3).
 
-    def _sample(
-        self, pyramids: tuple[ImagePyramid, ImagePyramid], points: np.ndarray, level: int
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """Grey levels of sample points in the left and right images at ``level``."""
-        cameras = (self._rig.left, self._rig.right)
-        return tuple(  # type: ignore[return-value]
-            sample_templates(pyramids[c].levels[level], cameras[c], points, level)
-            for c in (LEFT, RIGHT)
+        For each image: frame n - 1 in the same camera, in the other camera, then frame 1 in
+        the same and the other camera (:meth:`_coefficients` weighs them).
+        """
+        previous = state.previous_templates[index]
+        first = state.first_templates[index]
+        return _Level(
+            index=index,
+            images=(pyramids[LEFT].levels[index], pyramids[RIGHT].levels[index]),
+            projections=self._projections[index],
+            offsets=float(1 << index) * state.offsets,
+            templates=np.stack([previous, previous[::-1], first, first[::-1]], axis=1),
         )
 
     def _solve_level(
-        self,
-        state: _State,
-        pyramids: tuple[ImagePyramid, ImagePyramid],
-        templates: tuple[_Templates, ...],
-        nodes: np.ndarray,
-        level: int,
-    ) -> tuple[np.ndarray, int, list[float], tuple[NormalEquations, ...]]:
-        """Levenberg-Marquardt at one pyramid level, from ``nodes``."""
+        self, state: _State, level: _Level, huber: Huber, nodes: np.ndarray
+    ) -> tuple[np.ndarray, int, list[float], _Point]:
+        """Levenberg-Marquardt at one pyramid level, from ``nodes``.
+
+        Each trial point's evaluation samples the images with their gradients, so an accepted
+        point is linearised from it without sampling again (a step that ends the level is
+        evaluated without them). On a coarse level, the step that ends it (smaller than
+        ``step_tolerance``) is taken without evaluating its cost: the next level evaluates
+        that point first anyway.
+
+        Returns:
+            The nodes, the iterations spent, the accepted costs and the point of the last
+            linearisation.
+        """
         config = self._config
         damping = config.damping
-        cost, hessian, gradient, terms = self._normal_equations(
-            state, pyramids, templates, nodes, level
-        )
-        history = [cost]
+        point = self._evaluate(state, level, huber, nodes)
+        system = self._linearise(state, level, point)
+        linearised = point
+        history = [point.cost]
         iterations = 0
         while iterations < config.max_iterations:
             iterations += 1
-            augmented = hessian + damping * np.diag(np.diag(hessian))
-            step = cho_solve(cho_factor(augmented), -gradient).reshape(-1, 3)
-            candidate = nodes + step
-            small = self._pixel_motion(nodes, candidate) < config.step_tolerance * (1 << level)
-            trial = self._cost(state, pyramids, templates, candidate, level)
-            if trial <= cost:
-                nodes = candidate
-                history.append(trial)
+            candidate = nodes + _damped_step(system, damping)
+            small = self._pixel_motion(nodes, candidate) < config.step_tolerance * (
+                1 << level.index
+            )
+            if small and level.index > 0:
+                nodes = candidate  # the next level starts by evaluating it
+                break
+            trial = self._evaluate(state, level, huber, candidate, with_gradient=not small)
+            if trial.cost <= point.cost:
+                nodes, point = candidate, trial
+                history.append(trial.cost)
                 damping = max(damping / 10.0, 1e-9)
                 if small:
                     break
-                cost, hessian, gradient, terms = self._normal_equations(
-                    state, pyramids, templates, nodes, level
-                )
+                system = self._linearise(state, level, point)
+                linearised = point
             else:
                 damping *= 10.0
                 if damping > 1e3 or small:
                     break
-        return nodes, iterations, history[1:], terms
+        return nodes, iterations, history[1:], linearised
 
     def _pixel_motion(self, nodes: np.ndarray, moved: np.ndarray) -> float:
         """Largest image motion of a node between two estimates, in either camera, px."""
-        return max(
-            float(np.abs(camera.project(moved) - camera.project(nodes)).max())
-            for camera in (self._rig.left, self._rig.right)
-        )
+        homogeneous = homogeneous_pixels(self._projections[0], np.concatenate([nodes, moved]).T)
+        pixels = (homogeneous[:, :2] / homogeneous[:, 2:]).reshape(2, 2, 2, -1)
+        return float(np.abs(pixels[:, :, 1] - pixels[:, :, 0]).max())
 
-    def _cost(
+    def _evaluate(
         self,
         state: _State,
-        pyramids: tuple[ImagePyramid, ImagePyramid],
-        templates: tuple[_Templates, ...],
+        level: _Level,
+        huber: Huber,
         nodes: np.ndarray,
-        level: int,
-    ) -> float:
-        """E(n) of eq. 4 + texture + eq. 5 at ``nodes``, without derivatives."""
-        cost = state.regulariser.cost(nodes, state.nodes)
-        if state.prior is not None:
-            cost += state.prior.cost(nodes, state.theta)[0]
-        cameras = (self._rig.left, self._rig.right)
-        for index, (layout, template) in enumerate(zip(state.layouts, templates, strict=True)):
-            points = layout.points(nodes, state.rotation, level)
-            huber = self._config.huber_k * state.noise[index]
-            for camera in (LEFT, RIGHT):
-                stack, coefficients = self._template_stack(index, template, camera)
-                cost += image_cost(
-                    pyramids[camera].levels[level],
-                    cameras[camera],
-                    layout,
-                    points,
-                    level,
-                    stack,
-                    coefficients,
-                    huber,
-                )
-        return cost
+        with_gradient: bool = True,
+    ) -> _Point:
+        """E(n) of eq. 4 + texture + eq. 5 + face-model term at ``nodes``.
 
-    def _normal_equations(
-        self,
-        state: _State,
-        pyramids: tuple[ImagePyramid, ImagePyramid],
-        templates: tuple[_Templates, ...],
-        nodes: np.ndarray,
-        level: int,
-    ) -> tuple[float, np.ndarray, np.ndarray, tuple[NormalEquations, ...]]:
-        """Total cost, Hessian (3N, 3N) and gradient (3N,) of eq. 4 + texture + eq. 5."""
-        config = self._config
-        cost, hessian, gradient = state.regulariser.normal_equations(nodes, state.nodes)
-        if state.prior is not None:
-            prior_cost, prior_hessian, prior_gradient, state.theta = state.prior.normal_equations(
-                nodes, state.theta
-            )
-            cost, hessian, gradient = (
-                cost + prior_cost,
-                hessian + prior_hessian,
-                gradient + prior_gradient,
-            )
-        n = nodes.shape[0]
-        cameras = (self._rig.left, self._rig.right)
-        terms: list[NormalEquations] = []
-        for index, (layout, template) in enumerate(zip(state.layouts, templates, strict=True)):
-            points = layout.points(nodes, state.rotation, level)
-            huber = config.huber_k * state.noise[index]
-            for camera in (LEFT, RIGHT):
-                stack, coefficients = self._template_stack(index, template, camera)
-                equations = image_normal_equations(
-                    pyramids[camera].levels[level],
-                    cameras[camera],
-                    layout,
-                    points,
-                    level,
-                    stack,
-                    coefficients,
-                    huber,
-                    n,
-                )
-                cost += equations.cost
-                hessian = hessian + equations.hessian
-                gradient = gradient + equations.gradient
-                terms.append(equations)
-        return cost, hessian, gradient, tuple(terms)
-
-    def _template_stack(
-        self, layout_index: int, templates: _Templates, camera: int
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """Templates (K, G, M) and coefficients a_k for the image of ``camera``.
-
-        Node patches: eq. 4 (same camera 1 - gamma, other camera gamma) at frame n - 1 and
-        frame 1 in the ratio (1 - epsilon) : epsilon. Texture: same camera only, scaled by the
-        texture weight (the flat triangles are not the curved face, so the cross-camera terms
-        would be biased there).
+        The images are sampled with their gradients unless the point will not be linearised
+        (a converged level's last step).
         """
-        config = self._config
-        other = 1 - camera
-        keep = 1.0 - config.epsilon
-        if layout_index == 0:
-            stack = (
-                templates.previous[camera],
-                templates.previous[other],
-                templates.first[camera],
-                templates.first[other],
-            )
-            cross = np.where(self._boundary, config.boundary_gamma, config.gamma)
-            same = 1.0 - cross
-            coefficients = (
-                keep * same,
-                keep * cross,
-                config.epsilon * same,
-                config.epsilon * cross,
-            )
-        else:
-            stack = (templates.previous[camera], templates.first[camera])
-            coefficients = (keep * config.texture_weight, config.epsilon * config.texture_weight)
-        return np.stack(stack), np.array(coefficients)
+        samples = state.samples
+        points = samples.points(nodes, level.offsets)
+        sampled = sample_images(
+            level.images, level.projections, points, samples.mask, with_gradient
+        )
+        residuals = robust_residuals(samples, sampled, level.templates, state.coefficients, huber)
+        cost = state.regulariser.cost(nodes, state.nodes)
+        prior = None
+        if state.prior is not None and state.theta is not None:
+            prior = state.prior.evaluate(nodes, state.theta)
+            cost += prior.cost
+        return _Point(nodes, cost + residuals.cost, sampled, residuals, prior)
 
-    def _check(self, nodes: np.ndarray, terms: tuple[NormalEquations, ...]) -> str:
+    def _linearise(self, state: _State, level: _Level, point: _Point) -> _System:
+        """Gauss-Newton normal equations at an evaluated point; the face-model fit is kept."""
+        _, hessian, gradient = state.regulariser.normal_equations(point.nodes, state.nodes)
+        if state.prior is not None and point.prior is not None:
+            prior_hessian, prior_gradient = state.prior.normal_equations(point.prior)
+            hessian, gradient = hessian + prior_hessian, gradient + prior_gradient
+            state.theta = point.prior.point
+        blocks, vectors = node_blocks(
+            state.samples, point.sampled, point.residuals, level.projections
+        )
+        image_hessian, image_gradient = state.samples.assemble(blocks, vectors)
+        return _System(hessian + image_hessian, gradient + image_gradient)
+
+    def _check(self, nodes: np.ndarray, statistics: GroupStatistics) -> str:
         """Why the solution is not a valid track ('' if it is)."""
         if not np.all(np.isfinite(nodes)):
             return 'non-finite nodes'
@@ -780,8 +803,8 @@ class StereoTracker:
             if not np.all(inside_image(camera.project(nodes), shape)):
                 return 'a node left the image'
         with np.errstate(invalid='ignore', divide='ignore'):
-            ratios = [t.group_rms / t.group_contrast for t in terms[:2]]
-        ratio = float(np.nanmedian(np.concatenate(ratios)))
+            ratios = statistics.rms[0] / statistics.contrast[0]
+        ratio = float(np.nanmedian(ratios))
         if not ratio <= self._config.lost_ratio:
             return f'patch residual / contrast {ratio:.2f} exceeds {self._config.lost_ratio}'
         return ''
@@ -793,14 +816,14 @@ class StereoTracker:
         nodes: np.ndarray,
         first_nodes: np.ndarray,
         rotation: np.ndarray,
-        terms: tuple[NormalEquations, ...] | None,
+        statistics: GroupStatistics | None,
         iterations: int = 0,
         history: tuple[float, ...] = (),
     ) -> StereoResult:
         """A TRACKING result; residuals are zero on the initial pair (it is its own template)."""
         n = nodes.shape[0]
-        left_res = np.zeros(n) if terms is None else terms[0].group_rms
-        right_res = np.zeros(n) if terms is None else terms[1].group_rms
+        left_res = np.zeros(n) if statistics is None else statistics.rms[0][LEFT]
+        right_res = np.zeros(n) if statistics is None else statistics.rms[0][RIGHT]
         fit = None
         if self._model is not None:
             weights = np.where(self._boundary, self._config.fit_edge_weight, 1.0)
@@ -869,7 +892,11 @@ class StereoTracker:
                 msg = f'{name} image is {shape}, the rig expects {expected} grey images'
                 raise InputError(msg)
         levels = self._config.pyramid_levels
-        return ImagePyramid.build(left, levels), ImagePyramid.build(right, levels)
+        spare = (None, None) if self._spare is None else self._spare
+        return (
+            ImagePyramid.build(left, levels, reuse=spare[LEFT]),
+            ImagePyramid.build(right, levels, reuse=spare[RIGHT]),
+        )
 
 
 def track_sequence(
@@ -905,6 +932,22 @@ def track_sequence(
     ).reshape(len(results), n, 3)
     status = np.array([int(r.status) for r in results], dtype=np.int64)
     return TrackedSequence(meshes=meshes, status=status, results=results)
+
+
+def _damped_step(system: _System, damping: float) -> np.ndarray:
+    """Levenberg-Marquardt step (N, 3): ``-(H + damping diag H)^-1 g``, by Cholesky.
+
+    The normal equations are finite: images are finite and non-finite sample points raise.
+    """
+    augmented = system.hessian.copy()
+    diagonal = np.diag_indices_from(augmented)
+    augmented[diagonal] += damping * system.hessian[diagonal]
+    factor, info = dpotrf(augmented, lower=0, clean=0)  # the routines of cho_factor, cho_solve
+    if info != 0:
+        msg = f'damped normal matrix is not positive definite (LAPACK potrf info {info})'
+        raise LinAlgError(msg)
+    step, _ = dpotrs(factor, -system.gradient, lower=0)
+    return step.reshape(-1, 3)
 
 
 def _prior_model(config: StereoTrackerConfig, model: FaceModel | None) -> FaceModel | None:

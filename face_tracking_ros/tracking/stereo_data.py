@@ -21,24 +21,33 @@ over templates T_k (the same samples in earlier images) with coefficients a_k: f
 the four terms of eq. 4 ((1 - gamma) for the same camera, gamma for the other camera, at frame
 n - 1), each split (1 - epsilon) : epsilon with the same terms against frame 1 (the drift term
 of eq. 6 carried over to stereo). Removing each group's mean difference (ZSSD) makes the terms
-insensitive to a brightness offset between the cameras or over time. The Gauss-Newton
-normal equations are accumulated from per-node blocks (:mod:`.block_assembly`).
+insensitive to a brightness offset between the cameras or over time.
+
+The layouts of a tracker are laid end to end along one sample axis (:class:`SampleSet`), and
+every camera's image is one row of the arrays, so one evaluation of all the image terms is a
+few dozen whole-array operations whatever the number of layouts and cameras: sample the images
+(:func:`sample_images`), form the robust residuals (:func:`robust_residuals`), and only where
+the solver needs them the Gauss-Newton normal equations by node blocks (:func:`node_blocks`,
+assembled by :meth:`SampleSet.assemble`). Grey levels and their ZSSD residuals stay float32 as
+sampled; weights, derivatives and sums are float64.
 """
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
-from face_tracking_ros.geometry.camera import PinholeCamera
+from face_tracking_ros.geometry.camera import PinholeCamera, StereoRig
 from face_tracking_ros.imaging import (
-    inside_image,
-    sample_points,
-    sample_with_gradient,
+    inside_xy,
+    sample_with_gradient_rows,
+    sample_xy,
     square_offsets,
 )
-from face_tracking_ros.tracking.block_assembly import scatter_blocks, scatter_vectors
+from face_tracking_ros.tracking.projection import space_gradient
 from face_tracking_ros.tracking.surface_patches import surface_patch_offsets
 
 
@@ -74,7 +83,8 @@ class SampleLayout:
         A node on the face boundary sees the face on one side only; beyond it lie the neck,
         the ears or the background at other depths, which move differently in the two cameras
         and over time. Its patch keeps only the samples on the face side: those whose offset
-        points towards the centroid of the mesh (§4.2).
+        points towards the centroid of the mesh (§4.2). The node's own sample lies on the rim
+        and is left out (its offset is zero but for rounding, whose sign must not decide).
 
         Args:
             nodes: (N, 3) nodes in the left camera frame, m.
@@ -85,7 +95,7 @@ class SampleLayout:
         grid = spacing[:, None, None] * square_offsets(half_size).astype(float)[None]
         offsets = surface_patch_offsets(nodes, grid)
         inward = nodes.mean(axis=0) - nodes
-        facing = np.einsum('nmd,nd->nm', offsets, inward) >= 0.0
+        facing = (np.einsum('nmd,nd->nm', offsets, inward) >= 0.0) & np.any(grid, axis=2)
         bary = np.zeros((grid.shape[1], 3))
         bary[:, 0] = 1.0
         return cls(
@@ -121,177 +131,435 @@ class SampleLayout:
         """Nodes each group depends on: 1 for node patches, 3 for triangles."""
         return 1 if not np.any(self.bary[:, 1:]) else 3
 
-    def points(self, nodes: np.ndarray, rotation: np.ndarray, level: int) -> np.ndarray:
-        """3-D sample points (G, M, 3), m, for nodes (N, 3) and the patch orientation (3, 3).
-
-        Offsets are rotated by ``rotation`` (the head's rotation since frame 1) and scaled by
-        2**level so a patch keeps its size in pixels on every pyramid level.
-        """
-        offsets = float(1 << level) * (self.offsets @ rotation.T)
-        if self.slot_count == 1:
-            return nodes[self.nodes[:, 0]][:, None, :] + offsets
-        return np.einsum('mk,gkd->gmd', self.bary, nodes[self.nodes]) + offsets
-
 
 @dataclass(frozen=True)
-class NormalEquations:
-    """Gauss-Newton terms of an image term, by node blocks.
+class SampleSet:
+    """The samples of one or more layouts along one axis, layout after layout, group after group.
+
+    Sample arrays are component-major: (3, S) points, (C, S) grey levels of C images.
 
     Attributes:
-        cost: robust cost, grey^2.
-        hessian: (3N, 3N) J^T W J, node-major, grey^2 / m^2.
-        gradient: (3N,) J^T W r, grey^2 / m.
-        group_rms: (G,) RMS of the leading (k = 0) ZSSD residual of each group, grey levels
-            (NaN if no sample of the group is inside the image).
-        group_contrast: (G,) standard deviation of the leading template in each group, grey
-            levels; ``group_rms / group_contrast`` is about 1 for an unrelated image.
+        layouts: the layouts; layout l holds samples ``bounds[l]:bounds[l + 1]``.
+        bounds: (L + 1,) int.
+        mask: (S,) bool, the samples in use.
+        gather: per layout, (k, S_l) node index of each of the k slots of every sample.
+        weights: per layout, (k, S_l) barycentric weight b of each slot (k = 1: weight 1).
+        offsets: (S, 3) offsets at level 0 in the frame-1 orientation, m.
+        block_index: (B,) flat index in the (3N, 3N) matrix of every entry of the layouts' node
+            blocks (:func:`node_blocks`), layout after layout.
+        vector_index: (V,) index in the (3N,) vector of every entry of their node vectors.
+        num_nodes: N.
     """
 
+    layouts: tuple[SampleLayout, ...]
+    bounds: np.ndarray
+    mask: np.ndarray
+    gather: tuple[np.ndarray, ...]
+    weights: tuple[np.ndarray, ...]
+    offsets: np.ndarray
+    block_index: np.ndarray
+    vector_index: np.ndarray
+    num_nodes: int
+
+    @classmethod
+    def of(cls, layouts: Sequence[SampleLayout], num_nodes: int) -> SampleSet:
+        """Lay out ``layouts`` (of a mesh of ``num_nodes`` nodes) along one sample axis."""
+        layouts = tuple(layouts)
+        sizes = [layout.mask.size for layout in layouts]
+        gather, weights, blocks, vectors = [], [], [], []
+        for layout in layouts:
+            groups, samples = layout.mask.shape
+            slots = layout.slot_count
+            gather.append(np.repeat(layout.nodes[:, :slots].T, samples, axis=1))
+            weights.append(np.tile(layout.bary[:, :slots].T, groups))
+            # Row (slot, coordinate) of each group's block in the node-major unknowns.
+            rows = (3 * layout.nodes[:, :slots, None] + np.arange(3)).reshape(groups, -1)
+            blocks.append((rows[:, :, None] * (3 * num_nodes) + rows[:, None, :]).ravel())
+            vectors.append(rows.ravel())
+        return cls(
+            layouts=layouts,
+            bounds=np.cumsum([0, *sizes]),
+            mask=np.concatenate([layout.mask.ravel() for layout in layouts]),
+            gather=tuple(gather),
+            weights=tuple(weights),
+            offsets=np.concatenate([layout.offsets.reshape(-1, 3) for layout in layouts]),
+            block_index=np.concatenate(blocks),
+            vector_index=np.concatenate(vectors),
+            num_nodes=num_nodes,
+        )
+
+    @property
+    def size(self) -> int:
+        """S, the number of samples."""
+        return int(self.bounds[-1])
+
+    def level_offsets(self, rotation: np.ndarray, level: int) -> np.ndarray:
+        """(3, S) offsets turned by ``rotation`` (the head's rotation since frame 1), m.
+
+        They are scaled by 2**level, so a patch keeps its size in pixels on every pyramid level.
+        """
+        return (float(1 << level) * (self.offsets @ rotation.T)).T
+
+    def points(self, nodes: np.ndarray, offsets: np.ndarray) -> np.ndarray:
+        """(3, S) points ``sum_k b_k X^(n_k) + o`` for nodes (N, 3) and (3, S) offsets, m."""
+        columns = np.ascontiguousarray(nodes.T)
+        points = np.empty((3, self.size))
+        for index, (gather, weights) in enumerate(zip(self.gather, self.weights, strict=True)):
+            start, stop = self.bounds[index], self.bounds[index + 1]
+            placed = np.take(columns, gather, axis=1)  # (3, k, S_l)
+            placed = placed[:, 0] if len(gather) == 1 else (placed * weights).sum(axis=1)
+            np.add(placed, offsets[:, start:stop], out=points[:, start:stop])
+        return points
+
+    def grouped(self, values: np.ndarray) -> tuple[np.ndarray, ...]:
+        """Views (..., G_l, M_l) of (..., S) sample arrays, one per layout."""
+        return tuple(
+            values[..., self.bounds[index] : self.bounds[index + 1]].reshape(
+                *values.shape[:-1], *layout.mask.shape
+            )
+            for index, layout in enumerate(self.layouts)
+        )
+
+    def assemble(
+        self, blocks: Sequence[np.ndarray], vectors: Sequence[np.ndarray]
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Sum the layouts' node blocks and vectors into the (3N, 3N) matrix and (3N,) vector.
+
+        Args:
+            blocks: per layout, (G_l, 3k, 3k) blocks (:func:`node_blocks`).
+            vectors: per layout, (G_l, 3k) vectors.
+        """
+        size = 3 * self.num_nodes
+        matrix = np.bincount(
+            self.block_index,
+            weights=np.concatenate([block.ravel() for block in blocks]),
+            minlength=size * size,
+        )
+        vector = np.bincount(
+            self.vector_index,
+            weights=np.concatenate([vector.ravel() for vector in vectors]),
+            minlength=size,
+        )
+        return matrix.reshape(size, size), vector
+
+
+class Sampled(NamedTuple):
+    """C images sampled at the points of a :class:`SampleSet`, one row per image.
+
+    Attributes:
+        homogeneous: (C, 3, S) homogeneous pixel coordinates of the points in each image's
+            pyramid level.
+        values: (C, S) float32 grey levels.
+        gradient: (C, 2, S) float32 image gradient (d/dx, d/dy), grey levels per level pixel;
+            None when not sampled.
+        valid: (C, S) bool, the samples in use: in the set's mask, in front of the camera and
+            at least a pixel inside the image.
+    """
+
+    homogeneous: np.ndarray
+    values: np.ndarray
+    gradient: np.ndarray | None
+    valid: np.ndarray
+
+
+class Residuals(NamedTuple):
+    """ZSSD residuals of sampled images against their templates, Huber-weighted.
+
+    Attributes:
+        differences: (C, K, S) float32 residuals against each template with each group's mean
+            removed (0 where not valid).
+        counts: per layout, (C, G_l) valid samples of each group.
+        weight: (C, S) total weight sum_k a_k w_k.
+        weighted_residual: (C, S) sum_k a_k w_k r_k.
+        cost: the robust cost sum_k a_k rho_huber(r_k), grey^2.
+    """
+
+    differences: np.ndarray
+    counts: tuple[np.ndarray, ...]
+    weight: np.ndarray
+    weighted_residual: np.ndarray
     cost: float
-    hessian: np.ndarray
-    gradient: np.ndarray
-    group_rms: np.ndarray
-    group_contrast: np.ndarray
 
 
-def sample_templates(
-    image: np.ndarray, camera: PinholeCamera, points: np.ndarray, level: int
-) -> np.ndarray:
-    """Grey levels (G, M) of an image (a pyramid level) at 3-D sample points (G, M, 3)."""
-    pixels = camera.project(points.reshape(-1, 3)) / float(1 << level)
-    values, _ = sample_with_gradient(image, pixels)
-    return values.reshape(points.shape[:2])
+class Huber(NamedTuple):
+    """Huber thresholds of every sample.
+
+    Attributes:
+        threshold: (S,) k, grey levels.
+        twice: (S,) 2 k.
+        square: (S,) k^2.
+        inlier_bound: (S,) float32, the largest float32 <= k: a float32 |r| is within k exactly
+            when it is within this (a float32 comparison).
+    """
+
+    threshold: np.ndarray
+    twice: np.ndarray
+    square: np.ndarray
+    inlier_bound: np.ndarray
+
+    @classmethod
+    def of(cls, samples: SampleSet, thresholds: Sequence[float]) -> Huber:
+        """One threshold per layout of ``samples``, grey levels."""
+        sizes = np.diff(samples.bounds)
+        thresholds = np.asarray(thresholds, dtype=float)
+        bound = thresholds.astype(np.float32)
+        bound = np.where(bound > thresholds, np.nextafter(bound, np.float32(-np.inf)), bound)
+        return cls(
+            threshold=np.repeat(thresholds, sizes),
+            twice=np.repeat(2.0 * thresholds, sizes),
+            square=np.repeat(thresholds**2, sizes),
+            inlier_bound=np.repeat(bound.astype(np.float32), sizes),
+        )
 
 
-def huber_scale(residuals: np.ndarray, floor: float) -> float:
-    """Robust scale of residuals: 1.4826 median |r| (the normal MAD), at least ``floor``."""
-    finite = residuals[np.isfinite(residuals)]
-    if finite.size == 0:
-        return floor
-    return max(floor, 1.4826 * float(np.median(np.abs(finite))))
+def level_projections(cameras: Sequence[PinholeCamera], level: int) -> np.ndarray:
+    """(C, 3, 4) projection matrices P of eq. 2 onto pyramid level ``level`` of each camera."""
+    projections = np.array([camera.p for camera in cameras])
+    projections[:, :2] /= float(1 << level)
+    return projections
 
 
-def image_cost(
-    image: np.ndarray,
-    camera: PinholeCamera,
-    layout: SampleLayout,
-    points: np.ndarray,
-    level: int,
-    templates: np.ndarray,
-    coefficients: np.ndarray,
-    huber: float,
-) -> float:
-    """The robust cost of :func:`image_normal_equations` alone (no derivatives), grey^2."""
-    pixels = camera.project(points.reshape(-1, 3)) / float(1 << level)
-    values = sample_points(image, pixels)
-    valid = _valid(pixels, image.shape, points, layout)
-    return _robust_residuals(values, valid, templates, coefficients, huber)[3]
-
-
-def image_normal_equations(
-    image: np.ndarray,
-    camera: PinholeCamera,
-    layout: SampleLayout,
-    points: np.ndarray,
-    level: int,
-    templates: np.ndarray,
-    coefficients: np.ndarray,
-    huber: float,
-    num_nodes: int,
-) -> NormalEquations:
-    """Robust ZSSD cost of one camera's image against templates, and its normal equations.
+def homogeneous_pixels(projections: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """(C, 3, S) homogeneous pixels ``P X`` of (3, S) points in C cameras (eq. 2).
 
     Args:
-        image: (H, W) float32 pyramid level ``level`` of the current image I_c.
-        camera: the camera of that image (its P maps left-frame points to level-0 pixels).
-        layout: the sample layout.
-        points: (G, M, 3) current sample points (:meth:`SampleLayout.points`), m.
-        level: pyramid level.
-        templates: (K, G, M) template grey levels T_k.
-        coefficients: (K,) a_k >= 0, or (K, G) for a coefficient per group.
-        huber: Huber threshold, grey levels.
-        num_nodes: N.
-
-    Returns:
-        The cost, the normal equations by node blocks and the RMS of the k = 0 residual.
+        projections: (C, 3, 4) projection matrices (:func:`level_projections`).
+        points: (3, S) points in the left camera frame, m.
     """
-    groups, samples = points.shape[:2]
-    scale = 1.0 / float(1 << level)
-    pixels, projection_jacobian = camera.project_with_jacobian(points.reshape(-1, 3))
-    pixels = pixels * scale
-    values, gradient = sample_with_gradient(image, pixels)
-    valid = _valid(pixels, image.shape, points, layout)
-    counts = valid.sum(axis=1)
-    safe_counts = np.maximum(counts, 1)[:, None]
-    differences, weight, weighted_residual, cost = _robust_residuals(
-        values, valid, templates, coefficients, huber
-    )
-    # d I / d P per sample (G, M, 3), then per node slot (G, M, S slots * 3); a single-node
-    # layout has one slot, a triangle layout three.
-    slot_count = layout.slot_count
-    row = gradient[:, :1] * projection_jacobian[:, 0] + gradient[:, 1:] * projection_jacobian[:, 1]
-    row = row.reshape(groups, samples, 3) * scale
-    slots = layout.bary[None, :, :slot_count, None] * row[:, :, None, :]
-    slots = slots.reshape(groups, samples, 3 * slot_count) * valid[..., None]
-    slots -= valid[..., None] * (slots.sum(axis=1) / safe_counts)[:, None, :]
-    hessian_slots = np.swapaxes(slots * weight[..., None], 1, 2) @ slots
-    gradient_slots = np.matmul(weighted_residual[:, None, :], slots)[:, 0]
-    shape = (groups, slot_count, 3, slot_count, 3)
-    blocks = hessian_slots.reshape(shape).transpose(0, 1, 3, 2, 4)
-    nodes = layout.nodes[:, :slot_count]
-    rows = np.broadcast_to(nodes[:, :, None], shape[:2] + (slot_count,))
-    cols = np.broadcast_to(nodes[:, None, :], shape[:2] + (slot_count,))
-    hessian = scatter_blocks(rows, cols, blocks, num_nodes)
-    node_gradient = scatter_vectors(
-        nodes, gradient_slots.reshape(groups, slot_count, 3), num_nodes
-    )
-    leading = templates[0] - (templates[0] * valid).sum(axis=1, keepdims=True) / safe_counts
-    with np.errstate(invalid='ignore', divide='ignore'):
-        group_rms = np.sqrt((differences[0] ** 2).sum(axis=1) / counts)
-        group_contrast = np.sqrt((valid * leading**2).sum(axis=1) / counts)
-    return NormalEquations(
-        cost=cost,
-        hessian=hessian,
-        gradient=node_gradient,
-        group_rms=group_rms,
-        group_contrast=group_contrast,
+    count = len(projections)
+    linear = projections[:, :, :3].reshape(3 * count, 3)
+    return (linear @ points + projections[:, :, 3].reshape(-1, 1)).reshape(count, 3, -1)
+
+
+def sample_images(
+    images: Sequence[np.ndarray],
+    projections: np.ndarray,
+    points: np.ndarray,
+    mask: np.ndarray,
+    with_gradient: bool = True,
+) -> Sampled:
+    """Sample C images at 3-D points (eq. 2), with their gradients unless told not to.
+
+    Args:
+        images: C (H, W) float32 images (one pyramid level of each camera, all of one size).
+        projections: (C, 3, 4) their projection matrices (:func:`level_projections`).
+        points: (3, S) points in the left camera frame, m.
+        mask: (S,) bool, the samples in use.
+        with_gradient: sample the image gradients too.
+    """
+    homogeneous = homogeneous_pixels(projections, points)
+    pixels = homogeneous[:, :2] / homogeneous[:, 2:]
+    if with_gradient:
+        values, gradient = sample_with_gradient_rows(images, pixels[:, 0], pixels[:, 1])
+    else:
+        values, gradient = _values(images, pixels), None
+    inside = inside_xy(pixels[:, 0], pixels[:, 1], images[0].shape, margin=1.0)
+    return Sampled(
+        homogeneous=homogeneous,
+        values=values,
+        gradient=gradient,
+        valid=inside & (points[2] > 0) & mask,
     )
 
 
-def _valid(
-    pixels: np.ndarray, shape: tuple[int, int], points: np.ndarray, layout: SampleLayout
+def sample_values(
+    images: Sequence[np.ndarray], projections: np.ndarray, points: np.ndarray
 ) -> np.ndarray:
-    """(G, M) samples in use: in the layout's mask, in front of the camera, inside the image."""
-    valid = inside_image(pixels, shape, margin=1.0) & (points[..., 2].ravel() > 0)
-    return valid.reshape(points.shape[:2]) & layout.mask
+    """(C, S) float32 grey levels of C images at (3, S) points (:func:`sample_images` values)."""
+    homogeneous = homogeneous_pixels(projections, points)
+    return _values(images, homogeneous[:, :2] / homogeneous[:, 2:])
 
 
-def _robust_residuals(
-    values: np.ndarray,
-    valid: np.ndarray,
+def _values(images: Sequence[np.ndarray], pixels: np.ndarray) -> np.ndarray:
+    """(C, S) float32 samples of C images at their (C, 2, S) pixels."""
+    values = np.empty(pixels[:, 0].shape, dtype=np.float32)
+    for row, (image, (x, y)) in enumerate(zip(images, pixels, strict=True)):
+        values[row] = sample_xy(image, x, y)
+    return values
+
+
+def robust_residuals(
+    samples: SampleSet,
+    sampled: Sampled,
     templates: np.ndarray,
     coefficients: np.ndarray,
-    huber: float,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
-    """ZSSD residuals against each template and their Huber-weighted combination.
+    huber: Huber,
+) -> Residuals:
+    """The robust ZSSD cost of sampled images against templates (the image terms' E).
+
+    Args:
+        samples: the sample set.
+        sampled: its C images.
+        templates: (C, K, S) float32 template grey levels T_k of each image.
+        coefficients: (K, S) a_k >= 0 of every sample.
+        huber: the Huber thresholds.
+    """
+    valid = sampled.valid
+    differences = sampled.values[:, None, :] - templates
+    counts = tuple(group.sum(axis=-1) for group in samples.grouped(valid))
+    for group, group_valid, count in zip(
+        samples.grouped(differences), samples.grouped(valid), counts, strict=True
+    ):
+        total = (group * group_valid[:, None]).sum(axis=-1, keepdims=True)
+        group -= total / np.maximum(count, 1)[:, None, :, None]
+    differences *= valid[:, None, :]
+    magnitude = np.abs(differences)
+    with np.errstate(divide='ignore'):  # |r| = 0: weight 1
+        robust = np.minimum(1.0, huber.threshold / magnitude)
+    weighted = coefficients * robust
+    loss = np.where(
+        magnitude <= huber.inlier_bound, magnitude**2, huber.twice * magnitude - huber.square
+    )
+    return Residuals(
+        differences=differences,
+        counts=counts,
+        weight=weighted.sum(axis=1),
+        weighted_residual=(weighted * differences).sum(axis=1),
+        cost=float((coefficients * loss).sum()),
+    )
+
+
+def node_blocks(
+    samples: SampleSet, sampled: Sampled, residuals: Residuals, projections: np.ndarray
+) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """Gauss-Newton terms J^T W J and J^T W r of the image terms, by group, summed over images.
+
+    The Jacobian of a sample with respect to its k slot nodes is ``b_k (d pi / d P)^T grad I``
+    (eq. 2; :func:`~.projection.space_gradient`), minus its group's mean (ZSSD).
+
+    Args:
+        samples: the sample set.
+        sampled: its C images, sampled with their gradients.
+        residuals: their robust residuals.
+        projections: (C, 3, 4) the images' projection matrices.
 
     Returns:
-        ``(differences, weight, weighted_residual, cost)``: (K, G, M) residuals with each
-        group's mean removed (0 where not valid); (G, M) total weight sum_k a_k w_k; (G, M)
-        sum_k a_k w_k r_k; the robust cost sum_k a_k rho_huber(r_k).
+        ``(blocks, vectors)``: per layout, (G_l, 3k, 3k) J^T W J and (G_l, 3k) J^T W r of each
+        group (grey^2 / m^2, grey^2 / m), for :meth:`SampleSet.assemble`.
     """
-    counts = np.maximum(valid.sum(axis=1), 1)[:, None]
-    differences = values.reshape(valid.shape)[None] - templates
-    differences -= (differences * valid).sum(axis=2, keepdims=True) / counts[None]
-    differences *= valid
-    magnitude = np.abs(differences)
-    robust = np.minimum(1.0, huber / np.maximum(magnitude, 1e-12))
-    coefficients = np.asarray(coefficients, dtype=float).reshape(templates.shape[0], -1, 1)
-    weighted = coefficients * robust
-    loss = np.where(magnitude <= huber, magnitude**2, 2.0 * huber * magnitude - huber**2)
-    return (
-        differences,
-        weighted.sum(axis=0),
-        (weighted * differences).sum(axis=0),
-        float((coefficients * loss).sum()),
+    assert sampled.gradient is not None
+    valid = sampled.valid
+    rows = space_gradient(
+        projections[:, :, :3], sampled.homogeneous, sampled.gradient.astype(float)
+    )
+    rows *= valid[:, None, :]
+    blocks, vectors = [], []
+    grouped = zip(
+        samples.grouped(rows),
+        samples.grouped(valid),
+        samples.grouped(residuals.weight),
+        samples.grouped(residuals.weighted_residual),
+        residuals.counts,
+        samples.weights,
+        strict=True,
+    )
+    for group_rows, group_valid, weight, weighted_residual, count, slot_weights in grouped:
+        images, _, groups, size = group_rows.shape
+        if len(slot_weights) > 1:
+            bary = slot_weights.reshape(-1, 1, groups, size)
+            group_rows = (bary * group_rows[:, None]).reshape(images, -1, groups, size)
+        mean = group_rows.sum(axis=-1, keepdims=True) / np.maximum(count, 1)[:, None, :, None]
+        group_rows = group_rows - group_valid[:, None] * mean
+        scaled = (group_rows * weight[:, None]).transpose(0, 2, 1, 3)
+        blocks.append(np.matmul(scaled, group_rows.transpose(0, 2, 3, 1)).sum(axis=0))
+        vectors.append(np.einsum('cgm,cigm->gi', weighted_residual, group_rows))
+    return blocks, vectors
+
+
+class GroupStatistics(NamedTuple):
+    """Per-group residual summaries of an evaluation, per layout.
+
+    Attributes:
+        rms: per layout, (C, G_l) RMS of the leading (k = 0) ZSSD residual of each group, grey
+            levels (NaN if no sample of the group is valid).
+        contrast: per layout, (C, G_l) standard deviation of the leading template in each group,
+            grey levels; ``rms / contrast`` is about 1 for an unrelated image.
+    """
+
+    rms: tuple[np.ndarray, ...]
+    contrast: tuple[np.ndarray, ...]
+
+
+def group_statistics(
+    samples: SampleSet, sampled: Sampled, residuals: Residuals, leading: np.ndarray
+) -> GroupStatistics:
+    """RMS residual and template contrast of every group.
+
+    Args:
+        samples: the sample set.
+        sampled: its C images.
+        residuals: their robust residuals.
+        leading: (C, S) the leading template T_0 of each image.
+    """
+    rms, contrast = [], []
+    grouped = zip(
+        samples.grouped(residuals.differences[:, 0]),
+        samples.grouped(leading),
+        samples.grouped(sampled.valid),
+        residuals.counts,
+        strict=True,
+    )
+    with np.errstate(invalid='ignore', divide='ignore'):
+        for difference, template, valid, count in grouped:
+            safe = np.maximum(count, 1)[..., None]
+            centred = template - (template * valid).sum(axis=-1, keepdims=True) / safe
+            rms.append(np.sqrt((difference**2).sum(axis=-1) / count))
+            contrast.append(np.sqrt((valid * centred**2).sum(axis=-1) / count))
+    return GroupStatistics(rms=tuple(rms), contrast=tuple(contrast))
+
+
+class DepthTerms(NamedTuple):
+    """The left-right ZSSD of every node patch, linearised in a depth change along a direction.
+
+    Attributes:
+        slope: (N,) J^T W r along the direction, grey^2 / m.
+        curvature: (N,) J^T W J along it, grey^2 / m^2.
+        rms: (N,) RMS left-right residual of each patch, grey levels.
+    """
+
+    slope: np.ndarray
+    curvature: np.ndarray
+    rms: np.ndarray
+
+
+def depth_terms(
+    rig: StereoRig,
+    left: np.ndarray,
+    right: np.ndarray,
+    patches: SampleSet,
+    nodes: np.ndarray,
+    directions: np.ndarray,
+    rotation: np.ndarray,
+    huber: float,
+) -> DepthTerms:
+    """The cross-camera term of eq. 4 within one pair, per node patch, along ``directions``.
+
+    The patches are sampled in the left image (the template) and compared with the right image
+    at the same points; each node's 3x3 block of the normal equations is projected on its
+    direction.
+
+    Args:
+        rig: the rectified rig.
+        left: (H, W) float32 full-resolution left image.
+        right: (H, W) float32 right image.
+        patches: a sample set of node patches alone (one group per node).
+        nodes: (N, 3) nodes, m.
+        directions: (N, 3) unit directions of the depth changes.
+        rotation: (3, 3) patch orientation (the head's rotation since frame 1).
+        huber: Huber threshold, grey levels.
+    """
+    points = patches.points(nodes, patches.level_offsets(rotation, 0))
+    left_projection, right_projection = level_projections((rig.left, rig.right), 0)
+    template = sample_values((left,), left_projection[None], points)
+    sampled = sample_images((right,), right_projection[None], points, patches.mask)
+    coefficients = np.ones((1, patches.size))
+    residuals = robust_residuals(
+        patches, sampled, template[:, None], coefficients, Huber.of(patches, [huber])
+    )
+    (blocks,), (vectors,) = node_blocks(patches, sampled, residuals, right_projection[None])
+    statistics = group_statistics(patches, sampled, residuals, template)
+    return DepthTerms(
+        slope=np.einsum('na,na->n', directions, vectors),
+        curvature=np.einsum('na,nab,nb->n', directions, blocks, directions),
+        rms=statistics.rms[0][0],
     )

@@ -23,11 +23,7 @@ from face_tracking_ros.geometry.camera import StereoRig
 from face_tracking_ros.geometry.procrustes import rigid_align
 from face_tracking_ros.imaging import sample_patches, sample_points, square_offsets
 from face_tracking_ros.model.topology import Group, MeshTopology
-from face_tracking_ros.tracking.stereo_data import (
-    SampleLayout,
-    image_normal_equations,
-    sample_templates,
-)
+from face_tracking_ros.tracking.stereo_data import SampleLayout, SampleSet, depth_terms
 
 FLAT_STD = 0.5  # grey levels: a correlation window flatter than this cannot be matched
 MIN_FIT_NODES = 4  # fewest inner nodes the reference face is fitted to
@@ -243,18 +239,11 @@ def refine_depths(
             config.refine_half_size,
             np.zeros(count, dtype=bool),
         )
-        points = layout.points(nodes, np.eye(3), 0)
-        template = sample_templates(left, rig.left, points, 0)
-        equations = image_normal_equations(
-            right, rig.right, layout, points, 0, template[None], np.ones(1), 1e6, count
-        )
         rays = nodes / np.linalg.norm(nodes, axis=1, keepdims=True)
-        diagonal = np.arange(count)
-        blocks = equations.hessian.reshape(count, 3, count, 3)[diagonal, :, diagonal, :]
-        curvature = np.einsum('na,nab,nb->n', rays, blocks, rays)
-        slope = np.einsum('na,na->n', rays, equations.gradient.reshape(-1, 3))
+        patches = SampleSet.of((layout,), count)
+        terms = depth_terms(rig, left, right, patches, nodes, rays, np.eye(3), 1e6)
         with np.errstate(divide='ignore', invalid='ignore'):
-            step = np.where(curvature > 0, -slope / curvature, 0.0)
+            step = np.where(terms.curvature > 0, -terms.slope / terms.curvature, 0.0)
         # A step larger than 2 cm is a wrong basin: keep the correlation estimate there.
         step = np.where(np.abs(step) < 0.02, step, 0.0)
         nodes = nodes + rays * step[:, None]
