@@ -60,12 +60,14 @@ def test_quick_run_writes_finite_figures(tmp_path):
     assert live['at_30hz']['received'] > 0
     assert live['node_peak_rss_mb'] > 0
     protocol = results['benchmarks']['mono_accuracy']
-    rows = ('true_model', 'learned_model', 'baseline', 'nodes_19', 'epsilon_0', 'prior_off')
+    rows = ('true_model', 'unfiltered', 'learned_model', 'baseline', 'nodes_19')
+    rows += ('epsilon_0', 'prior_off')
     assert set(protocol['rows']) == set(rows)
     for row in rows:
         assert len(protocol['rows'][row]['seeds']) == 1
         assert protocol['rows'][row]['mean']['frames'] == 20
     assert len(protocol['still']['mean']['angle_std_deg']) == 3
+    assert len(protocol['still']['mean']['angle_std_unfiltered_deg']) == 3
     numbers = list(_numbers(results))
     assert len(numbers) > 50
     assert all(math.isfinite(value) for _, value in numbers), numbers

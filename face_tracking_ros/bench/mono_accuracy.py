@@ -5,7 +5,10 @@ held-out subject 0 moving freely (±35° yaw, ±25° pitch, ±20° roll, express
 from simulated clicks on the first frame (1 px noise). On the same frames run:
 
 - ``true_model``: the tracker with the population's own model (what a perfect learner gives), so
-  its figures are the tracker's own error;
+  its figures are the tracker's own error; its pose is the published one, smoothed by the One Euro
+  filter of :mod:`~face_tracking_ros.tracking.pose_filter` (the node's default), as in every row
+  of the eq. 6 tracker;
+- ``unfiltered``: the same tracker's raw pose (``smoothing.enabled`` false);
 - ``learned_model``: the tracker with the benchmark's learned model (§3.4 on subjects 1-11);
 - ``baseline``: per-node pyramidal Lucas-Kanade plus ``solvePnP`` on the same true model;
 - ablations with the true model: ``epsilon_0`` (no drift term), ``prior_off`` (no §4.1 alpha
@@ -14,7 +17,8 @@ from simulated clicks on the first frame (1 px noise). On the same frames run:
 A still head of the same subject (300 frames of the 'static' scene: head, neutral face and light
 fixed, only the sensor noise changes) gives the jitter: the standard deviation of the estimated
 rotation angles per axis (``angle_std_deg``, issue 6's measure) and the frame-to-frame noise
-of the rotation error (``jitter_deg``, mean over the axes). Every figure is a mean over the
+of the rotation error (``jitter_deg``, mean over the axes), smoothed and raw
+(``angle_std_unfiltered_deg``). Every figure is a mean over the
 seeds, next to each seed's.
 """
 
@@ -34,6 +38,7 @@ from face_tracking_ros.synthetic.true_model import true_face_model
 from face_tracking_ros.tracking.baseline import LKPnPTracker
 from face_tracking_ros.tracking.evaluation import Tracker, evaluate_tracker
 from face_tracking_ros.tracking.mono import MonoTracker, MonoTrackerConfig
+from face_tracking_ros.tracking.pose_filter import FilteredTracker, PoseFilter
 
 SEEDS = 3
 FRAMES, QUICK_FRAMES = 1000, 20
@@ -70,20 +75,27 @@ def run(options: BenchOptions) -> dict[str, Any]:
 
 def _free_rows(seed: int, frames: int) -> dict[str, dict[str, Any]]:
     """Every tracker and ablation on one seed's free-motion sequence."""
-    sequence = render_sequence(scene_config(Kind.MONO, WIDTH, HEIGHT, frames, seed))
+    config = scene_config(Kind.MONO, WIDTH, HEIGHT, frames, seed)
+    sequence = render_sequence(config)
     images = sequence.images('image')
     camera = sequence.reference
     population = FacePopulation(seed=seed)
     true34, true19 = true_face_model(population, 34), true_face_model(population, 19)
     learned = learned_model(34, seed).model
+
+    def published(model: FaceModel, tracker_config: MonoTrackerConfig | None = None) -> Tracker:
+        tracker = MonoTracker(model, camera, tracker_config)
+        return FilteredTracker(tracker, PoseFilter(camera), config.fps)
+
     trackers: dict[str, tuple[Tracker, FaceModel]] = {
-        'true_model': (MonoTracker(true34, camera), true34),
-        'learned_model': (MonoTracker(learned, camera), learned),
+        'true_model': (published(true34), true34),
+        'unfiltered': (MonoTracker(true34, camera), true34),
+        'learned_model': (published(learned), learned),
         'baseline': (LKPnPTracker(true34, camera), true34),
-        'nodes_19': (MonoTracker(true19, camera), true19),
+        'nodes_19': (published(true19), true19),
     }
     trackers |= {
-        name: (MonoTracker(true34, camera, config), true34) for name, config in ABLATIONS.items()
+        name: (published(true34, ablation), true34) for name, ablation in ABLATIONS.items()
     }
     rows = {}
     for name, (tracker, model) in trackers.items():
@@ -95,22 +107,30 @@ def _free_rows(seed: int, frames: int) -> dict[str, dict[str, Any]]:
 
 
 def _still(seed: int, frames: int) -> dict[str, Any]:
-    """Jitter of the default tracker (true model) on a static head."""
+    """Jitter of the default tracker (true model) on a static head, published and raw."""
     config = replace(scene_config(Kind.MONO, WIDTH, HEIGHT, frames, seed), motion='static')
     sequence = render_sequence(config)
     model = true_face_model(FacePopulation(seed=seed), 34)
-    evaluation = evaluate_tracker(
-        MonoTracker(model, sequence.reference),
-        model,
-        sequence.images('image'),
-        sequence.true_nodes(34),
-        sequence.initialisation(model.node_names, seed),
+    camera = sequence.reference
+    raw, published = (
+        evaluate_tracker(
+            tracker,
+            model,
+            sequence.images('image'),
+            sequence.true_nodes(34),
+            sequence.initialisation(model.node_names, seed),
+        )
+        for tracker in (
+            MonoTracker(model, camera),
+            FilteredTracker(MonoTracker(model, camera), PoseFilter(camera), config.fps),
+        )
     )
-    accuracy = evaluation.accuracy
+    accuracy = published.accuracy
     return {
         'tracked': accuracy.tracked,
         'frames': accuracy.frames,
-        'angle_std_deg': list(evaluation.angle_std_deg),
+        'angle_std_deg': list(published.angle_std_deg),
+        'angle_std_unfiltered_deg': list(raw.angle_std_deg),
         'jitter_deg': accuracy.jitter_deg,
         'rotation_mae_deg': list(accuracy.rotation_mae_deg),
     }

@@ -7,7 +7,10 @@ with the image's header: ``face/state``, ``face/pose``, ``face/action``, ``face/
 subscribes to it. An image that arrives before the first camera_info is held (the latest one)
 and tracked as soon as the calibration arrives. An image whose stamp repeats the last tracked
 one is refused; an earlier stamp (a looped bag, a restarted camera) resets the tracker, so the
-next image starts a new track from the initialisation.
+next image starts a new track from the initialisation. The published pose (and the nodes, which
+move rigidly with it) is smoothed by the One Euro filter of
+:mod:`~face_tracking_ros.tracking.pose_filter` (parameters ``smoothing.*``), timed by the image
+stamps; the tracker itself continues from its raw estimate.
 """
 
 from __future__ import annotations
@@ -30,6 +33,7 @@ from face_tracking_ros.processing.face_outputs import MESH_PORTS, MODEL_PORTS, f
 from face_tracking_ros.processing.parameters import ParameterSource
 from face_tracking_ros.tracking.initialisation import Initialisation, load_init_file
 from face_tracking_ros.tracking.mono import MonoTracker, MonoTrackerConfig
+from face_tracking_ros.tracking.pose_filter import PoseFilter, PoseFilterConfig
 from face_tracking_ros.visualization.overlay import draw_mesh
 
 IMAGE = 'image'
@@ -67,6 +71,7 @@ class MonoProcessor:
         tracker_config: MonoTrackerConfig,
         model: FaceModel | None,
         initialisation: Initialisation | None = None,
+        filter_config: PoseFilterConfig | None = None,
     ) -> None:
         """Wait for camera_info (and a model, if none is given) before tracking.
 
@@ -79,10 +84,12 @@ class MonoProcessor:
         self._factory = factory
         self._config = config
         self._tracker_config = tracker_config
+        self._filter_config = filter_config or PoseFilterConfig()
         self._model = model
         self._initialisation = initialisation
         self._camera: PinholeCamera | None = None
         self._tracker: MonoTracker | None = None
+        self._pose_filter: PoseFilter | None = None
         self._held_image: tuple[Any, np.ndarray] | None = None
         self._last_stamp: int | None = None
         image = (
@@ -109,8 +116,7 @@ class MonoProcessor:
     def reset(self, initialisation: Initialisation | None) -> None:
         """Restart tracking from 2-D node positions, or automatically when None."""
         self._initialisation = initialisation
-        if self._tracker is not None:
-            self._tracker.reset(initialisation)
+        self._restart()
 
     def handle(self, topic: str, msg: Any, wanted: frozenset[str]) -> list[Output]:
         """Process one message of an input port (see :class:`processing.base.Processor`)."""
@@ -152,7 +158,14 @@ class MonoProcessor:
     def _rebuild(self) -> None:
         if self._camera is not None and self._model is not None:
             self._tracker = MonoTracker(self._model, self._camera, self._tracker_config)
+            self._pose_filter = PoseFilter(self._camera, self._filter_config)
+            self._restart()
+
+    def _restart(self) -> None:
+        """Restart the tracker from the initialisation and the pose filter from its next result."""
+        if self._tracker is not None and self._pose_filter is not None:
             self._tracker.reset(self._initialisation)
+            self._pose_filter.reset()
 
     def _track(self, header: Any, gray: np.ndarray, wanted: frozenset[str]) -> list[Output]:
         if self._tracker is None:
@@ -165,8 +178,9 @@ class MonoProcessor:
                 f'{camera.width}x{camera.height}'
             )
             raise InputError(msg)
-        self._check_stamp(stamp_to_ns(header.stamp))
-        result = self._tracker.step(gray)
+        stamp_ns = stamp_to_ns(header.stamp)
+        self._check_stamp(stamp_ns)
+        result = self._pose_filter.filter(self._tracker.step(gray), stamp_ns * 1e-9)
         out_header = conversions.copy_header(self._factory, header)
         topology = self._model.topology
         outputs = face_outputs(self._factory, out_header, self._config.face_id, result, topology)
@@ -188,7 +202,7 @@ class MonoProcessor:
         if stamp_ns == last:
             msg = f'image stamp {stamp_ns} ns repeats the previous image stamp: image skipped'
             raise InputError(msg)
-        self._tracker.reset(self._initialisation)
+        self._restart()
         msg = (
             f'image stamp went back by {(last - stamp_ns) / 1e9:.3f} s (looped bag or restarted '
             'camera): tracker reset, a new track starts with the next image'
@@ -223,11 +237,13 @@ def _check_model(
 def make_mono_processor(params: ParameterSource, factory: MessageFactory) -> MonoProcessor:
     """The mono_tracker processor configured from parameters (node or replay).
 
-    Parameters: those of :class:`MonoNodeConfig`, and ``tracker.*`` those of
-    :class:`~face_tracking_ros.tracking.mono.MonoTrackerConfig`.
+    Parameters: those of :class:`MonoNodeConfig`, ``tracker.*`` those of
+    :class:`~face_tracking_ros.tracking.mono.MonoTrackerConfig` and ``smoothing.*`` those of
+    :class:`~face_tracking_ros.tracking.pose_filter.PoseFilterConfig`.
     """
     config = params.config(MonoNodeConfig)
     tracker_config = params.config(MonoTrackerConfig, prefix='tracker.')
+    filter_config = params.config(PoseFilterConfig, prefix='smoothing.')
     model = load_model(config.model_file or default_model_path())
     init = load_init_file(config.init_file) if config.init_file else None
-    return MonoProcessor(factory, config, tracker_config, model, init)
+    return MonoProcessor(factory, config, tracker_config, model, init, filter_config)
