@@ -20,6 +20,20 @@ class ConfigError(FaceTrackingError):
     """A parameter or command-line argument is out of range or inconsistent."""
 
 
+def check_fields(config: object, checks: dict[str, bool]) -> None:
+    """Raise a ConfigError naming the first field of ``config`` whose check is False.
+
+    Args:
+        config: a configuration dataclass (its class name and the field's value go in the
+            message).
+        checks: field name -> whether its value is valid.
+    """
+    for name, ok in checks.items():
+        if not ok:
+            msg = f'invalid {type(config).__name__}.{name} = {getattr(config, name)!r}'
+            raise ConfigError(msg)
+
+
 class ModelFileError(FaceTrackingError):
     """A model, gallery or classifier file is missing, malformed or of another format version."""
 

@@ -14,7 +14,7 @@ from dataclasses import dataclass, replace
 import cv2
 import numpy as np
 
-from face_tracking_ros.errors import ConfigError, InputError
+from face_tracking_ros.errors import ConfigError, InputError, check_fields
 from face_tracking_ros.geometry.camera import PinholeCamera
 from face_tracking_ros.geometry.rotation import rodrigues
 from face_tracking_ros.imaging import inside_image
@@ -53,10 +53,7 @@ class BaselineConfig:
             'forward_backward_px': self.forward_backward_px > 0,
             'reprojection_px': self.reprojection_px > 0,
         }
-        for name, ok in checks.items():
-            if not ok:
-                msg = f'invalid BaselineConfig.{name} = {getattr(self, name)!r}'
-                raise ConfigError(msg)
+        check_fields(self, checks)
 
 
 class LKPnPTracker:

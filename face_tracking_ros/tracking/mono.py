@@ -65,7 +65,7 @@ import numpy as np
 from numpy.linalg import LinAlgError
 from scipy.linalg import inv
 
-from face_tracking_ros.errors import ConfigError, InputError
+from face_tracking_ros.errors import ConfigError, InputError, check_fields
 from face_tracking_ros.geometry.camera import PinholeCamera
 from face_tracking_ros.geometry.rotation import rodrigues
 from face_tracking_ros.imaging import (
@@ -227,10 +227,7 @@ class MonoTrackerConfig:
             'max_rotation_step': self.max_rotation_step > 0,
             'max_condition': self.max_condition > 1,
         }
-        for name, ok in checks.items():
-            if not ok:
-                msg = f'invalid MonoTrackerConfig.{name} = {getattr(self, name)!r}'
-                raise ConfigError(msg)
+        check_fields(self, checks)
 
 
 class _Params(NamedTuple):

@@ -23,12 +23,12 @@ that resumes after a loss is not pulled towards the pose before it.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, fields, replace
+from dataclasses import dataclass, replace
 import math
 
 import numpy as np
 
-from face_tracking_ros.errors import ConfigError, InputError
+from face_tracking_ros.errors import ConfigError, InputError, check_fields
 from face_tracking_ros.geometry.camera import PinholeCamera
 from face_tracking_ros.geometry.rotation import matrix_to_omega, rodrigues
 from face_tracking_ros.tracking.evaluation import Tracker
@@ -57,17 +57,12 @@ class PoseFilterConfig:
     def __post_init__(self) -> None:
         """Validate every field; the error names the field and its value."""
         checks = {
-            'min_cutoff': self.min_cutoff > 0,
-            'beta_rotation': self.beta_rotation >= 0,
-            'beta_translation': self.beta_translation >= 0,
-            'derivative_cutoff': self.derivative_cutoff > 0,
+            'min_cutoff': 0.0 < self.min_cutoff < math.inf,
+            'beta_rotation': 0.0 <= self.beta_rotation < math.inf,
+            'beta_translation': 0.0 <= self.beta_translation < math.inf,
+            'derivative_cutoff': 0.0 < self.derivative_cutoff < math.inf,
         }
-        for field in fields(self):
-            value = getattr(self, field.name)
-            finite = isinstance(value, bool) or math.isfinite(value)
-            if not finite or not checks.get(field.name, True):
-                msg = f'invalid PoseFilterConfig.{field.name} = {value!r}'
-                raise ConfigError(msg)
+        check_fields(self, checks)
 
 
 def smoothing_factor(cutoff: float, dt: float) -> float:
