@@ -70,6 +70,7 @@ TRUTH_TYPE = 'face_tracking_msgs/msg/FaceTruth'
 MESH_TYPES = ('face_tracking_msgs/msg/FaceMesh', 'face_tracking_msgs/msg/FaceState')
 TRUTH_TOPIC = 'truth/face'
 DEFAULT_TOPICS = (TRUTH_TOPIC, 'face/mesh_raw', 'face/state')
+STEREO_PARAMS = 'retroactive_depths=true'  # learn from meshes with each track's final depths
 
 
 @dataclass(frozen=True)
@@ -181,6 +182,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         type=Path,
         help='where the tracked mesh bags go (default: <report name>_meshes/ beside the report)',
     )
+    stereo.add_argument(
+        '--tracker-param',
+        action='append',
+        metavar='NAME=VALUE',
+        help='a stereo_tracker parameter, as the node declares it; repeatable. Default: '
+        f"{STEREO_PARAMS} (each track's final depths on all its meshes)",
+    )
     parser.set_defaults(func=run)
 
 
@@ -265,7 +273,9 @@ def mesh_bag(bag: Path, args: argparse.Namespace) -> Path:
     ``--from-images``) is first tracked by the stereo
     tracker (eq. 4, 5) through offline replay of the stereo_tracker node's own code, into
     ``--meshes-dir``; it is initialised from ``--init-dir/<bag name>.{yaml,json}`` or, for
-    synthetic bags, from ``--simulate-clicks``.
+    synthetic bags, from ``--simulate-clicks``. By default every mesh carries the frame-1 depths
+    refined over its whole track (the processor's ``retroactive_depths``); ``--tracker-param``
+    overrides it.
 
     Raises:
         ConfigError: for a raw stereo bag without a way to initialise it.
@@ -277,7 +287,9 @@ def mesh_bag(bag: Path, args: argparse.Namespace) -> Path:
     init_file = _init_file(bag, args)
     out = _meshes_dir(args) / bag.name
     print(f'{bag}: raw stereo images: tracking them into {out}')
-    params = OverrideParameters({'init_file': str(init_file)})
+    params = OverrideParameters.parse(
+        [STEREO_PARAMS, *(args.tracker_param or []), f'init_file={init_file}']
+    )
     stats = replay_bag(['stereo_tracker'], bag, out, params, progress=False)
     if not stats.outputs['face/mesh_raw']:
         msg = f'{bag}: the stereo tracker produced no mesh ({dict(stats.errors)})'

@@ -28,8 +28,8 @@ what happened (:class:`~.result.TrackStatus`).
 
 from __future__ import annotations
 
-from collections.abc import Iterable
-from dataclasses import dataclass, field
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field, replace
 from typing import NamedTuple
 
 import numpy as np
@@ -446,6 +446,45 @@ class StereoTracker:
         self._spare = None if kept else pyramids
         return result
 
+    def with_final_depths(self, results: Sequence[StereoResult]) -> list[StereoResult]:
+        """The results of one track, each with the frame-1 depths refined over the whole track.
+
+        Offline, every pair can get the depths pooled over all pairs of the track
+        (:mod:`.depth_refinement`): the mesh of pair n becomes
+        ``X(n) + R(n) (X(1 | F) - X(1 | n))``, with X(1 | n) the frame-1 nodes as refined up to
+        pair n, X(1 | F) after the last pair and R(n) the head rotation since frame 1. The
+        projections, ``first_nodes`` and, with a model, the fit follow the moved nodes; the
+        residuals stay those of the tracked solution. Results without frame-1 nodes (before the
+        first pair) and results whose frame-1 nodes are already the final ones (no refinement)
+        are returned as they are.
+
+        Args:
+            results: the results of one track, in order from its reset (after another reset the
+                frame-1 nodes are another track's).
+        """
+        refined = [r.first_nodes for r in results if r.first_nodes is not None]
+        if not refined:
+            return list(results)
+        return [self._with_first_nodes(r, refined[-1]) for r in results]
+
+    def _with_first_nodes(self, result: StereoResult, first_nodes: np.ndarray) -> StereoResult:
+        """``result`` moved with its frame-1 nodes to ``first_nodes`` (see with_final_depths)."""
+        if (
+            result.first_nodes is None
+            or result.rotation is None
+            or np.array_equal(result.first_nodes, first_nodes)
+        ):
+            return result
+        nodes = result.nodes_cam + (first_nodes - result.first_nodes) @ result.rotation.T
+        return replace(
+            result,
+            nodes_cam=nodes,
+            left_px=self._rig.left.project(nodes),
+            right_px=self._rig.right.project(nodes),
+            fit=self._fit(nodes) if result.ok else result.fit,
+            first_nodes=first_nodes,
+        )
+
     # -- initialisation ----------------------------------------------------------------------
 
     def _detected(self, left: np.ndarray) -> np.ndarray | None:
@@ -824,12 +863,6 @@ class StereoTracker:
         n = nodes.shape[0]
         left_res = np.zeros(n) if statistics is None else statistics.rms[0][LEFT]
         right_res = np.zeros(n) if statistics is None else statistics.rms[0][RIGHT]
-        fit = None
-        if self._model is not None:
-            weights = np.where(self._boundary, self._config.fit_edge_weight, 1.0)
-            fit = fit_model_to_nodes(
-                self._model, nodes[None], tolerance=FIT_TOLERANCE, weights=weights
-            )
         return StereoResult(
             status=TrackStatus.TRACKING,
             nodes_cam=nodes,
@@ -840,9 +873,18 @@ class StereoTracker:
             mean_residual=float(np.nanmean(np.concatenate([left_res, right_res]))),
             iterations=iterations,
             cost_history=history,
-            fit=fit,
+            fit=self._fit(nodes),
             first_nodes=first_nodes,
             rotation=rotation,
+        )
+
+    def _fit(self, nodes: np.ndarray) -> NodeFit | None:
+        """The fit of eq. 1-3 to the nodes, face-edge nodes down-weighted; None without a model."""
+        if self._model is None:
+            return None
+        weights = np.where(self._boundary, self._config.fit_edge_weight, 1.0)
+        return fit_model_to_nodes(
+            self._model, nodes[None], tolerance=FIT_TOLERANCE, weights=weights
         )
 
     def _lose(self, reason: str) -> StereoResult:
@@ -906,9 +948,8 @@ def track_sequence(
 ) -> TrackedSequence:
     """Track a whole stereo sequence from given initial node positions (for the learner).
 
-    Offline, every frame gets the frame-1 depths refined over the whole sequence: the mesh of
-    pair n becomes ``X(n) + R(n) (X(1 | F) - X(1 | n))``, with X(1 | n) the frame-1 nodes as
-    refined up to pair n and R(n) the head rotation (:mod:`.depth_refinement`).
+    Offline, every frame gets the frame-1 depths refined over the whole sequence
+    (:meth:`StereoTracker.with_final_depths`).
 
     Args:
         tracker: a stereo tracker.
@@ -921,15 +962,8 @@ def track_sequence(
     tracker.reset(init)
     results = tuple(tracker.step(left, right) for left, right in frames)
     n = tracker.topology.num_nodes
-    refined = [r.first_nodes for r in results if r.first_nodes is not None]
-    meshes = np.array(
-        [
-            r.nodes_cam
-            if r.first_nodes is None or r.rotation is None
-            else r.nodes_cam + (refined[-1] - r.first_nodes) @ r.rotation.T
-            for r in results
-        ]
-    ).reshape(len(results), n, 3)
+    final = tracker.with_final_depths(results)
+    meshes = np.array([r.nodes_cam for r in final]).reshape(len(results), n, 3)
     status = np.array([int(r.status) for r in results], dtype=np.int64)
     return TrackedSequence(meshes=meshes, status=status, results=results)
 
