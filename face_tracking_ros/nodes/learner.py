@@ -2,7 +2,8 @@
 
 It runs exactly what ``face-tracking learn`` runs (:mod:`face_tracking_ros.cli.learn`), with the
 node's parameters as the command's options: bags of 3-D meshes (synthetic truth, FaceMesh or
-FaceState) or raw stereo image bags, which it first tracks with the stereo tracker. It writes
+FaceState) or raw stereo image bags, which it first tracks with the stereo tracker (every mesh
+with the frame-1 depths refined over its whole track; ``tracker_params``). It writes
 the model file and the JSON report, then publishes the model on ``face/model`` with
 transient-local durability, so trackers started later still receive it, and keeps spinning.
 """

@@ -105,8 +105,10 @@ class StereoTrackerConfig:
             first 20-75 pairs and, in a stream, shows as that much apparent motion of the mesh
             (drift 0.2 -> 1.5-5 mm on the 380-frame sequences); meshes tracked that way and
             learned from taught the demo's model spurious expression modes (LOO A 1.00 -> 0.93).
-            :func:`track_sequence` applies the final depths to every frame, which is where it
-            pays: node RMS 5.7 / 2.2 -> 1.6 / 1.8 mm on those sequences.
+            Offline, :meth:`StereoTracker.with_final_depths` applies the final depths to every
+            pair (the stereo_tracker's retroactive_depths, which face-tracking learn uses on raw
+            stereo bags), which is where it pays: node RMS 5.7 / 2.1 -> 1.6 / 1.8 mm on those
+            sequences.
         matched_depth_std: standard deviation of a stereo-matched node's initial depth, m.
         placed_depth_std: standard deviation of the initial depth of a node placed from the
             reference face (face-edge nodes, unmatched nodes), m.
