@@ -178,17 +178,17 @@ class _Graph:
         pending = deque((source, message) for message in messages)
         if source is not None:
             for message in messages:
-                self._written(message, log_time)
+                self._write_output(message, log_time)
         while pending:
             origin, message = pending.popleft()
             for processor in self._processors:
                 if processor is origin or not _consumes(processor, message.topic):
                     continue
                 for output in _handle(processor, message, self._wanted, self._stats):
-                    self._written(output, log_time)
+                    self._write_output(output, log_time)
                     pending.append((processor, output))
 
-    def _written(self, output: Output, log_time: int) -> None:
+    def _write_output(self, output: Output, log_time: int) -> None:
         """Write one output and report it."""
         self._write(output.topic, self._output_types[output.topic], output.msg, log_time)
         self._stats.outputs[output.topic] += 1
