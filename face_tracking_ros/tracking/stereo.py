@@ -17,7 +17,8 @@ term of eq. 6, which stops the random walk of plain frame-to-frame tracking. Aft
 left-right evidence of that pair can be pooled into the frame-1 node depths, which the face-model
 term, eq. 5 and the frame-1 templates then follow (``refine_depths``, :mod:`.depth_refinement`):
 one pair measures the depth of weakly textured skin and of the face-edge nodes only to
-millimetres.
+millimetres. Offline, :meth:`StereoTracker.with_final_depths` gives every pair of a track the
+depths refined over all of it.
 The image terms and their sample layouts are in :mod:`.stereo_data`; initialisation by epipolar
 search in :mod:`.stereo_init`; the optional model fit (eq. 1-3) is
 :func:`face_tracking_ros.recognition.node_fit.fit_model_to_nodes`.
