@@ -3,8 +3,11 @@
 The processor is the same object the live node runs (:mod:`face_tracking_ros.processing`), so a
 replay exercises the code that runs on the robot. Messages are fed in the bag's log-time order;
 every output is written to an MCAP bag with the log time of the input that produced it, so the
-output is deterministic. Ctrl-C stops the loop and still closes the output bag, which stays
-readable; bad input messages are counted and reported, not fatal.
+output is deterministic. At the end of the bag, processors that hold outputs back for it
+(:class:`~face_tracking_ros.processing.base.Finishing`, e.g. the stereo tracker's
+``retroactive_depths``) emit them, written with the last input's log time. Ctrl-C stops the
+loop (held outputs are then dropped) and still closes the output bag, which stays readable; bad
+input messages are counted and reported, not fatal.
 """
 
 from __future__ import annotations
@@ -21,7 +24,7 @@ from face_tracking_ros.errors import BagError, FaceTrackingError
 from face_tracking_ros.io.bags import BagWriter, bag_topics, message_count, read_messages
 from face_tracking_ros.io.messages import RosbagsMessages
 from face_tracking_ros.io.typestore import typestore
-from face_tracking_ros.processing.base import Output, Port, Processor
+from face_tracking_ros.processing.base import Finishing, Output, Port, Processor
 from face_tracking_ros.processing.parameters import OverrideParameters
 from face_tracking_ros.processing.registry import processor_factory
 
@@ -103,7 +106,9 @@ def replay(
 
     Several processors form a graph as the nodes would over DDS: an output on topic T is also
     delivered, at once and in order, to every other processor with an input port T (e.g. a
-    tracker's ``face/action`` to the expression recogniser).
+    tracker's ``face/action`` to the expression recogniser). After the last record, each
+    :class:`~face_tracking_ros.processing.base.Finishing` processor, in order, gives the outputs
+    it held back; they are written with the last record's log time and routed on the same way.
 
     Args:
         processors: the nodes' processors.
@@ -118,9 +123,10 @@ def replay(
     Returns:
         The counts of what was read, written and rejected.
     """
-    output_types = {port.topic: port.msgtype for p in processors for port in p.outputs}
     stats = ReplayStats()
+    graph = _Graph(processors, write, wanted, stats, on_output)
     iterator = iter(records)
+    log_time = 0
     try:
         while (record := _next_readable(iterator, stats)) is not None:
             bag_topic, msgtype, log_time, msg = record
@@ -130,23 +136,64 @@ def replay(
             if record_inputs:
                 write(bag_topic, msgtype, msg, log_time)
             stats.inputs[port_topic] += 1
-            pending = deque([(None, Output(port_topic, msg))])
-            while pending:
-                source, message = pending.popleft()
-                for processor in processors:
-                    if processor is source or not _consumes(processor, message.topic):
-                        continue
-                    for output in _handle(processor, message, wanted, stats):
-                        write(output.topic, output_types[output.topic], output.msg, log_time)
-                        stats.outputs[output.topic] += 1
-                        if on_output is not None:
-                            on_output(output, log_time)
-                        pending.append((processor, output))
+            graph.deliver(None, [Output(port_topic, msg)], log_time)
             if on_step is not None:
                 on_step()
+        for processor in processors:
+            if isinstance(processor, Finishing):
+                graph.deliver(processor, processor.finish(), log_time)
     except KeyboardInterrupt:
         stats.interrupted = True
     return stats
+
+
+class _Graph:
+    """The processors wired as their nodes would be over DDS; every output is written."""
+
+    def __init__(
+        self,
+        processors: Sequence[Processor],
+        write: Callable[[str, str, Any, int], None],
+        wanted: frozenset[str],
+        stats: ReplayStats,
+        on_output: Callable[[Output, int], None] | None,
+    ) -> None:
+        """Keep the processors and where their outputs go (see :func:`replay`)."""
+        self._processors = processors
+        self._output_types = {port.topic: port.msgtype for p in processors for port in p.outputs}
+        self._write = write
+        self._wanted = wanted
+        self._stats = stats
+        self._on_output = on_output
+
+    def deliver(self, source: Processor | None, messages: Sequence[Output], log_time: int) -> None:
+        """Write a processor's outputs, then feed them, and what they cause, to the consumers.
+
+        Args:
+            source: the processor that produced ``messages``; None for the bag's inputs, which
+                are fed but not written.
+            messages: messages to route, in order.
+            log_time: log time of the input that caused them, ns.
+        """
+        pending = deque((source, message) for message in messages)
+        if source is not None:
+            for message in messages:
+                self._write_output(message, log_time)
+        while pending:
+            origin, message = pending.popleft()
+            for processor in self._processors:
+                if processor is origin or not _consumes(processor, message.topic):
+                    continue
+                for output in _handle(processor, message, self._wanted, self._stats):
+                    self._write_output(output, log_time)
+                    pending.append((processor, output))
+
+    def _write_output(self, output: Output, log_time: int) -> None:
+        """Write one output and report it."""
+        self._write(output.topic, self._output_types[output.topic], output.msg, log_time)
+        self._stats.outputs[output.topic] += 1
+        if self._on_output is not None:
+            self._on_output(output, log_time)
 
 
 def _consumes(processor: Processor, topic: str) -> bool:

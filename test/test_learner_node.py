@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import argparse
 import signal
 import time
 
@@ -11,8 +12,10 @@ import numpy as np
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 
+from face_tracking_ros.cli import learn
 from face_tracking_ros.io import conversions
 from face_tracking_ros.model.model_file import load_model
+from face_tracking_ros.nodes.learner import LearnerConfig, learn_arguments
 from face_tracking_ros.nodes.processor_node import QOS_PROFILES
 from face_tracking_ros.processing.base import QosClass
 
@@ -54,3 +57,16 @@ def test_model_reaches_a_subscriber_that_starts_after_it_was_published(ros_conte
     assert published.node_names == written.node_names
     np.testing.assert_array_equal(published.shape_basis, written.shape_basis)
     assert output.with_suffix('.json').exists()
+
+
+def test_tracker_params_reach_the_stereo_tracking_of_learn():
+    config = LearnerConfig(bags=('a', 'b'), tracker_params=('retroactive_depths=false', 'x=1'))
+    parser = argparse.ArgumentParser()
+    learn.register(parser.add_subparsers())
+    args = parser.parse_args(['learn', *learn_arguments(config)])
+    assert [str(bag) for bag in args.bags] == ['a', 'b']
+    assert args.tracker_param == ['retroactive_depths=false', 'x=1']
+    assert (
+        parser.parse_args(['learn', *learn_arguments(LearnerConfig(bags=('a',)))]).tracker_param
+        is None
+    )

@@ -150,6 +150,43 @@ def test_outputs_of_one_processor_feed_the_next(tmp_path):
     assert doubled == [0, 2, 4, 8]  # frame 3 is rejected by MeanProcessor
 
 
+class HoldingProcessor(MeanProcessor):
+    """MeanProcessor holding its outputs back until the end of the stream (Finishing)."""
+
+    def __init__(self) -> None:
+        """Nothing held yet."""
+        super().__init__()
+        self._held: list[Output] = []
+
+    def handle(self, topic, msg, wanted):
+        """Hold the outputs."""
+        self._held += super().handle(topic, msg, wanted)
+        return []
+
+    def finish(self):
+        """The held outputs."""
+        held, self._held = self._held, []
+        return held
+
+
+def test_outputs_held_to_the_end_are_written_and_fed_on_at_the_last_stamp(tmp_path):
+    stamps = _write_images(tmp_path / 'in', 5)
+    with BagWriter(tmp_path / 'out') as writer:
+        stats = replay(
+            [HoldingProcessor(), DoublingProcessor()],
+            read_messages(tmp_path / 'in'),
+            writer.write,
+            {'/cam/image': 'image'},
+        )
+    assert stats.outputs == {'mean': 4, 'double': 4}
+    written = list(read_messages(tmp_path / 'out'))
+    assert [(m.topic, m.msg.data) for m in written] == [
+        *(('mean', value) for value in (0, 1, 2, 4)),
+        *(('double', value) for value in (0, 2, 4, 8)),
+    ]
+    assert {m.stamp_ns for m in written} == {stamps[-1]}
+
+
 def test_on_demand_outputs_only_when_wanted(tmp_path):
     _write_images(tmp_path / 'in', 3)
     for wanted, expected in (

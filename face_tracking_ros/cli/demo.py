@@ -5,7 +5,8 @@ repeated by hand:
 
 1. ``synth``: stereo training sequences of several subjects (head almost still, expressions in
    turn, as in the seed's protocol) and monocular test sequences with free head motion;
-2. ``track``: the stereo tracker (eq. 4, 5) turns the training sequences into 3-D meshes;
+2. ``track``: the stereo tracker (eq. 4, 5) turns the training sequences into 3-D meshes, each
+   with the frame-1 depths refined over its whole sequence, as ``learn`` tracks raw stereo bags;
 3. ``learn``: the face model (mean shape, S, A, prior) from those meshes, with the leave-one-
    subject-out table;
 4. ``train-expressions``: the expression classifier on the learned model's alpha;
@@ -25,6 +26,7 @@ import shutil
 import time
 
 from face_tracking_ros.cli import main as cli
+from face_tracking_ros.cli.learn import STEREO_PARAMS
 from face_tracking_ros.errors import ConfigError
 
 
@@ -171,6 +173,8 @@ def steps(plan: DemoPlan, out: Path) -> list[tuple[str, list[str]]]:
                 str(bag),
                 '--simulate-clicks',
                 '1.0',
+                '--param',
+                STEREO_PARAMS,
                 '--out',
                 str(mesh),
                 '--quiet',

@@ -8,7 +8,10 @@ Input bags hold one of:
 * ``face_tracking_msgs/FaceMesh`` or ``FaceState`` (a tracker's meshes): subject, label and
   alpha come from ``--truth`` bags (matched by header stamp) when given; otherwise the subject is
   ``--subject`` or the bag's directory name and the first ``--neutral-frames`` frames of each
-  bag are taken as neutral.
+  bag are taken as neutral;
+* raw stereo images (left and right Image and CameraInfo): first tracked by the stereo tracker
+  into FaceMesh bags (:func:`mesh_bag`), every mesh with the frame-1 depths refined over its
+  whole track.
 
 The meshes are aligned (§3.3), the model is learned by ``--method`` (default ``joint``, issue 11;
 ``seed`` is the paper's §3.4), the evaluation of :mod:`face_tracking_ros.learning.evaluation`
@@ -70,6 +73,7 @@ TRUTH_TYPE = 'face_tracking_msgs/msg/FaceTruth'
 MESH_TYPES = ('face_tracking_msgs/msg/FaceMesh', 'face_tracking_msgs/msg/FaceState')
 TRUTH_TOPIC = 'truth/face'
 DEFAULT_TOPICS = (TRUTH_TOPIC, 'face/mesh_raw', 'face/state')
+STEREO_PARAMS = 'retroactive_depths=true'  # learn from meshes with each track's final depths
 
 
 @dataclass(frozen=True)
@@ -181,6 +185,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         type=Path,
         help='where the tracked mesh bags go (default: <report name>_meshes/ beside the report)',
     )
+    stereo.add_argument(
+        '--tracker-param',
+        action='append',
+        metavar='NAME=VALUE',
+        help='a stereo_tracker parameter, as the node declares it; repeatable. Default: '
+        f"{STEREO_PARAMS} (each track's final depths on all its meshes)",
+    )
     parser.set_defaults(func=run)
 
 
@@ -265,7 +276,9 @@ def mesh_bag(bag: Path, args: argparse.Namespace) -> Path:
     ``--from-images``) is first tracked by the stereo
     tracker (eq. 4, 5) through offline replay of the stereo_tracker node's own code, into
     ``--meshes-dir``; it is initialised from ``--init-dir/<bag name>.{yaml,json}`` or, for
-    synthetic bags, from ``--simulate-clicks``.
+    synthetic bags, from ``--simulate-clicks``. By default every mesh carries the frame-1 depths
+    refined over its whole track (the processor's ``retroactive_depths``); ``--tracker-param``
+    overrides it.
 
     Raises:
         ConfigError: for a raw stereo bag without a way to initialise it.
@@ -277,7 +290,9 @@ def mesh_bag(bag: Path, args: argparse.Namespace) -> Path:
     init_file = _init_file(bag, args)
     out = _meshes_dir(args) / bag.name
     print(f'{bag}: raw stereo images: tracking them into {out}')
-    params = OverrideParameters({'init_file': str(init_file)})
+    params = OverrideParameters.parse(
+        [STEREO_PARAMS, *(args.tracker_param or []), f'init_file={init_file}']
+    )
     stats = replay_bag(['stereo_tracker'], bag, out, params, progress=False)
     if not stats.outputs['face/mesh_raw']:
         msg = f'{bag}: the stereo tracker produced no mesh ({dict(stats.errors)})'

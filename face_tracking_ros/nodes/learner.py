@@ -2,7 +2,8 @@
 
 It runs exactly what ``face-tracking learn`` runs (:mod:`face_tracking_ros.cli.learn`), with the
 node's parameters as the command's options: bags of 3-D meshes (synthetic truth, FaceMesh or
-FaceState) or raw stereo image bags, which it first tracks with the stereo tracker. It writes
+FaceState) or raw stereo image bags, which it first tracks with the stereo tracker (every mesh
+with the frame-1 depths refined over its whole track; ``tracker_params``). It writes
 the model file and the JSON report, then publishes the model on ``face/model`` with
 transient-local durability, so trackers started later still receive it, and keeps spinning.
 """
@@ -45,6 +46,9 @@ class LearnerConfig:
         init_dir: raw stereo bags: directory of init files <bag name>.yaml|.json.
         simulate_clicks: synthetic raw stereo bags: initialise from the first frame's true nodes
             with this many pixels of click noise; negative: off.
+        tracker_params: raw stereo bags: stereo_tracker parameters NAME=VALUE for their tracking,
+            after the default retroactive_depths=true (each track's final depths on all its
+            meshes).
         frame_id: frame_id of the published model's header (the face frame's name).
     """
 
@@ -62,6 +66,7 @@ class LearnerConfig:
     from_images: bool = False
     init_dir: str = ''
     simulate_clicks: float = -1.0
+    tracker_params: tuple[str, ...] = ()
     frame_id: str = 'face'
 
 
@@ -92,6 +97,7 @@ def learn_arguments(config: LearnerConfig) -> list[str]:
     argv += [
         item for option, value in options.items() if value != '' for item in (option, str(value))
     ]
+    argv += [item for param in config.tracker_params for item in ('--tracker-param', param)]
     return argv + (['--from-images'] if config.from_images else [])
 
 

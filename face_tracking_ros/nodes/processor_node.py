@@ -68,6 +68,8 @@ class NodeParameters:
     tunable once. Nested config dataclasses become dotted parameters (``tracker.fit.x``).
     """
 
+    live = True
+
     def __init__(self, node: Node) -> None:
         """Declare parameters on ``node``."""
         self._node = node

@@ -4,6 +4,8 @@ A processor turns one input message into zero or more output messages. The live 
 (:mod:`face_tracking_ros.nodes.processor_node`) subscribes to its input ports and publishes its
 outputs; offline replay (:mod:`face_tracking_ros.replay`) feeds it the messages of a bag and
 writes the outputs to another bag. Both run exactly the same :meth:`Processor.handle` code.
+A processor may also hold outputs back until the end of the stream (:class:`Finishing`), which
+only a replay has.
 
 Topics are relative names so users can remap them; each port states its QoS class.
 """
@@ -12,7 +14,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from enum import IntEnum
-from typing import Any, Protocol
+from typing import Any, Protocol, runtime_checkable
 
 
 class QosClass(IntEnum):
@@ -75,4 +77,13 @@ class Processor(Protocol):
         Raises:
             FaceTrackingError: for a bad input message; the caller logs it and carries on.
         """
+        ...
+
+
+@runtime_checkable
+class Finishing(Protocol):
+    """A processor with outputs for the end of its input stream (offline replay calls it)."""
+
+    def finish(self) -> list[Output]:
+        """The end of the input stream: the outputs held back until then, in order."""
         ...

@@ -24,7 +24,14 @@ _FALSE = {'false', '0', 'no', 'off'}
 
 
 class ParameterSource(Protocol):
-    """Gives the value of each field of a config dataclass."""
+    """Gives the value of each field of a config dataclass.
+
+    Attributes:
+        live: True for a live node's parameters (outputs are published as they are produced),
+            False offline (a replay, which has an end of stream).
+    """
+
+    live: bool
 
     def config(self, config_type: type[ConfigT], prefix: str = '') -> ConfigT:
         """Build ``config_type`` with parameters named ``prefix + field`` (nested: dotted)."""
@@ -40,6 +47,8 @@ def field_default(field: dataclasses.Field) -> Any:
 
 class OverrideParameters:
     """Config defaults, overridden by ``name=value`` strings (offline replay, tests)."""
+
+    live = False
 
     def __init__(self, overrides: Mapping[str, str] | None = None) -> None:
         """Keep the overrides; :meth:`check_all_used` reports names no config field matched."""

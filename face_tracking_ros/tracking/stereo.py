@@ -17,7 +17,8 @@ term of eq. 6, which stops the random walk of plain frame-to-frame tracking. Aft
 left-right evidence of that pair can be pooled into the frame-1 node depths, which the face-model
 term, eq. 5 and the frame-1 templates then follow (``refine_depths``, :mod:`.depth_refinement`):
 one pair measures the depth of weakly textured skin and of the face-edge nodes only to
-millimetres.
+millimetres. Offline, :meth:`StereoTracker.with_final_depths` gives every pair of a track the
+depths refined over all of it.
 The image terms and their sample layouts are in :mod:`.stereo_data`; initialisation by epipolar
 search in :mod:`.stereo_init`; the optional model fit (eq. 1-3) is
 :func:`face_tracking_ros.recognition.node_fit.fit_model_to_nodes`.
@@ -28,8 +29,8 @@ what happened (:class:`~.result.TrackStatus`).
 
 from __future__ import annotations
 
-from collections.abc import Iterable
-from dataclasses import dataclass, field
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field, replace
 from typing import NamedTuple
 
 import numpy as np
@@ -105,8 +106,10 @@ class StereoTrackerConfig:
             first 20-75 pairs and, in a stream, shows as that much apparent motion of the mesh
             (drift 0.2 -> 1.5-5 mm on the 380-frame sequences); meshes tracked that way and
             learned from taught the demo's model spurious expression modes (LOO A 1.00 -> 0.93).
-            :func:`track_sequence` applies the final depths to every frame, which is where it
-            pays: node RMS 5.7 / 2.2 -> 1.6 / 1.8 mm on those sequences.
+            Offline, :meth:`StereoTracker.with_final_depths` applies the final depths to every
+            pair (the stereo_tracker's retroactive_depths, which face-tracking learn uses on raw
+            stereo bags), which is where it pays: node RMS 5.7 / 2.1 -> 1.6 / 1.8 mm on those
+            sequences.
         matched_depth_std: standard deviation of a stereo-matched node's initial depth, m.
         placed_depth_std: standard deviation of the initial depth of a node placed from the
             reference face (face-edge nodes, unmatched nodes), m.
@@ -445,6 +448,45 @@ class StereoTracker:
         kept = self._state is not None and self._state.first_pyramids is pyramids
         self._spare = None if kept else pyramids
         return result
+
+    def with_final_depths(self, results: Sequence[StereoResult]) -> list[StereoResult]:
+        """The results of one track, each with the frame-1 depths refined over the whole track.
+
+        Offline, every pair can get the depths pooled over all pairs of the track
+        (:mod:`.depth_refinement`): the mesh of pair n becomes
+        ``X(n) + R(n) (X(1 | F) - X(1 | n))``, with X(1 | n) the frame-1 nodes as refined up to
+        pair n, X(1 | F) after the last pair and R(n) the head rotation since frame 1. The
+        projections, ``first_nodes`` and, with a model, the fit follow the moved nodes; the
+        residuals stay those of the tracked solution. Results without frame-1 nodes (before the
+        first pair) and results whose frame-1 nodes are already the final ones (no refinement)
+        are returned as they are.
+
+        Args:
+            results: the results of one track, in order from its reset (after another reset the
+                frame-1 nodes are another track's).
+        """
+        refined = [r.first_nodes for r in results if r.first_nodes is not None]
+        if not refined:
+            return list(results)
+        return [self._with_first_nodes(r, refined[-1]) for r in results]
+
+    def _with_first_nodes(self, result: StereoResult, first_nodes: np.ndarray) -> StereoResult:
+        """``result`` moved with its frame-1 nodes to ``first_nodes`` (see with_final_depths)."""
+        if (
+            result.first_nodes is None
+            or result.rotation is None
+            or np.array_equal(result.first_nodes, first_nodes)
+        ):
+            return result
+        nodes = result.nodes_cam + (first_nodes - result.first_nodes) @ result.rotation.T
+        return replace(
+            result,
+            nodes_cam=nodes,
+            left_px=self._rig.left.project(nodes),
+            right_px=self._rig.right.project(nodes),
+            fit=self._fit(nodes) if result.ok else result.fit,
+            first_nodes=first_nodes,
+        )
 
     # -- initialisation ----------------------------------------------------------------------
 
@@ -824,12 +866,6 @@ class StereoTracker:
         n = nodes.shape[0]
         left_res = np.zeros(n) if statistics is None else statistics.rms[0][LEFT]
         right_res = np.zeros(n) if statistics is None else statistics.rms[0][RIGHT]
-        fit = None
-        if self._model is not None:
-            weights = np.where(self._boundary, self._config.fit_edge_weight, 1.0)
-            fit = fit_model_to_nodes(
-                self._model, nodes[None], tolerance=FIT_TOLERANCE, weights=weights
-            )
         return StereoResult(
             status=TrackStatus.TRACKING,
             nodes_cam=nodes,
@@ -840,9 +876,18 @@ class StereoTracker:
             mean_residual=float(np.nanmean(np.concatenate([left_res, right_res]))),
             iterations=iterations,
             cost_history=history,
-            fit=fit,
+            fit=self._fit(nodes),
             first_nodes=first_nodes,
             rotation=rotation,
+        )
+
+    def _fit(self, nodes: np.ndarray) -> NodeFit | None:
+        """The fit of eq. 1-3 to the nodes, face-edge nodes down-weighted; None without a model."""
+        if self._model is None:
+            return None
+        weights = np.where(self._boundary, self._config.fit_edge_weight, 1.0)
+        return fit_model_to_nodes(
+            self._model, nodes[None], tolerance=FIT_TOLERANCE, weights=weights
         )
 
     def _lose(self, reason: str) -> StereoResult:
@@ -906,9 +951,8 @@ def track_sequence(
 ) -> TrackedSequence:
     """Track a whole stereo sequence from given initial node positions (for the learner).
 
-    Offline, every frame gets the frame-1 depths refined over the whole sequence: the mesh of
-    pair n becomes ``X(n) + R(n) (X(1 | F) - X(1 | n))``, with X(1 | n) the frame-1 nodes as
-    refined up to pair n and R(n) the head rotation (:mod:`.depth_refinement`).
+    Offline, every frame gets the frame-1 depths refined over the whole sequence
+    (:meth:`StereoTracker.with_final_depths`).
 
     Args:
         tracker: a stereo tracker.
@@ -921,15 +965,8 @@ def track_sequence(
     tracker.reset(init)
     results = tuple(tracker.step(left, right) for left, right in frames)
     n = tracker.topology.num_nodes
-    refined = [r.first_nodes for r in results if r.first_nodes is not None]
-    meshes = np.array(
-        [
-            r.nodes_cam
-            if r.first_nodes is None or r.rotation is None
-            else r.nodes_cam + (refined[-1] - r.first_nodes) @ r.rotation.T
-            for r in results
-        ]
-    ).reshape(len(results), n, 3)
+    final = tracker.with_final_depths(results)
+    meshes = np.array([r.nodes_cam for r in final]).reshape(len(results), n, 3)
     status = np.array([int(r.status) for r in results], dtype=np.int64)
     return TrackedSequence(meshes=meshes, status=status, results=results)
 

@@ -30,7 +30,12 @@ from face_tracking_ros.model.topology import mesh_topology
 from face_tracking_ros.processing.expression import ExpressionProcessor
 from face_tracking_ros.processing.identity import IdentityNodeConfig, IdentityProcessor
 from face_tracking_ros.processing.mono import MonoNodeConfig, MonoProcessor
-from face_tracking_ros.processing.stereo import StereoNodeConfig, StereoProcessor
+from face_tracking_ros.processing.parameters import OverrideParameters
+from face_tracking_ros.processing.stereo import (
+    StereoNodeConfig,
+    StereoProcessor,
+    make_stereo_processor,
+)
 from face_tracking_ros.recognition.events import EventConfig, EventKind
 from face_tracking_ros.recognition.identity import IdentityConfig, IdentityGallery
 from face_tracking_ros.tracking.mono import MonoTrackerConfig
@@ -372,6 +377,65 @@ def test_stereo_repeated_stamp_is_refused_and_an_earlier_stamp_restarts_the_trac
     assert stamp_to_ns(outputs[0].msg.header.stamp) == stamp(0)
     np.testing.assert_array_equal(_mesh(outputs), stereo_reference[0])
     np.testing.assert_array_equal(_mesh(_pair(processor, pairs, 1)), stereo_reference[1])
+
+
+def _retroactive(pairs) -> StereoProcessor:
+    """A stereo processor with retroactive_depths (offline), calibrated."""
+    node_config = StereoNodeConfig(retroactive_depths=True)
+    processor = StereoProcessor(FACTORY, node_config, StereoTrackerConfig(), None, pairs[2])
+    _stereo_infos(processor)
+    return processor
+
+
+def _finished(processor) -> tuple[list[int], list[np.ndarray]]:
+    """Stamps and meshes of the face/mesh_raw outputs the processor held to the end."""
+    meshes = [o.msg for o in processor.finish() if o.topic == 'face/mesh_raw']
+    points = [conversions.points_to_array(mesh.points, 'points') for mesh in meshes]
+    return [stamp_to_ns(mesh.header.stamp) for mesh in meshes], points
+
+
+def test_stereo_retroactive_depths_hold_each_track_until_it_ends(pairs):
+    streamed = StereoProcessor(
+        FACTORY, StereoNodeConfig(), StereoTrackerConfig(refine_depths=True), None, pairs[2]
+    )
+    _stereo_infos(streamed)
+    online = [_mesh(_pair(streamed, pairs, f)) for f in range(4)]
+    whole = _retroactive(pairs)
+    assert all(_pair(whole, pairs, f) == [] for f in range(4))
+    stamps, reference = _finished(whole)
+    assert stamps == [stamp(f) for f in range(4)] and whole.finish() == []
+    # The last pair has the final depths already; the earlier ones get them afterwards.
+    np.testing.assert_array_equal(reference[3], online[3])
+    assert np.abs(reference[0] - online[0]).max() > 1e-4
+    short = _retroactive(pairs)
+    _pair(short, pairs, 0)
+    _pair(short, pairs, 1)
+    _, two_pairs = _finished(short)
+    assert np.abs(two_pairs[0] - reference[0]).max() > 1e-5  # two pairs refine less than four
+    # A jump back in time ends the first track: each track gets its own final depths.
+    looped = _retroactive(pairs)
+    for f in range(4):
+        _pair(looped, pairs, f, stamp(40 + f))
+    with pytest.raises(InputError, match='stamp went back'):
+        looped.handle('left/image_raw', image_msg(pairs[0][0].image, stamp(0)), NONE)
+    assert looped.handle('right/image_raw', image_msg(pairs[1][0].image, stamp(0)), NONE) == []
+    _pair(looped, pairs, 1)
+    stamps, meshes = _finished(looped)
+    assert stamps == [stamp(40 + f) for f in range(4)] + [stamp(0), stamp(1)]
+    for got, expected in zip(meshes, reference + two_pairs, strict=True):
+        np.testing.assert_array_equal(got, expected)
+
+
+class _LiveParameters(OverrideParameters):
+    """Overrides standing for a live node's ROS parameters."""
+
+    live = True
+
+
+def test_stereo_retroactive_depths_are_off_by_default_and_refused_live():
+    assert not StereoNodeConfig().retroactive_depths and not StereoTrackerConfig().refine_depths
+    with pytest.raises(ConfigError, match='retroactive_depths is for offline replay'):
+        make_stereo_processor(_LiveParameters({'retroactive_depths': 'true'}), FACTORY)
 
 
 def test_stereo_model_of_another_node_count_is_refused(pairs, scene):
