@@ -185,16 +185,17 @@ def _accuracy_rows(table: dict[str, Any]) -> list[tuple[str, str, str]]:
                     '',
                 )
             )
-    f = table.get('stereo', {})
-    if 'node_rms_mm' in f:
-        rows.append(
-            (
-                'stereo accuracy (same scene)',
-                f'node RMS {f["node_rms_mm"]:.1f} mm, max reprojection '
-                f'{f["max_reprojection_px"]:.1f} px, drift {f["drift_mm"]:.1f} mm',
-                '',
+    for key, path in (('stereo', 'streamed, as the node'), ('stereo_offline', 'as learn tracks')):
+        f = table.get(key, {})
+        if 'node_rms_mm' in f:
+            rows.append(
+                (
+                    f'stereo accuracy (same scene), {path}',
+                    f'node RMS {f["node_rms_mm"]:.1f} mm, max reprojection '
+                    f'{f["max_reprojection_px"]:.1f} px, drift {f["drift_mm"]:.1f} mm',
+                    '',
+                )
             )
-        )
     f = table.get('learning', {})
     if 'loo_shape_similarity' in f:
         rows.append(
