@@ -6,8 +6,9 @@ every output is written to an MCAP bag with the log time of the input that produ
 output is deterministic. At the end of the bag, processors that hold outputs back for it
 (:class:`~face_tracking_ros.processing.base.Finishing`, e.g. the stereo tracker's
 ``retroactive_depths``) emit them, written with the last input's log time. Ctrl-C stops the
-loop (held outputs are then dropped) and still closes the output bag, which stays readable; bad
-input messages are counted and reported, not fatal.
+loop; the outputs held back until then are still emitted and the output bag is closed, so it
+stays readable and nothing already tracked is lost; bad input messages are counted and reported,
+not fatal.
 """
 
 from __future__ import annotations
@@ -139,11 +140,11 @@ def replay(
             graph.deliver(None, [Output(port_topic, msg)], log_time)
             if on_step is not None:
                 on_step()
-        for processor in processors:
-            if isinstance(processor, Finishing):
-                graph.deliver(processor, processor.finish(), log_time)
     except KeyboardInterrupt:
         stats.interrupted = True
+    for processor in processors:
+        if isinstance(processor, Finishing):
+            graph.deliver(processor, processor.finish(), log_time)
     return stats
 
 

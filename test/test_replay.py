@@ -153,9 +153,9 @@ def test_outputs_of_one_processor_feed_the_next(tmp_path):
 class HoldingProcessor(MeanProcessor):
     """MeanProcessor holding its outputs back until the end of the stream (Finishing)."""
 
-    def __init__(self) -> None:
+    def __init__(self, interrupt_at: int = -1) -> None:
         """Nothing held yet."""
-        super().__init__()
+        super().__init__(interrupt_at)
         self._held: list[Output] = []
 
     def handle(self, topic, msg, wanted):
@@ -185,6 +185,13 @@ def test_outputs_held_to_the_end_are_written_and_fed_on_at_the_last_stamp(tmp_pa
         *(('double', value) for value in (0, 2, 4, 8)),
     ]
     assert {m.stamp_ns for m in written} == {stamps[-1]}
+
+
+def test_ctrl_c_still_writes_the_outputs_held_until_then(tmp_path):
+    _write_images(tmp_path / 'in', 20)
+    stats = _run(tmp_path / 'in', tmp_path / 'out', HoldingProcessor(interrupt_at=11))
+    assert stats.interrupted
+    assert [m.msg.data for m in read_messages(tmp_path / 'out')] == [0, 1, 2, 4, 5, 6, 7, 8, 9]
 
 
 def test_on_demand_outputs_only_when_wanted(tmp_path):
