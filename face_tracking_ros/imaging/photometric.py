@@ -6,6 +6,10 @@ affine (GAIN_FIELD) over the patch coordinates (u, v). Instead of estimating g a
 is projected onto the orthogonal complement of the span of those brightness changes per patch:
 with the template T fixed during a frame's solve, ``e = (1 - P) I`` is the residual at the optimal
 g and b, and its Jacobian is exactly ``(1 - P) dI/dtheta``. A still image still gives exactly zero.
+
+The projection runs at every iteration of the trackers' solves on a few thousand samples; it is a
+compiled loop (numba), since numpy's per-call overhead on arrays this small costs more than the
+arithmetic.
 """
 
 from __future__ import annotations
@@ -13,6 +17,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from enum import IntEnum
 
+import numba
 import numpy as np
 
 
@@ -67,10 +72,8 @@ class PhotometricProjection:
         """``(1 - P) values`` for (N, M) residuals or (J, N, M) stacks of them (Jacobian rows)."""
         if self.basis.shape[-1] == 0:
             return values
-        stack = values if values.ndim == 3 else values[None]
-        per_node = stack.transpose(1, 0, 2)  # (N, J, M)
-        correction = (per_node @ self.basis) @ self._basis_t
-        projected = stack - correction.transpose(1, 0, 2)
+        stack = np.ascontiguousarray(values if values.ndim == 3 else values[None], dtype=float)
+        projected = _project_out(stack, self._basis_t)
         return projected if values.ndim == 3 else projected[0]
 
 
@@ -129,6 +132,41 @@ class PhotometricInvariance:
             rows[:, row] = column / np.maximum(norm, threshold)[:, None]
             rows[norm <= threshold, row] = 0.0  # a column the template does not need
         return PhotometricProjection(basis=rows.transpose(0, 2, 1))
+
+
+@numba.njit(
+    'f8[:, :, ::1](f8[:, :, ::1], f8[:, :, ::1])',
+    cache=True,
+    nogil=True,
+    error_model='numpy',
+    fastmath={'reassoc', 'contract'},
+)
+def _project_out(values: np.ndarray, basis_t: np.ndarray) -> np.ndarray:
+    """``values - (values U) U'`` per patch n: (J, N, M) rows, (N, K, M) orthonormal rows U'.
+
+    A basis of one patch (N = 1) serves every patch. The dot products may be reassociated
+    (vectorised); infinities and NaNs propagate.
+    """
+    rows, count, size = values.shape
+    columns = basis_t.shape[1]
+    projected = np.empty_like(values)
+    weights = np.empty((rows, columns))
+    for n in range(count):
+        patch = basis_t[n if len(basis_t) > 1 else 0]
+        for j in range(rows):
+            for k in range(columns):
+                total = 0.0
+                for m in range(size):
+                    total += values[j, n, m] * patch[k, m]
+                weights[j, k] = total
+        for j in range(rows):
+            out = projected[j, n]
+            out[:] = values[j, n]
+            for k in range(columns):
+                weight = weights[j, k]
+                for m in range(size):
+                    out[m] -= weight * patch[k, m]
+    return projected
 
 
 def _orthonormal(columns: np.ndarray) -> np.ndarray:
