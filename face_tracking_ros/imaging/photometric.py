@@ -118,19 +118,8 @@ class PhotometricInvariance:
         rows[:, :first] = fixed
         if not len(self.gains):
             return PhotometricProjection(basis=rows.transpose(0, 2, 1))
-        contrast = template - template.mean(axis=1, keepdims=True)
-        columns = (contrast[:, None, :] * self.gains).reshape(-1, size)
-        # Orthogonal to the fixed columns (twice: Gram-Schmidt keeps orthogonality so), then to
-        # each other; a column's norm after that is QR's |R_jj|, compared with |R_00| = sqrt(M).
-        for _ in range(2):
-            columns = columns - (columns @ self.fixed) @ fixed
-        threshold = 1e-6 * np.sqrt(size)
-        for row, column in enumerate(columns.reshape(count, -1, size).transpose(1, 0, 2), first):
-            for other in rows.transpose(1, 0, 2)[first:row]:
-                column = column - np.einsum('nm,nm->n', column, other)[:, None] * other
-            norm = np.sqrt(np.einsum('nm,nm->n', column, column))
-            rows[:, row] = column / np.maximum(norm, threshold)[:, None]
-            rows[norm <= threshold, row] = 0.0  # a column the template does not need
+        template = np.ascontiguousarray(template, dtype=float)
+        _contrast_rows(template, self.gains, np.ascontiguousarray(fixed), rows)
         return PhotometricProjection(basis=rows.transpose(0, 2, 1))
 
 
@@ -167,6 +156,64 @@ def _project_out(values: np.ndarray, basis_t: np.ndarray) -> np.ndarray:
                 for m in range(size):
                     out[m] -= weight * patch[k, m]
     return projected
+
+
+@numba.njit(
+    '(f8[:, ::1], f8[:, ::1], f8[:, ::1], f8[:, :, ::1])',
+    cache=True,
+    nogil=True,
+    error_model='numpy',
+    fastmath={'reassoc', 'contract'},
+)
+def _contrast_rows(
+    template: np.ndarray, gains: np.ndarray, fixed: np.ndarray, rows: np.ndarray
+) -> None:
+    """The template-dependent basis rows of each patch, into ``rows[:, F:]``.
+
+    Column g of patch n is its contrast ``c = T - mean(T)`` times the gain field g, made
+    orthogonal to the F fixed columns (twice: Gram-Schmidt keeps orthogonality so) and then to
+    the patch's earlier contrast columns (modified Gram-Schmidt), and normalised. A column whose
+    norm after that (QR's |R_jj|) is below 1e-6 sqrt(M) (|R_00| = sqrt(M)) is one the template
+    does not need: it is zero.
+
+    Args:
+        template: (N, M) templates.
+        gains: (G, M) gain fields.
+        fixed: (F, M) orthonormal rows of the template-independent changes.
+        rows: (N, F + G, M) the basis rows; rows[:, :F] are the fixed rows (read), rows[:, F:]
+            are written.
+    """
+    count, size = template.shape
+    first = fixed.shape[0]
+    threshold = 1e-6 * np.sqrt(size)
+    contrast = np.empty(size)
+    weights = np.empty(first)
+    for n in range(count):
+        mean = np.mean(template[n])
+        for m in range(size):
+            contrast[m] = template[n, m] - mean
+        for g in range(gains.shape[0]):
+            column = rows[n, first + g]
+            for m in range(size):
+                column[m] = contrast[m] * gains[g, m]
+            for _ in range(2):
+                weights[:] = 0.0
+                for f in range(first):
+                    for m in range(size):
+                        weights[f] += column[m] * fixed[f, m]
+                for f in range(first):
+                    for m in range(size):
+                        column[m] -= weights[f] * fixed[f, m]
+            for other in range(first, first + g):
+                weight = 0.0
+                for m in range(size):
+                    weight += column[m] * rows[n, other, m]
+                for m in range(size):
+                    column[m] -= weight * rows[n, other, m]
+            norm = np.sqrt(np.sum(column * column))
+            scale = 0.0 if norm <= threshold else 1.0 / max(norm, threshold)
+            for m in range(size):
+                column[m] *= scale
 
 
 def _orthonormal(columns: np.ndarray) -> np.ndarray:

@@ -87,6 +87,7 @@ from face_tracking_ros.tracking.initialisation import (
     fit_model_to_points,
 )
 from face_tracking_ros.tracking.mono_kernels import (
+    damped_step,
     huber_irls,
     roi_jacobian,
     roi_points,
@@ -777,7 +778,7 @@ class MonoTracker:
                     break
                 accepted = (params, system)
                 damping = max(0.1 * damping, 1e-9)
-                step = _damped_step(system, damping)
+                step = damped_step(system.hessian, system.gradient, damping)
                 params = params.updated(step, q)
                 motion = np.abs(linear.node_jacobian @ step).max(initial=0.0)
                 if motion < converged:
@@ -1093,18 +1094,6 @@ def _median(values: np.ndarray) -> float:
         return float(np.partition(values, half)[half])
     low, high = np.partition(values, (half - 1, half))[half - 1 : half + 1]
     return float((low + high) / 2)
-
-
-def _damped_step(system: _System, damping: float) -> np.ndarray:
-    """Levenberg-Marquardt step ``-(H + lambda diag H)^-1 g``, solved Jacobi-scaled."""
-    hessian, gradient = system.hessian, system.gradient
-    if not (np.isfinite(hessian).all() and np.isfinite(gradient).all()):
-        msg = 'non-finite normal equations'
-        raise LinAlgError(msg)
-    scaling = 1.0 / np.sqrt(np.maximum(hessian.diagonal(), 1e-12))
-    damped = hessian * scaling[:, None] * scaling[None, :]
-    damped.flat[:: len(scaling) + 1] += damping
-    return -scaling * np.linalg.solve(damped, gradient * scaling)
 
 
 def _condition(hessian: np.ndarray) -> float:

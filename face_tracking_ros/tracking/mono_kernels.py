@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import numba
 import numpy as np
+from numpy.linalg import LinAlgError
 
 _OPTIONS = {
     'cache': True,
@@ -325,3 +326,31 @@ def huber_irls(
             irls[i] = flat_weights[i] * (k / magnitude)
             cost += flat_weights[i] * (2.0 * k * magnitude - k * k)
     return irls, cost
+
+
+@numba.njit('f8[::1](f8[:, ::1], f8[::1], f8)', **_OPTIONS)
+def damped_step(hessian: np.ndarray, gradient: np.ndarray, damping: float) -> np.ndarray:
+    """Levenberg-Marquardt step ``-(H + lambda diag H)^-1 g``, solved Jacobi-scaled.
+
+    With ``S = diag(H)^-1/2``, the step is ``-S (S H S + lambda I)^-1 S g``.
+
+    Args:
+        hessian: (P, P) normal matrix H (halved Hessian of the cost).
+        gradient: (P,) g (halved gradient).
+        damping: lambda, relative to diag(H).
+
+    Raises:
+        LinAlgError: if H or g is not finite, or the damped matrix is singular.
+    """
+    size = gradient.size
+    if not (np.all(np.isfinite(hessian)) and np.all(np.isfinite(gradient))):
+        raise LinAlgError('non-finite normal equations')
+    scaling = np.empty(size)
+    for a in range(size):
+        scaling[a] = 1.0 / np.sqrt(max(hessian[a, a], 1e-12))
+    damped = np.empty((size, size))
+    for a in range(size):
+        for b in range(size):
+            damped[a, b] = hessian[a, b] * scaling[a] * scaling[b]
+        damped[a, a] += damping
+    return -scaling * np.linalg.solve(damped, gradient * scaling)
