@@ -89,6 +89,7 @@ from face_tracking_ros.tracking.initialisation import (
 from face_tracking_ros.tracking.mono_kernels import (
     damped_step,
     huber_irls,
+    normal_equations,
     roi_jacobian,
     roi_points,
     weighted_gram,
@@ -880,17 +881,20 @@ class MonoTracker:
             active = np.abs(residuals[weights > 0])
             spread = _MAD_TO_STD * _median(active) if active.size else 0.0
             scale = max(self._config.residual_scale_floor, spread)
-        irls, data_cost = huber_irls(residuals, weights, scale, self._config.huber_k)
-        change = irls - level.visibility.ravel()
-        changed = change != 0.0
-        columns = np.compress(changed, linear.jacobian_t, axis=1)
+        data_cost, hessian, gradient = normal_equations(
+            linear.jacobian_t,
+            residuals,
+            weights,
+            level.visibility,
+            scale,
+            self._config.huber_k,
+            linear.hessian,
+        )
         free_sigma = linear.jacobian_t.shape[0] > POSE_DIM + self._model.q
         return _System(
             cost=data_cost + self._prior_cost(params, free_sigma),
-            hessian=(linear.hessian + weighted_gram(columns, change[changed])) / scale**2
-            + self._prior_hessians[free_sigma],
-            gradient=linear.jacobian_t @ (irls * residuals.ravel()) / scale**2
-            + self._prior_gradient(params, free_sigma),
+            hessian=hessian + self._prior_hessians[free_sigma],
+            gradient=gradient + self._prior_gradient(params, free_sigma),
             scale=scale,
             sampled=sampled,
             residuals=residuals,

@@ -354,3 +354,58 @@ def damped_step(hessian: np.ndarray, gradient: np.ndarray, damping: float) -> np
             damped[a, b] = hessian[a, b] * scaling[a] * scaling[b]
         damped[a, a] += damping
     return -scaling * np.linalg.solve(damped, gradient * scaling)
+
+
+@numba.njit(
+    'Tuple((f8, f8[:, ::1], f8[::1]))(f8[:, ::1], f8[:, ::1], f8[:, ::1], f8[:, ::1], f8, f8, '
+    'f8[:, ::1])',
+    **_OPTIONS,
+)
+def normal_equations(
+    jacobian_t: np.ndarray,
+    residuals: np.ndarray,
+    weights: np.ndarray,
+    visibility: np.ndarray,
+    scale: float,
+    k: float,
+    visible_hessian: np.ndarray,
+) -> tuple[float, np.ndarray, np.ndarray]:
+    """Huber cost and IRLS normal equations of eq. 6's data term on one pyramid level.
+
+    With W the IRLS weights of :func:`huber_irls`, ``H = J' W J / s^2`` and ``g = J' W r / s^2``;
+    ``J' W J`` is ``visible_hessian`` (``J' V J`` with the visibility weights V alone) plus the
+    samples whose weight W differs from V.
+
+    Args:
+        jacobian_t: (P, N M) transposed Jacobian J' of the residuals.
+        residuals: (N, M) residuals r.
+        weights: (N, M) sample weights (visibility times inside the image).
+        visibility: (N, M) visibility weights V.
+        scale: the robust residual scale s.
+        k: the Huber threshold, in units of s.
+        visible_hessian: (P, P) ``J' V J``.
+
+    Returns:
+        ``(cost, H, g)``: the data cost ``sum w rho(|r| / s)``, (P, P) H and (P,) g.
+    """
+    irls, cost = huber_irls(residuals, weights, scale, k)
+    flat_residuals, flat_visibility = residuals.ravel(), visibility.ravel()
+    size, count = jacobian_t.shape
+    changed = np.flatnonzero(irls != flat_visibility)
+    columns = np.empty((size, changed.size))
+    for a in range(size):
+        row = jacobian_t[a]
+        for i in range(changed.size):
+            columns[a, i] = row[changed[i]]
+    hessian = weighted_gram(columns, irls[changed] - flat_visibility[changed])
+    inverse_variance = 1.0 / (scale * scale)
+    gradient = np.empty(size)
+    for a in range(size):
+        row = jacobian_t[a]
+        total = 0.0
+        for i in range(count):
+            total += row[i] * irls[i] * flat_residuals[i]
+        gradient[a] = total * inverse_variance
+        for b in range(size):
+            hessian[a, b] = (visible_hessian[a, b] + hessian[a, b]) * inverse_variance
+    return cost, hessian, gradient
