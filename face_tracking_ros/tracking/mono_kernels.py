@@ -43,6 +43,24 @@ def _rows_times(matrix: np.ndarray, points: np.ndarray, out: np.ndarray) -> None
 
 
 @numba.njit(**_OPTIONS)
+def _left_jacobian(rotation: np.ndarray, d_rotation: np.ndarray) -> np.ndarray:
+    """(3, 3) matrix of columns j_k with ``dR/domega_k = [j_k]x R`` (eq. 1).
+
+    ``dR/domega_k R'`` is the skew-symmetric ``[j_k]x``; its (2, 1), (0, 2) and (1, 0) entries
+    are j_k.
+    """
+    left = np.empty((3, 3))
+    for k in range(3):
+        for a, (row, column) in enumerate(((2, 1), (0, 2), (1, 0))):
+            left[a, k] = (
+                d_rotation[k, row, 0] * rotation[column, 0]
+                + d_rotation[k, row, 1] * rotation[column, 1]
+                + d_rotation[k, row, 2] * rotation[column, 2]
+            )
+    return left
+
+
+@numba.njit(**_OPTIONS)
 def _node_jacobian(
     camera: np.ndarray,
     rotation: np.ndarray,
@@ -178,7 +196,7 @@ def roi_points(
 
 @numba.njit(
     'Tuple((f8[:, :, ::1], f8[:, ::1]))(f8[:, :, ::1], f8[:, ::1], f8[::1], f8[:, ::1], '
-    'f4[:, :, ::1], f8[:, ::1], f8[:, ::1], f8[:, :, ::1], f8[:, :, :, ::1])',
+    'f4[:, :, ::1], f8[:, ::1], f8[:, :, ::1], f8[:, :, ::1], f8[:, :, :, ::1])',
     **_OPTIONS,
 )
 def roi_jacobian(
@@ -188,7 +206,7 @@ def roi_jacobian(
     camera: np.ndarray,
     gradient: np.ndarray,
     rotation: np.ndarray,
-    left_jacobian: np.ndarray,
+    d_rotation: np.ndarray,
     node_basis: np.ndarray,
     sample_basis: np.ndarray,
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -209,7 +227,7 @@ def roi_jacobian(
         camera: (3, 4) projection matrix of the level's pixels.
         gradient: (2, N, M) float32 image gradient at the samples, grey levels per level px.
         rotation: (3, 3) R(omega).
-        left_jacobian: (3, 3) matrix of columns j_k (``dR/domega_k = [j_k]x R``).
+        d_rotation: (3, 3, 3) dR/domega_k (:func:`~face_tracking_ros.geometry.rotation.rodrigues`).
         node_basis: (N, 3, c) derivative of eq. 3's nodes with respect to the coefficients.
         sample_basis: (c, 3, N, M) derivative of the samples' offsets from their nodes.
 
@@ -222,6 +240,7 @@ def roi_jacobian(
     coefficients = node_basis.shape[2]
     jacobian = np.empty((6 + coefficients, count, size))
     node_jacobian = np.empty((2 * count, 6 + coefficients))
+    left_jacobian = _left_jacobian(rotation, d_rotation)
     _node_jacobian(camera, rotation, left_jacobian, t, rotated_nodes, node_basis, node_jacobian)
     # The small matrices as scalars: the loops below then hold them in registers.
     p_00, p_01, p_02, p_03 = camera[0, 0], camera[0, 1], camera[0, 2], camera[0, 3]
@@ -409,3 +428,15 @@ def normal_equations(
         for b in range(size):
             hessian[a, b] = (visible_hessian[a, b] + hessian[a, b]) * inverse_variance
     return cost, hessian, gradient
+
+
+@numba.njit('f8(f8[:, ::1], f8[:, ::1])', **_OPTIONS)
+def median_magnitude(residuals: np.ndarray, weights: np.ndarray) -> float:
+    """Median of |r| over the samples of positive weight (0 if there are none).
+
+    Times 1.4826, the robust standard deviation of the residuals (their median absolute
+    deviation from zero).
+    """
+    flat_residuals, flat_weights = residuals.ravel(), weights.ravel()
+    active = np.abs(flat_residuals[flat_weights > 0.0])
+    return np.median(active) if active.size else 0.0

@@ -98,9 +98,3 @@ def space_gradient(
     h -= projection[..., 2, :, None] * along[..., None, :]
     h *= inverse_depth[..., None, :]
     return h
-
-
-def left_jacobian(rotation: np.ndarray, d_rotation: np.ndarray) -> np.ndarray:
-    """(3, 3) matrix J with columns j_k such that dR/domega_k = [j_k]x R (from cv2's dR)."""
-    generators = d_rotation @ rotation.T  # (3, 3, 3), each skew-symmetric
-    return np.stack([generators[:, 2, 1], generators[:, 0, 2], generators[:, 1, 0]], axis=0)

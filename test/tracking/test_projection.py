@@ -15,7 +15,7 @@ from face_tracking_ros.tracking.mono_kernels import (
     roi_points,
     weighted_gram,
 )
-from face_tracking_ros.tracking.projection import left_jacobian, project_with_jacobian
+from face_tracking_ros.tracking.projection import project_with_jacobian
 from face_tracking_ros.tracking.surface_patches import (
     node_frames,
     patch_basis,
@@ -91,7 +91,7 @@ def test_roi_kernels_are_eq_1_to_3_and_the_gradient_contracted_chain_rule() -> N
         CAMERA.p,
         gradient,
         rotation,
-        left_jacobian(rotation, d_rotation),
+        d_rotation,
         node_basis,
         action,
     )
