@@ -89,7 +89,6 @@ from face_tracking_ros.tracking.initialisation import (
 from face_tracking_ros.tracking.mono_kernels import (
     damped_step,
     huber_irls,
-    median_magnitude,
     normal_equations,
     roi_jacobian,
     roi_points,
@@ -879,7 +878,8 @@ class MonoTracker:
         residuals = level.projection.apply(sampled.samples - level.template)
         weights = level.visibility * sampled.inside
         if scale is None:
-            spread = _MAD_TO_STD * median_magnitude(residuals, weights)
+            active = np.abs(residuals[weights > 0])
+            spread = _MAD_TO_STD * _median(active) if active.size else 0.0
             scale = max(self._config.residual_scale_floor, spread)
         data_cost, hessian, gradient = normal_equations(
             linear.jacobian_t,
@@ -1089,6 +1089,15 @@ def _rotation_angle(omega_a: np.ndarray, omega_b: np.ndarray) -> float:
     """Angle of the rotation between R(omega_a) and R(omega_b), rad."""
     relative = rodrigues(omega_a)[0].T @ rodrigues(omega_b)[0]
     return float(np.arccos(np.clip(0.5 * (np.trace(relative) - 1.0), -1.0, 1.0)))
+
+
+def _median(values: np.ndarray) -> float:
+    """``np.median`` of a non-empty 1-D array, by one partial sort."""
+    half = values.size // 2
+    if values.size % 2:
+        return float(np.partition(values, half)[half])
+    low, high = np.partition(values, (half - 1, half))[half - 1 : half + 1]
+    return float((low + high) / 2)
 
 
 def _condition(hessian: np.ndarray) -> float:

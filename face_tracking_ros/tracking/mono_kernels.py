@@ -359,7 +359,7 @@ def damped_step(hessian: np.ndarray, gradient: np.ndarray, damping: float) -> np
         damping: lambda, relative to diag(H).
 
     Raises:
-        LinAlgError: if H or g is not finite, or the damped matrix is singular.
+        LinAlgError: if H or g is not finite, or the damped matrix is not positive definite.
     """
     size = gradient.size
     if not (np.all(np.isfinite(hessian)) and np.all(np.isfinite(gradient))):
@@ -367,12 +367,30 @@ def damped_step(hessian: np.ndarray, gradient: np.ndarray, damping: float) -> np
     scaling = np.empty(size)
     for a in range(size):
         scaling[a] = 1.0 / np.sqrt(max(hessian[a, a], 1e-12))
-    damped = np.empty((size, size))
+    # S H S + lambda I is symmetric positive definite (H = J' W J + the prior's precision, W >= 0):
+    # its Cholesky factor L (lower triangle), then two triangular solves.
+    factor = np.zeros((size, size))
     for a in range(size):
-        for b in range(size):
-            damped[a, b] = hessian[a, b] * scaling[a] * scaling[b]
-        damped[a, a] += damping
-    return -scaling * np.linalg.solve(damped, gradient * scaling)
+        for b in range(a + 1):
+            total = hessian[a, b] * scaling[a] * scaling[b] + (damping if a == b else 0.0)
+            for c in range(b):
+                total -= factor[a, c] * factor[b, c]
+            if a > b:
+                factor[a, b] = total / factor[b, b]
+            elif total > 0.0:
+                factor[a, a] = np.sqrt(total)
+            else:
+                raise LinAlgError('damped normal matrix not positive definite')
+    step = gradient * scaling
+    for a in range(size):
+        for c in range(a):
+            step[a] -= factor[a, c] * step[c]
+        step[a] /= factor[a, a]
+    for a in range(size - 1, -1, -1):
+        for c in range(a + 1, size):
+            step[a] -= factor[c, a] * step[c]
+        step[a] /= factor[a, a]
+    return -scaling * step
 
 
 @numba.njit(
@@ -428,15 +446,3 @@ def normal_equations(
         for b in range(size):
             hessian[a, b] = (visible_hessian[a, b] + hessian[a, b]) * inverse_variance
     return cost, hessian, gradient
-
-
-@numba.njit('f8(f8[:, ::1], f8[:, ::1])', **_OPTIONS)
-def median_magnitude(residuals: np.ndarray, weights: np.ndarray) -> float:
-    """Median of |r| over the samples of positive weight (0 if there are none).
-
-    Times 1.4826, the robust standard deviation of the residuals (their median absolute
-    deviation from zero).
-    """
-    flat_residuals, flat_weights = residuals.ravel(), weights.ravel()
-    active = np.abs(flat_residuals[flat_weights > 0.0])
-    return np.median(active) if active.size else 0.0

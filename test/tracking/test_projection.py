@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+from numpy.linalg import LinAlgError
 import pytest
 
 from face_tracking_ros.errors import InputError
@@ -10,7 +11,9 @@ from face_tracking_ros.geometry.camera import PinholeCamera
 from face_tracking_ros.geometry.rotation import rodrigues
 from face_tracking_ros.model.topology import mesh_topology
 from face_tracking_ros.tracking.mono_kernels import (
+    damped_step,
     huber_irls,
+    normal_equations,
     roi_jacobian,
     roi_points,
     weighted_gram,
@@ -183,3 +186,26 @@ def test_patch_basis_carries_node_motion_to_the_samples() -> None:
     assert np.all(np.einsum('ma,a->m', near, single[lip]) > 0.3 * single[lip] @ single[lip])
     far = topology.index('left_brow_outer')
     assert np.abs(dense[far, :, :, 1]).max() < 0.1 * np.abs(single[lip]).max()
+
+
+def test_normal_equations_and_damped_step_match_their_formulas() -> None:
+    rng = np.random.default_rng(4)
+    jacobian_t = rng.normal(size=(6, 40))
+    residuals, weights = rng.normal(0.0, 3.0, (4, 10)), rng.uniform(0.0, 1.0, (4, 10))
+    visibility = np.repeat(rng.uniform(0.5, 1.0, (4, 1)), 10, axis=1)
+    weights[0, :3] = 0.0  # outside the image
+    visible_hessian = weighted_gram(jacobian_t, visibility.ravel())
+    cost, hessian, gradient = normal_equations(
+        jacobian_t, residuals, weights, visibility, 1.5, 2.0, visible_hessian
+    )
+    irls, expected_cost = huber_irls(residuals, weights, 1.5, 2.0)
+    assert cost == expected_cost
+    assert np.abs(hessian - (jacobian_t * irls) @ jacobian_t.T / 1.5**2).max() < 1e-12
+    assert np.abs(gradient - jacobian_t @ (irls * residuals.ravel()) / 1.5**2).max() < 1e-12
+    # The Levenberg-Marquardt step -(H + lambda diag H)^-1 g.
+    step = damped_step(hessian, gradient, 0.1)
+    damped = hessian + 0.1 * np.diag(np.diag(hessian))
+    assert np.abs(step + np.linalg.solve(damped, gradient)).max() < 1e-10 * np.abs(step).max()
+    hessian[2, 3] = np.nan
+    with pytest.raises(LinAlgError, match='non-finite normal equations'):
+        damped_step(hessian, gradient, 0.1)
