@@ -10,7 +10,8 @@ Samples are laid out as in :class:`~.stereo_data.SampleSet`: layout l holds G_l 
 consecutive samples from ``bounds[l]`` on. Grey levels and the ZSSD residuals stay float32 as
 sampled (each group's mean is summed in float32 and subtracted in float64, as numpy does);
 weights, derivatives and sums are float64. Kernels are typed (compiled on import, or loaded from
-numba's on-disk cache) and use IEEE arithmetic without reassociation.
+numba's on-disk cache); the residuals use IEEE arithmetic without reassociation (they equal
+numpy's to the bit), the normal blocks' sums may be reassociated (vectorised).
 """
 
 from __future__ import annotations
@@ -133,52 +134,44 @@ def zssd_residuals(
     for layout in range(group_sizes.size):
         groups += (bounds[layout + 1] - bounds[layout]) // group_sizes[layout]
     counts = np.zeros((images, groups), dtype=np.int64)
-    weighted = np.empty((images, count, size))
-    weighted_residuals = np.empty((images, count, size))
+    weight = np.zeros((images, size))
+    weighted_residual = np.zeros((images, size))
     losses = np.empty((images, count, size))
     masked = np.empty(size, dtype=np.float32)  # one group's I - T_k where valid, else 0
     for c in range(images):
+        grey, in_use = values[c], valid[c]
         group = 0
         for layout in range(group_sizes.size):
             members = group_sizes[layout]
             for first in range(bounds[layout], bounds[layout + 1], members):
                 stop = first + members
                 for s in range(first, stop):
-                    counts[c, group] += valid[c, s]
+                    counts[c, group] += in_use[s]
                 divisor = float(max(counts[c, group], 1))
                 for k in range(count):
+                    template, difference = templates[c, k], differences[c, k]
                     for s in range(first, stop):
-                        difference = values[c, s] - templates[c, k, s]
-                        differences[c, k, s] = difference
-                        masked[s] = difference if valid[c, s] else np.float32(0.0)
+                        difference[s] = grey[s] - template[s]
+                        masked[s] = difference[s] if in_use[s] else np.float32(0.0)
                     mean = float(_pairwise_sum(masked, first, members)) / divisor
                     for s in range(first, stop):
-                        if valid[c, s]:
-                            differences[c, k, s] = np.float32(differences[c, k, s] - mean)
-                        else:
-                            differences[c, k, s] = np.float32(0.0)
+                        centred = np.float32(difference[s] - mean)
+                        difference[s] = centred if in_use[s] else np.float32(0.0)
                 group += 1
-        for k in range(count):
+        total_weight, total_residual = weight[c], weighted_residual[c]
+        for k in range(count):  # summed over k in order, as numpy sums a middle axis
+            difference, coefficient, loss = differences[c, k], coefficients[k], losses[c, k]
             for s in range(size):
-                residual = differences[c, k, s]
-                magnitude = abs(residual)
+                magnitude = abs(difference[s])
                 robust = threshold[s] / magnitude  # inf at |r| = 0: weight 1
                 if robust > 1.0:
                     robust = 1.0
-                weighted[c, k, s] = coefficients[k, s] * robust
-                weighted_residuals[c, k, s] = weighted[c, k, s] * residual
-                if magnitude <= inlier_bound[s]:
-                    loss = float(magnitude * magnitude)
-                else:
-                    loss = twice[s] * magnitude - square[s]
-                losses[c, k, s] = coefficients[k, s] * loss
-    weight = np.zeros((images, size))
-    weighted_residual = np.zeros((images, size))
-    for c in range(images):
-        for k in range(count):  # summed over k in order, as numpy sums a middle axis
-            for s in range(size):
-                weight[c, s] += weighted[c, k, s]
-                weighted_residual[c, s] += weighted_residuals[c, k, s]
+                weighted = coefficient[s] * robust
+                total_weight[s] += weighted
+                total_residual[s] += weighted * difference[s]
+                inlier = float(magnitude * magnitude)
+                outlier = twice[s] * magnitude - square[s]
+                loss[s] = coefficient[s] * (inlier if magnitude <= inlier_bound[s] else outlier)
     cost = _pairwise_sum(losses.ravel(), 0, losses.size)
     return differences, counts, weight, weighted_residual, cost
 
@@ -186,6 +179,7 @@ def zssd_residuals(
 @numba.njit(
     'Tuple((f8[:, :, ::1], f8[:, ::1]))(f8[:, :, ::1], b1[:, ::1], f8[:, ::1], f8[:, ::1], '
     'i8[:, :], f8[:, ::1], i8, i8)',
+    fastmath={'reassoc', 'contract'},
     **_OPTIONS,
 )
 def node_normal_blocks(
@@ -236,12 +230,20 @@ def node_normal_blocks(
                     for m in range(members):
                         if valid[c, start + m]:
                             row[m] -= mean
+            weights = weight[c, start : start + members]
+            residuals = weighted_residual[c, start : start + members]
             for i in range(width):
+                row = jacobian[i]
+                total = 0.0
                 for m in range(members):
-                    vectors[g, i] += weighted_residual[c, start + m] * jacobian[i, m]
-                for other in range(width):
+                    total += residuals[m] * row[m]
+                vectors[g, i] += total
+                for other in range(i, width):
+                    column = jacobian[other]
                     total = 0.0
                     for m in range(members):
-                        total += jacobian[i, m] * weight[c, start + m] * jacobian[other, m]
+                        total += row[m] * weights[m] * column[m]
                     blocks[g, i, other] += total
+                    if other > i:
+                        blocks[g, other, i] += total
     return blocks, vectors
