@@ -7,9 +7,9 @@ is projected onto the orthogonal complement of the span of those brightness chan
 with the template T fixed during a frame's solve, ``e = (1 - P) I`` is the residual at the optimal
 g and b, and its Jacobian is exactly ``(1 - P) dI/dtheta``. A still image still gives exactly zero.
 
-The projection runs at every iteration of the trackers' solves on a few thousand samples; it is a
-compiled loop (numba), since numpy's per-call overhead on arrays this small costs more than the
-arithmetic.
+The projection runs at every iteration of the mono tracker's solve on a few thousand samples; it
+is a compiled loop (numba), since numpy's per-call overhead on arrays this small costs more than
+the arithmetic.
 """
 
 from __future__ import annotations
@@ -211,7 +211,7 @@ def _contrast_rows(
                 for m in range(size):
                     column[m] -= weight * rows[n, other, m]
             norm = np.sqrt(np.sum(column * column))
-            scale = 0.0 if norm <= threshold else 1.0 / max(norm, threshold)
+            scale = 0.0 if norm <= threshold else 1.0 / norm
             for m in range(size):
                 column[m] *= scale
 

@@ -27,8 +27,8 @@ class ImagePyramid:
     Attributes:
         levels: images of level 0 (full resolution) to L-1, each (H_l, W_l) float32 grey levels
             in [0, 255].
-        scratch: the (H, W) float32 unsmoothed level 0 when level 0 is smoothed (kept for
-            ``reuse``), else None.
+        scratch: the (H, W) float32 buffer of the unsmoothed level 0 when level 0 is smoothed
+            (kept for ``reuse``; a uint8 image is filtered without it), else None.
     """
 
     levels: tuple[np.ndarray, ...]

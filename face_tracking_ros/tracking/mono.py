@@ -35,7 +35,8 @@ Design, in the seed's terms:
   normal turns away from the camera lose their weight) and analytic Jacobians: the image gradient
   sampled on the patches times d pixel / d X_c (eq. 2) times d X_c / d(omega, t, alpha) (eq. 1, 3),
   evaluated where a pyramid level starts and refreshed after half a pixel of motion. A level
-  ends when the nodes stop moving or a step raises the cost.
+  ends when the nodes stop moving or a step raises the cost. The loops over the ROI samples are
+  compiled (:mod:`.mono_kernels`).
 - Optionally (``max_keyframes`` > 1) the drift term compares with the keyframe nearest in
   rotation instead of frame 1. Measured on synthetic sequences it does worse than I_1 alone
   (keyframes inherit the error of the pose they were taken at), so it is off by default.

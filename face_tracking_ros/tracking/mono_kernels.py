@@ -1,15 +1,18 @@
 """Compiled (numba) inner loops of the monocular tracker's eq. 6 solve.
 
 The monocular tracker's per-frame budget (2 ms at 640x480 with 34 nodes, issue 6) is below what
-numpy's per-call overhead allows: a frame makes ~1000 array operations on arrays of a few
-thousand elements, so the call overhead costs more than the arithmetic. The loops over the ROI
+numpy's per-call overhead allows: a frame made ~2000 array operations on arrays of a few
+thousand elements, so the call overhead cost more than the arithmetic. The loops over the ROI
 samples that run at every Levenberg-Marquardt iteration are therefore compiled, each one pass
 over the samples of a pyramid level:
 
 - :func:`roi_points`: the ROI samples of every node moved by eq. 3 and mapped through eq. 1-2;
-- :func:`roi_jacobian`: the Jacobian of eq. 6's photometrically projected residuals with
-  respect to (omega, t, c), the chain rule of :mod:`.projection` contracted with the image
-  gradient.
+- :func:`roi_jacobian`: their Jacobian with respect to (omega, t, c), the chain rule of
+  :mod:`.projection` contracted with the image gradient (the photometric projection of the
+  residuals is applied to its rows afterwards);
+- :func:`huber_irls`, :func:`normal_equations`, :func:`weighted_gram`: eq. 6's robust cost and
+  its IRLS normal equations;
+- :func:`damped_step`: the Levenberg-Marquardt step.
 
 Arrays are component-major (one contiguous row per coordinate or parameter), and the loops run
 along a node's M samples, so the compiler vectorises them. Kernels are typed (compiled when this
@@ -176,13 +179,8 @@ def roi_points(
                     for m in range(size):
                         point[m] += weight * basis[m]
         _rows_times(rotation, face, rotated[:, n])
-        x_row, y_row, face_x, face_y, face_z = (
-            pixels[0, n],
-            pixels[1, n],
-            face[0],
-            face[1],
-            face[2],
-        )
+        x_row, y_row = pixels[0, n], pixels[1, n]
+        face_x, face_y, face_z = face[0], face[1], face[2]
         m_00, m_01, m_02, m_03 = mapping[0, 0], mapping[0, 1], mapping[0, 2], mapping[0, 3]
         m_10, m_11, m_12, m_13 = mapping[1, 0], mapping[1, 1], mapping[1, 2], mapping[1, 3]
         m_20, m_21, m_22, m_23 = mapping[2, 0], mapping[2, 1], mapping[2, 2], mapping[2, 3]
