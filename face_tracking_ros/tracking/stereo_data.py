@@ -25,10 +25,11 @@ insensitive to a brightness offset between the cameras or over time.
 
 The layouts of a tracker are laid end to end along one sample axis (:class:`SampleSet`), and
 every camera's image is one row of the arrays, so one evaluation of all the image terms is a
-few dozen whole-array operations whatever the number of layouts and cameras: sample the images
-(:func:`sample_images`), form the robust residuals (:func:`robust_residuals`), and only where
-the solver needs them the Gauss-Newton normal equations by node blocks (:func:`node_blocks`,
-assembled by :meth:`SampleSet.assemble`). Grey levels and their ZSSD residuals stay float32 as
+few calls whatever the number of layouts and cameras: sample the images (:func:`sample_images`),
+form the robust residuals (:func:`robust_residuals`), and only where the solver needs them the
+Gauss-Newton normal equations by node blocks (:func:`node_blocks`, assembled by
+:meth:`SampleSet.assemble`); the last two are compiled passes over the samples
+(:mod:`.stereo_kernels`). Grey levels and their ZSSD residuals stay float32 as
 sampled; weights, derivatives and sums are float64.
 """
 
@@ -403,7 +404,10 @@ def robust_residuals(
         templates,
         sampled.valid,
         coefficients,
-        *huber,
+        huber.threshold,
+        huber.twice,
+        huber.square,
+        huber.inlier_bound,
         samples.bounds,
         group_sizes,
     )
