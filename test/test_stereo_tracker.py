@@ -177,6 +177,48 @@ def test_image_normal_equations_gradient_matches_finite_differences(layout_kind:
     assert np.allclose(hessian, hessian.T) and np.linalg.eigvalsh(hessian).min() > -1e-6
 
 
+def test_robust_residuals_are_the_zssd_huber_terms_summed_as_numpy_does() -> None:
+    truth = PLANE.nodes()
+    layouts = (
+        SampleLayout.node_patches(truth, truth[:, 2] / 600, 3, np.zeros(34, dtype=bool)),
+        SampleLayout.triangle_texture(mesh_topology(34).triangles, 4),
+    )
+    samples = SampleSet.of(layouts, 34)
+    projections = level_projections((RIG.left, RIG.right), 0)
+    points = samples.points(truth, samples.level_offsets(np.eye(3), 0))
+    sampled = sample_images((_wave(0.1), _wave(0.5)), projections, points, samples.mask)
+    rng = np.random.default_rng(5)
+    templates = (sampled.values[:, None] + rng.normal(0, 20, (2, 3, samples.size))).astype(
+        np.float32
+    )
+    valid = sampled.valid & (rng.uniform(size=sampled.valid.shape) > 0.1)
+    sampled = sampled._replace(valid=valid)
+    coefficients = rng.uniform(0.1, 1.0, (3, samples.size))
+    huber = Huber.of(samples, [15.0, 10.0])
+    residuals = robust_residuals(samples, sampled, templates, coefficients, huber)
+    # The definition: I - T_k minus its group's mean over the valid samples (float32 sums).
+    expected = sampled.values[:, None] - templates
+    for group, group_valid in zip(samples.grouped(expected), samples.grouped(valid), strict=True):
+        total = (group * group_valid[:, None]).sum(axis=-1, keepdims=True)
+        group -= total / np.maximum(group_valid.sum(axis=-1), 1)[:, None, :, None]
+    expected *= valid[:, None]
+    assert residuals.differences.dtype == np.float32
+    assert np.array_equal(residuals.differences, expected)  # bit for bit
+    magnitude = np.abs(expected)
+    with np.errstate(divide='ignore'):
+        weighted = coefficients * np.minimum(1.0, huber.threshold / magnitude)
+    assert 0.05 < np.mean(weighted < coefficients) < 0.95  # both sides of the thresholds
+    assert np.array_equal(residuals.weight, weighted.sum(axis=1))
+    assert np.array_equal(residuals.weighted_residual, (weighted * expected).sum(axis=1))
+    loss = np.where(
+        magnitude <= huber.inlier_bound, magnitude**2, huber.twice * magnitude - huber.square
+    )
+    assert residuals.cost == float((coefficients * loss).sum())
+    assert [c.tolist() for c in residuals.counts] == [
+        v.sum(axis=-1).tolist() for v in samples.grouped(valid)
+    ]
+
+
 def test_no_motion_gives_exactly_zero_motion() -> None:
     left, right = PLANE.pair()
     tracker = StereoTracker(RIG, StereoTrackerConfig(gamma=0.0, init=PLANE_INIT))

@@ -6,6 +6,10 @@ affine (GAIN_FIELD) over the patch coordinates (u, v). Instead of estimating g a
 is projected onto the orthogonal complement of the span of those brightness changes per patch:
 with the template T fixed during a frame's solve, ``e = (1 - P) I`` is the residual at the optimal
 g and b, and its Jacobian is exactly ``(1 - P) dI/dtheta``. A still image still gives exactly zero.
+
+The projection runs at every iteration of the mono tracker's solve on a few thousand samples; it
+is a compiled loop (numba), since numpy's per-call overhead on arrays this small costs more than
+the arithmetic.
 """
 
 from __future__ import annotations
@@ -13,6 +17,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from enum import IntEnum
 
+import numba
 import numpy as np
 
 
@@ -67,10 +72,8 @@ class PhotometricProjection:
         """``(1 - P) values`` for (N, M) residuals or (J, N, M) stacks of them (Jacobian rows)."""
         if self.basis.shape[-1] == 0:
             return values
-        stack = values if values.ndim == 3 else values[None]
-        per_node = stack.transpose(1, 0, 2)  # (N, J, M)
-        correction = (per_node @ self.basis) @ self._basis_t
-        projected = stack - correction.transpose(1, 0, 2)
+        stack = np.ascontiguousarray(values if values.ndim == 3 else values[None], dtype=float)
+        projected = _project_out(stack, self._basis_t)
         return projected if values.ndim == 3 else projected[0]
 
 
@@ -115,20 +118,102 @@ class PhotometricInvariance:
         rows[:, :first] = fixed
         if not len(self.gains):
             return PhotometricProjection(basis=rows.transpose(0, 2, 1))
-        contrast = template - template.mean(axis=1, keepdims=True)
-        columns = (contrast[:, None, :] * self.gains).reshape(-1, size)
-        # Orthogonal to the fixed columns (twice: Gram-Schmidt keeps orthogonality so), then to
-        # each other; a column's norm after that is QR's |R_jj|, compared with |R_00| = sqrt(M).
-        for _ in range(2):
-            columns = columns - (columns @ self.fixed) @ fixed
-        threshold = 1e-6 * np.sqrt(size)
-        for row, column in enumerate(columns.reshape(count, -1, size).transpose(1, 0, 2), first):
-            for other in rows.transpose(1, 0, 2)[first:row]:
-                column = column - np.einsum('nm,nm->n', column, other)[:, None] * other
-            norm = np.sqrt(np.einsum('nm,nm->n', column, column))
-            rows[:, row] = column / np.maximum(norm, threshold)[:, None]
-            rows[norm <= threshold, row] = 0.0  # a column the template does not need
+        template = np.ascontiguousarray(template, dtype=float)
+        _contrast_rows(template, self.gains, np.ascontiguousarray(fixed), rows)
         return PhotometricProjection(basis=rows.transpose(0, 2, 1))
+
+
+@numba.njit(
+    'f8[:, :, ::1](f8[:, :, ::1], f8[:, :, ::1])',
+    cache=True,
+    nogil=True,
+    error_model='numpy',
+    fastmath={'reassoc', 'contract'},
+)
+def _project_out(values: np.ndarray, basis_t: np.ndarray) -> np.ndarray:
+    """``values - (values U) U'`` per patch n: (J, N, M) rows, (N, K, M) orthonormal rows U'.
+
+    A basis of one patch (N = 1) serves every patch. The dot products may be reassociated
+    (vectorised); infinities and NaNs propagate.
+    """
+    rows, count, size = values.shape
+    columns = basis_t.shape[1]
+    projected = np.empty_like(values)
+    weights = np.empty((rows, columns))
+    for n in range(count):
+        patch = basis_t[n if len(basis_t) > 1 else 0]
+        for j in range(rows):
+            for k in range(columns):
+                total = 0.0
+                for m in range(size):
+                    total += values[j, n, m] * patch[k, m]
+                weights[j, k] = total
+        for j in range(rows):
+            out = projected[j, n]
+            out[:] = values[j, n]
+            for k in range(columns):
+                weight = weights[j, k]
+                for m in range(size):
+                    out[m] -= weight * patch[k, m]
+    return projected
+
+
+@numba.njit(
+    '(f8[:, ::1], f8[:, ::1], f8[:, ::1], f8[:, :, ::1])',
+    cache=True,
+    nogil=True,
+    error_model='numpy',
+    fastmath={'reassoc', 'contract'},
+)
+def _contrast_rows(
+    template: np.ndarray, gains: np.ndarray, fixed: np.ndarray, rows: np.ndarray
+) -> None:
+    """The template-dependent basis rows of each patch, into ``rows[:, F:]``.
+
+    Column g of patch n is its contrast ``c = T - mean(T)`` times the gain field g, made
+    orthogonal to the F fixed columns (twice: Gram-Schmidt keeps orthogonality so) and then to
+    the patch's earlier contrast columns (modified Gram-Schmidt), and normalised. A column whose
+    norm after that (QR's |R_jj|) is below 1e-6 sqrt(M) (|R_00| = sqrt(M)) is one the template
+    does not need: it is zero.
+
+    Args:
+        template: (N, M) templates.
+        gains: (G, M) gain fields.
+        fixed: (F, M) orthonormal rows of the template-independent changes.
+        rows: (N, F + G, M) the basis rows; rows[:, :F] are the fixed rows (read), rows[:, F:]
+            are written.
+    """
+    count, size = template.shape
+    first = fixed.shape[0]
+    threshold = 1e-6 * np.sqrt(size)
+    contrast = np.empty(size)
+    weights = np.empty(first)
+    for n in range(count):
+        mean = np.mean(template[n])
+        for m in range(size):
+            contrast[m] = template[n, m] - mean
+        for g in range(gains.shape[0]):
+            column = rows[n, first + g]
+            for m in range(size):
+                column[m] = contrast[m] * gains[g, m]
+            for _ in range(2):
+                weights[:] = 0.0
+                for f in range(first):
+                    for m in range(size):
+                        weights[f] += column[m] * fixed[f, m]
+                for f in range(first):
+                    for m in range(size):
+                        column[m] -= weights[f] * fixed[f, m]
+            for other in range(first, first + g):
+                weight = 0.0
+                for m in range(size):
+                    weight += column[m] * rows[n, other, m]
+                for m in range(size):
+                    column[m] -= weight * rows[n, other, m]
+            norm = np.sqrt(np.sum(column * column))
+            scale = 0.0 if norm <= threshold else 1.0 / norm
+            for m in range(size):
+                column[m] *= scale
 
 
 def _orthonormal(columns: np.ndarray) -> np.ndarray:

@@ -27,8 +27,8 @@ class ImagePyramid:
     Attributes:
         levels: images of level 0 (full resolution) to L-1, each (H_l, W_l) float32 grey levels
             in [0, 255].
-        scratch: the (H, W) float32 unsmoothed level 0 when level 0 is smoothed (kept for
-            ``reuse``), else None.
+        scratch: the (H, W) float32 buffer of the unsmoothed level 0 when level 0 is smoothed
+            (kept for ``reuse``; a uint8 image is filtered without it), else None.
     """
 
     levels: tuple[np.ndarray, ...]
@@ -69,15 +69,23 @@ class ImagePyramid:
             msg = f'cannot build {num_levels} pyramid levels from a {gray.shape} image'
             raise InputError(msg)
         buffers = _Buffers.of(gray.shape, num_levels, smooth_base, reuse)
-        base = buffers.base
-        base[...] = gray
-        if not np.issubdtype(gray.dtype, np.integer) and not np.all(np.isfinite(base)):
-            msg = 'pyramid input holds NaN or Inf'
-            raise InputError(msg)
         levels = buffers.levels
+        if smooth_base and gray.dtype == np.uint8:
+            base = gray  # filtered to float32 directly: the same levels without a float copy
+        else:
+            base = buffers.base
+            base[...] = gray
+            if not np.issubdtype(gray.dtype, np.integer) and not np.all(np.isfinite(base)):
+                msg = 'pyramid input holds NaN or Inf'
+                raise InputError(msg)
         if smooth_base:
             cv2.sepFilter2D(
-                base, -1, _BINOMIAL, _BINOMIAL, dst=levels[0], borderType=cv2.BORDER_REFLECT_101
+                base,
+                cv2.CV_32F,
+                _BINOMIAL,
+                _BINOMIAL,
+                dst=levels[0],
+                borderType=cv2.BORDER_REFLECT_101,
             )
             if num_levels > 1:
                 levels[1][...] = levels[0][::2, ::2]

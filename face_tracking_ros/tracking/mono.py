@@ -35,7 +35,8 @@ Design, in the seed's terms:
   normal turns away from the camera lose their weight) and analytic Jacobians: the image gradient
   sampled on the patches times d pixel / d X_c (eq. 2) times d X_c / d(omega, t, alpha) (eq. 1, 3),
   evaluated where a pyramid level starts and refreshed after half a pixel of motion. A level
-  ends when the nodes stop moving or a step raises the cost.
+  ends when the nodes stop moving or a step raises the cost. The loops over the ROI samples are
+  compiled (:mod:`.mono_kernels`).
 - Optionally (``max_keyframes`` > 1) the drift term compares with the keyframe nearest in
   rotation instead of frame 1. Measured on synthetic sequences it does worse than I_1 alone
   (keyframes inherit the error of the pose they were taken at), so it is off by default.
@@ -86,10 +87,15 @@ from face_tracking_ros.tracking.initialisation import (
     Initialisation,
     fit_model_to_points,
 )
-from face_tracking_ros.tracking.projection import (
-    POSE_DIM,
-    photometric_jacobian,
+from face_tracking_ros.tracking.mono_kernels import (
+    damped_step,
+    huber_irls,
+    normal_equations,
+    roi_jacobian,
+    roi_points,
+    weighted_gram,
 )
+from face_tracking_ros.tracking.projection import POSE_DIM
 from face_tracking_ros.tracking.result import TrackResult, TrackStatus
 from face_tracking_ros.tracking.surface_patches import (
     node_frames,
@@ -265,15 +271,6 @@ class _Roi(NamedTuple):
     identity: np.ndarray
     sigma: np.ndarray
 
-    def at(self, alpha: np.ndarray, sigma: np.ndarray) -> np.ndarray:
-        """(3, N, M) offsets at (alpha, sigma): the skin between the nodes moves with them."""
-        shape = self.offsets.shape
-        offsets = self.offsets + (alpha @ self.action.reshape(len(alpha), -1)).reshape(shape)
-        change = sigma - self.sigma
-        if not np.any(change):
-            return offsets
-        return offsets + (change @ self.identity.reshape(len(change), -1)).reshape(shape)
-
     def basis(self, free_sigma: bool) -> np.ndarray:
         """(c, 3, N, M) derivative of the offsets with respect to alpha (then sigma)."""
         if not free_sigma:
@@ -442,7 +439,7 @@ class MonoTracker:
         self._triangles = model.topology.triangles
         self._edge_nodes = model.topology.group_mask(Group.EDGE)
         self._roi_weights = np.where(self._edge_nodes, self._config.edge_weight, 1.0)
-        self._action_basis = model.action_basis_nodes()  # (N, 3, q)
+        self._action_basis = np.ascontiguousarray(model.action_basis_nodes())  # (N, 3, q)
         self._node_bases = (self._action_basis, model.shape_basis_nodes())
         self._identity_action_basis = np.concatenate(self._node_bases, axis=-1)
         weight = self._config.prior_weight
@@ -463,11 +460,6 @@ class MonoTracker:
             for level in range(levels)
         ]
         self._prior_hessians = {free: self._prior_hessian(free) for free in (False, True)}
-        # Per level, the "image gradients" (1, 0) and (0, 1) of the node samples (_linearise).
-        self._node_gradients = [
-            np.broadcast_to(np.eye(2)[:, None, :] / (1 << level), (2, model.num_nodes, 2))
-            for level in range(levels)
-        ]
         self._buffers: ImagePyramid | None = None  # the previous frame's, rebuilt in place
         self._posed: tuple[_Params, tuple[np.ndarray, np.ndarray]] | None = None  # _pose's
         self._init: Initialisation | None = None
@@ -785,7 +777,7 @@ class MonoTracker:
                     break
                 accepted = (params, system)
                 damping = max(0.1 * damping, 1e-9)
-                step = _damped_step(system, damping)
+                step = damped_step(system.hessian, system.gradient, damping)
                 params = params.updated(step, q)
                 motion = np.abs(linear.node_jacobian @ step).max(initial=0.0)
                 if motion < converged:
@@ -811,62 +803,52 @@ class MonoTracker:
         """The Jacobian of eq. 6's photometrically projected residuals at ``params``.
 
         Image gradient (sampled on the ROIs only) x d pixel / d X_c (eq. 2) x d X_c / d(omega,
-        t, alpha[, sigma]) (eq. 1, 3), then ``1 - P`` of the photometric model.
+        t, alpha[, sigma]) (eq. 1, 3) (:func:`~.mono_kernels.roi_jacobian`), then ``1 - P`` of the
+        photometric model.
         """
         basis = self._identity_action_basis if free_sigma else self._action_basis
         rotation, shape = self._pose(params)
-        # R P of the ROI points P = shape_n + offset (eq. 1, 3), and their level pixels (eq. 2).
-        offsets = level.roi.at(params.alpha, params.sigma)
-        rotated_nodes = rotation @ shape.T
-        rotated = (rotation @ offsets.reshape(3, -1)).reshape(offsets.shape)
-        rotated += rotated_nodes[:, :, None]
-        x, y = self._roi_pixels(params, level.camera, offsets)
+        rotated, (x, y) = self._roi_points(params, level.camera, level.roi)
         samples, gradient = sample_with_gradient_xy(level.image, x, y)
-        level_scale = 1.0 / float(1 << level.index)
-        gradient *= level_scale
-        # Two more samples per node, at the node with "image gradients" (1, 0) and (0, 1): their
-        # rows are the node pixels' Jacobian; the photometric projection leaves them out.
-        size = x.shape[1]
-        points = np.concatenate([rotated, np.repeat(rotated_nodes[:, :, None], 2, axis=2)], 2)
-        gradients = np.concatenate([gradient, self._node_gradients[level.index]], axis=2)
-
-        def project(rows: np.ndarray) -> np.ndarray:
-            roi = level.projection.apply(rows[..., :size])
-            return np.concatenate([roi, rows[..., size:]], axis=2)
-
-        jacobian = photometric_jacobian(
-            self._camera,
-            params.omega,
-            points,
+        jacobian, node_jacobian = roi_jacobian(
+            rotated,
+            rotation @ shape.T,
             params.t,
-            gradients,
+            level.camera,
+            gradient,
+            rotation,
+            rodrigues(params.omega)[1],
             basis,
-            project,
             level.roi.basis(free_sigma),
         )
-        jacobian_t = np.ascontiguousarray(jacobian[..., :size]).reshape(len(jacobian), -1)
+        jacobian_t = level.projection.apply(jacobian).reshape(len(jacobian), -1)
         return _Linearisation(
             params=params,
             sampled=_Sampled(samples, inside_xy(x, y, level.image.shape, margin=1.0)),
             jacobian_t=jacobian_t,
-            hessian=(jacobian_t * level.visibility.ravel()) @ jacobian_t.T,
-            node_jacobian=jacobian[..., size:].reshape(len(jacobian), -1).T,
+            hessian=weighted_gram(jacobian_t, level.visibility.ravel()),
+            node_jacobian=node_jacobian,
         )
 
-    def _roi_pixels(self, params: _Params, camera: np.ndarray, offsets: np.ndarray) -> np.ndarray:
-        """(2, N, M) level pixels (x row, then y row) of the ROI points (eq. 1-3), for sampling.
+    def _roi_points(
+        self, params: _Params, camera: np.ndarray, roi: _Roi
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """(3, N, M) ``R P`` of the ROI points (eq. 1, 3) and their (2, N, M) level pixels (eq. 2).
 
-        Eq. 1 and 2 fold into one map ``h = (P_3 R)(shape_n + offset) + P_3 t + p_4`` with the
-        level's ``camera`` P, so nodes and the (3, N, M) ``offsets`` are mapped separately and no
-        camera-frame point is formed.
+        ``camera`` is the level's projection matrix P.
         """
         rotation, shape = self._pose(params)
-        matrix = camera[:, :3] @ rotation
-        homogeneous = (matrix @ offsets.reshape(3, -1)).reshape(offsets.shape)
-        homogeneous += (matrix @ shape.T + (camera[:, :3] @ params.t + camera[:, 3])[:, None])[
-            :, :, None
-        ]
-        return _dehomogenise(homogeneous)
+        return roi_points(
+            rotation,
+            shape,
+            params.t,
+            camera,
+            roi.offsets,
+            roi.action,
+            params.alpha,
+            roi.identity,
+            params.sigma - roi.sigma,
+        )
 
     def _evaluate(
         self,
@@ -897,20 +879,20 @@ class MonoTracker:
             active = np.abs(residuals[weights > 0])
             spread = _MAD_TO_STD * _median(active) if active.size else 0.0
             scale = max(self._config.residual_scale_floor, spread)
-        magnitude = np.abs(residuals / scale)
-        k = self._config.huber_k
-        irls = (_huber_weights(magnitude, k) * weights).ravel()
-        change = irls - level.visibility.ravel()
-        changed = change != 0.0
-        columns = np.compress(changed, linear.jacobian_t, axis=1)
+        data_cost, hessian, gradient = normal_equations(
+            linear.jacobian_t,
+            residuals,
+            weights,
+            level.visibility,
+            scale,
+            self._config.huber_k,
+            linear.hessian,
+        )
         free_sigma = linear.jacobian_t.shape[0] > POSE_DIM + self._model.q
-        data_cost = float(np.sum(weights * _huber_rho(magnitude, k)))
         return _System(
             cost=data_cost + self._prior_cost(params, free_sigma),
-            hessian=(linear.hessian + (columns * change[changed]) @ columns.T) / scale**2
-            + self._prior_hessians[free_sigma],
-            gradient=linear.jacobian_t @ (irls * residuals.ravel()) / scale**2
-            + self._prior_gradient(params, free_sigma),
+            hessian=hessian + self._prior_hessians[free_sigma],
+            gradient=gradient + self._prior_gradient(params, free_sigma),
             scale=scale,
             sampled=sampled,
             residuals=residuals,
@@ -942,7 +924,7 @@ class MonoTracker:
 
     def _data_cost(self, residuals: np.ndarray, weights: np.ndarray, scale: float) -> float:
         """Huber cost ``sum w rho(r / s)`` of (N, M) residuals with (N, M) weights."""
-        return float(np.sum(weights * _huber_rho(np.abs(residuals / scale), self._config.huber_k)))
+        return huber_irls(residuals, weights, scale, self._config.huber_k)[1]
 
     # --- checks, templates, results ------------------------------------------------------------
 
@@ -1014,16 +996,13 @@ class MonoTracker:
         first = first or self._sample(pyramid.levels[0], params, 0, rois[0])
         levels = [first.samples]
         for level in range(1, pyramid.num_levels):
-            offsets = rois[level].at(params.alpha, params.sigma)
-            x, y = self._roi_pixels(params, self._level_cameras[level], offsets)
+            _, (x, y) = self._roi_points(params, self._level_cameras[level], rois[level])
             levels.append(sample_xy(pyramid.levels[level], x, y))
         return _Templates(tuple(levels), self._visibility(params, normals), first.inside)
 
     def _sample(self, image: np.ndarray, params: _Params, level: int, roi: _Roi) -> _Sampled:
         """Level ``level``'s samples of its ROIs ``roi`` at ``params``."""
-        x, y = self._roi_pixels(
-            params, self._level_cameras[level], roi.at(params.alpha, params.sigma)
-        )
+        _, (x, y) = self._roi_points(params, self._level_cameras[level], roi)
         return _Sampled(sample_xy(image, x, y), inside_xy(x, y, image.shape, margin=1.0))
 
     def _visibility(self, params: _Params, normals: np.ndarray) -> np.ndarray:
@@ -1099,11 +1078,6 @@ class MonoTracker:
         return self._buffers
 
 
-def _dehomogenise(homogeneous: np.ndarray) -> np.ndarray:
-    """(2, ...) pixels (x, y) of (3, ...) homogeneous pixels."""
-    return homogeneous[:2] / homogeneous[2]
-
-
 def _params_of(result: TrackResult) -> _Params:
     """The parameters of a result."""
     return _Params(result.omega, result.t, result.alpha, result.sigma)
@@ -1122,28 +1096,6 @@ def _median(values: np.ndarray) -> float:
         return float(np.partition(values, half)[half])
     low, high = np.partition(values, (half - 1, half))[half - 1 : half + 1]
     return float((low + high) / 2)
-
-
-def _huber_weights(magnitude: np.ndarray, k: float) -> np.ndarray:
-    """IRLS weights of the Huber loss at |r| / s: 1 inside k, k / |u| outside."""
-    return np.minimum(1.0, k / np.maximum(magnitude, k))
-
-
-def _huber_rho(magnitude: np.ndarray, k: float) -> np.ndarray:
-    """The Huber loss rho at |r| / s: u^2 inside k, 2 k |u| - k^2 outside."""
-    return np.where(magnitude <= k, magnitude**2, 2 * k * magnitude - k * k)
-
-
-def _damped_step(system: _System, damping: float) -> np.ndarray:
-    """Levenberg-Marquardt step ``-(H + lambda diag H)^-1 g``, solved Jacobi-scaled."""
-    hessian, gradient = system.hessian, system.gradient
-    if not (np.isfinite(hessian).all() and np.isfinite(gradient).all()):
-        msg = 'non-finite normal equations'
-        raise LinAlgError(msg)
-    scaling = 1.0 / np.sqrt(np.maximum(hessian.diagonal(), 1e-12))
-    damped = hessian * scaling[:, None] * scaling[None, :]
-    damped.flat[:: len(scaling) + 1] += damping
-    return -scaling * np.linalg.solve(damped, gradient * scaling)
 
 
 def _condition(hessian: np.ndarray) -> float:

@@ -25,10 +25,11 @@ insensitive to a brightness offset between the cameras or over time.
 
 The layouts of a tracker are laid end to end along one sample axis (:class:`SampleSet`), and
 every camera's image is one row of the arrays, so one evaluation of all the image terms is a
-few dozen whole-array operations whatever the number of layouts and cameras: sample the images
-(:func:`sample_images`), form the robust residuals (:func:`robust_residuals`), and only where
-the solver needs them the Gauss-Newton normal equations by node blocks (:func:`node_blocks`,
-assembled by :meth:`SampleSet.assemble`). Grey levels and their ZSSD residuals stay float32 as
+few calls whatever the number of layouts and cameras: sample the images (:func:`sample_images`),
+form the robust residuals (:func:`robust_residuals`), and only where the solver needs them the
+Gauss-Newton normal equations by node blocks (:func:`node_blocks`, assembled by
+:meth:`SampleSet.assemble`); the last two are compiled passes over the samples
+(:mod:`.stereo_kernels`). Grey levels and their ZSSD residuals stay float32 as
 sampled; weights, derivatives and sums are float64.
 """
 
@@ -48,6 +49,7 @@ from face_tracking_ros.imaging import (
     square_offsets,
 )
 from face_tracking_ros.tracking.projection import space_gradient
+from face_tracking_ros.tracking.stereo_kernels import node_normal_blocks, zssd_residuals
 from face_tracking_ros.tracking.surface_patches import surface_patch_offsets
 
 
@@ -387,6 +389,8 @@ def robust_residuals(
 ) -> Residuals:
     """The robust ZSSD cost of sampled images against templates (the image terms' E).
 
+    One compiled pass (:func:`~.stereo_kernels.zssd_residuals`).
+
     Args:
         samples: the sample set.
         sampled: its C images.
@@ -394,28 +398,26 @@ def robust_residuals(
         coefficients: (K, S) a_k >= 0 of every sample.
         huber: the Huber thresholds.
     """
-    valid = sampled.valid
-    differences = sampled.values[:, None, :] - templates
-    counts = tuple(group.sum(axis=-1) for group in samples.grouped(valid))
-    for group, group_valid, count in zip(
-        samples.grouped(differences), samples.grouped(valid), counts, strict=True
-    ):
-        total = (group * group_valid[:, None]).sum(axis=-1, keepdims=True)
-        group -= total / np.maximum(count, 1)[:, None, :, None]
-    differences *= valid[:, None, :]
-    magnitude = np.abs(differences)
-    with np.errstate(divide='ignore'):  # |r| = 0: weight 1
-        robust = np.minimum(1.0, huber.threshold / magnitude)
-    weighted = coefficients * robust
-    loss = np.where(
-        magnitude <= huber.inlier_bound, magnitude**2, huber.twice * magnitude - huber.square
+    group_sizes = np.array([layout.mask.shape[1] for layout in samples.layouts])
+    differences, counts, weight, weighted_residual, cost = zssd_residuals(
+        sampled.values,
+        templates,
+        sampled.valid,
+        coefficients,
+        huber.threshold,
+        huber.twice,
+        huber.square,
+        huber.inlier_bound,
+        samples.bounds,
+        group_sizes,
     )
+    splits = np.cumsum([layout.mask.shape[0] for layout in samples.layouts])[:-1]
     return Residuals(
         differences=differences,
-        counts=counts,
-        weight=weighted.sum(axis=1),
-        weighted_residual=(weighted * differences).sum(axis=1),
-        cost=float((coefficients * loss).sum()),
+        counts=tuple(np.split(counts, splits, axis=1)),
+        weight=weight,
+        weighted_residual=weighted_residual,
+        cost=cost,
     )
 
 
@@ -425,7 +427,8 @@ def node_blocks(
     """Gauss-Newton terms J^T W J and J^T W r of the image terms, by group, summed over images.
 
     The Jacobian of a sample with respect to its k slot nodes is ``b_k (d pi / d P)^T grad I``
-    (eq. 2; :func:`~.projection.space_gradient`), minus its group's mean (ZSSD).
+    (eq. 2; :func:`~.projection.space_gradient`), minus its group's mean (ZSSD); the blocks are
+    summed by :func:`~.stereo_kernels.node_normal_blocks`.
 
     Args:
         samples: the sample set.
@@ -444,25 +447,21 @@ def node_blocks(
     )
     rows *= valid[:, None, :]
     blocks, vectors = [], []
-    grouped = zip(
-        samples.grouped(rows),
-        samples.grouped(valid),
-        samples.grouped(residuals.weight),
-        samples.grouped(residuals.weighted_residual),
-        residuals.counts,
-        samples.weights,
-        strict=True,
-    )
-    for group_rows, group_valid, weight, weighted_residual, count, slot_weights in grouped:
-        images, _, groups, size = group_rows.shape
-        if len(slot_weights) > 1:
-            bary = slot_weights.reshape(-1, 1, groups, size)
-            group_rows = (bary * group_rows[:, None]).reshape(images, -1, groups, size)
-        mean = group_rows.sum(axis=-1, keepdims=True) / np.maximum(count, 1)[:, None, :, None]
-        group_rows = group_rows - group_valid[:, None] * mean
-        scaled = (group_rows * weight[:, None]).transpose(0, 2, 1, 3)
-        blocks.append(np.matmul(scaled, group_rows.transpose(0, 2, 3, 1)).sum(axis=0))
-        vectors.append(np.einsum('cgm,cigm->gi', weighted_residual, group_rows))
+    for index, (counts, slot_weights) in enumerate(
+        zip(residuals.counts, samples.weights, strict=True)
+    ):
+        block, vector = node_normal_blocks(
+            rows,
+            valid,
+            residuals.weight,
+            residuals.weighted_residual,
+            counts,
+            slot_weights,
+            samples.bounds[index],
+            samples.layouts[index].mask.shape[1],
+        )
+        blocks.append(block)
+        vectors.append(vector)
     return blocks, vectors
 
 

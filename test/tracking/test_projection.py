@@ -1,14 +1,24 @@
-"""Analytic Jacobians of eq. 1-3 against finite differences, and the surface patches."""
+"""Analytic Jacobians of eq. 1-3 against finite differences, the compiled kernels, the patches."""
 
 from __future__ import annotations
 
 import numpy as np
+from numpy.linalg import LinAlgError
 import pytest
 
 from face_tracking_ros.errors import InputError
 from face_tracking_ros.geometry.camera import PinholeCamera
+from face_tracking_ros.geometry.rotation import rodrigues
 from face_tracking_ros.model.topology import mesh_topology
-from face_tracking_ros.tracking.projection import photometric_jacobian, project_with_jacobian
+from face_tracking_ros.tracking.mono_kernels import (
+    damped_step,
+    huber_irls,
+    normal_equations,
+    roi_jacobian,
+    roi_points,
+    weighted_gram,
+)
+from face_tracking_ros.tracking.projection import project_with_jacobian
 from face_tracking_ros.tracking.surface_patches import (
     node_frames,
     patch_basis,
@@ -50,27 +60,64 @@ def test_projection_jacobian_matches_finite_differences() -> None:
     assert np.abs(numeric - analytic).max() < 1e-4 * np.abs(analytic).max()
 
 
-def test_photometric_jacobian_is_the_gradient_contracted_chain_rule() -> None:
-    points, basis, _ = _setup()
-    gradient = np.random.default_rng(1).normal(0.0, 10.0, (4, 5, 2))
-    projection = project_with_jacobian(CAMERA, OMEGA, T, points, basis[:, None])
-    expected = np.einsum('nma,nmap->nmp', gradient, projection.jacobian)
-    rotated = (projection.points_cam - T).transpose(2, 0, 1)
-    actual = photometric_jacobian(CAMERA, OMEGA, rotated, T, gradient.transpose(2, 0, 1), basis)
-    assert actual.shape == (8, 4, 5)
-    assert np.abs(actual - expected.transpose(2, 0, 1)).max() < 1e-9 * np.abs(expected).max()
-    no_basis = photometric_jacobian(CAMERA, OMEGA, rotated, T, gradient.transpose(2, 0, 1))
-    assert np.array_equal(no_basis, actual[:6])
-    # A linear map of each node's samples (a photometric projection) maps every row alike.
-    mixing = np.random.default_rng(2).normal(size=(4, 5, 5))
-
-    def project(rows: np.ndarray) -> np.ndarray:
-        return np.einsum('nml,jnl->jnm', mixing, rows)
-
-    mapped = photometric_jacobian(
-        CAMERA, OMEGA, rotated, T, gradient.transpose(2, 0, 1), basis, project
+def test_roi_kernels_are_eq_1_to_3_and_the_gradient_contracted_chain_rule() -> None:
+    points, node_basis, coefficients = _setup()  # (N, M, 3) face-frame offsets of 4 x 5 samples
+    rng = np.random.default_rng(1)
+    shape = rng.normal(0.0, 0.05, (4, 3))
+    action = rng.normal(0.0, 0.01, (2, 3, 4, 5))  # the samples' own motion D_nm
+    identity = rng.normal(0.0, 0.01, (1, 3, 4, 5))
+    sigma_change = np.array([0.3])
+    rotation, d_rotation = rodrigues(OMEGA)
+    offsets = np.ascontiguousarray(points.transpose(2, 0, 1))
+    rotated, pixels = roi_points(
+        rotation, shape, T, CAMERA.p, offsets, action, coefficients, identity, sigma_change
     )
-    assert np.abs(mapped - project(actual)).max() < 1e-9 * np.abs(expected).max()
+    face = (
+        shape[:, None]
+        + points
+        + np.einsum('kanm,k->nma', action, coefficients)
+        + np.einsum('kanm,k->nma', identity, sigma_change)
+    )
+    expected = project_with_jacobian(CAMERA, OMEGA, T, face)
+    assert np.abs(rotated.transpose(1, 2, 0) + T - expected.points_cam).max() < 1e-15
+    assert pixels.dtype == np.float32
+    assert np.abs(pixels.transpose(1, 2, 0) - expected.pixels).max() < 1e-3  # float32 pixels
+    # The Jacobian of the samples I(x) is grad I times that of their pixels (eq. 1-3), each
+    # sample moving with its node's basis plus its own D_nm.
+    gradient = rng.normal(0.0, 10.0, (2, 4, 5)).astype(np.float32)
+    sample_basis = node_basis[:, None] + action.transpose(2, 3, 1, 0)  # (N, M, 3, c)
+    chain = project_with_jacobian(CAMERA, OMEGA, T, face, sample_basis).jacobian
+    jacobian, node_jacobian = roi_jacobian(
+        rotated,
+        rotation @ shape.T,
+        T,
+        CAMERA.p,
+        gradient,
+        rotation,
+        d_rotation,
+        node_basis,
+        action,
+    )
+    contracted = np.einsum('anm,nmap->pnm', gradient.astype(float), chain)
+    assert jacobian.shape == (8, 4, 5)
+    assert np.abs(jacobian - contracted).max() < 1e-9 * np.abs(contracted).max()
+    nodes = project_with_jacobian(CAMERA, OMEGA, T, shape, node_basis).jacobian  # (N, 2, 8)
+    assert np.abs(node_jacobian - nodes.reshape(8, 8)).max() < 1e-9 * np.abs(nodes).max()
+
+
+def test_weighted_gram_and_huber_irls_match_their_formulas() -> None:
+    rng = np.random.default_rng(3)
+    rows, weights = rng.normal(size=(7, 50)), rng.uniform(0.0, 1.0, 50)
+    gram = weighted_gram(rows, weights)
+    assert np.abs(gram - (rows * weights) @ rows.T).max() < 1e-12
+    residuals = rng.normal(0.0, 3.0, (5, 10))
+    sample_weights = rng.uniform(0.0, 1.0, (5, 10))
+    irls, cost = huber_irls(residuals, sample_weights, 1.5, 2.0)
+    u = np.abs(residuals) / 1.5
+    assert 0 < np.mean(u > 2.0) < 1  # both branches of the loss are exercised
+    assert np.allclose(irls, (sample_weights * np.minimum(1.0, 2.0 / u)).ravel(), atol=1e-15)
+    rho = np.where(u <= 2.0, u**2, 4.0 * u - 4.0)
+    assert np.isclose(cost, np.sum(sample_weights * rho), rtol=1e-12)
 
 
 def test_node_frames_are_orthonormal_and_face_the_camera() -> None:
@@ -139,3 +186,26 @@ def test_patch_basis_carries_node_motion_to_the_samples() -> None:
     assert np.all(np.einsum('ma,a->m', near, single[lip]) > 0.3 * single[lip] @ single[lip])
     far = topology.index('left_brow_outer')
     assert np.abs(dense[far, :, :, 1]).max() < 0.1 * np.abs(single[lip]).max()
+
+
+def test_normal_equations_and_damped_step_match_their_formulas() -> None:
+    rng = np.random.default_rng(4)
+    jacobian_t = rng.normal(size=(6, 40))
+    residuals, weights = rng.normal(0.0, 3.0, (4, 10)), rng.uniform(0.0, 1.0, (4, 10))
+    visibility = np.repeat(rng.uniform(0.5, 1.0, (4, 1)), 10, axis=1)
+    weights[0, :3] = 0.0  # outside the image
+    visible_hessian = weighted_gram(jacobian_t, visibility.ravel())
+    cost, hessian, gradient = normal_equations(
+        jacobian_t, residuals, weights, visibility, 1.5, 2.0, visible_hessian
+    )
+    irls, expected_cost = huber_irls(residuals, weights, 1.5, 2.0)
+    assert cost == expected_cost
+    assert np.abs(hessian - (jacobian_t * irls) @ jacobian_t.T / 1.5**2).max() < 1e-12
+    assert np.abs(gradient - jacobian_t @ (irls * residuals.ravel()) / 1.5**2).max() < 1e-12
+    # The Levenberg-Marquardt step -(H + lambda diag H)^-1 g.
+    step = damped_step(hessian, gradient, 0.1)
+    damped = hessian + 0.1 * np.diag(np.diag(hessian))
+    assert np.abs(step + np.linalg.solve(damped, gradient)).max() < 1e-10 * np.abs(step).max()
+    hessian[2, 3] = np.nan
+    with pytest.raises(LinAlgError, match='non-finite normal equations'):
+        damped_step(hessian, gradient, 0.1)

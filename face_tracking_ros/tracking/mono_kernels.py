@@ -1,0 +1,446 @@
+"""Compiled (numba) inner loops of the monocular tracker's eq. 6 solve.
+
+The monocular tracker's per-frame budget (2 ms at 640x480 with 34 nodes, issue 6) is below what
+numpy's per-call overhead allows: a frame made ~2000 array operations on arrays of a few
+thousand elements, so the call overhead cost more than the arithmetic. The loops over the ROI
+samples that run at every Levenberg-Marquardt iteration are therefore compiled, each one pass
+over the samples of a pyramid level:
+
+- :func:`roi_points`: the ROI samples of every node moved by eq. 3 and mapped through eq. 1-2;
+- :func:`roi_jacobian`: their Jacobian with respect to (omega, t, c), the chain rule of
+  :mod:`.projection` contracted with the image gradient (the photometric projection of the
+  residuals is applied to its rows afterwards);
+- :func:`huber_irls`, :func:`normal_equations`, :func:`weighted_gram`: eq. 6's robust cost and
+  its IRLS normal equations;
+- :func:`damped_step`: the Levenberg-Marquardt step.
+
+Arrays are component-major (one contiguous row per coordinate or parameter), and the loops run
+along a node's M samples, so the compiler vectorises them. Kernels are typed (compiled when this
+module is imported, from numba's on-disk cache when it holds them). Their floating point may be
+reassociated and contracted (fused multiply-add) but keeps IEEE infinities and NaNs, so they agree
+with the numpy expressions of the same equations to rounding and a diverged solve still shows.
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+from numpy.linalg import LinAlgError
+
+_OPTIONS = {
+    'cache': True,
+    'nogil': True,
+    'error_model': 'numpy',
+    'fastmath': {'reassoc', 'contract'},
+}
+
+
+@numba.njit(**_OPTIONS)
+def _rows_times(matrix: np.ndarray, points: np.ndarray, out: np.ndarray) -> None:
+    """``out = A points`` for (3, M) points and a (3, 3) matrix A."""
+    x_row, y_row, z_row = points[0], points[1], points[2]
+    for a in range(3):
+        a_0, a_1, a_2, row = matrix[a, 0], matrix[a, 1], matrix[a, 2], out[a]
+        for m in range(points.shape[1]):
+            row[m] = a_0 * x_row[m] + a_1 * y_row[m] + a_2 * z_row[m]
+
+
+@numba.njit(**_OPTIONS)
+def _left_jacobian(rotation: np.ndarray, d_rotation: np.ndarray) -> np.ndarray:
+    """(3, 3) matrix of columns j_k with ``dR/domega_k = [j_k]x R`` (eq. 1).
+
+    ``dR/domega_k R'`` is the skew-symmetric ``[j_k]x``; its (2, 1), (0, 2) and (1, 0) entries
+    are j_k.
+    """
+    left = np.empty((3, 3))
+    for k in range(3):
+        for a, (row, column) in enumerate(((2, 1), (0, 2), (1, 0))):
+            left[a, k] = (
+                d_rotation[k, row, 0] * rotation[column, 0]
+                + d_rotation[k, row, 1] * rotation[column, 1]
+                + d_rotation[k, row, 2] * rotation[column, 2]
+            )
+    return left
+
+
+@numba.njit(**_OPTIONS)
+def _node_jacobian(
+    camera: np.ndarray,
+    rotation: np.ndarray,
+    left_jacobian: np.ndarray,
+    t: np.ndarray,
+    rotated_nodes: np.ndarray,
+    node_basis: np.ndarray,
+    out: np.ndarray,
+) -> None:
+    """(2 N, 6 + c) Jacobian of the node pixels (eq. 1-3) into ``out``, level px.
+
+    Rows 2 n and 2 n + 1 are the chain of :func:`roi_jacobian` at node n with the image
+    gradient g = (1, 0) and (0, 1), the node moving with its basis B_n alone:
+    ``h = (P_axis - x_axis P_3) / h_3``.
+    """
+    for n in range(rotated_nodes.shape[1]):
+        x, y, z = rotated_nodes[0, n], rotated_nodes[1, n], rotated_nodes[2, n]
+        point = (x + t[0], y + t[1], z + t[2])
+        homogeneous = np.zeros(3)
+        for a in range(3):
+            homogeneous[a] = camera[a, 3]
+            for b in range(3):
+                homogeneous[a] += camera[a, b] * point[b]
+        for axis in range(2):
+            pixel = homogeneous[axis] / homogeneous[2]
+            h_0 = (camera[axis, 0] - pixel * camera[2, 0]) / homogeneous[2]
+            h_1 = (camera[axis, 1] - pixel * camera[2, 1]) / homogeneous[2]
+            h_2 = (camera[axis, 2] - pixel * camera[2, 2]) / homogeneous[2]
+            moment = (y * h_2 - z * h_1, z * h_0 - x * h_2, x * h_1 - y * h_0)
+            row = out[2 * n + axis]
+            for k in range(3):
+                row[k] = (
+                    left_jacobian[0, k] * moment[0]
+                    + left_jacobian[1, k] * moment[1]
+                    + left_jacobian[2, k] * moment[2]
+                )
+            row[3], row[4], row[5] = h_0, h_1, h_2
+            chain = (
+                rotation[0, 0] * h_0 + rotation[1, 0] * h_1 + rotation[2, 0] * h_2,
+                rotation[0, 1] * h_0 + rotation[1, 1] * h_1 + rotation[2, 1] * h_2,
+                rotation[0, 2] * h_0 + rotation[1, 2] * h_1 + rotation[2, 2] * h_2,
+            )
+            for j in range(node_basis.shape[2]):
+                row[6 + j] = (
+                    node_basis[n, 0, j] * chain[0]
+                    + node_basis[n, 1, j] * chain[1]
+                    + node_basis[n, 2, j] * chain[2]
+                )
+
+
+@numba.njit(
+    'Tuple((f8[:, :, ::1], f4[:, :, ::1]))(f8[:, ::1], f8[:, ::1], f8[::1], f8[:, ::1], '
+    'f8[:, :, ::1], f8[:, :, :, ::1], f8[::1], f8[:, :, :, ::1], f8[::1])',
+    **_OPTIONS,
+)
+def roi_points(
+    rotation: np.ndarray,
+    shape: np.ndarray,
+    t: np.ndarray,
+    camera: np.ndarray,
+    offsets: np.ndarray,
+    action: np.ndarray,
+    alpha: np.ndarray,
+    identity: np.ndarray,
+    sigma_change: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:
+    """ROI sample points in the camera frame (eq. 1, 3) and their pixels (eq. 2).
+
+    Sample m of node n sits at ``P = shape_n + offset_nm + A_nm alpha + S_nm (sigma - sigma_0)``
+    in the face frame (the ROI deforming with eq. 3); eq. 1 rotates it, ``R P``, and eq. 2 maps
+    ``R P + t`` to ``(h_1 / h_3, h_2 / h_3)`` with ``h = (P_3 R) P + P_3 t + p_4`` for the camera
+    matrix ``[P_3 | p_4]``.
+
+    Args:
+        rotation: (3, 3) R(omega).
+        shape: (N, 3) nodes of eq. 3 at (sigma, alpha), m.
+        t: (3,) translation of eq. 1, m.
+        camera: (3, 4) projection matrix of the pixels wanted (a pyramid level's).
+        offsets: (3, N, M) offsets from the nodes to their samples at alpha = 0, sigma_0, m.
+        action: (q, 3, N, M) derivative of the offsets with respect to alpha.
+        alpha: (q,) expression coefficients.
+        identity: (p, 3, N, M) derivative of the offsets with respect to sigma.
+        sigma_change: (p,) ``sigma - sigma_0`` (all zero while sigma is held fixed).
+
+    Returns:
+        ``(rotated, pixels)``: (3, N, M) ``R P``, m, and (2, N, M) float32 pixels (x, then y).
+    """
+    count, size = offsets.shape[1], offsets.shape[2]
+    rotated = np.empty((3, count, size))
+    pixels = np.empty((2, count, size), dtype=np.float32)
+    moves_sigma = np.any(sigma_change != 0.0)
+    # [P_3 R | P_3 t + p_4] maps the face-frame points to homogeneous pixels.
+    mapping = np.zeros((3, 4))
+    for a in range(3):
+        mapping[a, 3] = camera[a, 3]
+        for b in range(3):
+            mapping[a, 3] += camera[a, b] * t[b]
+            for c in range(3):
+                mapping[a, c] += camera[a, b] * rotation[b, c]
+    face = np.empty((3, size))  # P of one node's samples
+    for n in range(count):
+        for a in range(3):
+            point, offset, node = face[a], offsets[a, n], shape[n, a]
+            for m in range(size):
+                point[m] = offset[m] + node
+            for k in range(alpha.size):
+                weight, basis = alpha[k], action[k, a, n]
+                for m in range(size):
+                    point[m] += weight * basis[m]
+            if moves_sigma:
+                for k in range(sigma_change.size):
+                    weight, basis = sigma_change[k], identity[k, a, n]
+                    for m in range(size):
+                        point[m] += weight * basis[m]
+        _rows_times(rotation, face, rotated[:, n])
+        x_row, y_row = pixels[0, n], pixels[1, n]
+        face_x, face_y, face_z = face[0], face[1], face[2]
+        m_00, m_01, m_02, m_03 = mapping[0, 0], mapping[0, 1], mapping[0, 2], mapping[0, 3]
+        m_10, m_11, m_12, m_13 = mapping[1, 0], mapping[1, 1], mapping[1, 2], mapping[1, 3]
+        m_20, m_21, m_22, m_23 = mapping[2, 0], mapping[2, 1], mapping[2, 2], mapping[2, 3]
+        for m in range(size):
+            x, y, z = face_x[m], face_y[m], face_z[m]
+            inverse_depth = 1.0 / (m_20 * x + m_21 * y + m_22 * z + m_23)
+            x_row[m] = (m_00 * x + m_01 * y + m_02 * z + m_03) * inverse_depth
+            y_row[m] = (m_10 * x + m_11 * y + m_12 * z + m_13) * inverse_depth
+    return rotated, pixels
+
+
+@numba.njit(
+    'Tuple((f8[:, :, ::1], f8[:, ::1]))(f8[:, :, ::1], f8[:, ::1], f8[::1], f8[:, ::1], '
+    'f4[:, :, ::1], f8[:, ::1], f8[:, :, ::1], f8[:, :, ::1], f8[:, :, :, ::1])',
+    **_OPTIONS,
+)
+def roi_jacobian(
+    rotated: np.ndarray,
+    rotated_nodes: np.ndarray,
+    t: np.ndarray,
+    camera: np.ndarray,
+    gradient: np.ndarray,
+    rotation: np.ndarray,
+    d_rotation: np.ndarray,
+    node_basis: np.ndarray,
+    sample_basis: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Jacobian of the ROI samples ``I(pi(R P + t))`` with respect to (omega, t, c).
+
+    The chain rule of eq. 1-3 contracted with the image gradient g first: per sample,
+    ``h = (P_(1,2)' g - (g . x) P_3) / h_3`` carries g to the camera-frame point (eq. 2,
+    :func:`~.projection.space_gradient`); the omega rows are ``j_k . (R P x h)`` (eq. 1,
+    ``dR/domega_k = [j_k]x R``), the t rows ``h`` and the coefficient rows
+    ``(R' h)' (B_n + D_nm)`` (eq. 3), B_n the node's basis and D_nm the sample's own deformation
+    (:func:`~.surface_patches.patch_basis`). The node pixels' Jacobian comes with it, to
+    measure how far a step moves the nodes.
+
+    Args:
+        rotated: (3, N, M) ``R P`` of the ROI samples, m.
+        rotated_nodes: (3, N) ``R X_n`` of the nodes, m.
+        t: (3,) translation, m.
+        camera: (3, 4) projection matrix of the level's pixels.
+        gradient: (2, N, M) float32 image gradient at the samples, grey levels per level px.
+        rotation: (3, 3) R(omega).
+        d_rotation: (3, 3, 3) dR/domega_k (:func:`~face_tracking_ros.geometry.rotation.rodrigues`).
+        node_basis: (N, 3, c) derivative of eq. 3's nodes with respect to the coefficients.
+        sample_basis: (c, 3, N, M) derivative of the samples' offsets from their nodes.
+
+    Returns:
+        ``(jacobian, node_jacobian)``: (6 + c, N, M) Jacobian of the samples (grey levels per
+        rad, per m, per unit coefficient) and (2 N, 6 + c) Jacobian of the node pixels (row 2 n
+        for x, 2 n + 1 for y), level px.
+    """
+    count, size = rotated.shape[1], rotated.shape[2]
+    coefficients = node_basis.shape[2]
+    jacobian = np.empty((6 + coefficients, count, size))
+    node_jacobian = np.empty((2 * count, 6 + coefficients))
+    left_jacobian = _left_jacobian(rotation, d_rotation)
+    _node_jacobian(camera, rotation, left_jacobian, t, rotated_nodes, node_basis, node_jacobian)
+    # The small matrices as scalars: the loops below then hold them in registers.
+    p_00, p_01, p_02, p_03 = camera[0, 0], camera[0, 1], camera[0, 2], camera[0, 3]
+    p_10, p_11, p_12, p_13 = camera[1, 0], camera[1, 1], camera[1, 2], camera[1, 3]
+    p_20, p_21, p_22, p_23 = camera[2, 0], camera[2, 1], camera[2, 2], camera[2, 3]
+    l_00, l_01, l_02 = left_jacobian[0, 0], left_jacobian[0, 1], left_jacobian[0, 2]
+    l_10, l_11, l_12 = left_jacobian[1, 0], left_jacobian[1, 1], left_jacobian[1, 2]
+    l_20, l_21, l_22 = left_jacobian[2, 0], left_jacobian[2, 1], left_jacobian[2, 2]
+    r_00, r_01, r_02 = rotation[0, 0], rotation[0, 1], rotation[0, 2]
+    r_10, r_11, r_12 = rotation[1, 0], rotation[1, 1], rotation[1, 2]
+    r_20, r_21, r_22 = rotation[2, 0], rotation[2, 1], rotation[2, 2]
+    t_0, t_1, t_2 = t[0], t[1], t[2]
+    chain = np.empty((3, size))  # R' h of one node's samples
+    chain_0, chain_1, chain_2 = chain[0], chain[1], chain[2]
+    for n in range(count):
+        x_row, y_row, z_row = rotated[0, n], rotated[1, n], rotated[2, n]
+        g_x, g_y = gradient[0, n], gradient[1, n]
+        omega_0, omega_1, omega_2 = jacobian[0, n], jacobian[1, n], jacobian[2, n]
+        h_x, h_y, h_z = jacobian[3, n], jacobian[4, n], jacobian[5, n]
+        for m in range(size):
+            x, y, z = x_row[m], y_row[m], z_row[m]
+            x_c, y_c, z_c = x + t_0, y + t_1, z + t_2
+            u = p_00 * x_c + p_01 * y_c + p_02 * z_c + p_03
+            v = p_10 * x_c + p_11 * y_c + p_12 * z_c + p_13
+            inverse_depth = 1.0 / (p_20 * x_c + p_21 * y_c + p_22 * z_c + p_23)
+            along = (g_x[m] * u + g_y[m] * v) * inverse_depth
+            h_0 = (p_00 * g_x[m] + p_10 * g_y[m] - p_20 * along) * inverse_depth
+            h_1 = (p_01 * g_x[m] + p_11 * g_y[m] - p_21 * along) * inverse_depth
+            h_2 = (p_02 * g_x[m] + p_12 * g_y[m] - p_22 * along) * inverse_depth
+            moment_0, moment_1, moment_2 = y * h_2 - z * h_1, z * h_0 - x * h_2, x * h_1 - y * h_0
+            omega_0[m] = l_00 * moment_0 + l_10 * moment_1 + l_20 * moment_2
+            omega_1[m] = l_01 * moment_0 + l_11 * moment_1 + l_21 * moment_2
+            omega_2[m] = l_02 * moment_0 + l_12 * moment_1 + l_22 * moment_2
+            h_x[m], h_y[m], h_z[m] = h_0, h_1, h_2
+            chain_0[m] = r_00 * h_0 + r_10 * h_1 + r_20 * h_2
+            chain_1[m] = r_01 * h_0 + r_11 * h_1 + r_21 * h_2
+            chain_2[m] = r_02 * h_0 + r_12 * h_1 + r_22 * h_2
+        for j in range(coefficients):
+            row = jacobian[6 + j, n]
+            b_0, b_1, b_2 = node_basis[n, 0, j], node_basis[n, 1, j], node_basis[n, 2, j]
+            d_0, d_1, d_2 = sample_basis[j, 0, n], sample_basis[j, 1, n], sample_basis[j, 2, n]
+            for m in range(size):
+                row[m] = (
+                    (b_0 + d_0[m]) * chain_0[m]
+                    + (b_1 + d_1[m]) * chain_1[m]
+                    + (b_2 + d_2[m]) * chain_2[m]
+                )
+    return jacobian, node_jacobian
+
+
+@numba.njit('f8[:, ::1](f8[:, ::1], f8[::1])', **_OPTIONS)
+def weighted_gram(jacobian_t: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """``J' W J`` of eq. 6's normal equations: (P, K) rows J' of K samples, (K,) weights W.
+
+    Returns:
+        (P, P) symmetric matrix.
+    """
+    size, count = jacobian_t.shape
+    gram = np.empty((size, size))
+    weighted = np.empty(count)
+    for a in range(size):
+        row = jacobian_t[a]
+        for i in range(count):
+            weighted[i] = row[i] * weights[i]
+        for b in range(a, size):
+            other = jacobian_t[b]
+            total = 0.0
+            for i in range(count):
+                total += weighted[i] * other[i]
+            gram[a, b] = total
+            gram[b, a] = total
+    return gram
+
+
+@numba.njit('Tuple((f8[::1], f8))(f8[:, ::1], f8[:, ::1], f8, f8)', **_OPTIONS)
+def huber_irls(
+    residuals: np.ndarray, weights: np.ndarray, scale: float, k: float
+) -> tuple[np.ndarray, float]:
+    """IRLS weights and cost of the Huber loss on eq. 6's residuals r with sample weights w.
+
+    With ``u = |r| / s``, the loss is ``rho(u) = u^2`` inside k and ``2 k u - k^2`` outside, its
+    IRLS weight ``min(1, k / u)``.
+
+    Args:
+        residuals: (N, M) residuals r, grey levels.
+        weights: (N, M) sample weights w (visibility, inside the image).
+        scale: the robust residual scale s, grey levels.
+        k: the Huber threshold, in units of s.
+
+    Returns:
+        ``(irls, cost)``: (N M,) weights ``w min(1, k / u)`` and ``sum w rho(u)``.
+    """
+    flat_residuals, flat_weights = residuals.ravel(), weights.ravel()
+    irls = np.empty(flat_residuals.size)
+    cost = 0.0
+    for i in range(flat_residuals.size):
+        magnitude = abs(flat_residuals[i]) / scale
+        if magnitude <= k:
+            irls[i] = flat_weights[i]
+            cost += flat_weights[i] * magnitude * magnitude
+        else:
+            irls[i] = flat_weights[i] * (k / magnitude)
+            cost += flat_weights[i] * (2.0 * k * magnitude - k * k)
+    return irls, cost
+
+
+@numba.njit('f8[::1](f8[:, ::1], f8[::1], f8)', **_OPTIONS)
+def damped_step(hessian: np.ndarray, gradient: np.ndarray, damping: float) -> np.ndarray:
+    """Levenberg-Marquardt step ``-(H + lambda diag H)^-1 g``, solved Jacobi-scaled.
+
+    With ``S = diag(H)^-1/2``, the step is ``-S (S H S + lambda I)^-1 S g``.
+
+    Args:
+        hessian: (P, P) normal matrix H (halved Hessian of the cost).
+        gradient: (P,) g (halved gradient).
+        damping: lambda, relative to diag(H).
+
+    Raises:
+        LinAlgError: if H or g is not finite, or the damped matrix is not positive definite.
+    """
+    size = gradient.size
+    if not (np.all(np.isfinite(hessian)) and np.all(np.isfinite(gradient))):
+        raise LinAlgError('non-finite normal equations')
+    scaling = np.empty(size)
+    for a in range(size):
+        scaling[a] = 1.0 / np.sqrt(max(hessian[a, a], 1e-12))
+    # S H S + lambda I is symmetric positive definite (H = J' W J + the prior's precision, W >= 0):
+    # its Cholesky factor L (lower triangle), then two triangular solves.
+    factor = np.zeros((size, size))
+    for a in range(size):
+        for b in range(a + 1):
+            total = hessian[a, b] * scaling[a] * scaling[b] + (damping if a == b else 0.0)
+            for c in range(b):
+                total -= factor[a, c] * factor[b, c]
+            if a > b:
+                factor[a, b] = total / factor[b, b]
+            elif total > 0.0:
+                factor[a, a] = np.sqrt(total)
+            else:
+                raise LinAlgError('damped normal matrix not positive definite')
+    step = gradient * scaling
+    for a in range(size):
+        for c in range(a):
+            step[a] -= factor[a, c] * step[c]
+        step[a] /= factor[a, a]
+    for a in range(size - 1, -1, -1):
+        for c in range(a + 1, size):
+            step[a] -= factor[c, a] * step[c]
+        step[a] /= factor[a, a]
+    return -scaling * step
+
+
+@numba.njit(
+    'Tuple((f8, f8[:, ::1], f8[::1]))(f8[:, ::1], f8[:, ::1], f8[:, ::1], f8[:, ::1], f8, f8, '
+    'f8[:, ::1])',
+    **_OPTIONS,
+)
+def normal_equations(
+    jacobian_t: np.ndarray,
+    residuals: np.ndarray,
+    weights: np.ndarray,
+    visibility: np.ndarray,
+    scale: float,
+    k: float,
+    visible_hessian: np.ndarray,
+) -> tuple[float, np.ndarray, np.ndarray]:
+    """Huber cost and IRLS normal equations of eq. 6's data term on one pyramid level.
+
+    With W the IRLS weights of :func:`huber_irls`, ``H = J' W J / s^2`` and ``g = J' W r / s^2``;
+    ``J' W J`` is ``visible_hessian`` (``J' V J`` with the visibility weights V alone) plus the
+    samples whose weight W differs from V.
+
+    Args:
+        jacobian_t: (P, N M) transposed Jacobian J' of the residuals.
+        residuals: (N, M) residuals r.
+        weights: (N, M) sample weights (visibility times inside the image).
+        visibility: (N, M) visibility weights V.
+        scale: the robust residual scale s.
+        k: the Huber threshold, in units of s.
+        visible_hessian: (P, P) ``J' V J``.
+
+    Returns:
+        ``(cost, H, g)``: the data cost ``sum w rho(|r| / s)``, (P, P) H and (P,) g.
+    """
+    irls, cost = huber_irls(residuals, weights, scale, k)
+    flat_residuals, flat_visibility = residuals.ravel(), visibility.ravel()
+    size, count = jacobian_t.shape
+    changed = np.flatnonzero(irls != flat_visibility)
+    columns = np.empty((size, changed.size))
+    for a in range(size):
+        row = jacobian_t[a]
+        for i in range(changed.size):
+            columns[a, i] = row[changed[i]]
+    hessian = weighted_gram(columns, irls[changed] - flat_visibility[changed])
+    inverse_variance = 1.0 / (scale * scale)
+    gradient = np.empty(size)
+    for a in range(size):
+        row = jacobian_t[a]
+        total = 0.0
+        for i in range(count):
+            total += row[i] * irls[i] * flat_residuals[i]
+        gradient[a] = total * inverse_variance
+        for b in range(size):
+            hessian[a, b] = (visible_hessian[a, b] + hessian[a, b]) * inverse_variance
+    return cost, hessian, gradient

@@ -1,0 +1,249 @@
+"""Compiled (numba) inner loops of the stereo tracker's image terms (eq. 4, :mod:`.stereo_data`).
+
+A pair's solve evaluates the robust ZSSD residuals of ~1800 samples in 2 images against 4
+templates some 7 times and forms their normal equations by node blocks some 6 times; as numpy
+expressions these are a few hundred calls on small arrays whose overhead exceeds their
+arithmetic (issue 9's budget: 5 ms per 640x480 pair). Each kernel is one pass over the samples,
+group by group.
+
+Samples are laid out as in :class:`~.stereo_data.SampleSet`: layout l holds G_l groups of M_l
+consecutive samples from ``bounds[l]`` on. Grey levels and the ZSSD residuals stay float32 as
+sampled (each group's mean is summed in float32 and subtracted in float64, as numpy does);
+weights, derivatives and sums are float64. Kernels are typed (compiled on import, or loaded from
+numba's on-disk cache); the residuals use IEEE arithmetic without reassociation (they equal
+numpy's to the bit), the normal blocks' sums may be reassociated (vectorised).
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+_OPTIONS = {'cache': True, 'nogil': True, 'error_model': 'numpy'}
+
+
+@numba.njit(**_OPTIONS)
+def _block_sum(values: np.ndarray, start: int, count: int) -> float:
+    """Sum of at most 128 consecutive values in numpy's order: 8 partial sums (or sequential)."""
+    if count < 8:
+        total = values.dtype.type(0.0)
+        for i in range(start, start + count):
+            total += values[i]
+        return total
+    p_0, p_1, p_2, p_3 = values[start], values[start + 1], values[start + 2], values[start + 3]
+    p_4, p_5, p_6, p_7 = values[start + 4], values[start + 5], values[start + 6], values[start + 7]
+    stop = count - count % 8
+    for i in range(start + 8, start + stop, 8):
+        p_0 += values[i]
+        p_1 += values[i + 1]
+        p_2 += values[i + 2]
+        p_3 += values[i + 3]
+        p_4 += values[i + 4]
+        p_5 += values[i + 5]
+        p_6 += values[i + 6]
+        p_7 += values[i + 7]
+    total = ((p_0 + p_1) + (p_2 + p_3)) + ((p_4 + p_5) + (p_6 + p_7))
+    for i in range(start + stop, start + count):
+        total += values[i]
+    return total
+
+
+@numba.njit(**_OPTIONS)
+def _pairwise_sum(values: np.ndarray, start: int, count: int) -> float:
+    """``values[start : start + count].sum()`` in numpy's order, in the array's precision.
+
+    numpy sums a block of more than 128 values as the sum of its two halves (the first rounded
+    down to a multiple of 8), recursively; the recursion is unrolled on an explicit stack
+    (numba's cache does not hold recursive functions).
+    """
+    if count <= 128:
+        return _block_sum(values, start, count)
+    starts = np.empty(64, dtype=np.int64)
+    counts = np.empty(64, dtype=np.int64)
+    lefts = np.empty(64, dtype=values.dtype)  # the first half's sum, once known
+    waiting = np.zeros(64, dtype=np.bool_)  # a block waiting for its second half
+    depth = 0
+    starts[0], counts[0], waiting[0] = start, count, False
+    while True:
+        if counts[depth] > 128:  # descend into the first half
+            half = counts[depth] // 2
+            half -= half % 8
+            starts[depth + 1], counts[depth + 1] = starts[depth], half
+            depth += 1
+            waiting[depth] = False
+            continue
+        total = _block_sum(values, starts[depth], counts[depth])
+        depth -= 1
+        while depth >= 0 and waiting[depth]:  # both halves known: add them
+            total = lefts[depth] + total
+            depth -= 1
+        if depth < 0:
+            return total
+        half = counts[depth] // 2
+        half -= half % 8
+        lefts[depth], waiting[depth] = total, True
+        starts[depth + 1], counts[depth + 1] = starts[depth] + half, counts[depth] - half
+        depth += 1
+        waiting[depth] = False
+
+
+@numba.njit(
+    'Tuple((f4[:, :, ::1], i8[:, ::1], f8[:, ::1], f8[:, ::1], f8))(f4[:, :], f4[:, :, ::1], '
+    'b1[:, ::1], f8[:, ::1], f8[::1], f8[::1], f8[::1], f4[::1], i8[::1], i8[::1])',
+    **_OPTIONS,
+)
+def zssd_residuals(
+    values: np.ndarray,
+    templates: np.ndarray,
+    valid: np.ndarray,
+    coefficients: np.ndarray,
+    threshold: np.ndarray,
+    twice: np.ndarray,
+    square: np.ndarray,
+    inlier_bound: np.ndarray,
+    bounds: np.ndarray,
+    group_sizes: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, float]:
+    """Robust ZSSD residuals of C sampled images against K templates each (eq. 4's terms).
+
+    For sample s of a group and template k, ``r_k = I(s) - T_k(s) - mean_group(I - T_k)`` over
+    the group's valid samples (0 where not valid); its Huber weight is ``min(1, k_s / |r_k|)``
+    and its loss ``r^2`` within k_s, ``2 k_s |r| - k_s^2`` beyond.
+
+    Args:
+        values: (C, S) float32 grey levels I (any strides).
+        templates: (C, K, S) float32 templates T_k.
+        valid: (C, S) the samples in use.
+        coefficients: (K, S) coefficients a_k >= 0.
+        threshold: (S,) Huber thresholds k_s.
+        twice: (S,) 2 k_s.
+        square: (S,) k_s^2.
+        inlier_bound: (S,) float32 largest float32 <= k_s (a float32 |r| is within k_s exactly
+            when it is within this).
+        bounds: (L + 1,) first sample of every layout, then S.
+        group_sizes: (L,) M_l.
+
+    Returns:
+        ``(differences, counts, weight, weighted_residual, cost)``: (C, K, S) float32 r_k,
+        (C, sum G_l) valid samples of each group (layout after layout), (C, S)
+        ``sum_k a_k w_k``, (C, S) ``sum_k a_k w_k r_k`` and the cost ``sum a_k rho(r_k)``.
+    """
+    images, count, size = templates.shape
+    differences = np.empty((images, count, size), dtype=np.float32)
+    groups = 0
+    for layout in range(group_sizes.size):
+        groups += (bounds[layout + 1] - bounds[layout]) // group_sizes[layout]
+    counts = np.zeros((images, groups), dtype=np.int64)
+    weight = np.zeros((images, size))
+    weighted_residual = np.zeros((images, size))
+    losses = np.empty((images, count, size))
+    masked = np.empty(size, dtype=np.float32)  # one group's I - T_k where valid, else 0
+    for c in range(images):
+        grey, in_use = values[c], valid[c]
+        group = 0
+        for layout in range(group_sizes.size):
+            members = group_sizes[layout]
+            for first in range(bounds[layout], bounds[layout + 1], members):
+                stop = first + members
+                for s in range(first, stop):
+                    counts[c, group] += in_use[s]
+                divisor = float(max(counts[c, group], 1))
+                for k in range(count):
+                    template, difference = templates[c, k], differences[c, k]
+                    for s in range(first, stop):
+                        difference[s] = grey[s] - template[s]
+                        masked[s] = difference[s] if in_use[s] else np.float32(0.0)
+                    mean = float(_pairwise_sum(masked, first, members)) / divisor
+                    for s in range(first, stop):
+                        centred = np.float32(difference[s] - mean)
+                        difference[s] = centred if in_use[s] else np.float32(0.0)
+                group += 1
+        total_weight, total_residual = weight[c], weighted_residual[c]
+        for k in range(count):  # summed over k in order, as numpy sums a middle axis
+            difference, coefficient, loss = differences[c, k], coefficients[k], losses[c, k]
+            for s in range(size):
+                magnitude = abs(difference[s])
+                robust = threshold[s] / magnitude  # inf at |r| = 0: weight 1
+                if robust > 1.0:
+                    robust = 1.0
+                weighted = coefficient[s] * robust
+                total_weight[s] += weighted
+                total_residual[s] += weighted * difference[s]
+                inlier = float(magnitude * magnitude)
+                outlier = twice[s] * magnitude - square[s]
+                loss[s] = coefficient[s] * (inlier if magnitude <= inlier_bound[s] else outlier)
+    cost = _pairwise_sum(losses.ravel(), 0, losses.size)
+    return differences, counts, weight, weighted_residual, cost
+
+
+@numba.njit(
+    'Tuple((f8[:, :, ::1], f8[:, ::1]))(f8[:, :, ::1], b1[:, ::1], f8[:, ::1], f8[:, ::1], '
+    'i8[:, :], f8[:, ::1], i8, i8)',
+    fastmath={'reassoc', 'contract'},
+    **_OPTIONS,
+)
+def node_normal_blocks(
+    rows: np.ndarray,
+    valid: np.ndarray,
+    weight: np.ndarray,
+    weighted_residual: np.ndarray,
+    counts: np.ndarray,
+    slot_weights: np.ndarray,
+    first: int,
+    members: int,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Gauss-Newton blocks ``J' W J`` and ``J' W r`` of one layout's groups, summed over images.
+
+    The Jacobian of a sample with respect to slot node j is ``b_j h`` with h its image
+    gradient carried to the point (eq. 2, :func:`~.projection.space_gradient`), minus the
+    group's mean over its valid samples (ZSSD).
+
+    Args:
+        rows: (C, 3, S) h of every sample (0 where not valid), grey levels per m.
+        valid: (C, S) the samples in use.
+        weight: (C, S) ``sum_k a_k w_k``.
+        weighted_residual: (C, S) ``sum_k a_k w_k r_k``.
+        counts: (C, G) valid samples of each of the layout's groups.
+        slot_weights: (k, G M) barycentric weights b_j of the layout's samples.
+        first: the layout's first sample.
+        members: M, samples per group.
+
+    Returns:
+        ``(blocks, vectors)``: (G, 3k, 3k) and (G, 3k).
+    """
+    images, groups = counts.shape
+    slots = slot_weights.shape[0]
+    width = 3 * slots
+    blocks = np.zeros((groups, width, width))
+    vectors = np.zeros((groups, width))
+    jacobian = np.empty((width, members))  # one group's rows in one image
+    for c in range(images):
+        for g in range(groups):
+            start = first + g * members
+            divisor = float(max(counts[c, g], 1))
+            for j in range(slots):
+                for a in range(3):
+                    row = jacobian[3 * j + a]
+                    for m in range(members):
+                        row[m] = slot_weights[j, g * members + m] * rows[c, a, start + m]
+                    mean = _pairwise_sum(row, 0, members) / divisor
+                    for m in range(members):
+                        if valid[c, start + m]:
+                            row[m] -= mean
+            weights = weight[c, start : start + members]
+            residuals = weighted_residual[c, start : start + members]
+            for i in range(width):
+                row = jacobian[i]
+                total = 0.0
+                for m in range(members):
+                    total += residuals[m] * row[m]
+                vectors[g, i] += total
+                for other in range(i, width):
+                    column = jacobian[other]
+                    total = 0.0
+                    for m in range(members):
+                        total += row[m] * weights[m] * column[m]
+                    blocks[g, i, other] += total
+                    if other > i:
+                        blocks[g, other, i] += total
+    return blocks, vectors
