@@ -183,6 +183,24 @@ def test_a_smooth_image_does_not_match_the_face(scene) -> None:
     assert 'do not match' in lost.reason
 
 
+def test_a_face_slowly_turning_into_another_texture_is_lost_by_the_drift_check(
+    scene, texture_factory
+) -> None:
+    # Each frame matches the previous one, so only the comparison with frame 1 alone sees it.
+    model, image, init = scene
+    other = texture_factory(seed=7).astype(float)
+    blends = [(1 - w) * image + w * other for w in np.linspace(0.025, 1.0, 40)]
+    frames = [np.clip(b, 0, 255).astype(np.uint8) for b in blends]
+    checked = _started(model, image, init)
+    unchecked = _started(model, image, init, drift_residual_ratio=1e6)
+    statuses = [(checked.step(f), unchecked.step(f)) for f in frames]
+    first_lost = next(k for k, (r, _) in enumerate(statuses) if r.status == TrackStatus.LOST)
+    assert 'drifted' in statuses[first_lost][0].reason
+    assert 0.5 < (first_lost + 1) / 40 <= 0.75  # measured: LOST from 67 % of the other texture
+    assert all(r.status == TrackStatus.LOST for r, _ in statuses[first_lost:])
+    assert all(u.ok for _, u in statuses)  # without it the tracker follows the blend to the end
+
+
 def test_a_face_leaving_the_image_is_lost(scene) -> None:
     model, image, init = scene
     tracker = _started(model, image, init, pyramid_levels=2)
