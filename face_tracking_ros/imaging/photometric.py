@@ -20,6 +20,8 @@ from enum import IntEnum
 import numba
 import numpy as np
 
+from face_tracking_ros.compiled import FAST
+
 
 class PhotometricModel(IntEnum):
     """Which brightness change of a patch the residual ignores."""
@@ -125,10 +127,7 @@ class PhotometricInvariance:
 
 @numba.njit(
     'f8[:, :, ::1](f8[:, :, ::1], f8[:, :, ::1])',
-    cache=True,
-    nogil=True,
-    error_model='numpy',
-    fastmath={'reassoc', 'contract'},
+    **FAST,
 )
 def _project_out(values: np.ndarray, basis_t: np.ndarray) -> np.ndarray:
     """``values - (values U) U'`` per patch n: (J, N, M) rows, (N, K, M) orthonormal rows U'.
@@ -160,10 +159,7 @@ def _project_out(values: np.ndarray, basis_t: np.ndarray) -> np.ndarray:
 
 @numba.njit(
     '(f8[:, ::1], f8[:, ::1], f8[:, ::1], f8[:, :, ::1])',
-    cache=True,
-    nogil=True,
-    error_model='numpy',
-    fastmath={'reassoc', 'contract'},
+    **FAST,
 )
 def _contrast_rows(
     template: np.ndarray, gains: np.ndarray, fixed: np.ndarray, rows: np.ndarray

@@ -27,15 +27,10 @@ import numba
 import numpy as np
 from numpy.linalg import LinAlgError
 
-_OPTIONS = {
-    'cache': True,
-    'nogil': True,
-    'error_model': 'numpy',
-    'fastmath': {'reassoc', 'contract'},
-}
+from face_tracking_ros.compiled import FAST
 
 
-@numba.njit(**_OPTIONS)
+@numba.njit(**FAST)
 def _rows_times(matrix: np.ndarray, points: np.ndarray, out: np.ndarray) -> None:
     """``out = A points`` for (3, M) points and a (3, 3) matrix A."""
     x_row, y_row, z_row = points[0], points[1], points[2]
@@ -45,7 +40,7 @@ def _rows_times(matrix: np.ndarray, points: np.ndarray, out: np.ndarray) -> None
             row[m] = a_0 * x_row[m] + a_1 * y_row[m] + a_2 * z_row[m]
 
 
-@numba.njit(**_OPTIONS)
+@numba.njit(**FAST)
 def _left_jacobian(rotation: np.ndarray, d_rotation: np.ndarray) -> np.ndarray:
     """(3, 3) matrix of columns j_k with ``dR/domega_k = [j_k]x R`` (eq. 1).
 
@@ -63,7 +58,7 @@ def _left_jacobian(rotation: np.ndarray, d_rotation: np.ndarray) -> np.ndarray:
     return left
 
 
-@numba.njit(**_OPTIONS)
+@numba.njit(**FAST)
 def _node_jacobian(
     camera: np.ndarray,
     rotation: np.ndarray,
@@ -117,7 +112,7 @@ def _node_jacobian(
 @numba.njit(
     'Tuple((f8[:, :, ::1], f4[:, :, ::1]))(f8[:, ::1], f8[:, ::1], f8[::1], f8[:, ::1], '
     'f8[:, :, ::1], f8[:, :, :, ::1], f8[::1], f8[:, :, :, ::1], f8[::1])',
-    **_OPTIONS,
+    **FAST,
 )
 def roi_points(
     rotation: np.ndarray,
@@ -195,7 +190,7 @@ def roi_points(
 @numba.njit(
     'Tuple((f8[:, :, ::1], f8[:, ::1]))(f8[:, :, ::1], f8[:, ::1], f8[::1], f8[:, ::1], '
     'f4[:, :, ::1], f8[:, ::1], f8[:, :, ::1], f8[:, :, ::1], f8[:, :, :, ::1])',
-    **_OPTIONS,
+    **FAST,
 )
 def roi_jacobian(
     rotated: np.ndarray,
@@ -289,7 +284,7 @@ def roi_jacobian(
     return jacobian, node_jacobian
 
 
-@numba.njit('f8[:, ::1](f8[:, ::1], f8[::1])', **_OPTIONS)
+@numba.njit('f8[:, ::1](f8[:, ::1], f8[::1])', **FAST)
 def weighted_gram(jacobian_t: np.ndarray, weights: np.ndarray) -> np.ndarray:
     """``J' W J`` of eq. 6's normal equations: (P, K) rows J' of K samples, (K,) weights W.
 
@@ -313,7 +308,7 @@ def weighted_gram(jacobian_t: np.ndarray, weights: np.ndarray) -> np.ndarray:
     return gram
 
 
-@numba.njit('Tuple((f8[::1], f8))(f8[:, ::1], f8[:, ::1], f8, f8)', **_OPTIONS)
+@numba.njit('Tuple((f8[::1], f8))(f8[:, ::1], f8[:, ::1], f8, f8)', **FAST)
 def huber_irls(
     residuals: np.ndarray, weights: np.ndarray, scale: float, k: float
 ) -> tuple[np.ndarray, float]:
@@ -345,7 +340,7 @@ def huber_irls(
     return irls, cost
 
 
-@numba.njit('f8[::1](f8[:, ::1], f8[::1], f8)', **_OPTIONS)
+@numba.njit('f8[::1](f8[:, ::1], f8[::1], f8)', **FAST)
 def damped_step(hessian: np.ndarray, gradient: np.ndarray, damping: float) -> np.ndarray:
     """Levenberg-Marquardt step ``-(H + lambda diag H)^-1 g``, solved Jacobi-scaled.
 
@@ -394,7 +389,7 @@ def damped_step(hessian: np.ndarray, gradient: np.ndarray, damping: float) -> np
 @numba.njit(
     'Tuple((f8, f8[:, ::1], f8[::1]))(f8[:, ::1], f8[:, ::1], f8[:, ::1], f8[:, ::1], f8, f8, '
     'f8[:, ::1])',
-    **_OPTIONS,
+    **FAST,
 )
 def normal_equations(
     jacobian_t: np.ndarray,

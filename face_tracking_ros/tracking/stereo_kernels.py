@@ -19,10 +19,10 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-_OPTIONS = {'cache': True, 'nogil': True, 'error_model': 'numpy'}
+from face_tracking_ros.compiled import EXACT, FAST
 
 
-@numba.njit(**_OPTIONS)
+@numba.njit(**EXACT)
 def _block_sum(values: np.ndarray, start: int, count: int) -> float:
     """Sum of at most 128 consecutive values in numpy's order: 8 partial sums (or sequential)."""
     if count < 8:
@@ -48,7 +48,7 @@ def _block_sum(values: np.ndarray, start: int, count: int) -> float:
     return total
 
 
-@numba.njit(**_OPTIONS)
+@numba.njit(**EXACT)
 def _pairwise_sum(values: np.ndarray, start: int, count: int) -> float:
     """``values[start : start + count].sum()`` in numpy's order, in the array's precision.
 
@@ -90,7 +90,7 @@ def _pairwise_sum(values: np.ndarray, start: int, count: int) -> float:
 @numba.njit(
     'Tuple((f4[:, :, ::1], i8[:, ::1], f8[:, ::1], f8[:, ::1], f8))(f4[:, :], f4[:, :, ::1], '
     'b1[:, ::1], f8[:, ::1], f8[::1], f8[::1], f8[::1], f4[::1], i8[::1], i8[::1])',
-    **_OPTIONS,
+    **EXACT,
 )
 def zssd_residuals(
     values: np.ndarray,
@@ -179,8 +179,7 @@ def zssd_residuals(
 @numba.njit(
     'Tuple((f8[:, :, ::1], f8[:, ::1]))(f8[:, :, ::1], b1[:, ::1], f8[:, ::1], f8[:, ::1], '
     'i8[:, :], f8[:, ::1], i8, i8)',
-    fastmath={'reassoc', 'contract'},
-    **_OPTIONS,
+    **FAST,
 )
 def node_normal_blocks(
     rows: np.ndarray,
