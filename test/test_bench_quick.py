@@ -17,6 +17,7 @@ import pytest
 
 from face_tracking_ros.bench.common import BenchOptions
 from face_tracking_ros.bench.runner import finite_or_null, run_benchmarks
+from face_tracking_ros.cli.bench import format_table
 from face_tracking_ros.cli.main import main
 from face_tracking_ros.errors import ConfigError
 
@@ -83,3 +84,12 @@ def test_nan_and_infinity_become_null():
         'a': [1.0, None],
         'b': [None, 2],
     }
+
+
+def test_table_says_so_when_no_state_came_back():
+    # A node that never answers leaves no latency to print, only the drops.
+    run = {'seconds': 60.0, 'published': 1800, 'received': 0, 'dropped': 1800}
+    run |= {'latency_p50_ms': None, 'latency_p99_ms': None}
+    live = {'size': '640x480', 'at_30hz': run, 'max_rate_without_drops_hz': 0.0}
+    table = format_table({'benchmarks': {'live_latency': live}})
+    assert 'no face/state received, 1800 of 1800 dropped' in table
