@@ -19,6 +19,7 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import ParameterDescriptor
 import rclpy
 from rclpy.executors import ExternalShutdownException
+from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import (
@@ -38,6 +39,7 @@ ConfigT = TypeVar('ConfigT')
 
 WARNING_PERIOD_S = 5.0  # a problem of one kind is logged at most once per period
 PROBLEM_KIND_CHARS = 60  # problems whose messages start alike are one kind
+SPIN_PERIOD_S = 0.1  # how often the spin loop looks for a shutdown
 
 QOS_PROFILES = {
     QosClass.SENSOR: qos_profile_sensor_data,
@@ -172,12 +174,23 @@ class ProcessorNode(Node):
 
 
 def run(make_node: Callable[[], Node], args: list[str] | None = None) -> None:
-    """Init rclpy, spin the node until shutdown, and clean up (the ros2/demos pattern)."""
+    """Init rclpy, spin the node until shutdown, and clean up (the ros2/demos pattern).
+
+    The node spins on rclpy's events executor (``rclpy.experimental``), which runs each callback
+    as its event arrives instead of rebuilding a wait set on every turn. Measured on the live
+    benchmark (mono_tracker, 640x480 images at 30 Hz for 60 s, image -> face/state): p50 / p99
+    8.6 / 11.5 and 7 / 11 ms with the default executor, 6.2 / 9.7 ms with this one. It is
+    spun in steps of :data:`SPIN_PERIOD_S` (``rclpy.spin(node, executor)`` with it delivered
+    no message here).
+    """
     rclpy.init(args=args)
     node = None
     try:
         node = make_node()
-        rclpy.spin(node)
+        executor = EventsExecutor()
+        executor.add_node(node)
+        while rclpy.ok():
+            executor.spin_once(timeout_sec=SPIN_PERIOD_S)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except ConfigError as error:
