@@ -380,10 +380,15 @@ class _Templates(NamedTuple):
 
 
 class _Keyframe(NamedTuple):
-    """Templates sampled at a keyframe and the rotation R(omega) they were sampled at."""
+    """A keyframe: its templates, the rotation R(omega) they were sampled at, and a projection.
+
+    ``projection`` is the photometric projection of the level-0 template, built once for the
+    drift check.
+    """
 
     rotation: np.ndarray
     templates: _Templates
+    projection: PhotometricProjection
 
 
 class _FaceView(NamedTuple):
@@ -542,7 +547,7 @@ class MonoTracker:
         self._track = _Track(
             rois=rois,
             normals=normals,
-            keyframes=[_Keyframe(rodrigues(params.omega)[0], templates)],
+            keyframes=[self._keyframe(params.omega, templates)],
             previous=templates,
             start=params,
             view=self._face_view(pyramid, result.nodes_px),
@@ -671,6 +676,11 @@ class MonoTracker:
         self._accept(result, templates)
         return result
 
+    def _keyframe(self, omega: np.ndarray, templates: _Templates) -> _Keyframe:
+        """A keyframe of ``templates`` sampled at rotation R(omega)."""
+        projection = self._invariance.projection(templates.levels[0])
+        return _Keyframe(rodrigues(omega)[0], templates, projection)
+
     def _nearest_keyframe(self, omega: np.ndarray) -> _Keyframe:
         """The keyframe whose rotation is nearest R(omega)."""
         return self._track.keyframes[int(np.argmax(self._keyframe_cosines(omega)))]
@@ -688,7 +698,7 @@ class MonoTracker:
             # trace(R) = 1 + 2 cos(angle)
             nearest = np.max(self._keyframe_cosines(result.omega))
             if nearest < 1.0 + 2.0 * np.cos(config.keyframe_spacing):
-                track.keyframes.append(_Keyframe(rodrigues(result.omega)[0], templates))
+                track.keyframes.append(self._keyframe(result.omega, templates))
         track.current = _params_of(result)
         track.previous = templates
         track.last_good = result
@@ -1009,12 +1019,12 @@ class MonoTracker:
             texture: (N,) their ROIs' texture (:meth:`_texture`).
             nodes: (N,) the visible nodes whose ROI shows texture.
         """
-        key = self._nearest_keyframe(params.omega).templates
+        keyframe = self._nearest_keyframe(params.omega)
+        key = keyframe.templates
         nodes = nodes & (key.visibility > 0)
         if not nodes.any():
             return 0.0
-        projection = self._invariance.projection(key.levels[0])
-        residuals = projection.apply(samples - key.levels[0])
+        residuals = keyframe.projection.apply(samples - key.levels[0])
         rms = np.sqrt(np.mean(residuals[nodes] ** 2, axis=1))
         return float(np.median(rms / texture[nodes]))
 
