@@ -244,10 +244,11 @@ def _mono_accuracy_rows(protocol: dict[str, Any]) -> list[tuple[str, str, str]]:
         rotation = ' / '.join(f'{v:.2f}' for v in f['rotation_mae_deg'])
         translation = ' / '.join(f'{v:.1f}' for v in f['translation_mae_mm'])
         alpha = f['alpha_rms_percent']
+        draws = f' x {protocol["click_draws"]} click draws' if name in CLICK_DRAW_ROWS else ''
         rows.append(
             (
-                f'mono protocol, {name.replace("_", " ")} (mean of {len(entry["seeds"])} seed(s)'
-                + (f' x {protocol["click_draws"]} click draws)' if name in CLICK_DRAW_ROWS else ')'),
+                f'mono protocol, {name.replace("_", " ")} '
+                f'(mean of {len(entry["seeds"])} seed(s){draws})',
                 f'rotation MAE {rotation} deg, t MAE {translation} mm, alpha '
                 f'{"n/a" if alpha is None else f"{alpha:.0f} %"}, drift {f["drift_deg"]:+.2f} '
                 f'deg, lost {f["lost"]:.0f}',
