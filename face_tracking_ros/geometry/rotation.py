@@ -27,7 +27,7 @@ def rodrigues(omega: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         InputError: if omega is not a finite 3-vector.
     """
     omega = np.asarray(omega, dtype=float)
-    if omega.shape != (3,) or not np.all(np.isfinite(omega)):
+    if omega.shape != (3,) or not np.isfinite(omega).all():
         msg = f'omega must be a finite (3,) rotation vector, got shape {omega.shape}: {omega}'
         raise InputError(msg)
     rotation, jacobian = cv2.Rodrigues(omega)

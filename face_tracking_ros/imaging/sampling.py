@@ -101,7 +101,7 @@ def _coordinates(x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     if x.shape != y.shape:
         msg = f'x and y coordinates differ in shape: {x.shape} and {y.shape}'
         raise InputError(msg)
-    if not (np.all(np.isfinite(x)) and np.all(np.isfinite(y))):
+    if not (np.isfinite(x).all() and np.isfinite(y).all()):
         msg = 'points hold NaN or Inf'
         raise InputError(msg)
     return x, y

@@ -126,6 +126,16 @@ def camera_from_info(msg: Any) -> PinholeCamera:
     return PinholeCamera.from_camera_info(msg)
 
 
+def calibration_key(msg: Any) -> tuple:
+    """What of a sensor_msgs/CameraInfo :func:`camera_from_info` reads, comparable and hashable.
+
+    A camera driver repeats the same CameraInfo with every image; equal keys give equal cameras,
+    so a processor converts (and validates) a CameraInfo only when its key changes.
+    """
+    arrays = (np.asarray(getattr(msg, name), dtype=float).tobytes() for name in 'dkrp')
+    return (int(msg.width), int(msg.height), str(msg.distortion_model), *arrays)
+
+
 def camera_to_info(factory: MessageFactory, header: Any, camera: PinholeCamera) -> Any:
     """A sensor_msgs/CameraInfo describing ``camera``."""
     fields = camera.camera_info_fields()

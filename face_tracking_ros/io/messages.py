@@ -15,6 +15,8 @@ Reading needs no factory: rclpy and rosbags messages have the same field names.
 from __future__ import annotations
 
 import array
+from collections.abc import Callable
+from functools import partial
 import importlib
 from typing import Any, Protocol
 
@@ -57,36 +59,54 @@ class MessageFactory(Protocol):
 
 
 class RosbagsMessages:
-    """Builds rosbags message objects from a typestore, filling in defaults."""
+    """Builds rosbags message objects from a typestore, filling in defaults.
+
+    Each type's class, field names and default builders are looked up once, on its first
+    message: the trackers build about a hundred messages per image, so the lookup of the type's
+    field descriptors would cost more than the construction.
+    """
 
     def __init__(self, typestore: Typestore) -> None:
         """Use the message classes of ``typestore``."""
         self._typestore = typestore
+        self._layouts: dict[str, tuple[type, tuple[tuple[str, Callable[[], Any]], ...]]] = {}
 
     def make(self, msgtype: str, **fields: Any) -> Any:
         """Build a rosbags message; fields not given take their ROS default values."""
-        _, definitions = self._typestore.fielddefs[msgtype]
-        values = {
-            name: fields[name] if name in fields else self._default(desc)
-            for name, desc in definitions
-        }
-        return self._typestore.types[msgtype](**values)
+        layout = self._layouts.get(msgtype) or self._layout(msgtype)
+        cls, defaults = layout
+        for name, default in defaults:
+            if name not in fields:
+                fields[name] = default()
+        return cls(**fields)
 
-    def _default(self, desc: tuple[Nodetype, Any]) -> Any:
-        """Default value of a field descriptor, as rosbags stores it."""
+    def _layout(self, msgtype: str) -> tuple[type, tuple[tuple[str, Callable[[], Any]], ...]]:
+        """The class of ``msgtype`` and a default builder per field, kept for the next message."""
+        _, definitions = self._typestore.fielddefs[msgtype]
+        layout = (
+            self._typestore.types[msgtype],
+            tuple((name, self._default(desc)) for name, desc in definitions),
+        )
+        self._layouts[msgtype] = layout
+        return layout
+
+    def _default(self, desc: tuple[Nodetype, Any]) -> Callable[[], Any]:
+        """Builder of a field's default value, as rosbags stores it (a new object per call)."""
         kind, detail = desc
         if kind == Nodetype.NAME:
-            return self.make(detail)
+            return partial(self.make, detail)
         if kind == Nodetype.BASE:
-            return _BASE_DEFAULTS.get(detail[0], 0)
+            value = _BASE_DEFAULTS.get(detail[0], 0)
+            return lambda: value
         element, length = detail
         element_kind, element_detail = element
         if element_kind == Nodetype.BASE and element_detail[0] in _NUMPY_BASES:
             size = length if kind == Nodetype.ARRAY else 0
-            return np.zeros(size, dtype=_NUMPY_BASES[element_detail[0]])
+            return partial(np.zeros, size, dtype=_NUMPY_BASES[element_detail[0]])
         if kind == Nodetype.ARRAY:
-            return [self._default(element) for _ in range(length)]
-        return []
+            builder = self._default(element)
+            return lambda: [builder() for _ in range(length)]
+        return list
 
 
 class RclpyMessages:

@@ -88,12 +88,28 @@ def run_tracker(
     tracker: Tracker, images: Iterable[np.ndarray], init: Initialisation | None
 ) -> TrackedSequence:
     """Reset ``tracker`` with ``init`` and step it through ``images`` (grey, uint8)."""
+    return tracked_sequence(*track_images(tracker, images, init))
+
+
+def track_images(
+    tracker: Tracker, images: Iterable[np.ndarray], init: Initialisation | None
+) -> tuple[list[TrackResult], np.ndarray]:
+    """Reset ``tracker`` with ``init``; its result and CPU time (s) of each of ``images``."""
     tracker.reset(init)
     results, seconds = [], []
     for image in images:
         start = time.process_time()
         results.append(tracker.step(image))
         seconds.append(time.process_time() - start)
+    return results, np.array(seconds)
+
+
+def tracked_sequence(results: list[TrackResult], seconds: np.ndarray) -> TrackedSequence:
+    """The TrackedSequence of per-frame results and their CPU times (s).
+
+    Raises:
+        InputError: if there are no results.
+    """
     if not results:
         msg = 'no images to track'
         raise InputError(msg)
@@ -103,7 +119,7 @@ def run_tracker(
         t=np.array([r.t for r in results]),
         alpha=np.array([r.alpha for r in results]),
         nodes=np.array([r.nodes_cam for r in results]),
-        seconds=np.array(seconds),
+        seconds=np.asarray(seconds, dtype=float),
     )
 
 
@@ -126,7 +142,17 @@ def evaluate_tracker(
     Raises:
         InputError: if the frame counts disagree or no frame was tracked.
     """
-    tracked = run_tracker(tracker, images, init)
+    return evaluate_sequence(run_tracker(tracker, images, init), model, true_nodes)
+
+
+def evaluate_sequence(
+    tracked: TrackedSequence, model: FaceModel, true_nodes: np.ndarray
+) -> TrackerEvaluation:
+    """:func:`score` of a tracked sequence, after checking it has a frame per true frame.
+
+    Raises:
+        InputError: if the frame counts disagree or no frame was tracked.
+    """
     if len(tracked.status) != len(true_nodes):
         msg = f'{len(tracked.status)} images but {len(true_nodes)} frames of true nodes'
         raise InputError(msg)

@@ -478,7 +478,7 @@ class MonoTracker:
         ]
         self._prior_hessians = {free: self._prior_hessian(free) for free in (False, True)}
         self._buffers: ImagePyramid | None = None  # the previous frame's, rebuilt in place
-        self._posed: tuple[_Params, tuple[np.ndarray, np.ndarray]] | None = None  # _pose's
+        self._posed: tuple[_Params, tuple[np.ndarray, ...]] | None = None  # _posed_at's
         self._init: Initialisation | None = None
         self._use_init = False
         self._track: _Track | None = None
@@ -662,9 +662,8 @@ class MonoTracker:
             prev + epsilon * (key - prev)
             for prev, key in zip(track.previous.levels, keyframe.levels, strict=True)
         )
-        weights = np.minimum(
-            track.previous.visibility, self._visibility(track.current, track.normals)
-        )
+        # The node visibility at the last valid estimate: its templates were sampled there.
+        weights = track.previous.visibility
         free_sigma = track.frames <= self._config.sigma_frames
         config = self._config
         ratio = config.reacquire_residual_ratio if track.lost else config.lost_residual_ratio
@@ -839,7 +838,7 @@ class MonoTracker:
             level.camera,
             gradient,
             rotation,
-            rodrigues(params.omega)[1],
+            self._d_rotation(params),
             basis,
             level.roi.basis(free_sigma),
         )
@@ -1071,9 +1070,18 @@ class MonoTracker:
         The last parameter vector's are kept: one is projected several times (its evaluation,
         linearisation, templates, visibility, result).
         """
+        return self._posed_at(params)[:2]
+
+    def _d_rotation(self, params: _Params) -> np.ndarray:
+        """(3, 3, 3) dR/domega_k at ``params`` (eq. 1), kept with :meth:`_pose`'s."""
+        return self._posed_at(params)[2]
+
+    def _posed_at(self, params: _Params) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """R(omega), the shape and dR/domega of ``params``, computed once per parameter vector."""
         if self._posed is None or params is not self._posed[0]:
-            rotation, _ = rodrigues(params.omega)
-            self._posed = (params, (rotation, self._model.shape(params.sigma, params.alpha)))
+            rotation, d_rotation = rodrigues(params.omega)
+            shape = self._model.shape(params.sigma, params.alpha)
+            self._posed = (params, (rotation, shape, d_rotation))
         return self._posed[1]
 
     def _project_nodes(self, params: _Params) -> tuple[np.ndarray, np.ndarray]:

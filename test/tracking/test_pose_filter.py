@@ -10,7 +10,12 @@ import pytest
 from face_tracking_ros.errors import ConfigError, InputError
 from face_tracking_ros.geometry.camera import PinholeCamera
 from face_tracking_ros.geometry.rotation import omega_to_angles, rodrigues
-from face_tracking_ros.tracking.pose_filter import PoseFilter, PoseFilterConfig
+from face_tracking_ros.tracking.pose_filter import (
+    FilteredTracker,
+    PoseFilter,
+    PoseFilterConfig,
+    filter_results,
+)
 from face_tracking_ros.tracking.result import TrackResult, TrackStatus
 
 CAMERA = PinholeCamera.ideal()
@@ -101,6 +106,38 @@ def test_disabled_filter_passes_results_unchanged():
     assert pose_filter.filter(result, 0.0) is result
     moved = replace(result, omega=result.omega + 0.1)
     assert pose_filter.filter(moved, 1 / FPS) is moved
+
+
+class _Replay:
+    """A tracker that returns prepared results, one per image."""
+
+    def __init__(self, results: list[TrackResult]) -> None:
+        self._results = results
+        self._frame = 0
+
+    def reset(self, init=None) -> None:
+        self._frame = 0
+
+    def step(self, image: np.ndarray) -> TrackResult:
+        self._frame += 1
+        return self._results[self._frame - 1]
+
+
+def test_filtering_raw_results_gives_what_the_filtered_tracker_publishes():
+    _, _, noisy_omega, noisy_t = _noisy_track(np.array([0.0, 0.8, 0.0]), np.zeros(3), 90)
+    raw = [_result(w, v) for w, v in zip(noisy_omega, noisy_t, strict=True)]
+    raw[40] = replace(raw[40], status=TrackStatus.LOST)  # restarts the filter in both
+    tracker = FilteredTracker(_Replay(raw), PoseFilter(CAMERA), FPS)
+    published = [tracker.step(np.zeros((1, 1))) for _ in raw]
+    used = PoseFilter(CAMERA)
+    used.filter(raw[5], 0.0)  # a filter with a past is reset first
+    filtered, seconds = filter_results(used, raw, FPS)
+    assert len(seconds) == len(raw)
+    for ours, theirs in zip(filtered, published, strict=True):
+        np.testing.assert_array_equal(ours.omega, theirs.omega)
+        np.testing.assert_array_equal(ours.nodes_px, theirs.nodes_px)
+    np.testing.assert_array_equal(filtered[40].omega, raw[40].omega)  # LOST passes unchanged
+    assert np.abs(filtered[60].omega - raw[60].omega).max() > 1e-4  # the filter acted
 
 
 def test_time_must_increase():
