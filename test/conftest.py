@@ -1,7 +1,9 @@
 """Shared fixtures: a DDS environment that stays on this host, and a private rclpy context.
 
 The environment is set with setdefault (so `make test` and `.ci/run` choose the domain) when
-conftest is imported, before any rclpy context exists: rclpy reads it in `rclpy.init`.
+conftest is imported, before any rclpy context exists: rclpy reads it in `rclpy.init`. BLAS is
+limited to one thread, as in the nodes and the ``face-tracking`` command, so the tests compute
+what they run.
 """
 
 from __future__ import annotations
@@ -20,6 +22,7 @@ from rosbags.typesys.base import Nodetype
 from rosbags.typesys.store import Typestore
 
 from face_tracking_ros.io.typestore import custom_type_names, typestore
+from face_tracking_ros.threads import limit_blas_threads
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -29,6 +32,7 @@ os.environ.setdefault(
     'FASTDDS_DEFAULT_PROFILES_FILE', str(REPO / 'config' / 'fastdds_profile.xml')
 )
 os.environ.setdefault('AMENT_PREFIX_PATH', sys.prefix)
+limit_blas_threads()
 
 
 @pytest.fixture

@@ -11,8 +11,7 @@ import time
 
 import numpy as np
 
-ONE_CORE_ENV = {'OMP_NUM_THREADS': '1', 'OPENBLAS_NUM_THREADS': '1', 'MKL_NUM_THREADS': '1'}
-"""Thread limits for a benchmark process; set before numpy is imported (in the child's env)."""
+from face_tracking_ros.threads import ONE_THREAD_ENV
 
 PROFILE = Path(__file__).resolve().parents[2] / 'config' / 'fastdds_profile.xml'
 BENCH_CORE = 0  # the core the measured code runs on
@@ -95,7 +94,7 @@ def dds_env(domain_id: int) -> dict[str, str]:
     loopback profile and the interpreter's prefix are used.
     """
     env = dict(os.environ)
-    env.update(ONE_CORE_ENV)
+    env.update(ONE_THREAD_ENV)
     env['ROS_DOMAIN_ID'] = str(domain_id)
     env['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
     env.setdefault('FASTDDS_DEFAULT_PROFILES_FILE', str(PROFILE))

@@ -20,6 +20,7 @@ import importlib
 import sys
 
 from face_tracking_ros.errors import FaceTrackingError
+from face_tracking_ros.threads import limit_blas_threads
 
 # Module names under face_tracking_ros.cli, one per subcommand, in help order.
 SUBCOMMANDS: tuple[str, ...] = (
@@ -68,6 +69,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         The exit status: the subcommand's (0 if it returns None), or 2 on a FaceTrackingError.
     """
     args = build_parser().parse_args(argv)
+    limit_blas_threads()
     try:
         status = args.func(args)
     except FaceTrackingError as error:

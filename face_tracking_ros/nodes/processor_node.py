@@ -34,6 +34,7 @@ from face_tracking_ros.io.messages import RclpyMessages
 from face_tracking_ros.processing.base import Port, Processor, QosClass
 from face_tracking_ros.processing.parameters import attribute_descriptions, field_default
 from face_tracking_ros.processing.registry import processor_factory
+from face_tracking_ros.threads import limit_blas_threads
 
 ConfigT = TypeVar('ConfigT')
 
@@ -181,8 +182,9 @@ def run(make_node: Callable[[], Node], args: list[str] | None = None) -> None:
     benchmark (mono_tracker, 640x480 images at 30 Hz for 60 s, image -> face/state): p50 / p99
     8.6 / 11.5 and 7 / 11 ms with the default executor, 6.2 / 9.7 ms with this one. It is
     spun in steps of :data:`SPIN_PERIOD_S` (``rclpy.spin(node, executor)`` with it delivered
-    no message here).
+    no message here). BLAS is limited to one thread (:mod:`face_tracking_ros.threads`).
     """
+    limit_blas_threads()
     rclpy.init(args=args)
     node = None
     try:
