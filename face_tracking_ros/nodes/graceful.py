@@ -21,6 +21,7 @@ import rclpy.logging
 from rclpy.signals import SignalHandlerOptions
 
 from face_tracking_ros.errors import FaceTrackingError
+from face_tracking_ros.threads import limit_blas_threads
 
 SPIN_PERIOD_S = 0.1  # longest delay between a stop request and the end of the spin loop
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
@@ -55,6 +56,9 @@ def run_until_stopped(
 ) -> None:
     """Init rclpy, spin the node until a stop signal or its end, finish it and shut down.
 
+    BLAS is limited to one thread (:mod:`face_tracking_ros.threads`), as in the other nodes and
+    ``face-tracking``: the learner node computes as ``face-tracking learn`` does.
+
     Args:
         name: node name, for the log line of an error raised while building the node.
         make_node: builds the node (after ``rclpy.init``).
@@ -63,6 +67,7 @@ def run_until_stopped(
     Raises:
         SystemExit: with code 2 after logging one of :data:`USER_ERRORS`.
     """
+    limit_blas_threads()
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     stop = threading.Event()
     previous = {sig: signal.signal(sig, lambda *_: stop.set()) for sig in STOP_SIGNALS}
