@@ -234,9 +234,6 @@ MONO_TARGETS = {
 }
 
 
-CLICK_DRAW_ROWS = frozenset({'true_model_click_draws'})
-
-
 def _mono_accuracy_rows(protocol: dict[str, Any]) -> list[tuple[str, str, str]]:
     rows = []
     for name, entry in protocol.get('rows', {}).items():
@@ -244,7 +241,8 @@ def _mono_accuracy_rows(protocol: dict[str, Any]) -> list[tuple[str, str, str]]:
         rotation = ' / '.join(f'{v:.2f}' for v in f['rotation_mae_deg'])
         translation = ' / '.join(f'{v:.1f}' for v in f['translation_mae_mm'])
         alpha = f['alpha_rms_percent']
-        draws = f' x {protocol["click_draws"]} click draws' if name in CLICK_DRAW_ROWS else ''
+        count = entry.get('click_draws', 1)
+        draws = f' x {count} click draws' if count > 1 else ''
         rows.append(
             (
                 f'mono protocol, {name.replace("_", " ")} '

@@ -164,9 +164,7 @@ class FilteredTracker:
 
     def __init__(self, tracker: Tracker, pose_filter: PoseFilter, frame_rate: float) -> None:
         """Wrap ``tracker``; its images are ``1 / frame_rate`` s apart."""
-        if not frame_rate > 0:
-            msg = f'frame_rate must be > 0, got {frame_rate}'
-            raise ConfigError(msg)
+        _check_frame_rate(frame_rate)
         self._tracker = tracker
         self._filter = pose_filter
         self._frame_rate = frame_rate
@@ -201,9 +199,7 @@ def filter_results(
     Raises:
         ConfigError: if ``frame_rate`` is not positive.
     """
-    if not frame_rate > 0:
-        msg = f'frame_rate must be > 0, got {frame_rate}'
-        raise ConfigError(msg)
+    _check_frame_rate(frame_rate)
     pose_filter.reset()
     filtered, seconds = [], []
     for frame, result in enumerate(results):
@@ -211,3 +207,10 @@ def filter_results(
         filtered.append(pose_filter.filter(result, frame / frame_rate))
         seconds.append(time.process_time() - start)
     return filtered, np.array(seconds)
+
+
+def _check_frame_rate(frame_rate: float) -> None:
+    """Raise a ConfigError unless ``frame_rate`` (images per second) is positive."""
+    if not frame_rate > 0:
+        msg = f'frame_rate must be > 0, got {frame_rate}'
+        raise ConfigError(msg)

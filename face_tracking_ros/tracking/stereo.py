@@ -38,7 +38,13 @@ from scipy.linalg import LinAlgError
 from scipy.linalg.lapack import dpotrf, dpotrs
 
 from face_tracking_ros.data import default_model_path
-from face_tracking_ros.errors import ConfigError, FaceTrackingError, InputError, ModelFileError
+from face_tracking_ros.errors import (
+    ConfigError,
+    FaceTrackingError,
+    InputError,
+    ModelFileError,
+    check_fields,
+)
 from face_tracking_ros.geometry.camera import StereoRig
 from face_tracking_ros.geometry.procrustes import rigid_align
 from face_tracking_ros.imaging import ImagePyramid, inside_image
@@ -157,32 +163,29 @@ class StereoTrackerConfig:
             ConfigError: naming the first out-of-range tunable.
         """
         mesh_topology(self.num_nodes)
-        checks = (
-            ('gamma', 0.0 <= self.gamma <= 1.0),
-            ('boundary_gamma', 0.0 <= self.boundary_gamma <= 1.0),
-            ('epsilon', 0.0 <= self.epsilon < 1.0),
-            ('texture_weight', self.texture_weight >= 0.0),
-            ('texture_subdivisions', self.texture_subdivisions >= 3),
-            ('patch_half_size', self.patch_half_size >= 1),
-            ('pyramid_levels', self.pyramid_levels >= 1),
-            ('max_iterations', self.max_iterations >= 1),
-            ('step_tolerance', self.step_tolerance > 0.0),
-            ('damping', self.damping >= 0.0),
-            ('huber_k', self.huber_k > 0.0),
-            ('noise_floor', self.noise_floor > 0.0),
-            ('lost_ratio', self.lost_ratio > 0.0),
-            ('model_weight_edge', self.model_weight_edge >= 0.0),
-            ('model_weight_inner', self.model_weight_inner >= 0.0),
-            ('matched_depth_std', self.matched_depth_std > 0.0),
-            ('placed_depth_std', self.placed_depth_std > 0.0),
-            ('depth_gate', self.depth_gate > 0.0),
-            ('depth_step_px', self.depth_step_px > 0.0),
-            ('fit_edge_weight', 0.0 <= self.fit_edge_weight <= 1.0),
-        )
-        for name, ok in checks:
-            if not ok:
-                msg = f'stereo tracker parameter {name} is out of range: {getattr(self, name)}'
-                raise ConfigError(msg)
+        checks = {
+            'gamma': 0.0 <= self.gamma <= 1.0,
+            'boundary_gamma': 0.0 <= self.boundary_gamma <= 1.0,
+            'epsilon': 0.0 <= self.epsilon < 1.0,
+            'texture_weight': self.texture_weight >= 0.0,
+            'texture_subdivisions': self.texture_subdivisions >= 3,
+            'patch_half_size': self.patch_half_size >= 1,
+            'pyramid_levels': self.pyramid_levels >= 1,
+            'max_iterations': self.max_iterations >= 1,
+            'step_tolerance': self.step_tolerance > 0.0,
+            'damping': self.damping >= 0.0,
+            'huber_k': self.huber_k > 0.0,
+            'noise_floor': self.noise_floor > 0.0,
+            'lost_ratio': self.lost_ratio > 0.0,
+            'model_weight_edge': self.model_weight_edge >= 0.0,
+            'model_weight_inner': self.model_weight_inner >= 0.0,
+            'matched_depth_std': self.matched_depth_std > 0.0,
+            'placed_depth_std': self.placed_depth_std > 0.0,
+            'depth_gate': self.depth_gate > 0.0,
+            'depth_step_px': self.depth_step_px > 0.0,
+            'fit_edge_weight': 0.0 <= self.fit_edge_weight <= 1.0,
+        }
+        check_fields(self, checks)
 
 
 @dataclass(frozen=True)

@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from face_tracking_ros.errors import ConfigError, InputError
+from face_tracking_ros.errors import InputError, check_fields
 from face_tracking_ros.geometry.camera import StereoRig
 from face_tracking_ros.geometry.procrustes import rigid_align
 from face_tracking_ros.imaging import sample_patches, sample_points, square_offsets
@@ -60,19 +60,16 @@ class StereoInitConfig:
         Raises:
             ConfigError: naming the first inconsistent tunable.
         """
-        checks = (
-            ('min_depth', 0.0 < self.min_depth < self.max_depth),
-            ('match_half_size', self.match_half_size >= 2),
-            ('min_score', -1.0 <= self.min_score <= 1.0),
-            ('max_face_error', self.max_face_error > 0.0),
-            ('min_given_nodes', self.min_given_nodes >= 3),
-            ('refine_iterations', self.refine_iterations >= 0),
-            ('refine_half_size', self.refine_half_size >= 1),
-        )
-        for name, ok in checks:
-            if not ok:
-                msg = f'stereo init parameter {name} is out of range: {getattr(self, name)}'
-                raise ConfigError(msg)
+        checks = {
+            'min_depth': 0.0 < self.min_depth < self.max_depth,
+            'match_half_size': self.match_half_size >= 2,
+            'min_score': -1.0 <= self.min_score <= 1.0,
+            'max_face_error': self.max_face_error > 0.0,
+            'min_given_nodes': self.min_given_nodes >= 3,
+            'refine_iterations': self.refine_iterations >= 0,
+            'refine_half_size': self.refine_half_size >= 1,
+        }
+        check_fields(self, checks)
 
 
 def epipolar_match(
