@@ -80,6 +80,18 @@ def test_face_state_carries_result_and_header():
     assert state.iterations == 7
 
 
+@pytest.mark.parametrize('factory', [RosbagsMessages(typestore()), RclpyMessages()])
+def test_an_initializing_result_is_published_with_zeros_for_its_nan(factory):
+    header = conversions.make_header(factory, STAMP_NS, 'camera_optical')
+    empty = TrackResult.empty(34, 2, 5, 'no face yet')
+    state = conversions.face_messages(factory, header, 'face_0', empty, mesh_topology(34)).state
+    assert state.status == TrackStatus.INITIALIZING
+    assert list(state.omega) == [0.0, 0.0, 0.0]
+    assert (state.pose.position.x, state.pose.position.z) == (0.0, 0.0)
+    assert conversions.points_to_array(state.nodes, 'nodes').tolist() == [[0.0] * 3] * 34
+    assert state.mean_residual == 0.0
+
+
 def test_model_round_trips_through_its_message():
     model = _model()
     factory = RosbagsMessages(typestore())

@@ -182,7 +182,7 @@ def array_to_points(factory: MessageFactory, array: np.ndarray) -> list[Any]:
     array = np.asarray(array, dtype=float)
     if array.shape[1] == 2:
         array = np.hstack([array, np.zeros((len(array), 1))])
-    return [factory.make('geometry_msgs/msg/Point', x=x, y=y, z=z) for x, y, z in array.tolist()]
+    return factory.points(array)
 
 
 def pose_msg(factory: MessageFactory, omega: np.ndarray, t: np.ndarray) -> Any:
@@ -335,9 +335,9 @@ def face_messages(
         result: the tracker's estimate for this image.
         topology: the mesh topology (node names and edges).
     """
-    omega = np.nan_to_num(result.omega).astype(float)
-    pose = pose_msg(factory, omega, np.nan_to_num(result.t))
-    nodes = array_to_points(factory, np.nan_to_num(result.nodes_cam))
+    omega = _nan_as_zero(result.omega)
+    pose = pose_msg(factory, omega, _nan_as_zero(result.t))
+    nodes = array_to_points(factory, _nan_as_zero(result.nodes_cam))
     state = factory.make(
         'face_tracking_msgs/msg/FaceState',
         header=header,
@@ -349,9 +349,9 @@ def face_messages(
         sigma=np.asarray(result.sigma, dtype=float),
         node_names=list(topology.node_names),
         nodes=nodes,
-        image_points=array_to_points(factory, np.nan_to_num(result.nodes_px)),
-        node_residuals=np.nan_to_num(result.node_residuals).astype(float),
-        mean_residual=float(np.nan_to_num(result.mean_residual)),
+        image_points=array_to_points(factory, _nan_as_zero(result.nodes_px)),
+        node_residuals=_nan_as_zero(result.node_residuals),
+        mean_residual=float(_nan_as_zero(result.mean_residual)),
         iterations=int(result.iterations),
     )
     return FaceMessages(
@@ -381,6 +381,12 @@ def face_messages(
     )
 
 
+def _nan_as_zero(values: Any) -> np.ndarray:
+    """Float array of ``values`` with NaN (no estimate yet, INITIALIZING) as 0."""
+    values = np.asarray(values, dtype=float)
+    return np.where(np.isnan(values), 0.0, values)
+
+
 def mesh_markers(
     factory: MessageFactory,
     header: Any,
@@ -397,7 +403,7 @@ def mesh_markers(
         points: the N nodes as geometry_msgs/Point (camera frame, m), shared with the FaceMesh.
         topology: the mesh topology (its edges).
     """
-    edge_points = [points[i] for edge in topology.edges for i in edge]
+    edge_points = [points[i] for i in topology.edges.ravel().tolist()]
     identity = factory.make(
         'geometry_msgs/msg/Pose', orientation=factory.make('geometry_msgs/msg/Quaternion', w=1.0)
     )

@@ -57,6 +57,10 @@ class MessageFactory(Protocol):
         """Build a message of type ``msgtype`` (e.g. ``'std_msgs/msg/Header'``)."""
         ...
 
+    def points(self, xyz: np.ndarray) -> list[Any]:
+        """geometry_msgs/Point messages of the rows of an (N, 3) array (a mesh's nodes)."""
+        ...
+
 
 class RosbagsMessages:
     """Builds rosbags message objects from a typestore, filling in defaults.
@@ -79,6 +83,11 @@ class RosbagsMessages:
             if name not in fields:
                 fields[name] = default()
         return cls(**fields)
+
+    def points(self, xyz: np.ndarray) -> list[Any]:
+        """geometry_msgs/Point messages of the rows of an (N, 3) array (a mesh's nodes)."""
+        point = self._typestore.types['geometry_msgs/msg/Point']
+        return [point(x, y, z) for x, y, z in np.asarray(xyz, dtype=float).tolist()]
 
     def _layout(self, msgtype: str) -> tuple[type, tuple[tuple[str, Callable[[], Any]], ...]]:
         """The class of ``msgtype`` and a default builder per field, kept for the next message."""
@@ -121,6 +130,11 @@ class RclpyMessages:
         return self.message_class(msgtype)(
             **{name: _to_rclpy(value) for name, value in fields.items()}
         )
+
+    def points(self, xyz: np.ndarray) -> list[Any]:
+        """geometry_msgs/Point messages of the rows of an (N, 3) array (a mesh's nodes)."""
+        point = self.message_class('geometry_msgs/msg/Point')
+        return [point(x=x, y=y, z=z) for x, y, z in np.asarray(xyz, dtype=float).tolist()]
 
     def message_class(self, msgtype: str) -> type:
         """The rclpy class of ``package/msg/Name`` (imported once per factory)."""
