@@ -16,7 +16,11 @@ from simulated clicks on the first frame (1 px noise). On the same frames run:
   prior) and ``nodes_19`` (the seed's 19-node mesh);
 - ``true_model_click_draws``: ``true_model`` averaged over :data:`CLICK_DRAWS` draws of the
   click noise (the first is ``true_model``'s): the first frame's pose, fitted to 34 clicks,
-  errs by about as much as the tracker does afterwards, so one draw per seed is a noisy figure.
+  errs by about as much as the tracker does afterwards, so one draw per seed is a noisy figure;
+- ``photo_texture`` and ``photo_baseline``: the default tracker (true model) and the baseline on
+  the same sequence rendered with real skin, the packaged face photo
+  (:func:`~face_tracking_ros.data.photo_face_paths`) as the subject's texture instead of the
+  procedural one: same head, motion, expressions and light.
 
 A still head of the same subject (300 frames of the 'static' scene: head, neutral face and light
 fixed, only the sensor noise changes) gives the jitter: the standard deviation of the estimated
@@ -40,6 +44,7 @@ from face_tracking_ros.bench.world import (
     render_sequence,
     scene_config,
 )
+from face_tracking_ros.data import photo_face_paths
 from face_tracking_ros.geometry.camera import PinholeCamera
 from face_tracking_ros.model.face_model import FaceModel
 from face_tracking_ros.synthetic.faces import FacePopulation
@@ -135,6 +140,10 @@ def _free_rows(seed: int, frames: int) -> dict[str, dict[str, Any]]:
         for draw in range(1, CLICK_DRAWS)
     ]
     rows[DRAWS_ROW] = _mean([rows['true_model'], *draws])
+    photo, photo_nodes = photo_face_paths()
+    photo_sequence = render_sequence(replace(config, texture=photo, texture_nodes=photo_nodes))
+    rows['photo_texture'] = _row(published(true34), true34, photo_sequence, seed)
+    rows['photo_baseline'] = _row(LKPnPTracker(true34, camera), true34, photo_sequence, seed)
     return rows
 
 

@@ -231,6 +231,7 @@ MONO_TARGETS = {
     'true_model': _MONO_TARGET,
     'true_model_click_draws': _MONO_TARGET,
     'baseline': 'mono rotation error >= 2x lower',
+    'photo_baseline': 'mono rotation error >= 2x lower',
 }
 
 

@@ -1,8 +1,15 @@
-"""Data files shipped with the package, made from the synthetic world by ``make default-data``.
+"""Data files shipped with the package.
 
 ``default_model_path(num_nodes)`` is the face model a tracker loads when no model file is given
 (``face-tracking learn`` on a synthetic training population); ``default_classifier_path()`` is
-the expression classifier trained for it (``face-tracking train-expressions``).
+the expression classifier trained for it (``face-tracking train-expressions``); both are made
+from the synthetic world by ``make default-data``.
+
+``photo_face_paths()`` is a real face photo and its node positions, for rendering synthetic
+sequences with real skin instead of the procedural texture (``SceneConfig.texture``): a crop of
+NASA's portrait of the astronaut Eileen Collins (public domain; the copy scikit-image ships as
+``skimage.data.astronaut``: columns 140-309, rows 40-219 of the 512x512 image), with 30 of the
+34 nodes placed by hand (the temples and upper cheeks, under her hair, are left to the warp).
 """
 
 from __future__ import annotations
@@ -29,6 +36,17 @@ def default_classifier_path() -> Path:
         ModelFileError: if the package was installed without it.
     """
     return _packaged('default_expressions.npz', 'expression classifier')
+
+
+def photo_face_paths() -> tuple[Path, Path]:
+    """Paths of the packaged face photo (PNG) and its JSON ``{node name: [x, y]}`` pixels.
+
+    Raises:
+        ModelFileError: if the package was installed without them.
+    """
+    return _packaged('photo_face.png', 'face photo'), _packaged(
+        'photo_face_nodes.json', 'face photo node positions'
+    )
 
 
 def _packaged(name: str, what: str) -> Path:

@@ -2,14 +2,18 @@
 
 The full-length figures of issue 6 (1000 frames) come from the benchmark; these tests use 24
 frames of a held-out subject with free head motion, moving light and sensor noise, with bounds
-loose enough for so few frames but tight enough to catch a broken tracker.
+loose enough for so few frames but tight enough to catch a broken tracker; the first test runs
+on procedural skin and on a real face photo.
 """
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
+from face_tracking_ros.data import photo_face_paths
 from face_tracking_ros.synthetic.clicks import simulated_clicks
 from face_tracking_ros.synthetic.scenes import SceneConfig, SequenceRenderer
 from face_tracking_ros.tracking.baseline import LKPnPTracker
@@ -20,10 +24,8 @@ from face_tracking_ros.tracking.result import TrackStatus
 SUBJECT = 9  # not among the learner's usual first training subjects
 
 
-@pytest.fixture(scope='module')
-def free_sequence():
-    """24 frames at 30 fps of free head motion: images, true nodes, camera, population."""
-    config = SceneConfig(kind='mono', subjects=SUBJECT + 1, frames=24, fps=30.0, motion='free')
+def _free_sequence(config: SceneConfig):
+    """The subject's first sequence: images, true nodes, camera, population."""
     renderer = SequenceRenderer(config, SUBJECT)
     frames = list(renderer.frames(0))
     return (
@@ -34,8 +36,25 @@ def free_sequence():
     )
 
 
-def test_mono_tracks_a_free_moving_face_and_beats_lk_pnp(free_sequence, true_model_factory):
-    images, true_nodes, camera, population = free_sequence
+FREE = SceneConfig(kind='mono', subjects=SUBJECT + 1, frames=24, fps=30.0, motion='free')
+
+
+@pytest.fixture(scope='module')
+def free_sequence():
+    """24 frames at 30 fps of free head motion, procedural skin."""
+    return _free_sequence(FREE)
+
+
+@pytest.fixture(scope='module')
+def photo_sequence():
+    """The same frames with real skin: the packaged face photo as the texture."""
+    photo, nodes = photo_face_paths()
+    return _free_sequence(replace(FREE, texture=photo, texture_nodes=nodes))
+
+
+@pytest.mark.parametrize('sequence', ['free_sequence', 'photo_sequence'])
+def test_mono_tracks_a_free_moving_face_and_beats_lk_pnp(sequence, true_model_factory, request):
+    images, true_nodes, camera, population = request.getfixturevalue(sequence)
     model = true_model_factory(population)
     init = simulated_clicks(model.node_names, true_nodes[0], camera, 1.0, np.random.default_rng(3))
     mono = evaluate_tracker(MonoTracker(model, camera), model, images, true_nodes, init)
