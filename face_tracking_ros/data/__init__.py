@@ -26,7 +26,7 @@ def default_model_path(num_nodes: int = 34) -> Path:
     Raises:
         ModelFileError: if the package was installed without it.
     """
-    return _packaged(f'default_model_{num_nodes}.npz', 'model')
+    return _packaged(f'default_model_{num_nodes}.npz', 'default model')
 
 
 def default_classifier_path() -> Path:
@@ -35,7 +35,7 @@ def default_classifier_path() -> Path:
     Raises:
         ModelFileError: if the package was installed without it.
     """
-    return _packaged('default_expressions.npz', 'expression classifier')
+    return _packaged('default_expressions.npz', 'default expression classifier')
 
 
 def photo_face_paths() -> tuple[Path, Path]:
@@ -53,6 +53,6 @@ def _packaged(name: str, what: str) -> Path:
     """Path of a packaged data file, checked to exist."""
     path = Path(str(files(__name__) / name))
     if not path.is_file():
-        msg = f'the packaged default {what} {path} is missing; pass a file instead'
+        msg = f'the packaged {what} {path} is missing; pass a file instead'
         raise ModelFileError(msg)
     return path
