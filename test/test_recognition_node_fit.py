@@ -83,3 +83,23 @@ def test_zero_weight_nodes_are_ignored_by_the_fit() -> None:
     assert fit.rms[0] > 0.005  # rms counts every node, the corrupted ones too
     with pytest.raises(InputError, match='weights'):
         fit_model_to_nodes(model, nodes, weights=-weights)
+
+
+def test_a_start_from_the_previous_frames_fit_reaches_the_same_fit() -> None:
+    rng = np.random.default_rng(33)
+    model = truth_model(FacePopulation('default', 0))
+    sigma = np.repeat(rng.normal(size=(1, model.p)) * 0.03, 2, axis=0)  # one person
+    alpha = rng.normal(size=(1, model.q)) * 0.01 + [[0.0], [0.001]]
+    omega = np.array([[0.1, -0.2, 0.05], [0.11, -0.19, 0.05]])  # two frames 0.8 deg apart
+    t = np.array([[0.0, 0.0, 0.6], [0.002, 0.0, 0.6]])
+    meshes = posed(model, sigma, alpha, omega, t) + rng.normal(scale=0.001, size=(2, 34, 3))
+    previous = fit_model_to_nodes(model, meshes[:1])
+
+    cold = fit_model_to_nodes(model, meshes[1:], tolerance=1e-7)  # the stereo tracker's
+    warm = fit_model_to_nodes(model, meshes[1:], tolerance=1e-7, start=previous)
+
+    for name in ('omega', 't', 'sigma', 'alpha', 'rms'):
+        np.testing.assert_allclose(getattr(warm, name), getattr(cold, name), atol=1e-8)
+    assert warm.iterations <= cold.iterations
+    with pytest.raises(InputError, match='start fit has 1 frames'):
+        fit_model_to_nodes(model, meshes, start=previous)

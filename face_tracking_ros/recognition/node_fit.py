@@ -58,6 +58,7 @@ def fit_model_to_nodes(
     tolerance: float = 1e-12,
     max_iterations: int = 20,
     weights: np.ndarray | None = None,
+    start: NodeFit | None = None,
 ) -> NodeFit:
     """Fit omega, t, sigma and alpha of eq. 1 and 3 to meshes in the camera frame.
 
@@ -68,10 +69,14 @@ def fit_model_to_nodes(
         max_iterations: largest number of Gauss-Newton iterations.
         weights: optional (N,) non-negative node weights w_i of the squared node distances
             (0: the node is ignored); None for equal weights. ``rms`` stays unweighted.
+        start: a fit of as many frames to start Gauss-Newton from, such as the previous
+            frame's when the meshes are tracked (it skips the Procrustes and linear start);
+            None starts from those.
 
     Raises:
-        InputError: if nodes is not a finite (F, N, 3) array with F >= 1, or weights is not a
-            finite non-negative (N,) array.
+        InputError: if nodes is not a finite (F, N, 3) array with F >= 1, weights is not a
+            finite non-negative (N,) array, or start is a fit of another number of frames or
+            parameters.
     """
     nodes = np.asarray(nodes, dtype=float)
     if nodes.ndim != 3 or nodes.shape[1:] != (model.num_nodes, 3) or not len(nodes):
@@ -85,18 +90,13 @@ def fit_model_to_nodes(
         msg = f'weights must be finite and >= 0 with shape ({model.num_nodes},)'
         raise InputError(msg)
     row_scale = np.repeat(np.sqrt(w), 3)
-    frames = len(nodes)
     bases = np.hstack([model.shape_basis, model.action_basis])
     bases_nodes = bases.reshape(model.num_nodes, 3, -1)
     mean = model.mean_shape.reshape(-1, 3)
-    pose = rigid_align(mean, nodes, w)
-    in_face = np.einsum('fba,fnb->fna', pose.rotation, nodes - pose.t[:, None, :])
-    weighted_bases = row_scale[:, None] * bases
-    coefficients = ((in_face.reshape(frames, -1) - model.mean_shape) * row_scale) @ np.linalg.pinv(
-        weighted_bases
-    ).T
-    omega = np.array([matrix_to_omega(rotation) for rotation in pose.rotation])
-    t = pose.t
+    if start is None:
+        omega, t, coefficients = _initial_estimate(model, nodes, w, bases)
+    else:
+        omega, t, coefficients = _start_of(start, len(nodes), bases.shape[1])
     iterations, converged = 0, False
     while not converged and iterations < max_iterations:
         iterations += 1
@@ -120,6 +120,43 @@ def fit_model_to_nodes(
         rms=np.sqrt(3.0 * np.mean(residual**2, axis=1)),
         iterations=iterations,
     )
+
+
+def _initial_estimate(
+    model: FaceModel, nodes: np.ndarray, weights: np.ndarray, bases: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Gauss-Newton's start: the weighted Procrustes pose of the mean shape, then sigma, alpha.
+
+    Sigma and alpha come by linear least squares on the nodes brought into the face frame.
+
+    Returns:
+        ``(omega, t, coefficients)``: (F, 3), (F, 3) and (F, p + q), sigma then alpha.
+    """
+    row_scale = np.repeat(np.sqrt(weights), 3)
+    pose = rigid_align(model.mean_shape.reshape(-1, 3), nodes, weights)
+    in_face = np.einsum('fba,fnb->fna', pose.rotation, nodes - pose.t[:, None, :])
+    centred = (in_face.reshape(len(nodes), -1) - model.mean_shape) * row_scale
+    coefficients = centred @ np.linalg.pinv(row_scale[:, None] * bases).T
+    omega = np.array([matrix_to_omega(rotation) for rotation in pose.rotation])
+    return omega, pose.t, coefficients
+
+
+def _start_of(
+    start: NodeFit, frames: int, parameters: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(omega, t, coefficients)`` of a given fit, checked against the frames and parameters.
+
+    Raises:
+        InputError: if the fit has another number of frames or parameters.
+    """
+    coefficients = np.hstack([start.sigma, start.alpha])
+    if start.omega.shape != (frames, 3) or coefficients.shape != (frames, parameters):
+        msg = (
+            f'the start fit has {len(start.omega)} frames and {coefficients.shape[-1]} '
+            f'parameters, the fit {frames} and {parameters}'
+        )
+        raise InputError(msg)
+    return start.omega, start.t, coefficients
 
 
 def _residual_and_jacobian(

@@ -487,7 +487,7 @@ class StereoTracker:
             nodes_cam=nodes,
             left_px=self._rig.left.project(nodes),
             right_px=self._rig.right.project(nodes),
-            fit=self._fit(nodes) if result.ok else result.fit,
+            fit=self._fit(nodes, result.fit) if result.ok else result.fit,
             first_nodes=first_nodes,
         )
 
@@ -661,7 +661,13 @@ class StereoTracker:
         state.offsets = state.samples.level_offsets(state.rotation, 0)
         state.previous_templates = self._templates(pyramids, state.samples, nodes, state.offsets)
         result = self._result(
-            nodes, state.first_nodes, state.rotation, statistics, iterations, tuple(history)
+            nodes,
+            state.first_nodes,
+            state.rotation,
+            statistics,
+            iterations,
+            tuple(history),
+            fit_start=state.result.fit,
         )
         state.result = result
         return result
@@ -864,8 +870,12 @@ class StereoTracker:
         statistics: GroupStatistics | None,
         iterations: int = 0,
         history: tuple[float, ...] = (),
+        fit_start: NodeFit | None = None,
     ) -> StereoResult:
-        """A TRACKING result; residuals are zero on the initial pair (it is its own template)."""
+        """A TRACKING result; residuals are zero on the initial pair (it is its own template).
+
+        The model fit starts from ``fit_start`` when given (:meth:`_fit`).
+        """
         n = nodes.shape[0]
         left_res = np.zeros(n) if statistics is None else statistics.rms[0][LEFT]
         right_res = np.zeros(n) if statistics is None else statistics.rms[0][RIGHT]
@@ -879,18 +889,23 @@ class StereoTracker:
             mean_residual=float(np.nanmean(np.concatenate([left_res, right_res]))),
             iterations=iterations,
             cost_history=history,
-            fit=self._fit(nodes),
+            fit=self._fit(nodes, fit_start),
             first_nodes=first_nodes,
             rotation=rotation,
         )
 
-    def _fit(self, nodes: np.ndarray) -> NodeFit | None:
-        """The fit of eq. 1-3 to the nodes, face-edge nodes down-weighted; None without a model."""
+    def _fit(self, nodes: np.ndarray, start: NodeFit | None) -> NodeFit | None:
+        """The fit of eq. 1-3 to the nodes, face-edge nodes down-weighted; None without a model.
+
+        Gauss-Newton starts from ``start``, a fit of nearby nodes (the previous pair's), when
+        given, instead of Procrustes: 1.90 -> 1.26 ms per fit over a tracked 380-pair sequence
+        (on a slow machine), the fits equal to 4e-8.
+        """
         if self._model is None:
             return None
         weights = np.where(self._boundary, self._config.fit_edge_weight, 1.0)
         return fit_model_to_nodes(
-            self._model, nodes[None], tolerance=FIT_TOLERANCE, weights=weights
+            self._model, nodes[None], tolerance=FIT_TOLERANCE, weights=weights, start=start
         )
 
     def _lose(self, reason: str) -> StereoResult:
