@@ -7,7 +7,9 @@
   fitted to the true nodes, node RMS, alpha, drift, jitter), stereo by :func:`evaluate_stereo`
   (node RMS, reprojection, drift) twice: as the live node streams it (``stereo``) and as
   ``face-tracking learn`` tracks raw stereo bags, with the depths refined over the sequence
-  applied to every pair (``stereo_offline``, ``retroactive_depths``).
+  applied to every pair (``stereo_offline``, ``retroactive_depths``); and that second way again
+  on the same sequence rendered with real skin, the packaged face photo as the subject's
+  texture (``stereo_photo``; :func:`~face_tracking_ros.data.photo_face_paths`).
 - Learning: the benchmark model's §3.4 learner against the population's true subspaces
   (:func:`evaluate`: LOO stability, truth similarity, identity / expression from sigma / alpha).
 - Recognition: the issue 7 scenario of :func:`run_benchmark` with this model (identity windows,
@@ -16,18 +18,20 @@
 
 from __future__ import annotations
 
-from dataclasses import asdict
+from dataclasses import asdict, replace
 from typing import Any
 
 import numpy as np
 
 from face_tracking_ros.bench.common import BenchOptions
 from face_tracking_ros.bench.world import (
+    RenderedSequence,
     learned_model,
     render_sequence,
     scene_config,
     training_set,
 )
+from face_tracking_ros.data import photo_face_paths
 from face_tracking_ros.learning.alignment import align_training_set
 from face_tracking_ros.learning.evaluation import evaluate, population_truth
 from face_tracking_ros.learning.seed import learn_seed
@@ -37,6 +41,7 @@ from face_tracking_ros.synthetic.faces import FacePopulation
 from face_tracking_ros.synthetic.scenes import Kind
 from face_tracking_ros.tracking.accuracy import tracking_accuracy
 from face_tracking_ros.tracking.baseline import LKPnPTracker
+from face_tracking_ros.tracking.initialisation import Initialisation
 from face_tracking_ros.tracking.mono import MonoTracker
 from face_tracking_ros.tracking.pose_filter import FilteredTracker, PoseFilter
 from face_tracking_ros.tracking.result import TrackResult
@@ -64,7 +69,7 @@ def run(options: BenchOptions) -> dict[str, Any]:
     sequence = render_sequence(scene)
     truth = sequence.true_nodes(NUM_NODES)
     init = sequence.initialisation(model.node_names, options.seed)
-    left, right = sequence.images('left'), sequence.images('right')
+    left = sequence.images('left')
     mono = FilteredTracker(
         MonoTracker(model, sequence.reference), PoseFilter(sequence.reference), scene.fps
     )
@@ -77,26 +82,37 @@ def run(options: BenchOptions) -> dict[str, Any]:
     baseline = LKPnPTracker(model, sequence.reference)
     baseline.reset(init)
     table['baseline'] = _scored(model, [baseline.step(image) for image in left], truth)
-    for key, offline in (('stereo', False), ('stereo_offline', True)):
-        config = StereoTrackerConfig(num_nodes=NUM_NODES, refine_depths=offline)
-        stereo = StereoTracker(sequence.rig(), config, model)
-        stereo.reset(init)
-        results = [stereo.step(a, b) for a, b in zip(left, right, strict=True)]
-        if offline:
-            results = stereo.with_final_depths(results)
-        figures = evaluate_stereo(
-            np.stack([r.nodes_cam for r in results]),
-            truth,
-            sequence.rig(),
-            model.topology,
-            np.array([r.status for r in results]),
-        )
-        table[key] = _in_mm(asdict(figures))
+    table['stereo'] = _stereo(sequence, model, init, offline=False)
+    table['stereo_offline'] = _stereo(sequence, model, init, offline=True)
+    photo, photo_nodes = photo_face_paths()
+    photo_scene = replace(scene, texture=photo, texture_nodes=photo_nodes)
+    table['stereo_photo'] = _stereo(render_sequence(photo_scene), model, init, offline=True)
     table['learning'] = _learning(options.seed)
     table['recognition'] = _recognition(
         model, QUICK_RECOGNITION if options.quick else RECOGNITION, options.seed
     )
     return table
+
+
+def _stereo(
+    sequence: RenderedSequence, model: FaceModel, init: Initialisation, offline: bool
+) -> dict[str, Any]:
+    """Stereo figures of a sequence, streamed as the node or (offline) as learn tracks it."""
+    config = StereoTrackerConfig(num_nodes=NUM_NODES, refine_depths=offline)
+    stereo = StereoTracker(sequence.rig(), config, model)
+    stereo.reset(init)
+    left, right = sequence.images('left'), sequence.images('right')
+    results = [stereo.step(a, b) for a, b in zip(left, right, strict=True)]
+    if offline:
+        results = stereo.with_final_depths(results)
+    figures = evaluate_stereo(
+        np.stack([r.nodes_cam for r in results]),
+        sequence.true_nodes(NUM_NODES),
+        sequence.rig(),
+        model.topology,
+        np.array([r.status for r in results]),
+    )
+    return _in_mm(asdict(figures))
 
 
 def _scored(model: FaceModel, results: list[TrackResult], truth: np.ndarray) -> dict[str, Any]:

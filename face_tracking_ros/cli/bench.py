@@ -189,7 +189,11 @@ def _accuracy_rows(table: dict[str, Any]) -> list[tuple[str, str, str]]:
                     '',
                 )
             )
-    for key, path in (('stereo', 'streamed, as the node'), ('stereo_offline', 'as learn tracks')):
+    for key, path in (
+        ('stereo', 'streamed, as the node'),
+        ('stereo_offline', 'as learn tracks'),
+        ('stereo_photo', 'photo skin, as learn tracks'),
+    ):
         f = table.get(key, {})
         if 'node_rms_mm' in f:
             rows.append(
