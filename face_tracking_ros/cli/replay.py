@@ -98,8 +98,10 @@ def print_stats(stats: ReplayStats, out: Path) -> None:
     outputs = ', '.join(f'{n} {t}' for t, n in sorted(stats.outputs.items())) or 'none'
     print(f'read: {inputs}')
     print(f'wrote to {out}: {outputs}')
+    if stats.errors:
+        print('input problems (the live node reports these on /diagnostics):')
     for text, count in stats.errors.most_common():
-        print(f'rejected {count}x: {text}')
+        print(f'  {count}x {text}')
     if stats.read_error:
         print(
             f'input bag unreadable past this point, replayed the readable part: {stats.read_error}'
