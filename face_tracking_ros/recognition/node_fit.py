@@ -8,7 +8,8 @@ minimise the node distance
 
 (eq. 1 with eq. 3). Start: the pose of the mean shape by Procrustes
 (:func:`face_tracking_ros.geometry.procrustes.rigid_align`), then sigma and alpha by linear least
-squares on the nodes brought into the face frame. Then Gauss-Newton on all of (omega, t, sigma,
+squares on the nodes brought into the face frame (or a given fit, such as the previous frame's
+when the meshes are tracked). Then Gauss-Newton on all of (omega, t, sigma,
 alpha) with the analytic Jacobian of eq. 1 and 3 (the ``cv2.Rodrigues`` derivatives of
 :func:`face_tracking_ros.geometry.rotation.rodrigues`) and a tiny Levenberg damping for
 bases that nearly contain a rigid motion; all frames are solved at once as a batch of small
