@@ -44,6 +44,15 @@ the second moment of the per-frame alpha of level 1.
 
 S and A need not be orthogonal to each other: an expression that moves the face along an
 identity direction keeps that component in A.
+
+Sequences. A subject recorded in several sequences may look a little different in each: a stereo
+tracker's depth error at a sequence's first frame stays with the whole sequence, and another
+recording day brings another haircut or posture. Measured from one neutral per subject, that
+difference would be in every frame's deviation and the level-1 PCA would take it into A. So
+(``neutral_per_sequence``, the default) each frame is measured from its own sequence's neutral
+face, which differs from the subject's by the sequence mean minus the subject mean of
+(I - A A^T) X; along A the neutral stays the subject's, anchored by its neutral-labelled frames
+(a sequence needs none of its own). The subject's neutral_s, and so S, are as above.
 """
 
 from __future__ import annotations
@@ -76,6 +85,14 @@ class JointConfig:
         neutral_tolerance: ... and the neutral faces moving less than this, metres RMS per
             coordinate (default 10 um, fifty times below the 0.5 mm mesh noise).
         max_iterations: iteration limit.
+        neutral_per_sequence: in the within-subject fit, measure each frame from its own
+            sequence's neutral face (the part orthogonal to A; the part along A stays the
+            subject's, anchored by its neutral-labelled frames), so what stays constant through
+            a sequence but differs between a subject's sequences (a stereo tracker's per-sequence
+            depth error, another recording day) does not enter A. The subject's neutral (for S)
+            is unchanged: the mean over all its frames. Measured on 11 subjects x 2 stereo-tracked
+            sequences of 380 frames: A vs the true expression subspace 0.809 -> 0.994 (0.998
+            from the true meshes), the same model as before on the true meshes.
     """
 
     p: int | None = 2
@@ -86,6 +103,7 @@ class JointConfig:
     tolerance: float = 1e-6
     neutral_tolerance: float = 1e-5
     max_iterations: int = 100
+    neutral_per_sequence: bool = True
 
 
 def learn_joint(training: TrainingSet, config: JointConfig | None = None) -> LearningResult:
@@ -109,12 +127,13 @@ def learn_joint(training: TrainingSet, config: JointConfig | None = None) -> Lea
         raise ConfigError(msg)
     frames = training.flat()
     neutral = training.subject_means(frames, training.neutral)
+    sequence_offsets = np.zeros_like(frames)
     label_weight = training.neutral.astype(float)
     history: list[float] = []
     action_basis: np.ndarray | None = None
     converged = False
     while len(history) < config.max_iterations and not converged:
-        deviations = frames - neutral[training.subject_index]
+        deviations = frames - neutral[training.subject_index] - sequence_offsets
         shrink = 1.0 / (1.0 + config.neutral_weight * label_weight)
         previous_basis = action_basis
         action_basis = principal_components(deviations, config.q, sample_weights=shrink).basis
@@ -125,6 +144,8 @@ def learn_joint(training: TrainingSet, config: JointConfig | None = None) -> Lea
         neutral = _neutral_given_basis(
             training, frames, action_basis, config.neutral_weight * label_weight
         )
+        if config.neutral_per_sequence:
+            sequence_offsets = _sequence_offsets(training, frames, action_basis)
         moved = float(np.sqrt(np.mean((neutral - previous_neutral) ** 2)))
         change = (
             1.0
@@ -136,7 +157,7 @@ def learn_joint(training: TrainingSet, config: JointConfig | None = None) -> Lea
     mean_shape = neutral.mean(axis=0)
     identity = principal_components(neutral - mean_shape, training.num_subjects - 1)
     p = config.p or choose_dimension(identity.explained, config.explained_variance)
-    alpha = (frames - neutral[training.subject_index]) @ action_basis
+    alpha = (frames - neutral[training.subject_index] - sequence_offsets) @ action_basis
     return assemble_result(
         training,
         mean_shape=mean_shape,
@@ -152,6 +173,7 @@ def learn_joint(training: TrainingSet, config: JointConfig | None = None) -> Lea
             'neutral_tolerance': config.neutral_tolerance,
             'neutral_weight': config.neutral_weight,
             'robust_scale': config.robust_scale,
+            'neutral_per_sequence': config.neutral_per_sequence,
         },
     )
 
@@ -172,3 +194,14 @@ def _neutral_given_basis(
     along = training.subject_means(frames @ action_basis * kappa[:, None], None)
     along /= training.subject_means(kappa[:, None], None)
     return training.subject_means(off_basis) + along @ action_basis.T
+
+
+def _sequence_offsets(
+    training: TrainingSet, frames: np.ndarray, action_basis: np.ndarray
+) -> np.ndarray:
+    """(F, 3N) each frame's sequence mean minus its subject's mean, orthogonal to A."""
+    off_basis = frames - (frames @ action_basis) @ action_basis.T
+    return (
+        training.sequence_means(off_basis)[training.sequence_of_frame]
+        - training.subject_means(off_basis)[training.subject_index]
+    )

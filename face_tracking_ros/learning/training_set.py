@@ -151,13 +151,26 @@ class TrainingSet:
         return np.asarray(membership @ values) / membership.sum(axis=1)[:, None]
 
     @cached_property
+    def sequence_of_frame(self) -> np.ndarray:
+        """(F,) index 0 .. K - 1 of each frame's recorded sequence, a (subject, sequence) pair."""
+        pairs = np.stack([self.subject_index, self.sequence_index], axis=1)
+        _, index = np.unique(pairs, axis=0, return_inverse=True)
+        return index.ravel()
+
+    def sequence_means(self, values: np.ndarray) -> np.ndarray:
+        """(K, D) mean of per-frame values (F, D) over each sequence, :attr:`sequence_of_frame`."""
+        membership = self._sequence_membership
+        return np.asarray(membership @ values) / membership.sum(axis=1)[:, None]
+
+    @cached_property
     def _membership(self) -> scipy.sparse.csr_array:
         """(S, F) sparse 0/1 matrix: frame f belongs to subject s."""
-        frames = len(self.subject_index)
-        return scipy.sparse.csr_array(
-            (np.ones(frames), (self.subject_index, np.arange(frames))),
-            shape=(self.num_subjects, frames),
-        )
+        return _membership(self.subject_index, self.num_subjects)
+
+    @cached_property
+    def _sequence_membership(self) -> scipy.sparse.csr_array:
+        """(K, F) sparse 0/1 matrix: frame f belongs to sequence k."""
+        return _membership(self.sequence_of_frame, int(self.sequence_of_frame.max()) + 1)
 
     def without_subject(self, subject: int) -> TrainingSet:
         """The training set with one subject (by index) left out, for leave-one-out tests."""
@@ -179,6 +192,14 @@ class TrainingSet:
     def with_meshes(self, meshes: np.ndarray) -> TrainingSet:
         """The same frames with other node positions (e.g. after alignment)."""
         return replace(self, meshes=meshes)
+
+
+def _membership(index: np.ndarray, groups: int) -> scipy.sparse.csr_array:
+    """(G, F) sparse 0/1 matrix: frame f belongs to group ``index[f]``."""
+    frames = len(index)
+    return scipy.sparse.csr_array(
+        (np.ones(frames), (index, np.arange(frames))), shape=(groups, frames)
+    )
 
 
 def _drop(items: tuple[str, ...], index: int) -> tuple[str, ...]:
