@@ -129,11 +129,35 @@ def camera_from_info(msg: Any) -> PinholeCamera:
 def calibration_key(msg: Any) -> tuple:
     """What of a sensor_msgs/CameraInfo :func:`camera_from_info` reads, comparable and hashable.
 
-    A camera driver repeats the same CameraInfo with every image; equal keys give equal cameras,
-    so a processor converts (and validates) a CameraInfo only when its key changes.
+    Equal keys give equal cameras (:class:`CameraInfoReader`).
     """
     arrays = (np.asarray(getattr(msg, name), dtype=float).tobytes() for name in 'dkrp')
     return (int(msg.width), int(msg.height), str(msg.distortion_model), *arrays)
+
+
+class CameraInfoReader:
+    """:func:`camera_from_info` of a stream of CameraInfo, converted only when it changes.
+
+    A camera driver repeats the same CameraInfo with every image; its :func:`calibration_key`
+    tells a repeat from a change, so only a new calibration is converted and validated.
+    """
+
+    def __init__(self) -> None:
+        """Start with no calibration."""
+        self._key: tuple | None = None
+        self._camera: PinholeCamera | None = None
+
+    def read(self, msg: Any) -> PinholeCamera:
+        """The camera of ``msg``; the previous one when its calibration is unchanged.
+
+        Raises:
+            InputError: as :func:`camera_from_info` (the previous calibration is kept).
+        """
+        key = calibration_key(msg)
+        if key != self._key or self._camera is None:
+            self._camera = camera_from_info(msg)
+            self._key = key
+        return self._camera
 
 
 def camera_to_info(factory: MessageFactory, header: Any, camera: PinholeCamera) -> Any:

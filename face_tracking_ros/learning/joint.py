@@ -141,11 +141,13 @@ def learn_joint(training: TrainingSet, config: JointConfig | None = None) -> Lea
         if config.robust_scale is not None:
             label_weight = _label_weights(alpha, training.neutral, config.robust_scale)
         previous_neutral = neutral
+        projection = frames @ action_basis
+        off_basis = frames - projection @ action_basis.T
         neutral = _neutral_given_basis(
-            training, frames, action_basis, config.neutral_weight * label_weight
+            training, projection, off_basis, action_basis, config.neutral_weight * label_weight
         )
         if config.neutral_per_sequence:
-            sequence_offsets = _sequence_offsets(training, frames, action_basis)
+            sequence_offsets = _sequence_offsets(training, off_basis)
         moved = float(np.sqrt(np.mean((neutral - previous_neutral) ** 2)))
         change = (
             1.0
@@ -186,21 +188,29 @@ def _label_weights(alpha: np.ndarray, neutral: np.ndarray, robust_scale: float) 
 
 
 def _neutral_given_basis(
-    training: TrainingSet, frames: np.ndarray, action_basis: np.ndarray, prior: np.ndarray
+    training: TrainingSet,
+    projection: np.ndarray,
+    off_basis: np.ndarray,
+    action_basis: np.ndarray,
+    prior: np.ndarray,
 ) -> np.ndarray:
-    """Each subject's neutral minimising the level-1 objective for fixed A (S, 3N)."""
-    off_basis = frames - (frames @ action_basis) @ action_basis.T
+    """Each subject's neutral minimising the level-1 objective for fixed A (S, 3N).
+
+    Args:
+        training: the training set.
+        projection: (F, q) the frames' coordinates along A, ``X A``.
+        off_basis: (F, 3N) the frames' part orthogonal to A, ``(I - A A^T) X``.
+        action_basis: (3N, q) A.
+        prior: (F,) lambda c of each frame's alpha ~ 0 prior.
+    """
     kappa = prior / (1.0 + prior)
-    along = training.subject_means(frames @ action_basis * kappa[:, None], None)
+    along = training.subject_means(projection * kappa[:, None], None)
     along /= training.subject_means(kappa[:, None], None)
     return training.subject_means(off_basis) + along @ action_basis.T
 
 
-def _sequence_offsets(
-    training: TrainingSet, frames: np.ndarray, action_basis: np.ndarray
-) -> np.ndarray:
-    """(F, 3N) each frame's sequence mean minus its subject's mean, orthogonal to A."""
-    off_basis = frames - (frames @ action_basis) @ action_basis.T
+def _sequence_offsets(training: TrainingSet, off_basis: np.ndarray) -> np.ndarray:
+    """(F, 3N) each frame's sequence mean minus its subject's mean of ``(I - A A^T) X``."""
     return (
         training.sequence_means(off_basis)[training.sequence_of_frame]
         - training.subject_means(off_basis)[training.subject_index]

@@ -88,7 +88,7 @@ class MonoProcessor:
         self._model = model
         self._initialisation = initialisation
         self._camera: PinholeCamera | None = None
-        self._calibration: tuple | None = None  # calibration_key of the camera's CameraInfo
+        self._camera_info = conversions.CameraInfoReader()
         self._tracker: MonoTracker | None = None
         self._pose_filter: PoseFilter | None = None
         self._held_image: tuple[Any, np.ndarray] | None = None
@@ -122,10 +122,7 @@ class MonoProcessor:
     def handle(self, topic: str, msg: Any, wanted: frozenset[str]) -> list[Output]:
         """Process one message of an input port (see :class:`processing.base.Processor`)."""
         if topic == CAMERA_INFO:
-            calibration = conversions.calibration_key(msg)
-            if calibration != self._calibration:
-                self._set_camera(conversions.camera_from_info(msg))
-                self._calibration = calibration
+            self._set_camera(self._camera_info.read(msg))
             return self._track_held_image(wanted)
         if topic == MODEL:
             model = conversions.model_from_msg(msg)

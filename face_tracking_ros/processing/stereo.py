@@ -109,6 +109,10 @@ class StereoProcessor:
         self._model = model
         self._initialisation = initialisation
         self._cameras: dict[str, PinholeCamera] = {}
+        self._camera_infos = {
+            LEFT_INFO: conversions.CameraInfoReader(),
+            RIGHT_INFO: conversions.CameraInfoReader(),
+        }
         self._tracker: StereoTracker | None = None
         self._waiting: dict[str, OrderedDict[int, Any]] = {
             LEFT_IMAGE: OrderedDict(),
@@ -157,7 +161,7 @@ class StereoProcessor:
     def handle(self, topic: str, msg: Any, wanted: frozenset[str]) -> list[Output]:
         """Process one message of an input port (see :class:`processing.base.Processor`)."""
         if topic in (LEFT_INFO, RIGHT_INFO):
-            self._set_camera(topic, conversions.camera_from_info(msg))
+            self._set_camera(topic, self._camera_infos[topic].read(msg))
             return self._track_held_pair()
         if topic == MODEL:
             model = conversions.model_from_msg(msg)
