@@ -84,6 +84,15 @@ from face_tracking_ros.imaging import (
 )
 from face_tracking_ros.model.face_model import FaceModel
 from face_tracking_ros.model.topology import Group
+from face_tracking_ros.tracking.bundle import (
+    BundleConfig,
+    Estimate,
+    Patches,
+    SURFACE_TERMS,
+    Problem,
+    adjust,
+    surface_basis,
+)
 from face_tracking_ros.tracking.initialisation import (
     FitConfig,
     Initialisation,
@@ -185,6 +194,7 @@ class MonoTrackerConfig:
         max_condition: LOST when the Jacobi-scaled normal matrix has a larger condition number
             (> 1).
         fit: the model fit to initialisation points (:class:`FitConfig`).
+        bundle: the bundle adjustment of the first views (:class:`~.bundle.BundleConfig`).
     """
 
     epsilon: float = 0.2
@@ -215,6 +225,7 @@ class MonoTrackerConfig:
     max_rotation_step: float = 0.35
     max_condition: float = 1e10
     fit: FitConfig = field(default_factory=FitConfig)
+    bundle: BundleConfig = field(default_factory=BundleConfig)
 
     def __post_init__(self) -> None:
         """Validate every field; the error names the field and its value."""
@@ -391,6 +402,14 @@ class _Keyframe(NamedTuple):
     projection: PhotometricProjection
 
 
+class _View(NamedTuple):
+    """A frame kept for the bundle adjustment: its level-0 image and node visibility."""
+
+    image: np.ndarray
+    visibility: np.ndarray
+    params: _Params
+
+
 class _FaceView(NamedTuple):
     """Frame 1's inner face (the nodes off the face edge) on the search's pyramid level.
 
@@ -413,6 +432,9 @@ class _Track:
     rois: tuple[_Roi, ...]
     normals: np.ndarray
     keyframes: list[_Keyframe]
+    first: ImagePyramid
+    views: list[_View]
+    clicks: Initialisation | None
     previous: _Templates
     start: _Params
     view: _FaceView
@@ -420,6 +442,8 @@ class _Track:
     last_good: TrackResult
     frames: int = 1
     lost: bool = False
+    depth: np.ndarray | None = None
+    skin_direction: np.ndarray | None = None
 
 
 class MonoTracker:
@@ -544,10 +568,14 @@ class MonoTracker:
         templates = self._templates(pyramid, params, rois, normals)
         residuals = np.zeros(self._model.num_nodes)
         result = self._result(TrackStatus.TRACKING, params, residuals, 0, (), '')
+        first = ImagePyramid(levels=tuple(level.copy() for level in pyramid.levels))
         self._track = _Track(
             rois=rois,
             normals=normals,
             keyframes=[self._keyframe(params.omega, templates)],
+            first=first,
+            views=[_View(first.levels[0], templates.visibility, params)],
+            clicks=init,
             previous=templates,
             start=params,
             view=self._face_view(pyramid, result.nodes_px),
@@ -562,7 +590,9 @@ class MonoTracker:
             return None
         return self._detector(np.clip(pyramid.levels[0], 0, 255).astype(np.uint8))
 
-    def _rois(self, params: _Params, num_levels: int) -> tuple[tuple[_Roi, ...], np.ndarray]:
+    def _rois(
+        self, params: _Params, num_levels: int, depth: np.ndarray | None = None
+    ) -> tuple[tuple[_Roi, ...], np.ndarray]:
         """Per-level ROI samples and the (N, 3) node normals, at ``params``'s sigma.
 
         Each ROI is a square grid in the face frame's x-y directions lifted onto the thin-plate
@@ -573,16 +603,15 @@ class MonoTracker:
         """
         config = self._config
         shape = self._model.identity_shape(params.sigma)
-        inward = shape[:, :2].mean(axis=0) - shape[self._edge_nodes, :2]
-        inward /= np.linalg.norm(inward, axis=1, keepdims=True)
-        grid = np.repeat(self._grid[None], len(shape), axis=0)
-        grid[self._edge_nodes] += inward[:, None, :] * (
-            config.edge_patch_shift * config.patch_half_size
-        )
+        grid = self._roi_grid(shape)
         spacing = config.patch_spacing_px * params.t[2] / self._camera.focal
         rois = []
         for level in range(num_levels):
             offsets = surface_patch_offsets(shape, grid * (spacing * (1 << level)))
+            if depth is not None:
+                basis = surface_basis(self._level_patch_coordinates(grid, level))
+                along = np.einsum('jnm,nj->nm', basis, depth)
+                offsets += self._track.skin_direction[:, None, :] * along[..., None]
             action, identity = (
                 np.ascontiguousarray(patch_basis(shape, offsets, basis).transpose(3, 2, 0, 1))
                 for basis in self._node_bases
@@ -590,6 +619,31 @@ class MonoTracker:
             offsets = np.ascontiguousarray(offsets.transpose(2, 0, 1))
             rois.append(_Roi(offsets, action, identity, params.sigma))
         return tuple(rois), node_frames(shape, self._triangles)[:, 2]
+
+    def _roi_grid(self, shape: np.ndarray) -> np.ndarray:
+        """(N, M, 2) ROI sample offsets in grid steps along the face frame's x and y.
+
+        A square of ``(2 h + 1)^2`` steps per node; the face-edge nodes' grids shifted towards the
+        face centre by ``edge_patch_shift`` h, so they cover skin rather than the background.
+        """
+        config = self._config
+        inward = shape[:, :2].mean(axis=0) - shape[self._edge_nodes, :2]
+        inward /= np.linalg.norm(inward, axis=1, keepdims=True)
+        grid = np.repeat(self._grid[None], len(shape), axis=0)
+        grid[self._edge_nodes] += inward[:, None, :] * (
+            config.edge_patch_shift * config.patch_half_size
+        )
+        return grid
+
+    def _level_patch_coordinates(self, grid: np.ndarray, level: int) -> np.ndarray:
+        """(N, M, 2) patch coordinates of a level's samples for the skin depth basis.
+
+        In units of the level-0 ROI's half-width h; a coarser level's samples reach further out
+        and are held at the edge of the level-0 ROI, where the skin depth was measured.
+        """
+        level_zero = grid / self._config.patch_half_size
+        low, high = level_zero.min(axis=1, keepdims=True), level_zero.max(axis=1, keepdims=True)
+        return np.clip(level_zero * (1 << level), low, high)
 
     def _face_view(self, pyramid: ImagePyramid, nodes_px: np.ndarray) -> _FaceView:
         """The crop of the search level spanned by the inner nodes, given (N, 2) level-0 pixels."""
@@ -673,7 +727,114 @@ class MonoTracker:
         if not result.ok:
             return self._reacquire(pyramid, result.reason)
         self._accept(result, templates)
-        return result
+        return self._maybe_adjust(pyramid, result)
+
+    # --- bundle adjustment of the first views ---------------------------------------------------
+
+    def _maybe_adjust(self, pyramid: ImagePyramid, result: TrackResult) -> TrackResult:
+        """Keep this frame as a view if it shows the head at a new rotation, then adjust.
+
+        Each new view (up to ``bundle.views``) runs :func:`~.bundle.adjust` over frame 1 and
+        the views; an adjustment that lowers the bundle cost replaces sigma, the skin depth,
+        frame 1's estimate (and its templates) and this frame's.
+        """
+        track = self._track
+        bundle = self._config.bundle
+        if len(track.views) > bundle.views or any(
+            _rotation_angle(view.params.omega, result.omega) < bundle.view_spacing
+            for view in track.views
+        ):
+            return result
+        track.views.append(
+            _View(pyramid.levels[0].copy(), track.previous.visibility, track.current)
+        )
+        start = Estimate(
+            sigma=track.current.sigma,
+            depth=np.zeros((self._model.num_nodes, SURFACE_TERMS))
+            if track.depth is None
+            else track.depth,
+            views=tuple((v.params.omega, v.params.t, v.params.alpha) for v in track.views),
+        )
+        adjustment = adjust(
+            self._bundle_problem(),
+            [view.image for view in track.views],
+            [view.visibility for view in track.views],
+            start,
+            bundle.iterations,
+        )
+        if not adjustment.cost < adjustment.initial_cost:
+            return result
+        return self._apply_adjustment(pyramid, adjustment.estimate, result)
+
+    def _bundle_problem(self) -> Problem:
+        """The fixed part of the bundle adjustment of the current track."""
+        track, model, config = self._track, self._model, self._config
+        start = track.views[0].params
+        roi = self._rois(start, 1)[0][0]
+        shape = model.identity_shape(start.sigma)
+        grid = self._level_patch_coordinates(self._roi_grid(shape), 0)
+        if track.skin_direction is None:
+            rotation = rodrigues(start.omega)[0]
+            rays = shape - (-rotation.T @ start.t)  # from frame 1's camera centre, face frame
+            track.skin_direction = rays / np.linalg.norm(rays, axis=1, keepdims=True)
+        clicks = track.clicks
+        click_nodes = clicks.node_indices(model) if clicks is not None else np.zeros(0, int)
+        sigma_fixed = clicks is not None and clicks.sigma is not None
+        bundle = config.bundle
+        return Problem(
+            camera=self._level_cameras[0],
+            mean_shape=model.mean_shape.reshape(-1, 3),
+            action_nodes=self._action_basis,
+            shape_nodes=np.ascontiguousarray(model.shape_basis_nodes()),
+            patches=Patches(
+                roi.offsets,
+                roi.action,
+                roi.identity,
+                roi.sigma,
+                surface_basis(grid),
+                track.skin_direction,
+            ),
+            node_weights=self._roi_weights,
+            invariance=self._invariance,
+            alpha_precision=self._alpha_precision,
+            sigma_precision=None if sigma_fixed or bundle.first_fixed else self._sigma_precision,
+            first_fixed=bundle.first_fixed,
+            click_nodes=click_nodes,
+            clicks=clicks.points if clicks is not None else np.zeros((0, 2)),
+            click_weight=bundle.weight / bundle.click_noise_px**2,
+            surface_weight=bundle.weight
+            / np.array([bundle.node_depth_prior, *[bundle.surface_prior] * (SURFACE_TERMS - 1)])
+            ** 2,
+            huber_k=config.huber_k,
+            scale_floor=config.residual_scale_floor,
+        )
+
+    def _apply_adjustment(
+        self, pyramid: ImagePyramid, estimate: Estimate, result: TrackResult
+    ) -> TrackResult:
+        """Restart the track's state from an adjustment; this frame's result at its estimate."""
+        track = self._track
+        params = [_Params(omega, t, alpha, estimate.sigma) for omega, t, alpha in estimate.views]
+        track.rois, track.normals = self._rois(params[0], pyramid.num_levels, estimate.depth)
+        track.depth = estimate.depth
+        track.views = [
+            view._replace(params=p, visibility=self._visibility(p, track.normals))
+            for view, p in zip(track.views, params, strict=True)
+        ]
+        track.start = params[0]
+        first = self._templates(track.first, params[0], track.rois, track.normals)
+        track.keyframes = [self._keyframe(params[0].omega, first)]
+        track.previous = self._templates(pyramid, params[-1], track.rois, track.normals)
+        track.current = params[-1]
+        track.last_good = self._result(
+            TrackStatus.TRACKING,
+            params[-1],
+            result.node_residuals,
+            result.iterations,
+            result.cost_history,
+            '',
+        )
+        return track.last_good
 
     def _keyframe(self, omega: np.ndarray, templates: _Templates) -> _Keyframe:
         """A keyframe of ``templates`` sampled at rotation R(omega)."""
