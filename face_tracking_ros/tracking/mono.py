@@ -91,6 +91,8 @@ from face_tracking_ros.tracking.bundle import (
     SURFACE_TERMS,
     Problem,
     adjust,
+    ray_directions,
+    skin_offsets,
     surface_basis,
 )
 from face_tracking_ros.tracking.initialisation import (
@@ -443,7 +445,6 @@ class _Track:
     frames: int = 1
     lost: bool = False
     depth: np.ndarray | None = None
-    skin_direction: np.ndarray | None = None
 
 
 class MonoTracker:
@@ -609,9 +610,7 @@ class MonoTracker:
         for level in range(num_levels):
             offsets = surface_patch_offsets(shape, grid * (spacing * (1 << level)))
             if depth is not None:
-                basis = surface_basis(self._level_patch_coordinates(grid, level))
-                along = np.einsum('jnm,nj->nm', basis, depth)
-                offsets += self._track.skin_direction[:, None, :] * along[..., None]
+                offsets = self._with_skin(params, shape, offsets, grid, level, depth)
             action, identity = (
                 np.ascontiguousarray(patch_basis(shape, offsets, basis).transpose(3, 2, 0, 1))
                 for basis in self._node_bases
@@ -619,6 +618,23 @@ class MonoTracker:
             offsets = np.ascontiguousarray(offsets.transpose(2, 0, 1))
             rois.append(_Roi(offsets, action, identity, params.sigma))
         return tuple(rois), node_frames(shape, self._triangles)[:, 2]
+
+    def _with_skin(
+        self,
+        params: _Params,
+        shape: np.ndarray,
+        offsets: np.ndarray,
+        grid: np.ndarray,
+        level: int,
+        depth: np.ndarray,
+    ) -> np.ndarray:
+        """(N, M, 3) ROI offsets moved by the skin depth along the rays of frame 1 (params)."""
+        basis = surface_basis(self._level_patch_coordinates(grid, level))
+        direction = ray_directions(shape[:, None, :] + offsets, params.omega, params.t)
+        moved = skin_offsets(
+            offsets.transpose(2, 0, 1), basis, direction.transpose(2, 0, 1), depth
+        )
+        return moved.transpose(1, 2, 0)
 
     def _roi_grid(self, shape: np.ndarray) -> np.ndarray:
         """(N, M, 2) ROI sample offsets in grid steps along the face frame's x and y.
@@ -748,12 +764,14 @@ class MonoTracker:
         track.views.append(
             _View(pyramid.levels[0].copy(), track.previous.visibility, track.current)
         )
+        poses = [(v.params.omega, v.params.t, v.params.alpha) for v in track.views]
         start = Estimate(
             sigma=track.current.sigma,
             depth=np.zeros((self._model.num_nodes, SURFACE_TERMS))
             if track.depth is None
             else track.depth,
-            views=tuple((v.params.omega, v.params.t, v.params.alpha) for v in track.views),
+            first=poses[0],
+            views=tuple(poses[1:]),
         )
         adjustment = adjust(
             self._bundle_problem(),
@@ -769,42 +787,34 @@ class MonoTracker:
     def _bundle_problem(self) -> Problem:
         """The fixed part of the bundle adjustment of the current track."""
         track, model, config = self._track, self._model, self._config
-        start = track.views[0].params
-        roi = self._rois(start, 1)[0][0]
-        shape = model.identity_shape(start.sigma)
+        first = track.views[0].params
+        roi = self._rois(first, 1)[0][0]
+        shape = model.identity_shape(first.sigma)
         grid = self._level_patch_coordinates(self._roi_grid(shape), 0)
-        if track.skin_direction is None:
-            rotation = rodrigues(start.omega)[0]
-            rays = shape - (-rotation.T @ start.t)  # from frame 1's camera centre, face frame
-            track.skin_direction = rays / np.linalg.norm(rays, axis=1, keepdims=True)
+        points = shape[:, None, :] + roi.offsets.transpose(1, 2, 0)
         clicks = track.clicks
-        click_nodes = clicks.node_indices(model) if clicks is not None else np.zeros(0, int)
-        sigma_fixed = clicks is not None and clicks.sigma is not None
-        bundle = config.bundle
         return Problem(
             camera=self._level_cameras[0],
             mean_shape=model.mean_shape.reshape(-1, 3),
             action_nodes=self._action_basis,
             shape_nodes=np.ascontiguousarray(model.shape_basis_nodes()),
+            first=(first.omega, first.t, first.alpha),
+            first_sigma=first.sigma,
             patches=Patches(
                 roi.offsets,
                 roi.action,
-                roi.identity,
-                roi.sigma,
                 surface_basis(grid),
-                track.skin_direction,
+                np.ascontiguousarray(ray_directions(points, first.omega, first.t).transpose(2, 0, 1)),
             ),
-            node_weights=self._roi_weights,
+            node_weights=np.where(self._edge_nodes, config.bundle.edge_weight, 1.0),
             invariance=self._invariance,
             alpha_precision=self._alpha_precision,
-            sigma_precision=None if sigma_fixed or bundle.first_fixed else self._sigma_precision,
-            first_fixed=bundle.first_fixed,
-            click_nodes=click_nodes,
+            sigma_precision=None
+            if clicks is not None and clicks.sigma is not None
+            else self._sigma_precision,
+            click_nodes=clicks.node_indices(model) if clicks is not None else np.zeros(0, int),
             clicks=clicks.points if clicks is not None else np.zeros((0, 2)),
-            click_weight=bundle.weight / bundle.click_noise_px**2,
-            surface_weight=bundle.weight
-            / np.array([bundle.node_depth_prior, *[bundle.surface_prior] * (SURFACE_TERMS - 1)])
-            ** 2,
+            config=config.bundle,
             huber_k=config.huber_k,
             scale_floor=config.residual_scale_floor,
         )
@@ -814,7 +824,8 @@ class MonoTracker:
     ) -> TrackResult:
         """Restart the track's state from an adjustment; this frame's result at its estimate."""
         track = self._track
-        params = [_Params(omega, t, alpha, estimate.sigma) for omega, t, alpha in estimate.views]
+        poses = (estimate.first, *estimate.views)
+        params = [_Params(omega, t, alpha, estimate.sigma) for omega, t, alpha in poses]
         track.rois, track.normals = self._rois(params[0], pyramid.num_levels, estimate.depth)
         track.depth = estimate.depth
         track.views = [
