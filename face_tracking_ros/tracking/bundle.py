@@ -47,6 +47,7 @@ from typing import NamedTuple
 
 import numpy as np
 from numpy.linalg import LinAlgError
+from scipy.linalg import cho_factor, cho_solve
 
 from face_tracking_ros.errors import check_fields
 from face_tracking_ros.geometry.rotation import matrix_to_omega, rodrigues
@@ -58,7 +59,6 @@ from face_tracking_ros.imaging import (
     sample_xy,
 )
 from face_tracking_ros.tracking.mono_kernels import (
-    damped_step,
     huber_irls,
     roi_jacobian,
     roi_points,
@@ -272,9 +272,8 @@ class _Layout(NamedTuple):
         free = p if problem.sigma_precision is not None else 0
         nodes = problem.mean_shape.shape[0]
         depth = free + np.arange(nodes * SURFACE_TERMS).reshape(nodes, SURFACE_TERMS)
-        import os
-        first = free + depth.size + np.arange(0 if os.environ.get('FREEZE') else POSE_DIM + q)
-        others = free + depth.size + first.size + np.arange(views * (POSE_DIM + q)).reshape(views, POSE_DIM + q)
+        first = free + depth.size + np.arange(POSE_DIM + q)
+        others = first[-1] + 1 + np.arange(views * (POSE_DIM + q)).reshape(views, POSE_DIM + q)
         return cls(np.arange(free), depth, first, others)
 
     @property
@@ -328,26 +327,45 @@ def adjust(
     initial, done = cost, 0
     for done in range(1, iterations + 1):
         try:
-            step = damped_step(hessian, gradient, damping)
+            step = _damped_step(hessian, gradient, damping)
         except LinAlgError:
             break
         trial = _updated(estimate, layout, step)
-        trial_cost, trial_hessian, trial_gradient = _normal_equations(
-            problem, layout, template, images[1:], trial, weights, scale
-        )
+        trial_cost = _cost(problem, layout, template, images[1:], trial, weights, scale)
         if not np.isfinite(trial_cost) or trial_cost >= cost:
             damping *= 10.0
             if damping > 1e3:
                 break
             continue
-        converged = cost - trial_cost < 1e-6 * cost
-        estimate, cost, hessian, gradient = trial, trial_cost, trial_hessian, trial_gradient
+        converged = cost - trial_cost < 1e-4 * cost
+        estimate, cost = trial, trial_cost
         damping = max(0.1 * damping, 1e-9)
-        if converged:
+        if converged or done == iterations:
             break
+        cost, hessian, gradient = _normal_equations(
+            problem, layout, template, images[1:], estimate, weights, scale
+        )
     if cost >= initial:
         return Adjustment(start, initial, initial, done)
     return Adjustment(rebased(problem, estimate), initial, cost, done)
+
+
+def _damped_step(hessian: np.ndarray, gradient: np.ndarray, damping: float) -> np.ndarray:
+    """Levenberg-Marquardt step ``-(H + lambda diag H)^-1 g`` by a Jacobi-scaled Cholesky.
+
+    The tracker's compiled :func:`~.mono_kernels.damped_step` does the same for its dozen
+    unknowns; for the few hundred here LAPACK's blocked factorisation is much faster.
+
+    Raises:
+        LinAlgError: if H or g is not finite, or the damped matrix is not positive definite.
+    """
+    if not (np.all(np.isfinite(hessian)) and np.all(np.isfinite(gradient))):
+        raise LinAlgError('non-finite normal equations')
+    scaling = 1.0 / np.sqrt(np.maximum(np.diag(hessian), 1e-12))
+    scaled = hessian * scaling[:, None] * scaling[None, :]
+    scaled[np.diag_indices_from(scaled)] += damping
+    factor = cho_factor(scaled)
+    return -scaling * cho_solve(factor, scaling * gradient)
 
 
 def rebased(problem: Problem, estimate: Estimate) -> Estimate:
@@ -393,8 +411,6 @@ def _updated(estimate: Estimate, layout: _Layout, step: np.ndarray) -> Estimate:
 
     def moved(pose: Pose, index: np.ndarray) -> Pose:
         omega, t, alpha = pose
-        if not index.size:
-            return pose
         return omega + step[index[:3]], t + step[index[3:POSE_DIM]], alpha + step[index[POSE_DIM:]]
 
     sigma = estimate.sigma + step[layout.sigma] if layout.sigma.size else estimate.sigma
@@ -486,6 +502,31 @@ def _scale(
     return max(problem.scale_floor, spread)
 
 
+def _cost(
+    problem: Problem,
+    layout: _Layout,
+    template: _Template,
+    images: list[np.ndarray],
+    estimate: Estimate,
+    weights: list[np.ndarray],
+    scale: float,
+) -> float:
+    """The bundle cost at ``estimate`` (what :func:`_normal_equations` gives, without them)."""
+    cost = 0.0
+    for image, pose, weight in zip(images, estimate.views, weights, strict=True):
+        residuals, inside, _ = _view_residuals(problem, template, image, pose, estimate.depth)
+        sample_weights = np.ascontiguousarray(weight[:, None] * inside, dtype=float)
+        cost += huber_irls(residuals, sample_weights, scale, problem.huber_k)[1]
+    hessian, gradient = np.zeros((layout.size, layout.size)), np.zeros(layout.size)
+    posed = _posed(problem, estimate)
+    return (
+        cost
+        + _node_depth_term(problem, layout, estimate, posed, hessian, gradient)
+        + _click_term(problem, layout, posed, hessian, gradient)
+        + _priors(problem, layout, estimate, hessian, gradient)
+    )
+
+
 def _normal_equations(
     problem: Problem,
     layout: _Layout,
@@ -498,6 +539,9 @@ def _normal_equations(
     """Cost, (halved) Hessian and gradient of the bundle cost at ``estimate``."""
     hessian = np.zeros((layout.size, layout.size))
     gradient = np.zeros(layout.size)
+    nodes = len(problem.mean_shape)
+    depth_blocks = np.zeros((nodes, SURFACE_TERMS, SURFACE_TERMS))
+    depth = _span(layout.depth)
     cost = 0.0
     for image, pose, weight, index in zip(
         images, estimate.views, weights, layout.views, strict=True
@@ -509,17 +553,27 @@ def _normal_equations(
         irls, data_cost = huber_irls(residuals, sample_weights, scale, problem.huber_k)
         cost += data_cost
         jacobian = _view_jacobian(problem, pose, rotated, image_gradient)
-        depth_rows = template.projection.apply(problem.patches.surface * jacobian[-1])
-        _accumulate(
-            hessian,
-            gradient,
-            index,
-            template.projection.apply(jacobian[:-1]),
-            layout.depth,
-            depth_rows,
-            residuals,
-            irls.reshape(residuals.shape) / scale**2,
+        rows = template.projection.apply(
+            np.concatenate([jacobian[:-1], problem.patches.surface * jacobian[-1]])
         )
+        local = _span(index)
+        dense, skin = rows[: local.stop - local.start], rows[local.stop - local.start :]
+        # J' W J and J' W r; node n's skin depth terms act on node n's samples only.
+        irls = irls.reshape(residuals.shape) / scale**2
+        weighted_dense = (dense * irls).reshape(len(dense), -1)
+        hessian[local, local] += weighted_dense @ dense.reshape(len(dense), -1).T
+        by_node = np.ascontiguousarray(skin.transpose(1, 2, 0))  # (N, M, SURFACE_TERMS)
+        weighted_skin = np.ascontiguousarray((skin * irls).transpose(1, 0, 2))  # (N, S, M)
+        cross = (weighted_dense.reshape(dense.shape).transpose(1, 0, 2) @ by_node).transpose(
+            1, 0, 2
+        )
+        hessian[local, depth] += cross.reshape(len(dense), -1)
+        hessian[depth, local] += cross.reshape(len(dense), -1).T
+        depth_blocks += weighted_skin @ by_node
+        gradient[local] += weighted_dense @ residuals.ravel()
+        gradient[depth] += (weighted_skin @ residuals[:, :, None]).ravel()
+    rows = layout.depth
+    hessian[rows[:, :, None], rows[:, None, :]] += depth_blocks
     posed = _posed(problem, estimate)
     cost += _node_depth_term(problem, layout, estimate, posed, hessian, gradient)
     cost += _click_term(problem, layout, posed, hessian, gradient)
@@ -527,39 +581,9 @@ def _normal_equations(
     return cost, hessian, gradient
 
 
-def _accumulate(
-    hessian: np.ndarray,
-    gradient: np.ndarray,
-    dense_index: np.ndarray,
-    dense: np.ndarray,
-    depth_index: np.ndarray,
-    depth: np.ndarray,
-    residuals: np.ndarray,
-    irls: np.ndarray,
-) -> None:
-    """Add one view's ``J' W J`` and ``J' W r``; the skin depth columns act on one node each.
-
-    Args:
-        hessian: the (P, P) normal matrix, added to in place.
-        gradient: the (P,) gradient, added to in place.
-        dense_index: (D,) parameters of the (D, N, M) rows ``dense`` (every node's samples).
-        dense: (D, N, M) Jacobian rows.
-        depth_index: (N, SURFACE_TERMS) parameters of the (SURFACE_TERMS, N, M) rows ``depth``
-            (node n's coefficients act on node n's samples only).
-        depth: (SURFACE_TERMS, N, M) Jacobian rows.
-        residuals: (N, M) projected residuals.
-        irls: (N, M) IRLS weights over s^2.
-    """
-    weighted_dense, weighted_depth = dense * irls, depth * irls
-    hessian[np.ix_(dense_index, dense_index)] += np.einsum('anm,bnm->ab', weighted_dense, dense)
-    cross = np.einsum('anm,jnm->anj', weighted_dense, depth).reshape(len(dense_index), -1)
-    flat_depth = depth_index.ravel()
-    hessian[np.ix_(dense_index, flat_depth)] += cross
-    hessian[np.ix_(flat_depth, dense_index)] += cross.T
-    blocks = np.einsum('jnm,knm->njk', weighted_depth, depth)
-    hessian[depth_index[:, :, None], depth_index[:, None, :]] += blocks
-    gradient[dense_index] += np.einsum('anm,nm->a', weighted_dense, residuals)
-    gradient[flat_depth] += np.einsum('jnm,nm->nj', weighted_depth, residuals).ravel()
+def _span(index: np.ndarray) -> slice:
+    """The slice of a contiguous, increasing array of parameter indices."""
+    return slice(int(index.flat[0]), int(index.flat[-1]) + 1)
 
 
 def _posed(problem: Problem, estimate: Estimate) -> _Posed:
@@ -577,9 +601,6 @@ def _posed(problem: Problem, estimate: Estimate) -> _Posed:
 def _first_columns(layout: _Layout, jacobian: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Indices and (..., columns) of a Jacobian over (omega, t, alpha, sigma) of frame 1."""
     local = layout.first.size
-    if not local:
-        jacobian = jacobian[..., -layout.sigma.size:] if layout.sigma.size else jacobian[..., :0]
-        return layout.sigma, jacobian
     if not layout.sigma.size:
         return layout.first, jacobian[..., :local]
     return np.concatenate([layout.first, layout.sigma]), jacobian
@@ -637,8 +658,6 @@ def _priors(
     cost = 0.0
     poses = (estimate.first, *estimate.views)
     for index, (_, _, alpha) in zip((layout.first, *layout.views), poses, strict=True):
-        if not index.size:
-            continue
         rows = index[POSE_DIM:]
         hessian[np.ix_(rows, rows)] += problem.alpha_precision
         gradient[rows] += problem.alpha_precision @ alpha
