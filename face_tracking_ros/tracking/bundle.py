@@ -91,17 +91,22 @@ class BundleConfig:
         weight: lambda of the terms above, in units of squared residuals / s^2 like the
             tracker's ``prior_weight`` (> 0): neighbouring ROI samples are far from independent,
             so the photometric term overstates its evidence by about an order of magnitude.
+        edge_weight: weight of the face-edge nodes' ROIs in the photometric term relative to
+            the inner nodes' (in [0, 1]), as the tracker's ``edge_weight``.
+        max_change: an adjustment that turns frame 1 or the newest view by more than this is
+            not applied, rad (> 0): the views did not agree (an occlusion, a fast motion).
     """
 
     views: int = 8
     view_spacing: float = 0.2
-    iterations: int = 10
+    iterations: int = 5
     surface_prior: float = 0.003
     node_depth_prior: float = 0.005
     model_depth_noise: float = 0.001
     click_noise_px: float = 1.0
     weight: float = 10.0
     edge_weight: float = 0.1
+    max_change: float = 0.1
 
     def __post_init__(self) -> None:
         """Validate every field; the error names the field and its value."""
@@ -116,6 +121,8 @@ class BundleConfig:
                 'model_depth_noise': self.model_depth_noise > 0,
                 'click_noise_px': self.click_noise_px > 0,
                 'weight': self.weight > 0,
+                'edge_weight': 0.0 <= self.edge_weight <= 1.0,
+                'max_change': self.max_change > 0,
             },
         )
 
@@ -652,7 +659,11 @@ def _click_term(
 
 
 def _priors(
-    problem: Problem, layout: _Layout, estimate: Estimate, hessian: np.ndarray, gradient: np.ndarray
+    problem: Problem,
+    layout: _Layout,
+    estimate: Estimate,
+    hessian: np.ndarray,
+    gradient: np.ndarray,
 ) -> float:
     """Add the alpha, sigma and skin depth priors to the normal equations; their cost."""
     cost = 0.0

@@ -85,10 +85,10 @@ from face_tracking_ros.imaging import (
 from face_tracking_ros.model.face_model import FaceModel
 from face_tracking_ros.model.topology import Group
 from face_tracking_ros.tracking.bundle import (
+    SURFACE_TERMS,
     BundleConfig,
     Estimate,
     Patches,
-    SURFACE_TERMS,
     Problem,
     adjust,
     ray_directions,
@@ -405,11 +405,24 @@ class _Keyframe(NamedTuple):
 
 
 class _View(NamedTuple):
-    """A frame kept for the bundle adjustment: its level-0 image and node visibility."""
+    """A frame kept for the bundle adjustment (:mod:`.bundle`).
+
+    Attributes:
+        image: (H, W) float32 level 0 of its pyramid.
+        visibility: (N,) node visibility weights at ``params``.
+        params: its estimate.
+        rotation: R(omega) of ``params``.
+    """
 
     image: np.ndarray
     visibility: np.ndarray
     params: _Params
+    rotation: np.ndarray
+
+    @classmethod
+    def of(cls, image: np.ndarray, visibility: np.ndarray, params: _Params) -> _View:
+        """A view of ``image`` at ``params``."""
+        return cls(image, visibility, params, rodrigues(params.omega)[0])
 
 
 class _FaceView(NamedTuple):
@@ -575,7 +588,7 @@ class MonoTracker:
             normals=normals,
             keyframes=[self._keyframe(params.omega, templates)],
             first=first,
-            views=[_View(first.levels[0], templates.visibility, params)],
+            views=[_View.of(first.levels[0], templates.visibility, params)],
             clicks=init,
             previous=templates,
             start=params,
@@ -750,26 +763,26 @@ class MonoTracker:
     def _maybe_adjust(self, pyramid: ImagePyramid, result: TrackResult) -> TrackResult:
         """Keep this frame as a view if it shows the head at a new rotation, then adjust.
 
-        Each new view (up to ``bundle.views``) runs :func:`~.bundle.adjust` over frame 1 and
-        the views; an adjustment that lowers the bundle cost replaces sigma, the skin depth,
-        frame 1's estimate (and its templates) and this frame's.
+        Each new view (up to ``bundle.views``, once sigma is no longer estimated by eq. 6) runs
+        :func:`~.bundle.adjust` over frame 1 and the views; an adjustment that lowers the
+        bundle cost and moves frame 1 and this frame by less than ``bundle.max_change``
+        replaces sigma, the skin depth, frame 1's estimate (and its templates) and this frame's.
         """
-        track = self._track
-        bundle = self._config.bundle
-        if len(track.views) > bundle.views or any(
-            _rotation_angle(view.params.omega, result.omega) < bundle.view_spacing
-            for view in track.views
-        ):
+        track, bundle = self._track, self._config.bundle
+        if len(track.views) > bundle.views or track.frames <= self._config.sigma_frames:
+            return result
+        rotation = rodrigues(result.omega)[0]
+        nearest = max(float(np.sum(view.rotation * rotation)) for view in track.views)
+        if nearest > 1.0 + 2.0 * np.cos(bundle.view_spacing):  # trace(R_v' R) = 1 + 2 cos(angle)
             return result
         track.views.append(
-            _View(pyramid.levels[0].copy(), track.previous.visibility, track.current)
+            _View.of(pyramid.levels[0].copy(), track.previous.visibility, track.current)
         )
         poses = [(v.params.omega, v.params.t, v.params.alpha) for v in track.views]
+        depth = track.depth
         start = Estimate(
             sigma=track.current.sigma,
-            depth=np.zeros((self._model.num_nodes, SURFACE_TERMS))
-            if track.depth is None
-            else track.depth,
+            depth=np.zeros((self._model.num_nodes, SURFACE_TERMS)) if depth is None else depth,
             first=poses[0],
             views=tuple(poses[1:]),
         )
@@ -780,9 +793,14 @@ class MonoTracker:
             start,
             bundle.iterations,
         )
-        if not adjustment.cost < adjustment.initial_cost:
+        estimate = adjustment.estimate
+        moved = max(
+            _rotation_angle(poses[0][0], estimate.first[0]),
+            _rotation_angle(poses[-1][0], estimate.views[-1][0]),
+        )
+        if not (adjustment.cost < adjustment.initial_cost and moved < bundle.max_change):
             return result
-        return self._apply_adjustment(pyramid, adjustment.estimate, result)
+        return self._apply_adjustment(pyramid, estimate, result)
 
     def _bundle_problem(self) -> Problem:
         """The fixed part of the bundle adjustment of the current track."""
@@ -804,7 +822,9 @@ class MonoTracker:
                 roi.offsets,
                 roi.action,
                 surface_basis(grid),
-                np.ascontiguousarray(ray_directions(points, first.omega, first.t).transpose(2, 0, 1)),
+                np.ascontiguousarray(
+                    ray_directions(points, first.omega, first.t).transpose(2, 0, 1)
+                ),
             ),
             node_weights=np.where(self._edge_nodes, config.bundle.edge_weight, 1.0),
             invariance=self._invariance,
@@ -829,7 +849,7 @@ class MonoTracker:
         track.rois, track.normals = self._rois(params[0], pyramid.num_levels, estimate.depth)
         track.depth = estimate.depth
         track.views = [
-            view._replace(params=p, visibility=self._visibility(p, track.normals))
+            _View.of(view.image, self._visibility(p, track.normals), p)
             for view, p in zip(track.views, params, strict=True)
         ]
         track.start = params[0]
