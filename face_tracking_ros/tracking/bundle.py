@@ -27,17 +27,22 @@ distinct rotations and solves, in the manner of direct (photometric) bundle adju
 The cost, in the tracker's units (squared residuals over the robust scale s):
 
     sum_(v, i, ROI) rho(I_v(x_i(v)) - T_i)                      (eq. 6 with epsilon = 1)
-    + lambda sum_i (r_i' (R X_i + t) - |R_0 X_i^0 + t_0| - d_i0)^2 / s_d^2      (node depths)
+    + lambda sum_i (e_i - mean_j e_j)^2 / s_d^2,  e_i = r_i' (R X_i + t) - |R_0 X_i^0 + t_0| - d_i0
     + lambda sum_k |pi(R X_k + t) - c_k|^2 / s_c^2                 (the 2-D points c_k)
     + lambda_alpha sum_v alpha_v' Sigma_alpha^-1 alpha_v + lambda_sigma sigma' Sigma_s^-1 sigma
     + lambda sum_(i, j) (d_ij / tau_j)^2                           (skin prior)
 
-with r_i the unit ray to node i of frame 1's estimate (R_0, t_0, X^0). Where the views do not
-constrain the skin (a head that has hardly turned), the priors keep it on the thin-plate surface
-and frame 1 where the 2-D points put it. The residuals are projected like the tracker's
+with r_i the unit ray to node i of frame 1's estimate (R_0, t_0, X^0); the node depths enter
+relative to their mean, since their common part is the single camera's scale. Where the views
+do not constrain the skin (a head that has hardly turned), the priors keep it on the thin-plate
+surface and frame 1 where the 2-D points put it. The residuals are projected like the tracker's
 (:mod:`~face_tracking_ros.imaging.photometric`) and Huber-weighted; the Jacobians are the
 tracker's own (:func:`~.mono_kernels.roi_jacobian`). Levenberg-Marquardt on the dense normal
 equations: p + 6 N + (6 + q) (V + 1) unknowns, a few hundred.
+
+Measured on the mono benchmark's 1000-frame sequences (3 seeds x 3 draws of 1 px click noise,
+true model, published pose), the tracker with the adjustment against without: rotation error
+1.21 / 1.20 / 0.23 -> 0.60 / 0.77 / 0.15 degrees, translation error in z 5.7 -> 4.5 mm.
 """
 
 from __future__ import annotations
@@ -621,18 +626,25 @@ def _node_depth_term(
     hessian: np.ndarray,
     gradient: np.ndarray,
 ) -> float:
-    """Add ``lambda / s_d^2 (r_i' X_i - distance_i - d_i0)^2`` to the normal equations."""
+    """Add the node depths' term to the normal equations; its cost.
+
+    ``lambda / s_d^2 sum_i (e_i - mean(e))^2`` with ``e_i = r_i' X_i - distance_i - d_i0``: the
+    nodes' depths relative to each other. Their common part is a single camera's scale (a face
+    twice the size twice as far looks the same in every view), which the views do not measure;
+    it stays with the 2-D points and the sigma prior, as in the fit to the points alone
+    (measured on the mono protocol: translation error in z 5.6 -> 4.5 mm with the mean removed).
+    """
     rays, distances = _rays(problem)
     error = np.einsum('na,na->n', rays, posed.points) - distances - estimate.depth[:, 0]
     index, block = _first_columns(layout, np.einsum('na,nak->nk', rays, posed.jacobian))
-    weight = problem.config.weight / problem.config.model_depth_noise**2
     depth = layout.depth[:, 0]
-    hessian[np.ix_(index, index)] += weight * block.T @ block
-    hessian[np.ix_(index, depth)] -= weight * block.T
-    hessian[np.ix_(depth, index)] -= weight * block
-    hessian[depth, depth] += weight
-    gradient[index] += weight * block.T @ error
-    gradient[depth] -= weight * error
+    jacobian = np.hstack([block, -np.eye(len(error))])
+    error = error - error.mean()
+    jacobian = jacobian - jacobian.mean(axis=0)
+    columns = np.concatenate([index, depth])
+    weight = problem.config.weight / problem.config.model_depth_noise**2
+    hessian[np.ix_(columns, columns)] += weight * jacobian.T @ jacobian
+    gradient[columns] += weight * jacobian.T @ error
     return float(weight * error @ error)
 
 

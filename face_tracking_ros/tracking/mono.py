@@ -37,6 +37,13 @@ Design, in the seed's terms:
   evaluated where a pyramid level starts and refreshed after half a pixel of motion. A level
   ends when the nodes stop moving or a step raises the cost. The loops over the ROI samples are
   compiled (:mod:`.mono_kernels`).
+- Frame 1's estimate and the skin under the ROIs are refined from the first views: frames that
+  show the head at new rotations (``bundle.view_spacing`` apart, up to ``bundle.views``) are
+  kept, and each new one runs a photometric bundle adjustment (:mod:`.bundle`) of frame 1's
+  pose, alpha and sigma, the skin depth under every ROI and the views' poses; the track then
+  continues from its result (frame 1's templates re-sampled, the ROIs on the measured skin).
+  Measured on the benchmark's 1000-frame sequences, 3 seeds x 3 draws of 1 px click noise:
+  rotation error 1.21 / 1.20 -> 0.62 / 0.77 degrees (x / y).
 - Optionally (``max_keyframes`` > 1) the drift term compares with the keyframe nearest in
   rotation instead of frame 1. Measured on synthetic sequences it does worse than I_1 alone
   (keyframes inherit the error of the pose they were taken at), so it is off by default.

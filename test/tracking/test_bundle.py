@@ -163,8 +163,9 @@ def test_bundle_adjustment_lowers_rotation_and_identity_errors(turning_head):
             )
     off, on = np.mean(rotation[0]), np.mean(rotation[BundleConfig().views])
     assert on < 0.85 * off, (rotation, off, on)
-    for first, last in identity[BundleConfig().views]:
-        assert last < first  # sigma from the views is nearer the subject's than from the clicks
+    # sigma from the views is nearer the subject's than sigma from the clicks alone
+    first, last = np.mean(identity[BundleConfig().views], axis=0)
+    assert last < 0.95 * first, identity
     assert all(first == last for first, last in identity[0])
 
 
