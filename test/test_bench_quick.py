@@ -62,7 +62,8 @@ def test_quick_run_writes_finite_figures(tmp_path):
     assert live['node_peak_rss_mb'] > 0
     protocol = results['benchmarks']['mono_accuracy']
     rows = ('true_model', 'unfiltered', 'learned_model', 'baseline', 'nodes_19')
-    rows += ('epsilon_0', 'prior_off', 'true_model_click_draws', 'photo_texture', 'photo_baseline')
+    rows += ('epsilon_0', 'prior_off', 'bundle_off', 'true_model_click_draws')
+    rows += ('photo_texture', 'photo_baseline')
     assert set(protocol['rows']) == set(rows)
     for row in rows:
         assert len(protocol['rows'][row]['seeds']) == 1

@@ -13,7 +13,9 @@ from simulated clicks on the first frame (1 px noise). On the same frames run:
 - ``learned_model``: the tracker with the benchmark's learned model (§3.4 on subjects 1-11);
 - ``baseline``: per-node pyramidal Lucas-Kanade plus ``solvePnP`` on the same true model;
 - ablations with the true model: ``epsilon_0`` (no drift term), ``prior_off`` (no §4.1 alpha
-  prior) and ``nodes_19`` (the seed's 19-node mesh);
+  prior), ``bundle_off`` (frame 1's pose and sigma from the clicks alone and the ROIs on the
+  thin-plate surface: no bundle adjustment of the first views,
+  :mod:`face_tracking_ros.tracking.bundle`) and ``nodes_19`` (the seed's 19-node mesh);
 - ``true_model_click_draws``: ``true_model`` averaged over :data:`CLICK_DRAWS` draws of the
   click noise (the first is ``true_model``'s): the first frame's pose, fitted to 34 clicks,
   errs by about as much as the tracker does afterwards, so one draw per seed is a noisy figure;
@@ -51,6 +53,7 @@ from face_tracking_ros.synthetic.faces import FacePopulation
 from face_tracking_ros.synthetic.scenes import Kind
 from face_tracking_ros.synthetic.true_model import true_face_model
 from face_tracking_ros.tracking.baseline import LKPnPTracker
+from face_tracking_ros.tracking.bundle import BundleConfig
 from face_tracking_ros.tracking.evaluation import (
     Tracker,
     TrackerEvaluation,
@@ -73,6 +76,7 @@ WIDTH, HEIGHT = 640, 480
 ABLATIONS = {
     'epsilon_0': MonoTrackerConfig(epsilon=0.0),
     'prior_off': MonoTrackerConfig(prior_weight=0.0),
+    'bundle_off': MonoTrackerConfig(bundle=BundleConfig(views=0)),
 }
 
 

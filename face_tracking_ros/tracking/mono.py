@@ -37,6 +37,13 @@ Design, in the seed's terms:
   evaluated where a pyramid level starts and refreshed after half a pixel of motion. A level
   ends when the nodes stop moving or a step raises the cost. The loops over the ROI samples are
   compiled (:mod:`.mono_kernels`).
+- Frame 1's estimate and the skin under the ROIs are refined from the first views: frames that
+  show the head at new rotations (``bundle.view_spacing`` apart, up to ``bundle.views``) are
+  kept, and each new one runs a photometric bundle adjustment (:mod:`.bundle`) of frame 1's
+  pose, alpha and sigma, the skin depth under every ROI and the views' poses; the track then
+  continues from its result (frame 1's templates re-sampled, the ROIs on the measured skin).
+  Measured on the benchmark's 1000-frame sequences, 3 seeds x 3 draws of 1 px click noise:
+  rotation error 1.21 / 1.20 -> 0.62 / 0.77 degrees (x / y).
 - Optionally (``max_keyframes`` > 1) the drift term compares with the keyframe nearest in
   rotation instead of frame 1. Measured on synthetic sequences it does worse than I_1 alone
   (keyframes inherit the error of the pose they were taken at), so it is off by default.
@@ -84,6 +91,17 @@ from face_tracking_ros.imaging import (
 )
 from face_tracking_ros.model.face_model import FaceModel
 from face_tracking_ros.model.topology import Group
+from face_tracking_ros.tracking.bundle import (
+    SURFACE_TERMS,
+    BundleConfig,
+    Estimate,
+    Patches,
+    Problem,
+    adjust,
+    ray_directions,
+    skin_offsets,
+    surface_basis,
+)
 from face_tracking_ros.tracking.initialisation import (
     FitConfig,
     Initialisation,
@@ -185,6 +203,7 @@ class MonoTrackerConfig:
         max_condition: LOST when the Jacobi-scaled normal matrix has a larger condition number
             (> 1).
         fit: the model fit to initialisation points (:class:`FitConfig`).
+        bundle: the bundle adjustment of the first views (:class:`~.bundle.BundleConfig`).
     """
 
     epsilon: float = 0.2
@@ -215,6 +234,7 @@ class MonoTrackerConfig:
     max_rotation_step: float = 0.35
     max_condition: float = 1e10
     fit: FitConfig = field(default_factory=FitConfig)
+    bundle: BundleConfig = field(default_factory=BundleConfig)
 
     def __post_init__(self) -> None:
         """Validate every field; the error names the field and its value."""
@@ -391,6 +411,27 @@ class _Keyframe(NamedTuple):
     projection: PhotometricProjection
 
 
+class _View(NamedTuple):
+    """A frame kept for the bundle adjustment (:mod:`.bundle`).
+
+    Attributes:
+        image: (H, W) float32 level 0 of its pyramid.
+        visibility: (N,) node visibility weights at ``params``.
+        params: its estimate.
+        rotation: R(omega) of ``params``.
+    """
+
+    image: np.ndarray
+    visibility: np.ndarray
+    params: _Params
+    rotation: np.ndarray
+
+    @classmethod
+    def of(cls, image: np.ndarray, visibility: np.ndarray, params: _Params) -> _View:
+        """A view of ``image`` at ``params``."""
+        return cls(image, visibility, params, rodrigues(params.omega)[0])
+
+
 class _FaceView(NamedTuple):
     """Frame 1's inner face (the nodes off the face edge) on the search's pyramid level.
 
@@ -413,6 +454,9 @@ class _Track:
     rois: tuple[_Roi, ...]
     normals: np.ndarray
     keyframes: list[_Keyframe]
+    first: ImagePyramid
+    views: list[_View]
+    clicks: Initialisation | None
     previous: _Templates
     start: _Params
     view: _FaceView
@@ -420,6 +464,7 @@ class _Track:
     last_good: TrackResult
     frames: int = 1
     lost: bool = False
+    depth: np.ndarray | None = None
 
 
 class MonoTracker:
@@ -544,10 +589,14 @@ class MonoTracker:
         templates = self._templates(pyramid, params, rois, normals)
         residuals = np.zeros(self._model.num_nodes)
         result = self._result(TrackStatus.TRACKING, params, residuals, 0, (), '')
+        first = ImagePyramid(levels=tuple(level.copy() for level in pyramid.levels))
         self._track = _Track(
             rois=rois,
             normals=normals,
             keyframes=[self._keyframe(params.omega, templates)],
+            first=first,
+            views=[_View.of(first.levels[0], templates.visibility, params)],
+            clicks=init,
             previous=templates,
             start=params,
             view=self._face_view(pyramid, result.nodes_px),
@@ -562,7 +611,9 @@ class MonoTracker:
             return None
         return self._detector(np.clip(pyramid.levels[0], 0, 255).astype(np.uint8))
 
-    def _rois(self, params: _Params, num_levels: int) -> tuple[tuple[_Roi, ...], np.ndarray]:
+    def _rois(
+        self, params: _Params, num_levels: int, depth: np.ndarray | None = None
+    ) -> tuple[tuple[_Roi, ...], np.ndarray]:
         """Per-level ROI samples and the (N, 3) node normals, at ``params``'s sigma.
 
         Each ROI is a square grid in the face frame's x-y directions lifted onto the thin-plate
@@ -573,16 +624,13 @@ class MonoTracker:
         """
         config = self._config
         shape = self._model.identity_shape(params.sigma)
-        inward = shape[:, :2].mean(axis=0) - shape[self._edge_nodes, :2]
-        inward /= np.linalg.norm(inward, axis=1, keepdims=True)
-        grid = np.repeat(self._grid[None], len(shape), axis=0)
-        grid[self._edge_nodes] += inward[:, None, :] * (
-            config.edge_patch_shift * config.patch_half_size
-        )
+        grid = self._roi_grid(shape)
         spacing = config.patch_spacing_px * params.t[2] / self._camera.focal
         rois = []
         for level in range(num_levels):
             offsets = surface_patch_offsets(shape, grid * (spacing * (1 << level)))
+            if depth is not None:
+                offsets = self._with_skin(params, shape, offsets, grid, level, depth)
             action, identity = (
                 np.ascontiguousarray(patch_basis(shape, offsets, basis).transpose(3, 2, 0, 1))
                 for basis in self._node_bases
@@ -590,6 +638,48 @@ class MonoTracker:
             offsets = np.ascontiguousarray(offsets.transpose(2, 0, 1))
             rois.append(_Roi(offsets, action, identity, params.sigma))
         return tuple(rois), node_frames(shape, self._triangles)[:, 2]
+
+    def _with_skin(
+        self,
+        params: _Params,
+        shape: np.ndarray,
+        offsets: np.ndarray,
+        grid: np.ndarray,
+        level: int,
+        depth: np.ndarray,
+    ) -> np.ndarray:
+        """(N, M, 3) ROI offsets moved by the skin depth along the rays of frame 1 (params)."""
+        basis = surface_basis(self._level_patch_coordinates(grid, level))
+        direction = ray_directions(shape[:, None, :] + offsets, params.omega, params.t)
+        moved = skin_offsets(
+            offsets.transpose(2, 0, 1), basis, direction.transpose(2, 0, 1), depth
+        )
+        return moved.transpose(1, 2, 0)
+
+    def _roi_grid(self, shape: np.ndarray) -> np.ndarray:
+        """(N, M, 2) ROI sample offsets in grid steps along the face frame's x and y.
+
+        A square of ``(2 h + 1)^2`` steps per node; the face-edge nodes' grids shifted towards the
+        face centre by ``edge_patch_shift`` h, so they cover skin rather than the background.
+        """
+        config = self._config
+        inward = shape[:, :2].mean(axis=0) - shape[self._edge_nodes, :2]
+        inward /= np.linalg.norm(inward, axis=1, keepdims=True)
+        grid = np.repeat(self._grid[None], len(shape), axis=0)
+        grid[self._edge_nodes] += inward[:, None, :] * (
+            config.edge_patch_shift * config.patch_half_size
+        )
+        return grid
+
+    def _level_patch_coordinates(self, grid: np.ndarray, level: int) -> np.ndarray:
+        """(N, M, 2) patch coordinates of a level's samples for the skin depth basis.
+
+        In units of the level-0 ROI's half-width h; a coarser level's samples reach further out
+        and are held at the edge of the level-0 ROI, where the skin depth was measured.
+        """
+        level_zero = grid / self._config.patch_half_size
+        low, high = level_zero.min(axis=1, keepdims=True), level_zero.max(axis=1, keepdims=True)
+        return np.clip(level_zero * (1 << level), low, high)
 
     def _face_view(self, pyramid: ImagePyramid, nodes_px: np.ndarray) -> _FaceView:
         """The crop of the search level spanned by the inner nodes, given (N, 2) level-0 pixels."""
@@ -673,7 +763,116 @@ class MonoTracker:
         if not result.ok:
             return self._reacquire(pyramid, result.reason)
         self._accept(result, templates)
-        return result
+        return self._maybe_adjust(pyramid, result)
+
+    # --- bundle adjustment of the first views ---------------------------------------------------
+
+    def _maybe_adjust(self, pyramid: ImagePyramid, result: TrackResult) -> TrackResult:
+        """Keep this frame as a view if it shows the head at a new rotation, then adjust.
+
+        Each new view (up to ``bundle.views``, once sigma is no longer estimated by eq. 6) runs
+        :func:`~.bundle.adjust` over frame 1 and the views; an adjustment that lowers the
+        bundle cost and moves frame 1 and this frame by less than ``bundle.max_change``
+        replaces sigma, the skin depth, frame 1's estimate (and its templates) and this frame's.
+        """
+        track, bundle = self._track, self._config.bundle
+        if len(track.views) > bundle.views or track.frames <= self._config.sigma_frames:
+            return result
+        rotation = rodrigues(result.omega)[0]
+        nearest = max(float(np.sum(view.rotation * rotation)) for view in track.views)
+        if nearest > 1.0 + 2.0 * np.cos(bundle.view_spacing):  # trace(R_v' R) = 1 + 2 cos(angle)
+            return result
+        track.views.append(
+            _View.of(pyramid.levels[0].copy(), track.previous.visibility, track.current)
+        )
+        poses = [(v.params.omega, v.params.t, v.params.alpha) for v in track.views]
+        depth = track.depth
+        start = Estimate(
+            sigma=track.current.sigma,
+            depth=np.zeros((self._model.num_nodes, SURFACE_TERMS)) if depth is None else depth,
+            first=poses[0],
+            views=tuple(poses[1:]),
+        )
+        adjustment = adjust(
+            self._bundle_problem(),
+            [view.image for view in track.views],
+            [view.visibility for view in track.views],
+            start,
+            bundle.iterations,
+        )
+        estimate = adjustment.estimate
+        moved = max(
+            _rotation_angle(poses[0][0], estimate.first[0]),
+            _rotation_angle(poses[-1][0], estimate.views[-1][0]),
+        )
+        if not (adjustment.cost < adjustment.initial_cost and moved < bundle.max_change):
+            return result
+        return self._apply_adjustment(pyramid, estimate, result)
+
+    def _bundle_problem(self) -> Problem:
+        """The fixed part of the bundle adjustment of the current track."""
+        track, model, config = self._track, self._model, self._config
+        first = track.views[0].params
+        roi = self._rois(first, 1)[0][0]
+        shape = model.identity_shape(first.sigma)
+        grid = self._level_patch_coordinates(self._roi_grid(shape), 0)
+        points = shape[:, None, :] + roi.offsets.transpose(1, 2, 0)
+        clicks = track.clicks
+        return Problem(
+            camera=self._level_cameras[0],
+            mean_shape=model.mean_shape.reshape(-1, 3),
+            action_nodes=self._action_basis,
+            shape_nodes=np.ascontiguousarray(model.shape_basis_nodes()),
+            first=(first.omega, first.t, first.alpha),
+            first_sigma=first.sigma,
+            patches=Patches(
+                roi.offsets,
+                roi.action,
+                surface_basis(grid),
+                np.ascontiguousarray(
+                    ray_directions(points, first.omega, first.t).transpose(2, 0, 1)
+                ),
+            ),
+            node_weights=np.where(self._edge_nodes, config.bundle.edge_weight, 1.0),
+            invariance=self._invariance,
+            alpha_precision=self._alpha_precision,
+            sigma_precision=None
+            if clicks is not None and clicks.sigma is not None
+            else self._sigma_precision,
+            click_nodes=clicks.node_indices(model) if clicks is not None else np.zeros(0, int),
+            clicks=clicks.points if clicks is not None else np.zeros((0, 2)),
+            config=config.bundle,
+            huber_k=config.huber_k,
+            scale_floor=config.residual_scale_floor,
+        )
+
+    def _apply_adjustment(
+        self, pyramid: ImagePyramid, estimate: Estimate, result: TrackResult
+    ) -> TrackResult:
+        """Restart the track's state from an adjustment; this frame's result at its estimate."""
+        track = self._track
+        poses = (estimate.first, *estimate.views)
+        params = [_Params(omega, t, alpha, estimate.sigma) for omega, t, alpha in poses]
+        track.rois, track.normals = self._rois(params[0], pyramid.num_levels, estimate.depth)
+        track.depth = estimate.depth
+        track.views = [
+            _View.of(view.image, self._visibility(p, track.normals), p)
+            for view, p in zip(track.views, params, strict=True)
+        ]
+        track.start = params[0]
+        first = self._templates(track.first, params[0], track.rois, track.normals)
+        track.keyframes = [self._keyframe(params[0].omega, first)]
+        track.previous = self._templates(pyramid, params[-1], track.rois, track.normals)
+        track.current = params[-1]
+        track.last_good = self._result(
+            TrackStatus.TRACKING,
+            params[-1],
+            result.node_residuals,
+            result.iterations,
+            result.cost_history,
+            '',
+        )
+        return track.last_good
 
     def _keyframe(self, omega: np.ndarray, templates: _Templates) -> _Keyframe:
         """A keyframe of ``templates`` sampled at rotation R(omega)."""
