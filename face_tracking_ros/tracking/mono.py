@@ -169,7 +169,8 @@ class MonoTrackerConfig:
         keyframe_spacing: a successful frame becomes a keyframe when its rotation differs from
             every keyframe's by more than this, rad (> 0).
         sigma_frames: frames after an initialisation during which sigma is estimated with the
-            pose, then held fixed (>= 0; 0 keeps the sigma of the initial fit or enrolment).
+            pose by eq. 6, then held fixed (>= 0; 0 keeps the sigma of the initial fit, which
+            the bundle adjustment of the first views refines, or of the enrolment).
             Against templates sampled at the initial sigma this is poorly posed: on a
             1000-frame synthetic sequence 30 frames gave 7.5 degrees of pitch error and 100
             frames 1.4 / 2.1 degrees (x / y) against 2.4 / 1.1 with 0, so 0 is the default.
