@@ -57,8 +57,9 @@ class IdentityConfig:
             (metres for a model with metre bases); added as ``min_std**2 * I`` to C_k. It stands
             for the error of one track's sigma estimate, which one enrolment track cannot show:
             the mono tracker holds sigma fixed per track once its first views are adjusted, and
-            two tracks of the same synthetic person (before that adjustment) differed by (0.9, 2.9, 3.2, 1.5) mm RMS per component (p = 4), i.e. per-track
-            errors of about (0.6, 2.1, 2.3, 1.0) mm. With those errors
+            two tracks of the same synthetic person (before that adjustment) differed by (0.9,
+            2.9, 3.2, 1.5) mm RMS per component (p = 4), i.e. per-track errors of about (0.6,
+            2.1, 2.3, 1.0) mm. With those errors
             (:func:`~face_tracking_ros.recognition.benchmark.identity_with_track_error`, default
             population, 11 enrolled, 500 strangers) 2.5 mm and acceptance 0.99 gave 98.6 %
             genuine faces right and 94.6 % strangers rejected (1.5 mm: 74.5 % and 99.4 %;
