@@ -328,22 +328,17 @@ def adjust(
     Returns:
         The adjustment (:func:`rebased` estimate); the start when no step lowered the cost.
     """
-    layout = _Layout.of(problem, len(images) - 1)
-    template = _template(problem, images[0])
-    weights = [problem.node_weights * visibility[0] * v for v in visibility[1:]]
+    solve = _Solve.of(problem, images, visibility, start)
     estimate, damping = start, 1e-3
-    scale = _scale(problem, template, images[1:], estimate, weights)
-    cost, hessian, gradient = _normal_equations(
-        problem, layout, template, images[1:], estimate, weights, scale
-    )
+    cost, hessian, gradient = solve.normal_equations(estimate)
     initial, done = cost, 0
     for done in range(1, iterations + 1):
         try:
             step = _damped_step(hessian, gradient, damping)
         except LinAlgError:
             break
-        trial = _updated(estimate, layout, step)
-        trial_cost = _cost(problem, layout, template, images[1:], trial, weights, scale)
+        trial = _updated(estimate, solve.layout, step)
+        trial_cost = solve.cost(trial)
         if not np.isfinite(trial_cost) or trial_cost >= cost:
             damping *= 10.0
             if damping > 1e3:
@@ -354,9 +349,7 @@ def adjust(
         damping = max(0.1 * damping, 1e-9)
         if converged or done == iterations:
             break
-        cost, hessian, gradient = _normal_equations(
-            problem, layout, template, images[1:], estimate, weights, scale
-        )
+        cost, hessian, gradient = solve.normal_equations(estimate)
     if cost >= initial:
         return Adjustment(start, initial, initial, done)
     return Adjustment(rebased(problem, estimate), initial, cost, done)
@@ -497,100 +490,117 @@ def _view_jacobian(
     return jacobian
 
 
-def _scale(
-    problem: Problem,
-    template: _Template,
-    images: list[np.ndarray],
-    estimate: Estimate,
-    weights: list[np.ndarray],
-) -> float:
-    """The robust residual scale at the start: 1.4826 MAD of the weighted residuals."""
-    active = []
-    for image, pose, weight in zip(images, estimate.views, weights, strict=True):
-        residuals, inside, _ = _view_residuals(problem, template, image, pose, estimate.depth)
-        active.append(np.abs(residuals[(weight[:, None] * inside) > 0]))
-    values = np.concatenate(active) if active else np.zeros(0)
-    spread = _MAD_TO_STD * float(np.median(values)) if values.size else 0.0
-    return max(problem.scale_floor, spread)
+class _Solve(NamedTuple):
+    """What stays fixed while :func:`adjust` runs, and the cost and normal equations it needs.
 
+    Attributes:
+        problem: the problem.
+        layout: where each unknown sits.
+        template: frame 1's samples.
+        images: the other views' (H, W) float32 images.
+        weights: each other view's (N,) node weights (ROI weight, visibility in both views).
+        scale: the robust residual scale s of the start, grey levels.
+    """
 
-def _cost(
-    problem: Problem,
-    layout: _Layout,
-    template: _Template,
-    images: list[np.ndarray],
-    estimate: Estimate,
-    weights: list[np.ndarray],
-    scale: float,
-) -> float:
-    """The bundle cost at ``estimate`` (what :func:`_normal_equations` gives, without them)."""
-    cost = 0.0
-    for image, pose, weight in zip(images, estimate.views, weights, strict=True):
-        residuals, inside, _ = _view_residuals(problem, template, image, pose, estimate.depth)
+    problem: Problem
+    layout: _Layout
+    template: _Template
+    images: list[np.ndarray]
+    weights: list[np.ndarray]
+    scale: float
+
+    @classmethod
+    def of(
+        cls,
+        problem: Problem,
+        images: list[np.ndarray],
+        visibility: list[np.ndarray],
+        start: Estimate,
+    ) -> _Solve:
+        """The fixed part of an adjustment from ``start`` (the scale: 1.4826 MAD there)."""
+        template = _template(problem, images[0])
+        weights = [problem.node_weights * visibility[0] * v for v in visibility[1:]]
+        solve = cls(
+            problem, _Layout.of(problem, len(images) - 1), template, images[1:], weights, 1.0
+        )
+        active = [
+            np.abs(residuals[(weight[:, None] * inside) > 0])
+            for (residuals, inside, _), weight in zip(solve._views(start), weights, strict=True)
+        ]
+        values = np.concatenate(active) if active else np.zeros(0)
+        spread = _MAD_TO_STD * float(np.median(values)) if values.size else 0.0
+        return solve._replace(scale=max(problem.scale_floor, spread))
+
+    def _views(self, estimate: Estimate) -> list[tuple[np.ndarray, np.ndarray, tuple]]:
+        """Each other view's residuals, sample mask and Jacobian inputs at ``estimate``."""
+        return [
+            _view_residuals(self.problem, self.template, image, pose, estimate.depth)
+            for image, pose in zip(self.images, estimate.views, strict=True)
+        ]
+
+    def _robust(
+        self, residuals: np.ndarray, inside: np.ndarray, weight: np.ndarray
+    ) -> tuple[np.ndarray, float]:
+        """IRLS weights over s^2 (N, M) and Huber cost of one view's residuals."""
         sample_weights = np.ascontiguousarray(weight[:, None] * inside, dtype=float)
-        cost += huber_irls(residuals, sample_weights, scale, problem.huber_k)[1]
-    hessian, gradient = np.zeros((layout.size, layout.size)), np.zeros(layout.size)
-    posed = _posed(problem, estimate)
-    return (
-        cost
-        + _node_depth_term(problem, layout, estimate, posed, hessian, gradient)
-        + _click_term(problem, layout, posed, hessian, gradient)
-        + _priors(problem, layout, estimate, hessian, gradient)
-    )
+        irls, cost = huber_irls(residuals, sample_weights, self.scale, self.problem.huber_k)
+        return irls.reshape(residuals.shape) / self.scale**2, cost
 
+    def cost(self, estimate: Estimate) -> float:
+        """The bundle cost at ``estimate``."""
+        data = sum(
+            self._robust(residuals, inside, weight)[1]
+            for (residuals, inside, _), weight in zip(
+                self._views(estimate), self.weights, strict=True
+            )
+        )
+        size = self.layout.size
+        return data + self._model_terms(estimate, np.zeros((size, size)), np.zeros(size))
 
-def _normal_equations(
-    problem: Problem,
-    layout: _Layout,
-    template: _Template,
-    images: list[np.ndarray],
-    estimate: Estimate,
-    weights: list[np.ndarray],
-    scale: float,
-) -> tuple[float, np.ndarray, np.ndarray]:
-    """Cost, (halved) Hessian and gradient of the bundle cost at ``estimate``."""
-    hessian = np.zeros((layout.size, layout.size))
-    gradient = np.zeros(layout.size)
-    nodes = len(problem.mean_shape)
-    depth_blocks = np.zeros((nodes, SURFACE_TERMS, SURFACE_TERMS))
-    depth = _span(layout.depth)
-    cost = 0.0
-    for image, pose, weight, index in zip(
-        images, estimate.views, weights, layout.views, strict=True
-    ):
-        residuals, inside, (rotated, image_gradient) = _view_residuals(
-            problem, template, image, pose, estimate.depth
+    def normal_equations(self, estimate: Estimate) -> tuple[float, np.ndarray, np.ndarray]:
+        """Cost, (halved) Hessian and gradient of the bundle cost at ``estimate``."""
+        problem, layout = self.problem, self.layout
+        hessian = np.zeros((layout.size, layout.size))
+        gradient = np.zeros(layout.size)
+        depth_blocks = np.zeros((len(problem.mean_shape), SURFACE_TERMS, SURFACE_TERMS))
+        depth = _span(layout.depth)
+        cost = 0.0
+        for (residuals, inside, (rotated, image_gradient)), pose, weight, index in zip(
+            self._views(estimate), estimate.views, self.weights, layout.views, strict=True
+        ):
+            irls, data_cost = self._robust(residuals, inside, weight)
+            cost += data_cost
+            jacobian = _view_jacobian(problem, pose, rotated, image_gradient)
+            rows = self.template.projection.apply(
+                np.concatenate([jacobian[:-1], problem.patches.surface * jacobian[-1]])
+            )
+            local = _span(index)
+            dense, skin = rows[: len(index)], rows[len(index) :]
+            # J' W J and J' W r; node n's skin depth terms act on node n's samples only.
+            weighted_dense = (dense * irls).reshape(len(dense), -1)
+            hessian[local, local] += weighted_dense @ dense.reshape(len(dense), -1).T
+            by_node = np.ascontiguousarray(skin.transpose(1, 2, 0))  # (N, M, SURFACE_TERMS)
+            weighted_skin = np.ascontiguousarray((skin * irls).transpose(1, 0, 2))  # (N, S, M)
+            cross = weighted_dense.reshape(dense.shape).transpose(1, 0, 2) @ by_node
+            cross = cross.transpose(1, 0, 2).reshape(len(dense), -1)
+            hessian[local, depth] += cross
+            hessian[depth, local] += cross.T
+            depth_blocks += weighted_skin @ by_node
+            gradient[local] += weighted_dense @ residuals.ravel()
+            gradient[depth] += (weighted_skin @ residuals[:, :, None]).ravel()
+        rows = layout.depth
+        hessian[rows[:, :, None], rows[:, None, :]] += depth_blocks
+        return cost + self._model_terms(estimate, hessian, gradient), hessian, gradient
+
+    def _model_terms(self, estimate: Estimate, hessian: np.ndarray, gradient: np.ndarray) -> float:
+        """Add the node depth, 2-D point and prior terms to the normal equations; their cost."""
+        problem, layout = self.problem, self.layout
+        posed = _posed(problem, estimate)
+        return (
+            _node_depth_term(problem, layout, estimate, posed, hessian, gradient)
+            + _click_term(problem, layout, posed, hessian, gradient)
+            + _priors(problem, layout, estimate, hessian, gradient)
         )
-        sample_weights = np.ascontiguousarray(weight[:, None] * inside, dtype=float)
-        irls, data_cost = huber_irls(residuals, sample_weights, scale, problem.huber_k)
-        cost += data_cost
-        jacobian = _view_jacobian(problem, pose, rotated, image_gradient)
-        rows = template.projection.apply(
-            np.concatenate([jacobian[:-1], problem.patches.surface * jacobian[-1]])
-        )
-        local = _span(index)
-        dense, skin = rows[: local.stop - local.start], rows[local.stop - local.start :]
-        # J' W J and J' W r; node n's skin depth terms act on node n's samples only.
-        irls = irls.reshape(residuals.shape) / scale**2
-        weighted_dense = (dense * irls).reshape(len(dense), -1)
-        hessian[local, local] += weighted_dense @ dense.reshape(len(dense), -1).T
-        by_node = np.ascontiguousarray(skin.transpose(1, 2, 0))  # (N, M, SURFACE_TERMS)
-        weighted_skin = np.ascontiguousarray((skin * irls).transpose(1, 0, 2))  # (N, S, M)
-        cross = (weighted_dense.reshape(dense.shape).transpose(1, 0, 2) @ by_node).transpose(
-            1, 0, 2
-        )
-        hessian[local, depth] += cross.reshape(len(dense), -1)
-        hessian[depth, local] += cross.reshape(len(dense), -1).T
-        depth_blocks += weighted_skin @ by_node
-        gradient[local] += weighted_dense @ residuals.ravel()
-        gradient[depth] += (weighted_skin @ residuals[:, :, None]).ravel()
-    rows = layout.depth
-    hessian[rows[:, :, None], rows[:, None, :]] += depth_blocks
-    posed = _posed(problem, estimate)
-    cost += _node_depth_term(problem, layout, estimate, posed, hessian, gradient)
-    cost += _click_term(problem, layout, posed, hessian, gradient)
-    cost += _priors(problem, layout, estimate, hessian, gradient)
-    return cost, hessian, gradient
 
 
 def _span(index: np.ndarray) -> slice:
