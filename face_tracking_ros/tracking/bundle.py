@@ -96,8 +96,6 @@ class BundleConfig:
         weight: lambda of the terms above, in units of squared residuals / s^2 like the
             tracker's ``prior_weight`` (> 0): neighbouring ROI samples are far from independent,
             so the photometric term overstates its evidence by about an order of magnitude.
-        edge_weight: weight of the face-edge nodes' ROIs in the photometric term relative to
-            the inner nodes' (in [0, 1]), as the tracker's ``edge_weight``.
         max_change: an adjustment that turns frame 1 or the newest view by more than this is
             not applied, rad (> 0): the views did not agree (an occlusion, a fast motion).
     """
@@ -110,7 +108,6 @@ class BundleConfig:
     model_depth_noise: float = 0.001
     click_noise_px: float = 1.0
     weight: float = 10.0
-    edge_weight: float = 0.1
     max_change: float = 0.1
 
     def __post_init__(self) -> None:
@@ -126,7 +123,6 @@ class BundleConfig:
                 'model_depth_noise': self.model_depth_noise > 0,
                 'click_noise_px': self.click_noise_px > 0,
                 'weight': self.weight > 0,
-                'edge_weight': 0.0 <= self.edge_weight <= 1.0,
                 'max_change': self.max_change > 0,
             },
         )
@@ -314,16 +310,14 @@ def adjust(
     images: list[np.ndarray],
     visibility: list[np.ndarray],
     start: Estimate,
-    iterations: int,
 ) -> Adjustment:
-    """Levenberg-Marquardt on the bundle cost from ``start``.
+    """Levenberg-Marquardt on the bundle cost from ``start`` (``problem.config.iterations``).
 
     Args:
         problem: what stays fixed.
         images: V (H, W) float32 level-0 images, frame 1 first.
         visibility: V (N,) node visibility weights, frame 1 first.
         start: the tracker's estimates (``start.first`` equal to ``problem.first``).
-        iterations: most iterations.
 
     Returns:
         The adjustment (:func:`rebased` estimate); the start when no step lowered the cost.
@@ -332,6 +326,7 @@ def adjust(
     estimate, damping = start, 1e-3
     cost, hessian, gradient = solve.normal_equations(estimate)
     initial, done = cost, 0
+    iterations = problem.config.iterations
     for done in range(1, iterations + 1):
         try:
             step = _damped_step(hessian, gradient, damping)

@@ -449,7 +449,10 @@ class _FaceView(NamedTuple):
 class _Track:
     """State of a running track; ``keyframes[0]`` holds frame 1 (the seed's I_1).
 
-    ``rois`` holds each level's ROI samples.
+    ``rois`` holds each level's ROI samples. For the bundle adjustment of the first views:
+    ``first`` is frame 1's pyramid, ``views`` frame 1 and the views kept, ``clicks`` the
+    initialisation's 2-D points, ``depth`` the (N, 6) skin depth of the last adjustment (None
+    before one) and ``adjustments`` how many were run.
     """
 
     rois: tuple[_Roi, ...]
@@ -466,6 +469,7 @@ class _Track:
     frames: int = 1
     lost: bool = False
     depth: np.ndarray | None = None
+    adjustments: int = 0
 
 
 class MonoTracker:
@@ -771,22 +775,26 @@ class MonoTracker:
     def _maybe_adjust(self, pyramid: ImagePyramid, result: TrackResult) -> TrackResult:
         """Keep this frame as a view if it shows the head at a new rotation, then adjust.
 
-        Each new view (up to ``bundle.views``, once sigma is no longer estimated by eq. 6) runs
-        :func:`~.bundle.adjust` over frame 1 and the views; an adjustment that lowers the
-        bundle cost and moves frame 1 and this frame by less than ``bundle.max_change``
-        replaces sigma, the skin depth, frame 1's estimate (and its templates) and this frame's.
+        A frame whose rotation differs from every view's by ``bundle.view_spacing`` (once sigma
+        is no longer estimated by eq. 6) runs :func:`~.bundle.adjust` over frame 1, the views
+        and itself, at most ``bundle.views`` times per track. An adjustment that lowers the
+        bundle cost and turns frame 1 and this frame by less than ``bundle.max_change``
+        replaces sigma, the skin depth, frame 1's estimate (and its templates) and this frame's,
+        which becomes a view; otherwise the frame is dropped and the track goes on as it was.
         """
         track, bundle = self._track, self._config.bundle
-        if len(track.views) > bundle.views or track.frames <= self._config.sigma_frames:
+        if track.adjustments >= bundle.views or track.frames <= self._config.sigma_frames:
             return result
         rotation = rodrigues(result.omega)[0]
         nearest = max(float(np.sum(view.rotation * rotation)) for view in track.views)
         if nearest > 1.0 + 2.0 * np.cos(bundle.view_spacing):  # trace(R_v' R) = 1 + 2 cos(angle)
             return result
-        track.views.append(
-            _View.of(pyramid.levels[0].copy(), track.previous.visibility, track.current)
-        )
-        poses = [(v.params.omega, v.params.t, v.params.alpha) for v in track.views]
+        track.adjustments += 1
+        views = [
+            *track.views,
+            _View.of(pyramid.levels[0], track.previous.visibility, track.current),
+        ]
+        poses = [(v.params.omega, v.params.t, v.params.alpha) for v in views]
         depth = track.depth
         start = Estimate(
             sigma=track.current.sigma,
@@ -796,10 +804,9 @@ class MonoTracker:
         )
         adjustment = adjust(
             self._bundle_problem(),
-            [view.image for view in track.views],
-            [view.visibility for view in track.views],
+            [view.image for view in views],
+            [view.visibility for view in views],
             start,
-            bundle.iterations,
         )
         estimate = adjustment.estimate
         moved = max(
@@ -808,6 +815,8 @@ class MonoTracker:
         )
         if not (adjustment.cost < adjustment.initial_cost and moved < bundle.max_change):
             return result
+        views[-1] = views[-1]._replace(image=pyramid.levels[0].copy())  # the pyramid is reused
+        track.views = views
         return self._apply_adjustment(pyramid, estimate, result)
 
     def _bundle_problem(self) -> Problem:
@@ -834,7 +843,7 @@ class MonoTracker:
                     ray_directions(points, first.omega, first.t).transpose(2, 0, 1)
                 ),
             ),
-            node_weights=np.where(self._edge_nodes, config.bundle.edge_weight, 1.0),
+            node_weights=self._roi_weights,
             invariance=self._invariance,
             alpha_precision=self._alpha_precision,
             sigma_precision=None
