@@ -371,8 +371,8 @@ def _damped_step(hessian: np.ndarray, gradient: np.ndarray, damping: float) -> n
 def rebased(problem: Problem, estimate: Estimate) -> Estimate:
     """The views in the face frame of the adjusted frame 1; the skin depth from its nodes.
 
-    A point P of the face frame of ``problem.first`` (R_0, t_0) is ``R_0' (R P' + t - t_0)`` in
-    that of the adjusted frame 1 (R, t), so a view's pose (R_v, t_v) becomes
+    A point P' of the adjusted frame 1's face frame (pose R, t) is ``P = R_0' (R P' + t - t_0)``
+    in the face frame of ``problem.first`` (R_0, t_0), so a view's pose (R_v, t_v) becomes
     ``(R_v R_0' R, R_v R_0' (t - t_0) + t_v)``. The node depths are measured from frame 1's
     nodes before the adjustment; from the adjusted nodes, along the same rays, they are what the
     model did not explain.
