@@ -1,10 +1,11 @@
 """`face-tracking bench --quick`: a smoke run of the runner, a tracker, the learner and DDS.
 
-Runs tracker_speed, learner_scaling, live_latency and mono_accuracy at their quick sizes (each
-in its own pinned process, live over loopback DDS) and checks the JSON: every benchmark present,
-none failed, the headline figures there, and every number finite (NaN is written as null and
-only allowed where a figure does not apply). Timings are never asserted. The other benchmarks
-(replay, memory, accuracy, soak) run in `face-tracking bench` only (they take minutes).
+Runs tracker_speed, learner_scaling, live_latency, mono_accuracy and stereo_accuracy at their
+quick sizes (each in its own pinned process, live over loopback DDS) and checks the JSON: every
+benchmark present, none failed, the headline figures there, and every number finite (NaN is
+written as null and only allowed where a figure does not apply). Timings are never asserted.
+The other benchmarks (replay, memory, accuracy, soak) run in `face-tracking bench` only (they
+take minutes).
 """
 
 from __future__ import annotations
@@ -21,7 +22,7 @@ from face_tracking_ros.cli.bench import format_table
 from face_tracking_ros.cli.main import main
 from face_tracking_ros.errors import ConfigError
 
-QUICK = ('tracker_speed', 'learner_scaling', 'live_latency', 'mono_accuracy')
+QUICK = ('tracker_speed', 'learner_scaling', 'live_latency', 'mono_accuracy', 'stereo_accuracy')
 
 
 def _numbers(value, path=''):
@@ -70,6 +71,14 @@ def test_quick_run_writes_finite_figures(tmp_path):
         assert protocol['rows'][row]['mean']['frames'] == 20
     assert len(protocol['still']['mean']['angle_std_deg']) == 3
     assert len(protocol['still']['mean']['angle_std_unfiltered_deg']) == 3
+    stereo = results['benchmarks']['stereo_accuracy']
+    for draw in ('exact_clicks', 'clicks_1px'):
+        assert len(stereo['runs'][draw]['subjects']) == 3
+        pooled = stereo['runs'][draw]['pooled']
+        assert pooled['tracked_fraction'] == 1.0
+        # Measured on the 12-frame smoke sequences: 3.3 / 4.2 mm (2.2 / 3.4 on 380 frames).
+        assert 0.5 < pooled['node_rms_mm'] < 8.0
+    assert set(stereo['learning']) == {'true', 'exact_clicks', 'clicks_1px'}
     numbers = list(_numbers(results))
     assert len(numbers) > 50
     assert all(math.isfinite(value) for _, value in numbers), numbers

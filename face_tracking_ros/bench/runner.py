@@ -36,6 +36,7 @@ BENCHMARKS = (
     'memory',
     'accuracy_table',
     'mono_accuracy',
+    'stereo_accuracy',
     'soak',
 )
 DEFAULT_BENCHMARKS = BENCHMARKS[:-1]  # the soak run only on request

@@ -78,6 +78,7 @@ def format_table(results: dict[str, Any]) -> str:
     rows += _memory_rows(benchmarks.get('memory', {}))
     rows += _accuracy_rows(benchmarks.get('accuracy_table', {}))
     rows += _mono_accuracy_rows(benchmarks.get('mono_accuracy', {}))
+    rows += _stereo_accuracy_rows(benchmarks.get('stereo_accuracy', {}))
     rows += _soak_rows(benchmarks.get('soak', {}))
     lines = [f'| {" | ".join(row)} |' for row in rows]
     lines.insert(1, '| --- | --- | --- |')
@@ -271,6 +272,38 @@ def _mono_accuracy_rows(protocol: dict[str, Any]) -> list[tuple[str, str, str]]:
                     '<= 0.05 deg' if pose == 'published' else '',
                 )
             )
+    return rows
+
+
+_STEREO_TARGET = 'node RMS <= 1.0 mm, reprojection <= 1.0 px, drift <= 1 mm, slip <= 1.5 mm'
+
+
+def _stereo_accuracy_rows(protocol: dict[str, Any]) -> list[tuple[str, str, str]]:
+    rows = []
+    for draw, run in protocol.get('runs', {}).items():
+        f = run['pooled']
+        groups = f['node_rms_by_group_mm']
+        rows.append(
+            (
+                f'stereo protocol, {draw.replace("_", " ")} ({len(run["subjects"])} subjects)',
+                f'node RMS {f["node_rms_mm"]:.2f} mm (face edge {groups["edge"]:.2f}, mouth '
+                f'{groups["mouth"]:.2f}), max reprojection {f["max_reprojection_px"]:.2f} px, '
+                f'drift {f["drift_mm"]:.2f} mm, slip {f["boundary_slip_mm"]:.2f} mm',
+                _STEREO_TARGET,
+            )
+        )
+    learning = protocol.get('learning', {})
+    if 'true' in learning:
+        rows.append(
+            (
+                'stereo protocol, model learned from true / exact-click / 1 px-click meshes',
+                'S vs true identity '
+                + ' / '.join(f'{m["shape_similarity"]:.3f}' for m in learning.values())
+                + ', A vs true expressions '
+                + ' / '.join(f'{m["action_similarity"]:.3f}' for m in learning.values()),
+                'tracked within 0.01 of true',
+            )
+        )
     return rows
 
 

@@ -1,0 +1,146 @@
+"""Issue 5's stereo protocol: training sequences tracked as `face-tracking learn` tracks them.
+
+Subjects 0..S-1 of the synthetic population each play one 380-frame training sequence (head
+still, neutral start, then the expressions in turn) in front of the 640x480 stereo rig at 30 fps.
+The stereo tracker runs over every sequence as ``face-tracking learn`` runs it on raw stereo bags
+(``retroactive_depths``: the frame-1 node depths refined over the whole sequence, applied to
+every pair), initialised from simulated clicks on the first left image: exact ones and, drawn
+once per subject, ones with 1 px of noise. Each run is scored against the true nodes by
+:func:`~face_tracking_ros.tracking.stereo_evaluation.evaluate_stereo` (node RMS, per group,
+largest reprojection error, drift from frame 1 to the last, face-edge slip along the boundary).
+
+Then the default learner (joint, p = 2, q = 5) learns a model from each set of meshes, true,
+tracked from exact clicks and from 1 px clicks, and each model is compared with the
+population's true subspaces (:func:`~face_tracking_ros.learning.evaluation.compare_with_truth`):
+the issue's target is a model learned from tracked meshes within 0.01 of the similarity that
+the true meshes reach.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict
+from typing import Any
+
+import numpy as np
+
+from face_tracking_ros.bench.common import BenchOptions
+from face_tracking_ros.geometry.camera import StereoRig
+from face_tracking_ros.learning.alignment import align_training_set
+from face_tracking_ros.learning.evaluation import compare_with_truth, population_truth
+from face_tracking_ros.learning.methods import make_learner
+from face_tracking_ros.learning.training_set import NEUTRAL_LABEL, MeshSequence, TrainingSet
+from face_tracking_ros.model.topology import mesh_topology
+from face_tracking_ros.synthetic.clicks import simulated_clicks
+from face_tracking_ros.synthetic.faces import FacePopulation
+from face_tracking_ros.synthetic.scenes import Kind, SceneConfig, SequenceRenderer
+from face_tracking_ros.tracking.stereo import StereoTracker, StereoTrackerConfig
+from face_tracking_ros.tracking.stereo_evaluation import StereoEvaluation, evaluate_stereo
+
+NUM_NODES = 34
+SUBJECTS, QUICK_SUBJECTS = 6, 3
+FRAMES, QUICK_FRAMES = 380, 12
+FPS = 30.0
+CLICK_NOISE_PX = {'exact_clicks': 0.0, 'clicks_1px': 1.0}
+LENGTHS = ('node_rms', 'drift', 'max_drift', 'boundary_slip', 'boundary_slip_rms')
+
+
+def run(options: BenchOptions) -> dict[str, Any]:
+    """Every subject's figures per click draw, their pooled figures, and the learned models.
+
+    Returns:
+        ``{'scene': str, 'runs': {draw: {'subjects': [...], 'pooled': {...}}},
+        'learning': {meshes: {...}}}``; lengths in mm, reprojection in px.
+    """
+    subjects = QUICK_SUBJECTS if options.quick else SUBJECTS
+    scene = SceneConfig(
+        kind=Kind.STEREO,
+        subjects=subjects,
+        frames=QUICK_FRAMES if options.quick else FRAMES,
+        fps=FPS,
+        seed=options.seed,
+        motion='still',
+    )
+    topology = mesh_topology(NUM_NODES)
+    evaluations: dict[str, list[StereoEvaluation]] = {draw: [] for draw in CLICK_NOISE_PX}
+    sequences: dict[str, list[MeshSequence]] = {'true': [], **{d: [] for d in CLICK_NOISE_PX}}
+    alpha = []
+    for subject in range(subjects):
+        renderer = SequenceRenderer(scene, subject)
+        frames = list(renderer.frames(0))
+        rig = StereoRig(renderer.cameras['left'], renderer.cameras['right'])
+        truth = np.stack([frame.truth.nodes_camera[:NUM_NODES] for frame in frames])
+        labels = tuple(frame.truth.label for frame in frames)
+        alpha.append(np.stack([frame.truth.alpha for frame in frames]))
+        sequences['true'].append(_sequence(frames[0].truth.subject_id, truth, labels))
+        pairs = [(frame.images['left'], frame.images['right']) for frame in frames]
+        for draw, noise in CLICK_NOISE_PX.items():
+            rng = np.random.default_rng([options.seed, subject])
+            clicks = simulated_clicks(topology.node_names, truth[0], rig.left, noise, rng)
+            meshes, status = _tracked(rig, pairs, clicks)
+            evaluations[draw].append(evaluate_stereo(meshes, truth, rig, topology, status))
+            sequences[draw].append(_sequence(frames[0].truth.subject_id, meshes, labels))
+    true_subspaces = population_truth(
+        FacePopulation(seed=options.seed), NUM_NODES, range(subjects), np.concatenate(alpha)
+    )
+    learner = make_learner()
+    learning = {}
+    for name, items in sequences.items():
+        model = learner(align_training_set(TrainingSet.from_sequences(items))).model
+        learning[name] = asdict(compare_with_truth(model, true_subspaces))
+    return {
+        'scene': f'{scene.width}x{scene.height} stereo, {subjects} subjects x {scene.frames} '
+        f'frames at {FPS:g} fps, head still, expressions',
+        'runs': {
+            draw: {
+                'subjects': [_in_mm(evaluation) for evaluation in items],
+                'pooled': _pooled(items),
+            }
+            for draw, items in evaluations.items()
+        },
+        'learning': learning,
+    }
+
+
+def _tracked(rig: StereoRig, pairs: list, clicks: Any) -> tuple[np.ndarray, np.ndarray]:
+    """(F, N, 3) meshes and (F,) statuses of a sequence tracked as learn tracks raw bags."""
+    tracker = StereoTracker(rig, StereoTrackerConfig(num_nodes=NUM_NODES, refine_depths=True))
+    tracker.reset(clicks)
+    results = tracker.with_final_depths([tracker.step(left, right) for left, right in pairs])
+    return np.stack([r.nodes_cam for r in results]), np.array([int(r.status) for r in results])
+
+
+def _sequence(subject_id: str, meshes: np.ndarray, labels: tuple[str, ...]) -> MeshSequence:
+    """A training sequence labelled by the truth (neutral frames are the §3.4 neutral set)."""
+    neutral = np.array([label == NEUTRAL_LABEL for label in labels])
+    return MeshSequence(subject_id, meshes, neutral, labels)
+
+
+def _in_mm(evaluation: StereoEvaluation) -> dict[str, Any]:
+    """One run's figures, lengths in mm (keys with an ``_mm`` suffix)."""
+    figures = asdict(evaluation)
+    converted = {f'{key}_mm': 1000.0 * figures.pop(key) for key in LENGTHS}
+    converted['node_rms_by_group_mm'] = {
+        group: 1000.0 * rms for group, rms in figures.pop('node_rms_by_group').items()
+    }
+    converted['max_reprojection_px'] = figures.pop('max_reprojection')
+    return converted | figures
+
+
+def _pooled(evaluations: list[StereoEvaluation]) -> dict[str, Any]:
+    """Figures over all subjects: RMS of the RMS figures, largest of the largest ones, mm / px."""
+
+    def rms(values: list[float]) -> float:
+        return 1000.0 * float(np.sqrt(np.mean(np.square(values))))
+
+    groups = evaluations[0].node_rms_by_group
+    return {
+        'node_rms_mm': rms([e.node_rms for e in evaluations]),
+        'node_rms_by_group_mm': {
+            group: rms([e.node_rms_by_group[group] for e in evaluations]) for group in groups
+        },
+        'max_reprojection_px': max(e.max_reprojection for e in evaluations),
+        'drift_mm': rms([e.drift for e in evaluations]),
+        'max_drift_mm': 1000.0 * max(e.max_drift for e in evaluations),
+        'boundary_slip_mm': 1000.0 * max(e.boundary_slip for e in evaluations),
+        'tracked_fraction': min(e.tracked_fraction for e in evaluations),
+    }
