@@ -72,9 +72,9 @@ def test_quick_run_writes_finite_figures(tmp_path):
     assert len(protocol['still']['mean']['angle_std_deg']) == 3
     assert len(protocol['still']['mean']['angle_std_unfiltered_deg']) == 3
     stereo = results['benchmarks']['stereo_accuracy']
-    for draw in ('exact_clicks', 'clicks_1px'):
-        assert len(stereo['runs'][draw]['subjects']) == 3
-        pooled = stereo['runs'][draw]['pooled']
+    for run in ('exact_clicks', 'clicks_1px', 'nodes_19'):
+        assert len(stereo['runs'][run]['subjects']) == 3
+        pooled = stereo['runs'][run]['pooled']
         assert pooled['tracked_fraction'] == 1.0
         # Measured on the 12-frame smoke sequences: 3.3 / 4.2 mm (2.2 / 3.4 on 380 frames).
         assert 0.5 < pooled['node_rms_mm'] < 8.0
@@ -82,6 +82,7 @@ def test_quick_run_writes_finite_figures(tmp_path):
     numbers = list(_numbers(results))
     assert len(numbers) > 50
     assert all(math.isfinite(value) for _, value in numbers), numbers
+    assert stereo['runs']['nodes_19']['pooled']['boundary_slip_mm'] is None  # no face edge
 
 
 def test_unknown_benchmark_is_refused(tmp_path):

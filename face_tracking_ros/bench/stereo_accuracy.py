@@ -5,7 +5,8 @@ still, neutral start, then the expressions in turn) in front of the 640x480 ster
 The stereo tracker runs over every sequence as ``face-tracking learn`` runs it on raw stereo bags
 (``retroactive_depths``: the frame-1 node depths refined over the whole sequence, applied to
 every pair), initialised from simulated clicks on the first left image: exact ones and, drawn
-once per subject, ones with 1 px of noise. Each run is scored against the true nodes by
+once per subject, ones with 1 px of noise, with the 34-node mesh, and exact ones with the
+19-node mesh (no face edge). Each run is scored against the true nodes by
 :func:`~face_tracking_ros.tracking.stereo_evaluation.evaluate_stereo` (node RMS, per group,
 largest reprojection error, drift from frame 1 to the last, face-edge slip along the boundary).
 
@@ -33,6 +34,7 @@ from face_tracking_ros.model.topology import mesh_topology
 from face_tracking_ros.synthetic.clicks import simulated_clicks
 from face_tracking_ros.synthetic.faces import FacePopulation
 from face_tracking_ros.synthetic.scenes import Kind, SceneConfig, SequenceRenderer
+from face_tracking_ros.tracking.initialisation import Initialisation
 from face_tracking_ros.tracking.stereo import StereoTracker, StereoTrackerConfig
 from face_tracking_ros.tracking.stereo_evaluation import StereoEvaluation, evaluate_stereo
 
@@ -40,15 +42,15 @@ NUM_NODES = 34
 SUBJECTS, QUICK_SUBJECTS = 6, 3
 FRAMES, QUICK_FRAMES = 380, 12
 FPS = 30.0
-CLICK_NOISE_PX = {'exact_clicks': 0.0, 'clicks_1px': 1.0}
+RUNS = {'exact_clicks': (0.0, 34), 'clicks_1px': (1.0, 34), 'nodes_19': (0.0, 19)}  # px, N
 LENGTHS = ('node_rms', 'drift', 'max_drift', 'boundary_slip', 'boundary_slip_rms')
 
 
 def run(options: BenchOptions) -> dict[str, Any]:
-    """Every subject's figures per click draw, their pooled figures, and the learned models.
+    """Every subject's figures per run, their pooled figures, and the learned models.
 
     Returns:
-        ``{'scene': str, 'runs': {draw: {'subjects': [...], 'pooled': {...}}},
+        ``{'scene': str, 'runs': {run: {'subjects': [...], 'pooled': {...}}},
         'learning': {meshes: {...}}}``; lengths in mm, reprojection in px.
     """
     subjects = QUICK_SUBJECTS if options.quick else SUBJECTS
@@ -60,25 +62,28 @@ def run(options: BenchOptions) -> dict[str, Any]:
         seed=options.seed,
         motion='still',
     )
-    topology = mesh_topology(NUM_NODES)
-    evaluations: dict[str, list[StereoEvaluation]] = {draw: [] for draw in CLICK_NOISE_PX}
-    sequences: dict[str, list[MeshSequence]] = {'true': [], **{d: [] for d in CLICK_NOISE_PX}}
+    evaluations: dict[str, list[StereoEvaluation]] = {run: [] for run in RUNS}
+    sequences: dict[str, list[MeshSequence]] = {'true': []}
     alpha = []
     for subject in range(subjects):
         renderer = SequenceRenderer(scene, subject)
         frames = list(renderer.frames(0))
         rig = StereoRig(renderer.cameras['left'], renderer.cameras['right'])
-        truth = np.stack([frame.truth.nodes_camera[:NUM_NODES] for frame in frames])
+        truth = np.stack([frame.truth.nodes_camera for frame in frames])
         labels = tuple(frame.truth.label for frame in frames)
         alpha.append(np.stack([frame.truth.alpha for frame in frames]))
-        sequences['true'].append(_sequence(frames[0].truth.subject_id, truth, labels))
+        subject_id = frames[0].truth.subject_id
+        sequences['true'].append(_sequence(subject_id, truth[:, :NUM_NODES], labels))
         pairs = [(frame.images['left'], frame.images['right']) for frame in frames]
-        for draw, noise in CLICK_NOISE_PX.items():
+        for run, (noise, num_nodes) in RUNS.items():
+            topology = mesh_topology(num_nodes)
             rng = np.random.default_rng([options.seed, subject])
-            clicks = simulated_clicks(topology.node_names, truth[0], rig.left, noise, rng)
-            meshes, status = _tracked(rig, pairs, clicks)
-            evaluations[draw].append(evaluate_stereo(meshes, truth, rig, topology, status))
-            sequences[draw].append(_sequence(frames[0].truth.subject_id, meshes, labels))
+            nodes = truth[:, :num_nodes]
+            clicks = simulated_clicks(topology.node_names, nodes[0], rig.left, noise, rng)
+            meshes, status = _tracked(rig, pairs, clicks, num_nodes)
+            evaluations[run].append(evaluate_stereo(meshes, nodes, rig, topology, status))
+            if num_nodes == NUM_NODES:
+                sequences.setdefault(run, []).append(_sequence(subject_id, meshes, labels))
     true_subspaces = population_truth(
         FacePopulation(seed=options.seed), NUM_NODES, range(subjects), np.concatenate(alpha)
     )
@@ -91,19 +96,21 @@ def run(options: BenchOptions) -> dict[str, Any]:
         'scene': f'{scene.width}x{scene.height} stereo, {subjects} subjects x {scene.frames} '
         f'frames at {FPS:g} fps, head still, expressions',
         'runs': {
-            draw: {
+            run: {
                 'subjects': [_in_mm(evaluation) for evaluation in items],
                 'pooled': _pooled(items),
             }
-            for draw, items in evaluations.items()
+            for run, items in evaluations.items()
         },
         'learning': learning,
     }
 
 
-def _tracked(rig: StereoRig, pairs: list, clicks: Any) -> tuple[np.ndarray, np.ndarray]:
+def _tracked(
+    rig: StereoRig, pairs: list, clicks: Initialisation, num_nodes: int
+) -> tuple[np.ndarray, np.ndarray]:
     """(F, N, 3) meshes and (F,) statuses of a sequence tracked as learn tracks raw bags."""
-    tracker = StereoTracker(rig, StereoTrackerConfig(num_nodes=NUM_NODES, refine_depths=True))
+    tracker = StereoTracker(rig, StereoTrackerConfig(num_nodes=num_nodes, refine_depths=True))
     tracker.reset(clicks)
     results = tracker.with_final_depths([tracker.step(left, right) for left, right in pairs])
     return np.stack([r.nodes_cam for r in results]), np.array([int(r.status) for r in results])

@@ -280,15 +280,17 @@ _STEREO_TARGET = 'node RMS <= 1.0 mm, reprojection <= 1.0 px, drift <= 1 mm, sli
 
 def _stereo_accuracy_rows(protocol: dict[str, Any]) -> list[tuple[str, str, str]]:
     rows = []
-    for draw, run in protocol.get('runs', {}).items():
+    for name, run in protocol.get('runs', {}).items():
         f = run['pooled']
         groups = f['node_rms_by_group_mm']
+        edge = f'face edge {groups["edge"]:.2f}, ' if 'edge' in groups else ''
+        slip = f['boundary_slip_mm']
         rows.append(
             (
-                f'stereo protocol, {draw.replace("_", " ")} ({len(run["subjects"])} subjects)',
-                f'node RMS {f["node_rms_mm"]:.2f} mm (face edge {groups["edge"]:.2f}, mouth '
-                f'{groups["mouth"]:.2f}), max reprojection {f["max_reprojection_px"]:.2f} px, '
-                f'drift {f["drift_mm"]:.2f} mm, slip {f["boundary_slip_mm"]:.2f} mm',
+                f'stereo protocol, {name.replace("_", " ")} ({len(run["subjects"])} subjects)',
+                f'node RMS {f["node_rms_mm"]:.2f} mm ({edge}mouth {groups["mouth"]:.2f}), max '
+                f'reprojection {f["max_reprojection_px"]:.2f} px, drift {f["drift_mm"]:.2f} mm'
+                + ('' if slip is None else f', slip {slip:.2f} mm'),
                 _STEREO_TARGET,
             )
         )

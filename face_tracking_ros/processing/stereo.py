@@ -61,10 +61,9 @@ class StereoNodeConfig:
             refuses it): refine the frame-1 node depths over every pair (turns
             tracker.refine_depths on), hold each track's outputs until it ends (a reset or the
             end of the bag; about 20 kB per pair) and emit them with the final depths applied to
-            every pair. The
-            default of face-tracking learn on raw stereo bags: on the 380-frame still sequences
-            of subjects 0 and 1, node RMS 5.7 / 2.1 -> 1.6 / 1.8 mm from exact clicks, 6.1 / 2.9
-            -> 3.6 / 3.4 mm from clicks with 1 px of noise.
+            every pair. The default of face-tracking learn on raw stereo bags: on the 380-frame
+            still sequences of subjects 0 and 1, node RMS 5.5 / 2.1 -> 1.5 / 1.8 mm from exact
+            clicks, 5.8 / 3.0 -> 3.4 / 3.4 mm from clicks with 1 px of noise.
     """
 
     model_file: str = ''

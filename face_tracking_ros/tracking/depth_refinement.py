@@ -10,7 +10,8 @@ are placed from a reference face). The noise of successive pairs is independent,
 tracker pools them.
 
 For node i the left-right term of eq. 4 within the current pair (its surface patch sampled in
-the left image, compared with the right image at the same points, ZSSD with Huber weights) is
+the left image, compared with the right image at the same points, its brightness ramp removed
+(:mod:`.stereo_data`), with Huber weights) is
 linearised in a depth change delta_i along the node's frame-1 left viewing ray u_i, turned by
 the head rotation R(n) since frame 1:
 
@@ -146,7 +147,7 @@ def depth_evidence(
     rotation: np.ndarray,
     huber: float,
 ) -> DepthEvidence:
-    """Linearise the left-right ZSSD of every node patch in a depth change along ``directions``.
+    """Linearise the left-right term of every node patch in a depth change along ``directions``.
 
     Args:
         rig: the rectified rig.

@@ -114,7 +114,7 @@ class StereoTrackerConfig:
             learned from taught the demo's model spurious expression modes (LOO A 1.00 -> 0.93).
             Offline, :meth:`StereoTracker.with_final_depths` applies the final depths to every
             pair (the stereo_tracker's retroactive_depths, which face-tracking learn uses on raw
-            stereo bags), which is where it pays: node RMS 5.7 / 2.1 -> 1.6 / 1.8 mm on those
+            stereo bags), which is where it pays: node RMS 5.5 / 2.1 -> 1.5 / 1.8 mm on those
             sequences.
         matched_depth_std: standard deviation of a stereo-matched node's initial depth, m.
         placed_depth_std: standard deviation of the initial depth of a node placed from the
@@ -199,7 +199,8 @@ class StereoResult:
         left_px: (N, 2) node projections in the left image, px.
         right_px: (N, 2) node projections in the right image, px.
         left_residuals: (N,) RMS photometric residual of each node patch in the left image
-            against frame n - 1 (ZSSD), grey levels.
+            against frame n - 1 (brightness ramp or, face-edge nodes, mean removed), grey
+            levels.
         right_residuals: (N,) the same in the right image, grey levels.
         mean_residual: mean of both residual arrays, grey levels.
         iterations: Levenberg-Marquardt iterations spent, summed over levels.

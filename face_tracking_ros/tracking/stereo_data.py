@@ -21,7 +21,18 @@ over templates T_k (the same samples in earlier images) with coefficients a_k: f
 the four terms of eq. 4 ((1 - gamma) for the same camera, gamma for the other camera, at frame
 n - 1), each split (1 - epsilon) : epsilon with the same terms against frame 1 (the drift term
 of eq. 6 carried over to stereo). Removing each group's mean difference (ZSSD) makes the terms
-insensitive to a brightness offset between the cameras or over time.
+insensitive to a brightness offset between the cameras or over time. A node patch removes more:
+the least-squares brightness ramp ``a + b u + c v`` over its grid (u, v). Skin is not a
+Lambertian surface; its highlight moves with the viewpoint (between the two cameras) and with
+the expression, and changes a patch's brightness smoothly across it, which the cross-camera
+terms would otherwise read as disparity. On the synthetic skin (a Blinn-Phong highlight) the
+centre of the upper lip, a horizontal lip border with little texture of its own, was put 0.5 to
+6 mm too far by the ZSSD alone; with the ramp removed, the node RMS of the 19-node mesh over
+issue 5's six 380-frame training sequences went 1.25 -> 0.86 mm (34 nodes: 2.19 -> 2.07 mm). It
+costs some low-frequency texture: on a textured plane, with no highlight, a stereo match errs by
+0.27 instead of 0.19 mm RMS. A face-boundary node's one-sided patch keeps its mean only: its half
+patch has little texture to spare, and its left-right residual is what tells a rim seen
+differently by the two cameras (:mod:`.depth_refinement`).
 
 The layouts of a tracker are laid end to end along one sample axis (:class:`SampleSet`), and
 every camera's image is one row of the arrays, so one evaluation of all the image terms is a
@@ -52,6 +63,8 @@ from face_tracking_ros.tracking.projection import space_gradient
 from face_tracking_ros.tracking.stereo_kernels import node_normal_blocks, zssd_residuals
 from face_tracking_ros.tracking.surface_patches import surface_patch_offsets
 
+BRIGHTNESS_TERMS = 3  # 1, u, v: a brightness ramp over a node patch (see SampleLayout)
+
 
 @dataclass(frozen=True)
 class SampleLayout:
@@ -62,12 +75,18 @@ class SampleLayout:
         bary: (M, 3) barycentric weights b_k of each sample, rows sum to 1.
         offsets: (G, M, 3) offsets o at pyramid level 0 in the frame-1 orientation, m.
         mask: (G, M) bool, the samples in use.
+        brightness: (M, BRIGHTNESS_TERMS) the brightness model of each sample, ``1, u, v``
+            over a node patch's grid (u, v in [-1, 1]); see :func:`robust_residuals`.
+        terms: (G,) int, how many leading brightness terms each group's residuals are fitted
+            with and freed of: 1 (the mean, ZSSD) or BRIGHTNESS_TERMS (a brightness ramp).
     """
 
     nodes: np.ndarray
     bary: np.ndarray
     offsets: np.ndarray
     mask: np.ndarray
+    brightness: np.ndarray
+    terms: np.ndarray
 
     @classmethod
     def node_patches(
@@ -100,11 +119,15 @@ class SampleLayout:
         facing = (np.einsum('nmd,nd->nm', offsets, inward) >= 0.0) & np.any(grid, axis=2)
         bary = np.zeros((grid.shape[1], 3))
         bary[:, 0] = 1.0
+        one_sided = np.asarray(one_sided, dtype=bool)
+        square = square_offsets(half_size).astype(float) / max(half_size, 1)
         return cls(
             nodes=np.repeat(np.arange(nodes.shape[0])[:, None], 3, axis=1),
             bary=bary,
             offsets=offsets,
-            mask=facing | ~np.asarray(one_sided, dtype=bool)[:, None],
+            mask=facing | ~one_sided[:, None],
+            brightness=np.column_stack([np.ones(len(square)), square]),
+            terms=np.where(one_sided, 1, BRIGHTNESS_TERMS),
         )
 
     @classmethod
@@ -121,11 +144,15 @@ class SampleLayout:
         bary = np.stack([first, second, subdivisions - first - second], axis=1) / subdivisions
         triangles = np.asarray(triangles, dtype=np.int64)
         shape = (triangles.shape[0], bary.shape[0])
+        brightness = np.zeros((shape[1], BRIGHTNESS_TERMS))
+        brightness[:, 0] = 1.0
         return cls(
             nodes=triangles,
             bary=bary,
             offsets=np.zeros((*shape, 3)),
             mask=np.ones(shape, dtype=bool),
+            brightness=brightness,
+            terms=np.ones(shape[0], dtype=np.int64),
         )
 
     @property
@@ -151,6 +178,8 @@ class SampleSet:
             blocks (:func:`node_blocks`), layout after layout.
         vector_index: (V,) index in the (3N,) vector of every entry of their node vectors.
         num_nodes: N.
+        brightness: (S, BRIGHTNESS_TERMS) the brightness model of every sample.
+        terms: per layout, (G_l,) int brightness terms of each group (:class:`SampleLayout`).
     """
 
     layouts: tuple[SampleLayout, ...]
@@ -162,6 +191,8 @@ class SampleSet:
     block_index: np.ndarray
     vector_index: np.ndarray
     num_nodes: int
+    brightness: np.ndarray
+    terms: tuple[np.ndarray, ...]
 
     @classmethod
     def of(cls, layouts: Sequence[SampleLayout], num_nodes: int) -> SampleSet:
@@ -188,6 +219,10 @@ class SampleSet:
             block_index=np.concatenate(blocks),
             vector_index=np.concatenate(vectors),
             num_nodes=num_nodes,
+            brightness=np.concatenate(
+                [np.tile(layout.brightness, (layout.mask.shape[0], 1)) for layout in layouts]
+            ),
+            terms=tuple(layout.terms.astype(np.int64) for layout in layouts),
         )
 
     @property
@@ -387,7 +422,7 @@ def robust_residuals(
     coefficients: np.ndarray,
     huber: Huber,
 ) -> Residuals:
-    """The robust ZSSD cost of sampled images against templates (the image terms' E).
+    """The robust cost of sampled images against templates (the image terms' E).
 
     One compiled pass (:func:`~.stereo_kernels.zssd_residuals`).
 
@@ -410,6 +445,8 @@ def robust_residuals(
         huber.inlier_bound,
         samples.bounds,
         group_sizes,
+        samples.brightness,
+        np.concatenate(samples.terms),
     )
     splits = np.cumsum([layout.mask.shape[0] for layout in samples.layouts])[:-1]
     return Residuals(
@@ -427,8 +464,9 @@ def node_blocks(
     """Gauss-Newton terms J^T W J and J^T W r of the image terms, by group, summed over images.
 
     The Jacobian of a sample with respect to its k slot nodes is ``b_k (d pi / d P)^T grad I``
-    (eq. 2; :func:`~.projection.space_gradient`), minus its group's mean (ZSSD); the blocks are
-    summed by :func:`~.stereo_kernels.node_normal_blocks`.
+    (eq. 2; :func:`~.projection.space_gradient`), minus its group's mean (ZSSD) or brightness
+    ramp, as the residuals; the blocks are summed by
+    :func:`~.stereo_kernels.node_normal_blocks`.
 
     Args:
         samples: the sample set.
@@ -459,6 +497,8 @@ def node_blocks(
             slot_weights,
             samples.bounds[index],
             samples.layouts[index].mask.shape[1],
+            samples.brightness,
+            samples.terms[index],
         )
         blocks.append(block)
         vectors.append(vector)
@@ -508,7 +548,7 @@ def group_statistics(
 
 
 class DepthTerms(NamedTuple):
-    """The left-right ZSSD of every node patch, linearised in a depth change along a direction.
+    """The left-right term of every node patch, linearised in a depth change along a direction.
 
     Attributes:
         slope: (N,) J^T W r along the direction, grey^2 / m.
@@ -534,8 +574,8 @@ def depth_terms(
     """The cross-camera term of eq. 4 within one pair, per node patch, along ``directions``.
 
     The patches are sampled in the left image (the template) and compared with the right image
-    at the same points; each node's 3x3 block of the normal equations is projected on its
-    direction.
+    at the same points, with the patches' brightness terms removed (:class:`SampleLayout`);
+    each node's 3x3 block of the normal equations is projected on its direction.
 
     Args:
         rig: the rectified rig.

@@ -1,6 +1,6 @@
 """Compiled (numba) inner loops of the stereo tracker's image terms (eq. 4, :mod:`.stereo_data`).
 
-A pair's solve evaluates the robust ZSSD residuals of ~1800 samples in 2 images against 4
+A pair's solve evaluates the robust residuals of ~1800 samples in 2 images against 4
 templates some 7 times and forms their normal equations by node blocks some 6 times; as numpy
 expressions these are a few hundred calls on small arrays whose overhead exceeds their
 arithmetic (issue 9's budget: 5 ms per 640x480 pair). Each kernel is one pass over the samples,
@@ -9,9 +9,12 @@ group by group.
 Samples are laid out as in :class:`~.stereo_data.SampleSet`: layout l holds G_l groups of M_l
 consecutive samples from ``bounds[l]`` on. Grey levels and the ZSSD residuals stay float32 as
 sampled (each group's mean is summed in float32 and subtracted in float64, as numpy does);
-weights, derivatives and sums are float64. Kernels are typed (compiled on import, or loaded from
-numba's on-disk cache); the residuals use IEEE arithmetic without reassociation (they equal
-numpy's to the bit), the normal blocks' sums may be reassociated (vectorised).
+weights, derivatives and sums are float64. A group with a brightness ramp (a node patch,
+:class:`~.stereo_data.SampleLayout`) has its least-squares ramp removed instead of its mean,
+from the residuals and the Jacobian alike (the variable projection of the ramp's three
+unknowns). Kernels are typed (compiled on import, or loaded from numba's on-disk cache); the
+residuals use IEEE arithmetic without reassociation (those of mean-only groups equal numpy's to
+the bit), the normal blocks' sums may be reassociated (vectorised).
 """
 
 from __future__ import annotations
@@ -20,6 +23,9 @@ import numba
 import numpy as np
 
 from face_tracking_ros.compiled import EXACT, FAST
+
+RAMP_RIDGE = 1e-6  # added to the diagonal of a brightness ramp's normal matrix (terms ~ 1)
+UNIT = (1.0, 0.0, 0.0, 1.0, 0.0, 1.0)  # a ramp inverse not needed (a group's mean is removed)
 
 
 @numba.njit(**EXACT)
@@ -87,9 +93,76 @@ def _pairwise_sum(values: np.ndarray, start: int, count: int) -> float:
         waiting[depth] = False
 
 
+@numba.njit(**EXACT)
+def _ramp_inverse(
+    brightness: np.ndarray, in_use: np.ndarray, first: int, stop: int
+) -> tuple[float, float, float, float, float, float]:
+    """Inverse of ``sum b b'`` over a group's valid samples, b its three brightness terms.
+
+    Returned as its upper triangle (00, 01, 02, 11, 12, 22), written out (adjugate over
+    determinant): a LAPACK call, or even an array, per group and image cost more than the rest
+    of the kernel.
+    """
+    n00 = n01 = n02 = n11 = n12 = n22 = 0.0
+    for s in range(first, stop):
+        if in_use[s]:
+            b0, b1, b2 = brightness[s, 0], brightness[s, 1], brightness[s, 2]
+            n00 += b0 * b0
+            n01 += b0 * b1
+            n02 += b0 * b2
+            n11 += b1 * b1
+            n12 += b1 * b2
+            n22 += b2 * b2
+    n00 += RAMP_RIDGE  # valid samples on one line leave a ramp undetermined
+    n11 += RAMP_RIDGE
+    n22 += RAMP_RIDGE
+    c00, c01, c02 = n11 * n22 - n12 * n12, n02 * n12 - n01 * n22, n01 * n12 - n02 * n11
+    determinant = n00 * c00 + n01 * c01 + n02 * c02
+    return (
+        c00 / determinant,
+        c01 / determinant,
+        c02 / determinant,
+        (n00 * n22 - n02 * n02) / determinant,
+        (n01 * n02 - n00 * n12) / determinant,
+        (n00 * n11 - n01 * n01) / determinant,
+    )
+
+
+@numba.njit(**EXACT)
+def _remove_ramp(
+    values: np.ndarray,
+    brightness: np.ndarray,
+    in_use: np.ndarray,
+    inverse: tuple[float, float, float, float, float, float],
+    first: int,
+    stop: int,
+) -> None:
+    """Subtract from ``values[first:stop]`` their least-squares brightness ramp, in place.
+
+    The fit is over the valid samples (``inverse`` from :func:`_ramp_inverse`); ``values`` must
+    be 0 where not valid.
+    """
+    p0 = p1 = p2 = 0.0
+    for s in range(first, stop):
+        value = float(values[s])
+        p0 += brightness[s, 0] * value
+        p1 += brightness[s, 1] * value
+        p2 += brightness[s, 2] * value
+    i00, i01, i02, i11, i12, i22 = inverse
+    c0 = i00 * p0 + i01 * p1 + i02 * p2
+    c1 = i01 * p0 + i11 * p1 + i12 * p2
+    c2 = i02 * p0 + i12 * p1 + i22 * p2
+    for s in range(first, stop):
+        if in_use[s]:
+            values[s] = values[s] - (
+                c0 * brightness[s, 0] + c1 * brightness[s, 1] + c2 * brightness[s, 2]
+            )
+
+
 @numba.njit(
     'Tuple((f4[:, :, ::1], i8[:, ::1], f8[:, ::1], f8[:, ::1], f8))(f4[:, :], f4[:, :, ::1], '
-    'b1[:, ::1], f8[:, ::1], f8[::1], f8[::1], f8[::1], f4[::1], i8[::1], i8[::1])',
+    'b1[:, ::1], f8[:, ::1], f8[::1], f8[::1], f8[::1], f4[::1], i8[::1], i8[::1], f8[:, ::1], '
+    'i8[::1])',
     **EXACT,
 )
 def zssd_residuals(
@@ -103,12 +176,16 @@ def zssd_residuals(
     inlier_bound: np.ndarray,
     bounds: np.ndarray,
     group_sizes: np.ndarray,
+    brightness: np.ndarray,
+    terms: np.ndarray,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, float]:
     """Robust ZSSD residuals of C sampled images against K templates each (eq. 4's terms).
 
     For sample s of a group and template k, ``r_k = I(s) - T_k(s) - mean_group(I - T_k)`` over
     the group's valid samples (0 where not valid); its Huber weight is ``min(1, k_s / |r_k|)``
-    and its loss ``r^2`` within k_s, ``2 k_s |r| - k_s^2`` beyond.
+    and its loss ``r^2`` within k_s, ``2 k_s |r| - k_s^2`` beyond. A group with more than one
+    brightness term has the least-squares fit of ``I - T_k`` by those terms (a brightness ramp
+    over the patch) removed instead of its mean, when it has more valid samples than terms.
 
     Args:
         values: (C, S) float32 grey levels I (any strides).
@@ -122,6 +199,8 @@ def zssd_residuals(
             when it is within this).
         bounds: (L + 1,) first sample of every layout, then S.
         group_sizes: (L,) M_l.
+        brightness: (S, 3) brightness terms of every sample: 1, u, v over a patch grid.
+        terms: (sum G_l,) brightness terms of each group: 1 (its mean only) or 3.
 
     Returns:
         ``(differences, counts, weight, weighted_residual, cost)``: (C, K, S) float32 r_k,
@@ -148,11 +227,18 @@ def zssd_residuals(
                 for s in range(first, stop):
                     counts[c, group] += in_use[s]
                 divisor = float(max(counts[c, group], 1))
+                ramp = terms[group] > 1 and counts[c, group] > terms[group]
+                inverse = _ramp_inverse(brightness, in_use, first, stop) if ramp else UNIT
                 for k in range(count):
                     template, difference = templates[c, k], differences[c, k]
                     for s in range(first, stop):
                         difference[s] = grey[s] - template[s]
                         masked[s] = difference[s] if in_use[s] else np.float32(0.0)
+                    if ramp:
+                        _remove_ramp(masked, brightness, in_use, inverse, first, stop)
+                        for s in range(first, stop):
+                            difference[s] = masked[s]
+                        continue
                     mean = float(_pairwise_sum(masked, first, members)) / divisor
                     for s in range(first, stop):
                         centred = np.float32(difference[s] - mean)
@@ -178,7 +264,7 @@ def zssd_residuals(
 
 @numba.njit(
     'Tuple((f8[:, :, ::1], f8[:, ::1]))(f8[:, :, ::1], b1[:, ::1], f8[:, ::1], f8[:, ::1], '
-    'i8[:, :], f8[:, ::1], i8, i8)',
+    'i8[:, :], f8[:, ::1], i8, i8, f8[:, ::1], i8[::1])',
     **FAST,
 )
 def node_normal_blocks(
@@ -190,12 +276,15 @@ def node_normal_blocks(
     slot_weights: np.ndarray,
     first: int,
     members: int,
+    brightness: np.ndarray,
+    terms: np.ndarray,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Gauss-Newton blocks ``J' W J`` and ``J' W r`` of one layout's groups, summed over images.
 
     The Jacobian of a sample with respect to slot node j is ``b_j h`` with h its image
     gradient carried to the point (eq. 2, :func:`~.projection.space_gradient`), minus the
-    group's mean over its valid samples (ZSSD).
+    group's mean over its valid samples (ZSSD), or minus its fit by the group's brightness
+    terms, as :func:`zssd_residuals` removes from the residuals.
 
     Args:
         rows: (C, 3, S) h of every sample (0 where not valid), grey levels per m.
@@ -206,6 +295,8 @@ def node_normal_blocks(
         slot_weights: (k, G M) barycentric weights b_j of the layout's samples.
         first: the layout's first sample.
         members: M, samples per group.
+        brightness: (S, 3) brightness terms of every sample (of all layouts).
+        terms: (G,) brightness terms of each of the layout's groups: 1 or 3.
 
     Returns:
         ``(blocks, vectors)``: (G, 3k, 3k) and (G, 3k).
@@ -220,11 +311,18 @@ def node_normal_blocks(
         for g in range(groups):
             start = first + g * members
             divisor = float(max(counts[c, g], 1))
+            ramp = terms[g] > 1 and counts[c, g] > terms[g]
+            in_use = valid[c, start : start + members]
+            shape = brightness[start : start + members]
+            inverse = _ramp_inverse(shape, in_use, 0, members) if ramp else UNIT
             for j in range(slots):
                 for a in range(3):
                     row = jacobian[3 * j + a]
                     for m in range(members):
                         row[m] = slot_weights[j, g * members + m] * rows[c, a, start + m]
+                    if ramp:
+                        _remove_ramp(row, shape, in_use, inverse, 0, members)
+                        continue
                     mean = _pairwise_sum(row, 0, members) / divisor
                     for m in range(members):
                         if valid[c, start + m]:
