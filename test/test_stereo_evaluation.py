@@ -36,6 +36,17 @@ def test_constant_offset_is_error_but_not_drift() -> None:
     assert evaluation.node_rms == pytest.approx(0.001)
     assert evaluation.node_rms_by_group['edge'] == pytest.approx(0.001)
     assert evaluation.drift == pytest.approx(0.0, abs=1e-12)
+    # One node off by 3 mm more: its own RMS shows it, the others' do not.
+    moved = truth + offset
+    moved[:, TOPOLOGY.index('chin'), 2] += 0.003
+    by_node = evaluate_stereo(moved, truth, RIG, TOPOLOGY).node_rms_by_node
+    assert list(by_node) == list(TOPOLOGY.node_names)
+    assert by_node['chin'] == pytest.approx(np.hypot(0.001, 0.003))
+    assert by_node['nose_tip'] == pytest.approx(0.001)
+    figures = evaluation.in_mm()
+    assert figures['node_rms_mm'] == pytest.approx(1.0) and figures['frames'] == 5
+    assert figures['node_rms_by_node_mm']['chin'] == pytest.approx(1.0)
+    assert figures['max_reprojection_px'] == evaluation.max_reprojection
     assert evaluation.boundary_slip == pytest.approx(0.0, abs=1e-12)
     # Depths vary over the face (reference z -27..+30 mm): 1 mm at z = 0.573..0.630 m.
     assert 600 * 0.001 / 0.63 <= evaluation.max_reprojection <= 600 * 0.001 / 0.57

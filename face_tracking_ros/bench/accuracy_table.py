@@ -112,7 +112,7 @@ def _stereo(
         model.topology,
         np.array([r.status for r in results]),
     )
-    return _in_mm(asdict(figures))
+    return figures.in_mm()
 
 
 def _scored(model: FaceModel, results: list[TrackResult], truth: np.ndarray) -> dict[str, Any]:
@@ -127,22 +127,6 @@ def _scored(model: FaceModel, results: list[TrackResult], truth: np.ndarray) -> 
         truth,
     )
     return accuracy.as_dict()
-
-
-def _in_mm(figures: dict[str, Any]) -> dict[str, Any]:
-    """Stereo figures with their lengths in mm (keys get an ``_mm`` suffix)."""
-    lengths = {'node_rms', 'drift', 'max_drift', 'boundary_slip', 'boundary_slip_rms'}
-    converted: dict[str, Any] = {}
-    for key, value in figures.items():
-        if key in lengths:
-            converted[f'{key}_mm'] = 1000.0 * value
-        elif key == 'node_rms_by_group':
-            converted['node_rms_by_group_mm'] = {k: 1000.0 * v for k, v in value.items()}
-        elif key == 'max_reprojection':
-            converted['max_reprojection_px'] = value
-        else:
-            converted[key] = value
-    return converted
 
 
 def _learning(seed: int) -> dict[str, Any]:

@@ -43,7 +43,6 @@ SUBJECTS, QUICK_SUBJECTS = 6, 3
 FRAMES, QUICK_FRAMES = 380, 12
 FPS = 30.0
 RUNS = {'exact_clicks': (0.0, 34), 'clicks_1px': (1.0, 34), 'nodes_19': (0.0, 19)}  # px, N
-LENGTHS = ('node_rms', 'drift', 'max_drift', 'boundary_slip', 'boundary_slip_rms')
 
 
 def run(options: BenchOptions) -> dict[str, Any]:
@@ -97,7 +96,7 @@ def run(options: BenchOptions) -> dict[str, Any]:
         f'frames at {FPS:g} fps, head still, expressions',
         'runs': {
             run: {
-                'subjects': [_in_mm(evaluation) for evaluation in items],
+                'subjects': [evaluation.in_mm() for evaluation in items],
                 'pooled': _pooled(items),
             }
             for run, items in evaluations.items()
@@ -122,28 +121,20 @@ def _sequence(subject_id: str, meshes: np.ndarray, labels: tuple[str, ...]) -> M
     return MeshSequence(subject_id, meshes, neutral, labels)
 
 
-def _in_mm(evaluation: StereoEvaluation) -> dict[str, Any]:
-    """One run's figures, lengths in mm (keys with an ``_mm`` suffix)."""
-    figures = asdict(evaluation)
-    converted = {f'{key}_mm': 1000.0 * figures.pop(key) for key in LENGTHS}
-    converted['node_rms_by_group_mm'] = {
-        group: 1000.0 * rms for group, rms in figures.pop('node_rms_by_group').items()
-    }
-    converted['max_reprojection_px'] = figures.pop('max_reprojection')
-    return converted | figures
-
-
 def _pooled(evaluations: list[StereoEvaluation]) -> dict[str, Any]:
     """Figures over all subjects: RMS of the RMS figures, largest of the largest ones, mm / px."""
 
     def rms(values: list[float]) -> float:
         return 1000.0 * float(np.sqrt(np.mean(np.square(values))))
 
-    groups = evaluations[0].node_rms_by_group
+    groups, nodes = evaluations[0].node_rms_by_group, evaluations[0].node_rms_by_node
     return {
         'node_rms_mm': rms([e.node_rms for e in evaluations]),
         'node_rms_by_group_mm': {
             group: rms([e.node_rms_by_group[group] for e in evaluations]) for group in groups
+        },
+        'node_rms_by_node_mm': {
+            node: rms([e.node_rms_by_node[node] for e in evaluations]) for node in nodes
         },
         'max_reprojection_px': max(e.max_reprojection for e in evaluations),
         'drift_mm': rms([e.drift for e in evaluations]),

@@ -15,7 +15,8 @@ Figures, all from (F, N, 3) tracked and true node positions in the left camera f
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
+from typing import Any
 
 import numpy as np
 
@@ -32,6 +33,7 @@ class StereoEvaluation:
         frames: number of frames F evaluated.
         node_rms: RMS 3-D node error, m.
         node_rms_by_group: RMS 3-D node error per anatomical group name, m.
+        node_rms_by_node: RMS 3-D error of each node, by node name, m.
         max_reprojection: largest reprojection error in either camera, px.
         drift: RMS over nodes of the change of error from frame 1 to frame F, m.
         max_drift: largest node change of error from frame 1 to frame F, m.
@@ -44,12 +46,28 @@ class StereoEvaluation:
     frames: int
     node_rms: float
     node_rms_by_group: dict[str, float]
+    node_rms_by_node: dict[str, float]
     max_reprojection: float
     drift: float
     max_drift: float
     boundary_slip: float
     boundary_slip_rms: float
     tracked_fraction: float
+
+    def in_mm(self) -> dict[str, Any]:
+        """The figures as a plain dict, lengths in mm (keys with an ``_mm`` suffix)."""
+        figures = asdict(self)
+        converted: dict[str, Any] = {}
+        for key, value in figures.items():
+            if key == 'max_reprojection':
+                converted['max_reprojection_px'] = value
+            elif isinstance(value, dict):
+                converted[f'{key}_mm'] = {name: 1000.0 * rms for name, rms in value.items()}
+            elif key in ('frames', 'tracked_fraction'):
+                converted[key] = value
+            else:
+                converted[f'{key}_mm'] = 1000.0 * value
+        return converted
 
     def report(self) -> str:
         """A one-paragraph summary in millimetres and pixels."""
@@ -120,6 +138,10 @@ def evaluate_stereo(
         frames=len(meshes),
         node_rms=float(np.sqrt(np.mean(distance**2))),
         node_rms_by_group=by_group,
+        node_rms_by_node={
+            name: float(np.sqrt(np.mean(distance[:, index] ** 2)))
+            for index, name in enumerate(topology.node_names)
+        },
         max_reprojection=reprojection,
         drift=float(np.sqrt(np.mean(final_change**2))),
         max_drift=float(final_change.max()),
