@@ -29,7 +29,7 @@ from face_tracking_ros.geometry.camera import StereoRig
 from face_tracking_ros.learning.alignment import align_training_set
 from face_tracking_ros.learning.evaluation import compare_with_truth, population_truth
 from face_tracking_ros.learning.methods import make_learner
-from face_tracking_ros.learning.training_set import NEUTRAL_LABEL, MeshSequence, TrainingSet
+from face_tracking_ros.learning.training_set import MeshSequence, TrainingSet
 from face_tracking_ros.model.topology import mesh_topology
 from face_tracking_ros.synthetic.clicks import simulated_clicks
 from face_tracking_ros.synthetic.faces import FacePopulation
@@ -72,7 +72,7 @@ def run(options: BenchOptions) -> dict[str, Any]:
         labels = tuple(frame.truth.label for frame in frames)
         alpha.append(np.stack([frame.truth.alpha for frame in frames]))
         subject_id = frames[0].truth.subject_id
-        sequences['true'].append(_sequence(subject_id, truth[:, :NUM_NODES], labels))
+        sequences['true'].append(MeshSequence.labelled(subject_id, truth[:, :NUM_NODES], labels))
         pairs = [(frame.images['left'], frame.images['right']) for frame in frames]
         for run, (noise, num_nodes) in RUNS.items():
             topology = mesh_topology(num_nodes)
@@ -82,7 +82,8 @@ def run(options: BenchOptions) -> dict[str, Any]:
             meshes, status = _tracked(rig, pairs, clicks, num_nodes)
             evaluations[run].append(evaluate_stereo(meshes, nodes, rig, topology, status))
             if num_nodes == NUM_NODES:
-                sequences.setdefault(run, []).append(_sequence(subject_id, meshes, labels))
+                tracked = MeshSequence.labelled(subject_id, meshes, labels)
+                sequences.setdefault(run, []).append(tracked)
     true_subspaces = population_truth(
         FacePopulation(seed=options.seed), NUM_NODES, range(subjects), np.concatenate(alpha)
     )
@@ -113,12 +114,6 @@ def _tracked(
     tracker.reset(clicks)
     results = tracker.with_final_depths([tracker.step(left, right) for left, right in pairs])
     return np.stack([r.nodes_cam for r in results]), np.array([int(r.status) for r in results])
-
-
-def _sequence(subject_id: str, meshes: np.ndarray, labels: tuple[str, ...]) -> MeshSequence:
-    """A training sequence labelled by the truth (neutral frames are the §3.4 neutral set)."""
-    neutral = np.array([label == NEUTRAL_LABEL for label in labels])
-    return MeshSequence(subject_id, meshes, neutral, labels)
 
 
 def _pooled(evaluations: list[StereoEvaluation]) -> dict[str, Any]:

@@ -61,7 +61,7 @@ from face_tracking_ros.learning.plots import (
     plot_sigma_scatter,
 )
 from face_tracking_ros.learning.result import LearningResult
-from face_tracking_ros.learning.training_set import NEUTRAL_LABEL, MeshSequence, TrainingSet
+from face_tracking_ros.learning.training_set import MeshSequence, TrainingSet
 from face_tracking_ros.model.model_file import save_model
 from face_tracking_ros.model.topology import SUPPORTED_NODE_COUNTS
 from face_tracking_ros.processing.parameters import OverrideParameters
@@ -414,9 +414,8 @@ def _bag_meshes(
         neutral = np.arange(len(meshes)) < args.neutral_frames
         return BagMeshes(MeshSequence(subject, meshes, neutral, None, str(bag)), None)
     labels = tuple(str(label) for _, label, _ in items)
-    neutral = np.array([label == NEUTRAL_LABEL for label in labels])
     alpha = np.array([alpha for _, _, alpha in items])
-    return BagMeshes(MeshSequence(subject, meshes, neutral, labels, str(bag)), alpha)
+    return BagMeshes(MeshSequence.labelled(subject, meshes, labels, str(bag)), alpha)
 
 
 def _check_arguments(args: argparse.Namespace) -> None:

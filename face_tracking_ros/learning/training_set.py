@@ -38,6 +38,14 @@ class MeshSequence:
     labels: tuple[str, ...] | None = None
     source: str = ''
 
+    @classmethod
+    def labelled(
+        cls, subject_id: str, meshes: np.ndarray, labels: tuple[str, ...], source: str = ''
+    ) -> MeshSequence:
+        """A sequence with expression labels; the frames labelled neutral are its neutral set."""
+        neutral = np.array([label == NEUTRAL_LABEL for label in labels])
+        return cls(subject_id, meshes, neutral, labels, source)
+
 
 @dataclass(frozen=True)
 class TrainingSet:

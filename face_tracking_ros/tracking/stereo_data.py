@@ -113,20 +113,20 @@ class SampleLayout:
             half_size: h, samples each side of the node.
             one_sided: (N,) bool, the boundary nodes whose patch keeps the face side only.
         """
-        grid = spacing[:, None, None] * square_offsets(half_size).astype(float)[None]
+        square = square_offsets(half_size).astype(float)
+        grid = spacing[:, None, None] * square[None]
         offsets = surface_patch_offsets(nodes, grid)
         inward = nodes.mean(axis=0) - nodes
         facing = (np.einsum('nmd,nd->nm', offsets, inward) >= 0.0) & np.any(grid, axis=2)
         bary = np.zeros((grid.shape[1], 3))
         bary[:, 0] = 1.0
         one_sided = np.asarray(one_sided, dtype=bool)
-        square = square_offsets(half_size).astype(float) / max(half_size, 1)
         return cls(
             nodes=np.repeat(np.arange(nodes.shape[0])[:, None], 3, axis=1),
             bary=bary,
             offsets=offsets,
             mask=facing | ~one_sided[:, None],
-            brightness=np.column_stack([np.ones(len(square)), square]),
+            brightness=np.column_stack([np.ones(len(square)), square / max(half_size, 1)]),
             terms=np.where(one_sided, 1, BRIGHTNESS_TERMS),
         )
 
