@@ -24,6 +24,8 @@ area-weighted mean of the normals of its triangles, oriented towards the camera 
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 from scipy.interpolate import RBFInterpolator
 
@@ -80,11 +82,28 @@ def patch_basis(shape: np.ndarray, offsets: np.ndarray, basis: np.ndarray) -> np
     Returns:
         (N, M, 3, c) derivative of each sample's offset with respect to the coefficients.
     """
+    dense = np.einsum('nmj,jac->nmac', patch_interpolation(shape, offsets), basis)
+    return dense - basis[:, None]
+
+
+def patch_interpolation(shape: np.ndarray, offsets: np.ndarray) -> np.ndarray:
+    """Thin-plate weights that carry a motion of the nodes to every patch sample.
+
+    A sample at ``shape_i + offset`` moves by ``sum_j w_j (x, y) d_j`` when the nodes move by
+    d (interpolated over the face frame's x-y at ``shape``). The weights of each sample sum to
+    1 and reproduce any affine motion of the nodes exactly.
+
+    Args:
+        shape: (N, 3) nodes, m, where the interpolation is set up.
+        offsets: (N, M, 3) offsets from each node to its samples, m.
+
+    Returns:
+        (N, M, N) weight w_j of node j at each sample.
+    """
     count, samples = offsets.shape[:2]
     xy = (shape[:, None, :2] + offsets[..., :2]).reshape(-1, 2)
     weights = RBFInterpolator(shape[:, :2], np.eye(count), kernel='thin_plate_spline')(xy)
-    dense = np.einsum('sj,jac->sac', weights, basis).reshape(count, samples, 3, -1)
-    return dense - basis[:, None]
+    return weights.reshape(count, samples, count)
 
 
 def surface_patch_offsets(shape: np.ndarray, grid: np.ndarray) -> np.ndarray:
@@ -102,3 +121,51 @@ def surface_patch_offsets(shape: np.ndarray, grid: np.ndarray) -> np.ndarray:
     xy = shape[:, None, :2] + grid
     depth = surface(xy.reshape(-1, 2)).reshape(xy.shape[:2])
     return np.concatenate([xy, depth[..., None]], axis=-1) - shape[:, None, :]
+
+
+@dataclass(frozen=True)
+class PatchDeformation:
+    """Node patches that deform with the mesh, for a tracker whose nodes move freely.
+
+    A tracker without a face model (the stereo tracker) still knows how the skin between its
+    nodes moves: as the nodes do. The deformation of the nodes, their motion less the rigid
+    motion of the head (``d_j = X_j - R X_j(1)``; the translation cancels), is carried to every
+    sample of node i's patch by the thin-plate weights of :func:`patch_interpolation`:
+
+        P = X_i + R o + sum_j w_j d_j - d_i
+
+    so a raised brow stretches the skin between brow and eye as the skin does; a rigid patch
+    (``X_i + R o``) cannot follow that, and the tracker stops short of the brow's motion.
+
+    Attributes:
+        weights: (N, S_p) w_j of every node-patch sample (node after node, M samples each).
+    """
+
+    weights: np.ndarray
+
+    @classmethod
+    def of(cls, first_nodes: np.ndarray, offsets: np.ndarray) -> PatchDeformation:
+        """The weights at frame 1.
+
+        Args:
+            first_nodes: (N, 3) frame-1 nodes, m.
+            offsets: (N, M, 3) frame-1 offsets from each node to its patch samples, m.
+        """
+        weights = patch_interpolation(first_nodes, offsets).reshape(-1, first_nodes.shape[0])
+        return cls(weights=np.ascontiguousarray(weights.T))
+
+    def field(
+        self, nodes: np.ndarray, first_nodes: np.ndarray, rotation: np.ndarray
+    ) -> np.ndarray:
+        """(3, S_p) ``sum_j w_j d_j - d_i`` at every node-patch sample, m.
+
+        Args:
+            nodes: (N, 3) current nodes, m.
+            first_nodes: (N, 3) frame-1 nodes, m.
+            rotation: (3, 3) R, the head's rotation since frame 1.
+        """
+        deformation = (nodes - first_nodes @ rotation.T).T
+        field = deformation @ self.weights
+        count = deformation.shape[1]
+        field.reshape(3, count, -1)[...] -= deformation[:, :, None]
+        return field

@@ -20,6 +20,7 @@ from face_tracking_ros.tracking.mono_kernels import (
 )
 from face_tracking_ros.tracking.projection import project_with_jacobian
 from face_tracking_ros.tracking.surface_patches import (
+    PatchDeformation,
     node_frames,
     patch_basis,
     surface_patch_offsets,
@@ -186,6 +187,36 @@ def test_patch_basis_carries_node_motion_to_the_samples() -> None:
     assert np.all(np.einsum('ma,a->m', near, single[lip]) > 0.3 * single[lip] @ single[lip])
     far = topology.index('left_brow_outer')
     assert np.abs(dense[far, :, :, 1]).max() < 0.1 * np.abs(single[lip]).max()
+
+
+def test_patch_deformation_moves_the_samples_with_the_mesh_but_not_with_the_head() -> None:
+    topology = mesh_topology(34)
+    first = topology.reference_shape + [0.0, 0.0, 0.6]
+    grid = np.array([[0.0, 0.0], [0.003, -0.002], [-0.004, 0.004]])
+    offsets = surface_patch_offsets(first, grid)
+    deformation = PatchDeformation.of(first, offsets)
+    rotation, _ = rodrigues(np.array([0.05, -0.2, 0.03]))
+    # A head motion alone (rotation and translation) deforms nothing.
+    moved = first @ rotation.T + [0.01, -0.02, 0.03]
+    assert np.abs(deformation.field(moved, first, rotation)).max() < 1e-14
+    # An affine deformation on top of it (a stretch) is carried to every sample exactly: the
+    # samples land where the same motion takes the frame-1 samples.
+    affine = np.eye(3) + np.array([[0.1, 0.02, 0.0], [0.0, -0.05, 0.0], [0.03, 0.01, 0.0]])
+    centre = first.mean(axis=0)
+    stretched = ((first - centre) @ affine.T + centre) @ rotation.T + [0.01, -0.02, 0.03]
+    field = deformation.field(stretched, first, rotation).T.reshape(offsets.shape)
+    samples = stretched[:, None, :] + offsets @ rotation.T + field
+    expected = (((first[:, None, :] + offsets) - centre) @ affine.T + centre) @ rotation.T
+    assert np.allclose(samples, expected + [0.01, -0.02, 0.03], atol=1e-12)
+    assert np.abs(field[:, 0]).max() < 1e-12  # a node's own sample is the node
+    # One node moving alone pulls the samples of its own patch along, not the far ones.
+    lip, far = topology.index('lower_lip'), topology.index('left_brow_outer')
+    single = first.copy()
+    single[lip] += [0.0, 0.003, 0.0]
+    field = deformation.field(single, first, np.eye(3)).T.reshape(offsets.shape)
+    # Its own samples, 3.6 and 5.7 mm from it, follow it by more than half of its motion.
+    assert np.all((field[lip, 1:, 1] < 0.0) & (field[lip, 1:, 1] > -0.0015))
+    assert np.abs(field[far]).max() < 0.0003
 
 
 def test_normal_equations_and_damped_step_match_their_formulas() -> None:
