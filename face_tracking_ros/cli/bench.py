@@ -294,15 +294,15 @@ def _stereo_accuracy_rows(protocol: dict[str, Any]) -> list[tuple[str, str, str]
                 _STEREO_TARGET,
             )
         )
-    learning = protocol.get('learning', {})
-    if 'true' in learning:
+    for size, learned in protocol.get('learning', {}).items():
+        names = ' / '.join(name.replace('_', ' ') for name in learned)
         rows.append(
             (
-                'stereo protocol, model learned from true / exact-click / 1 px-click meshes',
+                f'stereo protocol, {size.replace("_", " ")}: model learned from {names} meshes',
                 'S vs true identity '
-                + ' / '.join(f'{m["shape_similarity"]:.3f}' for m in learning.values())
+                + ' / '.join(f'{m["shape_similarity"]:.3f}' for m in learned.values())
                 + ', A vs true expressions '
-                + ' / '.join(f'{m["action_similarity"]:.3f}' for m in learning.values()),
+                + ' / '.join(f'{m["action_similarity"]:.3f}' for m in learned.values()),
                 'tracked within 0.01 of true',
             )
         )

@@ -92,8 +92,8 @@ class StereoTrackerConfig:
         boundary_one_sided: face-boundary nodes use the face side of their patch only (§4.2).
         epsilon: share of the frame-1 (drift) terms in every image term, in [0, 1).
         texture_weight: weight of a face-texture sample relative to a node-patch sample (§4.2);
-            0 disables the texture term. It covers the triangles with a face-edge node only
-            (the 19-node mesh has none), see :func:`_texture_triangles`.
+            0 disables the texture term. It covers the triangles that have a face-edge node
+            (none in the 19-node mesh).
         texture_subdivisions: barycentric grid order of the texture samples (>= 3).
         patch_half_size: node patches are (2 h + 1)^2 samples about one pixel apart.
         pyramid_levels: coarse-to-fine levels (1 = full resolution only).
