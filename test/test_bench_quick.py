@@ -79,7 +79,7 @@ def test_quick_run_writes_finite_figures(tmp_path):
         # Measured on the 12-frame smoke sequences: 3.3 / 4.2 mm (2.2 / 3.4 on 380 frames).
         assert 0.5 < pooled['node_rms_mm'] < 8.0
     assert set(stereo['learning']['34_nodes']) == {'true', 'exact_clicks', 'clicks_1px'}
-    assert set(stereo['learning']['19_nodes']) == {'true', 'nodes_19'}
+    assert set(stereo['learning']['19_nodes']) == {'true', 'exact_clicks'}
     numbers = list(_numbers(results))
     assert len(numbers) > 50
     assert all(math.isfinite(value) for _, value in numbers), numbers

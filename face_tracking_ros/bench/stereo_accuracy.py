@@ -51,8 +51,8 @@ def run(options: BenchOptions) -> dict[str, Any]:
 
     Returns:
         ``{'scene': str, 'runs': {run: {'subjects': [...], 'pooled': {...}}},
-        'learning': {'<N>_nodes': {meshes: {...}}}}`` (meshes: 'true' or a run's name);
-        lengths in mm, reprojection in px.
+        'learning': {'<N>_nodes': {meshes: {...}}}}`` (meshes: 'true', 'exact_clicks' or
+        'clicks_<noise>px'); lengths in mm, reprojection in px.
     """
     subjects = QUICK_SUBJECTS if options.quick else SUBJECTS
     scene = SceneConfig(
@@ -86,7 +86,8 @@ def run(options: BenchOptions) -> dict[str, Any]:
             meshes, status = _tracked(rig, pairs, clicks, num_nodes)
             evaluations[run].append(evaluate_stereo(meshes, nodes, rig, topology, status))
             tracked = MeshSequence.labelled(subject_id, meshes, labels)
-            sequences[num_nodes].setdefault(run, []).append(tracked)
+            clicks_name = f'clicks_{noise:g}px' if noise else 'exact_clicks'
+            sequences[num_nodes].setdefault(clicks_name, []).append(tracked)
     population, true_alpha = FacePopulation(seed=options.seed), np.concatenate(alpha)
     learner = make_learner()
     learning = {}
