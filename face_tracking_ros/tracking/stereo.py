@@ -4,9 +4,10 @@ Each frame, all 3N node coordinates X_c (left camera frame, m) are estimated joi
 Levenberg-Marquardt on
 
     E(n) = sum_i E_i(n)                (eq. 4: left-left, right-right and the two cross-camera
-                                        terms weighted by gamma, over a patch around each node)
+                                        terms weighted by gamma, over a patch around each node
+                                        that deforms with the mesh, ``deform_patches``)
          + texture term                (§4.2: the same temporal terms over the face texture
-                                        inside the mesh triangles)
+                                        inside the mesh triangles that have a face-edge node)
          + eq. 5 regularisation        (rho_i, beta_ij, delta_ij; :mod:`.regularisation`)
          + face-model term             (the frame-1 mesh animated by the learned action basis,
                                         eq. 1 and 3; :mod:`.action_prior`)

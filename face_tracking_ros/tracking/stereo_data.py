@@ -8,10 +8,12 @@ barycentric weights b and an offset o, projected into a camera by eq. 2. A
   small grid lying on the face surface around the node (the thin-plate surface through the
   nodes), so the patch is seen with the right perspective in both cameras (a fronto-parallel
   square would be compressed differently in the two views on the sloping cheeks and temples,
-  which biases the cross-camera terms);
-- face texture (the seed's §4.2 remedy): group t is triangle t of the mesh, its samples on a
-  barycentric grid inside it (o = 0); a boundary node sliding along the face edge distorts the
-  texture of every triangle it belongs to, which this term sees.
+  which biases the cross-camera terms); the tracker moves the offsets with the mesh's
+  deformation (:class:`~.surface_patches.PatchDeformation`);
+- face texture (the seed's §4.2 remedy): group t is triangle t of the mesh (the tracker's
+  face-edge triangles), its samples on a barycentric grid inside it (o = 0); a boundary node
+  sliding along the face edge distorts the texture of every triangle it belongs to, which this
+  term sees.
 
 For a current image I_c of camera c, the cost of one group is a robust sum over its samples of
 
