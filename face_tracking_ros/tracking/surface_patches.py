@@ -15,7 +15,8 @@ moves with ``sum_j w_j(x, y) (S_j sigma + A_j alpha)`` rather than rigidly with 
 smiling mouth stretches the patches around it as the skin stretches; without this, the rigid
 patches disagree with the stretched skin and the solver explains part of every expression by a
 head rotation (measured on synthetic sequences: pitch error during expressions 1.28 -> 0.4
-degrees with everything else exact).
+degrees with everything else exact). The stereo tracker, which has no eq. 3 to carry, carries
+the nodes' own deformation with the same weights (:class:`PatchDeformation`).
 
 Node normals (for visibility) come from the mesh triangulation: a node's normal is the
 area-weighted mean of the normals of its triangles, oriented towards the camera of a frontal view
