@@ -129,7 +129,8 @@ class StereoTrackerConfig:
             raised brow stretches the skin between brow and eye. Rigid patches stop short of
             the motion; over issue 5's six 380-frame training sequences the 19-node mesh's
             largest reprojection error went 1.71 -> 0.95 px with this (and the texture term
-            on the face-edge triangles only).
+            on the face-edge triangles only), brows and lips; on a second population the
+            brows gained as much but a smiling mouth corner lost (1.23 -> 1.33 px).
         fit_edge_weight: weight in [0, 1] of the face-edge nodes, against 1 for the others, in
             the model fit reported with each result (their depth is the least certain: on a
             150-frame free-motion sequence 0.1 brings the fitted rotation from 4.0 to 1.5
