@@ -138,6 +138,12 @@ class PatchDeformation:
     so a raised brow stretches the skin between brow and eye as the skin does; a rigid patch
     (``X_i + R o``) cannot follow that, and the tracker stops short of the brow's motion.
 
+    The weights are set up once per track, at its frame-1 nodes; moving those nodes along their
+    rays later (the stereo tracker's depth refinement) shifts them in x-y by about a millimetre
+    at most, which is left out. The stereo tracker evaluates the field at every trial point, so
+    its costs are exact, but its Gauss-Newton blocks keep each sample's derivative with respect
+    to its own node only (the field's dependence on the other nodes is left out of the steps).
+
     Attributes:
         weights: (N, S_p) w_j of every node-patch sample (node after node, M samples each).
     """
