@@ -42,7 +42,11 @@ class StereoInitConfig:
             inner nodes is rejected as a mismatch, m.
         min_given_nodes: fewest nodes that must be given (and matched).
         refine_iterations: Gauss-Newton iterations of the depth refinement.
-        refine_half_size: the refinement patch is (2 h + 1)^2 samples on the face surface.
+        refine_half_size: the refinement patch is (2 h + 1)^2 samples on the face surface. A
+            single pair's left-right cost of a 7x7 patch on smooth skin (lips, brows) can have
+            its minimum millimetres off; over 18 subjects of three synthetic populations (19
+            nodes) h = 5 against 3 took the matched nodes' depth error from 1.63 / 1.59 / 2.39
+            to 1.59 / 1.42 / 1.72 mm RMS per population, the largest from 10.2 to 8.6 mm.
     """
 
     min_depth: float = 0.25
@@ -52,7 +56,7 @@ class StereoInitConfig:
     max_face_error: float = 0.025
     min_given_nodes: int = 6
     refine_iterations: int = 5
-    refine_half_size: int = 3
+    refine_half_size: int = 5
 
     def __post_init__(self) -> None:
         """Validate ranges.
