@@ -154,6 +154,6 @@ def test_patches_deforming_with_the_mesh_follow_a_brow_raise() -> None:
         rig.left.project(truth[0, brows]), (len(frames), 1)
     )
     assert np.linalg.norm(motion, axis=1).max() > 8.0
-    # Measured: 0.78 px with the patches deforming; rigid patches stop 1.74 px short.
-    assert brow_errors(True).max() < 1.0
-    assert brow_errors(False).max() > 1.4
+    # Measured: 0.68 px with the patches deforming; rigid patches stop 1.25 px short.
+    assert brow_errors(True).max() < 0.9
+    assert brow_errors(False).max() > 1.1
