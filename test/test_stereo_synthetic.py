@@ -166,15 +166,17 @@ def test_initial_depths_of_smooth_lips_and_brows() -> None:
     # Measured, matched nodes' depth error along the rays: 1.40 and 3.05 mm RMS (11x11
     # patches, the default; 2.37 mm together) against 3.18 and 3.71 mm (7x7; 3.46 together).
     topology = mesh_topology(19)
+    pairs = []
+    for subject in (0, 1):
+        renderer = SequenceRenderer(SceneConfig(kind='stereo', frames=1, seed=2), subject)
+        frame = next(iter(renderer.frames(0)))
+        images = (frame.images[side].astype(np.float32) for side in ('left', 'right'))
+        rig = StereoRig(renderer.cameras['left'], renderer.cameras['right'])
+        pairs.append((rig, *images, frame.truth.nodes_camera[:19]))
 
     def depth_errors(config: StereoInitConfig) -> np.ndarray:
         errors = []
-        for subject in (0, 1):
-            renderer = SequenceRenderer(SceneConfig(kind='stereo', frames=1, seed=2), subject)
-            rig = StereoRig(renderer.cameras['left'], renderer.cameras['right'])
-            frame = next(iter(renderer.frames(0)))
-            truth = frame.truth.nodes_camera[:19]
-            left, right = (frame.images[side].astype(np.float32) for side in ('left', 'right'))
+        for rig, left, right, truth in pairs:
             initial = initial_nodes(rig, left, right, rig.left.project(truth), topology, config)
             assert initial.matched.all()
             rays = truth / np.linalg.norm(truth, axis=1, keepdims=True)
