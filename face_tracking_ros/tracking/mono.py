@@ -779,8 +779,13 @@ class MonoTracker:
         is no longer estimated by eq. 6) runs :func:`~.bundle.adjust` over frame 1, the views
         and itself, at most ``bundle.views`` times per track. An adjustment that lowers the
         bundle cost and turns frame 1 and this frame by less than ``bundle.max_change``
-        replaces sigma, the skin depth, frame 1's estimate (and its templates) and this frame's,
-        which becomes a view; otherwise the frame is dropped and the track goes on as it was.
+        replaces sigma, the skin depth, frame 1's estimate (and its templates) and this frame's;
+        otherwise the track goes on as it was. Either way the frame becomes a view, so the next
+        adjustment has one more view to agree with and the head must reach a new rotation before
+        it runs. (Dropping a rejected frame instead retried at once on the next frame: on the
+        mono protocol's 19-node seed 1 all eight adjustments then ran on consecutive frames with
+        two views each, every one rejected, and the track kept the clicks' pose, 6.8 degrees of
+        pitch error against 2.7.)
         """
         track, bundle = self._track, self._config.bundle
         if track.adjustments >= bundle.views or track.frames <= self._config.sigma_frames:
@@ -808,6 +813,8 @@ class MonoTracker:
             [view.visibility for view in views],
             start,
         )
+        views[-1] = views[-1]._replace(image=pyramid.levels[0].copy())  # the pyramid is reused
+        track.views = views
         estimate = adjustment.estimate
         moved = max(
             _rotation_angle(poses[0][0], estimate.first[0]),
@@ -815,8 +822,6 @@ class MonoTracker:
         )
         if not (adjustment.cost < adjustment.initial_cost and moved < bundle.max_change):
             return result
-        views[-1] = views[-1]._replace(image=pyramid.levels[0].copy())  # the pyramid is reused
-        track.views = views
         return self._apply_adjustment(pyramid, estimate, result)
 
     def _bundle_problem(self) -> Problem:

@@ -12,11 +12,12 @@ import pytest
 
 from face_tracking_ros.errors import ConfigError
 from face_tracking_ros.geometry.camera import PinholeCamera
-from face_tracking_ros.geometry.rotation import rodrigues
+from face_tracking_ros.geometry.rotation import matrix_to_omega, rodrigues
 from face_tracking_ros.imaging import PhotometricInvariance, PhotometricModel
 from face_tracking_ros.synthetic.clicks import simulated_clicks
 from face_tracking_ros.synthetic.scenes import SceneConfig, SequenceRenderer
 from face_tracking_ros.synthetic.true_model import true_face_model
+from face_tracking_ros.tracking import mono as mono_module
 from face_tracking_ros.tracking.bundle import (
     SURFACE_TERMS,
     BundleConfig,
@@ -190,3 +191,34 @@ def test_a_still_head_gives_no_view_and_changes_nothing():
     for off, on in zip(*runs, strict=True):
         np.testing.assert_array_equal(off.omega, on.omega)
         np.testing.assert_array_equal(off.sigma, on.sigma)
+
+
+def test_a_rejected_adjustment_still_keeps_its_view(turning_head, monkeypatch):
+    # Every adjustment rejected (it may not turn frame 1 at all): each frame that ran one is kept
+    # as a view all the same, so the next one waits for the head to reach a new rotation rather
+    # than retrying on the next frame at the same rotation.
+    images, true_nodes, model, _ = turning_head
+    camera = SceneConfig(kind='mono').cameras()['image']
+    newest: list[np.ndarray] = []  # the rotation of each adjustment's newest view
+    adjust = mono_module.adjust
+
+    def recording(problem, views, visibility, start):
+        newest.append(rodrigues(start.views[-1][0])[0])
+        return adjust(problem, views, visibility, start)
+
+    monkeypatch.setattr(mono_module, 'adjust', recording)
+    bundle = BundleConfig(max_change=1e-12)
+    init = simulated_clicks(model.node_names, true_nodes[0], camera, 1.0, np.random.default_rng(3))
+    results, _ = track_images(
+        MonoTracker(model, camera, MonoTrackerConfig(bundle=bundle)), images, init
+    )
+    off, _ = track_images(
+        MonoTracker(model, camera, MonoTrackerConfig(bundle=BundleConfig(views=0))), images, init
+    )
+    assert len(newest) >= 2
+    for later, rotation in enumerate(newest[1:], start=1):
+        for earlier in newest[:later]:
+            assert np.linalg.norm(matrix_to_omega(earlier.T @ rotation)) > bundle.view_spacing
+    # Nothing was applied: the track is the one without adjustments.
+    for with_views, without in zip(results, off, strict=True):
+        np.testing.assert_array_equal(with_views.omega, without.omega)
