@@ -113,6 +113,9 @@ class StereoTrackerConfig:
             synthetic populations' training sequences (19 nodes) against 1e8: the largest
             reprojection error 0.93 / 1.34 / 1.52 -> 0.97 / 1.09 / 1.35 px (a smiling mouth
             corner and a frowning inner brow stopped short of their motion), node RMS equal.
+            The term pulls towards the expressions of its model, here the packaged one learned
+            from the same synthetic world, so on faces whose expressions it lacks the gain may
+            not hold; 1e9 was kept out for that reason and is no better on these sequences.
         refine_depths: pool the left-right evidence of every pair in the frame-1 node depths
             (:mod:`.depth_refinement`). Off by default: the correction converges over the
             first 20-75 pairs and, in a stream, shows as that much apparent motion of the mesh
