@@ -69,6 +69,7 @@ from face_tracking_ros.tracking.mono_kernels import (
     roi_points,
 )
 from face_tracking_ros.tracking.projection import POSE_DIM
+from face_tracking_ros.tracking.stages import Stages, run_stages
 
 SURFACE_TERMS = 6  # 1, u, v, u^2, u v, v^2
 _MAD_TO_STD = 1.4826
@@ -98,6 +99,10 @@ class BundleConfig:
             so the photometric term overstates its evidence by about an order of magnitude.
         max_change: an adjustment that turns frame 1 or the newest view by more than this is
             not applied, rad (> 0): the views did not agree (an occlusion, a fast motion).
+        spread: run each adjustment one stage per frame (setting it up, each iteration, each
+            pyramid level's new ROIs) and apply it to the frame its last stage ran on, the
+            head's motion since its newest view carried over; false runs it whole on the frame
+            that starts it, which then takes many times a frame's usual time.
     """
 
     views: int = 8
@@ -109,6 +114,7 @@ class BundleConfig:
     click_noise_px: float = 1.0
     weight: float = 10.0
     max_change: float = 0.1
+    spread: bool = True
 
     def __post_init__(self) -> None:
         """Validate every field; the error names the field and its value."""
@@ -311,7 +317,25 @@ def adjust(
     visibility: list[np.ndarray],
     start: Estimate,
 ) -> Adjustment:
+    """Levenberg-Marquardt on the bundle cost from ``start``, all at once.
+
+    :func:`adjustment_stages` run to its end; the arguments are its.
+    """
+    _, adjustment = run_stages(adjustment_stages(problem, images, visibility, start))
+    return adjustment
+
+
+def adjustment_stages(
+    problem: Problem,
+    images: list[np.ndarray],
+    visibility: list[np.ndarray],
+    start: Estimate,
+) -> Stages[Adjustment]:
     """Levenberg-Marquardt on the bundle cost from ``start`` (``problem.config.iterations``).
+
+    Staged (:mod:`.stages`): the first stage sets the adjustment up and linearises it at
+    ``start``; each further one is one iteration (a damped step, its cost and, when accepted,
+    the normal equations at its end). The images must stay unchanged until it returns.
 
     Args:
         problem: what stays fixed.
@@ -328,6 +352,7 @@ def adjust(
     initial, done = cost, 0
     iterations = problem.config.iterations
     for done in range(1, iterations + 1):
+        yield
         try:
             step = _damped_step(hessian, gradient, damping)
         except LinAlgError:

@@ -43,7 +43,10 @@ Design, in the seed's terms:
   pose, alpha and sigma, the skin depth under every ROI and the views' poses; the track then
   continues from its result (frame 1's templates re-sampled, the ROIs on the measured skin).
   Measured on the benchmark's 1000-frame sequences, 3 seeds x 3 draws of 1 px click noise:
-  rotation error 1.21 / 1.20 -> 0.62 / 0.77 degrees (x / y).
+  rotation error 1.21 / 1.20 -> 0.62 / 0.77 degrees (x / y). An adjustment costs about ten
+  times a frame's solve, so it runs one stage per frame (``bundle.spread``, :mod:`.stages`)
+  and is applied about ten frames after its newest view, the head's motion since then carried
+  over; no frame pays for all of it.
 - Optionally (``max_keyframes`` > 1) the drift term compares with the keyframe nearest in
   rotation instead of frame 1. Measured on synthetic sequences it does worse than I_1 alone
   (keyframes inherit the error of the pose they were taken at), so it is off by default.
@@ -77,7 +80,7 @@ from scipy.linalg import inv
 
 from face_tracking_ros.errors import ConfigError, InputError, check_fields
 from face_tracking_ros.geometry.camera import PinholeCamera
-from face_tracking_ros.geometry.rotation import rodrigues
+from face_tracking_ros.geometry.rotation import matrix_to_omega, rodrigues
 from face_tracking_ros.imaging import (
     ImagePyramid,
     PhotometricInvariance,
@@ -97,7 +100,7 @@ from face_tracking_ros.tracking.bundle import (
     Estimate,
     Patches,
     Problem,
-    adjust,
+    adjustment_stages,
     ray_directions,
     skin_offsets,
     surface_basis,
@@ -117,6 +120,7 @@ from face_tracking_ros.tracking.mono_kernels import (
 )
 from face_tracking_ros.tracking.projection import POSE_DIM
 from face_tracking_ros.tracking.result import TrackResult, TrackStatus
+from face_tracking_ros.tracking.stages import Stages, run_stages
 from face_tracking_ros.tracking.surface_patches import (
     node_frames,
     patch_basis,
@@ -434,6 +438,20 @@ class _View(NamedTuple):
         return cls(image, visibility, params, rodrigues(params.omega)[0])
 
 
+class _Adjusted(NamedTuple):
+    """An accepted bundle adjustment, ready to apply.
+
+    Attributes:
+        estimate: the adjustment's estimate (:func:`~.bundle.rebased`).
+        rois: each pyramid level's ROIs at its sigma, on its skin depth.
+        frames: ``_Track.frames`` when it started (its newest view's frame).
+    """
+
+    estimate: Estimate
+    rois: tuple[_Roi, ...]
+    frames: int
+
+
 class _FaceView(NamedTuple):
     """Frame 1's inner face (the nodes off the face edge) on the search's pyramid level.
 
@@ -453,7 +471,7 @@ class _Track:
     ``rois`` holds each level's ROI samples. For the bundle adjustment of the first views:
     ``first`` is frame 1's pyramid, ``views`` frame 1 and the views kept, ``clicks`` the
     initialisation's 2-D points, ``depth`` the (N, 6) skin depth of the last adjustment (None
-    before one) and ``adjustments`` how many were run.
+    before one), ``adjustments`` how many were started and ``adjustment`` the one under way.
     """
 
     rois: tuple[_Roi, ...]
@@ -471,6 +489,7 @@ class _Track:
     lost: bool = False
     depth: np.ndarray | None = None
     adjustments: int = 0
+    adjustment: Stages[_Adjusted | None] | None = None
 
 
 class MonoTracker:
@@ -620,31 +639,37 @@ class MonoTracker:
     def _rois(
         self, params: _Params, num_levels: int, depth: np.ndarray | None = None
     ) -> tuple[tuple[_Roi, ...], np.ndarray]:
-        """Per-level ROI samples and the (N, 3) node normals, at ``params``'s sigma.
+        """Every level's ROI samples (:meth:`_roi`) and the (N, 3) node normals at ``params``."""
+        rois = tuple(self._roi(params, level, depth) for level in range(num_levels))
+        return rois, self._normals(params.sigma)
+
+    def _normals(self, sigma: np.ndarray) -> np.ndarray:
+        """(N, 3) node normals of the mesh at ``sigma`` (alpha = 0), face frame."""
+        return node_frames(self._model.identity_shape(sigma), self._triangles)[:, 2]
+
+    def _roi(self, params: _Params, level: int, depth: np.ndarray | None = None) -> _Roi:
+        """One pyramid level's ROI samples at ``params``'s sigma.
 
         Each ROI is a square grid in the face frame's x-y directions lifted onto the thin-plate
         surface through the nodes, with the spacing that gives ``patch_spacing_px`` at the
         initial depth, doubled on every coarser level; face-edge nodes' grids are shifted towards
-        the face centre so they cover skin rather than the background beyond the face edge. The
+        the face centre so they cover skin rather than the background beyond the face edge. With
+        a skin ``depth`` (a bundle adjustment's) the samples are moved onto that skin. The
         samples move with eq. 3's bases carried to them by :func:`patch_basis`.
         """
-        config = self._config
         shape = self._model.identity_shape(params.sigma)
         grid = self._roi_grid(shape)
-        spacing = config.patch_spacing_px * params.t[2] / self._camera.focal
-        rois = []
-        for level in range(num_levels):
-            offsets = surface_patch_offsets(shape, grid * (spacing * (1 << level)))
-            if depth is not None:
-                offsets = self._with_skin(params, shape, offsets, grid, level, depth)
-            weights = patch_interpolation(shape, offsets)
-            action, identity = (
-                np.ascontiguousarray(patch_basis(weights, basis).transpose(3, 2, 0, 1))
-                for basis in self._node_bases
-            )
-            offsets = np.ascontiguousarray(offsets.transpose(2, 0, 1))
-            rois.append(_Roi(offsets, action, identity, params.sigma))
-        return tuple(rois), node_frames(shape, self._triangles)[:, 2]
+        spacing = self._config.patch_spacing_px * params.t[2] / self._camera.focal
+        offsets = surface_patch_offsets(shape, grid * (spacing * (1 << level)))
+        if depth is not None:
+            offsets = self._with_skin(params, shape, offsets, grid, level, depth)
+        weights = patch_interpolation(shape, offsets)
+        action, identity = (
+            np.ascontiguousarray(patch_basis(weights, basis).transpose(3, 2, 0, 1))
+            for basis in self._node_bases
+        )
+        offsets = np.ascontiguousarray(offsets.transpose(2, 0, 1))
+        return _Roi(offsets, action, identity, params.sigma)
 
     def _with_skin(
         self,
@@ -775,32 +800,56 @@ class MonoTracker:
     # --- bundle adjustment of the first views ---------------------------------------------------
 
     def _maybe_adjust(self, pyramid: ImagePyramid, result: TrackResult) -> TrackResult:
-        """Keep this frame as a view if it shows the head at a new rotation, then adjust.
+        """Run the bundle adjustment under way, or start one if this frame shows a new rotation.
 
         A frame whose rotation differs from every view's by ``bundle.view_spacing`` (once sigma
-        is no longer estimated by eq. 6) runs :func:`~.bundle.adjust` over frame 1, the views
-        and itself, at most ``bundle.views`` times per track. An adjustment that lowers the
-        bundle cost and turns frame 1 and this frame by less than ``bundle.max_change``
-        replaces sigma, the skin depth, frame 1's estimate (and its templates) and this frame's;
-        otherwise the track goes on as it was. Either way the frame becomes a view, so the next
-        adjustment has one more view to agree with and the head must reach a new rotation before
-        it runs. (Dropping a rejected frame instead retried at once on the next frame: on the
-        mono protocol's 19-node seed 1 all eight adjustments then ran on consecutive frames with
-        two views each, every one rejected, and the track kept the clicks' pose, 6.8 degrees of
-        pitch error against 2.7.)
+        is no longer estimated by eq. 6) becomes a view and starts an adjustment
+        (:meth:`_adjustment`) over frame 1, the views and itself, at most ``bundle.views`` times
+        per track and never while one is under way. With ``bundle.spread`` it runs one stage per
+        followed frame, else all of it on this frame. When it ends, it is applied to the frame
+        its last stage ran on (:meth:`_apply_adjustment`), unless it was rejected.
         """
         track, bundle = self._track, self._config.bundle
-        if track.adjustments >= bundle.views or track.frames <= self._config.sigma_frames:
+        if track.adjustment is None:
+            if not self._is_new_view(result):
+                return result
+            track.adjustment = self._adjustment(pyramid)
+        done, adjusted = run_stages(track.adjustment, 1 if bundle.spread else None)
+        if not done:
             return result
+        track.adjustment = None
+        if adjusted is None:
+            return result
+        return self._apply_adjustment(pyramid, adjusted, result)
+
+    def _is_new_view(self, result: TrackResult) -> bool:
+        """Whether a followed frame should become a view and start an adjustment."""
+        track, bundle = self._track, self._config.bundle
+        if track.adjustments >= bundle.views or track.frames <= self._config.sigma_frames:
+            return False
         rotation = rodrigues(result.omega)[0]
         nearest = max(float(np.sum(view.rotation * rotation)) for view in track.views)
-        if nearest > 1.0 + 2.0 * np.cos(bundle.view_spacing):  # trace(R_v' R) = 1 + 2 cos(angle)
-            return result
+        return nearest <= 1.0 + 2.0 * np.cos(bundle.view_spacing)  # trace = 1 + 2 cos(angle)
+
+    def _adjustment(self, pyramid: ImagePyramid) -> Stages[_Adjusted | None]:
+        """The bundle adjustment of frame 1, the views and this frame, staged (:mod:`.stages`).
+
+        Stages: setting up the problem, :func:`~.bundle.adjustment_stages`, then the new ROIs
+        one pyramid level at a time. An adjustment that lowers the bundle cost and turns frame 1
+        and this frame by less than ``bundle.max_change`` returns what replaces sigma, the skin
+        depth and frame 1's estimate (and its templates); otherwise None, and the track goes on
+        as it was. Either way this frame is a view from the start, so the next adjustment has
+        one more view to agree with and the head must reach a new rotation before it runs.
+        (Dropping a rejected frame instead retried at once on the next frame: on the mono
+        protocol's 19-node seed 1 all eight adjustments then ran on consecutive frames with two
+        views each, every one rejected, and the track kept the clicks' pose, 6.8 degrees of
+        pitch error against 2.7.)
+        """
+        track = self._track
         track.adjustments += 1
-        views = [
-            *track.views,
-            _View.of(pyramid.levels[0], track.previous.visibility, track.current),
-        ]
+        frames = track.frames
+        view = _View.of(pyramid.levels[0].copy(), track.previous.visibility, track.current)
+        track.views = views = [*track.views, view]  # the pyramid's levels are reused
         poses = [(v.params.omega, v.params.t, v.params.alpha) for v in views]
         depth = track.depth
         start = Estimate(
@@ -809,22 +858,26 @@ class MonoTracker:
             first=poses[0],
             views=tuple(poses[1:]),
         )
-        adjustment = adjust(
-            self._bundle_problem(),
-            [view.image for view in views],
-            [view.visibility for view in views],
-            start,
+        problem = self._bundle_problem()
+        yield
+        adjustment = yield from adjustment_stages(
+            problem, [v.image for v in views], [v.visibility for v in views], start
         )
-        views[-1] = views[-1]._replace(image=pyramid.levels[0].copy())  # the pyramid is reused
-        track.views = views
         estimate = adjustment.estimate
         moved = max(
             _rotation_angle(poses[0][0], estimate.first[0]),
             _rotation_angle(poses[-1][0], estimate.views[-1][0]),
         )
-        if not (adjustment.cost < adjustment.initial_cost and moved < bundle.max_change):
-            return result
-        return self._apply_adjustment(pyramid, estimate, result)
+        if not (
+            adjustment.cost < adjustment.initial_cost and moved < self._config.bundle.max_change
+        ):
+            return None
+        first = _Params(*estimate.first, estimate.sigma)
+        rois = []
+        for level in range(pyramid.num_levels):
+            yield
+            rois.append(self._roi(first, level, estimate.depth))
+        return _Adjusted(estimate, tuple(rois), frames)
 
     def _bundle_problem(self) -> Problem:
         """The fixed part of the bundle adjustment of the current track."""
@@ -864,13 +917,21 @@ class MonoTracker:
         )
 
     def _apply_adjustment(
-        self, pyramid: ImagePyramid, estimate: Estimate, result: TrackResult
+        self, pyramid: ImagePyramid, adjusted: _Adjusted, result: TrackResult
     ) -> TrackResult:
-        """Restart the track's state from an adjustment; this frame's result at its estimate."""
-        track = self._track
+        """Restart the track's state from an adjustment; this frame's result at its estimate.
+
+        When the adjustment ended on a later frame than its newest view's, this frame's estimate
+        is carried into the adjusted face frame by the head's motion since that view
+        (:func:`_carried`).
+        """
+        track, estimate = self._track, adjusted.estimate
         poses = (estimate.first, *estimate.views)
         params = [_Params(omega, t, alpha, estimate.sigma) for omega, t, alpha in poses]
-        track.rois, track.normals = self._rois(params[0], pyramid.num_levels, estimate.depth)
+        current = params[-1]
+        if track.frames != adjusted.frames:
+            current = _carried(track.current, track.views[-1].params, params[-1])
+        track.rois, track.normals = adjusted.rois, self._normals(estimate.sigma)
         track.depth = estimate.depth
         track.views = [
             _View.of(view.image, self._visibility(p, track.normals), p)
@@ -879,11 +940,11 @@ class MonoTracker:
         track.start = params[0]
         first = self._templates(track.first, params[0], track.rois, track.normals)
         track.keyframes = [self._keyframe(params[0].omega, first)]
-        track.previous = self._templates(pyramid, params[-1], track.rois, track.normals)
-        track.current = params[-1]
+        track.previous = self._templates(pyramid, current, track.rois, track.normals)
+        track.current = current
         track.last_good = self._result(
             TrackStatus.TRACKING,
-            params[-1],
+            current,
             result.node_residuals,
             result.iterations,
             result.cost_history,
@@ -1356,6 +1417,23 @@ class MonoTracker:
 def _params_of(result: TrackResult) -> _Params:
     """The parameters of a result."""
     return _Params(result.omega, result.t, result.alpha, result.sigma)
+
+
+def _carried(current: _Params, before: _Params, after: _Params) -> _Params:
+    """``current`` moved with a view that an adjustment moved from ``before`` to ``after``.
+
+    A camera-frame point c of the view is ``R_c R_b' (c - t_b) + t_c`` now (the head's motion
+    since the view, as tracked). The adjusted view sees face point X at ``c = R_a X + t_a``, so
+    now it is at ``R_c R_b' R_a X + R_c R_b' (t_a - t_b) + t_c``; alpha changes as the view's
+    did, and sigma is the adjustment's.
+    """
+    motion = rodrigues(current.omega)[0] @ rodrigues(before.omega)[0].T
+    return _Params(
+        omega=matrix_to_omega(motion @ rodrigues(after.omega)[0]),
+        t=motion @ (after.t - before.t) + current.t,
+        alpha=current.alpha + after.alpha - before.alpha,
+        sigma=after.sigma,
+    )
 
 
 def _rotation_angle(omega_a: np.ndarray, omega_b: np.ndarray) -> float:

@@ -17,6 +17,7 @@ from face_tracking_ros.imaging import PhotometricInvariance, PhotometricModel
 from face_tracking_ros.synthetic.clicks import simulated_clicks
 from face_tracking_ros.synthetic.scenes import SceneConfig, SequenceRenderer
 from face_tracking_ros.synthetic.true_model import true_face_model
+from face_tracking_ros.tracking import bundle as bundle_module
 from face_tracking_ros.tracking import mono as mono_module
 from face_tracking_ros.tracking.bundle import (
     SURFACE_TERMS,
@@ -200,13 +201,13 @@ def test_a_rejected_adjustment_still_keeps_its_view(turning_head, monkeypatch):
     images, true_nodes, model, _ = turning_head
     camera = SceneConfig(kind='mono').cameras()['image']
     newest: list[np.ndarray] = []  # the rotation of each adjustment's newest view
-    adjust = mono_module.adjust
+    stages = mono_module.adjustment_stages
 
     def recording(problem, views, visibility, start):
         newest.append(rodrigues(start.views[-1][0])[0])
-        return adjust(problem, views, visibility, start)
+        return (yield from stages(problem, views, visibility, start))
 
-    monkeypatch.setattr(mono_module, 'adjust', recording)
+    monkeypatch.setattr(mono_module, 'adjustment_stages', recording)
     bundle = BundleConfig(max_change=1e-12)
     init = simulated_clicks(model.node_names, true_nodes[0], camera, 1.0, np.random.default_rng(3))
     results, _ = track_images(
@@ -222,3 +223,83 @@ def test_a_rejected_adjustment_still_keeps_its_view(turning_head, monkeypatch):
     # Nothing was applied: the track is the one without adjustments.
     for with_views, without in zip(results, off, strict=True):
         np.testing.assert_array_equal(with_views.omega, without.omega)
+
+
+def test_a_late_adjustment_carries_the_head_motion_since_its_view():
+    # Poses of one head in two face frames: the adjusted one (X') and the track's old one,
+    # X = Q X' + d (another size and placement of the face). The adjustment moved the view's
+    # pose from its old-frame to its new-frame value; the frame now, tracked in the old frame,
+    # carried over, is the head's true pose in the new frame.
+    rng = np.random.default_rng(4)
+    q_rotation, d = rodrigues(np.array([0.03, -0.05, 0.02]))[0], np.array([0.002, -0.001, 0.004])
+
+    def params(omega, t, alpha):
+        return mono_module._Params(np.array(omega), np.array(t), np.array(alpha), np.zeros(2))
+
+    def in_old_frame(new):  # R X + t = R' X' + t'
+        rotation = rodrigues(new.omega)[0] @ q_rotation.T
+        return new._replace(omega=matrix_to_omega(rotation), t=new.t - rotation @ d)
+
+    view_new = params([0.1, -0.2, 0.05], [0.01, -0.02, 0.6], [0.1, 0.0])
+    now_new = params([-0.15, 0.3, -0.1], [0.03, 0.01, 0.65], [0.3, -0.1])
+    view_old, now_old = in_old_frame(view_new), in_old_frame(now_new)
+    alpha_shift = np.array([0.05, -0.02])
+    view_old = view_old._replace(alpha=view_old.alpha + alpha_shift)
+    now_old = now_old._replace(alpha=now_old.alpha + alpha_shift)
+    carried = mono_module._carried(now_old, view_old, view_new)
+    points = rng.normal(scale=0.05, size=(5, 3))
+    np.testing.assert_allclose(
+        _project(points, carried.omega, carried.t),
+        _project(points, now_new.omega, now_new.t),
+        atol=1e-9,
+    )
+    np.testing.assert_allclose(carried.alpha, now_new.alpha, atol=1e-12)
+    assert (
+        np.abs(
+            _project(points, now_old.omega, now_old.t) - _project(points, now_new.omega, now_new.t)
+        ).max()
+        > 1.0
+    )
+
+
+def test_a_spread_adjustment_runs_one_stage_per_frame(turning_head, monkeypatch):
+    # Spread (the default), no frame sets up an adjustment, runs more than one of its
+    # iterations or builds more than one pyramid level's ROIs; all at once, a frame does all.
+    images, true_nodes, model, _ = turning_head
+    camera = SceneConfig(kind='mono').cameras()['image']
+    init = simulated_clicks(model.node_names, true_nodes[0], camera, 1.0, np.random.default_rng(3))
+    calls: list[str] = []
+    for name in ('_bundle_problem', '_roi'):
+        original = getattr(MonoTracker, name)
+        monkeypatch.setattr(MonoTracker, name, _counted(calls, name, original))
+    monkeypatch.setattr(
+        bundle_module,
+        '_damped_step',
+        _counted(calls, 'iteration', bundle_module._damped_step),
+    )
+    stages = {}
+    for spread in (True, False):
+        tracker = MonoTracker(model, camera, MonoTrackerConfig(bundle=BundleConfig(spread=spread)))
+        tracker.reset(init)
+        per_frame = []
+        for image in images[:40]:
+            calls.clear()
+            tracker.step(image)
+            per_frame.append(list(calls))
+        stages[spread] = per_frame[1:]  # frame 1 builds its ROIs at once
+    # Setting up builds frame 1's level-0 ROIs as well: one stage, two calls.
+    setup = [frame.count('_bundle_problem') for frame in stages[True]]
+    assert max(len(frame) - s for frame, s in zip(stages[True], setup, strict=True)) == 1
+    assert sum(setup) >= 1
+    busiest = max(stages[False], key=len)
+    assert busiest.count('iteration') >= 2 and busiest.count('_roi') == 1 + 3, busiest
+
+
+def _counted(calls: list[str], name: str, function):
+    """``function``, appending ``name`` to ``calls`` on every call."""
+
+    def counting(*args, **kwargs):
+        calls.append(name)
+        return function(*args, **kwargs)
+
+    return counting
