@@ -99,10 +99,11 @@ class BundleConfig:
             so the photometric term overstates its evidence by about an order of magnitude.
         max_change: an adjustment that turns frame 1 or the newest view by more than this is
             not applied, rad (> 0): the views did not agree (an occlusion, a fast motion).
-        spread: run each adjustment one stage per frame (setting it up, each iteration, each
-            pyramid level's new ROIs) and apply it to the frame its last stage ran on, the
-            head's motion since its newest view carried over; false runs it whole on the frame
-            that starts it, which then takes many times a frame's usual time.
+        stages_per_frame: how many stages of an adjustment (setting it up, each iteration,
+            each pyramid level's new ROIs) run per frame (>= 0); it is applied to the frame its
+            last stage ran on, the head's motion since its newest view carried over. 0 runs it
+            whole on the frame that starts it, which then takes many times a frame's usual
+            time.
     """
 
     views: int = 8
@@ -114,7 +115,7 @@ class BundleConfig:
     click_noise_px: float = 1.0
     weight: float = 10.0
     max_change: float = 0.1
-    spread: bool = True
+    stages_per_frame: int = 2
 
     def __post_init__(self) -> None:
         """Validate every field; the error names the field and its value."""
@@ -130,6 +131,7 @@ class BundleConfig:
                 'click_noise_px': self.click_noise_px > 0,
                 'weight': self.weight > 0,
                 'max_change': self.max_change > 0,
+                'stages_per_frame': self.stages_per_frame >= 0,
             },
         )
 

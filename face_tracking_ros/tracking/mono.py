@@ -39,14 +39,14 @@ Design, in the seed's terms:
   compiled (:mod:`.mono_kernels`).
 - Frame 1's estimate and the skin under the ROIs are refined from the first views: frames that
   show the head at new rotations (``bundle.view_spacing`` apart, up to ``bundle.views``) are
-  kept, and each new one runs a photometric bundle adjustment (:mod:`.bundle`) of frame 1's
-  pose, alpha and sigma, the skin depth under every ROI and the views' poses; the track then
-  continues from its result (frame 1's templates re-sampled, the ROIs on the measured skin).
-  Measured on the benchmark's 1000-frame sequences, 3 seeds x 3 draws of 1 px click noise:
-  rotation error 1.21 / 1.20 -> 0.62 / 0.77 degrees (x / y). An adjustment costs about ten
-  times a frame's solve, so it runs one stage per frame (``bundle.spread``, :mod:`.stages`)
-  and is applied about ten frames after its newest view, the head's motion since then carried
-  over; no frame pays for all of it.
+  kept, and a photometric bundle adjustment (:mod:`.bundle`) of frame 1's pose, alpha and
+  sigma, the skin depth under every ROI and the views' poses runs over every view so far; the
+  track then continues from its result (frame 1's templates re-sampled, the ROIs on the
+  measured skin). Measured on the benchmark's 1000-frame sequences, 3 seeds x 3 draws of 1 px
+  click noise: rotation error 1.21 / 1.20 -> 0.62 / 0.77 degrees (x / y). An adjustment costs
+  about ten times a frame's solve, so it runs two stages per frame (``bundle.stages_per_frame``,
+  :mod:`.stages`) and is applied about five frames after its newest view, the head's motion
+  since then carried over; no frame pays for all of it.
 - Optionally (``max_keyframes`` > 1) the drift term compares with the keyframe nearest in
   rotation instead of frame 1. Measured on synthetic sequences it does worse than I_1 alone
   (keyframes inherit the error of the pose they were taken at), so it is off by default.
@@ -424,18 +424,20 @@ class _View(NamedTuple):
         image: (H, W) float32 level 0 of its pyramid.
         visibility: (N,) node visibility weights at ``params``.
         params: its estimate.
+        frame: its frame number in the track (``_Track.frames``; 1 for frame 1).
         rotation: R(omega) of ``params``.
     """
 
     image: np.ndarray
     visibility: np.ndarray
     params: _Params
+    frame: int
     rotation: np.ndarray
 
     @classmethod
-    def of(cls, image: np.ndarray, visibility: np.ndarray, params: _Params) -> _View:
-        """A view of ``image`` at ``params``."""
-        return cls(image, visibility, params, rodrigues(params.omega)[0])
+    def of(cls, image: np.ndarray, visibility: np.ndarray, params: _Params, frame: int) -> _View:
+        """A view of ``image`` at ``params``, the track's ``frame``-th frame."""
+        return cls(image, visibility, params, frame, rodrigues(params.omega)[0])
 
 
 class _Adjusted(NamedTuple):
@@ -444,12 +446,10 @@ class _Adjusted(NamedTuple):
     Attributes:
         estimate: the adjustment's estimate (:func:`~.bundle.rebased`).
         rois: each pyramid level's ROIs at its sigma, on its skin depth.
-        frames: ``_Track.frames`` when it started (its newest view's frame).
     """
 
     estimate: Estimate
     rois: tuple[_Roi, ...]
-    frames: int
 
 
 class _FaceView(NamedTuple):
@@ -471,7 +471,8 @@ class _Track:
     ``rois`` holds each level's ROI samples. For the bundle adjustment of the first views:
     ``first`` is frame 1's pyramid, ``views`` frame 1 and the views kept, ``clicks`` the
     initialisation's 2-D points, ``depth`` the (N, 6) skin depth of the last adjustment (None
-    before one), ``adjustments`` how many were started and ``adjustment`` the one under way.
+    before one), ``adjusted_views`` how many of the views the adjustments started so far covered
+    (frame 1 included) and ``adjustment`` the one under way.
     """
 
     rois: tuple[_Roi, ...]
@@ -488,7 +489,7 @@ class _Track:
     frames: int = 1
     lost: bool = False
     depth: np.ndarray | None = None
-    adjustments: int = 0
+    adjusted_views: int = 1
     adjustment: Stages[_Adjusted | None] | None = None
 
 
@@ -620,7 +621,7 @@ class MonoTracker:
             normals=normals,
             keyframes=[self._keyframe(params.omega, templates)],
             first=first,
-            views=[_View.of(first.levels[0], templates.visibility, params)],
+            views=[_View.of(first.levels[0], templates.visibility, params, 1)],
             clicks=init,
             previous=templates,
             start=params,
@@ -800,21 +801,25 @@ class MonoTracker:
     # --- bundle adjustment of the first views ---------------------------------------------------
 
     def _maybe_adjust(self, pyramid: ImagePyramid, result: TrackResult) -> TrackResult:
-        """Run the bundle adjustment under way, or start one if this frame shows a new rotation.
+        """Keep this frame as a view if it shows a new rotation; run the bundle adjustment.
 
         A frame whose rotation differs from every view's by ``bundle.view_spacing`` (once sigma
-        is no longer estimated by eq. 6) becomes a view and starts an adjustment
-        (:meth:`_adjustment`) over frame 1, the views and itself, at most ``bundle.views`` times
-        per track and never while one is under way. With ``bundle.spread`` it runs one stage per
-        followed frame, else all of it on this frame. When it ends, it is applied to the frame
+        is no longer estimated by eq. 6) becomes a view, up to ``bundle.views`` of them. When no
+        adjustment is under way and some views are in none yet, one starts over frame 1 and
+        every view so far (:meth:`_adjustment`). It runs ``bundle.stages_per_frame`` stages per
+        followed frame (all on this frame if 0). When it ends, it is applied to the frame
         its last stage ran on (:meth:`_apply_adjustment`), unless it was rejected.
         """
         track, bundle = self._track, self._config.bundle
+        if self._is_new_view(result):
+            image = pyramid.levels[0].copy()  # the pyramid's levels are reused
+            view = _View.of(image, track.previous.visibility, track.current, track.frames)
+            track.views.append(view)
         if track.adjustment is None:
-            if not self._is_new_view(result):
+            if track.adjusted_views == len(track.views):
                 return result
-            track.adjustment = self._adjustment(pyramid)
-        done, adjusted = run_stages(track.adjustment, 1 if bundle.spread else None)
+            track.adjustment = self._adjustment(pyramid.num_levels)
+        done, adjusted = run_stages(track.adjustment, bundle.stages_per_frame or None)
         if not done:
             return result
         track.adjustment = None
@@ -823,37 +828,34 @@ class MonoTracker:
         return self._apply_adjustment(pyramid, adjusted, result)
 
     def _is_new_view(self, result: TrackResult) -> bool:
-        """Whether a followed frame should become a view and start an adjustment."""
+        """Whether a followed frame should become a view."""
         track, bundle = self._track, self._config.bundle
-        if track.adjustments >= bundle.views or track.frames <= self._config.sigma_frames:
+        if len(track.views) > bundle.views or track.frames <= self._config.sigma_frames:
             return False
         rotation = rodrigues(result.omega)[0]
         nearest = max(float(np.sum(view.rotation * rotation)) for view in track.views)
         return nearest <= 1.0 + 2.0 * np.cos(bundle.view_spacing)  # trace = 1 + 2 cos(angle)
 
-    def _adjustment(self, pyramid: ImagePyramid) -> Stages[_Adjusted | None]:
-        """The bundle adjustment of frame 1, the views and this frame, staged (:mod:`.stages`).
+    def _adjustment(self, num_levels: int) -> Stages[_Adjusted | None]:
+        """The bundle adjustment of frame 1 and the views so far, staged (:mod:`.stages`).
 
         Stages: setting up the problem, :func:`~.bundle.adjustment_stages`, then the new ROIs
         one pyramid level at a time. An adjustment that lowers the bundle cost and turns frame 1
-        and this frame by less than ``bundle.max_change`` returns what replaces sigma, the skin
-        depth and frame 1's estimate (and its templates); otherwise None, and the track goes on
-        as it was. Either way this frame is a view from the start, so the next adjustment has
-        one more view to agree with and the head must reach a new rotation before it runs.
-        (Dropping a rejected frame instead retried at once on the next frame: on the mono
-        protocol's 19-node seed 1 all eight adjustments then ran on consecutive frames with two
-        views each, every one rejected, and the track kept the clicks' pose, 6.8 degrees of
-        pitch error against 2.7.)
+        and its newest view by less than ``bundle.max_change`` returns what replaces sigma, the
+        skin depth and frame 1's estimate (and its templates); otherwise None, and the track
+        goes on as it was. Either way its views stay views, so the next adjustment has more
+        views to agree with and waits for the head to reach a new rotation. (Dropping a rejected
+        view instead retried at once on the next frame: on the mono protocol's 19-node seed 1
+        all eight adjustments then ran on consecutive frames with two views each, every one
+        rejected, and the track kept the clicks' pose, 6.8 degrees of pitch error against 2.7.)
         """
         track = self._track
-        track.adjustments += 1
-        frames = track.frames
-        view = _View.of(pyramid.levels[0].copy(), track.previous.visibility, track.current)
-        track.views = views = [*track.views, view]  # the pyramid's levels are reused
+        views = list(track.views)
+        track.adjusted_views = len(views)
         poses = [(v.params.omega, v.params.t, v.params.alpha) for v in views]
         depth = track.depth
         start = Estimate(
-            sigma=track.current.sigma,
+            sigma=views[-1].params.sigma,
             depth=np.zeros((self._model.num_nodes, SURFACE_TERMS)) if depth is None else depth,
             first=poses[0],
             views=tuple(poses[1:]),
@@ -874,10 +876,10 @@ class MonoTracker:
             return None
         first = _Params(*estimate.first, estimate.sigma)
         rois = []
-        for level in range(pyramid.num_levels):
+        for level in range(num_levels):
             yield
             rois.append(self._roi(first, level, estimate.depth))
-        return _Adjusted(estimate, tuple(rois), frames)
+        return _Adjusted(estimate, tuple(rois))
 
     def _bundle_problem(self) -> Problem:
         """The fixed part of the bundle adjustment of the current track."""
@@ -922,20 +924,27 @@ class MonoTracker:
         """Restart the track's state from an adjustment; this frame's result at its estimate.
 
         When the adjustment ended on a later frame than its newest view's, this frame's estimate
-        is carried into the adjusted face frame by the head's motion since that view
-        (:func:`_carried`).
+        is carried into the adjusted face frame by the head's motion since that view, in the
+        scene scaled as the adjustment scaled it (:func:`_carried`); so are the views kept
+        while it ran.
         """
         track, estimate = self._track, adjusted.estimate
         poses = (estimate.first, *estimate.views)
         params = [_Params(omega, t, alpha, estimate.sigma) for omega, t, alpha in poses]
+        newest = track.views[len(params) - 1]
+        scale = self._node_distance(params[-1]) / self._node_distance(newest.params)
         current = params[-1]
-        if track.frames != adjusted.frames:
-            current = _carried(track.current, track.views[-1].params, params[-1])
+        if track.frames != newest.frame:
+            current = _carried(track.current, newest.params, params[-1], scale)
+        later = [
+            _carried(view.params, newest.params, params[-1], scale)
+            for view in track.views[len(params) :]
+        ]
         track.rois, track.normals = adjusted.rois, self._normals(estimate.sigma)
         track.depth = estimate.depth
         track.views = [
-            _View.of(view.image, self._visibility(p, track.normals), p)
-            for view, p in zip(track.views, params, strict=True)
+            _View.of(view.image, self._visibility(p, track.normals), p, view.frame)
+            for view, p in zip(track.views, params + later, strict=True)
         ]
         track.start = params[0]
         first = self._templates(track.first, params[0], track.rois, track.normals)
@@ -951,6 +960,10 @@ class MonoTracker:
             '',
         )
         return track.last_good
+
+    def _node_distance(self, params: _Params) -> float:
+        """Mean distance of the nodes from the camera centre at ``params``, m."""
+        return float(np.mean(np.linalg.norm(self._project_nodes(params)[0], axis=1)))
 
     def _keyframe(self, omega: np.ndarray, templates: _Templates) -> _Keyframe:
         """A keyframe of ``templates`` sampled at rotation R(omega)."""
@@ -1419,18 +1432,22 @@ def _params_of(result: TrackResult) -> _Params:
     return _Params(result.omega, result.t, result.alpha, result.sigma)
 
 
-def _carried(current: _Params, before: _Params, after: _Params) -> _Params:
+def _carried(current: _Params, before: _Params, after: _Params, scale: float) -> _Params:
     """``current`` moved with a view that an adjustment moved from ``before`` to ``after``.
 
-    A camera-frame point c of the view is ``R_c R_b' (c - t_b) + t_c`` now (the head's motion
-    since the view, as tracked). The adjusted view sees face point X at ``c = R_a X + t_a``, so
-    now it is at ``R_c R_b' R_a X + R_c R_b' (t_a - t_b) + t_c``; alpha changes as the view's
-    did, and sigma is the adjustment's.
+    One camera cannot tell a face's size from its distance, so an adjustment that changes sigma
+    also scales the scene about the camera centre, by ``scale`` (the adjusted view's node
+    distances over the old ones). The head's motion since the view, as tracked, takes a
+    camera-frame point c to ``R_c R_b' (c - t_b) + t_c``; in the scene scaled by s it takes c to
+    ``R_c R_b' (c - s t_b) + s t_c``, the same image motion. The adjusted view sees face point X
+    at ``c = R_a X + t_a``, so now it is at ``R_c R_b' R_a X + R_c R_b' (t_a - s t_b) + s t_c``.
+    This is exact for a rigid change of the face frame (s = 1) and for a pure change of scale.
+    Alpha changes as the view's did, and sigma is the adjustment's.
     """
     motion = rodrigues(current.omega)[0] @ rodrigues(before.omega)[0].T
     return _Params(
         omega=matrix_to_omega(motion @ rodrigues(after.omega)[0]),
-        t=motion @ (after.t - before.t) + current.t,
+        t=motion @ (after.t - scale * before.t) + scale * current.t,
         alpha=current.alpha + after.alpha - before.alpha,
         sigma=after.sigma,
     )

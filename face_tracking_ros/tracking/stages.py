@@ -2,9 +2,9 @@
 
 A staged computation is a generator that yields between its stages and returns its result; no
 frame then pays for all of it. The mono tracker runs its bundle adjustment this way
-(:class:`~.bundle.BundleConfig` ``spread``): one stage per frame keeps each frame's extra cost to
-one Levenberg-Marquardt iteration or one pyramid level's ROIs, and the result is the same on
-every run, however fast the machine, because stages are counted in frames, not timed.
+(:class:`~.bundle.BundleConfig` ``stages_per_frame``): a few stages per frame keep each frame's
+extra cost to a few Levenberg-Marquardt iterations or pyramid levels' ROIs, and the result is the
+same on every run, however fast the machine, because stages are counted, not timed.
 """
 
 from __future__ import annotations

@@ -226,45 +226,43 @@ def test_a_rejected_adjustment_still_keeps_its_view(turning_head, monkeypatch):
 
 
 def test_a_late_adjustment_carries_the_head_motion_since_its_view():
-    # Poses of one head in two face frames: the adjusted one (X') and the track's old one,
-    # X = Q X' + d (another size and placement of the face). The adjustment moved the view's
-    # pose from its old-frame to its new-frame value; the frame now, tracked in the old frame,
-    # carried over, is the head's true pose in the new frame.
+    # The adjusted world is the track's scaled by s about the camera centre (one camera cannot
+    # tell size from distance), with another face frame: X_old = (Q X' + d) / s. A pose
+    # (R, t) of the old world is (R Q, R d + s t) in the new one. The adjustment moved the
+    # view's pose to its new-world value; the frame now, tracked in the old world and carried
+    # over, is its pose in the new world.
     rng = np.random.default_rng(4)
     q_rotation, d = rodrigues(np.array([0.03, -0.05, 0.02]))[0], np.array([0.002, -0.001, 0.004])
+    scale = 1.03
 
     def params(omega, t, alpha):
         return mono_module._Params(np.array(omega), np.array(t), np.array(alpha), np.zeros(2))
 
-    def in_old_frame(new):  # R X + t = R' X' + t'
-        rotation = rodrigues(new.omega)[0] @ q_rotation.T
-        return new._replace(omega=matrix_to_omega(rotation), t=new.t - rotation @ d)
+    def in_new_world(old, alpha_change):
+        rotation = rodrigues(old.omega)[0]
+        return old._replace(
+            omega=matrix_to_omega(rotation @ q_rotation),
+            t=rotation @ d + scale * old.t,
+            alpha=old.alpha + alpha_change,
+        )
 
-    view_new = params([0.1, -0.2, 0.05], [0.01, -0.02, 0.6], [0.1, 0.0])
-    now_new = params([-0.15, 0.3, -0.1], [0.03, 0.01, 0.65], [0.3, -0.1])
-    view_old, now_old = in_old_frame(view_new), in_old_frame(now_new)
-    alpha_shift = np.array([0.05, -0.02])
-    view_old = view_old._replace(alpha=view_old.alpha + alpha_shift)
-    now_old = now_old._replace(alpha=now_old.alpha + alpha_shift)
-    carried = mono_module._carried(now_old, view_old, view_new)
+    view_old = params([0.1, -0.2, 0.05], [0.01, -0.02, 0.6], [0.1, 0.0])
+    now_old = params([-0.15, 0.3, -0.1], [0.03, 0.01, 0.65], [0.3, -0.1])
+    alpha_change = np.array([0.05, -0.02])
+    view_new, now_new = (in_new_world(p, alpha_change) for p in (view_old, now_old))
+    carried = mono_module._carried(now_old, view_old, view_new, scale)
     points = rng.normal(scale=0.05, size=(5, 3))
-    np.testing.assert_allclose(
-        _project(points, carried.omega, carried.t),
-        _project(points, now_new.omega, now_new.t),
-        atol=1e-9,
-    )
+    expected = _project(points, now_new.omega, now_new.t)
+    np.testing.assert_allclose(_project(points, carried.omega, carried.t), expected, atol=1e-9)
     np.testing.assert_allclose(carried.alpha, now_new.alpha, atol=1e-12)
-    assert (
-        np.abs(
-            _project(points, now_old.omega, now_old.t) - _project(points, now_new.omega, now_new.t)
-        ).max()
-        > 1.0
-    )
+    # Carried as a rigid change of the face frame alone, the frame now lands pixels away.
+    rigid = mono_module._carried(now_old, view_old, view_new, 1.0)
+    assert np.abs(_project(points, rigid.omega, rigid.t) - expected).max() > 5.0
 
 
-def test_a_spread_adjustment_runs_one_stage_per_frame(turning_head, monkeypatch):
-    # Spread (the default), no frame sets up an adjustment, runs more than one of its
-    # iterations or builds more than one pyramid level's ROIs; all at once, a frame does all.
+def test_an_adjustment_runs_at_most_stages_per_frame_stages_a_frame(turning_head, monkeypatch):
+    # Spread over frames, no frame runs more than stages_per_frame of its stages (setting up,
+    # an iteration, a pyramid level's ROIs); with 0, a frame runs all of them.
     images, true_nodes, model, _ = turning_head
     camera = SceneConfig(kind='mono').cameras()['image']
     init = simulated_clicks(model.node_names, true_nodes[0], camera, 1.0, np.random.default_rng(3))
@@ -278,21 +276,20 @@ def test_a_spread_adjustment_runs_one_stage_per_frame(turning_head, monkeypatch)
         _counted(calls, 'iteration', bundle_module._damped_step),
     )
     stages = {}
-    for spread in (True, False):
-        tracker = MonoTracker(model, camera, MonoTrackerConfig(bundle=BundleConfig(spread=spread)))
+    for per_frame in (1, 2, 0):
+        config = MonoTrackerConfig(bundle=BundleConfig(stages_per_frame=per_frame))
+        tracker = MonoTracker(model, camera, config)
         tracker.reset(init)
-        per_frame = []
+        frames = []
         for image in images[:40]:
             calls.clear()
             tracker.step(image)
-            per_frame.append(list(calls))
-        stages[spread] = per_frame[1:]  # frame 1 builds its ROIs at once
-    # Setting up builds frame 1's level-0 ROIs as well: one stage, two calls.
-    setup = [frame.count('_bundle_problem') for frame in stages[True]]
-    assert max(len(frame) - s for frame, s in zip(stages[True], setup, strict=True)) == 1
-    assert sum(setup) >= 1
-    busiest = max(stages[False], key=len)
-    assert busiest.count('iteration') >= 2 and busiest.count('_roi') == 1 + 3, busiest
+            # Setting up builds frame 1's level-0 ROIs as well: one stage, two calls.
+            frames.append(len(calls) - calls.count('_bundle_problem'))
+        stages[per_frame] = frames[1:]  # frame 1 builds its ROIs at once
+    assert max(stages[1]) == 1
+    assert max(stages[2]) == 2
+    assert max(stages[0]) >= 1 + 2 + 3  # set-up, two iterations or more, three levels
 
 
 def _counted(calls: list[str], name: str, function):
