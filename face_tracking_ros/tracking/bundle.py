@@ -12,8 +12,9 @@ the whole track. Two things are wrong there, and one image cannot tell:
 - the pose and identity sigma fitted to the initialisation's 2-D points alone: 1 px of click
   noise turns a 34-node fit by about 0.6 degrees, and the tracker keeps that offset.
 
-A turning head shows both. :func:`adjust` takes frame 1 and a few views the track has reached at
-distinct rotations and solves, in the manner of direct (photometric) bundle adjustment, for
+A turning head shows both. :func:`adjustment_stages` takes frame 1 and a few views the track has
+reached at distinct rotations and solves, in the manner of direct (photometric) bundle
+adjustment, for
 
 - the skin: each ROI sample lies on the ray from frame 1's camera through its template pixel,
   at the depth of frame 1's estimate plus ``sum_j d_ij phi_j(u, v)`` with ``phi = 1, u, v, u^2,
@@ -69,7 +70,7 @@ from face_tracking_ros.tracking.mono_kernels import (
     roi_points,
 )
 from face_tracking_ros.tracking.projection import POSE_DIM
-from face_tracking_ros.tracking.stages import Stages, run_stages
+from face_tracking_ros.tracking.stages import Stages
 
 SURFACE_TERMS = 6  # 1, u, v, u^2, u v, v^2
 _MAD_TO_STD = 1.4826
@@ -213,8 +214,8 @@ class Estimate(NamedTuple):
         sigma: (p,) identity.
         depth: (N, SURFACE_TERMS) skin depth coefficients, m.
         first: frame 1's (omega, t, alpha).
-        views: each other view's (omega, t, alpha); in :func:`adjust`, relative to the face frame
-            of ``Problem.first``.
+        views: each other view's (omega, t, alpha); in :func:`adjustment_stages`, relative to
+            the face frame of ``Problem.first``.
     """
 
     sigma: np.ndarray
@@ -224,7 +225,7 @@ class Estimate(NamedTuple):
 
 
 class Adjustment(NamedTuple):
-    """Outcome of :func:`adjust`.
+    """Outcome of :func:`adjustment_stages`.
 
     Attributes:
         estimate: the adjusted unknowns, views in the face frame of the adjusted frame 1 and
@@ -311,20 +312,6 @@ class _Posed(NamedTuple):
 
     points: np.ndarray  # (N, 3) camera frame, m
     jacobian: np.ndarray  # (N, 3, 6 + q + p) d points / d(omega, t, alpha, sigma)
-
-
-def adjust(
-    problem: Problem,
-    images: list[np.ndarray],
-    visibility: list[np.ndarray],
-    start: Estimate,
-) -> Adjustment:
-    """Levenberg-Marquardt on the bundle cost from ``start``, all at once.
-
-    :func:`adjustment_stages` run to its end; the arguments are its.
-    """
-    _, adjustment = run_stages(adjustment_stages(problem, images, visibility, start))
-    return adjustment
 
 
 def adjustment_stages(
@@ -513,7 +500,7 @@ def _view_jacobian(
 
 
 class _Solve(NamedTuple):
-    """What stays fixed while :func:`adjust` runs, and the cost and normal equations it needs.
+    """What stays fixed while an adjustment runs, and the cost and normal equations it needs.
 
     Attributes:
         problem: the problem.
