@@ -1441,8 +1441,9 @@ def _carried(current: _Params, before: _Params, after: _Params, scale: float) ->
     camera-frame point c to ``R_c R_b' (c - t_b) + t_c``; in the scene scaled by s it takes c to
     ``R_c R_b' (c - s t_b) + s t_c``, the same image motion. The adjusted view sees face point X
     at ``c = R_a X + t_a``, so now it is at ``R_c R_b' R_a X + R_c R_b' (t_a - s t_b) + s t_c``.
-    This is exact for a rigid change of the face frame (s = 1) and for a pure change of scale.
-    Alpha changes as the view's did, and sigma is the adjustment's.
+    This is exact when the adjusted scene is the tracked one scaled by s about the camera centre
+    and described in another face frame. Alpha changes as the view's did; sigma is the
+    adjustment's.
     """
     motion = rodrigues(current.omega)[0] @ rodrigues(before.omega)[0].T
     return _Params(
