@@ -885,7 +885,7 @@ class MonoTracker:
         """The fixed part of the bundle adjustment of the current track."""
         track, model, config = self._track, self._model, self._config
         first = track.views[0].params
-        roi = self._rois(first, 1)[0][0]
+        roi = self._roi(first, 0)
         shape = model.identity_shape(first.sigma)
         grid = self._level_patch_coordinates(self._roi_grid(shape), 0)
         points = shape[:, None, :] + roi.offsets.transpose(1, 2, 0)
