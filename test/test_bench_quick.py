@@ -105,3 +105,20 @@ def test_table_says_so_when_no_state_came_back():
     live = {'size': '640x480', 'at_30hz': run, 'max_rate_without_drops_hz': 0.0}
     table = format_table({'benchmarks': {'live_latency': live}})
     assert 'no face/state received, 1800 of 1800 dropped' in table
+
+
+def test_table_shows_the_learner_against_meshes_and_against_subjects():
+    row = {'align_s': 0.5, 'seed_s': 1.25}
+    learner = {
+        'meshes': [{'meshes': 10_000, 'subjects': 10, **row}],
+        'meshes_exponent': {'align_s': 1.0, 'seed_s': 1.04},
+        'subjects': [{'meshes': 20_000, 'subjects': 50, **row, 'joint_s': 3.0}],
+    }
+    table = format_table({'benchmarks': {'learner_scaling': learner}}).splitlines()
+    assert table[2:] == [
+        '| learner, 10,000 meshes, 10 subjects | align 0.50 s + learn 1.25 s |  |',
+        '| learner scaling exponent (time ~ meshes^k) | align k = 1.00, learn k = 1.04 '
+        '| k = 1 (linear) |',
+        '| learner, 20,000 meshes, 50 subjects | align 0.50 s + learn 1.25 s '
+        '(joint learner 3.00 s) |  |',
+    ]

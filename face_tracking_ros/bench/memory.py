@@ -2,27 +2,36 @@
 
 The mono pipeline runs as it would on a robot: mono_tracker fed rendered 640x480 images at 30 Hz,
 identity_recognizer and expression_recognizer on its outputs, and bag_recorder recording the
-face topics; then stereo_tracker is fed 640x480 pairs at 10 Hz on its own. Each node's peak RSS
-is read from /proc/<pid>/status before it is stopped. A node that is not installed yet is
-reported as skipped.
+face topics; then stereo_tracker is fed 640x480 pairs at 10 Hz on its own. bag_player plays the
+recorded 640x480 mono test bag in a loop, and the learner learns a model from raw 640x480 stereo
+training bags, tracking them first (its heaviest use: ``face-tracking learn`` on a stereo
+recording). Each node's peak RSS is read from /proc/<pid>/status before it is stopped. A node
+that is not installed yet is reported as skipped.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 import shutil
+import time
 from typing import Any
 
 from face_tracking_ros.bench.common import DRIVER_CORE, BenchOptions, pin_to_core, skipped
 from face_tracking_ros.bench.live import Driver, NodeProcess, tracker_inputs
-from face_tracking_ros.bench.world import classifier_file
+from face_tracking_ros.bench.world import classifier_file, recorded_bag, scene_config
 from face_tracking_ros.errors import ConfigError
-from face_tracking_ros.synthetic.scenes import Kind
+from face_tracking_ros.synthetic.recording import record
+from face_tracking_ros.synthetic.scenes import Kind, SceneConfig
 
 WIDTH, HEIGHT = 640, 480
 FRAMES = 30
 MONO_RATE_HZ, STEREO_RATE_HZ = 30.0, 10.0
 SECONDS, QUICK_SECONDS = 15.0, 2.0
 RECORDED_TOPICS = '[face/state, face/action, face/shape, face/expression, face/identity]'
+PLAYED_FRAMES = 90  # frames of the mono bag bag_player plays (3 s at 30 fps)
+LEARN_SUBJECTS, LEARN_FRAMES = 4, 60  # raw stereo training bags of the learner, frames each
+LEARN_TIMEOUT_S = 600.0
+POLL_S = 0.2
 
 
 def run(options: BenchOptions) -> dict[str, Any]:
@@ -51,7 +60,75 @@ def run(options: BenchOptions) -> dict[str, Any]:
     results.update(
         _measure({'stereo_tracker': params}, streams, STEREO_RATE_HZ, seconds, options, stereo_run)
     )
+    results['bag_player'] = _bag_player(options, seconds)
+    results['learner'] = _learner(options)
     return results
+
+
+def _bag_player(options: BenchOptions, seconds: float) -> dict[str, Any]:
+    """bag_player's peak RSS over ``seconds`` of playing the mono test bag in a loop."""
+    config = scene_config(Kind.MONO, WIDTH, HEIGHT, PLAYED_FRAMES, options.seed)
+    bag, _ = recorded_bag(options.work_dir, config)
+    deadline = time.monotonic() + seconds
+    description = f'{WIDTH}x{HEIGHT} mono bag played in a loop for {seconds:g} s'
+    return _peak_until(
+        'bag_player',
+        {'bag': bag, 'loop': True},
+        lambda: time.monotonic() >= deadline,
+        options,
+        description,
+    )
+
+
+def _learner(options: BenchOptions) -> dict[str, Any]:
+    """The learner's peak RSS while it tracks raw stereo training bags and learns from them."""
+    bags = options.work_dir / f'memory_stereo_train_seed{options.seed}'
+    if not bags.is_dir():
+        config = SceneConfig(
+            kind=Kind.STEREO,
+            subjects=LEARN_SUBJECTS,
+            frames=LEARN_FRAMES,
+            fps=30.0,
+            seed=options.seed,
+            motion='still',
+        )
+        record(config, bags)
+    output = options.work_dir / 'memory_model.npz'
+    output.unlink(missing_ok=True)
+    params = {'bag_dir': bags, 'output': output, 'from_images': True, 'simulate_clicks': 0.0}
+    description = (
+        f'learning from {LEARN_SUBJECTS} raw stereo bags of {LEARN_FRAMES} pairs '
+        f'({WIDTH}x{HEIGHT}), tracked first'
+    )
+    return _peak_until('learner', params, output.is_file, options, description)
+
+
+def _peak_until(
+    name: str,
+    params: dict[str, object],
+    done: Callable[[], bool],
+    options: BenchOptions,
+    description: str,
+) -> dict[str, Any]:
+    """Run one node until ``done()``, then read its peak RSS and stop it.
+
+    A node that exits first, or is not done within LEARN_TIMEOUT_S, is reported as failed.
+    """
+    try:
+        node = NodeProcess(name, params, options.domain_id, options.work_dir / f'{name}.log')
+    except ConfigError as error:
+        return skipped(str(error))
+    deadline = time.monotonic() + LEARN_TIMEOUT_S
+    try:
+        while not done():
+            if not node.alive():
+                return {'failed': f'exited early: {node.tail(2)}'}
+            if time.monotonic() > deadline:
+                return {'failed': f'not done after {LEARN_TIMEOUT_S:g} s: {node.tail(2)}'}
+            time.sleep(POLL_S)
+        return {'peak_rss_mb': node.peak_rss_mb(), 'run': description}
+    finally:
+        node.stop()
 
 
 def _measure(

@@ -148,14 +148,7 @@ def _live_rows(live: dict[str, Any]) -> list[tuple[str, str, str]]:
 
 
 def _learner_rows(learner: dict[str, Any]) -> list[tuple[str, str, str]]:
-    rows = [
-        (
-            f'learner, {r["meshes"]:,} meshes, {r["subjects"]} subjects',
-            f'align {r["align_s"]:.2f} s + learn {r["seed_s"]:.2f} s',
-            '',
-        )
-        for r in learner.get('meshes', [])
-    ]
+    rows = [_learner_row(r) for r in learner.get('meshes', [])]
     if 'meshes_exponent' in learner:
         e = learner['meshes_exponent']
         rows.append(
@@ -165,7 +158,15 @@ def _learner_rows(learner: dict[str, Any]) -> list[tuple[str, str, str]]:
                 'k = 1 (linear)',
             )
         )
-    return rows
+    return rows + [_learner_row(r) for r in learner.get('subjects', [])]
+
+
+def _learner_row(row: dict[str, Any]) -> tuple[str, str, str]:
+    """'align A s + learn L s' (the seed learner), with the joint learner's time if measured."""
+    figures = f'align {row["align_s"]:.2f} s + learn {row["seed_s"]:.2f} s'
+    if 'joint_s' in row:
+        figures += f' (joint learner {row["joint_s"]:.2f} s)'
+    return f'learner, {row["meshes"]:,} meshes, {row["subjects"]} subjects', figures, ''
 
 
 def _memory_rows(memory: dict[str, Any]) -> list[tuple[str, str, str]]:
