@@ -56,6 +56,7 @@ def test_quick_run_writes_finite_figures(tmp_path):
         assert speed[nodes]['mono_over_baseline'] > 0
     learner = results['benchmarks']['learner_scaling']
     assert [row['meshes'] for row in learner['meshes']] == [1000, 10000]
+    assert set(learner['meshes_exponent']) == {'align_s', 'seed_s', 'joint_s'}
     live = results['benchmarks']['live_latency']
     assert live['at_30hz']['published'] == 150
     assert 0 <= live['at_30hz']['dropped'] <= live['at_30hz']['published']
@@ -111,14 +112,14 @@ def test_table_shows_the_learner_against_meshes_and_against_subjects():
     row = {'align_s': 0.5, 'seed_s': 1.25}
     learner = {
         'meshes': [{'meshes': 10_000, 'subjects': 10, **row}],
-        'meshes_exponent': {'align_s': 1.0, 'seed_s': 1.04},
+        'meshes_exponent': {'align_s': 1.0, 'seed_s': 1.04, 'joint_s': 0.98},
         'subjects': [{'meshes': 20_000, 'subjects': 50, **row, 'joint_s': 3.0}],
     }
     table = format_table({'benchmarks': {'learner_scaling': learner}}).splitlines()
     assert table[2:] == [
         '| learner, 10,000 meshes, 10 subjects | align 0.50 s + learn 1.25 s |  |',
-        '| learner scaling exponent (time ~ meshes^k) | align k = 1.00, learn k = 1.04 '
-        '| k = 1 (linear) |',
+        '| learner scaling exponent (time ~ meshes^k) | align k = 1.00, learn k = 1.04, '
+        'joint learner k = 0.98 | k = 1 (linear) |',
         '| learner, 20,000 meshes, 50 subjects | align 0.50 s + learn 1.25 s '
         '(joint learner 3.00 s) |  |',
     ]

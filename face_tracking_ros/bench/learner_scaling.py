@@ -1,9 +1,10 @@
 """Learner time against the number of training meshes and of subjects (issue 9).
 
 Training meshes come from :func:`.world.training_set` (34 nodes). For each size the §3.3
-alignment and the §3.4 learner (:func:`learn_seed`) are timed separately; against the number of
-subjects at a fixed number of meshes, the joint learner (:func:`learn_joint`) is timed too. The
-scaling exponent is the slope of log(time) against log(meshes) (1 = linear, the target).
+alignment, the §3.4 learner (:func:`learn_seed`) and the joint learner (:func:`learn_joint`, the
+default of ``face-tracking learn``) are timed separately, against the number of meshes and against
+the number of subjects at a fixed number of meshes. The scaling exponent of each stage is the slope
+of log(time) against log(meshes) (1 = linear, the target).
 """
 
 from __future__ import annotations
@@ -36,7 +37,7 @@ LEARNERS: dict[str, Callable[[TrainingSet], LearningResult]] = {
 
 
 def run(options: BenchOptions) -> dict[str, Any]:
-    """Time alignment and learning against meshes (seed learner) and subjects (both learners).
+    """Time alignment and both learners against the number of meshes and of subjects.
 
     Returns:
         ``{'meshes': [rows], 'meshes_exponent': {...}, 'subjects': [rows]}``; every row gives
@@ -45,7 +46,7 @@ def run(options: BenchOptions) -> dict[str, Any]:
     population = FacePopulation(seed=options.seed)
     rng = np.random.default_rng(options.seed)
     by_meshes = [
-        _timed_row(population, SUBJECTS, meshes, {'seed': learn_seed}, rng)
+        _timed_row(population, SUBJECTS, meshes, LEARNERS, rng)
         for meshes in (QUICK_MESHES if options.quick else MESHES)
     ]
     subject_meshes = QUICK_SUBJECT_MESHES if options.quick else SUBJECT_MESHES
@@ -56,7 +57,7 @@ def run(options: BenchOptions) -> dict[str, Any]:
     sizes = np.log([row['meshes'] for row in by_meshes])
     exponents = {
         stage: float(np.polyfit(sizes, np.log([row[stage] for row in by_meshes]), 1)[0])
-        for stage in ('align_s', 'seed_s')
+        for stage in ('align_s', *(f'{name}_s' for name in LEARNERS))
     }
     return {'meshes': by_meshes, 'meshes_exponent': exponents, 'subjects': by_subjects}
 

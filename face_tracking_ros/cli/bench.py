@@ -19,6 +19,7 @@ from face_tracking_ros.bench.common import BenchOptions
 from face_tracking_ros.bench.runner import BENCHMARKS, DEFAULT_BENCHMARKS, run_benchmarks
 
 TABLE_SIZE = '640x480'
+STAGE_NAMES = {'align_s': 'align', 'seed_s': 'learn', 'joint_s': 'joint learner'}  # learner rows
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -154,7 +155,7 @@ def _learner_rows(learner: dict[str, Any]) -> list[tuple[str, str, str]]:
         rows.append(
             (
                 'learner scaling exponent (time ~ meshes^k)',
-                f'align k = {e["align_s"]:.2f}, learn k = {e["seed_s"]:.2f}',
+                ', '.join(f'{STAGE_NAMES[stage]} k = {k:.2f}' for stage, k in e.items()),
                 'k = 1 (linear)',
             )
         )
