@@ -30,7 +30,7 @@ SECONDS, QUICK_SECONDS = 15.0, 2.0
 RECORDED_TOPICS = '[face/state, face/action, face/shape, face/expression, face/identity]'
 PLAYED_FRAMES = 90  # frames of the mono bag bag_player plays (3 s at 30 fps)
 LEARN_SUBJECTS, LEARN_FRAMES = 4, 60  # raw stereo training bags of the learner, frames each
-LEARN_TIMEOUT_S = 600.0
+NODE_TIMEOUT_S = 600.0  # longest a node of _peak_until may take to be done
 POLL_S = 0.2
 
 
@@ -70,7 +70,7 @@ def _bag_player(options: BenchOptions, seconds: float) -> dict[str, Any]:
     config = scene_config(Kind.MONO, WIDTH, HEIGHT, PLAYED_FRAMES, options.seed)
     bag, _ = recorded_bag(options.work_dir, config)
     deadline = time.monotonic() + seconds
-    description = f'{WIDTH}x{HEIGHT} mono bag played in a loop for {seconds:g} s'
+    description = f'{WIDTH}x{HEIGHT} mono bag played in a loop, read {seconds:g} s after start'
     return _peak_until(
         'bag_player',
         {'bag': bag, 'loop': True},
@@ -94,13 +94,15 @@ def _learner(options: BenchOptions) -> dict[str, Any]:
         )
         record(config, bags)
     output = options.work_dir / 'memory_model.npz'
+    report = output.with_suffix('.json')  # written after the model: the learning is done
     output.unlink(missing_ok=True)
+    report.unlink(missing_ok=True)
     params = {'bag_dir': bags, 'output': output, 'from_images': True, 'simulate_clicks': 0.0}
     description = (
         f'learning from {LEARN_SUBJECTS} raw stereo bags of {LEARN_FRAMES} pairs '
         f'({WIDTH}x{HEIGHT}), tracked first'
     )
-    return _peak_until('learner', params, output.is_file, options, description)
+    return _peak_until('learner', params, report.is_file, options, description)
 
 
 def _peak_until(
@@ -112,19 +114,19 @@ def _peak_until(
 ) -> dict[str, Any]:
     """Run one node until ``done()``, then read its peak RSS and stop it.
 
-    A node that exits first, or is not done within LEARN_TIMEOUT_S, is reported as failed.
+    A node that exits first, or is not done within NODE_TIMEOUT_S, is reported as failed.
     """
     try:
         node = NodeProcess(name, params, options.domain_id, options.work_dir / f'{name}.log')
     except ConfigError as error:
         return skipped(str(error))
-    deadline = time.monotonic() + LEARN_TIMEOUT_S
+    deadline = time.monotonic() + NODE_TIMEOUT_S
     try:
         while not done():
             if not node.alive():
                 return {'failed': f'exited early: {node.tail(2)}'}
             if time.monotonic() > deadline:
-                return {'failed': f'not done after {LEARN_TIMEOUT_S:g} s: {node.tail(2)}'}
+                return {'failed': f'not done after {NODE_TIMEOUT_S:g} s: {node.tail(2)}'}
             time.sleep(POLL_S)
         return {'peak_rss_mb': node.peak_rss_mb(), 'run': description}
     finally:
