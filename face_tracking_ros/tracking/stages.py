@@ -10,7 +10,7 @@ same on every run, however fast the machine, because stages are counted, not tim
 from __future__ import annotations
 
 from collections.abc import Generator
-from itertools import count as counting
+import itertools
 from typing import TypeVar
 
 T = TypeVar('T')
@@ -19,14 +19,14 @@ Stages = Generator[None, None, T]
 """A staged computation: yields between stages, returns its result."""
 
 
-def run_stages(stages: Stages[T], count: int | None = None) -> tuple[bool, T | None]:
-    """Run up to ``count`` more stages (all that are left if None).
+def run_stages(stages: Stages[T], limit: int | None = None) -> tuple[bool, T | None]:
+    """Run up to ``limit`` more stages (all that are left if None).
 
     Returns:
         ``(True, result)`` once the computation has returned, ``(False, None)`` while stages
         are left.
     """
-    for _ in counting() if count is None else range(count):
+    for _ in itertools.count() if limit is None else range(limit):
         try:
             next(stages)
         except StopIteration as end:
