@@ -188,16 +188,16 @@ class MonoTrackerConfig:
         jacobian_refresh_px: the Jacobian is re-evaluated after the nodes have moved this far
             since it was last evaluated, level px (> 0).
         predict_motion: start a followed frame's solve from the constant-velocity prediction
-            of the last two estimates (:func:`_predicted`) instead of the last one. Measured on
-            issue 6's three 1000-frame sequences: the same errors to 0.01 degrees with the 34
-            nodes, and 18 % fewer Jacobians per frame.
+            (the head's turn and shift between the last two estimates, repeated) instead of
+            the last estimate. Measured on issue 6's three 1000-frame sequences: the same
+            errors to 0.01 degrees with 34 nodes, and 18 % fewer Jacobians per frame.
         coarsest_level_px: the coarsest pyramid level is solved only when the first step on
             the next finer one moves a node more than this, level px (>= 0; 0 always solves
-            it): with the prediction the coarsest level seldom has anything left to do.
-            Measured with the prediction on issue 6's sequences: Jacobians per frame
-            3.0-3.7 -> 2.1-2.5 at 0.5 px, errors within 0.01 degrees with the 34 nodes (one
-            19-node track 4.9 -> 3.3 degrees in y); on every 5th frame (6 fps, motion 5 times
-            faster) 5 of 6 tracks unchanged to 0.01 degrees (at 1 px, 3 of 6 lost frames).
+            it): after the prediction it seldom has anything left to do. Measured with the
+            prediction on issue 6's sequences: Jacobians per frame 3.0-3.7 -> 2.1-2.5 at
+            0.5 px, errors within 0.01 degrees with 34 nodes. On every 5th frame (motion 5
+            times faster), 5 of 6 tracks were unchanged to 0.01 degrees at 0.5 px; at 1 px, 3
+            of 6 lost frames.
         visibility_cos: a node's weight ramps from 0 to 1 as the cosine between its outward
             normal and the ray to the camera goes from this value to twice it (in [0, 0.5)).
         lost_residual_ratio: a node fails when its RMS residual exceeds this multiple of its
