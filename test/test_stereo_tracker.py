@@ -262,6 +262,20 @@ def test_tracks_a_moving_plane_in_3d() -> None:
     assert np.abs(final.left_px - RIG.left.project(frames[-1].nodes(19))).max() < 1.0
 
 
+def test_a_steady_motion_is_predicted_and_costs_fewer_iterations() -> None:
+    frames = [PLANE.moved(np.array([0.003, -0.002, 0.004]) * k) for k in range(8)]
+    init = RIG.left.project(PLANE.nodes(19))
+    spent = {}
+    for predict in (True, False):
+        tracker = StereoTracker(RIG, replace(PLANE_CONFIG, predict_motion=predict))
+        tracked = track_sequence(tracker, [f.pair() for f in frames], init)
+        assert np.all(tracked.status == TrackStatus.TRACKING)
+        errors = [_rms_mm(m, f.nodes(19)) for m, f in zip(tracked.meshes, frames, strict=True)]
+        assert max(errors) < 0.5, errors
+        spent[predict] = sum(r.iterations for r in tracked.results[3:])  # two pairs before
+    assert spent[True] < 0.8 * spent[False], spent
+
+
 def test_reset_from_a_named_initialisation() -> None:
     left, right = PLANE.pair()
     truth = PLANE.nodes()

@@ -103,6 +103,12 @@ class StereoTrackerConfig:
             in an iteration, pixels of that level (on a coarse level that last step is taken
             without evaluating its cost; the next level starts from it).
         damping: initial Levenberg-Marquardt damping, relative to the Hessian diagonal.
+        predict_motion: start each pair's solve from the constant-velocity prediction of the
+            nodes (their motion between the last two pairs, repeated) instead of the last
+            pair's nodes; eq. 5 still measures the motion from the last pair. Measured on
+            issue 5's protocol (seed 0): every figure the same to the digits shown, and 29 %
+            fewer linearisations per pair on the speed benchmark's sequence (coarse level
+            3.7 -> 2.0).
         huber_k: Huber threshold in robust standard deviations of the image residuals.
         noise_floor: smallest robust standard deviation assumed for image residuals, grey levels.
         lost_ratio: the track is LOST when the median over node patches of the residual RMS
@@ -161,6 +167,7 @@ class StereoTrackerConfig:
     max_iterations: int = 6
     step_tolerance: float = 0.1
     damping: float = 1e-4
+    predict_motion: bool = True
     huber_k: float = 1.345
     noise_floor: float = 2.0
     lost_ratio: float = 0.8
@@ -314,6 +321,7 @@ class _State:
     noise: np.ndarray
     depths: DepthRefinement | None
     result: StereoResult
+    before: np.ndarray | None = None  # the nodes of the pair before ``nodes``' (prediction)
 
 
 class _Level(NamedTuple):
@@ -654,12 +662,14 @@ class StereoTracker:
     # -- tracking ----------------------------------------------------------------------------
 
     def _track(self, pyramids: tuple[ImagePyramid, ImagePyramid]) -> StereoResult:
-        """Solve eq. 4 + eq. 5 for this pair, coarse to fine, and update the state."""
+        """Solve eq. 4 + eq. 5 for this pair from the predicted nodes, and update the state."""
         state = self._state
         assert state is not None
         config = self._config
         huber = Huber.of(state.samples, config.huber_k * state.noise)
         nodes = state.nodes
+        if config.predict_motion and state.before is not None:
+            nodes = 2.0 * state.nodes - state.before
         iterations = 0
         history: list[float] = []
         try:
@@ -682,7 +692,7 @@ class StereoTracker:
         state.rotation = self._rotation(state.first_nodes, nodes)
         if state.depths is not None:
             nodes = self._refine_depths(state, pyramids, nodes, statistics.rms[0][LEFT])
-        state.nodes = nodes
+        state.before, state.nodes = state.nodes, nodes
         state.offsets = state.samples.level_offsets(state.rotation, 0)
         state.previous_templates = self._templates(
             pyramids, state.samples, nodes, self._deformed(state, state.offsets, nodes, 0)
