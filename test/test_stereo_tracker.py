@@ -276,6 +276,36 @@ def test_a_steady_motion_is_predicted_and_costs_fewer_iterations() -> None:
     assert spent[True] < 0.8 * spent[False], spent
 
 
+def test_the_coarsest_level_runs_only_for_a_plane_too_far_for_the_next(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """A small motion is solved on level 0 alone; a jump it cannot take, from level 1 exactly."""
+    levels: list[int] = []
+    level_of = StereoTracker._level
+    monkeypatch.setattr(
+        StereoTracker,
+        '_level',
+        lambda self, state, pyramids, index: (
+            levels.append(index) or level_of(self, state, pyramids, index)
+        ),
+    )
+    init = RIG.left.project(PLANE.nodes(19))
+    for shift, order in ((0.0002, [0]), (0.004, [0, 1, 0])):
+        frames = [PLANE, PLANE.moved(np.array([shift, 0.0, 0.0]))]
+        nodes = {}
+        for limit in (0.5, 0.0):
+            tracker = StereoTracker(RIG, replace(PLANE_CONFIG, coarsest_level_px=limit))
+            tracker.reset(init)
+            tracker.step(*frames[0].pair())
+            levels.clear()
+            result = tracker.step(*frames[1].pair())
+            assert levels == (order if limit else [1, 0])
+            assert _rms_mm(result.nodes_cam, frames[1].nodes(19)) < 0.5
+            nodes[limit] = result.nodes_cam
+        if len(order) > 1:  # started over from the same point: the full solve exactly
+            assert np.array_equal(nodes[0.5], nodes[0.0])
+
+
 def test_reset_from_a_named_initialisation() -> None:
     left, right = PLANE.pair()
     truth = PLANE.nodes()
@@ -360,6 +390,8 @@ def test_reset_and_config_reject_bad_input() -> None:
         StereoTrackerConfig(model_weight_edge=-1.0)
     with pytest.raises(ConfigError, match='fit_edge_weight'):
         StereoTrackerConfig(fit_edge_weight=2.0)
+    with pytest.raises(ConfigError, match='coarsest_level_px'):
+        StereoTrackerConfig(coarsest_level_px=-1.0)
 
 
 def test_face_model_term_needs_a_model(monkeypatch: pytest.MonkeyPatch) -> None:
