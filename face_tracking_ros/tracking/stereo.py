@@ -329,7 +329,7 @@ class _State:
     noise: np.ndarray
     depths: DepthRefinement | None
     result: StereoResult
-    before: np.ndarray | None = None  # the nodes of the pair before ``nodes``' (prediction)
+    before: np.ndarray | None = None  # the pair before's nodes (the motion prediction)
 
 
 class _Level(NamedTuple):
