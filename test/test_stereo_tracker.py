@@ -279,7 +279,7 @@ def test_a_steady_motion_is_predicted_and_costs_fewer_iterations() -> None:
 def test_the_coarsest_level_runs_only_for_a_plane_too_far_for_the_next(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
-    """A small motion is solved on level 0 alone; a jump it cannot take, from level 1 exactly."""
+    """coarsest_level_px on: level 0 alone for a small motion, level 1 first for a jump."""
     levels: list[int] = []
     level_of = StereoTracker._level
     monkeypatch.setattr(

@@ -110,11 +110,13 @@ class StereoTrackerConfig:
             fewer linearisations per pair on the speed benchmark's sequence (coarse level
             3.7 -> 2.0).
         coarsest_level_px: the coarsest pyramid level is solved only when the first step on
-            the next finer one moves a node more than this, level px (>= 0; 0 always solves
-            it): after the prediction it seldom has anything left to do. Measured on issue 5's
-            protocol (seed 0): node RMS 2.04 -> 2.05 mm (34 nodes), largest reprojection error
-            0.97 -> 0.96 px (19 nodes), the rest within 0.01; linearisations per pair 4.06 ->
-            2.54 on the speed benchmark's sequence.
+            the next finer one moves a node more than this, level px (>= 0; 0, the default,
+            always solves it). Faster but off by default: at 0.5 px, linearisations per pair
+            4.06 -> 2.54 on the speed benchmark's sequence, but on issue 5's protocol the
+            face edge slips more (seed 3, 1 px clicks: 3.75 -> 4.79 mm; exact clicks 1.70 ->
+            1.76 mm) and the 19-node drift grows (seeds 0-3: 0.22 / 0.32 / 0.34 / 0.28 -> 0.27
+            / 0.37 / 0.32 / 0.37 mm), while seed 2's largest 19-node reprojection error falls
+            (1.19 -> 1.03 px).
         huber_k: Huber threshold in robust standard deviations of the image residuals.
         noise_floor: smallest robust standard deviation assumed for image residuals, grey levels.
         lost_ratio: the track is LOST when the median over node patches of the residual RMS
@@ -174,7 +176,7 @@ class StereoTrackerConfig:
     step_tolerance: float = 0.1
     damping: float = 1e-4
     predict_motion: bool = True
-    coarsest_level_px: float = 0.5
+    coarsest_level_px: float = 0.0
     huber_k: float = 1.345
     noise_floor: float = 2.0
     lost_ratio: float = 0.8
