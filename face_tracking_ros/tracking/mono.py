@@ -107,6 +107,7 @@ from face_tracking_ros.tracking.bundle import (
     skin_offsets,
     surface_basis,
 )
+from face_tracking_ros.tracking.coarse_to_fine import coarse_to_fine
 from face_tracking_ros.tracking.initialisation import (
     FitConfig,
     Initialisation,
@@ -1082,13 +1083,11 @@ class MonoTracker:
         (``convergence_px``, ``coarse_convergence_px``) or at the first step that raises the
         cost: with the damping this small, a retry with more of it moves to about the same point.
         """
-        params = start
         costs: list[float] = []
         projections = self._invariance.projection(np.concatenate(templates)).split(len(templates))
-        coarsest = pyramid.num_levels - 1
-        trigger = self._config.coarsest_level_px or np.inf
-        index = coarsest - 1 if coarsest > 0 and trigger < np.inf else coarsest
-        while index >= 0:
+        accepted: list[tuple[_Params, _System]] = []  # each level's last accepted point
+
+        def solve(index: int, params: _Params, first_step_limit: float) -> _Params | None:
             level = _Level(
                 index=index,
                 image=pyramid.levels[index],
@@ -1098,23 +1097,23 @@ class MonoTracker:
                 projection=projections[index],
                 visibility=np.repeat(node_weights[:, None], templates[index].shape[1], axis=1),
             )
-            limit = trigger if index == coarsest - 1 else np.inf
-            solved, accepted = self._solve_level(level, params, free_sigma, costs, limit)
-            if solved is None:  # too far for this level: start over from the coarsest
-                index, trigger = coarsest, np.inf
-                continue
-            params, index = solved, index - 1
+            solved, last = self._solve_level(level, params, free_sigma, costs, first_step_limit)
+            accepted.append(last)
+            return solved
+
+        params = coarse_to_fine(pyramid.num_levels, self._config.coarsest_level_px, start, solve)
+        fallback, system = accepted[-1]  # level 0's
         return _Solution(
             params=params,
-            fallback=accepted[0],
-            condition=_condition(accepted[1].hessian),
-            fallback_cost=accepted[1].cost,
-            fallback_sampled=accepted[1].sampled,
-            fallback_residuals=accepted[1].residuals,
-            scale=accepted[1].scale,
+            fallback=fallback,
+            condition=_condition(system.hessian),
+            fallback_cost=system.cost,
+            fallback_sampled=system.sampled,
+            fallback_residuals=system.residuals,
+            scale=system.scale,
             iterations=len(costs),
             costs=tuple(costs),
-            projection=level.projection,
+            projection=projections[0],
         )
 
     def _solve_level(

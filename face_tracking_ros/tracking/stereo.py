@@ -54,6 +54,7 @@ from face_tracking_ros.model.model_file import load_model
 from face_tracking_ros.model.topology import Group, MeshTopology, mesh_topology
 from face_tracking_ros.recognition.node_fit import NodeFit, fit_model_to_nodes
 from face_tracking_ros.tracking.action_prior import ActionPrior, ModelPoint, PriorEvaluation
+from face_tracking_ros.tracking.coarse_to_fine import coarse_to_fine
 from face_tracking_ros.tracking.depth_refinement import DepthRefinement, depth_evidence
 from face_tracking_ros.tracking.initialisation import Initialisation
 from face_tracking_ros.tracking.mono import Detector
@@ -686,23 +687,25 @@ class StereoTracker:
             nodes = 2.0 * state.nodes - state.before
         iterations = 0
         history: list[float] = []
+        solved_levels: list[tuple[_Level, _Point]] = []  # with their last linearisation
+
+        def solve(index: int, start: np.ndarray, first_step_limit: float) -> np.ndarray | None:
+            nonlocal iterations
+            level = self._level(state, pyramids, index)
+            solved = self._solve_level(state, level, huber, start, first_step_limit)
+            if solved is None:
+                return None
+            nodes, spent, costs, linearised = solved
+            iterations += spent
+            history.extend(costs)
+            solved_levels.append((level, linearised))
+            return nodes
+
         try:
-            coarsest = config.pyramid_levels - 1
-            trigger = config.coarsest_level_px or np.inf
-            index = coarsest - 1 if coarsest > 0 and trigger < np.inf else coarsest
-            while index >= 0:
-                level = self._level(state, pyramids, index)
-                limit = trigger if index == coarsest - 1 else np.inf
-                solved = self._solve_level(state, level, huber, nodes, limit)
-                if solved is None:  # too far for this level: start over from the coarsest
-                    index, trigger = coarsest, np.inf
-                    continue
-                nodes, spent, costs, linearised = solved
-                iterations += spent
-                history.extend(costs)
-                index -= 1
+            nodes = coarse_to_fine(config.pyramid_levels, config.coarsest_level_px, nodes, solve)
         except (LinAlgError, FaceTrackingError, FloatingPointError) as error:
             return self._lose(f'solver failed: {error}')
+        level, linearised = solved_levels[-1]  # level 0's
         statistics = group_statistics(
             state.samples, linearised.sampled, linearised.residuals, level.templates[:, 0]
         )
