@@ -101,8 +101,8 @@ class StereoTrackerConfig:
         pyramid_levels: coarse-to-fine levels (1 = full resolution only).
         max_iterations: Levenberg-Marquardt iterations per pyramid level.
         step_tolerance: a level has converged when no node's projection moves more than this
-            in an iteration, pixels of that level (on a coarse level that last step is taken
-            without evaluating its cost; the next level starts from it).
+            in an iteration, pixels of that level (that last step is taken without evaluating
+            its cost).
         damping: initial Levenberg-Marquardt damping, relative to the Hessian diagonal.
         predict_motion: start each pair's solve from the constant-velocity prediction of the
             nodes (their motion between the last two pairs, repeated) instead of the last
@@ -841,10 +841,10 @@ class StereoTracker:
         """Levenberg-Marquardt at one pyramid level, from ``nodes``.
 
         Each trial point's evaluation samples the images with their gradients, so an accepted
-        point is linearised from it without sampling again (a step that ends the level is
-        evaluated without them). On a coarse level, the step that ends it (smaller than
-        ``step_tolerance``) is taken without evaluating its cost: the next level evaluates
-        that point first anyway.
+        point is linearised from it without sampling again. The step that ends a level
+        (smaller than ``step_tolerance``) is taken without evaluating its cost, as the mono
+        tracker takes its converged step: a coarse level's next level evaluates that point
+        first anyway, and level 0's result keeps the statistics of its last linearisation.
 
         Returns:
             The nodes, the iterations spent, the accepted costs and the point of the last
@@ -865,22 +865,19 @@ class StereoTracker:
             if motion > first_step_limit:
                 return None
             first_step_limit = np.inf
-            small = motion < config.step_tolerance
-            if small and level.index > 0:
-                nodes = candidate  # the next level starts by evaluating it
+            if motion < config.step_tolerance:
+                nodes = candidate  # converged
                 break
-            trial = self._evaluate(state, level, huber, candidate, with_gradient=not small)
+            trial = self._evaluate(state, level, huber, candidate)
             if trial.cost <= point.cost:
                 nodes, point = candidate, trial
                 history.append(trial.cost)
                 damping = max(damping / 10.0, 1e-9)
-                if small:
-                    break
                 system = self._linearise(state, level, point)
                 linearised = point
             else:
                 damping *= 10.0
-                if damping > 1e3 or small:
+                if damping > 1e3:
                     break
         return nodes, iterations, history[1:], linearised
 
@@ -896,18 +893,14 @@ class StereoTracker:
         level: _Level,
         huber: Huber,
         nodes: np.ndarray,
-        with_gradient: bool = True,
     ) -> _Point:
         """E(n) of eq. 4 + texture + eq. 5 + face-model term at ``nodes``.
 
-        The images are sampled with their gradients unless the point will not be linearised
-        (a converged level's last step).
+        The images are sampled with their gradients, for a linearisation there.
         """
         samples = state.samples
         points = samples.points(nodes, self._deformed(state, level.offsets, nodes, level.index))
-        sampled = sample_images(
-            level.images, level.projections, points, samples.mask, with_gradient
-        )
+        sampled = sample_images(level.images, level.projections, points, samples.mask)
         residuals = robust_residuals(samples, sampled, level.templates, state.coefficients, huber)
         cost = state.regulariser.cost(nodes, state.nodes)
         prior = None

@@ -289,15 +289,14 @@ class Sampled(NamedTuple):
         homogeneous: (C, 3, S) homogeneous pixel coordinates of the points in each image's
             pyramid level.
         values: (C, S) float32 grey levels.
-        gradient: (C, 2, S) float32 image gradient (d/dx, d/dy), grey levels per level pixel;
-            None when not sampled.
+        gradient: (C, 2, S) float32 image gradient (d/dx, d/dy), grey levels per level pixel.
         valid: (C, S) bool, the samples in use: in the set's mask, in front of the camera and
             at least a pixel inside the image.
     """
 
     homogeneous: np.ndarray
     values: np.ndarray
-    gradient: np.ndarray | None
+    gradient: np.ndarray
     valid: np.ndarray
 
 
@@ -375,23 +374,18 @@ def sample_images(
     projections: np.ndarray,
     points: np.ndarray,
     mask: np.ndarray,
-    with_gradient: bool = True,
 ) -> Sampled:
-    """Sample C images at 3-D points (eq. 2), with their gradients unless told not to.
+    """Sample C images at 3-D points (eq. 2), with their gradients.
 
     Args:
         images: C (H, W) float32 images (one pyramid level of each camera, all of one size).
         projections: (C, 3, 4) their projection matrices (:func:`level_projections`).
         points: (3, S) points in the left camera frame, m.
         mask: (S,) bool, the samples in use.
-        with_gradient: sample the image gradients too.
     """
     homogeneous = homogeneous_pixels(projections, points)
     pixels = homogeneous[:, :2] / homogeneous[:, 2:]
-    if with_gradient:
-        values, gradient = sample_with_gradient_rows(images, pixels[:, 0], pixels[:, 1])
-    else:
-        values, gradient = _values(images, pixels), None
+    values, gradient = sample_with_gradient_rows(images, pixels[:, 0], pixels[:, 1])
     inside = inside_xy(pixels[:, 0], pixels[:, 1], images[0].shape, margin=1.0)
     return Sampled(
         homogeneous=homogeneous,
@@ -472,7 +466,7 @@ def node_blocks(
 
     Args:
         samples: the sample set.
-        sampled: its C images, sampled with their gradients.
+        sampled: its C images, sampled.
         residuals: their robust residuals.
         projections: (C, 3, 4) the images' projection matrices.
 
@@ -480,7 +474,6 @@ def node_blocks(
         ``(blocks, vectors)``: per layout, (G_l, 3k, 3k) J^T W J and (G_l, 3k) J^T W r of each
         group (grey^2 / m^2, grey^2 / m), for :meth:`SampleSet.assemble`.
     """
-    assert sampled.gradient is not None
     valid = sampled.valid
     rows = space_gradient(
         projections[:, :, :3], sampled.homogeneous, sampled.gradient.astype(float)
