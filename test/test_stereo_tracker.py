@@ -306,6 +306,38 @@ def test_the_coarsest_level_runs_only_for_a_plane_too_far_for_the_next(
             assert np.array_equal(nodes[0.5], nodes[0.0])
 
 
+def test_a_coarse_level_ends_at_its_own_step_tolerance(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Level 1 stops at a larger step than level 0: fewer linearisations there, same track.
+
+    Without the prediction, whose starts leave level 1 little to do: 16 against 22 coarse
+    linearisations when written, the tracks 0.11 mm apart.
+    """
+    linearised: list[int] = []
+    linearise = StereoTracker._linearise
+    monkeypatch.setattr(
+        StereoTracker,
+        '_linearise',
+        lambda self, state, level, point: (
+            linearised.append(level.index) or linearise(self, state, level, point)
+        ),
+    )
+    frames = [PLANE.moved(np.array([0.003, -0.002, 0.004]) * k) for k in range(5)]
+    init = RIG.left.project(PLANE.nodes(19))
+    coarse, meshes = {}, {}
+    for tolerance in (0.5, 0.1):
+        linearised.clear()
+        config = replace(PLANE_CONFIG, coarse_step_tolerance=tolerance, predict_motion=False)
+        tracker = StereoTracker(RIG, config)
+        tracked = track_sequence(tracker, [f.pair() for f in frames], init)
+        assert np.all(tracked.status == TrackStatus.TRACKING)
+        coarse[tolerance] = linearised.count(1)
+        meshes[tolerance] = tracked.meshes
+        errors = [_rms_mm(m, f.nodes(19)) for m, f in zip(tracked.meshes, frames, strict=True)]
+        assert max(errors) < 0.5, errors
+    assert coarse[0.5] < coarse[0.1], coarse
+    assert np.abs(meshes[0.5] - meshes[0.1]).max() < 2e-4  # m
+
+
 def test_reset_from_a_named_initialisation() -> None:
     left, right = PLANE.pair()
     truth = PLANE.nodes()
@@ -392,6 +424,8 @@ def test_reset_and_config_reject_bad_input() -> None:
         StereoTrackerConfig(fit_edge_weight=2.0)
     with pytest.raises(ConfigError, match='coarsest_level_px'):
         StereoTrackerConfig(coarsest_level_px=-1.0)
+    with pytest.raises(ConfigError, match='coarse_step_tolerance'):
+        StereoTrackerConfig(coarse_step_tolerance=0.0)
 
 
 def test_face_model_term_needs_a_model(monkeypatch: pytest.MonkeyPatch) -> None:

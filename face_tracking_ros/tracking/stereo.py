@@ -100,9 +100,14 @@ class StereoTrackerConfig:
         patch_half_size: node patches are (2 h + 1)^2 samples about one pixel apart.
         pyramid_levels: coarse-to-fine levels (1 = full resolution only).
         max_iterations: Levenberg-Marquardt iterations per pyramid level.
-        step_tolerance: a level has converged when no node's projection moves more than this
-            in an iteration, pixels of that level (that last step is taken without evaluating
-            its cost).
+        step_tolerance: level 0 has converged when no node's projection moves more than this
+            in an iteration, px (that last step is taken without evaluating its cost).
+        coarse_step_tolerance: the same for the coarser levels, px of that level: the next
+            level refines their solution anyway. Measured at 0.5 against 0.1: linearisations
+            per pair 4.06 -> 3.06 on the speed benchmark's sequence (34 nodes, 300 pairs; node
+            RMS 3.55 mm both, and 4.63 -> 4.48 mm on seed 1); on issue 5's protocol every
+            figure of seeds 0-3 within 0.04 (19-node drift 0.21 -> 0.24 mm on seed 0, 0.34 ->
+            0.32 mm on seed 2).
         damping: initial Levenberg-Marquardt damping, relative to the Hessian diagonal.
         predict_motion: start each pair's solve from the constant-velocity prediction of the
             nodes (their motion between the last two pairs, repeated) instead of the last
@@ -113,7 +118,8 @@ class StereoTrackerConfig:
         coarsest_level_px: the coarsest pyramid level is solved only when the first step on
             the next finer one moves a node more than this, level px (>= 0; 0, the default,
             always solves it). Faster but off by default: at 0.5 px, linearisations per pair
-            4.06 -> 2.54 on the speed benchmark's sequence, but on issue 5's protocol the
+            3.06 -> 2.62 on the speed benchmark's sequence (4.06 -> 2.54 while the coarse
+            level ran to ``step_tolerance``), but on issue 5's protocol (measured then) the
             face edge slips more (seed 3, 1 px clicks: 3.75 -> 4.79 mm; exact clicks 1.70 ->
             1.76 mm) and the 19-node drift grows (seeds 0-3: 0.22 / 0.32 / 0.34 / 0.28 -> 0.27
             / 0.37 / 0.32 / 0.37 mm), while seed 2's largest 19-node reprojection error falls
@@ -175,6 +181,7 @@ class StereoTrackerConfig:
     pyramid_levels: int = 2
     max_iterations: int = 6
     step_tolerance: float = 0.1
+    coarse_step_tolerance: float = 0.5
     damping: float = 1e-4
     predict_motion: bool = True
     coarsest_level_px: float = 0.0
@@ -210,6 +217,7 @@ class StereoTrackerConfig:
             'pyramid_levels': self.pyramid_levels >= 1,
             'max_iterations': self.max_iterations >= 1,
             'step_tolerance': self.step_tolerance > 0.0,
+            'coarse_step_tolerance': self.coarse_step_tolerance > 0.0,
             'damping': self.damping >= 0.0,
             'coarsest_level_px': self.coarsest_level_px >= 0.0,
             'huber_k': self.huber_k > 0.0,
@@ -842,7 +850,7 @@ class StereoTracker:
 
         Each trial point's evaluation samples the images with their gradients, so an accepted
         point is linearised from it without sampling again. The step that ends a level
-        (smaller than ``step_tolerance``) is taken without evaluating its cost, as the mono
+        (smaller than its step tolerance) is taken without evaluating its cost, as the mono
         tracker takes its converged step: a coarse level's next level evaluates that point
         first anyway, and level 0's result keeps the statistics of its last linearisation.
 
@@ -853,6 +861,7 @@ class StereoTracker:
         """
         config = self._config
         damping = config.damping
+        tolerance = config.coarse_step_tolerance if level.index else config.step_tolerance
         point = self._evaluate(state, level, huber, nodes)
         system = self._linearise(state, level, point)
         linearised = point
@@ -865,7 +874,7 @@ class StereoTracker:
             if motion > first_step_limit:
                 return None
             first_step_limit = np.inf
-            if motion < config.step_tolerance:
+            if motion < tolerance:
                 nodes = candidate  # converged
                 break
             trial = self._evaluate(state, level, huber, candidate)
