@@ -130,7 +130,7 @@ def _live_rows(live: dict[str, Any]) -> list[tuple[str, str, str]]:
         return []
     f = live['at_30hz']
     latency = (
-        f'{f["latency_p50_ms"]:.0f} ms p50, {f["latency_p99_ms"]:.0f} ms p99'
+        f'{f["latency_p50_ms"]:.1f} ms p50, {f["latency_p99_ms"]:.1f} ms p99'
         if f['received']
         else 'no face/state received'
     )
