@@ -323,8 +323,9 @@ def adjustment_stages(
     """Levenberg-Marquardt on the bundle cost from ``start`` (``problem.config.iterations``).
 
     Staged (:mod:`.stages`): the first stage sets the adjustment up and linearises it at
-    ``start``; each further one is one iteration (a damped step, its cost and, when accepted,
-    the normal equations at its end). The images must stay unchanged until it returns.
+    ``start``; each further one is one iteration (a damped step, and the cost and normal
+    equations at its end, kept when the cost is lower: the views' residuals are sampled once
+    for both). The images must stay unchanged until it returns.
 
     Args:
         problem: what stays fixed.
@@ -335,30 +336,29 @@ def adjustment_stages(
     Returns:
         The adjustment (:func:`rebased` estimate); the start when no step lowered the cost.
     """
-    solve = _Solve.of(problem, images, visibility, start)
+    solve, views = _Solve.of(problem, images, visibility, start)
     estimate, damping = start, 1e-3
-    cost, hessian, gradient = solve.normal_equations(estimate)
+    cost, hessian, gradient = solve.normal_equations(estimate, views)
     initial, done = cost, 0
-    iterations = problem.config.iterations
-    for done in range(1, iterations + 1):
+    while done < problem.config.iterations:
+        done += 1
         yield
         try:
             step = _damped_step(hessian, gradient, damping)
         except LinAlgError:
             break
         trial = _updated(estimate, solve.layout, step)
-        trial_cost = solve.cost(trial)
+        trial_cost, trial_hessian, trial_gradient = solve.normal_equations(trial)
         if not np.isfinite(trial_cost) or trial_cost >= cost:
             damping *= 10.0
             if damping > 1e3:
                 break
             continue
         converged = cost - trial_cost < 1e-4 * cost
-        estimate, cost = trial, trial_cost
+        estimate, cost, hessian, gradient = trial, trial_cost, trial_hessian, trial_gradient
         damping = max(0.1 * damping, 1e-9)
-        if converged or done == iterations:
+        if converged:
             break
-        cost, hessian, gradient = solve.normal_equations(estimate)
     if cost >= initial:
         return Adjustment(start, initial, initial, done)
     return Adjustment(rebased(problem, estimate), initial, cost, done)
@@ -464,9 +464,14 @@ def _points(problem: Problem, pose: Pose, depth: np.ndarray) -> tuple[np.ndarray
     )
 
 
+_ViewSamples = tuple[np.ndarray, np.ndarray, tuple[np.ndarray, np.ndarray]]
+"""A view's projected residuals (N, M), sample mask (N, M) and Jacobian inputs (rotated
+samples, image gradient), :func:`_view_residuals`."""
+
+
 def _view_residuals(
     problem: Problem, template: _Template, image: np.ndarray, pose: Pose, depth: np.ndarray
-) -> tuple[np.ndarray, np.ndarray, tuple[np.ndarray, ...]]:
+) -> _ViewSamples:
     """A view's projected residuals (N, M), its sample mask and what its Jacobian needs."""
     rotated, (x, y) = _points(problem, pose, depth)
     values, gradient = sample_with_gradient_xy(image, x, y)
@@ -525,22 +530,27 @@ class _Solve(NamedTuple):
         images: list[np.ndarray],
         visibility: list[np.ndarray],
         start: Estimate,
-    ) -> _Solve:
-        """The fixed part of an adjustment from ``start`` (the scale: 1.4826 MAD there)."""
+    ) -> tuple[_Solve, list[_ViewSamples]]:
+        """The fixed part of an adjustment from ``start`` (the scale: 1.4826 MAD there).
+
+        Returns:
+            It and its views' samples at ``start``.
+        """
         template = _template(problem, images[0])
         weights = [problem.node_weights * visibility[0] * v for v in visibility[1:]]
         solve = cls(
             problem, _Layout.of(problem, len(images) - 1), template, images[1:], weights, 1.0
         )
+        views = solve._views(start)
         active = [
             np.abs(residuals[(weight[:, None] * inside) > 0])
-            for (residuals, inside, _), weight in zip(solve._views(start), weights, strict=True)
+            for (residuals, inside, _), weight in zip(views, weights, strict=True)
         ]
         values = np.concatenate(active) if active else np.zeros(0)
         spread = _MAD_TO_STD * float(np.median(values)) if values.size else 0.0
-        return solve._replace(scale=max(problem.scale_floor, spread))
+        return solve._replace(scale=max(problem.scale_floor, spread)), views
 
-    def _views(self, estimate: Estimate) -> list[tuple[np.ndarray, np.ndarray, tuple]]:
+    def _views(self, estimate: Estimate) -> list[_ViewSamples]:
         """Each other view's residuals, sample mask and Jacobian inputs at ``estimate``."""
         return [
             _view_residuals(self.problem, self.template, image, pose, estimate.depth)
@@ -555,27 +565,22 @@ class _Solve(NamedTuple):
         irls, cost = huber_irls(residuals, sample_weights, self.scale, self.problem.huber_k)
         return irls.reshape(residuals.shape) / self.scale**2, cost
 
-    def cost(self, estimate: Estimate) -> float:
-        """The bundle cost at ``estimate``."""
-        data = sum(
-            self._robust(residuals, inside, weight)[1]
-            for (residuals, inside, _), weight in zip(
-                self._views(estimate), self.weights, strict=True
-            )
-        )
-        size = self.layout.size
-        return data + self._model_terms(estimate, np.zeros((size, size)), np.zeros(size))
+    def normal_equations(
+        self, estimate: Estimate, views: list[_ViewSamples] | None = None
+    ) -> tuple[float, np.ndarray, np.ndarray]:
+        """Cost, (halved) Hessian and gradient of the bundle cost at ``estimate``.
 
-    def normal_equations(self, estimate: Estimate) -> tuple[float, np.ndarray, np.ndarray]:
-        """Cost, (halved) Hessian and gradient of the bundle cost at ``estimate``."""
+        ``views``: the views' samples there, when already taken (:meth:`of`).
+        """
         problem, layout = self.problem, self.layout
         hessian = np.zeros((layout.size, layout.size))
         gradient = np.zeros(layout.size)
         depth_blocks = np.zeros((len(problem.mean_shape), SURFACE_TERMS, SURFACE_TERMS))
         depth = _span(layout.depth)
         cost = 0.0
+        views = self._views(estimate) if views is None else views
         for (residuals, inside, (rotated, image_gradient)), pose, weight, index in zip(
-            self._views(estimate), estimate.views, self.weights, layout.views, strict=True
+            views, estimate.views, self.weights, layout.views, strict=True
         ):
             irls, data_cost = self._robust(residuals, inside, weight)
             cost += data_cost
