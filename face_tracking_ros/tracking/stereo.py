@@ -108,9 +108,10 @@ class StereoTrackerConfig:
         coarse_step_tolerance: the same for the coarser levels, px of that level: the next
             level refines their solution anyway. Measured at 0.5 against 0.1: linearisations
             per pair 4.06 -> 3.06 on the speed benchmark's sequence (34 nodes, 300 pairs; node
-            RMS 3.55 mm both, and 4.63 -> 4.48 mm on seed 1); on issue 5's protocol every
-            figure of seeds 0-3 within 0.04 (19-node drift 0.21 -> 0.24 mm on seed 0, 0.34 ->
-            0.32 mm on seed 2).
+            RMS 3.55 mm both, and 4.63 -> 4.48 mm on seed 1); on issue 5's protocol over seeds
+            0-3 every figure within 0.06 (seed 3, 1 px clicks: largest reprojection 4.91 ->
+            4.97 px, slip 3.78 -> 3.80 mm), but for seed 0's node RMS with 1 px clicks, 3.52
+            -> 3.64 mm, its value before level 0's last step went unevaluated (3.63).
         damping: initial Levenberg-Marquardt damping, relative to the Hessian diagonal.
         predict_motion: start each pair's solve from the constant-velocity prediction of the
             nodes (their motion between the last two pairs, repeated) instead of the last
