@@ -102,14 +102,15 @@ def _speed_rows(speed: dict[str, Any]) -> list[tuple[str, str, str]]:
                             target if size == TABLE_SIZE else '',
                         )
                     )
-            if 'mono_over_baseline' in figures:
-                rows.append(
-                    (
-                        f'mono / baseline time, {size}, {nodes.replace("_", " ")}',
-                        f'{figures["mono_over_baseline"]:.1f}x',
-                        '',
-                    )
+            rows.extend(
+                (
+                    f'{tracker} / baseline time, {size}, {nodes.replace("_", " ")}',
+                    f'{figures[f"{tracker}_over_baseline"]:.1f}x',
+                    '',
                 )
+                for tracker in ('mono', 'stereo')
+                if f'{tracker}_over_baseline' in figures
+            )
     return rows
 
 
