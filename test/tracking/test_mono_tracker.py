@@ -130,15 +130,26 @@ def test_a_steady_drift_is_predicted_and_costs_fewer_iterations(scene) -> None:
     assert spent[True] < 0.8 * spent[False]
 
 
-def test_the_coarsest_level_runs_only_for_a_face_too_far_for_the_next(scene) -> None:
+def test_the_coarsest_level_runs_only_for_a_face_too_far_for_the_next(scene, monkeypatch) -> None:
     """A jump the next level cannot take restarts on the coarsest: the full solve exactly."""
     model, image, init = scene
+    levels: list[int] = []
+    solve_level = MonoTracker._solve_level
+    monkeypatch.setattr(
+        MonoTracker,
+        '_solve_level',
+        lambda self, level, *args: levels.append(level.index) or solve_level(self, level, *args),
+    )
+    coarsest = MonoTrackerConfig().pyramid_levels - 1
     for shift, skipped in (((0.5, -0.4), True), ((11.0, 0.0), False)):
-        default = _started(model, image, init).step(_shifted(image, shift))
+        tracker = _started(model, image, init)
+        levels.clear()
+        default = tracker.step(_shifted(image, shift))
+        default_levels = list(levels)
         full = _started(model, image, init, coarsest_level_px=0.0).step(_shifted(image, shift))
         assert default.ok and full.ok
         if skipped:  # a step on level 1 moved less than 0.5 px: level 2 never ran
-            assert len(default.cost_history) < len(full.cost_history)
+            assert coarsest not in default_levels and coarsest in levels
             # Measured: 0.048 px from the truth at most (the full solve 0.032)
             assert np.abs(default.nodes_px - init.points - shift).max() < 0.06
         else:  # one cost evaluated on level 1 before starting over
