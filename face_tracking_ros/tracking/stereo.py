@@ -699,7 +699,7 @@ class StereoTracker:
             nodes = 2.0 * state.nodes - state.before
         iterations = 0
         history: list[float] = []
-        solved_levels: list[tuple[_Level, _Point]] = []  # with their last linearisation
+        solved_levels: list[tuple[_Level, _Point]] = []  # with their last accepted point
 
         def solve(index: int, start: np.ndarray, first_step_limit: float) -> np.ndarray | None:
             nonlocal iterations
@@ -707,19 +707,19 @@ class StereoTracker:
             solved = self._solve_level(state, level, huber, start, first_step_limit)
             if solved is None:
                 return None
-            nodes, spent, costs, linearised = solved
+            nodes, spent, costs, accepted = solved
             iterations += spent
             history.extend(costs)
-            solved_levels.append((level, linearised))
+            solved_levels.append((level, accepted))
             return nodes
 
         try:
             nodes = coarse_to_fine(config.pyramid_levels, config.coarsest_level_px, nodes, solve)
         except (LinAlgError, FaceTrackingError, FloatingPointError) as error:
             return self._lose(f'solver failed: {error}')
-        level, linearised = solved_levels[-1]  # level 0's
+        level, accepted = solved_levels[-1]  # level 0's
         statistics = group_statistics(
-            state.samples, linearised.sampled, linearised.residuals, level.templates[:, 0]
+            state.samples, accepted.sampled, accepted.residuals, level.templates[:, 0]
         )
         problem = self._check(nodes, statistics)
         if problem:
@@ -856,19 +856,18 @@ class StereoTracker:
         point is linearised from it without sampling again. The step that ends a level
         (smaller than its step tolerance) is taken without evaluating its cost, as the mono
         tracker takes its converged step: a coarse level's next level evaluates that point
-        first anyway, and level 0's result keeps the statistics of its last linearisation.
+        first anyway, and level 0's result keeps the statistics of its last accepted point.
 
         Returns:
-            The nodes, the iterations spent, the accepted costs and the point of the last
-            linearisation; None when the first step would move a node more than
-            ``first_step_limit`` px of this level.
+            The nodes, the iterations spent, the accepted costs and the last accepted point
+            (where the last linearisation was made); None when the first step would move a
+            node more than ``first_step_limit`` px of this level.
         """
         config = self._config
         damping = config.damping
         tolerance = config.coarse_step_tolerance if level.index else config.step_tolerance
         point = self._evaluate(state, level, huber, nodes)
         system = self._linearise(state, level, point)
-        linearised = point
         history = [point.cost]
         iterations = 0
         while iterations < config.max_iterations:
@@ -887,12 +886,11 @@ class StereoTracker:
                 history.append(trial.cost)
                 damping = max(damping / 10.0, 1e-9)
                 system = self._linearise(state, level, point)
-                linearised = point
             else:
                 damping *= 10.0
                 if damping > 1e3:
                     break
-        return nodes, iterations, history[1:], linearised
+        return nodes, iterations, history[1:], point
 
     def _pixel_motion(self, nodes: np.ndarray, moved: np.ndarray) -> float:
         """Largest image motion of a node between two estimates, in either camera, px."""
