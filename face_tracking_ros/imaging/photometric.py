@@ -39,14 +39,17 @@ class PhotometricProjection:
     Attributes:
         basis: (N, M, K) orthonormal columns spanning each patch's brightness changes (K = 0
             for NONE); columns a template does not need (a flat template's gain) are zero.
+        basis_rows: the same basis as contiguous (N, K, M) rows U', for the compiled kernels
+            (:func:`project_out_row`); made from ``basis``.
     """
 
     basis: np.ndarray
-    _basis_t: np.ndarray = field(init=False, repr=False, compare=False)
+    basis_rows: np.ndarray = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
-        """Keep a contiguous (N, K, M) transpose of the basis for :meth:`apply`."""
-        object.__setattr__(self, '_basis_t', np.ascontiguousarray(self.basis.transpose(0, 2, 1)))
+        """Keep a contiguous (N, K, M) transpose of the basis for the compiled kernels."""
+        rows = np.ascontiguousarray(self.basis.transpose(0, 2, 1))
+        object.__setattr__(self, 'basis_rows', rows)
 
     @classmethod
     def of(
@@ -67,7 +70,7 @@ class PhotometricProjection:
         Several templates' projections are cheaper made at once (one call on all their patches)
         and split afterwards; each patch's projection depends on its own template alone.
         """
-        blocks = np.split(self._basis_t, parts)
+        blocks = np.split(self.basis_rows, parts)
         return tuple(PhotometricProjection(basis=block.transpose(0, 2, 1)) for block in blocks)
 
     def apply(self, values: np.ndarray) -> np.ndarray:
@@ -75,7 +78,7 @@ class PhotometricProjection:
         if self.basis.shape[-1] == 0:
             return values
         stack = np.ascontiguousarray(values if values.ndim == 3 else values[None], dtype=float)
-        projected = _project_out(stack, self._basis_t)
+        projected = _project_out(stack, self.basis_rows)
         return projected if values.ndim == 3 else projected[0]
 
 
@@ -125,6 +128,25 @@ class PhotometricInvariance:
         return PhotometricProjection(basis=rows.transpose(0, 2, 1))
 
 
+@numba.njit(**FAST)
+def project_out_row(row: np.ndarray, patch: np.ndarray, weights: np.ndarray) -> None:
+    """``row - U U' row`` in place, for one (M,) row of a patch and its (K, M) rows U'.
+
+    ``weights`` is a (K,) scratch buffer. The dot products may be reassociated (vectorised);
+    infinities and NaNs propagate. Other kernels call it on their own rows.
+    """
+    columns, size = patch.shape
+    for k in range(columns):
+        total = 0.0
+        for m in range(size):
+            total += row[m] * patch[k, m]
+        weights[k] = total
+    for k in range(columns):
+        weight = weights[k]
+        for m in range(size):
+            row[m] -= weight * patch[k, m]
+
+
 @numba.njit(
     'f8[:, :, ::1](f8[:, :, ::1], f8[:, :, ::1])',
     **FAST,
@@ -132,28 +154,14 @@ class PhotometricInvariance:
 def _project_out(values: np.ndarray, basis_t: np.ndarray) -> np.ndarray:
     """``values - (values U) U'`` per patch n: (J, N, M) rows, (N, K, M) orthonormal rows U'.
 
-    A basis of one patch (N = 1) serves every patch. The dot products may be reassociated
-    (vectorised); infinities and NaNs propagate.
+    A basis of one patch (N = 1) serves every patch.
     """
-    rows, count, size = values.shape
-    columns = basis_t.shape[1]
-    projected = np.empty_like(values)
-    weights = np.empty((rows, columns))
-    for n in range(count):
+    projected = values.copy()
+    weights = np.empty(basis_t.shape[1])
+    for n in range(values.shape[1]):
         patch = basis_t[n if len(basis_t) > 1 else 0]
-        for j in range(rows):
-            for k in range(columns):
-                total = 0.0
-                for m in range(size):
-                    total += values[j, n, m] * patch[k, m]
-                weights[j, k] = total
-        for j in range(rows):
-            out = projected[j, n]
-            out[:] = values[j, n]
-            for k in range(columns):
-                weight = weights[j, k]
-                for m in range(size):
-                    out[m] -= weight * patch[k, m]
+        for j in range(values.shape[0]):
+            project_out_row(projected[j, n], patch, weights)
     return projected
 
 

@@ -64,6 +64,7 @@ from face_tracking_ros.imaging import (
     sample_with_gradient_xy,
     sample_xy,
 )
+from face_tracking_ros.tracking.bundle_kernels import add_view_normal_equations
 from face_tracking_ros.tracking.mono_kernels import (
     huber_irls,
     roi_jacobian,
@@ -243,14 +244,14 @@ class Adjustment(NamedTuple):
 
 
 def surface_basis(grid: np.ndarray) -> np.ndarray:
-    """(SURFACE_TERMS, N, M) skin depth basis ``1, u, v, u^2, u v, v^2`` at ROI samples.
+    """(SURFACE_TERMS, N, M) float64 skin depth basis ``1, u, v, u^2, u v, v^2`` at ROI samples.
 
     Args:
         grid: (N, M, 2) each sample's patch coordinates (u, v), in units of the ROI's
             half-width (so |u|, |v| <= 1 over an unshifted level-0 ROI).
     """
     u, v = grid[..., 0], grid[..., 1]
-    return np.ascontiguousarray(np.stack([np.ones_like(u), u, v, u * u, u * v, v * v]))
+    return np.stack([np.ones_like(u), u, v, u * u, u * v, v * v]).astype(float)
 
 
 def ray_directions(points: np.ndarray, omega: np.ndarray, t: np.ndarray) -> np.ndarray:
@@ -378,8 +379,8 @@ def _damped_step(hessian: np.ndarray, gradient: np.ndarray, damping: float) -> n
     scaling = 1.0 / np.sqrt(np.maximum(np.diag(hessian), 1e-12))
     scaled = hessian * scaling[:, None] * scaling[None, :]
     scaled[np.diag_indices_from(scaled)] += damping
-    factor = cho_factor(scaled)
-    return -scaling * cho_solve(factor, scaling * gradient)
+    factor = cho_factor(scaled, overwrite_a=True, check_finite=False)
+    return -scaling * cho_solve(factor, scaling * gradient, check_finite=False)
 
 
 def rebased(problem: Problem, estimate: Estimate) -> Estimate:
@@ -480,16 +481,29 @@ def _view_residuals(
     return residuals, inside, (rotated, gradient)
 
 
+class _Bases(NamedTuple):
+    """What moves a view's samples besides its pose, for :func:`~.mono_kernels.roi_jacobian`."""
+
+    nodes: np.ndarray  # (N, 3, q + 1): the action basis per node, and nothing for the skin
+    samples: np.ndarray  # (q + 1, 3, N, M): the ROI offsets' action basis, and their rays
+
+    @classmethod
+    def of(cls, problem: Problem) -> _Bases:
+        """The bases of ``problem`` (alpha, then the skin depth along the rays)."""
+        nodes = len(problem.mean_shape)
+        return cls(
+            np.concatenate([problem.action_nodes, np.zeros((nodes, 3, 1))], axis=2),
+            np.concatenate([problem.patches.action, problem.patches.direction[None]]),
+        )
+
+
 def _view_jacobian(
-    problem: Problem, pose: Pose, rotated: np.ndarray, gradient: np.ndarray
+    problem: Problem, bases: _Bases, pose: Pose, rotated: np.ndarray, gradient: np.ndarray
 ) -> np.ndarray:
     """(6 + q + 1, N, M) derivative of a view's samples: pose, alpha, skin depth along rays."""
     omega, t, alpha = pose
     rotation, d_rotation = rodrigues(omega)
     shape = problem.nodes(problem.first_sigma, alpha)
-    nodes = shape.shape[0]
-    node_basis = np.concatenate([problem.action_nodes, np.zeros((nodes, 3, 1))], axis=2)
-    sample_basis = np.concatenate([problem.patches.action, problem.patches.direction[None]])
     jacobian, _ = roi_jacobian(
         rotated,
         np.ascontiguousarray(rotation @ shape.T),
@@ -498,8 +512,8 @@ def _view_jacobian(
         gradient,
         rotation,
         d_rotation,
-        np.ascontiguousarray(node_basis),
-        np.ascontiguousarray(sample_basis),
+        bases.nodes,
+        bases.samples,
     )
     return jacobian
 
@@ -513,6 +527,7 @@ class _Solve(NamedTuple):
         template: frame 1's samples.
         images: the other views' (H, W) float32 images.
         weights: each other view's (N,) node weights (ROI weight, visibility in both views).
+        bases: what moves the samples besides the pose.
         scale: the robust residual scale s of the start, grey levels.
     """
 
@@ -521,6 +536,7 @@ class _Solve(NamedTuple):
     template: _Template
     images: list[np.ndarray]
     weights: list[np.ndarray]
+    bases: _Bases
     scale: float
 
     @classmethod
@@ -538,9 +554,8 @@ class _Solve(NamedTuple):
         """
         template = _template(problem, images[0])
         weights = [problem.node_weights * visibility[0] * v for v in visibility[1:]]
-        solve = cls(
-            problem, _Layout.of(problem, len(images) - 1), template, images[1:], weights, 1.0
-        )
+        layout = _Layout.of(problem, len(images) - 1)
+        solve = cls(problem, layout, template, images[1:], weights, _Bases.of(problem), 1.0)
         views = solve._views(start)
         active = [
             np.abs(residuals[(weight[:, None] * inside) > 0])
@@ -575,8 +590,6 @@ class _Solve(NamedTuple):
         problem, layout = self.problem, self.layout
         hessian = np.zeros((layout.size, layout.size))
         gradient = np.zeros(layout.size)
-        depth_blocks = np.zeros((len(problem.mean_shape), SURFACE_TERMS, SURFACE_TERMS))
-        depth = _span(layout.depth)
         cost = 0.0
         views = self._views(estimate) if views is None else views
         for (residuals, inside, (rotated, image_gradient)), pose, weight, index in zip(
@@ -584,26 +597,18 @@ class _Solve(NamedTuple):
         ):
             irls, data_cost = self._robust(residuals, inside, weight)
             cost += data_cost
-            jacobian = _view_jacobian(problem, pose, rotated, image_gradient)
-            rows = self.template.projection.apply(
-                np.concatenate([jacobian[:-1], problem.patches.surface * jacobian[-1]])
+            jacobian = _view_jacobian(problem, self.bases, pose, rotated, image_gradient)
+            add_view_normal_equations(
+                jacobian,
+                problem.patches.surface,
+                self.template.projection.basis_rows,
+                irls,
+                residuals,
+                int(index[0]),
+                int(layout.depth[0, 0]),
+                hessian,
+                gradient,
             )
-            local = _span(index)
-            dense, skin = rows[: len(index)], rows[len(index) :]
-            # J' W J and J' W r; node n's skin depth terms act on node n's samples only.
-            weighted_dense = (dense * irls).reshape(len(dense), -1)
-            hessian[local, local] += weighted_dense @ dense.reshape(len(dense), -1).T
-            by_node = np.ascontiguousarray(skin.transpose(1, 2, 0))  # (N, M, SURFACE_TERMS)
-            weighted_skin = np.ascontiguousarray((skin * irls).transpose(1, 0, 2))  # (N, S, M)
-            cross = weighted_dense.reshape(dense.shape).transpose(1, 0, 2) @ by_node
-            cross = cross.transpose(1, 0, 2).reshape(len(dense), -1)
-            hessian[local, depth] += cross
-            hessian[depth, local] += cross.T
-            depth_blocks += weighted_skin @ by_node
-            gradient[local] += weighted_dense @ residuals.ravel()
-            gradient[depth] += (weighted_skin @ residuals[:, :, None]).ravel()
-        rows = layout.depth
-        hessian[rows[:, :, None], rows[:, None, :]] += depth_blocks
         return cost + self._model_terms(estimate, hessian, gradient), hessian, gradient
 
     def _model_terms(self, estimate: Estimate, hessian: np.ndarray, gradient: np.ndarray) -> float:

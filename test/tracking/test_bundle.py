@@ -30,6 +30,7 @@ from face_tracking_ros.tracking.bundle import (
     skin_offsets,
     surface_basis,
 )
+from face_tracking_ros.tracking.bundle_kernels import add_view_normal_equations
 from face_tracking_ros.tracking.evaluation import evaluate_sequence, track_images, tracked_sequence
 from face_tracking_ros.tracking.mono import MonoTracker, MonoTrackerConfig
 
@@ -85,6 +86,35 @@ def _problem(first: tuple[np.ndarray, np.ndarray, np.ndarray], nodes: int, q: in
         huber_k=2.0,
         scale_floor=2.0,
     )
+
+
+def test_view_normal_equations_equal_the_dense_products():
+    """The compiled kernel adds J' W J and J' W r of a view, J laid out in full, projected."""
+    rng = np.random.default_rng(4)
+    dense, nodes, size = 4, 5, 9
+    jacobian = rng.normal(size=(dense + 1, nodes, size))
+    surface = rng.normal(size=(SURFACE_TERMS, nodes, size))
+    invariance = PhotometricInvariance.of(PhotometricModel.GAIN_FIELD, rng.normal(size=(size, 2)))
+    projection = invariance.projection(rng.normal(size=(nodes, size)))
+    irls, residuals = rng.uniform(size=(nodes, size)), rng.normal(size=(nodes, size))
+    local, depth = 1, 1 + dense + 2  # other unknowns before, between and after
+    unknowns = depth + nodes * SURFACE_TERMS + 3
+    hessian, gradient = rng.normal(size=(unknowns, unknowns)), rng.normal(size=unknowns)
+    full = np.zeros((unknowns, nodes, size))
+    full[local : local + dense] = jacobian[:dense]
+    for node in range(nodes):
+        rows = slice(depth + node * SURFACE_TERMS, depth + (node + 1) * SURFACE_TERMS)
+        full[rows, node] = surface[:, node] * jacobian[dense, node]
+    flat = projection.apply(full).reshape(unknowns, -1)
+    expected_hessian = hessian + (flat * irls.ravel()) @ flat.T
+    expected_gradient = gradient + (flat * irls.ravel()) @ residuals.ravel()
+
+    add_view_normal_equations(
+        jacobian, surface, projection.basis_rows, irls, residuals, local, depth, hessian, gradient
+    )
+
+    np.testing.assert_allclose(hessian, expected_hessian, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(gradient, expected_gradient, rtol=1e-12, atol=1e-12)
 
 
 def test_rebased_views_see_every_point_where_they_saw_it():
