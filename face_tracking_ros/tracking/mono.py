@@ -128,6 +128,7 @@ from face_tracking_ros.tracking.surface_patches import (
     node_frames,
     patch_basis,
     patch_interpolation,
+    surface_patch_interpolation,
     surface_patch_offsets,
 )
 
@@ -681,10 +682,13 @@ class MonoTracker:
         shape = self._model.identity_shape(params.sigma)
         grid = self._roi_grid(shape)
         spacing = self._config.patch_spacing_px * params.t[2] / self._camera.focal
-        offsets = surface_patch_offsets(shape, grid * (spacing * (1 << level)))
-        if depth is not None:
+        steps = grid * (spacing * (1 << level))
+        if depth is None:
+            offsets, weights = surface_patch_interpolation(shape, steps)
+        else:
+            offsets = surface_patch_offsets(shape, steps)
             offsets = self._with_skin(params, shape, offsets, grid, level, depth)
-        weights = patch_interpolation(shape, offsets)
+            weights = patch_interpolation(shape, offsets)
         action, identity = (
             np.ascontiguousarray(patch_basis(weights, basis).transpose(3, 2, 0, 1))
             for basis in self._node_bases

@@ -102,10 +102,36 @@ def patch_interpolation(shape: np.ndarray, offsets: np.ndarray) -> np.ndarray:
     Returns:
         (N, M, N) weight w_j of node j at each sample.
     """
-    count, samples = offsets.shape[:2]
-    xy = (shape[:, None, :2] + offsets[..., :2]).reshape(-1, 2)
-    weights = RBFInterpolator(shape[:, :2], np.eye(count), kernel='thin_plate_spline')(xy)
-    return weights.reshape(count, samples, count)
+    return _thin_plate_weights(shape, shape[:, None, :2] + offsets[..., :2])
+
+
+def _thin_plate_weights(shape: np.ndarray, xy: np.ndarray) -> np.ndarray:
+    """(..., N) thin-plate weights of the nodes ``shape`` (x-y) at (..., 2) points ``xy``."""
+    count = shape.shape[0]
+    interpolation = RBFInterpolator(shape[:, :2], np.eye(count), kernel='thin_plate_spline')
+    return interpolation(xy.reshape(-1, 2)).reshape(*xy.shape[:-1], count)
+
+
+def surface_patch_interpolation(
+    shape: np.ndarray, grid: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`surface_patch_offsets` and the :func:`patch_interpolation` weights at them.
+
+    Both from one thin-plate evaluation: the surface's depth at a sample is its weights applied
+    to the nodes' depths (the thin-plate interpolant is linear in the values it interpolates).
+
+    Args:
+        shape: (N, 3) nodes in the face frame, m.
+        grid: (N, M, 2) sample offsets along the face frame's x and y, m.
+
+    Returns:
+        ``(offsets, weights)``: (N, M, 3) offsets from each node to its samples on the surface,
+        m, and (N, M, N) the weight w_j of node j at each sample.
+    """
+    xy = shape[:, None, :2] + grid
+    weights = _thin_plate_weights(shape, xy)
+    samples = np.concatenate([xy, (weights @ shape[:, 2])[..., None]], axis=-1)
+    return samples - shape[:, None, :], weights
 
 
 def surface_patch_offsets(shape: np.ndarray, grid: np.ndarray) -> np.ndarray:

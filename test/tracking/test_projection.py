@@ -24,6 +24,7 @@ from face_tracking_ros.tracking.surface_patches import (
     node_frames,
     patch_basis,
     patch_interpolation,
+    surface_patch_interpolation,
     surface_patch_offsets,
 )
 
@@ -161,6 +162,15 @@ def test_surface_patch_offsets_lie_on_the_thin_plate_surface() -> None:
     # A flat mesh gives a flat surface.
     flat = surface_patch_offsets(shape * [1, 1, 0], grid)
     assert np.abs(flat[..., 2]).max() < 1e-12
+
+
+def test_surface_patch_interpolation_is_the_offsets_and_their_weights_at_once() -> None:
+    shape = mesh_topology(34).reference_shape
+    grid = np.random.default_rng(1).normal(0.0, 0.004, (34, 5, 2))
+    offsets, weights = surface_patch_interpolation(shape, grid)
+    np.testing.assert_allclose(offsets, surface_patch_offsets(shape, grid), rtol=0, atol=1e-12)
+    np.testing.assert_allclose(weights, patch_interpolation(shape, offsets), rtol=0, atol=1e-10)
+    assert np.abs(offsets[..., 2]).max() > 1e-3  # off the flat: the surface's depth is used
 
 
 def test_patch_basis_carries_node_motion_to_the_samples() -> None:
