@@ -324,9 +324,10 @@ def adjustment_stages(
     """Levenberg-Marquardt on the bundle cost from ``start`` (``problem.config.iterations``).
 
     Staged (:mod:`.stages`): the first stage sets the adjustment up and linearises it at
-    ``start``; each further one is one iteration (a damped step, and the cost and normal
-    equations at its end, kept when the cost is lower: the views' residuals are sampled once
-    for both). The images must stay unchanged until it returns.
+    ``start``; each further one is one iteration: a damped step and the cost at its end, then,
+    when the cost is lower and another iteration follows, the normal equations there from the
+    same samples of the views (a rejected or last step needs none). The images must stay
+    unchanged until it returns.
 
     Args:
         problem: what stays fixed.
@@ -339,8 +340,10 @@ def adjustment_stages(
     """
     solve, views = _Solve.of(problem, images, visibility, start)
     estimate, damping = start, 1e-3
-    cost, hessian, gradient = solve.normal_equations(estimate, views)
-    initial, done = cost, 0
+    evaluation = solve.evaluate(estimate, views)
+    hessian, gradient = solve.normal_equations(estimate, evaluation)
+    cost = initial = evaluation.cost
+    done = 0
     while done < problem.config.iterations:
         done += 1
         yield
@@ -349,17 +352,18 @@ def adjustment_stages(
         except LinAlgError:
             break
         trial = _updated(estimate, solve.layout, step)
-        trial_cost, trial_hessian, trial_gradient = solve.normal_equations(trial)
-        if not np.isfinite(trial_cost) or trial_cost >= cost:
+        evaluation = solve.evaluate(trial)
+        if not np.isfinite(evaluation.cost) or evaluation.cost >= cost:
             damping *= 10.0
             if damping > 1e3:
                 break
             continue
-        converged = cost - trial_cost < 1e-4 * cost
-        estimate, cost, hessian, gradient = trial, trial_cost, trial_hessian, trial_gradient
+        converged = cost - evaluation.cost < 1e-4 * cost
+        estimate, cost = trial, evaluation.cost
         damping = max(0.1 * damping, 1e-9)
-        if converged:
+        if converged or done == problem.config.iterations:
             break
+        hessian, gradient = solve.normal_equations(estimate, evaluation)
     if cost >= initial:
         return Adjustment(start, initial, initial, done)
     return Adjustment(rebased(problem, estimate), initial, cost, done)
@@ -518,6 +522,24 @@ def _view_jacobian(
     return jacobian
 
 
+class _Evaluation(NamedTuple):
+    """The bundle cost at an estimate, with what its normal equations need.
+
+    Attributes:
+        cost: the cost.
+        views: each other view's samples there.
+        irls: each other view's (N, M) IRLS weights over s^2.
+        hessian: the (halved) Hessian of the node depth, 2-D point and prior terms.
+        gradient: their (halved) gradient.
+    """
+
+    cost: float
+    views: list[_ViewSamples]
+    irls: list[np.ndarray]
+    hessian: np.ndarray
+    gradient: np.ndarray
+
+
 class _Solve(NamedTuple):
     """What stays fixed while an adjustment runs, and the cost and normal equations it needs.
 
@@ -580,23 +602,34 @@ class _Solve(NamedTuple):
         irls, cost = huber_irls(residuals, sample_weights, self.scale, self.problem.huber_k)
         return irls.reshape(residuals.shape) / self.scale**2, cost
 
-    def normal_equations(
-        self, estimate: Estimate, views: list[_ViewSamples] | None = None
-    ) -> tuple[float, np.ndarray, np.ndarray]:
-        """Cost, (halved) Hessian and gradient of the bundle cost at ``estimate``.
+    def evaluate(self, estimate: Estimate, views: list[_ViewSamples] | None = None) -> _Evaluation:
+        """The bundle cost at ``estimate``, and the model terms' part of its normal equations.
 
         ``views``: the views' samples there, when already taken (:meth:`of`).
         """
-        problem, layout = self.problem, self.layout
-        hessian = np.zeros((layout.size, layout.size))
-        gradient = np.zeros(layout.size)
-        cost = 0.0
         views = self._views(estimate) if views is None else views
-        for (residuals, inside, (rotated, image_gradient)), pose, weight, index in zip(
-            views, estimate.views, self.weights, layout.views, strict=True
-        ):
-            irls, data_cost = self._robust(residuals, inside, weight)
+        irls, cost = [], 0.0
+        for (residuals, inside, _), weight in zip(views, self.weights, strict=True):
+            view_irls, data_cost = self._robust(residuals, inside, weight)
+            irls.append(view_irls)
             cost += data_cost
+        hessian = np.zeros((self.layout.size, self.layout.size))
+        gradient = np.zeros(self.layout.size)
+        cost += self._model_terms(estimate, hessian, gradient)
+        return _Evaluation(cost, views, irls, hessian, gradient)
+
+    def normal_equations(
+        self, estimate: Estimate, evaluation: _Evaluation
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """(Halved) Hessian and gradient of the bundle cost at ``estimate``.
+
+        The views' terms are added to ``evaluation``'s (its arrays, in place).
+        """
+        problem, layout = self.problem, self.layout
+        hessian, gradient = evaluation.hessian, evaluation.gradient
+        for (residuals, _, (rotated, image_gradient)), irls, pose, index in zip(
+            evaluation.views, evaluation.irls, estimate.views, layout.views, strict=True
+        ):
             jacobian = _view_jacobian(problem, self.bases, pose, rotated, image_gradient)
             add_view_normal_equations(
                 jacobian,
@@ -609,7 +642,7 @@ class _Solve(NamedTuple):
                 hessian,
                 gradient,
             )
-        return cost + self._model_terms(estimate, hessian, gradient), hessian, gradient
+        return hessian, gradient
 
     def _model_terms(self, estimate: Estimate, hessian: np.ndarray, gradient: np.ndarray) -> float:
         """Add the node depth, 2-D point and prior terms to the normal equations; their cost."""
@@ -620,11 +653,6 @@ class _Solve(NamedTuple):
             + _click_term(problem, layout, posed, hessian, gradient)
             + _priors(problem, layout, estimate, hessian, gradient)
         )
-
-
-def _span(index: np.ndarray) -> slice:
-    """The slice of a contiguous, increasing array of parameter indices."""
-    return slice(int(index.flat[0]), int(index.flat[-1]) + 1)
 
 
 def _posed(problem: Problem, estimate: Estimate) -> _Posed:
