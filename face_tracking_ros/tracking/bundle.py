@@ -39,7 +39,8 @@ do not constrain the skin (a head that has hardly turned), the priors keep it on
 surface and frame 1 where the 2-D points put it. The residuals are projected like the tracker's
 (:mod:`~face_tracking_ros.imaging.photometric`) and Huber-weighted; the Jacobians are the
 tracker's own (:func:`~.mono_kernels.roi_jacobian`). Levenberg-Marquardt on the dense normal
-equations: p + 6 N + (6 + q) (V + 1) unknowns, a few hundred.
+equations: p + 6 N + (6 + q) (V + 1) unknowns, a few hundred; each view's part is one compiled
+pass over its samples (:mod:`.bundle_kernels`).
 
 Measured on the mono benchmark's 1000-frame sequences (3 seeds x 3 draws of 1 px click noise,
 true model, published pose), the tracker with the adjustment against without: rotation error
