@@ -46,8 +46,8 @@ def add_view_normal_equations(
         jacobian: (D + 1, N, M) unprojected derivatives of the samples with respect to the
             view's unknowns, and to a move along the sample's ray (last).
         surface: (S, N, M) the skin depth basis at the samples.
-        basis_rows: (N, K, M) the photometric projection's rows U' (one patch's rows serve every
-            when N = 1), :class:`~face_tracking_ros.imaging.PhotometricProjection`.
+        basis_rows: (N, K, M) the photometric projection's rows U' (one patch's rows serve all
+            patches when N = 1), :class:`~face_tracking_ros.imaging.PhotometricProjection`.
         irls: (N, M) the IRLS weights W (over s^2).
         residuals: (N, M) the projected residuals r.
         local: index of the view's first unknown.
