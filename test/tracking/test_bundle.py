@@ -88,13 +88,14 @@ def _problem(first: tuple[np.ndarray, np.ndarray, np.ndarray], nodes: int, q: in
     )
 
 
-def test_view_normal_equations_equal_the_dense_products():
+@pytest.mark.parametrize('photometric', [PhotometricModel.GAIN_FIELD, PhotometricModel.NONE])
+def test_view_normal_equations_equal_the_dense_products(photometric):
     """The compiled kernel adds J' W J and J' W r of a view, J laid out in full, projected."""
     rng = np.random.default_rng(4)
     dense, nodes, size = 4, 5, 9
     jacobian = rng.normal(size=(dense + 1, nodes, size))
     surface = rng.normal(size=(SURFACE_TERMS, nodes, size))
-    invariance = PhotometricInvariance.of(PhotometricModel.GAIN_FIELD, rng.normal(size=(size, 2)))
+    invariance = PhotometricInvariance.of(photometric, rng.normal(size=(size, 2)))
     projection = invariance.projection(rng.normal(size=(nodes, size)))
     irls, residuals = rng.uniform(size=(nodes, size)), rng.normal(size=(nodes, size))
     local, depth = 1, 1 + dense + 2  # other unknowns before, between and after
