@@ -152,8 +152,8 @@ class Patches(NamedTuple):
         offsets: (3, N, M) offsets from the nodes to their samples at alpha = 0, face frame, m,
             without skin depth.
         action: (q, 3, N, M) their derivative with respect to alpha.
-        surface: (SURFACE_TERMS, N, M) the skin depth basis at the samples
-            (:func:`surface_basis`).
+        surface: (SURFACE_TERMS, N, M) float64 the skin depth basis at the samples
+            (:func:`surface_basis`; the compiled normal equations take it as it is).
         direction: (3, N, M) unit rays from frame 1's camera centre through the samples, face
             frame: the skin depth moves the samples along them (:func:`skin_offsets`).
     """
