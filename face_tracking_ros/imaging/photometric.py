@@ -151,15 +151,15 @@ def project_out_row(row: np.ndarray, patch: np.ndarray, weights: np.ndarray) -> 
     'f8[:, :, ::1](f8[:, :, ::1], f8[:, :, ::1])',
     **FAST,
 )
-def _project_out(values: np.ndarray, basis_t: np.ndarray) -> np.ndarray:
+def _project_out(values: np.ndarray, basis_rows: np.ndarray) -> np.ndarray:
     """``values - (values U) U'`` per patch n: (J, N, M) rows, (N, K, M) orthonormal rows U'.
 
     A basis of one patch (N = 1) serves every patch.
     """
     projected = values.copy()
-    weights = np.empty(basis_t.shape[1])
+    weights = np.empty(basis_rows.shape[1])
     for n in range(values.shape[1]):
-        patch = basis_t[n if len(basis_t) > 1 else 0]
+        patch = basis_rows[n if len(basis_rows) > 1 else 0]
         for j in range(values.shape[0]):
             project_out_row(projected[j, n], patch, weights)
     return projected
