@@ -444,26 +444,27 @@ def _updated(estimate: Estimate, layout: _Layout, step: np.ndarray) -> Estimate:
 
 def _template(problem: Problem, image: np.ndarray) -> _Template:
     """Frame 1's samples at its estimate (the skin depth moves them along their rays only)."""
-    depth = np.zeros((len(problem.mean_shape), SURFACE_TERMS))
-    _, (x, y) = _points(problem, problem.first, depth)
+    _, (x, y) = _points(problem, problem.first, problem.patches.offsets)
     values = sample_xy(image, x, y)
     inside = inside_xy(x, y, image.shape, margin=1.0)
     return _Template(values, inside, problem.invariance.projection(values))
 
 
-def _points(problem: Problem, pose: Pose, depth: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``R P`` (3, N, M) of a view's ROI samples in frame 1's old face frame and their pixels."""
+def _points(problem: Problem, pose: Pose, offsets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``R P`` (3, N, M) of a view's ROI samples in frame 1's old face frame and their pixels.
+
+    ``offsets``: (3, N, M) the samples' offsets from their nodes at alpha = 0, on the skin
+    (:func:`skin_offsets`).
+    """
     omega, t, alpha = pose
-    patches = problem.patches
     shape = problem.nodes(problem.first_sigma, alpha)
-    offsets = skin_offsets(patches.offsets, patches.surface, patches.direction, depth)
     return roi_points(
         rodrigues(omega)[0],
         np.ascontiguousarray(shape),
         np.asarray(t, dtype=float),
         problem.camera,
-        np.ascontiguousarray(offsets),
-        patches.action,
+        offsets,
+        problem.patches.action,
         np.asarray(alpha, dtype=float),
         np.zeros((0, *offsets.shape)),
         np.zeros(0),
@@ -476,10 +477,13 @@ samples, image gradient), :func:`_view_residuals`."""
 
 
 def _view_residuals(
-    problem: Problem, template: _Template, image: np.ndarray, pose: Pose, depth: np.ndarray
+    problem: Problem, template: _Template, image: np.ndarray, pose: Pose, offsets: np.ndarray
 ) -> _ViewSamples:
-    """A view's projected residuals (N, M), its sample mask and what its Jacobian needs."""
-    rotated, (x, y) = _points(problem, pose, depth)
+    """A view's projected residuals (N, M), its sample mask and what its Jacobian needs.
+
+    ``offsets``: (3, N, M) the samples' offsets on the skin, as :func:`_points` takes them.
+    """
+    rotated, (x, y) = _points(problem, pose, offsets)
     values, gradient = sample_with_gradient_xy(image, x, y)
     residuals = template.projection.apply(values - template.values)
     inside = inside_xy(x, y, image.shape, margin=1.0) & template.inside
@@ -590,8 +594,10 @@ class _Solve(NamedTuple):
 
     def _views(self, estimate: Estimate) -> list[_ViewSamples]:
         """Each other view's residuals, sample mask and Jacobian inputs at ``estimate``."""
+        patches = self.problem.patches
+        offsets = skin_offsets(patches.offsets, patches.surface, patches.direction, estimate.depth)
         return [
-            _view_residuals(self.problem, self.template, image, pose, estimate.depth)
+            _view_residuals(self.problem, self.template, image, pose, offsets)
             for image, pose in zip(self.images, estimate.views, strict=True)
         ]
 
