@@ -444,22 +444,35 @@ def _updated(estimate: Estimate, layout: _Layout, step: np.ndarray) -> Estimate:
 
 def _template(problem: Problem, image: np.ndarray) -> _Template:
     """Frame 1's samples at its estimate (the skin depth moves them along their rays only)."""
-    _, (x, y) = _points(problem, problem.first, problem.patches.offsets)
+    omega, t, alpha = problem.first
+    shape = problem.nodes(problem.first_sigma, alpha)
+    _, (x, y) = _points(problem, rodrigues(omega)[0], shape, t, alpha, problem.patches.offsets)
     values = sample_xy(image, x, y)
     inside = inside_xy(x, y, image.shape, margin=1.0)
     return _Template(values, inside, problem.invariance.projection(values))
 
 
-def _points(problem: Problem, pose: Pose, offsets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _points(
+    problem: Problem,
+    rotation: np.ndarray,
+    shape: np.ndarray,
+    t: np.ndarray,
+    alpha: np.ndarray,
+    offsets: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:
     """``R P`` (3, N, M) of a view's ROI samples in frame 1's old face frame and their pixels.
 
-    ``offsets``: (3, N, M) the samples' offsets from their nodes at alpha = 0, on the skin
-    (:func:`skin_offsets`).
+    Args:
+        problem: the problem.
+        rotation: (3, 3) the view's R(omega).
+        shape: (N, 3) eq. 3's nodes at its alpha (frame 1's sigma), face frame.
+        t: (3,) its translation.
+        alpha: (q,) its alpha.
+        offsets: (3, N, M) the samples' offsets from their nodes at alpha = 0, on the skin
+            (:func:`skin_offsets`).
     """
-    omega, t, alpha = pose
-    shape = problem.nodes(problem.first_sigma, alpha)
     return roi_points(
-        rodrigues(omega)[0],
+        rotation,
         np.ascontiguousarray(shape),
         np.asarray(t, dtype=float),
         problem.camera,
@@ -471,9 +484,26 @@ def _points(problem: Problem, pose: Pose, offsets: np.ndarray) -> tuple[np.ndarr
     )
 
 
-_ViewSamples = tuple[np.ndarray, np.ndarray, tuple[np.ndarray, np.ndarray]]
-"""A view's projected residuals (N, M), sample mask (N, M) and Jacobian inputs (rotated
-samples, image gradient), :func:`_view_residuals`."""
+class _ViewSamples(NamedTuple):
+    """A view's samples at an estimate and what its Jacobian needs (:func:`_view_residuals`).
+
+    Attributes:
+        residuals: (N, M) projected residuals.
+        inside: (N, M) sample mask.
+        rotated: (3, N, M) ``R P`` of the samples.
+        gradient: (2, N, M) the image gradient at them.
+        rotation: (3, 3) R(omega) of the view.
+        d_rotation: (3, 3, 3) its derivatives dR / d omega_k.
+        shape: (N, 3) eq. 3's nodes at the view's alpha, face frame.
+    """
+
+    residuals: np.ndarray
+    inside: np.ndarray
+    rotated: np.ndarray
+    gradient: np.ndarray
+    rotation: np.ndarray
+    d_rotation: np.ndarray
+    shape: np.ndarray
 
 
 def _view_residuals(
@@ -483,11 +513,14 @@ def _view_residuals(
 
     ``offsets``: (3, N, M) the samples' offsets on the skin, as :func:`_points` takes them.
     """
-    rotated, (x, y) = _points(problem, pose, offsets)
+    omega, t, alpha = pose
+    rotation, d_rotation = rodrigues(omega)
+    shape = problem.nodes(problem.first_sigma, alpha)
+    rotated, (x, y) = _points(problem, rotation, shape, t, alpha, offsets)
     values, gradient = sample_with_gradient_xy(image, x, y)
     residuals = template.projection.apply(values - template.values)
     inside = inside_xy(x, y, image.shape, margin=1.0) & template.inside
-    return residuals, inside, (rotated, gradient)
+    return _ViewSamples(residuals, inside, rotated, gradient, rotation, d_rotation, shape)
 
 
 class _Bases(NamedTuple):
@@ -507,20 +540,17 @@ class _Bases(NamedTuple):
 
 
 def _view_jacobian(
-    problem: Problem, bases: _Bases, pose: Pose, rotated: np.ndarray, gradient: np.ndarray
+    problem: Problem, bases: _Bases, view: _ViewSamples, t: np.ndarray
 ) -> np.ndarray:
     """(6 + q + 1, N, M) derivative of a view's samples: pose, alpha, skin depth along rays."""
-    omega, t, alpha = pose
-    rotation, d_rotation = rodrigues(omega)
-    shape = problem.nodes(problem.first_sigma, alpha)
     jacobian, _ = roi_jacobian(
-        rotated,
-        np.ascontiguousarray(rotation @ shape.T),
+        view.rotated,
+        np.ascontiguousarray(view.rotation @ view.shape.T),
         np.asarray(t, dtype=float),
         problem.camera,
-        gradient,
-        rotation,
-        d_rotation,
+        view.gradient,
+        view.rotation,
+        view.d_rotation,
         bases.nodes,
         bases.samples,
     )
@@ -586,7 +616,7 @@ class _Solve(NamedTuple):
         views = solve._views(start)
         active = [
             np.abs(residuals[(weight[:, None] * inside) > 0])
-            for (residuals, inside, _), weight in zip(views, weights, strict=True)
+            for (residuals, inside, *_), weight in zip(views, weights, strict=True)
         ]
         values = np.concatenate(active) if active else np.zeros(0)
         spread = _MAD_TO_STD * float(np.median(values)) if values.size else 0.0
@@ -616,7 +646,7 @@ class _Solve(NamedTuple):
         """
         views = self._views(estimate) if views is None else views
         irls, cost = [], 0.0
-        for (residuals, inside, _), weight in zip(views, self.weights, strict=True):
+        for (residuals, inside, *_), weight in zip(views, self.weights, strict=True):
             view_irls, data_cost = self._robust(residuals, inside, weight)
             irls.append(view_irls)
             cost += data_cost
@@ -634,16 +664,16 @@ class _Solve(NamedTuple):
         """
         problem, layout = self.problem, self.layout
         hessian, gradient = evaluation.hessian, evaluation.gradient
-        for (residuals, _, (rotated, image_gradient)), irls, pose, index in zip(
+        for view, irls, (_, t, _), index in zip(
             evaluation.views, evaluation.irls, estimate.views, layout.views, strict=True
         ):
-            jacobian = _view_jacobian(problem, self.bases, pose, rotated, image_gradient)
+            jacobian = _view_jacobian(problem, self.bases, view, t)
             add_view_normal_equations(
                 jacobian,
                 problem.patches.surface,
                 self.template.projection.basis_rows,
                 irls,
-                residuals,
+                view.residuals,
                 int(index[0]),
                 int(layout.depth[0, 0]),
                 hessian,
