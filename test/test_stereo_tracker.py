@@ -6,10 +6,9 @@ placed on the plane has a known 3-D position in every frame.
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import replace
-from typing import Any
 
+from call_recording import record_method
 import cv2
 import numpy as np
 import pytest
@@ -97,21 +96,6 @@ PLANE = _Plane([0.0, -0.03, 0.6])
 
 def _rms_mm(nodes: np.ndarray, truth: np.ndarray) -> float:
     return float(np.sqrt(np.mean(np.sum((nodes - truth) ** 2, axis=1))) * 1000)
-
-
-def _record_levels(
-    monkeypatch: pytest.MonkeyPatch, name: str, level_of: Callable[..., int]
-) -> list[int]:
-    """The pyramid level of every later call of StereoTracker.<name>, from its arguments."""
-    levels: list[int] = []
-    method = getattr(StereoTracker, name)
-
-    def recorded(self: StereoTracker, *args: Any) -> Any:
-        levels.append(level_of(*args))
-        return method(self, *args)
-
-    monkeypatch.setattr(StereoTracker, name, recorded)
-    return levels
 
 
 def test_triangulation_recovers_points_and_takes_an_empty_set() -> None:
@@ -297,7 +281,7 @@ def test_the_coarsest_level_runs_only_for_a_plane_too_far_for_the_next(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
     """coarsest_level_px on: level 0 alone for a small motion, level 1 first for a jump."""
-    levels = _record_levels(monkeypatch, '_level', lambda state, pyramids, index: index)
+    levels = record_method(monkeypatch, StereoTracker, '_level', lambda _s, _p, index: index)
     init = RIG.left.project(PLANE.nodes(19))
     for shift, order in ((0.0002, [0]), (0.004, [0, 1, 0])):
         frames = [PLANE, PLANE.moved(np.array([shift, 0.0, 0.0]))]
@@ -321,7 +305,9 @@ def test_a_coarse_level_ends_at_its_own_step_tolerance(monkeypatch: pytest.Monke
     Without the prediction, whose starts leave level 1 little to do: 16 against 22 coarse
     linearisations when written, the tracks 0.11 mm apart.
     """
-    linearised = _record_levels(monkeypatch, '_linearise', lambda state, level, point: level.index)
+    linearised = record_method(
+        monkeypatch, StereoTracker, '_linearise', lambda _state, level, _point: level.index
+    )
     frames = [PLANE.moved(np.array([0.003, -0.002, 0.004]) * k) for k in range(5)]
     init = RIG.left.project(PLANE.nodes(19))
     coarse, meshes = {}, {}

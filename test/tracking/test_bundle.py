@@ -7,6 +7,7 @@ rendered frames of free head motion with 1 px click noise.
 
 from __future__ import annotations
 
+from call_recording import counted
 import numpy as np
 import pytest
 
@@ -300,11 +301,11 @@ def test_an_adjustment_runs_at_most_stages_per_frame_stages_a_frame(turning_head
     calls: list[str] = []
     for name in ('_bundle_problem', '_roi'):
         original = getattr(MonoTracker, name)
-        monkeypatch.setattr(MonoTracker, name, _counted(calls, name, original))
+        monkeypatch.setattr(MonoTracker, name, counted(calls, name, original))
     monkeypatch.setattr(
         bundle_module,
         '_damped_step',
-        _counted(calls, 'iteration', bundle_module._damped_step),
+        counted(calls, 'iteration', bundle_module._damped_step),
     )
     stages = {}
     for per_frame in (1, 2, 0):
@@ -321,13 +322,3 @@ def test_an_adjustment_runs_at_most_stages_per_frame_stages_a_frame(turning_head
     assert max(stages[1]) == 1
     assert max(stages[2]) == 2
     assert max(stages[0]) >= 1 + 2 + 3  # set-up, two iterations or more, three levels
-
-
-def _counted(calls: list[str], name: str, function):
-    """``function``, appending ``name`` to ``calls`` on every call."""
-
-    def counting(*args, **kwargs):
-        calls.append(name)
-        return function(*args, **kwargs)
-
-    return counting

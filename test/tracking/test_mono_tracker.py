@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import re
 
+from call_recording import record_method
 import cv2
 import numpy as np
 import pytest
@@ -133,13 +134,7 @@ def test_a_steady_drift_is_predicted_and_costs_fewer_iterations(scene) -> None:
 def test_the_coarsest_level_runs_only_for_a_face_too_far_for_the_next(scene, monkeypatch) -> None:
     """A jump the next level cannot take restarts on the coarsest: the full solve exactly."""
     model, image, init = scene
-    levels: list[int] = []
-    solve_level = MonoTracker._solve_level
-    monkeypatch.setattr(
-        MonoTracker,
-        '_solve_level',
-        lambda self, level, *args: levels.append(level.index) or solve_level(self, level, *args),
-    )
+    levels = record_method(monkeypatch, MonoTracker, '_solve_level', lambda level, *_: level.index)
     coarsest = MonoTrackerConfig().pyramid_levels - 1
     for shift, skipped in (((0.5, -0.4), True), ((11.0, 0.0), False)):
         tracker = _started(model, image, init)
