@@ -74,7 +74,8 @@ def test_quick_run_writes_finite_figures(tmp_path):
     assert len(protocol['still']['mean']['angle_std_deg']) == 3
     assert len(protocol['still']['mean']['angle_std_unfiltered_deg']) == 3
     stereo = results['benchmarks']['stereo_accuracy']
-    for run in ('exact_clicks', 'clicks_1px', 'nodes_19'):
+    runs = ('exact_clicks', 'clicks_1px', 'nodes_19', 'realistic_exact_clicks')
+    for run in (*runs, 'realistic_nodes_19'):
         assert len(stereo['runs'][run]['subjects']) == 3
         pooled = stereo['runs'][run]['pooled']
         assert pooled['tracked_fraction'] == 1.0
@@ -82,6 +83,8 @@ def test_quick_run_writes_finite_figures(tmp_path):
         assert 0.5 < pooled['node_rms_mm'] < 8.0
     assert set(stereo['learning']['34_nodes']) == {'true', 'exact_clicks', 'clicks_1px'}
     assert set(stereo['learning']['19_nodes']) == {'true', 'exact_clicks'}
+    for size in ('realistic_34_nodes', 'realistic_19_nodes'):
+        assert set(stereo['learning'][size]) == {'true', 'exact_clicks'}
     numbers = list(_numbers(results))
     assert len(numbers) > 50
     assert all(math.isfinite(value) for _, value in numbers), numbers
