@@ -17,7 +17,7 @@ from collections import Counter, deque
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 from tqdm import tqdm
 
@@ -25,11 +25,12 @@ from face_tracking_ros.errors import BagError, FaceTrackingError
 from face_tracking_ros.io.bags import BagWriter, bag_topics, message_count, read_messages
 from face_tracking_ros.io.messages import RosbagsMessages
 from face_tracking_ros.io.typestore import typestore
-from face_tracking_ros.processing.base import Finishing, Output, Port, Processor
+from face_tracking_ros.processing.base import Deferring, Finishing, Output, Port, Processor
 from face_tracking_ros.processing.parameters import OverrideParameters
 from face_tracking_ros.processing.registry import processor_factory
 
 Record = tuple[str, str, int, Any]  # (bag topic, msgtype, log time ns, message)
+ResultT = TypeVar('ResultT')
 
 
 @dataclass
@@ -188,6 +189,8 @@ class _Graph:
                 for output in _handle(processor, message, self._wanted, self._stats):
                     self._write_output(output, log_time)
                     pending.append((processor, output))
+                if isinstance(processor, Deferring):  # as the node, once the outputs are out
+                    _guarded(processor.run_deferred, message.topic, self._stats)
 
     def _write_output(self, output: Output, log_time: int) -> None:
         """Write one output and report it."""
@@ -206,11 +209,19 @@ def _handle(
     processor: Processor, message: Output, wanted: frozenset[str], stats: ReplayStats
 ) -> list[Output]:
     """The processor's outputs for one message; a bad input is counted, not raised."""
+    outputs = _guarded(
+        lambda: processor.handle(message.topic, message.msg, wanted), message.topic, stats
+    )
+    return outputs or []
+
+
+def _guarded(work: Callable[[], ResultT], topic: str, stats: ReplayStats) -> ResultT | None:
+    """``work()`` for a message on ``topic``, or None once its bad input has been counted."""
     try:
-        return processor.handle(message.topic, message.msg, wanted)
+        return work()
     except FaceTrackingError as error:
-        stats.errors[f'{message.topic}: {error}'[:200]] += 1
-        return []
+        stats.errors[f'{topic}: {error}'[:200]] += 1
+        return None
 
 
 def replay_bag(

@@ -194,6 +194,43 @@ def test_ctrl_c_still_writes_the_outputs_held_until_then(tmp_path):
     assert [m.msg.data for m in read_messages(tmp_path / 'out')] == [0, 1, 2, 4, 5, 6, 7, 8, 9]
 
 
+class DeferringProcessor(MeanProcessor):
+    """MeanProcessor with work left until a message's outputs are out (Deferring)."""
+
+    def __init__(self, events: list) -> None:
+        """Record each run of the deferred work in ``events``; the second one fails."""
+        super().__init__()
+        self._events = events
+        self._runs = 0
+
+    def run_deferred(self):
+        """Record the run."""
+        self._runs += 1
+        self._events.append(('deferred', self._runs))
+        if self._runs == 2:
+            raise InputError('deferred work failed')
+
+
+def test_deferred_work_runs_once_each_message_s_outputs_are_written(tmp_path):
+    # As the node publishes before it runs the deferred work; a failure there is counted.
+    _write_images(tmp_path / 'in', 5)
+    events = []
+    with BagWriter(tmp_path / 'out') as writer:
+        stats = replay(
+            [DeferringProcessor(events)],
+            read_messages(tmp_path / 'in'),
+            writer.write,
+            {'/cam/image': 'image'},
+            on_output=lambda output, _stamp: events.append(('mean', output.msg.data)),
+        )
+    assert events == [
+        *(('mean', 0), ('deferred', 1), ('mean', 1), ('deferred', 2)),
+        *(('mean', 2), ('deferred', 3), ('deferred', 4), ('mean', 4), ('deferred', 5)),
+    ]  # frame 3 is rejected by MeanProcessor, its deferred work runs all the same
+    assert stats.errors == {'image: deferred work failed': 1, 'image: frame marked bad': 1}
+    assert [m.msg.data for m in read_messages(tmp_path / 'out')] == [0, 1, 2, 4]
+
+
 def test_on_demand_outputs_only_when_wanted(tmp_path):
     _write_images(tmp_path / 'in', 3)
     for wanted, expected in (

@@ -31,12 +31,13 @@ from rclpy.qos import (
 
 from face_tracking_ros.errors import ConfigError, FaceTrackingError
 from face_tracking_ros.io.messages import RclpyMessages
-from face_tracking_ros.processing.base import Port, Processor, QosClass
+from face_tracking_ros.processing.base import Deferring, Port, Processor, QosClass
 from face_tracking_ros.processing.parameters import attribute_descriptions, field_default
 from face_tracking_ros.processing.registry import processor_factory
 from face_tracking_ros.threads import limit_blas_threads
 
 ConfigT = TypeVar('ConfigT')
+ResultT = TypeVar('ResultT')
 
 WARNING_PERIOD_S = 5.0  # a problem of one kind is logged at most once per period
 PROBLEM_KIND_CHARS = 60  # problems whose messages start alike are one kind
@@ -109,6 +110,9 @@ class ProcessorNode(Node):
             port.topic: self._publisher(port) for port in self._processor.outputs
         }
         self._on_demand = [port.topic for port in self._processor.outputs if port.on_demand]
+        self._deferred = (
+            self._processor.run_deferred if isinstance(self._processor, Deferring) else None
+        )
         self._diagnostics = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
         self._last_logged: dict[str, float] = {}
         self._input_subscriptions = [self._subscribe(port) for port in self._processor.inputs]
@@ -130,21 +134,30 @@ class ProcessorNode(Node):
         return self.create_subscription(msg_class, port.topic, callback, QOS_PROFILES[port.qos])
 
     def _handle(self, topic: str, msg: Any) -> None:
-        """Run the processor on one message; publish its outputs or report the bad input."""
+        """Run the processor on one message; publish its outputs or report the bad input.
+
+        Work the processor defers (:class:`~face_tracking_ros.processing.base.Deferring`) runs
+        after the outputs are published.
+        """
         wanted = frozenset(
             t for t in self._on_demand if self._output_publishers[t].get_subscription_count()
         )
+        outputs = self._guarded(topic, lambda: self._processor.handle(topic, msg, wanted))
+        for output in outputs or ():
+            self._output_publishers[output.topic].publish(output.msg)
+        if self._deferred is not None:
+            self._guarded(topic, self._deferred)
+
+    def _guarded(self, topic: str, work: Callable[[], ResultT]) -> ResultT | None:
+        """``work()``, or None once a bad input or a bug in it has been reported."""
         try:
-            outputs = self._processor.handle(topic, msg, wanted)
+            return work()
         except FaceTrackingError as error:
             self._problem(DiagnosticStatus.WARN, f'{topic}: {error}')
-            return
         except Exception as error:  # noqa: BLE001 - a bug must not end a robot's perception
             detail = ''.join(traceback.format_exception_only(error)).strip()
             self._problem(DiagnosticStatus.ERROR, f'{topic}: unexpected error: {detail}')
-            return
-        for output in outputs:
-            self._output_publishers[output.topic].publish(output.msg)
+        return None
 
     def _problem(self, level: bytes, message: str) -> None:
         """Log a problem once per WARNING_PERIOD_S per kind, and report it on /diagnostics."""

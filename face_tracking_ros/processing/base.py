@@ -5,7 +5,8 @@ A processor turns one input message into zero or more output messages. The live 
 outputs; offline replay (:mod:`face_tracking_ros.replay`) feeds it the messages of a bag and
 writes the outputs to another bag. Both run exactly the same :meth:`Processor.handle` code.
 A processor may also hold outputs back until the end of the stream (:class:`Finishing`), which
-only a replay has.
+only a replay has, and leave work that does not change a message's outputs until they are out
+(:class:`Deferring`): the node publishes first, so that work adds nothing to their latency.
 
 Topics are relative names so users can remap them; each port states its QoS class.
 """
@@ -76,6 +77,19 @@ class Processor(Protocol):
 
         Raises:
             FaceTrackingError: for a bad input message; the caller logs it and carries on.
+        """
+        ...
+
+
+@runtime_checkable
+class Deferring(Protocol):
+    """A processor with work that can wait until the outputs of a message are out."""
+
+    def run_deferred(self) -> None:
+        """Do the work the last handled message left; called once its outputs are published.
+
+        Raises:
+            FaceTrackingError: for a problem the caller logs before carrying on.
         """
         ...
 

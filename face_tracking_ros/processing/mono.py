@@ -143,6 +143,14 @@ class MonoProcessor:
             raise InputError(msg_text)
         return self._track(msg.header, gray, wanted)
 
+    def run_deferred(self) -> None:
+        """The last tracked image's share of the bundle adjustment (``MonoTracker.adjust``).
+
+        The node runs it once that image's outputs are published, so they do not wait for it.
+        """
+        if self._tracker is not None:
+            self._tracker.adjust()
+
     def _track_held_image(self, wanted: frozenset[str]) -> list[Output]:
         """Track the image that arrived before the first camera_info, once it has arrived."""
         if self._held_image is None or self._tracker is None:
@@ -181,7 +189,7 @@ class MonoProcessor:
             raise InputError(msg)
         stamp_ns = stamp_to_ns(header.stamp)
         self._check_stamp(stamp_ns)
-        result = self._pose_filter.filter(self._tracker.step(gray), stamp_ns * 1e-9)
+        result = self._pose_filter.filter(self._tracker.track(gray), stamp_ns * 1e-9)
         out_header = conversions.copy_header(self._factory, header)
         topology = self._model.topology
         outputs = face_outputs(self._factory, out_header, self._config.face_id, result, topology)

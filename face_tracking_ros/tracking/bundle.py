@@ -103,10 +103,10 @@ class BundleConfig:
         max_change: an adjustment that turns frame 1 or the newest view by more than this is
             not applied, rad (> 0): the views did not agree (an occlusion, a fast motion).
         stages_per_frame: how many stages of an adjustment (setting it up, each iteration,
-            each pyramid level's new ROIs) run per frame (>= 0); it is applied to the frame its
-            last stage ran on, the head's motion since its newest view carried over. 0 runs it
-            whole on the frame that starts it, which then takes many times a frame's usual
-            time.
+            each pyramid level's new ROIs) run per frame (>= 0), after the frame's result; the
+            track continues from it after the frame its last stage ran on, the head's motion
+            since its newest view carried over. 0 runs it whole after the frame that starts it,
+            which then takes many times a frame's usual time.
     """
 
     views: int = 8

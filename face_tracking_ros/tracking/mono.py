@@ -48,7 +48,10 @@ Design, in the seed's terms:
   click noise: rotation error 1.21 / 1.20 -> 0.62 / 0.77 degrees (x / y). An adjustment costs
   about ten times a frame's solve, so it runs two stages per frame (``bundle.stages_per_frame``,
   :mod:`.stages`) and is applied about five frames after its newest view, the head's motion
-  since then carried over; no frame pays for all of it.
+  since then carried over; no frame pays for all of it. Those stages run after the frame's
+  result is out (:meth:`MonoTracker.track`, then :meth:`MonoTracker.adjust`; ``step`` does
+  both), so a live node publishes the pose before it spends time on them, and an adjustment
+  takes effect from the frame after its last stage.
 - Optionally (``max_keyframes`` > 1) the drift term compares with the keyframe nearest in
   rotation instead of frame 1. Measured on synthetic sequences it does worse than I_1 alone
   (keyframes inherit the error of the pose they were taken at), so it is off by default.
@@ -574,6 +577,7 @@ class MonoTracker:
         self._init: Initialisation | None = None
         self._use_init = False
         self._track: _Track | None = None
+        self._followed: tuple[ImagePyramid, TrackResult] | None = None  # awaiting adjust()
 
     @property
     def config(self) -> MonoTrackerConfig:
@@ -599,9 +603,28 @@ class MonoTracker:
             self._init = init
         self._use_init = init is not None or self._detector is None
         self._track = None
+        self._followed = None
 
     def step(self, image: np.ndarray) -> TrackResult:
-        """Track the face into a new image.
+        """Track the face into a new image, then run its share of the bundle adjustment.
+
+        :meth:`track` followed by :meth:`adjust`, for callers with nothing to do in between.
+
+        Args:
+            image: (H, W) grey image (uint8 or float, grey levels 0-255) of the camera's size.
+
+        Returns:
+            The :class:`TrackResult` of this image.
+        """
+        result = self.track(image)
+        self.adjust()
+        return result
+
+    def track(self, image: np.ndarray) -> TrackResult:
+        """Track the face into a new image, leaving the bundle adjustment to :meth:`adjust`.
+
+        Call :meth:`adjust` before the next image (once this result is published, say): until
+        then the frame is neither kept as a view nor does the adjustment under way advance.
 
         Never raises on a bad frame: a malformed image, a failed fit or a lost face give a result
         with status LOST (or INITIALIZING while no face has been found) and a ``reason``.
@@ -612,6 +635,7 @@ class MonoTracker:
         Returns:
             The :class:`TrackResult` of this image.
         """
+        self._followed = None
         try:
             pyramid = self._pyramid(image)
             if self._track is None:
@@ -619,6 +643,23 @@ class MonoTracker:
             return self._follow(pyramid)
         except (InputError, LinAlgError) as error:
             return self._failure(str(error))
+
+    def adjust(self) -> None:
+        """Run the last tracked frame's share of the bundle adjustment of the first views.
+
+        Keeps the frame as a view if it shows a new rotation and runs ``bundle.stages_per_frame``
+        stages of the adjustment (:meth:`_maybe_adjust`); nothing after a frame that was not
+        followed (initialised, lost or re-acquiring). An adjustment that ends here replaces
+        the track's estimate from the next frame on. One that fails numerically is dropped, as
+        a rejected one is: the track goes on as it was.
+        """
+        if self._followed is None:
+            return
+        (pyramid, result), self._followed = self._followed, None
+        try:
+            self._maybe_adjust(pyramid, result)
+        except LinAlgError:
+            self._track.adjustment = None
 
     # --- initialisation and recovery -----------------------------------------------------------
 
@@ -823,19 +864,20 @@ class MonoTracker:
             return self._reacquire(pyramid, result.reason)
         track.before = None if track.lost else track.current
         self._accept(result, templates)
-        return self._maybe_adjust(pyramid, result)
+        self._followed = (pyramid, result)
+        return result
 
     # --- bundle adjustment of the first views ---------------------------------------------------
 
-    def _maybe_adjust(self, pyramid: ImagePyramid, result: TrackResult) -> TrackResult:
+    def _maybe_adjust(self, pyramid: ImagePyramid, result: TrackResult) -> None:
         """Keep this frame as a view if it shows a new rotation; run the bundle adjustment.
 
         A frame whose rotation differs from every view's by ``bundle.view_spacing`` (once sigma
         is no longer estimated by eq. 6) becomes a view, up to ``bundle.views`` of them. When no
         adjustment is under way and some views are in none yet, one starts over frame 1 and
         every view so far (:meth:`_adjustment`). It runs ``bundle.stages_per_frame`` stages per
-        followed frame (all on this frame if 0). When it ends, it is applied to the frame
-        its last stage ran on (:meth:`_apply_adjustment`), unless it was rejected.
+        followed frame (all on this frame if 0). When it ends, the track continues from it
+        (:meth:`_apply_adjustment`), unless it was rejected.
         """
         track, bundle = self._track, self._config.bundle
         if self._is_new_view(result):
@@ -844,15 +886,13 @@ class MonoTracker:
             track.views.append(view)
         if track.adjustment is None:
             if track.adjusted_views == len(track.views):
-                return result
+                return
             track.adjustment = self._adjustment(pyramid.num_levels)
         done, adjusted = run_stages(track.adjustment, bundle.stages_per_frame or None)
-        if not done:
-            return result
-        track.adjustment = None
-        if adjusted is None:
-            return result
-        return self._apply_adjustment(pyramid, adjusted, result)
+        if done:
+            track.adjustment = None
+        if adjusted is not None:
+            self._apply_adjustment(pyramid, adjusted, result)
 
     def _is_new_view(self, result: TrackResult) -> bool:
         """Whether a followed frame should become a view."""
@@ -947,13 +987,14 @@ class MonoTracker:
 
     def _apply_adjustment(
         self, pyramid: ImagePyramid, adjusted: _Adjusted, result: TrackResult
-    ) -> TrackResult:
-        """Restart the track's state from an adjustment; this frame's result at its estimate.
+    ) -> None:
+        """Restart the track's state from an adjustment: the next frame starts from its estimate.
 
-        When the adjustment ended on a later frame than its newest view's, this frame's estimate
-        is carried into the adjusted face frame by the head's motion since that view, in the
-        scene scaled as the adjustment scaled it (:func:`_carried`); so are the views kept
-        while it ran.
+        ``result`` is this frame's (its residuals go into the last valid result, which a LOST
+        frame reports). When the adjustment ended on a later frame than its newest view's, this
+        frame's estimate is carried into the adjusted face frame by the head's motion since that
+        view, in the scene scaled as the adjustment scaled it (:func:`_carried`); so are the
+        views kept while it ran.
         """
         track, estimate = self._track, adjusted.estimate
         poses = (estimate.first, *estimate.views)
@@ -986,7 +1027,6 @@ class MonoTracker:
             result.cost_history,
             '',
         )
-        return track.last_good
 
     def _node_distance(self, params: _Params) -> float:
         """Mean distance of the nodes from the camera centre at ``params``, m."""

@@ -7,7 +7,7 @@ rendered frames of free head motion with 1 px click noise.
 
 from __future__ import annotations
 
-from call_recording import counted
+from call_recording import counted, record_method
 import numpy as np
 import pytest
 
@@ -253,6 +253,60 @@ def test_a_rejected_adjustment_still_keeps_its_view(turning_head, monkeypatch):
         for earlier in newest[:later]:
             assert np.linalg.norm(matrix_to_omega(earlier.T @ rotation)) > bundle.view_spacing
     # Nothing was applied: the track is the one without adjustments.
+    for with_views, without in zip(results, off, strict=True):
+        np.testing.assert_array_equal(with_views.omega, without.omega)
+
+
+def test_adjust_runs_the_stages_and_the_next_frame_starts_from_their_result(
+    turning_head, monkeypatch
+):
+    # track() leaves the adjustment alone, so a node publishes a frame before its stages run
+    # (adjust()); an adjustment that ends there shows in the next frame's estimate.
+    images, true_nodes, model, _ = turning_head
+    camera = SceneConfig(kind='mono').cameras()['image']
+    init = simulated_clicks(model.node_names, true_nodes[0], camera, 1.0, np.random.default_rng(3))
+    calls: list[str] = []
+    monkeypatch.setattr(
+        bundle_module, '_damped_step', counted(calls, 'iteration', bundle_module._damped_step)
+    )
+    applied = record_method(
+        monkeypatch, MonoTracker, '_apply_adjustment', lambda _, adjusted, __: adjusted.estimate
+    )
+    tracker = MonoTracker(model, camera)
+    tracker.reset(init)
+    results, iterations, applied_after = [], 0, []
+    for image in images:
+        results.append(tracker.track(image))
+        assert not calls  # no stage ran
+        tracker.adjust()
+        iterations += len(calls)
+        calls.clear()
+        applied_after.append(len(applied))
+    ends = [k for k in range(1, len(images) - 1) if applied_after[k] > applied_after[k - 1]]
+    assert iterations > 0
+    assert len(ends) >= 2, applied_after
+    for k in ends:
+        sigma = applied[applied_after[k] - 1].sigma  # sigma is eq. 6's only before the views
+        assert not np.array_equal(results[k].sigma, sigma)
+        np.testing.assert_array_equal(results[k + 1].sigma, sigma)
+
+
+def test_an_adjustment_that_fails_numerically_is_dropped_and_the_track_goes_on(
+    turning_head, monkeypatch
+):
+    images, true_nodes, model, _ = turning_head
+    camera = SceneConfig(kind='mono').cameras()['image']
+
+    def failing(problem, views, visibility, start):
+        raise np.linalg.LinAlgError('not positive definite')
+
+    monkeypatch.setattr(mono_module, 'adjustment_stages', failing)
+    init = simulated_clicks(model.node_names, true_nodes[0], camera, 1.0, np.random.default_rng(3))
+    results, _ = track_images(MonoTracker(model, camera), images, init)
+    off, _ = track_images(
+        MonoTracker(model, camera, MonoTrackerConfig(bundle=BundleConfig(views=0))), images, init
+    )
+    assert all(result.ok for result in results)
     for with_views, without in zip(results, off, strict=True):
         np.testing.assert_array_equal(with_views.omega, without.omega)
 
