@@ -38,7 +38,10 @@ def test_deferred_work_runs_after_the_outputs_are_published_even_after_a_bad_inp
     monkeypatch, ros_context
 ):
     events: list = []
-    factory = lambda _params, _messages: Doubling(events)  # noqa: E731
+
+    def factory(_params, _messages):
+        return Doubling(events)
+
     monkeypatch.setattr(processor_node, 'processor_factory', lambda _name: factory)
     monkeypatch.setattr(rclpy.node, 'get_default_context', lambda: ros_context)
     node = processor_node.ProcessorNode('doubling')
