@@ -3,7 +3,10 @@
 The processor is the same object the live node runs (:mod:`face_tracking_ros.processing`), so a
 replay exercises the code that runs on the robot. Messages are fed in the bag's log-time order;
 every output is written to an MCAP bag with the log time of the input that produced it, so the
-output is deterministic. At the end of the bag, processors that hold outputs back for it
+output is deterministic. A processor's deferred work
+(:class:`~face_tracking_ros.processing.base.Deferring`, e.g. the mono tracker's bundle
+adjustment stages) runs once its outputs for the message are written, as the node runs it once
+they are published. At the end of the bag, processors that hold outputs back for it
 (:class:`~face_tracking_ros.processing.base.Finishing`, e.g. the stereo tracker's
 ``retroactive_depths``) emit them, written with the last input's log time. Ctrl-C stops the
 loop; the outputs held back until then are still emitted and the output bag is closed, so it
