@@ -69,26 +69,18 @@ def run(options: BenchOptions) -> dict[str, Any]:
         population, 'realistic_'; meshes: 'true', 'exact_clicks' or 'clicks_<noise>px');
         lengths in mm, reprojection in px.
     """
-    subjects = QUICK_SUBJECTS if options.quick else SUBJECTS
     evaluations: dict[str, list[StereoEvaluation]] = {}
     learning: dict[str, dict[str, Any]] = {}
     for population, prefix in PREFIX.items():
-        scene = SceneConfig(
-            kind=Kind.STEREO,
-            subjects=subjects,
-            frames=QUICK_FRAMES if options.quick else FRAMES,
-            fps=FPS,
-            seed=options.seed,
-            motion='still',
-            population=population,
-        )
         runs = {name: run[1:] for name, run in RUNS.items() if run[0] == population}
-        tracked = _population(scene, runs, evaluations)
+        tracked = _population(_scene(options, population), runs, evaluations)
         for key, models in tracked.items():
             learning[prefix + key] = models
+    scene = _scene(options, 'default')
     return {
-        'scene': f'{scene.width}x{scene.height} stereo, {subjects} subjects x {scene.frames} '
-        f'frames at {FPS:g} fps, head still, expressions; populations: {", ".join(PREFIX)}',
+        'scene': f'{scene.width}x{scene.height} stereo, {scene.subjects} subjects x '
+        f'{scene.frames} frames at {FPS:g} fps, head still, expressions; populations: '
+        f'{", ".join(PREFIX)}',
         'runs': {
             run: {
                 'subjects': [evaluation.in_mm() for evaluation in items],
@@ -98,6 +90,19 @@ def run(options: BenchOptions) -> dict[str, Any]:
         },
         'learning': learning,
     }
+
+
+def _scene(options: BenchOptions, population: str) -> SceneConfig:
+    """The training scene of the protocol's subjects of ``population``."""
+    return SceneConfig(
+        kind=Kind.STEREO,
+        subjects=QUICK_SUBJECTS if options.quick else SUBJECTS,
+        frames=QUICK_FRAMES if options.quick else FRAMES,
+        fps=FPS,
+        seed=options.seed,
+        motion='still',
+        population=population,
+    )
 
 
 def _population(
