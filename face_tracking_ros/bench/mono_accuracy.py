@@ -22,7 +22,13 @@ from simulated clicks on the first frame (1 px noise). On the same frames run:
 - ``photo_texture`` and ``photo_baseline``: the default tracker (true model) and the baseline on
   the same sequence rendered with real skin, the packaged face photo
   (:func:`~face_tracking_ros.data.photo_face_paths`) as the subject's texture instead of the
-  procedural one: same head, motion, expressions and light.
+  procedural one: same head, motion, expressions and light;
+- ``realistic_true_model`` and ``realistic_packaged_model``: the default tracker on the same
+  motion by subject 0 of the 'realistic' population of the seed (issue 11's world: thirteen
+  identity modes led by face size, identity sharing directions with the expressions), with that
+  population's own model and with the packaged model
+  (:func:`~face_tracking_ros.data.default_model_path`, learned from the default population): a
+  face whose identity and expressions the packaged model never saw.
 
 A still head of the same subject (300 frames of the 'static' scene: head, neutral face and light
 fixed, only the sensor noise changes) gives the jitter: the standard deviation of the estimated
@@ -46,9 +52,10 @@ from face_tracking_ros.bench.world import (
     render_sequence,
     scene_config,
 )
-from face_tracking_ros.data import photo_face_paths
+from face_tracking_ros.data import default_model_path, photo_face_paths
 from face_tracking_ros.geometry.camera import PinholeCamera
 from face_tracking_ros.model.face_model import FaceModel
+from face_tracking_ros.model.model_file import load_model
 from face_tracking_ros.synthetic.faces import FacePopulation
 from face_tracking_ros.synthetic.scenes import Kind
 from face_tracking_ros.synthetic.true_model import true_face_model
@@ -148,6 +155,14 @@ def _free_rows(seed: int, frames: int) -> dict[str, dict[str, Any]]:
     photo_sequence = render_sequence(replace(config, texture=photo, texture_nodes=photo_nodes))
     rows['photo_texture'] = _row(published(true34), true34, photo_sequence, seed)
     rows['photo_baseline'] = _row(LKPnPTracker(true34, camera), true34, photo_sequence, seed)
+    realistic = replace(config, population='realistic')
+    realistic_sequence = render_sequence(realistic)
+    models = {
+        'realistic_true_model': true_face_model(FacePopulation('realistic', seed), 34),
+        'realistic_packaged_model': load_model(default_model_path(34)),
+    }
+    for name, model in models.items():
+        rows[name] = _row(published(model), model, realistic_sequence, seed)
     return rows
 
 
