@@ -650,15 +650,16 @@ class MonoTracker:
         Keeps the frame as a view if it shows a new rotation and runs ``bundle.stages_per_frame``
         stages of the adjustment (:meth:`_maybe_adjust`); nothing after a frame that was not
         followed (initialised, lost or re-acquiring). An adjustment that ends here replaces
-        the track's estimate from the next frame on. One that fails numerically is dropped, as
-        a rejected one is: the track goes on as it was.
+        the track's estimate from the next frame on. One that fails (numerically, or on input
+        it cannot use) is dropped, as a rejected one is: the track goes on as it was, and this
+        never raises, as :meth:`track` does not.
         """
         if self._followed is None:
             return
         (pyramid, result), self._followed = self._followed, None
         try:
             self._maybe_adjust(pyramid, result)
-        except LinAlgError:
+        except (InputError, LinAlgError):
             self._track.adjustment = None
 
     # --- initialisation and recovery -----------------------------------------------------------

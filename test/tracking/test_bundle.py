@@ -11,7 +11,7 @@ from call_recording import counted, record_method
 import numpy as np
 import pytest
 
-from face_tracking_ros.errors import ConfigError
+from face_tracking_ros.errors import ConfigError, InputError
 from face_tracking_ros.geometry.camera import PinholeCamera
 from face_tracking_ros.geometry.rotation import matrix_to_omega, rodrigues
 from face_tracking_ros.imaging import PhotometricInvariance, PhotometricModel
@@ -291,14 +291,17 @@ def test_adjust_runs_the_stages_and_the_next_frame_starts_from_their_result(
         np.testing.assert_array_equal(results[k + 1].sigma, sigma)
 
 
-def test_an_adjustment_that_fails_numerically_is_dropped_and_the_track_goes_on(
-    turning_head, monkeypatch
+@pytest.mark.parametrize(
+    'error', [np.linalg.LinAlgError('not positive definite'), InputError('degenerate views')]
+)
+def test_an_adjustment_that_fails_is_dropped_and_the_track_goes_on(
+    turning_head, monkeypatch, error
 ):
     images, true_nodes, model, _ = turning_head
     camera = SceneConfig(kind='mono').cameras()['image']
 
     def failing(problem, views, visibility, start):
-        raise np.linalg.LinAlgError('not positive definite')
+        raise error
 
     monkeypatch.setattr(mono_module, 'adjustment_stages', failing)
     init = simulated_clicks(model.node_names, true_nodes[0], camera, 1.0, np.random.default_rng(3))
