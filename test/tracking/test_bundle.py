@@ -33,6 +33,7 @@ from face_tracking_ros.tracking.bundle import (
 )
 from face_tracking_ros.tracking.bundle_kernels import add_view_normal_equations
 from face_tracking_ros.tracking.evaluation import evaluate_sequence, track_images, tracked_sequence
+from face_tracking_ros.tracking.initialisation import Initialisation
 from face_tracking_ros.tracking.mono import MonoTracker, MonoTrackerConfig
 
 SUBJECT = 9
@@ -171,6 +172,28 @@ def turning_head():
     )
 
 
+def _clicks(turning_head) -> Initialisation:
+    """The 2-D points of the turning head's frame 1 with 1 px of noise (draw 3)."""
+    _, true_nodes, model, _ = turning_head
+    camera = SceneConfig(kind='mono').cameras()['image']
+    return simulated_clicks(model.node_names, true_nodes[0], camera, 1.0, np.random.default_rng(3))
+
+
+@pytest.fixture(scope='module')
+def unadjusted(turning_head):
+    """The turning head tracked from :func:`_clicks` without adjustments (no views)."""
+    images, _, model, _ = turning_head
+    camera = SceneConfig(kind='mono').cameras()['image']
+    tracker = MonoTracker(model, camera, MonoTrackerConfig(bundle=BundleConfig(views=0)))
+    return track_images(tracker, images, _clicks(turning_head))[0]
+
+
+def _assert_unadjusted(results, unadjusted) -> None:
+    """The track is the one without adjustments, frame by frame."""
+    for with_views, without in zip(results, unadjusted, strict=True):
+        np.testing.assert_array_equal(with_views.omega, without.omega)
+
+
 def test_bundle_adjustment_lowers_rotation_and_identity_errors(turning_head):
     images, true_nodes, model, true_sigma = turning_head
     camera = SceneConfig(kind='mono').cameras()['image']
@@ -226,11 +249,11 @@ def test_a_still_head_gives_no_view_and_changes_nothing():
         np.testing.assert_array_equal(off.sigma, on.sigma)
 
 
-def test_a_rejected_adjustment_still_keeps_its_view(turning_head, monkeypatch):
+def test_a_rejected_adjustment_still_keeps_its_view(turning_head, unadjusted, monkeypatch):
     # Every adjustment rejected (it may not turn frame 1 at all): each frame that ran one is kept
     # as a view all the same, so the next one waits for the head to reach a new rotation rather
     # than retrying on the next frame at the same rotation.
-    images, true_nodes, model, _ = turning_head
+    images, _, model, _ = turning_head
     camera = SceneConfig(kind='mono').cameras()['image']
     newest: list[np.ndarray] = []  # the rotation of each adjustment's newest view
     stages = mono_module.adjustment_stages
@@ -241,20 +264,14 @@ def test_a_rejected_adjustment_still_keeps_its_view(turning_head, monkeypatch):
 
     monkeypatch.setattr(mono_module, 'adjustment_stages', recording)
     bundle = BundleConfig(max_change=1e-12)
-    init = simulated_clicks(model.node_names, true_nodes[0], camera, 1.0, np.random.default_rng(3))
     results, _ = track_images(
-        MonoTracker(model, camera, MonoTrackerConfig(bundle=bundle)), images, init
-    )
-    off, _ = track_images(
-        MonoTracker(model, camera, MonoTrackerConfig(bundle=BundleConfig(views=0))), images, init
+        MonoTracker(model, camera, MonoTrackerConfig(bundle=bundle)), images, _clicks(turning_head)
     )
     assert len(newest) >= 2
     for later, rotation in enumerate(newest[1:], start=1):
         for earlier in newest[:later]:
             assert np.linalg.norm(matrix_to_omega(earlier.T @ rotation)) > bundle.view_spacing
-    # Nothing was applied: the track is the one without adjustments.
-    for with_views, without in zip(results, off, strict=True):
-        np.testing.assert_array_equal(with_views.omega, without.omega)
+    _assert_unadjusted(results, unadjusted)  # nothing was applied
 
 
 def test_adjust_runs_the_stages_and_the_next_frame_starts_from_their_result(
@@ -262,9 +279,9 @@ def test_adjust_runs_the_stages_and_the_next_frame_starts_from_their_result(
 ):
     # track() leaves the adjustment alone, so a node publishes a frame before its stages run
     # (adjust()); an adjustment that ends there shows in the next frame's estimate.
-    images, true_nodes, model, _ = turning_head
+    images, _, model, _ = turning_head
     camera = SceneConfig(kind='mono').cameras()['image']
-    init = simulated_clicks(model.node_names, true_nodes[0], camera, 1.0, np.random.default_rng(3))
+    init = _clicks(turning_head)
     calls: list[str] = []
     monkeypatch.setattr(
         bundle_module, '_damped_step', counted(calls, 'iteration', bundle_module._damped_step)
@@ -295,23 +312,18 @@ def test_adjust_runs_the_stages_and_the_next_frame_starts_from_their_result(
     'error', [np.linalg.LinAlgError('not positive definite'), InputError('degenerate views')]
 )
 def test_an_adjustment_that_fails_is_dropped_and_the_track_goes_on(
-    turning_head, monkeypatch, error
+    turning_head, unadjusted, monkeypatch, error
 ):
-    images, true_nodes, model, _ = turning_head
+    images, _, model, _ = turning_head
     camera = SceneConfig(kind='mono').cameras()['image']
 
     def failing(problem, views, visibility, start):
         raise error
 
     monkeypatch.setattr(mono_module, 'adjustment_stages', failing)
-    init = simulated_clicks(model.node_names, true_nodes[0], camera, 1.0, np.random.default_rng(3))
-    results, _ = track_images(MonoTracker(model, camera), images, init)
-    off, _ = track_images(
-        MonoTracker(model, camera, MonoTrackerConfig(bundle=BundleConfig(views=0))), images, init
-    )
+    results, _ = track_images(MonoTracker(model, camera), images, _clicks(turning_head))
     assert all(result.ok for result in results)
-    for with_views, without in zip(results, off, strict=True):
-        np.testing.assert_array_equal(with_views.omega, without.omega)
+    _assert_unadjusted(results, unadjusted)
 
 
 def test_a_late_adjustment_carries_the_head_motion_since_its_view():
@@ -352,9 +364,9 @@ def test_a_late_adjustment_carries_the_head_motion_since_its_view():
 def test_an_adjustment_runs_at_most_stages_per_frame_stages_a_frame(turning_head, monkeypatch):
     # Spread over frames, no frame runs more than stages_per_frame of its stages (setting up,
     # an iteration, a pyramid level's ROIs); with 0, a frame runs all of them.
-    images, true_nodes, model, _ = turning_head
+    images, _, model, _ = turning_head
     camera = SceneConfig(kind='mono').cameras()['image']
-    init = simulated_clicks(model.node_names, true_nodes[0], camera, 1.0, np.random.default_rng(3))
+    init = _clicks(turning_head)
     calls: list[str] = []
     for name in ('_bundle_problem', '_roi'):
         original = getattr(MonoTracker, name)
