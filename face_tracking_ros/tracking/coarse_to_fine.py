@@ -1,10 +1,10 @@
-"""Coarse-to-fine solving on an image pyramid, with the coarsest level solved on demand.
+"""Coarse-to-fine solving on an image pyramid, with the coarser levels solved on demand.
 
 Both trackers solve each frame level by level, from a coarse level down to level 0, each level
-starting where the one before ended. Started from a motion prediction, the coarsest level
-seldom has anything left to do, so it can be skipped: the solve starts one level finer, and
-only when that level's first step moves a node more than a threshold (the face is farther from
-the start than that level reaches) does it start over from the coarsest level, from the same
+starting where the one before ended. Started from a motion prediction, the coarse levels often
+have little left to do, so they can be skipped: the solve starts on a finer level, and only
+when that level's first step moves a node more than a threshold (the face is farther from the
+start than that level reaches) does it start over from the coarsest level, from the same
 start, which then gives exactly the full coarse-to-fine solve.
 """
 
@@ -22,14 +22,15 @@ when its first step would move a node more than ``first_step_limit`` px of that 
 
 
 def coarse_to_fine(
-    num_levels: int, coarsest_level_px: float, start: T, solve: LevelSolver[T]
+    num_levels: int, first_level: int, restart_px: float, start: T, solve: LevelSolver[T]
 ) -> T:
-    """Solve levels ``num_levels - 1`` to 0 from ``start``, the coarsest one on demand.
+    """Solve levels ``first_level`` to 0 from ``start``; the coarsest first on demand.
 
     Args:
         num_levels: pyramid levels (>= 1).
-        coarsest_level_px: the coarsest level is solved only when the first step on the next
-            one moves a node more than this, level px; 0 always solves it.
+        first_level: the level solved first (clipped to the coarsest).
+        restart_px: start over from the coarsest level when the first step on ``first_level``
+            moves a node more than this, px of level 0; 0 always starts from the coarsest.
         start: where the first level starts.
         solve: one level's solver (:data:`LevelSolver`).
 
@@ -37,13 +38,13 @@ def coarse_to_fine(
         Level 0's solution.
     """
     coarsest = num_levels - 1
-    trigger = coarsest_level_px or math.inf
-    index = coarsest - 1 if coarsest > 0 and trigger < math.inf else coarsest
+    index = min(first_level, coarsest) if restart_px > 0 else coarsest
+    limit = restart_px / (1 << index) if index < coarsest else math.inf
     point = start
     while index >= 0:
-        solved = solve(index, point, trigger if index == coarsest - 1 else math.inf)
+        solved = solve(index, point, limit)
         if solved is None:  # too far for this level: start over from the coarsest
-            index, trigger = coarsest, math.inf
+            index, limit = coarsest, math.inf
             continue
-        point, index = solved, index - 1
+        point, index, limit = solved, index - 1, math.inf
     return point

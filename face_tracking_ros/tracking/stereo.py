@@ -119,15 +119,15 @@ class StereoTrackerConfig:
             issue 5's protocol (seed 0): every figure the same to the digits shown, and 29 %
             fewer linearisations per pair on the speed benchmark's sequence (coarse level
             3.7 -> 2.0).
-        coarsest_level_px: the coarsest pyramid level is solved only when the first step on
-            the next finer one moves a node more than this, level px (>= 0; 0, the default,
-            always solves it). Faster but off by default: at 0.5 px, linearisations per pair
-            3.06 -> 2.62 on the speed benchmark's sequence (4.06 -> 2.54 while the coarse
-            level ran to ``step_tolerance``), but on issue 5's protocol (measured then) the
-            face edge slips more (seed 3, 1 px clicks: 3.75 -> 4.79 mm; exact clicks 1.70 ->
-            1.76 mm) and the 19-node drift grows (seeds 0-3: 0.22 / 0.32 / 0.34 / 0.28 -> 0.27
-            / 0.37 / 0.32 / 0.37 mm), while seed 2's largest 19-node reprojection error falls
-            (1.19 -> 1.03 px).
+        coarsest_level_px: the solve starts on level 0, and the coarser levels are solved
+            (from the coarsest) only when level 0's first step moves a node more than this, px
+            (>= 0; 0, the default, always solves them). Faster but off by default: at 0.5 px,
+            linearisations per pair 3.06 -> 2.62 on the speed benchmark's sequence (4.06 ->
+            2.54 while the coarse level ran to ``step_tolerance``), but on issue 5's protocol
+            (measured then) the face edge slips more (seed 3, 1 px clicks: 3.75 -> 4.79 mm;
+            exact clicks 1.70 -> 1.76 mm) and the 19-node drift grows (seeds 0-3: 0.22 / 0.32 /
+            0.34 / 0.28 -> 0.27 / 0.37 / 0.32 / 0.37 mm), while seed 2's largest 19-node
+            reprojection error falls (1.19 -> 1.03 px).
         huber_k: Huber threshold in robust standard deviations of the image residuals.
         noise_floor: smallest robust standard deviation assumed for image residuals, grey levels.
         lost_ratio: the track is LOST when the median over node patches of the residual RMS
@@ -687,8 +687,8 @@ class StereoTracker:
     def _track(self, pyramids: tuple[ImagePyramid, ImagePyramid]) -> StereoResult:
         """Solve eq. 4 + eq. 5 for this pair from the predicted nodes, and update the state.
 
-        The coarsest level is solved only when the first step on the next one exceeds
-        ``coarsest_level_px``; the solve then starts over there from the prediction.
+        With ``coarsest_level_px`` set, the solve starts on level 0 and starts over from the
+        coarsest level (from the prediction) when level 0's first step exceeds it.
         """
         state = self._state
         assert state is not None
@@ -714,7 +714,9 @@ class StereoTracker:
             return nodes
 
         try:
-            nodes = coarse_to_fine(config.pyramid_levels, config.coarsest_level_px, nodes, solve)
+            nodes = coarse_to_fine(
+                config.pyramid_levels, 0, config.coarsest_level_px, nodes, solve
+            )
         except (LinAlgError, FaceTrackingError, FloatingPointError) as error:
             return self._lose(f'solver failed: {error}')
         level, accepted = solved_levels[-1]  # level 0's

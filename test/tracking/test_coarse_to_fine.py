@@ -6,6 +6,8 @@ import pytest
 
 from face_tracking_ros.tracking.coarse_to_fine import coarse_to_fine
 
+INF = float('inf')
+
 
 def _solver(too_far: set[int]):
     """A level solver that adds 10^index to its start, or refuses the levels in ``too_far``."""
@@ -13,7 +15,7 @@ def _solver(too_far: set[int]):
 
     def solve(index: int, start: int, first_step_limit: float) -> int | None:
         calls.append((index, start, first_step_limit))
-        if index in too_far and first_step_limit < float('inf'):
+        if index in too_far and first_step_limit < INF:
             return None
         return start + 10**index
 
@@ -21,27 +23,26 @@ def _solver(too_far: set[int]):
 
 
 @pytest.mark.parametrize(
-    ('levels', 'limit', 'too_far', 'expected'),
+    ('levels', 'first', 'restart_px', 'too_far', 'expected'),
     [
         # 0 always solves the coarsest level: 2, 1, 0, each from the one before.
-        (3, 0.0, set(), [(2, 0, float('inf')), (1, 100, float('inf')), (0, 110, float('inf'))]),
-        # On demand: level 1 first, with the limit; the coarsest never runs.
-        (3, 0.5, set(), [(1, 0, 0.5), (0, 10, float('inf'))]),
-        # Level 1 refuses: start over from the coarsest, from the same start, without a limit.
-        (
-            3,
-            0.5,
-            {1},
-            [(1, 0, 0.5), (2, 0, float('inf')), (1, 100, float('inf')), (0, 110, float('inf'))],
-        ),
-        # One level: nothing to skip.
-        (1, 0.5, set(), [(0, 0, float('inf'))]),
+        (3, 1, 0.0, set(), [(2, 0, INF), (1, 100, INF), (0, 110, INF)]),
+        # On demand: level 1 first, with the limit in its own px; the coarsest never runs.
+        (3, 1, 1.0, set(), [(1, 0, 0.5), (0, 10, INF)]),
+        # Level 0 first: the limit as given.
+        (3, 0, 1.0, set(), [(0, 0, 1.0)]),
+        # The first level refuses: start over from the coarsest, from the same start, unlimited.
+        (3, 1, 1.0, {1}, [(1, 0, 0.5), (2, 0, INF), (1, 100, INF), (0, 110, INF)]),
+        (3, 0, 1.0, {0}, [(0, 0, 1.0), (2, 0, INF), (1, 100, INF), (0, 110, INF)]),
+        # A first level at or beyond the coarsest: the full solve.
+        (2, 1, 1.0, set(), [(1, 0, INF), (0, 10, INF)]),
+        (1, 1, 1.0, set(), [(0, 0, INF)]),
     ],
 )
 def test_levels_run_coarse_to_fine_with_the_coarsest_on_demand(
-    levels, limit, too_far, expected
+    levels, first, restart_px, too_far, expected
 ) -> None:
     solve, calls = _solver(too_far)
-    result = coarse_to_fine(levels, limit, 0, solve)
+    result = coarse_to_fine(levels, first, restart_px, 0, solve)
     assert calls == expected
     assert result == expected[-1][1] + 1  # level 0 adds 10^0 to its start

@@ -152,6 +152,27 @@ def test_the_coarsest_level_runs_only_for_a_face_too_far_for_the_next(scene, mon
             assert np.array_equal(default.nodes_px, full.nodes_px)
 
 
+@pytest.mark.parametrize(
+    ('velocity', 'fine_start_px', 'first_level'),
+    [((1.0, -0.5), 3.0, 0), ((4.0, -3.0), 3.0, 1), ((1.0, -0.5), 0.0, 1)],
+)
+def test_a_small_predicted_motion_starts_the_solve_on_level_0(
+    scene, monkeypatch, velocity, fine_start_px, first_level
+) -> None:
+    """Level 1 runs only when the prediction moves a node fine_start_px or more."""
+    model, image, init = scene
+    levels = record_method(monkeypatch, MonoTracker, '_solve_level', lambda level, *_: level.index)
+    tracker = _started(model, image, init, fine_start_px=fine_start_px)
+    for frame in range(1, 7):
+        shift = np.array(velocity) * frame
+        levels.clear()
+        result = tracker.step(_shifted(image, tuple(shift)))
+        assert result.ok, result.reason
+        if frame > 2:  # two estimates before it: a prediction
+            assert levels == list(range(first_level, -1, -1))
+    assert np.abs(result.nodes_px - init.points - shift).max() < 0.06
+
+
 def test_waits_for_an_initialisation_and_uses_a_detector(scene) -> None:
     model, image, init = scene
     tracker = MonoTracker(model, CAMERA)
@@ -261,6 +282,7 @@ def test_a_face_leaving_the_image_is_lost(scene) -> None:
         ('max_iterations', 0),
         ('coarse_convergence_px', 0.0),
         ('coarsest_level_px', -0.5),
+        ('fine_start_px', -1.0),
         ('patch_half_size', 0),
         ('patch_spacing_px', 0.0),
         ('huber_k', -1.0),
