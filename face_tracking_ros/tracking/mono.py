@@ -206,8 +206,10 @@ class MonoTrackerConfig:
             0 at 3 px, the tracking time per frame falls by about a third, restarts on the
             coarsest level 7-11 -> 7-8 %, and the errors move both ways (rotation MAE 0.80 /
             0.82 / 0.20 -> 0.82 / 0.83 / 0.21 degrees, z 3.40 -> 3.29 mm, node RMS 4.39 -> 4.30
-            mm). With every 3rd frame (motion 3 times faster) few frames start on level 0 and
-            the errors are the same to 0.001 degrees.
+            mm). With every 2nd frame (motion twice as fast) they move both ways too (yaw 0.86
+            / 0.91 / 0.71 -> 0.86 / 0.84 / 0.71 degrees, z 4.6 / 3.0 / 2.0 -> 4.6 / 3.5 / 2.0
+            mm); with every 3rd or 5th frame few frames start on level 0 and the errors are the
+            same to 0.001 degrees.
         coarsest_level_px: the coarsest pyramid level is solved only when the first step on
             the level the solve starts on moves a node more than this, px of level 0 (>= 0; 0
             always solves it); the solve then starts over there. Measured with the prediction,
