@@ -892,8 +892,12 @@ class MonoTracker:
         return result
 
     def _first_level(self, current: _Params, predicted: _Params) -> int:
-        """The level a predicted frame's solve starts on: 0 for a small predicted motion."""
-        motion = self._project_nodes(predicted)[1] - self._project_nodes(current)[1]
+        """The level a predicted frame's solve starts on: 0 for a small predicted motion.
+
+        ``predicted`` is projected last, so the solve that starts there finds its pose kept.
+        """
+        at_current = self._project_nodes(current)[1]
+        motion = self._project_nodes(predicted)[1] - at_current
         small = np.abs(motion).max(initial=0.0) < self._config.fine_start_px
         return 0 if small else _START_LEVEL
 
