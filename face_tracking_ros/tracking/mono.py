@@ -76,6 +76,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
+from functools import partial
 from typing import NamedTuple
 
 import cv2
@@ -205,15 +206,16 @@ class MonoTrackerConfig:
         fine_start_px: a followed frame's solve starts on level 0 when the motion prediction
             moves every node less than this from the last estimate, px (>= 0; 0 never starts
             there); otherwise, and without a prediction, on level 1. Slow motion leaves level 1
-            nothing that level 0 cannot do from the prediction. Measured on issue 6's three
-            1000-frame sequences (34 nodes, true model): 81-96 % of the frames start on level
-            0 at 3 px, the tracking time per frame falls by about a third, restarts on the
-            coarsest level 7-11 -> 7-8 %, and the errors move both ways (rotation MAE 0.80 /
-            0.82 / 0.20 -> 0.82 / 0.83 / 0.21 degrees, z 3.40 -> 3.29 mm, node RMS 4.39 -> 4.30
-            mm). With every 2nd frame (motion twice as fast) they move both ways too (yaw 0.86
-            / 0.91 / 0.71 -> 0.86 / 0.84 / 0.71 degrees, z 4.6 / 3.0 / 2.0 -> 4.6 / 3.5 / 2.0
-            mm); with every 3rd or 5th frame few frames start on level 0 and the errors are the
-            same to 0.001 degrees.
+            nothing that level 0 cannot do from the prediction; a solve from level 0 that fails
+            (a sudden stop or reversal) is made again from the coarsest level. Measured on
+            issue 6's three 1000-frame sequences (34 nodes, true model): 81-96 % of the frames
+            start on level 0 at 3 px, the tracking time per frame falls by about a third,
+            restarts on the coarsest level 7-11 -> 7-8 %, and the errors move both ways
+            (rotation MAE 0.80 / 0.82 / 0.20 -> 0.82 / 0.83 / 0.21 degrees, z 3.40 -> 3.29 mm,
+            node RMS 4.39 -> 4.30 mm). With every 2nd frame (motion twice as fast) they move
+            both ways too (yaw 0.86 / 0.91 / 0.71 -> 0.86 / 0.84 / 0.71 degrees, z 4.6 / 3.0 /
+            2.0 -> 4.6 / 3.5 / 2.0 mm); with every 3rd or 5th frame few frames start on level
+            0 and the errors are the same to 0.001 degrees.
         coarsest_level_px: the coarsest pyramid level is solved only when the first step on
             the level the solve starts on moves a node more than this, px of level 0 (>= 0; 0
             always solves it); the solve then starts over there. Measured with the prediction,
@@ -241,7 +243,8 @@ class MonoTrackerConfig:
         lost_node_fraction: LOST when more than this fraction of the visible nodes that show
             texture (in the image or the template) fail (in (0, 1]).
         min_visible_fraction: LOST when fewer nodes are visible and inside the image (in [0, 1]).
-        max_rotation_step: LOST when the rotation changes more than this in one frame, rad (> 0).
+        max_rotation_step: LOST when the rotation is more than this per frame from the last
+            valid estimate, rad (> 0).
         max_condition: LOST when the Jacobi-scaled normal matrix has a larger condition number
             (> 1).
         fit: the model fit to initialisation points (:class:`FitConfig`).
@@ -430,6 +433,7 @@ class _Solution(NamedTuple):
     costs: tuple[float, ...]
     condition: float
     projection: PhotometricProjection  # of the level-0 template, reused by the loss checks
+    coarsest_solved: bool  # whether the coarsest pyramid level was solved
 
 
 class _Templates(NamedTuple):
@@ -515,7 +519,8 @@ class _Track:
     before one), ``adjusted_views`` how many of the views the adjustments started so far covered
     (frame 1 included) and ``adjustment`` the one under way. ``before`` is the estimate of the
     frame before ``current`` when the two are consecutive followed frames in the same face
-    frame (None otherwise): the motion prediction's other point.
+    frame (None otherwise): the motion prediction's other point. ``missed`` counts the images
+    since ``current`` that gave no valid estimate (LOST).
     """
 
     rois: tuple[_Roi, ...]
@@ -530,11 +535,16 @@ class _Track:
     current: _Params
     last_good: TrackResult
     frames: int = 1
-    lost: bool = False
+    missed: int = 0
     depth: np.ndarray | None = None
     adjusted_views: int = 1
     adjustment: Stages[_Adjusted | None] | None = None
     before: _Params | None = None
+
+    @property
+    def lost(self) -> bool:
+        """Whether the last image gave no valid estimate (the track is re-acquiring)."""
+        return self.missed > 0
 
 
 class MonoTracker:
@@ -1093,7 +1103,7 @@ class MonoTracker:
         track.previous = templates
         track.last_good = result
         track.frames += 1
-        track.lost = False
+        track.missed = 0
 
     def _solve_frame(
         self,
@@ -1108,15 +1118,53 @@ class MonoTracker:
         """Solve eq. 6 coarse to fine from ``start``; check the outcome for loss of track.
 
         ``residual_ratio`` is the loss checks' ratio of a node's residual to its texture;
-        ``first_level`` is the level the solve starts on (the coarsest on demand).
+        ``first_level`` is the level the solve starts on (the coarsest on demand). A solve that
+        started on level 0 (a small predicted motion) and fails the checks without having
+        solved the coarsest level is made again from ``start`` on the coarsest level: from a
+        start beyond level 0's reach the first step need not be large (the fine texture no
+        longer correlates), so level 0 can settle in a wrong minimum without the coarsest level
+        being called for. A sudden stop or reversal of the head does that: on the live
+        benchmark's stream, whose head reverses at its ends, the prediction is then 5 px off
+        and the frame was LOST. Solves started on level 1 (re-acquisition among them) are not
+        made again: that doubled the time of a LOST frame (10 -> 18 ms).
 
         Returns:
-            The frame's result (TRACKING or LOST with a reason) and the templates sampled at the
-            solution (the next frame's I_(n-1) samples).
+            The frame's result (TRACKING or LOST with a reason; its iterations those of both
+            solves when there were two) and the templates sampled at its solution (the next
+            frame's I_(n-1) samples).
+        """
+        node_weights = node_weights * self._roi_weights
+        solve = partial(self._solve, pyramid, start, templates, node_weights, free_sigma)
+        checks = (pyramid, templates, node_weights, free_sigma, residual_ratio)
+        solution = solve(first_level)
+        result, sampled = self._checked(solution, *checks)
+        if result.ok or solution.coarsest_solved or first_level > 0:
+            return result, sampled
+        retry, sampled = self._checked(solve(pyramid.num_levels - 1), *checks)
+        merged = replace(
+            retry,
+            iterations=result.iterations + retry.iterations,
+            cost_history=result.cost_history + retry.cost_history,
+        )
+        return merged, sampled
+
+    def _checked(
+        self,
+        solution: _Solution,
+        pyramid: ImagePyramid,
+        templates: tuple[np.ndarray, ...],
+        node_weights: np.ndarray,
+        free_sigma: bool,
+        residual_ratio: float,
+    ) -> tuple[TrackResult, _Templates]:
+        """The result of a solution that passes the loss checks (TRACKING) or not (LOST).
+
+        The solution's last step is undone if it raised the cost (it was not checked).
+
+        Returns:
+            The result and the templates sampled at its estimate.
         """
         track = self._track
-        node_weights = node_weights * self._roi_weights
-        solution = self._solve(pyramid, start, templates, node_weights, free_sigma, first_level)
         params = solution.params
         first = self._sample(pyramid.levels[0], params, 0, track.rois[0])
         projection = solution.projection
@@ -1132,7 +1180,6 @@ class MonoTracker:
         node_rms = np.sqrt(np.mean(residuals**2, axis=1))
         reason = self._loss_reason(
             params,
-            start,
             node_rms,
             sampled.levels[0],
             templates[0],
@@ -1167,6 +1214,8 @@ class MonoTracker:
         costs: list[float] = []
         projections = self._invariance.projection(np.concatenate(templates)).split(len(templates))
         accepted: list[tuple[_Params, _System]] = []  # each level's last accepted point
+        coarsest = pyramid.num_levels - 1
+        solved: set[int] = set()
 
         def solve(index: int, params: _Params, first_step_limit: float) -> _Params | None:
             level = _Level(
@@ -1178,9 +1227,11 @@ class MonoTracker:
                 projection=projections[index],
                 visibility=np.repeat(node_weights[:, None], templates[index].shape[1], axis=1),
             )
-            solved, last = self._solve_level(level, params, free_sigma, costs, first_step_limit)
+            solution, last = self._solve_level(level, params, free_sigma, costs, first_step_limit)
             accepted.append(last)
-            return solved
+            if solution is not None:
+                solved.add(index)
+            return solution
 
         params = coarse_to_fine(
             pyramid.num_levels, first_level, self._config.coarsest_level_px, start, solve
@@ -1197,6 +1248,7 @@ class MonoTracker:
             iterations=len(costs),
             costs=tuple(costs),
             projection=projections[0],
+            coarsest_solved=coarsest in solved,
         )
 
     def _solve_level(
@@ -1378,7 +1430,6 @@ class MonoTracker:
     def _loss_reason(
         self,
         params: _Params,
-        start: _Params,
         node_rms: np.ndarray,
         samples: np.ndarray,
         template: np.ndarray,
@@ -1390,8 +1441,6 @@ class MonoTracker:
 
         Args:
             params: the solution.
-            start: where the solver started (the previous frame's estimate, or its motion
-                prediction).
             node_rms: (N,) RMS of each node's (photometrically projected) residual.
             samples: (N, M) level-0 samples of the image at the solution.
             template: (N, M) level-0 template they were compared with.
@@ -1403,9 +1452,12 @@ class MonoTracker:
         values = np.concatenate([params.omega, params.t, params.alpha, params.sigma])
         if not np.all(np.isfinite(values)) or params.t[2] < _MIN_DEPTH:
             return 'the solver diverged'
-        turn = _rotation_angle(start.omega, params.omega)
-        if turn > config.max_rotation_step:
-            return f'implausible motion ({np.degrees(turn):.0f} degrees in one frame)'
+        # The motion since the last valid estimate, whatever the solve started from (a search
+        # or a detection when re-acquiring), over the frames since.
+        frames = self._track.missed + 1
+        turn = _rotation_angle(self._track.current.omega, params.omega)
+        if turn > config.max_rotation_step * frames:
+            return f'implausible motion ({np.degrees(turn):.0f} degrees in {frames} frame(s))'
         if solution.condition > config.max_condition:
             return f'ill-conditioned solve (condition {solution.condition:.1e})'
         pixels = self._project_nodes(params)[1]
@@ -1548,7 +1600,7 @@ class MonoTracker:
         if self._track is None:
             model = self._model
             return TrackResult.empty(model.num_nodes, model.p, model.q, reason)
-        self._track.lost = True
+        self._track.missed += 1
         return replace(self._track.last_good, status=TrackStatus.LOST, reason=reason)
 
     def _pyramid(self, image: np.ndarray) -> ImagePyramid:

@@ -173,6 +173,55 @@ def test_a_small_predicted_motion_starts_the_solve_on_level_0(
     assert np.abs(result.nodes_px - init.points - shift).max() < 0.06
 
 
+def test_a_failed_level_0_solve_is_made_again_from_the_coarsest_level(scene, monkeypatch) -> None:
+    """A reversal puts the prediction twice a frame's motion off, beyond level 0's reach.
+
+    On a rendered face level 0's first step from there can be small, so the coarsest level is
+    not called for and level 0 settles in a wrong minimum; ``coarsest_level_px`` 100 makes this
+    flat texture do the same. The failed solve is made again from the coarsest level.
+    """
+    model, image, init = scene
+    levels = record_method(monkeypatch, MonoTracker, '_solve_level', lambda level, *_: level.index)
+    tracker = _started(model, image, init, coarsest_level_px=100.0)
+    velocity = np.array([2.5, -1.5])
+    for frame in (1, 2, 3, 4, 5, 4):  # back to frame 4: the prediction is frame 6, 5.8 px off
+        levels.clear()
+        result = tracker.step(_shifted(image, tuple(velocity * frame)))
+        assert result.ok, result.reason
+    assert levels == [0, 2, 1, 0]  # level 0 from the prediction, then the full solve
+    # Both solves are counted: their iterations, and each one's costs with its checked cost.
+    assert len(result.cost_history) == result.iterations + 2 > 6
+    assert np.abs(result.nodes_px - init.points - velocity * 4).max() < 0.06
+
+
+def _rolled(image: np.ndarray, degrees: float, shift: tuple[float, float]) -> np.ndarray:
+    matrix = cv2.getRotationMatrix2D(CENTRE, -degrees, 1.0)
+    matrix[:, 2] += shift
+    return _warp(image, matrix)
+
+
+def test_the_motion_check_measures_from_the_last_valid_estimate(scene, texture_factory) -> None:
+    """A re-acquired face is checked against the last valid pose, per frame since it."""
+    model, image, init = scene
+    tracker = _started(model, image, init, max_rotation_step=np.radians(1.5))
+    for roll in (1.0, 2.0, 3.0, 4.0):  # 1 degree per frame: plausible
+        assert tracker.step(_rolled(image, roll, (0.0, 0.0))).ok
+    assert tracker.step(texture_factory(seed=7)).status == TrackStatus.LOST
+    # 60 px away the search finds the face, from frame 1's pose: 5 degrees from that start but
+    # 1 degree from the last valid estimate, two frames back.
+    back = tracker.step(_rolled(image, 5.0, (60.0, 0.0)))
+    assert back.ok, back.reason
+    assert abs(np.degrees(back.omega[2]) - 5.0) < 0.02
+    # 5 degrees further at once: implausible until 1.5 degrees a frame allow it.
+    turned = _rolled(image, 10.0, (60.0, 0.0))
+    for frames in (1, 2, 3):
+        result = tracker.step(turned)
+        assert result.reason == f'lost: implausible motion (5 degrees in {frames} frame(s))'
+    result = tracker.step(turned)
+    assert result.ok, result.reason
+    assert abs(np.degrees(result.omega[2]) - 10.0) < 0.02
+
+
 def test_waits_for_an_initialisation_and_uses_a_detector(scene) -> None:
     model, image, init = scene
     tracker = MonoTracker(model, CAMERA)
