@@ -518,9 +518,9 @@ class _Track:
     initialisation's 2-D points, ``depth`` the (N, 6) skin depth of the last adjustment (None
     before one), ``adjusted_views`` how many of the views the adjustments started so far covered
     (frame 1 included) and ``adjustment`` the one under way. ``before`` is the estimate of the
-    frame before ``current`` when the two are consecutive followed frames in the same face
-    frame (None otherwise): the motion prediction's other point. ``missed`` counts the images
-    since ``current`` that gave no valid estimate (LOST).
+    frame before ``current`` when the two are consecutive valid frames (followed, or the second
+    re-acquired) in the same face frame (None otherwise): the motion prediction's other point.
+    ``missed`` counts the images since ``current`` that gave no valid estimate (LOST).
     """
 
     rois: tuple[_Roi, ...]
@@ -826,10 +826,14 @@ class MonoTracker:
         Candidate starts are a fresh detection (if a detector was given) and the initial fit
         moved to where the face is found by :meth:`_search`, each compared with its nearest
         keyframe; the first that passes the loss checks at ``reacquire_residual_ratio`` resumes
-        the track, else the image is LOST for ``reason``.
+        the track, else the image is LOST for ``reason``. A face re-acquired in the image right
+        after a valid estimate keeps the motion prediction, as a followed one does: the head
+        moved on from that estimate in one frame. Measured on fast motion (every 5th frame of
+        issue 6's sequences, true model): dropping it, seed 1 was LOST on 160 of 200 frames with
+        rotation errors of 6.8 / 3.1 degrees; keeping it, 49 frames and 1.1 / 1.1 degrees.
         """
         track = self._track
-        track.before = None
+        before, track.before = (None if track.lost else track.current), None
         detected = self._detect(pyramid)
         candidates = [self._fit_or_none(detected)] if detected is not None else []
         candidates.append(self._search(pyramid))
@@ -840,6 +844,7 @@ class MonoTracker:
                 pyramid, start, keyframe.levels, weights, self._config.reacquire_residual_ratio
             )
             if result.ok:
+                track.before = before
                 self._accept(result, templates)
                 return result
         return self._failure(f'lost: {reason}')

@@ -194,6 +194,22 @@ def test_a_failed_level_0_solve_is_made_again_from_the_coarsest_level(scene, mon
     assert np.abs(result.nodes_px - init.points - velocity * 4).max() < 0.06
 
 
+def test_a_face_reacquired_after_a_valid_frame_keeps_the_motion_prediction(
+    scene, monkeypatch
+) -> None:
+    """Motion too fast for the solver alone: the search finds frame 1, the prediction the rest."""
+    model, image, init = scene
+    searches = record_method(monkeypatch, MonoTracker, '_search', lambda *_: True)
+    tracker = _started(model, image, init)
+    velocity = np.array([40.0, -20.0])  # px per frame
+    for frame in range(1, 6):
+        searches.clear()
+        result = tracker.step(_shifted(image, tuple(velocity * frame)))
+        assert result.ok, result.reason
+        assert len(searches) == (frame == 1)  # no prediction before frame 2: the search
+        assert np.abs(result.nodes_px - init.points - velocity * frame).max() < 0.06
+
+
 def _rolled(image: np.ndarray, degrees: float, shift: tuple[float, float]) -> np.ndarray:
     matrix = cv2.getRotationMatrix2D(CENTRE, -degrees, 1.0)
     matrix[:, 2] += shift
