@@ -154,7 +154,15 @@ class MonoTrackerConfig:
 
     Attributes:
         epsilon: drift-monitoring weight epsilon of eq. 6, in [0, 1] (seed: 0.2).
-        pyramid_levels: number of Gaussian pyramid levels, coarse to fine (>= 1).
+        pyramid_levels: number of Gaussian pyramid levels, coarse to fine (>= 1; the coarsest
+            at least 16 px). The coarsest is solved on demand (``coarsest_level_px``), so a
+            deeper pyramid costs little but takes faster motion. Measured on issue 6's three
+            sequences with every 4th frame (true model, raw pose), 3 -> 4 levels: rotation MAE
+            1.95 / 2.68 / 21.5 -> 0.86 / 0.88 / 0.77 degrees about x, LOST frames 0 / 83 / 0
+            -> 0 (seed 2 had locked onto a pose 21-27 degrees off, reported as TRACKING); every
+            5th frame LOST 24 / 49 / 5 -> 0; every frame and every 2nd frame within 0.03
+            degrees. Tracking time +7 % (the fourth level's templates and projections, sampled
+            on every frame).
         smooth_base: smooth the full-resolution level (sigma ~ 1 px) against the bias of bilinear
             sampling towards whole pixels (see :meth:`ImagePyramid.build`).
         max_iterations: Levenberg-Marquardt iterations per pyramid level (>= 1).
@@ -252,7 +260,7 @@ class MonoTrackerConfig:
     """
 
     epsilon: float = 0.2
-    pyramid_levels: int = 3
+    pyramid_levels: int = 4
     smooth_base: bool = True
     max_iterations: int = 4
     patch_half_size: int = 4
