@@ -582,9 +582,11 @@ class MonoTracker:
         self._config = config or MonoTrackerConfig()
         self._detector = detector
         levels = self._config.pyramid_levels
-        if min(camera.width, camera.height) >> (levels - 1) < 16:
+        fitting = (min(camera.width, camera.height) // 16).bit_length()  # coarsest >= 16 px
+        if levels > fitting:
             msg = (
-                f'pyramid_levels = {levels} is too deep for {camera.width}x{camera.height} images'
+                f'pyramid_levels = {levels} is too deep for {camera.width}x{camera.height} '
+                f'images: at most {fitting} leave the coarsest level 16 px'
             )
             raise ConfigError(msg)
         self._triangles = model.topology.triangles

@@ -366,5 +366,8 @@ def test_config_errors_name_the_field(field, value) -> None:
 
 
 def test_too_deep_a_pyramid_is_a_config_error(model_factory) -> None:
-    with pytest.raises(ConfigError, match='too deep for 64x48'):
+    with pytest.raises(ConfigError, match='too deep for 64x48 images: at most 2 leave'):
         MonoTracker(model_factory(), PinholeCamera.ideal(64, 48), MonoTrackerConfig())
+    with pytest.raises(ConfigError, match='too deep for 160x120 images: at most 3 leave'):
+        MonoTracker(model_factory(), PinholeCamera.ideal(160, 120), MonoTrackerConfig())
+    MonoTracker(model_factory(), PinholeCamera.ideal(160, 128), MonoTrackerConfig())  # 16 px
