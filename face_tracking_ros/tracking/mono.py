@@ -1237,9 +1237,10 @@ class MonoTracker:
 
         accepted: list[tuple[_Params, _System]] = []  # each level's last accepted point
         coarsest = pyramid.num_levels - 1
-        solved: set[int] = set()
+        coarsest_solved = False  # the coarsest level is always solved once it is started
 
         def solve(index: int, params: _Params, first_step_limit: float) -> _Params | None:
+            nonlocal coarsest_solved
             level = _Level(
                 index=index,
                 image=pyramid.levels[index],
@@ -1251,8 +1252,7 @@ class MonoTracker:
             )
             solution, last = self._solve_level(level, params, free_sigma, costs, first_step_limit)
             accepted.append(last)
-            if solution is not None:
-                solved.add(index)
+            coarsest_solved |= index == coarsest
             return solution
 
         params = coarse_to_fine(
@@ -1270,7 +1270,7 @@ class MonoTracker:
             iterations=len(costs),
             costs=tuple(costs),
             projection=projection(0),
-            coarsest_solved=coarsest in solved,
+            coarsest_solved=coarsest_solved,
         )
 
     def _solve_level(
