@@ -53,6 +53,7 @@ from face_tracking_ros.imaging import (
 from face_tracking_ros.tracking.surface_patches import surface_patch_offsets
 
 SKIN_TERMS = 5  # u, v, u^2, u v, v^2
+_BRIGHTNESS = 3  # b_0 + b_1 u + b_2 v
 _MAX_DEPTH_STEP = 0.02  # m: a larger step of a node's depth is a wrong basin; the node stops
 _NOISE = 2.0  # s, grey levels: the image noise the skin prior is weighed against
 _TOKEN_PRIOR = 1e-6  # squared grey levels per squared brightness coefficient
