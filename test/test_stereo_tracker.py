@@ -19,7 +19,6 @@ from face_tracking_ros.model.topology import Group, mesh_topology
 from face_tracking_ros.tracking.depth_refinement import DepthRefinement, depth_evidence
 from face_tracking_ros.tracking.initialisation import Initialisation
 from face_tracking_ros.tracking.result import TrackStatus
-from face_tracking_ros.tracking.skin_surface import fit_skin
 from face_tracking_ros.tracking.stereo import StereoTracker, StereoTrackerConfig, track_sequence
 from face_tracking_ros.tracking.stereo_data import (
     Huber,
@@ -38,7 +37,6 @@ from face_tracking_ros.tracking.stereo_init import (
     StereoInitConfig,
     epipolar_match,
     initial_nodes,
-    refine_depths,
 )
 
 RIG = StereoRig.ideal()
@@ -475,84 +473,6 @@ def test_a_highlight_in_one_view_does_not_bias_the_depths() -> None:
     # Measured: at most 0.58 mm with each patch's brightness ramp removed, 3.75 mm with its mean.
     assert np.abs(_highlight_depth_errors(ramp=True)).max() < 0.0008
     assert np.abs(_highlight_depth_errors(ramp=False)).max() > 0.002
-
-
-class _Bump:
-    """A textured plane 0.6 m away with a Gaussian bump (6 mm high, 5 mm wide) at the nose tip.
-
-    The bump is narrower than the 19-node mesh is fine: the thin-plate surface through the nodes
-    is a broad hill there, the skin a sharp one. Each view is ray cast (the surface is a height
-    field over the left camera's x-y; its texture is the plane's, by x-y).
-    """
-
-    depth, height, width = 0.6, 0.006, 0.005
-    nodes = PLANE.nodes(19)[:, :2]
-    tip = mesh_topology(19).index('nose_tip')
-
-    def surface(self, xy: np.ndarray) -> np.ndarray:
-        squared = np.sum((xy - self.nodes[self.tip]) ** 2, axis=-1)
-        return self.depth - self.height * np.exp(-squared / (2 * self.width**2))
-
-    def truth(self) -> np.ndarray:
-        return np.column_stack([self.nodes, self.surface(self.nodes)])
-
-    def image(self, camera: PinholeCamera) -> np.ndarray:
-        p = camera.p
-        rows, cols = np.mgrid[0 : camera.height, 0 : camera.width].astype(float)
-        rays = np.stack([(cols - p[0, 2]) / p[0, 0], (rows - p[1, 2]) / p[1, 1]], axis=-1)
-        centre = np.array([-p[0, 3] / p[0, 0], 0.0])  # the camera's x-y in the left frame
-        depth = np.full(rows.shape, self.depth)
-        for _ in range(20):  # fixed point of z = surface(centre + z ray)
-            depth = self.surface(centre + rays * depth[..., None])
-        texel = ((centre + rays * depth[..., None]) / TEXEL + TEXTURE.shape[0] / 2).astype(
-            np.float32
-        )
-        return cv2.remap(TEXTURE, texel[..., 0], texel[..., 1], cv2.INTER_CUBIC)
-
-
-def test_the_skin_fit_measures_a_bump_the_nodes_miss() -> None:
-    bump = _Bump()
-    left, right = bump.image(RIG.left), bump.image(RIG.right)
-    truth = bump.truth()
-    config = StereoInitConfig()
-    refined = refine_depths(RIG, left, right, truth + [0.0, 0.0, 0.001], config)
-    every = np.ones(19, dtype=bool)
-    fitted, skin = fit_skin(RIG, left, right, refined, every, 5, 5, config.skin_prior)
-    # Measured: the nose tip 1.65 mm too far on the thin-plate patch, 0.70 mm on the skin, whose
-    # u^2 and v^2 terms are 1.32 and 1.49 mm (the bump falls 2.3 mm from the centre to u = 1;
-    # the thin-plate patch's quadratic has 0.64 and 0.47 mm).
-    error = (refined - truth)[bump.tip, 2], (fitted - truth)[bump.tip, 2]
-    assert error[0] > 0.0015
-    assert abs(error[1]) < 0.0009
-    assert np.all(skin.coefficients[bump.tip, [2, 4]] > 0.001)
-    assert _rms_mm(fitted, truth) < 0.6 * _rms_mm(refined, truth)
-    # An almost rigid prior keeps the thin-plate patch: the node's depth alone moves, as before.
-    flat, stiff = fit_skin(RIG, left, right, refined, every, 5, 5, 1e-9)
-    assert abs((flat - truth)[bump.tip, 2] - error[0]) < 0.0001
-    assert np.all(stiff.coefficients[bump.tip, [2, 4]] < 0.0007)
-    # Nodes not fitted keep their depth and a flat skin.
-    kept, none = fit_skin(RIG, left, right, refined, ~every, 5, 5, config.skin_prior)
-    np.testing.assert_array_equal(kept, refined)
-    assert not np.any(none.measured)
-
-
-@pytest.mark.parametrize(
-    ('skin_prior', 'low', 'high'), [(1e-9, 0.0015, 0.002), (None, 0.0, 0.0009)]
-)
-def test_the_tracker_lays_its_patches_on_the_measured_skin(
-    skin_prior: float | None, low: float, high: float
-) -> None:
-    # Measured over three pairs of the bump: the nose tip 1.60 mm too far on thin-plate patches,
-    # 0.67 mm on the skin (the default prior).
-    bump = _Bump()
-    init = PLANE_INIT if skin_prior is None else replace(PLANE_INIT, skin_prior=skin_prior)
-    tracker = StereoTracker(RIG, replace(PLANE_CONFIG, init=init))
-    tracker.reset(RIG.left.project(bump.truth()))
-    pair = bump.image(RIG.left), bump.image(RIG.right)
-    results = [tracker.step(*pair) for _ in range(3)]
-    assert all(result.ok for result in results)
-    error = (results[-1].nodes_cam - bump.truth())[bump.tip, 2]
-    assert low < error < high
 
 
 def test_depth_refinement_pools_noisy_pairs_into_the_true_depths() -> None:

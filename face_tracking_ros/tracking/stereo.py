@@ -60,7 +60,6 @@ from face_tracking_ros.tracking.initialisation import Initialisation
 from face_tracking_ros.tracking.mono import Detector
 from face_tracking_ros.tracking.regularisation import RegularisationConfig, Regulariser
 from face_tracking_ros.tracking.result import TrackResult, TrackStatus
-from face_tracking_ros.tracking.skin_surface import SkinSurface
 from face_tracking_ros.tracking.stereo_data import (
     GroupStatistics,
     Huber,
@@ -581,7 +580,7 @@ class StereoTracker:
             self._reason = f'initialisation failed: {error}'
             return self._not_tracking(self._status, self._reason)
         nodes = initial.nodes
-        layouts = self._layouts(nodes, initial.skin)
+        layouts = self._layouts(nodes)
         samples = SampleSet.of(layouts, self._topology.num_nodes)
         offsets = samples.level_offsets(np.eye(3), 0)
         templates = self._templates(pyramids, samples, nodes, offsets)
@@ -666,8 +665,8 @@ class StereoTracker:
             return None, np.zeros(0)
         return ActionPrior.build(self._prior_model, nodes, weights)
 
-    def _layouts(self, nodes: np.ndarray, skin: SkinSurface) -> tuple[SampleLayout, ...]:
-        """Node patches (always, on ``skin``) and the face-texture samples (texture_weight > 0)."""
+    def _layouts(self, nodes: np.ndarray) -> tuple[SampleLayout, ...]:
+        """Node patches (always) and the face-texture samples (if texture_weight > 0)."""
         config = self._config
         spacing = nodes[:, 2] / self._rig.left.focal
         patches = SampleLayout.node_patches(
@@ -675,7 +674,6 @@ class StereoTracker:
             spacing,
             config.patch_half_size,
             self._boundary & config.boundary_one_sided,
-            skin,
         )
         layouts = [patches]
         if config.texture_weight > 0 and len(self._texture_triangles):

@@ -62,7 +62,6 @@ from face_tracking_ros.imaging import (
     square_offsets,
 )
 from face_tracking_ros.tracking.projection import space_gradient
-from face_tracking_ros.tracking.skin_surface import SkinSurface
 from face_tracking_ros.tracking.stereo_kernels import node_normal_blocks, zssd_residuals
 from face_tracking_ros.tracking.surface_patches import surface_patch_offsets
 
@@ -98,7 +97,6 @@ class SampleLayout:
         spacing: np.ndarray,
         half_size: int,
         one_sided: np.ndarray,
-        skin: SkinSurface | None = None,
     ) -> SampleLayout:
         """Patches of (2 h + 1)^2 samples on the face surface around each node (ROI of eq. 4).
 
@@ -116,14 +114,10 @@ class SampleLayout:
             spacing: (N,) sample spacing at level 0, m (about one pixel: depth / focal).
             half_size: h, samples each side of the node.
             one_sided: (N,) bool, the boundary nodes whose patch keeps the face side only.
-            skin: the skin measured in the first pair (:mod:`.skin_surface`); its measured
-                nodes' patches lie on it instead.
         """
         square = square_offsets(half_size).astype(float)
         grid = spacing[:, None, None] * square[None]
         offsets = surface_patch_offsets(nodes, grid)
-        if skin is not None:
-            offsets = skin.offsets(offsets, grid)
         inward = nodes.mean(axis=0) - nodes
         facing = (np.einsum('nmd,nd->nm', offsets, inward) >= 0.0) & np.any(grid, axis=2)
         bary = np.zeros((grid.shape[1], 3))

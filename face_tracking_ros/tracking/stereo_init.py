@@ -6,10 +6,9 @@ node is found in the right image by normalised cross-correlation along its epipo
 same row of a rectified pair, ``cv2.matchTemplate``) within a depth range, triangulated
 (``StereoRig.triangulate``), and refined along its viewing ray by Gauss-Newton on the left-right
 difference of a patch lying on the face surface, which removes the bias that square windows
-have on sloping skin; then its depth and the skin around it are measured together
-(:mod:`.skin_surface`). Nodes not given, or whose match is weak or inconsistent with the
+have on sloping skin. Nodes not given, or whose match is weak or inconsistent with the
 face, take their position from the reference face of the topology fitted to the others (a
-similarity transform) and keep its depth.
+similarity transform); their depth is then refined the same way.
 """
 
 from __future__ import annotations
@@ -24,7 +23,6 @@ from face_tracking_ros.geometry.camera import StereoRig
 from face_tracking_ros.geometry.procrustes import rigid_align
 from face_tracking_ros.imaging import sample_patches, sample_points, square_offsets
 from face_tracking_ros.model.topology import Group, MeshTopology
-from face_tracking_ros.tracking.skin_surface import SkinSurface, fit_skin
 from face_tracking_ros.tracking.stereo_data import SampleLayout, SampleSet, depth_terms
 
 FLAT_STD = 0.5  # grey levels: a correlation window flatter than this cannot be matched
@@ -49,11 +47,6 @@ class StereoInitConfig:
             its minimum millimetres off; over 18 subjects of three synthetic populations (19
             nodes) h = 5 against 3 took the matched nodes' depth error from 1.63 / 1.59 / 2.39
             to 1.59 / 1.42 / 1.72 mm RMS per population, the largest from 10.2 to 8.6 mm.
-        skin_prior: tau of the skin each matched node's patch is then given (the refinement
-            patch's depth off the thin-plate surface, quadratic across it; :mod:`.skin_surface`),
-            m (> 0): the prior standard deviation of each term at the patch's edge. The tracker's
-            patches lie on that skin, so the cross-camera terms of eq. 4 compare the same skin
-            points. A prior of nearly 0 leaves them on the thin-plate surface.
     """
 
     min_depth: float = 0.25
@@ -64,7 +57,6 @@ class StereoInitConfig:
     min_given_nodes: int = 6
     refine_iterations: int = 5
     refine_half_size: int = 5
-    skin_prior: float = 0.001
 
     def __post_init__(self) -> None:
         """Validate ranges.
@@ -80,7 +72,6 @@ class StereoInitConfig:
             'min_given_nodes': self.min_given_nodes >= 3,
             'refine_iterations': self.refine_iterations >= 0,
             'refine_half_size': self.refine_half_size >= 1,
-            'skin_prior': self.skin_prior > 0.0,
         }
         check_fields(self, checks)
 
@@ -139,12 +130,10 @@ class InitialNodes:
         nodes: (N, 3) nodes in the left camera frame, m.
         matched: (N,) bool, nodes whose depth is their own stereo match; the others' depth is
             the fitted reference face's.
-        skin: each node's skin off the thin-plate surface (flat but for matched nodes).
     """
 
     nodes: np.ndarray
     matched: np.ndarray
-    skin: SkinSurface
 
 
 def initial_nodes(
@@ -218,17 +207,7 @@ def initial_nodes(
     nodes[placed] = rays * (reference[placed, 2] / rays[:, 2])[:, None]
     # Depth refinement corrects the matches only; their surface alone gives the patches' shape.
     nodes[matched] = refine_depths(rig, left, right, nodes[matched], config)
-    nodes, skin = fit_skin(
-        rig,
-        left,
-        right,
-        nodes,
-        matched,
-        config.refine_half_size,
-        config.refine_iterations,
-        config.skin_prior,
-    )
-    return InitialNodes(nodes, matched, skin)
+    return InitialNodes(nodes, matched)
 
 
 def refine_depths(
