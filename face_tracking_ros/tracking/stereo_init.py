@@ -8,7 +8,7 @@ same row of a rectified pair, ``cv2.matchTemplate``) within a depth range, trian
 difference of a patch lying on the face surface, which removes the bias that square windows
 have on sloping skin. Nodes not given, or whose match is weak or inconsistent with the
 face, take their position from the reference face of the topology fitted to the others (a
-similarity transform); their depth is then refined the same way.
+similarity transform) and keep its depth.
 """
 
 from __future__ import annotations
