@@ -844,7 +844,6 @@ class MonoTracker:
         rotation errors of 6.8 / 3.1 degrees; keeping it, 49 frames and 1.1 / 1.1 degrees.
         """
         track = self._track
-        before, track.before = (None if track.lost else track.current), None
         detected = self._detect(pyramid)
         candidates = [self._fit_or_none(detected)] if detected is not None else []
         candidates.append(self._search(pyramid))
@@ -855,7 +854,6 @@ class MonoTracker:
                 pyramid, start, keyframe.levels, weights, self._config.reacquire_residual_ratio
             )
             if result.ok:
-                track.before = before
                 self._accept(result, templates)
                 return result
         return self._failure(f'lost: {reason}')
@@ -912,7 +910,6 @@ class MonoTracker:
         )
         if not result.ok:
             return self._reacquire(pyramid, result.reason)
-        track.before = None if track.lost else track.current
         self._accept(result, templates)
         self._followed = (pyramid, result)
         return result
@@ -1107,8 +1104,13 @@ class MonoTracker:
         return np.array([np.sum(k.rotation * rotation) for k in self._track.keyframes])
 
     def _accept(self, result: TrackResult, templates: _Templates) -> None:
-        """Make a successful frame the previous frame of the next one, and maybe a keyframe."""
+        """Make a successful frame the previous frame of the next one, and maybe a keyframe.
+
+        The last valid estimate becomes ``before`` (the motion prediction's other point) if no
+        image was LOST since it, however this frame was found (followed or re-acquired).
+        """
         track = self._track
+        track.before = None if track.lost else track.current
         config = self._config
         if len(track.keyframes) < config.max_keyframes:
             # trace(R) = 1 + 2 cos(angle)
