@@ -76,7 +76,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
-from functools import partial
+from functools import cache, partial
 from typing import NamedTuple
 
 import cv2
@@ -1230,12 +1230,10 @@ class MonoTracker:
         cost: with the damping this small, a retry with more of it moves to about the same point.
         """
         costs: list[float] = []
-        projections: dict[int, PhotometricProjection] = {}  # made for the levels solved only
 
+        @cache  # made for the levels solved only
         def projection(index: int) -> PhotometricProjection:
-            if index not in projections:
-                projections[index] = self._invariance.projection(templates[index])
-            return projections[index]
+            return self._invariance.projection(templates[index])
 
         accepted: list[tuple[_Params, _System]] = []  # each level's last accepted point
         coarsest = pyramid.num_levels - 1
