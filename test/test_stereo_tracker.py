@@ -415,6 +415,13 @@ def test_reset_and_config_reject_bad_input() -> None:
         StereoTrackerConfig(coarse_step_tolerance=0.0)
 
 
+def test_too_deep_a_pyramid_is_a_config_error() -> None:
+    with pytest.raises(ConfigError, match='too deep for 120x90 images: at most 3 leave'):
+        StereoTracker(StereoRig.ideal(120, 90), StereoTrackerConfig(pyramid_levels=4))
+    tracker = StereoTracker(StereoRig.ideal(120, 96), StereoTrackerConfig(pyramid_levels=3))
+    assert tracker.topology.num_nodes == 34  # 96 px leave 24 px at level 2
+
+
 def test_face_model_term_needs_a_model(monkeypatch: pytest.MonkeyPatch) -> None:
     def missing(num_nodes: int) -> None:
         raise ModelFileError(f'no default model of {num_nodes} nodes')

@@ -11,7 +11,7 @@ from face_tracking_ros.imaging.photometric import (
     PhotometricModel,
     PhotometricProjection,
 )
-from face_tracking_ros.imaging.pyramid import ImagePyramid
+from face_tracking_ros.imaging.pyramid import ImagePyramid, check_levels_fit
 from face_tracking_ros.imaging.sampling import (
     inside_image,
     inside_xy,
@@ -38,6 +38,7 @@ __all__ = [
     'sample_with_gradient_rows',
     'sample_with_gradient_xy',
     'sample_xy',
+    'check_levels_fit',
     'square_offsets',
     'to_gray',
 ]

@@ -13,11 +13,30 @@ from typing import NamedTuple
 import cv2
 import numpy as np
 
-from face_tracking_ros.errors import InputError
+from face_tracking_ros.errors import ConfigError, InputError
 
 MIN_LEVEL_SIZE = 8
+MIN_TRACKING_LEVEL_SIZE = 16  # a tracker's coarsest level keeps its node patches inside
 # The 5-tap binomial kernel cv2.pyrDown smooths with before it drops every other pixel.
 _BINOMIAL = np.array([1.0, 4.0, 6.0, 4.0, 1.0], dtype=np.float32) / 16.0
+
+
+def check_levels_fit(num_levels: int, width: int, height: int) -> None:
+    """Check at set-up that a tracker's pyramid fits its images.
+
+    The coarsest level must keep ``MIN_TRACKING_LEVEL_SIZE`` pixels on its shorter side; a
+    deeper pyramid would fail on every frame instead.
+
+    Raises:
+        ConfigError: naming ``pyramid_levels`` and how many levels fit.
+    """
+    fitting = (min(width, height) // MIN_TRACKING_LEVEL_SIZE).bit_length()
+    if num_levels > fitting:
+        msg = (
+            f'pyramid_levels = {num_levels} is too deep for {width}x{height} images: at most '
+            f'{fitting} leave the coarsest level {MIN_TRACKING_LEVEL_SIZE} px'
+        )
+        raise ConfigError(msg)
 
 
 @dataclass(frozen=True)

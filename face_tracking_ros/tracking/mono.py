@@ -92,6 +92,7 @@ from face_tracking_ros.imaging import (
     PhotometricInvariance,
     PhotometricModel,
     PhotometricProjection,
+    check_levels_fit,
     inside_image,
     inside_xy,
     sample_with_gradient_xy,
@@ -581,14 +582,7 @@ class MonoTracker:
         self._camera = camera
         self._config = config or MonoTrackerConfig()
         self._detector = detector
-        levels = self._config.pyramid_levels
-        fitting = (min(camera.width, camera.height) // 16).bit_length()  # coarsest >= 16 px
-        if levels > fitting:
-            msg = (
-                f'pyramid_levels = {levels} is too deep for {camera.width}x{camera.height} '
-                f'images: at most {fitting} leave the coarsest level 16 px'
-            )
-            raise ConfigError(msg)
+        check_levels_fit(self._config.pyramid_levels, camera.width, camera.height)
         self._triangles = model.topology.triangles
         self._edge_nodes = model.topology.group_mask(Group.EDGE)
         self._roi_weights = np.where(self._edge_nodes, self._config.edge_weight, 1.0)
@@ -610,7 +604,7 @@ class MonoTracker:
         # P of each pyramid level: level l's pixels are level 0's times 2^-l.
         self._level_cameras = [
             camera.p * np.array([[1.0 / (1 << level)], [1.0 / (1 << level)], [1.0]])
-            for level in range(levels)
+            for level in range(self._config.pyramid_levels)
         ]
         self._prior_hessians = {free: self._prior_hessian(free) for free in (False, True)}
         self._buffers: ImagePyramid | None = None  # the previous frame's, rebuilt in place

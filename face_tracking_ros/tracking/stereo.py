@@ -48,7 +48,7 @@ from face_tracking_ros.errors import (
 )
 from face_tracking_ros.geometry.camera import StereoRig
 from face_tracking_ros.geometry.procrustes import rigid_align
-from face_tracking_ros.imaging import ImagePyramid, inside_image
+from face_tracking_ros.imaging import ImagePyramid, check_levels_fit, inside_image
 from face_tracking_ros.model.face_model import FaceModel
 from face_tracking_ros.model.model_file import load_model
 from face_tracking_ros.model.topology import Group, MeshTopology, mesh_topology
@@ -402,12 +402,14 @@ class StereoTracker:
                 automatic initialisation by ``reset()``.
 
         Raises:
-            ConfigError: if the model's node count differs from ``config.num_nodes``, or the
-                face-model term is on, no model is given and the packaged one is missing.
+            ConfigError: if the model's node count differs from ``config.num_nodes``, the
+                pyramid is too deep for the images, or the face-model term is on, no model is
+                given and the packaged one is missing.
         """
         if model is not None and model.num_nodes != config.num_nodes:
             msg = f'model has {model.num_nodes} nodes but the tracker is set to {config.num_nodes}'
             raise ConfigError(msg)
+        check_levels_fit(config.pyramid_levels, rig.left.width, rig.left.height)
         self._rig = rig
         self._config = config
         self._model = model
