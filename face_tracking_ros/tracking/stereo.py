@@ -101,7 +101,8 @@ class StereoTrackerConfig:
             (none in the 19-node mesh).
         texture_subdivisions: barycentric grid order of the texture samples (>= 3).
         patch_half_size: node patches are (2 h + 1)^2 samples about one pixel apart.
-        pyramid_levels: coarse-to-fine levels (1 = full resolution only).
+        pyramid_levels: coarse-to-fine levels (1 = full resolution only; the coarsest at least
+            16 px).
         max_iterations: Levenberg-Marquardt iterations per pyramid level.
         step_tolerance: level 0 has converged when no node's projection moves more than this
             in an iteration, px (that last step is taken without evaluating its cost).
