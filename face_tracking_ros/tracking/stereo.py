@@ -121,7 +121,8 @@ class StereoTrackerConfig:
             fewer linearisations per pair on the speed benchmark's sequence (coarse level
             3.7 -> 2.0).
         coarsest_level_px: the solve starts on level 0, and the coarser levels are solved
-            (from the coarsest) only when level 0's first step moves a node more than this, px
+            (from level 1, :func:`.coarse_to_fine`; with the default two levels that is the
+            coarsest) only when level 0's first step moves a node more than this, px
             (>= 0; 0, the default, always solves them). Faster but off by default: at 0.5 px,
             linearisations per pair 3.06 -> 2.62 on the speed benchmark's sequence (4.06 ->
             2.54 while the coarse level ran to ``step_tolerance``), but on issue 5's protocol

@@ -31,15 +31,31 @@ def _solver(too_far: set[int]):
         (3, 1, 1.0, set(), [(1, 0, 0.5), (0, 10, INF)]),
         # Level 0 first: the limit as given.
         (3, 0, 1.0, set(), [(0, 0, 1.0)]),
-        # The first level refuses: start over from the coarsest, from the same start, unlimited.
+        # The first level refuses: start over from the same start, level 0 from level 1 (the
+        # limit in its own px), any other level from the coarsest, which is unlimited.
         (3, 1, 1.0, {1}, [(1, 0, 0.5), (2, 0, INF), (1, 100, INF), (0, 110, INF)]),
-        (3, 0, 1.0, {0}, [(0, 0, 1.0), (2, 0, INF), (1, 100, INF), (0, 110, INF)]),
+        (3, 0, 1.0, {0}, [(0, 0, 1.0), (1, 0, 1.0), (0, 10, INF)]),
+        (
+            4,
+            0,
+            1.0,
+            {0, 1},
+            [
+                (0, 0, 1.0),
+                (1, 0, 1.0),
+                (3, 0, INF),
+                (2, 1000, INF),
+                (1, 1100, INF),
+                (0, 1110, INF),
+            ],
+        ),
+        (2, 0, 1.0, {0}, [(0, 0, 1.0), (1, 0, INF), (0, 10, INF)]),
         # A first level at or beyond the coarsest: the full solve.
         (2, 1, 1.0, set(), [(1, 0, INF), (0, 10, INF)]),
         (1, 1, 1.0, set(), [(0, 0, INF)]),
     ],
 )
-def test_levels_run_coarse_to_fine_with_the_coarsest_on_demand(
+def test_levels_run_coarse_to_fine_with_the_coarser_ones_on_demand(
     levels, first, restart_px, too_far, expected
 ) -> None:
     solve, calls = _solver(too_far)
