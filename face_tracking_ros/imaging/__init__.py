@@ -30,6 +30,7 @@ __all__ = [
     'PhotometricInvariance',
     'PhotometricModel',
     'PhotometricProjection',
+    'check_levels_fit',
     'inside_image',
     'inside_xy',
     'sample_patches',
@@ -38,7 +39,6 @@ __all__ = [
     'sample_with_gradient_rows',
     'sample_with_gradient_xy',
     'sample_xy',
-    'check_levels_fit',
     'square_offsets',
     'to_gray',
 ]

@@ -24,8 +24,9 @@ _BINOMIAL = np.array([1.0, 4.0, 6.0, 4.0, 1.0], dtype=np.float32) / 16.0
 def check_levels_fit(num_levels: int, width: int, height: int) -> None:
     """Check at set-up that a tracker's pyramid fits its images.
 
-    The coarsest level must keep ``MIN_TRACKING_LEVEL_SIZE`` pixels on its shorter side; a
-    deeper pyramid would fail on every frame instead.
+    The coarsest level must keep ``MIN_TRACKING_LEVEL_SIZE`` pixels on its shorter side. A
+    deeper pyramid leaves it too small for the node patches, or cannot be built at all, and then
+    every frame fails.
 
     Raises:
         ConfigError: naming ``pyramid_levels`` and how many levels fit.

@@ -1222,7 +1222,7 @@ class MonoTracker:
         """Levenberg-Marquardt on eq. 6 plus priors, coarse to fine down to level 0.
 
         The solve starts on ``first_level``; when its first step exceeds ``coarsest_level_px``
-        it starts over from ``start`` one level coarser (:func:`.coarse_to_fine`). The Jacobian is
+        it starts over from ``start`` on a coarser level (:func:`.coarse_to_fine`). The Jacobian is
         evaluated where a level starts and re-evaluated only once the samples have moved
         ``jacobian_refresh_px`` since; the iterations in between only sample the image (one
         ``cv2.remap`` of the ROI points each). A level ends when the nodes stop moving
