@@ -21,6 +21,14 @@ MIN_TRACKING_LEVEL_SIZE = 16  # a tracker's coarsest level keeps its node patche
 _BINOMIAL = np.array([1.0, 4.0, 6.0, 4.0, 1.0], dtype=np.float32) / 16.0
 
 
+def _levels_that_fit(side: int, min_size: int) -> int:
+    """How many pyramid levels a shorter side of ``side`` px allows, the coarsest >= ``min_size``.
+
+    Level l has ``side >> l`` px.
+    """
+    return (side // min_size).bit_length()
+
+
 def check_levels_fit(num_levels: int, width: int, height: int) -> None:
     """Check at set-up that a tracker's pyramid fits its images.
 
@@ -31,7 +39,7 @@ def check_levels_fit(num_levels: int, width: int, height: int) -> None:
     Raises:
         ConfigError: naming ``pyramid_levels`` and how many levels fit.
     """
-    fitting = (min(width, height) // MIN_TRACKING_LEVEL_SIZE).bit_length()
+    fitting = _levels_that_fit(min(width, height), MIN_TRACKING_LEVEL_SIZE)
     if num_levels > fitting:
         msg = (
             f'pyramid_levels = {num_levels} is too deep for {width}x{height} images: at most '
@@ -85,7 +93,7 @@ class ImagePyramid:
         if gray.ndim != 2:
             msg = f'pyramid input must be a (H, W) grey image, got shape {gray.shape}'
             raise InputError(msg)
-        if num_levels < 1 or min(gray.shape) >> (num_levels - 1) < MIN_LEVEL_SIZE:
+        if not 1 <= num_levels <= _levels_that_fit(min(gray.shape), MIN_LEVEL_SIZE):
             msg = f'cannot build {num_levels} pyramid levels from a {gray.shape} image'
             raise InputError(msg)
         buffers = _Buffers.of(gray.shape, num_levels, smooth_base, reuse)
