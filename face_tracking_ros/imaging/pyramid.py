@@ -54,7 +54,7 @@ class ImagePyramid:
 
     Attributes:
         levels: images of level 0 (full resolution) to L-1, each (H_l, W_l) float32 grey levels
-            in [0, 255].
+            (in [0, 255] as built; :meth:`scale` may change that).
         scratch: the (H, W) float32 buffer of the unsmoothed level 0 when level 0 is smoothed
             (kept for ``reuse``; a uint8 image is filtered without it), else None.
     """
@@ -120,6 +120,17 @@ class ImagePyramid:
         for level in range(2 if smooth_base else 1, num_levels):
             cv2.pyrDown(levels[level - 1], dst=levels[level])
         return cls(levels=levels, scratch=buffers.scratch)
+
+    def scale(self, factor: float) -> None:
+        """Multiply the grey levels of every level by ``factor``, in place.
+
+        Every level is linear in the image, so this gives the pyramid of the scaled image
+        without building it again: how the stereo tracker divides the right camera's gain
+        relative to the left out of the right images
+        (:mod:`~face_tracking_ros.tracking.camera_gain`).
+        """
+        for level in self.levels:
+            level *= np.float32(factor)
 
     @property
     def num_levels(self) -> int:

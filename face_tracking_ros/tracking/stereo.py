@@ -54,6 +54,7 @@ from face_tracking_ros.model.model_file import load_model
 from face_tracking_ros.model.topology import Group, MeshTopology, mesh_topology
 from face_tracking_ros.recognition.node_fit import NodeFit, fit_model_to_nodes
 from face_tracking_ros.tracking.action_prior import ActionPrior, ModelPoint, PriorEvaluation
+from face_tracking_ros.tracking.camera_gain import relative_gain
 from face_tracking_ros.tracking.coarse_to_fine import coarse_to_fine
 from face_tracking_ros.tracking.depth_refinement import DepthRefinement, depth_evidence
 from face_tracking_ros.tracking.initialisation import Initialisation
@@ -75,7 +76,7 @@ from face_tracking_ros.tracking.stereo_data import (
     sample_images,
     sample_values,
 )
-from face_tracking_ros.tracking.stereo_init import StereoInitConfig, initial_nodes
+from face_tracking_ros.tracking.stereo_init import InitialNodes, StereoInitConfig, initial_nodes
 from face_tracking_ros.tracking.surface_patches import PatchDeformation
 
 LEFT, RIGHT = 0, 1
@@ -172,6 +173,9 @@ class StereoTrackerConfig:
             the model fit reported with each result (their depth is the least certain: on a
             150-frame free-motion sequence 0.1 brings the fitted rotation from 4.0 to 1.5
             degrees of the truth and the translation from 2.2 to 0.4 mm).
+        gain_compensation: measure the right camera's gain relative to the left at each
+            (re)initialisation, on the node patches, and divide it out of the right images
+            (:mod:`.camera_gain`): eq. 4's cross-camera terms assume equal gains.
         regularisation: the eq. 5 weights.
         init: the epipolar search used at (re)initialisation.
     """
@@ -203,6 +207,7 @@ class StereoTrackerConfig:
     depth_step_px: float = 0.5
     fit_edge_weight: float = 0.1
     deform_patches: bool = True
+    gain_compensation: bool = True
     regularisation: RegularisationConfig = field(default_factory=RegularisationConfig)
     init: StereoInitConfig = field(default_factory=StereoInitConfig)
 
@@ -425,6 +430,7 @@ class StereoTracker:
             level_projections(cameras, level) for level in range(config.pyramid_levels)
         )
         self._spare: tuple[ImagePyramid, ImagePyramid] | None = None
+        self._right_gain = 1.0  # divided out of the right images (measured at initialisation)
         self._pending: np.ndarray | None = None
         self._detect = False
         self._state: _State | None = None
@@ -435,6 +441,14 @@ class StereoTracker:
     def topology(self) -> MeshTopology:
         """The mesh topology being tracked."""
         return self._topology
+
+    @property
+    def right_gain(self) -> float:
+        """The right camera's gain relative to the left, divided out of its images.
+
+        Each initialisation measures it (``gain_compensation``, :mod:`.camera_gain`); 1 before.
+        """
+        return self._right_gain
 
     def reset(self, init: np.ndarray | Initialisation | None = None) -> None:
         """Re-initialise on the next stereo pair from the nodes' left-image positions.
@@ -452,6 +466,7 @@ class StereoTracker:
                 None and the tracker has no detector.
         """
         self._state = None
+        self._right_gain = 1.0  # the initialisation measures it afresh, on the raw images
         self._status = TrackStatus.INITIALIZING
         self._reason = 'waiting for the first stereo pair after reset'
         if init is None:
@@ -571,14 +586,14 @@ class StereoTracker:
         left_px, self._pending = self._pending, None
         config = self._config
         try:
-            initial = initial_nodes(
-                self._rig,
-                pyramids[LEFT].levels[0],
-                pyramids[RIGHT].levels[0],
-                left_px,
-                self._topology,
-                config.init,
-            )
+            initial = self._initial_nodes(pyramids, left_px)
+            gain = 1.0
+            if config.gain_compensation:
+                gain = self._measured_gain(pyramids, initial.nodes)
+            if gain != 1.0:  # the nodes again, on the right images the gain is divided out of
+                pyramids[RIGHT].scale(1.0 / gain)
+                self._right_gain = gain
+                initial = self._initial_nodes(pyramids, left_px)
         except FaceTrackingError as error:
             self._status = TrackStatus.LOST
             self._reason = f'initialisation failed: {error}'
@@ -613,6 +628,35 @@ class StereoTracker:
             result=result,
         )
         return result
+
+    def _initial_nodes(
+        self, pyramids: tuple[ImagePyramid, ImagePyramid], left_px: np.ndarray
+    ) -> InitialNodes:
+        """The pair's initial 3-D nodes from their left-image positions (:func:`initial_nodes`)."""
+        return initial_nodes(
+            self._rig,
+            pyramids[LEFT].levels[0],
+            pyramids[RIGHT].levels[0],
+            left_px,
+            self._topology,
+            self._config.init,
+        )
+
+    def _measured_gain(
+        self, pyramids: tuple[ImagePyramid, ImagePyramid], nodes: np.ndarray
+    ) -> float:
+        """The right image's gain relative to the left at the node patches of ``nodes``."""
+        layout = self._layouts(nodes)[0]
+        patches = SampleSet.of((layout,), self._topology.num_nodes)
+        values = sample_values(
+            (pyramids[LEFT].levels[0], pyramids[RIGHT].levels[0]),
+            self._projections[0],
+            patches.points(nodes, patches.level_offsets(np.eye(3), 0)),
+        )
+        patch_shape = layout.mask.shape
+        return relative_gain(
+            values.reshape(2, *patch_shape), layout.mask, self._config.noise_floor
+        )
 
     def _templates(
         self,
@@ -1052,10 +1096,13 @@ class StereoTracker:
                 raise InputError(msg)
         levels = self._config.pyramid_levels
         spare = (None, None) if self._spare is None else self._spare
-        return (
+        pyramids = (
             ImagePyramid.build(left, levels, reuse=spare[LEFT]),
             ImagePyramid.build(right, levels, reuse=spare[RIGHT]),
         )
+        if self._right_gain != 1.0:
+            pyramids[RIGHT].scale(1.0 / self._right_gain)
+        return pyramids
 
 
 def track_sequence(
