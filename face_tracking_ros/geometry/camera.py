@@ -11,7 +11,7 @@ CameraInfo fields (an rclpy message, a rosbags message or a simple namespace).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import cv2
@@ -173,6 +173,16 @@ class StereoRig:
             left=PinholeCamera.ideal(width, height, focal),
             right=PinholeCamera.ideal(width, height, focal, tx=-focal * baseline),
         )
+
+    def with_right_rows_shifted(self, offset: float) -> StereoRig:
+        """The rig whose right camera projects every point ``offset`` px lower (its rows moved).
+
+        What a calibration error of the rectification leaves: the right image showing the
+        scene on other rows than the left (see :mod:`~face_tracking_ros.tracking.row_offset`).
+        """
+        p = self.right.p.copy()
+        p[1, 2] += offset  # P = K [I | t] with t = (-B, 0, 0): only the principal point's y moves
+        return StereoRig(self.left, replace(self.right, p=p))
 
     def triangulate(self, left_px: np.ndarray, right_px: np.ndarray) -> np.ndarray:
         """Triangulate (N, 2) left and right rectified pixels into (N, 3) left-frame points."""

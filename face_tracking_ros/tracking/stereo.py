@@ -61,6 +61,7 @@ from face_tracking_ros.tracking.initialisation import Initialisation
 from face_tracking_ros.tracking.mono import Detector
 from face_tracking_ros.tracking.regularisation import RegularisationConfig, Regulariser
 from face_tracking_ros.tracking.result import TrackResult, TrackStatus
+from face_tracking_ros.tracking.row_offset import row_offset
 from face_tracking_ros.tracking.stereo_data import (
     GroupStatistics,
     Huber,
@@ -176,6 +177,9 @@ class StereoTrackerConfig:
         gain_compensation: measure the right camera's gain relative to the left at each
             (re)initialisation, on the node patches, and divide it out of the right images
             (:mod:`.camera_gain`): eq. 4's cross-camera terms assume equal gains.
+        row_offset_correction: measure at each (re)initialisation how far the right image
+            shows the nodes below where the rig projects them and move the right camera's rows
+            by that much (:mod:`.row_offset`): eq. 4 assumes the pair is rectified exactly.
         regularisation: the eq. 5 weights.
         init: the epipolar search used at (re)initialisation.
     """
@@ -208,6 +212,7 @@ class StereoTrackerConfig:
     fit_edge_weight: float = 0.1
     deform_patches: bool = True
     gain_compensation: bool = True
+    row_offset_correction: bool = True
     regularisation: RegularisationConfig = field(default_factory=RegularisationConfig)
     init: StereoInitConfig = field(default_factory=StereoInitConfig)
 
@@ -417,7 +422,7 @@ class StereoTracker:
             msg = f'model has {model.num_nodes} nodes but the tracker is set to {config.num_nodes}'
             raise ConfigError(msg)
         check_levels_fit(config.pyramid_levels, rig.left.width, rig.left.height)
-        self._rig = rig
+        self._calibrated_rig = rig
         self._config = config
         self._model = model
         self._prior_model = _prior_model(config, model)
@@ -425,10 +430,7 @@ class StereoTracker:
         self._topology: MeshTopology = mesh_topology(config.num_nodes)
         self._texture_triangles = _texture_triangles(self._topology)
         self._boundary = self._topology.group_mask(Group.EDGE)
-        cameras = (rig.left, rig.right)
-        self._projections = tuple(
-            level_projections(cameras, level) for level in range(config.pyramid_levels)
-        )
+        self._use_rig(rig)
         self._spare: tuple[ImagePyramid, ImagePyramid] | None = None
         self._right_gain = 1.0  # divided out of the right images (measured at initialisation)
         self._pending: np.ndarray | None = None
@@ -441,6 +443,15 @@ class StereoTracker:
     def topology(self) -> MeshTopology:
         """The mesh topology being tracked."""
         return self._topology
+
+    @property
+    def right_row_offset(self) -> float:
+        """How far the right camera's rows are moved from the calibration's, px (down: > 0).
+
+        Each initialisation measures it (``row_offset_correction``, :mod:`.row_offset`); 0
+        before.
+        """
+        return float(self._rig.right.p[1, 2] - self._calibrated_rig.right.p[1, 2])
 
     @property
     def right_gain(self) -> float:
@@ -466,7 +477,8 @@ class StereoTracker:
                 None and the tracker has no detector.
         """
         self._state = None
-        self._right_gain = 1.0  # the initialisation measures it afresh, on the raw images
+        self._right_gain = 1.0  # the initialisation measures them afresh, on the raw images
+        self._use_rig(self._calibrated_rig)
         self._status = TrackStatus.INITIALIZING
         self._reason = 'waiting for the first stereo pair after reset'
         if init is None:
@@ -587,12 +599,7 @@ class StereoTracker:
         config = self._config
         try:
             initial = self._initial_nodes(pyramids, left_px)
-            gain = 1.0
-            if config.gain_compensation:
-                gain = self._measured_gain(pyramids, initial.nodes)
-            if gain != 1.0:  # the nodes again, on the right images the gain is divided out of
-                pyramids[RIGHT].scale(1.0 / gain)
-                self._right_gain = gain
+            if self._corrected(pyramids, initial):  # the nodes again, on the corrected pair
                 initial = self._initial_nodes(pyramids, left_px)
         except FaceTrackingError as error:
             self._status = TrackStatus.LOST
@@ -640,6 +647,43 @@ class StereoTracker:
             left_px,
             self._topology,
             self._config.init,
+        )
+
+    def _corrected(
+        self, pyramids: tuple[ImagePyramid, ImagePyramid], initial: InitialNodes
+    ) -> bool:
+        """Measure the right camera's gain and row offset at the initial nodes; correct them.
+
+        The gain is divided out of the pair's right pyramid (and of every later one), the
+        offset moves the right camera's rows (as the configuration asks).
+
+        Returns:
+            True if either was corrected.
+        """
+        config = self._config
+        gain = self._measured_gain(pyramids, initial.nodes) if config.gain_compensation else 1.0
+        if gain != 1.0:
+            pyramids[RIGHT].scale(1.0 / gain)
+            self._right_gain = gain
+        offset = 0.0
+        if config.row_offset_correction:
+            inner = initial.nodes[initial.matched & ~self._boundary]
+            offset = row_offset(
+                pyramids[LEFT].levels[0],
+                pyramids[RIGHT].levels[0],
+                self._rig.left.project(inner),
+                self._rig.right.project(inner),
+            )
+        if offset != 0.0:
+            self._use_rig(self._rig.with_right_rows_shifted(offset))
+        return gain != 1.0 or offset != 0.0
+
+    def _use_rig(self, rig: StereoRig) -> None:
+        """Track with ``rig`` (the calibrated one, or it with the right camera's rows moved)."""
+        self._rig = rig
+        self._projections = tuple(
+            level_projections((rig.left, rig.right), level)
+            for level in range(self._config.pyramid_levels)
         )
 
     def _measured_gain(
