@@ -93,6 +93,7 @@ class _Plane:
 
 
 PLANE = _Plane([0.0, -0.03, 0.6])
+MOVING_PLANE = [PLANE.moved(np.array([0.0015, -0.001, 0.003]) * k) for k in range(6)]
 
 
 def _rms_mm(nodes: np.ndarray, truth: np.ndarray) -> float:
@@ -251,7 +252,7 @@ def test_no_motion_gives_exactly_zero_motion() -> None:
 
 
 def test_tracks_a_moving_plane_in_3d() -> None:
-    frames = [PLANE.moved(np.array([0.0015, -0.001, 0.003]) * k) for k in range(6)]
+    frames = MOVING_PLANE
     tracker = StereoTracker(RIG, PLANE_CONFIG)
     init = RIG.left.project(PLANE.nodes(19))
     tracked = track_sequence(tracker, [f.pair() for f in frames], init)
@@ -264,43 +265,37 @@ def test_tracks_a_moving_plane_in_3d() -> None:
     assert np.abs(final.left_px - RIG.left.project(frames[-1].nodes(19))).max() < 1.0
 
 
+def _moving_plane_error(
+    config: StereoTrackerConfig, pairs: list[tuple[np.ndarray, np.ndarray]]
+) -> tuple[StereoTracker, float]:
+    """A tracker after MOVING_PLANE's ``pairs``, and its largest node RMS error on them, mm."""
+    tracker = StereoTracker(RIG, config)
+    tracked = track_sequence(tracker, pairs, RIG.left.project(PLANE.nodes(19)))
+    truth = [plane.nodes(19) for plane in MOVING_PLANE]
+    return tracker, max(map(_rms_mm, tracked.meshes, truth))
+
+
 @pytest.mark.parametrize('gain', [1.2, 0.8])
 def test_the_right_cameras_gain_is_measured_and_divided_out(gain: float) -> None:
-    frames = [PLANE.moved(np.array([0.0015, -0.001, 0.003]) * k) for k in range(6)]
-    pairs = [(left, right * gain + 10.0) for left, right in (f.pair() for f in frames)]
-    init = RIG.left.project(PLANE.nodes(19))
-    errors = {}
-    for compensation in (True, False):
-        tracker = StereoTracker(RIG, replace(PLANE_CONFIG, gain_compensation=compensation))
-        tracked = track_sequence(tracker, pairs, init)
-        errors[compensation] = max(
-            _rms_mm(mesh, f.nodes(19)) for mesh, f in zip(tracked.meshes, frames, strict=True)
-        )
-        if compensation:
-            assert tracker.right_gain == pytest.approx(gain, abs=0.01)  # measured 1.196, 0.796
+    pairs = [(left, right * gain + 10.0) for left, right in (f.pair() for f in MOVING_PLANE)]
+    tracker, compensated = _moving_plane_error(PLANE_CONFIG, pairs)
+    assert tracker.right_gain == pytest.approx(gain, abs=0.01)  # measured 1.196, 0.796
+    _, ignored = _moving_plane_error(replace(PLANE_CONFIG, gain_compensation=False), pairs)
     # Measured: 0.17 mm with the gain divided out (as with equal cameras), 0.33 / 0.30 without.
-    assert errors[True] < 0.2 < 0.25 < errors[False], errors
+    assert compensated < 0.2 < 0.25 < ignored, (compensated, ignored)
 
 
 @pytest.mark.parametrize('offset', [0.4, -0.4])
 def test_a_row_offset_between_the_images_is_measured_and_taken_into_the_rig(offset: float) -> None:
-    frames = [PLANE.moved(np.array([0.0015, -0.001, 0.003]) * k) for k in range(6)]
     right_camera = RIG.with_right_rows_shifted(offset).right  # what the calibration missed
-    pairs = [(f.image(RIG.left), f.image(right_camera)) for f in frames]
-    init = RIG.left.project(PLANE.nodes(19))
-    errors = {}
-    for correction in (True, False):
-        tracker = StereoTracker(RIG, replace(PLANE_CONFIG, row_offset_correction=correction))
-        tracked = track_sequence(tracker, pairs, init)
-        errors[correction] = max(
-            _rms_mm(mesh, f.nodes(19)) for mesh, f in zip(tracked.meshes, frames, strict=True)
-        )
-        if correction:  # measured 0.409 and -0.415 px
-            assert tracker.right_row_offset == pytest.approx(offset, abs=0.03)
-            tracker.reset(init)
-            assert tracker.right_row_offset == 0.0  # measured afresh by the next pair
+    pairs = [(f.image(RIG.left), f.image(right_camera)) for f in MOVING_PLANE]
+    tracker, corrected = _moving_plane_error(PLANE_CONFIG, pairs)
+    assert tracker.right_row_offset == pytest.approx(offset, abs=0.03)  # measured 0.409, -0.415
+    tracker.reset(RIG.left.project(PLANE.nodes(19)))
+    assert tracker.right_row_offset == 0.0  # measured afresh on the next pair
+    _, ignored = _moving_plane_error(replace(PLANE_CONFIG, row_offset_correction=False), pairs)
     # Measured: 0.18 / 0.17 mm with the offset corrected (0.17 with none), 0.45 / 0.53 without.
-    assert errors[True] < 0.2 < 0.35 < errors[False], errors
+    assert corrected < 0.2 < 0.35 < ignored, (corrected, ignored)
 
 
 def test_the_gain_is_the_median_contrast_ratio_of_the_textured_patches() -> None:
