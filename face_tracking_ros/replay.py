@@ -28,7 +28,14 @@ from face_tracking_ros.errors import BagError, FaceTrackingError
 from face_tracking_ros.io.bags import BagWriter, bag_topics, message_count, read_messages
 from face_tracking_ros.io.messages import RosbagsMessages
 from face_tracking_ros.io.typestore import typestore
-from face_tracking_ros.processing.base import Deferring, Finishing, Output, Port, Processor
+from face_tracking_ros.processing.base import (
+    Deferring,
+    Finishing,
+    Output,
+    Port,
+    Processor,
+    Reporting,
+)
 from face_tracking_ros.processing.parameters import OverrideParameters
 from face_tracking_ros.processing.registry import processor_factory
 
@@ -46,6 +53,8 @@ class ReplayStats:
         errors: bad input messages, per error text (first 200 characters).
         interrupted: True if Ctrl-C stopped the replay early.
         read_error: why the input bag stopped being readable part way ('' if it did not).
+        status: what each reporting processor reported at the end, per node name
+            (:class:`~face_tracking_ros.processing.base.Reporting`; filled by :func:`replay_bag`).
     """
 
     inputs: Counter[str] = field(default_factory=Counter)
@@ -53,6 +62,7 @@ class ReplayStats:
     errors: Counter[str] = field(default_factory=Counter)
     interrupted: bool = False
     read_error: str = ''
+    status: dict[str, dict[str, str]] = field(default_factory=dict)
 
 
 def resolve_inputs(
@@ -275,7 +285,7 @@ def replay_bag(
     total = message_count(bag, topic_map)
     out.parent.mkdir(parents=True, exist_ok=True)
     with BagWriter(out) as writer, tqdm(total=total, unit='msg', disable=not progress) as bar:
-        return replay(
+        stats = replay(
             processors,
             read_messages(bag, topics=list(topic_map)),
             writer.write,
@@ -285,6 +295,10 @@ def replay_bag(
             on_output=on_output,
             wanted=wanted,
         )
+    for node, processor in zip(nodes, processors, strict=True):
+        if isinstance(processor, Reporting):
+            stats.status[node] = processor.status()
+    return stats
 
 
 def _next_readable(iterator: Iterator[Record], stats: ReplayStats) -> Record | None:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from diagnostic_msgs.msg import DiagnosticStatus
 import rclpy
 from std_msgs.msg import Float64
 
@@ -10,6 +11,7 @@ from face_tracking_ros.nodes import processor_node
 from face_tracking_ros.processing.base import Output, Port
 
 FLOAT = 'std_msgs/msg/Float64'
+OK, WARN = DiagnosticStatus.OK, DiagnosticStatus.WARN
 
 
 class Doubling:
@@ -53,3 +55,43 @@ def test_deferred_work_runs_after_the_outputs_are_published_even_after_a_bad_inp
     finally:
         node.destroy_node()
     assert events == ['handle', 3.0, 'deferred', 'handle', 'deferred']
+
+
+class Reporting(Doubling):
+    """Doubling that reports how many numbers it has seen (processing.base.Reporting)."""
+
+    def status(self):
+        """The count, as a diagnostic value."""
+        return {'seen': str(self._events.count('handle'))}
+
+
+def test_a_reporting_processor_s_status_is_published_with_the_last_problem(
+    monkeypatch, ros_context
+):
+    def factory(_params, _messages):
+        return Reporting([])
+
+    monkeypatch.setattr(processor_node, 'processor_factory', lambda _name: factory)
+    monkeypatch.setattr(rclpy.node, 'get_default_context', lambda: ros_context)
+    node = processor_node.ProcessorNode('reporting')
+    statuses: list = []
+
+    def publish(array):
+        statuses.extend(array.status)
+
+    try:
+        monkeypatch.setattr(node._diagnostics, 'publish', publish)
+        assert [t.timer_period_ns for t in node.timers] == [1_000_000_000]  # STATUS_PERIOD_S
+        node._handle('in', Float64(data=1.5))
+        node._publish_status()
+        node._handle('in', Float64(data=-1.0))  # a bad input: WARN now, and in the next status
+        node._publish_status()
+        monkeypatch.setattr(processor_node, 'STATUS_PERIOD_S', 0.0)  # the problem is old
+        node._publish_status()
+    finally:
+        node.destroy_node()
+    values = [{v.key: v.value for v in status.values} for status in statuses]
+    assert [s.level for s in statuses] == [OK, WARN, WARN, OK]
+    assert [s.message for s in statuses] == ['running', 'in: negative', 'in: negative', 'running']
+    assert [v.get('seen') for v in values] == ['1', None, '2', '2']
+    assert all(v['node'] == 'reporting' for v in values)

@@ -9,13 +9,16 @@ from mcap_ros2.decoder import DecoderFactory
 import numpy as np
 import pytest
 
+from face_tracking_ros import replay as replay_module
+from face_tracking_ros.cli.replay import print_stats
 from face_tracking_ros.errors import BagError, InputError
 from face_tracking_ros.io import conversions
 from face_tracking_ros.io.bags import BagWriter, read_messages
 from face_tracking_ros.io.messages import RosbagsMessages
 from face_tracking_ros.io.typestore import typestore
 from face_tracking_ros.processing.base import Output, Port, QosClass
-from face_tracking_ros.replay import replay, resolve_inputs
+from face_tracking_ros.processing.parameters import OverrideParameters
+from face_tracking_ros.replay import replay, replay_bag, resolve_inputs
 
 IMAGE = 'sensor_msgs/msg/Image'
 FLOAT = 'std_msgs/msg/Float64'
@@ -44,6 +47,14 @@ class MeanProcessor:
         if 'preview' in wanted:
             outputs.append(Output('preview', self._factory.make(FLOAT, data=-mean)))
         return outputs
+
+
+class CountingProcessor(MeanProcessor):
+    """A MeanProcessor that reports how many messages it has seen (processing.base.Reporting)."""
+
+    def status(self):
+        """The count, as a diagnostic value."""
+        return {'seen': str(self._seen)}
 
 
 def _write_images(
@@ -95,6 +106,18 @@ def test_replay_writes_one_output_per_good_frame_at_the_input_stamp(tmp_path):
     written = list(read_messages(tmp_path / 'out'))
     assert [m.stamp_ns for m in written] == stamps[:3] + stamps[4:]
     assert [m.msg.data for m in written] == [0, 1, 2, 4, 5, 6, 7]
+
+
+def test_a_replay_ends_with_what_the_reporting_processors_report(tmp_path, monkeypatch, capsys):
+    _write_images(tmp_path / 'in', 5)
+    monkeypatch.setattr(
+        replay_module, 'processor_factory', lambda _node: lambda _params, _f: CountingProcessor()
+    )
+    params = OverrideParameters.parse([])
+    stats = replay_bag(['counter'], tmp_path / 'in', tmp_path / 'out', params, progress=False)
+    assert stats.status == {'counter': {'seen': '5'}}
+    print_stats(stats, tmp_path / 'out')
+    assert 'counter: seen 5' in capsys.readouterr().out
 
 
 def test_truncated_input_bag_is_replayed_up_to_the_damage(tmp_path):

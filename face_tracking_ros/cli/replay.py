@@ -106,6 +106,8 @@ def print_stats(stats: ReplayStats, out: Path) -> None:
         print(
             f'input bag unreadable past this point, replayed the readable part: {stats.read_error}'
         )
+    for node, status in stats.status.items():
+        print(f'{node}: ' + ', '.join(f'{key} {value}' for key, value in status.items()))
     if stats.interrupted:
         print('interrupted: the output bag holds what was processed so far')
 

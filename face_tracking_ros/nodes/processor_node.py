@@ -4,12 +4,14 @@ A node module builds a :class:`~face_tracking_ros.processing.base.Processor` fro
 parameters and hands it to :class:`ProcessorNode`, which subscribes to the processor's input ports,
 publishes its outputs with each port's QoS, and turns a bad input message into a WARN diagnostic
 status (and an unexpected exception, a bug, into an ERROR status) instead of a crash; the log
-gets one line per kind of problem per WARNING_PERIOD_S.
+gets one line per kind of problem per WARNING_PERIOD_S. A processor with counts and measurements
+to report (:class:`~face_tracking_ros.processing.base.Reporting`) has them published as the
+values of a status every STATUS_PERIOD_S.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 import dataclasses
 import time
 import traceback
@@ -31,7 +33,7 @@ from rclpy.qos import (
 
 from face_tracking_ros.errors import ConfigError, FaceTrackingError
 from face_tracking_ros.io.messages import RclpyMessages
-from face_tracking_ros.processing.base import Deferring, Port, Processor, QosClass
+from face_tracking_ros.processing.base import Deferring, Port, Processor, QosClass, Reporting
 from face_tracking_ros.processing.parameters import attribute_descriptions, field_default
 from face_tracking_ros.processing.registry import processor_factory
 from face_tracking_ros.threads import limit_blas_threads
@@ -42,6 +44,7 @@ ResultT = TypeVar('ResultT')
 WARNING_PERIOD_S = 5.0  # a problem of one kind is logged at most once per period
 PROBLEM_KIND_CHARS = 60  # problems whose messages start alike are one kind
 SPIN_PERIOD_S = 0.1  # how often the spin loop looks for a shutdown
+STATUS_PERIOD_S = 1.0  # how often a Reporting processor's status is published (diagnostics' 1 Hz)
 
 QOS_PROFILES = {
     QosClass.SENSOR: qos_profile_sensor_data,
@@ -115,6 +118,9 @@ class ProcessorNode(Node):
         )
         self._diagnostics = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
         self._last_logged: dict[str, float] = {}
+        self._last_problem: tuple[float, bytes, str] | None = None  # time, level, message
+        if isinstance(self._processor, Reporting):
+            self.create_timer(STATUS_PERIOD_S, self._publish_status)
         self._input_subscriptions = [self._subscribe(port) for port in self._processor.inputs]
 
     @property
@@ -162,6 +168,7 @@ class ProcessorNode(Node):
     def _problem(self, level: bytes, message: str) -> None:
         """Log a problem once per WARNING_PERIOD_S per kind, and report it on /diagnostics."""
         now = time.monotonic()
+        self._last_problem = (now, level, message)
         kind = message[:PROBLEM_KIND_CHARS]
         if now - self._last_logged.get(kind, -WARNING_PERIOD_S) >= WARNING_PERIOD_S:
             self._last_logged[kind] = now
@@ -173,14 +180,29 @@ class ProcessorNode(Node):
             log(message)
         self._report(level, message)
 
-    def _report(self, level: bytes, message: str) -> None:
-        """Publish one diagnostic status for this node."""
+    def _publish_status(self) -> None:
+        """The processor's status (:class:`Reporting`) as the values of one diagnostic status.
+
+        While problems keep coming (the last within STATUS_PERIOD_S) the status carries the last
+        one's level and message, so that it does not hide them; otherwise it is OK.
+        """
+        assert isinstance(self._processor, Reporting)
+        level, message = DiagnosticStatus.OK, 'running'
+        if self._last_problem is not None:
+            when, problem_level, problem = self._last_problem
+            if time.monotonic() - when < STATUS_PERIOD_S:
+                level, message = problem_level, problem
+        self._report(level, message, self._processor.status())
+
+    def _report(self, level: bytes, message: str, values: Mapping[str, str] | None = None) -> None:
+        """Publish one diagnostic status for this node, with ``values`` after the node's name."""
+        pairs = {'node': self.get_name(), **(values or {})}
         status = DiagnosticStatus(
             level=level,
             name=self.get_fully_qualified_name(),
             message=message,
             hardware_id='',
-            values=[KeyValue(key='node', value=self.get_name())],
+            values=[KeyValue(key=key, value=value) for key, value in pairs.items()],
         )
         array = DiagnosticArray(status=[status])
         array.header.stamp = self.get_clock().now().to_msg()

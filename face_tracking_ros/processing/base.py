@@ -95,6 +95,15 @@ class Deferring(Protocol):
 
 
 @runtime_checkable
+class Reporting(Protocol):
+    """A processor with counts and measurements to report: on /diagnostics live, after a replay."""
+
+    def status(self) -> dict[str, str]:
+        """What is worth reporting now, as key -> value text (a DiagnosticStatus's values)."""
+        ...
+
+
+@runtime_checkable
 class Finishing(Protocol):
     """A processor with outputs for the end of its input stream (offline replay calls it)."""
 

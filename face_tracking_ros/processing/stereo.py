@@ -146,6 +146,18 @@ class StereoProcessor:
             self._end_track()
             self._tracker.reset(initialisation)
 
+    def status(self) -> dict[str, str]:
+        """The images dropped unpaired so far and the corrections of the rig the tracker measured.
+
+        See :class:`~face_tracking_ros.processing.base.Reporting`: ``unpaired_images``, and once
+        a tracker runs ``right_gain`` and ``right_row_offset_px`` (:class:`StereoTracker`'s).
+        """
+        report = {'unpaired_images': str(self.unpaired)}
+        if self._tracker is not None:
+            report['right_gain'] = f'{self._tracker.right_gain:.3f}'
+            report['right_row_offset_px'] = f'{self._tracker.right_row_offset:.2f}'
+        return report
+
     def finish(self) -> list[Output]:
         """The end of the input stream: the outputs held back (``retroactive_depths``), if any.
 

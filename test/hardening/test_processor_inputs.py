@@ -370,6 +370,10 @@ def test_stereo_repeated_stamp_is_refused_and_an_earlier_stamp_restarts_the_trac
     # The late partner of a dropped image is dropped too, quietly (counted as unpaired).
     assert processor.handle('right/image_raw', image_msg(pairs[1][0].image, stamp(29)), NONE) == []
     assert processor.unpaired == 1
+    status = processor.status()  # reported on /diagnostics (processing.base.Reporting)
+    assert status['unpaired_images'] == '1'
+    assert abs(float(status['right_gain']) - 1.0) < 0.05  # equal cameras (measured 1.00)
+    assert abs(float(status['right_row_offset_px'])) < 0.1  # an exact rig (measured 0.00)
     with pytest.raises(InputError, match=r'stamp went back by 2\.067 s.*tracker reset'):
         processor.handle('left/image_raw', image_msg(pairs[0][0].image, stamp(0)), NONE)
     # The image that went back is kept: its pair restarts the track from the initialisation.
