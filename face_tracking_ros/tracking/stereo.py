@@ -54,14 +54,14 @@ from face_tracking_ros.model.model_file import load_model
 from face_tracking_ros.model.topology import Group, MeshTopology, mesh_topology
 from face_tracking_ros.recognition.node_fit import NodeFit, fit_model_to_nodes
 from face_tracking_ros.tracking.action_prior import ActionPrior, ModelPoint, PriorEvaluation
-from face_tracking_ros.tracking.camera_gain import relative_gain
+from face_tracking_ros.tracking.camera_gain import GAIN_RESOLUTION, relative_gain
 from face_tracking_ros.tracking.coarse_to_fine import coarse_to_fine
 from face_tracking_ros.tracking.depth_refinement import DepthRefinement, depth_evidence
 from face_tracking_ros.tracking.initialisation import Initialisation
 from face_tracking_ros.tracking.mono import Detector
 from face_tracking_ros.tracking.regularisation import RegularisationConfig, Regulariser
 from face_tracking_ros.tracking.result import TrackResult, TrackStatus
-from face_tracking_ros.tracking.row_offset import row_offset
+from face_tracking_ros.tracking.row_offset import ROW_OFFSET_RESOLUTION_PX, row_offset
 from face_tracking_ros.tracking.stereo_data import (
     GroupStatistics,
     Huber,
@@ -85,6 +85,7 @@ LEFT, RIGHT = 0, 1
 # the previous pair's fit the steps of tracked pairs run about 8e-3, 8e-5, 4e-6, 3e-8, so the
 # fit is then within ~1e-7 (1e-7 took a fourth iteration for nothing visible).
 FIT_TOLERANCE = 1e-5
+CORRECTION_ROUNDS = 3  # of the rig's gain and row offset at initialisation (see _corrected)
 
 
 @dataclass(frozen=True)
@@ -599,8 +600,10 @@ class StereoTracker:
         config = self._config
         try:
             initial = self._initial_nodes(pyramids, left_px)
-            if self._corrected(pyramids, initial):  # the nodes again, on the corrected pair
-                initial = self._initial_nodes(pyramids, left_px)
+            for _ in range(CORRECTION_ROUNDS):  # until what is left is within the measurements'
+                if not self._corrected(pyramids, initial):
+                    break
+                initial = self._initial_nodes(pyramids, left_px)  # matched on the corrected pair
         except FaceTrackingError as error:
             self._status = TrackStatus.LOST
             self._reason = f'initialisation failed: {error}'
@@ -655,16 +658,19 @@ class StereoTracker:
         """Measure the right camera's gain and row offset at the initial nodes; correct them.
 
         The gain is divided out of the pair's right pyramid (and of every later one), the
-        offset moves the right camera's rows (as the configuration asks).
+        offset moves the right camera's rows (as the configuration asks), each on top of what
+        earlier rounds corrected.
 
         Returns:
-            True if either was corrected.
+            True if either exceeded what its measurement resolves (:data:`GAIN_RESOLUTION`,
+            :data:`ROW_OFFSET_RESOLUTION_PX`): the initial nodes, matched on the pair before the
+            correction, are then to be matched again and the pair measured again.
         """
         config = self._config
         gain = self._measured_gain(pyramids, initial.nodes) if config.gain_compensation else 1.0
         if gain != 1.0:
             pyramids[RIGHT].scale(1.0 / gain)
-            self._right_gain = gain
+            self._right_gain *= gain
         offset = 0.0
         if config.row_offset_correction:
             inner = initial.nodes[initial.matched & ~self._boundary]
@@ -676,7 +682,7 @@ class StereoTracker:
             )
         if offset != 0.0:
             self._use_rig(self._rig.with_right_rows_shifted(offset))
-        return gain != 1.0 or offset != 0.0
+        return abs(gain - 1.0) > GAIN_RESOLUTION or abs(offset) > ROW_OFFSET_RESOLUTION_PX
 
     def _use_rig(self, rig: StereoRig) -> None:
         """Track with ``rig`` (the calibrated one, or it with the right camera's rows moved)."""
