@@ -57,7 +57,7 @@ def test_deferred_work_runs_after_the_outputs_are_published_even_after_a_bad_inp
     assert events == ['handle', 3.0, 'deferred', 'handle', 'deferred']
 
 
-class Reporting(Doubling):
+class CountingDoubling(Doubling):
     """Doubling that reports how many numbers it has seen (processing.base.Reporting)."""
 
     def status(self):
@@ -69,7 +69,7 @@ def test_a_reporting_processor_s_status_is_published_with_the_last_problem(
     monkeypatch, ros_context
 ):
     def factory(_params, _messages):
-        return Reporting([])
+        return CountingDoubling([])
 
     monkeypatch.setattr(processor_node, 'processor_factory', lambda _name: factory)
     monkeypatch.setattr(rclpy.node, 'get_default_context', lambda: ros_context)
