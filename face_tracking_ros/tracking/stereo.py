@@ -600,7 +600,7 @@ class StereoTracker:
         config = self._config
         try:
             initial = self._initial_nodes(pyramids, left_px)
-            for _ in range(CORRECTION_ROUNDS):  # until what is left is within the measurements'
+            for _ in range(CORRECTION_ROUNDS):  # until what is left is within what they resolve
                 if not self._corrected(pyramids, initial):
                     break
                 initial = self._initial_nodes(pyramids, left_px)  # matched on the corrected pair
