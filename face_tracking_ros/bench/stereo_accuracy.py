@@ -17,6 +17,11 @@ that size (:func:`~face_tracking_ros.learning.evaluation.compare_with_truth`): t
 is a model learned from tracked meshes within 0.01 of the similarity that the true meshes
 reach.
 
+Two more runs of the 19-node mesh put a real rig's faults on the right images (:class:`RigFault`:
+15 % brighter, rows 0.3 px lower), tracked with the tracker's gain and row-offset corrections
+(:mod:`~face_tracking_ros.tracking.camera_gain`, :mod:`~face_tracking_ros.tracking.row_offset`)
+and without; their meshes are not learned from.
+
 All of that runs on the default population, and again (exact clicks, both mesh sizes) on the
 'realistic' one (:mod:`face_tracking_ros.synthetic.faces`): thirteen identity modes led by face
 size, identity sharing directions with the expressions, the expressions scaled by 0.677. The
@@ -27,9 +32,10 @@ issue asks ("tune for faces in general").
 
 from __future__ import annotations
 
-from dataclasses import asdict
+from dataclasses import asdict, dataclass, replace
 from typing import Any
 
+import cv2
 import numpy as np
 
 from face_tracking_ros.bench.common import BenchOptions
@@ -49,13 +55,47 @@ from face_tracking_ros.tracking.stereo_evaluation import StereoEvaluation, evalu
 SUBJECTS, QUICK_SUBJECTS = 6, 3
 FRAMES, QUICK_FRAMES = 380, 12
 FPS = 30.0
-# run: (population preset, click noise px, N); the realistic runs are named after the population.
-RUNS = {
-    'exact_clicks': ('default', 0.0, 34),
-    'clicks_1px': ('default', 1.0, 34),
-    'nodes_19': ('default', 0.0, 19),
-    'realistic_exact_clicks': ('realistic', 0.0, 34),
-    'realistic_nodes_19': ('realistic', 0.0, 19),
+
+
+@dataclass(frozen=True)
+class RigFault:
+    """What a real rig adds to the renderer's exact one, on the right images.
+
+    Attributes:
+        gain: the right camera's gain relative to the left.
+        row_offset_px: how far below the calibration's rows the right image shows the scene.
+        corrected: track with the tracker's gain and row-offset corrections (its default).
+    """
+
+    gain: float
+    row_offset_px: float
+    corrected: bool
+
+    def right_image(self, image: np.ndarray) -> np.ndarray:
+        """The right image with the fault: (H, W) float32 grey levels, saturating at 255."""
+        height, width = image.shape
+        shift = np.float32([[1.0, 0.0, 0.0], [0.0, 1.0, self.row_offset_px]])
+        moved = cv2.warpAffine(
+            image.astype(np.float32) * self.gain,
+            shift,
+            (width, height),
+            flags=cv2.INTER_LINEAR,
+            borderMode=cv2.BORDER_REPLICATE,
+        )
+        return np.minimum(moved, 255.0)
+
+
+FAULT = RigFault(gain=1.15, row_offset_px=0.3, corrected=True)
+# run: (population preset, click noise px, N, rig fault); the realistic runs are named after the
+# population.
+RUNS: dict[str, tuple[str, float, int, RigFault | None]] = {
+    'exact_clicks': ('default', 0.0, 34, None),
+    'clicks_1px': ('default', 1.0, 34, None),
+    'nodes_19': ('default', 0.0, 19, None),
+    'nodes_19_rig_fault_corrected': ('default', 0.0, 19, FAULT),
+    'nodes_19_rig_fault_uncorrected': ('default', 0.0, 19, replace(FAULT, corrected=False)),
+    'realistic_exact_clicks': ('realistic', 0.0, 34, None),
+    'realistic_nodes_19': ('realistic', 0.0, 19, None),
 }
 PREFIX = {'default': '', 'realistic': 'realistic_'}  # of a population's learning entries
 
@@ -107,20 +147,20 @@ def _scene(options: BenchOptions, population: str) -> SceneConfig:
 
 def _population(
     scene: SceneConfig,
-    runs: dict[str, tuple[float, int]],
+    runs: dict[str, tuple[float, int, RigFault | None]],
     evaluations: dict[str, list[StereoEvaluation]],
 ) -> dict[str, dict[str, Any]]:
     """Track every subject of one population per run; the models learned per mesh size.
 
     Args:
         scene: the population's training scene.
-        runs: {run: (click noise px, N)}.
+        runs: {run: (click noise px, N, rig fault)}.
         evaluations: {run: evaluations}, every subject's appended here.
 
     Returns:
         {'<N>_nodes': {meshes: comparison with the population's true subspaces}}.
     """
-    sizes = sorted({num_nodes for _, num_nodes in runs.values()}, reverse=True)
+    sizes = sorted({num_nodes for _, num_nodes, _ in runs.values()}, reverse=True)
     sequences: dict[int, dict[str, list[MeshSequence]]] = {n: {'true': []} for n in sizes}
     alpha = []
     for subject in range(scene.subjects):
@@ -135,14 +175,16 @@ def _population(
             true = MeshSequence.labelled(subject_id, truth[:, :num_nodes], labels)
             by_meshes['true'].append(true)
         pairs = [(frame.images['left'], frame.images['right']) for frame in frames]
-        for run, (noise, num_nodes) in runs.items():
+        for run, (noise, num_nodes, fault) in runs.items():
             topology = mesh_topology(num_nodes)
             rng = np.random.default_rng([scene.seed, subject])
             nodes = truth[:, :num_nodes]
             clicks = simulated_clicks(topology.node_names, nodes[0], rig.left, noise, rng)
-            meshes, status = _tracked(rig, pairs, clicks, num_nodes)
+            meshes, status = _tracked(rig, pairs, clicks, num_nodes, fault)
             evaluation = evaluate_stereo(meshes, nodes, rig, topology, status)
             evaluations.setdefault(run, []).append(evaluation)
+            if fault is not None:
+                continue
             tracked = MeshSequence.labelled(subject_id, meshes, labels)
             clicks_name = f'clicks_{noise:g}px' if noise else 'exact_clicks'
             sequences[num_nodes].setdefault(clicks_name, []).append(tracked)
@@ -164,10 +206,22 @@ def _population(
 
 
 def _tracked(
-    rig: StereoRig, pairs: list, clicks: Initialisation, num_nodes: int
+    rig: StereoRig,
+    pairs: list,
+    clicks: Initialisation,
+    num_nodes: int,
+    fault: RigFault | None,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """(F, N, 3) meshes and (F,) statuses of a sequence tracked as learn tracks raw bags."""
-    tracker = StereoTracker(rig, StereoTrackerConfig(num_nodes=num_nodes, refine_depths=True))
+    """(F, N, 3) meshes and (F,) statuses of a sequence tracked as learn tracks raw bags.
+
+    With a rig fault, its right images and its corrections (on or off).
+    """
+    config = StereoTrackerConfig(num_nodes=num_nodes, refine_depths=True)
+    if fault is not None:
+        pairs = [(left, fault.right_image(right)) for left, right in pairs]
+        corrected = fault.corrected
+        config = replace(config, gain_compensation=corrected, row_offset_correction=corrected)
+    tracker = StereoTracker(rig, config)
     tracker.reset(clicks)
     results = tracker.with_final_depths([tracker.step(left, right) for left, right in pairs])
     return np.stack([r.nodes_cam for r in results]), np.array([int(r.status) for r in results])
