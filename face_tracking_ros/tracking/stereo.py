@@ -696,16 +696,12 @@ class StereoTracker:
         self, pyramids: tuple[ImagePyramid, ImagePyramid], nodes: np.ndarray
     ) -> float:
         """The right image's gain relative to the left at the node patches of ``nodes``."""
-        layout = self._layouts(nodes)[0]
+        layout = self._node_patches(nodes)
         patches = SampleSet.of((layout,), self._topology.num_nodes)
-        values = sample_values(
-            (pyramids[LEFT].levels[0], pyramids[RIGHT].levels[0]),
-            self._projections[0],
-            patches.points(nodes, patches.level_offsets(np.eye(3), 0)),
-        )
-        patch_shape = layout.mask.shape
+        offsets = patches.level_offsets(np.eye(3), 0)
+        values = self._templates(pyramids, patches, nodes, offsets)[0]  # level 0's
         return relative_gain(
-            values.reshape(2, *patch_shape), layout.mask, self._config.noise_floor
+            values.reshape(2, *layout.mask.shape), layout.mask, self._config.noise_floor
         )
 
     def _templates(
@@ -766,19 +762,22 @@ class StereoTracker:
     def _layouts(self, nodes: np.ndarray) -> tuple[SampleLayout, ...]:
         """Node patches (always) and the face-texture samples (if texture_weight > 0)."""
         config = self._config
-        spacing = nodes[:, 2] / self._rig.left.focal
-        patches = SampleLayout.node_patches(
-            nodes,
-            spacing,
-            config.patch_half_size,
-            self._boundary & config.boundary_one_sided,
-        )
-        layouts = [patches]
+        layouts = [self._node_patches(nodes)]
         if config.texture_weight > 0 and len(self._texture_triangles):
             layouts.append(
                 SampleLayout.triangle_texture(self._texture_triangles, config.texture_subdivisions)
             )
         return tuple(layouts)
+
+    def _node_patches(self, nodes: np.ndarray) -> SampleLayout:
+        """The node patches at ``nodes`` (one-sided on the face edge, as configured)."""
+        config = self._config
+        return SampleLayout.node_patches(
+            nodes,
+            nodes[:, 2] / self._rig.left.focal,
+            config.patch_half_size,
+            self._boundary & config.boundary_one_sided,
+        )
 
     # -- tracking ----------------------------------------------------------------------------
 
