@@ -102,6 +102,26 @@ def test_overlay_only_while_wanted(scene):
     assert (overlay.encoding, overlay.width, overlay.height) == ('rgb8', 320, 240)
 
 
+def test_status_counts_the_images_tracked_and_lost_with_the_last_reason(scene):
+    model, frames, nodes = scene
+    processor = _processor(model, nodes[0])
+    processor.handle('camera_info', _info(), frozenset())
+    assert processor.status() == {
+        'initializing_images': '0',
+        'tracking_images': '0',
+        'lost_images': '0',
+        'last_reason': '-',
+    }
+    for f in range(4):
+        processor.handle('image', _image(frames[f], f), frozenset())
+    no_face = np.full_like(frames[0], 80)  # the background alone: the face has gone
+    state = processor.handle('image', _image(no_face, 4), frozenset())[0].msg
+    assert state.status == TrackStatus.LOST
+    status = processor.status()  # reported on /diagnostics (processing.base.Reporting)
+    assert (status['tracking_images'], status['lost_images']) == ('4', '1')
+    assert status['last_reason'].startswith('lost: ')
+
+
 def test_image_before_camera_info_is_held_until_it_comes(scene):
     model, frames, nodes = scene
     processor = _processor(model, nodes[0])

@@ -31,6 +31,7 @@ from face_tracking_ros.model.model_file import load_model
 from face_tracking_ros.processing.base import Output, Port, QosClass
 from face_tracking_ros.processing.face_outputs import MESH_PORTS, MODEL_PORTS, face_outputs
 from face_tracking_ros.processing.parameters import ParameterSource
+from face_tracking_ros.processing.track_counts import TrackCounts
 from face_tracking_ros.tracking.initialisation import Initialisation, load_init_file
 from face_tracking_ros.tracking.mono import MonoTracker, MonoTrackerConfig
 from face_tracking_ros.tracking.pose_filter import PoseFilter, PoseFilterConfig
@@ -93,6 +94,7 @@ class MonoProcessor:
         self._pose_filter: PoseFilter | None = None
         self._held_image: tuple[Any, np.ndarray] | None = None
         self._last_stamp: int | None = None
+        self._counts = TrackCounts('images')
         image = (
             Port(COMPRESSED_IMAGE, 'sensor_msgs/msg/CompressedImage', QosClass.SENSOR)
             if (config.compressed)
@@ -143,6 +145,14 @@ class MonoProcessor:
             raise InputError(msg_text)
         return self._track(msg.header, gray, wanted)
 
+    def status(self) -> dict[str, str]:
+        """The images tracked and lost so far, and why the last untracked one was not tracked.
+
+        See :class:`~face_tracking_ros.processing.base.Reporting` and
+        :class:`~face_tracking_ros.processing.track_counts.TrackCounts`.
+        """
+        return self._counts.report()
+
     def run_deferred(self) -> None:
         """The last tracked image's share of the bundle adjustment (``MonoTracker.adjust``).
 
@@ -189,7 +199,9 @@ class MonoProcessor:
             raise InputError(msg)
         stamp_ns = stamp_to_ns(header.stamp)
         self._check_stamp(stamp_ns)
-        result = self._pose_filter.filter(self._tracker.track(gray), stamp_ns * 1e-9)
+        tracked = self._tracker.track(gray)
+        self._counts.add(tracked.status, tracked.reason)
+        result = self._pose_filter.filter(tracked, stamp_ns * 1e-9)
         out_header = conversions.copy_header(self._factory, header)
         topology = self._model.topology
         outputs = face_outputs(self._factory, out_header, self._config.face_id, result, topology)

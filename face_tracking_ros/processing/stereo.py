@@ -36,6 +36,7 @@ from face_tracking_ros.model.model_file import load_model
 from face_tracking_ros.processing.base import Output, Port, QosClass
 from face_tracking_ros.processing.face_outputs import MESH_PORTS, MODEL_PORTS, face_outputs
 from face_tracking_ros.processing.parameters import ParameterSource
+from face_tracking_ros.processing.track_counts import TrackCounts
 from face_tracking_ros.tracking.initialisation import Initialisation, load_init_file
 from face_tracking_ros.tracking.stereo import StereoResult, StereoTracker, StereoTrackerConfig
 
@@ -122,6 +123,7 @@ class StereoProcessor:
         self._ended_outputs: list[Output] = []  # held outputs of the tracks that ended
         self._last_stamp: int | None = None
         self.unpaired = 0
+        self._counts = TrackCounts('pairs')
         self.inputs = (
             Port(LEFT_IMAGE, 'sensor_msgs/msg/Image', QosClass.SENSOR),
             Port(RIGHT_IMAGE, 'sensor_msgs/msg/Image', QosClass.SENSOR),
@@ -147,12 +149,14 @@ class StereoProcessor:
             self._tracker.reset(initialisation)
 
     def status(self) -> dict[str, str]:
-        """The images dropped unpaired so far and the corrections of the rig the tracker measured.
+        """The pairs tracked and lost so far, the images left unpaired and the rig's corrections.
 
-        See :class:`~face_tracking_ros.processing.base.Reporting`: ``unpaired_images``, and once
-        a tracker runs ``right_gain`` and ``right_row_offset_px`` (:class:`StereoTracker`'s).
+        See :class:`~face_tracking_ros.processing.base.Reporting`: the pairs per status and the
+        last reason (:class:`~face_tracking_ros.processing.track_counts.TrackCounts`),
+        ``unpaired_images``, and once a tracker runs ``right_gain`` and ``right_row_offset_px``
+        (:class:`StereoTracker`'s).
         """
-        report = {'unpaired_images': str(self.unpaired)}
+        report = {**self._counts.report(), 'unpaired_images': str(self.unpaired)}
         if self._tracker is not None:
             report['right_gain'] = f'{self._tracker.right_gain:.3f}'
             report['right_row_offset_px'] = f'{self._tracker.right_row_offset:.2f}'
@@ -287,6 +291,7 @@ class StereoProcessor:
                 raise InputError(msg)
         self._last_stamp = stamp_to_ns(left_msg.header.stamp)
         result = self._tracker.step(left, right)
+        self._counts.add(result.status, result.reason)
         header = conversions.copy_header(self._factory, left_msg.header)
         if self._config.retroactive_depths:
             self._track_results.append((header, result))

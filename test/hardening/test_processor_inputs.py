@@ -372,6 +372,8 @@ def test_stereo_repeated_stamp_is_refused_and_an_earlier_stamp_restarts_the_trac
     assert processor.unpaired == 1
     status = processor.status()  # reported on /diagnostics (processing.base.Reporting)
     assert status['unpaired_images'] == '1'
+    counts = (status['tracking_pairs'], status['lost_pairs'], status['last_reason'])
+    assert counts == ('2', '0', '-')
     assert abs(float(status['right_gain']) - 1.0) < 0.05  # equal cameras (measured 1.00)
     assert abs(float(status['right_row_offset_px'])) < 0.1  # an exact rig (measured 0.00)
     with pytest.raises(InputError, match=r'stamp went back by 2\.067 s.*tracker reset'):
