@@ -40,6 +40,8 @@ setup(
         (f'share/{PACKAGE}/config', glob('config/*.xml')),
     ],
     install_requires=['setuptools'],
+    # Automatic initialisation (auto_init): dlib's face detector and 68-point landmark model.
+    extras_require={'detector': ['dlib-bin', 'face_recognition_models']},
     zip_safe=True,
     maintainer='face_tracking_ros maintainers',
     maintainer_email='face-tracking@example.com',

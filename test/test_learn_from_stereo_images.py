@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 from pathlib import Path
+import sys
 
 import pytest
 
@@ -79,6 +80,14 @@ def test_raw_stereo_bag_without_initialisation_is_refused(tmp_path, capsys):
             '--report', str(tmp_path / 'r.json')]  # fmt: skip
     assert main(argv) == 2
     assert 'give its initialisation with --init-dir' in capsys.readouterr().err
+
+
+def test_raw_stereo_bag_with_auto_init_needs_the_optional_detector(tmp_path, capsys, monkeypatch):
+    monkeypatch.setitem(sys.modules, 'dlib', None)  # as on a machine without the extra
+    argv = ['learn', str(BAGS[0]), '--from-images', '--auto-init', '--out',
+            str(tmp_path / 'm.npz'), '--report', str(tmp_path / 'r.json')]  # fmt: skip
+    assert main(argv) == 2
+    assert 'pip install dlib-bin face_recognition_models' in capsys.readouterr().err
 
 
 @pytest.fixture(autouse=True)

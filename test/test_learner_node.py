@@ -70,3 +70,6 @@ def test_tracker_params_reach_the_stereo_tracking_of_learn():
         parser.parse_args(['learn', *learn_arguments(LearnerConfig(bags=('a',)))]).tracker_param
         is None
     )
+    automatic = LearnerConfig(bags=('a',), auto_init=True, from_images=True)
+    args = parser.parse_args(['learn', *learn_arguments(automatic)])
+    assert args.auto_init and args.from_images

@@ -1,10 +1,16 @@
-"""The README's node parameter tables match the nodes' config dataclasses."""
+"""The README's node parameter tables match the nodes' config dataclasses and what they read."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
-from face_tracking_ros.nodes.reference import BEGIN, END, markdown
+import pytest
+
+from face_tracking_ros.io.messages import RosbagsMessages
+from face_tracking_ros.io.typestore import typestore
+from face_tracking_ros.nodes.reference import BEGIN, END, NODE_CONFIGS, markdown
+from face_tracking_ros.processing.parameters import OverrideParameters
+from face_tracking_ros.processing.registry import PROCESSORS, processor_factory
 
 README = Path(__file__).resolve().parents[1] / 'README.md'
 
@@ -21,3 +27,28 @@ def test_node_parameter_tables_are_current():
 def test_every_declared_parameter_has_a_description():
     undocumented = [row for row in markdown().splitlines() if row.endswith('|  |')]
     assert not undocumented, f'parameters without a description: {undocumented}'
+
+
+class _Recording(OverrideParameters):
+    """Defaults, recording the configs a processor reads (not the ones nested in them)."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.read: list[tuple[str, type]] = []
+        self._depth = 0
+
+    def config(self, config_type, prefix=''):
+        if self._depth == 0:
+            self.read.append((prefix, config_type))
+        self._depth += 1
+        try:
+            return super().config(config_type, prefix)
+        finally:
+            self._depth -= 1
+
+
+@pytest.mark.parametrize('node', sorted(set(PROCESSORS) & set(NODE_CONFIGS)))
+def test_the_tables_list_what_each_processing_node_reads(node):
+    parameters = _Recording()
+    processor_factory(node)(parameters, RosbagsMessages(typestore()))
+    assert tuple(parameters.read) == NODE_CONFIGS[node]

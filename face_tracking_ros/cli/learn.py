@@ -181,6 +181,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         'click noise (written to --init-dir, default: next to the meshes)',
     )
     stereo.add_argument(
+        '--auto-init',
+        action='store_true',
+        help='bags without an init file in --init-dir: find the face with the optional landmark '
+        'detector (pip install dlib-bin face_recognition_models)',
+    )
+    stereo.add_argument(
         '--meshes-dir',
         type=Path,
         help='where the tracked mesh bags go (default: <report name>_meshes/ beside the report)',
@@ -287,12 +293,10 @@ def mesh_bag(bag: Path, args: argparse.Namespace) -> Path:
     has_meshes = args.topic or any(name in topics for name in DEFAULT_TOPICS)
     if not is_stereo_bag(topics) or (has_meshes and not args.from_images):
         return bag  # meshes (or nothing: read_bag_meshes names the missing topic)
-    init_file = _init_file(bag, args)
+    initialisation = _initialisation(bag, args)
     out = _meshes_dir(args) / bag.name
     print(f'{bag}: raw stereo images: tracking them into {out}')
-    params = OverrideParameters.parse(
-        [STEREO_PARAMS, *(args.tracker_param or []), f'init_file={init_file}']
-    )
+    params = OverrideParameters.parse([STEREO_PARAMS, *(args.tracker_param or []), initialisation])
     stats = replay_bag(['stereo_tracker'], bag, out, params, progress=False)
     if not stats.outputs['face/mesh_raw']:
         msg = f'{bag}: the stereo tracker produced no mesh ({dict(stats.errors)})'
@@ -305,21 +309,28 @@ def _meshes_dir(args: argparse.Namespace) -> Path:
     return args.meshes_dir or args.report.parent / f'{args.report.stem}_meshes'
 
 
-def _init_file(bag: Path, args: argparse.Namespace) -> Path:
-    """The init file of a raw stereo bag: from --init-dir, or simulated clicks."""
+def _initialisation(bag: Path, args: argparse.Namespace) -> str:
+    """The stereo_tracker parameter that initialises a raw stereo bag's track.
+
+    Its init file from --init-dir, else one of simulated clicks (--simulate-clicks), else the
+    landmark detector (--auto-init).
+    """
     if args.init_dir is not None:
         for suffix in ('.yaml', '.yml', '.json'):
             candidate = args.init_dir / f'{bag.name}{suffix}'
             if candidate.is_file():
-                return candidate
+                return f'init_file={candidate}'
     if args.simulate_clicks is not None:
         directory = args.init_dir or _meshes_dir(args)
         directory.mkdir(parents=True, exist_ok=True)
         path = directory / f'{bag.name}.json'
-        return write_init_file(clicks_from_bag(bag, args.simulate_clicks), path)
+        return f'init_file={write_init_file(clicks_from_bag(bag, args.simulate_clicks), path)}'
+    if args.auto_init:
+        return 'auto_init=true'
     msg = (
         f'{bag} holds raw stereo images: give its initialisation with --init-dir '
-        f'(a {bag.name}.yaml node-name -> pixel file) or, for synthetic bags, --simulate-clicks'
+        f'(a {bag.name}.yaml node-name -> pixel file), --auto-init (the optional landmark '
+        'detector) or, for synthetic bags, --simulate-clicks'
     )
     raise ConfigError(msg)
 

@@ -54,6 +54,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="synthetic bags: initialise from the first frame's true nodes with PX pixels of "
         'click noise (the semi-automatic initialisation, simulated); writes OUT.init.json',
     )
+    init.add_argument(
+        '--auto-init',
+        action='store_true',
+        help='find the face with the optional landmark detector (the auto_init parameter; '
+        'pip install dlib-bin face_recognition_models)',
+    )
     parser.add_argument('--image-topic', help='mono image topic (default: found by type)')
     parser.add_argument('--camera-info-topic', help='mono camera_info topic')
     parser.add_argument('--left-topic', help='stereo left image topic')
@@ -99,6 +105,8 @@ def run(args: argparse.Namespace) -> int:
         write_init_file(clicks_from_bag(args.bag, args.simulate_clicks), init_file)
     if init_file:
         params.append(f'init_file={init_file}')
+    if args.auto_init:
+        params.append('auto_init=true')
     remaps = parse_remaps(args.remap)
     options = {
         'image': args.image_topic,

@@ -46,6 +46,8 @@ class LearnerConfig:
         init_dir: raw stereo bags: directory of init files <bag name>.yaml|.json.
         simulate_clicks: synthetic raw stereo bags: initialise from the first frame's true nodes
             with this many pixels of click noise; negative: off.
+        auto_init: raw stereo bags without an init file in init_dir: find the face with the
+            optional landmark detector (pip install dlib-bin face_recognition_models).
         tracker_params: raw stereo bags: stereo_tracker parameters NAME=VALUE for their tracking,
             after the default retroactive_depths=true (each track's final depths on all its
             meshes).
@@ -66,6 +68,7 @@ class LearnerConfig:
     from_images: bool = False
     init_dir: str = ''
     simulate_clicks: float = -1.0
+    auto_init: bool = False
     tracker_params: tuple[str, ...] = ()
     frame_id: str = 'face'
 
@@ -98,7 +101,8 @@ def learn_arguments(config: LearnerConfig) -> list[str]:
         item for option, value in options.items() if value != '' for item in (option, str(value))
     ]
     argv += [item for param in config.tracker_params for item in ('--tracker-param', param)]
-    return argv + (['--from-images'] if config.from_images else [])
+    flags = {'--from-images': config.from_images, '--auto-init': config.auto_init}
+    return argv + [flag for flag, wanted in flags.items() if wanted]
 
 
 class LearnerNode(Node):

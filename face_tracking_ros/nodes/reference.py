@@ -23,6 +23,7 @@ from face_tracking_ros.processing.parameters import attribute_descriptions, fiel
 from face_tracking_ros.processing.stereo import StereoNodeConfig
 from face_tracking_ros.recognition.events import EventConfig
 from face_tracking_ros.recognition.identity import IdentityConfig
+from face_tracking_ros.tracking.detector import DetectorConfig
 from face_tracking_ros.tracking.mono import MonoTrackerConfig
 from face_tracking_ros.tracking.pose_filter import PoseFilterConfig
 from face_tracking_ros.tracking.stereo import StereoTrackerConfig
@@ -36,8 +37,13 @@ NODE_CONFIGS: dict[str, tuple[tuple[str, type], ...]] = {
         ('', MonoNodeConfig),
         ('tracker.', MonoTrackerConfig),
         ('smoothing.', PoseFilterConfig),
+        ('detector.', DetectorConfig),
     ),
-    'stereo_tracker': (('', StereoNodeConfig), ('tracker.', StereoTrackerConfig)),
+    'stereo_tracker': (
+        ('', StereoNodeConfig),
+        ('tracker.', StereoTrackerConfig),
+        ('detector.', DetectorConfig),
+    ),
     'expression_recognizer': (('', ExpressionNodeConfig), ('events.', EventConfig)),
     'identity_recognizer': (('', IdentityNodeConfig), ('identity.', IdentityConfig)),
     'learner': (('', LearnerConfig),),

@@ -29,6 +29,7 @@ from face_tracking_ros.io.messages import MessageFactory
 from face_tracking_ros.model.face_model import FaceModel
 from face_tracking_ros.model.model_file import load_model
 from face_tracking_ros.processing.base import Output, Port, QosClass
+from face_tracking_ros.processing.detection import DetectorFactory, landmark_detector
 from face_tracking_ros.processing.face_outputs import MESH_PORTS, MODEL_PORTS, face_outputs
 from face_tracking_ros.processing.parameters import ParameterSource
 from face_tracking_ros.processing.track_counts import TrackCounts
@@ -51,13 +52,19 @@ class MonoNodeConfig:
         model_file: face model file (.npz); empty: the packaged default model. A model received
             on face/model replaces it.
         init_file: YAML or JSON file of node names to pixel positions in the first image
-            (semi-automatic initialisation); empty: automatic initialisation.
+            (semi-automatic initialisation); empty: wait for the reset_tracking service, or
+            detect the face with auto_init.
+        auto_init: automatic initialisation: find the face and its landmarks with dlib's
+            68-point predictor (an optional extra: pip install dlib-bin
+            face_recognition_models; parameters detector.*) in the first image, when there is
+            no init_file, and after every reset_tracking call without node positions.
         face_id: face_id of the outputs.
         compressed: subscribe to image/compressed (sensor_msgs/CompressedImage) instead of image.
     """
 
     model_file: str = ''
     init_file: str = ''
+    auto_init: bool = False
     face_id: str = 'face_0'
     compressed: bool = False
 
@@ -73,8 +80,13 @@ class MonoProcessor:
         model: FaceModel | None,
         initialisation: Initialisation | None = None,
         filter_config: PoseFilterConfig | None = None,
+        detector_for: DetectorFactory | None = None,
     ) -> None:
         """Wait for camera_info (and a model, if none is given) before tracking.
+
+        ``detector_for`` gives the landmark detector of a model's nodes (automatic
+        initialisation, see :class:`MonoNodeConfig`); without it, the tracker starts from
+        ``initialisation`` or the points of a reset.
 
         Raises:
             ConfigError: if the model has a singular prior covariance or lacks nodes the
@@ -88,6 +100,7 @@ class MonoProcessor:
         self._filter_config = filter_config or PoseFilterConfig()
         self._model = model
         self._initialisation = initialisation
+        self._detector_for = detector_for
         self._camera: PinholeCamera | None = None
         self._camera_info = conversions.CameraInfoReader()
         self._tracker: MonoTracker | None = None
@@ -117,7 +130,10 @@ class MonoProcessor:
         return self._tracker
 
     def reset(self, initialisation: Initialisation | None) -> None:
-        """Restart tracking from 2-D node positions, or automatically when None."""
+        """Restart tracking from 2-D node positions; None: a detection, or the last ones given.
+
+        None detects the face with auto_init (a detector), else re-uses the last positions.
+        """
         self._initialisation = initialisation
         self._restart()
 
@@ -176,7 +192,10 @@ class MonoProcessor:
 
     def _rebuild(self) -> None:
         if self._camera is not None and self._model is not None:
-            self._tracker = MonoTracker(self._model, self._camera, self._tracker_config)
+            detector = self._detector_for and self._detector_for(self._model.node_names)
+            self._tracker = MonoTracker(
+                self._model, self._camera, self._tracker_config, detector=detector
+            )
             self._pose_filter = PoseFilter(self._camera, self._filter_config)
             self._restart()
 
@@ -259,12 +278,17 @@ def make_mono_processor(params: ParameterSource, factory: MessageFactory) -> Mon
     """The mono_tracker processor configured from parameters (node or replay).
 
     Parameters: those of :class:`MonoNodeConfig`, ``tracker.*`` those of
-    :class:`~face_tracking_ros.tracking.mono.MonoTrackerConfig` and ``smoothing.*`` those of
-    :class:`~face_tracking_ros.tracking.pose_filter.PoseFilterConfig`.
+    :class:`~face_tracking_ros.tracking.mono.MonoTrackerConfig`, ``smoothing.*`` those of
+    :class:`~face_tracking_ros.tracking.pose_filter.PoseFilterConfig` and ``detector.*`` those
+    of :class:`~face_tracking_ros.tracking.detector.DetectorConfig`.
+
+    Raises:
+        ConfigError: for a bad parameter or file, or auto_init without the detector installed.
     """
     config = params.config(MonoNodeConfig)
     tracker_config = params.config(MonoTrackerConfig, prefix='tracker.')
     filter_config = params.config(PoseFilterConfig, prefix='smoothing.')
     model = load_model(config.model_file or default_model_path())
     init = load_init_file(config.init_file) if config.init_file else None
-    return MonoProcessor(factory, config, tracker_config, model, init, filter_config)
+    detector_for = landmark_detector(params, config.auto_init)
+    return MonoProcessor(factory, config, tracker_config, model, init, filter_config, detector_for)

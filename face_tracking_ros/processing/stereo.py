@@ -33,7 +33,9 @@ from face_tracking_ros.io.bags import stamp_to_ns
 from face_tracking_ros.io.messages import MessageFactory
 from face_tracking_ros.model.face_model import FaceModel
 from face_tracking_ros.model.model_file import load_model
+from face_tracking_ros.model.topology import mesh_topology
 from face_tracking_ros.processing.base import Output, Port, QosClass
+from face_tracking_ros.processing.detection import DetectorFactory, landmark_detector
 from face_tracking_ros.processing.face_outputs import MESH_PORTS, MODEL_PORTS, face_outputs
 from face_tracking_ros.processing.parameters import ParameterSource
 from face_tracking_ros.processing.track_counts import TrackCounts
@@ -54,7 +56,14 @@ class StereoNodeConfig:
         model_file: face model file (.npz) to fit pose, sigma and alpha to the tracked nodes;
             empty: meshes only, unless a model arrives on face/model.
         init_file: YAML or JSON file of node names to left-image pixel positions in the first
-            pair (semi-automatic initialisation).
+            pair (semi-automatic initialisation); empty: wait for the reset_tracking service,
+            or detect the face with auto_init.
+        auto_init: automatic initialisation: find the face and its landmarks in the left image
+            with dlib's 68-point predictor (an optional extra: pip install dlib-bin
+            face_recognition_models; parameters detector.*), when there is no init_file, and
+            after every reset_tracking call without node positions; the landmarks are matched
+            in the right image and the rest of the mesh placed from the reference face, as for
+            an init file.
         face_id: face_id of the outputs.
         pairing_queue: unpaired images kept per camera while waiting for the other camera's
             image with the same stamp (>= 1).
@@ -69,6 +78,7 @@ class StereoNodeConfig:
 
     model_file: str = ''
     init_file: str = ''
+    auto_init: bool = False
     face_id: str = 'face_0'
     pairing_queue: int = 10
     retroactive_depths: bool = False
@@ -89,10 +99,14 @@ class StereoProcessor:
         tracker_config: StereoTrackerConfig,
         model: FaceModel | None,
         initialisation: Initialisation | None,
+        detector_for: DetectorFactory | None = None,
     ) -> None:
         """Wait for both camera_info messages before tracking.
 
-        ``config.retroactive_depths`` turns the tracker's ``refine_depths`` on.
+        ``config.retroactive_depths`` turns the tracker's ``refine_depths`` on. ``detector_for``
+        gives the landmark detector of the mesh's nodes (automatic initialisation, see
+        :class:`StereoNodeConfig`); without it, tracking needs ``initialisation`` or the points
+        of a reset.
 
         Raises:
             ConfigError: if the model's node count differs from the tracker's ``num_nodes``.
@@ -108,6 +122,7 @@ class StereoProcessor:
         )
         self._model = model
         self._initialisation = initialisation
+        self._detector_for = detector_for
         self._cameras: dict[str, PinholeCamera] = {}
         self._camera_infos = {
             LEFT_INFO: conversions.CameraInfoReader(),
@@ -134,14 +149,16 @@ class StereoProcessor:
         self.outputs = (*MESH_PORTS, *MODEL_PORTS)
 
     def reset(self, initialisation: Initialisation | None) -> None:
-        """Restart tracking from 2-D left-image node positions.
+        """Restart tracking from 2-D left-image node positions, or from a detection (None).
 
         Raises:
-            InputError: for None: automatic initialisation needs the optional landmark detector,
-                which the stereo tracker does not run.
+            InputError: for None without auto_init (no landmark detector).
         """
-        if initialisation is None:
-            msg = 'the stereo tracker needs 2-D node positions to (re)initialise'
+        if initialisation is None and self._detector_for is None:
+            msg = (
+                'the stereo tracker needs 2-D node positions to (re)initialise, or auto_init '
+                'to detect the face'
+            )
             raise InputError(msg)
         self._initialisation = initialisation
         if self._tracker is not None:
@@ -221,9 +238,16 @@ class StereoProcessor:
             return
         self._end_track()
         rig = StereoRig(self._cameras[LEFT_INFO], self._cameras[RIGHT_INFO])
-        self._tracker = StereoTracker(rig, self._tracker_config, self._model)
-        if self._initialisation is not None:
+        names = mesh_topology(self._tracker_config.num_nodes).node_names
+        detector = self._detector_for and self._detector_for(names)
+        self._tracker = StereoTracker(rig, self._tracker_config, self._model, detector)
+        if self._can_initialise:
             self._tracker.reset(self._initialisation)
+
+    @property
+    def _can_initialise(self) -> bool:
+        """Whether the tracker can start: it has node positions or a detector."""
+        return self._initialisation is not None or self._detector_for is not None
 
     def _check_stamp(self, topic: str, msg: Any) -> bool:
         """Whether an image may be paired: its stamp is later than the last tracked pair's.
@@ -247,7 +271,7 @@ class StereoProcessor:
         for queue in self._waiting.values():
             queue.clear()
         self._waiting[topic][stamp] = msg
-        if self._tracker is not None and self._initialisation is not None:
+        if self._tracker is not None and self._can_initialise:
             self._end_track()
             self._tracker.reset(self._initialisation)
         msg_text = (
@@ -276,8 +300,11 @@ class StereoProcessor:
         return None
 
     def _track(self, left_msg: Any, right_msg: Any) -> list[Output]:
-        if self._initialisation is None:
-            msg = 'not initialised: set init_file or call reset_tracking with node positions'
+        if not self._can_initialise:
+            msg = (
+                'not initialised: set init_file or auto_init, or call reset_tracking with node '
+                'positions'
+            )
             raise InputError(msg)
         left = conversions.image_to_gray(left_msg)
         right = conversions.image_to_gray(right_msg)
@@ -337,11 +364,13 @@ def _check_nodes(
 def make_stereo_processor(params: ParameterSource, factory: MessageFactory) -> StereoProcessor:
     """The stereo_tracker processor configured from parameters (node or replay).
 
-    Parameters: those of :class:`StereoNodeConfig`, and ``tracker.*`` those of
-    :class:`~face_tracking_ros.tracking.stereo.StereoTrackerConfig`.
+    Parameters: those of :class:`StereoNodeConfig`, ``tracker.*`` those of
+    :class:`~face_tracking_ros.tracking.stereo.StereoTrackerConfig` and ``detector.*`` those of
+    :class:`~face_tracking_ros.tracking.detector.DetectorConfig`.
 
     Raises:
-        ConfigError: for ``retroactive_depths`` in a live node, or a bad parameter.
+        ConfigError: for ``retroactive_depths`` in a live node, a bad parameter, or
+            ``auto_init`` without the detector installed.
     """
     config = params.config(StereoNodeConfig)
     if config.retroactive_depths and params.live:
@@ -353,4 +382,5 @@ def make_stereo_processor(params: ParameterSource, factory: MessageFactory) -> S
     tracker_config = params.config(StereoTrackerConfig, prefix='tracker.')
     model = load_model(config.model_file) if config.model_file else None
     init = load_init_file(config.init_file) if config.init_file else None
-    return StereoProcessor(factory, config, tracker_config, model, init)
+    detector_for = landmark_detector(params, config.auto_init)
+    return StereoProcessor(factory, config, tracker_config, model, init, detector_for)

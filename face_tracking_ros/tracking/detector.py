@@ -13,7 +13,10 @@ nodes only the chin is taken from it.
 
 from __future__ import annotations
 
+import copy
 from dataclasses import dataclass
+import importlib.util
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -22,6 +25,8 @@ from face_tracking_ros.errors import ConfigError, InputError
 from face_tracking_ros.tracking.initialisation import MIN_INIT_NODES, Initialisation
 
 INSTALL_HINT = 'pip install dlib-bin face_recognition_models'
+MODELS_PACKAGE = 'face_recognition_models'
+PREDICTOR_FILE = 'shape_predictor_68_face_landmarks.dat'
 
 # Mesh node -> iBUG 68 landmark indices (0-based) whose mean is the node.
 IBUG68_TO_NODES: dict[str, tuple[int, ...]] = {
@@ -91,20 +96,24 @@ class DlibLandmarkDetector:
         """Load dlib's face detector and shape predictor."""
         self._config = config or DetectorConfig()
         dlib = _import('dlib')
-        path = (
-            self._config.predictor_path
-            or _import('face_recognition_models').pose_predictor_model_location()
-        )
+        path = self._config.predictor_path or _packaged_predictor()
         try:
             self._predictor = dlib.shape_predictor(str(path))
         except RuntimeError as error:
             msg = f'cannot load the dlib shape predictor {path}: {error}'
             raise ConfigError(msg) from None
         self._face_detector = dlib.get_frontal_face_detector()
-        self._nodes = tuple(name for name in node_names if name in IBUG68_TO_NODES)
-        if len(self._nodes) < MIN_INIT_NODES:
-            msg = f'only {len(self._nodes)} of the model nodes have dlib landmarks'
-            raise ConfigError(msg)
+        self._nodes = _landmark_nodes(node_names)
+
+    def for_nodes(self, node_names: tuple[str, ...]) -> DlibLandmarkDetector:
+        """The same detector (dlib's models shared, not loaded again) for another mesh's nodes.
+
+        Raises:
+            ConfigError: if that mesh has too few nodes with landmarks.
+        """
+        detector = copy.copy(self)
+        detector._nodes = _landmark_nodes(node_names)
+        return detector
 
     def landmarks(self, gray: np.ndarray) -> np.ndarray | None:
         """(68, 2) landmark pixels of the largest face in a uint8 grey image, or None.
@@ -132,6 +141,38 @@ class DlibLandmarkDetector:
             [points[list(IBUG68_TO_NODES[name])].mean(axis=0) for name in self._nodes]
         )
         return Initialisation(node_names=self._nodes, points=positions)
+
+
+def _landmark_nodes(node_names: tuple[str, ...]) -> tuple[str, ...]:
+    """The nodes among ``node_names`` that have landmarks.
+
+    Raises:
+        ConfigError: if fewer than an initialisation needs.
+    """
+    nodes = tuple(name for name in node_names if name in IBUG68_TO_NODES)
+    if len(nodes) < MIN_INIT_NODES:
+        msg = f'only {len(nodes)} of the model nodes have dlib landmarks'
+        raise ConfigError(msg)
+    return nodes
+
+
+def _packaged_predictor() -> str:
+    """The 68-point predictor file that ``face_recognition_models`` ships.
+
+    Found without importing the package: its ``__init__`` needs ``pkg_resources``, which recent
+    setuptools no longer has.
+
+    Raises:
+        ConfigError: if the package is not installed.
+    """
+    spec = importlib.util.find_spec(MODELS_PACKAGE)
+    if spec is None or not spec.submodule_search_locations:
+        msg = (
+            f'automatic initialisation needs {MODELS_PACKAGE!r} (the landmark model), which is '
+            f'not installed: {INSTALL_HINT}'
+        )
+        raise ConfigError(msg)
+    return str(Path(spec.submodule_search_locations[0]) / 'models' / PREDICTOR_FILE)
 
 
 def _import(module: str) -> Any:

@@ -7,6 +7,7 @@ problem, then feeds good messages and checks they are processed as if nothing ha
 from __future__ import annotations
 
 from dataclasses import replace
+import sys
 
 from fault_scenes import (
     CAMERA,
@@ -31,6 +32,7 @@ from face_tracking_ros.processing.expression import ExpressionProcessor
 from face_tracking_ros.processing.identity import IdentityNodeConfig, IdentityProcessor
 from face_tracking_ros.processing.mono import MonoNodeConfig, MonoProcessor
 from face_tracking_ros.processing.parameters import OverrideParameters
+from face_tracking_ros.processing.registry import processor_factory
 from face_tracking_ros.processing.stereo import (
     StereoNodeConfig,
     StereoProcessor,
@@ -458,6 +460,95 @@ def test_stereo_model_of_another_node_count_is_refused(pairs, scene):
     outputs = _pair(processor, pairs, 1)
     assert [o.topic for o in outputs][-3:] == ['face/pose', 'face/action', 'face/shape']
     assert TrackStatus(outputs[0].msg.status) == TrackStatus.TRACKING
+
+
+# --- automatic initialisation (auto_init; dlib is optional, so a stand-in detector) -----------
+
+
+class _Detections:
+    """A landmark detector stand-in: its answers in turn (None: no face in that image)."""
+
+    def __init__(self, *answers) -> None:
+        self._answers = list(answers)
+        self.node_names: tuple[str, ...] = ()
+
+    def for_nodes(self, node_names: tuple[str, ...]) -> _Detections:
+        self.node_names = node_names
+        return self
+
+    def __call__(self, gray: np.ndarray):
+        assert gray.dtype == np.uint8 and gray.ndim == 2
+        return self._answers.pop(0)
+
+
+def test_mono_auto_init_starts_from_a_detection_and_detects_again_after_a_reset(
+    scene, frames, mono_reference
+):
+    found = scene.initialisation(frames[0])
+    detections = _Detections(None, found, found)
+    config = MonoNodeConfig(auto_init=True)
+    processor = MonoProcessor(
+        FACTORY, config, MonoTrackerConfig(), scene.model, None, detector_for=detections.for_nodes
+    )
+    processor.handle('camera_info', info_msg(), NONE)
+    state = processor.handle('image', image_msg(frames[0].image, stamp(0)), NONE)[0].msg
+    assert TrackStatus(state.status) == TrackStatus.INITIALIZING  # no face found yet
+    for f in range(3):  # the track from an init file of the same points (to the pose
+        # smoothing's rounding: its stamps are one frame later)
+        points = _image_points(
+            processor.handle('image', image_msg(frames[f].image, stamp(f + 1)), NONE)
+        )
+        np.testing.assert_allclose(points, mono_reference[f], rtol=0, atol=1e-5)
+    assert detections.node_names == scene.model.node_names
+    processor.reset(None)
+    outputs = processor.handle('image', image_msg(frames[0].image, stamp(4)), NONE)
+    np.testing.assert_array_equal(_image_points(outputs), mono_reference[0])
+    status = processor.status()
+    assert (status['initializing_images'], status['tracking_images']) == ('1', '4')
+    assert status['last_reason'].startswith('waiting for an initialisation')
+
+
+def test_stereo_auto_init_starts_from_a_detection_and_detects_again_after_a_reset(
+    pairs, stereo_reference
+):
+    detections = _Detections(None, pairs[2], pairs[2])
+    processor = StereoProcessor(
+        FACTORY,
+        StereoNodeConfig(auto_init=True),
+        StereoTrackerConfig(num_nodes=34),
+        None,
+        None,
+        detector_for=detections.for_nodes,
+    )
+    _stereo_infos(processor)
+    state = next(o.msg for o in _pair(processor, pairs, 0) if o.topic == 'face/state')
+    assert TrackStatus(state.status) == TrackStatus.INITIALIZING  # no face found yet
+    for f in range(4):  # the same track as from an init file of the same points
+        np.testing.assert_array_equal(
+            _mesh(_pair(processor, pairs, f, stamp(f + 1))), stereo_reference[f]
+        )
+    assert detections.node_names == mesh_topology(34).node_names
+    processor.reset(None)
+    np.testing.assert_array_equal(_mesh(_pair(processor, pairs, 0, stamp(5))), stereo_reference[0])
+    status = processor.status()
+    assert (status['initializing_pairs'], status['tracking_pairs']) == ('1', '5')
+    assert status['last_reason'] == 'waiting for a face: none detected in the left image'
+
+
+def test_stereo_reset_without_points_needs_auto_init(pairs):
+    processor = _stereo(pairs)
+    with pytest.raises(
+        InputError, match='needs 2-D node positions to .re.initialise, or auto_init'
+    ):
+        processor.reset(None)
+
+
+@pytest.mark.parametrize('node', ['mono_tracker', 'stereo_tracker'])
+def test_auto_init_without_dlib_stops_the_node_with_the_install_command(node, monkeypatch):
+    monkeypatch.setitem(sys.modules, 'dlib', None)  # as on a machine without the extra
+    params = OverrideParameters.parse(['auto_init=true'])
+    with pytest.raises(ConfigError, match='pip install dlib-bin face_recognition_models'):
+        processor_factory(node)(params, FACTORY)
 
 
 # --- expression_recognizer ----------------------------------------------------------------------

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import importlib.util
 import sys
+import types
 
 import numpy as np
 import pytest
@@ -28,6 +30,14 @@ def test_missing_dlib_says_how_to_install_it(monkeypatch) -> None:
         DlibLandmarkDetector(mesh_topology(34).node_names)
 
 
+def test_missing_landmark_model_says_how_to_install_it(monkeypatch) -> None:
+    fake_dlib = types.SimpleNamespace(shape_predictor=None, get_frontal_face_detector=None)
+    monkeypatch.setitem(sys.modules, 'dlib', fake_dlib)
+    monkeypatch.setattr(importlib.util, 'find_spec', lambda name: None)
+    with pytest.raises(ConfigError, match="needs 'face_recognition_models' .the landmark model"):
+        DlibLandmarkDetector(mesh_topology(34).node_names)
+
+
 def test_bad_upsampling_is_a_config_error() -> None:
     with pytest.raises(ConfigError, match='upsample = 3'):
         DetectorConfig(upsample=3)
@@ -35,7 +45,8 @@ def test_bad_upsampling_is_a_config_error() -> None:
 
 def test_detects_a_synthetic_face_near_the_true_nodes() -> None:
     pytest.importorskip('dlib')
-    pytest.importorskip('face_recognition_models')
+    if importlib.util.find_spec('face_recognition_models') is None:
+        pytest.skip('the optional landmark model (face_recognition_models) is not installed')
     from face_tracking_ros.synthetic.scenes import SceneConfig, SequenceRenderer
 
     config = SceneConfig(kind='mono', subjects=10, frames=1, fps=30.0, motion='free')
@@ -47,5 +58,11 @@ def test_detects_a_synthetic_face_near_the_true_nodes() -> None:
     indices = [mesh_topology(34).index(name) for name in init.node_names]
     assert np.median(np.linalg.norm(init.points - true_px[indices], axis=1)) < 8.0
     assert detector(np.full((480, 640), 128, np.uint8)) is None
+    inner = detector.for_nodes(mesh_topology(19).node_names)  # dlib's models shared
+    assert set(inner(frame.images['image']).node_names) == set(IBUG68_TO_NODES) & set(
+        mesh_topology(19).node_names
+    )
+    with pytest.raises(ConfigError, match='only 2 of the model nodes have dlib landmarks'):
+        detector.for_nodes(('right_eye', 'chin', 'forehead'))
     with pytest.raises(InputError, match='uint8 grey image'):
         detector.landmarks(np.zeros((4, 4, 3), np.uint8))

@@ -1,0 +1,38 @@
+"""The tracker nodes' automatic initialisation: the optional landmark detector, from parameters.
+
+Semi-automatic initialisation (an init file, the reset_tracking service) needs nothing more.
+With ``auto_init`` a tracker node finds the face itself, with dlib's 68-point landmarks
+(:mod:`face_tracking_ros.tracking.detector`, an optional extra). Its models load once, when the
+node is made, so a node asked for it on a machine without dlib stops at start with the
+command that installs it, not at the first image.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+from face_tracking_ros.model.topology import mesh_topology
+from face_tracking_ros.processing.parameters import ParameterSource
+from face_tracking_ros.tracking.detector import DetectorConfig, DlibLandmarkDetector
+from face_tracking_ros.tracking.mono import Detector
+
+DetectorFactory = Callable[[tuple[str, ...]], Detector]
+"""A mesh's node names -> the landmark detector of those nodes."""
+
+LARGEST_MESH = 34  # the detector is loaded for its nodes, then narrowed to a model's
+
+
+def landmark_detector(params: ParameterSource, enabled: bool) -> DetectorFactory | None:
+    """The detector of a tracker node with ``auto_init`` (``enabled``), per mesh; else None.
+
+    The ``detector.*`` parameters (:class:`~face_tracking_ros.tracking.detector.DetectorConfig`)
+    are read either way, so a node declares them all.
+
+    Raises:
+        ConfigError: if enabled and dlib or its predictor is missing (the message says how to
+            install them), or for a bad ``detector.*`` value.
+    """
+    config = params.config(DetectorConfig, prefix='detector.')
+    if not enabled:
+        return None
+    return DlibLandmarkDetector(mesh_topology(LARGEST_MESH).node_names, config).for_nodes
