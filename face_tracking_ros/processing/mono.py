@@ -192,7 +192,9 @@ class MonoProcessor:
 
     def _rebuild(self) -> None:
         if self._camera is not None and self._model is not None:
-            detector = self._detector_for and self._detector_for(self._model.node_names)
+            detector = (
+                None if self._detector_for is None else self._detector_for(self._model.node_names)
+            )
             self._tracker = MonoTracker(
                 self._model, self._camera, self._tracker_config, detector=detector
             )

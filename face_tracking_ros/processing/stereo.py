@@ -239,7 +239,7 @@ class StereoProcessor:
         self._end_track()
         rig = StereoRig(self._cameras[LEFT_INFO], self._cameras[RIGHT_INFO])
         names = mesh_topology(self._tracker_config.num_nodes).node_names
-        detector = self._detector_for and self._detector_for(names)
+        detector = None if self._detector_for is None else self._detector_for(names)
         self._tracker = StereoTracker(rig, self._tracker_config, self._model, detector)
         if self._can_initialise:
             self._tracker.reset(self._initialisation)
