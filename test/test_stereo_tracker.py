@@ -418,6 +418,36 @@ def test_automatic_initialisation_by_a_detector() -> None:
         StereoTracker(RIG, PLANE_CONFIG).reset()
 
 
+def test_a_detector_finds_the_face_again_after_a_loss_and_each_track_keeps_its_depths() -> None:
+    names = mesh_topology(19).node_names
+
+    def found(plane: _Plane) -> Initialisation:
+        return Initialisation(node_names=names, points=RIG.left.project(plane.nodes(19)))
+
+    answers = iter([found(MOVING_PLANE[0]), None, found(MOVING_PLANE[3])])
+    config = replace(PLANE_CONFIG, refine_depths=True)
+    tracker = StereoTracker(RIG, config, detector=lambda gray: next(answers))
+    tracker.reset()
+    blank = np.zeros_like(PLANE.pair()[0])
+    first = [tracker.step(*plane.pair()) for plane in MOVING_PLANE[:3]]
+    lost = tracker.step(blank + 255, blank)
+    waiting = tracker.step(blank + 255, blank)  # the detector sees no face
+    second = [tracker.step(*plane.pair()) for plane in MOVING_PLANE[3:]]
+    # A blank pair passes the residual test on this mesh (0.64 of the templates' contrast,
+    # below lost_ratio 0.8); it has no texture left (min_texture_ratio).
+    assert lost.status == TrackStatus.LOST and 'almost no texture' in lost.reason
+    assert waiting.status == TrackStatus.LOST and 'none detected' in waiting.reason
+    assert [r.new_track for r in first + second] == [True, False, False, True, False, False]
+    assert all(r.ok for r in first + second)
+    assert _rms_mm(second[-1].nodes_cam, MOVING_PLANE[5].nodes(19)) < 1.0
+    # Offline, each track gets the frame-1 depths refined over its own pairs, not the last
+    # track's (which would move the first track's meshes by the plane's 9 mm motion).
+    final = tracker.with_final_depths([*first, lost, waiting, *second])
+    alone = tracker.with_final_depths(first) + tracker.with_final_depths(second)
+    for result, expected in zip(final[:3] + final[5:], alone, strict=True):
+        np.testing.assert_array_equal(result.nodes_cam, expected.nodes_cam)
+
+
 def test_bad_frames_never_raise() -> None:
     left, right = PLANE.pair()
     tracker = StereoTracker(RIG, StereoTrackerConfig(init=PLANE_INIT))

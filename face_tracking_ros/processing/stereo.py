@@ -338,7 +338,7 @@ class StereoProcessor:
         )
 
     def _end_track(self) -> None:
-        """Before a reset or a new tracker: the held pairs of the track, with its final depths."""
+        """Before a reset or a new tracker: the held pairs, each track's with its final depths."""
         if not self._track_results:
             return
         assert self._tracker is not None

@@ -137,6 +137,11 @@ class StereoTrackerConfig:
         noise_floor: smallest robust standard deviation assumed for image residuals, grey levels.
         lost_ratio: the track is LOST when the median over node patches of the residual RMS
             divided by the template's contrast (about 1 for an unrelated image) exceeds this.
+        min_texture_ratio: the track is LOST when the median over node patches of their
+            contrast in the image divided by the template's (about 1 while the face is seen)
+            falls below this: a dark, blank or saturated image, which the residual test passes
+            (its residual is the template's own contrast, less the brightness ramp: a blank
+            pair measured 0.64 on the 19-node mesh).
         model_weight_edge: lambda_i of the face-model term (:mod:`.action_prior`) for the
             face-edge nodes, grey^2 / m^2; 0 disables the term for them.
         model_weight_inner: lambda_i of that term for the other nodes, grey^2 / m^2. Three
@@ -203,6 +208,7 @@ class StereoTrackerConfig:
     huber_k: float = 1.345
     noise_floor: float = 2.0
     lost_ratio: float = 0.8
+    min_texture_ratio: float = 0.3
     model_weight_edge: float = 1e9
     model_weight_inner: float = 3e8
     refine_depths: bool = False
@@ -240,6 +246,7 @@ class StereoTrackerConfig:
             'huber_k': self.huber_k > 0.0,
             'noise_floor': self.noise_floor > 0.0,
             'lost_ratio': self.lost_ratio > 0.0,
+            'min_texture_ratio': 0.0 <= self.min_texture_ratio < 1.0,
             'model_weight_edge': self.model_weight_edge >= 0.0,
             'model_weight_inner': self.model_weight_inner >= 0.0,
             'matched_depth_std': self.matched_depth_std > 0.0,
@@ -275,6 +282,7 @@ class StereoResult:
         first_nodes: (N, 3) the frame-1 nodes as refined up to this pair
             (:mod:`.depth_refinement`), m; None before the first pair.
         rotation: (3, 3) the head's rotation since frame 1; None before the first pair.
+        new_track: this pair is frame 1 of a track (after a reset, or a detection after a loss).
     """
 
     status: TrackStatus
@@ -290,6 +298,7 @@ class StereoResult:
     reason: str = ''
     first_nodes: np.ndarray | None = None
     rotation: np.ndarray | None = None
+    new_track: bool = False
 
     @property
     def ok(self) -> bool:
@@ -393,6 +402,8 @@ class StereoTracker:
     Usage: ``reset(init)`` with the nodes' pixel positions in the next left image
     (semi-automatic), or ``reset()`` with a landmark detector (automatic: the detector's nodes
     in the next left image in which it finds a face), then ``step(left, right)`` for every pair.
+    A lost track (or a failed initialisation) stays LOST until the next reset, or with a
+    detector until it finds the face again, which starts a new track (``new_track``).
     """
 
     def __init__(
@@ -538,7 +549,7 @@ class StereoTracker:
         return result
 
     def with_final_depths(self, results: Sequence[StereoResult]) -> list[StereoResult]:
-        """The results of one track, each with the frame-1 depths refined over the whole track.
+        """The results of a run, each with the frame-1 depths refined over its whole track.
 
         Offline, every pair can get the depths pooled over all pairs of the track
         (:mod:`.depth_refinement`): the mesh of pair n becomes
@@ -550,13 +561,15 @@ class StereoTracker:
         are returned as they are.
 
         Args:
-            results: the results of one track, in order from its reset (after another reset the
-                frame-1 nodes are another track's).
+            results: results in the order of their pairs since a reset; a track starts at each
+                ``new_track`` result (a detection after a loss starts another) and gets its own
+                final depths.
         """
-        refined = [r.first_nodes for r in results if r.first_nodes is not None]
-        if not refined:
-            return list(results)
-        return [self._with_first_nodes(r, refined[-1]) for r in results]
+        final: list[StereoResult] = []
+        for track in _tracks(results):
+            refined = [r.first_nodes for r in track if r.first_nodes is not None]
+            final += [self._with_first_nodes(r, refined[-1]) for r in track] if refined else track
+        return final
 
     def _with_first_nodes(self, result: StereoResult, first_nodes: np.ndarray) -> StereoResult:
         """``result`` moved with its frame-1 nodes to ``first_nodes`` (see with_final_depths)."""
@@ -607,6 +620,7 @@ class StereoTracker:
         except FaceTrackingError as error:
             self._status = TrackStatus.LOST
             self._reason = f'initialisation failed: {error}'
+            self._detect = self._detector is not None  # then look for the face again
             return self._not_tracking(self._status, self._reason)
         nodes = initial.nodes
         layouts = self._layouts(nodes)
@@ -615,7 +629,7 @@ class StereoTracker:
         templates = self._templates(pyramids, samples, nodes, offsets)
         prior, theta = self._action_prior(nodes)
         depth_std = np.where(initial.matched, config.matched_depth_std, config.placed_depth_std)
-        result = self._result(nodes, nodes, np.eye(3), None)
+        result = replace(self._result(nodes, nodes, np.eye(3), None), new_track=True)
         self._state = _State(
             first_nodes=nodes,
             nodes=nodes,
@@ -1047,6 +1061,13 @@ class StereoTracker:
         ratio = float(np.nanmedian(ratios))
         if not ratio <= self._config.lost_ratio:
             return f'patch residual / contrast {ratio:.2f} exceeds {self._config.lost_ratio}'
+        with np.errstate(invalid='ignore', divide='ignore'):
+            texture = float(np.nanmedian(statistics.image_contrast[0] / statistics.contrast[0]))
+        if not texture >= self._config.min_texture_ratio:
+            return (
+                f'the images show almost no texture where the face was (patch contrast '
+                f'{texture:.2f} of the template contrast, below {self._config.min_texture_ratio})'
+            )
         return ''
 
     # -- results -----------------------------------------------------------------------------
@@ -1098,9 +1119,10 @@ class StereoTracker:
         )
 
     def _lose(self, reason: str) -> StereoResult:
-        """Drop the track: LOST until the next reset."""
+        """Drop the track: LOST until the next reset, or with a detector a new detection."""
         self._status = TrackStatus.LOST
         self._reason = f'track lost: {reason}'
+        self._detect = self._detector is not None
         self._state, previous = None, self._state
         assert previous is not None
         last = previous.result
@@ -1179,6 +1201,16 @@ def track_sequence(
     meshes = np.array([r.nodes_cam for r in final]).reshape(len(results), n, 3)
     status = np.array([int(r.status) for r in results], dtype=np.int64)
     return TrackedSequence(meshes=meshes, status=status, results=results)
+
+
+def _tracks(results: Sequence[StereoResult]) -> list[list[StereoResult]]:
+    """``results`` split before each result that starts a new track."""
+    tracks: list[list[StereoResult]] = [[]]
+    for result in results:
+        if result.new_track and tracks[-1]:
+            tracks.append([])
+        tracks[-1].append(result)
+    return tracks
 
 
 def _damped_step(system: _System, damping: float) -> np.ndarray:

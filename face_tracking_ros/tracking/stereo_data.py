@@ -508,16 +508,19 @@ class GroupStatistics(NamedTuple):
             levels (NaN if no sample of the group is valid).
         contrast: per layout, (C, G_l) standard deviation of the leading template in each group,
             grey levels; ``rms / contrast`` is about 1 for an unrelated image.
+        image_contrast: per layout, (C, G_l) the same of the image; ``image_contrast /
+            contrast`` is about 1 while the face is seen, 0 for a blank image.
     """
 
     rms: tuple[np.ndarray, ...]
     contrast: tuple[np.ndarray, ...]
+    image_contrast: tuple[np.ndarray, ...]
 
 
 def group_statistics(
     samples: SampleSet, sampled: Sampled, residuals: Residuals, leading: np.ndarray
 ) -> GroupStatistics:
-    """RMS residual and template contrast of every group.
+    """RMS residual, template contrast and image contrast of every group.
 
     Args:
         samples: the sample set.
@@ -525,21 +528,28 @@ def group_statistics(
         residuals: their robust residuals.
         leading: (C, S) the leading template T_0 of each image.
     """
-    rms, contrast = [], []
+    rms, contrast, image_contrast = [], [], []
     grouped = zip(
         samples.grouped(residuals.differences[:, 0]),
         samples.grouped(leading),
+        samples.grouped(sampled.values),
         samples.grouped(sampled.valid),
         residuals.counts,
         strict=True,
     )
     with np.errstate(invalid='ignore', divide='ignore'):
-        for difference, template, valid, count in grouped:
-            safe = np.maximum(count, 1)[..., None]
-            centred = template - (template * valid).sum(axis=-1, keepdims=True) / safe
+        for difference, template, image, valid, count in grouped:
             rms.append(np.sqrt((difference**2).sum(axis=-1) / count))
-            contrast.append(np.sqrt((valid * centred**2).sum(axis=-1) / count))
-    return GroupStatistics(rms=tuple(rms), contrast=tuple(contrast))
+            contrast.append(_deviation(template, valid, count))
+            image_contrast.append(_deviation(image, valid, count))
+    return GroupStatistics(tuple(rms), tuple(contrast), tuple(image_contrast))
+
+
+def _deviation(values: np.ndarray, valid: np.ndarray, count: np.ndarray) -> np.ndarray:
+    """(C, G) standard deviation of each group's valid values (NaN for a group without any)."""
+    safe = np.maximum(count, 1)[..., None]
+    centred = values - (values * valid).sum(axis=-1, keepdims=True) / safe
+    return np.sqrt((valid * centred**2).sum(axis=-1) / count)
 
 
 class DepthTerms(NamedTuple):
