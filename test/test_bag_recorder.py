@@ -274,5 +274,5 @@ def test_write_raw_keeps_the_bytes_and_refuses_unknown_types(tmp_path: Path) -> 
         with pytest.raises(BagError, match='cannot write nowhere_msgs/msg/Thing on /m'):
             bag.write_raw('/m', 'nowhere_msgs/msg/Thing', data, T0)
 
-    assert [tuple(m) for m in read_raw(path)] == [('/n', FLOAT, T0, data)]
+    assert [tuple(m) for m in read_raw(path)] == [('/n', FLOAT, T0, data, 'float64 data\n')]
     assert [m.msg.data for m in read_messages(path)] == [2.5]

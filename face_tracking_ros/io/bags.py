@@ -34,6 +34,7 @@ from rosbags.typesys.store import Typestore
 import yaml
 
 from face_tracking_ros.errors import BagError
+from face_tracking_ros.io.bag_definitions import BagDefinitions
 from face_tracking_ros.io.typestore import typestore
 
 BAG_VERSION = 9  # rosbag2 metadata version written (Jazzy and later read it)
@@ -64,6 +65,7 @@ class RawMessage(NamedTuple):
     msgtype: str  # e.g. 'sensor_msgs/msg/Image'
     stamp_ns: int  # bag receive time, ns since the epoch
     data: bytes  # CDR, with its 4-byte encapsulation header, as DDS carries it
+    msgdef: str = ''  # the bag's definition of msgtype (ros2msg text), '' if it has none
 
 
 def stamp_to_ns(stamp: StampLike) -> int:
@@ -197,21 +199,25 @@ def read_messages(
     Yields:
         One :class:`BagMessage` per message.
 
+    A type that the bag defines otherwise than ``store`` (another version of a message) is
+    read with the bag's definition (:mod:`.bag_definitions`).
+
     Raises:
         BagError: If the bag is missing, truncated or corrupt, lacks a requested topic, or holds
-            a type the typestore does not know (naming the topic and type, when its first
-            message is reached).
+            a type neither the typestore nor the bag defines (naming the topic and type, when
+            its first message is reached).
     """
-    store = typestore() if store is None else store
-    for topic, msgtype, stamp_ns, data in read_raw(path, topics):
-        if msgtype not in store.types:
+    definitions = BagDefinitions(typestore() if store is None else store)
+    for topic, msgtype, stamp_ns, data, msgdef in read_raw(path, topics):
+        reading = definitions.store_for(msgtype, msgdef)
+        if msgtype not in reading.types:
             message = (
                 f'{path}: cannot read bag: {topic}: unknown message type {msgtype}; '
                 'read the other topics with topics=[...]'
             )
             raise BagError(message)
         try:
-            msg = store.deserialize_cdr(data, msgtype)
+            msg = reading.deserialize_cdr(data, msgtype)
         except (SerdeError, *_READ_ERRORS) as error:
             message = f'{path}: cannot read bag: {topic}: {type(error).__name__}: {error}'
             raise BagError(message) from None
@@ -242,7 +248,9 @@ def read_raw(path: Path | str, topics: Iterable[str] | None = None) -> Iterator[
     try:
         wanted = _select(reader, path, topics)
         for connection, stamp_ns, data in reader.messages(connections=wanted):
-            yield RawMessage(connection.topic, connection.msgtype, stamp_ns, data)
+            yield RawMessage(
+                connection.topic, connection.msgtype, stamp_ns, data, connection.msgdef.data
+            )
     except _READ_ERRORS as error:
         raise BagError(f'{path}: cannot read bag: {type(error).__name__}: {error}') from None
     finally:
@@ -287,8 +295,8 @@ def _stream_records(path: Path, topics: Iterable[str] | None) -> Iterator[RawMes
             an undamaged file, if a requested topic is not in it.
     """
     wanted = None if topics is None else set(topics)
-    channels: dict[int, tuple[str, str]] = {}
-    schemas: dict[int, str] = {}
+    channels: dict[int, tuple[str, str, str]] = {}
+    schemas: dict[int, tuple[str, str]] = {}
     count = 0
     files = _mcap_files(path)
     for file in files:
@@ -296,23 +304,34 @@ def _stream_records(path: Path, topics: Iterable[str] | None) -> Iterator[RawMes
             with file.open('rb') as stream:
                 for record in StreamReader(stream).records:
                     if isinstance(record, Schema):
-                        schemas[record.id] = record.name
+                        schemas[record.id] = (record.name, _schema_text(record))
                     elif isinstance(record, Channel):
-                        channels[record.id] = (record.topic, schemas.get(record.schema_id, ''))
+                        msgtype, msgdef = schemas.get(record.schema_id, ('', ''))
+                        channels[record.id] = (record.topic, msgtype, msgdef)
                     elif isinstance(record, Message) and record.channel_id in channels:
-                        topic, msgtype = channels[record.channel_id]
+                        topic, msgtype, msgdef = channels[record.channel_id]
                         if wanted is None or topic in wanted:
                             count += 1
-                            yield RawMessage(topic, msgtype, record.log_time, record.data)
+                            yield RawMessage(topic, msgtype, record.log_time, record.data, msgdef)
         except (McapError, *_READ_ERRORS) as error:
             message = (
                 f'{file}: damaged MCAP file, {count} messages recovered before: '
                 f'{type(error).__name__}: {error}'
             )
             raise BagError(message) from None
-    missing = (wanted or set()) - {topic for topic, _ in channels.values()}
+    missing = (wanted or set()) - {topic for topic, _, _ in channels.values()}
     if missing:
         raise BagError(f'{path}: no topic {", ".join(sorted(missing))} in bag')
+
+
+def _schema_text(schema: Schema) -> str:
+    """A ros2msg schema's definition text; '' for another encoding or undecodable bytes."""
+    if schema.encoding != 'ros2msg':
+        return ''
+    try:
+        return schema.data.decode()
+    except UnicodeDecodeError:
+        return ''
 
 
 def _select(reader: Reader, path: Path, topics: Iterable[str] | None) -> list[Connection]:
@@ -363,7 +382,7 @@ def _salvaged_connections(path: Path) -> list[Connection]:
     """
     counts: Counter[tuple[str, str]] = Counter(dict.fromkeys(_metadata_topics(path).items(), 0))
     with contextlib.suppress(BagError):
-        for topic, msgtype, _, _ in _stream_records(path, None):
+        for topic, msgtype, *_ in _stream_records(path, None):
             counts[topic, msgtype] += 1
     return [
         Connection(i, topic, msgtype, None, '', n, None, None)  # type: ignore[arg-type]

@@ -16,6 +16,7 @@ from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
 from face_tracking_ros.cli.main import main
 from face_tracking_ros.errors import BagError
+from face_tracking_ros.io import bags
 from face_tracking_ros.io.bags import (
     BagWriter,
     bag_topics,
@@ -25,6 +26,7 @@ from face_tracking_ros.io.bags import (
     stamp_to_ns,
 )
 from face_tracking_ros.io.messages import RosbagsMessages
+from face_tracking_ros.io.typestore import typestore
 
 FRAMES = 40
 CUTS = 24
@@ -123,13 +125,57 @@ def bag_with_unknown_type(tmp_path_factory) -> Path:
     return path
 
 
-def test_unknown_message_types_are_listed_named_and_other_topics_read(bag_with_unknown_type):
+def test_a_type_the_project_does_not_know_is_read_as_the_bag_defines_it(bag_with_unknown_type):
     path = bag_with_unknown_type
     assert bag_topics(path) == {'/battery': 'robot_msgs/msg/Battery', '/n': 'std_msgs/msg/Float64'}
     assert [m.msg.data for m in read_messages(path, topics=['/n'])] == [0, 1, 2, 3, 4]
     assert len(list(read_raw(path, topics=['/battery']))) == 5  # raw copies need no type
+    batteries = [m.msg for m in read_messages(path, topics=['/battery'])]
+    assert [b.level for b in batteries] == pytest.approx([0.9, 0.8, 0.7, 0.6, 0.5])
+    assert {b.note for b in batteries} == {'ok'}
+
+
+def test_a_type_unknown_to_the_project_and_undefined_in_the_bag_is_named(
+    bag_with_unknown_type, monkeypatch
+):
+    undefined = [raw._replace(msgdef='') for raw in read_raw(bag_with_unknown_type)]
+    monkeypatch.setattr(bags, 'read_raw', lambda path, topics=None: iter(undefined))
     with pytest.raises(BagError, match='/battery: unknown message type robot_msgs/msg/Battery'):
-        list(read_messages(path))
+        list(read_messages(bag_with_unknown_type))
+
+
+def test_a_bag_of_another_version_of_a_message_is_read_as_it_defines_it(tmp_path):
+    """face/state written by a version whose FaceState had one more field stays readable."""
+    state = 'face_tracking_msgs/msg/FaceState'
+    text, _ = typestore().generate_msgdef(state)
+    other = get_typestore(Stores.EMPTY)
+    added = 'float64[] node_residuals\nfloat64[] right_node_residuals'
+    other.register(get_types_from_msg(text.replace('float64[] node_residuals', added, 1), state))
+    assert 'right_node_residuals' not in typestore().types[state].__dataclass_fields__
+    header = other.types['std_msgs/msg/Header'](
+        stamp=other.types['builtin_interfaces/msg/Time'](sec=1, nanosec=2), frame_id='cam'
+    )
+    pose = other.types['geometry_msgs/msg/Pose'](
+        position=other.types['geometry_msgs/msg/Point'](x=0.0, y=0.0, z=0.6),
+        orientation=other.types['geometry_msgs/msg/Quaternion'](x=0.0, y=0.0, z=0.0, w=1.0),
+    )
+    message = other.types[state](
+        header=header, face_id='face_0', status=1, pose=pose, omega=np.zeros(3),
+        alpha=np.array([0.5]), sigma=np.array([0.25]), node_names=['a'], nodes=[],
+        image_points=[], node_residuals=np.array([3.0]), right_node_residuals=np.array([4.0]),
+        mean_residual=3.5, iterations=7,
+    )  # fmt: skip
+    path = tmp_path / 'old'
+    with BagWriter(path, store=other) as writer:
+        writer.write('face/state', state, message, 10)
+    read = next(read_messages(path)).msg
+    assert (read.face_id, read.status, read.iterations, read.mean_residual) == (
+        'face_0',
+        1,
+        7,
+        3.5,
+    )
+    assert list(read.right_node_residuals) == [4.0] and list(read.alpha) == [0.5]
 
 
 # --- offline replay -----------------------------------------------------------------------------
