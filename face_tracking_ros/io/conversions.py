@@ -375,6 +375,9 @@ def face_messages(
         nodes=nodes,
         image_points=array_to_points(factory, _nan_as_zero(result.nodes_px)),
         node_residuals=_nan_as_zero(result.node_residuals),
+        right_node_residuals=_nan_as_zero(
+            np.zeros(0) if result.right_node_residuals is None else result.right_node_residuals
+        ),
         mean_residual=float(_nan_as_zero(result.mean_residual)),
         iterations=int(result.iterations),
     )

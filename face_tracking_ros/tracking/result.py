@@ -33,11 +33,15 @@ class TrackResult:
         sigma: (p,) shape (identity) parameters of eq. 3.
         nodes_cam: (N, 3) node positions X_c in the camera frame (eq. 1), m.
         nodes_px: (N, 2) node projections x (eq. 2), px (x = column, y = row).
-        node_residuals: (N,) RMS photometric residual of each node's patch, grey levels.
-        mean_residual: mean of ``node_residuals``, grey levels.
+        node_residuals: (N,) RMS photometric residual of each node's patch, grey levels (a
+            stereo tracker's: in the left image).
+        mean_residual: mean of ``node_residuals`` (a stereo tracker's: of both images), grey
+            levels.
         iterations: solver iterations spent on this image, summed over pyramid levels.
         cost_history: cost after each iteration, in the order they were run.
         reason: why the status is LOST or INITIALIZING ('' when tracking).
+        right_node_residuals: (N,) a stereo tracker's residuals in the right image; None for a
+            monocular tracker.
     """
 
     status: TrackStatus
@@ -52,6 +56,7 @@ class TrackResult:
     iterations: int = 0
     cost_history: tuple[float, ...] = field(default_factory=tuple)
     reason: str = ''
+    right_node_residuals: np.ndarray | None = None
 
     @property
     def ok(self) -> bool:

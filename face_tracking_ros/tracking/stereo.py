@@ -316,11 +316,12 @@ class StereoResult:
             sigma=np.zeros(0) if fit is None else fit.sigma[0],
             nodes_cam=self.nodes_cam,
             nodes_px=self.left_px,
-            node_residuals=0.5 * (self.left_residuals + self.right_residuals),
+            node_residuals=self.left_residuals,
             mean_residual=self.mean_residual,
             iterations=self.iterations,
             cost_history=self.cost_history,
             reason=self.reason,
+            right_node_residuals=self.right_residuals,
         )
 
 

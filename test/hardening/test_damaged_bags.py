@@ -145,13 +145,12 @@ def test_a_type_unknown_to_the_project_and_undefined_in_the_bag_is_named(
 
 
 def test_a_bag_of_another_version_of_a_message_is_read_as_it_defines_it(tmp_path):
-    """face/state written by a version whose FaceState had one more field stays readable."""
+    """face/state written before FaceState had right_node_residuals stays readable."""
     state = 'face_tracking_msgs/msg/FaceState'
     text, _ = typestore().generate_msgdef(state)
+    assert 'float64[] right_node_residuals\n' in text  # this version's FaceState has it
     other = get_typestore(Stores.EMPTY)
-    added = 'float64[] node_residuals\nfloat64[] right_node_residuals'
-    other.register(get_types_from_msg(text.replace('float64[] node_residuals', added, 1), state))
-    assert 'right_node_residuals' not in typestore().types[state].__dataclass_fields__
+    other.register(get_types_from_msg(text.replace('float64[] right_node_residuals\n', ''), state))
     header = other.types['std_msgs/msg/Header'](
         stamp=other.types['builtin_interfaces/msg/Time'](sec=1, nanosec=2), frame_id='cam'
     )
@@ -162,20 +161,15 @@ def test_a_bag_of_another_version_of_a_message_is_read_as_it_defines_it(tmp_path
     message = other.types[state](
         header=header, face_id='face_0', status=1, pose=pose, omega=np.zeros(3),
         alpha=np.array([0.5]), sigma=np.array([0.25]), node_names=['a'], nodes=[],
-        image_points=[], node_residuals=np.array([3.0]), right_node_residuals=np.array([4.0]),
-        mean_residual=3.5, iterations=7,
+        image_points=[], node_residuals=np.array([3.0]), mean_residual=3.5, iterations=7,
     )  # fmt: skip
     path = tmp_path / 'old'
     with BagWriter(path, store=other) as writer:
         writer.write('face/state', state, message, 10)
     read = next(read_messages(path)).msg
-    assert (read.face_id, read.status, read.iterations, read.mean_residual) == (
-        'face_0',
-        1,
-        7,
-        3.5,
-    )
-    assert list(read.right_node_residuals) == [4.0] and list(read.alpha) == [0.5]
+    assert (read.face_id, read.status, read.iterations) == ('face_0', 1, 7)
+    assert (read.mean_residual, list(read.node_residuals), list(read.alpha)) == (3.5, [3.0], [0.5])
+    assert not hasattr(read, 'right_node_residuals')
 
 
 # --- offline replay -----------------------------------------------------------------------------

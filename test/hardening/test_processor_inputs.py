@@ -348,6 +348,17 @@ def test_stereo_right_calibration_of_another_size_is_refused_and_the_rig_kept(
     np.testing.assert_array_equal(_mesh(outputs), stereo_reference[1])
 
 
+def test_stereo_state_carries_each_camera_s_residuals(pairs):
+    processor = _stereo(pairs)
+    _stereo_infos(processor)
+    _pair(processor, pairs, 0)
+    state = next(o.msg for o in _pair(processor, pairs, 1) if o.topic == 'face/state')
+    left, right = np.asarray(state.node_residuals), np.asarray(state.right_node_residuals)
+    assert left.shape == right.shape == (34,)
+    assert np.all(left > 0.0) and np.all(right > 0.0) and not np.allclose(left, right)
+    assert state.mean_residual == pytest.approx(np.mean(np.concatenate([left, right])))
+
+
 def test_stereo_waits_for_both_calibrations_holding_the_latest_pair(pairs, stereo_reference):
     processor = _stereo(pairs)
     with pytest.raises(InputError, match='no calibration on left/camera_info and right'):
