@@ -57,7 +57,8 @@ class MonoNodeConfig:
         auto_init: automatic initialisation: find the face and its landmarks with dlib's
             68-point predictor (an optional extra: pip install dlib-bin
             face_recognition_models; parameters detector.*) in the first image, when there is
-            no init_file, and after every reset_tracking call without node positions.
+            no init_file, after every reset_tracking call without node positions, and to find
+            the face again after a loss.
         face_id: face_id of the outputs.
         compressed: subscribe to image/compressed (sensor_msgs/CompressedImage) instead of image.
     """

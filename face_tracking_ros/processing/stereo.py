@@ -60,10 +60,10 @@ class StereoNodeConfig:
             or detect the face with auto_init.
         auto_init: automatic initialisation: find the face and its landmarks in the left image
             with dlib's 68-point predictor (an optional extra: pip install dlib-bin
-            face_recognition_models; parameters detector.*), when there is no init_file, and
-            after every reset_tracking call without node positions; the landmarks are matched
-            in the right image and the rest of the mesh placed from the reference face, as for
-            an init file.
+            face_recognition_models; parameters detector.*), when there is no init_file, after
+            every reset_tracking call without node positions and after a loss; the landmarks are
+            matched in the right image and the rest of the mesh placed from the reference face,
+            as for an init file.
         face_id: face_id of the outputs.
         pairing_queue: unpaired images kept per camera while waiting for the other camera's
             image with the same stamp (>= 1).
