@@ -149,17 +149,22 @@ class StereoProcessor:
         self.outputs = (*MESH_PORTS, *MODEL_PORTS)
 
     def reset(self, initialisation: Initialisation | None) -> None:
-        """Restart tracking from 2-D left-image node positions, or from a detection (None).
+        """Restart tracking from 2-D left-image node positions.
+
+        None: from a detection with auto_init (a detector), else from the last positions given
+        (the init file's or an earlier reset's), as the mono tracker does.
 
         Raises:
-            InputError: for None without auto_init (no landmark detector).
+            InputError: for None with neither a detector nor earlier positions.
         """
         if initialisation is None and self._detector_for is None:
-            msg = (
-                'the stereo tracker needs 2-D node positions to (re)initialise, or auto_init '
-                'to detect the face'
-            )
-            raise InputError(msg)
+            if self._initialisation is None:
+                msg = (
+                    'the stereo tracker needs 2-D node positions to (re)initialise, or auto_init '
+                    'to detect the face'
+                )
+                raise InputError(msg)
+            initialisation = self._initialisation
         self._initialisation = initialisation
         if self._tracker is not None:
             self._end_track()

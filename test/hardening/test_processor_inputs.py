@@ -546,12 +546,18 @@ def test_stereo_auto_init_starts_from_a_detection_and_detects_again_after_a_rese
     assert status['last_reason'] == 'waiting for a face: none detected in the left image'
 
 
-def test_stereo_reset_without_points_needs_auto_init(pairs):
+def test_stereo_reset_without_points_restarts_from_the_last_ones_or_needs_auto_init(
+    pairs, stereo_reference
+):
     processor = _stereo(pairs)
-    with pytest.raises(
-        InputError, match='needs 2-D node positions to .re.initialise, or auto_init'
-    ):
-        processor.reset(None)
+    _stereo_infos(processor)
+    _pair(processor, pairs, 0)
+    processor.reset(None)  # the init file's points again
+    restarted = _mesh(_pair(processor, pairs, 0, stamp(1)))
+    np.testing.assert_array_equal(restarted, stereo_reference[0])
+    without = StereoProcessor(FACTORY, StereoNodeConfig(), StereoTrackerConfig(), None, None)
+    with pytest.raises(InputError, match='needs 2-D node positions to .re.initialise, or auto'):
+        without.reset(None)
 
 
 @pytest.mark.parametrize('node', ['mono_tracker', 'stereo_tracker'])
