@@ -9,8 +9,10 @@ Example:
 Messages already serialised to CDR (what DDS carries) go in and out unchanged with
 :meth:`BagWriter.write_raw` and :func:`read_raw`: the bag recorder and player never deserialise.
 
-Every failure of the underlying libraries (missing or truncated bag, unknown type, topic re-used
-with another type) is raised as :class:`~face_tracking_ros.errors.BagError` naming the bag.
+Messages are read as the bag defines their types (:mod:`.bag_definitions`), so bags of earlier
+versions of a message stay readable. Every failure of the underlying libraries (missing or
+truncated bag, a type neither the package nor the bag defines, topic re-used with another type)
+is raised as :class:`~face_tracking_ros.errors.BagError` naming the bag.
 """
 
 from __future__ import annotations
