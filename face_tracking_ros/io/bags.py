@@ -193,6 +193,9 @@ def read_messages(
 ) -> Iterator[BagMessage]:
     """Read a rosbag2 bag (MCAP or SQLite 3) in record-time order.
 
+    A type that the bag defines otherwise than ``store`` (another version of a message) is read
+    with the bag's definition (:mod:`.bag_definitions`).
+
     Args:
         path: Bag directory (holding ``metadata.yaml``).
         topics: Topics to read; default all. Every one must be in the bag.
@@ -200,9 +203,6 @@ def read_messages(
 
     Yields:
         One :class:`BagMessage` per message.
-
-    A type that the bag defines otherwise than ``store`` (another version of a message) is
-    read with the bag's definition (:mod:`.bag_definitions`).
 
     Raises:
         BagError: If the bag is missing, truncated or corrupt, lacks a requested topic, or holds
