@@ -28,6 +28,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from face_tracking_ros.tracking.stereo_data import group_contrast
+
 MIN_PATCHES = 3  # textured patches below which the gain is taken as 1 (not measured)
 GAIN_RESOLUTION = 0.03  # the measurement's spread: equal cameras measured 0.98-1.03
 
@@ -47,12 +49,8 @@ def relative_gain(values: np.ndarray, mask: np.ndarray, floor: float) -> float:
         the left, or 1.0 when fewer than :data:`MIN_PATCHES` count.
     """
     used = mask & np.all(np.isfinite(values), axis=0)
-    samples = np.where(used, values, 0.0)
-    count = np.maximum(used.sum(axis=1), 1)
-    means = samples.sum(axis=2) / count
-    centred = np.where(used, samples - means[..., None], 0.0)
-    contrast = np.sqrt((centred**2).sum(axis=2) / count)  # (2, N)
-    counted = np.all(contrast > floor, axis=0)
+    contrast = group_contrast(values, np.broadcast_to(used, values.shape))  # (2, N)
+    counted = np.all(contrast > floor, axis=0)  # NaN (no sample in use) is not above it
     if counted.sum() < MIN_PATCHES:
         return 1.0
     return float(np.median(contrast[1, counted] / contrast[0, counted]))

@@ -540,16 +540,24 @@ def group_statistics(
     with np.errstate(invalid='ignore', divide='ignore'):
         for difference, template, image, valid, count in grouped:
             rms.append(np.sqrt((difference**2).sum(axis=-1) / count))
-            contrast.append(_deviation(template, valid, count))
-            image_contrast.append(_deviation(image, valid, count))
+            contrast.append(group_contrast(template, valid))
+            image_contrast.append(group_contrast(image, valid))
     return GroupStatistics(tuple(rms), tuple(contrast), tuple(image_contrast))
 
 
-def _deviation(values: np.ndarray, valid: np.ndarray, count: np.ndarray) -> np.ndarray:
-    """(C, G) standard deviation of each group's valid values (NaN for a group without any)."""
-    safe = np.maximum(count, 1)[..., None]
-    centred = values - (values * valid).sum(axis=-1, keepdims=True) / safe
-    return np.sqrt((valid * centred**2).sum(axis=-1) / count)
+def group_contrast(values: np.ndarray, valid: np.ndarray) -> np.ndarray:
+    """(..., G) RMS of each group's valid values about their mean (NaN for a group without any).
+
+    Args:
+        values: (..., G, M) values of G groups of M samples (invalid ones may be NaN).
+        valid: (..., G, M) bool, the samples in use.
+    """
+    count = valid.sum(axis=-1)
+    samples = np.where(valid, values, 0.0)
+    mean = samples.sum(axis=-1, keepdims=True) / np.maximum(count, 1)[..., None]
+    centred = np.where(valid, samples - mean, 0.0)
+    with np.errstate(invalid='ignore', divide='ignore'):
+        return np.sqrt((centred**2).sum(axis=-1) / count)
 
 
 class DepthTerms(NamedTuple):
