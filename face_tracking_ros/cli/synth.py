@@ -67,6 +67,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         default=(),
         help='plumb_bob k1,k2,p1,p2,k3 of the cameras (raw images; default none)',
     )
+    parser.add_argument(
+        '--toe-in',
+        type=float,
+        default=0.0,
+        metavar='DEG',
+        help='cameras turned towards each other by DEG from their rectified frames (raw images, '
+        'R in CameraInfo; default 0)',
+    )
     parser.add_argument('--motion-blur', action='store_true', help='blur over the exposure')
     parser.add_argument('--occlusion', action='store_true', help='pass an occluder once')
     parser.add_argument(
@@ -103,6 +111,7 @@ def run(args: argparse.Namespace) -> None:
         motion_blur=args.motion_blur,
         occlusion=args.occlusion,
         distortion=args.distortion,
+        toe_in_deg=args.toe_in,
     )
     if args.out is not None:
         started = time.perf_counter()

@@ -96,15 +96,31 @@ class PinholeCamera:
         return float(0.5 * (self.p[0, 0] + self.p[1, 1]))
 
     def same_calibration(self, other: PinholeCamera) -> bool:
-        """True if ``other`` has the same image size and projection matrix P."""
-        return (self.width, self.height) == (other.width, other.height) and bool(
-            np.allclose(self.p, other.p)
+        """True if ``other`` has the same image size, K, D, R and P."""
+        return (self.width, self.height, self.distortion_model) == (
+            other.width,
+            other.height,
+            other.distortion_model,
+        ) and all(
+            np.shape(mine) == np.shape(theirs) and np.allclose(mine, theirs)
+            for mine, theirs in zip(
+                (self.k, self.d, self.r, self.p), (other.k, other.d, other.r, other.p), strict=True
+            )
         )
 
     @property
-    def has_distortion(self) -> bool:
-        """True if D is non-zero, i.e. raw images must be rectified before eq. 2 applies."""
-        return bool(np.any(self.d))
+    def needs_rectification(self) -> bool:
+        """True if the raw image differs from the rectified image of P (eq. 2).
+
+        That is: D is non-zero, R is not the identity, or P's left 3x3 differs from K. A camera
+        whose raw image already is its rectified one (an ideal camera, or the camera_info of an
+        image_rect topic) needs nothing.
+        """
+        return bool(
+            np.any(self.d)
+            or not np.allclose(self.r, np.eye(3), rtol=0.0, atol=1e-12)
+            or not np.allclose(self.p[:, :3], self.k, rtol=0.0, atol=1e-9)
+        )
 
     def project(self, points: np.ndarray) -> np.ndarray:
         """Project (N, 3) camera-frame points (m) to (N, 2) rectified pixels (eq. 2)."""
@@ -122,10 +138,81 @@ class PinholeCamera:
         return pixels, jacobian
 
     def rectify_maps(self) -> tuple[np.ndarray, np.ndarray]:
-        """cv2.remap maps taking the raw (distorted) image to the rectified image of P."""
+        """cv2.remap float maps taking the raw (distorted) image to the rectified image of P.
+
+        What image_proc's rectify does.
+
+        Raises:
+            InputError: for a distortion model OpenCV does not implement.
+        """
+        size = (self.width, self.height)
+        if self._distortion_kind() == 'equidistant':
+            return cv2.fisheye.initUndistortRectifyMap(
+                self.k, self.d[:4], self.r, self.p[:, :3], size, cv2.CV_32FC1
+            )
         return cv2.initUndistortRectifyMap(
-            self.k, self.d, self.r, self.p[:, :3], (self.width, self.height), cv2.CV_32FC1
+            self.k, self.d, self.r, self.p[:, :3], size, cv2.CV_32FC1
         )
+
+    def rectified_pixels(self, raw: np.ndarray) -> np.ndarray:
+        """(N, 2) pixels of the rectified image (eq. 2) that show the raw-image pixels ``raw``.
+
+        The inverse of :meth:`raw_pixels`; the identity for a camera that needs no
+        rectification.
+
+        Raises:
+            InputError: for a distortion model OpenCV does not implement.
+        """
+        raw = np.asarray(raw, dtype=float).reshape(-1, 2)
+        if not self.needs_rectification or len(raw) == 0:
+            return raw.copy()
+        raw = raw.reshape(-1, 1, 2)
+        if self._distortion_kind() == 'equidistant':
+            rectified = cv2.fisheye.undistortPoints(
+                raw, self.k, self.d[:4], R=self.r, P=self.p[:, :3]
+            )
+        else:
+            rectified = cv2.undistortPoints(raw, self.k, self.d, R=self.r, P=self.p[:, :3])
+        return rectified.reshape(-1, 2)
+
+    def raw_pixels(self, points: np.ndarray) -> np.ndarray:
+        """Project (N, 3) points (m, in the frame of P) to (N, 2) pixels of the raw image.
+
+        Where the camera itself shows them: rotated back by R, through K and the distortion D.
+        :meth:`project` for a camera that needs no rectification.
+
+        Raises:
+            InputError: for a distortion model OpenCV does not implement.
+        """
+        points = np.asarray(points, dtype=float).reshape(-1, 3)
+        if not self.needs_rectification or len(points) == 0:
+            return self.project(points)
+        offset = np.linalg.solve(self.p[:, :3], self.p[:, 3])  # P = K' [I | offset]
+        in_camera = ((points + offset) @ self.r).reshape(-1, 1, 3)  # R^T (X + offset), row-wise
+        zero = np.zeros(3)
+        if self._distortion_kind() == 'equidistant':
+            raw, _ = cv2.fisheye.projectPoints(in_camera, zero, zero, self.k, self.d[:4])
+        else:
+            raw, _ = cv2.projectPoints(in_camera, zero, zero, self.k, self.d)
+        return raw.reshape(-1, 2)
+
+    def _distortion_kind(self) -> str:
+        """'equidistant' (OpenCV's fisheye model) or 'pinhole' (plumb_bob, rational_polynomial).
+
+        Raises:
+            InputError: for another distortion model with non-zero D.
+        """
+        if not np.any(self.d):
+            return 'pinhole'
+        model = self.distortion_model
+        sizes = {'plumb_bob': (4, 5), 'rational_polynomial': (8,), 'equidistant': (4,)}
+        if model not in sizes or len(self.d) not in sizes[model]:
+            msg = (
+                f'cannot rectify distortion model {model!r} with {len(self.d)} coefficients; '
+                'supported: plumb_bob (4 or 5), rational_polynomial (8), equidistant (4)'
+            )
+            raise InputError(msg)
+        return 'equidistant' if model == 'equidistant' else 'pinhole'
 
     def camera_info_fields(self) -> dict[str, Any]:
         """The CameraInfo fields of this camera (lists, row-major), for message conversion."""

@@ -23,6 +23,7 @@ import numpy as np
 from face_tracking_ros.data import default_model_path
 from face_tracking_ros.errors import ConfigError, InputError
 from face_tracking_ros.geometry.camera import PinholeCamera
+from face_tracking_ros.imaging.rectification import Rectifier
 from face_tracking_ros.io import conversions
 from face_tracking_ros.io.bags import stamp_to_ns
 from face_tracking_ros.io.messages import MessageFactory
@@ -61,6 +62,11 @@ class MonoNodeConfig:
             the face again after a loss.
         face_id: face_id of the outputs.
         compressed: subscribe to image/compressed (sensor_msgs/CompressedImage) instead of image.
+        rectify: the images are raw (image_raw): rectify them with camera_info's K, D, R and P
+            before tracking, as image_proc does (nothing to do for a camera without distortion
+            or rectification), and read the pixel positions of init_file and reset_tracking in
+            the raw image; false for images that arrive rectified with the raw camera's
+            camera_info (image_rect).
     """
 
     model_file: str = ''
@@ -68,6 +74,7 @@ class MonoNodeConfig:
     auto_init: bool = False
     face_id: str = 'face_0'
     compressed: bool = False
+    rectify: bool = True
 
 
 class MonoProcessor:
@@ -103,6 +110,7 @@ class MonoProcessor:
         self._initialisation = initialisation
         self._detector_for = detector_for
         self._camera: PinholeCamera | None = None
+        self._rectifier: Rectifier | None = None
         self._camera_info = conversions.CameraInfoReader()
         self._tracker: MonoTracker | None = None
         self._pose_filter: PoseFilter | None = None
@@ -189,6 +197,7 @@ class MonoProcessor:
         """Keep the camera; rebuild the tracker only when the calibration changed."""
         if self._camera is None or not self._camera.same_calibration(camera):
             self._camera = camera
+            self._rectifier = Rectifier(camera, self._config.rectify)
             self._rebuild()
 
     def _rebuild(self) -> None:
@@ -205,7 +214,10 @@ class MonoProcessor:
     def _restart(self) -> None:
         """Restart the tracker from the initialisation and the pose filter from its next result."""
         if self._tracker is not None and self._pose_filter is not None:
-            self._tracker.reset(self._initialisation)
+            initialisation = self._initialisation
+            if initialisation is not None:
+                initialisation = initialisation.moved(self._rectifier.points)
+            self._tracker.reset(initialisation)
             self._pose_filter.reset()
 
     def _track(self, header: Any, gray: np.ndarray, wanted: frozenset[str]) -> list[Output]:
@@ -221,6 +233,7 @@ class MonoProcessor:
             raise InputError(msg)
         stamp_ns = stamp_to_ns(header.stamp)
         self._check_stamp(stamp_ns)
+        gray = self._rectifier.image(gray)
         tracked = self._tracker.track(gray)
         self._counts.add(tracked.status, tracked.reason)
         result = self._pose_filter.filter(tracked, stamp_ns * 1e-9)

@@ -26,8 +26,11 @@ from collections import OrderedDict
 from dataclasses import dataclass, replace
 from typing import Any
 
+import numpy as np
+
 from face_tracking_ros.errors import ConfigError, InputError
 from face_tracking_ros.geometry.camera import PinholeCamera, StereoRig
+from face_tracking_ros.imaging.rectification import Rectifier
 from face_tracking_ros.io import conversions
 from face_tracking_ros.io.bags import stamp_to_ns
 from face_tracking_ros.io.messages import MessageFactory
@@ -64,6 +67,11 @@ class StereoNodeConfig:
             every reset_tracking call without node positions and after a loss; the landmarks are
             matched in the right image and the rest of the mesh placed from the reference face,
             as for an init file.
+        rectify: the images are raw (image_raw): rectify each with its camera_info's K, D, R
+            and P before tracking, as stereo_image_proc does (nothing to do for cameras without
+            distortion or rectification), and read the pixel positions of init_file and
+            reset_tracking in the raw left image; false for images that arrive rectified with
+            the raw cameras' camera_info (image_rect).
         face_id: face_id of the outputs.
         pairing_queue: unpaired images kept per camera while waiting for the other camera's
             image with the same stamp (>= 1).
@@ -79,6 +87,7 @@ class StereoNodeConfig:
     model_file: str = ''
     init_file: str = ''
     auto_init: bool = False
+    rectify: bool = True
     face_id: str = 'face_0'
     pairing_queue: int = 10
     retroactive_depths: bool = False
@@ -124,6 +133,7 @@ class StereoProcessor:
         self._initialisation = initialisation
         self._detector_for = detector_for
         self._cameras: dict[str, PinholeCamera] = {}
+        self._rectifiers: dict[str, Rectifier] = {}
         self._camera_infos = {
             LEFT_INFO: conversions.CameraInfoReader(),
             RIGHT_INFO: conversions.CameraInfoReader(),
@@ -168,7 +178,7 @@ class StereoProcessor:
         self._initialisation = initialisation
         if self._tracker is not None:
             self._end_track()
-            self._tracker.reset(initialisation)
+            self._reset_tracker()
 
     def status(self) -> dict[str, str]:
         """The pairs tracked and lost so far, the images left unpaired and the rig's corrections.
@@ -236,6 +246,7 @@ class StereoProcessor:
             if len(cameras) == 2:
                 StereoRig(cameras[LEFT_INFO], cameras[RIGHT_INFO])
             self._cameras = cameras
+            self._rectifiers[topic] = Rectifier(camera, self._config.rectify)
             self._rebuild()
 
     def _rebuild(self) -> None:
@@ -247,7 +258,15 @@ class StereoProcessor:
         detector = None if self._detector_for is None else self._detector_for(names)
         self._tracker = StereoTracker(rig, self._tracker_config, self._model, detector)
         if self._can_initialise:
-            self._tracker.reset(self._initialisation)
+            self._reset_tracker()
+
+    def _reset_tracker(self) -> None:
+        """Restart the tracker from the initialisation, its points moved to the rectified image."""
+        assert self._tracker is not None
+        initialisation = self._initialisation
+        if initialisation is not None:
+            initialisation = initialisation.moved(self._rectifiers[LEFT_INFO].points)
+        self._tracker.reset(initialisation)
 
     @property
     def _can_initialise(self) -> bool:
@@ -278,7 +297,7 @@ class StereoProcessor:
         self._waiting[topic][stamp] = msg
         if self._tracker is not None and self._can_initialise:
             self._end_track()
-            self._tracker.reset(self._initialisation)
+            self._reset_tracker()
         msg_text = (
             f'{topic} stamp went back by {(last - stamp) / 1e9:.3f} s (looped bag or restarted '
             'cameras): tracker reset, a new track starts with this pair'
@@ -311,16 +330,10 @@ class StereoProcessor:
                 'positions'
             )
             raise InputError(msg)
-        left = conversions.image_to_gray(left_msg)
-        right = conversions.image_to_gray(right_msg)
-        camera = self._cameras[LEFT_INFO]
-        for name, image in (('left', left), ('right', right)):
-            if image.shape != (camera.height, camera.width):
-                msg = (
-                    f'{name} image is {image.shape[1]}x{image.shape[0]}, camera_info says '
-                    f'{camera.width}x{camera.height}'
-                )
-                raise InputError(msg)
+        left, right = (
+            self._rectified_image(info, conversions.image_to_gray(msg))
+            for info, msg in ((LEFT_INFO, left_msg), (RIGHT_INFO, right_msg))
+        )
         self._last_stamp = stamp_to_ns(left_msg.header.stamp)
         result = self._tracker.step(left, right)
         self._counts.add(result.status, result.reason)
@@ -329,6 +342,22 @@ class StereoProcessor:
             self._track_results.append((header, result))
             return []
         return self._outputs(header, result)
+
+    def _rectified_image(self, info: str, gray: np.ndarray) -> np.ndarray:
+        """A raw image of the camera of ``info``, rectified (see ``rectify``).
+
+        Raises:
+            InputError: if its size is not the one camera_info gives.
+        """
+        camera = self._cameras[info]
+        if gray.shape != (camera.height, camera.width):
+            name = info.split('/')[0]
+            msg = (
+                f'{name} image is {gray.shape[1]}x{gray.shape[0]}, camera_info says '
+                f'{camera.width}x{camera.height}'
+            )
+            raise InputError(msg)
+        return self._rectifiers[info].image(gray)
 
     def _outputs(self, header: Any, result: StereoResult) -> list[Output]:
         """The messages of one pair's result, stamped with its left image's header."""

@@ -35,11 +35,12 @@ def simulated_clicks(
     Args:
         node_names: names of the N nodes.
         nodes_cam: (N, 3) true nodes in the camera frame, m.
-        camera: the camera the clicks are made in (eq. 2).
+        camera: the camera the clicks are made in, on its raw image (as a user sees it; the
+            rectified image of eq. 2 for a camera that needs no rectification).
         noise_px: standard deviation of the click error, px.
         rng: noise generator; None for no noise.
     """
-    points = camera.project(nodes_cam)
+    points = camera.raw_pixels(nodes_cam)
     if rng is not None and noise_px > 0:
         points = points + rng.normal(0.0, noise_px, points.shape)
     inside = (

@@ -242,7 +242,7 @@ class FaceRenderer:
         self._composite(image, [self._face_layer(camera, r, lighting) for r in rasters])
         for occluder in occluders:
             self._draw_occluder(image, occluder)
-        if camera.has_distortion:
+        if camera.needs_rectification:
             image = cv2.remap(image, *self._raw_maps(camera), cv2.INTER_LINEAR)
         return self._expose(image, rng), rasters
 
@@ -250,14 +250,14 @@ class FaceRenderer:
         """cv2.remap maps taking the rendered (rectified, eq. 2) image to the camera's raw image.
 
         The inverse of :meth:`PinholeCamera.rectify_maps`: raw pixel q shows the rectified
-        pixel ``cv2.undistortPoints(q, K, D, R, P)``. Computed once per camera.
+        pixel ``camera.rectified_pixels(q)``. Computed once per camera.
         """
         key = tuple(np.concatenate([a.ravel() for a in (camera.k, camera.d, camera.r, camera.p)]))
         maps = self._distortion_maps.get((camera.width, camera.height, *key))
         if maps is None:
             columns, rows = np.meshgrid(np.arange(camera.width), np.arange(camera.height))
-            raw = np.stack([columns, rows], axis=-1).reshape(-1, 1, 2).astype(np.float64)
-            rectified = cv2.undistortPoints(raw, camera.k, camera.d, R=camera.r, P=camera.p[:, :3])
+            raw = np.stack([columns, rows], axis=-1).reshape(-1, 2).astype(np.float64)
+            rectified = camera.rectified_pixels(raw)
             rectified = rectified.reshape(camera.height, camera.width, 2).astype(np.float32)
             maps = (rectified[..., 0], rectified[..., 1])
             self._distortion_maps[(camera.width, camera.height, *key)] = maps

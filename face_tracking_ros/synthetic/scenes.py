@@ -23,6 +23,7 @@ import numpy as np
 
 from face_tracking_ros.errors import ConfigError
 from face_tracking_ros.geometry.camera import PinholeCamera, StereoRig
+from face_tracking_ros.geometry.rotation import rodrigues
 from face_tracking_ros.synthetic.background import Backdrop
 from face_tracking_ros.synthetic.faces import PRESETS, FacePopulation, Subject
 from face_tracking_ros.synthetic.motion import ExpressionScript, HeadTrajectory, Motion
@@ -43,6 +44,7 @@ from face_tracking_ros.synthetic.texture import (
 START_NS = 1_700_000_000 * 1_000_000_000  # stamp of frame 0, ns since the epoch
 MAX_FPS = 120.0
 MIN_BASELINE, MAX_BASELINE = 0.10, 0.12  # m
+MAX_TOE_IN_DEG = 10.0
 _EXPOSURE = 0.5  # exposure time as a fraction of the frame period (motion blur)
 _BLUR_SAMPLES = 3
 _LIGHT_SWAY = np.radians(15.0)  # amplitude of the moving light, rad
@@ -82,6 +84,11 @@ class SceneConfig:
         distortion: plumb_bob coefficients (k1, k2, p1, p2, k3) of every camera; empty for
             none. Images are then raw (distorted) and CameraInfo carries D; P stays the
             rectified projection of the truth (eq. 2 after rectification).
+        toe_in_deg: each camera turned by this angle about its vertical axis from its
+            rectified frame, the left and right ones towards each other (a toed-in rig; the
+            mono camera as the left one), in [0, MAX_TOE_IN_DEG]. Images are then raw and
+            CameraInfo carries the rectification rotation R, as a calibrated rig's driver
+            publishes them; P stays the same.
     """
 
     kind: Kind | str = Kind.STEREO
@@ -102,6 +109,7 @@ class SceneConfig:
     motion_blur: bool = False
     occlusion: bool = False
     distortion: tuple[float, ...] = ()
+    toe_in_deg: float = 0.0
 
     def __post_init__(self) -> None:
         """Validate every field; errors name the field and the accepted range."""
@@ -135,6 +143,9 @@ class SceneConfig:
         if len(self.distortion) not in (0, 5) or not np.all(np.isfinite(self.distortion)):
             msg = f'distortion must be 5 finite plumb_bob coefficients, got {self.distortion}'
             raise ConfigError(msg)
+        if not 0.0 <= self.toe_in_deg <= MAX_TOE_IN_DEG:
+            msg = f'toe_in_deg must be in [0, {MAX_TOE_IN_DEG:g}], got {self.toe_in_deg}'
+            raise ConfigError(msg)
         for name in ('texture', 'texture_nodes'):
             path = getattr(self, name)
             if path is not None and not Path(path).is_file():
@@ -153,10 +164,12 @@ class SceneConfig:
         else:
             rig = StereoRig.ideal(self.width, self.height, self.focal, self.baseline)
             cameras = {'left': rig.left, 'right': rig.right}
-        if not self.distortion:
-            return cameras
-        d = np.asarray(self.distortion, dtype=float)
-        return {name: replace(camera, d=d) for name, camera in cameras.items()}
+        d = np.asarray(self.distortion or np.zeros(5), dtype=float)
+        turn = np.radians(self.toe_in_deg)
+        return {
+            name: replace(camera, d=d, r=rodrigues(np.array([0.0, sign * turn, 0.0]))[0])
+            for (name, camera), sign in zip(cameras.items(), (1.0, -1.0), strict=False)
+        }
 
     def stamp_ns(self, index: int) -> int:
         """Stamp of frame ``index``, ns since the epoch."""

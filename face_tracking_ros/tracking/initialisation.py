@@ -22,8 +22,8 @@ Init file (YAML or JSON; node names are those of :mod:`face_tracking_ros.model.t
 
 from __future__ import annotations
 
-from collections.abc import Mapping
-from dataclasses import dataclass
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, replace
 import json
 from pathlib import Path
 from typing import Any
@@ -72,6 +72,10 @@ class Initialisation:
         if self.sigma is not None and not np.all(np.isfinite(self.sigma)):
             msg = f'initialisation sigma holds NaN or Inf: {self.sigma}'
             raise ConfigError(msg)
+
+    def moved(self, move: Callable[[np.ndarray], np.ndarray]) -> Initialisation:
+        """The same nodes at ``move(points)``, e.g. from the raw to the rectified image."""
+        return replace(self, points=move(self.points))
 
     @classmethod
     def from_mapping(
