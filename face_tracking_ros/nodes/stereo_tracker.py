@@ -1,10 +1,11 @@
 """The stereo_tracker node: 3-D mesh tracking in rectified stereo (eq. 4 and 5).
 
 Subscribes ``left/image_raw``, ``left/camera_info``, ``right/image_raw``, ``right/camera_info``
-and the latched ``face/model``; publishes ``face/mesh_raw``, ``face/mesh``, ``face/state`` and,
-with a model, ``face/pose``, ``face/action``, ``face/shape``; serves ``reset_tracking``.
-Parameters: :class:`~face_tracking_ros.processing.stereo.StereoNodeConfig` and, as
-``tracker.*``, :class:`~face_tracking_ros.tracking.stereo.StereoTrackerConfig`.
+(raw images, rectified with their calibration: ``rectify``) and the latched ``face/model``;
+publishes ``face/mesh_raw``, ``face/mesh``, ``face/state`` and, with a model, ``face/pose``,
+``face/action``, ``face/shape``; serves ``reset_tracking``. Parameters:
+:class:`~face_tracking_ros.processing.stereo.StereoNodeConfig` and, as ``tracker.*``,
+:class:`~face_tracking_ros.tracking.stereo.StereoTrackerConfig`.
 """
 
 from __future__ import annotations

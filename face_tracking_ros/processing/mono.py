@@ -1,14 +1,15 @@
 """Message-in, message-out monocular tracking: the body of the mono_tracker node and its replay.
 
-Inputs: ``image`` (sensor_msgs/Image, or CompressedImage on ``image/compressed``),
-``camera_info`` and, optionally, a latched ``face/model``. Outputs, one each per image, stamped
-with the image's header: ``face/state``, ``face/pose``, ``face/action``, ``face/shape``,
-``face/mesh_raw`` (FaceMesh), ``face/mesh`` (MarkerArray), and ``face/overlay`` while someone
-subscribes to it. An image that arrives before the first camera_info is held (the latest one)
-and tracked as soon as the calibration arrives. An image whose stamp repeats the last tracked
-one is refused; an earlier stamp (a looped bag, a restarted camera) resets the tracker, so the
-next image starts a new track from the initialisation. The published pose (and the nodes, which
-move rigidly with it) is smoothed by the One Euro filter of
+Inputs: ``image`` (sensor_msgs/Image, or CompressedImage on ``image/compressed``), ``camera_info``
+and, optionally, a latched ``face/model``; raw images are rectified with their calibration first
+(``rectify``, :mod:`~face_tracking_ros.imaging.rectification`). Outputs, one each per image,
+stamped with the image's header: ``face/state``, ``face/pose``, ``face/action``, ``face/shape``,
+``face/mesh_raw`` (FaceMesh), ``face/mesh`` (MarkerArray), and ``face/overlay`` (the rectified
+image) while someone subscribes to it. An image that arrives before the first camera_info is held
+(the latest one) and tracked as soon as the calibration arrives. An image whose stamp repeats the
+last tracked one is refused; an earlier stamp (a looped bag, a restarted camera) resets the
+tracker, so the next image starts a new track from the initialisation. The published pose (and the
+nodes, which move rigidly with it) is smoothed by the One Euro filter of
 :mod:`~face_tracking_ros.tracking.pose_filter` (parameters ``smoothing.*``), timed by the image
 stamps; the tracker itself continues from its raw estimate.
 """
