@@ -44,10 +44,41 @@ def test_to_gray_mono8_is_a_view_and_colour_orders_agree() -> None:
     assert abs(int(to_gray(red, 'rgb8')[0, 0]) - 76) <= 1
 
 
+def _mosaic(rgb: np.ndarray, pattern: str) -> np.ndarray:
+    """The Bayer mosaic of an RGB image: ``pattern`` names the colours of a 2x2 cell row-wise."""
+    channel = {'r': 0, 'g': 1, 'b': 2}
+    mosaic = np.zeros(rgb.shape[:2], np.uint8)
+    for k, colour in enumerate(pattern):
+        rows, columns = divmod(k, 2)
+        mosaic[rows::2, columns::2] = rgb[rows::2, columns::2, channel[colour]]
+    return mosaic
+
+
+@pytest.mark.parametrize('pattern', ['rggb', 'bggr', 'gbrg', 'grbg'])
+def test_bayer_images_demosaic_to_the_grey_of_their_colours(pattern: str) -> None:
+    rgb = np.empty((16, 20, 3), np.uint8)
+    rgb[...] = (200, 100, 30)  # a flat colour, so demosaicing recovers it exactly inside
+    gray = to_gray(_mosaic(rgb, pattern), f'bayer_{pattern}8')
+    expected = to_gray(rgb, 'rgb8')
+    assert gray.shape == (16, 20)
+    np.testing.assert_array_equal(gray[2:-2, 2:-2], expected[2:-2, 2:-2])  # 122; others 90-159
+
+
+def test_yuv422_images_give_their_luma() -> None:
+    rng = np.random.default_rng(1)
+    luma = rng.integers(16, 236, (6, 8), dtype=np.uint8)
+    chroma = rng.integers(16, 241, (6, 8), dtype=np.uint8)
+    uyvy = np.stack([chroma, luma], axis=2)  # U Y V Y ...: chroma first in each pixel pair
+    yuyv = np.stack([luma, chroma], axis=2)
+    np.testing.assert_array_equal(to_gray(uyvy, 'yuv422'), luma)
+    np.testing.assert_array_equal(to_gray(yuyv, 'yuv422_yuy2'), luma)
+
+
 @pytest.mark.parametrize(
     ('array', 'encoding', 'match'),
     [
-        (np.zeros((4, 4), np.uint8), 'yuv422', 'unsupported image encoding'),
+        (np.zeros((4, 4), np.uint16), 'mono16', 'unsupported image encoding'),
+        (np.zeros((4, 4), np.uint8), 'yuv422', r'must be \(H, W, 2\)'),
         (np.zeros((4, 4), np.uint16), 'mono8', 'must be uint8'),
         (np.zeros((4, 4, 3), np.uint8), 'mono8', r'must be \(H, W\)'),
         (np.zeros((4, 4), np.uint8), 'rgb8', r'must be \(H, W, 3\)'),

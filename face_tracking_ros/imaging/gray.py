@@ -8,12 +8,20 @@ import numpy as np
 from face_tracking_ros.errors import InputError
 
 # sensor_msgs/image_encodings names -> (channels, cvtColor code or None for grey already).
+# OpenCV names a Bayer pattern by its second row's second and third pixels, so ROS's RGGB is
+# OpenCV's BG (as in cv_bridge); yuv422 is UYVY and yuv422_yuy2 YUYV, two bytes a pixel.
 _CONVERSIONS: dict[str, tuple[int, int | None]] = {
     'mono8': (1, None),
     'rgb8': (3, cv2.COLOR_RGB2GRAY),
     'bgr8': (3, cv2.COLOR_BGR2GRAY),
     'rgba8': (4, cv2.COLOR_RGBA2GRAY),
     'bgra8': (4, cv2.COLOR_BGRA2GRAY),
+    'bayer_rggb8': (1, cv2.COLOR_BayerBG2GRAY),
+    'bayer_bggr8': (1, cv2.COLOR_BayerRG2GRAY),
+    'bayer_gbrg8': (1, cv2.COLOR_BayerGR2GRAY),
+    'bayer_grbg8': (1, cv2.COLOR_BayerGB2GRAY),
+    'yuv422': (2, cv2.COLOR_YUV2GRAY_UYVY),
+    'yuv422_yuy2': (2, cv2.COLOR_YUV2GRAY_YUY2),
 }
 SUPPORTED_ENCODINGS: tuple[str, ...] = tuple(_CONVERSIONS)
 
@@ -33,10 +41,12 @@ def encoding_channels(encoding: str) -> int:
 
 
 def to_gray(array: np.ndarray, encoding: str) -> np.ndarray:
-    """Grey image of a mono8, rgb8, bgr8, rgba8 or bgra8 array.
+    """Grey image of an array in one of the :data:`SUPPORTED_ENCODINGS`.
 
     Args:
-        array: (H, W) or (H, W, 1) uint8 for mono8; (H, W, 3) uint8 for rgb8 and bgr8.
+        array: (H, W) or (H, W, 1) uint8 for mono8 and the Bayer patterns (demosaiced to grey);
+            (H, W, C) uint8 for the others: 3 for rgb8 and bgr8, 4 for rgba8 and bgra8, 2 for
+            the YUV 4:2:2 ones.
         encoding: the sensor_msgs/Image encoding of ``array``.
 
     Returns:
@@ -59,6 +69,6 @@ def to_gray(array: np.ndarray, encoding: str) -> np.ndarray:
         expected = '(H, W)' if channels == 1 else f'(H, W, {channels})'
         msg = f'{encoding} image must be {expected}, got {array.shape}'
         raise InputError(msg)
-    if code is None:
-        return array.reshape(array.shape[:2])
-    return cv2.cvtColor(array, code)
+    if channels == 1:
+        array = array.reshape(array.shape[:2])
+    return array if code is None else cv2.cvtColor(array, code)

@@ -47,7 +47,10 @@ def copy_header(factory: MessageFactory, header: Any) -> Any:
 
 
 def image_to_gray(msg: Any) -> np.ndarray:
-    """Grey (H, W) uint8 image of a sensor_msgs/Image in mono8, rgb8, bgr8, rgba8 or bgra8.
+    """Grey (H, W) uint8 image of a sensor_msgs/Image in a supported 8-bit encoding.
+
+    mono8, rgb8, bgr8, rgba8, bgra8, the four bayer_*8 patterns, yuv422 (UYVY) and yuv422_yuy2
+    (:data:`~face_tracking_ros.imaging.gray.SUPPORTED_ENCODINGS`).
 
     Raises:
         InputError: for another encoding, or when height, width, step and data disagree.

@@ -81,9 +81,9 @@ def test_bad_image_gives_a_warn_status_and_the_node_keeps_tracking(ros_context, 
         warnings.clear()  # e.g. 'no calibration yet' if the first image beat camera_info
         _spin_until(
             executor,
-            lambda: any('yuv422' in status.message for status in warnings),
+            lambda: any('mono16' in status.message for status in warnings),
             'a diagnostic of the bad image',
-            lambda: image_pub.publish(_image(frame.image, stamp(next(sent)), 'yuv422')),
+            lambda: image_pub.publish(_image(frame.image, stamp(next(sent)), 'mono16')),
         )
         before = len(states)
         _spin_until(
@@ -98,12 +98,12 @@ def test_bad_image_gives_a_warn_status_and_the_node_keeps_tracking(ros_context, 
         code, output = finish(process, stop=signal.SIGINT)
     assert code == 0, output
     assert 'Traceback' not in output, output
-    warning = next(status for status in warnings if 'yuv422' in status.message)
+    warning = next(status for status in warnings if 'mono16' in status.message)
     assert warning.level == DiagnosticStatus.WARN
     assert warning.name.endswith('mono_tracker')
-    assert "image: unsupported image encoding 'yuv422'" in warning.message
+    assert "image: unsupported image encoding 'mono16'" in warning.message
     # The log line: rclpy throttles per call site, so a warning logged less than 5 s before
     # (an image that beat camera_info) hides this one from the log, not from /diagnostics.
     if 'no calibration' not in output:
-        assert "unsupported image encoding 'yuv422'" in output
+        assert "unsupported image encoding 'mono16'" in output
     assert all(state.status == TrackStatus.TRACKING for state in states[before:])

@@ -102,8 +102,8 @@ def _zero_info():
 BAD_MONO_INPUTS = [
     (
         'image',
-        lambda: _raw_image(320, 240, 'yuv422', 640, np.zeros(640 * 240)),
-        "unsupported image encoding 'yuv422'",
+        lambda: _raw_image(320, 240, 'mono16', 640, np.zeros(640 * 240)),
+        "unsupported image encoding 'mono16'",
     ),
     (
         'image',
@@ -312,8 +312,8 @@ BAD_STEREO_PAIRS = [
         'left image is 160x120',
     ),
     (
-        {'left': lambda: _raw_image(320, 240, 'bayer_rggb8', 320, np.zeros(76800), BETWEEN)},
-        "unsupported image encoding 'bayer_rggb8'",
+        {'left': lambda: _raw_image(320, 240, 'rgb16', 1920, np.zeros(460800), BETWEEN)},
+        "unsupported image encoding 'rgb16'",
     ),
 ]
 

@@ -30,12 +30,19 @@ from face_tracking_ros.model.topology import mesh_topology
 
 FACTORY = RosbagsMessages(typestore())
 HEADER = conversions.make_header(FACTORY, 1_700_000_000_000_000_000, 'camera_optical')
-CHANNELS = {'mono8': 1, 'rgb8': 3, 'bgr8': 3, 'rgba8': 4, 'bgra8': 4}
+CHANNELS = {'mono8': 1, 'rgb8': 3, 'bgr8': 3, 'rgba8': 4, 'bgra8': 4, 'yuv422': 2}
+CHANNELS |= {'yuv422_yuy2': 2} | {f'bayer_{p}8': 1 for p in ('rggb', 'bggr', 'gbrg', 'grbg')}
 TO_GRAY = {
     'rgb8': cv2.COLOR_RGB2GRAY,
     'bgr8': cv2.COLOR_BGR2GRAY,
     'rgba8': cv2.COLOR_RGBA2GRAY,
     'bgra8': cv2.COLOR_BGRA2GRAY,
+    'bayer_rggb8': cv2.COLOR_BayerBG2GRAY,
+    'bayer_bggr8': cv2.COLOR_BayerRG2GRAY,
+    'bayer_gbrg8': cv2.COLOR_BayerGR2GRAY,
+    'bayer_grbg8': cv2.COLOR_BayerGB2GRAY,
+    'yuv422': cv2.COLOR_YUV2GRAY_UYVY,
+    'yuv422_yuy2': cv2.COLOR_YUV2GRAY_YUY2,
 }
 FEW = settings(max_examples=50, deadline=None)
 SEEDS = st.integers(0, 2**32 - 1)
