@@ -7,12 +7,16 @@ import json
 from pathlib import Path
 import sys
 
+import cv2
 import pytest
 
 from face_tracking_ros.cli import learn
 from face_tracking_ros.cli.main import main
 from face_tracking_ros.cli.track import score_stereo_against_truth
-from face_tracking_ros.io.bags import bag_topics
+from face_tracking_ros.io import conversions
+from face_tracking_ros.io.bags import BagWriter, bag_topics, read_messages
+from face_tracking_ros.io.messages import RosbagsMessages
+from face_tracking_ros.io.typestore import typestore
 from face_tracking_ros.model.model_file import load_model
 from face_tracking_ros.tracking.stereo_evaluation import StereoEvaluation
 
@@ -51,15 +55,68 @@ def still_bag(tmp_path_factory) -> Path:
     return root / 'subject_00_seq_00'
 
 
-def _learn_meshes(bag: Path, where: Path, *options: str) -> StereoEvaluation:
-    """The meshes learn tracks from a raw stereo bag (exact clicks), scored against truth."""
+def _learn_meshes(
+    bag: Path, where: Path, *options: str, truth: Path | None = None
+) -> StereoEvaluation:
+    """The meshes learn tracks from a raw stereo bag (exact clicks), scored against truth.
+
+    The truth and the rig come from ``truth`` (default: ``bag``).
+    """
     parser = argparse.ArgumentParser()
     learn.register(parser.add_subparsers())
     args = parser.parse_args(
         ['learn', str(bag), '--from-images', '--simulate-clicks', '0', '--out',
          str(where / 'm.npz'), '--report', str(where / 'r.json'), *options]
     )  # fmt: skip
-    return score_stereo_against_truth(bag, learn.mesh_bag(bag, args))
+    return score_stereo_against_truth(truth or bag, learn.mesh_bag(bag, args))
+
+
+def _compressed_copy(bag: Path, out: Path, names: dict[str, str]) -> Path:
+    """``bag`` with its images as lossless PNG CompressedImage messages, topics renamed.
+
+    Args:
+        bag: a synthetic stereo bag.
+        out: the new bag's directory.
+        names: bag topic -> new name, for the images and camera_info (others keep theirs).
+    """
+    factory = RosbagsMessages(typestore())
+    with BagWriter(out) as writer:
+        for message in read_messages(bag):
+            topic, msgtype, msg = (
+                names.get(message.topic, message.topic),
+                message.msgtype,
+                message.msg,
+            )
+            if msgtype == 'sensor_msgs/msg/Image':
+                png = cv2.imencode('.png', conversions.image_to_gray(msg))[1].reshape(-1)
+                msgtype = 'sensor_msgs/msg/CompressedImage'
+                msg = factory.make(
+                    msgtype, header=msg.header, format='mono8; png compressed', data=png
+                )
+            writer.write(topic, msgtype, msg, message.stamp_ns)
+    return out
+
+
+def test_compressed_images_under_any_names_are_tracked_like_raw_ones(still_bag, tmp_path):
+    """image_transport's compressed topics are found by name; other names are given."""
+    raw = _learn_meshes(still_bag, tmp_path / 'raw')
+    found = _compressed_copy(still_bag, tmp_path / 'found', {
+        'left/image_raw': '/stereo/left/image_raw/compressed',
+        'right/image_raw': '/stereo/right/image_raw/compressed',
+    })  # fmt: skip
+    assert bag_topics(found)['/stereo/left/image_raw/compressed'].endswith('CompressedImage')
+    given_names = {
+        'left/image_raw': '/cam0/png', 'right/image_raw': '/cam1/png',
+        'left/camera_info': '/cam0/info', 'right/camera_info': '/cam1/info',
+    }  # fmt: skip
+    given = _compressed_copy(still_bag, tmp_path / 'given', given_names)
+    topics = ['--left-topic', '/cam0/png', '--right-topic', '/cam1/png', '--left-info-topic',
+              '/cam0/info', '--right-info-topic', '/cam1/info']  # fmt: skip
+    for bag, options in ((found, ()), (given, topics)):
+        tracked = _learn_meshes(bag, tmp_path / bag.name, *options, truth=still_bag)
+        assert tracked.frames == raw.frames == 40
+        assert tracked.node_rms == pytest.approx(raw.node_rms, abs=1e-9)  # the same pixels
+        assert tracked.max_reprojection == pytest.approx(raw.max_reprojection, abs=1e-6)
 
 
 def test_learn_gives_every_mesh_the_depths_refined_over_its_track(still_bag, tmp_path):

@@ -31,7 +31,13 @@ from typing import Any
 
 import numpy as np
 
-from face_tracking_ros.cli.track import is_stereo_bag
+from face_tracking_ros.cli.track import (
+    add_stereo_topic_options,
+    compressed_parameters,
+    input_remaps,
+    is_stereo_bag,
+    stereo_topics,
+)
 from face_tracking_ros.errors import BagError, ConfigError, InputError
 from face_tracking_ros.io.bags import bag_topics, read_messages
 from face_tracking_ros.io.conversions import (
@@ -186,6 +192,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help='bags without an init file in --init-dir: find the face with the optional landmark '
         'detector (pip install dlib-bin face_recognition_models)',
     )
+    add_stereo_topic_options(stereo)
     stereo.add_argument(
         '--meshes-dir',
         type=Path,
@@ -278,26 +285,30 @@ def run(args: argparse.Namespace) -> None:
 def mesh_bag(bag: Path, args: argparse.Namespace) -> Path:
     """The bag of 3-D meshes to learn from: ``bag`` itself, or its stereo tracking.
 
-    A raw stereo bag (left and right images, no mesh topic; or any stereo bag with
-    ``--from-images``) is first tracked by the stereo
-    tracker (eq. 4, 5) through offline replay of the stereo_tracker node's own code, into
-    ``--meshes-dir``; it is initialised from ``--init-dir/<bag name>.{yaml,json}`` or, for
-    synthetic bags, from ``--simulate-clicks``. By default every mesh carries the frame-1 depths
-    refined over its whole track (the processor's ``retroactive_depths``); ``--tracker-param``
-    overrides it.
+    A raw stereo bag (left and right images, Image or CompressedImage, found by their names or
+    given as ``--left-topic`` and ``--right-topic``; no mesh topic, or any stereo bag with
+    ``--from-images``) is first tracked by the stereo tracker (eq. 4, 5) through offline replay
+    of the stereo_tracker node's own code, into ``--meshes-dir``; it is initialised from
+    ``--init-dir/<bag name>.{yaml,json}``, ``--auto-init`` or, for synthetic bags,
+    ``--simulate-clicks``. By default every mesh carries the frame-1 depths refined over its
+    whole track (the processor's ``retroactive_depths``); ``--tracker-param`` overrides it.
 
     Raises:
         ConfigError: for a raw stereo bag without a way to initialise it.
     """
     topics = bag_topics(bag)
     has_meshes = args.topic or any(name in topics for name in DEFAULT_TOPICS)
-    if not is_stereo_bag(topics) or (has_meshes and not args.from_images):
+    if not (is_stereo_bag(topics) or args.left_topic) or (has_meshes and not args.from_images):
         return bag  # meshes (or nothing: read_bag_meshes names the missing topic)
     initialisation = _initialisation(bag, args)
     out = _meshes_dir(args) / bag.name
     print(f'{bag}: raw stereo images: tracking them into {out}')
-    params = OverrideParameters.parse([STEREO_PARAMS, *(args.tracker_param or []), initialisation])
-    stats = replay_bag(['stereo_tracker'], bag, out, params, progress=False)
+    compressed = compressed_parameters(topics, [args.left_topic])
+    params = [STEREO_PARAMS, *compressed, *(args.tracker_param or []), initialisation]
+    remaps = input_remaps(stereo_topics(args))
+    stats = replay_bag(
+        ['stereo_tracker'], bag, out, OverrideParameters.parse(params), remaps, progress=False
+    )
     if not stats.outputs['face/mesh_raw']:
         msg = f'{bag}: the stereo tracker produced no mesh ({dict(stats.errors)})'
         raise BagError(msg)

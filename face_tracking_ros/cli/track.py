@@ -9,7 +9,7 @@ code. When the bag holds synthetic truth, the accuracy against it is printed and
 from __future__ import annotations
 
 import argparse
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from dataclasses import asdict
 import json
 from pathlib import Path
@@ -32,6 +32,7 @@ from face_tracking_ros.tracking.accuracy import TrackingAccuracy, tracking_accur
 from face_tracking_ros.tracking.stereo_evaluation import StereoEvaluation, evaluate_stereo
 
 IMAGE_TYPE = 'sensor_msgs/msg/Image'
+COMPRESSED_TYPE = 'sensor_msgs/msg/CompressedImage'
 INFO_TYPE = 'sensor_msgs/msg/CameraInfo'
 
 
@@ -62,19 +63,75 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     parser.add_argument('--image-topic', help='mono image topic (default: found by type)')
     parser.add_argument('--camera-info-topic', help='mono camera_info topic')
-    parser.add_argument('--left-topic', help='stereo left image topic')
-    parser.add_argument('--right-topic', help='stereo right image topic')
-    parser.add_argument('--left-info-topic', help='stereo left camera_info topic')
-    parser.add_argument('--right-info-topic', help='stereo right camera_info topic')
+    add_stereo_topic_options(parser)
     parser.add_argument('--report', type=Path, help='write the accuracy as JSON')
     add_replay_options(parser)
     parser.set_defaults(func=run)
 
 
+def image_topics(topics: Mapping[str, str]) -> tuple[list[str], bool]:
+    """A bag's image topics (name -> type given) and whether they are compressed.
+
+    Its Image topics if it has any, else its CompressedImage ones (a bag recorded through
+    image_transport's compressed plugin).
+    """
+    raw = [topic for topic, kind in topics.items() if kind == IMAGE_TYPE]
+    if raw:
+        return raw, False
+    return [topic for topic, kind in topics.items() if kind == COMPRESSED_TYPE], True
+
+
 def is_stereo_bag(topics: Mapping[str, str]) -> bool:
     """True if a bag's topics (name -> type) hold a left and a right image stream."""
-    images = [topic for topic, kind in topics.items() if kind == IMAGE_TYPE]
+    images, _ = image_topics(topics)
     return any('left' in t for t in images) and any('right' in t for t in images)
+
+
+def compressed_parameters(
+    topics: Mapping[str, str], given: Iterable[str | None] = ()
+) -> list[str]:
+    """``['compressed=true']`` when the images to track are CompressedImage, else ``[]``.
+
+    Args:
+        topics: the bag's topics (name -> type).
+        given: the image topics given on the command line (None: not given); their type
+            decides, else the bag's (compressed if it has CompressedImage topics only).
+    """
+    chosen = [topics.get(topic) for topic in given if topic]
+    if chosen:
+        compressed = chosen[0] == COMPRESSED_TYPE
+    else:
+        images, compressed = image_topics(topics)
+        compressed = compressed and bool(images)
+    return ['compressed=true'] if compressed else []
+
+
+def input_remaps(topics: Mapping[str, str | None]) -> dict[str, str]:
+    """Processor input -> bag topic, of the topics given (input name -> bag topic, or None).
+
+    An image input's topic serves its ``/compressed`` input too (``compressed=true``).
+    """
+    remaps = {port: topic for port, topic in topics.items() if topic}
+    images = {port: topic for port, topic in remaps.items() if port.endswith(('image', '_raw'))}
+    return remaps | {f'{port}/compressed': topic for port, topic in images.items()}
+
+
+def stereo_topics(args: argparse.Namespace) -> dict[str, str | None]:
+    """The stereo_tracker inputs given as --left-topic, --right-topic and their camera_info's."""
+    return {
+        'left/image_raw': args.left_topic,
+        'right/image_raw': args.right_topic,
+        'left/camera_info': args.left_info_topic,
+        'right/camera_info': args.right_info_topic,
+    }
+
+
+def add_stereo_topic_options(parser: argparse._ActionsContainer) -> None:
+    """The --left-topic, --right-topic, --left-info-topic and --right-info-topic options."""
+    parser.add_argument('--left-topic', help='stereo left image topic (default: found by type)')
+    parser.add_argument('--right-topic', help='stereo right image topic')
+    parser.add_argument('--left-info-topic', help='stereo left camera_info topic')
+    parser.add_argument('--right-info-topic', help='stereo right camera_info topic')
 
 
 def choose_tracker(bag: Path, args: argparse.Namespace) -> str:
@@ -84,8 +141,8 @@ def choose_tracker(bag: Path, args: argparse.Namespace) -> str:
         BagError: if the bag has no image topic.
     """
     topics = bag_topics(bag)
-    if IMAGE_TYPE not in topics.values():
-        msg = f'{bag}: no sensor_msgs/msg/Image topic to track'
+    if not image_topics(topics)[0]:
+        msg = f'{bag}: no sensor_msgs/msg/Image or CompressedImage topic to track'
         raise BagError(msg)
     if args.image_topic:
         return 'mono_tracker'
@@ -95,7 +152,8 @@ def choose_tracker(bag: Path, args: argparse.Namespace) -> str:
 def run(args: argparse.Namespace) -> int:
     """Track, summarise, and score against truth when there is some."""
     node = choose_tracker(args.bag, args)
-    params = list(args.param or [])
+    given = (args.image_topic, args.left_topic)
+    params = [*compressed_parameters(bag_topics(args.bag), given), *(args.param or [])]
     if args.model:
         params.append(f'model_file={args.model}')
     init_file = args.init
@@ -111,12 +169,9 @@ def run(args: argparse.Namespace) -> int:
     options = {
         'image': args.image_topic,
         'camera_info': args.camera_info_topic,
-        'left/image_raw': args.left_topic,
-        'right/image_raw': args.right_topic,
-        'left/camera_info': args.left_info_topic,
-        'right/camera_info': args.right_info_topic,
+        **stereo_topics(args),
     }
-    remaps.update({port: topic for port, topic in options.items() if topic})
+    remaps.update(input_remaps(options))
     print(f'tracking {args.bag} with {node}')
     stats = replay_bag(
         [node],

@@ -48,6 +48,11 @@ class LearnerConfig:
             with this many pixels of click noise; negative: off.
         auto_init: raw stereo bags without an init file in init_dir: find the face with the
             optional landmark detector (pip install dlib-bin face_recognition_models).
+        left_topic: raw stereo bags: the left image topic (Image or CompressedImage); empty:
+            found by type and by 'left' in its name.
+        right_topic: raw stereo bags: the right image topic; empty: found as the left one.
+        left_info_topic: raw stereo bags: the left camera_info topic; empty: found by name.
+        right_info_topic: raw stereo bags: the right camera_info topic; empty: found by name.
         tracker_params: raw stereo bags: stereo_tracker parameters NAME=VALUE for their tracking,
             after the default retroactive_depths=true (each track's final depths on all its
             meshes).
@@ -69,6 +74,10 @@ class LearnerConfig:
     init_dir: str = ''
     simulate_clicks: float = -1.0
     auto_init: bool = False
+    left_topic: str = ''
+    right_topic: str = ''
+    left_info_topic: str = ''
+    right_info_topic: str = ''
     tracker_params: tuple[str, ...] = ()
     frame_id: str = 'face'
 
@@ -96,6 +105,10 @@ def learn_arguments(config: LearnerConfig) -> list[str]:
         '--subject': config.subject,
         '--init-dir': config.init_dir,
         '--simulate-clicks': config.simulate_clicks if config.simulate_clicks >= 0 else '',
+        '--left-topic': config.left_topic,
+        '--right-topic': config.right_topic,
+        '--left-info-topic': config.left_info_topic,
+        '--right-info-topic': config.right_info_topic,
     }
     argv += [
         item for option, value in options.items() if value != '' for item in (option, str(value))

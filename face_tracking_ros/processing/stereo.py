@@ -2,11 +2,12 @@
 
 Inputs: ``left/image_raw``, ``left/camera_info``, ``right/image_raw``, ``right/camera_info`` (raw
 images, which it rectifies with their calibration unless ``rectify`` is false:
-:mod:`~face_tracking_ros.imaging.rectification`) and, optionally, a latched ``face/model``. Left
-and right images are paired by exact stamp in a bounded queue; a stamp that never pairs is dropped
-and counted, never paired with another. Outputs per pair, stamped with the left image's header:
-``face/mesh_raw`` (FaceMesh, left camera frame), ``face/mesh`` (MarkerArray), ``face/state`` and,
-with a model, the fitted ``face/pose``, ``face/action`` and ``face/shape``.
+:mod:`~face_tracking_ros.imaging.rectification`; with ``compressed``, CompressedImage on
+``left/image_raw/compressed`` and ``right/image_raw/compressed``) and, optionally, a latched
+``face/model``. Left and right images are paired by exact stamp in a bounded queue; a stamp that
+never pairs is dropped and counted, never paired with another. Outputs per pair, stamped with the
+left image's header: ``face/mesh_raw`` (FaceMesh, left camera frame), ``face/mesh`` (MarkerArray),
+``face/state`` and, with a model, the fitted ``face/pose``, ``face/action`` and ``face/shape``.
 
 Offline, with ``retroactive_depths``, the outputs of a track are held until it ends (a reset or
 the end of the bag, :meth:`StereoProcessor.finish`) and then emitted with the frame-1 depths
@@ -47,6 +48,7 @@ from face_tracking_ros.tracking.initialisation import Initialisation, load_init_
 from face_tracking_ros.tracking.stereo import StereoResult, StereoTracker, StereoTrackerConfig
 
 LEFT_IMAGE, RIGHT_IMAGE = 'left/image_raw', 'right/image_raw'
+COMPRESSED = {f'{LEFT_IMAGE}/compressed': LEFT_IMAGE, f'{RIGHT_IMAGE}/compressed': RIGHT_IMAGE}
 LEFT_INFO, RIGHT_INFO = 'left/camera_info', 'right/camera_info'
 MODEL = 'face/model'
 RESTART_JUMP_NS = 1_000_000_000  # an image stamp this much older than the last pair restarts
@@ -73,6 +75,9 @@ class StereoNodeConfig:
             distortion or rectification), and read the pixel positions of init_file and
             reset_tracking in the raw left image; false for images that arrive rectified with
             the raw cameras' camera_info (image_rect).
+        compressed: subscribe to left/image_raw/compressed and right/image_raw/compressed
+            (sensor_msgs/CompressedImage, JPEG or PNG, as image_transport's compressed plugin
+            publishes them) instead of the Image topics.
         face_id: face_id of the outputs.
         pairing_queue: unpaired images kept per camera while waiting for the other camera's
             image with the same stamp (>= 1).
@@ -89,6 +94,7 @@ class StereoNodeConfig:
     init_file: str = ''
     auto_init: bool = False
     rectify: bool = True
+    compressed: bool = False
     face_id: str = 'face_0'
     pairing_queue: int = 10
     retroactive_depths: bool = False
@@ -150,9 +156,13 @@ class StereoProcessor:
         self._last_stamp: int | None = None
         self.unpaired = 0
         self._counts = TrackCounts('pairs')
+        image_type, image_topics = (
+            ('sensor_msgs/msg/CompressedImage', tuple(COMPRESSED))
+            if config.compressed
+            else ('sensor_msgs/msg/Image', (LEFT_IMAGE, RIGHT_IMAGE))
+        )
         self.inputs = (
-            Port(LEFT_IMAGE, 'sensor_msgs/msg/Image', QosClass.SENSOR),
-            Port(RIGHT_IMAGE, 'sensor_msgs/msg/Image', QosClass.SENSOR),
+            *(Port(topic, image_type, QosClass.SENSOR) for topic in image_topics),
             Port(LEFT_INFO, 'sensor_msgs/msg/CameraInfo', QosClass.SENSOR),
             Port(RIGHT_INFO, 'sensor_msgs/msg/CameraInfo', QosClass.SENSOR),
             Port(MODEL, 'face_tracking_msgs/msg/FaceModel', QosClass.LATCHED),
@@ -217,6 +227,7 @@ class StereoProcessor:
             self._model = model
             self._rebuild()
             return []
+        topic = COMPRESSED.get(topic, topic)  # pairs by side, whatever the transport
         if not self._check_stamp(topic, msg):
             return []
         pair = self._pair(topic, msg)
@@ -332,7 +343,7 @@ class StereoProcessor:
             )
             raise InputError(msg)
         left, right = (
-            self._rectified_image(info, conversions.image_to_gray(msg))
+            self._rectified_image(info, self._to_gray(msg))
             for info, msg in ((LEFT_INFO, left_msg), (RIGHT_INFO, right_msg))
         )
         self._last_stamp = stamp_to_ns(left_msg.header.stamp)
@@ -343,6 +354,12 @@ class StereoProcessor:
             self._track_results.append((header, result))
             return []
         return self._outputs(header, result)
+
+    def _to_gray(self, msg: Any) -> np.ndarray:
+        """The grey image of an Image, or of a CompressedImage with ``compressed``."""
+        if self._config.compressed:
+            return conversions.compressed_to_gray(msg)
+        return conversions.image_to_gray(msg)
 
     def _rectified_image(self, info: str, gray: np.ndarray) -> np.ndarray:
         """A raw image of the camera of ``info``, rectified (see ``rectify``).
