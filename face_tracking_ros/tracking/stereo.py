@@ -77,7 +77,12 @@ from face_tracking_ros.tracking.stereo_data import (
     sample_images,
     sample_values,
 )
-from face_tracking_ros.tracking.stereo_init import InitialNodes, StereoInitConfig, initial_nodes
+from face_tracking_ros.tracking.stereo_init import (
+    InitialNodes,
+    StereoInitConfig,
+    check_face_scale,
+    initial_nodes,
+)
 from face_tracking_ros.tracking.surface_patches import PatchDeformation
 
 LEFT, RIGHT = 0, 1
@@ -618,6 +623,7 @@ class StereoTracker:
                 if not self._corrected(pyramids, initial):
                     break
                 initial = self._initial_nodes(pyramids, left_px)  # matched on the corrected pair
+            check_face_scale(initial, self._topology, config.init)
         except FaceTrackingError as error:
             self._status = TrackStatus.LOST
             self._reason = f'initialisation failed: {error}'
