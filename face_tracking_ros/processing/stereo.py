@@ -30,7 +30,7 @@ from typing import Any
 
 import numpy as np
 
-from face_tracking_ros.errors import ConfigError, InputError
+from face_tracking_ros.errors import ConfigError, InputError, check_fields
 from face_tracking_ros.geometry.camera import PinholeCamera, StereoRig
 from face_tracking_ros.imaging.rectification import Rectifier
 from face_tracking_ros.io import conversions
@@ -81,6 +81,11 @@ class StereoNodeConfig:
         face_id: face_id of the outputs.
         pairing_queue: unpaired images kept per camera while waiting for the other camera's
             image with the same stamp (>= 1).
+        pairing_tolerance_ms: pair a left and a right image whose stamps differ by at most this
+            much, the nearest one waiting; 0 (the default): equal stamps only, as synchronised
+            stereo cameras (one driver, one trigger) stamp them. For two free-running cameras,
+            about a third of the frame period; their images are then up to that far apart in
+            time, which a moving face turns into depth error.
         retroactive_depths: offline replay only (face-tracking track, learn; the live node
             refuses it): refine the frame-1 node depths over every pair (turns
             tracker.refine_depths on), hold each track's outputs until it ends (a reset or the
@@ -97,7 +102,20 @@ class StereoNodeConfig:
     compressed: bool = False
     face_id: str = 'face_0'
     pairing_queue: int = 10
+    pairing_tolerance_ms: float = 0.0
     retroactive_depths: bool = False
+
+    def __post_init__(self) -> None:
+        """Validate the pairing.
+
+        Raises:
+            ConfigError: naming the first invalid field.
+        """
+        checks = {
+            'pairing_queue': self.pairing_queue >= 1,
+            'pairing_tolerance_ms': 0.0 <= self.pairing_tolerance_ms < 1000.0,
+        }
+        check_fields(self, checks)
 
 
 class StereoProcessor:
@@ -155,6 +173,7 @@ class StereoProcessor:
         self._ended_outputs: list[Output] = []  # held outputs of the tracks that ended
         self._last_stamp: int | None = None
         self.unpaired = 0
+        self._paired = False  # whether any left and right images have paired
         self._counts = TrackCounts('pairs')
         image_type, image_topics = (
             ('sensor_msgs/msg/CompressedImage', tuple(COMPRESSED))
@@ -317,23 +336,54 @@ class StereoProcessor:
         raise InputError(msg_text)
 
     def _pair(self, topic: str, msg: Any) -> tuple[Any, Any] | None:
-        """The (left, right) pair completed by this image, if any; older unpaired ones dropped."""
+        """The (left, right) pair completed by this image, if any; older unpaired ones dropped.
+
+        Raises:
+            InputError: when an image is dropped unpaired while no pair has been made yet (the
+                cameras' stamps do not match: the message says by how much).
+        """
         stamp = stamp_to_ns(msg.header.stamp)
-        other = self._waiting[RIGHT_IMAGE if topic == LEFT_IMAGE else LEFT_IMAGE]
-        if stamp in other:
-            match = other.pop(stamp)
-            for queue in self._waiting.values():
-                stale = [s for s in queue if s < stamp]
-                self.unpaired += len(stale)
-                for s in stale:
-                    del queue[s]
-            return (msg, match) if topic == LEFT_IMAGE else (match, msg)
         queue = self._waiting[topic]
+        other = self._waiting[RIGHT_IMAGE if topic == LEFT_IMAGE else LEFT_IMAGE]
+        partner = self._partner(stamp, other)
+        if partner is not None:
+            match = other.pop(partner)
+            self._drop_older(queue, stamp)
+            self._drop_older(other, partner)
+            self._paired = True
+            return (msg, match) if topic == LEFT_IMAGE else (match, msg)
         queue[stamp] = msg
+        dropped = len(queue) > self._config.pairing_queue
         while len(queue) > self._config.pairing_queue:
             queue.popitem(last=False)
             self.unpaired += 1
+        if dropped and not self._paired and other:
+            gap_ms = min(abs(mine - theirs) for mine in queue for theirs in other) / 1e6
+            msg_text = (
+                f'no left and right images have paired yet ({self.unpaired} dropped): the '
+                f'nearest stamps differ by {gap_ms:.3f} ms; pairing needs equal stamps, or '
+                'pairing_tolerance_ms for cameras that are not synchronised'
+            )
+            raise InputError(msg_text)
         return None
+
+    def _partner(self, stamp: int, waiting: OrderedDict[int, Any]) -> int | None:
+        """The stamp among ``waiting`` that pairs with ``stamp``, or None.
+
+        An equal stamp, else the nearest one within ``pairing_tolerance_ms``.
+        """
+        if stamp in waiting:
+            return stamp
+        nearest = min(waiting, key=lambda other: abs(other - stamp), default=None)
+        tolerance_ns = self._config.pairing_tolerance_ms * 1e6
+        return nearest if nearest is not None and abs(nearest - stamp) <= tolerance_ns else None
+
+    def _drop_older(self, queue: OrderedDict[int, Any], stamp: int) -> None:
+        """Drop (and count) the images of ``queue`` stamped before ``stamp``: they never pair."""
+        stale = [s for s in queue if s < stamp]
+        self.unpaired += len(stale)
+        for s in stale:
+            del queue[s]
 
     def _track(self, left_msg: Any, right_msg: Any) -> list[Output]:
         if not self._can_initialise:

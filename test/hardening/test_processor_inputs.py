@@ -371,6 +371,43 @@ def test_stereo_waits_for_both_calibrations_holding_the_latest_pair(pairs, stere
     np.testing.assert_array_equal(_mesh(outputs), stereo_reference[0])
 
 
+def test_stereo_pairs_equal_stamps_only_and_says_why_nothing_pairs(pairs):
+    """Cameras 2 ms apart never pair by default; the processor says so once images drop."""
+    processor = _stereo(pairs)
+    _stereo_infos(processor)
+    skew = 2_000_000  # ns
+    for f in range(10):  # queues of 10 (pairing_queue): nothing dropped yet, nothing said
+        left = image_msg(pairs[0][0].image, stamp(f))
+        assert processor.handle('left/image_raw', left, NONE) == []
+        right = image_msg(pairs[1][0].image, stamp(f) + skew)
+        assert processor.handle('right/image_raw', right, NONE) == []
+    left = image_msg(pairs[0][0].image, stamp(10))
+    expected = (
+        r'no left and right images have paired yet \(1 dropped\): the nearest stamps differ by '
+        r'2\.000 ms; .*pairing_tolerance_ms'
+    )
+    with pytest.raises(InputError, match=expected):
+        processor.handle('left/image_raw', left, NONE)
+    assert processor.unpaired == 1
+
+
+def test_stereo_pairs_the_nearest_stamp_within_the_tolerance(pairs, stereo_reference):
+    config = StereoNodeConfig(pairing_tolerance_ms=5.0)
+    processor = StereoProcessor(FACTORY, config, StereoTrackerConfig(), None, pairs[2])
+    _stereo_infos(processor)
+    for f, skew in ((0, 3_000_000), (1, -4_000_000)):  # right 3 ms late, then 4 ms early
+        right = image_msg(pairs[1][f].image, stamp(f) + skew)
+        outputs = _pair(processor, pairs, f, right=right)
+        assert stamp_to_ns(outputs[0].msg.header.stamp) == stamp(f)  # the left image's
+        np.testing.assert_array_equal(_mesh(outputs), stereo_reference[f])
+    late = image_msg(pairs[1][2].image, stamp(2) + 6_000_000)  # 6 ms: not a partner
+    assert _pair(processor, pairs, 2, right=late) == [] and processor.unpaired == 0
+    with pytest.raises(ConfigError, match='pairing_tolerance_ms = -1.0'):
+        StereoNodeConfig(pairing_tolerance_ms=-1.0)
+    with pytest.raises(ConfigError, match='pairing_queue = 0'):
+        StereoNodeConfig(pairing_queue=0)
+
+
 def test_stereo_repeated_stamp_is_refused_and_an_earlier_stamp_restarts_the_track(
     pairs, stereo_reference
 ):
