@@ -29,6 +29,7 @@ from face_tracking_ros.processing.parameters import OverrideParameters
 from face_tracking_ros.replay import replay_bag
 from face_tracking_ros.synthetic.clicks import clicks_from_bag, write_init_file
 from face_tracking_ros.tracking.accuracy import TrackingAccuracy, tracking_accuracy
+from face_tracking_ros.tracking.result import TrackStatus
 from face_tracking_ros.tracking.stereo_evaluation import StereoEvaluation, evaluate_stereo
 
 IMAGE_TYPE = 'sensor_msgs/msg/Image'
@@ -185,6 +186,9 @@ def run(args: argparse.Namespace) -> int:
     )
     print_stats(stats, args.out)
     if has_truth(args.bag) and stats.outputs['face/state']:
+        if not np.any(load_states(args.out).status == TrackStatus.TRACKING):
+            print('no image was tracked (last_reason above says why): nothing to score')
+            return 1
         if node == 'stereo_tracker':
             evaluation = score_stereo_against_truth(args.bag, args.out)
             print(evaluation.report())
