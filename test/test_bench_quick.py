@@ -55,6 +55,7 @@ def test_quick_run_writes_finite_figures(tmp_path):
             assert speed[nodes][tracker]['p99_ms'] >= speed[nodes][tracker]['median_ms'] > 0
         assert speed[nodes]['mono_over_baseline'] > 0
         assert speed[nodes]['stereo_over_baseline'] > 0
+    assert speed['rectification']['p99_ms'] >= speed['rectification']['median_ms'] > 0
     learner = results['benchmarks']['learner_scaling']
     assert [row['meshes'] for row in learner['meshes']] == [1000, 10000]
     assert set(learner['meshes_exponent']) == {'align_s', 'seed_s', 'joint_s'}

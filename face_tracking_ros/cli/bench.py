@@ -92,6 +92,15 @@ def _speed_rows(speed: dict[str, Any]) -> list[tuple[str, str, str]]:
         if not isinstance(by_nodes, dict):
             continue
         for nodes, figures in by_nodes.items():
+            if nodes == 'rectification':
+                rows.append(
+                    (
+                        f'rectification of a raw image (distortion, R), {size}',
+                        f'{figures["median_ms"]:.2f} ms median, {figures["p99_ms"]:.2f} ms p99',
+                        '',
+                    )
+                )
+                continue
             for tracker, target in (('mono', '<= 2 ms'), ('stereo', '<= 5 ms'), ('baseline', '')):
                 f = figures.get(tracker, {})
                 if 'median_ms' in f:
