@@ -4,10 +4,11 @@ Inputs: ``left/image_raw``, ``left/camera_info``, ``right/image_raw``, ``right/c
 images, which it rectifies with their calibration unless ``rectify`` is false:
 :mod:`~face_tracking_ros.imaging.rectification`; with ``compressed``, CompressedImage on
 ``left/image_raw/compressed`` and ``right/image_raw/compressed``) and, optionally, a latched
-``face/model``. Left and right images are paired by exact stamp in a bounded queue; a stamp that
-never pairs is dropped and counted, never paired with another. Outputs per pair, stamped with the
-left image's header: ``face/mesh_raw`` (FaceMesh, left camera frame), ``face/mesh`` (MarkerArray),
-``face/state`` and, with a model, the fitted ``face/pose``, ``face/action`` and ``face/shape``.
+``face/model``. Left and right images are paired by exact stamp (or the nearest within
+``pairing_tolerance_ms``) in a bounded queue; a stamp that never pairs is dropped and counted,
+never paired with another. Outputs per pair, stamped with the left image's header:
+``face/mesh_raw`` (FaceMesh, left camera frame), ``face/mesh`` (MarkerArray), ``face/state`` and,
+with a model, the fitted ``face/pose``, ``face/action`` and ``face/shape``.
 
 Offline, with ``retroactive_depths``, the outputs of a track are held until it ends (a reset or
 the end of the bag, :meth:`StereoProcessor.finish`) and then emitted with the frame-1 depths
