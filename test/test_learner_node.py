@@ -73,3 +73,8 @@ def test_tracker_params_reach_the_stereo_tracking_of_learn():
     automatic = LearnerConfig(bags=('a',), auto_init=True, from_images=True)
     args = parser.parse_args(['learn', *learn_arguments(automatic)])
     assert args.auto_init and args.from_images
+    assert (args.left_topic, args.right_topic, args.left_info_topic) == (None, None, None)
+    topics = LearnerConfig(bags=('a',), left_topic='/c0', right_topic='/c1', right_info_topic='/i')
+    args = parser.parse_args(['learn', *learn_arguments(topics)])
+    given = (args.left_topic, args.right_topic, args.left_info_topic, args.right_info_topic)
+    assert given == ('/c0', '/c1', None, '/i')

@@ -102,8 +102,8 @@ def compressed_parameters(
     if chosen:
         compressed = chosen[0] == COMPRESSED_TYPE
     else:
-        images, compressed = image_topics(topics)
-        compressed = compressed and bool(images)
+        images, only_compressed = image_topics(topics)
+        compressed = only_compressed and bool(images)
     return ['compressed=true'] if compressed else []
 
 
