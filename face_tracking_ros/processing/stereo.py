@@ -148,6 +148,7 @@ class StereoProcessor:
         """
         if model is not None:
             _check_nodes(model, tracker_config, ConfigError)
+        _check_initialisation(initialisation, tracker_config, ConfigError)
         self._factory = factory
         self._config = config
         self._tracker_config = (
@@ -196,8 +197,10 @@ class StereoProcessor:
         (the init file's or an earlier reset's), as the mono tracker does.
 
         Raises:
-            InputError: for None with neither a detector nor earlier positions.
+            InputError: for None with neither a detector nor earlier positions, or for nodes the
+                mesh does not have.
         """
+        _check_initialisation(initialisation, self._tracker_config, InputError)
         if initialisation is None and self._detector_for is None:
             if self._initialisation is None:
                 msg = (
@@ -460,6 +463,23 @@ def _check_nodes(
         msg = (
             f'model has {model.num_nodes} nodes but the tracker is set to '
             f'{tracker_config.num_nodes} (tracker.num_nodes): model refused'
+        )
+        raise error(msg)
+
+
+def _check_initialisation(
+    initialisation: Initialisation | None,
+    tracker_config: StereoTrackerConfig,
+    error: type[Exception],
+) -> None:
+    """Raise ``error`` if the initialisation names nodes the tracker's mesh does not have."""
+    names = mesh_topology(tracker_config.num_nodes).node_names
+    missing = [] if initialisation is None else sorted(set(initialisation.node_names) - set(names))
+    if missing:
+        listed = ', '.join(missing[:4]) + (', ...' if len(missing) > 4 else '')
+        msg = (
+            f'the {tracker_config.num_nodes}-node mesh (tracker.num_nodes) lacks {len(missing)} '
+            f'nodes the initialisation names ({listed})'
         )
         raise error(msg)
 

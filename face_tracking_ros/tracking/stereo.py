@@ -492,21 +492,18 @@ class StereoTracker:
         Raises:
             InputError: if the array is not (N, 2) or gives fewer than 6 nodes.
             ConfigError: if an Initialisation names a node the mesh does not have, or init is
-                None and the tracker has no detector.
+                None and the tracker has no detector. The tracker is then left as it was.
         """
+        if init is None and self._detector is None:
+            msg = 'reset() without node positions needs a landmark detector'
+            raise ConfigError(msg)
+        pending = None if init is None else self._left_px(init)
         self._state = None
         self._right_gain = 1.0  # the initialisation measures them afresh, on the raw images
         self._use_rig(self._calibrated_rig)
         self._status = TrackStatus.INITIALIZING
         self._reason = 'waiting for the first stereo pair after reset'
-        if init is None:
-            if self._detector is None:
-                msg = 'reset() without node positions needs a landmark detector'
-                raise ConfigError(msg)
-            self._pending, self._detect = None, True
-            return
-        self._pending = self._left_px(init)
-        self._detect = False
+        self._pending, self._detect = pending, init is None
 
     def _left_px(self, init: np.ndarray | Initialisation) -> np.ndarray:
         """Validated (N, 2) left-image node positions (NaN rows: not given)."""

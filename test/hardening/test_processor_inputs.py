@@ -40,6 +40,7 @@ from face_tracking_ros.processing.stereo import (
 )
 from face_tracking_ros.recognition.events import EventConfig, EventKind
 from face_tracking_ros.recognition.identity import IdentityConfig, IdentityGallery
+from face_tracking_ros.tracking.initialisation import Initialisation
 from face_tracking_ros.tracking.mono import MonoTrackerConfig
 from face_tracking_ros.tracking.result import TrackStatus
 from face_tracking_ros.tracking.stereo import StereoTrackerConfig
@@ -346,6 +347,24 @@ def test_stereo_right_calibration_of_another_size_is_refused_and_the_rig_kept(
     outputs = _pair(processor, pairs, 1)
     assert TrackStatus(outputs[0].msg.status) == TrackStatus.TRACKING
     np.testing.assert_array_equal(_mesh(outputs), stereo_reference[1])
+
+
+def test_stereo_initialisation_of_nodes_the_mesh_lacks_is_refused(pairs):
+    """34-node clicks for the 19-node mesh: refused at start, and from a reset."""
+    clicks = pairs[2]  # the 34 nodes
+    names = mesh_topology(19).node_names
+    keep = [clicks.node_names.index(name) for name in names]
+    clicks19 = Initialisation(names, clicks.points[keep])
+    config = StereoTrackerConfig(num_nodes=19)
+    expected = r'the 19-node mesh \(tracker.num_nodes\) lacks 15 nodes the initialisation names'
+    with pytest.raises(ConfigError, match=expected):
+        StereoProcessor(FACTORY, StereoNodeConfig(), config, None, clicks)
+    processor = StereoProcessor(FACTORY, StereoNodeConfig(), config, None, clicks19)
+    _stereo_infos(processor)
+    assert _status(_pair(processor, pairs, 0)) == TrackStatus.TRACKING
+    with pytest.raises(InputError, match=expected):
+        processor.reset(clicks)
+    assert _status(_pair(processor, pairs, 1)) == TrackStatus.TRACKING  # the track goes on
 
 
 def test_stereo_state_carries_each_camera_s_residuals(pairs):
