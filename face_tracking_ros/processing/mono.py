@@ -279,14 +279,11 @@ def _check_model(
         if np.linalg.eigvalsh(getattr(model, name)).min(initial=1.0) <= 0.0:
             msg = f"the face model's {name} is singular (the tracker inverts it): model refused"
             raise error(msg)
-    missing = (
-        sorted(set(initialisation.node_names) - set(model.node_names)) if initialisation else []
-    )
-    if missing:
-        names = ', '.join(missing[:4]) + (', ...' if len(missing) > 4 else '')
+    unknown = initialisation.unknown_nodes(model.node_names) if initialisation else ''
+    if unknown:
         msg = (
-            f'the face model has {model.num_nodes} nodes but the initialisation names '
-            f'{len(missing)} nodes it lacks ({names}): model refused'
+            f'the face model has {model.num_nodes} nodes but the initialisation names {unknown} '
+            'it lacks: model refused'
         )
         raise error(msg)
 

@@ -474,12 +474,11 @@ def _check_initialisation(
 ) -> None:
     """Raise ``error`` if the initialisation names nodes the tracker's mesh does not have."""
     names = mesh_topology(tracker_config.num_nodes).node_names
-    missing = [] if initialisation is None else sorted(set(initialisation.node_names) - set(names))
-    if missing:
-        listed = ', '.join(missing[:4]) + (', ...' if len(missing) > 4 else '')
+    unknown = initialisation.unknown_nodes(names) if initialisation else ''
+    if unknown:
         msg = (
-            f'the {tracker_config.num_nodes}-node mesh (tracker.num_nodes) lacks {len(missing)} '
-            f'nodes the initialisation names ({listed})'
+            f'the {tracker_config.num_nodes}-node mesh (tracker.num_nodes) lacks {unknown} the '
+            'initialisation names'
         )
         raise error(msg)
 

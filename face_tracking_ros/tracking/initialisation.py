@@ -22,7 +22,7 @@ Init file (YAML or JSON; node names are those of :mod:`face_tracking_ros.model.t
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, replace
 import json
 from pathlib import Path
@@ -72,6 +72,14 @@ class Initialisation:
         if self.sigma is not None and not np.all(np.isfinite(self.sigma)):
             msg = f'initialisation sigma holds NaN or Inf: {self.sigma}'
             raise ConfigError(msg)
+
+    def unknown_nodes(self, node_names: Sequence[str]) -> str:
+        """The given nodes that ``node_names`` lacks, e.g. '2 nodes (chin, ear)'; '' if none."""
+        missing = sorted(set(self.node_names) - set(node_names))
+        if not missing:
+            return ''
+        listed = ', '.join(missing[:4]) + (', ...' if len(missing) > 4 else '')
+        return f'{len(missing)} nodes ({listed})'
 
     def moved(self, move: Callable[[np.ndarray], np.ndarray]) -> Initialisation:
         """The same nodes at ``move(points)``, e.g. from the raw to the rectified image."""
