@@ -71,6 +71,14 @@ def _learn_meshes(
     return score_stereo_against_truth(truth or bag, learn.mesh_bag(bag, args))
 
 
+def test_simulated_clicks_are_of_the_nodes_the_tracker_tracks(still_bag, tmp_path):
+    """The 19-node mesh from synthetic clicks: the click file holds its 19 nodes, not 34."""
+    tracked = _learn_meshes(still_bag, tmp_path, '--tracker-param', 'tracker.num_nodes=19')
+    clicks = json.loads((tmp_path / 'r_meshes' / f'{still_bag.name}.json').read_text())
+    assert len(clicks['nodes']) == 19 and tracked.tracked_fraction == 1.0
+    assert tracked.node_rms < 0.0012 and tracked.max_reprojection < 1.0  # 0.66 mm, 0.45 px
+
+
 def _compressed_copy(bag: Path, out: Path, names: dict[str, str]) -> Path:
     """``bag`` with its images as lossless PNG CompressedImage messages, topics renamed.
 

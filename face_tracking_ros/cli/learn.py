@@ -37,6 +37,7 @@ from face_tracking_ros.cli.track import (
     input_remaps,
     is_stereo_bag,
     stereo_topics,
+    tracked_nodes,
 )
 from face_tracking_ros.errors import BagError, ConfigError, InputError
 from face_tracking_ros.io.bags import bag_topics, read_messages
@@ -335,7 +336,9 @@ def _initialisation(bag: Path, args: argparse.Namespace) -> str:
         directory = args.init_dir or _meshes_dir(args)
         directory.mkdir(parents=True, exist_ok=True)
         path = directory / f'{bag.name}.json'
-        return f'init_file={write_init_file(clicks_from_bag(bag, args.simulate_clicks), path)}'
+        nodes = tracked_nodes('stereo_tracker', args.tracker_param or [], None)
+        clicks = clicks_from_bag(bag, args.simulate_clicks).only(nodes)
+        return f'init_file={write_init_file(clicks, path)}'
     if args.auto_init:
         return 'auto_init=true'
     msg = (

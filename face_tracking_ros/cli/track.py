@@ -30,6 +30,7 @@ from face_tracking_ros.replay import replay_bag
 from face_tracking_ros.synthetic.clicks import clicks_from_bag, write_init_file
 from face_tracking_ros.tracking.accuracy import TrackingAccuracy, tracking_accuracy
 from face_tracking_ros.tracking.result import TrackStatus
+from face_tracking_ros.tracking.stereo import StereoTrackerConfig
 from face_tracking_ros.tracking.stereo_evaluation import StereoEvaluation, evaluate_stereo
 
 IMAGE_TYPE = 'sensor_msgs/msg/Image'
@@ -135,6 +136,20 @@ def add_stereo_topic_options(parser: argparse._ActionsContainer) -> None:
     parser.add_argument('--right-info-topic', help='stereo right camera_info topic')
 
 
+def tracked_nodes(node: str, params: list[str], model_file: Path | None) -> tuple[str, ...]:
+    """The nodes the chosen tracker tracks: its mesh's (stereo), its model's (mono).
+
+    Args:
+        node: 'stereo_tracker' or 'mono_tracker'.
+        params: its parameters (``tracker.num_nodes`` for stereo), NAME=VALUE.
+        model_file: the mono tracker's model file; None: the packaged one.
+    """
+    if node == 'stereo_tracker':
+        config = OverrideParameters.parse(params).config(StereoTrackerConfig, prefix='tracker.')
+        return mesh_topology(config.num_nodes).node_names
+    return load_model(model_file or default_model_path()).node_names
+
+
 def choose_tracker(bag: Path, args: argparse.Namespace) -> str:
     """'stereo_tracker' if the bag has a left and a right image topic, else 'mono_tracker'.
 
@@ -161,7 +176,8 @@ def run(args: argparse.Namespace) -> int:
     args.out.parent.mkdir(parents=True, exist_ok=True)
     if args.simulate_clicks is not None:
         init_file = args.out.parent / f'{args.out.name}.init.json'
-        write_init_file(clicks_from_bag(args.bag, args.simulate_clicks), init_file)
+        clicks = clicks_from_bag(args.bag, args.simulate_clicks)
+        write_init_file(clicks.only(tracked_nodes(node, params, args.model)), init_file)
     if init_file:
         params.append(f'init_file={init_file}')
     if args.auto_init:

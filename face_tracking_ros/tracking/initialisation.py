@@ -73,6 +73,16 @@ class Initialisation:
             msg = f'initialisation sigma holds NaN or Inf: {self.sigma}'
             raise ConfigError(msg)
 
+    def only(self, node_names: Sequence[str]) -> Initialisation:
+        """The given nodes that are among ``node_names`` (e.g. 34-node clicks for 19 nodes).
+
+        Raises:
+            ConfigError: if fewer than :data:`MIN_INIT_NODES` remain.
+        """
+        keep = [i for i, name in enumerate(self.node_names) if name in set(node_names)]
+        names = tuple(self.node_names[i] for i in keep)
+        return replace(self, node_names=names, points=self.points[keep])
+
     def unknown_nodes(self, node_names: Sequence[str]) -> str:
         """The given nodes that ``node_names`` lacks, e.g. '2 nodes (chin, ear)'; '' if none."""
         missing = sorted(set(self.node_names) - set(node_names))
