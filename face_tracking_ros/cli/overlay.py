@@ -22,12 +22,20 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument('--video', type=Path, required=True, help='output .mp4 or .gif')
     parser.add_argument('--image-topic', help='image topic (default: the only one, or left)')
     parser.add_argument('--every', type=int, default=1, help='use every n-th frame (default 1)')
+    parser.add_argument(
+        '--no-rectify',
+        dest='rectify',
+        action='store_false',
+        help='draw on the frames as recorded (images tracked with rectify:=false); by default '
+        'they are rectified with their camera_info, as the trackers rectify them',
+    )
     parser.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> None:
     """Write the video."""
+    states = load_states(args.out)
     count = write_overlay_video(
-        args.bag, load_states(args.out), args.video, args.image_topic, args.every
+        args.bag, states, args.video, args.image_topic, args.every, rectify=args.rectify
     )
     print(f'wrote {count} frames to {args.video}')

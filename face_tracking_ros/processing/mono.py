@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 
 from face_tracking_ros.data import default_model_path
-from face_tracking_ros.errors import ConfigError, InputError
+from face_tracking_ros.errors import ConfigError, FaceTrackingError, InputError
 from face_tracking_ros.geometry.camera import PinholeCamera
 from face_tracking_ros.imaging.rectification import Rectifier
 from face_tracking_ros.io import conversions
@@ -114,6 +114,7 @@ class MonoProcessor:
         self._rectifier: Rectifier | None = None
         self._camera_info = conversions.CameraInfoReader()
         self._tracker: MonoTracker | None = None
+        self._unfit = ''  # why the camera and model give no tracker, if they do not
         self._pose_filter: PoseFilter | None = None
         self._held_image: tuple[Any, np.ndarray] | None = None
         self._last_stamp: int | None = None
@@ -202,13 +203,24 @@ class MonoProcessor:
             self._rebuild()
 
     def _rebuild(self) -> None:
+        """A tracker for the camera and model; none while either is missing or they do not fit.
+
+        Raises:
+            FaceTrackingError: why the tracker cannot work with them (also kept, and given for
+                every image until a camera or model that fits arrives).
+        """
         if self._camera is not None and self._model is not None:
             detector = (
                 None if self._detector_for is None else self._detector_for(self._model.node_names)
             )
-            self._tracker = MonoTracker(
-                self._model, self._camera, self._tracker_config, detector=detector
-            )
+            self._tracker, self._unfit = None, ''
+            try:
+                self._tracker = MonoTracker(
+                    self._model, self._camera, self._tracker_config, detector=detector
+                )
+            except FaceTrackingError as error:
+                self._unfit = f'cannot track with this camera and model: {error}'
+                raise
             self._pose_filter = PoseFilter(self._camera, self._filter_config)
             self._restart()
 
@@ -223,7 +235,10 @@ class MonoProcessor:
 
     def _track(self, header: Any, gray: np.ndarray, wanted: frozenset[str]) -> list[Output]:
         if self._tracker is None:
-            msg = f'no face model yet: set the model_file parameter or publish one on {MODEL}'
+            msg = (
+                self._unfit
+                or f'no face model yet: set the model_file parameter or publish one on {MODEL}'
+            )
             raise InputError(msg)
         camera = self._camera
         if gray.shape != (camera.height, camera.width):

@@ -31,7 +31,7 @@ from typing import Any
 
 import numpy as np
 
-from face_tracking_ros.errors import ConfigError, InputError, check_fields
+from face_tracking_ros.errors import ConfigError, FaceTrackingError, InputError, check_fields
 from face_tracking_ros.geometry.camera import PinholeCamera, StereoRig
 from face_tracking_ros.imaging.rectification import Rectifier
 from face_tracking_ros.io import conversions
@@ -166,6 +166,7 @@ class StereoProcessor:
             RIGHT_INFO: conversions.CameraInfoReader(),
         }
         self._tracker: StereoTracker | None = None
+        self._unfit = ''  # why the calibration gives no tracker, if it does not
         self._waiting: dict[str, OrderedDict[int, Any]] = {
             LEFT_IMAGE: OrderedDict(),
             RIGHT_IMAGE: OrderedDict(),
@@ -256,7 +257,7 @@ class StereoProcessor:
         pair = self._pair(topic, msg)
         if pair is not None and self._tracker is None:
             self._held_pair = pair
-            msg_text = (
+            msg_text = self._unfit or (
                 f'no calibration on {LEFT_INFO} and {RIGHT_INFO} yet: holding the latest pair'
             )
             raise InputError(msg_text)
@@ -285,13 +286,24 @@ class StereoProcessor:
             self._rebuild()
 
     def _rebuild(self) -> None:
+        """A tracker for the rig and model, once both calibrations are there.
+
+        Raises:
+            FaceTrackingError: why the tracker cannot work with them (also kept, and given for
+                every pair until a calibration or model that fits arrives).
+        """
         if len(self._cameras) < 2:
             return
         self._end_track()
         rig = StereoRig(self._cameras[LEFT_INFO], self._cameras[RIGHT_INFO])
         names = mesh_topology(self._tracker_config.num_nodes).node_names
         detector = None if self._detector_for is None else self._detector_for(names)
-        self._tracker = StereoTracker(rig, self._tracker_config, self._model, detector)
+        self._tracker, self._unfit = None, ''
+        try:
+            self._tracker = StereoTracker(rig, self._tracker_config, self._model, detector)
+        except FaceTrackingError as error:
+            self._unfit = f'cannot track with this calibration: {error}'
+            raise
         if self._can_initialise:
             self._reset_tracker()
 

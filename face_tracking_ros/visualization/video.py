@@ -1,4 +1,9 @@
-"""Overlay videos: a bag's frames with the tracked mesh, as MP4 (OpenCV) or GIF (imageio)."""
+"""Overlay videos: a bag's frames with the tracked mesh, as MP4 (OpenCV) or GIF (imageio).
+
+The trackers' node positions are in the rectified image (eq. 2), so the frames are rectified
+with the camera_info beside their topic first, as the trackers rectify them
+(:mod:`~face_tracking_ros.imaging.rectification`), unless ``rectify`` is false.
+"""
 
 from __future__ import annotations
 
@@ -10,6 +15,7 @@ import imageio.v3 as iio
 import numpy as np
 
 from face_tracking_ros.errors import BagError, ConfigError
+from face_tracking_ros.imaging.rectification import Rectifier
 from face_tracking_ros.io import conversions
 from face_tracking_ros.io.bags import bag_topics, read_messages, stamp_to_ns
 from face_tracking_ros.io.series import StateSeries
@@ -18,6 +24,8 @@ from face_tracking_ros.tracking.result import TrackStatus
 from face_tracking_ros.visualization.overlay import draw_mesh
 
 IMAGE_TYPE = 'sensor_msgs/msg/Image'
+COMPRESSED_TYPE = 'sensor_msgs/msg/CompressedImage'
+INFO_TYPE = 'sensor_msgs/msg/CameraInfo'
 
 
 def image_topic(bag: Path, requested: str | None = None) -> str:
@@ -26,7 +34,7 @@ def image_topic(bag: Path, requested: str | None = None) -> str:
     Raises:
         BagError: if there is no image topic or the choice is ambiguous.
     """
-    topics = [t for t, kind in bag_topics(bag).items() if kind == IMAGE_TYPE]
+    topics = [t for t, kind in bag_topics(bag).items() if kind in (IMAGE_TYPE, COMPRESSED_TYPE)]
     if requested:
         if requested not in topics:
             msg = f'{bag}: no image topic {requested}; image topics: {topics}'
@@ -39,24 +47,59 @@ def image_topic(bag: Path, requested: str | None = None) -> str:
     raise BagError(msg)
 
 
+def camera_info_topic(bag: Path, image: str) -> str | None:
+    """The CameraInfo topic beside an image topic, if the bag has it.
+
+    'left/image_raw' and 'left/image_raw/compressed' -> 'left/camera_info'.
+    """
+    namespace = image.removesuffix('/compressed').rpartition('/')[0]
+    candidate = f'{namespace}/camera_info' if namespace else 'camera_info'
+    return candidate if bag_topics(bag).get(candidate) == INFO_TYPE else None
+
+
 def overlay_frames(
-    bag: Path, states: StateSeries, topic: str | None = None, every: int = 1
+    bag: Path, states: StateSeries, topic: str | None = None, every: int = 1, rectify: bool = True
 ) -> Iterator[np.ndarray]:
-    """(H, W, 3) rgb frames of ``bag`` with the mesh of the state of the same stamp drawn."""
+    """(H, W, 3) rgb frames of ``bag`` with the mesh of the state of the same stamp drawn.
+
+    With ``rectify``, each frame is rectified with the latest CameraInfo beside its topic (the
+    first one until then; none in the bag: drawn as it is).
+    """
     if every < 1:
         msg = f'every must be >= 1, got {every}'
         raise ConfigError(msg)
     by_stamp = {int(stamp): i for i, stamp in enumerate(states.stamps)}
     edges = mesh_topology(states.image_points.shape[1]).edges
     chosen = image_topic(bag, topic)
-    for count, message in enumerate(read_messages(bag, topics=[chosen])):
+    info = camera_info_topic(bag, chosen) if rectify else None
+    cameras = conversions.CameraInfoReader()
+    rectifier = None
+    if info is not None:  # from the first frame on, even if its camera_info comes after it
+        rectifier = Rectifier(cameras.read(next(read_messages(bag, topics=[info])).msg))
+    count = -1
+    for message in read_messages(bag, topics=[chosen, *([info] if info else [])]):
+        if message.topic == info:
+            camera = cameras.read(message.msg)
+            if rectifier is None or rectifier.camera is not camera:
+                rectifier = Rectifier(camera)
+            continue
+        count += 1
         index = by_stamp.get(stamp_to_ns(message.msg.header.stamp))
         if index is None or count % every:
             continue
-        gray = conversions.image_to_gray(message.msg)
+        gray = _gray(message.msgtype, message.msg)
+        if rectifier is not None:
+            gray = rectifier.image(gray)
         status = TrackStatus(states.status[index])
         label = f'{status.name.lower()}  frame {count}'
         yield draw_mesh(gray, states.image_points[index], edges, status, label)
+
+
+def _gray(msgtype: str, msg: object) -> np.ndarray:
+    """The grey image of an Image or CompressedImage message."""
+    if msgtype == COMPRESSED_TYPE:
+        return conversions.compressed_to_gray(msg)
+    return conversions.image_to_gray(msg)
 
 
 def write_overlay_video(
@@ -66,14 +109,17 @@ def write_overlay_video(
     topic: str | None = None,
     every: int = 1,
     fps: float = 30.0,
+    rectify: bool = True,
 ) -> int:
     """Write the overlay frames as ``.mp4`` (mp4v) or ``.gif``; returns the number of frames.
+
+    ``rectify``: see :func:`overlay_frames`.
 
     Raises:
         ConfigError: for another file suffix.
         BagError: if no frame of the bag has a state.
     """
-    frames = overlay_frames(bag, states, topic, every)
+    frames = overlay_frames(bag, states, topic, every, rectify)
     if video.suffix == '.gif':
         images = list(frames)
         if images:

@@ -253,6 +253,34 @@ def test_mono_refuses_a_bad_model_message_and_keeps_its_model(scene, frames):
     assert len(outputs[0].msg.node_names) == 34
 
 
+def test_mono_camera_the_tracker_cannot_use_is_named_for_every_image(scene, frames):
+    processor = _mono(scene, frames)
+    small = PinholeCamera.ideal(160, 120, 150.0)
+    with pytest.raises(FaceTrackingError, match='pyramid_levels = 4 is too deep for 160x120'):
+        processor.handle('camera_info', info_msg(small), NONE)
+    image = image_msg(np.zeros((120, 160), np.uint8), stamp(0))
+    expected = 'cannot track with this camera and model: pyramid_levels = 4 is too deep'
+    for _ in range(2):  # not 'no face model yet', as it said before
+        with pytest.raises(InputError, match=expected):
+            processor.handle('image', image, NONE)
+    assert processor.handle('camera_info', info_msg(), NONE) == []  # one that fits
+    outputs = processor.handle('image', image_msg(frames[0].image, stamp(1)), NONE)
+    assert _status(outputs) == TrackStatus.TRACKING
+
+
+def test_stereo_calibration_the_tracker_cannot_use_is_named_for_every_pair(pairs):
+    processor = _stereo(pairs)
+    small = StereoRig.ideal(40, 30, 40.0)  # the stereo tracker's 2 levels fit 32 px and more
+    processor.handle('left/camera_info', info_msg(small.left), NONE)
+    with pytest.raises(FaceTrackingError, match='too deep for 40x30'):
+        processor.handle('right/camera_info', info_msg(small.right), NONE)
+    left = image_msg(np.zeros((30, 40), np.uint8), stamp(0))
+    assert processor.handle('left/image_raw', left, NONE) == []
+    right = image_msg(np.zeros((30, 40), np.uint8), stamp(0))
+    with pytest.raises(InputError, match='cannot track with this calibration: pyramid_levels'):
+        processor.handle('right/image_raw', right, NONE)
+
+
 def test_mono_model_file_and_init_file_of_other_node_counts_fail_at_start(scene, frames):
     with pytest.raises(
         ConfigError, match=r'19 nodes.*initialisation names 15 nodes \(.*\) it lacks'

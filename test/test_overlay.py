@@ -1,0 +1,69 @@
+"""face-tracking overlay: a bag's frames with the tracked mesh, as the trackers saw them."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from face_tracking_ros.cli.main import main
+from face_tracking_ros.io import conversions
+from face_tracking_ros.io.bags import BagWriter, bag_topics, read_messages
+from face_tracking_ros.io.messages import RosbagsMessages
+from face_tracking_ros.io.series import load_states
+from face_tracking_ros.io.typestore import typestore
+from face_tracking_ros.visualization.video import overlay_frames, write_overlay_video
+
+
+@pytest.fixture(scope='module')
+def turned(tmp_path_factory) -> tuple[Path, Path]:
+    """Three raw 160x120 frames of a camera turned 8 degrees from its rectified frame, tracked."""
+    root = tmp_path_factory.mktemp('turned')
+    synth = ['synth', '--kind', 'mono', '--frames', '3', '--size', '160x120', '--focal', '150',
+             '--motion', 'static', '--toe-in', '8', '--out', str(root)]  # fmt: skip
+    assert main(synth) == 0
+    bag = root / 'subject_00_seq_00'
+    track = ['track', str(bag), '--simulate-clicks', '0', '--out', str(root / 'out'), '--quiet',
+             '--param', 'tracker.pyramid_levels=3']  # fmt: skip
+    assert main(track) == 0
+    return bag, root / 'out'
+
+
+def _black_edge_columns(frame: np.ndarray) -> int:
+    """How many of the two outermost columns are black from top to bottom."""
+    return sum(int(not frame[:, column].any()) for column in (0, -1))
+
+
+def test_frames_are_rectified_before_the_mesh_is_drawn(turned, tmp_path):
+    bag, out = turned
+    states = load_states(out)
+    rectified = list(overlay_frames(bag, states))
+    recorded = list(overlay_frames(bag, states, rectify=False))
+    assert len(rectified) == len(recorded) == 3
+    # Turned by 8 degrees (21 px at f = 150), the rectified view reaches past one side of what
+    # the camera saw: that side is black; the recorded frames have none.
+    assert all(_black_edge_columns(frame) == 1 for frame in rectified)
+    assert all(_black_edge_columns(frame) == 0 for frame in recorded)
+    assert write_overlay_video(bag, states, tmp_path / 'v.gif') == 3
+
+
+def test_compressed_frames_are_drawn_like_raw_ones(turned, tmp_path):
+    """image_transport's compressed topic beside the camera_info: found, decoded, rectified."""
+    bag, out = turned
+    factory = RosbagsMessages(typestore())
+    copy = tmp_path / 'compressed'
+    with BagWriter(copy) as writer:
+        for message in read_messages(bag):
+            topic, msgtype, msg = message.topic, message.msgtype, message.msg
+            if msgtype == 'sensor_msgs/msg/Image':
+                png = cv2.imencode('.png', conversions.image_to_gray(msg))[1].reshape(-1)
+                topic, msgtype = f'{topic}/compressed', 'sensor_msgs/msg/CompressedImage'
+                msg = factory.make(msgtype, header=msg.header, format='png', data=png)
+            writer.write(topic, msgtype, msg, message.stamp_ns)
+    assert bag_topics(copy)['image/compressed'] == 'sensor_msgs/msg/CompressedImage'
+    states = load_states(out)
+    frames = zip(overlay_frames(bag, states), overlay_frames(copy, states), strict=True)
+    for expected, frame in frames:
+        np.testing.assert_array_equal(frame, expected)
