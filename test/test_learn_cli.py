@@ -21,16 +21,31 @@ from face_tracking_ros.synthetic.faces import FacePopulation
 
 TRUTH_TYPE = 'face_tracking_msgs/msg/FaceTruth'
 MESH_TYPE = 'face_tracking_msgs/msg/FaceMesh'
+STATE_TYPE = 'face_tracking_msgs/msg/FaceState'
 START_NS = 1_700_000_000_000_000_000
 
 
-def _write_bag(path: Path, sequence: MeshSequence, alpha: np.ndarray, kind: str = 'truth') -> Path:
+def _write_bag(
+    path: Path,
+    sequence: MeshSequence,
+    alpha: np.ndarray,
+    kind: str = 'truth',
+    status: np.ndarray | None = None,
+) -> Path:
+    """A bag of the sequence's truth or meshes; with ``status``, also a tracker's face/state.
+
+    A mesh whose status is not TRACKING (1) is written as a tracker leaves it: zeros.
+    """
     factory = RosbagsMessages(typestore())
     names = list(mesh_topology(sequence.meshes.shape[1]).node_names)
     with BagWriter(path) as bag:
         for f, nodes in enumerate(sequence.meshes):
             stamp = START_NS + f * 33_000_000
             header = conversions.make_header(factory, stamp, 'camera')
+            if status is not None:
+                state = factory.make(STATE_TYPE, header=header, status=int(status[f]))
+                bag.write('face/state', STATE_TYPE, state, stamp)
+                nodes = nodes if status[f] == 1 else np.zeros_like(nodes)
             points = conversions.array_to_points(factory, nodes)
             if kind == 'truth':
                 message = factory.make(
@@ -120,6 +135,27 @@ def test_mesh_bags_with_first_frames_neutral(tmp_path, world):
     report = json.loads((tmp_path / 'r.json').read_text())
     assert report['subjects'] == ['person0', 'person1', 'person2', 'person3']
     assert report['methods']['joint']['expression_accuracy'] is None
+
+
+def test_frames_a_tracker_did_not_track_are_left_out(tmp_path, world, capsys):
+    """A tracker's bag: meshes of INITIALIZING or LOST frames (zeros, stale) are not learned."""
+    sequences, alpha = world
+    status = np.full(len(sequences[0].meshes), 1)  # FaceState.STATUS_TRACKING
+    status[:5], status[40] = 0, 2  # waiting for the face, then one frame lost
+    bags = [
+        _write_bag(tmp_path / f'person{k}', s, alpha, kind='mesh', status=status)
+        for k, s in enumerate(sequences)
+    ]
+    args = ['learn', *map(str, bags), '--out', str(tmp_path / 'm.npz'), '--q', '3']
+    args += ['--report', str(tmp_path / 'r.json'), '--compare', '--neutral-frames', '10']
+    assert main(args) == 0
+    assert f'{bags[0]}: 6 frames the tracker did not track' in capsys.readouterr().out
+    report = json.loads((tmp_path / 'r.json').read_text())
+    assert report['frames'] == 4 * (len(status) - 6)
+    never = _write_bag(tmp_path / 'never', sequences[0], alpha, kind='mesh', status=status * 0)
+    err = _error(['learn', str(never), '--out', str(tmp_path / 'n.npz'), '--report',
+                  str(tmp_path / 'n.json')], capsys)  # fmt: skip
+    assert f'none of the {len(status)} frames on face/mesh_raw was tracked' in err
 
 
 def test_mesh_bags_labelled_by_truth_bags(tmp_path, world, truth_bags, capsys):

@@ -75,11 +75,13 @@ from face_tracking_ros.processing.parameters import OverrideParameters
 from face_tracking_ros.replay import replay_bag
 from face_tracking_ros.synthetic.clicks import clicks_from_bag, write_init_file
 from face_tracking_ros.synthetic.faces import PRESETS, FacePopulation
+from face_tracking_ros.tracking.result import TrackStatus
 
 TRUTH_TYPE = 'face_tracking_msgs/msg/FaceTruth'
 MESH_TYPES = ('face_tracking_msgs/msg/FaceMesh', 'face_tracking_msgs/msg/FaceState')
 TRUTH_TOPIC = 'truth/face'
-DEFAULT_TOPICS = (TRUTH_TOPIC, 'face/mesh_raw', 'face/state')
+STATE_TOPIC = 'face/state'
+DEFAULT_TOPICS = (TRUTH_TOPIC, 'face/mesh_raw', STATE_TOPIC)
 STEREO_PARAMS = 'retroactive_depths=true'  # learn from meshes with each track's final depths
 
 
@@ -376,13 +378,18 @@ def read_bag_meshes(
         msg = f'{bag}: topic {topic} has type {msgtype}; expected FaceTruth, FaceMesh or FaceState'
         raise BagError(msg)
     truth = _truth_by_stamp(truth_bag) if truth_bag is not None else {}
-    frames: dict[str, list[tuple[np.ndarray, str | None, np.ndarray | None]]] = {}
+    untracked = _untracked_stamps(bag, topics) if msgtype != TRUTH_TYPE else set()
+    frames: dict[str, list[tuple[int, np.ndarray, str | None, np.ndarray | None]]] = {}
+    skipped = 0
     for index, message in enumerate(read_messages(bag, [topic])):
         try:
             stamp_ns, nodes, sample = mesh_from_message(message.msg, msgtype)
         except InputError as error:
             msg = f'{bag}: {topic} message {index}: {error}'
             raise InputError(msg) from None
+        if stamp_ns in untracked:
+            skipped += 1
+            continue
         if truth_bag is not None:
             sample = truth.get(stamp_ns)
             if sample is None:
@@ -390,12 +397,33 @@ def read_bag_meshes(
                 raise BagError(msg)
         subject = sample.subject_id if sample else args.subject or bag.name
         frames.setdefault(subject, []).append(
-            (nodes, sample.label if sample else None, sample.alpha if sample else None)
+            (index, nodes, sample.label if sample else None, sample.alpha if sample else None)
         )
+    if skipped:
+        print(f'{bag}: {skipped} frames the tracker did not track (initialising or lost) left out')
     if not frames:
-        msg = f'{bag}: no message on {topic}'
+        msg = (
+            f'{bag}: none of the {skipped} frames on {topic} was tracked'
+            if skipped
+            else f'{bag}: no message on {topic}'
+        )
         raise BagError(msg)
     return [_bag_meshes(bag, topic, subject, items, args) for subject, items in frames.items()]
+
+
+def _untracked_stamps(bag: Path, topics: dict[str, str]) -> set[int]:
+    """Header stamps of the frames a tracker's output bag says it did not track.
+
+    Its face/state messages whose status is not TRACKING: the mesh of such a frame is none
+    (zeros before the first initialisation) or the last one tracked, not the face.
+    """
+    if topics.get(STATE_TOPIC) != MESH_TYPES[1]:
+        return set()
+    return {
+        stamp_to_ns(message.msg.header.stamp)
+        for message in read_messages(bag, [STATE_TOPIC])
+        if message.msg.status != TrackStatus.TRACKING
+    }
 
 
 def mesh_from_message(msg: Any, msgtype: str) -> tuple[int, np.ndarray, TruthSample | None]:
@@ -424,22 +452,25 @@ def _bag_meshes(
     bag: Path,
     topic: str,
     subject: str,
-    items: list[tuple[np.ndarray, str | None, np.ndarray | None]],
+    items: list[tuple[int, np.ndarray, str | None, np.ndarray | None]],
     args: argparse.Namespace,
 ) -> BagMeshes:
-    """One subject's meshes of a bag; neutral frames from labels, else the first K frames."""
-    counts = {len(nodes) for nodes, _, _ in items}
+    """One subject's meshes of a bag; neutral frames from labels, else the first K frames.
+
+    ``items`` are (message index, nodes, label, alpha); the first K are by message index.
+    """
+    counts = {len(nodes) for _, nodes, _, _ in items}
     if len(counts) > 1:
         msg = f'{bag}: {topic} meshes of subject {subject!r} have node counts {sorted(counts)}'
         raise InputError(msg)
     meshes = _select_nodes(
-        np.array([nodes for nodes, _, _ in items]), args.nodes, f'{bag}: {topic}'
+        np.array([nodes for _, nodes, _, _ in items]), args.nodes, f'{bag}: {topic}'
     )
-    if items[0][1] is None:
-        neutral = np.arange(len(meshes)) < args.neutral_frames
+    if items[0][2] is None:
+        neutral = np.array([index for index, _, _, _ in items]) < args.neutral_frames
         return BagMeshes(MeshSequence(subject, meshes, neutral, None, str(bag)), None)
-    labels = tuple(str(label) for _, label, _ in items)
-    alpha = np.array([alpha for _, _, alpha in items])
+    labels = tuple(str(label) for _, _, label, _ in items)
+    alpha = np.array([alpha for _, _, _, alpha in items])
     return BagMeshes(MeshSequence.labelled(subject, meshes, labels, str(bag)), alpha)
 
 
