@@ -97,6 +97,8 @@ class PinholeCamera:
 
     def same_calibration(self, other: PinholeCamera) -> bool:
         """True if ``other`` has the same image size, K, D, R and P."""
+        if other is self:  # a repeated CameraInfo (conversions.CameraInfoReader): no comparison
+            return True
         return (self.width, self.height, self.distortion_model) == (
             other.width,
             other.height,
