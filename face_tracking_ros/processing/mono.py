@@ -196,10 +196,14 @@ class MonoProcessor:
         return self._track(header, gray, wanted)
 
     def _set_camera(self, camera: PinholeCamera) -> None:
-        """Keep the camera; rebuild the tracker only when the calibration changed."""
+        """Keep the camera; rebuild the tracker only when the calibration changed.
+
+        Raises:
+            InputError: for a distortion model that cannot be rectified (the old camera is kept).
+        """
         if self._camera is None or not self._camera.same_calibration(camera):
-            self._camera = camera
-            self._rectifier = Rectifier(camera, self._config.rectify)
+            rectifier = Rectifier(camera, self._config.rectify)
+            self._camera, self._rectifier = camera, rectifier
             self._rebuild()
 
     def _rebuild(self) -> None:

@@ -274,15 +274,17 @@ class StereoProcessor:
         """Keep a new calibration, unless it does not form a rectified rig with the other one.
 
         Raises:
-            InputError: if the two calibrations do not form a rig (the old ones are kept).
+            InputError: if the two calibrations do not form a rig, or one has a distortion model
+                that cannot be rectified (the old ones are kept).
         """
         old = self._cameras.get(topic)
         if old is None or not old.same_calibration(camera):
             cameras = {**self._cameras, topic: camera}
             if len(cameras) == 2:
                 StereoRig(cameras[LEFT_INFO], cameras[RIGHT_INFO])
+            rectifier = Rectifier(camera, self._config.rectify)
             self._cameras = cameras
-            self._rectifiers[topic] = Rectifier(camera, self._config.rectify)
+            self._rectifiers[topic] = rectifier
             self._rebuild()
 
     def _rebuild(self) -> None:

@@ -281,6 +281,17 @@ def test_stereo_calibration_the_tracker_cannot_use_is_named_for_every_pair(pairs
         processor.handle('right/image_raw', right, NONE)
 
 
+def test_mono_calibration_that_cannot_be_rectified_is_refused_and_the_old_one_kept(scene, frames):
+    processor = _mono(scene, frames)
+    processor.handle('camera_info', info_msg(), NONE)
+    assert _status(processor.handle('image', image_msg(frames[0].image, stamp(0)), NONE)) == 1
+    fisheye = replace(CAMERA, d=np.array([0.1, 0.0, 0.0]), distortion_model='kannala_brandt')
+    with pytest.raises(InputError, match="cannot rectify distortion model 'kannala_brandt'"):
+        processor.handle('camera_info', info_msg(fisheye), NONE)
+    outputs = processor.handle('image', image_msg(frames[1].image, stamp(1)), NONE)
+    assert _status(outputs) == TrackStatus.TRACKING  # the track goes on, as calibrated before
+
+
 def test_mono_model_file_and_init_file_of_other_node_counts_fail_at_start(scene, frames):
     with pytest.raises(
         ConfigError, match=r'19 nodes.*initialisation names 15 nodes \(.*\) it lacks'
@@ -379,6 +390,18 @@ def test_stereo_right_calibration_of_another_size_is_refused_and_the_rig_kept(
     outputs = _pair(processor, pairs, 1)
     assert TrackStatus(outputs[0].msg.status) == TrackStatus.TRACKING
     np.testing.assert_array_equal(_mesh(outputs), stereo_reference[1])
+
+
+def test_stereo_calibration_that_cannot_be_rectified_is_refused_before_it_is_kept(pairs):
+    processor = _stereo(pairs)
+    fisheye = replace(RIG.right, d=np.array([0.1, 0.0, 0.0]), distortion_model='kannala_brandt')
+    with pytest.raises(InputError, match="cannot rectify distortion model 'kannala_brandt'"):
+        processor.handle('right/camera_info', info_msg(fisheye), NONE)
+    processor.handle('left/camera_info', info_msg(RIG.left), NONE)
+    with pytest.raises(InputError, match='no calibration on left/camera_info'):
+        _pair(processor, pairs, 0)  # the refused right calibration was not kept: still none
+    _stereo_infos(processor)
+    assert _status(_pair(processor, pairs, 1)) == TrackStatus.TRACKING
 
 
 def test_stereo_initialisation_of_nodes_the_mesh_lacks_is_refused(pairs):
