@@ -134,6 +134,7 @@ def test_synth_command_writes_bags_and_a_contact_sheet(tmp_path, capsys):
         (['--texture', 'missing.png'], 'needs its node positions'),
         (['--baseline', '0.3'], r'baseline must be in \[0.1, 0.12\] m'),
         (['--distortion', '0.1,0.2'], 'distortion must be 5 finite plumb_bob coefficients'),
+        (['--toe-in', '12'], r'toe_in_deg must be in \[0, 10\], got 12.0'),
     ],
 )
 def test_bad_arguments_give_clear_errors(tmp_path, capsys, arguments, message):
@@ -157,3 +158,12 @@ def test_scene_config_rejects_bad_values():
         SceneConfig(seed=-1)
     with pytest.raises(ConfigError, match='sequence index must be >= 0'):
         next(SequenceRenderer(SceneConfig(**SMALL), 0).frames(-1))
+
+
+def test_a_toed_in_rig_turns_each_raw_camera_towards_the_other():
+    cameras = SceneConfig(toe_in_deg=3.0).cameras()
+    axes = {name: camera.r[:, 2] for name, camera in cameras.items()}  # raw optical axes
+    assert axes['left'][0] == pytest.approx(np.sin(np.radians(3.0)))  # towards +x, the right
+    assert axes['right'][0] == pytest.approx(-np.sin(np.radians(3.0)))
+    assert all(camera.needs_rectification for camera in cameras.values())
+    assert not any(camera.needs_rectification for camera in SceneConfig().cameras().values())
