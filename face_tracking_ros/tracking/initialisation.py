@@ -79,7 +79,8 @@ class Initialisation:
         Raises:
             ConfigError: if fewer than :data:`MIN_INIT_NODES` remain.
         """
-        keep = [i for i, name in enumerate(self.node_names) if name in set(node_names)]
+        wanted = set(node_names)
+        keep = [i for i, name in enumerate(self.node_names) if name in wanted]
         names = tuple(self.node_names[i] for i in keep)
         return replace(self, node_names=names, points=self.points[keep])
 
