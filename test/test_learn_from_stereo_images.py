@@ -3,11 +3,13 @@
 from __future__ import annotations
 
 import argparse
+from dataclasses import replace
 import json
 from pathlib import Path
 import sys
 
 import cv2
+import numpy as np
 import pytest
 
 from face_tracking_ros.cli import learn
@@ -69,6 +71,26 @@ def _learn_meshes(
          str(where / 'm.npz'), '--report', str(where / 'r.json'), *options]
     )  # fmt: skip
     return score_stereo_against_truth(truth or bag, learn.mesh_bag(bag, args))
+
+
+def test_scores_start_at_the_first_tracked_frame(still_bag, tmp_path):
+    """Frames before the first tracked one have no estimate (zeros): not scored."""
+    parser = argparse.ArgumentParser()
+    learn.register(parser.add_subparsers())
+    args = parser.parse_args(['learn', str(still_bag), '--from-images', '--simulate-clicks',
+                              '0', '--out', str(tmp_path / 'm.npz'), '--report',
+                              str(tmp_path / 'r.json')])  # fmt: skip
+    tracked = learn.mesh_bag(still_bag, args)
+    late = tmp_path / 'late'  # the same output, as if the face had been found at the 4th pair
+    factory = RosbagsMessages(typestore())
+    zeros = conversions.array_to_points(factory, np.zeros((34, 3)))
+    with BagWriter(late) as writer:
+        for index, message in enumerate(read_messages(tracked, ['face/state'])):
+            msg = replace(message.msg, status=0, nodes=zeros) if index < 3 else message.msg
+            writer.write('face/state', message.msgtype, msg, message.stamp_ns)
+    full, scored = (score_stereo_against_truth(still_bag, bag) for bag in (tracked, late))
+    assert (full.frames, scored.frames) == (40, 37) and scored.tracked_fraction == 1.0
+    assert scored.node_rms < 0.003 and abs(scored.node_rms - full.node_rms) < 0.0005
 
 
 def test_simulated_clicks_are_of_the_nodes_the_tracker_tracks(still_bag, tmp_path):

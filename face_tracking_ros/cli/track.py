@@ -219,9 +219,23 @@ def run(args: argparse.Namespace) -> int:
 
 
 def score_stereo_against_truth(bag: Path, out: Path) -> StereoEvaluation:
-    """Stereo-tracked meshes in ``out`` against the truth in ``bag`` (issue 5's figures)."""
+    """Stereo-tracked meshes in ``out`` against the truth in ``bag`` (issue 5's figures).
+
+    The errors are over the frames from the first tracked one on: before it there is no
+    estimate (the published nodes are zeros); a frame lost later counts with the last estimate,
+    which is what the node publishes.
+
+    Raises:
+        BagError: if no frame was tracked.
+    """
     states, truth = load_states(out), load_truth(bag)
     est, ref = _matching_frames(states.stamps, truth.stamps, bag, out)
+    tracked = states.status[est] == TrackStatus.TRACKING
+    if not tracked.any():
+        msg = f'{out}: no frame was tracked'
+        raise BagError(msg)
+    since = int(np.argmax(tracked))
+    est, ref = est[since:], ref[since:]
     nodes = states.nodes[est]
     return evaluate_stereo(
         nodes,
