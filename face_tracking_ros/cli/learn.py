@@ -81,6 +81,7 @@ TRUTH_TYPE = 'face_tracking_msgs/msg/FaceTruth'
 MESH_TYPES = ('face_tracking_msgs/msg/FaceMesh', 'face_tracking_msgs/msg/FaceState')
 TRUTH_TOPIC = 'truth/face'
 STATE_TOPIC = 'face/state'
+TRACKED = int(TrackStatus.TRACKING)  # FaceState.STATUS_TRACKING
 DEFAULT_TOPICS = (TRUTH_TOPIC, 'face/mesh_raw', STATE_TOPIC)
 STEREO_PARAMS = 'retroactive_depths=true'  # learn from meshes with each track's final depths
 
@@ -378,7 +379,8 @@ def read_bag_meshes(
         msg = f'{bag}: topic {topic} has type {msgtype}; expected FaceTruth, FaceMesh or FaceState'
         raise BagError(msg)
     truth = _truth_by_stamp(truth_bag) if truth_bag is not None else {}
-    untracked = _untracked_stamps(bag, topics) if msgtype != TRUTH_TYPE else set()
+    # A FaceState says itself whether it was tracked; a FaceMesh by its bag's face/state.
+    untracked = _untracked_stamps(bag, topics) if msgtype == MESH_TYPES[0] else set()
     frames: dict[str, list[tuple[int, np.ndarray, str | None, np.ndarray | None]]] = {}
     skipped = 0
     for index, message in enumerate(read_messages(bag, [topic])):
@@ -387,7 +389,8 @@ def read_bag_meshes(
         except InputError as error:
             msg = f'{bag}: {topic} message {index}: {error}'
             raise InputError(msg) from None
-        if stamp_ns in untracked:
+        state_untracked = msgtype == MESH_TYPES[1] and message.msg.status != TRACKED
+        if stamp_ns in untracked or state_untracked:
             skipped += 1
             continue
         if truth_bag is not None:
@@ -422,7 +425,7 @@ def _untracked_stamps(bag: Path, topics: dict[str, str]) -> set[int]:
     return {
         stamp_to_ns(message.msg.header.stamp)
         for message in read_messages(bag, [STATE_TOPIC])
-        if message.msg.status != TrackStatus.TRACKING
+        if message.msg.status != TRACKED
     }
 
 

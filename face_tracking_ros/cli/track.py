@@ -25,7 +25,10 @@ from face_tracking_ros.io.conversions import camera_from_info
 from face_tracking_ros.io.series import has_truth, load_states, load_truth
 from face_tracking_ros.model.model_file import load_model
 from face_tracking_ros.model.topology import mesh_topology
+from face_tracking_ros.processing.mono import COMPRESSED_IMAGE, IMAGE
 from face_tracking_ros.processing.parameters import OverrideParameters
+from face_tracking_ros.processing.stereo import COMPRESSED as STEREO_COMPRESSED
+from face_tracking_ros.processing.stereo import LEFT_IMAGE, LEFT_INFO, RIGHT_IMAGE, RIGHT_INFO
 from face_tracking_ros.replay import replay_bag
 from face_tracking_ros.synthetic.clicks import clicks_from_bag, write_init_file
 from face_tracking_ros.tracking.accuracy import TrackingAccuracy, tracking_accuracy
@@ -114,17 +117,17 @@ def input_remaps(topics: Mapping[str, str | None]) -> dict[str, str]:
     An image input's topic serves its ``/compressed`` input too (``compressed=true``).
     """
     remaps = {port: topic for port, topic in topics.items() if topic}
-    images = {port: topic for port, topic in remaps.items() if port.endswith(('image', '_raw'))}
-    return remaps | {f'{port}/compressed': topic for port, topic in images.items()}
+    compressed = {raw: port for port, raw in STEREO_COMPRESSED.items()} | {IMAGE: COMPRESSED_IMAGE}
+    return remaps | {compressed[port]: remaps[port] for port in compressed.keys() & remaps.keys()}
 
 
 def stereo_topics(args: argparse.Namespace) -> dict[str, str | None]:
     """The stereo_tracker inputs given as --left-topic, --right-topic and their camera_info's."""
     return {
-        'left/image_raw': args.left_topic,
-        'right/image_raw': args.right_topic,
-        'left/camera_info': args.left_info_topic,
-        'right/camera_info': args.right_info_topic,
+        LEFT_IMAGE: args.left_topic,
+        RIGHT_IMAGE: args.right_topic,
+        LEFT_INFO: args.left_info_topic,
+        RIGHT_INFO: args.right_info_topic,
     }
 
 

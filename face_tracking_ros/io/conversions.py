@@ -82,6 +82,18 @@ def compressed_to_gray(msg: Any) -> np.ndarray:
     return gray
 
 
+def message_to_gray(msg: Any) -> np.ndarray:
+    """Grey (H, W) uint8 image of a sensor_msgs/Image or CompressedImage.
+
+    The two are told apart by their fields (an Image has an ``encoding``): see
+    :func:`image_to_gray` and :func:`compressed_to_gray`.
+
+    Raises:
+        InputError: as those do.
+    """
+    return image_to_gray(msg) if hasattr(msg, 'encoding') else compressed_to_gray(msg)
+
+
 def array_to_image(
     factory: MessageFactory, header: Any, pixels: np.ndarray, encoding: str = ''
 ) -> Any:

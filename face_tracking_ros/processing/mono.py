@@ -159,11 +159,7 @@ class MonoProcessor:
             self._model = model
             self._rebuild()
             return []
-        gray = (
-            conversions.compressed_to_gray(msg)
-            if topic == COMPRESSED_IMAGE
-            else conversions.image_to_gray(msg)
-        )
+        gray = conversions.message_to_gray(msg)
         if self._camera is None:
             self._held_image = (msg.header, gray)
             msg_text = (

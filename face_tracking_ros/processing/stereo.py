@@ -411,7 +411,7 @@ class StereoProcessor:
             )
             raise InputError(msg)
         left, right = (
-            self._rectified_image(info, self._to_gray(msg))
+            self._rectified_image(info, conversions.message_to_gray(msg))
             for info, msg in ((LEFT_INFO, left_msg), (RIGHT_INFO, right_msg))
         )
         self._last_stamp = stamp_to_ns(left_msg.header.stamp)
@@ -422,12 +422,6 @@ class StereoProcessor:
             self._track_results.append((header, result))
             return []
         return self._outputs(header, result)
-
-    def _to_gray(self, msg: Any) -> np.ndarray:
-        """The grey image of an Image, or of a CompressedImage with ``compressed``."""
-        if self._config.compressed:
-            return conversions.compressed_to_gray(msg)
-        return conversions.image_to_gray(msg)
 
     def _rectified_image(self, info: str, gray: np.ndarray) -> np.ndarray:
         """A raw image of the camera of ``info``, rectified (see ``rectify``).

@@ -87,19 +87,12 @@ def overlay_frames(
         index = by_stamp.get(stamp_to_ns(message.msg.header.stamp))
         if index is None or count % every:
             continue
-        gray = _gray(message.msgtype, message.msg)
+        gray = conversions.message_to_gray(message.msg)
         if rectifier is not None:
             gray = rectifier.image(gray)
         status = TrackStatus(states.status[index])
         label = f'{status.name.lower()}  frame {count}'
         yield draw_mesh(gray, states.image_points[index], edges, status, label)
-
-
-def _gray(msgtype: str, msg: object) -> np.ndarray:
-    """The grey image of an Image or CompressedImage message."""
-    if msgtype == COMPRESSED_TYPE:
-        return conversions.compressed_to_gray(msg)
-    return conversions.image_to_gray(msg)
 
 
 def write_overlay_video(
