@@ -8,7 +8,7 @@ import json
 from pathlib import Path
 import sys
 
-import cv2
+from compressed_bags import compressed_copy
 import numpy as np
 import pytest
 
@@ -101,36 +101,10 @@ def test_simulated_clicks_are_of_the_nodes_the_tracker_tracks(still_bag, tmp_pat
     assert tracked.node_rms < 0.0012 and tracked.max_reprojection < 1.0  # 0.66 mm, 0.45 px
 
 
-def _compressed_copy(bag: Path, out: Path, names: dict[str, str]) -> Path:
-    """``bag`` with its images as lossless PNG CompressedImage messages, topics renamed.
-
-    Args:
-        bag: a synthetic stereo bag.
-        out: the new bag's directory.
-        names: bag topic -> new name, for the images and camera_info (others keep theirs).
-    """
-    factory = RosbagsMessages(typestore())
-    with BagWriter(out) as writer:
-        for message in read_messages(bag):
-            topic, msgtype, msg = (
-                names.get(message.topic, message.topic),
-                message.msgtype,
-                message.msg,
-            )
-            if msgtype == 'sensor_msgs/msg/Image':
-                png = cv2.imencode('.png', conversions.image_to_gray(msg))[1].reshape(-1)
-                msgtype = 'sensor_msgs/msg/CompressedImage'
-                msg = factory.make(
-                    msgtype, header=msg.header, format='mono8; png compressed', data=png
-                )
-            writer.write(topic, msgtype, msg, message.stamp_ns)
-    return out
-
-
 def test_compressed_images_under_any_names_are_tracked_like_raw_ones(still_bag, tmp_path):
     """image_transport's compressed topics are found by name; other names are given."""
     raw = _learn_meshes(still_bag, tmp_path / 'raw')
-    found = _compressed_copy(still_bag, tmp_path / 'found', {
+    found = compressed_copy(still_bag, tmp_path / 'found', {
         'left/image_raw': '/stereo/left/image_raw/compressed',
         'right/image_raw': '/stereo/right/image_raw/compressed',
     })  # fmt: skip
@@ -139,7 +113,7 @@ def test_compressed_images_under_any_names_are_tracked_like_raw_ones(still_bag, 
         'left/image_raw': '/cam0/png', 'right/image_raw': '/cam1/png',
         'left/camera_info': '/cam0/info', 'right/camera_info': '/cam1/info',
     }  # fmt: skip
-    given = _compressed_copy(still_bag, tmp_path / 'given', given_names)
+    given = compressed_copy(still_bag, tmp_path / 'given', given_names)
     topics = ['--left-topic', '/cam0/png', '--right-topic', '/cam1/png', '--left-info-topic',
               '/cam0/info', '--right-info-topic', '/cam1/info']  # fmt: skip
     for bag, options in ((found, ()), (given, topics)):

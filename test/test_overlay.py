@@ -4,16 +4,13 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import cv2
+from compressed_bags import compressed_copy
 import numpy as np
 import pytest
 
 from face_tracking_ros.cli.main import main
-from face_tracking_ros.io import conversions
-from face_tracking_ros.io.bags import BagWriter, bag_topics, read_messages
-from face_tracking_ros.io.messages import RosbagsMessages
+from face_tracking_ros.io.bags import bag_topics
 from face_tracking_ros.io.series import load_states
-from face_tracking_ros.io.typestore import typestore
 from face_tracking_ros.visualization.video import overlay_frames, write_overlay_video
 
 
@@ -52,16 +49,7 @@ def test_frames_are_rectified_before_the_mesh_is_drawn(turned, tmp_path):
 def test_compressed_frames_are_drawn_like_raw_ones(turned, tmp_path):
     """image_transport's compressed topic beside the camera_info: found, decoded, rectified."""
     bag, out = turned
-    factory = RosbagsMessages(typestore())
-    copy = tmp_path / 'compressed'
-    with BagWriter(copy) as writer:
-        for message in read_messages(bag):
-            topic, msgtype, msg = message.topic, message.msgtype, message.msg
-            if msgtype == 'sensor_msgs/msg/Image':
-                png = cv2.imencode('.png', conversions.image_to_gray(msg))[1].reshape(-1)
-                topic, msgtype = f'{topic}/compressed', 'sensor_msgs/msg/CompressedImage'
-                msg = factory.make(msgtype, header=msg.header, format='png', data=png)
-            writer.write(topic, msgtype, msg, message.stamp_ns)
+    copy = compressed_copy(bag, tmp_path / 'compressed')
     assert bag_topics(copy)['image/compressed'] == 'sensor_msgs/msg/CompressedImage'
     states = load_states(out)
     frames = zip(overlay_frames(bag, states), overlay_frames(copy, states), strict=True)
