@@ -13,6 +13,7 @@ from face_tracking_ros.learning.alignment import align_training_set
 from face_tracking_ros.learning.subspace import (
     fit_coefficients,
     principal_components,
+    second_moment,
     subspace_similarity,
 )
 from face_tracking_ros.learning.training_set import MeshSequence, TrainingSet
@@ -39,6 +40,8 @@ def test_from_sequences_pools_subjects_and_sequences():
     assert training.subject_ids == ('a', 'b')
     assert training.subject_index.tolist() == [0] * 4 + [1] * 3 + [0] * 5
     assert training.sequence_index.tolist() == [0] * 4 + [0] * 3 + [1] * 5
+    assert training.sequence_of_frame.tolist() == [0] * 4 + [2] * 3 + [1] * 5
+    assert training.sequence_subject.tolist() == [0, 0, 1]
     assert training.labels is not None and training.labels[4] == 'neutral'
     assert training.flat().shape == (12, 57)
     assert training.num_subjects == 2 and training.num_nodes == 19
@@ -108,6 +111,18 @@ def test_principal_components_match_svd_and_weights_act_as_repeats():
         principal_components(vectors, 7)
 
 
+def test_second_moment_in_blocks_matches_the_direct_sum():
+    rng = np.random.default_rng(2)
+    count = 150_000  # more than one block of rows
+    vectors = rng.normal(size=(count, 3)) + np.array([4.0, -2.0, 1.0])
+    weights = rng.uniform(0.1, 2.0, count)
+    about = np.array([3.0, -1.0, 0.5])
+    centred = vectors - about
+    direct = (centred * (weights / weights.sum())[:, None]).T @ centred
+    assert np.allclose(second_moment(vectors, weights, about=about), direct, rtol=1e-12)
+    assert np.allclose(second_moment(vectors), vectors.T @ vectors / count, rtol=1e-12)
+
+
 def test_subspace_similarity_values():
     basis = np.eye(5)[:, :2]
     rotated = basis @ Rotation.from_euler('z', 0.3).as_matrix()[:2, :2]
@@ -125,6 +140,10 @@ def test_fit_coefficients_recovers_non_orthogonal_coefficients():
     bases = rng.normal(size=(30, 4))
     coefficients = rng.normal(size=(7, 4))
     assert np.allclose(fit_coefficients(bases, coefficients @ bases.T), coefficients)
+    origin = rng.normal(size=30)
+    shifted = coefficients @ bases.T + origin
+    assert np.allclose(fit_coefficients(bases, shifted, origin=origin), coefficients)
+    assert not np.allclose(fit_coefficients(bases, shifted), coefficients)
 
 
 @pytest.fixture(scope='module')

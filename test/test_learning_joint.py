@@ -11,7 +11,7 @@ import pytest
 from face_tracking_ros.errors import ConfigError
 from face_tracking_ros.learning.alignment import align_training_set
 from face_tracking_ros.learning.evaluation import compare_with_truth, population_truth
-from face_tracking_ros.learning.joint import JointConfig, learn_joint
+from face_tracking_ros.learning.joint import JointConfig, _DeviationMoments, learn_joint
 from face_tracking_ros.learning.seed import learn_seed
 from face_tracking_ros.learning.training_set import TrainingSet
 
@@ -127,3 +127,17 @@ def test_what_differs_between_a_subjects_sequences_stays_out_of_the_expression_s
     pooled = learn_joint(tracked, JointConfig(neutral_per_sequence=False)).model
     assert per_sequence.action_similarity > clean.action_similarity - 0.005
     assert compare_with_truth(pooled, truth).action_similarity < 0.9  # measured 0.74
+
+
+def test_the_deviation_moment_from_sufficient_statistics_is_the_direct_sum():
+    """A's PCA matrix, kept as statistics taken once, equals the weighted sum over the frames."""
+    training, _, _ = training_set('default', 19, subjects=4, sequences=2, frames=30)
+    frames = training.flat()
+    rng = np.random.default_rng(3)
+    sequences = len(training.sequence_subject)
+    origins = frames.mean(axis=0) + rng.normal(scale=0.002, size=(sequences, frames.shape[1]))
+    weights = np.where(training.neutral, rng.uniform(0.1, 1.0, len(frames)), 1.0)
+    moments = _DeviationMoments.of(training, frames, training.sequence_means(frames))
+    deviations = frames - origins[training.sequence_of_frame]
+    direct = (deviations * weights[:, None]).T @ deviations / weights.sum()
+    assert np.allclose(moments.moment(origins, weights), direct, rtol=1e-10, atol=0.0)

@@ -64,7 +64,13 @@ import numpy as np
 from face_tracking_ros.errors import ConfigError
 from face_tracking_ros.learning.result import LearningResult, assemble_result
 from face_tracking_ros.learning.seed import check_dimensions, choose_dimension
-from face_tracking_ros.learning.subspace import principal_components, subspace_similarity
+from face_tracking_ros.learning.subspace import (
+    check_components,
+    moment_components,
+    principal_components,
+    second_moment,
+    subspace_similarity,
+)
 from face_tracking_ros.learning.training_set import TrainingSet
 
 
@@ -126,28 +132,39 @@ def learn_joint(training: TrainingSet, config: JointConfig | None = None) -> Lea
         msg = f'neutral_weight must be positive, got {config.neutral_weight}'
         raise ConfigError(msg)
     frames = training.flat()
+    check_components(config.q, *frames.shape)
     neutral = training.subject_means(frames, training.neutral)
-    sequence_offsets = np.zeros_like(frames)
+    # Means and second moments of the frames, taken once: an iteration's means of (I - A A^T) X
+    # and moment of the deviations follow from them (below), so it makes no (F, 3N) array.
+    frame_means = _FrameMeans.of(training, frames)
+    moments = _DeviationMoments.of(training, frames, frame_means.by_sequence)
+    sequence_offsets = np.zeros_like(frame_means.by_sequence)
     label_weight = training.neutral.astype(float)
     history: list[float] = []
     action_basis: np.ndarray | None = None
     converged = False
     while len(history) < config.max_iterations and not converged:
-        deviations = frames - neutral[training.subject_index] - sequence_offsets
+        origins = neutral[training.sequence_subject] + sequence_offsets
         shrink = 1.0 / (1.0 + config.neutral_weight * label_weight)
         previous_basis = action_basis
-        action_basis = principal_components(deviations, config.q, sample_weights=shrink).basis
-        alpha = (deviations @ action_basis) * shrink[:, None]
+        action_basis = moment_components(moments.moment(origins, shrink), config.q).basis
+        projection = frames @ action_basis
+        alpha = (projection - (origins @ action_basis)[training.sequence_of_frame]) * shrink[
+            :, None
+        ]
         if config.robust_scale is not None:
             label_weight = _label_weights(alpha, training.neutral, config.robust_scale)
         previous_neutral = neutral
-        projection = frames @ action_basis
-        off_basis = frames - projection @ action_basis.T
+        off_basis = frame_means.off_basis(projection, action_basis)
         neutral = _neutral_given_basis(
-            training, projection, off_basis, action_basis, config.neutral_weight * label_weight
+            training,
+            projection,
+            off_basis.by_subject,
+            action_basis,
+            config.neutral_weight * label_weight,
         )
         if config.neutral_per_sequence:
-            sequence_offsets = _sequence_offsets(training, off_basis)
+            sequence_offsets = off_basis.sequence_offsets()
         moved = float(np.sqrt(np.mean((neutral - previous_neutral) ** 2)))
         change = (
             1.0
@@ -159,7 +176,8 @@ def learn_joint(training: TrainingSet, config: JointConfig | None = None) -> Lea
     mean_shape = neutral.mean(axis=0)
     identity = principal_components(neutral - mean_shape, training.num_subjects - 1)
     p = config.p or choose_dimension(identity.explained, config.explained_variance)
-    alpha = (frames - neutral[training.subject_index] - sequence_offsets) @ action_basis
+    origins = neutral[training.sequence_subject] + sequence_offsets
+    alpha = projection - (origins @ action_basis)[training.sequence_of_frame]
     return assemble_result(
         training,
         mean_shape=mean_shape,
@@ -187,6 +205,113 @@ def _label_weights(alpha: np.ndarray, neutral: np.ndarray, robust_scale: float) 
     return np.where(neutral, 1.0 / (1.0 + (norms / scale) ** 2), 0.0)
 
 
+@dataclass(frozen=True)
+class _FrameMeans:
+    """Subject and sequence means of (F, 3N) per-frame vectors (the frames, or their part off A).
+
+    Attributes:
+        training: the training set the means are of.
+        by_subject: (S, 3N) mean over each subject's frames.
+        by_sequence: (K, 3N) mean over each sequence's frames.
+    """
+
+    training: TrainingSet
+    by_subject: np.ndarray
+    by_sequence: np.ndarray
+
+    @classmethod
+    def of(cls, training: TrainingSet, vectors: np.ndarray) -> _FrameMeans:
+        """The means of ``vectors`` (F, 3N)."""
+        return cls(training, training.subject_means(vectors), training.sequence_means(vectors))
+
+    def off_basis(self, projection: np.ndarray, action_basis: np.ndarray) -> _FrameMeans:
+        """The means of ``(I - A A^T) X`` from those of X and of ``projection`` = X A (F, q)."""
+        along = _FrameMeans.of(self.training, projection)
+        return _FrameMeans(
+            self.training,
+            self.by_subject - along.by_subject @ action_basis.T,
+            self.by_sequence - along.by_sequence @ action_basis.T,
+        )
+
+    def sequence_offsets(self) -> np.ndarray:
+        """(K, 3N) each sequence's mean minus its subject's."""
+        return self.by_sequence - self.by_subject[self.training.sequence_subject]
+
+
+@dataclass(frozen=True)
+class _DeviationMoments:
+    """The weighted second moment of the frames' deviations, the matrix of A's PCA.
+
+    The deviations are y_f = X_f - o_k, from each frame's sequence origin o_k (its subject's
+    neutral plus the sequence's offset). A frame not labelled neutral weighs 1 whatever the
+    iteration, so the part of those frames is ``T + sum_k s_k d_k^T + d_k s_k^T + n_k d_k d_k^T``
+    with ``d_k = m_k - o_k`` for a fixed point m_k per sequence (its mean), from their scatter T
+    about m_k, their sums s_k of ``X_f - m_k`` and their number n_k, all taken once. The
+    neutral-labelled frames, whose weights change every iteration, are summed again each time.
+
+    Attributes:
+        centres: (K, 3N) m_k.
+        scatter: (3N, 3N) T.
+        sums: (K, 3N) s_k.
+        counts: (K,) n_k.
+        neutral_frames: (F_n, 3N) the neutral-labelled frames.
+        neutral_sequence: (F_n,) their sequences.
+        neutral_rows: (F_n,) their rows in the training set.
+    """
+
+    centres: np.ndarray
+    scatter: np.ndarray
+    sums: np.ndarray
+    counts: np.ndarray
+    neutral_frames: np.ndarray
+    neutral_sequence: np.ndarray
+    neutral_rows: np.ndarray
+
+    @classmethod
+    def of(
+        cls, training: TrainingSet, frames: np.ndarray, centres: np.ndarray
+    ) -> _DeviationMoments:
+        """The statistics of ``frames`` (F, 3N) about ``centres`` (K, 3N)."""
+        others = ~training.neutral
+        sums, counts = training.sequence_sums(frames, others)
+        scatter = second_moment(
+            frames, others.astype(float), about=centres, about_index=training.sequence_of_frame
+        )
+        neutral_rows = np.flatnonzero(training.neutral)
+        return cls(
+            centres=centres,
+            scatter=scatter * counts.sum(),
+            sums=sums - counts[:, None] * centres,
+            counts=counts,
+            neutral_frames=frames[neutral_rows],
+            neutral_sequence=training.sequence_of_frame[neutral_rows],
+            neutral_rows=neutral_rows,
+        )
+
+    def moment(self, origins: np.ndarray, weights: np.ndarray) -> np.ndarray:
+        """``sum_f w_f y_f y_f^T / sum_f w_f`` for origins o_k (K, 3N) and frame weights (F,).
+
+        The weights of the frames not labelled neutral are taken to be 1.
+        """
+        shift = self.centres - origins
+        moment = (
+            self.scatter
+            + self.sums.T @ shift
+            + shift.T @ self.sums
+            + (shift * self.counts[:, None]).T @ shift
+        )
+        neutral_weights = weights[self.neutral_rows]
+        total = self.counts.sum() + neutral_weights.sum()
+        if len(neutral_weights):
+            moment += neutral_weights.sum() * second_moment(
+                self.neutral_frames,
+                neutral_weights,
+                about=origins,
+                about_index=self.neutral_sequence,
+            )
+        return moment / total
+
+
 def _neutral_given_basis(
     training: TrainingSet,
     projection: np.ndarray,
@@ -199,19 +324,12 @@ def _neutral_given_basis(
     Args:
         training: the training set.
         projection: (F, q) the frames' coordinates along A, ``X A``.
-        off_basis: (F, 3N) the frames' part orthogonal to A, ``(I - A A^T) X``.
+        off_basis: (S, 3N) each subject's mean of the frames' part orthogonal to A,
+            ``(I - A A^T) X``.
         action_basis: (3N, q) A.
         prior: (F,) lambda c of each frame's alpha ~ 0 prior.
     """
     kappa = prior / (1.0 + prior)
     along = training.subject_means(projection * kappa[:, None], None)
     along /= training.subject_means(kappa[:, None], None)
-    return training.subject_means(off_basis) + along @ action_basis.T
-
-
-def _sequence_offsets(training: TrainingSet, off_basis: np.ndarray) -> np.ndarray:
-    """(F, 3N) each frame's sequence mean minus its subject's mean of ``(I - A A^T) X``."""
-    return (
-        training.sequence_means(off_basis)[training.sequence_of_frame]
-        - training.subject_means(off_basis)[training.subject_index]
-    )
+    return off_basis + along @ action_basis.T

@@ -96,10 +96,14 @@ def assemble_result(
             'converged': converged,
         },
     )
-    deviations = training.flat() - mean_shape
-    frame_sigma = fit_coefficients(np.hstack([shape_basis, action_basis]), deviations)[:, :p]
-    frame_alpha = (deviations - subject_sigma[training.subject_index] @ shape_basis.T) @ (
-        action_basis
+    # The fits are linear in the frames, so the frames' deviations (F, 3N) are never formed.
+    frames = training.flat()
+    coding = np.hstack([shape_basis, action_basis])
+    frame_sigma = fit_coefficients(coding, frames, origin=mean_shape)[:, :p]
+    frame_alpha = (
+        frames @ action_basis
+        - mean_shape @ action_basis
+        - (subject_sigma @ (shape_basis.T @ action_basis))[training.subject_index]
     )
     return LearningResult(
         model=model,

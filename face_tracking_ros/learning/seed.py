@@ -40,7 +40,13 @@ import numpy as np
 
 from face_tracking_ros.errors import ConfigError
 from face_tracking_ros.learning.result import LearningResult, assemble_result
-from face_tracking_ros.learning.subspace import principal_components, subspace_similarity
+from face_tracking_ros.learning.subspace import (
+    check_components,
+    moment_components,
+    principal_components,
+    second_moment,
+    subspace_similarity,
+)
 from face_tracking_ros.learning.training_set import TrainingSet
 
 
@@ -82,7 +88,14 @@ def learn_seed(training: TrainingSet, config: SeedConfig | None = None) -> Learn
     config = config or SeedConfig()
     check_dimensions(training, config.p, config.q)
     frames = training.flat()
+    check_components(config.q, *frames.shape)
     neutral = training.subject_means(frames, training.neutral)
+    # Every frame's deviation from mean_shape, and its residual off S, are linear in the frame:
+    # their second moments and their subject means follow from the frames' own, taken once, so
+    # an iteration makes no (F, 3N) array.
+    frame_mean = frames.mean(axis=0)
+    frame_covariance = second_moment(frames, about=frame_mean)
+    subject_frame_means = training.subject_means(frames)
     p = config.p
     history: list[float] = []
     previous: tuple[np.ndarray, np.ndarray] | None = None
@@ -93,20 +106,23 @@ def learn_seed(training: TrainingSet, config: SeedConfig | None = None) -> Learn
         if p is None:
             p = choose_dimension(identity.explained, config.explained_variance)
         shape_basis = identity.basis[:, :p]
-        deviations = frames - mean_shape
-        residuals = deviations - (deviations @ shape_basis) @ shape_basis.T
-        action = principal_components(residuals, config.q)
+        off_shape = np.eye(len(mean_shape)) - shape_basis @ shape_basis.T
+        offset = frame_mean - mean_shape
+        deviation_moment = frame_covariance + np.outer(offset, offset)
+        residual_moment = off_shape @ deviation_moment @ off_shape
+        action = moment_components(residual_moment, config.q)
         if config.eigenvalue_weighted:
             alpha = _weighted_alpha(
-                deviations,
+                frames,
+                mean_shape,
                 shape_basis,
                 action.basis,
                 identity.variances[:p],
                 action.variances,
-                _noise_variance(residuals, action.variances),
+                _noise_variance(residual_moment, action.variances),
             )
         else:
-            alpha = deviations @ action.basis
+            alpha = frames @ action.basis - mean_shape @ action.basis
         if previous is not None:
             history.append(
                 max(
@@ -119,7 +135,7 @@ def learn_seed(training: TrainingSet, config: SeedConfig | None = None) -> Learn
             history.append(1.0)
         previous = (shape_basis, action.basis)
         model_neutral = neutral
-        neutral = training.subject_means(frames - alpha @ action.basis.T)
+        neutral = subject_frame_means - training.subject_means(alpha) @ action.basis.T
     method = 'seed-weighted' if config.eigenvalue_weighted else 'seed'
     return assemble_result(
         training,
@@ -157,27 +173,37 @@ def check_dimensions(training: TrainingSet, p: int | None, q: int) -> None:
         raise ConfigError(msg)
 
 
-def _noise_variance(residuals: np.ndarray, action_variances: np.ndarray) -> float:
-    """Probabilistic-PCA noise variance: residual variance left by A, per remaining dimension."""
-    total = np.sum(residuals**2) / len(residuals)
+def _noise_variance(residual_moment: np.ndarray, action_variances: np.ndarray) -> float:
+    """Probabilistic-PCA noise variance: residual variance left by A, per remaining dimension.
+
+    Args:
+        residual_moment: (3N, 3N) mean second moment of the residuals off S.
+        action_variances: (q,) its leading eigenvalues, A's.
+    """
+    total = np.trace(residual_moment)
     return max(float(total - action_variances.sum()), 0.0) / (
-        residuals.shape[1] - len(action_variances)
+        len(residual_moment) - len(action_variances)
     )
 
 
 def _weighted_alpha(
-    deviations: np.ndarray,
+    frames: np.ndarray,
+    mean_shape: np.ndarray,
     shape_basis: np.ndarray,
     action_basis: np.ndarray,
     shape_variances: np.ndarray,
     action_variances: np.ndarray,
     noise_variance: float,
 ) -> np.ndarray:
-    """§4.3: alpha of the MAP coding of deviations on [S A] with eigenvalue priors (F, q)."""
+    """§4.3: alpha of the MAP coding of the frames' deviations from mean_shape on [S A] (F, q).
+
+    The coding's priors are the eigenvalues; being linear in the frames, it is computed without
+    forming the (F, 3N) deviations.
+    """
     coding = np.hstack([shape_basis, action_basis])
     prior_precision = noise_variance / np.concatenate([shape_variances, action_variances])
     normal = coding.T @ coding + np.diag(prior_precision)
     # A (p + q)-square, well-conditioned system: its inverse is exact enough, and avoids LAPACK
     # solver calls that multi-threaded OpenBLAS makes slow on a busy machine.
-    coefficients = np.linalg.inv(normal) @ (coding.T @ deviations.T)
-    return coefficients[shape_basis.shape[1] :].T
+    decoding = np.linalg.inv(normal)[shape_basis.shape[1] :] @ coding.T
+    return frames @ decoding.T - decoding @ mean_shape

@@ -12,6 +12,8 @@ import scipy.linalg
 
 from face_tracking_ros.errors import ConfigError
 
+_BLOCK_ROWS = 65536  # rows per block of :func:`second_moment` (6.7 MB of 102 coordinates)
+
 
 @dataclass(frozen=True)
 class PrincipalComponents:
@@ -49,14 +51,44 @@ def principal_components(
     Raises:
         ConfigError: if k is out of range.
     """
+    check_components(k, *vectors.shape)
+    return moment_components(second_moment(vectors, sample_weights), k)
+
+
+def second_moment(
+    vectors: np.ndarray,
+    sample_weights: np.ndarray | None = None,
+    about: np.ndarray | None = None,
+    about_index: np.ndarray | None = None,
+) -> np.ndarray:
+    """(D, D) weighted mean second moment sum_f w_f (v_f - c_f)(v_f - c_f)^T of (F, D) vectors.
+
+    Summed over blocks of rows, so no (F, D) temporary is made: a learner's frames can run to a
+    million meshes (800 MB), and passes over arrays of that size cost more than the arithmetic.
+
+    Args:
+        vectors: (F, D) vectors.
+        sample_weights: (F,) non-negative weights, normalised to sum 1; None for equal weights.
+        about: the points c_f the moment is taken about: (D,) one point, or (K, D) points of
+            which vector f takes ``about[about_index[f]]``; None for the origin.
+        about_index: (F,) row of ``about`` of each vector, when ``about`` is (K, D).
+    """
     count, dim = vectors.shape
-    if not 1 <= k <= min(count, dim):
-        msg = f'cannot keep {k} principal components of {count} vectors of dimension {dim}'
-        raise ConfigError(msg)
-    if sample_weights is None:
-        moment = vectors.T @ vectors / count
-    else:
-        moment = (vectors * (sample_weights / np.sum(sample_weights))[:, None]).T @ vectors
+    weights = None if sample_weights is None else sample_weights / np.sum(sample_weights)
+    moment = np.zeros((dim, dim))
+    for start in range(0, count, _BLOCK_ROWS):
+        rows = slice(start, start + _BLOCK_ROWS)
+        block = vectors[rows]
+        if about is not None:
+            block = block - (about if about_index is None else about[about_index[rows]])
+        weighted = block if weights is None else block * weights[rows, None]
+        moment += weighted.T @ block
+    return moment if weights is not None else moment / count
+
+
+def moment_components(moment: np.ndarray, k: int) -> PrincipalComponents:
+    """The k leading eigenvectors of a (D, D) second moment (see :func:`principal_components`)."""
+    dim = len(moment)
     variances, basis = scipy.linalg.eigh(
         moment, subset_by_index=[dim - k, dim - 1], check_finite=False
     )
@@ -67,6 +99,13 @@ def principal_components(
         variances=variances,
         explained=variances / total if total > 0 else np.zeros(k),
     )
+
+
+def check_components(k: int, count: int, dim: int) -> None:
+    """Raise ConfigError unless 1 <= k <= min(count, dim) components can be kept."""
+    if not 1 <= k <= min(count, dim):
+        msg = f'cannot keep {k} principal components of {count} vectors of dimension {dim}'
+        raise ConfigError(msg)
 
 
 def orthonormal_basis(basis: np.ndarray) -> np.ndarray:
@@ -98,17 +137,25 @@ def subspace_similarity(basis: np.ndarray, other: np.ndarray) -> float:
     return float(np.sum((q1.T @ q2) ** 2) / q1.shape[1])
 
 
-def fit_coefficients(bases: np.ndarray, deviations: np.ndarray) -> np.ndarray:
-    """Least-squares coefficients c of deviations ~ bases @ c, for many vectors at once.
+def fit_coefficients(
+    bases: np.ndarray, vectors: np.ndarray, origin: np.ndarray | None = None
+) -> np.ndarray:
+    """Least-squares coefficients c of vectors - origin ~ bases @ c, for many vectors at once.
 
     Args:
         bases: (D, k) basis (columns need not be orthogonal, e.g. [S A] of eq. 3).
-        deviations: (F, D) vectors minus the model origin.
+        vectors: (F, D) vectors (deviations from the model origin when ``origin`` is None).
+        origin: (D,) the model origin (e.g. the mean shape), subtracted from the coefficients
+            rather than from the vectors, so no (F, D) difference is made.
 
     Returns:
         (F, k) coefficients.
     """
-    return deviations @ scipy.linalg.pinv(bases).T
+    solve = scipy.linalg.pinv(bases).T
+    coefficients = vectors @ solve
+    if origin is not None:
+        coefficients -= origin @ solve
+    return coefficients
 
 
 def _fix_signs(basis: np.ndarray) -> np.ndarray:

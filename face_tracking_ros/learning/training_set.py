@@ -165,10 +165,30 @@ class TrainingSet:
         _, index = np.unique(pairs, axis=0, return_inverse=True)
         return index.ravel()
 
+    @cached_property
+    def sequence_subject(self) -> np.ndarray:
+        """(K,) subject index of each sequence of :attr:`sequence_of_frame`."""
+        subject = np.empty(int(self.sequence_of_frame.max()) + 1, dtype=self.subject_index.dtype)
+        subject[self.sequence_of_frame] = self.subject_index
+        return subject
+
     def sequence_means(self, values: np.ndarray) -> np.ndarray:
         """(K, D) mean of per-frame values (F, D) over each sequence, :attr:`sequence_of_frame`."""
         membership = self._sequence_membership
         return np.asarray(membership @ values) / membership.sum(axis=1)[:, None]
+
+    def sequence_sums(self, values: np.ndarray, mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Per-sequence sums of per-frame values over the frames in a mask.
+
+        Args:
+            values: (F, D) per-frame values.
+            mask: (F,) bool frames to use.
+
+        Returns:
+            (K, D) sums over each sequence's masked frames, and (K,) how many frames each has.
+        """
+        membership = self._sequence_membership.multiply(mask)
+        return np.asarray(membership @ values), np.asarray(membership.sum(axis=1)).ravel()
 
     @cached_property
     def _membership(self) -> scipy.sparse.csr_array:
