@@ -49,21 +49,23 @@ def align_training_set(
     config = config or AlignmentConfig()
     topology = mesh_topology(training.num_nodes)
     weights = topology.alignment_weights(config.group_weights)
-    aligned = np.empty_like(training.meshes)
-    neutral_meshes = np.empty((training.num_subjects, training.num_nodes, 3))
-    for s in range(training.num_subjects):
-        mine = training.subject_index == s
-        neutral = generalized_procrustes(
-            training.meshes[mine & training.neutral], weights, tolerance=config.tolerance
-        ).mean
-        aligned[mine] = rigid_align(training.meshes[mine], neutral, weights).aligned
-        neutral_meshes[s] = neutral
+    frames = [np.flatnonzero(training.subject_index == s) for s in range(training.num_subjects)]
+    neutral_meshes = np.stack(
+        [
+            generalized_procrustes(
+                training.meshes[mine[training.neutral[mine]]], weights, tolerance=config.tolerance
+            ).mean
+            for mine in frames
+        ]
+    )
     together = generalized_procrustes(
         neutral_meshes, weights, reference=topology.reference_shape, tolerance=config.tolerance
     )
-    rotation = together.rotation[training.subject_index]
-    t = together.t[training.subject_index]
-    aligned = aligned @ np.swapaxes(rotation, -1, -2) + t[:, None, :]
-    eyes = topology.group_mask(Group.EYE)
-    aligned -= together.mean[eyes].mean(axis=0)
+    # The face frame's origin: between the eyes of the subjects' mean neutral.
+    origin = together.mean[topology.group_mask(Group.EYE)].mean(axis=0)
+    aligned = np.empty_like(training.meshes)
+    for s, mine in enumerate(frames):
+        # Each frame onto its subject's neutral, then (one transform per subject) onto the rest.
+        to_neutral = rigid_align(training.meshes[mine], neutral_meshes[s], weights).aligned
+        aligned[mine] = to_neutral @ together.rotation[s].T + (together.t[s] - origin)
     return training.with_meshes(aligned)
