@@ -13,6 +13,7 @@ from face_tracking_ros.learning.alignment import align_training_set
 from face_tracking_ros.learning.subspace import (
     fit_coefficients,
     principal_components,
+    scatter,
     second_moment,
     subspace_similarity,
 )
@@ -111,16 +112,23 @@ def test_principal_components_match_svd_and_weights_act_as_repeats():
         principal_components(vectors, 7)
 
 
-def test_second_moment_in_blocks_matches_the_direct_sum():
+def test_scatter_in_blocks_matches_the_direct_sum():
     rng = np.random.default_rng(2)
     count = 150_000  # more than one block of rows
     vectors = rng.normal(size=(count, 3)) + np.array([4.0, -2.0, 1.0])
     weights = rng.uniform(0.1, 2.0, count)
     about = np.array([3.0, -1.0, 0.5])
     centred = vectors - about
-    direct = (centred * (weights / weights.sum())[:, None]).T @ centred
-    assert np.allclose(second_moment(vectors, weights, about=about), direct, rtol=1e-12)
+    direct = (centred * weights[:, None]).T @ centred
+    assert np.allclose(scatter(vectors, weights, about=about), direct, rtol=1e-12)
+    centres = np.array([about, -about])
+    which = rng.integers(2, size=count)
+    offset = vectors - centres[which]
+    by_row = scatter(vectors, about=centres, about_index=which)
+    assert np.allclose(by_row, offset.T @ offset, rtol=1e-12)
     assert np.allclose(second_moment(vectors), vectors.T @ vectors / count, rtol=1e-12)
+    moment = second_moment(vectors, weights)
+    assert np.allclose(moment, (vectors * weights[:, None]).T @ vectors / weights.sum())
 
 
 def test_subspace_similarity_values():

@@ -68,7 +68,7 @@ from face_tracking_ros.learning.subspace import (
     check_components,
     moment_components,
     principal_components,
-    second_moment,
+    scatter,
     subspace_similarity,
 )
 from face_tracking_ros.learning.training_set import TrainingSet
@@ -149,9 +149,8 @@ def learn_joint(training: TrainingSet, config: JointConfig | None = None) -> Lea
         previous_basis = action_basis
         action_basis = moment_components(moments.moment(origins, shrink), config.q).basis
         projection = frames @ action_basis
-        alpha = (projection - (origins @ action_basis)[training.sequence_of_frame]) * shrink[
-            :, None
-        ]
+        along = projection - (origins @ action_basis)[training.sequence_of_frame]
+        alpha = along * shrink[:, None]
         if config.robust_scale is not None:
             label_weight = _label_weights(alpha, training.neutral, config.robust_scale)
         previous_neutral = neutral
@@ -251,7 +250,7 @@ class _DeviationMoments:
 
     Attributes:
         centres: (K, 3N) m_k.
-        scatter: (3N, 3N) T.
+        total_scatter: (3N, 3N) T.
         sums: (K, 3N) s_k.
         counts: (K,) n_k.
         neutral_frames: (F_n, 3N) the neutral-labelled frames.
@@ -260,7 +259,7 @@ class _DeviationMoments:
     """
 
     centres: np.ndarray
-    scatter: np.ndarray
+    total_scatter: np.ndarray
     sums: np.ndarray
     counts: np.ndarray
     neutral_frames: np.ndarray
@@ -274,13 +273,12 @@ class _DeviationMoments:
         """The statistics of ``frames`` (F, 3N) about ``centres`` (K, 3N)."""
         others = ~training.neutral
         sums, counts = training.sequence_sums(frames, others)
-        scatter = second_moment(
-            frames, others.astype(float), about=centres, about_index=training.sequence_of_frame
-        )
         neutral_rows = np.flatnonzero(training.neutral)
         return cls(
             centres=centres,
-            scatter=scatter * counts.sum(),
+            total_scatter=scatter(
+                frames, others.astype(float), about=centres, about_index=training.sequence_of_frame
+            ),
             sums=sums - counts[:, None] * centres,
             counts=counts,
             neutral_frames=frames[neutral_rows],
@@ -295,21 +293,16 @@ class _DeviationMoments:
         """
         shift = self.centres - origins
         moment = (
-            self.scatter
+            self.total_scatter
             + self.sums.T @ shift
             + shift.T @ self.sums
             + (shift * self.counts[:, None]).T @ shift
         )
         neutral_weights = weights[self.neutral_rows]
-        total = self.counts.sum() + neutral_weights.sum()
-        if len(neutral_weights):
-            moment += neutral_weights.sum() * second_moment(
-                self.neutral_frames,
-                neutral_weights,
-                about=origins,
-                about_index=self.neutral_sequence,
-            )
-        return moment / total
+        moment += scatter(
+            self.neutral_frames, neutral_weights, about=origins, about_index=self.neutral_sequence
+        )
+        return moment / (self.counts.sum() + neutral_weights.sum())
 
 
 def _neutral_given_basis(

@@ -44,7 +44,7 @@ from face_tracking_ros.learning.subspace import (
     check_components,
     moment_components,
     principal_components,
-    second_moment,
+    scatter,
     subspace_similarity,
 )
 from face_tracking_ros.learning.training_set import TrainingSet
@@ -94,7 +94,7 @@ def learn_seed(training: TrainingSet, config: SeedConfig | None = None) -> Learn
     # their second moments and their subject means follow from the frames' own, taken once, so
     # an iteration makes no (F, 3N) array.
     frame_mean = frames.mean(axis=0)
-    frame_covariance = second_moment(frames, about=frame_mean)
+    frame_covariance = scatter(frames, about=frame_mean) / len(frames)
     subject_frame_means = training.subject_means(frames)
     p = config.p
     history: list[float] = []

@@ -12,7 +12,7 @@ import scipy.linalg
 
 from face_tracking_ros.errors import ConfigError
 
-_BLOCK_ROWS = 65536  # rows per block of :func:`second_moment` (6.7 MB of 102 coordinates)
+_BLOCK_ROWS = 65536  # rows per block of :func:`scatter` (6.7 MB of 102 coordinates)
 
 
 @dataclass(frozen=True)
@@ -55,35 +55,45 @@ def principal_components(
     return moment_components(second_moment(vectors, sample_weights), k)
 
 
-def second_moment(
+def second_moment(vectors: np.ndarray, sample_weights: np.ndarray | None = None) -> np.ndarray:
+    """(D, D) weighted mean second moment sum_f w_f v_f v_f^T / sum_f w_f of (F, D) vectors.
+
+    Args:
+        vectors: (F, D) vectors.
+        sample_weights: (F,) non-negative weights, not all zero; None for equal weights.
+    """
+    total = len(vectors) if sample_weights is None else np.sum(sample_weights)
+    return scatter(vectors, sample_weights) / total
+
+
+def scatter(
     vectors: np.ndarray,
     sample_weights: np.ndarray | None = None,
     about: np.ndarray | None = None,
     about_index: np.ndarray | None = None,
 ) -> np.ndarray:
-    """(D, D) weighted mean second moment sum_f w_f (v_f - c_f)(v_f - c_f)^T of (F, D) vectors.
+    """(D, D) weighted scatter sum_f w_f (v_f - c_f)(v_f - c_f)^T of (F, D) vectors.
 
     Summed over blocks of rows, so no (F, D) temporary is made: a learner's frames can run to a
     million meshes (800 MB), and passes over arrays of that size cost more than the arithmetic.
 
     Args:
         vectors: (F, D) vectors.
-        sample_weights: (F,) non-negative weights, normalised to sum 1; None for equal weights.
-        about: the points c_f the moment is taken about: (D,) one point, or (K, D) points of
+        sample_weights: (F,) non-negative weights; None for weights 1.
+        about: the points c_f the scatter is taken about: (D,) one point, or (K, D) points of
             which vector f takes ``about[about_index[f]]``; None for the origin.
         about_index: (F,) row of ``about`` of each vector, when ``about`` is (K, D).
     """
     count, dim = vectors.shape
-    weights = None if sample_weights is None else sample_weights / np.sum(sample_weights)
-    moment = np.zeros((dim, dim))
+    total = np.zeros((dim, dim))
     for start in range(0, count, _BLOCK_ROWS):
         rows = slice(start, start + _BLOCK_ROWS)
         block = vectors[rows]
         if about is not None:
             block = block - (about if about_index is None else about[about_index[rows]])
-        weighted = block if weights is None else block * weights[rows, None]
-        moment += weighted.T @ block
-    return moment if weights is not None else moment / count
+        weighted = block if sample_weights is None else block * sample_weights[rows, None]
+        total += weighted.T @ block
+    return total
 
 
 def moment_components(moment: np.ndarray, k: int) -> PrincipalComponents:
