@@ -121,9 +121,10 @@ def replay(
 
     Several processors form a graph as the nodes would over DDS: an output on topic T is also
     delivered, at once and in order, to every other processor with an input port T (e.g. a
-    tracker's ``face/action`` to the expression recogniser). After the last record, each
-    :class:`~face_tracking_ros.processing.base.Finishing` processor, in order, gives the outputs
-    it held back; they are written with the last record's log time and routed on the same way.
+    tracker's ``face/action`` and ``face/state`` to the expression recogniser). After the last
+    record, each :class:`~face_tracking_ros.processing.base.Finishing` processor, in order, gives
+    the outputs it held back; they are written with the last record's log time and routed on
+    the same way.
 
     Args:
         processors: the nodes' processors.

@@ -1,8 +1,8 @@
 """``face-tracking replay NODE[,NODE...] BAG --out OUT``: run nodes' own code over a bag.
 
 Several nodes form a graph as they would over DDS: ``mono_tracker,expression_recognizer`` feeds
-the tracker's ``face/action`` to the recogniser. ``--echo TOPIC`` prints the messages produced on
-a topic as they fire (events in one line each).
+the tracker's ``face/action`` and ``face/state`` to the recogniser. ``--echo TOPIC`` prints the
+messages produced on a topic as they fire (events in one line each).
 """
 
 from __future__ import annotations

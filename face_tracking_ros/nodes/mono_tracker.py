@@ -1,10 +1,11 @@
 """The mono_tracker node: monocular model-based face tracking (eq. 6) on a camera stream.
 
 Subscribes ``image`` (or ``image/compressed`` with ``compressed:=true``), ``camera_info`` and the
-latched ``face/model``; publishes ``face/state``, ``face/pose``, ``face/action``, ``face/shape``,
-``face/mesh_raw``, ``face/mesh`` and, while subscribed, ``face/overlay``; serves
-``reset_tracking``. Parameters: :class:`~face_tracking_ros.processing.mono.MonoNodeConfig` and,
-as ``tracker.*``, :class:`~face_tracking_ros.tracking.mono.MonoTrackerConfig`.
+latched ``face/model``; publishes ``face/state``, ``face/mesh_raw``, ``face/mesh``, for tracked
+images ``face/pose``, ``face/action``, ``face/shape`` and, while subscribed, ``face/overlay``;
+serves ``reset_tracking``. Parameters:
+:class:`~face_tracking_ros.processing.mono.MonoNodeConfig` and, as ``tracker.*``,
+:class:`~face_tracking_ros.tracking.mono.MonoTrackerConfig`.
 """
 
 from __future__ import annotations

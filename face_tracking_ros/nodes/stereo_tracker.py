@@ -3,8 +3,8 @@
 Subscribes ``left/image_raw``, ``left/camera_info``, ``right/image_raw``, ``right/camera_info``
 (raw images, rectified with their calibration: ``rectify``; or the images'
 ``/compressed`` topics with ``compressed:=true``) and the latched ``face/model``;
-publishes ``face/mesh_raw``, ``face/mesh``, ``face/state`` and, with a model, ``face/pose``,
-``face/action``, ``face/shape``; serves ``reset_tracking``. Parameters:
+publishes ``face/mesh_raw``, ``face/mesh``, ``face/state`` and, with a model, for tracked pairs
+``face/pose``, ``face/action``, ``face/shape``; serves ``reset_tracking``. Parameters:
 :class:`~face_tracking_ros.processing.stereo.StereoNodeConfig` and, as ``tracker.*``,
 :class:`~face_tracking_ros.tracking.stereo.StereoTrackerConfig`.
 """

@@ -1,11 +1,16 @@
 """Message-in, message-out expression recognition: the expression_recognizer node and its replay.
 
-Input: ``face/action`` (ActionParams) of one tracked face. Outputs: ``face/expression``
-(ExpressionEvent) at every onset and offset, and, while subscribed, ``face/expression_scores``
-(std_msgs/Float64MultiArray: one posterior per label, the labels in the layout's dimension
-label, comma-separated), both stamped with the input's header. A stamp not later than the
-previous one starts a new track: the feature window, the neutral baseline and the event state
-restart, without an event for the old track.
+Inputs: ``face/action`` (ActionParams) of one tracked face, and its tracker's ``face/state``
+(FaceState) for the status alone. Outputs: ``face/expression`` (ExpressionEvent) at every onset
+and offset, and, while subscribed, ``face/expression_scores`` (std_msgs/Float64MultiArray: one
+posterior per label, the labels in the layout's dimension label, comma-separated), both stamped
+with the input's header. A stamp not later than the previous one starts a new track: the feature
+window, the neutral baseline and the event state restart, without an event for the old track.
+
+A state that is not TRACKING (the face lost, or a tracker not yet initialised) ends the active
+expression with an offset at that state's stamp, and restarts the feature window: the trackers
+publish no action while the face is lost, and an action of an image whose state said so (from
+a tracker that does) is ignored.
 """
 
 from __future__ import annotations
@@ -28,8 +33,10 @@ from face_tracking_ros.recognition.events import (
     ExpressionEventDetector,
 )
 from face_tracking_ros.recognition.expression import ExpressionClassifier, ExpressionRecognizer
+from face_tracking_ros.tracking.result import TrackStatus
 
 ACTION = 'face/action'
+STATE = 'face/state'
 EVENTS = 'face/expression'
 SCORES = 'face/expression_scores'
 NS_PER_S = 1e9
@@ -62,16 +69,27 @@ class ExpressionProcessor:
         self._detector = ExpressionEventDetector(classifier.labels, events)
         self._labels = ','.join(classifier.labels)
         self._last_stamp: int | None = None
-        self.inputs = (Port(ACTION, 'face_tracking_msgs/msg/ActionParams'),)
+        self._untracked_stamp: int | None = None  # of the last state that was not TRACKING
+        self.inputs = (
+            Port(ACTION, 'face_tracking_msgs/msg/ActionParams'),
+            Port(STATE, 'face_tracking_msgs/msg/FaceState'),
+        )
         self.outputs = (
             Port(EVENTS, 'face_tracking_msgs/msg/ExpressionEvent'),
             Port(SCORES, 'std_msgs/msg/Float64MultiArray', on_demand=True),
         )
 
     def handle(self, topic: str, msg: Any, wanted: frozenset[str]) -> list[Output]:
-        """Classify one ActionParams message; return its events (and scores if wanted)."""
-        alpha = conversions.finite_vector(msg.alpha, 'ActionParams.alpha')
+        """Classify an ActionParams message, or take a FaceState's status; return the events.
+
+        The scores are returned too when wanted (an ActionParams message).
+        """
         stamp = stamp_to_ns(msg.header.stamp)
+        if topic == STATE:
+            return self._status(msg, stamp)
+        if stamp == self._untracked_stamp:
+            return []
+        alpha = conversions.finite_vector(msg.alpha, 'ActionParams.alpha')
         scores = self._recognizer.update(stamp / NS_PER_S, alpha)
         if self._last_stamp is not None and stamp <= self._last_stamp:
             self._detector.reset()
@@ -84,6 +102,18 @@ class ExpressionProcessor:
         if SCORES in wanted:
             outputs.append(Output(SCORES, self._scores_msg(scores.probabilities)))
         return outputs
+
+    def _status(self, msg: Any, stamp: int) -> list[Output]:
+        """End the active expression when the state says the face is not tracked."""
+        if msg.status == TrackStatus.TRACKING:
+            return []
+        self._untracked_stamp = stamp
+        self._recognizer.reset()
+        header = conversions.copy_header(self._factory, msg.header)
+        return [
+            Output(EVENTS, self._event_msg(header, msg.face_id, event))
+            for event in self._detector.end(stamp / NS_PER_S)
+        ]
 
     def _event_msg(self, header: Any, face_id: str, event: ExpressionEvent) -> Any:
         return self._factory.make(

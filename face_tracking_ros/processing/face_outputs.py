@@ -22,7 +22,9 @@ MODEL_PORTS = (
     Port('face/action', 'face_tracking_msgs/msg/ActionParams'),
     Port('face/shape', 'face_tracking_msgs/msg/ShapeParams'),
 )
-"""Outputs of a tracker with a face model: pose, expression and identity parameters."""
+"""Outputs of a tracker with a face model: pose, expression and identity parameters, of tracked
+images only (a LOST or not yet initialised face has no estimate of them: ``face/state`` says so,
+with the last valid one)."""
 
 
 def face_outputs(
@@ -34,6 +36,10 @@ def face_outputs(
     with_model: bool = True,
 ) -> list[Output]:
     """The outputs of :data:`MESH_PORTS` (and :data:`MODEL_PORTS` with a model) for a result.
+
+    The pose, action and shape are left out unless the result is TRACKING: published while the
+    face is lost, their last valid values read as the face's current ones (an expression
+    recogniser would hold a smile for as long as the face is gone).
 
     Args:
         factory: message factory.
@@ -49,7 +55,7 @@ def face_outputs(
         Output('face/mesh_raw', messages.mesh),
         Output('face/mesh', messages.markers),
     ]
-    if with_model:
+    if with_model and result.ok:
         outputs += [
             Output('face/pose', messages.pose),
             Output('face/action', messages.action),

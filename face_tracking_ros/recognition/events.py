@@ -9,7 +9,7 @@ plain values for the node to publish as face_tracking_msgs/ExpressionEvent.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from enum import IntEnum
 
 import numpy as np
@@ -102,6 +102,7 @@ class ExpressionEventDetector:
         self._onset_stamp = 0.0
         self._pending: str | None = None
         self._pending_since = 0.0
+        self._last: ExpressionScores | None = None  # the last frame's scores
 
     @property
     def active(self) -> str | None:
@@ -113,6 +114,23 @@ class ExpressionEventDetector:
         self._active = None
         self._pending = None
 
+    def end(self, stamp: float) -> list[ExpressionEvent]:
+        """The face is no longer tracked: the active expression, if any, ends at ``stamp``.
+
+        Its offset carries the last frame's alpha and, as confidence, one minus the last
+        frame's posterior of the expression; then the state is forgotten.
+        """
+        events = []
+        if self._active is not None and self._last is not None:
+            posterior = float(self._last.probabilities[self._labels.index(self._active)])
+            at_loss = replace(self._last, stamp=stamp)
+            duration = stamp - self._onset_stamp
+            events.append(
+                _event(at_loss, self._active, EventKind.OFFSET, 1.0 - posterior, duration)
+            )
+        self.reset()
+        return events
+
     def update(self, scores: ExpressionScores) -> list[ExpressionEvent]:
         """Process one frame.
 
@@ -120,6 +138,7 @@ class ExpressionEventDetector:
             The events detected at this frame: none, an onset, an offset, or both (an offset
             and then an onset when ``min_duration`` is 0 and the expression changes at once).
         """
+        self._last = scores
         events = []
         if self._active is not None:
             posterior = float(scores.probabilities[self._labels.index(self._active)])

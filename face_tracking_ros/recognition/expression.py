@@ -358,7 +358,7 @@ class ExpressionRecognizer:
         return self._classifier.labels
 
     def reset(self) -> None:
-        """Forget the window and the baseline (new face or restarted tracker)."""
+        """Forget the feature window (the track was interrupted); the face's baseline stays."""
         self._window.clear()
 
     def update(self, stamp: float, alpha: np.ndarray) -> ExpressionScores:

@@ -171,6 +171,21 @@ def test_mono_bad_input_is_named_and_tracking_goes_on(
         np.testing.assert_array_equal(_image_points(outputs), mono_reference[f])
 
 
+def test_mono_lost_face_publishes_its_state_and_mesh_but_no_pose_action_or_shape(scene, frames):
+    processor = _mono(scene, frames)
+    processor.handle('camera_info', info_msg(), NONE)
+    tracked = processor.handle('image', image_msg(frames[0].image, stamp(0)), NONE)
+    model_topics = ['face/pose', 'face/action', 'face/shape']
+    assert [o.topic for o in tracked][-3:] == model_topics
+    blank = np.full_like(frames[1].image, 128)  # a covered lens: nothing to track
+    lost = processor.handle('image', image_msg(blank, stamp(1)), NONE)
+    assert _status(lost) == TrackStatus.LOST
+    assert [o.topic for o in lost] == ['face/state', 'face/mesh_raw', 'face/mesh']
+    again = processor.handle('image', image_msg(frames[2].image, stamp(2)), NONE)
+    assert _status(again) == TrackStatus.TRACKING
+    assert [o.topic for o in again][-3:] == model_topics
+
+
 def test_mono_waits_for_calibration_holding_the_latest_image(scene, frames):
     processor = _mono(scene, frames)
     with pytest.raises(InputError, match='no calibration on camera_info yet: holding'):
@@ -715,6 +730,36 @@ def test_expression_bad_alpha_is_named_and_recognition_goes_on(alpha, match):
         processor.handle('face/action', _action(alpha, round(10.4e9)), NONE)
     events = _events(processor, [1.0] * 10, 10.5)
     assert [(e.label, e.event) for e in events] == [('smile', EventKind.ONSET)]
+
+
+def _state(status, stamp_ns, face_id='face_0'):
+    header = conversions.make_header(FACTORY, stamp_ns, 'camera_optical')
+    return FACTORY.make(
+        'face_tracking_msgs/msg/FaceState', header=header, face_id=face_id, status=int(status)
+    )
+
+
+def test_expression_of_a_lost_face_ends_when_the_state_says_so():
+    processor = ExpressionProcessor(FACTORY, smile_classifier(), EventConfig())
+    onset = _events(processor, [0.0] * 5 + [1.0] * 10, 30.0)
+    assert [(e.label, e.event) for e in onset] == [('smile', EventKind.ONSET)]
+    onset_s = stamp_to_ns(onset[0].header.stamp) / 1e9
+    tracking = processor.handle('face/state', _state(TrackStatus.TRACKING, round(30.5e9)), NONE)
+    assert tracking == []
+    lost_ns = round(31e9)
+    lost = processor.handle('face/state', _state(TrackStatus.LOST, lost_ns), NONE)
+    ended = [o.msg for o in lost]
+    assert [(e.label, e.event) for e in ended] == [('smile', EventKind.OFFSET)]
+    assert stamp_to_ns(ended[0].header.stamp) == lost_ns
+    assert ended[0].duration == pytest.approx(31.0 - onset_s)
+    assert 0.0 <= ended[0].confidence < 0.5  # the classifier still saw the smile
+    # A tracker that publishes the last alpha while the face is lost: ignored, no new onset.
+    assert processor.handle('face/action', _action([1.0], lost_ns), NONE) == []
+    assert processor.handle('face/state', _state(TrackStatus.LOST, round(31.1e9)), NONE) == []
+    # Tracked again, neutral: no event; smiling: a new onset.
+    assert _events(processor, [0.0] * 10, 32.0) == []
+    again = _events(processor, [1.0] * 10, 33.0)
+    assert [(e.label, e.event) for e in again] == [('smile', EventKind.ONSET)]
 
 
 def test_expression_earlier_stamp_restarts_window_and_events():
