@@ -419,8 +419,11 @@ def face_messages(
             points=nodes,
             edges=topology.edges.ravel().astype(np.uint32),
         ),
-        markers=mesh_markers(factory, header, face_id, nodes, topology),
+        markers=mesh_markers(factory, header, face_id, nodes, topology, result.ok),
     )
+
+
+_UNTRACKED_COLOUR = (0.5, 0.5, 0.5, 0.5)  # RGBA of the mesh of a face that is not tracked
 
 
 def _nan_as_zero(values: Any) -> np.ndarray:
@@ -435,6 +438,7 @@ def mesh_markers(
     face_id: str,
     points: list[Any],
     topology: MeshTopology,
+    tracked: bool = True,
 ) -> Any:
     """visualization_msgs/MarkerArray drawing the mesh: nodes as spheres, edges as lines (m).
 
@@ -444,6 +448,8 @@ def mesh_markers(
         face_id: the marker namespace.
         points: the N nodes as geometry_msgs/Point (camera frame, m), shared with the FaceMesh.
         topology: the mesh topology (its edges).
+        tracked: False for a face that is not tracked (LOST, with its last valid mesh, or not
+            yet initialised): the mesh is drawn grey and half transparent.
     """
     edge_points = [points[i] for i in topology.edges.ravel().tolist()]
     identity = factory.make(
@@ -451,7 +457,7 @@ def mesh_markers(
     )
 
     def marker(marker_id: int, kind: int, size: float, color: tuple, pts: list) -> Any:
-        r, g, b = color
+        r, g, b, a = color if tracked else _UNTRACKED_COLOUR
         return factory.make(
             'visualization_msgs/msg/Marker',
             header=header,
@@ -461,7 +467,7 @@ def mesh_markers(
             action=0,
             pose=identity,
             scale=factory.make('geometry_msgs/msg/Vector3', x=size, y=size, z=size),
-            color=factory.make('std_msgs/msg/ColorRGBA', r=r, g=g, b=b, a=1.0),
+            color=factory.make('std_msgs/msg/ColorRGBA', r=r, g=g, b=b, a=a),
             points=pts,
         )
 
@@ -470,8 +476,8 @@ def mesh_markers(
     return factory.make(
         'visualization_msgs/msg/MarkerArray',
         markers=[
-            marker(0, sphere_list, 0.004, (1.0, 0.375, 0.125), points),
-            marker(1, line_list, 0.001, (0.125, 0.75, 1.0), edge_points),
+            marker(0, sphere_list, 0.004, (1.0, 0.375, 0.125, 1.0), points),
+            marker(1, line_list, 0.001, (0.125, 0.75, 1.0, 1.0), edge_points),
         ],
     )
 

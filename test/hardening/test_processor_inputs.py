@@ -171,7 +171,9 @@ def test_mono_bad_input_is_named_and_tracking_goes_on(
         np.testing.assert_array_equal(_image_points(outputs), mono_reference[f])
 
 
-def test_mono_lost_face_publishes_its_state_and_mesh_but_no_pose_action_or_shape(scene, frames):
+def test_mono_lost_face_publishes_its_state_and_a_grey_mesh_but_no_pose_action_or_shape(
+    scene, frames
+):
     processor = _mono(scene, frames)
     processor.handle('camera_info', info_msg(), NONE)
     tracked = processor.handle('image', image_msg(frames[0].image, stamp(0)), NONE)
@@ -184,6 +186,12 @@ def test_mono_lost_face_publishes_its_state_and_mesh_but_no_pose_action_or_shape
     again = processor.handle('image', image_msg(frames[2].image, stamp(2)), NONE)
     assert _status(again) == TrackStatus.TRACKING
     assert [o.topic for o in again][-3:] == model_topics
+    # The markers draw the lost face's last mesh grey and half transparent.
+    opacity = [
+        [m.color.a for m in next(o.msg for o in outputs if o.topic == 'face/mesh').markers]
+        for outputs in (tracked, lost, again)
+    ]
+    assert opacity == [[1.0, 1.0], [0.5, 0.5], [1.0, 1.0]]
 
 
 def test_mono_waits_for_calibration_holding_the_latest_image(scene, frames):
