@@ -8,9 +8,10 @@ with the input's header. A stamp not later than the previous one starts a new tr
 window, the neutral baseline and the event state restart, without an event for the old track.
 
 A state that is not TRACKING (the face lost, or a tracker not yet initialised) ends the active
-expression with an offset at that state's stamp, and restarts the feature window: the trackers
-publish no action while the face is lost, and an action of an image whose state said so (from
-a tracker that does) is ignored.
+expression with an offset at that state's stamp: the trackers publish no action while the face
+is lost, and an action of an image whose state said so (from a tracker that does) is ignored.
+The face's neutral baseline stays, and the feature window (a sixth of a second) has dropped the
+samples before the loss by the time a longer one ends.
 """
 
 from __future__ import annotations
@@ -108,7 +109,6 @@ class ExpressionProcessor:
         if msg.status == TrackStatus.TRACKING:
             return []
         self._untracked_stamp = stamp
-        self._recognizer.reset()
         header = conversions.copy_header(self._factory, msg.header)
         return [
             Output(EVENTS, self._event_msg(header, msg.face_id, event))

@@ -357,10 +357,6 @@ class ExpressionRecognizer:
         """The classifier's labels, in the order of the probabilities."""
         return self._classifier.labels
 
-    def reset(self) -> None:
-        """Forget the feature window (the track was interrupted); the face's baseline stays."""
-        self._window.clear()
-
     def update(self, stamp: float, alpha: np.ndarray) -> ExpressionScores:
         """Classify the frame at ``stamp`` with action parameters alpha (q,).
 
