@@ -28,16 +28,15 @@ from face_tracking_ros.io.messages import MessageFactory
 from face_tracking_ros.model.model_file import load_model
 from face_tracking_ros.processing.base import Output, Port
 from face_tracking_ros.processing.parameters import ParameterSource
+from face_tracking_ros.processing.track_status import STATE_PORT, TrackEnds
 from face_tracking_ros.recognition.events import (
     EventConfig,
     ExpressionEvent,
     ExpressionEventDetector,
 )
 from face_tracking_ros.recognition.expression import ExpressionClassifier, ExpressionRecognizer
-from face_tracking_ros.tracking.result import TrackStatus
 
 ACTION = 'face/action'
-STATE = 'face/state'
 EVENTS = 'face/expression'
 SCORES = 'face/expression_scores'
 NS_PER_S = 1e9
@@ -70,11 +69,8 @@ class ExpressionProcessor:
         self._detector = ExpressionEventDetector(classifier.labels, events)
         self._labels = ','.join(classifier.labels)
         self._last_stamp: int | None = None
-        self._untracked_stamp: int | None = None  # of the last state that was not TRACKING
-        self.inputs = (
-            Port(ACTION, 'face_tracking_msgs/msg/ActionParams'),
-            Port(STATE, 'face_tracking_msgs/msg/FaceState'),
-        )
+        self._track_ends = TrackEnds()
+        self.inputs = (Port(ACTION, 'face_tracking_msgs/msg/ActionParams'), STATE_PORT)
         self.outputs = (
             Port(EVENTS, 'face_tracking_msgs/msg/ExpressionEvent'),
             Port(SCORES, 'std_msgs/msg/Float64MultiArray', on_demand=True),
@@ -86,9 +82,9 @@ class ExpressionProcessor:
         The scores are returned too when wanted (an ActionParams message).
         """
         stamp = stamp_to_ns(msg.header.stamp)
-        if topic == STATE:
-            return self._status(msg, stamp)
-        if stamp == self._untracked_stamp:
+        if topic == STATE_PORT.topic:
+            return self._end(msg, stamp) if self._track_ends.ended(msg) else []
+        if self._track_ends.untracked(stamp):
             return []
         alpha = conversions.finite_vector(msg.alpha, 'ActionParams.alpha')
         scores = self._recognizer.update(stamp / NS_PER_S, alpha)
@@ -104,11 +100,8 @@ class ExpressionProcessor:
             outputs.append(Output(SCORES, self._scores_msg(scores.probabilities)))
         return outputs
 
-    def _status(self, msg: Any, stamp: int) -> list[Output]:
-        """End the active expression when the state says the face is not tracked."""
-        if msg.status == TrackStatus.TRACKING:
-            return []
-        self._untracked_stamp = stamp
+    def _end(self, msg: Any, stamp: int) -> list[Output]:
+        """End the active expression at a state that says the face is not tracked."""
         header = conversions.copy_header(self._factory, msg.header)
         return [
             Output(EVENTS, self._event_msg(header, msg.face_id, event))

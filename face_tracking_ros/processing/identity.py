@@ -1,11 +1,14 @@
 """Message-in, message-out identity recognition: the identity_recognizer node and its replay.
 
-Input: ``face/shape`` (ShapeParams) of one tracked face. Output: ``face/identity``
-(IdentityEvent) whenever the decision changes, stamped with the input's header. Enrolment
-(:meth:`IdentityProcessor.enroll`, the ``enroll_identity`` service) adds the tracked face to the
-gallery from its sigma estimates of the last ``duration`` seconds and saves the gallery. A stamp
-not later than the previous one starts a new track: the decision window restarts and the next
-decision is published even if it names the same person.
+Inputs: ``face/shape`` (ShapeParams) of one tracked face, and its tracker's ``face/state``
+(FaceState) for the status alone. Output: ``face/identity`` (IdentityEvent) whenever the decision
+changes, stamped with the input's header. Enrolment (:meth:`IdentityProcessor.enroll`, the
+``enroll_identity`` service) adds the tracked face to the gallery from its sigma estimates of the
+last ``duration`` seconds and saves the gallery. A stamp not later than the previous one starts
+a new track: the decision window restarts and the next decision is published even if it names
+the same person. So does a state that is not TRACKING (the face lost: the next track may be
+another person's), which also empties the enrolment history; a shape of an image whose state
+said so (from a tracker that publishes on while the face is lost) is ignored.
 """
 
 from __future__ import annotations
@@ -22,6 +25,7 @@ from face_tracking_ros.io.messages import MessageFactory
 from face_tracking_ros.model.model_file import load_model
 from face_tracking_ros.processing.base import Output, Port
 from face_tracking_ros.processing.parameters import ParameterSource
+from face_tracking_ros.processing.track_status import STATE_PORT, TrackEnds
 from face_tracking_ros.recognition.features import SlidingWindow
 from face_tracking_ros.recognition.identity import (
     IdentityConfig,
@@ -73,7 +77,8 @@ class IdentityProcessor:
         self._recognizer = IdentityRecognizer(gallery, config)
         self._history = SlidingWindow(node_config.max_enroll_duration, gallery.p)
         self._last: tuple[str, str] | None = None
-        self.inputs = (Port(SHAPE, 'face_tracking_msgs/msg/ShapeParams'),)
+        self._track_ends = TrackEnds()
+        self.inputs = (Port(SHAPE, 'face_tracking_msgs/msg/ShapeParams'), STATE_PORT)
         self.outputs = (Port(IDENTITY, 'face_tracking_msgs/msg/IdentityEvent'),)
 
     @property
@@ -82,7 +87,13 @@ class IdentityProcessor:
         return self._recognizer.gallery
 
     def handle(self, topic: str, msg: Any, wanted: frozenset[str]) -> list[Output]:
-        """Add one sigma estimate; output an IdentityEvent if the decision changed."""
+        """Add a sigma estimate, or take a FaceState's status; an IdentityEvent if it changed."""
+        if topic == STATE_PORT.topic:
+            if self._track_ends.ended(msg):
+                self._start_over()
+            return []
+        if self._track_ends.untracked(stamp_to_ns(msg.header.stamp)):
+            return []
         sigma = conversions.finite_vector(msg.sigma, 'ShapeParams.sigma')
         stamp = stamp_to_ns(msg.header.stamp) / NS_PER_S
         if self._history.push(stamp, sigma):
@@ -92,6 +103,12 @@ class IdentityProcessor:
             return []
         self._last = (msg.face_id, decision.identity)
         return [Output(IDENTITY, self._event_msg(msg, decision))]
+
+    def _start_over(self) -> None:
+        """The track has ended: the next is decided, and enrolled, from its own sigma."""
+        self._recognizer.reset()
+        self._history.clear()
+        self._last = None
 
     def enroll(self, name: str, duration: float) -> int:
         """Enrol the tracked face as ``name`` from its sigma of the last ``duration`` seconds.

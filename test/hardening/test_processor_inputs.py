@@ -838,3 +838,21 @@ def test_identity_earlier_stamp_restarts_the_window_and_decides_again(identity):
     assert restarted == ['alice']  # a new track: decided again after a full window
     repeated = _identities(identity, [0.002, -0.001], 0.5, 31.2 - 1 / 30)
     assert repeated == []  # the repeated stamp restarted the window: no decision within 1 s
+
+
+def test_identity_starts_over_when_the_face_is_lost(identity):
+    assert _identities(identity, [0.002, -0.001], 1.2, 60.0) == ['alice']
+    assert identity.handle('face/state', _state(TrackStatus.LOST, round(61.2e9)), NONE) == []
+    # A tracker that publishes the last sigma while the face is lost: ignored.
+    assert identity.handle('face/shape', _shape([0.002, -0.001], round(61.2e9)), NONE) == []
+    with pytest.raises(ConfigError, match='no shape estimate of the tracked face yet'):
+        identity.enroll('bob', 1.0)  # the lost track's sigma is not the next face's
+    # The next track is alice's again: announced again (a new track may be anyone), after a
+    # full window of its own.
+    assert _identities(identity, [0.002, -0.001], 0.9, 61.5) == []
+    assert _identities(identity, [0.002, -0.001], 0.3, 62.4) == ['alice']
+    # Then someone else: decided from the new track's sigma alone, so not before a full window
+    # (the window held both faces' sigma for a second, and named the stranger within it).
+    identity.handle('face/state', _state(TrackStatus.LOST, round(62.8e9)), NONE)
+    assert _identities(identity, [0.0, 0.02], 0.9, 63.0) == []
+    assert _identities(identity, [0.0, 0.02], 0.3, 63.9) == ['unknown']
