@@ -19,6 +19,7 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
 from rclpy.serialization import deserialize_message
+from ros_spin import spin_for, wait_for
 from sensor_msgs.msg import CameraInfo, Image
 
 from face_tracking_ros.io.bags import read_messages, read_raw, stamp_to_ns
@@ -72,12 +73,13 @@ def _live_states(ros_context, bag, model_file, init_file):
         'camera_info': node.create_publisher(CameraInfo, 'camera_info', qos_profile_sensor_data),
     }
     try:
-        _wait(
+        wait_for(
             executor,
             lambda: all(p.get_subscription_count() for p in publishers.values()),
             what='the node to subscribe',
+            timeout_s=WAIT_S,
         )
-        _spin_for(executor, SETTLE_S)  # let the node's side of discovery finish too
+        spin_for(executor, SETTLE_S)  # let the node's side of discovery finish too
         for info, image in _frames(bag):
             stamp = stamp_to_ns(deserialize_message(image.data, Image).header.stamp)
             _send_until_tracked(executor, publishers, info, image, lambda s=stamp: s in received)
@@ -111,21 +113,8 @@ def _send_until_tracked(executor, publishers, info, image, tracked) -> None:
         resend = time.monotonic() + RESEND_IMAGE_S
         while not tracked() and time.monotonic() < resend:
             assert time.monotonic() < deadline, 'timed out waiting for the live state'
-            _spin_for(executor, RETRY_S, until=tracked)
+            spin_for(executor, RETRY_S, until=tracked)
             publishers['camera_info'].publish(info.data)
-
-
-def _spin_for(executor, seconds: float, until=lambda: False) -> None:
-    end = time.monotonic() + seconds
-    while time.monotonic() < end and not until():
-        executor.spin_once(timeout_sec=0.02)
-
-
-def _wait(executor, condition, what: str) -> None:
-    deadline = time.monotonic() + WAIT_S
-    while not condition():
-        assert time.monotonic() < deadline, f'timed out waiting for {what}'
-        executor.spin_once(timeout_sec=0.02)
 
 
 def test_live_node_and_offline_replay_agree(recorded, ros_context):

@@ -9,13 +9,13 @@ TRACKING ends the active expression.
 from __future__ import annotations
 
 import signal
-import time
 
 from bag_processes import finish, start_node
 from face_tracking_msgs.msg import ActionParams, ExpressionEvent, FaceState
 import numpy as np
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
+from ros_spin import spin_for, wait_for
 
 from face_tracking_ros.recognition.events import EventKind
 from face_tracking_ros.recognition.expression import ExpressionClassifier
@@ -66,19 +66,6 @@ def _state(frame: int, status: TrackStatus) -> FaceState:
     return message
 
 
-def _spin_for(executor, seconds: float) -> None:
-    end = time.monotonic() + seconds
-    while time.monotonic() < end:
-        executor.spin_once(timeout_sec=0.02)
-
-
-def _spin_until(executor, condition, what: str) -> None:
-    deadline = time.monotonic() + WAIT_S
-    while not condition():
-        assert time.monotonic() < deadline, f'timed out waiting for {what}'
-        executor.spin_once(timeout_sec=0.02)
-
-
 def test_the_node_ends_the_smile_of_a_face_that_is_lost(ros_context, tmp_path):
     classifier_file = tmp_path / 'smile.npz'
     _smile_classifier().save(classifier_file)
@@ -91,18 +78,19 @@ def test_the_node_ends_the_smile_of_a_face_that_is_lost(ros_context, tmp_path):
     actions = node.create_publisher(ActionParams, 'face/action', DEPTH)
     states = node.create_publisher(FaceState, 'face/state', DEPTH)
     try:
-        _spin_until(
+        wait_for(
             executor,
             lambda: actions.get_subscription_count() and states.get_subscription_count(),
             'the node to subscribe',
+            WAIT_S,
         )
-        _spin_for(executor, SETTLE_S)
+        spin_for(executor, SETTLE_S)
         for frame in range(SMILE_FRAMES):  # a tracked smile
             states.publish(_state(frame, TrackStatus.TRACKING))
             actions.publish(_action(frame, 1.0))
-        _spin_until(executor, lambda: len(events) >= 1, 'the onset')
+        wait_for(executor, lambda: len(events) >= 1, 'the onset', WAIT_S)
         states.publish(_state(SMILE_FRAMES, TrackStatus.LOST))  # lost: no action comes
-        _spin_until(executor, lambda: len(events) >= 2, 'the offset')
+        wait_for(executor, lambda: len(events) >= 2, 'the offset', WAIT_S)
     finally:
         executor.shutdown()
         node.destroy_node()
