@@ -14,6 +14,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from face_tracking_ros.errors import InputError
 from face_tracking_ros.geometry.camera import PinholeCamera
 
 
@@ -39,6 +40,20 @@ class Rectifier:
     def identity(self) -> bool:
         """True if the camera's raw images are already rectified (nothing to do)."""
         return self._maps is None
+
+    def check_size(self, raw: np.ndarray, name: str = 'image') -> None:
+        """Refuse a raw image of another size than the camera's (its camera_info's).
+
+        Raises:
+            InputError: naming the image ``name`` and both sizes.
+        """
+        camera = self.camera
+        if raw.shape[:2] != (camera.height, camera.width):
+            msg = (
+                f'{name} is {raw.shape[1]}x{raw.shape[0]} but camera_info says '
+                f'{camera.width}x{camera.height}'
+            )
+            raise InputError(msg)
 
     def image(self, raw: np.ndarray) -> np.ndarray:
         """The rectified image of a raw (H, W) image of this camera (the same array if identity).

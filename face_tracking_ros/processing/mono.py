@@ -240,13 +240,7 @@ class MonoProcessor:
                 or f'no face model yet: set the model_file parameter or publish one on {MODEL}'
             )
             raise InputError(msg)
-        camera = self._camera
-        if gray.shape != (camera.height, camera.width):
-            msg = (
-                f'image is {gray.shape[1]}x{gray.shape[0]} but camera_info says '
-                f'{camera.width}x{camera.height}'
-            )
-            raise InputError(msg)
+        self._rectifier.check_size(gray)
         stamp_ns = stamp_to_ns(header.stamp)
         self._check_stamp(stamp_ns)
         gray = self._rectifier.image(gray)

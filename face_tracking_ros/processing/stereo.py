@@ -429,15 +429,9 @@ class StereoProcessor:
         Raises:
             InputError: if its size is not the one camera_info gives.
         """
-        camera = self._cameras[info]
-        if gray.shape != (camera.height, camera.width):
-            name = info.split('/')[0]
-            msg = (
-                f'{name} image is {gray.shape[1]}x{gray.shape[0]}, camera_info says '
-                f'{camera.width}x{camera.height}'
-            )
-            raise InputError(msg)
-        return self._rectifiers[info].image(gray)
+        rectifier = self._rectifiers[info]
+        rectifier.check_size(gray, f'{info.split("/")[0]} image')
+        return rectifier.image(gray)
 
     def _outputs(self, header: Any, result: StereoResult) -> list[Output]:
         """The messages of one pair's result, stamped with its left image's header."""
