@@ -392,8 +392,10 @@ class StereoProcessor:
         """
         if stamp in waiting:
             return stamp
-        nearest = min(waiting, key=lambda other: abs(other - stamp), default=None)
         tolerance_ns = self._config.pairing_tolerance_ms * 1e6
+        if not tolerance_ns:  # equal stamps only (the default): no search
+            return None
+        nearest = min(waiting, key=lambda other: abs(other - stamp), default=None)
         return nearest if nearest is not None and abs(nearest - stamp) <= tolerance_ns else None
 
     def _drop_older(self, queue: OrderedDict[int, Any], stamp: int) -> None:
