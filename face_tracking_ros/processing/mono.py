@@ -60,7 +60,8 @@ class MonoNodeConfig:
             68-point predictor (an optional extra: pip install dlib-bin
             face_recognition_models; parameters detector.*) in the first image, when there is
             no init_file, after every reset_tracking call without node positions, and to find
-            the face again after a loss.
+            the face again after a loss; a face found that the lost track's keyframes do not
+            match (another person) starts a new track from the second LOST image on.
         face_id: face_id of the outputs.
         compressed: subscribe to image/compressed (sensor_msgs/CompressedImage) instead of image.
         rectify: the images are raw (image_raw): rectify them with camera_info's K, D, R and P

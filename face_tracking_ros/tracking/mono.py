@@ -570,7 +570,8 @@ class MonoTracker:
         model: the face model (eq. 3) with its priors (§4.1).
         camera: the camera; images must be rectified to its ``p`` and have its size.
         config: tunables; defaults to :class:`MonoTrackerConfig()`.
-        detector: optional landmark detector for automatic (re-)initialisation.
+        detector: optional landmark detector for automatic (re-)initialisation; after a loss,
+            a face it finds that the track's keyframes do not match starts a new track.
 
     Raises:
         ConfigError: if the pyramid is too deep for the camera's image size.
@@ -710,6 +711,13 @@ class MonoTracker:
         init = self._init if self._use_init else self._detect(pyramid)
         if init is None:
             return self._failure('waiting for an initialisation (init points or a detection)')
+        return self._start_track(pyramid, init)
+
+    def _start_track(self, pyramid: ImagePyramid, init: Initialisation) -> TrackResult:
+        """Fit the model to 2-D node positions in this image and start a new track there.
+
+        The fit gives sigma, which the track's first ``sigma_frames`` images refine.
+        """
         try:
             fit = fit_model_to_points(self._model, self._camera, init, self._config.fit)
         except (InputError, ConfigError) as error:
@@ -837,11 +845,17 @@ class MonoTracker:
         Candidate starts are a fresh detection (if a detector was given) and the initial fit
         moved to where the face is found by :meth:`_search`, each compared with its nearest
         keyframe; the first that passes the loss checks at ``reacquire_residual_ratio`` resumes
-        the track, else the image is LOST for ``reason``. A face re-acquired in the image right
-        after a valid estimate keeps the motion prediction, as a followed one does: the head
-        moved on from that estimate in one frame. Measured on fast motion (every 5th frame of
-        issue 6's sequences, true model): dropping it, seed 1 was LOST on 160 of 200 frames with
-        rotation errors of 6.8 / 3.1 degrees; keeping it, 49 frames and 1.1 / 1.1 degrees.
+        the track, else the image is LOST for ``reason``. A detection that resumes nothing on an
+        image after a LOST one starts a new track (:meth:`_start_track`): the face found is
+        another person, or this one beyond what its keyframes show (turned far, or lit anew),
+        and a track of its own fits its sigma and samples its templates and keyframes. The
+        image the face is first lost on stays LOST, so that a non-TRACKING state separates any
+        two tracks (the identity recogniser starts over at one). A face re-acquired in the
+        image right after a valid estimate keeps the motion prediction, as a followed one does:
+        the head moved on from that estimate in one frame. Measured on fast motion (every 5th
+        frame of issue 6's sequences, true model): dropping it, seed 1 was LOST on 160 of 200
+        frames with rotation errors of 6.8 / 3.1 degrees; keeping it, 49 frames and 1.1 / 1.1
+        degrees.
         """
         track = self._track
         detected = self._detect(pyramid)
@@ -856,6 +870,8 @@ class MonoTracker:
             if result.ok:
                 self._accept(result, templates)
                 return result
+        if detected is not None and track.missed > 0:
+            return self._start_track(pyramid, detected)
         return self._failure(f'lost: {reason}')
 
     def _search(self, pyramid: ImagePyramid) -> _Params:

@@ -371,3 +371,23 @@ def test_too_deep_a_pyramid_is_a_config_error(model_factory) -> None:
     with pytest.raises(ConfigError, match='too deep for 160x120 images: at most 3 leave'):
         MonoTracker(model_factory(), PinholeCamera.ideal(160, 120), MonoTrackerConfig())
     MonoTracker(model_factory(), PinholeCamera.ideal(160, 128), MonoTrackerConfig())  # 16 px
+
+
+def test_a_detector_starts_a_new_track_on_another_face_after_a_loss(scene, texture_factory):
+    # Another face where the lost one was: the lost track's keyframes do not match it, so the
+    # detection starts a track of its own from the second LOST image on.
+    model, image, init = scene
+    other = texture_factory(seed=7)
+    tracker = MonoTracker(model, CAMERA, detector=lambda gray: init)
+    assert tracker.step(image).ok
+    lost = tracker.step(other)
+    assert lost.status == TrackStatus.LOST and 'do not match' in lost.reason
+    new = tracker.step(other)
+    assert new.ok and new.iterations == 0, new.reason
+    shift = np.array([3.0, -2.0])
+    moved = tracker.step(_warp(other, np.array([[1, 0, shift[0]], [0, 1, shift[1]]])))
+    assert moved.ok, moved.reason
+    assert np.abs(moved.t[:2] - shift * DEPTH / CAMERA.focal).max() < 5e-5
+    # Without a detector the other face stays LOST: nothing says where its nodes are.
+    tracker = _started(model, image, init)
+    assert [tracker.step(other).status for _ in range(3)] == [TrackStatus.LOST] * 3
