@@ -716,7 +716,8 @@ class MonoTracker:
     def _start_track(self, pyramid: ImagePyramid, init: Initialisation) -> TrackResult:
         """Fit the model to 2-D node positions in this image and start a new track there.
 
-        The fit gives sigma, which the track's first ``sigma_frames`` images refine.
+        The fit gives the track's sigma, refined over its first ``sigma_frames`` images and by
+        the bundle adjustment of its first views.
         """
         try:
             fit = fit_model_to_points(self._model, self._camera, init, self._config.fit)
