@@ -34,10 +34,12 @@ def scene():
     return _turning_head(CAMERA)
 
 
-def _turning_head(camera: PinholeCamera) -> tuple[FaceModel, list[np.ndarray], np.ndarray]:
+def _turning_head(
+    camera: PinholeCamera, subject_index: int = 2
+) -> tuple[FaceModel, list[np.ndarray], np.ndarray]:
     """Twelve frames of a subject turning its head as ``camera`` shows them, and the true nodes."""
     population = FacePopulation(seed=4)
-    subject = population.subject(2)
+    subject = population.subject(subject_index)
     renderer = FaceRenderer(procedural_texture(subject.appearance_seed))
     background = np.full((camera.height, camera.width), 80, np.float32)
     rng = np.random.default_rng(0)
@@ -103,6 +105,48 @@ def test_tracks_and_carries_stamp_and_frame(scene):
     tracked_px = conversions.points_to_array(state.image_points, 'image_points')[:, :2]
     error_px = np.linalg.norm(tracked_px - CAMERA.project(nodes[-1]), axis=1)
     assert np.sqrt(np.mean(error_px**2)) < 1.5
+
+
+def test_with_a_detector_another_person_gets_a_track_of_its_own(scene):
+    # Subject 2 turns its head for six frames and leaves; two frames later subject 5 is there.
+    # The detector finds the true nodes of whoever is in the image.
+    model, frames, nodes = scene
+    _, others, other_nodes = _turning_head(CAMERA, subject_index=5)
+    nobody = np.full_like(frames[0], 80)
+    shown = [(frames[f], nodes[f]) for f in range(6)] + [(nobody, None)] * 2
+    shown += [(others[f], other_nodes[f]) for f in range(8, 12)]
+    in_view = {}
+
+    def detector_for(names):
+        def detect(gray):
+            pixels = in_view['nodes']
+            return None if pixels is None else Initialisation(names, CAMERA.raw_pixels(pixels))
+
+        return detect
+
+    factory = RosbagsMessages(typestore())
+    processor = MonoProcessor(
+        factory, MonoNodeConfig(), MonoTrackerConfig(), model, detector_for=detector_for
+    )
+    processor.handle('camera_info', _info(), frozenset())
+    outputs = []
+    for f, (image, in_view['nodes']) in enumerate(shown):
+        outputs.append(processor.handle('image', _image(image, f), frozenset()))
+    statuses = [o[0].msg.status for o in outputs]
+    assert (
+        statuses
+        == [TrackStatus.TRACKING] * 6 + [TrackStatus.LOST] * 2 + [TrackStatus.TRACKING] * 4
+    )
+    # The new track has subject 5's identity, not the sigma of the track before it.
+    sigma = {f: next(o.msg.sigma for o in outputs[f] if o.topic == 'face/shape') for f in (5, 11)}
+    population = FacePopulation(seed=4)
+    first, second = (population.subject(k).sigma_true for k in (2, 5))
+    apart = np.linalg.norm(second - first)
+    assert np.linalg.norm(sigma[5] - first) < 0.5 * apart  # measured 0.37 of it
+    assert np.linalg.norm(sigma[11] - second) < 0.25 * apart  # measured 0.14 of it
+    tracked_px = conversions.points_to_array(outputs[-1][0].msg.image_points, 'image_points')
+    error_px = np.linalg.norm(tracked_px[:, :2] - CAMERA.project(other_nodes[-1]), axis=1)
+    assert np.sqrt(np.mean(error_px**2)) < 1.0  # measured 0.25 px
 
 
 def test_overlay_only_while_wanted(scene):
