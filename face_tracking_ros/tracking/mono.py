@@ -74,7 +74,7 @@ Design, in the seed's terms:
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from functools import cache, partial
 from typing import NamedTuple
@@ -163,8 +163,8 @@ class MonoTrackerConfig:
             -> 0 (seed 2 had locked onto a pose 21-27 degrees off, reported as TRACKING); every
             5th frame LOST 24 / 49 / 5 -> 0; every frame and every 2nd frame within 0.03
             degrees. Tracking time +6 % in one process, alternating on the live benchmark's
-            stream (p50 2.44 -> 2.58 ms): the fourth level's templates are sampled on every
-            frame (its photometric projection is made only when the level is solved).
+            stream (p50 2.44 -> 2.58 ms), when every level's templates were sampled on every
+            frame; they are now sampled only for the levels solved.
         smooth_base: smooth the full-resolution level (sigma ~ 1 px) against the bias of bilinear
             sampling towards whole pixels (see :meth:`ImagePyramid.build`).
         max_iterations: Levenberg-Marquardt iterations per pyramid level (>= 1).
@@ -452,18 +452,72 @@ class _Solution(NamedTuple):
     coarsest_solved: bool  # whether the coarsest pyramid level was solved
 
 
+class _OnDemand(Sequence[np.ndarray]):
+    """Per-level arrays, each made by ``make(level)`` when first asked for, then kept.
+
+    The coarse pyramid levels of a frame's templates are solved on a small share of the next
+    frames (a prediction beyond ``fine_start_px``, a solve that asks for them), so they are
+    sampled only then (about a tenth of a followed 640x480 frame's time otherwise).
+    """
+
+    def __init__(
+        self,
+        count: int,
+        make: Callable[[int], np.ndarray],
+        source: object = None,
+        first: np.ndarray | None = None,
+    ) -> None:
+        """``count`` levels of ``make``, level 0 ``first`` if given.
+
+        ``source`` is what ``make`` reads (see :meth:`reads`).
+        """
+        self._levels: list[np.ndarray | None] = [first] + [None] * (count - 1)
+        self._make = make
+        self._source = source
+
+    def __len__(self) -> int:
+        """The number of levels."""
+        return len(self._levels)
+
+    def __getitem__(self, level: int) -> np.ndarray:  # type: ignore[override]
+        """Level ``level``'s array, made now if it was not yet."""
+        made = self._levels[level]
+        if made is None:
+            made = self._levels[level] = self._make(level)
+        return made
+
+    def reads(self, source: object) -> bool:
+        """Whether a level not made yet would read ``source``."""
+        return self._source is source and any(level is None for level in self._levels)
+
+    def made(self) -> tuple[np.ndarray, ...]:
+        """Every level, made now where it was not yet."""
+        return tuple(self)
+
+
 class _Templates(NamedTuple):
     """Samples of every pyramid level at a pose, with node visibility and level-0 inside mask.
 
     Attributes:
-        levels: (N, M) samples per level.
+        levels: (N, M) samples per level; coarse levels may be sampled on first use
+            (:class:`_OnDemand`).
         visibility: (N,) node visibility weights.
         inside: (N, M) level-0 samples inside the image.
     """
 
-    levels: tuple[np.ndarray, ...]
+    levels: Sequence[np.ndarray]
     visibility: np.ndarray
     inside: np.ndarray
+
+    def sampled(self) -> _Templates:
+        """These templates with every level sampled (to keep past their pyramid)."""
+        if isinstance(self.levels, _OnDemand):
+            return self._replace(levels=self.levels.made())
+        return self
+
+    def reads(self, pyramid: ImagePyramid | None) -> bool:
+        """Whether a level not sampled yet would be sampled from ``pyramid``."""
+        return isinstance(self.levels, _OnDemand) and self.levels.reads(pyramid)
 
 
 class _Keyframe(NamedTuple):
@@ -614,7 +668,9 @@ class MonoTracker:
             for level in range(self._config.pyramid_levels)
         ]
         self._prior_hessians = {free: self._prior_hessian(free) for free in (False, True)}
-        self._buffers: ImagePyramid | None = None  # the previous frame's, rebuilt in place
+        # Two pyramids, each rebuilt in place every other frame: the previous frame's stays
+        # while the next is tracked, for its templates' coarse levels (_templates).
+        self._buffers: list[ImagePyramid | None] = [None, None]
         self._posed: tuple[_Params, tuple[np.ndarray, ...]] | None = None  # _posed_at's
         self._init: Initialisation | None = None
         self._use_init = False
@@ -909,9 +965,10 @@ class MonoTracker:
         track = self._track
         keyframe = self._nearest_keyframe(track.current.omega).templates
         epsilon = self._config.epsilon * keyframe.visibility[:, None]
-        blended = tuple(
-            prev + epsilon * (key - prev)
-            for prev, key in zip(track.previous.levels, keyframe.levels, strict=True)
+        previous = track.previous.levels
+        blended = _OnDemand(
+            len(previous),
+            lambda level: previous[level] + epsilon * (keyframe.levels[level] - previous[level]),
         )
         # The node visibility at the last valid estimate: its templates were sampled there.
         weights = track.previous.visibility
@@ -1107,9 +1164,9 @@ class MonoTracker:
         return float(np.mean(np.linalg.norm(self._project_nodes(params)[0], axis=1)))
 
     def _keyframe(self, omega: np.ndarray, templates: _Templates) -> _Keyframe:
-        """A keyframe of ``templates`` sampled at rotation R(omega)."""
+        """A keyframe of ``templates`` sampled at rotation R(omega), every level sampled now."""
         projection = self._invariance.projection(templates.levels[0])
-        return _Keyframe(rodrigues(omega)[0], templates, projection)
+        return _Keyframe(rodrigues(omega)[0], templates.sampled(), projection)
 
     def _nearest_keyframe(self, omega: np.ndarray) -> _Keyframe:
         """The keyframe whose rotation is nearest R(omega)."""
@@ -1559,14 +1616,18 @@ class MonoTracker:
     ) -> _Templates:
         """Samples of every level at ``params``'s ROIs, and the node visibility there.
 
-        ``first`` is level 0 at ``params`` when it has been sampled already.
+        ``first`` is level 0 at ``params`` when it has been sampled already. The coarser levels
+        are sampled when first used (:class:`_OnDemand`), from ``pyramid``, which
+        :meth:`_pyramid` keeps until then.
         """
         first = first or self._sample(pyramid.levels[0], params, 0, rois[0])
-        levels = [first.samples]
-        for level in range(1, pyramid.num_levels):
+
+        def sample(level: int) -> np.ndarray:
             _, (x, y) = self._roi_points(params, self._level_cameras[level], rois[level])
-            levels.append(sample_xy(pyramid.levels[level], x, y))
-        return _Templates(tuple(levels), self._visibility(params, normals), first.inside)
+            return sample_xy(pyramid.levels[level], x, y)
+
+        levels = _OnDemand(pyramid.num_levels, sample, source=pyramid, first=first.samples)
+        return _Templates(levels, self._visibility(params, normals), first.inside)
 
     def _sample(self, image: np.ndarray, params: _Params, level: int, roi: _Roi) -> _Sampled:
         """Level ``level``'s samples of its ROIs ``roi`` at ``params``."""
@@ -1643,16 +1704,24 @@ class MonoTracker:
         return replace(self._track.last_good, status=TrackStatus.LOST, reason=reason)
 
     def _pyramid(self, image: np.ndarray) -> ImagePyramid:
-        """Validate the image against the camera and build its pyramid (into the last one's)."""
+        """Validate the image against the camera and build its pyramid.
+
+        It is built into the pyramid of the image before last (:attr:`_buffers`), whose
+        templates (if they are still the previous ones: a LOST image since) are sampled first.
+        """
         image = np.asarray(image)
         expected = (self._camera.height, self._camera.width)
         if image.shape != expected:
             msg = f'image has shape {image.shape}; the camera expects a grey {expected} image'
             raise InputError(msg)
-        self._buffers = ImagePyramid.build(
-            image, self._config.pyramid_levels, self._config.smooth_base, reuse=self._buffers
+        older, newer = self._buffers
+        if self._track is not None and self._track.previous.reads(older):
+            self._track.previous = self._track.previous.sampled()  # before older is rebuilt
+        pyramid = ImagePyramid.build(
+            image, self._config.pyramid_levels, self._config.smooth_base, reuse=older
         )
-        return self._buffers
+        self._buffers = [newer, pyramid]
+        return pyramid
 
 
 def _params_of(result: TrackResult) -> _Params:
