@@ -487,8 +487,12 @@ class _OnDemand(Sequence[np.ndarray]):
         return made
 
     def reads(self, source: object) -> bool:
-        """Whether a level not made yet would read ``source``."""
-        return self._source is source and any(level is None for level in self._levels)
+        """Whether a level not made yet would read ``source`` (never None: nothing to read)."""
+        return (
+            source is not None
+            and self._source is source
+            and any(level is None for level in self._levels)
+        )
 
     def made(self) -> tuple[np.ndarray, ...]:
         """Every level, made now where it was not yet."""

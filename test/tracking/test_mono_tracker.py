@@ -391,3 +391,29 @@ def test_a_detector_starts_a_new_track_on_another_face_after_a_loss(scene, textu
     # Without a detector the other face stays LOST: nothing says where its nodes are.
     tracker = _started(model, image, init)
     assert [tracker.step(other).status for _ in range(3)] == [TrackStatus.LOST] * 3
+
+
+def test_coarse_templates_are_sampled_before_their_pyramid_is_rebuilt(scene, monkeypatch):
+    # The coarse levels of a frame's templates are sampled when a later solve first uses them,
+    # from that frame's pyramid; the tracker keeps two and rebuilds the older. Two images whose
+    # solve fails on level 0 (a LinAlgError) leave the last tracked frame's templates unused
+    # while its pyramid comes up for rebuilding: they must be sampled before that.
+    model, image, init = scene
+    shifted = _warp(image, np.array([[1, 0, 2.0], [0, 1, 0.0]]))
+    reference = _started(model, image, init)
+    assert reference.step(shifted).ok
+    expected = [level.copy() for level in reference._track.previous.levels]  # sampled now
+    tracker = _started(model, image, init)
+    assert tracker.step(shifted).ok
+
+    def failing(*args, **kwargs):
+        raise np.linalg.LinAlgError('singular')
+
+    with monkeypatch.context() as patch:
+        patch.setattr(MonoTracker, '_solve_level', failing)
+        for other in (image, _warp(image, np.array([[1, 0, -3.0], [0, 1, 1.0]]))):
+            assert tracker.step(other).status == TrackStatus.LOST
+    levels = tracker._track.previous.levels
+    assert len(levels) == len(expected) == 4
+    for got, want in zip(levels, expected, strict=True):
+        assert np.array_equal(got, want)
