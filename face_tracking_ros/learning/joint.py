@@ -253,16 +253,16 @@ class _DeviationMoments:
         total_scatter: (3N, 3N) T.
         sums: (K, 3N) s_k.
         counts: (K,) n_k.
-        neutral_frames: (F_n, 3N) the neutral-labelled frames.
-        neutral_sequence: (F_n,) their sequences.
-        neutral_rows: (F_n,) their rows in the training set.
+        frames: (F, 3N) the frames (the training set's, not a copy).
+        neutral_sequence: (F_n,) the sequences of the neutral-labelled frames.
+        neutral_rows: (F_n,) their rows in ``frames``.
     """
 
     centres: np.ndarray
     total_scatter: np.ndarray
     sums: np.ndarray
     counts: np.ndarray
-    neutral_frames: np.ndarray
+    frames: np.ndarray
     neutral_sequence: np.ndarray
     neutral_rows: np.ndarray
 
@@ -281,7 +281,7 @@ class _DeviationMoments:
             ),
             sums=sums - counts[:, None] * centres,
             counts=counts,
-            neutral_frames=frames[neutral_rows],
+            frames=frames,
             neutral_sequence=training.sequence_of_frame[neutral_rows],
             neutral_rows=neutral_rows,
         )
@@ -300,7 +300,11 @@ class _DeviationMoments:
         )
         neutral_weights = weights[self.neutral_rows]
         moment += scatter(
-            self.neutral_frames, neutral_weights, about=origins, about_index=self.neutral_sequence
+            self.frames,
+            neutral_weights,
+            about=origins,
+            about_index=self.neutral_sequence,
+            rows=self.neutral_rows,
         )
         return moment / (self.counts.sum() + neutral_weights.sum())
 

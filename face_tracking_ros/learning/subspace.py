@@ -71,6 +71,7 @@ def scatter(
     sample_weights: np.ndarray | None = None,
     about: np.ndarray | None = None,
     about_index: np.ndarray | None = None,
+    rows: np.ndarray | None = None,
 ) -> np.ndarray:
     """(D, D) weighted scatter sum_f w_f (v_f - c_f)(v_f - c_f)^T of (F, D) vectors.
 
@@ -83,15 +84,18 @@ def scatter(
         about: the points c_f the scatter is taken about: (D,) one point, or (K, D) points of
             which vector f takes ``about[about_index[f]]``; None for the origin.
         about_index: (F,) row of ``about`` of each vector, when ``about`` is (K, D).
+        rows: (R,) the vectors to sum over (each block gathered in turn, not copied at once);
+            ``sample_weights`` and ``about_index`` are then (R,), one per row. None for all.
     """
-    count, dim = vectors.shape
+    dim = vectors.shape[1]
+    count = len(vectors) if rows is None else len(rows)
     total = np.zeros((dim, dim))
     for start in range(0, count, _BLOCK_ROWS):
-        rows = slice(start, start + _BLOCK_ROWS)
-        block = vectors[rows]
+        part = slice(start, start + _BLOCK_ROWS)
+        block = vectors[part] if rows is None else vectors[rows[part]]
         if about is not None:
-            block = block - (about if about_index is None else about[about_index[rows]])
-        weighted = block if sample_weights is None else block * sample_weights[rows, None]
+            block = block - (about if about_index is None else about[about_index[part]])
+        weighted = block if sample_weights is None else block * sample_weights[part, None]
         total += weighted.T @ block
     return total
 
