@@ -92,10 +92,11 @@ class IdentityProcessor:
             if self._track_ends.ended(msg):
                 self._start_over()
             return []
-        if self._track_ends.untracked(stamp_to_ns(msg.header.stamp)):
+        stamp_ns = stamp_to_ns(msg.header.stamp)
+        if self._track_ends.untracked(stamp_ns):
             return []
         sigma = conversions.finite_vector(msg.sigma, 'ShapeParams.sigma')
-        stamp = stamp_to_ns(msg.header.stamp) / NS_PER_S
+        stamp = stamp_ns / NS_PER_S
         if self._history.push(stamp, sigma):
             self._last = None
         decision = self._recognizer.update(stamp, sigma)
