@@ -773,19 +773,19 @@ class MonoTracker:
         init = self._init if self._use_init else self._detect(pyramid)
         if init is None:
             return self._failure('waiting for an initialisation (init points or a detection)')
-        return self._start_track(pyramid, init)
+        return self._start_track(pyramid, init, *self._fit(init))
 
-    def _start_track(self, pyramid: ImagePyramid, init: Initialisation) -> TrackResult:
-        """Fit the model to 2-D node positions in this image and start a new track there.
+    def _start_track(
+        self, pyramid: ImagePyramid, init: Initialisation, params: _Params | None, error: str
+    ) -> TrackResult:
+        """Start a new track on this image from ``params``, the model's fit to ``init``.
 
         The fit gives the track's sigma, refined over its first ``sigma_frames`` images and by
-        the bundle adjustment of its first views.
+        the bundle adjustment of its first views. A fit that failed (``params`` None, with its
+        ``error``) gives a failure instead.
         """
-        try:
-            fit = fit_model_to_points(self._model, self._camera, init, self._config.fit)
-        except (InputError, ConfigError) as error:
+        if params is None:
             return self._failure(f'initialisation failed: {error}')
-        params = _Params(fit.omega, fit.t, fit.alpha, fit.sigma)
         rois, normals = self._rois(params, pyramid.num_levels)
         templates = self._templates(pyramid, params, rois, normals)
         residuals = np.zeros(self._model.num_nodes)
@@ -922,9 +922,11 @@ class MonoTracker:
         """
         track = self._track
         detected = self._detect(pyramid)
-        candidates = [self._fit_or_none(detected)] if detected is not None else []
+        fit, error = self._fit(detected) if detected is not None else (None, '')
+        # A detection resumes the track with the track's sigma, or starts a new one with its own.
+        candidates = [fit._replace(sigma=track.current.sigma)] if fit is not None else []
         candidates.append(self._search(pyramid))
-        for start in (c for c in candidates if c is not None):
+        for start in candidates:
             keyframe = self._nearest_keyframe(start.omega).templates
             weights = keyframe.visibility * self._visibility(start, track.normals)
             result, templates = self._solve_frame(
@@ -934,7 +936,7 @@ class MonoTracker:
                 self._accept(result, templates)
                 return result
         if detected is not None and track.missed > 0:
-            return self._start_track(pyramid, detected)
+            return self._start_track(pyramid, detected, fit, error)
         return self._failure(f'lost: {reason}')
 
     def _search(self, pyramid: ImagePyramid) -> _Params:
@@ -952,13 +954,13 @@ class MonoTracker:
         t[:2] += shift * t[2] / np.diag(self._camera.p)[:2]
         return track.start._replace(t=t)
 
-    def _fit_or_none(self, init: Initialisation) -> _Params | None:
-        """Model fit of a detection, or None if it fails."""
+    def _fit(self, init: Initialisation) -> tuple[_Params | None, str]:
+        """The model's fit to 2-D node positions (its own sigma), or None and why it failed."""
         try:
             fit = fit_model_to_points(self._model, self._camera, init, self._config.fit)
-        except (InputError, ConfigError):
-            return None
-        return _Params(fit.omega, fit.t, fit.alpha, self._track.current.sigma)
+        except (InputError, ConfigError) as error:
+            return None, str(error)
+        return _Params(fit.omega, fit.t, fit.alpha, fit.sigma), ''
 
     # --- tracking ------------------------------------------------------------------------------
 
