@@ -122,12 +122,8 @@ class ExpressionEventDetector:
         """
         events = []
         if self._active is not None and self._last is not None:
-            posterior = float(self._last.probabilities[self._labels.index(self._active)])
             at_loss = replace(self._last, stamp=stamp)
-            duration = stamp - self._onset_stamp
-            events.append(
-                _event(at_loss, self._active, EventKind.OFFSET, 1.0 - posterior, duration)
-            )
+            events.append(self._offset(at_loss, self._active_posterior(at_loss)))
         self.reset()
         return events
 
@@ -141,12 +137,9 @@ class ExpressionEventDetector:
         self._last = scores
         events = []
         if self._active is not None:
-            posterior = float(scores.probabilities[self._labels.index(self._active)])
+            posterior = self._active_posterior(scores)
             if self._held(posterior < self._config.off_threshold, NEUTRAL, scores.stamp):
-                duration = scores.stamp - self._onset_stamp
-                events.append(
-                    _event(scores, self._active, EventKind.OFFSET, 1.0 - posterior, duration)
-                )
+                events.append(self._offset(scores, posterior))
                 self._active = None
         if self._active is None:
             label, posterior = self._best_expression(scores.probabilities)
@@ -155,6 +148,15 @@ class ExpressionEventDetector:
                 self._onset_stamp = scores.stamp
                 events.append(_event(scores, label, EventKind.ONSET, posterior, 0.0))
         return events
+
+    def _active_posterior(self, scores: ExpressionScores) -> float:
+        """The posterior of the active expression at the frame of ``scores``."""
+        return float(scores.probabilities[self._labels.index(self._active)])
+
+    def _offset(self, scores: ExpressionScores, posterior: float) -> ExpressionEvent:
+        """The active expression's offset at the frame of ``scores``, its posterior there given."""
+        duration = scores.stamp - self._onset_stamp
+        return _event(scores, self._active, EventKind.OFFSET, 1.0 - posterior, duration)
 
     def _held(self, crossed: bool, target: str, stamp: float) -> bool:
         """Whether the change to ``target`` has been wanted for ``min_duration`` (then cleared)."""
