@@ -121,6 +121,54 @@ def test_pyramid_rebuilt_into_a_previous_one_equals_a_new_one(smooth_base: bool)
     assert not {id(level) for level in other.levels} & set(arrays)
 
 
+@pytest.mark.parametrize('dtype', [np.uint8, np.float32])
+@pytest.mark.parametrize('smooth_base', [False, True])
+def test_pyramid_read_where_sampled_equals_the_full_build(smooth_base: bool, dtype: type) -> None:
+    """Samples through ``level`` (level 0 made over boxes only) equal the full build's.
+
+    The buffers are reused from another image's pyramid, so a pixel read outside the box made
+    holds that image's value, and clusters of points all over (some beyond the image's edges,
+    where the border pixels are read) grow the box one after the other.
+    """
+    rng = np.random.default_rng(7)
+    height, width = 97, 131
+    other, image = (rng.random((2, height, width)) * 255).astype(dtype)
+    previous = ImagePyramid.build(other, 3, smooth_base)
+    previous.levels  # noqa: B018 - made in full, as a tracker's previous frame may be
+    pyramid = ImagePyramid.build(image, 3, smooth_base, reuse=previous)
+    full = ImagePyramid.build(image, 3, smooth_base).levels
+    # 8-bit images: the same to the bit; float ones within float32 rounding.
+    same = np.testing.assert_array_equal if dtype == np.uint8 else np.testing.assert_allclose
+    for cluster in range(40):
+        centre = rng.uniform([-10, -10], [width + 10, height + 10])
+        x, y = (centre[:, None, None] + rng.normal(0.0, 3.0, (2, 5, 9))).astype(np.float32)
+        values, gradient = sample_with_gradient_xy(pyramid.level(0, x, y), x, y)
+        expected_values, expected_gradient = sample_with_gradient_xy(full[0], x, y)
+        same(values, expected_values)
+        same(gradient, expected_gradient)
+        if cluster == 20:  # a coarse level is made in full, level 0 with it
+            x1, y1 = x / 2, y / 2
+            same(sample_xy(pyramid.level(1, x1, y1), x1, y1), sample_xy(full[1], x1, y1))
+    for got, expected in zip(pyramid.levels, full, strict=True):
+        same(got, expected)
+
+
+def test_pyramid_made_where_sampled_only() -> None:
+    """A read of a few points makes level 0 around them, not the whole image (its purpose)."""
+    image = np.full((200, 300), 100, np.uint8)
+    previous = ImagePyramid.build(np.zeros_like(image), 2, smooth_base=True)
+    previous.levels  # noqa: B018
+    pyramid = ImagePyramid.build(image, 2, smooth_base=True, reuse=previous)
+    x, y = np.float32([[150.5, 152.5]]), np.float32([[100.5, 101.5]])
+    level = pyramid.level(0, x, y)
+    made = level == 100
+    rows, cols = np.nonzero(made)
+    assert made[100, 150] and made.sum() < 0.05 * made.size
+    assert 100 - rows.min() <= 24 and cols.max() - 152 <= 24  # the points' reach and margin
+    with pytest.raises(InputError, match='NaN'):
+        pyramid.level(0, np.float32([np.nan]), np.float32([1.0]))
+
+
 @pytest.mark.parametrize(
     ('image', 'levels', 'match'),
     [

@@ -7,8 +7,8 @@ centres output pixel ``i`` on input pixel ``2 i``, so a point at pixel ``x`` of 
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-from typing import NamedTuple
+from collections.abc import Sequence
+import math
 
 import cv2
 import numpy as np
@@ -19,6 +19,12 @@ MIN_LEVEL_SIZE = 8
 MIN_TRACKING_LEVEL_SIZE = 16  # a tracker's coarsest level keeps its node patches inside
 # The 5-tap binomial kernel cv2.pyrDown smooths with before it drops every other pixel.
 _BINOMIAL = np.array([1.0, 4.0, 6.0, 4.0, 1.0], dtype=np.float32) / 16.0
+# The samples at a point x read pixels floor(x) - 1 to floor(x) + 3: bilinear ones (+1) at x and
+# one pixel either side (central differences), each point rounded to 1/32 px by cv2.remap.
+_SAMPLE_REACH = 3
+# Pixels of level 0 made around the box that a read reaches, so that a solve's next steps find
+# them made.
+_BOX_MARGIN = 16
 
 
 def _levels_that_fit(side: int, min_size: int) -> int:
@@ -48,19 +54,39 @@ def check_levels_fit(num_levels: int, width: int, height: int) -> None:
         raise ConfigError(msg)
 
 
-@dataclass(frozen=True)
 class ImagePyramid:
-    """A float32 Gaussian pyramid of one grey image.
+    """A float32 Gaussian pyramid of one grey image, made as it is read.
 
-    Attributes:
-        levels: images of level 0 (full resolution) to L-1, each (H_l, W_l) float32 grey levels
-            (in [0, 255] as built; :meth:`scale` may change that).
-        scratch: the (H, W) float32 buffer of the unsmoothed level 0 when level 0 is smoothed
-            (kept for ``reuse``; a uint8 image is filtered without it), else None.
+    :attr:`levels` gives every level in full. A tracker that samples a few patches of a frame
+    reads them through :meth:`level` instead: level 0 (the image in float32, smoothed if
+    ``smooth_base``) is then made only over the box its samples reach, a face's patches being a
+    tenth or so of a 640x480 frame, and the coarser levels, which need all of level 0, when
+    first asked for. Every value read either way is the full build's: smoothing a box of the
+    image with a 2-px border of it gives the values of smoothing the whole image, whose
+    reflected border lies at its own edges; to the bit for an 8-bit image (its weighted sums are
+    exact in float32), within float32 rounding for a float one (the filter's vector and scalar
+    paths meet at other columns).
     """
 
-    levels: tuple[np.ndarray, ...]
-    scratch: np.ndarray | None = field(default=None, repr=False, compare=False)
+    def __init__(
+        self,
+        levels: Sequence[np.ndarray],
+        source: np.ndarray | None = None,
+        smooth_base: bool = False,
+    ) -> None:
+        """A pyramid of ``levels`` (level 0 first, float32).
+
+        Without ``source`` the levels are complete. With it they are buffers still to be made
+        from ``source``, the (H, W) grey image (uint8 or float32, owned by the pyramid), level
+        0 smoothed if ``smooth_base`` (:meth:`build`).
+        """
+        self._levels = tuple(levels)
+        self._source = source
+        self._smooth = smooth_base
+        height, width = self._levels[0].shape
+        # The box of level 0 made so far, (x0, y0, x1, y1) exclusive, and whether the rest is.
+        self._box = (0, 0, width, height) if source is None else (0, 0, 0, 0)
+        self._complete = source is None
 
     @classmethod
     def build(
@@ -70,20 +96,20 @@ class ImagePyramid:
         smooth_base: bool = False,
         reuse: ImagePyramid | None = None,
     ) -> ImagePyramid:
-        """Build a pyramid of ``num_levels`` levels.
+        """The pyramid of ``num_levels`` levels of ``gray``, made as it is read.
 
         Args:
-            gray: (H, W) uint8 or float grey image.
+            gray: (H, W) uint8 or float grey image, copied (the caller may reuse it).
             num_levels: number of levels, >= 1.
             smooth_base: smooth level 0 with pyrDown's binomial kernel (sigma ~ 1 px). Bilinear
                 sampling of a sharp image is biased towards whole-pixel positions; smoothing
                 removes most of that bias at the cost of one filter pass. Level 1 is then level 0
                 decimated, identical to ``pyrDown`` of the unsmoothed image.
-            reuse: a pyramid no longer needed, built with the same image size, levels and
-                ``smooth_base``; its arrays are overwritten and become this pyramid's. A tracker
-                building one pyramid per frame so avoids allocating ~2 MB per 640x480 frame, which
-                costs ~1 ms of page faults whenever the allocator has returned the previous
-                frame's memory to the system. Ignored when it does not match.
+            reuse: a pyramid no longer needed, built from an image of the same size and type
+                with the same levels; its arrays are overwritten and become this pyramid's. A
+                tracker building one pyramid per frame so avoids allocating ~2 MB per 640x480
+                frame, which costs ~1 ms of page faults whenever the allocator has returned the
+                previous frame's memory to the system. Ignored when it does not match.
 
         Raises:
             InputError: if the image is not 2-D, not finite, or too small for the levels asked
@@ -96,30 +122,51 @@ class ImagePyramid:
         if not 1 <= num_levels <= _levels_that_fit(min(gray.shape), MIN_LEVEL_SIZE):
             msg = f'cannot build {num_levels} pyramid levels from a {gray.shape} image'
             raise InputError(msg)
-        buffers = _Buffers.of(gray.shape, num_levels, smooth_base, reuse)
-        levels = buffers.levels
-        if smooth_base and gray.dtype == np.uint8:
-            base = gray  # filtered to float32 directly: the same levels without a float copy
-        else:
-            base = buffers.base
-            base[...] = gray
-            if not np.issubdtype(gray.dtype, np.integer) and not np.all(np.isfinite(base)):
-                msg = 'pyramid input holds NaN or Inf'
+        source, levels = _buffers(gray, num_levels, reuse)
+        source[...] = gray
+        if source.dtype != np.uint8 and not np.all(np.isfinite(source)):
+            msg = 'pyramid input holds NaN or Inf'
+            raise InputError(msg)
+        return cls(levels, source, smooth_base)
+
+    @property
+    def levels(self) -> tuple[np.ndarray, ...]:
+        """Images of level 0 (full resolution) to L-1, each (H_l, W_l) float32 grey levels.
+
+        In [0, 255] as built (:meth:`scale` may change that); every level made in full.
+        """
+        self._make_all()
+        return self._levels
+
+    def level(self, index: int, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """Level ``index``, made at least where samples at points (x, y) of it read it.
+
+        The samples: bilinear ones at the points (``cv2.remap``) and one pixel either side
+        (central differences, :func:`~.sampling.sample_with_gradient_xy`). Level 0 is made over
+        the box they reach and a margin (``_BOX_MARGIN``), so that a solve's later steps near
+        the same points find it made; a coarser level is made in full.
+
+        Raises:
+            InputError: if the points hold NaN or Inf.
+        """
+        if index > 0:
+            self._make_all()
+        elif not self._complete and np.size(x):
+            low_x, high_x, low_y, high_y = (float(f(c)) for c in (x, y) for f in (np.min, np.max))
+            if not math.isfinite(low_x + high_x + low_y + high_y):
+                msg = 'points hold NaN or Inf'
                 raise InputError(msg)
-        if smooth_base:
-            cv2.sepFilter2D(
-                base,
-                cv2.CV_32F,
-                _BINOMIAL,
-                _BINOMIAL,
-                dst=levels[0],
-                borderType=cv2.BORDER_REFLECT_101,
+            # Clipped to the image, keeping its border pixel: points beyond it read that.
+            height, width = self.shape
+            self._make_base(
+                (
+                    min(max(math.floor(low_x) - _SAMPLE_REACH, 0), width - 1),
+                    min(max(math.floor(low_y) - _SAMPLE_REACH, 0), height - 1),
+                    min(max(math.floor(high_x) + _SAMPLE_REACH + 1, 1), width),
+                    min(max(math.floor(high_y) + _SAMPLE_REACH + 1, 1), height),
+                )
             )
-            if num_levels > 1:
-                levels[1][...] = levels[0][::2, ::2]
-        for level in range(2 if smooth_base else 1, num_levels):
-            cv2.pyrDown(levels[level - 1], dst=levels[level])
-        return cls(levels=levels, scratch=buffers.scratch)
+        return self._levels[index]
 
     def scale(self, factor: float) -> None:
         """Multiply the grey levels of every level by ``factor``, in place.
@@ -127,7 +174,7 @@ class ImagePyramid:
         Every level is linear in the image, so this gives the pyramid of the scaled image
         without building it again: how the stereo tracker divides the right camera's gain
         relative to the left out of the right images
-        (:mod:`~face_tracking_ros.tracking.camera_gain`).
+        (:mod:`~face_tracking_ros.tracking.camera_gain`). Every level is made first.
         """
         for level in self.levels:
             level *= np.float32(factor)
@@ -135,12 +182,12 @@ class ImagePyramid:
     @property
     def num_levels(self) -> int:
         """Number of levels L."""
-        return len(self.levels)
+        return len(self._levels)
 
     @property
     def shape(self) -> tuple[int, int]:
         """(H, W) of level 0."""
-        height, width = self.levels[0].shape
+        height, width = self._levels[0].shape
         return height, width
 
     @staticmethod
@@ -148,36 +195,61 @@ class ImagePyramid:
         """Level-0 pixel coordinates (..., 2) mapped to level ``level``."""
         return np.asarray(points) / float(1 << level)
 
-
-class _Buffers(NamedTuple):
-    """Arrays a pyramid is built into: the float32 copy of the image and the levels."""
-
-    base: np.ndarray
-    levels: tuple[np.ndarray, ...]
-    scratch: np.ndarray | None
-
-    @classmethod
-    def of(
-        cls,
-        shape: tuple[int, int],
-        num_levels: int,
-        smooth_base: bool,
-        reuse: ImagePyramid | None,
-    ) -> _Buffers:
-        """The arrays of ``reuse`` when they fit, otherwise new ones."""
-        sizes = [
-            ((shape[0] + (1 << k) - 1) >> k, (shape[1] + (1 << k) - 1) >> k)
-            for k in range(num_levels)
-        ]
-        fits = (
-            reuse is not None
-            and [level.shape for level in reuse.levels] == sizes
-            and (reuse.scratch is not None) == smooth_base
-        )
-        if fits:
-            levels = reuse.levels
-            scratch = reuse.scratch
+    def _make_base(self, reach: tuple[int, int, int, int]) -> None:
+        """Make level 0 over the box ``reach`` (x0, y0, x1, y1, exclusive, inside the image)."""
+        x0, y0, x1, y1 = self._box
+        if x0 <= reach[0] and y0 <= reach[1] and reach[2] <= x1 and reach[3] <= y1:
+            return
+        height, width = self.shape
+        if x1 > x0:  # grow the box made to one holding it and the reach
+            reach = (min(x0, reach[0]), min(y0, reach[1]), max(x1, reach[2]), max(y1, reach[3]))
+        x0, y0 = max(reach[0] - _BOX_MARGIN, 0), max(reach[1] - _BOX_MARGIN, 0)
+        x1, y1 = min(reach[2] + _BOX_MARGIN, width), min(reach[3] + _BOX_MARGIN, height)
+        if not self._smooth:
+            self._levels[0][y0:y1, x0:x1] = self._source[y0:y1, x0:x1]
         else:
-            levels = tuple(np.empty(size, dtype=np.float32) for size in sizes)
-            scratch = np.empty(shape, dtype=np.float32) if smooth_base else None
-        return cls(base=levels[0] if scratch is None else scratch, levels=levels, scratch=scratch)
+            # The box with the 2 px of image around it that the kernel reaches; the filter
+            # writes the border too, outside the box made so far (it only grows).
+            rows = slice(max(y0 - 2, 0), min(y1 + 2, height))
+            cols = slice(max(x0 - 2, 0), min(x1 + 2, width))
+            cv2.sepFilter2D(
+                self._source[rows, cols],
+                cv2.CV_32F,
+                _BINOMIAL,
+                _BINOMIAL,
+                dst=self._levels[0][rows, cols],
+                borderType=cv2.BORDER_REFLECT_101,
+            )
+        self._box = (x0, y0, x1, y1)
+
+    def _make_all(self) -> None:
+        """Make every level in full (level 0 first)."""
+        if self._complete:
+            return
+        height, width = self.shape
+        self._make_base((0, 0, width, height))
+        levels = self._levels
+        if self._smooth and len(levels) > 1:
+            levels[1][...] = levels[0][::2, ::2]
+        for level in range(2 if self._smooth else 1, len(levels)):
+            cv2.pyrDown(levels[level - 1], dst=levels[level])
+        self._complete = True
+
+
+def _buffers(
+    gray: np.ndarray, num_levels: int, reuse: ImagePyramid | None
+) -> tuple[np.ndarray, tuple[np.ndarray, ...]]:
+    """The source copy of ``gray`` and the levels to build into: ``reuse``'s when they fit."""
+    shape = gray.shape
+    dtype = np.uint8 if gray.dtype == np.uint8 else np.float32
+    sizes = [
+        ((shape[0] + (1 << k) - 1) >> k, (shape[1] + (1 << k) - 1) >> k) for k in range(num_levels)
+    ]
+    if (
+        reuse is not None
+        and reuse._source is not None
+        and reuse._source.dtype == dtype
+        and [level.shape for level in reuse._levels] == sizes
+    ):
+        return reuse._source, reuse._levels
+    return np.empty(shape, dtype), tuple(np.empty(size, dtype=np.float32) for size in sizes)

@@ -383,7 +383,7 @@ class _Level(NamedTuple):
 
     Attributes:
         index: the level l.
-        image: (H_l, W_l) float32 level of I_n.
+        pyramid: I_n's pyramid, read through :meth:`ImagePyramid.level`.
         camera: (3, 4) projection matrix P of level pixels (its first two rows times 2^-l).
         roi: the level's ROI samples.
         template: (N, M) blended template T of the level.
@@ -392,7 +392,7 @@ class _Level(NamedTuple):
     """
 
     index: int
-    image: np.ndarray
+    pyramid: ImagePyramid
     camera: np.ndarray
     roi: _Roi
     template: np.ndarray
@@ -1285,7 +1285,7 @@ class MonoTracker:
         """
         track = self._track
         params = solution.params
-        first = self._sample(pyramid.levels[0], params, 0, track.rois[0])
+        first = self._sample(pyramid, params, 0, track.rois[0])
         projection = solution.projection
         residuals = projection.apply(first.samples - templates[0])
         weights = node_weights[:, None] * first.inside
@@ -1346,7 +1346,7 @@ class MonoTracker:
             nonlocal coarsest_solved
             level = _Level(
                 index=index,
-                image=pyramid.levels[index],
+                pyramid=pyramid,
                 camera=self._level_cameras[index],
                 roi=self._track.rois[index],
                 template=templates[index],
@@ -1431,7 +1431,8 @@ class MonoTracker:
         basis = self._identity_action_basis if free_sigma else self._action_basis
         rotation, shape = self._pose(params)
         rotated, (x, y) = self._roi_points(params, level.camera, level.roi)
-        samples, gradient = sample_with_gradient_xy(level.image, x, y)
+        image = level.pyramid.level(level.index, x, y)
+        samples, gradient = sample_with_gradient_xy(image, x, y)
         jacobian, node_jacobian = roi_jacobian(
             rotated,
             rotation @ shape.T,
@@ -1446,7 +1447,7 @@ class MonoTracker:
         jacobian_t = level.projection.apply(jacobian).reshape(len(jacobian), -1)
         return _Linearisation(
             params=params,
-            sampled=_Sampled(samples, inside_xy(x, y, level.image.shape, margin=1.0)),
+            sampled=_Sampled(samples, inside_xy(x, y, image.shape, margin=1.0)),
             jacobian_t=jacobian_t,
             hessian=weighted_gram(jacobian_t, level.visibility.ravel()),
             node_jacobian=node_jacobian,
@@ -1493,7 +1494,7 @@ class MonoTracker:
         sampled = (
             linear.sampled
             if params is linear.params
-            else self._sample(level.image, params, level.index, level.roi)
+            else self._sample(level.pyramid, params, level.index, level.roi)
         )
         residuals = level.projection.apply(sampled.samples - level.template)
         weights = level.visibility * sampled.inside
@@ -1647,18 +1648,18 @@ class MonoTracker:
         are sampled when first used (:class:`_OnDemand`), from ``pyramid``, which
         :meth:`_pyramid` keeps until then.
         """
-        first = first or self._sample(pyramid.levels[0], params, 0, rois[0])
+        first = first or self._sample(pyramid, params, 0, rois[0])
 
         def sample(level: int) -> np.ndarray:
-            _, (x, y) = self._roi_points(params, self._level_cameras[level], rois[level])
-            return sample_xy(pyramid.levels[level], x, y)
+            return self._sample(pyramid, params, level, rois[level]).samples
 
         levels = _OnDemand(pyramid.num_levels, sample, source=pyramid, first=first.samples)
         return _Templates(levels, self._visibility(params, normals), first.inside)
 
-    def _sample(self, image: np.ndarray, params: _Params, level: int, roi: _Roi) -> _Sampled:
+    def _sample(self, pyramid: ImagePyramid, params: _Params, level: int, roi: _Roi) -> _Sampled:
         """Level ``level``'s samples of its ROIs ``roi`` at ``params``."""
         _, (x, y) = self._roi_points(params, self._level_cameras[level], roi)
+        image = pyramid.level(level, x, y)
         return _Sampled(sample_xy(image, x, y), inside_xy(x, y, image.shape, margin=1.0))
 
     def _visibility(self, params: _Params, normals: np.ndarray) -> np.ndarray:
