@@ -58,35 +58,37 @@ class ImagePyramid:
     """A float32 Gaussian pyramid of one grey image, made as it is read.
 
     :attr:`levels` gives every level in full. A tracker that samples a few patches of a frame
-    reads them through :meth:`level` instead: level 0 (the image in float32, smoothed if
-    ``smooth_base``) is then made only over the box its samples reach, a face's patches being a
-    tenth or so of a 640x480 frame, and the coarser levels, which need all of level 0, when
-    first asked for. Every value read either way is the full build's: smoothing a box of the
-    image with a 2-px border of it gives the values of smoothing the whole image, whose
-    reflected border lies at its own edges; to the bit for an 8-bit image (its weighted sums are
-    exact in float32), within float32 rounding for a float one (the filter's vector and scalar
-    paths meet at other columns).
+    reads them through :meth:`level` instead: the coarser levels, which need all of level 0,
+    are made when first asked for, and a smoothed level 0 (``smooth_base``) only over the box
+    its samples reach, a face's patches being a tenth or so of a 640x480 frame. Every value
+    read either way is the full build's: smoothing a box of the image with a 2-px border of it
+    gives the values of smoothing the whole image, whose reflected border lies at its own
+    edges; to the bit for an 8-bit image (its weighted sums are exact in float32), within
+    float32 rounding for a float one (the filter's vector and scalar paths meet at other
+    columns).
     """
 
     def __init__(
         self,
         levels: Sequence[np.ndarray],
         source: np.ndarray | None = None,
-        smooth_base: bool = False,
+        coarse_made: bool = True,
     ) -> None:
-        """A pyramid of ``levels`` (level 0 first, float32).
+        """A pyramid of ``levels`` (level 0 first, float32), complete unless told otherwise.
 
-        Without ``source`` the levels are complete. With it they are buffers still to be made
-        from ``source``, the (H, W) grey image (uint8 or float32, owned by the pyramid), level
-        0 smoothed if ``smooth_base`` (:meth:`build`).
+        Args:
+            levels: the levels, or buffers for those still to be made (:meth:`build`).
+            source: the (H, W) grey image (uint8 or float32, owned by the pyramid) that level 0
+                is still to be made from, smoothed; None if level 0 is made.
+            coarse_made: whether the coarser levels are made.
         """
         self._levels = tuple(levels)
         self._source = source
-        self._smooth = smooth_base
+        self._smoothed = source is not None
         height, width = self._levels[0].shape
-        # The box of level 0 made so far, (x0, y0, x1, y1) exclusive, and whether the rest is.
+        # The box of level 0 made so far, (x0, y0, x1, y1) exclusive, and whether all is.
         self._box = (0, 0, width, height) if source is None else (0, 0, 0, 0)
-        self._complete = source is None
+        self._complete = source is None and (coarse_made or len(self._levels) == 1)
 
     @classmethod
     def build(
@@ -99,17 +101,18 @@ class ImagePyramid:
         """The pyramid of ``num_levels`` levels of ``gray``, made as it is read.
 
         Args:
-            gray: (H, W) uint8 or float grey image, copied (the caller may reuse it).
+            gray: (H, W) uint8 or float grey image, copied (the caller may reuse its buffer).
             num_levels: number of levels, >= 1.
             smooth_base: smooth level 0 with pyrDown's binomial kernel (sigma ~ 1 px). Bilinear
                 sampling of a sharp image is biased towards whole-pixel positions; smoothing
                 removes most of that bias at the cost of one filter pass. Level 1 is then level 0
                 decimated, identical to ``pyrDown`` of the unsmoothed image.
             reuse: a pyramid no longer needed, built from an image of the same size and type
-                with the same levels; its arrays are overwritten and become this pyramid's. A
-                tracker building one pyramid per frame so avoids allocating ~2 MB per 640x480
-                frame, which costs ~1 ms of page faults whenever the allocator has returned the
-                previous frame's memory to the system. Ignored when it does not match.
+                with the same levels and smoothing; its arrays are overwritten and become this
+                pyramid's. A tracker building one pyramid per frame so avoids allocating ~2 MB
+                per 640x480 frame, which costs ~1 ms of page faults whenever the allocator has
+                returned the previous frame's memory to the system. Ignored when it does not
+                match.
 
         Raises:
             InputError: if the image is not 2-D, not finite, or too small for the levels asked
@@ -122,12 +125,13 @@ class ImagePyramid:
         if not 1 <= num_levels <= _levels_that_fit(min(gray.shape), MIN_LEVEL_SIZE):
             msg = f'cannot build {num_levels} pyramid levels from a {gray.shape} image'
             raise InputError(msg)
-        source, levels = _buffers(gray, num_levels, reuse)
-        source[...] = gray
-        if source.dtype != np.uint8 and not np.all(np.isfinite(source)):
+        source, levels = _buffers(gray, num_levels, smooth_base, reuse)
+        copy = levels[0] if source is None else source
+        copy[...] = gray
+        if not np.issubdtype(gray.dtype, np.integer) and not np.all(np.isfinite(copy)):
             msg = 'pyramid input holds NaN or Inf'
             raise InputError(msg)
-        return cls(levels, source, smooth_base)
+        return cls(levels, source, coarse_made=False)
 
     @property
     def levels(self) -> tuple[np.ndarray, ...]:
@@ -151,7 +155,7 @@ class ImagePyramid:
         """
         if index > 0:
             self._make_all()
-        elif not self._complete and np.size(x):
+        elif self._source is not None and not self._complete and np.size(x):
             x, y = np.asarray(x), np.asarray(y)
             low_x, high_x, low_y, high_y = x.min(), x.max(), y.min(), y.max()  # methods: faster
             if not math.isfinite(low_x + high_x + low_y + high_y):
@@ -206,21 +210,18 @@ class ImagePyramid:
             reach = (min(x0, reach[0]), min(y0, reach[1]), max(x1, reach[2]), max(y1, reach[3]))
         x0, y0 = max(reach[0] - _BOX_MARGIN, 0), max(reach[1] - _BOX_MARGIN, 0)
         x1, y1 = min(reach[2] + _BOX_MARGIN, width), min(reach[3] + _BOX_MARGIN, height)
-        if not self._smooth:
-            self._levels[0][y0:y1, x0:x1] = self._source[y0:y1, x0:x1]
-        else:
-            # The box with the 2 px of image around it that the kernel reaches; the filter
-            # writes the border too, outside the box made so far (it only grows).
-            rows = slice(max(y0 - 2, 0), min(y1 + 2, height))
-            cols = slice(max(x0 - 2, 0), min(x1 + 2, width))
-            cv2.sepFilter2D(
-                self._source[rows, cols],
-                cv2.CV_32F,
-                _BINOMIAL,
-                _BINOMIAL,
-                dst=self._levels[0][rows, cols],
-                borderType=cv2.BORDER_REFLECT_101,
-            )
+        # The box with the 2 px of image around it that the kernel reaches; the filter writes
+        # that border too, outside the box made so far (it only grows).
+        rows = slice(max(y0 - 2, 0), min(y1 + 2, height))
+        cols = slice(max(x0 - 2, 0), min(x1 + 2, width))
+        cv2.sepFilter2D(
+            self._source[rows, cols],
+            cv2.CV_32F,
+            _BINOMIAL,
+            _BINOMIAL,
+            dst=self._levels[0][rows, cols],
+            borderType=cv2.BORDER_REFLECT_101,
+        )
         self._box = (x0, y0, x1, y1)
 
     def _make_all(self) -> None:
@@ -230,17 +231,20 @@ class ImagePyramid:
         height, width = self.shape
         self._make_base((0, 0, width, height))
         levels = self._levels
-        if self._smooth and len(levels) > 1:
+        if self._smoothed and len(levels) > 1:
             levels[1][...] = levels[0][::2, ::2]
-        for level in range(2 if self._smooth else 1, len(levels)):
+        for level in range(2 if self._smoothed else 1, len(levels)):
             cv2.pyrDown(levels[level - 1], dst=levels[level])
         self._complete = True
 
 
 def _buffers(
-    gray: np.ndarray, num_levels: int, reuse: ImagePyramid | None
-) -> tuple[np.ndarray, tuple[np.ndarray, ...]]:
-    """The source copy of ``gray`` and the levels to build into: ``reuse``'s when they fit."""
+    gray: np.ndarray, num_levels: int, smooth_base: bool, reuse: ImagePyramid | None
+) -> tuple[np.ndarray | None, tuple[np.ndarray, ...]]:
+    """The levels to build into, and a buffer for the image to smooth level 0 from (or None).
+
+    ``reuse``'s when they fit.
+    """
     shape = gray.shape
     dtype = np.uint8 if gray.dtype == np.uint8 else np.float32
     sizes = [
@@ -248,9 +252,10 @@ def _buffers(
     ]
     if (
         reuse is not None
-        and reuse._source is not None
-        and reuse._source.dtype == dtype
         and [level.shape for level in reuse._levels] == sizes
+        and reuse._smoothed == smooth_base
+        and (reuse._source is None or reuse._source.dtype == dtype)
     ):
         return reuse._source, reuse._levels
-    return np.empty(shape, dtype), tuple(np.empty(size, dtype=np.float32) for size in sizes)
+    source = np.empty(shape, dtype) if smooth_base else None
+    return source, tuple(np.empty(size, dtype=np.float32) for size in sizes)
