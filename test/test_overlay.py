@@ -5,12 +5,17 @@ from __future__ import annotations
 from pathlib import Path
 
 from compressed_bags import compressed_copy
+import cv2
 import numpy as np
 import pytest
 
 from face_tracking_ros.cli.main import main
-from face_tracking_ros.io.bags import bag_topics
+from face_tracking_ros.errors import InputError
+from face_tracking_ros.io import conversions
+from face_tracking_ros.io.bags import BagWriter, bag_topics, read_messages
+from face_tracking_ros.io.messages import RosbagsMessages
 from face_tracking_ros.io.series import load_states
+from face_tracking_ros.io.typestore import typestore
 from face_tracking_ros.visualization.video import overlay_frames, write_overlay_video
 
 
@@ -55,3 +60,41 @@ def test_compressed_frames_are_drawn_like_raw_ones(turned, tmp_path):
     frames = zip(overlay_frames(bag, states), overlay_frames(copy, states), strict=True)
     for expected, frame in frames:
         np.testing.assert_array_equal(frame, expected)
+
+
+def _with_last_image_halved(bag: Path, out: Path) -> Path:
+    """``bag`` with its last image at half size (same stamp), as a bag of mixed sizes has."""
+    messages = list(read_messages(bag))
+    last = max(i for i, message in enumerate(messages) if message.topic == 'image')
+    factory = RosbagsMessages(typestore())
+    with BagWriter(out) as writer:
+        for i, message in enumerate(messages):
+            msg = message.msg
+            if i == last:
+                small = cv2.resize(conversions.image_to_gray(msg), None, fx=0.5, fy=0.5)
+                msg = conversions.array_to_image(factory, msg.header, small)
+            writer.write(message.topic, message.msgtype, msg, message.stamp_ns)
+    return out
+
+
+@pytest.mark.parametrize(
+    ('rectify', 'match'),
+    [(True, 'image 2 is 80x60 but camera_info says 160x120'),
+     (False, 'image 2 is 80x60, the frames before it 160x120')],
+)  # fmt: skip
+def test_an_image_of_another_size_is_refused_and_the_video_so_far_kept(
+    turned, tmp_path, rectify, match
+):
+    """Its state (tracked elsewhere) would be drawn on the wrong pixels: a clear error instead."""
+    bag, out = turned
+    mixed = _with_last_image_halved(bag, tmp_path / 'mixed')
+    states = load_states(out)
+    frames = overlay_frames(mixed, states, rectify=rectify)
+    assert len([next(frames), next(frames)]) == 2
+    with pytest.raises(InputError, match=match):
+        next(frames)
+    video = tmp_path / 'v.mp4'
+    with pytest.raises(InputError, match=match):
+        write_overlay_video(mixed, states, video, rectify=rectify)
+    capture = cv2.VideoCapture(str(video))
+    assert int(capture.get(cv2.CAP_PROP_FRAME_COUNT)) == 2  # the frames before it, readable

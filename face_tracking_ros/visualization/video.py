@@ -14,7 +14,7 @@ import cv2
 import imageio.v3 as iio
 import numpy as np
 
-from face_tracking_ros.errors import BagError, ConfigError
+from face_tracking_ros.errors import BagError, ConfigError, InputError
 from face_tracking_ros.imaging.rectification import Rectifier
 from face_tracking_ros.io import conversions
 from face_tracking_ros.io.bags import bag_topics, read_messages, stamp_to_ns
@@ -64,6 +64,10 @@ def overlay_frames(
 
     With ``rectify``, each frame is rectified with the latest CameraInfo beside its topic (the
     first one until then; none in the bag: drawn as it is).
+
+    Raises:
+        InputError: for an image of another size than its camera_info says, or than the frames
+            before it (one video holds one size); the frames before it have been yielded.
     """
     if every < 1:
         msg = f'every must be >= 1, got {every}'
@@ -76,7 +80,7 @@ def overlay_frames(
     rectifier = None
     if info is not None:  # from the first frame on, even if its camera_info comes after it
         rectifier = Rectifier(cameras.read(next(read_messages(bag, topics=[info])).msg))
-    count = -1
+    count, size = -1, None
     for message in read_messages(bag, topics=[chosen, *([info] if info else [])]):
         if message.topic == info:
             camera = cameras.read(message.msg)
@@ -88,11 +92,26 @@ def overlay_frames(
         if index is None or count % every:
             continue
         gray = conversions.message_to_gray(message.msg)
+        name = f'{chosen} image {count}'
         if rectifier is not None:
+            rectifier.check_size(gray, name)
             gray = rectifier.image(gray)
+        size = _one_size(gray.shape, size, name)
         status = TrackStatus(states.status[index])
         label = f'{status.name.lower()}  frame {count}'
         yield draw_mesh(gray, states.image_points[index], edges, status, label)
+
+
+def _one_size(shape: tuple[int, ...], first: tuple[int, ...] | None, name: str) -> tuple[int, ...]:
+    """The video's frame size: ``first``, or ``shape`` for the first frame.
+
+    Raises:
+        InputError: for a frame ``name`` of another size than the frames before it.
+    """
+    if first is not None and shape != first:
+        msg = f'{name} is {shape[1]}x{shape[0]}, the frames before it {first[1]}x{first[0]}'
+        raise InputError(msg)
+    return first or shape
 
 
 def write_overlay_video(
