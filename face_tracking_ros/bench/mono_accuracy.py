@@ -23,6 +23,11 @@ from simulated clicks on the first frame (1 px noise). On the same frames run:
   the same sequence rendered with real skin, the packaged face photo
   (:func:`~face_tracking_ros.data.photo_face_paths`) as the subject's texture instead of the
   procedural one: same head, motion, expressions and light;
+- ``jpeg_quality_95`` and ``jpeg_quality_75``: the default tracker (true model) on the same
+  frames JPEG-compressed at that quality, as a camera sends them through image_transport's
+  compressed plugin (95 is its default ``jpeg_quality``; 75 saves bandwidth) and the nodes
+  decode them (OpenCV, with ``compressed:=true``): 8x8 block artifacts, ringing and lost fine
+  texture instead of sensor noise alone;
 - ``realistic_true_model`` and ``realistic_packaged_model``: the default tracker on the same
   motion by subject 0 of the 'realistic' population of the seed (issue 11's world: thirteen
   identity modes led by face size, identity sharing directions with the expressions), with that
@@ -43,6 +48,7 @@ from __future__ import annotations
 from dataclasses import replace
 from typing import Any
 
+import cv2
 import numpy as np
 
 from face_tracking_ros.bench.common import BenchOptions
@@ -80,6 +86,7 @@ DRAWS_ROW = 'true_model_click_draws'
 FRAMES, QUICK_FRAMES = 1000, 20
 STILL_FRAMES, QUICK_STILL_FRAMES = 300, 10
 WIDTH, HEIGHT = 640, 480
+JPEG_QUALITIES = (95, 75)
 ABLATIONS = {
     'epsilon_0': MonoTrackerConfig(epsilon=0.0),
     'prior_off': MonoTrackerConfig(prior_weight=0.0),
@@ -155,6 +162,9 @@ def _free_rows(seed: int, frames: int) -> dict[str, dict[str, Any]]:
     photo_sequence = render_sequence(replace(config, texture=photo, texture_nodes=photo_nodes))
     rows['photo_texture'] = _row(published(true34), true34, photo_sequence, seed)
     rows['photo_baseline'] = _row(LKPnPTracker(true34, camera), true34, photo_sequence, seed)
+    for quality in JPEG_QUALITIES:
+        compressed = _jpeg(sequence, quality)
+        rows[f'jpeg_quality_{quality}'] = _row(published(true34), true34, compressed, seed)
     realistic = replace(config, population='realistic')
     realistic_sequence = render_sequence(realistic)
     models = {
@@ -164,6 +174,20 @@ def _free_rows(seed: int, frames: int) -> dict[str, dict[str, Any]]:
     for name, model in models.items():
         rows[name] = _row(published(model), model, realistic_sequence, seed)
     return rows
+
+
+def _jpeg(sequence: RenderedSequence, quality: int) -> RenderedSequence:
+    """The sequence with every image JPEG-encoded at ``quality`` and decoded (OpenCV)."""
+
+    def compressed(image: np.ndarray) -> np.ndarray:
+        encoded = cv2.imencode('.jpg', image, [cv2.IMWRITE_JPEG_QUALITY, quality])[1]
+        return cv2.imdecode(encoded, cv2.IMREAD_UNCHANGED)
+
+    frames = [
+        replace(frame, images={name: compressed(image) for name, image in frame.images.items()})
+        for frame in sequence.frames
+    ]
+    return replace(sequence, frames=frames)
 
 
 def _row(
