@@ -31,10 +31,12 @@ Design, in the seed's terms:
   (:mod:`~face_tracking_ros.imaging.photometric`): the shading of a turning head under a fixed
   light changes far more than eq. 6's brightness constancy allows.
 - Levenberg-Marquardt over (omega, t, alpha) (and sigma during the first ``sigma_frames`` frames),
-  coarse to fine on a Gaussian pyramid, with Huber IRLS weights, per-node visibility (nodes whose
-  normal turns away from the camera lose their weight) and analytic Jacobians: the image gradient
-  sampled on the patches times d pixel / d X_c (eq. 2) times d X_c / d(omega, t, alpha) (eq. 1, 3),
-  evaluated where a pyramid level starts and refreshed after half a pixel of motion. A level
+  coarse to fine on a Gaussian pyramid (made where the ROIs read it,
+  :meth:`~face_tracking_ros.imaging.pyramid.ImagePyramid.level`), with Huber IRLS weights,
+  per-node visibility (nodes whose normal turns away from the camera lose their weight) and
+  analytic Jacobians: the image gradient sampled on the patches times d pixel / d X_c (eq. 2)
+  times d X_c / d(omega, t, alpha) (eq. 1, 3), evaluated where a pyramid level starts and
+  refreshed after half a pixel of motion. A level
   ends when the nodes stop moving or a step raises the cost. Each frame starts from the
   constant-velocity prediction of the last two estimates, and a coarser level runs only when
   the first step on a finer one shows the face is too far for it. The loops over the ROI samples
