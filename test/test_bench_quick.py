@@ -77,8 +77,9 @@ def test_quick_run_writes_finite_figures(tmp_path):
     assert len(protocol['still']['mean']['angle_std_unfiltered_deg']) == 3
     stereo = results['benchmarks']['stereo_accuracy']
     runs = ('exact_clicks', 'clicks_1px', 'nodes_19', 'realistic_exact_clicks')
-    faults = ('nodes_19_rig_fault_corrected', 'nodes_19_rig_fault_uncorrected')
-    for run in (*runs, *faults, 'realistic_nodes_19'):
+    recorded = ('nodes_19_rig_fault_corrected', 'nodes_19_rig_fault_uncorrected')
+    recorded += ('exact_clicks_jpeg_95', 'nodes_19_jpeg_95', 'nodes_19_jpeg_75')
+    for run in (*runs, *recorded, 'realistic_nodes_19'):
         assert len(stereo['runs'][run]['subjects']) == 3
         pooled = stereo['runs'][run]['pooled']
         assert pooled['tracked_fraction'] == 1.0

@@ -1,4 +1,4 @@
-"""What every benchmark shares: options, timing summaries, one-core pinning and process memory."""
+"""What every benchmark shares: options, timing, one-core pinning, memory, JPEG frames."""
 
 from __future__ import annotations
 
@@ -9,6 +9,7 @@ from pathlib import Path
 import sys
 import time
 
+import cv2
 import numpy as np
 
 from face_tracking_ros.threads import ONE_THREAD_ENV
@@ -35,6 +36,15 @@ class BenchOptions:
     minutes: float = 30.0
     domain_id: int = 70
     seed: int = 0
+
+
+def jpeg_compressed(image: np.ndarray, quality: int) -> np.ndarray:
+    """``image`` JPEG-encoded at ``quality`` and decoded (OpenCV).
+
+    What a node decodes from image_transport's compressed topic (its default quality is 95).
+    """
+    encoded = cv2.imencode('.jpg', image, [cv2.IMWRITE_JPEG_QUALITY, quality])[1]
+    return cv2.imdecode(encoded, cv2.IMREAD_UNCHANGED)
 
 
 def skipped(reason: str) -> dict[str, str]:

@@ -48,10 +48,9 @@ from __future__ import annotations
 from dataclasses import replace
 from typing import Any
 
-import cv2
 import numpy as np
 
-from face_tracking_ros.bench.common import BenchOptions
+from face_tracking_ros.bench.common import BenchOptions, jpeg_compressed
 from face_tracking_ros.bench.world import (
     RenderedSequence,
     learned_model,
@@ -177,14 +176,12 @@ def _free_rows(seed: int, frames: int) -> dict[str, dict[str, Any]]:
 
 
 def _jpeg(sequence: RenderedSequence, quality: int) -> RenderedSequence:
-    """The sequence with every image JPEG-encoded at ``quality`` and decoded (OpenCV)."""
-
-    def compressed(image: np.ndarray) -> np.ndarray:
-        encoded = cv2.imencode('.jpg', image, [cv2.IMWRITE_JPEG_QUALITY, quality])[1]
-        return cv2.imdecode(encoded, cv2.IMREAD_UNCHANGED)
-
+    """The sequence with every image JPEG-compressed at ``quality`` (:func:`.jpeg_compressed`)."""
     frames = [
-        replace(frame, images={name: compressed(image) for name, image in frame.images.items()})
+        replace(
+            frame,
+            images={name: jpeg_compressed(image, quality) for name, image in frame.images.items()},
+        )
         for frame in sequence.frames
     ]
     return replace(sequence, frames=frames)

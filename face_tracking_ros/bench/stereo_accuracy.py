@@ -17,10 +17,13 @@ that size (:func:`~face_tracking_ros.learning.evaluation.compare_with_truth`): t
 is a model learned from tracked meshes within 0.01 of the similarity that the true meshes
 reach.
 
-Two more runs of the 19-node mesh put a real rig's faults on the right images (:class:`RigFault`:
-15 % brighter, rows 0.3 px lower), tracked with the tracker's gain and row-offset corrections
-(:mod:`~face_tracking_ros.tracking.camera_gain`, :mod:`~face_tracking_ros.tracking.row_offset`)
-and without; their meshes are not learned from.
+More runs track recordings that differ from the renderer's exact pairs (:class:`Recording`),
+and their meshes are not learned from: two of the 19-node mesh put a real rig's faults on the
+right images (:class:`RigFault`: 15 % brighter, rows 0.3 px lower), tracked with the tracker's
+gain and row-offset corrections (:mod:`~face_tracking_ros.tracking.camera_gain`,
+:mod:`~face_tracking_ros.tracking.row_offset`) and without; three track both images
+JPEG-compressed (:class:`JpegRecording`) as image_transport's compressed plugin records them:
+at its default quality 95 with both mesh sizes, and at 75 with the 19-node mesh.
 
 All of that runs on the default population, and again (exact clicks, both mesh sizes) on the
 'realistic' one (:mod:`face_tracking_ros.synthetic.faces`): thirteen identity modes led by face
@@ -33,12 +36,12 @@ issue asks ("tune for faces in general").
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass, replace
-from typing import Any
+from typing import Any, Protocol
 
 import cv2
 import numpy as np
 
-from face_tracking_ros.bench.common import BenchOptions
+from face_tracking_ros.bench.common import BenchOptions, jpeg_compressed
 from face_tracking_ros.geometry.camera import StereoRig
 from face_tracking_ros.learning.alignment import align_training_set
 from face_tracking_ros.learning.evaluation import compare_with_truth, population_truth
@@ -57,9 +60,21 @@ FRAMES, QUICK_FRAMES = 380, 12
 FPS = 30.0
 
 
+class Recording(Protocol):
+    """How a recording's pairs differ from the renderer's exact ones, and how to track them."""
+
+    def pair(self, left: np.ndarray, right: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The recorded pair of an exact one."""
+        ...
+
+    def configured(self, config: StereoTrackerConfig) -> StereoTrackerConfig:
+        """The tracker's configuration for such recordings."""
+        ...
+
+
 @dataclass(frozen=True)
 class RigFault:
-    """What a real rig adds to the renderer's exact one, on the right images.
+    """What a real rig adds to the renderer's exact one, on the right images (a Recording).
 
     Attributes:
         gain: the right camera's gain relative to the left.
@@ -84,16 +99,46 @@ class RigFault:
         )
         return np.minimum(moved, 255.0)
 
+    def pair(self, left: np.ndarray, right: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The left image as it is, the right one with the fault."""
+        return left, self.right_image(right)
+
+    def configured(self, config: StereoTrackerConfig) -> StereoTrackerConfig:
+        """``config`` with the gain and row-offset corrections on or off (``corrected``)."""
+        corrected = self.corrected
+        return replace(config, gain_compensation=corrected, row_offset_correction=corrected)
+
+
+@dataclass(frozen=True)
+class JpegRecording:
+    """Both images JPEG-compressed at ``quality`` (a Recording).
+
+    As the stereo_tracker gets image_transport's compressed topics (:func:`.jpeg_compressed`).
+    """
+
+    quality: int
+
+    def pair(self, left: np.ndarray, right: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Both images compressed."""
+        return jpeg_compressed(left, self.quality), jpeg_compressed(right, self.quality)
+
+    def configured(self, config: StereoTrackerConfig) -> StereoTrackerConfig:
+        """``config`` as it is."""
+        return config
+
 
 FAULT = RigFault(gain=1.15, row_offset_px=0.3, corrected=True)
-# run: (population preset, click noise px, N, rig fault); the realistic runs are named after the
-# population.
-RUNS: dict[str, tuple[str, float, int, RigFault | None]] = {
+# run: (population preset, click noise px, N, recording: None for the exact pairs); the realistic
+# runs are named after the population.
+RUNS: dict[str, tuple[str, float, int, Recording | None]] = {
     'exact_clicks': ('default', 0.0, 34, None),
     'clicks_1px': ('default', 1.0, 34, None),
     'nodes_19': ('default', 0.0, 19, None),
     'nodes_19_rig_fault_corrected': ('default', 0.0, 19, FAULT),
     'nodes_19_rig_fault_uncorrected': ('default', 0.0, 19, replace(FAULT, corrected=False)),
+    'exact_clicks_jpeg_95': ('default', 0.0, 34, JpegRecording(95)),
+    'nodes_19_jpeg_95': ('default', 0.0, 19, JpegRecording(95)),
+    'nodes_19_jpeg_75': ('default', 0.0, 19, JpegRecording(75)),
     'realistic_exact_clicks': ('realistic', 0.0, 34, None),
     'realistic_nodes_19': ('realistic', 0.0, 19, None),
 }
@@ -147,14 +192,14 @@ def _scene(options: BenchOptions, population: str) -> SceneConfig:
 
 def _population(
     scene: SceneConfig,
-    runs: dict[str, tuple[float, int, RigFault | None]],
+    runs: dict[str, tuple[float, int, Recording | None]],
     evaluations: dict[str, list[StereoEvaluation]],
 ) -> dict[str, dict[str, Any]]:
     """Track every subject of one population per run; the models learned per mesh size.
 
     Args:
         scene: the population's training scene.
-        runs: {run: (click noise px, N, rig fault)}.
+        runs: {run: (click noise px, N, recording)}.
         evaluations: {run: evaluations}, every subject's appended here.
 
     Returns:
@@ -175,15 +220,15 @@ def _population(
             true = MeshSequence.labelled(subject_id, truth[:, :num_nodes], labels)
             by_meshes['true'].append(true)
         pairs = [(frame.images['left'], frame.images['right']) for frame in frames]
-        for run, (noise, num_nodes, fault) in runs.items():
+        for run, (noise, num_nodes, recording) in runs.items():
             topology = mesh_topology(num_nodes)
             rng = np.random.default_rng([scene.seed, subject])
             nodes = truth[:, :num_nodes]
             clicks = simulated_clicks(topology.node_names, nodes[0], rig.left, noise, rng)
-            meshes, status = _tracked(rig, pairs, clicks, num_nodes, fault)
+            meshes, status = _tracked(rig, pairs, clicks, num_nodes, recording)
             evaluation = evaluate_stereo(meshes, nodes, rig, topology, status)
             evaluations.setdefault(run, []).append(evaluation)
-            if fault is not None:
+            if recording is not None:
                 continue
             tracked = MeshSequence.labelled(subject_id, meshes, labels)
             clicks_name = f'clicks_{noise:g}px' if noise else 'exact_clicks'
@@ -210,17 +255,16 @@ def _tracked(
     pairs: list,
     clicks: Initialisation,
     num_nodes: int,
-    fault: RigFault | None,
+    recording: Recording | None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """(F, N, 3) meshes and (F,) statuses of a sequence tracked as learn tracks raw bags.
 
-    With a rig fault, its right images and its corrections (on or off).
+    With a recording, its pairs and its configuration of the tracker.
     """
     config = StereoTrackerConfig(num_nodes=num_nodes, refine_depths=True)
-    if fault is not None:
-        pairs = [(left, fault.right_image(right)) for left, right in pairs]
-        corrected = fault.corrected
-        config = replace(config, gain_compensation=corrected, row_offset_correction=corrected)
+    if recording is not None:
+        pairs = [recording.pair(left, right) for left, right in pairs]
+        config = recording.configured(config)
     tracker = StereoTracker(rig, config)
     tracker.reset(clicks)
     results = tracker.with_final_depths([tracker.step(left, right) for left, right in pairs])
