@@ -23,6 +23,9 @@ from simulated clicks on the first frame (1 px noise). On the same frames run:
   the same sequence rendered with real skin, the packaged face photo
   (:func:`~face_tracking_ros.data.photo_face_paths`) as the subject's texture instead of the
   procedural one: same head, motion, expressions and light;
+- ``motion_blur``: the default tracker (true model) on the same sequence rendered with motion
+  blur, each frame the mean of the face over an exposure of half the frame period (1/60 s at
+  30 fps) about its instant, as a camera records fast head motion;
 - ``jpeg_quality_95`` and ``jpeg_quality_75``: the default tracker (true model) on the same
   frames JPEG-compressed at that quality, as a camera sends them through image_transport's
   compressed plugin (95 is its default ``jpeg_quality``; 75 saves bandwidth) and the nodes
@@ -161,6 +164,8 @@ def _free_rows(seed: int, frames: int) -> dict[str, dict[str, Any]]:
     photo_sequence = render_sequence(replace(config, texture=photo, texture_nodes=photo_nodes))
     rows['photo_texture'] = _row(published(true34), true34, photo_sequence, seed)
     rows['photo_baseline'] = _row(LKPnPTracker(true34, camera), true34, photo_sequence, seed)
+    blurred = render_sequence(replace(config, motion_blur=True))
+    rows['motion_blur'] = _row(published(true34), true34, blurred, seed)
     for quality in JPEG_QUALITIES:
         compressed = _jpeg(sequence, quality)
         rows[f'jpeg_quality_{quality}'] = _row(published(true34), true34, compressed, seed)

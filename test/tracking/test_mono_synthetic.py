@@ -3,7 +3,7 @@
 The full-length figures of issue 6 (1000 frames) come from the benchmark; these tests use 24
 frames of a held-out subject with free head motion, moving light and sensor noise, with bounds
 loose enough for so few frames but tight enough to catch a broken tracker; the first test runs
-on procedural skin, on a real face photo and on JPEG-compressed frames.
+on procedural skin, on a real face photo, with motion blur and on JPEG-compressed frames.
 """
 
 from __future__ import annotations
@@ -54,6 +54,12 @@ def photo_sequence():
 
 
 @pytest.fixture(scope='module')
+def blurred_sequence():
+    """The same motion with motion blur: each frame the face averaged over half a frame period."""
+    return _free_sequence(replace(FREE, motion_blur=True))
+
+
+@pytest.fixture(scope='module')
 def jpeg_sequence(free_sequence):
     """The procedural-skin frames JPEG-compressed at quality 75.
 
@@ -66,7 +72,9 @@ def jpeg_sequence(free_sequence):
     return (decoded, *rest)
 
 
-@pytest.mark.parametrize('sequence', ['free_sequence', 'photo_sequence', 'jpeg_sequence'])
+@pytest.mark.parametrize(
+    'sequence', ['free_sequence', 'photo_sequence', 'blurred_sequence', 'jpeg_sequence']
+)
 def test_mono_tracks_a_free_moving_face_and_beats_lk_pnp(sequence, true_model_factory, request):
     images, true_nodes, camera, population = request.getfixturevalue(sequence)
     model = true_model_factory(population)
