@@ -1599,7 +1599,12 @@ class MonoTracker:
         votes = visible & (np.maximum(image_texture, self._texture(template)) > floor)
         matched = (image_texture > floor) & (node_rms < residual_ratio * image_texture)
         failing = votes & ~matched
-        if not votes.any() or failing.sum() > config.lost_node_fraction * votes.sum():
+        if not votes.any():
+            return (
+                f'no visible node shows texture above {floor:g} grey levels, in the image or its '
+                'template: a blank, dark or saturated image'
+            )
+        if failing.sum() > config.lost_node_fraction * votes.sum():
             return f'{failing.sum()} of {votes.sum()} textured nodes do not match their templates'
         drift = self._drift_ratio(
             params, samples, image_texture, visible & (image_texture > floor)

@@ -277,6 +277,17 @@ def test_bad_frames_give_lost_and_tracking_resumes(scene) -> None:
     assert resumed.ok, resumed.reason
 
 
+def test_a_face_too_dark_to_show_texture_is_lost_with_that_reason(scene) -> None:
+    # Exposed at 1 % (grey levels 0-3), frame 1 is fitted to its clicks and its templates are as
+    # flat as the next image: no node can confirm the track, and the reason says why.
+    model, image, init = scene
+    dark = np.round(image * 0.01).astype(np.uint8)
+    tracker = _started(model, dark, init)
+    lost = tracker.step(dark)
+    assert lost.status == TrackStatus.LOST
+    assert 'no visible node shows texture above 2 grey levels' in lost.reason
+
+
 def test_an_unrelated_image_is_lost_and_the_face_is_reacquired(scene, texture_factory) -> None:
     model, image, init = scene
     tracker = _started(model, image, init)
