@@ -480,6 +480,7 @@ def test_initialisation_failure_is_reported() -> None:
     tracker.reset(np.full((34, 2), 5.0))  # every node in the same corner, all matches equal
     result = tracker.step(np.zeros_like(left), np.zeros_like(right))
     assert result.status == TrackStatus.LOST and 'initialisation failed' in result.reason
+    assert 'both images show the face with some texture' in result.reason  # black images
 
 
 def test_reset_and_config_reject_bad_input() -> None:

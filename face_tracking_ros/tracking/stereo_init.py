@@ -311,7 +311,8 @@ def _trimmed_reference(
             msg = (
                 f'only {int(use.sum())} inner (non-boundary) nodes were matched in the right '
                 f'image consistently with a face (need {MIN_FIT_NODES}); check the rig '
-                'calibration and the initial positions'
+                'calibration, the initial positions and that both images show the face with '
+                'some texture (exposure, focus)'
             )
             raise InputError(msg)
         reference = _fit_reference(topology, nodes, use)
