@@ -151,7 +151,8 @@ class ImagePyramid:
         the same points find it made; a coarser level is made in full.
 
         Raises:
-            InputError: if the points hold NaN or Inf.
+            InputError: if the points hold NaN or Inf while level 0 is still being made (the
+                samplers refuse such points in any case).
         """
         if index > 0:
             self._make_all()
