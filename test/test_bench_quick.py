@@ -69,6 +69,7 @@ def test_quick_run_writes_finite_figures(tmp_path):
     rows += ('epsilon_0', 'prior_off', 'bundle_off', 'true_model_click_draws')
     rows += ('photo_texture', 'photo_baseline', 'realistic_true_model', 'realistic_packaged_model')
     rows += ('motion_blur', 'jpeg_quality_95', 'jpeg_quality_75')
+    rows += ('small_face',)
     assert set(protocol['rows']) == set(rows)
     for row in rows:
         assert len(protocol['rows'][row]['seeds']) == 1

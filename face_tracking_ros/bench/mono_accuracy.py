@@ -31,6 +31,10 @@ from simulated clicks on the first frame (1 px noise). On the same frames run:
   compressed plugin (95 is its default ``jpeg_quality``; 75 saves bandwidth) and the nodes
   decode them (OpenCV, with ``compressed:=true``): 8x8 block artifacts, ringing and lost fine
   texture instead of sensor noise alone;
+- ``small_face``: the default tracker (true model) on the same motion filmed with half the
+  focal length (a wider lens), so the face is half as large in the image (its nodes span 50-65
+  px from temple to temple instead of 105-135), as at twice the distance (1.1-1.4 m instead of
+  0.55-0.7 m);
 - ``realistic_true_model`` and ``realistic_packaged_model``: the default tracker on the same
   motion by subject 0 of the 'realistic' population of the seed (issue 11's world: thirteen
   identity modes led by face size, identity sharing directions with the expressions), with that
@@ -136,9 +140,13 @@ def _free_rows(seed: int, frames: int) -> dict[str, dict[str, Any]]:
     true34, true19 = true_face_model(population, 34), true_face_model(population, 19)
     learned = learned_model(34, seed).model
 
-    def published(model: FaceModel, tracker_config: MonoTrackerConfig | None = None) -> Tracker:
-        tracker = MonoTracker(model, camera, tracker_config)
-        return FilteredTracker(tracker, PoseFilter(camera), config.fps)
+    def published(
+        model: FaceModel,
+        tracker_config: MonoTrackerConfig | None = None,
+        lens: PinholeCamera = camera,
+    ) -> Tracker:
+        tracker = MonoTracker(model, lens, tracker_config)
+        return FilteredTracker(tracker, PoseFilter(lens), config.fps)
 
     init34, truth34 = sequence.initialisation(true34.node_names, seed), sequence.true_nodes(34)
     raw, smoothed = _raw_and_published(
@@ -169,6 +177,8 @@ def _free_rows(seed: int, frames: int) -> dict[str, dict[str, Any]]:
     for quality in JPEG_QUALITIES:
         compressed = _jpeg(sequence, quality)
         rows[f'jpeg_quality_{quality}'] = _row(published(true34), true34, compressed, seed)
+    small = render_sequence(replace(config, focal=config.focal / 2))
+    rows['small_face'] = _row(published(true34, lens=small.reference), true34, small, seed)
     realistic = replace(config, population='realistic')
     realistic_sequence = render_sequence(realistic)
     models = {
