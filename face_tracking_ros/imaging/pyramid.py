@@ -125,7 +125,7 @@ class ImagePyramid:
         if not 1 <= num_levels <= _levels_that_fit(min(gray.shape), MIN_LEVEL_SIZE):
             msg = f'cannot build {num_levels} pyramid levels from a {gray.shape} image'
             raise InputError(msg)
-        source, levels = _buffers(gray, num_levels, smooth_base, reuse)
+        source, levels = cls._buffers(gray, num_levels, smooth_base, reuse)
         copy = levels[0] if source is None else source
         copy[...] = gray
         if not np.issubdtype(gray.dtype, np.integer) and not np.all(np.isfinite(copy)):
@@ -238,25 +238,26 @@ class ImagePyramid:
             cv2.pyrDown(levels[level - 1], dst=levels[level])
         self._complete = True
 
+    @staticmethod
+    def _buffers(
+        gray: np.ndarray, num_levels: int, smooth_base: bool, reuse: ImagePyramid | None
+    ) -> tuple[np.ndarray | None, tuple[np.ndarray, ...]]:
+        """The levels to build into, and a buffer for the image to smooth level 0 from (or None).
 
-def _buffers(
-    gray: np.ndarray, num_levels: int, smooth_base: bool, reuse: ImagePyramid | None
-) -> tuple[np.ndarray | None, tuple[np.ndarray, ...]]:
-    """The levels to build into, and a buffer for the image to smooth level 0 from (or None).
-
-    ``reuse``'s when they fit.
-    """
-    shape = gray.shape
-    dtype = np.uint8 if gray.dtype == np.uint8 else np.float32
-    sizes = [
-        ((shape[0] + (1 << k) - 1) >> k, (shape[1] + (1 << k) - 1) >> k) for k in range(num_levels)
-    ]
-    if (
-        reuse is not None
-        and [level.shape for level in reuse._levels] == sizes
-        and reuse._smoothed == smooth_base
-        and (reuse._source is None or reuse._source.dtype == dtype)
-    ):
-        return reuse._source, reuse._levels
-    source = np.empty(shape, dtype) if smooth_base else None
-    return source, tuple(np.empty(size, dtype=np.float32) for size in sizes)
+        ``reuse``'s when they fit.
+        """
+        shape = gray.shape
+        dtype = np.uint8 if gray.dtype == np.uint8 else np.float32
+        sizes = [
+            ((shape[0] + (1 << k) - 1) >> k, (shape[1] + (1 << k) - 1) >> k)
+            for k in range(num_levels)
+        ]
+        if (
+            reuse is not None
+            and [level.shape for level in reuse._levels] == sizes
+            and reuse._smoothed == smooth_base
+            and (reuse._source is None or reuse._source.dtype == dtype)
+        ):
+            return reuse._source, reuse._levels
+        source = np.empty(shape, dtype) if smooth_base else None
+        return source, tuple(np.empty(size, dtype=np.float32) for size in sizes)
