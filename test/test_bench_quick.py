@@ -11,7 +11,6 @@ take minutes).
 from __future__ import annotations
 
 import json
-import math
 import os
 
 import pytest
@@ -25,16 +24,29 @@ from face_tracking_ros.errors import ConfigError
 QUICK = ('tracker_speed', 'learner_scaling', 'live_latency', 'mono_accuracy', 'stereo_accuracy')
 
 
-def _numbers(value, path=''):
-    """Every (path, number) in a JSON value."""
+def _leaves(value, path=''):
+    """Every (path, leaf) of a JSON value."""
     if isinstance(value, dict):
         for key, item in value.items():
-            yield from _numbers(item, f'{path}/{key}')
+            yield from _leaves(item, f'{path}/{key}')
     elif isinstance(value, list):
         for index, item in enumerate(value):
-            yield from _numbers(item, f'{path}/{index}')
-    elif isinstance(value, int | float) and not isinstance(value, bool):
+            yield from _leaves(item, f'{path}/{index}')
+    else:
         yield path, value
+
+
+def _not_applicable(path: str) -> bool:
+    """Whether a figure is NaN (null) by definition in a quick run.
+
+    Alpha's error relative to its range (20 frames show no expression) and the face-edge slip of
+    a mesh without face edge are.
+    """
+    if path.startswith('/benchmarks/mono_accuracy/rows/'):
+        return path.endswith('/alpha_rms_percent')
+    if path.startswith('/benchmarks/stereo_accuracy/runs/') and '19' in path.split('/')[4]:
+        return path.rsplit('/', 1)[1] in {'boundary_slip_mm', 'boundary_slip_rms_mm'}
+    return False
 
 
 def test_quick_run_writes_finite_figures(tmp_path):
@@ -47,7 +59,7 @@ def test_quick_run_writes_finite_figures(tmp_path):
     results = json.loads(out.read_text())
     assert status == 0, results['benchmarks']
     assert set(results['benchmarks']) == set(QUICK)
-    assert results['machine']['nproc'] >= 1
+    assert results['machine']['nproc'] == len(os.sched_getaffinity(0))
     speed = results['benchmarks']['tracker_speed']['320x240']
     for nodes in ('19_nodes', '34_nodes'):
         for tracker in ('mono', 'stereo', 'baseline'):
@@ -61,8 +73,8 @@ def test_quick_run_writes_finite_figures(tmp_path):
     assert set(learner['meshes_exponent']) == {'align_s', 'seed_s', 'joint_s'}
     live = results['benchmarks']['live_latency']
     assert live['at_30hz']['published'] == 150
-    assert 0 <= live['at_30hz']['dropped'] <= live['at_30hz']['published']
-    assert live['at_30hz']['received'] > 0
+    assert live['at_30hz']['dropped'] == 150 - live['at_30hz']['received'] < 150
+    assert live['at_30hz']['tracked'] == live['at_30hz']['received']  # every state TRACKING
     assert live['node_peak_rss_mb'] > 0
     protocol = results['benchmarks']['mono_accuracy']
     rows = ('true_model', 'unfiltered', 'learned_model', 'baseline', 'nodes_19')
@@ -74,6 +86,9 @@ def test_quick_run_writes_finite_figures(tmp_path):
     for row in rows:
         assert len(protocol['rows'][row]['seeds']) == 1
         assert protocol['rows'][row]['mean']['frames'] == 20
+        assert protocol['rows'][row]['mean']['tracked'] == 20
+    # Measured: 1.04 / 1.82 / 0.19 degrees over the 20 frames.
+    assert max(protocol['rows']['true_model']['mean']['rotation_mae_deg']) < 2.5
     assert len(protocol['still']['mean']['angle_std_deg']) == 3
     assert len(protocol['still']['mean']['angle_std_unfiltered_deg']) == 3
     stereo = results['benchmarks']['stereo_accuracy']
@@ -90,10 +105,11 @@ def test_quick_run_writes_finite_figures(tmp_path):
     assert set(stereo['learning']['19_nodes']) == {'true', 'exact_clicks'}
     for size in ('realistic_34_nodes', 'realistic_19_nodes'):
         assert set(stereo['learning'][size]) == {'true', 'exact_clicks'}
-    numbers = list(_numbers(results))
-    assert len(numbers) > 50
-    assert all(math.isfinite(value) for _, value in numbers), numbers
-    assert stereo['runs']['nodes_19']['pooled']['boundary_slip_mm'] is None  # no face edge
+    leaves = list(_leaves(results))
+    nulls = [path for path, value in leaves if value is None]  # NaN and infinities
+    assert nulls == [path for path, _ in leaves if _not_applicable(path)]
+    assert '/benchmarks/stereo_accuracy/runs/nodes_19/pooled/boundary_slip_mm' in nulls
+    assert sum(isinstance(value, int | float) for _, value in leaves) > 50
 
 
 def test_unknown_benchmark_is_refused(tmp_path):

@@ -199,12 +199,20 @@ def test_image_of_another_size_than_camera_info_is_refused(scene):
 
 
 def test_rgb_frames_track_like_mono(scene):
+    # Grey frames as rgb8 (three equal channels) give the same grey image, so the same track.
     model, frames, nodes = scene
-    processor = _processor(model, nodes[0])
-    processor.handle('camera_info', _info(), frozenset())
-    rgb = np.repeat(frames[0][:, :, None], 3, axis=2)
-    outputs = processor.handle('image', _image(rgb, 0, 'rgb8'), frozenset())
-    assert outputs[0].msg.status == TrackStatus.TRACKING
+    points = {}
+    for encoding in ('mono8', 'rgb8'):
+        processor = _processor(model, nodes[0])
+        processor.handle('camera_info', _info(), frozenset())
+        for f, pixels in enumerate(frames):
+            shown = pixels if encoding == 'mono8' else np.repeat(pixels[:, :, None], 3, axis=2)
+            state = processor.handle('image', _image(shown, f, encoding), frozenset())[0].msg
+            assert state.status == TrackStatus.TRACKING
+        points[encoding] = conversions.points_to_array(state.image_points, 'image_points')
+    np.testing.assert_array_equal(points['rgb8'], points['mono8'])
+    error_px = np.linalg.norm(points['rgb8'][:, :2] - CAMERA.project(nodes[-1]), axis=1)
+    assert np.sqrt(np.mean(error_px**2)) < 1.5
 
 
 def _published_yaw(processor: MonoProcessor, frames: list[np.ndarray]) -> np.ndarray:
