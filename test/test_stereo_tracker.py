@@ -353,7 +353,8 @@ def test_the_coarsest_level_runs_only_for_a_plane_too_far_for_the_next(
             levels.clear()
             result = tracker.step(*frames[1].pair())
             assert levels == (order if limit else [1, 0])
-            assert _rms_mm(result.nodes_cam, frames[1].nodes(19)) < 0.5
+            # Measured 0.15-0.16 mm; frame 0's nodes are 0.26 mm off after the 0.2 mm shift.
+            assert _rms_mm(result.nodes_cam, frames[1].nodes(19)) < 0.2
             nodes[limit] = result.nodes_cam
         if len(order) > 1:  # started over from the same point: the full solve exactly
             assert np.array_equal(nodes[0.5], nodes[0.0])
