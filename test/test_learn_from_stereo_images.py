@@ -42,6 +42,10 @@ def test_stereo_images_are_tracked_then_learned(tmp_path):
     report = json.loads((tmp_path / 'report.json').read_text())
     assert report['frames'] == 30
     assert report['subjects'] == ['subject_00', 'subject_01', 'subject_02']
+    # The learned sigma tells the three subjects apart: each subject's second half is named
+    # from its first (1.0; chance 1/3), and the silhouette of sigma by subject is 0.998.
+    joint = report['methods']['joint']
+    assert joint['identity_accuracy'] == 1.0 and joint['sigma_silhouette'] > 0.95
 
 
 @pytest.fixture(scope='module')
