@@ -95,7 +95,8 @@ def test_quick_run_writes_finite_figures(tmp_path):
     runs = ('exact_clicks', 'clicks_1px', 'nodes_19', 'realistic_exact_clicks')
     recorded = ('nodes_19_rig_fault_corrected', 'nodes_19_rig_fault_uncorrected')
     recorded += ('exact_clicks_jpeg_95', 'nodes_19_jpeg_95', 'nodes_19_jpeg_75')
-    for run in (*runs, *recorded, 'realistic_nodes_19'):
+    runs += ('realistic_nodes_19', 'half_size_exact_clicks', 'half_size_nodes_19')
+    for run in (*runs, *recorded):
         assert len(stereo['runs'][run]['subjects']) == 3
         pooled = stereo['runs'][run]['pooled']
         assert pooled['tracked_fraction'] == 1.0
@@ -103,8 +104,9 @@ def test_quick_run_writes_finite_figures(tmp_path):
         assert 0.5 < pooled['node_rms_mm'] < 8.0
     assert set(stereo['learning']['34_nodes']) == {'true', 'exact_clicks', 'clicks_1px'}
     assert set(stereo['learning']['19_nodes']) == {'true', 'exact_clicks'}
-    for size in ('realistic_34_nodes', 'realistic_19_nodes'):
-        assert set(stereo['learning'][size]) == {'true', 'exact_clicks'}
+    for prefix in ('realistic', 'half_size'):
+        for size in (f'{prefix}_34_nodes', f'{prefix}_19_nodes'):
+            assert set(stereo['learning'][size]) == {'true', 'exact_clicks'}
     leaves = list(_leaves(results))
     nulls = [path for path, value in leaves if value is None]  # NaN and infinities
     assert nulls == [path for path, _ in leaves if _not_applicable(path)]
