@@ -281,7 +281,11 @@ def replay_bag(
     topic_map = resolve_inputs(external, topics, remaps or {})
     if not topic_map:
         wanted = ', '.join(f'{p.topic} ({p.msgtype})' for p in external)
-        msg = f'{bag}: no topic matches the inputs of {", ".join(nodes)}: {wanted}'
+        found = ', '.join(f'{topic} ({msgtype})' for topic, msgtype in topics.items()) or 'none'
+        msg = (
+            f'{bag}: no topic matches the inputs of {", ".join(nodes)}: {wanted}; the bag has '
+            f'{found}'
+        )
         raise BagError(msg)
     total = message_count(bag, topic_map)
     out.parent.mkdir(parents=True, exist_ok=True)

@@ -15,6 +15,7 @@ import pytest
 from face_tracking_ros.cli import learn
 from face_tracking_ros.cli.main import main
 from face_tracking_ros.cli.track import score_stereo_against_truth
+from face_tracking_ros.errors import ConfigError
 from face_tracking_ros.io import conversions
 from face_tracking_ros.io.bags import BagWriter, bag_topics, read_messages
 from face_tracking_ros.io.messages import RosbagsMessages
@@ -68,22 +69,23 @@ def _learn_meshes(
 
     The truth and the rig come from ``truth`` (default: ``bag``).
     """
+    args = _learn_args(bag, where, '--from-images', '--simulate-clicks', '0', *options)
+    return score_stereo_against_truth(truth or bag, learn.mesh_bag(bag, args))
+
+
+def _learn_args(bag: Path, where: Path, *options: str) -> argparse.Namespace:
+    """``face-tracking learn`` arguments for ``bag``, its outputs under ``where``."""
     parser = argparse.ArgumentParser()
     learn.register(parser.add_subparsers())
-    args = parser.parse_args(
-        ['learn', str(bag), '--from-images', '--simulate-clicks', '0', '--out',
-         str(where / 'm.npz'), '--report', str(where / 'r.json'), *options]
+    return parser.parse_args(
+        ['learn', str(bag), '--out', str(where / 'm.npz'), '--report', str(where / 'r.json'),
+         *options]
     )  # fmt: skip
-    return score_stereo_against_truth(truth or bag, learn.mesh_bag(bag, args))
 
 
 def test_scores_start_at_the_first_tracked_frame(still_bag, tmp_path):
     """Frames before the first tracked one have no estimate (zeros): not scored."""
-    parser = argparse.ArgumentParser()
-    learn.register(parser.add_subparsers())
-    args = parser.parse_args(['learn', str(still_bag), '--from-images', '--simulate-clicks',
-                              '0', '--out', str(tmp_path / 'm.npz'), '--report',
-                              str(tmp_path / 'r.json')])  # fmt: skip
+    args = _learn_args(still_bag, tmp_path, '--from-images', '--simulate-clicks', '0')
     tracked = learn.mesh_bag(still_bag, args)
     late = tmp_path / 'late'  # the same output, as if the face had been found at the 4th pair
     factory = RosbagsMessages(typestore())
@@ -125,6 +127,18 @@ def test_compressed_images_under_any_names_are_tracked_like_raw_ones(still_bag, 
         assert tracked.frames == raw.frames == 40
         assert tracked.node_rms == pytest.approx(raw.node_rms, abs=1e-9)  # the same pixels
         assert tracked.max_reprojection == pytest.approx(raw.max_reprojection, abs=1e-6)
+
+
+def test_a_stereo_pair_not_found_by_name_is_asked_for(still_bag, tmp_path):
+    """A RealSense's infra1 / infra2 images, to be tracked: the pair must be given."""
+    names = {
+        'left/image_raw': '/camera/infra1/image_rect_raw',
+        'right/image_raw': '/camera/infra2/image_rect_raw',
+    }
+    bag = compressed_copy(still_bag, tmp_path / 'infra', names)
+    pair = r'\(/camera/infra1/image_rect_raw, /camera/infra2/image_rect_raw\)'
+    with pytest.raises(ConfigError, match=f'no stereo pair found by name .*{pair}.*--left-'):
+        learn.mesh_bag(bag, _learn_args(bag, tmp_path, '--from-images'))
 
 
 def test_learn_gives_every_mesh_the_depths_refined_over_its_track(still_bag, tmp_path):

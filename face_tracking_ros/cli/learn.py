@@ -34,6 +34,7 @@ import numpy as np
 from face_tracking_ros.cli.track import (
     add_stereo_topic_options,
     compressed_parameters,
+    image_topics,
     input_remaps,
     is_stereo_bag,
     stereo_topics,
@@ -298,12 +299,25 @@ def mesh_bag(bag: Path, args: argparse.Namespace) -> Path:
     whole track (the processor's ``retroactive_depths``); ``--tracker-param`` overrides it.
 
     Raises:
-        ConfigError: for a raw stereo bag without a way to initialise it.
+        ConfigError: for a raw stereo bag without a way to initialise it, or a bag of images
+            whose stereo pair is not found by name (and not given) while there are no meshes
+            to learn from or ``--from-images`` asks for tracking.
     """
     topics = bag_topics(bag)
     has_meshes = args.topic or any(name in topics for name in DEFAULT_TOPICS)
-    if not (is_stereo_bag(topics) or args.left_topic) or (has_meshes and not args.from_images):
+    if not (is_stereo_bag(topics) or args.left_topic):
+        images, _ = image_topics(topics)
+        if args.from_images or (images and not has_meshes):
+            msg = (
+                f'{bag}: no stereo pair found by name among its image topics '
+                f'({", ".join(images) or "none"}): the left and right topics need "left" and '
+                '"right" in their names, else give --left-topic, --right-topic, '
+                '--left-info-topic and --right-info-topic'
+            )
+            raise ConfigError(msg)
         return bag  # meshes (or nothing: read_bag_meshes names the missing topic)
+    if has_meshes and not args.from_images:
+        return bag
     initialisation = _initialisation(bag, args)
     out = _meshes_dir(args) / bag.name
     print(f'{bag}: raw stereo images: tracking them into {out}')

@@ -220,6 +220,7 @@ def test_replay_of_a_bag_without_any_input_topic_names_what_it_needs(
     error = capsys.readouterr().err
     assert 'no topic matches the inputs of mono_tracker' in error
     assert 'image (sensor_msgs/msg/Image)' in error
+    assert 'the bag has /battery (robot_msgs/msg/Battery), /n (std_msgs/msg/Float64)' in error
 
 
 def test_a_cut_bag_is_decoded_up_to_the_damage(bag, tmp_path):
