@@ -2,11 +2,15 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 from diagnostic_msgs.msg import DiagnosticStatus
+import pytest
 import rclpy
+from rclpy.parameter import Parameter
 from std_msgs.msg import Float64
 
-from face_tracking_ros.errors import InputError
+from face_tracking_ros.errors import ConfigError, InputError
 from face_tracking_ros.nodes import processor_node
 from face_tracking_ros.processing.base import Output, Port
 
@@ -95,3 +99,35 @@ def test_a_reporting_processor_s_status_is_published_with_the_last_problem(
     assert [s.message for s in statuses] == ['running', 'in: negative', 'in: negative', 'running']
     assert [v.get('seen') for v in values] == ['1', None, '2', '2']
     assert all(v['node'] == 'reporting' for v in values)
+
+
+@dataclass(frozen=True)
+class Tunables:
+    """Two parameters.
+
+    Attributes:
+        rate: a float.
+        name: a string.
+    """
+
+    rate: float = 0.5
+    name: str = 'x'
+
+
+def _node_with(context, **overrides) -> rclpy.node.Node:
+    parameters = [Parameter(name, value=value) for name, value in overrides.items()]
+    return rclpy.create_node('tunable', context=context, parameter_overrides=parameters)
+
+
+def test_a_float_parameter_takes_an_integer_and_none_can_be_changed_later(ros_context):
+    node = _node_with(ros_context, rate=10)  # as `-p rate:=10` gives it
+    config = processor_node.NodeParameters(node).config(Tunables)
+    assert config == Tunables(rate=10.0) and isinstance(config.rate, float)
+    assert node.describe_parameter('rate').description == 'a float.'
+    (result,) = node.set_parameters([Parameter('rate', value=1.0)])
+    assert not result.successful and 'read-only' in result.reason
+    node.destroy_node()
+    node = _node_with(ros_context, rate='fast')
+    with pytest.raises(ConfigError, match="parameter rate must be a number, got 'fast'"):
+        processor_node.NodeParameters(node).config(Tunables)
+    node.destroy_node()

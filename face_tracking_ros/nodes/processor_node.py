@@ -67,12 +67,28 @@ def _declared(default: Any) -> Any:
     return default
 
 
+def _number(name: str, value: Any) -> float:
+    """A float parameter's value: ``-p name:=10`` gives the integer 10, which means 10.0.
+
+    Raises:
+        ConfigError: for a value that is not a number.
+    """
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        msg = f'parameter {name} must be a number, got {value!r}'
+        raise ConfigError(msg)
+    return float(value)
+
+
 class NodeParameters:
     """A :class:`ParameterSource` that declares ROS parameters on a node.
 
     A field's default is the parameter's default and its entry in the class docstring's
     ``Attributes:`` section is the parameter's description, so the algorithm layer documents each
     tunable once. Nested config dataclasses become dotted parameters (``tracker.fit.x``).
+
+    The parameters are read once, when the node starts, so they are declared read-only: setting
+    one on a running node is refused rather than ignored. A float parameter also takes an integer
+    (``-p pairing_tolerance_ms:=10``, which rclpy would otherwise refuse with an exception).
     """
 
     live = True
@@ -94,9 +110,13 @@ class NodeParameters:
             if dataclasses.is_dataclass(default):
                 values[field.name] = self.config(type(default), f'{prefix}{field.name}.')
                 continue
-            descriptor = ParameterDescriptor(description=descriptions.get(field.name, ''))
-            declared = _declared(default)
-            value = self._node.declare_parameter(prefix + field.name, declared, descriptor).value
+            name, number = prefix + field.name, isinstance(default, float)
+            descriptor = ParameterDescriptor(
+                description=descriptions.get(field.name, ''), read_only=True, dynamic_typing=number
+            )
+            value = self._node.declare_parameter(name, _declared(default), descriptor).value
+            if number:
+                value = _number(name, value)
             values[field.name] = tuple(value or ()) if isinstance(default, tuple) else value
         return config_type(**values)
 

@@ -19,7 +19,7 @@ from typing import Any, Protocol, runtime_checkable
 
 
 class QosClass(IntEnum):
-    """QoS of a port: sensor data (best effort, depth 1), reliable results, or latched."""
+    """QoS of a port: sensor data (rclpy's: best effort, depth 5), reliable results, or latched."""
 
     SENSOR = 0
     RELIABLE = 1
