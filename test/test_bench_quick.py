@@ -73,8 +73,7 @@ def test_quick_run_writes_finite_figures(tmp_path):
     assert set(learner['meshes_exponent']) == {'align_s', 'seed_s', 'joint_s'}
     live = results['benchmarks']['live_latency']
     assert live['at_30hz']['published'] == 150
-    assert live['at_30hz']['dropped'] == 150 - live['at_30hz']['received'] < 150
-    assert live['at_30hz']['tracked'] == live['at_30hz']['received']  # every state TRACKING
+    assert 0 < live['at_30hz']['received'] == live['at_30hz']['tracked']  # all TRACKING
     assert live['node_peak_rss_mb'] > 0
     protocol = results['benchmarks']['mono_accuracy']
     rows = ('true_model', 'unfiltered', 'learned_model', 'baseline', 'nodes_19')
