@@ -154,7 +154,7 @@ def test_frames_a_tracker_did_not_track_are_left_out(tmp_path, world, capsys):
     assert report['frames'] == 4 * (len(status) - 6)
     never = _write_bag(tmp_path / 'never', sequences[0], alpha, kind='mesh', status=status * 0)
     err = _error(['learn', str(never), '--out', str(tmp_path / 'n.npz'), '--report',
-                  str(tmp_path / 'n.json')], capsys)  # fmt: skip
+                  str(tmp_path / 'n.json'), '--neutral-frames', '10'], capsys)  # fmt: skip
     assert f'none of the {len(status)} frames on face/mesh_raw was tracked' in err
 
 
@@ -231,7 +231,8 @@ def test_errors_name_the_bag_topic_or_subject(tmp_path, truth_bags, world, capsy
 
     mesh_bag = _write_bag(tmp_path / 'anon', sequences[3], alpha, kind='mesh')
     err = _error(['learn', str(mesh_bag), *bags, *out], capsys)
-    assert f"subject 'anon' ({mesh_bag}) has no neutral frames" in err
+    # Meshes without truth: which frames are neutral must be given, before any work.
+    assert f'{mesh_bag}: no truth says which frames show the neutral face; give --neutral' in err
 
     err = _error(['learn', *bags, *out, '--truth-population', 'weird'], capsys)
     assert '--truth-population must be PRESET[:SEED]' in err
@@ -241,3 +242,16 @@ def test_errors_name_the_bag_topic_or_subject(tmp_path, truth_bags, world, capsy
 
     err = _error(['learn', str(tmp_path / 'missing'), *out], capsys)
     assert 'missing' in err
+
+
+def test_three_subjects_learn_p_2_without_the_leave_one_out_figures(tmp_path, truth_bags, capsys):
+    report_path = tmp_path / 'r.json'
+    args = ['learn', *map(str, truth_bags[:3]), '--out', str(tmp_path / 'm.npz')]
+    assert main([*args, '--report', str(report_path), '--q', '3']) == 0
+    assert 'joint: no leave-one-subject-out figures: with one subject held out, 2 subject(s) ' in (
+        capsys.readouterr().out
+    )
+    assert load_model(tmp_path / 'm.npz').p == 2
+    joint = json.loads(report_path.read_text())['methods']['joint']
+    assert joint['loo_shape_similarity'] is None and joint['identity_accuracy'] == 1.0
+    assert joint['loo_per_subject']['neutral_rms_mm'] == [None] * 3

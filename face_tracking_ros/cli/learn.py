@@ -253,6 +253,8 @@ def run(args: argparse.Namespace) -> None:
         learn_seconds = time.perf_counter() - start
         print(f'{method}: learned in {learn_seconds:.3f} s, evaluating (leave one subject out)')
         evaluation, loo, _ = evaluate(aligned, learner, results[method], truth)
+        if loo.skipped:
+            print(f'{method}: no leave-one-subject-out figures: {loo.skipped}')
         evaluations[method] = evaluation
         report_methods[method] = {
             **evaluation.as_dict(),
@@ -320,6 +322,9 @@ def mesh_bag(bag: Path, args: argparse.Namespace) -> Path:
         return bag
     initialisation = _initialisation(bag, args)
     out = _meshes_dir(args) / bag.name
+    if out.exists():
+        msg = f'{out} exists (tracked by an earlier run): remove it or give another --meshes-dir'
+        raise ConfigError(msg)
     print(f'{bag}: raw stereo images: tracking them into {out}')
     compressed = compressed_parameters(topics, [args.left_topic])
     params = [STEREO_PARAMS, *compressed, *(args.tracker_param or []), initialisation]
@@ -507,6 +512,17 @@ def _check_arguments(args: argparse.Namespace) -> None:
         raise ConfigError(msg)
     if args.plots is not None and not args.plots.is_dir():
         msg = f'--plots {args.plots} is not a directory'
+        raise ConfigError(msg)
+    for option, path in (('--out', args.out), ('--report', args.report)):
+        if not path.parent.is_dir():
+            msg = f'{option} {path}: no directory {path.parent} to write it in'
+            raise ConfigError(msg)
+    unlabelled = [bag for bag in args.bags if not has_truth(bag)]
+    if unlabelled and args.truth is None and args.neutral_frames == 0:
+        msg = (
+            f'{unlabelled[0]}: no truth says which frames show the neutral face; give '
+            '--neutral-frames K, the first K frames of each bag (the learner node: neutral_frames)'
+        )
         raise ConfigError(msg)
 
 

@@ -42,6 +42,7 @@ import numpy as np
 from sklearn.metrics import silhouette_score
 from sklearn.neighbors import NearestCentroid
 
+from face_tracking_ros.errors import ConfigError
 from face_tracking_ros.geometry.procrustes import generalized_procrustes, rigid_align
 from face_tracking_ros.learning.alignment import AlignmentConfig
 from face_tracking_ros.learning.methods import Learner
@@ -110,12 +111,15 @@ class LeaveOneOut:
         action_similarity: (S,) similarity of A_loo with A_all.
         mean_variation_percent: (S,) mean-shape variation, %.
         neutral_rms_mm: (S,) RMS error of the held-out neutral's model approximation, mm.
+        skipped: why the figures are NaN ('' when they are not): the subjects left after
+            holding one out are too few for the learner.
     """
 
     shape_similarity: np.ndarray
     action_similarity: np.ndarray
     mean_variation_percent: np.ndarray
     neutral_rms_mm: np.ndarray
+    skipped: str = ''
 
 
 @dataclass(frozen=True)
@@ -305,6 +309,10 @@ def leave_one_out(training: TrainingSet, learner: Learner, full: LearningResult)
         training: aligned training set.
         learner: function learning a model from a training set.
         full: the learner's result on the whole training set.
+
+    Returns:
+        The figures; NaN ones, with the reason, when the other subjects are too few for the
+        learner's p (it learned from all of them, so that is the only thing that can fail).
     """
     neutrals = training.subject_means(training.flat(), training.neutral)
     full_model = full.model
@@ -312,7 +320,11 @@ def leave_one_out(training: TrainingSet, learner: Learner, full: LearningResult)
     size = np.linalg.norm(mean_nodes - mean_nodes.mean(axis=0))
     shape_similarity, action_similarity, variation, rms = [], [], [], []
     for s in range(training.num_subjects):
-        model = learner(training.without_subject(s)).model
+        try:
+            model = learner(training.without_subject(s)).model
+        except ConfigError as error:
+            nan = np.full(training.num_subjects, np.nan)
+            return LeaveOneOut(nan, nan, nan, nan, skipped=f'with one subject held out, {error}')
         shape_similarity.append(subspace_similarity(model.shape_basis, full_model.shape_basis))
         action_similarity.append(subspace_similarity(model.action_basis, full_model.action_basis))
         variation.append(100.0 * np.linalg.norm(model.mean_shape - full_model.mean_shape) / size)
