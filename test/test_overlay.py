@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from face_tracking_ros.cli.main import main
-from face_tracking_ros.errors import InputError
+from face_tracking_ros.errors import ConfigError, InputError
 from face_tracking_ros.io import conversions
 from face_tracking_ros.io.bags import BagWriter, bag_topics, read_messages
 from face_tracking_ros.io.messages import RosbagsMessages
@@ -98,3 +98,10 @@ def test_an_image_of_another_size_is_refused_and_the_video_so_far_kept(
         write_overlay_video(mixed, states, video, rectify=rectify)
     capture = cv2.VideoCapture(str(video))
     assert int(capture.get(cv2.CAP_PROP_FRAME_COUNT)) == 2  # the frames before it, readable
+
+
+def test_a_video_in_a_missing_directory_is_refused_before_any_work(turned, tmp_path):
+    bag, out = turned
+    for name in ('x.mp4', 'x.gif'):  # OpenCV's writer would drop every frame without a word
+        with pytest.raises(ConfigError, match=f'video file .*{name}: no directory .*absent'):
+            write_overlay_video(bag, load_states(out), tmp_path / 'absent' / name)

@@ -53,9 +53,16 @@ def tracked_sigmas(bags: list[Path]) -> np.ndarray:
     """(M, p) sigma of the TRACKING frames of tracker output bags.
 
     Raises:
-        BagError: if no frame of the bags was tracked.
+        BagError: if no frame of the bags was tracked, or the states carry no sigma.
     """
     series = [load_states(bag) for bag in bags]
+    for bag, states in zip(bags, series, strict=True):
+        if states.sigma.shape[1] == 0:
+            msg = (
+                f'{bag}: its face/state carries no sigma (a stereo_tracker output tracked '
+                'without a face model: give one, --model or model_file)'
+            )
+            raise BagError(msg)
     sigmas = [s.sigma[s.status == TrackStatus.TRACKING] for s in series]
     stacked = np.concatenate(sigmas) if sigmas else np.zeros((0, 0))
     if not len(stacked):

@@ -8,8 +8,10 @@ Each subcommand lives in its own module ``face_tracking_ros.cli.<name>`` that ex
         parser.set_defaults(func=run)  # run(args: argparse.Namespace) -> int | None
 
 Add a subcommand by writing that module and adding its module name to :data:`SUBCOMMANDS`.
-A :class:`~face_tracking_ros.errors.FaceTrackingError` raised by a subcommand is printed as
-``error: <message>`` on stderr with exit status 2; other exceptions propagate (they are bugs).
+A :class:`~face_tracking_ros.errors.FaceTrackingError` raised by a subcommand, or an OSError
+(a file or directory that is missing or cannot be written: the user's or the machine's matter),
+is printed as ``error: <message>`` on stderr with exit status 2; other exceptions propagate
+(they are bugs).
 """
 
 from __future__ import annotations
@@ -66,13 +68,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         argv: Arguments without the program name; default ``sys.argv[1:]``.
 
     Returns:
-        The exit status: the subcommand's (0 if it returns None), or 2 on a FaceTrackingError.
+        The exit status: the subcommand's (0 if it returns None), or 2 on a FaceTrackingError
+        or an OSError.
     """
     args = build_parser().parse_args(argv)
     limit_blas_threads()
     try:
         status = args.func(args)
-    except FaceTrackingError as error:
+    except (FaceTrackingError, OSError) as error:
         print(f'error: {error}', file=sys.stderr)
         return EXIT_ERROR
     return 0 if status is None else int(status)

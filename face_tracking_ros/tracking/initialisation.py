@@ -157,6 +157,9 @@ def load_init_file(path: str | Path) -> Initialisation:
     except OSError as error:
         msg = f'cannot read init file {path}: {error.strerror}'
         raise ConfigError(msg) from None
+    except UnicodeDecodeError:
+        msg = f'init file {path} is not text (UTF-8): an image or another binary file?'
+        raise ConfigError(msg) from None
     try:
         data = json.loads(text) if path.suffix.lower() == '.json' else yaml.safe_load(text)
     except (json.JSONDecodeError, yaml.YAMLError) as error:

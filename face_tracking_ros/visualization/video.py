@@ -128,9 +128,13 @@ def write_overlay_video(
     ``rectify``: see :func:`overlay_frames`.
 
     Raises:
-        ConfigError: for another file suffix.
+        ConfigError: for another file suffix or a directory that does not exist.
         BagError: if no frame of the bag has a state.
+        OSError: if the video cannot be written.
     """
+    if not video.parent.is_dir():
+        msg = f'video file {video}: no directory {video.parent} to write it in'
+        raise ConfigError(msg)
     frames = overlay_frames(bag, states, topic, every, rectify)
     if video.suffix == '.gif':
         images = list(frames)
@@ -157,6 +161,9 @@ def _write_mp4(frames: Iterator[np.ndarray], video: Path, fps: float) -> int:
             if writer is None:
                 size = (frame.shape[1], frame.shape[0])
                 writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*'mp4v'), fps, size)
+                if not writer.isOpened():
+                    msg = f'OpenCV cannot write {video} (mp4v)'
+                    raise OSError(msg)
             writer.write(cv2.cvtColor(frame, cv2.COLOR_RGB2BGR))
             count += 1
     finally:

@@ -66,6 +66,13 @@ def test_missing_init_file(tmp_path: Path) -> None:
         load_init_file(tmp_path / 'nope.yaml')
 
 
+def test_an_image_given_as_init_file_is_named_so(tmp_path: Path) -> None:
+    path = tmp_path / 'frame.png'
+    path.write_bytes(b'\x89PNG\r\n\x1a\n\xff\xfe')
+    with pytest.raises(ConfigError, match=r'init file .*frame.png is not text \(UTF-8\)'):
+        load_init_file(path)
+
+
 def test_initialisation_validation(model_factory) -> None:
     points = np.zeros((6, 2))
     with pytest.raises(ConfigError, match='repeats node names'):

@@ -1,0 +1,47 @@
+"""``face-tracking enroll``: a tracked identity into a gallery, and output it cannot use."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from face_tracking_ros.cli.main import main
+from face_tracking_ros.io import conversions
+from face_tracking_ros.io.bags import BagWriter
+from face_tracking_ros.io.messages import RosbagsMessages
+from face_tracking_ros.io.typestore import typestore
+from face_tracking_ros.recognition.identity import IdentityGallery
+from face_tracking_ros.tracking.result import TrackStatus
+
+STATE = 'face_tracking_msgs/msg/FaceState'
+
+
+def _states(path: Path, sigmas: np.ndarray) -> Path:
+    """A tracker output bag: face/state with these (F, p) sigma, every frame TRACKING."""
+    factory = RosbagsMessages(typestore())
+    with BagWriter(path) as writer:
+        for f, sigma in enumerate(sigmas):
+            header = conversions.make_header(factory, 1000 + f, 'camera')
+            state = factory.make(STATE, header=header, status=TrackStatus.TRACKING, sigma=sigma)
+            writer.write('face/state', STATE, state, 1000 + f)
+    return path
+
+
+def test_a_tracked_identity_is_enrolled_and_a_model_less_track_refused(tmp_path, capsys):
+    sigmas = np.random.default_rng(0).normal([0.01, -0.02], 0.001, (20, 2))
+    gallery = tmp_path / 'gallery.npz'
+    assert main(['enroll', str(_states(tmp_path / 'ann', sigmas)), '--name', 'ann',
+                 '--gallery', str(gallery)]) == 0  # fmt: skip
+    enrolled = IdentityGallery.load(gallery, 2)
+    assert enrolled.names == ('ann',)
+    np.testing.assert_allclose(enrolled.means[0], sigmas.mean(axis=0))
+    # A stereo_tracker's output without a face model: states without sigma.
+    bare = _states(tmp_path / 'bare', np.zeros((5, 0)))
+    assert main(['enroll', str(bare), '--name', 'bob', '--gallery', str(gallery)]) == 2
+    assert f'{bare}: its face/state carries no sigma' in capsys.readouterr().err
+    assert IdentityGallery.load(gallery, 2).names == ('ann',)  # the gallery as it was
+    # A file that cannot be written is the user's matter: a message, not a traceback.
+    absent = tmp_path / 'absent' / 'gallery.npz'
+    assert main(['enroll', str(tmp_path / 'ann'), '--name', 'ann', '--gallery', str(absent)]) == 2
+    assert 'error: ' in (err := capsys.readouterr().err) and 'absent' in err
