@@ -70,9 +70,10 @@ def resolve_inputs(
 ) -> dict[str, str]:
     """Map bag topics to a processor's input ports.
 
-    A port is matched by an override (port topic -> bag topic), else by the bag topic that ends
-    with the port's name, else by the only bag topic of the port's message type. Ports with no
-    match are left out (e.g. an optional ``face/model``).
+    A port is matched by an override (port topic -> bag topic, with or without the leading
+    '/' the bag's name has), else by the bag topic that ends with the port's name, else by the
+    only bag topic of the port's message type. Ports with no match are left out (e.g. an
+    optional ``face/model``).
 
     Args:
         ports: the processor's input ports.
@@ -87,15 +88,24 @@ def resolve_inputs(
     """
     mapping: dict[str, str] = {}
     for port in ports:
-        bag_topic = overrides.get(port.topic) or _match(port, bag_topics)
+        given = overrides.get(port.topic)
+        bag_topic = bag_spelling(given, bag_topics) if given else _match(port, bag_topics)
         if bag_topic is None:
             continue
         if bag_topics.get(bag_topic) != port.msgtype:
-            found = bag_topics.get(bag_topic, 'no such topic')
+            found = (
+                bag_topics.get(bag_topic) or f'no such topic (the bag has {", ".join(bag_topics)})'
+            )
             msg = f'topic {bag_topic!r} for input {port.topic!r} must be {port.msgtype}: {found}'
             raise BagError(msg)
         mapping[bag_topic] = port.topic
     return mapping
+
+
+def bag_spelling(topic: str, bag_topics: Mapping[str, str]) -> str:
+    """``topic`` as the bag spells it, with or without a leading '/' (else as given)."""
+    other = topic[1:] if topic.startswith('/') else f'/{topic}'
+    return other if topic not in bag_topics and other in bag_topics else topic
 
 
 def _match(port: Port, bag_topics: Mapping[str, str]) -> str | None:

@@ -15,7 +15,7 @@ import pytest
 from face_tracking_ros.cli import learn
 from face_tracking_ros.cli.main import main
 from face_tracking_ros.cli.track import score_stereo_against_truth
-from face_tracking_ros.errors import ConfigError
+from face_tracking_ros.errors import BagError, ConfigError
 from face_tracking_ros.io import conversions
 from face_tracking_ros.io.bags import BagWriter, bag_topics, read_messages
 from face_tracking_ros.io.messages import RosbagsMessages
@@ -130,15 +130,22 @@ def test_compressed_images_under_any_names_are_tracked_like_raw_ones(still_bag, 
 
 
 def test_a_stereo_pair_not_found_by_name_is_asked_for(still_bag, tmp_path):
-    """A RealSense's infra1 / infra2 images, to be tracked: the pair must be given."""
+    """A RealSense's infra1 / infra2 topics, to be tracked: the pair must be given, all four."""
     names = {
-        'left/image_raw': '/camera/infra1/image_rect_raw',
-        'right/image_raw': '/camera/infra2/image_rect_raw',
+        f'{side}/{kind}': f'/camera/infra{n}/{name}'
+        for side, n in (('left', 1), ('right', 2))
+        for kind, name in (('image_raw', 'image_rect_raw'), ('camera_info', 'camera_info'))
     }
     bag = compressed_copy(still_bag, tmp_path / 'infra', names)
     pair = r'\(/camera/infra1/image_rect_raw, /camera/infra2/image_rect_raw\)'
     with pytest.raises(ConfigError, match=f'no stereo pair found by name .*{pair}.*--left-'):
         learn.mesh_bag(bag, _learn_args(bag, tmp_path, '--from-images'))
+    # The images given (without their leading '/', as a bag may spell them) but no camera_info.
+    images = ['--left-topic', 'camera/infra1/image_rect_raw', '--right-topic',
+              'camera/infra2/image_rect_raw', '--simulate-clicks', '0']  # fmt: skip
+    infos = r'\(the bag has /camera/infra1/camera_info, /camera/infra2/camera_info\)'
+    with pytest.raises(BagError, match=f'no mesh .*--left-info-topic .*{infos}'):
+        learn.mesh_bag(bag, _learn_args(bag, tmp_path, '--from-images', *images))
 
 
 def test_learn_gives_every_mesh_the_depths_refined_over_its_track(still_bag, tmp_path):

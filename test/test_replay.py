@@ -90,6 +90,16 @@ def test_ambiguous_topics_are_left_unmatched():
     }
 
 
+def test_a_remap_matches_the_bag_s_topic_with_or_without_its_leading_slash():
+    topics = {'/a/raw': IMAGE, 'b/raw': IMAGE}
+    for given, expected in (('a/raw', '/a/raw'), ('/b/raw', 'b/raw'), ('/a/raw', '/a/raw')):
+        assert resolve_inputs([Port('image', IMAGE)], topics, {'image': given}) == {
+            expected: 'image'
+        }
+    with pytest.raises(BagError, match=r"'/c/raw' .*: no such topic \(the bag has /a/raw, b/raw"):
+        resolve_inputs([Port('image', IMAGE)], topics, {'image': '/c/raw'})
+
+
 def test_remap_to_a_topic_of_another_type_is_refused():
     with pytest.raises(
         BagError, match="topic '/x' for input 'image' must be sensor_msgs/msg/Image"

@@ -32,6 +32,7 @@ from typing import Any
 import numpy as np
 
 from face_tracking_ros.cli.track import (
+    CAMERA_INFO_TYPE,
     add_stereo_topic_options,
     compressed_parameters,
     image_topics,
@@ -334,6 +335,12 @@ def mesh_bag(bag: Path, args: argparse.Namespace) -> Path:
     )
     if not stats.outputs['face/mesh_raw']:
         msg = f'{bag}: the stereo tracker produced no mesh ({dict(stats.errors)})'
+        if any('no calibration' in error for error in stats.errors):
+            infos = [topic for topic, kind in topics.items() if kind == CAMERA_INFO_TYPE]
+            msg += (
+                '; give the camera_info topics with --left-info-topic and --right-info-topic '
+                f'(the bag has {", ".join(infos) or "none"})'
+            )
         raise BagError(msg)
     return out
 

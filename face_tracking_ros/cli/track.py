@@ -29,7 +29,7 @@ from face_tracking_ros.processing.mono import COMPRESSED_IMAGE, IMAGE
 from face_tracking_ros.processing.parameters import OverrideParameters
 from face_tracking_ros.processing.stereo import COMPRESSED as STEREO_COMPRESSED
 from face_tracking_ros.processing.stereo import LEFT_IMAGE, LEFT_INFO, RIGHT_IMAGE, RIGHT_INFO
-from face_tracking_ros.replay import replay_bag
+from face_tracking_ros.replay import bag_spelling, replay_bag
 from face_tracking_ros.synthetic.clicks import clicks_from_bag, write_init_file
 from face_tracking_ros.tracking.accuracy import TrackingAccuracy, tracking_accuracy
 from face_tracking_ros.tracking.result import TrackStatus
@@ -38,6 +38,7 @@ from face_tracking_ros.tracking.stereo_evaluation import StereoEvaluation, evalu
 
 IMAGE_TYPE = 'sensor_msgs/msg/Image'
 COMPRESSED_TYPE = 'sensor_msgs/msg/CompressedImage'
+CAMERA_INFO_TYPE = 'sensor_msgs/msg/CameraInfo'
 INFO_TYPE = 'sensor_msgs/msg/CameraInfo'
 
 
@@ -102,7 +103,7 @@ def compressed_parameters(
         given: the image topics given on the command line (None: not given); their type
             decides, else the bag's (compressed if it has CompressedImage topics only).
     """
-    chosen = [topics.get(topic) for topic in given if topic]
+    chosen = [topics.get(bag_spelling(topic, topics)) for topic in given if topic]
     if chosen:
         compressed = chosen[0] == COMPRESSED_TYPE
     else:
