@@ -129,7 +129,7 @@ def test_compressed_images_under_any_names_are_tracked_like_raw_ones(still_bag, 
         assert tracked.max_reprojection == pytest.approx(raw.max_reprojection, abs=1e-6)
 
 
-def test_a_stereo_pair_not_found_by_name_is_asked_for(still_bag, tmp_path):
+def test_a_stereo_pair_not_found_by_name_is_asked_for(still_bag, tmp_path, capsys):
     """A RealSense's infra1 / infra2 topics, to be tracked: the pair must be given, all four."""
     names = {
         f'{side}/{kind}': f'/camera/infra{n}/{name}'
@@ -146,6 +146,10 @@ def test_a_stereo_pair_not_found_by_name_is_asked_for(still_bag, tmp_path):
     infos = r'\(the bag has /camera/infra1/camera_info, /camera/infra2/camera_info\)'
     with pytest.raises(BagError, match=f'no mesh .*--left-info-topic .*{infos}'):
         learn.mesh_bag(bag, _learn_args(bag, tmp_path, '--from-images', *images))
+    # track: neither tracker is a guess; the mono one on one of them, the stereo one on both.
+    assert main(['track', str(bag), '--out', str(tmp_path / 'out')]) == 2
+    err = capsys.readouterr().err
+    assert 'none named left or right: give one with --image-topic (mono tracker) or' in err
 
 
 def test_learn_gives_every_mesh_the_depths_refined_over_its_track(still_bag, tmp_path):
@@ -198,6 +202,11 @@ def test_raw_stereo_bag_without_initialisation_is_refused(tmp_path, capsys):
             '--report', str(tmp_path / 'r.json')]  # fmt: skip
     assert main(argv) == 2
     assert 'give its initialisation with --init-dir' in capsys.readouterr().err
+    assert main([*argv, '--init-dir', str(tmp_path / 'clicks')]) == 2
+    err = capsys.readouterr().err
+    assert f'in --init-dir {tmp_path}/clicks, which is not a directory (a subject_00_seq_00' in err
+    assert main([*argv, '--init-dir', str(tmp_path)]) == 2
+    assert f'in --init-dir {tmp_path}, which has none' in capsys.readouterr().err
 
 
 def test_raw_stereo_bag_with_auto_init_needs_the_optional_detector(tmp_path, capsys, monkeypatch):

@@ -370,10 +370,16 @@ def _initialisation(bag: Path, args: argparse.Namespace) -> str:
         return f'init_file={write_init_file(clicks, path)}'
     if args.auto_init:
         return 'auto_init=true'
+    if args.init_dir is None:
+        where = 'with --init-dir'
+    elif args.init_dir.is_dir():
+        where = f'in --init-dir {args.init_dir}, which has none'
+    else:
+        where = f'in --init-dir {args.init_dir}, which is not a directory'
     msg = (
-        f'{bag} holds raw stereo images: give its initialisation with --init-dir '
-        f'(a {bag.name}.yaml node-name -> pixel file), --auto-init (the optional landmark '
-        'detector) or, for synthetic bags, --simulate-clicks'
+        f'{bag} holds raw stereo images: give its initialisation {where} (a {bag.name}.yaml '
+        'node-name -> pixel file), --auto-init (the optional landmark detector) or, for '
+        'synthetic bags, --simulate-clicks'
     )
     raise ConfigError(msg)
 

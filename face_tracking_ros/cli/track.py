@@ -18,7 +18,7 @@ import numpy as np
 
 from face_tracking_ros.cli.replay import add_replay_options, parse_remaps, print_stats
 from face_tracking_ros.data import default_model_path
-from face_tracking_ros.errors import BagError
+from face_tracking_ros.errors import BagError, ConfigError
 from face_tracking_ros.geometry.camera import StereoRig
 from face_tracking_ros.io.bags import bag_topics, read_messages
 from face_tracking_ros.io.conversions import camera_from_info
@@ -159,14 +159,25 @@ def choose_tracker(bag: Path, args: argparse.Namespace) -> str:
 
     Raises:
         BagError: if the bag has no image topic.
+        ConfigError: if it has several, none given, and not a left and a right one by name.
     """
     topics = bag_topics(bag)
-    if not image_topics(topics)[0]:
+    images = image_topics(topics)[0]
+    if not images:
         msg = f'{bag}: no sensor_msgs/msg/Image or CompressedImage topic to track'
         raise BagError(msg)
     if args.image_topic:
         return 'mono_tracker'
-    return 'stereo_tracker' if args.left_topic or is_stereo_bag(topics) else 'mono_tracker'
+    if args.left_topic or is_stereo_bag(topics):
+        return 'stereo_tracker'
+    if len(images) > 1:
+        msg = (
+            f'{bag}: image topics {", ".join(images)}, none named left or right: give one with '
+            '--image-topic (mono tracker) or a pair with --left-topic, --right-topic, '
+            '--left-info-topic and --right-info-topic (stereo tracker)'
+        )
+        raise ConfigError(msg)
+    return 'mono_tracker'
 
 
 def run(args: argparse.Namespace) -> int:

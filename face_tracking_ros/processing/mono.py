@@ -293,7 +293,7 @@ def _check_model(
     if unknown:
         msg = (
             f'the face model has {model.num_nodes} nodes but the initialisation names {unknown} '
-            'it lacks: model refused'
+            f'it lacks (misspelt? its nodes: {", ".join(model.node_names)}): model refused'
         )
         raise error(msg)
 
