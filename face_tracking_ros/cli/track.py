@@ -187,6 +187,14 @@ def run(args: argparse.Namespace) -> int:
     params = [*compressed_parameters(bag_topics(args.bag), given), *(args.param or [])]
     if args.model:
         params.append(f'model_file={args.model}')
+    given_init = any(p.startswith(('init_file=', 'auto_init=')) for p in params)
+    if not (args.init or args.simulate_clicks is not None or args.auto_init or given_init):
+        msg = (
+            "nothing initialises the track: give the first image's node positions with --init "
+            'FILE, --auto-init (the optional landmark detector) or, for synthetic bags, '
+            '--simulate-clicks PX'
+        )
+        raise ConfigError(msg)
     init_file = args.init
     args.out.parent.mkdir(parents=True, exist_ok=True)
     if args.simulate_clicks is not None:
