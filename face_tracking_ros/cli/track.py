@@ -31,7 +31,11 @@ from face_tracking_ros.processing.stereo import COMPRESSED as STEREO_COMPRESSED
 from face_tracking_ros.processing.stereo import LEFT_IMAGE, LEFT_INFO, RIGHT_IMAGE, RIGHT_INFO
 from face_tracking_ros.replay import bag_spelling, replay_bag
 from face_tracking_ros.synthetic.clicks import clicks_from_bag, write_init_file
-from face_tracking_ros.tracking.accuracy import TrackingAccuracy, tracking_accuracy
+from face_tracking_ros.tracking.accuracy import (
+    TrackingAccuracy,
+    drift_window,
+    tracking_accuracy,
+)
 from face_tracking_ros.tracking.result import TrackStatus
 from face_tracking_ros.tracking.stereo import StereoTrackerConfig
 from face_tracking_ros.tracking.stereo_evaluation import StereoEvaluation, evaluate_stereo
@@ -325,6 +329,8 @@ def format_accuracy(accuracy: TrackingAccuracy) -> str:
     """A short table of the accuracy figures."""
     rotation = ' / '.join(f'{v:.2f}' for v in accuracy.rotation_mae_deg)
     translation = ' / '.join(f'{v:.2f}' for v in accuracy.translation_mae_mm)
+    window = drift_window(accuracy.tracked)
+    drift = f'drift (last {window} - first {window}):'
     return '\n'.join(
         [
             f'frames {accuracy.frames}: tracked {accuracy.tracked}, lost {accuracy.lost}',
@@ -332,7 +338,7 @@ def format_accuracy(accuracy: TrackingAccuracy) -> str:
             f'translation MAE in x / y / z:    {translation} mm',
             f'3-D node RMS:                    {accuracy.node_rms_mm:.2f} mm',
             f'alpha RMS (% of range):          {accuracy.alpha_rms_percent:.1f} %',
-            f'drift (last 100 - first 100):    {accuracy.drift_deg:+.3f} deg',
+            f'{drift:<33}{accuracy.drift_deg:+.3f} deg',
             f'jitter (frame-to-frame):         {accuracy.jitter_deg:.3f} deg',
         ]
     )

@@ -129,9 +129,14 @@ def _alpha_rms_percent(estimated: np.ndarray, reference: np.ndarray) -> float:
     return float(100 * rms / spread)
 
 
+def drift_window(tracked: int) -> int:
+    """Frames the drift compares at each end of ``tracked`` frames (whole halves if shorter)."""
+    return min(DRIFT_WINDOW, tracked // 2)
+
+
 def _drift(error: np.ndarray) -> float:
-    """Mean error over the last window minus that over the first (whole halves if shorter)."""
-    window = min(DRIFT_WINDOW, len(error) // 2)
+    """Mean error over the last window minus that over the first (:func:`drift_window`)."""
+    window = drift_window(len(error))
     if window < 1:
         return float('nan')
     return float(error[-window:].mean() - error[:window].mean())
