@@ -131,3 +131,7 @@ def test_a_float_parameter_takes_an_integer_and_none_can_be_changed_later(ros_co
     with pytest.raises(ConfigError, match="parameter rate must be a number, got 'fast'"):
         processor_node.NodeParameters(node).config(Tunables)
     node.destroy_node()
+    node = _node_with(ros_context, name=3)  # a node would end in rclpy's traceback
+    with pytest.raises(ConfigError, match="parameter 'name' to '3' of type 'INTEGER', expecting"):
+        processor_node.NodeParameters(node).config(Tunables)
+    node.destroy_node()

@@ -20,6 +20,7 @@ from typing import Any, TypeVar
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import ParameterDescriptor
 import rclpy
+from rclpy.exceptions import InvalidParameterTypeException
 from rclpy.executors import ExternalShutdownException
 from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
@@ -114,7 +115,11 @@ class NodeParameters:
             descriptor = ParameterDescriptor(
                 description=descriptions.get(field.name, ''), read_only=True, dynamic_typing=number
             )
-            value = self._node.declare_parameter(name, _declared(default), descriptor).value
+            try:
+                declared = self._node.declare_parameter(name, _declared(default), descriptor)
+            except InvalidParameterTypeException as error:  # e.g. a string for an integer
+                raise ConfigError(str(error)) from None
+            value = declared.value
             if number:
                 value = _number(name, value)
             values[field.name] = tuple(value or ()) if isinstance(default, tuple) else value
