@@ -39,7 +39,7 @@ def test_a_tracked_identity_is_enrolled_and_a_model_less_track_refused(tmp_path,
     # A stereo_tracker's output without a face model: states without sigma.
     bare = _states(tmp_path / 'bare', np.zeros((5, 0)))
     assert main(['enroll', str(bare), '--name', 'bob', '--gallery', str(gallery)]) == 2
-    assert f'{bare}: its face/state carries no sigma' in capsys.readouterr().err
+    assert f'{bare}: its face/state carries no sigma (a stereo' in capsys.readouterr().err
     assert IdentityGallery.load(gallery, 2).names == ('ann',)  # the gallery as it was
     # A file that cannot be written is the user's matter: a message, not a traceback.
     absent = tmp_path / 'absent' / 'gallery.npz'

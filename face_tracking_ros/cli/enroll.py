@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from face_tracking_ros.errors import BagError
-from face_tracking_ros.io.series import load_states
+from face_tracking_ros.io.series import load_states, require_parameters
 from face_tracking_ros.recognition.identity import IdentityConfig, IdentityGallery
 from face_tracking_ros.tracking.result import TrackStatus
 
@@ -57,12 +57,7 @@ def tracked_sigmas(bags: list[Path]) -> np.ndarray:
     """
     series = [load_states(bag) for bag in bags]
     for bag, states in zip(bags, series, strict=True):
-        if states.sigma.shape[1] == 0:
-            msg = (
-                f'{bag}: its face/state carries no sigma (a stereo_tracker output tracked '
-                'without a face model: give one, --model or model_file)'
-            )
-            raise BagError(msg)
+        require_parameters(bag, {'sigma': states.sigma.shape[1]})
     sigmas = [s.sigma[s.status == TrackStatus.TRACKING] for s in series]
     stacked = np.concatenate(sigmas) if sigmas else np.zeros((0, 0))
     if not len(stacked):

@@ -20,6 +20,7 @@ import numpy as np
 from face_tracking_ros.errors import BagError
 from face_tracking_ros.io.bags import read_messages
 from face_tracking_ros.io.conversions import stamp_to_ns, truth_from_msg
+from face_tracking_ros.io.series import require_parameters
 from face_tracking_ros.recognition.evaluation import (
     detect_events,
     enroll_sequences,
@@ -100,7 +101,8 @@ def tracked_sequence(tracked: Path, truth: Path) -> ParameterSequence:
     """Tracked sigma and alpha of a tracker output bag with the labels of its truth bag.
 
     Raises:
-        BagError: if a bag cannot be read, lacks its topic, or no TRACKING frame has truth.
+        BagError: if a bag cannot be read, lacks its topic, no TRACKING frame has truth, or the
+            states carry no sigma or alpha.
     """
     labels = {}
     subject = ''
@@ -117,6 +119,7 @@ def tracked_sequence(tracked: Path, truth: Path) -> ParameterSequence:
     if not frames:
         msg = f'{tracked}: no TRACKING {STATE_TOPIC} frame has a truth frame in {truth}'
         raise BagError(msg)
+    require_parameters(tracked, {'sigma': len(frames[0].sigma), 'alpha': len(frames[0].alpha)})
     stamps = [stamp_to_ns(frame.header.stamp) for frame in frames]
     return ParameterSequence(
         subject_id=subject,

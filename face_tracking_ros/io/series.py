@@ -124,6 +124,25 @@ def load_truth(bag: Path) -> TruthSeries:
     )
 
 
+def require_parameters(bag: Path, lengths: dict[str, int]) -> None:
+    """Check that a tracker output's states carry the parameters to recognise from.
+
+    Args:
+        bag: the tracker output, for the message.
+        lengths: parameter name ('sigma', 'alpha') -> its length in the states.
+
+    Raises:
+        BagError: if one is empty, as in a stereo_tracker output tracked without a model.
+    """
+    empty = [name for name, length in lengths.items() if length == 0]
+    if empty:
+        msg = (
+            f'{bag}: its face/state carries no {" or ".join(empty)} (a stereo_tracker output '
+            'tracked without a face model: give one, --model or model_file)'
+        )
+        raise BagError(msg)
+
+
 def has_truth(bag: Path) -> bool:
     """True if the bag has a FaceTruth topic."""
     return TRUTH_TYPE in bag_topics(bag).values()

@@ -200,7 +200,8 @@ class ExpressionClassifier:
         file_q = archive.field('q', int)
         if file_q != q:
             archive.fail(
-                f'classifier was trained for q={file_q} action parameters, the model has q={q}'
+                f'classifier was trained for q={file_q} action parameters, the model has q={q} '
+                '(train it on this model: face-tracking train-expressions --model)'
             )
         labels = tuple(archive.field('labels', list))
         window = float(archive.field('window', float))
