@@ -97,6 +97,14 @@ def test_report_on_tracked_bags(pairs: dict, capsys: pytest.CaptureFixture) -> N
     assert 'identity   sigma      100.0%' in out
 
 
+def test_report_without_strangers_says_so(pairs: dict, capsys: pytest.CaptureFixture) -> None:
+    argv = ['recognition-report', '--enrol', *pairs['enrol'], '--test', *pairs['test'],
+            '--classifier', pairs['classifier'][0]]  # fmt: skip
+    assert cli.main(argv) == 0
+    out = capsys.readouterr().out
+    assert '100.0 % with rejection; no strangers' in out and 'nan' not in out
+
+
 def test_tracked_sequence_keeps_tracking_frames_matched_by_stamp(pairs: dict) -> None:
     tracked, truth = (Path(p) for p in pairs['test'][0].split('='))
 

@@ -73,10 +73,13 @@ def run(args: argparse.Namespace) -> None:
     identity_config = IdentityConfig()
     gallery = enroll_sequences(enrol, identity_config)
     identity = identity_accuracy(gallery, test, strangers, identity_config)
+    rejected = (
+        f'strangers rejected {100 * identity.rejection:.1f} %' if strangers else 'no strangers'
+    )
     print(
         f'identity after {identity_config.window:.0f} s ({identity.windows} windows): '
         f'{100 * identity.closed_set:.1f} % closed set, {100 * identity.open_set:.1f} % with '
-        f'rejection; strangers rejected {100 * identity.rejection:.1f} %'
+        f'rejection; {rejected}'
     )
     scored = test + strangers
     accuracy = expression_accuracy(classifier, scored)
