@@ -138,7 +138,10 @@ class SceneConfig:
             msg = f'baseline must be in [{MIN_BASELINE}, {MAX_BASELINE}] m, got {self.baseline}'
             raise ConfigError(msg)
         if (self.texture is None) != (self.texture_nodes is None):
-            msg = 'a texture photo needs its node positions: give both texture and texture_nodes'
+            msg = (
+                'a texture photo needs its node positions: give both texture and texture_nodes '
+                '(synth --texture and --texture-nodes)'
+            )
             raise ConfigError(msg)
         if len(self.distortion) not in (0, 5) or not np.all(np.isfinite(self.distortion)):
             msg = f'distortion must be 5 finite plumb_bob coefficients, got {self.distortion}'
