@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from face_tracking_ros.io.series import has_truth, load_states, load_truth
+from face_tracking_ros.io.series import has_truth, load_states, load_truth, require_parameters
 from face_tracking_ros.visualization.plots import plot_tracking
 
 
@@ -27,5 +27,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> None:
     """Write the plot."""
     truth = load_truth(args.truth) if args.truth and has_truth(args.truth) else None
-    plot_tracking(load_states(args.out), truth, args.png)
+    states = load_states(args.out)
+    lengths = {'sigma': states.sigma.shape[1], 'alpha': states.alpha.shape[1]}
+    require_parameters(args.out, lengths)  # without them, no pose either: nothing to draw
+    plot_tracking(states, truth, args.png)
     print(f'wrote {args.png}')

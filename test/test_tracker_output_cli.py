@@ -1,4 +1,4 @@
-"""``face-tracking enroll``: a tracked identity into a gallery, and output it cannot use."""
+"""``face-tracking enroll`` and ``plot`` on tracker outputs, and on outputs they cannot use."""
 
 from __future__ import annotations
 
@@ -45,3 +45,10 @@ def test_a_tracked_identity_is_enrolled_and_a_model_less_track_refused(tmp_path,
     absent = tmp_path / 'absent' / 'gallery.npz'
     assert main(['enroll', str(tmp_path / 'ann'), '--name', 'ann', '--gallery', str(absent)]) == 2
     assert 'error: ' in (err := capsys.readouterr().err) and 'absent' in err
+
+
+def test_a_model_less_track_is_not_plotted(tmp_path, capsys):
+    bare = _states(tmp_path / 'bare', np.zeros((5, 0)))
+    assert main(['plot', str(bare), '--png', str(tmp_path / 'p.png')]) == 2
+    assert f'{bare}: its face/state carries no sigma or alpha (a stereo' in capsys.readouterr().err
+    assert not (tmp_path / 'p.png').exists()
