@@ -150,7 +150,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         '--neutral-frames',
         type=int,
         default=0,
-        help='FaceMesh/FaceState bags: the first K frames of each bag are neutral',
+        help='bags without truth (FaceMesh, FaceState, raw stereo images): the first K frames '
+        'of each bag show the neutral face; required for them',
     )
     parser.add_argument(
         '--add-noise',

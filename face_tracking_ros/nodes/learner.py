@@ -41,7 +41,8 @@ class LearnerConfig:
         nodes: mesh nodes, 19 or 34; 0: as in the bags.
         topic: mesh topic; empty: truth/face, face/mesh_raw or face/state, the first found.
         subject: subject id of FaceMesh/FaceState bags; empty: each bag's directory name.
-        neutral_frames: FaceMesh/FaceState bags: the first K frames of each bag are neutral.
+        neutral_frames: bags without truth (FaceMesh, FaceState, raw stereo images): the first
+            K frames of each bag show the neutral face; required for them (0: not given).
         from_images: track the images of stereo bags even when they also hold truth meshes.
         init_dir: raw stereo bags: directory of init files <bag name>.yaml|.json.
         simulate_clicks: synthetic raw stereo bags: initialise from the first frame's true nodes
