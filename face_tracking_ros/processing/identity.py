@@ -86,6 +86,21 @@ class IdentityProcessor:
         """The current gallery."""
         return self._recognizer.gallery
 
+    def status(self) -> dict[str, str]:
+        """The enrolled identities and where they are kept (see ``Reporting``).
+
+        An empty gallery names every face unknown; a gallery_file that does not exist (the
+        first enrolment writes it, or the path is misspelt) says so here.
+        """
+        path = self._node_config.gallery_file
+        if not path:
+            kept = 'none given: enrolments are not saved'
+        elif Path(path).exists():
+            kept = path
+        else:
+            kept = f'{path} does not exist yet (the first enrolment writes it)'
+        return {'identities': ', '.join(self.gallery.names) or 'none', 'gallery_file': kept}
+
     def handle(self, topic: str, msg: Any, wanted: frozenset[str]) -> list[Output]:
         """Add a sigma estimate, or take a FaceState's status; an IdentityEvent if it changed."""
         if topic == STATE_PORT.topic:

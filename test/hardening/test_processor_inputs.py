@@ -824,6 +824,23 @@ def identity() -> IdentityProcessor:
     return processor
 
 
+def test_identity_status_names_the_gallery_and_its_file(identity, tmp_path):
+    assert identity.status() == {
+        'identities': 'alice',
+        'gallery_file': 'none given: enrolments are not saved',
+    }
+    misspelt = str(tmp_path / 'galery.npz')
+    config = IdentityNodeConfig(gallery_file=misspelt)
+    processor = IdentityProcessor(FACTORY, IdentityGallery.empty(2), IdentityConfig(), config)
+    assert processor.status() == {
+        'identities': 'none',
+        'gallery_file': f'{misspelt} does not exist yet (the first enrolment writes it)',
+    }
+    _identities(processor, [0.002, -0.001], 1.0, 50.0)
+    processor.enroll('bob', 1.0)
+    assert processor.status() == {'identities': 'bob', 'gallery_file': misspelt}
+
+
 @pytest.mark.parametrize(
     ('sigma', 'match'),
     [
