@@ -17,6 +17,8 @@ from face_tracking_ros.model.face_model import FaceModel
 from face_tracking_ros.model.topology import mesh_topology
 from face_tracking_ros.tracking.result import TrackResult, TrackStatus
 
+MODEL = 'face_tracking_msgs/msg/FaceModel'
+
 STAMP_NS = 1_700_000_000_123_456_789
 
 
@@ -101,6 +103,17 @@ def test_model_round_trips_through_its_message():
     np.testing.assert_array_equal(back.alpha_prior_covariance, model.alpha_prior_covariance)
     assert back.metadata == {'subjects': 11}
     assert back.node_names == model.node_names
+
+
+def test_a_model_read_from_a_bag_has_writable_arrays():
+    """Read back from CDR its arrays are read-only views, which the compiled kernels refuse."""
+    store = typestore()
+    factory = RosbagsMessages(store)
+    msg = conversions.model_to_msg(factory, conversions.make_header(factory, 0, 'face'), _model())
+    read = store.deserialize_cdr(store.serialize_cdr(msg, MODEL), MODEL)
+    assert not read.shape_basis.flags.writeable  # as a bag gives it
+    model = conversions.model_from_msg(read)
+    assert model.shape_basis.flags.writeable and model.action_basis_nodes().flags.writeable
 
 
 def test_model_message_with_wrong_length_names_the_field():

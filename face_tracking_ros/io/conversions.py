@@ -289,8 +289,12 @@ def model_from_msg(msg: Any) -> FaceModel:
 
 
 def _sized(values: Any, field: str, length: int) -> np.ndarray:
-    """Float array of exactly ``length`` values (NaN is left to model validation)."""
-    array = np.asarray(values, dtype=float).ravel()
+    """Float array of exactly ``length`` values (NaN is left to model validation).
+
+    A copy: a message read from a bag holds read-only views of its buffer, and the trackers'
+    compiled kernels are compiled for writable arrays.
+    """
+    array = np.array(values, dtype=float).ravel()
     if array.size != length:
         msg_text = f'{field} has {array.size} values, expected {length}'
         raise InputError(msg_text)
