@@ -11,7 +11,7 @@ import pytest
 
 from face_tracking_ros.cli.main import main
 from face_tracking_ros.io import conversions
-from face_tracking_ros.io.bags import BagWriter
+from face_tracking_ros.io.bags import BagWriter, read_raw
 from face_tracking_ros.io.messages import RosbagsMessages
 from face_tracking_ros.io.typestore import typestore
 from face_tracking_ros.learning.training_set import MeshSequence
@@ -255,3 +255,22 @@ def test_three_subjects_learn_p_2_without_the_leave_one_out_figures(tmp_path, tr
     joint = json.loads(report_path.read_text())['methods']['joint']
     assert joint['loo_shape_similarity'] is None and joint['identity_accuracy'] == 1.0
     assert joint['loo_per_subject']['neutral_rms_mm'] == [None] * 3
+
+
+def test_a_recorder_s_absolute_topic_names_are_read(tmp_path, world, capsys):
+    """bag_recorder writes '/face/mesh_raw' and '/face/state'; learn looks for both spellings."""
+    sequences, alpha = world
+    status = np.full(len(sequences[0].meshes), 1)
+    status[40] = 2  # one frame lost: its '/face/state' must still be found
+    bags = []
+    for k, sequence in enumerate(sequences):
+        relative = _write_bag(tmp_path / f'rel{k}', sequence, alpha, kind='mesh', status=status)
+        with BagWriter(tmp_path / f'person{k}') as writer:
+            for message in read_raw(relative):
+                writer.write_raw(f'/{message.topic}', message.msgtype, message.data,
+                                 message.stamp_ns)  # fmt: skip
+        bags.append(tmp_path / f'person{k}')
+    args = ['learn', *map(str, bags), '--out', str(tmp_path / 'm.npz'), '--q', '3']
+    assert main([*args, '--report', str(tmp_path / 'r.json'), '--neutral-frames', '10']) == 0
+    assert f'{bags[0]}: 1 frames the tracker did not track' in capsys.readouterr().out
+    assert json.loads((tmp_path / 'r.json').read_text())['frames'] == 4 * (len(status) - 1)

@@ -74,7 +74,7 @@ from face_tracking_ros.learning.training_set import MeshSequence, TrainingSet
 from face_tracking_ros.model.model_file import save_model
 from face_tracking_ros.model.topology import SUPPORTED_NODE_COUNTS
 from face_tracking_ros.processing.parameters import OverrideParameters
-from face_tracking_ros.replay import replay_bag
+from face_tracking_ros.replay import bag_spelling, replay_bag
 from face_tracking_ros.synthetic.clicks import clicks_from_bag, write_init_file
 from face_tracking_ros.synthetic.faces import PRESETS, FacePopulation
 from face_tracking_ros.tracking.result import TrackStatus
@@ -308,7 +308,7 @@ def mesh_bag(bag: Path, args: argparse.Namespace) -> Path:
             to learn from or ``--from-images`` asks for tracking.
     """
     topics = bag_topics(bag)
-    has_meshes = args.topic or any(name in topics for name in DEFAULT_TOPICS)
+    has_meshes = args.topic or any(bag_spelling(t, topics) in topics for t in DEFAULT_TOPICS)
     if not (is_stereo_bag(topics) or args.left_topic):
         images, _ = image_topics(topics)
         if args.from_images or (images and not has_meshes):
@@ -402,8 +402,10 @@ def read_bag_meshes(
         InputError: naming the bag, topic and message index of a malformed message.
     """
     topics = bag_topics(bag)
-    topic = args.topic or next((name for name in DEFAULT_TOPICS if name in topics), None)
-    if topic is None or topic not in topics:
+    wanted_topics = [args.topic] if args.topic else DEFAULT_TOPICS
+    spelt = [bag_spelling(name, topics) for name in wanted_topics]  # a recorder's: '/face/...'
+    topic = next((name for name in spelt if name in topics), None)
+    if topic is None:
         wanted = args.topic or ' or '.join(DEFAULT_TOPICS)
         msg = f'{bag}: no topic {wanted} in bag (topics: {", ".join(sorted(topics)) or "none"})'
         raise BagError(msg)
@@ -453,11 +455,12 @@ def _untracked_stamps(bag: Path, topics: dict[str, str]) -> set[int]:
     Its face/state messages whose status is not TRACKING: the mesh of such a frame is none
     (zeros before the first initialisation) or the last one tracked, not the face.
     """
-    if topics.get(STATE_TOPIC) != MESH_TYPES[1]:
+    state_topic = bag_spelling(STATE_TOPIC, topics)
+    if topics.get(state_topic) != MESH_TYPES[1]:
         return set()
     return {
         stamp_to_ns(message.msg.header.stamp)
-        for message in read_messages(bag, [STATE_TOPIC])
+        for message in read_messages(bag, [state_topic])
         if message.msg.status != TRACKED
     }
 
