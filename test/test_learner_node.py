@@ -78,3 +78,9 @@ def test_tracker_params_reach_the_stereo_tracking_of_learn():
     args = parser.parse_args(['learn', *learn_arguments(topics)])
     given = (args.left_topic, args.right_topic, args.left_info_topic, args.right_info_topic)
     assert given == ('/c0', '/c1', None, '/i')
+
+
+def test_a_bag_it_cannot_read_is_one_error_line_and_exit_code_2(tmp_path):
+    code, output = finish(start_node('learner', bags=[str(tmp_path / 'nope')]))
+    assert code == 2
+    assert f'{tmp_path}/nope: cannot read bag' in output and 'Traceback' not in output

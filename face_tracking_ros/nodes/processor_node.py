@@ -255,9 +255,11 @@ def run(make_node: Callable[[], Node], args: list[str] | None = None) -> None:
             executor.spin_once(timeout_sec=SPIN_PERIOD_S)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
-    except ConfigError as error:
+    except FaceTrackingError as error:  # a bad parameter, or a bag a node was given to read
         if node is None:
             print(f'error: {error}')  # noqa: T201
+        else:
+            node.get_logger().error(str(error))
         raise SystemExit(2) from None
     finally:
         if node is not None:
