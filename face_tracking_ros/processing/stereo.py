@@ -211,6 +211,7 @@ class StereoProcessor:
                 raise InputError(msg)
             initialisation = self._initialisation
         self._initialisation = initialisation
+        self._last_stamp = None  # the next pair starts the track, whatever its stamp
         if self._tracker is not None:
             self._end_track()
             self._reset_tracker()

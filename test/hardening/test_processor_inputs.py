@@ -375,6 +375,24 @@ def stereo_reference(pairs) -> list[np.ndarray]:
     return meshes
 
 
+def test_a_reset_stereo_track_starts_from_the_next_pair_whatever_its_stamp(pairs):
+    """A bag played again from its start (stamps back by less than 1 s) after reset_tracking."""
+    processor = _stereo_started(pairs)
+    for f in range(4):
+        _pair(processor, pairs, f)
+    assert _pair(processor, pairs, 1) == []  # 0.13 s back: dropped as unpaired
+    processor.reset(pairs[2])
+    restarted = _mesh(_pair(processor, pairs, 0))
+    np.testing.assert_allclose(restarted, _mesh(_pair(_stereo_started(pairs), pairs, 0)))
+
+
+def _stereo_started(pairs) -> StereoProcessor:
+    """A stereo processor with both camera_infos received."""
+    processor = _stereo(pairs)
+    _stereo_infos(processor)
+    return processor
+
+
 BETWEEN = stamp(0) + FRAME_NS // 2  # a bad pair between frames 0 and 1
 BAD_STEREO_PAIRS = [
     (
