@@ -308,7 +308,7 @@ def mesh_bag(bag: Path, args: argparse.Namespace) -> Path:
             to learn from or ``--from-images`` asks for tracking.
     """
     topics = bag_topics(bag)
-    has_meshes = args.topic or any(bag_spelling(t, topics) in topics for t in DEFAULT_TOPICS)
+    has_meshes = args.topic or _mesh_topic(topics, args) is not None
     if not (is_stereo_bag(topics) or args.left_topic):
         images, _ = image_topics(topics)
         if args.from_images or (images and not has_meshes):
@@ -402,9 +402,7 @@ def read_bag_meshes(
         InputError: naming the bag, topic and message index of a malformed message.
     """
     topics = bag_topics(bag)
-    wanted_topics = [args.topic] if args.topic else DEFAULT_TOPICS
-    spelt = [bag_spelling(name, topics) for name in wanted_topics]  # a recorder's: '/face/...'
-    topic = next((name for name in spelt if name in topics), None)
+    topic = _mesh_topic(topics, args)
     if topic is None:
         wanted = args.topic or ' or '.join(DEFAULT_TOPICS)
         msg = f'{bag}: no topic {wanted} in bag (topics: {", ".join(sorted(topics)) or "none"})'
@@ -447,6 +445,16 @@ def read_bag_meshes(
         )
         raise BagError(msg)
     return [_bag_meshes(bag, topic, subject, items, args) for subject, items in frames.items()]
+
+
+def _mesh_topic(topics: dict[str, str], args: argparse.Namespace) -> str | None:
+    """The bag's mesh topic: ``--topic``, else the first of DEFAULT_TOPICS it has.
+
+    As the bag spells it (a recorder's names are absolute: '/face/mesh_raw'); None if it has none.
+    """
+    wanted = [args.topic] if args.topic else DEFAULT_TOPICS
+    spelt = [bag_spelling(name, topics) for name in wanted]
+    return next((name for name in spelt if name in topics), None)
 
 
 def _untracked_stamps(bag: Path, topics: dict[str, str]) -> set[int]:
