@@ -12,7 +12,7 @@ from std_msgs.msg import Float64
 
 from face_tracking_ros.errors import ConfigError, InputError
 from face_tracking_ros.nodes import processor_node
-from face_tracking_ros.processing.base import Output, Port
+from face_tracking_ros.processing.base import Output, Port, QosClass
 
 FLOAT = 'std_msgs/msg/Float64'
 OK, WARN = DiagnosticStatus.OK, DiagnosticStatus.WARN
@@ -99,6 +99,60 @@ def test_a_reporting_processor_s_status_is_published_with_the_last_problem(
     assert [s.message for s in statuses] == ['running', 'in: negative', 'in: negative', 'running']
     assert [v.get('seen') for v in values] == ['1', None, '2', '2']
     assert all(v['node'] == 'reporting' for v in values)
+
+
+class SensorCounting(CountingDoubling):
+    """CountingDoubling fed by a sensor stream, as images and camera_info are."""
+
+    inputs = (Port('in', FLOAT, QosClass.SENSOR),)
+
+
+def test_the_status_warns_of_a_sensor_input_without_messages_naming_its_publishers(
+    monkeypatch, ros_context
+):
+    def factory(_params, _messages):
+        return SensorCounting([])
+
+    monkeypatch.setattr(processor_node, 'processor_factory', lambda _name: factory)
+    monkeypatch.setattr(rclpy.node, 'get_default_context', lambda: ros_context)
+    node = processor_node.ProcessorNode('sensing')
+    statuses: list = []
+    logged: list = []
+    try:
+        monkeypatch.setattr(node._diagnostics, 'publish', lambda a: statuses.extend(a.status))
+        monkeypatch.setattr(node, 'get_logger', lambda: _Logger(logged))
+        node._publish_status()  # just started: not silent yet
+        monkeypatch.setattr(processor_node, 'SILENT_INPUT_S', 0.0)
+        node._publish_status()  # no publisher: a misspelt topic or remapping
+        node._publish_status()  # logged once per WARNING_PERIOD_S
+        publisher = node.create_publisher(Float64, '/in', 10)
+        node._publish_status()  # a publisher that sends nothing: a stopped camera
+        monkeypatch.setattr(processor_node, 'SILENT_INPUT_S', 60.0)
+        node._handle('in', Float64(data=1.0))
+        node._publish_status()
+        node.destroy_publisher(publisher)
+    finally:
+        node.destroy_node()
+    assert [s.level for s in statuses] == [OK, WARN, WARN, WARN, OK]
+    messages = [s.message for s in statuses]
+    no_publisher = 'no publisher: check the topic name or remapping'
+    assert messages[1] == f'no message on /in for 0 s ({no_publisher})'
+    assert messages[3] == 'no message on /in for 0 s (1 publisher)'
+    assert logged == [messages[1]]
+    assert [{v.key: v.value for v in s.values}.get('seen') for s in statuses] == [
+        '0',
+        '0',
+        '0',
+        '0',
+        '1',
+    ]
+
+
+class _Logger:
+    """Records warnings."""
+
+    def __init__(self, logged: list) -> None:
+        self.warning = logged.append
 
 
 @dataclass(frozen=True)

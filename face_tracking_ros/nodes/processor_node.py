@@ -6,7 +6,9 @@ publishes its outputs with each port's QoS, and turns a bad input message into a
 status (and an unexpected exception, a bug, into an ERROR status) instead of a crash; the log
 gets one line per kind of problem per WARNING_PERIOD_S. A processor with counts and measurements
 to report (:class:`~face_tracking_ros.processing.base.Reporting`) has them published as the
-values of a status every STATUS_PERIOD_S.
+values of a status every STATUS_PERIOD_S; that status also warns of a sensor input (images,
+camera_info) that has brought no message for SILENT_INPUT_S, with its publisher count, as a
+misspelt remapping or a stopped camera leaves it.
 """
 
 from __future__ import annotations
@@ -46,6 +48,7 @@ WARNING_PERIOD_S = 5.0  # a problem of one kind is logged at most once per perio
 PROBLEM_KIND_CHARS = 60  # problems whose messages start alike are one kind
 SPIN_PERIOD_S = 0.1  # how often the spin loop looks for a shutdown
 STATUS_PERIOD_S = 1.0  # how often a Reporting processor's status is published (diagnostics' 1 Hz)
+SILENT_INPUT_S = 5.0  # a sensor input without a message for this long is reported
 
 QOS_PROFILES = {
     QosClass.SENSOR: qos_profile_sensor_data,
@@ -143,6 +146,10 @@ class ProcessorNode(Node):
         )
         self._diagnostics = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
         self._last_logged: dict[str, float] = {}
+        started = time.monotonic()
+        self._last_message = {  # sensor inputs: when their last message (or none) came
+            port.topic: started for port in self._processor.inputs if port.qos == QosClass.SENSOR
+        }
         self._last_problem: tuple[float, bytes, str] | None = None  # time, level, message
         if isinstance(self._processor, Reporting):
             self.create_timer(STATUS_PERIOD_S, self._publish_status)
@@ -170,6 +177,8 @@ class ProcessorNode(Node):
         Work the processor defers (:class:`~face_tracking_ros.processing.base.Deferring`) runs
         after the outputs are published.
         """
+        if topic in self._last_message:
+            self._last_message[topic] = time.monotonic()
         wanted = frozenset(
             t for t in self._on_demand if self._output_publishers[t].get_subscription_count()
         )
@@ -192,27 +201,52 @@ class ProcessorNode(Node):
 
     def _problem(self, level: bytes, message: str) -> None:
         """Log a problem once per WARNING_PERIOD_S per kind, and report it on /diagnostics."""
+        self._last_problem = (time.monotonic(), level, message)
+        self._log(level, message, message[:PROBLEM_KIND_CHARS])
+        self._report(level, message)
+
+    def _log(self, level: bytes, message: str, kind: str) -> None:
+        """Log ``message`` unless a message of the same kind was logged in WARNING_PERIOD_S."""
         now = time.monotonic()
-        self._last_problem = (now, level, message)
-        kind = message[:PROBLEM_KIND_CHARS]
         if now - self._last_logged.get(kind, -WARNING_PERIOD_S) >= WARNING_PERIOD_S:
             self._last_logged[kind] = now
-            log = (
-                self.get_logger().error
-                if level == DiagnosticStatus.ERROR
-                else (self.get_logger().warning)
+            logger = self.get_logger()
+            (logger.error if level == DiagnosticStatus.ERROR else logger.warning)(message)
+
+    def _silent_inputs(self) -> str:
+        """The sensor inputs without a message for SILENT_INPUT_S, or '' if there are none.
+
+        Each is named as resolved (after remapping) with its publisher count: none usually means
+        a misspelt topic or remapping, some that the camera (or bag) stopped sending.
+        """
+        now = time.monotonic()
+        silent = []
+        for topic, last in self._last_message.items():
+            if now - last < SILENT_INPUT_S:
+                continue
+            name = self.resolve_topic_name(topic)
+            publishers = self.count_publishers(name)
+            source = (
+                f'{publishers} publisher{"s" if publishers != 1 else ""}'
+                if publishers
+                else 'no publisher: check the topic name or remapping'
             )
-            log(message)
-        self._report(level, message)
+            silent.append(f'{name} for {now - last:.0f} s ({source})')
+        return f'no message on {"; ".join(silent)}' if silent else ''
 
     def _publish_status(self) -> None:
         """The processor's status (:class:`Reporting`) as the values of one diagnostic status.
 
         While problems keep coming (the last within STATUS_PERIOD_S) the status carries the last
-        one's level and message, so that it does not hide them; otherwise it is OK.
+        one's level and message, so that it does not hide them; otherwise it warns of silent
+        sensor inputs (:meth:`_silent_inputs`, logged too) or is OK.
         """
         assert isinstance(self._processor, Reporting)
         level, message = DiagnosticStatus.OK, 'running'
+        silent = self._silent_inputs()
+        if silent:
+            level, message = DiagnosticStatus.WARN, silent
+            self._log(level, message, 'silent inputs')
         if self._last_problem is not None:
             when, problem_level, problem = self._last_problem
             if time.monotonic() - when < STATUS_PERIOD_S:
