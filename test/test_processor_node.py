@@ -40,17 +40,18 @@ class Doubling:
         self._events.append('deferred')
 
 
+def _node_running(monkeypatch, context, processor, name: str) -> processor_node.ProcessorNode:
+    """A ProcessorNode named ``name`` around ``processor``, in ``context``."""
+    monkeypatch.setattr(processor_node, 'processor_factory', lambda _name: lambda *_: processor)
+    monkeypatch.setattr(rclpy.node, 'get_default_context', lambda: context)
+    return processor_node.ProcessorNode(name)
+
+
 def test_deferred_work_runs_after_the_outputs_are_published_even_after_a_bad_input(
     monkeypatch, ros_context
 ):
     events: list = []
-
-    def factory(_params, _messages):
-        return Doubling(events)
-
-    monkeypatch.setattr(processor_node, 'processor_factory', lambda _name: factory)
-    monkeypatch.setattr(rclpy.node, 'get_default_context', lambda: ros_context)
-    node = processor_node.ProcessorNode('doubling')
+    node = _node_running(monkeypatch, ros_context, Doubling(events), 'doubling')
     try:
         publisher = node._output_publishers['out']
         monkeypatch.setattr(publisher, 'publish', lambda msg: events.append(msg.data))
@@ -72,12 +73,7 @@ class CountingDoubling(Doubling):
 def test_a_reporting_processor_s_status_is_published_with_the_last_problem(
     monkeypatch, ros_context
 ):
-    def factory(_params, _messages):
-        return CountingDoubling([])
-
-    monkeypatch.setattr(processor_node, 'processor_factory', lambda _name: factory)
-    monkeypatch.setattr(rclpy.node, 'get_default_context', lambda: ros_context)
-    node = processor_node.ProcessorNode('reporting')
+    node = _node_running(monkeypatch, ros_context, CountingDoubling([]), 'reporting')
     statuses: list = []
 
     def publish(array):
@@ -110,12 +106,7 @@ class SensorCounting(CountingDoubling):
 def test_the_status_warns_of_a_sensor_input_without_messages_naming_its_publishers(
     monkeypatch, ros_context
 ):
-    def factory(_params, _messages):
-        return SensorCounting([])
-
-    monkeypatch.setattr(processor_node, 'processor_factory', lambda _name: factory)
-    monkeypatch.setattr(rclpy.node, 'get_default_context', lambda: ros_context)
-    node = processor_node.ProcessorNode('sensing')
+    node = _node_running(monkeypatch, ros_context, SensorCounting([]), 'sensing')
     statuses: list = []
     logged: list = []
     try:
