@@ -11,9 +11,11 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
+from face_tracking_ros.errors import InputError
 from face_tracking_ros.model.topology import mesh_topology
 from face_tracking_ros.processing.parameters import ParameterSource
 from face_tracking_ros.tracking.detector import DetectorConfig, DlibLandmarkDetector
+from face_tracking_ros.tracking.initialisation import Initialisation
 from face_tracking_ros.tracking.mono import Detector
 
 DetectorFactory = Callable[[tuple[str, ...]], Detector]
@@ -36,3 +38,29 @@ def landmark_detector(params: ParameterSource, enabled: bool) -> DetectorFactory
     if not enabled:
         return None
     return DlibLandmarkDetector(mesh_topology(LARGEST_MESH).node_names, config).for_nodes
+
+
+def restart_points(
+    given: Initialisation | None,
+    last: Initialisation | None,
+    detector_for: DetectorFactory | None,
+    tracker: str,
+) -> Initialisation | None:
+    """The 2-D node positions a tracker restarts from on a reset (the reset_tracking service).
+
+    The positions given, else (None) a detection with auto_init (``detector_for``; returns
+    None), else the last positions given: the init file's or an earlier reset's.
+
+    Raises:
+        InputError: for None with neither a detector nor earlier positions: nothing would start
+            the track (``tracker`` names it in the message).
+    """
+    if given is not None or detector_for is not None:
+        return given
+    if last is None:
+        msg = (
+            f'the {tracker} tracker needs 2-D node positions to (re)initialise, or auto_init to '
+            'detect the face'
+        )
+        raise InputError(msg)
+    return last

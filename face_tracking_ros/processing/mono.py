@@ -31,7 +31,11 @@ from face_tracking_ros.io.messages import MessageFactory
 from face_tracking_ros.model.face_model import FaceModel
 from face_tracking_ros.model.model_file import load_model
 from face_tracking_ros.processing.base import Output, Port, QosClass
-from face_tracking_ros.processing.detection import DetectorFactory, landmark_detector
+from face_tracking_ros.processing.detection import (
+    DetectorFactory,
+    landmark_detector,
+    restart_points,
+)
 from face_tracking_ros.processing.face_outputs import MESH_PORTS, MODEL_PORTS, face_outputs
 from face_tracking_ros.processing.parameters import ParameterSource
 from face_tracking_ros.processing.track_counts import TrackCounts
@@ -144,9 +148,27 @@ class MonoProcessor:
     def reset(self, initialisation: Initialisation | None) -> None:
         """Restart tracking from 2-D node positions; None: a detection, or the last ones given.
 
-        None detects the face with auto_init (a detector), else re-uses the last positions.
+        None detects the face with auto_init (a detector), else re-uses the last positions (the
+        init file's or an earlier reset's).
+
+        Raises:
+            InputError: for None with neither a detector nor earlier positions, or for nodes the
+                face model does not have (the track goes on as it was).
         """
-        self._initialisation = initialisation
+        unknown = (
+            initialisation.unknown_nodes(self._model.node_names)
+            if initialisation is not None and self._model is not None
+            else ''
+        )
+        if unknown:
+            msg = (
+                f'the face model lacks {unknown} (misspelt? its nodes: '
+                f'{", ".join(self._model.node_names)})'
+            )
+            raise InputError(msg)
+        self._initialisation = restart_points(
+            initialisation, self._initialisation, self._detector_for, 'mono'
+        )
         self._restart()
 
     def handle(self, topic: str, msg: Any, wanted: frozenset[str]) -> list[Output]:

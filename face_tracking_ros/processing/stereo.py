@@ -41,7 +41,11 @@ from face_tracking_ros.model.face_model import FaceModel
 from face_tracking_ros.model.model_file import load_model
 from face_tracking_ros.model.topology import mesh_topology
 from face_tracking_ros.processing.base import Output, Port, QosClass
-from face_tracking_ros.processing.detection import DetectorFactory, landmark_detector
+from face_tracking_ros.processing.detection import (
+    DetectorFactory,
+    landmark_detector,
+    restart_points,
+)
 from face_tracking_ros.processing.face_outputs import MESH_PORTS, MODEL_PORTS, face_outputs
 from face_tracking_ros.processing.parameters import ParameterSource
 from face_tracking_ros.processing.track_counts import TrackCounts
@@ -202,15 +206,9 @@ class StereoProcessor:
                 mesh does not have.
         """
         _check_initialisation(initialisation, self._tracker_config, InputError)
-        if initialisation is None and self._detector_for is None:
-            if self._initialisation is None:
-                msg = (
-                    'the stereo tracker needs 2-D node positions to (re)initialise, or auto_init '
-                    'to detect the face'
-                )
-                raise InputError(msg)
-            initialisation = self._initialisation
-        self._initialisation = initialisation
+        self._initialisation = restart_points(
+            initialisation, self._initialisation, self._detector_for, 'stereo'
+        )
         self._last_stamp = None  # the next pair starts the track, whatever its stamp
         if self._tracker is not None:
             self._end_track()

@@ -719,6 +719,24 @@ def test_stereo_reset_without_points_restarts_from_the_last_ones_or_needs_auto_i
         without.reset(None)
 
 
+def test_mono_reset_without_points_restarts_from_the_last_ones_or_needs_auto_init(
+    scene, frames, mono_reference
+):
+    processor = _mono(scene, frames)
+    processor.handle('camera_info', info_msg(), NONE)
+    processor.handle('image', image_msg(frames[1].image, stamp(0)), NONE)
+    clicks = scene.initialisation(frames[0])
+    names = tuple(f'{name}p' if name == 'nose_tip' else name for name in clicks.node_names)
+    with pytest.raises(InputError, match=r'model lacks 1 nodes \(nose_tipp\) \(misspelt\? its'):
+        processor.reset(Initialisation(node_names=names, points=clicks.points))
+    processor.reset(None)  # the init file's points again, for the next image
+    outputs = processor.handle('image', image_msg(frames[0].image, stamp(1)), NONE)
+    np.testing.assert_array_equal(_image_points(outputs), mono_reference[0])
+    without = MonoProcessor(FACTORY, MonoNodeConfig(), MonoTrackerConfig(), scene.model, None)
+    with pytest.raises(InputError, match='needs 2-D node positions to .re.initialise, or auto'):
+        without.reset(None)
+
+
 @pytest.mark.parametrize('node', ['mono_tracker', 'stereo_tracker'])
 def test_auto_init_without_dlib_stops_the_node_with_the_install_command(node, monkeypatch):
     monkeypatch.setitem(sys.modules, 'dlib', None)  # as on a machine without the extra
