@@ -20,6 +20,19 @@ class ConfigError(FaceTrackingError):
     """A parameter or command-line argument is out of range or inconsistent."""
 
 
+class FieldError(ConfigError):
+    """A configuration dataclass's field is out of range.
+
+    Attributes:
+        field: the field's name (a parameter source names it as its parameter).
+    """
+
+    def __init__(self, message: str, field: str) -> None:
+        """An error ``message`` about ``field``."""
+        super().__init__(message)
+        self.field = field
+
+
 def check_fields(config: object, checks: dict[str, bool]) -> None:
     """Raise a ConfigError naming the first field of ``config`` whose check is False.
 
@@ -31,7 +44,7 @@ def check_fields(config: object, checks: dict[str, bool]) -> None:
     for name, ok in checks.items():
         if not ok:
             msg = f'invalid {type(config).__name__}.{name} = {getattr(config, name)!r}'
-            raise ConfigError(msg)
+            raise FieldError(msg, name)
 
 
 class ModelFileError(FaceTrackingError):

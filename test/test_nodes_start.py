@@ -27,5 +27,5 @@ def test_node_with_a_bad_parameter_says_so_and_exits_2():
     process = start_node('mono_tracker', **{'tracker.epsilon': 1.5})
     code, output = finish(process)
     assert code == 2
-    assert 'epsilon' in output
+    assert 'invalid parameter tracker.epsilon = 1.5' in output
     assert 'Traceback' not in output

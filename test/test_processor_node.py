@@ -10,9 +10,10 @@ import rclpy
 from rclpy.parameter import Parameter
 from std_msgs.msg import Float64
 
-from face_tracking_ros.errors import ConfigError, InputError
+from face_tracking_ros.errors import ConfigError, InputError, check_fields
 from face_tracking_ros.nodes import processor_node
 from face_tracking_ros.processing.base import Output, Port, QosClass
+from face_tracking_ros.processing.parameters import OverrideParameters
 
 FLOAT = 'std_msgs/msg/Float64'
 OK, WARN = DiagnosticStatus.OK, DiagnosticStatus.WARN
@@ -180,3 +181,28 @@ def test_a_float_parameter_takes_an_integer_and_none_can_be_changed_later(ros_co
     with pytest.raises(ConfigError, match="parameter 'name' to '3' of type 'INTEGER', expecting"):
         processor_node.NodeParameters(node).config(Tunables)
     node.destroy_node()
+
+
+@dataclass(frozen=True)
+class Checked:
+    """One checked parameter.
+
+    Attributes:
+        share: in [0, 1].
+    """
+
+    share: float = 0.5
+
+    def __post_init__(self) -> None:
+        """Check the share."""
+        check_fields(self, {'share': 0.0 <= self.share <= 1.0})
+
+
+def test_a_value_out_of_range_is_named_as_its_parameter_live_and_offline(ros_context):
+    node = _node_with(ros_context, **{'inner.share': 2.0})
+    expected = r'invalid parameter inner\.share = 2\.0 \(its description gives the valid values\)'
+    with pytest.raises(ConfigError, match=expected):
+        processor_node.NodeParameters(node).config(Checked, prefix='inner.')
+    node.destroy_node()
+    with pytest.raises(ConfigError, match=expected):
+        OverrideParameters.parse(['inner.share=2']).config(Checked, prefix='inner.')

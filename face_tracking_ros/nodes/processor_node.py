@@ -37,7 +37,11 @@ from rclpy.qos import (
 from face_tracking_ros.errors import ConfigError, FaceTrackingError
 from face_tracking_ros.io.messages import RclpyMessages
 from face_tracking_ros.processing.base import Deferring, Port, Processor, QosClass, Reporting
-from face_tracking_ros.processing.parameters import attribute_descriptions, field_default
+from face_tracking_ros.processing.parameters import (
+    attribute_descriptions,
+    build_config,
+    field_default,
+)
 from face_tracking_ros.processing.registry import processor_factory
 from face_tracking_ros.threads import limit_blas_threads
 
@@ -126,7 +130,7 @@ class NodeParameters:
             if number:
                 value = _number(name, value)
             values[field.name] = tuple(value or ()) if isinstance(default, tuple) else value
-        return config_type(**values)
+        return build_config(config_type, values, prefix)
 
 
 class ProcessorNode(Node):

@@ -15,7 +15,7 @@ import inspect
 import re
 from typing import Any, Protocol, TypeVar
 
-from face_tracking_ros.errors import ConfigError
+from face_tracking_ros.errors import ConfigError, FieldError
 
 ConfigT = TypeVar('ConfigT')
 
@@ -36,6 +36,24 @@ class ParameterSource(Protocol):
     def config(self, config_type: type[ConfigT], prefix: str = '') -> ConfigT:
         """Build ``config_type`` with parameters named ``prefix + field`` (nested: dotted)."""
         ...
+
+
+def build_config(config_type: type[ConfigT], values: Mapping[str, Any], prefix: str) -> ConfigT:
+    """``config_type(**values)``, a field out of range named as the parameter ``prefix + field``.
+
+    Raises:
+        ConfigError: e.g. 'invalid parameter tracker.epsilon = 2.0 (its description gives the
+            valid values)'.
+    """
+    try:
+        return config_type(**values)
+    except FieldError as error:
+        value = values.get(error.field)
+        msg = (
+            f'invalid parameter {prefix}{error.field} = {value!r} (its description gives the '
+            'valid values)'
+        )
+        raise ConfigError(msg) from None
 
 
 def field_default(field: dataclasses.Field) -> Any:
@@ -84,7 +102,7 @@ class OverrideParameters:
                 values[field.name] = _coerce(name, self._overrides[name], default)
             else:
                 values[field.name] = default
-        return config_type(**values)
+        return build_config(config_type, values, prefix)
 
     def check_all_used(self) -> None:
         """Raise ConfigError naming overrides that matched no parameter."""
