@@ -84,3 +84,11 @@ def test_a_bag_it_cannot_read_is_one_error_line_and_exit_code_2(tmp_path):
     code, output = finish(start_node('learner', bags=[str(tmp_path / 'nope')]))
     assert code == 2
     assert f'{tmp_path}/nope: cannot read bag' in output and 'Traceback' not in output
+
+
+def test_a_learner_parameter_out_of_range_is_named_before_any_work():
+    process = start_node('learner', bags=['no_such_bag'], method='jiont')
+    code, output = finish(process)
+    assert code == 2
+    assert 'invalid parameter method = ' in output and "'jiont'" in output
+    assert 'usage:' not in output and 'Traceback' not in output

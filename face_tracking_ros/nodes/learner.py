@@ -18,10 +18,12 @@ from face_tracking_msgs.msg import FaceModel as FaceModelMsg
 from rclpy.node import Node
 
 from face_tracking_ros.cli import learn
-from face_tracking_ros.errors import ConfigError
+from face_tracking_ros.errors import ConfigError, check_fields
 from face_tracking_ros.io import conversions
 from face_tracking_ros.io.messages import RclpyMessages
+from face_tracking_ros.learning.methods import METHODS
 from face_tracking_ros.model.model_file import load_model
+from face_tracking_ros.model.topology import SUPPORTED_NODE_COUNTS
 from face_tracking_ros.nodes.processor_node import QOS_PROFILES, NodeParameters, run
 from face_tracking_ros.processing.base import QosClass
 
@@ -81,6 +83,21 @@ class LearnerConfig:
     right_info_topic: str = ''
     tracker_params: tuple[str, ...] = ()
     frame_id: str = 'face'
+
+    def __post_init__(self) -> None:
+        """Check what ``face-tracking learn``'s options would refuse, before any work.
+
+        Raises:
+            ConfigError: naming the first parameter out of range.
+        """
+        checks = {
+            'method': self.method in METHODS,
+            'p': self.p >= 1,
+            'q': self.q >= 1,
+            'nodes': self.nodes in (0, *SUPPORTED_NODE_COUNTS),
+            'neutral_frames': self.neutral_frames >= 0,
+        }
+        check_fields(self, checks)
 
 
 def learn_arguments(config: LearnerConfig) -> list[str]:
