@@ -89,8 +89,9 @@ class IdentityProcessor:
     def status(self) -> dict[str, str]:
         """The enrolled identities and where they are kept (see ``Reporting``).
 
-        An empty gallery names every face unknown; a gallery_file that does not exist (the
-        first enrolment writes it, or the path is misspelt) says so here.
+        With an empty gallery nothing is decided (no IdentityEvent) until the first enrolment;
+        a gallery_file that does not exist (the first enrolment writes it, or the path is
+        misspelt) says so here.
         """
         path = self._node_config.gallery_file
         if not path:
