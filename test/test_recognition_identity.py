@@ -200,3 +200,14 @@ def test_input_and_config_errors() -> None:
         IdentityConfig(acceptance=1.0)
     with pytest.raises(ConfigError, match='window'):
         IdentityConfig(window=-1.0)
+
+
+def test_an_empty_gallery_decides_nothing_until_the_first_enrolment() -> None:
+    rng = np.random.default_rng(6)
+    recognizer = IdentityRecognizer(IdentityGallery.empty(P), CONFIG)
+    sigma = sigma_population(rng, 1, STDS)[0]
+    stream = sigma_stream(rng, sigma, 1.5, 0.002)
+    stamps = np.arange(len(stream)) / 30.0
+    assert all(recognizer.update(t, s) is None for t, s in zip(stamps, stream, strict=True))
+    recognizer.enroll('ann')
+    assert recognizer.update(stamps[-1] + 1 / 30.0, sigma).identity == 'ann'
