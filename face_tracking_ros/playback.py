@@ -41,7 +41,9 @@ class PlaybackConfig:
         start_offset: seconds of the bag skipped from its first played message, >= 0.
         loop: play the bag again from its start offset each time it ends, until stopped.
         topics: bag topics to play ('/' prefix optional); empty plays every topic.
-        remap: topic renames 'from:=to', 'from' a bag topic ('/' prefix optional).
+        remap: topic renames 'from:=to', 'from' a bag topic ('/' prefix optional). On the
+            command line each rule is quoted inside the list, or rcl cannot parse it:
+            -p "remap:=['/camera/image_raw:=image', '/camera/camera_info:=camera_info']".
         clock: publish the bag time on /clock (rosgraph_msgs/Clock) for nodes with
             use_sim_time.
         wait_for_subscribers: wait until every played topic has at least this many
