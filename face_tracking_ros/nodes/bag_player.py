@@ -159,7 +159,10 @@ class BagPlayer(Node):
                 return True
             if time.monotonic() >= next_log:
                 next_log += WAIT_LOG_PERIOD_S
-                self.get_logger().info(f'waiting for {wanted} subscriber(s) on {waiting}')
+                self.get_logger().info(
+                    f'waiting for {wanted} subscriber(s) on {waiting} (the topics parameter '
+                    'plays only the topics named)'
+                )
             if self._stop.wait(0.05):
                 return False
 
