@@ -207,8 +207,10 @@ def test_raw_stereo_bag_without_initialisation_is_refused(tmp_path, capsys):
     assert f'in --init-dir {tmp_path}/clicks, which is not a directory (a subject_00_seq_00' in err
     assert main([*argv, '--init-dir', str(tmp_path)]) == 2
     assert f'in --init-dir {tmp_path}, which has none' in capsys.readouterr().err
-    assert main(['track', str(BAGS[0]), '--out', str(tmp_path / 'tracked')]) == 2
-    assert 'nothing initialises the track: give' in capsys.readouterr().err
+    track = ['track', str(BAGS[0]), '--out', str(tmp_path / 'tracked')]
+    for params in ([], ['--param', 'auto_init=false', '--param', 'init_file=']):
+        assert main([*track, *params]) == 2
+        assert 'nothing initialises the track: give' in capsys.readouterr().err
     assert not (tmp_path / 'tracked').exists()
 
 

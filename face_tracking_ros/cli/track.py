@@ -25,10 +25,16 @@ from face_tracking_ros.io.conversions import camera_from_info
 from face_tracking_ros.io.series import has_truth, load_states, load_truth
 from face_tracking_ros.model.model_file import load_model
 from face_tracking_ros.model.topology import mesh_topology
-from face_tracking_ros.processing.mono import COMPRESSED_IMAGE, IMAGE
+from face_tracking_ros.processing.mono import COMPRESSED_IMAGE, IMAGE, MonoNodeConfig
 from face_tracking_ros.processing.parameters import OverrideParameters
 from face_tracking_ros.processing.stereo import COMPRESSED as STEREO_COMPRESSED
-from face_tracking_ros.processing.stereo import LEFT_IMAGE, LEFT_INFO, RIGHT_IMAGE, RIGHT_INFO
+from face_tracking_ros.processing.stereo import (
+    LEFT_IMAGE,
+    LEFT_INFO,
+    RIGHT_IMAGE,
+    RIGHT_INFO,
+    StereoNodeConfig,
+)
 from face_tracking_ros.replay import bag_spelling, replay_bag
 from face_tracking_ros.synthetic.clicks import clicks_from_bag, write_init_file
 from face_tracking_ros.tracking.accuracy import (
@@ -43,7 +49,7 @@ from face_tracking_ros.tracking.stereo_evaluation import StereoEvaluation, evalu
 IMAGE_TYPE = 'sensor_msgs/msg/Image'
 COMPRESSED_TYPE = 'sensor_msgs/msg/CompressedImage'
 CAMERA_INFO_TYPE = 'sensor_msgs/msg/CameraInfo'
-INFO_TYPE = 'sensor_msgs/msg/CameraInfo'
+NODE_CONFIGS = {'mono_tracker': MonoNodeConfig, 'stereo_tracker': StereoNodeConfig}
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -191,7 +197,8 @@ def run(args: argparse.Namespace) -> int:
     params = [*compressed_parameters(bag_topics(args.bag), given), *(args.param or [])]
     if args.model:
         params.append(f'model_file={args.model}')
-    given_init = any(p.startswith(('init_file=', 'auto_init=')) for p in params)
+    node_config = OverrideParameters.parse(params).config(NODE_CONFIGS[node])
+    given_init = node_config.init_file or node_config.auto_init
     if not (args.init or args.simulate_clicks is not None or args.auto_init or given_init):
         msg = (
             "nothing initialises the track: give the first image's node positions with --init "
@@ -279,7 +286,7 @@ def stereo_rig(bag: Path) -> StereoRig:
     Raises:
         BagError: if the bag lacks them.
     """
-    infos = {t: None for t, kind in bag_topics(bag).items() if kind == INFO_TYPE}
+    infos = {t: None for t, kind in bag_topics(bag).items() if kind == CAMERA_INFO_TYPE}
     for message in read_messages(bag, topics=list(infos)):
         infos[message.topic] = infos[message.topic] or message.msg
         if all(infos.values()):
