@@ -206,3 +206,18 @@ def test_a_value_out_of_range_is_named_as_its_parameter_live_and_offline(ros_con
     node.destroy_node()
     with pytest.raises(ConfigError, match=expected):
         OverrideParameters.parse(['inner.share=2']).config(Checked, prefix='inner.')
+
+
+def test_a_parameters_file_nests_the_dotted_names_and_its_integers_are_floats(tmp_path):
+    path = tmp_path / 'tunable.yaml'
+    path.write_text('tunable:\n  ros__parameters:\n    rate: 3\n    inner:\n      share: 1\n')
+    context = rclpy.Context()
+    rclpy.init(args=['--ros-args', '--params-file', str(path)], context=context)
+    try:
+        node = rclpy.create_node('tunable', context=context)
+        parameters = processor_node.NodeParameters(node)
+        assert parameters.config(Tunables) == Tunables(rate=3.0)
+        assert parameters.config(Checked, prefix='inner.') == Checked(share=1.0)
+        node.destroy_node()
+    finally:
+        rclpy.try_shutdown(context=context)
