@@ -155,17 +155,9 @@ class MonoProcessor:
             InputError: for None with neither a detector nor earlier positions, or for nodes the
                 face model does not have (the track goes on as it was).
         """
-        unknown = (
-            initialisation.unknown_nodes(self._model.node_names)
-            if initialisation is not None and self._model is not None
-            else ''
-        )
+        unknown = '' if self._model is None else _unknown_nodes(self._model, initialisation)
         if unknown:
-            msg = (
-                f'the face model lacks {unknown} (misspelt? its nodes: '
-                f'{", ".join(self._model.node_names)})'
-            )
-            raise InputError(msg)
+            raise InputError(unknown)
         self._initialisation = restart_points(
             initialisation, self._initialisation, self._detector_for, 'mono'
         )
@@ -311,13 +303,20 @@ def _check_model(
         if np.linalg.eigvalsh(getattr(model, name)).min(initial=1.0) <= 0.0:
             msg = f"the face model's {name} is singular (the tracker inverts it): model refused"
             raise error(msg)
-    unknown = initialisation.unknown_nodes(model.node_names) if initialisation else ''
+    unknown = _unknown_nodes(model, initialisation)
     if unknown:
-        msg = (
-            f'the face model has {model.num_nodes} nodes but the initialisation names {unknown} '
-            f'it lacks (misspelt? its nodes: {", ".join(model.node_names)}): model refused'
-        )
-        raise error(msg)
+        raise error(f'{unknown}: model refused')
+
+
+def _unknown_nodes(model: FaceModel, initialisation: Initialisation | None) -> str:
+    """What names the initialisation's nodes that the model lacks; '' if there are none."""
+    unknown = initialisation.unknown_nodes(model.node_names) if initialisation else ''
+    if not unknown:
+        return ''
+    return (
+        f'the face model has {model.num_nodes} nodes but the initialisation names {unknown} it '
+        f'lacks (misspelt? its nodes: {", ".join(model.node_names)})'
+    )
 
 
 def make_mono_processor(params: ParameterSource, factory: MessageFactory) -> MonoProcessor:
