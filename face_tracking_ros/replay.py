@@ -18,7 +18,7 @@ from __future__ import annotations
 
 from collections import Counter, deque
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, TypeVar
 
@@ -27,6 +27,8 @@ from tqdm import tqdm
 from face_tracking_ros.errors import BagError, FaceTrackingError
 from face_tracking_ros.io.bags import BagWriter, bag_topics, message_count, read_messages
 from face_tracking_ros.io.messages import RosbagsMessages
+from face_tracking_ros.io.provenance import KEY as PROVENANCE_KEY
+from face_tracking_ros.io.provenance import Provenance
 from face_tracking_ros.io.typestore import typestore
 from face_tracking_ros.processing.base import (
     Deferring,
@@ -266,7 +268,8 @@ def replay_bag(
             :data:`processing.registry.PROCESSORS`); parameters are shared by name, so
             node-specific ones can be given as ``model_file`` once for all.
         bag: input rosbag2 directory.
-        out: output rosbag2 directory (must not exist).
+        out: output rosbag2 directory (must not exist); its metadata records what it was made
+            from (:class:`~face_tracking_ros.io.provenance.Provenance`).
         params: the nodes' parameters (``--param name=value``).
         remaps: processor input topic -> bag topic, where the automatic match is not wanted.
         record_inputs: also copy the consumed input messages into ``out``.
@@ -298,6 +301,7 @@ def replay_bag(
         )
         raise BagError(msg)
     total = message_count(bag, topic_map)
+    provenance = Provenance.of(bag, nodes, params.overrides, remaps)
     out.parent.mkdir(parents=True, exist_ok=True)
     with BagWriter(out) as writer, tqdm(total=total, unit='msg', disable=not progress) as bar:
         stats = replay(
@@ -310,6 +314,8 @@ def replay_bag(
             on_output=on_output,
             wanted=wanted,
         )
+        complete = not (stats.interrupted or stats.read_error)
+        writer.set_custom_data(PROVENANCE_KEY, replace(provenance, complete=complete).text())
     for node, processor in zip(nodes, processors, strict=True):
         if isinstance(processor, Reporting):
             stats.status[node] = processor.status()

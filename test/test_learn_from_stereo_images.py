@@ -49,6 +49,51 @@ def test_stereo_images_are_tracked_then_learned(tmp_path):
     assert joint['identity_accuracy'] == 1.0 and joint['sigma_silhouette'] > 0.95
 
 
+def test_learn_again_re_uses_the_meshes_tracked_from_the_same_inputs(tmp_path, capsys):
+    argv = [
+        'learn', *map(str, BAGS[:2]), '--from-images', '--simulate-clicks', '1.0', '--p', '1',
+        '--q', '2', '--compare', '--neutral-frames', '3', '--out', str(tmp_path / 'model.npz'),
+        '--report', str(tmp_path / 'report.json'),
+    ]  # fmt: skip
+    meshes = tmp_path / 'report_meshes' / BAGS[0].name
+    assert main(argv) == 0
+    tracked = (meshes / 'metadata.yaml').stat().st_mtime_ns
+    assert sorted(p.name for p in tmp_path.iterdir()) == [
+        'model.npz',
+        'report.json',
+        'report_meshes',
+        'report_meshes_clicks',
+    ]
+    capsys.readouterr()
+    assert main([*argv, '--q', '1']) == 0  # other learning options: the same tracking
+    assert 're-using the meshes an earlier run tracked' in capsys.readouterr().out
+    assert (meshes / 'metadata.yaml').stat().st_mtime_ns == tracked
+    assert main([*argv, '--simulate-clicks', '2.0']) == 0  # another initialisation
+    assert 'an earlier run tracked it from other inputs: tracking again' in capsys.readouterr().out
+    assert (meshes / 'metadata.yaml').stat().st_mtime_ns != tracked
+    foreign = tmp_path / 'other'
+    (foreign / 'report_meshes' / BAGS[0].name).mkdir(parents=True)
+    argv[-1] = str(foreign / 'report.json')
+    assert main(argv) == 2
+    assert 'exists and is not a tracking of' in capsys.readouterr().err
+
+
+def test_bags_of_one_name_are_refused_and_a_pattern_names_the_subject(tmp_path, capsys):
+    twin = tmp_path / 'copy' / BAGS[0].name
+    twin.parent.mkdir()
+    twin.symlink_to(BAGS[0].resolve())
+    argv = ['learn', str(BAGS[0]), str(twin), '--from-images', '--simulate-clicks', '1.0',
+            '--out', str(tmp_path / 'm.npz'), '--report', str(tmp_path / 'r.json')]  # fmt: skip
+    assert main(argv) == 2
+    assert f'are both named {BAGS[0].name}: the init files' in capsys.readouterr().err
+    args = _learn_args(BAGS[0], tmp_path, '--subject-pattern', r'(.+)_seq_\d+')
+    assert learn.subject_of('anna_seq_02', args) == 'anna'
+    with pytest.raises(ConfigError, match="does not match the bag name 'anna_2' with a group"):
+        learn.subject_of('anna_2', args)
+    assert main([*argv[:-4], '--subject-pattern', '(', *argv[-4:]]) == 2
+    assert "--subject-pattern '(': not a regular expression" in capsys.readouterr().err
+
+
 @pytest.fixture(scope='module')
 def still_bag(tmp_path_factory) -> Path:
     """A raw stereo bag: 40 pairs of subject 0 holding still (640x480, 30 fps).
@@ -102,7 +147,7 @@ def test_scores_start_at_the_first_tracked_frame(still_bag, tmp_path):
 def test_simulated_clicks_are_of_the_nodes_the_tracker_tracks(still_bag, tmp_path):
     """The 19-node mesh from synthetic clicks: the click file holds its 19 nodes, not 34."""
     tracked = _learn_meshes(still_bag, tmp_path, '--tracker-param', 'tracker.num_nodes=19')
-    clicks = json.loads((tmp_path / 'r_meshes' / f'{still_bag.name}.json').read_text())
+    clicks = json.loads((tmp_path / 'r_meshes_clicks' / f'{still_bag.name}.json').read_text())
     assert len(clicks['nodes']) == 19 and tracked.tracked_fraction == 1.0
     assert tracked.node_rms < 0.0012 and tracked.max_reprojection < 1.0  # 0.66 mm, 0.45 px
 
@@ -225,3 +270,17 @@ def test_raw_stereo_bag_with_auto_init_needs_the_optional_detector(tmp_path, cap
 @pytest.fixture(autouse=True)
 def _bags_exist():
     assert len(BAGS) == 3, 'the committed stereo sample bags are missing'
+
+
+def test_truth_must_pair_each_tracked_bag_with_the_bag_it_was_tracked_from(tmp_path, capsys):
+    tracked = [tmp_path / f'tracked_{bag.name}' for bag in BAGS[:2]]
+    for bag, out in zip(BAGS, tracked, strict=False):
+        track = ['track', str(bag), '--simulate-clicks', '0', '--quiet']
+        assert main([*track, '--out', str(out)]) == 0
+    argv = ['learn', *map(str, tracked), '--p', '1', '--q', '1', '--out', str(tmp_path / 'm.npz'),
+            '--report', str(tmp_path / 'r.json'), '--truth']  # fmt: skip
+    capsys.readouterr()
+    assert main([*argv, *map(str, reversed(BAGS[:2]))]) == 2
+    err = capsys.readouterr().err
+    assert f'--truth pairs {tracked[0]} with {BAGS[1]}, but it was tracked from {BAGS[0]}' in err
+    assert main([*argv, *map(str, BAGS[:2])]) == 0

@@ -26,6 +26,8 @@ from collections.abc import Sequence
 from dataclasses import dataclass, replace
 import json
 from pathlib import Path
+import re
+import shutil
 import time
 from typing import Any
 
@@ -49,6 +51,7 @@ from face_tracking_ros.io.conversions import (
     stamp_to_ns,
     truth_from_msg,
 )
+from face_tracking_ros.io.provenance import Provenance
 from face_tracking_ros.io.series import has_truth
 from face_tracking_ros.learning.alignment import align_training_set
 from face_tracking_ros.learning.evaluation import (
@@ -86,6 +89,7 @@ STATE_TOPIC = 'face/state'
 TRACKED = int(TrackStatus.TRACKING)  # FaceState.STATUS_TRACKING
 DEFAULT_TOPICS = (TRUTH_TOPIC, 'face/mesh_raw', STATE_TOPIC)
 STEREO_PARAMS = 'retroactive_depths=true'  # learn from meshes with each track's final depths
+TRACKER = 'stereo_tracker'
 
 
 @dataclass(frozen=True)
@@ -137,14 +141,25 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     parser.add_argument('--plots', type=Path, help='directory receiving PNG figures')
     parser.add_argument('--topic', help=f'mesh topic (default: first of {DEFAULT_TOPICS})')
-    parser.add_argument('--subject', help='subject id for FaceMesh/FaceState bags')
+    parser.add_argument(
+        '--subject',
+        help='subject id of every bag without truth (FaceMesh, FaceState, raw stereo images)',
+    )
+    parser.add_argument(
+        '--subject-pattern',
+        metavar='REGEX',
+        help='bags without truth: the subject id is the first group of REGEX matched against '
+        "the bag's directory name (default: the whole name), e.g. '(.+)_\\d+' makes anna_1 "
+        'and anna_2 two recordings of anna',
+    )
     parser.add_argument(
         '--truth',
         nargs='+',
         type=Path,
         metavar='TRUTH_BAG',
-        help='one bag per BAG whose truth/face messages label the meshes of the same stamp '
-        '(subject, expression, alpha): e.g. the synthetic bags a tracker ran on',
+        help='one bag per BAG, in the same order, whose truth/face messages label the meshes '
+        'of the same stamp (subject, expression, alpha): e.g. the synthetic bags a tracker ran '
+        'on (a mesh bag that records which bag it was tracked from must be paired with that one)',
     )
     parser.add_argument(
         '--neutral-frames',
@@ -191,7 +206,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         type=float,
         metavar='PX',
         help="synthetic bags: initialise from the first frame's true nodes with PX pixels of "
-        'click noise (written to --init-dir, default: next to the meshes)',
+        'click noise (written to --init-dir, default: <meshes dir>_clicks/)',
     )
     stereo.add_argument(
         '--auto-init',
@@ -225,10 +240,11 @@ def run(args: argparse.Namespace) -> None:
         bag if mesh is not bag and has_truth(bag) else truth
         for bag, mesh, truth in zip(args.bags, mesh_bags, truth_bags, strict=True)
     ]
+    _check_truth_pairs(mesh_bags, truth_bags)
     bag_meshes = [
         item
-        for bag, truth_bag in zip(mesh_bags, truth_bags, strict=True)
-        for item in read_bag_meshes(bag, args, truth_bag)
+        for bag, mesh, truth_bag in zip(args.bags, mesh_bags, truth_bags, strict=True)
+        for item in read_bag_meshes(mesh, args, truth_bag, bag.name)
     ]
     sequences = [item.sequence for item in bag_meshes]
     if args.add_noise > 0.0:
@@ -322,18 +338,25 @@ def mesh_bag(bag: Path, args: argparse.Namespace) -> Path:
         return bag  # meshes (or nothing: read_bag_meshes names the missing topic)
     if has_meshes and not args.from_images:
         return bag
+    namesakes = [other for other in args.bags if other.name == bag.name and other != bag]
+    if namesakes:
+        msg = (
+            f'{bag} and {namesakes[0]} are both named {bag.name}: the init files and tracked '
+            'meshes of raw stereo bags are named after the bag, so rename one (--subject-pattern '
+            'can still give both the same subject)'
+        )
+        raise ConfigError(msg)
     initialisation = _initialisation(bag, args)
     out = _meshes_dir(args) / bag.name
-    if out.exists():
-        msg = f'{out} exists (tracked by an earlier run): remove it or give another --meshes-dir'
-        raise ConfigError(msg)
-    print(f'{bag}: raw stereo images: tracking them into {out}')
     compressed = compressed_parameters(topics, [args.left_topic])
-    params = [STEREO_PARAMS, *compressed, *(args.tracker_param or []), initialisation]
-    remaps = input_remaps(stereo_topics(args))
-    stats = replay_bag(
-        ['stereo_tracker'], bag, out, OverrideParameters.parse(params), remaps, progress=False
+    params = OverrideParameters.parse(
+        [STEREO_PARAMS, *compressed, *(args.tracker_param or []), initialisation]
     )
+    remaps = input_remaps(stereo_topics(args))
+    if _tracked_before(out, Provenance.of(bag, [TRACKER], params.overrides, remaps)):
+        return out
+    print(f'{bag}: raw stereo images: tracking them into {out}')
+    stats = replay_bag([TRACKER], bag, out, params, remaps, progress=False)
     if not stats.outputs['face/mesh_raw']:
         msg = f'{bag}: the stereo tracker produced no mesh ({dict(stats.errors)})'
         if any('no calibration' in error for error in stats.errors):
@@ -344,6 +367,49 @@ def mesh_bag(bag: Path, args: argparse.Namespace) -> Path:
             )
         raise BagError(msg)
     return out
+
+
+def _tracked_before(out: Path, inputs: Provenance) -> bool:
+    """Whether ``out`` holds meshes an earlier run tracked from these inputs, to re-use.
+
+    An earlier tracking of the same bag from other inputs (or one that did not finish) is
+    removed, to be tracked again.
+
+    Raises:
+        ConfigError: if ``out`` exists but is not such a tracking (not ours to remove).
+    """
+    if not out.exists():
+        return False
+    earlier = Provenance.read(out)
+    if earlier is None or earlier.source != inputs.source:
+        msg = (
+            f'{out} exists and is not a tracking of {inputs.source} by learn: remove it or give '
+            'another --meshes-dir'
+        )
+        raise ConfigError(msg)
+    if earlier.complete and earlier.same_inputs(inputs):
+        print(f'{out}: re-using the meshes an earlier run tracked from the same inputs')
+        return True
+    why = 'did not finish' if earlier.same_inputs(inputs) else 'tracked it from other inputs'
+    print(f'{out}: an earlier run {why}: tracking again')
+    shutil.rmtree(out)
+    return False
+
+
+def _check_truth_pairs(mesh_bags: Sequence[Path], truth_bags: Sequence[Path | None]) -> None:
+    """Check that a mesh bag recording the bag it was tracked from has that one as its truth.
+
+    Raises:
+        ConfigError: naming the first mesh bag paired with another bag's truth.
+    """
+    for mesh, truth in zip(mesh_bags, truth_bags, strict=True):
+        made = Provenance.read(mesh) if truth is not None else None
+        if made is not None and Path(made.source).name != truth.name:
+            msg = (
+                f'--truth pairs {mesh} with {truth}, but it was tracked from {made.source}: give '
+                'the truth bags in the order of the mesh bags'
+            )
+            raise ConfigError(msg)
 
 
 def _meshes_dir(args: argparse.Namespace) -> Path:
@@ -363,7 +429,8 @@ def _initialisation(bag: Path, args: argparse.Namespace) -> str:
             if candidate.is_file():
                 return f'init_file={candidate}'
     if args.simulate_clicks is not None:
-        directory = args.init_dir or _meshes_dir(args)
+        meshes = _meshes_dir(args)
+        directory = args.init_dir or meshes.with_name(f'{meshes.name}_clicks')
         directory.mkdir(parents=True, exist_ok=True)
         path = directory / f'{bag.name}.json'
         nodes = tracked_nodes('stereo_tracker', args.tracker_param or [], None)
@@ -386,7 +453,7 @@ def _initialisation(bag: Path, args: argparse.Namespace) -> str:
 
 
 def read_bag_meshes(
-    bag: Path, args: argparse.Namespace, truth_bag: Path | None = None
+    bag: Path, args: argparse.Namespace, truth_bag: Path | None = None, name: str = ''
 ) -> list[BagMeshes]:
     """The meshes of one bag, one entry per subject found in it.
 
@@ -395,6 +462,8 @@ def read_bag_meshes(
         args: the command's arguments (topic, subject, neutral frames, nodes).
         truth_bag: for mesh bags, a bag whose ``truth/face`` messages give the subject, label and
             alpha of the mesh with the same header stamp (e.g. the synthetic bag a tracker ran on).
+        name: the name the subject id is taken from without truth (:func:`subject_of`); empty:
+            the bag's (the raw bag's, for the meshes tracked from it).
 
     Raises:
         BagError: if a bag lacks the topic, holds no message on it, or the truth bag has no
@@ -431,7 +500,7 @@ def read_bag_meshes(
             if sample is None:
                 msg = f'{truth_bag}: no {TRUTH_TOPIC} message stamped {stamp_ns} ns for {bag}'
                 raise BagError(msg)
-        subject = sample.subject_id if sample else args.subject or bag.name
+        subject = sample.subject_id if sample else subject_of(name or bag.name, args)
         frames.setdefault(subject, []).append(
             (index, nodes, sample.label if sample else None, sample.alpha if sample else None)
         )
@@ -445,6 +514,29 @@ def read_bag_meshes(
         )
         raise BagError(msg)
     return [_bag_meshes(bag, topic, subject, items, args) for subject, items in frames.items()]
+
+
+def subject_of(name: str, args: argparse.Namespace) -> str:
+    """The subject id of a bag without truth: ``--subject``, else from its name.
+
+    The first group of ``--subject-pattern`` matched against the name (the whole name without
+    a pattern).
+
+    Raises:
+        ConfigError: if the pattern does not match the name, or has no group.
+    """
+    if args.subject:
+        return args.subject
+    if not args.subject_pattern:
+        return name
+    match = re.fullmatch(args.subject_pattern, name)
+    if match is None or not match.groups():
+        msg = (
+            f'--subject-pattern {args.subject_pattern!r} does not match the bag name {name!r} '
+            'with a group (e.g. (.+)_\\d+)'
+        )
+        raise ConfigError(msg)
+    return match.group(1)
 
 
 def _mesh_topic(topics: dict[str, str], args: argparse.Namespace) -> str | None:
@@ -532,6 +624,12 @@ def _check_arguments(args: argparse.Namespace) -> None:
     if args.neutral_frames < 0 or args.add_noise < 0.0 or args.truth_samples < 10:
         msg = '--neutral-frames and --add-noise must not be negative, --truth-samples >= 10'
         raise ConfigError(msg)
+    if args.subject_pattern is not None:
+        try:
+            re.compile(args.subject_pattern)
+        except re.error as error:
+            msg = f'--subject-pattern {args.subject_pattern!r}: not a regular expression: {error}'
+            raise ConfigError(msg) from None
     if args.truth is not None and len(args.truth) != len(args.bags):
         msg = f'--truth names {len(args.truth)} bag(s) for {len(args.bags)} input bag(s)'
         raise ConfigError(msg)

@@ -119,6 +119,14 @@ class BagWriter:
         self._writer = writer
         return self
 
+    def set_custom_data(self, key: str, value: str) -> None:
+        """Record ``key: value`` in the bag's metadata (rosbag2's ``custom_data``), at its close.
+
+        Raises:
+            BagError: outside the ``with`` block.
+        """
+        self._open_writer().set_custom_data(key, value)
+
     def __exit__(
         self,
         exc_type: type[BaseException] | None,
@@ -392,13 +400,33 @@ def _salvaged_connections(path: Path) -> list[Connection]:
     ]
 
 
+def custom_data(path: Path | str) -> dict[str, str]:
+    """The ``custom_data`` of a bag's ``metadata.yaml`` ({} if it has none or is unreadable).
+
+    rosbag2 keeps there what its writer was asked to record (:meth:`BagWriter.set_custom_data`);
+    rosbags' reader does not expose it.
+    """
+    try:
+        return {str(k): str(v) for k, v in (_metadata(Path(path))['custom_data'] or {}).items()}
+    except (KeyError, TypeError, AttributeError):
+        return {}
+
+
 def _metadata_topics(path: Path) -> dict[str, str]:
     """Topics and types listed by a bag's ``metadata.yaml`` ({} if it is missing or unreadable)."""
     try:
-        info = yaml.safe_load((path / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
         return {
             entry['topic_metadata']['name']: entry['topic_metadata']['type']
-            for entry in info['topics_with_message_count']
+            for entry in _metadata(path)['topics_with_message_count']
         }
+    except (KeyError, TypeError):
+        return {}
+
+
+def _metadata(path: Path) -> dict[str, Any]:
+    """A bag's ``metadata.yaml`` information ({} if it is missing or unreadable)."""
+    try:
+        info = yaml.safe_load((path / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
     except (OSError, yaml.YAMLError, KeyError, TypeError):
         return {}
+    return info if isinstance(info, dict) else {}

@@ -42,7 +42,10 @@ class LearnerConfig:
         q: dimension of the expression subspace (alpha).
         nodes: mesh nodes, 19 or 34; 0: as in the bags.
         topic: mesh topic; empty: truth/face, face/mesh_raw or face/state, the first found.
-        subject: subject id of FaceMesh/FaceState bags; empty: each bag's directory name.
+        subject: subject id of every bag without truth (FaceMesh, FaceState, raw stereo
+            images); empty: from each bag's directory name (subject_pattern).
+        subject_pattern: bags without truth: the subject id is the first group of this regular
+            expression matched against the bag's directory name; empty: the whole name.
         neutral_frames: bags without truth (FaceMesh, FaceState, raw stereo images): the first
             K frames of each bag show the neutral face; required for them (0: not given).
         from_images: track the images of stereo bags even when they also hold truth meshes.
@@ -72,6 +75,7 @@ class LearnerConfig:
     nodes: int = 0
     topic: str = ''
     subject: str = ''
+    subject_pattern: str = ''
     neutral_frames: int = 0
     from_images: bool = False
     init_dir: str = ''
@@ -121,6 +125,7 @@ def learn_arguments(config: LearnerConfig) -> list[str]:
         '--nodes': config.nodes or '',
         '--topic': config.topic,
         '--subject': config.subject,
+        '--subject-pattern': config.subject_pattern,
         '--init-dir': config.init_dir,
         '--simulate-clicks': config.simulate_clicks if config.simulate_clicks >= 0 else '',
         '--left-topic': config.left_topic,

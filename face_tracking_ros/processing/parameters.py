@@ -73,6 +73,11 @@ class OverrideParameters:
         self._overrides = dict(overrides or {})
         self._used: set[str] = set()
 
+    @property
+    def overrides(self) -> dict[str, str]:
+        """The overrides, name -> value text."""
+        return dict(self._overrides)
+
     @classmethod
     def parse(cls, items: list[str] | None) -> OverrideParameters:
         """From ``['tracker.epsilon=0.1', ...]``.

@@ -1,0 +1,86 @@
+"""What a replay's output bag was made from, recorded in its rosbag2 metadata (``custom_data``).
+
+Every output bag of :func:`~face_tracking_ros.replay.replay_bag` (``face-tracking track``,
+``replay``, and the stereo tracking of raw bags in ``learn``) records its input bag, the nodes,
+their parameters, with a digest of each file a parameter names (an init file edited in place is
+another input), the remappings, and whether the replay reached the end of its input. ``learn``
+uses it to re-use meshes that an earlier run tracked from the same inputs, and to check that
+``--truth`` pairs each mesh bag with the bag it was tracked from.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import asdict, dataclass, field, replace
+import hashlib
+import json
+from pathlib import Path
+from typing import Any
+
+from face_tracking_ros.io.bags import custom_data
+
+KEY = 'face_tracking_ros.replay'
+
+
+@dataclass(frozen=True)
+class Provenance:
+    """The inputs of one replay.
+
+    Attributes:
+        source: the input bag, as an absolute path.
+        nodes: the nodes replayed.
+        parameters: their parameters, name -> value text.
+        file_digests: parameter name -> SHA-256 of the file its value names, for every parameter
+            naming an existing file.
+        remaps: processor input topic -> bag topic.
+        complete: the replay read its input to the end (not interrupted, no damage).
+    """
+
+    source: str
+    nodes: tuple[str, ...]
+    parameters: dict[str, str]
+    file_digests: dict[str, str]
+    remaps: dict[str, str] = field(default_factory=dict)
+    complete: bool = True
+
+    @classmethod
+    def of(
+        cls,
+        bag: Path,
+        nodes: Sequence[str],
+        parameters: Mapping[str, str],
+        remaps: Mapping[str, str] | None = None,
+    ) -> Provenance:
+        """The provenance of a replay of ``bag`` about to start (complete until said otherwise)."""
+        digests = {
+            name: hashlib.sha256(Path(value).read_bytes()).hexdigest()
+            for name, value in parameters.items()
+            if value and Path(value).is_file()
+        }
+        return cls(
+            source=str(bag.resolve()),
+            nodes=tuple(nodes),
+            parameters=dict(sorted(parameters.items())),
+            file_digests=dict(sorted(digests.items())),
+            remaps=dict(sorted((remaps or {}).items())),
+        )
+
+    @classmethod
+    def read(cls, bag: Path) -> Provenance | None:
+        """The provenance a bag records; None if it records none (or is unreadable)."""
+        text = custom_data(bag).get(KEY)
+        if text is None:
+            return None
+        try:
+            fields: dict[str, Any] = json.loads(text)
+            return cls(**{**fields, 'nodes': tuple(fields['nodes'])})
+        except (ValueError, TypeError, KeyError):
+            return None
+
+    def same_inputs(self, other: Provenance) -> bool:
+        """Whether ``other`` replayed the same bag through the same nodes, set up the same way."""
+        return replace(self, complete=True) == replace(other, complete=True)
+
+    def text(self) -> str:
+        """The JSON text recorded under :data:`KEY`."""
+        return json.dumps(asdict(self), sort_keys=True)
