@@ -19,6 +19,8 @@ from face_tracking_ros.model.model_file import load_model
 from face_tracking_ros.model.topology import mesh_topology
 from face_tracking_ros.synthetic.faces import FacePopulation
 
+from conftest import REPO
+
 TRUTH_TYPE = 'face_tracking_msgs/msg/FaceTruth'
 MESH_TYPE = 'face_tracking_msgs/msg/FaceMesh'
 STATE_TYPE = 'face_tracking_msgs/msg/FaceState'
@@ -236,6 +238,12 @@ def test_errors_name_the_bag_topic_or_subject(tmp_path, truth_bags, world, capsy
 
     err = _error(['learn', *bags, *out, '--truth-population', 'weird'], capsys)
     assert '--truth-population must be PRESET[:SEED]' in err
+
+    packaged = [str(bag) for bag in sorted((REPO / 'bags' / 'stereo_train').glob('subject_*'))]
+    learn_packaged = ['learn', *packaged, *out, '--p', '1', '--q', '2', '--truth-samples', '50']
+    assert main([*learn_packaged, '--truth-population', 'default:0']) == 0  # as rendered
+    err = _error([*learn_packaged, '--truth-population', 'default:1'], capsys)
+    assert '--truth-population default:1: its subject_00 is not the one of the bags' in err
 
     err = _error(['learn', *bags, *out, '--plots', str(tmp_path / 'absent')], capsys)
     assert 'is not a directory' in err

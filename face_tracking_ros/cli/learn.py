@@ -99,10 +99,12 @@ class BagMeshes:
     Attributes:
         sequence: the meshes, neutral flags and labels.
         alpha: (F, E) true alpha when the bag holds truth, else None.
+        sigma: the subject's true sigma when the bag holds truth, else None.
     """
 
     sequence: MeshSequence
     alpha: np.ndarray | None
+    sigma: np.ndarray | None = None
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -179,8 +181,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument(
         '--truth-population',
         metavar='PRESET[:SEED]',
-        help=f'synthetic population of the bags ({", ".join(PRESETS)}): adds the comparison '
-        'with the true subspaces to the report',
+        help=f'synthetic population of the bags ({", ".join(PRESETS)}) and the seed synth '
+        'rendered them with (default 0): adds the comparison with the true subspaces to the '
+        'report',
     )
     parser.add_argument(
         '--truth-samples',
@@ -484,6 +487,7 @@ def read_bag_meshes(
     # A FaceState says itself whether it was tracked; a FaceMesh by its bag's face/state.
     untracked = _untracked_stamps(bag, topics) if msgtype == MESH_TYPES[0] else set()
     frames: dict[str, list[tuple[int, np.ndarray, str | None, np.ndarray | None]]] = {}
+    true_sigma: dict[str, np.ndarray] = {}
     skipped = 0
     for index, message in enumerate(read_messages(bag, [topic])):
         try:
@@ -504,6 +508,8 @@ def read_bag_meshes(
         frames.setdefault(subject, []).append(
             (index, nodes, sample.label if sample else None, sample.alpha if sample else None)
         )
+        if sample:
+            true_sigma.setdefault(subject, sample.sigma)
     if skipped:
         print(f'{bag}: {skipped} frames the tracker did not track (initialising or lost) left out')
     if not frames:
@@ -513,7 +519,10 @@ def read_bag_meshes(
             else f'{bag}: no message on {topic}'
         )
         raise BagError(msg)
-    return [_bag_meshes(bag, topic, subject, items, args) for subject, items in frames.items()]
+    return [
+        _bag_meshes(bag, topic, subject, items, args, true_sigma.get(subject))
+        for subject, items in frames.items()
+    ]
 
 
 def subject_of(name: str, args: argparse.Namespace) -> str:
@@ -593,10 +602,12 @@ def _bag_meshes(
     subject: str,
     items: list[tuple[int, np.ndarray, str | None, np.ndarray | None]],
     args: argparse.Namespace,
+    sigma: np.ndarray | None,
 ) -> BagMeshes:
     """One subject's meshes of a bag; neutral frames from labels, else the first K frames.
 
     ``items`` are (message index, nodes, label, alpha); the first K are by message index.
+    ``sigma`` is the subject's true sigma, if the bag holds truth.
     """
     counts = {len(nodes) for _, nodes, _, _ in items}
     if len(counts) > 1:
@@ -610,7 +621,7 @@ def _bag_meshes(
         return BagMeshes(MeshSequence(subject, meshes, neutral, None, str(bag)), None)
     labels = tuple(str(label) for _, _, label, _ in items)
     alpha = np.array([alpha for _, _, _, alpha in items])
-    return BagMeshes(MeshSequence.labelled(subject, meshes, labels, str(bag)), alpha)
+    return BagMeshes(MeshSequence.labelled(subject, meshes, labels, str(bag)), alpha, sigma)
 
 
 def _check_arguments(args: argparse.Namespace) -> None:
@@ -681,16 +692,34 @@ def _truth(
         msg = f'--truth-population must be PRESET[:SEED] with PRESET in {PRESETS}'
         raise ConfigError(msg)
     population = FacePopulation(preset, int(seed or 0))
-    indices = []
-    for subject in training.subject_ids:
-        number = subject.removeprefix('subject_')
-        if not number.isdigit():
-            msg = f'subject {subject!r} is not a synthetic subject id (subject_NN)'
+    indices = [_synthetic_index(subject) for subject in training.subject_ids]
+    for item in bag_meshes:
+        subject = item.sequence.subject_id
+        expected = population.subject(_synthetic_index(subject)).sigma_true
+        given = item.sigma if item.sigma is not None else np.empty(0)
+        if len(given) and not (expected.shape == given.shape and np.allclose(expected, given)):
+            msg = (
+                f'--truth-population {args.truth_population}: its {subject} is not the one of '
+                f'the bags (another true sigma): give the --population and --seed that synth '
+                'rendered them with'
+            )
             raise ConfigError(msg)
-        indices.append(int(number))
     alphas = [item.alpha for item in bag_meshes]
     alpha = None if any(a is None for a in alphas) else np.concatenate(alphas)
     return population_truth(population, training.num_nodes, indices, alpha, args.truth_samples)
+
+
+def _synthetic_index(subject: str) -> int:
+    """The population index of a synthetic subject id ('subject_07' -> 7).
+
+    Raises:
+        ConfigError: for another id.
+    """
+    number = subject.removeprefix('subject_')
+    if not number.isdigit():
+        msg = f'subject {subject!r} is not a synthetic subject id (subject_NN)'
+        raise ConfigError(msg)
+    return int(number)
 
 
 def _plots(
