@@ -126,7 +126,7 @@ def test_seed_method_alone(tmp_path, truth_bags):
     assert report['methods']['seed']['truth'] is None
 
 
-def test_mesh_bags_with_first_frames_neutral(tmp_path, world):
+def test_mesh_bags_with_first_frames_neutral(tmp_path, world, capsys):
     sequences, alpha = world
     bags = [
         _write_bag(tmp_path / f'person{k}', s, alpha, kind='mesh') for k, s in enumerate(sequences)
@@ -137,6 +137,9 @@ def test_mesh_bags_with_first_frames_neutral(tmp_path, world):
     report = json.loads((tmp_path / 'r.json').read_text())
     assert report['subjects'] == ['person0', 'person1', 'person2', 'person3']
     assert report['methods']['joint']['expression_accuracy'] is None
+    assert 'covers all its' not in capsys.readouterr().out
+    main([*args, '--neutral-frames', '75'])
+    assert f'{bags[0]}: --neutral-frames 75 covers all its 75 frames' in capsys.readouterr().out
 
 
 def test_frames_a_tracker_did_not_track_are_left_out(tmp_path, world, capsys):

@@ -618,6 +618,11 @@ def _bag_meshes(
     )
     if items[0][2] is None:
         neutral = np.array([index for index, _, _, _ in items]) < args.neutral_frames
+        if neutral.all():
+            print(
+                f'{bag}: --neutral-frames {args.neutral_frames} covers all its {len(items)} '
+                'frames: all are taken as neutral, none shows an expression'
+            )
         return BagMeshes(MeshSequence(subject, meshes, neutral, None, str(bag)), None)
     labels = tuple(str(label) for _, _, label, _ in items)
     alpha = np.array([alpha for _, _, _, alpha in items])
