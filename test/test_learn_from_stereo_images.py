@@ -28,13 +28,14 @@ from conftest import REPO
 BAGS = sorted((REPO / 'bags' / 'stereo_train').glob('subject_*'))
 
 
-def test_stereo_images_are_tracked_then_learned(tmp_path):
+def test_stereo_images_are_tracked_then_learned(tmp_path, capsys):
     argv = [
         'learn', *map(str, BAGS), '--from-images', '--simulate-clicks', '1.0', '--p', '1',
         '--q', '2', '--compare', '--out', str(tmp_path / 'model.npz'), '--report',
         str(tmp_path / 'report.json'),
     ]  # fmt: skip
     assert main(argv) == 0
+    assert capsys.readouterr().out.count('% tracked: 3-D node RMS') == len(BAGS)
     meshes = sorted((tmp_path / 'report_meshes').glob('subject_*_seq_00'))
     assert [m.name for m in meshes] == [b.name for b in BAGS]
     assert bag_topics(meshes[0])['face/mesh_raw'] == 'face_tracking_msgs/msg/FaceMesh'

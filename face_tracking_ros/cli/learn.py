@@ -40,6 +40,7 @@ from face_tracking_ros.cli.track import (
     image_topics,
     input_remaps,
     is_stereo_bag,
+    score_stereo_against_truth,
     stereo_topics,
     tracked_nodes,
 )
@@ -369,6 +370,8 @@ def mesh_bag(bag: Path, args: argparse.Namespace) -> Path:
                 f'(the bag has {", ".join(infos) or "none"})'
             )
         raise BagError(msg)
+    if has_truth(bag):
+        print(f'{out} against the truth of {bag}: {score_stereo_against_truth(bag, out).report()}')
     return out
 
 
