@@ -371,8 +371,18 @@ def mesh_bag(bag: Path, args: argparse.Namespace) -> Path:
             )
         raise BagError(msg)
     if has_truth(bag):
-        print(f'{out} against the truth of {bag}: {score_stereo_against_truth(bag, out).report()}')
+        _print_score(bag, out)
     return out
+
+
+def _print_score(bag: Path, out: Path) -> None:
+    """Print how the meshes tracked into ``out`` compare with the truth in ``bag``."""
+    try:
+        evaluation = score_stereo_against_truth(bag, out)
+    except BagError as error:  # e.g. camera_info topics not named left / right
+        print(f'{out}: not scored against the truth of {bag}: {error}')
+        return
+    print(f'{out} against the truth of {bag}: {evaluation.report()}')
 
 
 def _tracked_before(out: Path, inputs: Provenance) -> bool:
