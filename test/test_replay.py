@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
+import signal
 
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
@@ -10,6 +12,7 @@ import numpy as np
 import pytest
 
 from face_tracking_ros import replay as replay_module
+from face_tracking_ros.cli.main import main
 from face_tracking_ros.cli.replay import print_stats
 from face_tracking_ros.errors import BagError, InputError
 from face_tracking_ros.io import conversions
@@ -150,6 +153,28 @@ def test_ctrl_c_leaves_a_valid_output_bag(tmp_path):
     stats = _run(tmp_path / 'in', tmp_path / 'out', MeanProcessor(interrupt_at=11))
     assert stats.interrupted
     assert [m.msg.data for m in read_messages(tmp_path / 'out')] == [0, 1, 2, 4, 5, 6, 7, 8, 9]
+
+
+class TerminatedProcessor(MeanProcessor):
+    """A MeanProcessor whose process receives SIGTERM (timeout, a CI runner) at one message."""
+
+    def handle(self, topic, msg, wanted):
+        """As MeanProcessor, but SIGTERM to this process on the 11th message."""
+        if self._seen == 10:
+            os.kill(os.getpid(), signal.SIGTERM)
+        return super().handle(topic, msg, wanted)
+
+
+def test_sigterm_stops_the_command_as_ctrl_c_does_leaving_a_valid_bag(tmp_path, monkeypatch):
+    _write_images(tmp_path / 'in', 20)
+    monkeypatch.setattr(
+        replay_module, 'processor_factory', lambda _node: lambda _p, _f: TerminatedProcessor()
+    )
+    node = 'mono_tracker'  # a registered name; its processor is replaced
+    argv = ['replay', node, str(tmp_path / 'in'), '--out', str(tmp_path / 'out'), '--quiet']
+    assert main(argv) == 1  # interrupted
+    assert [m.msg.data for m in read_messages(tmp_path / 'out')] == [0, 1, 2, 4, 5, 6, 7, 8, 9]
+    assert signal.getsignal(signal.SIGTERM) == signal.SIG_DFL  # restored after the command
 
 
 class DoublingProcessor:

@@ -11,15 +11,20 @@ Add a subcommand by writing that module and adding its module name to :data:`SUB
 A :class:`~face_tracking_ros.errors.FaceTrackingError` raised by a subcommand, or an OSError
 (a file or directory that is missing or cannot be written: the user's or the machine's matter),
 is printed as ``error: <message>`` on stderr with exit status 2; other exceptions propagate
-(they are bugs).
+(they are bugs). SIGTERM (``timeout``, CI runners, schedulers) stops a command as Ctrl-C does,
+so that the bags it writes are closed and stay readable; a command that does not handle the
+interruption itself ends with ``interrupted`` and exit status 130.
 """
 
 from __future__ import annotations
 
 import argparse
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
+import contextlib
 import importlib
+import signal
 import sys
+import threading
 
 from face_tracking_ros.errors import FaceTrackingError
 from face_tracking_ros.threads import limit_blas_threads
@@ -41,6 +46,7 @@ SUBCOMMANDS: tuple[str, ...] = (
 )
 
 EXIT_ERROR = 2
+EXIT_INTERRUPTED = 130  # 128 + SIGINT, as a shell reports Ctrl-C
 
 
 def build_parser(subcommands: Sequence[str] = SUBCOMMANDS) -> argparse.ArgumentParser:
@@ -68,17 +74,34 @@ def main(argv: Sequence[str] | None = None) -> int:
         argv: Arguments without the program name; default ``sys.argv[1:]``.
 
     Returns:
-        The exit status: the subcommand's (0 if it returns None), or 2 on a FaceTrackingError
-        or an OSError.
+        The exit status: the subcommand's (0 if it returns None), 2 on a FaceTrackingError or
+        an OSError, 130 on an interruption the subcommand does not handle.
     """
     args = build_parser().parse_args(argv)
     limit_blas_threads()
     try:
-        status = args.func(args)
+        with _sigterm_as_ctrl_c():
+            status = args.func(args)
     except (FaceTrackingError, OSError) as error:
         print(f'error: {error}', file=sys.stderr)
         return EXIT_ERROR
+    except KeyboardInterrupt:
+        print('interrupted', file=sys.stderr)
+        return EXIT_INTERRUPTED
     return 0 if status is None else int(status)
+
+
+@contextlib.contextmanager
+def _sigterm_as_ctrl_c() -> Iterator[None]:
+    """Within the block, SIGTERM raises KeyboardInterrupt (in the main thread only)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGTERM, signal.default_int_handler)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
 
 
 if __name__ == '__main__':
