@@ -239,7 +239,7 @@ def test_raw_images_of_a_calibrated_rig_are_rectified_before_tracking(
             '--param', 'rectify=false', '--quiet']  # fmt: skip
     assert main(argv) == 1
     printed = capsys.readouterr().out
-    assert 'tracking_pairs 0, lost_pairs 40' in printed and 'nothing to score' in printed
+    assert 'tracking_pairs 0, lost_pairs 40' in printed and 'no image was tracked' in printed
     assert 'triangulate to a face 2.' in printed and 'times the size of an adult face' in printed
 
 

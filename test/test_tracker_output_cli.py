@@ -3,16 +3,20 @@
 from __future__ import annotations
 
 from pathlib import Path
+import shutil
 
 import numpy as np
 
 from face_tracking_ros.cli.main import main
 from face_tracking_ros.io import conversions
-from face_tracking_ros.io.bags import BagWriter
+from face_tracking_ros.io.bags import BagWriter, read_messages
 from face_tracking_ros.io.messages import RosbagsMessages
 from face_tracking_ros.io.typestore import typestore
 from face_tracking_ros.recognition.identity import IdentityGallery
+from face_tracking_ros.synthetic.clicks import clicks_from_bag, write_init_file
 from face_tracking_ros.tracking.result import TrackStatus
+
+from conftest import REPO
 
 STATE = 'face_tracking_msgs/msg/FaceState'
 
@@ -52,3 +56,32 @@ def test_a_model_less_track_is_not_plotted(tmp_path, capsys):
     assert main(['plot', str(bare), '--png', str(tmp_path / 'p.png')]) == 2
     assert f'{bare}: its face/state carries no sigma or alpha (a stereo' in capsys.readouterr().err
     assert not (tmp_path / 'p.png').exists()
+
+
+def test_track_that_tracks_no_image_ends_with_status_1(tmp_path, capsys):
+    """A bag whose camera_info is missing: every image is held, none tracked."""
+    mono = REPO / 'bags' / 'mono_test' / 'subject_00_seq_00'
+    init = write_init_file(clicks_from_bag(mono, 0.0), tmp_path / 'init.json')
+    uncalibrated = tmp_path / 'uncalibrated'
+    with BagWriter(uncalibrated) as writer:
+        for message in read_messages(mono, ['image', 'truth/face']):
+            writer.write(message.topic, message.msgtype, message.msg, message.stamp_ns)
+    argv = ['track', str(uncalibrated), '--init', str(init), '--out', str(tmp_path / 'o')]
+    assert main([*argv, '--quiet']) == 1
+    printed = capsys.readouterr().out
+    assert 'no calibration on camera_info yet' in printed
+    assert 'no image was tracked (the input problems or last_reason above say why)' in printed
+
+
+def test_track_of_a_truncated_bag_keeps_its_track_and_does_not_score_it(tmp_path, capsys):
+    mono = REPO / 'bags' / 'mono_test' / 'subject_00_seq_00'
+    cut = tmp_path / 'cut'
+    shutil.copytree(mono, cut)
+    mcap_file = next(cut.glob('*.mcap'))
+    mcap_file.write_bytes(mcap_file.read_bytes()[: mcap_file.stat().st_size // 2])
+    argv = ['track', str(cut), '--simulate-clicks', '0', '--out', str(tmp_path / 'o')]
+    assert main([*argv, '--quiet']) == 1
+    printed = capsys.readouterr().out
+    assert 'not scored against the truth: the bag is damaged (above)' in printed
+    states = [m.msg.status for m in read_messages(tmp_path / 'o', ['face/state'])]
+    assert 5 < len(states) < 30 and set(states) == {TrackStatus.TRACKING}

@@ -235,10 +235,13 @@ def run(args: argparse.Namespace) -> int:
         wanted=frozenset(args.want),
     )
     print_stats(stats, args.out)
-    if has_truth(args.bag) and stats.outputs['face/state']:
-        if not np.any(load_states(args.out).status == TrackStatus.TRACKING):
-            print('no image was tracked (last_reason above says why): nothing to score')
-            return 1
+    states = load_states(args.out).status if stats.outputs['face/state'] else np.empty(0)
+    if not np.any(states == TrackStatus.TRACKING):
+        print('no image was tracked (the input problems or last_reason above say why)')
+        return 1
+    if stats.read_error and has_truth(args.bag):
+        print('not scored against the truth: the bag is damaged (above)')
+    elif has_truth(args.bag):
         if node == 'stereo_tracker':
             evaluation = score_stereo_against_truth(args.bag, args.out)
             print(evaluation.report())
