@@ -75,7 +75,11 @@ def compressed_to_gray(msg: Any) -> np.ndarray:
     Raises:
         InputError: if the data does not decode.
     """
-    gray = cv2.imdecode(np.frombuffer(msg.data, dtype=np.uint8), cv2.IMREAD_GRAYSCALE)
+    data = np.frombuffer(msg.data, dtype=np.uint8)
+    if not len(data):
+        msg_text = f'compressed image in format {msg.format!r} has no data'
+        raise InputError(msg_text)
+    gray = cv2.imdecode(data, cv2.IMREAD_GRAYSCALE)
     if gray is None:
         msg_text = f'compressed image in format {msg.format!r} does not decode'
         raise InputError(msg_text)

@@ -87,6 +87,16 @@ def _raw_image(width, height, encoding, step, data, stamp_ns=T0_NS):
     )
 
 
+def _compressed(data: bytes):
+    header = conversions.make_header(FACTORY, T0_NS, 'camera_optical')
+    return FACTORY.make(
+        'sensor_msgs/msg/CompressedImage',
+        header=header,
+        format='mono8; png',
+        data=np.frombuffer(data, np.uint8),
+    )
+
+
 def _nan_info():
     info = info_msg()
     info.k[0] = np.nan
@@ -122,6 +132,8 @@ BAD_MONO_INPUTS = [
         'has step 100',
     ),
     ('image', lambda: _raw_image(0, 0, 'mono8', 0, []), 'image of 0x0 mono8'),
+    ('image', lambda: _compressed(b''), "compressed image in format 'mono8; png' has no data"),
+    ('image', lambda: _compressed(b'not a png'), "format 'mono8; png' does not decode"),
     (
         'image',
         lambda: image_msg(np.zeros((120, 160), np.uint8), stamp(0)),
