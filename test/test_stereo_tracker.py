@@ -398,7 +398,7 @@ def test_reset_from_a_named_initialisation() -> None:
     assert result.ok
     assert np.linalg.norm(result.nodes_cam[indices] - truth[indices], axis=1).max() < 0.0005
     with pytest.raises(ConfigError, match='unknown node name'):
-        tracker.reset(Initialisation(node_names=(*names[:5], 'ear'), points=np.zeros((6, 2))))
+        tracker.reset(Initialisation(node_names=(*names[:5], 'ear'), points=init.points))
     assert tracker.step(left, right).ok  # a refused reset leaves the track as it was
 
 

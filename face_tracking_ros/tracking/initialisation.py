@@ -36,11 +36,13 @@ import yaml
 
 from face_tracking_ros.errors import ConfigError, InputError
 from face_tracking_ros.geometry.camera import PinholeCamera
+from face_tracking_ros.imaging import inside_image
 from face_tracking_ros.model.face_model import FaceModel
 from face_tracking_ros.model.topology import mesh_topology
 from face_tracking_ros.tracking.projection import POSE_DIM, project_with_jacobian
 
 MIN_INIT_NODES = 6
+MIN_SPREAD_PX = 1.0  # RMS spread of the points across their thinnest direction, px
 
 
 @dataclass(frozen=True)
@@ -66,8 +68,22 @@ class Initialisation:
         if len(set(self.node_names)) != count:
             msg = f'initialisation repeats node names: {self.node_names}'
             raise ConfigError(msg)
-        if np.shape(self.points) != (count, 2) or not np.all(np.isfinite(self.points)):
-            msg = f'initialisation points must be {count} finite (x, y) pairs, got {self.points}'
+        if np.shape(self.points) != (count, 2):
+            shape = np.shape(self.points)
+            msg = f'initialisation points must be {count} (x, y) pairs, got shape {shape}'
+            raise ConfigError(msg)
+        finite = np.all(np.isfinite(self.points), axis=1)
+        if not finite.all():
+            names = [name for name, ok in zip(self.node_names, finite, strict=True) if not ok]
+            msg = f'initialisation points of {", ".join(names)} are not finite numbers'
+            raise ConfigError(msg)
+        centred = self.points - self.points.mean(axis=0)
+        spread = np.linalg.svd(centred, compute_uv=False)[-1] / np.sqrt(count)
+        if spread < MIN_SPREAD_PX:
+            msg = (
+                f'initialisation points lie on one spot or one line ({spread:.2f} px RMS across '
+                'it): they cannot place a face'
+            )
             raise ConfigError(msg)
         if self.sigma is not None and not np.all(np.isfinite(self.sigma)):
             msg = f'initialisation sigma holds NaN or Inf: {self.sigma}'
@@ -257,6 +273,14 @@ def fit_model_to_points(
         InputError: if no pose puts the face in front of the camera.
     """
     config = config or FitConfig()
+    outside = ~inside_image(init.points, (camera.height, camera.width))
+    if outside.any():
+        names = [name for name, out in zip(init.node_names, outside, strict=True) if out]
+        msg = (
+            f'initial node positions outside the {camera.width}x{camera.height} image: '
+            f'{", ".join(names)}'
+        )
+        raise InputError(msg)
     indices = init.node_indices(model)
     sigma_fixed = init.sigma is not None
     sigma0 = np.zeros(model.p) if init.sigma is None else np.asarray(init.sigma, dtype=float)
@@ -315,9 +339,13 @@ def fit_model_to_points(
 def _pnp(shape: np.ndarray, points: np.ndarray, camera: PinholeCamera) -> tuple[np.ndarray, ...]:
     """Pose (omega, t) of ``shape`` (K, 3) seen at ``points`` (K, 2), by SQPnP then refinement."""
     intrinsics = camera.p[:, :3]
-    found, rvec, tvec = cv2.solvePnP(
-        shape, points.astype(float), intrinsics, None, flags=cv2.SOLVEPNP_SQPNP
-    )
+    try:
+        found, rvec, tvec = cv2.solvePnP(
+            shape, points.astype(float), intrinsics, None, flags=cv2.SOLVEPNP_SQPNP
+        )
+    except cv2.error as error:  # a degenerate shape or calibration
+        msg = f'solvePnP cannot place the face model at the init points: {error.err}'
+        raise InputError(msg) from None
     if not found or tvec[2, 0] <= 0:
         msg = 'solvePnP found no pose in front of the camera for the init points'
         raise InputError(msg)

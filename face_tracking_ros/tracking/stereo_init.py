@@ -21,7 +21,7 @@ import numpy as np
 from face_tracking_ros.errors import InputError, check_fields
 from face_tracking_ros.geometry.camera import StereoRig
 from face_tracking_ros.geometry.procrustes import rigid_align
-from face_tracking_ros.imaging import sample_patches, sample_points, square_offsets
+from face_tracking_ros.imaging import inside_image, sample_patches, sample_points, square_offsets
 from face_tracking_ros.model.topology import Group, MeshTopology
 from face_tracking_ros.tracking.stereo_data import SampleLayout, SampleSet, depth_terms
 
@@ -178,8 +178,7 @@ def initial_nodes(
     """
     height, width = left.shape
     given = np.all(np.isfinite(left_px), axis=1)
-    inside = (left_px[:, 0] >= 0) & (left_px[:, 0] <= width - 1)
-    inside &= (left_px[:, 1] >= 0) & (left_px[:, 1] <= height - 1)
+    inside = inside_image(left_px, left.shape)
     if np.any(given & ~inside):
         names = [topology.node_names[i] for i in np.flatnonzero(given & ~inside)]
         msg = f'initial node positions outside the {width}x{height} left image: {names}'

@@ -26,14 +26,16 @@ def test_yaml_and_json_init_files_parse(tmp_path: Path) -> None:
     text = (
         '# first frame of the bag\n'
         'nodes:\n'
-        + ''.join(f'  {name}: [{100 + i}.5, {200 + i}]\n' for i, name in enumerate(SIX))
+        + ''.join(
+            f'  {name}: [{100 + 10 * i}.5, {200 + 15 * (i % 3)}]\n' for i, name in enumerate(SIX)
+        )
         + 'sigma: [0.004, -0.001]\n'
     )
     yaml_path = tmp_path / 'init.yaml'
     yaml_path.write_text(text)
     init = load_init_file(yaml_path)
     assert init.node_names == SIX
-    assert np.array_equal(init.points[2], [102.5, 202.0])
+    assert np.array_equal(init.points[2], [120.5, 230.0])
     assert np.array_equal(init.sigma, [0.004, -0.001])
     json_path = tmp_path / 'init.json'
     json_path.write_text(json.dumps({'nodes': dict(zip(SIX, init.points.tolist(), strict=True))}))
@@ -74,11 +76,14 @@ def test_an_image_given_as_init_file_is_named_so(tmp_path: Path) -> None:
 
 
 def test_initialisation_validation(model_factory) -> None:
-    points = np.zeros((6, 2))
+    points = np.array([[300, 200], [340, 200], [320, 230], [305, 260], [335, 260], [320, 290.0]])
     with pytest.raises(ConfigError, match='repeats node names'):
         Initialisation(('a',) * 6, points)
-    with pytest.raises(ConfigError, match='6 finite'):
-        Initialisation(SIX, np.full((6, 2), np.nan))
+    with pytest.raises(ConfigError, match='points of left_eye, chin are not finite numbers'):
+        Initialisation(SIX, np.where([[0], [1], [0], [0], [0], [1]], np.nan, points))
+    for degenerate in (np.zeros((6, 2)), np.column_stack([np.arange(6.0), np.zeros(6)])):
+        with pytest.raises(ConfigError, match='lie on one spot or one line'):
+            Initialisation(SIX, degenerate)
     with pytest.raises(ConfigError, match='sigma holds NaN'):
         Initialisation(SIX, points, sigma=np.array([np.inf]))
     model = model_factory(num_nodes=19)
@@ -143,8 +148,13 @@ def test_fit_with_enrolled_sigma_and_subset(model_factory) -> None:
     assert fit.rms_px < 0.05 and np.allclose(fit.omega, omega, atol=2e-3)
 
 
-def test_fit_rejects_points_with_no_pose_in_front(model_factory) -> None:
+def test_fit_rejects_points_no_face_fits_or_outside_the_image(model_factory) -> None:
     model = model_factory()
-    collinear = np.column_stack([np.linspace(0, 600, 34), np.full(34, 240.0)])
-    with pytest.raises(InputError, match='check the init points|no pose in front'):
-        fit_model_to_points(model, CAMERA, Initialisation(model.node_names, collinear))
+    pixels = _truth_points(model, np.zeros(3), np.array([0.0, 0.0, 0.6]), None, None)
+    shuffled = pixels[np.random.default_rng(0).permutation(len(pixels))]
+    with pytest.raises(InputError, match=r'RMS error .* px > 10.0 px\); check the init points'):
+        fit_model_to_points(model, CAMERA, Initialisation(model.node_names, shuffled))
+    beyond = pixels + [CAMERA.width / 2, 0.0]  # clicks of a wider image
+    outside = ', '.join(n for n, (x, _) in zip(model.node_names, beyond, strict=True) if x > 639)
+    with pytest.raises(InputError, match=f'outside the 640x480 image: {outside}$'):
+        fit_model_to_points(model, CAMERA, Initialisation(model.node_names, beyond))
