@@ -172,6 +172,11 @@ def test_bad_arrays(tmp_path):
             {'mean_shape': np.where(np.arange(57) == 4, np.nan, model.mean_shape)},
             r'mean_shape holds NaN',
         ),
+        'millimetres': (
+            {'mean_shape': 1000.0 * model.mean_shape},
+            r'mean_shape spans 47.4 m RMS about its centroid, where a face spans about 0.05 m',
+        ),
+        'zero': ({'mean_shape': 0.0 * model.mean_shape}, r'mean_shape spans 0 m RMS'),
         'orthonormal': (
             {'action_basis': 1.01 * model.action_basis},
             r'action_basis is not orthonormal',

@@ -17,6 +17,7 @@ from face_tracking_ros.model.topology import MeshTopology, mesh_topology
 
 ORTHONORMALITY_TOLERANCE = 1e-6
 COVARIANCE_TOLERANCE = 1e-9  # relative to the largest entry: asymmetry, negative eigenvalues
+FACE_SPREAD_M = (0.01, 0.25)  # RMS node distance from the centroid of a mean shape (adults: 0.05)
 
 
 @dataclass(frozen=True)
@@ -110,6 +111,13 @@ def validate_model_arrays(model: FaceModel) -> None:
     if tuple(model.node_names) != expected_names:
         _fail(f'node names {tuple(model.node_names)} differ from the topology {expected_names}')
     _check(model.mean_shape, 'mean_shape', (n3,))
+    nodes = model.mean_shape.reshape(-1, 3)
+    spread = float(np.sqrt(np.mean(np.sum((nodes - nodes.mean(axis=0)) ** 2, axis=1))))
+    if not FACE_SPREAD_M[0] <= spread <= FACE_SPREAD_M[1]:
+        _fail(
+            f'mean_shape spans {spread:.3g} m RMS about its centroid, where a face spans about '
+            '0.05 m: the model must be in metres'
+        )
     _check(model.shape_basis, 'shape_basis', (n3, None))
     _check(model.action_basis, 'action_basis', (n3, None))
     p, q = model.shape_basis.shape[1], model.action_basis.shape[1]
