@@ -21,13 +21,13 @@ from conftest import REPO
 STATE = 'face_tracking_msgs/msg/FaceState'
 
 
-def _states(path: Path, sigmas: np.ndarray) -> Path:
-    """A tracker output bag: face/state with these (F, p) sigma, every frame TRACKING."""
+def _states(path: Path, sigmas: np.ndarray, status: int = TrackStatus.TRACKING) -> Path:
+    """A tracker output bag: face/state with these (F, p) sigma, every frame of one status."""
     factory = RosbagsMessages(typestore())
     with BagWriter(path) as writer:
         for f, sigma in enumerate(sigmas):
             header = conversions.make_header(factory, 1000 + f, 'camera')
-            state = factory.make(STATE, header=header, status=TrackStatus.TRACKING, sigma=sigma)
+            state = factory.make(STATE, header=header, status=status, sigma=sigma)
             writer.write('face/state', STATE, state, 1000 + f)
     return path
 
@@ -85,3 +85,19 @@ def test_track_of_a_truncated_bag_keeps_its_track_and_does_not_score_it(tmp_path
     assert 'not scored against the truth: the bag is damaged (above)' in printed
     states = [m.msg.status for m in read_messages(tmp_path / 'o', ['face/state'])]
     assert 5 < len(states) < 30 and set(states) == {TrackStatus.TRACKING}
+
+
+def test_an_output_bag_of_inconsistent_states_is_named_not_a_traceback(tmp_path, capsys):
+    factory = RosbagsMessages(typestore())
+    odd = tmp_path / 'odd'
+    with BagWriter(odd) as writer:
+        for f, (status, sigma) in enumerate([(1, [0.0, 0.0]), (1, [0.0, 0.0, 0.0])]):
+            header = conversions.make_header(factory, 1000 + f, 'camera')
+            state = factory.make(STATE, header=header, status=status, sigma=np.array(sigma))
+            writer.write('face/state', STATE, state, 1000 + f)
+    assert main(['plot', str(odd), '--png', str(tmp_path / 'p.png')]) == 2
+    expected = 'face/state message 1: FaceState.sigma has shape (3,), message 0 (2,)'
+    assert expected in capsys.readouterr().err
+    unknown = _states(tmp_path / 'unknown', np.zeros((3, 2)), status=77)
+    assert main(['enroll', str(unknown), '--name', 'x', '--gallery', str(tmp_path / 'g.npz')]) == 2
+    assert 'face/state message 0: FaceState.status 77 is unknown' in capsys.readouterr().err

@@ -14,6 +14,7 @@ import numpy as np
 from face_tracking_ros.errors import BagError
 from face_tracking_ros.io import conversions
 from face_tracking_ros.io.bags import bag_topics, read_messages, stamp_to_ns
+from face_tracking_ros.tracking.result import TrackStatus
 
 STATE_TYPE = 'face_tracking_msgs/msg/FaceState'
 TRUTH_TYPE = 'face_tracking_msgs/msg/FaceTruth'
@@ -86,18 +87,42 @@ def load_states(bag: Path, topic: str | None = None) -> StateSeries:
     if not rows:
         msg = f'{bag}: topic {topic} holds no FaceState message'
         raise BagError(msg)
+    where = f'{bag}: {topic}'
+    status = np.array([r.status for r in rows], dtype=int)
+    unknown = np.flatnonzero(~np.isin(status, [int(s) for s in TrackStatus]))
+    if len(unknown):
+        msg = f'{where} message {unknown[0]}: FaceState.status {status[unknown[0]]} is unknown'
+        raise BagError(msg)
+
+    def stacked(field: str, values: list[np.ndarray]) -> np.ndarray:
+        return _stacked(values, where, f'FaceState.{field}')
+
     return StateSeries(
         stamps=np.array([stamp_to_ns(r.header.stamp) for r in rows], dtype=np.int64),
-        status=np.array([r.status for r in rows], dtype=int),
-        omega=np.array([np.asarray(r.omega, dtype=float) for r in rows]),
+        status=status,
+        omega=stacked('omega', [r.omega for r in rows]),
         t=np.array([[r.pose.position.x, r.pose.position.y, r.pose.position.z] for r in rows]),
-        alpha=np.array([np.asarray(r.alpha, dtype=float) for r in rows]),
-        sigma=np.array([np.asarray(r.sigma, dtype=float) for r in rows]),
-        nodes=np.array([_points(r.nodes) for r in rows]),
-        image_points=np.array([_points(r.image_points)[:, :2] for r in rows]),
+        alpha=stacked('alpha', [r.alpha for r in rows]),
+        sigma=stacked('sigma', [r.sigma for r in rows]),
+        nodes=stacked('nodes', [_points(r.nodes) for r in rows]),
+        image_points=stacked('image_points', [_points(r.image_points)[:, :2] for r in rows]),
         mean_residual=np.array([r.mean_residual for r in rows], dtype=float),
         iterations=np.array([r.iterations for r in rows], dtype=int),
     )
+
+
+def _stacked(values: list[np.ndarray], where: str, field: str) -> np.ndarray:
+    """One row per message; a message whose field has another shape than the first's is named.
+
+    Raises:
+        BagError: naming the message and both shapes.
+    """
+    shapes = [np.shape(value) for value in values]
+    odd = next((i for i, shape in enumerate(shapes) if shape != shapes[0]), None)
+    if odd is not None:
+        msg = f'{where} message {odd}: {field} has shape {shapes[odd]}, message 0 {shapes[0]}'
+        raise BagError(msg)
+    return np.array(values, dtype=float)
 
 
 def load_truth(bag: Path) -> TruthSeries:
