@@ -248,6 +248,13 @@ def test_errors_name_the_bag_topic_or_subject(tmp_path, truth_bags, world, capsy
     err = _error([*learn_packaged, '--truth-population', 'default:1'], capsys)
     assert '--truth-population default:1: its subject_00 is not the one of the bags' in err
 
+    err = _error(['learn', *bags, *out, '--add-noise', 'nan'], capsys)
+    assert '--neutral-frames and --add-noise must not be negative' in err
+
+    same = ['--out', str(tmp_path / 'x.npz'), '--report', str(tmp_path / 'x.npz')]
+    err = _error(['learn', *bags, *same], capsys)
+    assert f'--out and --report are both {tmp_path}/x.npz: the report would overwrite' in err
+
     err = _error(['learn', *bags, *out, '--plots', str(tmp_path / 'absent')], capsys)
     assert 'is not a directory' in err
 

@@ -101,3 +101,21 @@ def test_an_output_bag_of_inconsistent_states_is_named_not_a_traceback(tmp_path,
     unknown = _states(tmp_path / 'unknown', np.zeros((3, 2)), status=77)
     assert main(['enroll', str(unknown), '--name', 'x', '--gallery', str(tmp_path / 'g.npz')]) == 2
     assert 'face/state message 0: FaceState.status 77 is unknown' in capsys.readouterr().err
+
+
+def test_outputs_that_exist_or_options_out_of_range_are_refused_before_any_work(tmp_path, capsys):
+    mono = REPO / 'bags' / 'mono_test' / 'subject_00_seq_00'
+    taken = tmp_path / 'taken'
+    taken.mkdir()
+    assert main(['track', str(mono), '--simulate-clicks', '5', '--out', str(taken)]) == 2
+    assert f'--out {taken} exists' in capsys.readouterr().err
+    assert not (tmp_path / 'taken.init.json').exists()  # the clicks of a run that did not run
+    states = _states(tmp_path / 'states', np.zeros((3, 2)))
+    plot = ['plot', str(states), '--png']
+    assert main([*plot, str(tmp_path / 'p.txt')]) == 2
+    assert 'p.txt: give a file name ending in .png' in capsys.readouterr().err
+    assert main([*plot, str(tmp_path / 'p.png'), '--truth', str(states)]) == 2
+    assert f'--truth {states} holds no truth/face' in capsys.readouterr().err
+    video = ['overlay', str(mono), str(states), '--video', str(tmp_path / 'v.mp4')]
+    assert main([*video, '--every', '0']) == 2
+    assert '--every must be >= 1, got 0' in capsys.readouterr().err

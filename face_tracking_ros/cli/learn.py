@@ -362,6 +362,7 @@ def mesh_bag(bag: Path, args: argparse.Namespace) -> Path:
     print(f'{bag}: raw stereo images: tracking them into {out}')
     stats = replay_bag([TRACKER], bag, out, params, remaps, progress=False)
     if not stats.outputs['face/mesh_raw']:
+        shutil.rmtree(out)  # nothing to learn from, and a later run must track it again
         msg = f'{bag}: the stereo tracker produced no mesh ({dict(stats.errors)})'
         if any('no calibration' in error for error in stats.errors):
             infos = [topic for topic, kind in topics.items() if kind == CAMERA_INFO_TYPE]
@@ -650,7 +651,7 @@ def _check_arguments(args: argparse.Namespace) -> None:
     if args.explained_variance is not None and not 0.0 < args.explained_variance <= 1.0:
         msg = f'--explained-variance must be in (0, 1], got {args.explained_variance}'
         raise ConfigError(msg)
-    if args.neutral_frames < 0 or args.add_noise < 0.0 or args.truth_samples < 10:
+    if args.neutral_frames < 0 or not args.add_noise >= 0.0 or args.truth_samples < 10:
         msg = '--neutral-frames and --add-noise must not be negative, --truth-samples >= 10'
         raise ConfigError(msg)
     if args.subject_pattern is not None:
@@ -664,6 +665,9 @@ def _check_arguments(args: argparse.Namespace) -> None:
         raise ConfigError(msg)
     if args.plots is not None and not args.plots.is_dir():
         msg = f'--plots {args.plots} is not a directory'
+        raise ConfigError(msg)
+    if args.out.resolve() == args.report.resolve():
+        msg = f'--out and --report are both {args.out}: the report would overwrite the model'
         raise ConfigError(msg)
     for option, path in (('--out', args.out), ('--report', args.report)):
         if not path.parent.is_dir():

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from face_tracking_ros.errors import ConfigError
 from face_tracking_ros.io.series import load_states
 from face_tracking_ros.visualization.video import write_overlay_video
 
@@ -34,6 +35,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> None:
     """Write the video."""
+    if args.every < 1:
+        msg = f'--every must be >= 1, got {args.every}'
+        raise ConfigError(msg)
     states = load_states(args.out)
     count = write_overlay_video(
         args.bag, states, args.video, args.image_topic, args.every, rectify=args.rectify

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from face_tracking_ros.errors import ConfigError
 from face_tracking_ros.io.series import has_truth, load_states, load_truth, require_parameters
 from face_tracking_ros.visualization.plots import plot_tracking
 
@@ -26,7 +27,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> None:
     """Write the plot."""
-    truth = load_truth(args.truth) if args.truth and has_truth(args.truth) else None
+    if args.png.suffix.lower() != '.png':
+        msg = f'--png {args.png}: give a file name ending in .png'
+        raise ConfigError(msg)
+    if args.truth and not has_truth(args.truth):
+        msg = f'--truth {args.truth} holds no truth/face (a synthetic bag has it)'
+        raise ConfigError(msg)
+    truth = load_truth(args.truth) if args.truth else None
     states = load_states(args.out)
     lengths = {'sigma': states.sigma.shape[1], 'alpha': states.alpha.shape[1]}
     require_parameters(args.out, lengths)  # without them, no pose either: nothing to draw

@@ -206,6 +206,9 @@ def run(args: argparse.Namespace) -> int:
             '--simulate-clicks PX'
         )
         raise ConfigError(msg)
+    if args.out.exists():
+        msg = f'--out {args.out} exists: give a new directory for the tracked bag'
+        raise ConfigError(msg)
     init_file = args.init
     args.out.parent.mkdir(parents=True, exist_ok=True)
     if args.simulate_clicks is not None:
