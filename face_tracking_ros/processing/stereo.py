@@ -233,8 +233,11 @@ class StereoProcessor:
 
         Each track's pairs are emitted in order, with the frame-1 depths refined over the whole
         track applied (:meth:`StereoTracker.with_final_depths`); without the option there is
-        nothing to emit.
+        nothing to emit. Images still waiting for a partner are counted as unpaired.
         """
+        for queue in self._waiting.values():
+            self.unpaired += len(queue)
+            queue.clear()
         self._end_track()
         outputs, self._ended_outputs = self._ended_outputs, []
         return outputs
@@ -377,7 +380,7 @@ class StereoProcessor:
         if dropped and not self._paired and other:
             gap_ms = min(abs(mine - theirs) for mine in queue for theirs in other) / 1e6
             msg_text = (
-                f'no left and right images have paired yet ({self.unpaired} dropped): the '
+                'no left and right images have paired yet (unpaired_images counts them): the '
                 f'nearest stamps differ by {gap_ms:.3f} ms; pairing needs equal stamps, or '
                 'pairing_tolerance_ms for cameras that are not synchronised'
             )

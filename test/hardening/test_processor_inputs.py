@@ -517,12 +517,14 @@ def test_stereo_pairs_equal_stamps_only_and_says_why_nothing_pairs(pairs):
         assert processor.handle('right/image_raw', right, NONE) == []
     left = image_msg(pairs[0][0].image, stamp(10))
     expected = (
-        r'no left and right images have paired yet \(1 dropped\): the nearest stamps differ by '
-        r'2\.000 ms; .*pairing_tolerance_ms'
+        r'no left and right images have paired yet \(unpaired_images counts them\): the nearest '
+        r'stamps differ by 2\.000 ms; .*pairing_tolerance_ms'
     )
     with pytest.raises(InputError, match=expected):
         processor.handle('left/image_raw', left, NONE)
     assert processor.unpaired == 1
+    processor.finish()  # the end of the stream: what still waits never pairs
+    assert processor.status()['unpaired_images'] == '21'  # every image given
 
 
 def test_stereo_pairs_the_nearest_stamp_within_the_tolerance(pairs, stereo_reference):
