@@ -108,7 +108,10 @@ def test_missing_file(tmp_path):
 def test_not_an_archive(tmp_path):
     path = tmp_path / 'face.npz'
     path.write_text('hello')
-    with pytest.raises(ModelFileError, match=r'face\.npz: not a readable \.npz model archive'):
+    with pytest.raises(
+        ModelFileError,
+        match=r'face\.npz: not an \.npz archive, or a damaged one \(no zip directory\)',
+    ):
         load_model(path)
 
 
@@ -118,7 +121,7 @@ def test_pickled_object_array_is_refused(tmp_path):
         contents = {name: archive[name] for name in archive.files}
     contents['mean_shape'] = np.array([object()], dtype=object)
     np.savez(path, **contents)
-    with pytest.raises(ModelFileError, match=r'not a readable \.npz model archive'):
+    with pytest.raises(ModelFileError, match=r'not a readable pickle-free \.npz archive'):
         load_model(path)
 
 
@@ -206,3 +209,9 @@ def test_node_count_other_than_19_or_34(tmp_path):
     )
     with pytest.raises(ModelFileError, match=r'node count is 18'):
         load_model(path)
+
+
+def test_saving_into_a_missing_directory_names_it(tmp_path):
+    with pytest.raises(ModelFileError, match=r'file: no directory .*nodir to write m\.npz in'):
+        save_model(_model(), tmp_path / 'nodir' / 'm.npz')
+    assert list(tmp_path.iterdir()) == []

@@ -187,7 +187,7 @@ def test_file_errors(tmp_path: Path, classifier: ExpressionClassifier) -> None:
     with pytest.raises(ModelFileError, match='not valid JSON'):
         ExpressionClassifier.load(path, Q)
     np.savez(path, header=np.array({'kind': 'x'}, dtype=object))
-    with pytest.raises(ModelFileError, match='not a readable pickle-free npz'):
+    with pytest.raises(ModelFileError, match='not a readable pickle-free .npz'):
         ExpressionClassifier.load(path, Q)
 
 

@@ -165,7 +165,7 @@ def test_file_errors(tmp_path: Path) -> None:
     with pytest.raises(ModelFileError, match='no such file'):
         IdentityGallery.load(tmp_path / 'missing.npz', P)
     (tmp_path / 'corrupt.npz').write_bytes(path.read_bytes()[:200])
-    with pytest.raises(ModelFileError, match='not a readable'):
+    with pytest.raises(ModelFileError, match='not an .npz archive, or a damaged one'):
         IdentityGallery.load(tmp_path / 'corrupt.npz', P)
     arrays = {
         'means': gallery.means,

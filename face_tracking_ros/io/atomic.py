@@ -2,7 +2,8 @@
 
 The arrays go to a temporary file beside the target, which is synced and then renamed over the
 target (:func:`os.replace`, atomic on POSIX). The file gets the usual permissions of a new file
-(0666 less the umask), not the private mode temporary files are created with.
+(0666 less the umask), not the private mode temporary files are created with. They are read
+back, pickle-free, by :func:`read_npz`, whose errors say what the file is instead.
 """
 
 from __future__ import annotations
@@ -10,8 +11,11 @@ from __future__ import annotations
 import os
 from pathlib import Path
 import tempfile
+import zipfile
 
 import numpy as np
+
+from face_tracking_ros.errors import ModelFileError
 
 
 def write_npz_atomically(path: Path, arrays: dict[str, np.ndarray]) -> None:
@@ -21,6 +25,9 @@ def write_npz_atomically(path: Path, arrays: dict[str, np.ndarray]) -> None:
         path: the target file; its directory must exist.
         arrays: members by name (plain numeric or string arrays: no pickled objects).
     """
+    if not path.parent.is_dir():
+        msg = f'no directory {path.parent} to write {path.name} in'
+        raise FileNotFoundError(msg)
     descriptor, name = tempfile.mkstemp(dir=path.parent, prefix=f'.{path.name}.', suffix='.tmp')
     temporary = Path(name)
     try:
@@ -33,6 +40,27 @@ def write_npz_atomically(path: Path, arrays: dict[str, np.ndarray]) -> None:
     except BaseException:
         temporary.unlink(missing_ok=True)
         raise
+
+
+def read_npz(path: Path) -> dict[str, np.ndarray]:
+    """The members of a .npz file, refusing pickled objects.
+
+    Raises:
+        ModelFileError: naming the file: missing, not an .npz (zip) archive or a damaged one,
+            or holding pickled objects.
+    """
+    if not path.is_file():
+        msg = f'{path}: no such file'
+        raise ModelFileError(msg)
+    if not zipfile.is_zipfile(path):
+        msg = f'{path}: not an .npz archive, or a damaged one (no zip directory)'
+        raise ModelFileError(msg)
+    try:
+        with np.load(path, allow_pickle=False) as archive:
+            return {name: archive[name] for name in archive.files}
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as error:
+        msg = f'{path}: not a readable pickle-free .npz archive ({error})'
+        raise ModelFileError(msg) from None
 
 
 def _umask() -> int:

@@ -28,12 +28,11 @@ import json
 import os
 from pathlib import Path
 from typing import Any, NoReturn
-import zipfile
 
 import numpy as np
 
 from face_tracking_ros.errors import ModelFileError
-from face_tracking_ros.io.atomic import write_npz_atomically
+from face_tracking_ros.io.atomic import read_npz, write_npz_atomically
 from face_tracking_ros.model.face_model import FaceModel
 
 FORMAT_NAME = 'face_tracking_ros.face_model'
@@ -100,13 +99,7 @@ def load_model(path: str | os.PathLike[str]) -> FaceModel:
             non-orthonormal basis.
     """
     path = Path(path)
-    if not path.is_file():
-        _fail(path, 'no such file')
-    try:
-        with np.load(path, allow_pickle=False) as archive:
-            contents = {name: archive[name] for name in archive.files}
-    except (OSError, ValueError, zipfile.BadZipFile, EOFError) as error:
-        _fail(path, f'not a readable .npz model archive ({error})')
+    contents = read_npz(path)
     missing = [name for name in ('header', *ARRAY_FIELDS) if name not in contents]
     if missing:
         _fail(path, f'missing field(s) {", ".join(missing)}')

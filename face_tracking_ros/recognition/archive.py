@@ -15,12 +15,11 @@ import json
 import os
 from pathlib import Path
 from typing import Any, NoReturn
-import zipfile
 
 import numpy as np
 
 from face_tracking_ros.errors import ModelFileError
-from face_tracking_ros.io.atomic import write_npz_atomically
+from face_tracking_ros.io.atomic import read_npz, write_npz_atomically
 
 HEADER_KEY = 'header'
 
@@ -105,15 +104,7 @@ def load_archive(path: str | os.PathLike[str], kind: str, format_version: int) -
             malformed header, or is of another kind or format version (both versions named).
     """
     source = Path(path)
-    try:
-        with np.load(source, allow_pickle=False) as data:
-            arrays = {name: data[name] for name in data.files}
-    except FileNotFoundError:
-        msg = f'{source}: no such file'
-        raise ModelFileError(msg) from None
-    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as error:
-        msg = f'{source}: not a readable pickle-free npz file ({error})'
-        raise ModelFileError(msg) from None
+    arrays = read_npz(source)
     archive = Archive(path=source, header={}, arrays=arrays)
     raw_header = arrays.pop(HEADER_KEY, None)
     if raw_header is None or raw_header.shape != () or raw_header.dtype.kind != 'U':
