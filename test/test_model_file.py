@@ -155,7 +155,10 @@ def test_malformed_archive(tmp_path, changes, match):
         ({'method': 3}, r"header field 'method' is missing or not a str"),
         ({'node_names': None}, r"header field 'node_names' is missing or not a list"),
         ({'node_names': ['a'] * 34}, r'header names 34 nodes but mean_shape has 57 values'),
-        ({'node_names': ['a'] * 19}, r'node names .* differ from the topology'),
+        (
+            {'node_names': ['a'] * 19},
+            r"node names differ from the 19-node topology: 'a' \(the topology: 'right_eye'\)$",
+        ),
     ],
 )
 def test_bad_header(tmp_path, header_changes, match):

@@ -108,8 +108,13 @@ def validate_model_arrays(model: FaceModel) -> None:
     if len(model.node_names) not in (19, 34):
         _fail(f'node count is {len(model.node_names)}; supported meshes have 19 or 34 nodes')
     expected_names = mesh_topology(len(model.node_names)).node_names
-    if tuple(model.node_names) != expected_names:
-        _fail(f'node names {tuple(model.node_names)} differ from the topology {expected_names}')
+    differing = [
+        f'{given!r} (the topology: {expected!r})'
+        for given, expected in zip(model.node_names, expected_names, strict=True)
+        if given != expected
+    ]
+    if differing:
+        _fail(f'node names differ from the {len(expected_names)}-node topology: {differing[0]}')
     _check(model.mean_shape, 'mean_shape', (n3,))
     nodes = model.mean_shape.reshape(-1, 3)
     spread = float(np.sqrt(np.mean(np.sum((nodes - nodes.mean(axis=0)) ** 2, axis=1))))

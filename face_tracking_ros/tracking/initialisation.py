@@ -180,7 +180,7 @@ def load_init_file(path: str | Path) -> Initialisation:
         data = json.loads(text) if path.suffix.lower() == '.json' else yaml.safe_load(text)
     except (json.JSONDecodeError, yaml.YAMLError) as error:
         kind = 'JSON' if path.suffix.lower() == '.json' else 'YAML'
-        msg = f'init file {path} is not valid {kind}: {error}'
+        msg = f'init file {path} is not valid {kind}: {" ".join(str(error).split())}'
         raise ConfigError(msg) from None
     return Initialisation.from_mapping(data, source=f'init file {path}')
 
