@@ -11,6 +11,7 @@ from scipy.spatial.distance import mahalanobis
 from scipy.stats import chi2
 
 from face_tracking_ros.errors import ConfigError, InputError, ModelFileError
+from face_tracking_ros.model.model_file import save_model
 from face_tracking_ros.recognition.archive import save_archive
 from face_tracking_ros.recognition.identity import (
     GALLERY_FORMAT_VERSION,
@@ -20,6 +21,8 @@ from face_tracking_ros.recognition.identity import (
     IdentityGallery,
     IdentityRecognizer,
 )
+from face_tracking_ros.synthetic.faces import FacePopulation
+from face_tracking_ros.synthetic.true_model import true_face_model
 
 P = 4
 # sigma std of the default synthetic population: sqrt(34) x (9, 6, 3.5, 2.5) mm RMS per node.
@@ -181,6 +184,16 @@ def test_file_errors(tmp_path: Path) -> None:
         IdentityGallery.load(path, P)
     save_archive(path, 'expression_classifier', 1, header, arrays)
     with pytest.raises(ModelFileError, match="holds a 'expression_classifier'"):
+        IdentityGallery.load(path, P)
+    save_model(true_face_model(FacePopulation('default'), 19), path)
+    with pytest.raises(ModelFileError, match="holds a 'face_tracking_ros.face_model', expected"):
+        IdentityGallery.load(path, P)
+    bad = {**arrays, 'covariances': gallery.covariances, 'counts': -gallery.counts}
+    save_archive(path, GALLERY_KIND, GALLERY_FORMAT_VERSION, header, bad)
+    with pytest.raises(ModelFileError, match=r'gallery counts must be >= 1'):
+        IdentityGallery.load(path, P)
+    save_archive(path, GALLERY_KIND, GALLERY_FORMAT_VERSION, {**header, 'names': [1, 2]}, arrays)
+    with pytest.raises(ModelFileError, match=r'gallery names must be text, got \[1, 2\]'):
         IdentityGallery.load(path, P)
 
 

@@ -118,7 +118,8 @@ def load_archive(path: str | os.PathLike[str], kind: str, format_version: int) -
         archive.fail('header is not a JSON object')
     archive = Archive(path=source, header=header, arrays=arrays)
     if header.get('kind') != kind:
-        archive.fail(f'holds a {header.get("kind")!r}, expected a {kind!r}')
+        found = header.get('kind') or header.get('format') or 'file of no known kind'
+        archive.fail(f'holds a {found!r}, expected a {kind!r}')
     if header.get('format_version') != format_version:
         archive.fail(
             f'has format version {header.get("format_version")!r}; this code reads version '

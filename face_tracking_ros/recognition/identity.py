@@ -146,6 +146,9 @@ class IdentityGallery:
         if len(set(self.names)) != k:
             msg = f'gallery names are not unique: {self.names}'
             raise InputError(msg)
+        if np.any(self.counts < 1):
+            msg = f'gallery counts must be >= 1 (estimates enrolled per person), got {self.counts}'
+            raise InputError(msg)
         if k:
             _ = self.classes
 
@@ -252,8 +255,10 @@ class IdentityGallery:
         if file_p != p:
             archive.fail(f'gallery is for sigma of dimension p={file_p}, the model has p={p}')
         names = archive.field('names', list)
-        if not names or not all(isinstance(name, str) for name in names):
+        if not names:
             archive.fail('gallery holds no enrolled identities')
+        if not all(isinstance(name, str) for name in names):
+            archive.fail(f'gallery names must be text, got {names}')
         k = len(names)
         arrays = {
             'means': archive.array('means', (k, p)),
