@@ -160,7 +160,7 @@ def test_truncated_image_data_is_reported():
     msg = SimpleNamespace(
         encoding='rgb8', height=10, width=10, step=30, data=np.zeros(200, np.uint8)
     )
-    with pytest.raises(InputError, match='needs step >= 30 and 300 bytes'):
+    with pytest.raises(InputError, match='needs step >= 30 and step x height = 300 bytes'):
         conversions.image_to_gray(msg)
 
 

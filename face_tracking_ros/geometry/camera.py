@@ -49,7 +49,7 @@ class PinholeCamera:
         _require(np.shape(self.p) == (3, 4), f'P has shape {np.shape(self.p)}, not (3, 4)')
         arrays = (self.k, self.p, self.d, self.r)
         _require(all(np.all(np.isfinite(a)) for a in arrays), 'K, P, D or R holds NaN or Inf')
-        _require(self.p[0, 0] > 0 and self.p[1, 1] > 0, 'P has a zero focal length (uncalibrated)')
+        _require(self.p[0, 0] > 0 and self.p[1, 1] > 0, 'P has a focal length <= 0 (uncalibrated)')
 
     @classmethod
     def from_camera_info(cls, info: Any) -> PinholeCamera:

@@ -59,10 +59,15 @@ def image_to_gray(msg: Any) -> np.ndarray:
     channels = encoding_channels(encoding)
     height, width, step = int(msg.height), int(msg.width), int(msg.step)
     data = np.frombuffer(msg.data, dtype=np.uint8)
-    if height <= 0 or width <= 0 or step < width * channels or data.size < step * height:
+    if height <= 0 or width <= 0:
+        msg_text = f'image of {width}x{height} {encoding} is empty'
+        raise InputError(msg_text)
+    row_bytes = width * channels
+    if step < row_bytes or data.size < step * height:
         msg_text = (
             f'image of {width}x{height} {encoding} has step {step} and {data.size} data bytes; '
-            f'needs step >= {width * channels} and {step * height} bytes'
+            f'needs step >= {row_bytes} and step x height = {max(step, row_bytes) * height} '
+            'bytes'
         )
         raise InputError(msg_text)
     rows = data[: step * height].reshape(height, step)[:, : width * channels]

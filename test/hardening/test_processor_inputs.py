@@ -124,14 +124,14 @@ BAD_MONO_INPUTS = [
     (
         'image',
         lambda: _raw_image(320, 240, 'mono8', 320, np.zeros(320 * 100)),
-        'needs step >= 320 and 76800 bytes',
+        'needs step >= 320 and step x height = 76800 bytes',
     ),
     (
         'image',
         lambda: _raw_image(320, 240, 'mono8', 100, np.zeros(320 * 240)),
         'has step 100',
     ),
-    ('image', lambda: _raw_image(0, 0, 'mono8', 0, []), 'image of 0x0 mono8'),
+    ('image', lambda: _raw_image(0, 0, 'mono8', 0, []), 'image of 0x0 mono8 is empty'),
     ('image', lambda: _compressed(b''), "compressed image in format 'mono8; png' has no data"),
     ('image', lambda: _compressed(b'not a png'), "format 'mono8; png' does not decode"),
     (
