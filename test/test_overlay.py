@@ -6,6 +6,7 @@ from pathlib import Path
 
 from compressed_bags import compressed_copy
 import cv2
+import imageio.v3 as iio
 import numpy as np
 import pytest
 
@@ -94,10 +95,16 @@ def test_an_image_of_another_size_is_refused_and_the_video_so_far_kept(
     with pytest.raises(InputError, match=match):
         next(frames)
     video = tmp_path / 'v.mp4'
-    with pytest.raises(InputError, match=match):
+    video.write_bytes(b'an earlier video')
+    kept = rf'{match} \(the frames before it are in .*v\.partial\.mp4\)'
+    with pytest.raises(InputError, match=kept):
         write_overlay_video(mixed, states, video, rectify=rectify)
-    capture = cv2.VideoCapture(str(video))
+    assert video.read_bytes() == b'an earlier video'  # not replaced by an incomplete one
+    capture = cv2.VideoCapture(str(tmp_path / 'v.partial.mp4'))
     assert int(capture.get(cv2.CAP_PROP_FRAME_COUNT)) == 2  # the frames before it, readable
+    with pytest.raises(InputError, match=match):
+        write_overlay_video(mixed, states, tmp_path / 'v.gif', rectify=rectify)
+    assert len(iio.imread(tmp_path / 'v.partial.gif', index=None)) == 2
 
 
 def test_a_video_in_a_missing_directory_is_refused_before_any_work(turned, tmp_path):

@@ -125,35 +125,51 @@ def write_overlay_video(
 ) -> int:
     """Write the overlay frames as ``.mp4`` (mp4v) or ``.gif``; returns the number of frames.
 
-    ``rectify``: see :func:`overlay_frames`.
+    ``rectify``: see :func:`overlay_frames`. The video is written beside ``video`` as
+    ``<stem>.partial<suffix>`` and renamed to ``video`` once complete, so an earlier video of
+    that name survives a bag that fails part way; the frames before the failure stay in the
+    partial file, which the error names.
 
     Raises:
         ConfigError: for another file suffix or a directory that does not exist.
-        BagError: if no frame of the bag has a state.
+        BagError: if no frame of the bag has a state, or the bag is damaged part way.
+        InputError: for a frame that cannot be drawn (see :func:`overlay_frames`).
         OSError: if the video cannot be written.
     """
     if not video.parent.is_dir():
         msg = f'video file {video}: no directory {video.parent} to write it in'
         raise ConfigError(msg)
-    frames = overlay_frames(bag, states, topic, every, rectify)
-    if video.suffix == '.gif':
-        images = list(frames)
-        if images:
-            iio.imwrite(video, images, duration=1000 * every / fps, loop=0)
-        count = len(images)
-    elif video.suffix == '.mp4':
-        count = _write_mp4(frames, video, fps / every)
-    else:
+    writers = {'.gif': _write_gif, '.mp4': _write_mp4}
+    if video.suffix not in writers:
         msg = f'video file must end in .mp4 or .gif: {video}'
         raise ConfigError(msg)
+    partial = video.with_name(f'{video.stem}.partial{video.suffix}')
+    frames = overlay_frames(bag, states, topic, every, rectify)
+    try:
+        count = writers[video.suffix](frames, partial, fps / every)
+    except (BagError, InputError) as error:
+        kept = f' (the frames before it are in {partial})' if partial.exists() else ''
+        raise type(error)(f'{error}{kept}') from None
     if not count:
         msg = f'{bag}: no image has a tracking state of the same stamp'
         raise BagError(msg)
+    partial.replace(video)
     return count
 
 
+def _write_gif(frames: Iterator[np.ndarray], video: Path, fps: float) -> int:
+    """Collect rgb frames and write them as a looping GIF, also the ones before a failure."""
+    images: list[np.ndarray] = []
+    try:
+        images.extend(frames)
+    finally:
+        if images:
+            iio.imwrite(video, images, duration=1000 / fps, loop=0)
+    return len(images)
+
+
 def _write_mp4(frames: Iterator[np.ndarray], video: Path, fps: float) -> int:
-    """Stream rgb frames into an MP4 file."""
+    """Stream rgb frames into an MP4 file (closed, and readable, also after a failure)."""
     writer = None
     count = 0
     try:
