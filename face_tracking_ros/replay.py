@@ -24,7 +24,7 @@ from typing import Any, TypeVar
 
 from tqdm import tqdm
 
-from face_tracking_ros.errors import BagError, FaceTrackingError
+from face_tracking_ros.errors import BagError, ConfigError, FaceTrackingError
 from face_tracking_ros.io.bags import BagWriter, bag_topics, message_count, read_messages
 from face_tracking_ros.io.messages import RosbagsMessages
 from face_tracking_ros.io.provenance import KEY as PROVENANCE_KEY
@@ -283,12 +283,21 @@ def replay_bag(
 
     Raises:
         BagError: if the bag cannot be opened or no topic matches the nodes' inputs.
-        ConfigError: for unknown parameters or a node without a processor.
+        ConfigError: for unknown parameters, a node without a processor, or a wanted topic
+            that is not an on-demand output of the nodes.
     """
     factory = RosbagsMessages(typestore())
     processors = [processor_factory(node)(params, factory) for node in nodes]
     params.check_all_used()
     produced = {port.topic for p in processors for port in p.outputs}
+    on_demand = sorted({port.topic for p in processors for port in p.outputs if port.on_demand})
+    unknown = sorted(wanted - set(on_demand))
+    if unknown:
+        msg = (
+            f'{", ".join(unknown)}: not an on-demand output of {", ".join(nodes)} (they have '
+            f'{", ".join(on_demand) or "none"})'
+        )
+        raise ConfigError(msg)
     external = [port for p in processors for port in p.inputs if port.topic not in produced]
     topics = bag_topics(bag)
     topic_map = resolve_inputs(external, topics, remaps or {})

@@ -305,3 +305,16 @@ def test_on_demand_outputs_only_when_wanted(tmp_path):
                 wanted=wanted,
             )
         assert stats.outputs == expected
+
+
+def test_a_misspelt_wanted_or_echoed_topic_is_named(tmp_path, monkeypatch, capsys):
+    _write_images(tmp_path / 'in', 3)
+    monkeypatch.setattr(
+        replay_module, 'processor_factory', lambda _node: lambda _p, _f: MeanProcessor()
+    )
+    replay = ['replay', 'mono_tracker', str(tmp_path / 'in'), '--quiet', '--out']
+    assert main([*replay, str(tmp_path / 'a'), '--want', 'previw']) == 2
+    expected = 'previw: not an on-demand output of mono_tracker (they have preview)'
+    assert expected in capsys.readouterr().err
+    assert main([*replay, str(tmp_path / 'b'), '--echo', 'men']) == 0
+    assert '--echo men: nothing was produced on it (outputs: mean)' in capsys.readouterr().out

@@ -126,6 +126,10 @@ def run(args: argparse.Namespace) -> int:
         wanted=frozenset(args.want),
     )
     print_stats(stats, args.out)
+    produced = ', '.join(topic for topic, count in stats.outputs.items() if count)
+    for topic in args.echo:
+        if not stats.outputs[topic]:
+            print(f'--echo {topic}: nothing was produced on it (outputs: {produced or "none"})')
     return 1 if stats.interrupted or stats.read_error else 0
 
 
