@@ -21,6 +21,7 @@ from face_tracking_ros.io.bags import BagWriter, bag_topics, read_messages
 from face_tracking_ros.io.messages import RosbagsMessages
 from face_tracking_ros.io.typestore import typestore
 from face_tracking_ros.model.model_file import load_model
+from face_tracking_ros.synthetic.clicks import clicks_from_bag, write_init_file
 from face_tracking_ros.tracking.stereo_evaluation import StereoEvaluation
 
 from conftest import REPO
@@ -285,3 +286,14 @@ def test_truth_must_pair_each_tracked_bag_with_the_bag_it_was_tracked_from(tmp_p
     err = capsys.readouterr().err
     assert f'--truth pairs {tracked[0]} with {BAGS[1]}, but it was tracked from {BAGS[0]}' in err
     assert main([*argv, *map(str, BAGS[:2])]) == 0
+
+
+def test_a_bag_without_initialisation_stops_learn_before_any_tracking(tmp_path, capsys):
+    clicks = tmp_path / 'clicks'
+    clicks.mkdir()
+    write_init_file(clicks_from_bag(BAGS[0], 1.0), clicks / f'{BAGS[0].name}.json')
+    argv = ['learn', *map(str, BAGS), '--from-images', '--init-dir', str(clicks),
+            '--out', str(tmp_path / 'm.npz'), '--report', str(tmp_path / 'r.json')]  # fmt: skip
+    assert main(argv) == 2
+    assert f'{BAGS[1]} holds raw stereo images: give its initialisation' in capsys.readouterr().err
+    assert not (tmp_path / 'r_meshes').exists()  # the first bag was not tracked

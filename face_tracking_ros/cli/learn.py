@@ -237,6 +237,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> None:
     """Read, align, learn, evaluate, write."""
     _check_arguments(args)
+    for bag in args.bags:  # every raw bag's initialisation, before minutes of tracking
+        if needs_tracking(bag, bag_topics(bag), args):
+            _initialisation(bag, args)
     rng = np.random.default_rng(args.seed)
     truth_bags = args.truth or [None] * len(args.bags)
     mesh_bags = [mesh_bag(bag, args) for bag in args.bags]
@@ -328,28 +331,8 @@ def mesh_bag(bag: Path, args: argparse.Namespace) -> Path:
             to learn from or ``--from-images`` asks for tracking.
     """
     topics = bag_topics(bag)
-    has_meshes = args.topic or _mesh_topic(topics, args) is not None
-    if not (is_stereo_bag(topics) or args.left_topic):
-        images, _ = image_topics(topics)
-        if args.from_images or (images and not has_meshes):
-            msg = (
-                f'{bag}: no stereo pair found by name among its image topics '
-                f'({", ".join(images) or "none"}): the left and right topics need "left" and '
-                '"right" in their names, else give --left-topic, --right-topic, '
-                '--left-info-topic and --right-info-topic'
-            )
-            raise ConfigError(msg)
+    if not needs_tracking(bag, topics, args):
         return bag  # meshes (or nothing: read_bag_meshes names the missing topic)
-    if has_meshes and not args.from_images:
-        return bag
-    namesakes = [other for other in args.bags if other.name == bag.name and other != bag]
-    if namesakes:
-        msg = (
-            f'{bag} and {namesakes[0]} are both named {bag.name}: the init files and tracked '
-            'meshes of raw stereo bags are named after the bag, so rename one (--subject-pattern '
-            'can still give both the same subject)'
-        )
-        raise ConfigError(msg)
     initialisation = _initialisation(bag, args)
     out = _meshes_dir(args) / bag.name
     compressed = compressed_parameters(topics, [args.left_topic])
@@ -384,6 +367,39 @@ def _print_score(bag: Path, out: Path) -> None:
         print(f'{out}: not scored against the truth of {bag}: {error}')
         return
     print(f'{out} against the truth of {bag}: {evaluation.report()}')
+
+
+def needs_tracking(bag: Path, topics: dict[str, str], args: argparse.Namespace) -> bool:
+    """Whether ``bag`` (of ``topics``) is a raw stereo bag that :func:`mesh_bag` tracks.
+
+    Raises:
+        ConfigError: for a bag of images whose stereo pair is not found by name (and not given)
+            while there are no meshes to learn from or ``--from-images`` asks for tracking, or
+            for two raw stereo bags of one name.
+    """
+    has_meshes = args.topic or _mesh_topic(topics, args) is not None
+    if not (is_stereo_bag(topics) or args.left_topic):
+        images, _ = image_topics(topics)
+        if args.from_images or (images and not has_meshes):
+            msg = (
+                f'{bag}: no stereo pair found by name among its image topics '
+                f'({", ".join(images) or "none"}): the left and right topics need "left" and '
+                '"right" in their names, else give --left-topic, --right-topic, '
+                '--left-info-topic and --right-info-topic'
+            )
+            raise ConfigError(msg)
+        return False
+    if has_meshes and not args.from_images:
+        return False
+    namesakes = [other for other in args.bags if other.name == bag.name and other != bag]
+    if namesakes:
+        msg = (
+            f'{bag} and {namesakes[0]} are both named {bag.name}: the init files and tracked '
+            'meshes of raw stereo bags are named after the bag, so rename one (--subject-pattern '
+            'can still give both the same subject)'
+        )
+        raise ConfigError(msg)
+    return True
 
 
 def _tracked_before(out: Path, inputs: Provenance) -> bool:
