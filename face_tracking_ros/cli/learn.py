@@ -346,8 +346,9 @@ def mesh_bag(bag: Path, args: argparse.Namespace) -> Path:
     stats = replay_bag([TRACKER], bag, out, params, remaps, progress=False)
     if not stats.outputs['face/mesh_raw']:
         shutil.rmtree(out)  # nothing to learn from, and a later run must track it again
-        msg = f'{bag}: the stereo tracker produced no mesh ({dict(stats.errors)})'
-        if any('no calibration' in error for error in stats.errors):
+        problems = '; '.join(f'{count}x {error}' for error, count in stats.errors.items())
+        msg = f'{bag}: the stereo tracker produced no mesh ({problems or "no input problem"})'
+        if stats.errors and all('no calibration' in error for error in stats.errors):
             infos = [topic for topic, kind in topics.items() if kind == CAMERA_INFO_TYPE]
             msg += (
                 '; give the camera_info topics with --left-info-topic and --right-info-topic '

@@ -306,6 +306,10 @@ def _check_model(
     unknown = _unknown_nodes(model, initialisation)
     if unknown:
         raise error(f'{unknown}: model refused')
+    sigma = initialisation.sigma if initialisation else None
+    if sigma is not None and len(sigma) != model.p:
+        msg = f'the initialisation holds {len(sigma)} sigma values, the face model p = {model.p}'
+        raise error(msg)
 
 
 def _unknown_nodes(model: FaceModel, initialisation: Initialisation | None) -> str:

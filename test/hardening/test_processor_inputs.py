@@ -336,6 +336,9 @@ def test_mono_model_file_and_init_file_of_other_node_counts_fail_at_start(scene,
         ConfigError, match=r'19 nodes.*initialisation names 15 nodes \(.*\) it lacks'
     ):
         _mono(scene, frames, _small_model(scene.model))
+    clicks = replace(scene.initialisation(frames[0]), sigma=np.zeros(scene.model.p + 1))
+    with pytest.raises(ConfigError, match=r'holds \d sigma values, the face model p = \d'):
+        MonoProcessor(FACTORY, MonoNodeConfig(), MonoTrackerConfig(), scene.model, clicks)
 
 
 # --- stereo_tracker -----------------------------------------------------------------------------
