@@ -204,7 +204,11 @@ class MonoProcessor:
         if self._held_image is None or self._tracker is None:
             return []
         (header, gray), self._held_image = self._held_image, None
-        return self._track(header, gray, wanted)
+        try:
+            return self._track(header, gray, wanted)
+        except InputError as error:  # the image's problem, not the calibration's
+            msg = f'the image held until the calibration came: {error}'
+            raise InputError(msg) from None
 
     def _set_camera(self, camera: PinholeCamera) -> None:
         """Keep the camera; rebuild the tracker only when the calibration changed.

@@ -270,7 +270,11 @@ class StereoProcessor:
         if self._held_pair is None or self._tracker is None:
             return []
         pair, self._held_pair = self._held_pair, None
-        return self._track(*pair)
+        try:
+            return self._track(*pair)
+        except InputError as error:  # the pair's problem, not the calibration's
+            msg = f'the pair held until the calibration came: {error}'
+            raise InputError(msg) from None
 
     def _set_camera(self, topic: str, camera: PinholeCamera) -> None:
         """Keep a new calibration, unless it does not form a rectified rig with the other one.

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+import zlib
 
 import numpy as np
 
@@ -67,9 +68,13 @@ def write_init_file(init: Initialisation, path: Path) -> Path:
 
 
 def clicks_from_bag(
-    bag: Path, noise_px: float = DEFAULT_CLICK_NOISE_PX, seed: int = 0
+    bag: Path, noise_px: float = DEFAULT_CLICK_NOISE_PX, seed: int | None = None
 ) -> Initialisation:
     """Simulated clicks on the first frame of a synthetic bag (left camera for stereo).
+
+    The noise is drawn from ``seed``; None (the default) seeds it from the bag's name, so that
+    the clicks of different bags err independently, as a user's would, and those of one bag are
+    the same in every run.
 
     Raises:
         BagError: if the bag has no truth or no camera_info of the clicked camera.
@@ -91,4 +96,5 @@ def clicks_from_bag(
     truth = conversions.truth_from_msg(first[truth_topic])
     camera = conversions.camera_from_info(first[info_topic])
     names = tuple(first[truth_topic].node_names)
-    return simulated_clicks(names, truth.nodes, camera, noise_px, np.random.default_rng(seed))
+    draw = zlib.crc32(bag.name.encode()) if seed is None else seed
+    return simulated_clicks(names, truth.nodes, camera, noise_px, np.random.default_rng(draw))

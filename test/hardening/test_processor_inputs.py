@@ -508,6 +508,17 @@ def test_stereo_waits_for_both_calibrations_holding_the_latest_pair(pairs, stere
     np.testing.assert_array_equal(_mesh(outputs), stereo_reference[0])
 
 
+def test_a_held_pair_s_own_problem_is_named_as_the_pair_s_when_the_calibration_comes(pairs):
+    processor = _stereo(pairs)
+    bad_right = _raw_image(320, 240, '16UC1', 640, np.zeros(640 * 240), stamp(0))
+    with pytest.raises(InputError, match='no calibration on left/camera_info and right'):
+        _pair(processor, pairs, 0, right=bad_right)
+    assert processor.handle('left/camera_info', info_msg(RIG.left), NONE) == []
+    expected = "the pair held until the calibration came: unsupported image encoding '16UC1'"
+    with pytest.raises(InputError, match=expected):
+        processor.handle('right/camera_info', info_msg(RIG.right), NONE)
+
+
 def test_stereo_pairs_equal_stamps_only_and_says_why_nothing_pairs(pairs):
     """Cameras 2 ms apart never pair by default; the processor says so once images drop."""
     processor = _stereo(pairs)
