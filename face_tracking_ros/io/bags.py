@@ -25,7 +25,7 @@ import struct
 from types import TracebackType
 from typing import Any, NamedTuple, Protocol
 
-from mcap.exceptions import McapError
+from mcap.exceptions import EndOfFile, McapError
 from mcap.records import Channel, Message, Schema
 from mcap.stream_reader import StreamReader
 from rosbags.rosbag2 import Reader, ReaderError, StoragePlugin, Writer, WriterError
@@ -279,6 +279,9 @@ def _open_reader(path: Path) -> Reader | None:
     except _READ_ERRORS as error:
         if _mcap_files(path):
             return None
+        if path.is_dir() and not (path / 'metadata.yaml').exists():
+            msg = f'{path}: not a rosbag2 bag (no metadata.yaml and no .mcap file in it)'
+            raise BagError(msg) from None
         raise BagError(f'{path}: cannot read bag: {type(error).__name__}: {error}') from None
     return reader
 
@@ -324,10 +327,12 @@ def _stream_records(path: Path, topics: Iterable[str] | None) -> Iterator[RawMes
                             count += 1
                             yield RawMessage(topic, msgtype, record.log_time, record.data, msgdef)
         except (McapError, *_READ_ERRORS) as error:
-            message = (
-                f'{file}: damaged MCAP file, {count} messages recovered before: '
-                f'{type(error).__name__}: {error}'
+            damage = (
+                'the file ends part way (truncated)'
+                if isinstance(error, EndOfFile)
+                else f'{type(error).__name__}: {error}'
             )
+            message = f'{file}: damaged MCAP file, {count} messages recovered before: {damage}'
             raise BagError(message) from None
     missing = (wanted or set()) - {topic for topic, _, _ in channels.values()}
     if missing:
