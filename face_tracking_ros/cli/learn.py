@@ -237,12 +237,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> None:
     """Read, align, learn, evaluate, write."""
     _check_arguments(args)
-    for bag in args.bags:  # every raw bag's initialisation, before minutes of tracking
-        if needs_tracking(bag, bag_topics(bag), args):
-            _initialisation(bag, args)
+    initialisations = {  # every raw bag's, before minutes of tracking
+        bag: _initialisation(bag, args)
+        for bag in args.bags
+        if needs_tracking(bag, bag_topics(bag), args)
+    }
     rng = np.random.default_rng(args.seed)
     truth_bags = args.truth or [None] * len(args.bags)
-    mesh_bags = [mesh_bag(bag, args) for bag in args.bags]
+    mesh_bags = [mesh_bag(bag, args, initialisations.get(bag)) for bag in args.bags]
     truth_bags = [
         bag if mesh is not bag and has_truth(bag) else truth
         for bag, mesh, truth in zip(args.bags, mesh_bags, truth_bags, strict=True)
@@ -314,7 +316,7 @@ def run(args: argparse.Namespace) -> None:
     print(f'report written to {args.report}')
 
 
-def mesh_bag(bag: Path, args: argparse.Namespace) -> Path:
+def mesh_bag(bag: Path, args: argparse.Namespace, initialisation: str | None = None) -> Path:
     """The bag of 3-D meshes to learn from: ``bag`` itself, or its stereo tracking.
 
     A raw stereo bag (left and right images, Image or CompressedImage, found by their names or
@@ -324,16 +326,19 @@ def mesh_bag(bag: Path, args: argparse.Namespace) -> Path:
     ``--init-dir/<bag name>.{yaml,json}``, ``--auto-init`` or, for synthetic bags,
     ``--simulate-clicks``. By default every mesh carries the frame-1 depths refined over its
     whole track (the processor's ``retroactive_depths``); ``--tracker-param`` overrides it.
+    ``initialisation`` is that stereo_tracker parameter when already known
+    (:func:`_initialisation`). Meshes an earlier run tracked from the same inputs are re-used
+    (:func:`_tracked_before`).
 
     Raises:
-        ConfigError: for a raw stereo bag without a way to initialise it, or a bag of images
-            whose stereo pair is not found by name (and not given) while there are no meshes
-            to learn from or ``--from-images`` asks for tracking.
+        ConfigError: for a raw stereo bag without a way to initialise it, or one that
+            :func:`needs_tracking` refuses.
+        BagError: if the tracker produced no mesh (the input problems named).
     """
     topics = bag_topics(bag)
     if not needs_tracking(bag, topics, args):
         return bag  # meshes (or nothing: read_bag_meshes names the missing topic)
-    initialisation = _initialisation(bag, args)
+    initialisation = initialisation or _initialisation(bag, args)
     out = _meshes_dir(args) / bag.name
     compressed = compressed_parameters(topics, [args.left_topic])
     params = OverrideParameters.parse(
