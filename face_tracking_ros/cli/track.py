@@ -242,9 +242,10 @@ def run(args: argparse.Namespace) -> int:
     if not np.any(states == TrackStatus.TRACKING):
         print('no image was tracked (the input problems or last_reason above say why)')
         return 1
-    if stats.read_error and has_truth(args.bag):
+    scored = has_truth(args.bag)
+    if scored and stats.read_error:
         print('not scored against the truth: the bag is damaged (above)')
-    elif has_truth(args.bag):
+    elif scored:
         if node == 'stereo_tracker':
             evaluation = score_stereo_against_truth(args.bag, args.out)
             print(evaluation.report())

@@ -2,8 +2,9 @@
 
 The arrays go to a temporary file beside the target, which is synced and then renamed over the
 target (:func:`os.replace`, atomic on POSIX). The file gets the usual permissions of a new file
-(0666 less the umask), not the private mode temporary files are created with. They are read
-back, pickle-free, by :func:`read_npz`, whose errors say what the file is instead.
+(0666 less the umask), not the private mode temporary files are created with.
+:func:`read_npz` reads them back, refusing pickled objects, with errors that say what is wrong
+with the file.
 """
 
 from __future__ import annotations
