@@ -21,6 +21,7 @@ from face_tracking_ros.io.bags import BagWriter, bag_topics, read_messages
 from face_tracking_ros.io.messages import RosbagsMessages
 from face_tracking_ros.io.typestore import typestore
 from face_tracking_ros.model.model_file import load_model
+from face_tracking_ros.replay import ReplayStats
 from face_tracking_ros.synthetic.clicks import clicks_from_bag, write_init_file
 from face_tracking_ros.tracking.stereo_evaluation import StereoEvaluation
 
@@ -297,3 +298,15 @@ def test_a_bag_without_initialisation_stops_learn_before_any_tracking(tmp_path, 
     assert main(argv) == 2
     assert f'{BAGS[1]} holds raw stereo images: give its initialisation' in capsys.readouterr().err
     assert not (tmp_path / 'r_meshes').exists()  # the first bag was not tracked
+
+
+def test_an_interrupted_tracking_stops_learn(tmp_path, monkeypatch, capsys):
+    def interrupted(*_args, **_kwargs) -> ReplayStats:  # Ctrl-C during the first bag's replay
+        return ReplayStats(interrupted=True)
+
+    monkeypatch.setattr(learn, 'replay_bag', interrupted)
+    argv = ['learn', *map(str, BAGS), '--from-images', '--simulate-clicks', '1.0',
+            '--out', str(tmp_path / 'm.npz'), '--report', str(tmp_path / 'r.json')]  # fmt: skip
+    assert main(argv) == 130
+    assert capsys.readouterr().err == 'interrupted\n'
+    assert not (tmp_path / 'm.npz').exists()

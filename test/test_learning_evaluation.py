@@ -117,6 +117,10 @@ def test_recognition_measures_on_separable_data():
     assert expression_accuracy(alpha, labels, subjects) == 1.0
     shuffled = rng.permutation(labels)
     assert expression_accuracy(alpha, shuffled, subjects) < 0.5
+    # Two subjects: leaving out the one that smiles leaves only neutral frames to learn from.
+    pair = subjects[:80]
+    one_sided = np.where(pair == 0, 'neutral', labels[:80])
+    assert np.isnan(expression_accuracy(alpha[:80], one_sided, pair))
 
 
 @pytest.fixture(scope='module')

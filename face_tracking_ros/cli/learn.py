@@ -349,6 +349,8 @@ def mesh_bag(bag: Path, args: argparse.Namespace, initialisation: str | None = N
         return out
     print(f'{bag}: raw stereo images: tracking them into {out}')
     stats = replay_bag([TRACKER], bag, out, params, remaps, progress=False)
+    if stats.interrupted:  # the meshes so far stay, and a later run tracks the bag again
+        raise KeyboardInterrupt
     if not stats.outputs['face/mesh_raw']:
         shutil.rmtree(out)  # nothing to learn from, and a later run must track it again
         problems = '; '.join(f'{count}x {error}' for error, count in stats.errors.items())

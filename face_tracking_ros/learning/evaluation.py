@@ -371,11 +371,14 @@ def expression_accuracy(
     """Expression from alpha: nearest label centroid, leave one subject out.
 
     Centroids of every label are computed on the other subjects' frames and each frame of the
-    held-out subject gets the nearest one; the figure is the share of correct frames.
+    held-out subject gets the nearest one; the figure is the share of correct frames. NaN when
+    the other subjects of some held-out one show a single label: nothing to tell apart.
     """
     correct = 0
     for s in np.unique(subject_index):
         test = subject_index == s
+        if len(np.unique(labels[~test])) < 2:
+            return float('nan')
         classifier = NearestCentroid().fit(frame_alpha[~test], labels[~test])
         correct += int(np.sum(classifier.predict(frame_alpha[test]) == labels[test]))
     return correct / len(labels)
