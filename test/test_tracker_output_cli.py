@@ -6,10 +6,11 @@ from pathlib import Path
 import shutil
 
 import numpy as np
+from rosbags.rosbag2 import StoragePlugin, Writer
 
 from face_tracking_ros.cli.main import main
 from face_tracking_ros.io import conversions
-from face_tracking_ros.io.bags import BagWriter, read_messages
+from face_tracking_ros.io.bags import BagWriter, bag_topics, read_messages
 from face_tracking_ros.io.messages import RosbagsMessages
 from face_tracking_ros.io.typestore import typestore
 from face_tracking_ros.recognition.identity import IdentityGallery
@@ -119,3 +120,28 @@ def test_outputs_that_exist_or_options_out_of_range_are_refused_before_any_work(
     video = ['overlay', str(mono), str(states), '--video', str(tmp_path / 'v.mp4')]
     assert main([*video, '--every', '0']) == 2
     assert '--every must be >= 1, got 0' in capsys.readouterr().err
+
+
+def test_a_camera_info_topic_without_messages_is_named_not_a_traceback(tmp_path, capsys):
+    """ros2 bag record keeps a topic whose publisher never sent: declared, no message."""
+    source = REPO / 'bags' / 'stereo_train' / 'subject_00_seq_00'
+    bag = tmp_path / 'empty_info'
+    with Writer(bag, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
+        store = typestore()
+        connections = {
+            topic: writer.add_connection(topic, msgtype, typestore=store)
+            for topic, msgtype in bag_topics(source).items()
+        }
+        for message in read_messages(source):
+            if message.topic != 'left/camera_info':
+                data = store.serialize_cdr(message.msg, message.msgtype)
+                writer.write(connections[message.topic], message.stamp_ns, data)
+    out = tmp_path / 'o'
+    assert main(['track', str(bag), '--simulate-clicks', '1', '--out', str(out)]) == 2
+    expected = 'simulated clicks need a message on left/camera_info, which has none'
+    assert expected in capsys.readouterr().err
+    tracked = tmp_path / 'tracked'  # the same pairs, tracked with their calibration
+    assert main(['track', str(source), '--simulate-clicks', '0', '--out', str(tracked)]) == 0
+    video = ['overlay', str(bag), str(tracked), '--video', str(tmp_path / 'v.mp4')]
+    assert main(video) == 0  # drawn as recorded: no calibration to rectify with
+    assert 'wrote 10 frames' in capsys.readouterr().out

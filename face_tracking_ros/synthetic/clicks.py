@@ -93,6 +93,10 @@ def clicks_from_bag(
         first.setdefault(message.topic, message.msg)
         if len(first) == 2:
             break
+    empty = [topic for topic in (info_topic, truth_topic) if topic not in first]
+    if empty:
+        msg = f'{bag}: simulated clicks need a message on {" and ".join(empty)}, which has none'
+        raise BagError(msg)
     truth = conversions.truth_from_msg(first[truth_topic])
     camera = conversions.camera_from_info(first[info_topic])
     names = tuple(first[truth_topic].node_names)

@@ -78,8 +78,9 @@ def overlay_frames(
     info = camera_info_topic(bag, chosen) if rectify else None
     cameras = conversions.CameraInfoReader()
     rectifier = None
-    if info is not None:  # from the first frame on, even if its camera_info comes after it
-        rectifier = Rectifier(cameras.read(next(read_messages(bag, topics=[info])).msg))
+    first_info = next(read_messages(bag, topics=[info]), None) if info is not None else None
+    if first_info is not None:  # from the first frame on, even if its camera_info comes after it
+        rectifier = Rectifier(cameras.read(first_info.msg))
     count, size = -1, None
     for message in read_messages(bag, topics=[chosen, *([info] if info else [])]):
         if message.topic == info:
