@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 import shutil
 
@@ -145,3 +146,22 @@ def test_a_camera_info_topic_without_messages_is_named_not_a_traceback(tmp_path,
     video = ['overlay', str(bag), str(tracked), '--video', str(tmp_path / 'v.mp4')]
     assert main(video) == 0  # drawn as recorded: no calibration to rectify with
     assert 'wrote 10 frames' in capsys.readouterr().out
+
+
+def test_a_stereo_bag_whose_first_right_calibration_is_void_is_scored_with_the_next(
+    tmp_path, capsys
+):
+    source = REPO / 'bags' / 'stereo_train' / 'subject_00_seq_00'
+    bag = tmp_path / 'first_void'
+    first = True
+    with BagWriter(bag) as writer:
+        for message in read_messages(source):
+            msg = message.msg
+            if message.topic == 'right/camera_info' and first:
+                msg, first = replace(msg, k=np.zeros(9)), False  # refused by the tracker too
+            writer.write(message.topic, message.msgtype, msg, message.stamp_ns)
+    argv = ['track', str(bag), '--simulate-clicks', '0', '--out', str(tmp_path / 'o')]
+    assert main([*argv, '--quiet']) == 0
+    printed = capsys.readouterr().out
+    assert '1x right/camera_info: camera_info has an all-zero K' in printed
+    assert '9 frames, 100% tracked: 3-D node RMS' in printed

@@ -44,7 +44,7 @@ from face_tracking_ros.cli.track import (
     stereo_topics,
     tracked_nodes,
 )
-from face_tracking_ros.errors import BagError, ConfigError, InputError
+from face_tracking_ros.errors import BagError, ConfigError, FaceTrackingError, InputError
 from face_tracking_ros.io.bags import bag_topics, read_messages
 from face_tracking_ros.io.conversions import (
     TruthSample,
@@ -371,7 +371,7 @@ def _print_score(bag: Path, out: Path) -> None:
     """Print how the meshes tracked into ``out`` compare with the truth in ``bag``."""
     try:
         evaluation = score_stereo_against_truth(bag, out)
-    except BagError as error:  # e.g. camera_info topics not named left / right
+    except FaceTrackingError as error:  # e.g. camera_info topics not named left / right
         print(f'{out}: not scored against the truth of {bag}: {error}')
         return
     print(f'{out} against the truth of {bag}: {evaluation.report()}')

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 from collections.abc import Iterable, Mapping
+import contextlib
 from dataclasses import asdict
 import json
 from pathlib import Path
@@ -18,8 +19,8 @@ import numpy as np
 
 from face_tracking_ros.cli.replay import add_replay_options, parse_remaps, print_stats
 from face_tracking_ros.data import default_model_path
-from face_tracking_ros.errors import BagError, ConfigError
-from face_tracking_ros.geometry.camera import StereoRig
+from face_tracking_ros.errors import BagError, ConfigError, InputError
+from face_tracking_ros.geometry.camera import PinholeCamera, StereoRig
 from face_tracking_ros.io.bags import bag_topics, read_messages
 from face_tracking_ros.io.conversions import camera_from_info
 from face_tracking_ros.io.series import has_truth, load_states, load_truth
@@ -288,22 +289,27 @@ def score_stereo_against_truth(bag: Path, out: Path) -> StereoEvaluation:
 
 
 def stereo_rig(bag: Path) -> StereoRig:
-    """The rig of a stereo bag, from the first left and right camera_info.
+    """The rig of a stereo bag, from the first valid left and right camera_info.
 
     Raises:
         BagError: if the bag lacks them.
+        InputError: if they do not form a rectified rig.
     """
-    infos = {t: None for t, kind in bag_topics(bag).items() if kind == CAMERA_INFO_TYPE}
-    for message in read_messages(bag, topics=list(infos)):
-        infos[message.topic] = infos[message.topic] or message.msg
-        if all(infos.values()):
+    cameras: dict[str, PinholeCamera | None] = {
+        topic: None for topic, kind in bag_topics(bag).items() if kind == CAMERA_INFO_TYPE
+    }
+    for message in read_messages(bag, topics=list(cameras)):
+        if cameras[message.topic] is None:
+            with contextlib.suppress(InputError):  # e.g. an all-zero K: the tracker skips it too
+                cameras[message.topic] = camera_from_info(message.msg)
+        if all(cameras.values()):
             break
-    left = next((m for t, m in infos.items() if 'left' in t and m is not None), None)
-    right = next((m for t, m in infos.items() if 'right' in t and m is not None), None)
+    left = next((c for t, c in cameras.items() if 'left' in t and c is not None), None)
+    right = next((c for t, c in cameras.items() if 'right' in t and c is not None), None)
     if left is None or right is None:
-        msg = f'{bag}: no left and right camera_info to build the stereo rig'
+        msg = f'{bag}: no valid left and right camera_info to build the stereo rig'
         raise BagError(msg)
-    return StereoRig(camera_from_info(left), camera_from_info(right))
+    return StereoRig(left, right)
 
 
 def _matching_frames(
