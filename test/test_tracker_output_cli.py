@@ -13,6 +13,7 @@ from face_tracking_ros.cli.main import main
 from face_tracking_ros.io import conversions
 from face_tracking_ros.io.bags import BagWriter, bag_topics, read_messages
 from face_tracking_ros.io.messages import RosbagsMessages
+from face_tracking_ros.io.series import load_states
 from face_tracking_ros.io.typestore import typestore
 from face_tracking_ros.recognition.identity import IdentityGallery
 from face_tracking_ros.synthetic.clicks import clicks_from_bag, write_init_file
@@ -165,3 +166,10 @@ def test_a_stereo_bag_whose_first_right_calibration_is_void_is_scored_with_the_n
     printed = capsys.readouterr().out
     assert '1x right/camera_info: camera_info has an all-zero K' in printed
     assert '9 frames, 100% tracked: 3-D node RMS' in printed
+
+
+def test_a_frame_without_estimates_reads_as_nan_among_frames_with_them(tmp_path):
+    """A stereo_tracker with a model publishes no alpha or sigma for a pair it could not fit."""
+    sigmas = [np.array([0.01, 0.02]), np.zeros(0), np.array([0.03, 0.04])]
+    states = load_states(_states(tmp_path / 'gap', sigmas))
+    np.testing.assert_array_equal(states.sigma, [[0.01, 0.02], [np.nan, np.nan], [0.03, 0.04]])

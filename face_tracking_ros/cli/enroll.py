@@ -50,7 +50,7 @@ def run(args: argparse.Namespace) -> None:
 
 
 def tracked_sigmas(bags: list[Path]) -> np.ndarray:
-    """(M, p) sigma of the TRACKING frames of tracker output bags.
+    """(M, p) sigma of the TRACKING frames of tracker output bags (those with a sigma).
 
     Raises:
         BagError: if no frame of the bags was tracked, or the states carry no sigma.
@@ -58,7 +58,10 @@ def tracked_sigmas(bags: list[Path]) -> np.ndarray:
     series = [load_states(bag) for bag in bags]
     for bag, states in zip(bags, series, strict=True):
         require_parameters(bag, {'sigma': states.sigma.shape[1]})
-    sigmas = [s.sigma[s.status == TrackStatus.TRACKING] for s in series]
+    sigmas = [
+        s.sigma[(s.status == TrackStatus.TRACKING) & np.all(np.isfinite(s.sigma), axis=1)]
+        for s in series
+    ]
     stacked = np.concatenate(sigmas) if sigmas else np.zeros((0, 0))
     if not len(stacked):
         msg = f'no TRACKING frame in {", ".join(map(str, bags))}: nothing to enrol'

@@ -112,17 +112,23 @@ def load_states(bag: Path, topic: str | None = None) -> StateSeries:
 
 
 def _stacked(values: list[np.ndarray], where: str, field: str) -> np.ndarray:
-    """One row per message; a message whose field has another shape than the first's is named.
+    """One row per message; an empty field (a frame without that estimate) is a NaN row.
 
     Raises:
-        BagError: naming the message and both shapes.
+        BagError: naming a message whose field has another non-empty shape than the others.
     """
     shapes = [np.shape(value) for value in values]
-    odd = next((i for i, shape in enumerate(shapes) if shape != shapes[0]), None)
+    given = [i for i, value in enumerate(values) if np.size(value)]
+    if not given:
+        return np.array(values, dtype=float)
+    first = shapes[given[0]]
+    odd = next((i for i in given if shapes[i] != first), None)
     if odd is not None:
-        msg = f'{where} message {odd}: {field} has shape {shapes[odd]}, message 0 {shapes[0]}'
+        msg = f'{where} message {odd}: {field} has shape {shapes[odd]}, message {given[0]} {first}'
         raise BagError(msg)
-    return np.array(values, dtype=float)
+    rows = np.full((len(values), *first), np.nan)
+    rows[given] = [values[i] for i in given]
+    return rows
 
 
 def load_truth(bag: Path) -> TruthSeries:
