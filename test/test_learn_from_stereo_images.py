@@ -74,6 +74,10 @@ def test_learn_again_re_uses_the_meshes_tracked_from_the_same_inputs(tmp_path, c
     assert main([*argv, '--simulate-clicks', '2.0']) == 0  # another initialisation
     assert 'an earlier run tracked it from other inputs: tracking again' in capsys.readouterr().out
     assert (meshes / 'metadata.yaml').stat().st_mtime_ns != tracked
+    (meshes / 'metadata.yaml').unlink()  # as a run killed (SIGKILL) before closing the bag
+    assert main(argv) == 0
+    assert 'stopped before it closed the bag: tracking again' in capsys.readouterr().out
+    assert (meshes / 'metadata.yaml').exists()
     foreign = tmp_path / 'other'
     (foreign / 'report_meshes' / BAGS[0].name).mkdir(parents=True)
     argv[-1] = str(foreign / 'report.json')

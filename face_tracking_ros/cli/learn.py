@@ -413,13 +413,19 @@ def needs_tracking(bag: Path, topics: dict[str, str], args: argparse.Namespace) 
 def _tracked_before(out: Path, inputs: Provenance) -> bool:
     """Whether ``out`` holds meshes an earlier run tracked from these inputs, to re-use.
 
-    An earlier tracking of the same bag from other inputs (or one that did not finish) is
-    removed, to be tracked again.
+    An earlier tracking of the same bag from other inputs, one that did not finish, or one
+    whose bag was never closed (no metadata.yaml: the process was killed) is removed, to be
+    tracked again.
 
     Raises:
         ConfigError: if ``out`` exists but is not such a tracking (not ours to remove).
     """
     if not out.exists():
+        return False
+    files = list(out.iterdir()) if out.is_dir() else []
+    if files and all(file.suffix == '.mcap' for file in files):  # a writer killed before closing
+        print(f'{out}: an earlier run was stopped before it closed the bag: tracking again')
+        shutil.rmtree(out)
         return False
     earlier = Provenance.read(out)
     if earlier is None or earlier.source != inputs.source:
