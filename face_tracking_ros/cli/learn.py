@@ -33,6 +33,7 @@ from typing import Any
 
 import numpy as np
 
+from face_tracking_ros.cli.replay import print_stats
 from face_tracking_ros.cli.track import (
     CAMERA_INFO_TYPE,
     add_stereo_topic_options,
@@ -351,6 +352,7 @@ def mesh_bag(bag: Path, args: argparse.Namespace, initialisation: str | None = N
     stats = replay_bag([TRACKER], bag, out, params, remaps, progress=False)
     if stats.interrupted:  # the meshes so far stay, and a later run tracks the bag again
         raise KeyboardInterrupt
+    print_stats(stats, out)
     if not stats.outputs['face/mesh_raw']:
         shutil.rmtree(out)  # nothing to learn from, and a later run must track it again
         problems = '; '.join(f'{count}x {error}' for error, count in stats.errors.items())

@@ -26,6 +26,7 @@ clears the pairing queues, and the new track starts with the pair of that image.
 from __future__ import annotations
 
 from collections import OrderedDict
+from collections.abc import Iterable
 from dataclasses import dataclass, replace
 from typing import Any
 
@@ -180,6 +181,7 @@ class StereoProcessor:
         self._ended_outputs: list[Output] = []  # held outputs of the tracks that ended
         self._last_stamp: int | None = None
         self.unpaired = 0
+        self._unpaired_gap_ns: int | None = None  # nearest other-camera stamp to a dropped image
         self._paired = False  # whether any left and right images have paired
         self._counts = TrackCounts('pairs')
         image_type, image_topics = (
@@ -219,10 +221,14 @@ class StereoProcessor:
 
         See :class:`~face_tracking_ros.processing.base.Reporting`: the pairs per status and the
         last reason (:class:`~face_tracking_ros.processing.track_counts.TrackCounts`),
-        ``unpaired_images``, and once a tracker runs ``right_gain`` and ``right_row_offset_px``
+        ``unpaired_images`` with, if any, ``unpaired_nearest_ms`` (how near the other camera's
+        stamps came to one of them: more than ``pairing_tolerance_ms`` means unsynchronised
+        cameras), and once a tracker runs ``right_gain`` and ``right_row_offset_px``
         (:class:`StereoTracker`'s).
         """
         report = {**self._counts.report(), 'unpaired_images': str(self.unpaired)}
+        if self._unpaired_gap_ns is not None:
+            report['unpaired_nearest_ms'] = f'{self._unpaired_gap_ns / 1e6:.3f}'
         if self._tracker is not None:
             report['right_gain'] = f'{self._tracker.right_gain:.3f}'
             report['right_row_offset_px'] = f'{self._tracker.right_row_offset:.2f}'
@@ -235,9 +241,11 @@ class StereoProcessor:
         track applied (:meth:`StereoTracker.with_final_depths`); without the option there is
         nothing to emit. Images still waiting for a partner are counted as unpaired.
         """
-        for queue in self._waiting.values():
-            self.unpaired += len(queue)
-            queue.clear()
+        left, right = self._waiting[LEFT_IMAGE], self._waiting[RIGHT_IMAGE]
+        self._unpair(list(left), right)
+        self._unpair(list(right), left)
+        left.clear()
+        right.clear()
         self._end_track()
         outputs, self._ended_outputs = self._ended_outputs, []
         return outputs
@@ -372,15 +380,14 @@ class StereoProcessor:
         partner = self._partner(stamp, other)
         if partner is not None:
             match = other.pop(partner)
-            self._drop_older(queue, stamp)
-            self._drop_older(other, partner)
+            self._drop_older(queue, stamp, other)
+            self._drop_older(other, partner, queue)
             self._paired = True
             return (msg, match) if topic == LEFT_IMAGE else (match, msg)
         queue[stamp] = msg
         dropped = len(queue) > self._config.pairing_queue
         while len(queue) > self._config.pairing_queue:
-            queue.popitem(last=False)
-            self.unpaired += 1
+            self._unpair([queue.popitem(last=False)[0]], other)
         if dropped and not self._paired and other:
             gap_ms = min(abs(mine - theirs) for mine in queue for theirs in other) / 1e6
             msg_text = (
@@ -404,12 +411,22 @@ class StereoProcessor:
         nearest = min(waiting, key=lambda other: abs(other - stamp), default=None)
         return nearest if nearest is not None and abs(nearest - stamp) <= tolerance_ns else None
 
-    def _drop_older(self, queue: OrderedDict[int, Any], stamp: int) -> None:
+    def _drop_older(
+        self, queue: OrderedDict[int, Any], stamp: int, other: OrderedDict[int, Any]
+    ) -> None:
         """Drop (and count) the images of ``queue`` stamped before ``stamp``: they never pair."""
         stale = [s for s in queue if s < stamp]
-        self.unpaired += len(stale)
+        self._unpair(stale, [*other, stamp])
         for s in stale:
             del queue[s]
+
+    def _unpair(self, stamps: list[int], others: Iterable[int]) -> None:
+        """Count images (their ``stamps``) that never pair; keep how near ``others`` came."""
+        self.unpaired += len(stamps)
+        gaps = [abs(mine - theirs) for mine in stamps for theirs in others]
+        if gaps:
+            known = self._unpaired_gap_ns
+            self._unpaired_gap_ns = min(gaps) if known is None else min(known, *gaps)
 
     def _track(self, left_msg: Any, right_msg: Any) -> list[Output]:
         if not self._can_initialise:
