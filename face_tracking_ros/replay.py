@@ -74,8 +74,9 @@ def resolve_inputs(
 
     A port is matched by an override (port topic -> bag topic, with or without the leading
     '/' the bag's name has), else by the bag topic that ends with the port's name, else by the
-    only bag topic of the port's message type. Ports with no match are left out (e.g. an
-    optional ``face/model``).
+    only bag topic of the port's message type if no other port took it by name (a bag with only
+    ``left/camera_info`` feeds the left port, not the right one too). Ports with no match are
+    left out (e.g. an optional ``face/model``).
 
     Args:
         ports: the processor's input ports.
@@ -88,10 +89,16 @@ def resolve_inputs(
     Raises:
         BagError: if an override names a topic the bag lacks or of the wrong type.
     """
+    ports = list(ports)
+    named = {port.topic: _named(port, bag_topics) for port in ports}
     mapping: dict[str, str] = {}
     for port in ports:
         given = overrides.get(port.topic)
-        bag_topic = bag_spelling(given, bag_topics) if given else _match(port, bag_topics)
+        bag_topic = (
+            bag_spelling(given, bag_topics)
+            if given
+            else named[port.topic] or _only_of_type(port, bag_topics, set(named.values()))
+        )
         if bag_topic is None:
             continue
         if bag_topics.get(bag_topic) != port.msgtype:
@@ -110,13 +117,20 @@ def bag_spelling(topic: str, bag_topics: Mapping[str, str]) -> str:
     return other if topic not in bag_topics and other in bag_topics else topic
 
 
-def _match(port: Port, bag_topics: Mapping[str, str]) -> str | None:
-    """The bag topic that ends with the port name, else the only one of the port's type."""
+def _named(port: Port, bag_topics: Mapping[str, str]) -> str | None:
+    """The one bag topic of the port's type whose name ends with the port's, if any."""
+    by_name = [
+        topic
+        for topic, msgtype in bag_topics.items()
+        if msgtype == port.msgtype and topic.strip('/').endswith(port.topic)
+    ]
+    return by_name[0] if len(by_name) == 1 else None
+
+
+def _only_of_type(port: Port, bag_topics: Mapping[str, str], taken: set[str | None]) -> str | None:
+    """The bag's only topic of the port's type, unless another port has it by name."""
     of_type = [topic for topic, msgtype in bag_topics.items() if msgtype == port.msgtype]
-    by_name = [topic for topic in of_type if topic.strip('/').endswith(port.topic)]
-    if len(by_name) == 1:
-        return by_name[0]
-    return of_type[0] if len(of_type) == 1 else None
+    return of_type[0] if len(of_type) == 1 and of_type[0] not in taken else None
 
 
 def replay(

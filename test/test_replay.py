@@ -85,6 +85,14 @@ def test_inputs_match_by_name_then_by_type():
     assert resolve_inputs(ports, topics, {}) == {'/cam/image': 'image', '/cam/info': 'camera_info'}
 
 
+def test_a_topic_another_port_has_by_name_is_not_matched_by_type_too():
+    info = 'sensor_msgs/msg/CameraInfo'
+    ports = [Port('left/camera_info', info), Port('right/camera_info', info)]
+    assert resolve_inputs(ports, {'/stereo/left/camera_info': info}, {}) == {
+        '/stereo/left/camera_info': 'left/camera_info'  # the right port stays without
+    }
+
+
 def test_ambiguous_topics_are_left_unmatched():
     topics = {'/a/raw': IMAGE, '/b/raw': IMAGE}
     assert resolve_inputs([Port('image', IMAGE)], topics, {}) == {}
