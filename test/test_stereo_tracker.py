@@ -631,3 +631,15 @@ def test_depth_refinement_ignores_views_that_disagree() -> None:
     # The gate closes at once: no node moves, none gains information.
     assert not np.any(refinement.correction)
     np.testing.assert_array_equal(refinement.information, np.full(34, 1.0 / 0.002**2))
+
+
+def test_a_pair_whose_projections_are_not_rectified_is_refused_by_name() -> None:
+    right = RIG.right
+    wider = replace(right, p=right.p * np.array([[1.2], [1.0], [1.0]]))  # fx 720 against 600
+    with pytest.raises(InputError, match=r'left and right P differ in fx \(600 and 720\)'):
+        StereoRig(RIG.left, wider)
+    lower = right.p.copy()
+    lower[1, 3] = -6.0  # a vertical baseline
+    with pytest.raises(InputError, match=r'P\[1,3\] must be 0 \(a horizontal baseline\)'):
+        StereoRig(RIG.left, replace(right, p=lower))
+    assert StereoRig(RIG.left, RIG.with_right_rows_shifted(0.3).right).baseline == RIG.baseline

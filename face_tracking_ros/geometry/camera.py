@@ -229,6 +229,12 @@ class PinholeCamera:
         }
 
 
+# Shared by both views of a rectified pair. (cy may differ: a row offset the tracker measures
+# and corrects, StereoRig.with_right_rows_shifted; cx may too, as stereoRectify leaves it.)
+RECTIFIED_SHARED = {(0, 0): 'fx', (1, 1): 'fy'}
+RECTIFIED_TOLERANCE = 1e-4  # relative
+
+
 @dataclass(frozen=True)
 class StereoRig:
     """A rectified stereo pair: both cameras share R and intrinsics; the right one has Tx != 0.
@@ -247,6 +253,17 @@ class StereoRig:
             same_size, f'left {left.width}x{left.height} != right {right.width}x{right.height}'
         )
         _require(right.p[0, 3] < 0, 'right P[0,3] must be -fx*B < 0 for a rectified stereo pair')
+        for (row, col), name in RECTIFIED_SHARED.items():
+            mine, theirs = left.p[row, col], right.p[row, col]
+            _require(
+                abs(mine - theirs) <= RECTIFIED_TOLERANCE * abs(mine),
+                f'left and right P differ in {name} ({mine:g} and {theirs:g}): not a rectified '
+                'stereo pair',
+            )
+        _require(
+            right.p[1, 3] == 0.0 and left.p[1, 3] == 0.0,
+            'P[1,3] must be 0 (a horizontal baseline) for a rectified stereo pair',
+        )
 
     @property
     def baseline(self) -> float:
