@@ -130,6 +130,9 @@ def test_epipolar_match_and_initial_nodes_are_sub_pixel() -> None:
     assert np.abs(RIG.left.project(nodes[boundary]) - left_px[boundary]).max() < 1e-6
     # The others lie on the plane at the reference face's (x, y) but its depth relief.
     assert np.linalg.norm(nodes[~matched] - truth[~matched], axis=1).max() < 0.06
+    edge_only = np.where(topology.group_mask(Group.EDGE)[:, None], RIG.left.project(truth), np.nan)
+    with pytest.raises(InputError, match='gives 0 inner nodes .* the face edge alone cannot'):
+        initial_nodes(RIG, left, right, edge_only, topology, PLANE_INIT)
 
 
 def _wave(phase: float) -> np.ndarray:

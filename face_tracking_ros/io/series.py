@@ -169,7 +169,8 @@ def require_parameters(bag: Path, lengths: dict[str, int]) -> None:
     if empty:
         msg = (
             f'{bag}: its face/state carries no {" or ".join(empty)} (a stereo_tracker output '
-            'tracked without a face model: give one, --model or model_file)'
+            'tracked without a face model: give one, --model or model_file; or one in which no '
+            'pair was tracked)'
         )
         raise BagError(msg)
 

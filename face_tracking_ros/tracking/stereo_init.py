@@ -188,6 +188,12 @@ def initial_nodes(
         raise InputError(msg)
     search = given & ~topology.group_mask(Group.EDGE)
     count = int(search.sum())
+    if count < MIN_FIT_NODES:
+        msg = (
+            f'the initialisation gives {count} inner nodes (eyes, nose, mouth, brows); at least '
+            f'{MIN_FIT_NODES} are needed: the face edge alone cannot place the face'
+        )
+        raise InputError(msg)
     full_range = (np.full(count, config.min_depth), np.full(count, config.max_depth))
     right_px, scores = epipolar_match(
         rig, left, right, left_px[search], full_range, config.match_half_size
@@ -344,8 +350,9 @@ def check_face_scale(
         msg = (
             f'the matched inner nodes triangulate to a face {scale:.2f} times the size of an '
             f'adult face (allowed {config.min_face_scale:g}-{config.max_face_scale:g}): the '
-            "stereo calibration does not fit these images; check the camera_info's baseline "
-            'and focal length, and that raw images are rectified (rectify)'
+            "stereo calibration does not fit these images (check the camera_info's baseline "
+            'and focal length, and that raw images are rectified: rectify), or the initial '
+            'positions are not on the face'
         )
         raise InputError(msg)
 
