@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Collection, Mapping
 from pathlib import Path
 
 import cv2
@@ -16,7 +16,12 @@ IMAGE_TYPE = 'sensor_msgs/msg/Image'
 COMPRESSED_TYPE = 'sensor_msgs/msg/CompressedImage'
 
 
-def compressed_copy(bag: Path, out: Path, names: Mapping[str, str] | None = None) -> Path:
+def compressed_copy(
+    bag: Path,
+    out: Path,
+    names: Mapping[str, str] | None = None,
+    only: Collection[str] | None = None,
+) -> Path:
     """``bag`` with its images as lossless PNG CompressedImage messages.
 
     Args:
@@ -24,13 +29,14 @@ def compressed_copy(bag: Path, out: Path, names: Mapping[str, str] | None = None
         out: the new bag's directory.
         names: bag topic -> topic in the copy; an image topic not named goes to
             ``<topic>/compressed``, any other keeps its name.
+        only: the image topics to compress (the others stay Image); None: every one.
     """
     names = names or {}
     factory = RosbagsMessages(typestore())
     with BagWriter(out) as writer:
         for message in read_messages(bag):
             topic, msgtype, msg = message.topic, message.msgtype, message.msg
-            if msgtype == IMAGE_TYPE:
+            if msgtype == IMAGE_TYPE and (only is None or topic in only):
                 png = cv2.imencode('.png', conversions.image_to_gray(msg))[1].reshape(-1)
                 topic, msgtype = f'{topic}/compressed', COMPRESSED_TYPE
                 msg = factory.make(msgtype, header=msg.header, format='mono8; png', data=png)

@@ -314,3 +314,15 @@ def test_an_interrupted_tracking_stops_learn(tmp_path, monkeypatch, capsys):
     assert main(argv) == 130
     assert capsys.readouterr().err == 'interrupted\n'
     assert not (tmp_path / 'm.npz').exists()
+
+
+def test_left_and_right_images_of_different_transports_are_named(tmp_path, capsys):
+    # only the right camera recorded through image_transport's compressed plugin
+    mixed = compressed_copy(BAGS[0], tmp_path / 'mixed', only={'right/image_raw'})
+    expected = 'its left and right images come by different transports (left/image_raw (Image)'
+    out = ['--out', str(tmp_path / 'o')]
+    assert main(['track', str(mixed), '--simulate-clicks', '0', *out]) == 2
+    assert expected in capsys.readouterr().err
+    learn_out = ['--out', str(tmp_path / 'm.npz'), '--report', str(tmp_path / 'r.json')]
+    assert main(['learn', str(mixed), '--from-images', '--simulate-clicks', '0', *learn_out]) == 2
+    assert expected in capsys.readouterr().err

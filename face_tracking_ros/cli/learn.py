@@ -37,6 +37,7 @@ from face_tracking_ros.cli.replay import print_stats
 from face_tracking_ros.cli.track import (
     CAMERA_INFO_TYPE,
     add_stereo_topic_options,
+    check_one_transport,
     compressed_parameters,
     image_topics,
     input_remaps,
@@ -391,6 +392,7 @@ def needs_tracking(bag: Path, topics: dict[str, str], args: argparse.Namespace) 
     if not (is_stereo_bag(topics) or args.left_topic):
         images, _ = image_topics(topics)
         if args.from_images or (images and not has_meshes):
+            check_one_transport(bag, topics)
             msg = (
                 f'{bag}: no stereo pair found by name among its image topics '
                 f'({", ".join(images) or "none"}): the left and right topics need "left" and '

@@ -104,6 +104,24 @@ def is_stereo_bag(topics: Mapping[str, str]) -> bool:
     return any('left' in t for t in images) and any('right' in t for t in images)
 
 
+def check_one_transport(bag: Path, topics: Mapping[str, str]) -> None:
+    """Refuse a bag whose left and right images come one as Image, one as CompressedImage.
+
+    Raises:
+        ConfigError: naming the two topics: the stereo tracker takes one transport for both.
+    """
+    images = {t: kind for t, kind in topics.items() if kind in (IMAGE_TYPE, COMPRESSED_TYPE)}
+    left = {kind for t, kind in images.items() if 'left' in t}
+    right = {kind for t, kind in images.items() if 'right' in t}
+    if left and right and not left & right:
+        named = ', '.join(f'{t} ({kind.rpartition("/")[2]})' for t, kind in images.items())
+        msg = (
+            f'{bag}: its left and right images come by different transports ({named}): the '
+            'stereo tracker takes both as Image or both as CompressedImage'
+        )
+        raise ConfigError(msg)
+
+
 def compressed_parameters(
     topics: Mapping[str, str], given: Iterable[str | None] = ()
 ) -> list[str]:
@@ -170,7 +188,8 @@ def choose_tracker(bag: Path, args: argparse.Namespace) -> str:
 
     Raises:
         BagError: if the bag has no image topic.
-        ConfigError: if it has several, none given, and not a left and a right one by name.
+        ConfigError: if it has several, none given, and not a left and a right one by name, or
+            a left and a right one of different transports.
     """
     topics = bag_topics(bag)
     images = image_topics(topics)[0]
@@ -181,6 +200,7 @@ def choose_tracker(bag: Path, args: argparse.Namespace) -> str:
         return 'mono_tracker'
     if args.left_topic or is_stereo_bag(topics):
         return 'stereo_tracker'
+    check_one_transport(bag, topics)
     if len(images) > 1:
         msg = (
             f'{bag}: image topics {", ".join(images)}, none named left or right: give one with '
