@@ -127,7 +127,7 @@ def test_the_status_warns_of_a_sensor_input_without_messages_naming_its_publishe
         node.destroy_node()
     assert [s.level for s in statuses] == [OK, WARN, WARN, WARN, OK]
     messages = [s.message for s in statuses]
-    no_publisher = 'no publisher: check the topic name or remapping'
+    no_publisher = 'no publisher: check the topic name or remapping, and that its node runs'
     assert messages[1] == f'no message on /in for 0 s ({no_publisher})'
     assert messages[3] == 'no message on /in for 0 s (1 publisher)'
     assert logged == [messages[1]]

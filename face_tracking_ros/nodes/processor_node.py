@@ -233,7 +233,7 @@ class ProcessorNode(Node):
             source = (
                 f'{publishers} publisher{"s" if publishers != 1 else ""}'
                 if publishers
-                else 'no publisher: check the topic name or remapping'
+                else 'no publisher: check the topic name or remapping, and that its node runs'
             )
             silent.append(f'{name} for {now - last:.0f} s ({source})')
         return f'no message on {"; ".join(silent)}' if silent else ''
