@@ -27,6 +27,7 @@ from face_tracking_ros.tracking.stereo_data import SampleLayout, SampleSet, dept
 
 FLAT_STD = 0.5  # grey levels: a correlation window flatter than this cannot be matched
 MIN_FIT_NODES = 4  # fewest inner nodes the reference face is fitted to
+NOSE_BEHIND_EYES_M = 0.0  # a fitted face whose nose is behind its eyes is turned away
 
 
 @dataclass(frozen=True)
@@ -203,6 +204,7 @@ def initial_nodes(
     matched = np.zeros(topology.num_nodes, dtype=bool)
     matched[search] = scores >= config.min_score
     reference = _trimmed_reference(topology, triangulated, matched, config)
+    _check_facing(topology, reference)
     retry = search & ~matched
     if retry.any():
         rays = _rays(rig, left_px[retry])
@@ -222,6 +224,26 @@ def initial_nodes(
     # Depth refinement corrects the matches only; their surface alone gives the patches' shape.
     nodes[matched] = refine_depths(rig, left, right, nodes[matched], config)
     return InitialNodes(nodes, matched)
+
+
+def _check_facing(topology: MeshTopology, face: np.ndarray) -> None:
+    """Refuse a fitted face turned away from the camera: its nose behind its eyes.
+
+    A face is nearly symmetric, so points named with left and right swapped (the subject's left
+    is the image's right) fit it as well turned round, seen from behind.
+
+    Raises:
+        InputError: saying so.
+    """
+    eyes = face[[topology.index('right_eye'), topology.index('left_eye')]].mean(axis=0)
+    behind = float(np.dot(face[topology.index('nose_tip')] - eyes, eyes / np.linalg.norm(eyes)))
+    if behind > NOSE_BEHIND_EYES_M:
+        msg = (
+            f'the initial positions fit a face turned away from the camera (its nose '
+            f'{1000 * behind:.0f} mm behind its eyes): are left and right swapped? The '
+            "subject's left eye (left_eye) is on the image's right"
+        )
+        raise InputError(msg)
 
 
 def refine_depths(
