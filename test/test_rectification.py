@@ -96,3 +96,6 @@ def test_a_change_of_distortion_or_rotation_is_a_new_calibration():
     assert not camera.same_calibration(replace(camera, d=camera.d * 1.1))
     assert not camera.same_calibration(replace(camera, r=np.eye(3)))
     assert not camera.same_calibration(replace(camera, d=camera.d[:4]))
+    # A driver recomputing its camera_info: differences within 1e-4 are the same calibration.
+    assert camera.same_calibration(replace(camera, p=camera.p * (1 + 5e-5)))
+    assert not camera.same_calibration(replace(camera, p=camera.p * (1 + 1e-3)))

@@ -19,6 +19,12 @@ import numpy as np
 
 from face_tracking_ros.errors import InputError
 
+SAME_CALIBRATION_RTOL = 1e-4  # relative difference of K, D, R, P within one calibration
+# Shared by both views of a rectified pair. (cy may differ: a row offset the tracker measures
+# and corrects, StereoRig.with_right_rows_shifted; cx may too, as stereoRectify leaves it.)
+RECTIFIED_SHARED = {(0, 0): 'fx', (1, 1): 'fy'}
+RECTIFIED_TOLERANCE = 1e-4  # relative
+
 
 @dataclass(frozen=True)
 class PinholeCamera:
@@ -96,7 +102,12 @@ class PinholeCamera:
         return float(0.5 * (self.p[0, 0] + self.p[1, 1]))
 
     def same_calibration(self, other: PinholeCamera) -> bool:
-        """True if ``other`` has the same image size, K, D, R and P."""
+        """True if ``other`` has the same image size, K, D, R and P (to a relative 1e-4).
+
+        A driver that recomputes its camera_info leaves differences of that order, a thousandth
+        of a pixel at the image's edge; treated as a new calibration, each would restart the
+        track.
+        """
         if other is self:  # a repeated CameraInfo (conversions.CameraInfoReader): no comparison
             return True
         return (self.width, self.height, self.distortion_model) == (
@@ -104,7 +115,8 @@ class PinholeCamera:
             other.height,
             other.distortion_model,
         ) and all(
-            np.shape(mine) == np.shape(theirs) and np.allclose(mine, theirs)
+            np.shape(mine) == np.shape(theirs)
+            and np.allclose(mine, theirs, rtol=SAME_CALIBRATION_RTOL)
             for mine, theirs in zip(
                 (self.k, self.d, self.r, self.p), (other.k, other.d, other.r, other.p), strict=True
             )
@@ -227,12 +239,6 @@ class PinholeCamera:
             'r': [float(v) for v in self.r.ravel()],
             'p': [float(v) for v in self.p.ravel()],
         }
-
-
-# Shared by both views of a rectified pair. (cy may differ: a row offset the tracker measures
-# and corrects, StereoRig.with_right_rows_shifted; cx may too, as stereoRectify leaves it.)
-RECTIFIED_SHARED = {(0, 0): 'fx', (1, 1): 'fy'}
-RECTIFIED_TOLERANCE = 1e-4  # relative
 
 
 @dataclass(frozen=True)

@@ -24,6 +24,7 @@ import numpy as np
 from face_tracking_ros.data import default_model_path
 from face_tracking_ros.errors import ConfigError, FaceTrackingError, InputError
 from face_tracking_ros.geometry.camera import PinholeCamera
+from face_tracking_ros.imaging import inside_image
 from face_tracking_ros.imaging.rectification import Rectifier
 from face_tracking_ros.io import conversions
 from face_tracking_ros.io.bags import stamp_to_ns
@@ -39,9 +40,14 @@ from face_tracking_ros.processing.detection import (
 from face_tracking_ros.processing.face_outputs import MESH_PORTS, MODEL_PORTS, face_outputs
 from face_tracking_ros.processing.parameters import ParameterSource
 from face_tracking_ros.processing.track_counts import TrackCounts
-from face_tracking_ros.tracking.initialisation import Initialisation, load_init_file
+from face_tracking_ros.tracking.initialisation import (
+    MIN_INIT_NODES,
+    Initialisation,
+    load_init_file,
+)
 from face_tracking_ros.tracking.mono import MonoTracker, MonoTrackerConfig
 from face_tracking_ros.tracking.pose_filter import PoseFilter, PoseFilterConfig
+from face_tracking_ros.tracking.result import TrackStatus
 from face_tracking_ros.visualization.overlay import draw_mesh
 
 IMAGE = 'image'
@@ -122,6 +128,7 @@ class MonoProcessor:
         self._unfit = ''  # why the camera and model give no tracker, if they do not
         self._pose_filter: PoseFilter | None = None
         self._held_image: tuple[Any, np.ndarray] | None = None
+        self._tracked: tuple[tuple[str, ...], np.ndarray] | None = None  # last image's nodes
         self._last_stamp: int | None = None
         self._counts = TrackCounts('images')
         image = (
@@ -232,6 +239,7 @@ class MonoProcessor:
             detector = (
                 None if self._detector_for is None else self._detector_for(self._model.node_names)
             )
+            carried = self._carried_over()
             self._tracker, self._unfit = None, ''
             try:
                 self._tracker = MonoTracker(
@@ -241,15 +249,37 @@ class MonoProcessor:
                 self._unfit = f'cannot track with this camera and model: {error}'
                 raise
             self._pose_filter = PoseFilter(self._camera, self._filter_config)
-            self._restart()
+            self._restart(carried)
 
-    def _restart(self) -> None:
-        """Restart the tracker from the initialisation and the pose filter from its next result."""
+    def _carried_over(self) -> Initialisation | None:
+        """The nodes of the last image, if it was tracked, to go on from with a new tracker.
+
+        A calibration or model that changes while a track runs restarts it from there, not from
+        the initialisation's points (made on the first image, the head may have moved since);
+        the nodes outside the image are left out.
+        """
+        tracked, self._tracked = self._tracked, None
+        if tracked is None or self._camera is None or tracked[0] != self._model.node_names:
+            return None
+        names, tracked_px = tracked
+        inside = inside_image(tracked_px, (self._camera.height, self._camera.width))
+        if inside.sum() < MIN_INIT_NODES:
+            return None
+        kept = tuple(name for name, keep in zip(names, inside, strict=True) if keep)
+        return Initialisation(node_names=kept, points=tracked_px[inside])
+
+    def _restart(self, carried: Initialisation | None = None) -> None:
+        """Restart the tracker and the pose filter from its next result.
+
+        The tracker starts from ``carried`` (node positions in the rectified image) if given,
+        else from the initialisation.
+        """
         if self._tracker is not None and self._pose_filter is not None:
+            self._tracked = None
             initialisation = self._initialisation
             if initialisation is not None:
                 initialisation = initialisation.moved(self._rectifier.points)
-            self._tracker.reset(initialisation)
+            self._tracker.reset(carried or initialisation)
             self._pose_filter.reset()
 
     def _track(self, header: Any, gray: np.ndarray, wanted: frozenset[str]) -> list[Output]:
@@ -264,6 +294,8 @@ class MonoProcessor:
         self._check_stamp(stamp_ns)
         gray = self._rectifier.image(gray)
         tracked = self._tracker.track(gray)
+        ok = tracked.status == TrackStatus.TRACKING
+        self._tracked = (self._model.node_names, tracked.nodes_px) if ok else None
         self._counts.add(tracked.status, tracked.reason)
         result = self._pose_filter.filter(tracked, stamp_ns * 1e-9)
         out_header = conversions.copy_header(self._factory, header)

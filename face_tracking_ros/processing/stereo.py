@@ -180,6 +180,7 @@ class StereoProcessor:
         self._track_results: list[tuple[Any, StereoResult]] = []  # held: (header, result)
         self._ended_outputs: list[Output] = []  # held outputs of the tracks that ended
         self._last_stamp: int | None = None
+        self._tracked_px: np.ndarray | None = None  # left px of the last pair tracked, if it was
         self.unpaired = 0
         self._unpaired_gap_ns: int | None = None  # nearest other-camera stamp to a dropped image
         self._paired = False  # whether any left and right images have paired
@@ -304,12 +305,17 @@ class StereoProcessor:
     def _rebuild(self) -> None:
         """A tracker for the rig and model, once both calibrations are there.
 
+        A calibration or model that changes while a track runs restarts it from the left-image
+        positions of its last tracked pair, not from the initialisation's (made on the first
+        pair, the head may have moved since).
+
         Raises:
             FaceTrackingError: why the tracker cannot work with them (also kept, and given for
                 every pair until a calibration or model that fits arrives).
         """
         if len(self._cameras) < 2:
             return
+        tracked_px, self._tracked_px = self._tracked_px, None
         self._end_track()
         rig = StereoRig(self._cameras[LEFT_INFO], self._cameras[RIGHT_INFO])
         names = mesh_topology(self._tracker_config.num_nodes).node_names
@@ -320,12 +326,15 @@ class StereoProcessor:
         except FaceTrackingError as error:
             self._unfit = f'cannot track with this calibration: {error}'
             raise
-        if self._can_initialise:
+        if tracked_px is not None:  # a new calibration mid-track: go on from where the face was
+            self._tracker.reset(tracked_px)
+        elif self._can_initialise:
             self._reset_tracker()
 
     def _reset_tracker(self) -> None:
         """Restart the tracker from the initialisation, its points moved to the rectified image."""
         assert self._tracker is not None
+        self._tracked_px = None
         initialisation = self._initialisation
         if initialisation is not None:
             initialisation = initialisation.moved(self._rectifiers[LEFT_INFO].points)
@@ -441,6 +450,7 @@ class StereoProcessor:
         )
         self._last_stamp = stamp_to_ns(left_msg.header.stamp)
         result = self._tracker.step(left, right)
+        self._tracked_px = result.left_px if result.ok else None
         self._counts.add(result.status, result.reason)
         header = conversions.copy_header(self._factory, left_msg.header)
         if self._config.retroactive_depths:
