@@ -34,6 +34,7 @@ import numpy as np
 
 from face_tracking_ros.errors import ConfigError, FaceTrackingError, InputError, check_fields
 from face_tracking_ros.geometry.camera import PinholeCamera, StereoRig
+from face_tracking_ros.imaging import inside_image
 from face_tracking_ros.imaging.rectification import Rectifier
 from face_tracking_ros.io import conversions
 from face_tracking_ros.io.bags import stamp_to_ns
@@ -306,8 +307,8 @@ class StereoProcessor:
         """A tracker for the rig and model, once both calibrations are there.
 
         A calibration or model that changes while a track runs restarts it from the left-image
-        positions of its last tracked pair, not from the initialisation's (made on the first
-        pair, the head may have moved since).
+        positions of its last tracked pair (those inside the image), not from the
+        initialisation's (made on the first pair, the head may have moved since).
 
         Raises:
             FaceTrackingError: why the tracker cannot work with them (also kept, and given for
@@ -327,7 +328,9 @@ class StereoProcessor:
             self._unfit = f'cannot track with this calibration: {error}'
             raise
         if tracked_px is not None:  # a new calibration mid-track: go on from where the face was
-            self._tracker.reset(tracked_px)
+            left = self._cameras[LEFT_INFO]
+            inside = inside_image(tracked_px, (left.height, left.width))
+            self._tracker.reset(np.where(inside[:, None], tracked_px, np.nan))  # NaN: not given
         elif self._can_initialise:
             self._reset_tracker()
 
