@@ -102,6 +102,7 @@ def test_learns_compares_and_writes_model_report_and_plots(tmp_path, truth_bags,
     assert joint['truth']['action_share'] > 0.95
     assert joint['identity_accuracy'] == 1.0  # first half against second half
     assert len(joint['loo_per_subject']['neutral_rms_mm']) == 4
+    assert joint['loo_per_subject']['p'] == [2, 2, 2, 2]  # each held-out subject's model's p
     assert report['subjects'] == [s.name for s in truth_bags]
     for plot in report['plots']:
         assert Path(plot).read_bytes()[:8] == b'\x89PNG\r\n\x1a\n'
@@ -292,3 +293,13 @@ def test_a_recorder_s_absolute_topic_names_are_read(tmp_path, world, capsys):
     assert main([*args, '--report', str(tmp_path / 'r.json'), '--neutral-frames', '10']) == 0
     assert f'{bags[0]}: 1 frames the tracker did not track' in capsys.readouterr().out
     assert json.loads((tmp_path / 'r.json').read_text())['frames'] == 4 * (len(status) - 1)
+
+
+def test_p_chosen_by_explained_variance_is_reported_per_held_out_subject(tmp_path, truth_bags):
+    argv = ['learn', *map(str, truth_bags), '--out', str(tmp_path / 'm.npz'), '--q', '3']
+    argv += ['--report', str(tmp_path / 'r.json'), '--explained-variance', '0.99']
+    assert main(argv) == 0
+    report = json.loads((tmp_path / 'r.json').read_text())['methods']['joint']
+    folds = report['loo_per_subject']['p']
+    assert len(folds) == 4 and all(isinstance(p, int) and 1 <= p <= 2 for p in folds)
+    assert report['p'] == load_model(tmp_path / 'm.npz').p >= max(folds)

@@ -295,6 +295,7 @@ def run(args: argparse.Namespace) -> None:
                 'action_similarity': loo.action_similarity.tolist(),
                 'mean_variation_percent': loo.mean_variation_percent.tolist(),
                 'neutral_rms_mm': loo.neutral_rms_mm.tolist(),
+                'p': [int(dim) if np.isfinite(dim) else None for dim in loo.p],
             },
         }
     print(comparison_table(evaluations))

@@ -111,6 +111,8 @@ class LeaveOneOut:
         action_similarity: (S,) similarity of A_loo with A_all.
         mean_variation_percent: (S,) mean-shape variation, %.
         neutral_rms_mm: (S,) RMS error of the held-out neutral's model approximation, mm.
+        p: (S,) identity dimension of each held-out subject's model (a learner choosing p by
+            explained variance chooses it again without that subject).
         skipped: why the figures are NaN ('' when they are not): the subjects left after
             holding one out are too few for the learner.
     """
@@ -119,6 +121,7 @@ class LeaveOneOut:
     action_similarity: np.ndarray
     mean_variation_percent: np.ndarray
     neutral_rms_mm: np.ndarray
+    p: np.ndarray
     skipped: str = ''
 
 
@@ -318,13 +321,15 @@ def leave_one_out(training: TrainingSet, learner: Learner, full: LearningResult)
     full_model = full.model
     mean_nodes = full_model.shape()
     size = np.linalg.norm(mean_nodes - mean_nodes.mean(axis=0))
-    shape_similarity, action_similarity, variation, rms = [], [], [], []
+    shape_similarity, action_similarity, variation, rms, dimensions = [], [], [], [], []
     for s in range(training.num_subjects):
         try:
             model = learner(training.without_subject(s)).model
         except ConfigError as error:
             nan = np.full(training.num_subjects, np.nan)
-            return LeaveOneOut(nan, nan, nan, nan, skipped=f'with one subject held out, {error}')
+            skipped = f'with one subject held out, {error}'
+            return LeaveOneOut(nan, nan, nan, nan, nan, skipped=skipped)
+        dimensions.append(model.p)
         shape_similarity.append(subspace_similarity(model.shape_basis, full_model.shape_basis))
         action_similarity.append(subspace_similarity(model.action_basis, full_model.action_basis))
         variation.append(100.0 * np.linalg.norm(model.mean_shape - full_model.mean_shape) / size)
@@ -334,6 +339,7 @@ def leave_one_out(training: TrainingSet, learner: Learner, full: LearningResult)
         action_similarity=np.array(action_similarity),
         mean_variation_percent=np.array(variation),
         neutral_rms_mm=np.array(rms),
+        p=np.array(dimensions, dtype=float),
     )
 
 
