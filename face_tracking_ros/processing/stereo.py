@@ -428,6 +428,8 @@ class StereoProcessor:
     ) -> None:
         """Drop (and count) the images of ``queue`` stamped before ``stamp``: they never pair."""
         stale = [s for s in queue if s < stamp]
+        if not stale:  # the usual case, on every pair: nothing to count
+            return
         self._unpair(stale, [*other, stamp])
         for s in stale:
             del queue[s]
