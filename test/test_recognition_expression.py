@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -162,6 +163,20 @@ def test_file_round_trip(tmp_path: Path, data: tuple, classifier: ExpressionClas
         loaded.sequence_probabilities(sequence.times, sequence.alpha),
         classifier.sequence_probabilities(sequence.times, sequence.alpha),
     )
+
+
+def test_a_classifier_of_one_model_is_refused_with_another(
+    tmp_path: Path, classifier: ExpressionClassifier
+) -> None:
+    """Alpha of another model of the same q means other expressions: the file records its model."""
+    path = tmp_path / 'expressions.npz'
+    replace(classifier, model='0123456789abcdef').save(path)
+
+    assert ExpressionClassifier.load(path, Q, '0123456789abcdef').model == '0123456789abcdef'
+    with pytest.raises(ModelFileError, match='train-expressions --model'):
+        ExpressionClassifier.load(path, Q, 'fedcba9876543210')
+    classifier.save(path)  # trained on the true alpha: no model recorded, none refused
+    assert ExpressionClassifier.load(path, Q, 'fedcba9876543210').model is None
 
 
 def test_file_errors(tmp_path: Path, classifier: ExpressionClassifier) -> None:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -117,6 +118,23 @@ def test_file_round_trip_keeps_every_field_and_leaves_no_temporary(tmp_path: Pat
     for name in ('means', 'covariances', 'counts'):
         np.testing.assert_array_equal(getattr(loaded, name), getattr(gallery, name))
     assert sorted(p.name for p in tmp_path.iterdir()) == ['gallery.npz']
+
+
+def test_a_gallery_of_one_model_is_refused_with_another(tmp_path: Path) -> None:
+    """Sigma of another model of the same p means another face: the gallery records its model."""
+    gallery, _ = enrolled(np.random.default_rng(4), 3, 0.002)
+    path = tmp_path / 'gallery.npz'
+    replace(gallery, model='0123456789abcdef').save(path)
+
+    assert IdentityGallery.load(path, P, '0123456789abcdef').model == '0123456789abcdef'
+    assert IdentityGallery.load(path, P).model == '0123456789abcdef'  # unchecked: kept
+    with pytest.raises(ModelFileError, match='another face model .fingerprint 0123456789abcdef'):
+        IdentityGallery.load(path, P, 'fedcba9876543210')
+    gallery.save(path)  # a gallery of an unknown model (before models were recorded)
+    assert IdentityGallery.load(path, P, 'fedcba9876543210').model is None
+    # Enrolling keeps the gallery's model.
+    bound = IdentityGallery.empty(P, 'fedcba9876543210').enroll('ann', np.zeros((1, P)), CONFIG)
+    assert bound.enroll('bob', np.ones((1, P)), CONFIG).model == 'fedcba9876543210'
 
 
 def test_recognizer_waits_one_window_then_decides_and_enrols() -> None:

@@ -7,14 +7,22 @@ from pathlib import Path
 import shutil
 
 import numpy as np
+import pytest
 from rosbags.rosbag2 import StoragePlugin, Writer
 
 from face_tracking_ros.cli.main import main
+from face_tracking_ros.data import default_model_path
+from face_tracking_ros.errors import ModelFileError
 from face_tracking_ros.io import conversions
 from face_tracking_ros.io.bags import BagWriter, bag_topics, read_messages
 from face_tracking_ros.io.messages import RosbagsMessages
+from face_tracking_ros.io.provenance import KEY as PROVENANCE_KEY
+from face_tracking_ros.io.provenance import Provenance
 from face_tracking_ros.io.series import load_states
 from face_tracking_ros.io.typestore import typestore
+from face_tracking_ros.model.model_file import load_model, save_model
+from face_tracking_ros.processing.identity import make_identity_processor
+from face_tracking_ros.processing.parameters import OverrideParameters
 from face_tracking_ros.recognition.identity import IdentityGallery
 from face_tracking_ros.synthetic.clicks import clicks_from_bag, write_init_file
 from face_tracking_ros.tracking.initialisation import Initialisation
@@ -25,10 +33,23 @@ from conftest import REPO
 STATE = 'face_tracking_msgs/msg/FaceState'
 
 
-def _states(path: Path, sigmas: np.ndarray, status: int = TrackStatus.TRACKING) -> Path:
-    """A tracker output bag: face/state with these (F, p) sigma, every frame of one status."""
+def _states(
+    path: Path,
+    sigmas: np.ndarray,
+    status: int = TrackStatus.TRACKING,
+    model_file: str | None = None,
+) -> Path:
+    """A tracker output bag: face/state with these (F, p) sigma, every frame of one status.
+
+    With ``model_file``, its metadata says the mono_tracker made it with that model ('': the
+    packaged default), as replay records it.
+    """
     factory = RosbagsMessages(typestore())
     with BagWriter(path) as writer:
+        if model_file is not None:
+            parameters = {'model_file': model_file} if model_file else {}
+            provenance = Provenance.of(path.with_name('raw'), ['mono_tracker'], parameters)
+            writer.set_custom_data(PROVENANCE_KEY, provenance.text())
         for f, sigma in enumerate(sigmas):
             header = conversions.make_header(factory, 1000 + f, 'camera')
             state = factory.make(STATE, header=header, status=status, sigma=sigma)
@@ -53,6 +74,45 @@ def test_a_tracked_identity_is_enrolled_and_a_model_less_track_refused(tmp_path,
     absent = tmp_path / 'absent' / 'gallery.npz'
     assert main(['enroll', str(tmp_path / 'ann'), '--name', 'ann', '--gallery', str(absent)]) == 2
     assert 'error: ' in (err := capsys.readouterr().err) and 'absent' in err
+
+
+def test_a_gallery_holds_the_sigma_of_the_model_the_bags_were_tracked_with(tmp_path, capsys):
+    default = load_model(default_model_path())
+    other = save_model(replace(default, shape_basis=-default.shape_basis), tmp_path / 'other.npz')
+    sigmas = np.random.default_rng(0).normal([0.01, -0.02], 0.001, (20, 2))
+    ann = _states(tmp_path / 'ann', sigmas, model_file=str(other))
+    gallery = tmp_path / 'gallery.npz'
+    enroll = ['enroll', str(ann), '--name', 'ann', '--gallery', str(gallery)]
+    # Without --model, the model the bag's metadata names.
+    assert main(enroll) == 0
+    assert f'of the model {other} (fingerprint {load_model(other).fingerprint})' in (
+        capsys.readouterr().out
+    )
+    assert IdentityGallery.load(gallery, 2).model == load_model(other).fingerprint
+    assert main([*enroll, '--model', str(default_model_path())]) == 2
+    assert f'{ann} was tracked with the face model {other}, not ' in capsys.readouterr().err
+    bob = _states(tmp_path / 'bob', sigmas, model_file='')  # the packaged default
+    assert main(['enroll', str(ann), str(bob), '--name', 'x', '--gallery', str(gallery)]) == 2
+    assert 'tracked with different face models' in capsys.readouterr().err
+    wide = _states(tmp_path / 'wide', np.zeros((5, 3)))
+    assert main(['enroll', str(bob), str(wide), '--name', 'x', '--gallery', str(gallery)]) == 2
+    assert f'different p ({bob} p=2, {wide} p=3)' in capsys.readouterr().err
+    assert main(['enroll', str(bob), '--name', 'bob', '--gallery', str(gallery)]) == 2
+    assert 'made with another face model' in capsys.readouterr().err
+    # The recogniser refuses the gallery with another model than the one it was enrolled with.
+    factory = RosbagsMessages(typestore())
+    with pytest.raises(ModelFileError, match='enrol the people again with it'):
+        make_identity_processor(OverrideParameters({'gallery_file': str(gallery)}), factory)
+    with_model = {'gallery_file': str(gallery), 'model_file': str(other)}
+    assert make_identity_processor(OverrideParameters(with_model), factory).gallery.names == (
+        'ann',
+    )
+    # A model file changed since the bag was tracked.
+    save_model(replace(default, shape_basis=default.shape_basis[:, ::-1]), other)
+    assert main([*enroll[:-1], str(tmp_path / 'g2.npz')]) == 2
+    assert 'which is gone or has changed since: give that model as --model' in (
+        capsys.readouterr().err
+    )
 
 
 def test_a_model_less_track_is_not_plotted(tmp_path, capsys):

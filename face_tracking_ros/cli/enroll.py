@@ -4,6 +4,11 @@ The offline counterpart of the identity_recognizer's ``enroll_identity`` service
 estimates of the TRACKING frames of tracker output bags (FaceState on ``face/state``) become the
 person's entry in the gallery (created if missing, else extended; an existing entry of the same
 name is replaced).
+
+A gallery holds one face model's sigma and records which model that is (its fingerprint); the
+identity_recognizer refuses a gallery of another model. The model is ``--model``, else the one
+the bags' metadata names (``track`` and ``replay`` record it), else the packaged default, as for
+the identity_recognizer; a bag whose metadata names another model is refused.
 """
 
 from __future__ import annotations
@@ -13,8 +18,11 @@ from pathlib import Path
 
 import numpy as np
 
-from face_tracking_ros.errors import BagError
+from face_tracking_ros.data import default_model_path
+from face_tracking_ros.errors import BagError, ConfigError
+from face_tracking_ros.io.provenance import Provenance, file_digest
 from face_tracking_ros.io.series import load_states, require_parameters
+from face_tracking_ros.model.model_file import load_model
 from face_tracking_ros.recognition.identity import IdentityConfig, IdentityGallery
 from face_tracking_ros.tracking.result import TrackStatus
 
@@ -29,35 +37,97 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument('bags', nargs='+', type=Path, metavar='BAG', help='tracker output bags')
     parser.add_argument('--name', required=True, help="the person's name")
     parser.add_argument('--gallery', required=True, type=Path, help='gallery file (.npz)')
+    parser.add_argument(
+        '--model',
+        type=Path,
+        help='face model the bags were tracked with (default: the one their metadata names, '
+        'else the packaged default model)',
+    )
     parser.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> None:
     """Enrol and save the gallery."""
+    model_path = tracking_model(args.bags, args.model)
+    model = load_model(model_path)
     sigmas = tracked_sigmas(args.bags)
-    p = sigmas.shape[1]
+    if sigmas.shape[1] != model.p:
+        msg = f'the bags hold sigma of p={sigmas.shape[1]}, the model {model_path} has p={model.p}'
+        raise ConfigError(msg)
     gallery = (
-        IdentityGallery.load(args.gallery, p)
+        IdentityGallery.load(args.gallery, model.p, model.fingerprint)
         if args.gallery.exists()
-        else IdentityGallery.empty(p)
+        else IdentityGallery.empty(model.p, model.fingerprint)
     )
     gallery = gallery.enroll(args.name, sigmas, IdentityConfig())
     gallery.save(args.gallery)
     print(
-        f'enrolled {args.name!r} from {len(sigmas)} shape estimates; '
-        f'{args.gallery} holds {", ".join(gallery.names)}'
+        f'enrolled {args.name!r} from {len(sigmas)} shape estimates of the model {model_path} '
+        f'(fingerprint {model.fingerprint}); {args.gallery} holds {", ".join(gallery.names)}'
     )
+
+
+def tracking_model(bags: list[Path], given: Path | None) -> Path:
+    """The face model file the bags were tracked with.
+
+    ``given`` if the bags' metadata agrees (or names none), else the model the metadata names,
+    else the packaged default (what the tracker and identity_recognizer use without model_file).
+
+    Raises:
+        ConfigError: if a bag was tracked with another model than ``given``, the bags with
+            different models, or with a model file that is gone or has changed since.
+    """
+    recorded = {}
+    for bag in bags:
+        provenance = Provenance.read(bag)
+        used = provenance.tracking_model() if provenance is not None else None
+        if used is not None:
+            value, digest = used
+            path = Path(value) if value else default_model_path()
+            recorded[bag] = (path, digest or _digest_now(path))
+    if given is not None and given.is_file():  # (a missing one is named by load_model)
+        for bag, (path, digest) in recorded.items():
+            if digest != file_digest(given):
+                msg = f'{bag} was tracked with the face model {path}, not {given}'
+                raise ConfigError(f'{msg}: enrol it with that model')
+        return given
+    models = {digest: path for path, digest in recorded.values()}
+    if given is not None or not models:
+        return given or default_model_path()
+    if len(models) > 1:
+        names = ', '.join(sorted(map(str, models.values())))
+        msg = (
+            f'the bags were tracked with different face models ({names}): a gallery holds one '
+            'model; enrol the bags of each in a gallery of its own'
+        )
+        raise ConfigError(msg)
+    bag, (path, digest) = next(iter(recorded.items()))
+    if digest is None or _digest_now(path) != digest:
+        msg = f'{bag} was tracked with the face model {path}, which is gone or has changed since'
+        raise ConfigError(f'{msg}: give that model as --model')
+    return path
+
+
+def _digest_now(path: Path) -> str | None:
+    """The SHA-256 of the file at ``path`` now; None if there is none."""
+    return file_digest(path) if path.is_file() else None
 
 
 def tracked_sigmas(bags: list[Path]) -> np.ndarray:
     """(M, p) sigma of the TRACKING frames of tracker output bags (those with a sigma).
 
     Raises:
-        BagError: if no frame of the bags was tracked, or the states carry no sigma.
+        BagError: if no frame of the bags was tracked, the states carry no sigma, or sigma of
+            different p.
     """
     series = [load_states(bag) for bag in bags]
     for bag, states in zip(bags, series, strict=True):
         require_parameters(bag, {'sigma': states.sigma.shape[1]})
+    widths = {bag: states.sigma.shape[1] for bag, states in zip(bags, series, strict=True)}
+    if len(set(widths.values())) > 1:
+        listed = ', '.join(f'{bag} p={p}' for bag, p in widths.items())
+        msg = f'the bags hold sigma of different p ({listed}), tracked with different models'
+        raise BagError(msg)
     sigmas = [
         s.sigma[(s.status == TrackStatus.TRACKING) & np.all(np.isfinite(s.sigma), axis=1)]
         for s in series

@@ -5,12 +5,14 @@ expression label and intensity of every frame, and either the true alpha carried
 or, with ``--model``, the alpha of that face model obtained by fitting the model to the truth
 nodes (:func:`face_tracking_ros.recognition.node_fit.fit_model_to_nodes`), which is what a
 tracker running that model reports. The trained classifier is written as a pickle-free file that
-the expression recogniser loads (it checks that the file's q matches its model).
+the expression recogniser loads; it checks that the file's q matches its model and, for a
+classifier trained with ``--model``, that it is that model (the file records its fingerprint).
 """
 
 from __future__ import annotations
 
 import argparse
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -93,6 +95,8 @@ def run(args: argparse.Namespace) -> None:
     model = load_model(args.model) if args.model is not None else None
     sequences = [seq for bag in args.bags for seq in truth_sequences(bag, args.topic, model)]
     classifier = train_expression_classifier(sequences, config)
+    if model is not None:  # bound to the model: the recogniser refuses it with another
+        classifier = replace(classifier, model=model.fingerprint)
     classifier.save(args.out)
     accuracy = expression_accuracy(classifier, sequences, config.min_intensity)
     labels, counts = np.unique(np.concatenate([s.labels for s in sequences]), return_counts=True)

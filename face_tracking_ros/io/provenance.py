@@ -20,6 +20,8 @@ from typing import Any
 from face_tracking_ros.io.bags import custom_data
 
 KEY = 'face_tracking_ros.replay'
+TRACKERS = ('mono_tracker', 'stereo_tracker')
+MODEL_PARAMETER = 'model_file'
 
 
 @dataclass(frozen=True)
@@ -53,7 +55,7 @@ class Provenance:
     ) -> Provenance:
         """The provenance of a replay of ``bag`` about to start (complete until said otherwise)."""
         digests = {
-            name: hashlib.sha256(Path(value).read_bytes()).hexdigest()
+            name: file_digest(Path(value))
             for name, value in parameters.items()
             if value and Path(value).is_file()
         }
@@ -77,6 +79,15 @@ class Provenance:
         except (ValueError, TypeError, KeyError):
             return None
 
+    def tracking_model(self) -> tuple[str, str | None] | None:
+        """The tracker's ``model_file`` ('' for its packaged default) and the file's SHA-256.
+
+        None if no tracker was replayed; the digest is None where the file was not found.
+        """
+        if not set(TRACKERS) & set(self.nodes):
+            return None
+        return self.parameters.get(MODEL_PARAMETER, ''), self.file_digests.get(MODEL_PARAMETER)
+
     def same_inputs(self, other: Provenance) -> bool:
         """Whether ``other`` replayed the same bag through the same nodes, set up the same way."""
         return replace(self, complete=True) == replace(other, complete=True)
@@ -84,3 +95,8 @@ class Provenance:
     def text(self) -> str:
         """The JSON text recorded under :data:`KEY`."""
         return json.dumps(asdict(self), sort_keys=True)
+
+
+def file_digest(path: Path) -> str:
+    """The SHA-256 of a file's bytes, as recorded in :attr:`Provenance.file_digests`."""
+    return hashlib.sha256(path.read_bytes()).hexdigest()

@@ -8,6 +8,8 @@ and ``action_basis`` A is (3N, q), each with orthonormal columns.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import cached_property
+import hashlib
 from typing import Any
 
 import numpy as np
@@ -71,6 +73,20 @@ class FaceModel:
     def topology(self) -> MeshTopology:
         """Mesh topology with this model's node count."""
         return mesh_topology(self.num_nodes)
+
+    @cached_property
+    def fingerprint(self) -> str:
+        """A digest of what gives sigma and alpha their meaning: nodes, mean shape, S and A.
+
+        Files that hold statistics of a model's sigma or alpha (an identity gallery, an
+        expression classifier) record it: another model of the same p and q gives its
+        parameters another meaning, and the file must not be used with it.
+        """
+        digest = hashlib.sha256('\n'.join(self.node_names).encode())
+        for array in (self.mean_shape, self.shape_basis, self.action_basis):
+            digest.update(repr(array.shape).encode())
+            digest.update(np.ascontiguousarray(array, dtype='<f8').tobytes())
+        return digest.hexdigest()[:16]
 
     def shape(
         self, sigma: np.ndarray | None = None, alpha: np.ndarray | None = None

@@ -49,8 +49,9 @@ class ExpressionNodeConfig:
     Attributes:
         classifier_file: expression classifier file (``face-tracking train-expressions``);
             empty: the packaged default, trained on the synthetic world for the default model.
-        model_file: face model the tracker uses (its q must match the classifier's); empty: the
-            packaged default model.
+        model_file: face model the tracker uses; a classifier of another q, or trained on another
+            model's alpha (``train-expressions --model``), is refused. Empty: the packaged
+            default model.
     """
 
     classifier_file: str = ''
@@ -146,5 +147,5 @@ def make_expression_processor(
     model = load_model(config.model_file or default_model_path())
     classifier_file = config.classifier_file or default_classifier_path()
     return ExpressionProcessor(
-        factory, ExpressionClassifier.load(classifier_file, model.q), events
+        factory, ExpressionClassifier.load(classifier_file, model.q, model.fingerprint), events
     )

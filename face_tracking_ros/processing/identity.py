@@ -46,8 +46,9 @@ class IdentityNodeConfig:
     Attributes:
         gallery_file: the enrolment gallery; read at start if it exists, written after every
             enrolment. Empty: an in-memory gallery, lost at exit.
-        model_file: face model the tracker uses (its p must match the gallery's); empty: the
-            packaged default model.
+        model_file: face model the tracker uses; a gallery of another p, or enrolled with another
+            model, is refused (the gallery records its model). Empty: the packaged default
+            model.
         max_enroll_duration: longest enrolment (EnrollIdentity.duration) accepted, s (> 0); this
             much sigma history is kept.
     """
@@ -171,11 +172,11 @@ def make_identity_processor(params: ParameterSource, factory: MessageFactory) ->
     """
     node_config = params.config(IdentityNodeConfig)
     config = params.config(IdentityConfig, prefix='identity.')
-    p = load_model(node_config.model_file or default_model_path()).p
+    model = load_model(node_config.model_file or default_model_path())
     gallery_file = node_config.gallery_file
     gallery = (
-        IdentityGallery.load(gallery_file, p)
+        IdentityGallery.load(gallery_file, model.p, model.fingerprint)
         if gallery_file and Path(gallery_file).exists()
-        else IdentityGallery.empty(p)
+        else IdentityGallery.empty(model.p, model.fingerprint)
     )
     return IdentityProcessor(factory, gallery, config, node_config)

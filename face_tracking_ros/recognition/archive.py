@@ -2,7 +2,9 @@
 
 Layout: every array is one ``.npy`` member of the zip; the member ``header`` is a 0-d unicode
 array holding a JSON object with at least ``kind`` (what the file holds, e.g.
-``'identity_gallery'``) and ``format_version`` (an integer). Files are read with
+``'identity_gallery'``) and ``format_version`` (an integer), and, for a file made with a known
+face model, that model's ``model_fingerprint``
+(:attr:`~face_tracking_ros.model.face_model.FaceModel.fingerprint`). Files are read with
 ``allow_pickle=False``, so no file can execute code, and written atomically
 (:func:`face_tracking_ros.io.atomic.write_npz_atomically`), so a crash never leaves a
 half-written file behind.
@@ -22,6 +24,7 @@ from face_tracking_ros.errors import ModelFileError
 from face_tracking_ros.io.atomic import read_npz, write_npz_atomically
 
 HEADER_KEY = 'header'
+MODEL_FIELD = 'model_fingerprint'
 
 
 @dataclass(frozen=True)
@@ -68,6 +71,28 @@ class Archive:
             self.fail(f'header field {name!r} is {value!r}, expected a {kind.__name__}')
         return value
 
+    def model(self, expected: str | None, remedy: str) -> str | None:
+        """The fingerprint of the face model the file was made with (None: not recorded).
+
+        Args:
+            expected: the fingerprint of the model it is to be used with; None: not checked.
+            remedy: what to do when they differ, for the error.
+
+        Raises:
+            ModelFileError: if the file records another model than ``expected``.
+        """
+        recorded = self.header.get(MODEL_FIELD)
+        if recorded is None:
+            return None
+        if not isinstance(recorded, str):
+            self.fail(f'header field {MODEL_FIELD!r} is {recorded!r}, expected a text')
+        if expected is not None and recorded != expected:
+            self.fail(
+                f'was made with another face model (fingerprint {recorded}) than the one in use '
+                f'({expected}): {remedy}'
+            )
+        return recorded
+
     def fail(self, problem: str) -> NoReturn:
         """Raise ModelFileError naming this file."""
         msg = f'{self.path}: {problem}'
@@ -94,6 +119,11 @@ def save_archive(
     members = {HEADER_KEY: np.array(json.dumps(full_header, sort_keys=True))}
     members.update({name: np.asarray(value) for name, value in arrays.items()})
     write_npz_atomically(Path(path), members)
+
+
+def model_header(fingerprint: str | None) -> dict[str, str]:
+    """The header field that records the face model a file was made with (none if unknown)."""
+    return {} if fingerprint is None else {MODEL_FIELD: fingerprint}
 
 
 def load_archive(path: str | os.PathLike[str], kind: str, format_version: int) -> Archive:

@@ -46,7 +46,7 @@ from sklearn.linear_model import LogisticRegression
 from sklearn.preprocessing import StandardScaler
 
 from face_tracking_ros.errors import ConfigError, InputError
-from face_tracking_ros.recognition.archive import load_archive, save_archive
+from face_tracking_ros.recognition.archive import load_archive, model_header, save_archive
 from face_tracking_ros.recognition.features import (
     STAMP_TOLERANCE,
     SlidingWindow,
@@ -115,6 +115,9 @@ class ExpressionClassifier:
         feature_scale: (3q,) positive standard deviation of the training features.
         weights: (K, 3q) weights W of the softmax.
         intercepts: (K,) intercepts b of the softmax.
+        model: fingerprint of the face model whose alpha it was trained on
+            (:attr:`~face_tracking_ros.model.face_model.FaceModel.fingerprint`); None: not known
+            (e.g. trained on the true alpha of synthetic bags).
     """
 
     labels: tuple[str, ...]
@@ -125,6 +128,7 @@ class ExpressionClassifier:
     feature_scale: np.ndarray
     weights: np.ndarray
     intercepts: np.ndarray
+    model: str | None = None
 
     def __post_init__(self) -> None:
         """Check labels and array shapes.
@@ -179,6 +183,7 @@ class ExpressionClassifier:
                 'q': self.q,
                 'window': self.window,
                 'calibration': self.calibration,
+                **model_header(self.model),
             },
             {
                 'feature_mean': self.feature_mean,
@@ -189,12 +194,20 @@ class ExpressionClassifier:
         )
 
     @classmethod
-    def load(cls, path: str | os.PathLike[str], q: int) -> ExpressionClassifier:
+    def load(
+        cls, path: str | os.PathLike[str], q: int, model: str | None = None
+    ) -> ExpressionClassifier:
         """Read a classifier written by :meth:`save` for a model with q action parameters.
+
+        Args:
+            path: the classifier file.
+            q: the model's q.
+            model: the model's fingerprint; a classifier trained on another model's alpha is
+                refused. None: not checked.
 
         Raises:
             ModelFileError: naming the file if it is missing, corrupt, of another format version,
-                has unknown labels, or was trained for another q (both q named).
+                has unknown labels, or was trained for another q (both q named) or another model.
         """
         archive = load_archive(path, CLASSIFIER_KIND, CLASSIFIER_FORMAT_VERSION)
         file_q = archive.field('q', int)
@@ -203,6 +216,9 @@ class ExpressionClassifier:
                 f'classifier was trained for q={file_q} action parameters, the model has q={q} '
                 '(train it on this model: face-tracking train-expressions --model)'
             )
+        recorded = archive.model(
+            model, 'train it on the alpha of this model: face-tracking train-expressions --model'
+        )
         labels = tuple(archive.field('labels', list))
         window = float(archive.field('window', float))
         calibration = float(archive.field('calibration', float))
@@ -214,7 +230,14 @@ class ExpressionClassifier:
             'intercepts': archive.array('intercepts', (k,)),
         }
         try:
-            return cls(labels=labels, q=q, window=window, calibration=calibration, **arrays)
+            return cls(
+                labels=labels,
+                q=q,
+                window=window,
+                calibration=calibration,
+                **arrays,
+                model=recorded,
+            )
         except InputError as error:
             problem = str(error)
         archive.fail(problem)

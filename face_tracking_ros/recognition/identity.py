@@ -38,7 +38,7 @@ import numpy as np
 from scipy.stats import chi2
 
 from face_tracking_ros.errors import ConfigError, InputError
-from face_tracking_ros.recognition.archive import load_archive, save_archive
+from face_tracking_ros.recognition.archive import load_archive, model_header, save_archive
 from face_tracking_ros.recognition.features import STAMP_TOLERANCE, SlidingWindow
 from face_tracking_ros.recognition.gaussian import GaussianClasses
 from face_tracking_ros.recognition.validation import check_shapes
@@ -123,6 +123,8 @@ class IdentityGallery:
         means: (K, p) mean sigma mu_k of each person.
         covariances: (K, p, p) covariance C_k of each person, floor included.
         counts: (K,) number of sigma estimates each person was enrolled from.
+        model: fingerprint of the face model whose sigma it holds
+            (:attr:`~face_tracking_ros.model.face_model.FaceModel.fingerprint`); None: not known.
     """
 
     p: int
@@ -130,6 +132,7 @@ class IdentityGallery:
     means: np.ndarray
     covariances: np.ndarray
     counts: np.ndarray
+    model: str | None = None
 
     def __post_init__(self) -> None:
         """Check that the arrays agree with p and the names.
@@ -153,9 +156,11 @@ class IdentityGallery:
             _ = self.classes
 
     @classmethod
-    def empty(cls, p: int) -> IdentityGallery:
-        """A gallery for p-dimensional sigma with nobody enrolled."""
-        return cls(p, (), np.zeros((0, p)), np.zeros((0, p, p)), np.zeros(0, dtype=np.int64))
+    def empty(cls, p: int, model: str | None = None) -> IdentityGallery:
+        """A gallery for the p-dimensional sigma of ``model`` (a fingerprint) with nobody in."""
+        return cls(
+            p, (), np.zeros((0, p)), np.zeros((0, p, p)), np.zeros(0, dtype=np.int64), model
+        )
 
     def __len__(self) -> int:
         """Number of enrolled people K."""
@@ -193,6 +198,7 @@ class IdentityGallery:
             means=np.vstack([self.means[keep], sigmas.mean(axis=0)]),
             covariances=np.concatenate([self.covariances[keep], covariance[None]]),
             counts=np.append(self.counts[keep], len(sigmas)),
+            model=self.model,
         )
 
     def classify(self, sigmas: np.ndarray, config: IdentityConfig) -> IdentityDecision:
@@ -238,22 +244,33 @@ class IdentityGallery:
             path,
             GALLERY_KIND,
             GALLERY_FORMAT_VERSION,
-            {'p': self.p, 'names': list(self.names)},
+            {'p': self.p, 'names': list(self.names), **model_header(self.model)},
             {'means': self.means, 'covariances': self.covariances, 'counts': self.counts},
         )
 
     @classmethod
-    def load(cls, path: str | os.PathLike[str], p: int) -> IdentityGallery:
+    def load(
+        cls, path: str | os.PathLike[str], p: int, model: str | None = None
+    ) -> IdentityGallery:
         """Read a gallery written by :meth:`save` for a model with p shape parameters.
+
+        Args:
+            path: the gallery file.
+            p: the model's p.
+            model: the model's fingerprint; a gallery enrolled with another model is refused.
+                None: not checked.
 
         Raises:
             ModelFileError: naming the file if it is missing, corrupt, empty, of another format
-                version, or made for another p (both p named).
+                version, or made for another p (both p named) or another model.
         """
         archive = load_archive(path, GALLERY_KIND, GALLERY_FORMAT_VERSION)
         file_p = archive.field('p', int)
         if file_p != p:
             archive.fail(f'gallery is for sigma of dimension p={file_p}, the model has p={p}')
+        recorded = archive.model(
+            model, 'its sigma means nothing to this model; enrol the people again with it'
+        )
         names = archive.field('names', list)
         if not names:
             archive.fail('gallery holds no enrolled identities')
@@ -266,7 +283,7 @@ class IdentityGallery:
             'counts': archive.array('counts', (k,)).astype(np.int64),
         }
         try:
-            return cls(p=p, names=tuple(names), **arrays)
+            return cls(p=p, names=tuple(names), **arrays, model=recorded)
         except InputError as error:
             problem = str(error)
         archive.fail(problem)
