@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -11,10 +12,12 @@ from recognition_streams import truth_model, write_truth_bag
 from face_tracking_ros.cli import main as cli
 from face_tracking_ros.cli.recognition_report import tracked_sequence
 from face_tracking_ros.cli.train_expressions import truth_sequences
-from face_tracking_ros.errors import BagError
+from face_tracking_ros.errors import BagError, ConfigError
 from face_tracking_ros.io.bags import BagWriter, read_messages
 from face_tracking_ros.io.conversions import make_header, stamp_to_ns
 from face_tracking_ros.io.messages import RosbagsMessages
+from face_tracking_ros.io.provenance import KEY as PROVENANCE_KEY
+from face_tracking_ros.io.provenance import Provenance
 from face_tracking_ros.io.typestore import typestore
 from face_tracking_ros.recognition.benchmark import (
     BenchmarkConfig,
@@ -22,6 +25,7 @@ from face_tracking_ros.recognition.benchmark import (
     tracking_noise,
 )
 from face_tracking_ros.recognition.expression import (
+    ExpressionClassifier,
     ExpressionTrainingConfig,
     train_expression_classifier,
 )
@@ -121,7 +125,7 @@ def test_tracked_sequence_keeps_tracking_frames_matched_by_stamp(pairs: dict) ->
     assert list(sequence.labels) == [labels[s] for s in kept]
 
 
-def test_errors(pairs: dict, tmp_path: Path) -> None:
+def test_errors(pairs: dict, tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
     tracked, truth = (Path(p) for p in pairs['test'][0].split('='))
     other_truth = Path(pairs['strangers'][0].split('=')[1])
     with BagWriter(tmp_path / 'later') as bag:
@@ -134,3 +138,21 @@ def test_errors(pairs: dict, tmp_path: Path) -> None:
         tracked_sequence(truth, truth)
     with pytest.raises(SystemExit):
         cli.main(['recognition-report', '--enrol', str(tracked), '--test', 'x=y'])
+    # A track that records the bag it was tracked from, paired with another's truth (which
+    # starts at the same stamp, as synthetic bags do: every frame would pair).
+    provenance = Provenance.of(truth, ['mono_tracker'], {})
+    with BagWriter(tmp_path / 'recorded') as bag:
+        bag.set_custom_data(PROVENANCE_KEY, provenance.text())
+        for message in read_messages(tracked, topics=['face/state']):
+            bag.write(message.topic, message.msgtype, message.msg, message.stamp_ns)
+    assert len(tracked_sequence(tmp_path / 'recorded', truth).times) > 0
+    with pytest.raises(ConfigError, match=f'was tracked from {truth}, not from {other_truth}'):
+        tracked_sequence(tmp_path / 'recorded', other_truth)
+    # A classifier trained on another model's alpha than the one the track names (the default).
+    bound = tmp_path / 'bound.npz'
+    loaded = ExpressionClassifier.load(pairs['classifier'][0], 6)
+    replace(loaded, model='0123456789abcdef').save(bound)
+    pair = f'{tmp_path / "recorded"}={truth}'
+    argv = ['recognition-report', '--enrol', pair, '--test', pair, '--classifier', str(bound)]
+    assert cli.main(argv) == 2
+    assert 'was made with another face model' in capsys.readouterr().err

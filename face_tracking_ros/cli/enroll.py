@@ -20,7 +20,7 @@ import numpy as np
 
 from face_tracking_ros.data import default_model_path
 from face_tracking_ros.errors import BagError, ConfigError
-from face_tracking_ros.io.provenance import Provenance, file_digest
+from face_tracking_ros.io.provenance import tracked_with
 from face_tracking_ros.io.series import load_states, require_parameters
 from face_tracking_ros.model.model_file import load_model
 from face_tracking_ros.recognition.identity import IdentityConfig, IdentityGallery
@@ -48,7 +48,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> None:
     """Enrol and save the gallery."""
-    model_path = tracking_model(args.bags, args.model)
+    model_path = tracked_with(args.bags, args.model) or default_model_path()
     model = load_model(model_path)
     sigmas = tracked_sigmas(args.bags)
     if sigmas.shape[1] != model.p:
@@ -65,52 +65,6 @@ def run(args: argparse.Namespace) -> None:
         f'enrolled {args.name!r} from {len(sigmas)} shape estimates of the model {model_path} '
         f'(fingerprint {model.fingerprint}); {args.gallery} holds {", ".join(gallery.names)}'
     )
-
-
-def tracking_model(bags: list[Path], given: Path | None) -> Path:
-    """The face model file the bags were tracked with.
-
-    ``given`` if the bags' metadata agrees (or names none), else the model the metadata names,
-    else the packaged default (what the tracker and identity_recognizer use without model_file).
-
-    Raises:
-        ConfigError: if a bag was tracked with another model than ``given``, the bags with
-            different models, or with a model file that is gone or has changed since.
-    """
-    recorded = {}
-    for bag in bags:
-        provenance = Provenance.read(bag)
-        used = provenance.tracking_model() if provenance is not None else None
-        if used is not None:
-            value, digest = used
-            path = Path(value) if value else default_model_path()
-            recorded[bag] = (path, digest or _digest_now(path))
-    if given is not None and given.is_file():  # (a missing one is named by load_model)
-        for bag, (path, digest) in recorded.items():
-            if digest != file_digest(given):
-                msg = f'{bag} was tracked with the face model {path}, not {given}'
-                raise ConfigError(f'{msg}: enrol it with that model')
-        return given
-    models = {digest: path for path, digest in recorded.values()}
-    if given is not None or not models:
-        return given or default_model_path()
-    if len(models) > 1:
-        names = ', '.join(sorted(map(str, models.values())))
-        msg = (
-            f'the bags were tracked with different face models ({names}): a gallery holds one '
-            'model; enrol the bags of each in a gallery of its own'
-        )
-        raise ConfigError(msg)
-    bag, (path, digest) = next(iter(recorded.items()))
-    if digest is None or _digest_now(path) != digest:
-        msg = f'{bag} was tracked with the face model {path}, which is gone or has changed since'
-        raise ConfigError(f'{msg}: give that model as --model')
-    return path
-
-
-def _digest_now(path: Path) -> str | None:
-    """The SHA-256 of the file at ``path`` now; None if there is none."""
-    return file_digest(path) if path.is_file() else None
 
 
 def tracked_sigmas(bags: list[Path]) -> np.ndarray:

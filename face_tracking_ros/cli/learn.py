@@ -54,7 +54,7 @@ from face_tracking_ros.io.conversions import (
     stamp_to_ns,
     truth_from_msg,
 )
-from face_tracking_ros.io.provenance import Provenance
+from face_tracking_ros.io.provenance import Provenance, other_source
 from face_tracking_ros.io.series import has_truth
 from face_tracking_ros.learning.alignment import align_training_set
 from face_tracking_ros.learning.evaluation import (
@@ -455,10 +455,10 @@ def _check_truth_pairs(mesh_bags: Sequence[Path], truth_bags: Sequence[Path | No
         ConfigError: naming the first mesh bag paired with another bag's truth.
     """
     for mesh, truth in zip(mesh_bags, truth_bags, strict=True):
-        made = Provenance.read(mesh) if truth is not None else None
-        if made is not None and Path(made.source).name != truth.name:
+        source = other_source(mesh, truth) if truth is not None else None
+        if source is not None:
             msg = (
-                f'--truth pairs {mesh} with {truth}, but it was tracked from {made.source}: give '
+                f'--truth pairs {mesh} with {truth}, but it was tracked from {source}: give '
                 'the truth bags in the order of the mesh bags'
             )
             raise ConfigError(msg)

@@ -17,10 +17,12 @@ from pathlib import Path
 
 import numpy as np
 
-from face_tracking_ros.errors import BagError
+from face_tracking_ros.errors import BagError, ConfigError
 from face_tracking_ros.io.bags import read_messages
 from face_tracking_ros.io.conversions import stamp_to_ns, truth_from_msg
+from face_tracking_ros.io.provenance import other_source, tracked_with
 from face_tracking_ros.io.series import require_parameters
+from face_tracking_ros.model.model_file import load_model
 from face_tracking_ros.recognition.evaluation import (
     detect_events,
     enroll_sequences,
@@ -55,6 +57,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument('--test', required=True, help='other sequences of those people', **pair)
     parser.add_argument('--strangers', default=[], help='people never enrolled', **pair)
     parser.add_argument('--classifier', required=True, type=Path, help='expression classifier')
+    parser.add_argument(
+        '--model',
+        type=Path,
+        help='face model the bags were tracked with, for the check that the classifier was '
+        'trained on it (default: the one their metadata names)',
+    )
     parser.set_defaults(func=run)
 
 
@@ -63,13 +71,18 @@ def run(args: argparse.Namespace) -> None:
 
     Raises:
         BagError: if a bag is unreadable, lacks its topic or no frame pairs up.
-        ModelFileError: if the classifier does not match the tracked alpha.
+        ConfigError: if a tracked bag was tracked from another bag than its truth, or the bags
+            with different face models or another than ``--model``.
+        ModelFileError: if the classifier does not match the tracked alpha or their model.
     """
     enrol, test, strangers = (
         [tracked_sequence(tracked, truth) for tracked, truth in pairs]
         for pairs in (args.enrol, args.test, args.strangers)
     )
-    classifier = ExpressionClassifier.load(args.classifier, enrol[0].alpha.shape[1])
+    pairs = [*args.enrol, *args.test, *args.strangers]
+    model = tracked_with([tracked for tracked, _ in pairs], args.model)
+    fingerprint = load_model(model).fingerprint if model is not None else None
+    classifier = ExpressionClassifier.load(args.classifier, enrol[0].alpha.shape[1], fingerprint)
     identity_config = IdentityConfig()
     gallery = enroll_sequences(enrol, identity_config)
     identity = identity_accuracy(gallery, test, strangers, identity_config)
@@ -106,7 +119,12 @@ def tracked_sequence(tracked: Path, truth: Path) -> ParameterSequence:
     Raises:
         BagError: if a bag cannot be read, lacks its topic, no TRACKING frame has truth, or the
             states carry no sigma or alpha.
+        ConfigError: if ``tracked`` records that it was tracked from another bag than ``truth``.
     """
+    source = other_source(tracked, truth)
+    if source is not None:
+        msg = f'{tracked}={truth}: {tracked} was tracked from {source}, not from {truth}'
+        raise ConfigError(msg)
     labels = {}
     subject = ''
     for message in read_messages(truth, topics=[TRUTH_TOPIC]):

@@ -17,6 +17,8 @@ import json
 from pathlib import Path
 from typing import Any
 
+from face_tracking_ros.data import default_model_path
+from face_tracking_ros.errors import ConfigError
 from face_tracking_ros.io.bags import custom_data
 
 KEY = 'face_tracking_ros.replay'
@@ -100,3 +102,62 @@ class Provenance:
 def file_digest(path: Path) -> str:
     """The SHA-256 of a file's bytes, as recorded in :attr:`Provenance.file_digests`."""
     return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def other_source(made: Path, source: Path) -> str | None:
+    """The bag ``made`` records it was replayed from, if that is not ``source``.
+
+    Compared by name (the bags may have moved since); None if it is, or ``made`` records none.
+    """
+    provenance = Provenance.read(made)
+    if provenance is None or Path(provenance.source).name == source.name:
+        return None
+    return provenance.source
+
+
+def tracked_with(bags: Sequence[Path], given: Path | None) -> Path | None:
+    """The face model file tracker output bags were made with, as far as they say.
+
+    Args:
+        bags: tracker output bags; those that record a tracker's replay name its model.
+        given: the model the user says they were tracked with; None: not said.
+
+    Returns:
+        ``given`` if no bag says otherwise, else the model the bags name (the packaged default
+        for a tracker run without ``model_file``), None if neither.
+
+    Raises:
+        ConfigError: if a bag was tracked with another model than ``given``, the bags with
+            different models, or with a model file that is gone or has changed since.
+    """
+    recorded = {}
+    for bag in bags:
+        provenance = Provenance.read(bag)
+        used = provenance.tracking_model() if provenance is not None else None
+        if used is not None:
+            value, digest = used
+            path = Path(value) if value else default_model_path()
+            recorded[bag] = (path, digest or _digest_now(path))
+    if given is not None and given.is_file():  # (a missing one is for its loader to name)
+        for bag, (path, digest) in recorded.items():
+            if digest != file_digest(given):
+                msg = f'{bag} was tracked with the face model {path}, not {given}'
+                raise ConfigError(f'{msg}: give that model')
+        return given
+    models = {digest: path for path, digest in recorded.values()}
+    if given is not None or not models:
+        return given
+    if len(models) > 1:
+        names = ', '.join(sorted(map(str, models.values())))
+        msg = f'the bags were tracked with different face models ({names}): give those of one'
+        raise ConfigError(msg)
+    bag, (path, digest) = next(iter(recorded.items()))
+    if digest is None or _digest_now(path) != digest:
+        msg = f'{bag} was tracked with the face model {path}, which is gone or has changed since'
+        raise ConfigError(f'{msg}: give that model as --model')
+    return path
+
+
+def _digest_now(path: Path) -> str | None:
+    """The SHA-256 of the file at ``path`` now; None if there is none."""
+    return file_digest(path) if path.is_file() else None
