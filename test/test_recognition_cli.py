@@ -11,9 +11,12 @@ from recognition_streams import truth_model, write_truth_bag
 from face_tracking_ros.cli import main as cli
 from face_tracking_ros.cli.train_expressions import truth_sequences
 from face_tracking_ros.errors import BagError
-from face_tracking_ros.model.model_file import save_model
+from face_tracking_ros.model.model_file import load_model, save_model
 from face_tracking_ros.recognition.evaluation import expression_accuracy
-from face_tracking_ros.recognition.expression import ExpressionClassifier
+from face_tracking_ros.recognition.expression import (
+    ExpressionClassifier,
+    ExpressionTrainingConfig,
+)
 from face_tracking_ros.synthetic.faces import ACTIVE_EXPRESSIONS, FacePopulation
 
 
@@ -47,7 +50,16 @@ def test_train_on_model_alpha_of_truth_bags(
     )
 
     assert status == 0
-    assert f'q={model.q}' in capsys.readouterr().out
+    printed = capsys.readouterr().out
+    assert f'q={model.q}' in printed
+    # The frames trained on: the neutral ones and the expressions above the intensity cut.
+    sequences = [s for bag in bags[:2] for s in truth_sequences(bag, model=model)]
+    kept = sum(
+        np.sum((s.labels == 'neutral') | (s.intensity >= ExpressionTrainingConfig().min_intensity))
+        for s in sequences
+    )
+    assert kept < sum(len(s.labels) for s in sequences)
+    assert f'trained on {kept} frames of 2 sequences' in printed
     classifier = ExpressionClassifier.load(out, model.q)
     held_out = truth_sequences(bags[2], model=model)
     assert expression_accuracy(classifier, held_out).clear >= 0.9
@@ -74,4 +86,10 @@ def test_errors_are_reported(bags: list[Path], tmp_path: Path, capsys) -> None:
         ['train-expressions', str(bags[0]), '--out', str(tmp_path / 'x'), '--window', '0']
     )
     assert status == cli.EXIT_ERROR
-    assert 'window must be > 0' in capsys.readouterr().err
+    assert 'window must be > 1e-06 s, got 0.0' in capsys.readouterr().err
+    # --out naming the model (or any file that is not a classifier) is not written over.
+    save_model(model, tmp_path / 'model.npz')
+    argv = ['train-expressions', str(bags[0]), '--model', str(tmp_path / 'model.npz')]
+    assert cli.main([*argv, '--out', str(tmp_path / 'model.npz')]) == cli.EXIT_ERROR
+    assert 'exists and is not an expression classifier' in capsys.readouterr().err
+    assert load_model(tmp_path / 'model.npz').fingerprint == model.fingerprint

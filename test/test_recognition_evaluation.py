@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 from recognition_streams import ExpressionWorld, parameter_sequence, sigma_population
@@ -94,3 +96,9 @@ def test_decision_windows_are_whole_seconds(streams: dict[str, list]) -> None:
 
     assert len(windows) == 6
     assert all(values.shape == (30, len(STDS)) for _, values in windows)
+    # The track lost from 1.5 to 3.0 s: the window of 2-3 s has no frame and is left out.
+    elapsed = sequence.times - sequence.times[0]
+    kept = (elapsed < 1.5) | (elapsed >= 3.0)
+    fields = ('times', 'sigma', 'alpha', 'labels', 'intensity')
+    gap = replace(sequence, **{name: getattr(sequence, name)[kept] for name in fields})
+    assert [len(values) for _, values in decision_windows([gap], 1.0)] == [30, 15, 30, 30, 30]

@@ -185,6 +185,15 @@ def test_file_errors(tmp_path: Path) -> None:
         IdentityGallery.load(path, 3)
     with pytest.raises(ModelFileError, match='no such file'):
         IdentityGallery.load(tmp_path / 'missing.npz', P)
+    with pytest.raises(ModelFileError, match='is a directory, not a file'):
+        IdentityGallery.load(tmp_path, P)
+    # A damaged central directory whose 'version needed to extract' reads 25.5.
+    data = bytearray(path.read_bytes())
+    entry = data.index(b'PK\x01\x02')
+    data[entry + 6 : entry + 8] = b'\xff\x00'
+    (tmp_path / 'version.npz').write_bytes(data)
+    with pytest.raises(ModelFileError, match='not a readable pickle-free .npz archive'):
+        IdentityGallery.load(tmp_path / 'version.npz', P)
     (tmp_path / 'corrupt.npz').write_bytes(path.read_bytes()[:200])
     with pytest.raises(ModelFileError, match='not an .npz archive, or a damaged one'):
         IdentityGallery.load(tmp_path / 'corrupt.npz', P)
@@ -225,12 +234,16 @@ def test_input_and_config_errors() -> None:
         gallery.enroll('ann', np.full((2, P), np.nan), CONFIG)
     with pytest.raises(InputError, match='means has shape'):
         IdentityGallery(P, ('ann',), np.zeros((2, P)), np.zeros((1, P, P)), np.zeros(1))
-    with pytest.raises(ConfigError, match='min_std'):
-        IdentityConfig(min_std=0.0)
+    with pytest.raises(ConfigError, match=r"named '  '"):
+        gallery.enroll('  ', np.zeros((2, P)), CONFIG)
+    for min_std in (0.0, np.inf, 1e200, np.nan):
+        with pytest.raises(ConfigError, match=r'min_std must be in \(0, 1.0\] m'):
+            IdentityConfig(min_std=min_std)
     with pytest.raises(ConfigError, match='acceptance'):
         IdentityConfig(acceptance=1.0)
-    with pytest.raises(ConfigError, match='window'):
-        IdentityConfig(window=-1.0)
+    for window in (-1.0, 1e-9, np.nan):  # (1e-9: shorter than the stamp tolerance)
+        with pytest.raises(ConfigError, match='identity window must be > 1e-06 s'):
+            IdentityConfig(window=window)
 
 
 def test_an_empty_gallery_decides_nothing_until_the_first_enrolment() -> None:

@@ -156,3 +156,22 @@ def test_errors(pairs: dict, tmp_path: Path, capsys: pytest.CaptureFixture) -> N
     argv = ['recognition-report', '--enrol', pair, '--test', pair, '--classifier', str(bound)]
     assert cli.main(argv) == 2
     assert 'was made with another face model' in capsys.readouterr().err
+    # A test bag shorter than a decision window, and one of another model's q.
+    with BagWriter(tmp_path / 'short') as bag, BagWriter(tmp_path / 'narrow') as narrow:
+        for k, message in enumerate(read_messages(tracked, topics=['face/state'])):
+            if k < 20:
+                bag.write(message.topic, message.msgtype, message.msg, message.stamp_ns)
+            state = message.msg
+            state.alpha = state.alpha[:-1]
+            narrow.write(message.topic, message.msgtype, state, message.stamp_ns)
+    enrol = [
+        'recognition-report',
+        '--enrol',
+        *pairs['enrol'],
+        '--classifier',
+        pairs['classifier'][0],
+    ]
+    assert cli.main([*enrol, '--test', f'{tmp_path / "short"}={truth}']) == 2
+    assert 'no TRACKING stretch of the --test bags spans a 1-s window' in capsys.readouterr().err
+    assert cli.main([*enrol, '--test', f'{tmp_path / "narrow"}={truth}']) == 2
+    assert f'{tmp_path / "narrow"}: sigma and alpha of p=' in capsys.readouterr().err

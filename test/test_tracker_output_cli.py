@@ -12,7 +12,7 @@ from rosbags.rosbag2 import StoragePlugin, Writer
 
 from face_tracking_ros.cli.main import main
 from face_tracking_ros.data import default_model_path
-from face_tracking_ros.errors import ModelFileError
+from face_tracking_ros.errors import ConfigError, ModelFileError
 from face_tracking_ros.io import conversions
 from face_tracking_ros.io.bags import BagWriter, bag_topics, read_messages
 from face_tracking_ros.io.messages import RosbagsMessages
@@ -23,7 +23,7 @@ from face_tracking_ros.io.typestore import typestore
 from face_tracking_ros.model.model_file import load_model, save_model
 from face_tracking_ros.processing.identity import make_identity_processor
 from face_tracking_ros.processing.parameters import OverrideParameters
-from face_tracking_ros.recognition.identity import IdentityGallery
+from face_tracking_ros.recognition.identity import IdentityConfig, IdentityGallery
 from face_tracking_ros.synthetic.clicks import clicks_from_bag, write_init_file
 from face_tracking_ros.tracking.initialisation import Initialisation
 from face_tracking_ros.tracking.result import TrackStatus
@@ -65,6 +65,12 @@ def test_a_tracked_identity_is_enrolled_and_a_model_less_track_refused(tmp_path,
     enrolled = IdentityGallery.load(gallery, 2)
     assert enrolled.names == ('ann',)
     np.testing.assert_allclose(enrolled.means[0], sigmas.mean(axis=0))
+    floor = np.cov(sigmas, rowvar=False) + IdentityConfig().min_std ** 2 * np.eye(2)
+    np.testing.assert_allclose(enrolled.covariances[0], floor)
+    assert main(['enroll', str(tmp_path / 'ann'), '--name', 'ann', '--gallery', str(gallery),
+                 '--min-std', '0.01']) == 0  # fmt: skip
+    floor = np.cov(sigmas, rowvar=False) + 0.01**2 * np.eye(2)
+    np.testing.assert_allclose(IdentityGallery.load(gallery, 2).covariances[0], floor)
     # A stereo_tracker's output without a face model: states without sigma.
     bare = _states(tmp_path / 'bare', np.zeros((5, 0)))
     assert main(['enroll', str(bare), '--name', 'bob', '--gallery', str(gallery)]) == 2
@@ -254,3 +260,23 @@ def test_stereo_clicks_with_left_and_right_swapped_are_named(tmp_path, capsys):
     printed = capsys.readouterr().out
     assert 'lost_pairs 10' in printed and 'fit a face turned away from the camera' in printed
     assert 'are left and right swapped?' in printed
+
+
+def test_the_recognizer_node_refuses_an_enrolment_it_cannot_save(tmp_path):
+    """No traceback from the node's service: the enrolment is refused, the gallery unchanged."""
+    factory = RosbagsMessages(typestore())
+    absent = tmp_path / 'absent' / 'gallery.npz'
+    processor = make_identity_processor(OverrideParameters({'gallery_file': str(absent)}), factory)
+    for f in range(10):
+        header = conversions.make_header(factory, 10**9 + f * 10**8, 'camera')
+        shape = factory.make(
+            'face_tracking_msgs/msg/ShapeParams', header=header, sigma=[0.01, 0.0]
+        )
+        processor.handle('face/shape', shape, frozenset())
+    with pytest.raises(ConfigError, match=r"cannot enrol 'ann': the gallery cannot be saved"):
+        processor.enroll('ann', 1.0)
+    assert processor.gallery.names == ()
+    for duration in (np.nan, 1e-9):
+        bad = {'max_enroll_duration': str(duration)}
+        with pytest.raises(ConfigError, match='max_enroll_duration must be > 1e-06 s'):
+            make_identity_processor(OverrideParameters(bad), factory)

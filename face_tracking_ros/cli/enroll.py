@@ -38,6 +38,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument('--name', required=True, help="the person's name")
     parser.add_argument('--gallery', required=True, type=Path, help='gallery file (.npz)')
     parser.add_argument(
+        '--min-std',
+        type=float,
+        default=IdentityConfig().min_std,
+        help="floor on the person's sigma standard deviation, m, kept in the gallery "
+        '(identity_recognizer: identity.min_std; %(default)s)',
+    )
+    parser.add_argument(
         '--model',
         type=Path,
         help='face model the bags were tracked with (default: the one their metadata names, '
@@ -59,7 +66,7 @@ def run(args: argparse.Namespace) -> None:
         if args.gallery.exists()
         else IdentityGallery.empty(model.p, model.fingerprint)
     )
-    gallery = gallery.enroll(args.name, sigmas, IdentityConfig())
+    gallery = gallery.enroll(args.name, sigmas, IdentityConfig(min_std=args.min_std))
     gallery.save(args.gallery)
     print(
         f'enrolled {args.name!r} from {len(sigmas)} shape estimates of the model {model_path} '

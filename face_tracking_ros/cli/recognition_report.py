@@ -80,6 +80,7 @@ def run(args: argparse.Namespace) -> None:
         for pairs in (args.enrol, args.test, args.strangers)
     )
     pairs = [*args.enrol, *args.test, *args.strangers]
+    _check_one_model([tracked for tracked, _ in pairs], [*enrol, *test, *strangers])
     model = tracked_with([tracked for tracked, _ in pairs], args.model)
     fingerprint = load_model(model).fingerprint if model is not None else None
     classifier = ExpressionClassifier.load(args.classifier, enrol[0].alpha.shape[1], fingerprint)
@@ -89,6 +90,12 @@ def run(args: argparse.Namespace) -> None:
     rejected = (
         f'strangers rejected {100 * identity.rejection:.1f} %' if strangers else 'no strangers'
     )
+    if not identity.windows:
+        msg = (
+            f'no TRACKING stretch of the --test bags spans a {identity_config.window:.0f}-s '
+            'window: no identity decision to score'
+        )
+        raise BagError(msg)
     print(
         f'identity after {identity_config.window:.0f} s ({identity.windows} windows): '
         f'{100 * identity.closed_set:.1f} % closed set, {100 * identity.open_set:.1f} % with '
@@ -108,9 +115,30 @@ def run(args: argparse.Namespace) -> None:
                 for e, s in zip(events, scored, strict=True)
             ]
         )
-        latency = 1000 * (np.mean(score.latencies) if len(score.latencies) else np.nan)
-        print(f'events (onset at {name}): F1 {score.f1:.3f}, mean onset latency {latency:.0f} ms')
+        latency = (
+            f'mean onset latency {1000 * np.mean(score.latencies):.0f} ms'
+            if len(score.latencies)
+            else 'no onset found'
+        )
+        print(f'events (onset at {name}): F1 {score.f1:.3f}, {latency}')
     print(separation_experiment(enrol, test, identity_config, ExpressionTrainingConfig()).format())
+
+
+def _check_one_model(bags: list[Path], sequences: list[ParameterSequence]) -> None:
+    """Check that every track has the sigma and alpha dimensions of the first.
+
+    Raises:
+        BagError: naming the first bag whose p or q differs from the first bag's.
+    """
+    first = (sequences[0].sigma.shape[1], sequences[0].alpha.shape[1])
+    for bag, sequence in zip(bags, sequences, strict=True):
+        dims = (sequence.sigma.shape[1], sequence.alpha.shape[1])
+        if dims != first:
+            msg = (
+                f'{bag}: sigma and alpha of p={dims[0]}, q={dims[1]}, {bags[0]} p={first[0]}, '
+                f'q={first[1]}: the bags were tracked with different face models'
+            )
+            raise BagError(msg)
 
 
 def tracked_sequence(tracked: Path, truth: Path) -> ParameterSequence:

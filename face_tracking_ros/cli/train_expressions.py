@@ -17,15 +17,19 @@ from pathlib import Path
 
 import numpy as np
 
-from face_tracking_ros.errors import BagError, ConfigError
+from face_tracking_ros.errors import BagError, ConfigError, ModelFileError
 from face_tracking_ros.io.bags import read_messages
 from face_tracking_ros.io.conversions import truth_from_msg
 from face_tracking_ros.model.face_model import FaceModel
 from face_tracking_ros.model.model_file import load_model
+from face_tracking_ros.recognition.archive import load_archive
 from face_tracking_ros.recognition.evaluation import expression_accuracy
 from face_tracking_ros.recognition.expression import (
+    CLASSIFIER_FORMAT_VERSION,
+    CLASSIFIER_KIND,
     ExpressionTrainingConfig,
     train_expression_classifier,
+    training_features,
 )
 from face_tracking_ros.recognition.node_fit import fit_model_to_nodes
 from face_tracking_ros.recognition.sequences import ParameterSequence
@@ -92,6 +96,7 @@ def run(args: argparse.Namespace) -> None:
         min_intensity=args.min_intensity,
         regularisation=args.regularisation,
     )
+    _check_out(args.out)
     model = load_model(args.model) if args.model is not None else None
     sequences = [seq for bag in args.bags for seq in truth_sequences(bag, args.topic, model)]
     classifier = train_expression_classifier(sequences, config)
@@ -99,15 +104,31 @@ def run(args: argparse.Namespace) -> None:
         classifier = replace(classifier, model=model.fingerprint)
     classifier.save(args.out)
     accuracy = expression_accuracy(classifier, sequences, config.min_intensity)
-    labels, counts = np.unique(np.concatenate([s.labels for s in sequences]), return_counts=True)
+    labels, counts = np.unique(training_features(sequences, config)[1], return_counts=True)
     source = f'alpha of {args.model}' if model is not None else 'true alpha'
     print(f'trained on {sum(counts)} frames of {len(sequences)} sequences', end=' ')
+    # (expression frames below --min-intensity are not trained on, nor counted here)
     print(f'({source}, q={classifier.q})')
     print(
         'frames per label: ' + ', '.join(f'{k} {n}' for k, n in zip(labels, counts, strict=True))
     )
     print(f'training accuracy: {100 * accuracy.clear:.1f} % on clear frames')
     print(f'wrote {args.out}')
+
+
+def _check_out(out: Path) -> None:
+    """Refuse to write over a file that is not an expression classifier (a model, a gallery).
+
+    Raises:
+        ConfigError: naming the file and what it holds.
+    """
+    if not out.exists():
+        return
+    try:
+        load_archive(out, CLASSIFIER_KIND, CLASSIFIER_FORMAT_VERSION)
+    except ModelFileError as error:
+        msg = f'--out {out} exists and is not an expression classifier ({error}): not written over'
+        raise ConfigError(msg) from None
 
 
 def truth_sequences(

@@ -51,7 +51,7 @@ def read_npz(path: Path) -> dict[str, np.ndarray]:
             or holding pickled objects.
     """
     if not path.is_file():
-        msg = f'{path}: no such file'
+        msg = f'{path}: is a directory, not a file' if path.is_dir() else f'{path}: no such file'
         raise ModelFileError(msg)
     if not zipfile.is_zipfile(path):
         msg = f'{path}: not an .npz archive, or a damaged one (no zip directory)'
@@ -59,7 +59,8 @@ def read_npz(path: Path) -> dict[str, np.ndarray]:
     try:
         with np.load(path, allow_pickle=False) as archive:
             return {name: archive[name] for name in archive.files}
-    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as error:
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile, NotImplementedError) as error:
+        # (NotImplementedError: zipfile's word for a damaged header's 'version needed')
         msg = f'{path}: not a readable pickle-free .npz archive ({error})'
         raise ModelFileError(msg) from None
 

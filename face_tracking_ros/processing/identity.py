@@ -26,7 +26,7 @@ from face_tracking_ros.model.model_file import load_model
 from face_tracking_ros.processing.base import Output, Port
 from face_tracking_ros.processing.parameters import ParameterSource
 from face_tracking_ros.processing.track_status import STATE_PORT, TrackEnds
-from face_tracking_ros.recognition.features import SlidingWindow
+from face_tracking_ros.recognition.features import STAMP_TOLERANCE, SlidingWindow
 from face_tracking_ros.recognition.identity import (
     IdentityConfig,
     IdentityDecision,
@@ -69,8 +69,9 @@ class IdentityProcessor:
         node_config: IdentityNodeConfig,
     ) -> None:
         """Start from ``gallery``; decide on ``config.window`` seconds of sigma."""
-        if node_config.max_enroll_duration <= 0:
-            msg = f'max_enroll_duration must be > 0 s, got {node_config.max_enroll_duration}'
+        if not node_config.max_enroll_duration > STAMP_TOLERANCE:
+            limit, value = STAMP_TOLERANCE, node_config.max_enroll_duration
+            msg = f'max_enroll_duration must be > {limit} s, got {value}'
             raise ConfigError(msg)
         self._factory = factory
         self._node_config = node_config
@@ -135,7 +136,8 @@ class IdentityProcessor:
             The number of sigma samples used.
 
         Raises:
-            ConfigError: for a duration out of range, no samples yet, or a bad name.
+            ConfigError: for a duration out of range, no samples yet, a bad name, or a gallery
+                file that cannot be written (the gallery then stays as it was).
         """
         if not 0 < duration <= self._node_config.max_enroll_duration:
             limit = self._node_config.max_enroll_duration
@@ -147,10 +149,14 @@ class IdentityProcessor:
             msg = f'cannot enrol {name!r}: no shape estimate of the tracked face yet'
             raise ConfigError(msg)
         gallery = self.gallery.enroll(name, recent, self._config)
+        if self._node_config.gallery_file:
+            try:
+                gallery.save(self._node_config.gallery_file)
+            except OSError as error:
+                msg = f'cannot enrol {name!r}: the gallery cannot be saved ({error})'
+                raise ConfigError(msg) from None
         self._recognizer = IdentityRecognizer(gallery, self._config)
         self._last = None
-        if self._node_config.gallery_file:
-            gallery.save(self._node_config.gallery_file)
         return len(recent)
 
     def _event_msg(self, msg: Any, decision: IdentityDecision) -> Any:

@@ -110,7 +110,10 @@ def enroll_sequences(
 def decision_windows(
     sequences: list[ParameterSequence], length: float, parameter: Parameter = 'sigma'
 ) -> Iterator[tuple[str, np.ndarray]]:
-    """Consecutive non-overlapping windows ``(subject_id, (W, d) values)`` of ``length`` s."""
+    """Consecutive non-overlapping windows ``(subject_id, (W, d) values)`` of ``length`` s.
+
+    A window without frames (the track lost for ``length`` or more) is left out.
+    """
     for sequence in sequences:
         elapsed = sequence.times - sequence.times[0]
         frame_period = float(np.median(np.diff(sequence.times))) if len(elapsed) > 1 else 0.0
@@ -118,7 +121,8 @@ def decision_windows(
         full = int(np.floor((elapsed[-1] + frame_period) / length + 1e-9))
         values = sequence.values(parameter)
         for k in range(full):  # a last, partial window is left out
-            yield sequence.subject_id, values[index == k]
+            if np.any(index == k):
+                yield sequence.subject_id, values[index == k]
 
 
 def identity_accuracy(
@@ -128,7 +132,10 @@ def identity_accuracy(
     config: IdentityConfig,
     parameter: Parameter = 'sigma',
 ) -> IdentityAccuracy:
-    """Score the gallery on held-out sequences of enrolled and of non-enrolled people."""
+    """Score the gallery on held-out sequences of enrolled and of non-enrolled people.
+
+    A share of no window is NaN.
+    """
     decisions = [
         (subject, gallery.classify(values, config))
         for subject, values in decision_windows(genuine, config.window, parameter)
@@ -138,11 +145,16 @@ def identity_accuracy(
         for _, values in decision_windows(impostors, config.window, parameter)
     ]
     return IdentityAccuracy(
-        closed_set=float(np.mean([d.nearest == s for s, d in decisions])),
-        open_set=float(np.mean([d.identity == s for s, d in decisions])),
-        rejection=float(np.mean(rejected)) if rejected else float('nan'),
+        closed_set=_share([d.nearest == s for s, d in decisions]),
+        open_set=_share([d.identity == s for s, d in decisions]),
+        rejection=_share(rejected),
         windows=len(decisions),
     )
+
+
+def _share(outcomes: list[bool]) -> float:
+    """The share of true outcomes; NaN for none."""
+    return float(np.mean(outcomes)) if outcomes else float('nan')
 
 
 def compare_identity_classifiers(

@@ -69,7 +69,7 @@ class ExpressionTrainingConfig:
     """Tunables of expression training.
 
     Attributes:
-        window: length of the causal feature window, s, > 0.
+        window: length of the causal feature window, s, > :data:`.features.STAMP_TOLERANCE`.
         calibration: length of the neutral calibration period at the start of a track, s, >= 0
             (0: no baseline).
         min_intensity: expression frames below this intensity are not trained on, in [0, 1).
@@ -88,8 +88,8 @@ class ExpressionTrainingConfig:
         Raises:
             ConfigError: naming the parameter out of range.
         """
-        if not self.window > 0.0:
-            msg = f'expression feature window must be > 0 s, got {self.window}'
+        if not self.window > STAMP_TOLERANCE:
+            msg = f'expression feature window must be > {STAMP_TOLERANCE} s, got {self.window}'
             raise ConfigError(msg)
         if not self.calibration >= 0.0:
             msg = f'neutral calibration must be >= 0 s, got {self.calibration}'
@@ -144,9 +144,14 @@ class ExpressionClassifier:
             {'feature_mean': (f,), 'feature_scale': (f,), 'weights': (k, f), 'intercepts': (k,)},
         )
         if not (
-            np.all(self.feature_scale > 0.0) and self.window > 0.0 and self.calibration >= 0.0
+            np.all(self.feature_scale > 0.0)
+            and self.window > STAMP_TOLERANCE
+            and self.calibration >= 0.0
         ):
-            msg = 'classifier feature_scale and window must be positive, calibration >= 0'
+            msg = (
+                f'classifier feature_scale must be positive, window > {STAMP_TOLERANCE} s, '
+                'calibration >= 0'
+            )
             raise InputError(msg)
 
     def probabilities(self, features: np.ndarray) -> np.ndarray:

@@ -46,6 +46,7 @@ from face_tracking_ros.recognition.validation import check_shapes
 GALLERY_KIND = 'identity_gallery'
 GALLERY_FORMAT_VERSION = 1
 UNKNOWN = 'unknown'
+MAX_MIN_STD = 1.0  # m: a floor beyond a face's size tells no one apart
 
 
 @dataclass(frozen=True)
@@ -54,7 +55,8 @@ class IdentityConfig:
 
     Attributes:
         min_std: floor on each person's per-axis sigma standard deviation, same unit as sigma
-            (metres for a model with metre bases); added as ``min_std**2 * I`` to C_k. It stands
+            (metres), at most 1 m; added as ``min_std**2 * I`` to C_k when a person is enrolled
+            (a gallery file keeps the floor of its enrolments: ``enroll --min-std``). It stands
             for the error of one track's sigma estimate, which one enrolment track cannot show:
             the mono tracker holds sigma fixed per track once its first views are adjusted, and
             two tracks of the same synthetic person (before that adjustment) differed by (0.9,
@@ -79,14 +81,14 @@ class IdentityConfig:
         Raises:
             ConfigError: naming the parameter out of range.
         """
-        if not self.min_std > 0.0:
-            msg = f'identity min_std must be > 0, got {self.min_std}'
+        if not 0.0 < self.min_std <= MAX_MIN_STD:
+            msg = f'identity min_std must be in (0, {MAX_MIN_STD}] m, got {self.min_std}'
             raise ConfigError(msg)
         if not 0.0 < self.acceptance < 1.0:
             msg = f'identity acceptance must be in (0, 1), got {self.acceptance}'
             raise ConfigError(msg)
-        if not self.window > 0.0:
-            msg = f'identity window must be > 0 s, got {self.window}'
+        if not self.window > STAMP_TOLERANCE:
+            msg = f'identity window must be > {STAMP_TOLERANCE} s, got {self.window}'
             raise ConfigError(msg)
 
     def threshold(self, p: int) -> float:
@@ -184,7 +186,7 @@ class IdentityGallery:
             ConfigError: for an empty or reserved name.
             InputError: if sigmas is not a finite (M, p) array.
         """
-        if not name or name == UNKNOWN:
+        if not name.strip() or name == UNKNOWN:
             msg = f'cannot enrol an identity named {name!r}'
             raise ConfigError(msg)
         sigmas = _check_sigmas(sigmas, self.p)
