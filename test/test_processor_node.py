@@ -7,6 +7,7 @@ from dataclasses import dataclass
 from diagnostic_msgs.msg import DiagnosticStatus
 import pytest
 import rclpy
+from rclpy.clock import ClockType
 from rclpy.parameter import Parameter
 from std_msgs.msg import Float64
 
@@ -83,6 +84,8 @@ def test_a_reporting_processor_s_status_is_published_with_the_last_problem(
     try:
         monkeypatch.setattr(node._diagnostics, 'publish', publish)
         assert [t.timer_period_ns for t in node.timers] == [1_000_000_000]  # STATUS_PERIOD_S
+        # Steady: with use_sim_time, ROS time stops with a paused bag, the status must not.
+        assert [t.clock.clock_type for t in node.timers] == [ClockType.STEADY_TIME]
         node._handle('in', Float64(data=1.5))
         node._publish_status()
         node._handle('in', Float64(data=-1.0))  # a bad input: WARN now, and in the next status
@@ -221,3 +224,29 @@ def test_a_parameters_file_nests_the_dotted_names_and_its_integers_are_floats(tm
         node.destroy_node()
     finally:
         rclpy.try_shutdown(context=context)
+
+
+class Refusing(Doubling):
+    """Refuses every number, naming it, as the trackers name a repeated image stamp."""
+
+    def handle(self, topic, msg, wanted):
+        """Refuse the number."""
+        kind = 'repeats' if msg.data > 0 else 'went back'
+        raise InputError(f'stamp {msg.data:.0f} ns {kind} (stamp {1e9 * msg.data:.3g})')
+
+
+def test_problems_that_differ_in_their_numbers_alone_are_logged_as_one_kind(
+    monkeypatch, ros_context
+):
+    node = _node_running(monkeypatch, ros_context, Refusing([]), 'refusing')
+    logged: list = []
+    try:
+        monkeypatch.setattr(node, 'get_logger', lambda: _Logger(logged))
+        for data in (1700000000017.0, 1700000000050.0, 2.5e-3, -1.0, -2.0):
+            node._handle('in', Float64(data=data))
+    finally:
+        node.destroy_node()
+    assert logged == [
+        'in: stamp 1700000000017 ns repeats (stamp 1.7e+21)',
+        'in: stamp -1 ns went back (stamp -1e+09)',
+    ]

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Mapping
 import dataclasses
+import re
 import time
 import traceback
 from typing import Any, TypeVar
@@ -22,6 +23,7 @@ from typing import Any, TypeVar
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import ParameterDescriptor
 import rclpy
+from rclpy.clock import Clock, ClockType
 from rclpy.exceptions import InvalidParameterTypeException
 from rclpy.executors import ExternalShutdownException
 from rclpy.experimental import EventsExecutor
@@ -49,7 +51,8 @@ ConfigT = TypeVar('ConfigT')
 ResultT = TypeVar('ResultT')
 
 WARNING_PERIOD_S = 5.0  # a problem of one kind is logged at most once per period
-PROBLEM_KIND_CHARS = 60  # problems whose messages start alike are one kind
+PROBLEM_KIND_CHARS = 60  # problems whose messages start alike (numbers aside) are one kind
+NUMBER = re.compile(r'\d+(\.\d+)?(e[-+]?\d+)?')
 SPIN_PERIOD_S = 0.1  # how often the spin loop looks for a shutdown
 STATUS_PERIOD_S = 1.0  # how often a Reporting processor's status is published (diagnostics' 1 Hz)
 SILENT_INPUT_S = 5.0  # a sensor input without a message for this long is reported
@@ -155,8 +158,10 @@ class ProcessorNode(Node):
             port.topic: started for port in self._processor.inputs if port.qos == QosClass.SENSOR
         }
         self._last_problem: tuple[float, bytes, str] | None = None  # time, level, message
-        if isinstance(self._processor, Reporting):
-            self.create_timer(STATUS_PERIOD_S, self._publish_status)
+        if isinstance(self._processor, Reporting):  # on the steady clock: with use_sim_time,
+            # a paused or finished bag stops ROS time, and the status must go on saying so
+            steady = Clock(clock_type=ClockType.STEADY_TIME)
+            self.create_timer(STATUS_PERIOD_S, self._publish_status, clock=steady)
         self._input_subscriptions = [self._subscribe(port) for port in self._processor.inputs]
 
     @property
@@ -206,7 +211,7 @@ class ProcessorNode(Node):
     def _problem(self, level: bytes, message: str) -> None:
         """Log a problem once per WARNING_PERIOD_S per kind, and report it on /diagnostics."""
         self._last_problem = (time.monotonic(), level, message)
-        self._log(level, message, message[:PROBLEM_KIND_CHARS])
+        self._log(level, message, NUMBER.sub('#', message)[:PROBLEM_KIND_CHARS])
         self._report(level, message)
 
     def _log(self, level: bytes, message: str, kind: str) -> None:
