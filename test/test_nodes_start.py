@@ -29,3 +29,17 @@ def test_node_with_a_bad_parameter_says_so_and_exits_2():
     assert code == 2
     assert 'invalid parameter tracker.epsilon = 1.5' in output
     assert 'Traceback' not in output
+
+
+@pytest.mark.parametrize('delay_s', [0.8, 1.2, 1.6])
+def test_a_stop_signal_while_a_node_starts_ends_it_cleanly(delay_s):
+    """SIGTERM (a launch system, a CI runner) while the node is still being built.
+
+    rclpy's own handler shut the context down under the building node: 'Failed to create
+    publisher: publisher's context is invalid', a traceback and exit 1 at 0.5-1.8 s.
+    """
+    process = start_node('expression_recognizer')
+    time.sleep(delay_s)
+    code, output = finish(process, stop=signal.SIGTERM)
+    assert code == 0, output
+    assert 'Traceback' not in output, output

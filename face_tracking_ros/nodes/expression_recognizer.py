@@ -14,7 +14,7 @@ from face_tracking_ros.nodes.processor_node import ProcessorNode, run
 
 def main(args: list[str] | None = None) -> None:
     """Entry point of ``ros2 run face_tracking_ros expression_recognizer``."""
-    run(lambda: ProcessorNode('expression_recognizer'), args)
+    run('expression_recognizer', lambda: ProcessorNode('expression_recognizer'), args)
 
 
 if __name__ == '__main__':

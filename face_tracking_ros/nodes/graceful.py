@@ -1,10 +1,15 @@
 """Run a node until SIGINT, SIGTERM or its own end, then let it finish its work before shutdown.
 
 rclpy's own signal handlers shut the context down at once, so messages DDS has already delivered
-to a subscription but the executor has not yet taken are lost. Here a signal only requests a stop:
-the spin loop ends, the node's ``finish`` runs while the executor still works (the recorder takes
-what is left in its subscriptions and closes its bag), then the node is destroyed and rclpy shut
-down. Used by the bag_player and bag_recorder nodes.
+to a subscription but the executor has not yet taken are lost, a node still being built fails
+on its invalid context with a traceback, and the KeyboardInterrupt they raise may land in a
+callback that an executor calls from C++, which aborts the process. Here a signal only
+requests a stop: the node is built, the spin loop ends, the node's ``finish`` runs while the
+executor still works (the recorder takes what is left in its subscriptions and closes its bag),
+then the node is destroyed and rclpy shut down; the process exits with 0. A node that works
+long while it is built (the learner learns then) may be interrupted instead: KeyboardInterrupt
+stops it as Ctrl-C stops ``face-tracking learn``, and the process exits with 128 + the signal's
+number. Used by every node of the package.
 """
 
 from __future__ import annotations
@@ -51,41 +56,86 @@ class StoppableNode(Protocol):
         ...
 
 
+class Endless:
+    """For a node that runs until it is stopped and leaves nothing to finish then."""
+
+    def finished(self) -> bool:
+        """Never by itself."""
+        return False
+
+    def finish(self, executor: Executor) -> None:
+        """Nothing is left: every message was handled as it came."""
+
+
+class _StopSignals:
+    """What SIGINT and SIGTERM do: request the spin's end, or interrupt the node's building."""
+
+    def __init__(self, interrupt_start: bool) -> None:
+        """With ``interrupt_start``, a signal interrupts until :attr:`spinning` is set."""
+        self.requested = threading.Event()
+        self.spinning = not interrupt_start
+        self.signum = 0
+
+    def __call__(self, signum: int, _frame: object) -> None:
+        """Handle a stop signal.
+
+        Raises:
+            KeyboardInterrupt: while an interruptible node is being built.
+        """
+        self.signum = signum
+        self.requested.set()
+        if not self.spinning:
+            raise KeyboardInterrupt
+
+
 def run_until_stopped(
-    name: str, make_node: Callable[[], StoppableNode], args: list[str] | None = None
+    name: str,
+    make_node: Callable[[], StoppableNode],
+    args: list[str] | None = None,
+    executor_type: Callable[[], Executor] = SingleThreadedExecutor,
+    interrupt_start: bool = False,
 ) -> None:
     """Init rclpy, spin the node until a stop signal or its end, finish it and shut down.
 
-    BLAS is limited to one thread (:mod:`face_tracking_ros.threads`), as in the other nodes and
-    ``face-tracking``: the learner node computes as ``face-tracking learn`` does.
+    BLAS is limited to one thread (:mod:`face_tracking_ros.threads`), as in ``face-tracking``:
+    the learner node computes as ``face-tracking learn`` does.
 
     Args:
         name: node name, for the log line of an error raised while building the node.
         make_node: builds the node (after ``rclpy.init``).
         args: command-line arguments (``--ros-args ...``); default ``sys.argv``.
+        executor_type: makes the executor that spins the node.
+        interrupt_start: a stop signal interrupts the building of the node (KeyboardInterrupt)
+            instead of ending it once built.
 
     Raises:
-        SystemExit: with code 2 after logging one of :data:`USER_ERRORS`.
+        SystemExit: with code 2 after logging one of :data:`USER_ERRORS`; with 128 + the
+            signal's number for a stop signal that interrupted the node's building.
     """
     limit_blas_threads()
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
-    stop = threading.Event()
-    previous = {sig: signal.signal(sig, lambda *_: stop.set()) for sig in STOP_SIGNALS}
-    executor = SingleThreadedExecutor()
+    stop = _StopSignals(interrupt_start)
+    previous = {sig: signal.signal(sig, stop) for sig in STOP_SIGNALS}
+    executor = None
     node = None
     try:
         node = make_node()
+        executor = executor_type()
         executor.add_node(node)  # type: ignore[arg-type]
-        while not (stop.is_set() or node.finished()):
+        stop.spinning = True
+        while not (stop.requested.is_set() or node.finished()):
             executor.spin_once(timeout_sec=SPIN_PERIOD_S)
         node.finish(executor)
+    except KeyboardInterrupt:
+        raise SystemExit(128 + stop.signum) from None
     except USER_ERRORS as error:
         rclpy.logging.get_logger(name).error(str(error))
         raise SystemExit(ERROR_EXIT_CODE) from None
     finally:
         for sig, handler in previous.items():
             signal.signal(sig, handler)
-        executor.shutdown()
+        if executor is not None:
+            executor.shutdown()
         if node is not None:
             node.destroy_node()
         rclpy.try_shutdown()

@@ -42,7 +42,7 @@ class IdentityRecognizerNode(ProcessorNode):
 
 def main(args: list[str] | None = None) -> None:
     """Entry point of ``ros2 run face_tracking_ros identity_recognizer``."""
-    run(IdentityRecognizerNode, args)
+    run('identity_recognizer', IdentityRecognizerNode, args)
 
 
 if __name__ == '__main__':

@@ -24,7 +24,8 @@ from face_tracking_ros.io.messages import RclpyMessages
 from face_tracking_ros.learning.methods import METHODS
 from face_tracking_ros.model.model_file import load_model
 from face_tracking_ros.model.topology import SUPPORTED_NODE_COUNTS
-from face_tracking_ros.nodes.processor_node import QOS_PROFILES, NodeParameters, run
+from face_tracking_ros.nodes.graceful import Endless, run_until_stopped
+from face_tracking_ros.nodes.processor_node import QOS_PROFILES, NodeParameters
 from face_tracking_ros.processing.base import QosClass
 
 
@@ -141,7 +142,7 @@ def learn_arguments(config: LearnerConfig) -> list[str]:
     return argv + [flag for flag, wanted in flags.items() if wanted]
 
 
-class LearnerNode(Node):
+class LearnerNode(Endless, Node):
     """Learns once at start-up, then serves the model on ``face/model`` (latched)."""
 
     def __init__(self) -> None:
@@ -171,7 +172,7 @@ class LearnerNode(Node):
 
 def main(args: list[str] | None = None) -> None:
     """Entry point of ``ros2 run face_tracking_ros learner``."""
-    run(LearnerNode, args)
+    run_until_stopped('learner', LearnerNode, args, interrupt_start=True)
 
 
 if __name__ == '__main__':

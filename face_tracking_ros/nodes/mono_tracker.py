@@ -16,7 +16,7 @@ from face_tracking_ros.nodes.tracker_node import TrackerNode
 
 def main(args: list[str] | None = None) -> None:
     """Entry point of ``ros2 run face_tracking_ros mono_tracker``."""
-    run(lambda: TrackerNode('mono_tracker'), args)
+    run('mono_tracker', lambda: TrackerNode('mono_tracker'), args)
 
 
 if __name__ == '__main__':

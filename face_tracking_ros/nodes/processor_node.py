@@ -22,10 +22,8 @@ from typing import Any, TypeVar
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import ParameterDescriptor
-import rclpy
 from rclpy.clock import Clock, ClockType
 from rclpy.exceptions import InvalidParameterTypeException
-from rclpy.executors import ExternalShutdownException
 from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
@@ -38,6 +36,7 @@ from rclpy.qos import (
 
 from face_tracking_ros.errors import ConfigError, FaceTrackingError
 from face_tracking_ros.io.messages import RclpyMessages
+from face_tracking_ros.nodes.graceful import Endless, StoppableNode, run_until_stopped
 from face_tracking_ros.processing.base import Deferring, Port, Processor, QosClass, Reporting
 from face_tracking_ros.processing.parameters import (
     attribute_descriptions,
@@ -45,7 +44,6 @@ from face_tracking_ros.processing.parameters import (
     field_default,
 )
 from face_tracking_ros.processing.registry import processor_factory
-from face_tracking_ros.threads import limit_blas_threads
 
 ConfigT = TypeVar('ConfigT')
 ResultT = TypeVar('ResultT')
@@ -53,7 +51,6 @@ ResultT = TypeVar('ResultT')
 WARNING_PERIOD_S = 5.0  # a problem of one kind is logged at most once per period
 PROBLEM_KIND_CHARS = 60  # problems whose messages start alike (numbers aside) are one kind
 NUMBER = re.compile(r'\d+(\.\d+)?(e[-+]?\d+)?')
-SPIN_PERIOD_S = 0.1  # how often the spin loop looks for a shutdown
 STATUS_PERIOD_S = 1.0  # how often a Reporting processor's status is published (diagnostics' 1 Hz)
 SILENT_INPUT_S = 5.0  # a sensor input without a message for this long is reported
 
@@ -136,7 +133,7 @@ class NodeParameters:
         return build_config(config_type, values, prefix)
 
 
-class ProcessorNode(Node):
+class ProcessorNode(Endless, Node):
     """A node that runs a processor on its subscriptions and publishes what it returns."""
 
     def __init__(self, name: str) -> None:
@@ -277,34 +274,12 @@ class ProcessorNode(Node):
         self._diagnostics.publish(array)
 
 
-def run(make_node: Callable[[], Node], args: list[str] | None = None) -> None:
-    """Init rclpy, spin the node until shutdown, and clean up (the ros2/demos pattern).
+def run(name: str, make_node: Callable[[], StoppableNode], args: list[str] | None = None) -> None:
+    """Run a processing node until SIGINT or SIGTERM (:mod:`.graceful`).
 
     The node spins on rclpy's events executor (``rclpy.experimental``), which runs each callback
     as its event arrives instead of rebuilding a wait set on every turn. Measured on the live
     benchmark (mono_tracker, 640x480 images at 30 Hz for 60 s, image -> face/state): p50 / p99
-    8.6 / 11.5 and 7 / 11 ms with the default executor, 6.2 / 9.7 ms with this one. It is
-    spun in steps of :data:`SPIN_PERIOD_S` (``rclpy.spin(node, executor)`` with it delivered
-    no message here). BLAS is limited to one thread (:mod:`face_tracking_ros.threads`).
+    8.6 / 11.5 and 7 / 11 ms with the default executor, 6.2 / 9.7 ms with this one.
     """
-    limit_blas_threads()
-    rclpy.init(args=args)
-    node = None
-    try:
-        node = make_node()
-        executor = EventsExecutor()
-        executor.add_node(node)
-        while rclpy.ok():
-            executor.spin_once(timeout_sec=SPIN_PERIOD_S)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except FaceTrackingError as error:  # a bad parameter, or a bag a node was given to read
-        if node is None:
-            print(f'error: {error}')  # noqa: T201
-        else:
-            node.get_logger().error(str(error))
-        raise SystemExit(2) from None
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
+    run_until_stopped(name, make_node, args, EventsExecutor)

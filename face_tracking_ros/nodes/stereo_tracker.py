@@ -17,7 +17,7 @@ from face_tracking_ros.nodes.tracker_node import TrackerNode
 
 def main(args: list[str] | None = None) -> None:
     """Entry point of ``ros2 run face_tracking_ros stereo_tracker``."""
-    run(lambda: TrackerNode('stereo_tracker'), args)
+    run('stereo_tracker', lambda: TrackerNode('stereo_tracker'), args)
 
 
 if __name__ == '__main__':
