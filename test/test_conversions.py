@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from rclpy.serialization import deserialize_message
 
-from face_tracking_ros.errors import InputError, ModelFileError
+from face_tracking_ros.errors import ConfigError, InputError, ModelFileError
 from face_tracking_ros.geometry.camera import PinholeCamera
 from face_tracking_ros.io import conversions
 from face_tracking_ros.io.messages import RclpyMessages, RosbagsMessages
@@ -190,3 +190,23 @@ def test_camera_info_round_trip():
 def test_nan_in_a_vector_field_is_named():
     with pytest.raises(InputError, match='ActionParams.alpha holds NaN'):
         conversions.finite_vector([0.0, np.nan], 'ActionParams.alpha')
+
+
+def test_a_reset_request_becomes_an_initialisation_and_a_repeated_node_is_refused():
+    """A request naming a node twice (a later click meant to correct one) is refused.
+
+    The second point replaced the first without a word, and the fit failed on it.
+    """
+    names = ['right_eye', 'left_eye', 'nose_tip', 'mouth_right', 'mouth_left', 'chin']
+    clicks = [(300, 210), (345, 211), (322, 250), (304, 282), (341, 282), (323, 318)]
+    points = [SimpleNamespace(x=float(x), y=float(y), z=0.0) for x, y in clicks]
+    init = conversions.initialisation_from_reset(SimpleNamespace(node_names=names, points=points))
+    assert init.node_names == tuple(names)
+    np.testing.assert_array_equal(init.points, clicks)
+    assert conversions.initialisation_from_reset(SimpleNamespace(node_names=[], points=[])) is None
+    again = SimpleNamespace(node_names=[*names, 'nose_tip', 'chin'], points=points + points[:2])
+    with pytest.raises(
+        ConfigError,
+        match='reset_tracking request: initialisation repeats node names: chin, nose_tip$',
+    ):
+        conversions.initialisation_from_reset(again)

@@ -499,15 +499,15 @@ def initialisation_from_reset(request: Any) -> Initialisation | None:
     """The Initialisation of a ResetTracking request; None (automatic) when it is empty.
 
     Raises:
-        ConfigError: if names and points disagree in number or are too few.
+        ConfigError: if names and points disagree in number, are too few, or a name repeats.
     """
     if not request.node_names and not request.points:
         return None
     if len(request.node_names) != len(request.points):
         msg = f'{len(request.node_names)} node names but {len(request.points)} points'
         raise ConfigError(msg)
-    points = {
-        name: [point.x, point.y]
-        for name, point in zip(request.node_names, request.points, strict=True)
-    }
-    return Initialisation.from_mapping({'nodes': points}, source='reset_tracking request')
+    points = np.array([[point.x, point.y] for point in request.points], dtype=float)
+    try:
+        return Initialisation(tuple(request.node_names), points)
+    except ConfigError as error:
+        raise ConfigError(f'reset_tracking request: {error}') from None

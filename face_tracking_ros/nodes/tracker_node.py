@@ -23,10 +23,9 @@ class TrackerNode(ProcessorNode):
         """Restart from the request's 2-D node positions, or automatically if it has none."""
         try:
             init = conversions.initialisation_from_reset(request)
-            self.processor.reset(init)  # type: ignore[attr-defined]
+            source = self.processor.reset(init)  # type: ignore[attr-defined]
         except FaceTrackingError as error:
             response.success, response.message = False, str(error)
             return response
-        response.success = True
-        response.message = 'automatic re-initialisation' if init is None else 'initialising'
+        response.success, response.message = True, source
         return response

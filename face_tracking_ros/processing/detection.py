@@ -45,22 +45,27 @@ def restart_points(
     last: Initialisation | None,
     detector_for: DetectorFactory | None,
     tracker: str,
-) -> Initialisation | None:
+) -> tuple[Initialisation | None, str]:
     """The 2-D node positions a tracker restarts from on a reset (the reset_tracking service).
 
     The positions given, else (None) a detection with auto_init (``detector_for``; returns
     None), else the last positions given: the init file's or an earlier reset's.
 
+    Returns:
+        The positions, and what the restart starts from, for the service's reply.
+
     Raises:
         InputError: for None with neither a detector nor earlier positions: nothing would start
             the track (``tracker`` names it in the message).
     """
-    if given is not None or detector_for is not None:
-        return given
+    if given is not None:
+        return given, f'initialising from the {len(given.node_names)} node positions given'
+    if detector_for is not None:
+        return None, 'initialising from a detection of the face (auto_init)'
     if last is None:
         msg = (
             f'the {tracker} tracker needs 2-D node positions to (re)initialise, or auto_init to '
             'detect the face'
         )
         raise InputError(msg)
-    return last
+    return last, "initialising from the last node positions given (the init file's or a reset's)"

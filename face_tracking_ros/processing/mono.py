@@ -152,11 +152,11 @@ class MonoProcessor:
         """The tracker, once camera_info and a model are known."""
         return self._tracker
 
-    def reset(self, initialisation: Initialisation | None) -> None:
+    def reset(self, initialisation: Initialisation | None) -> str:
         """Restart tracking from 2-D node positions; None: a detection, or the last ones given.
 
         None detects the face with auto_init (a detector), else re-uses the last positions (the
-        init file's or an earlier reset's).
+        init file's or an earlier reset's). Returns what the restart starts from.
 
         Raises:
             InputError: for None with neither a detector nor earlier positions, or for nodes the
@@ -165,10 +165,11 @@ class MonoProcessor:
         unknown = '' if self._model is None else _unknown_nodes(self._model, initialisation)
         if unknown:
             raise InputError(unknown)
-        self._initialisation = restart_points(
+        self._initialisation, source = restart_points(
             initialisation, self._initialisation, self._detector_for, 'mono'
         )
         self._restart()
+        return source
 
     def handle(self, topic: str, msg: Any, wanted: frozenset[str]) -> list[Output]:
         """Process one message of an input port (see :class:`processing.base.Processor`)."""

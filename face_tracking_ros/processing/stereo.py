@@ -199,8 +199,8 @@ class StereoProcessor:
         )
         self.outputs = (*MESH_PORTS, *MODEL_PORTS)
 
-    def reset(self, initialisation: Initialisation | None) -> None:
-        """Restart tracking from 2-D left-image node positions.
+    def reset(self, initialisation: Initialisation | None) -> str:
+        """Restart tracking from 2-D left-image node positions; returns what it starts from.
 
         None: from a detection with auto_init (a detector), else from the last positions given
         (the init file's or an earlier reset's), as the mono tracker does.
@@ -210,13 +210,14 @@ class StereoProcessor:
                 mesh does not have.
         """
         _check_initialisation(initialisation, self._tracker_config, InputError)
-        self._initialisation = restart_points(
+        self._initialisation, source = restart_points(
             initialisation, self._initialisation, self._detector_for, 'stereo'
         )
         self._last_stamp = None  # the next pair starts the track, whatever its stamp
         if self._tracker is not None:
             self._end_track()
             self._reset_tracker()
+        return source
 
     def status(self) -> dict[str, str]:
         """The pairs tracked and lost so far, the images left unpaired and the rig's corrections.

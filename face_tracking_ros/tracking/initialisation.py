@@ -65,8 +65,9 @@ class Initialisation:
         if count < MIN_INIT_NODES:
             msg = f'initialisation needs at least {MIN_INIT_NODES} nodes, got {count}'
             raise ConfigError(msg)
-        if len(set(self.node_names)) != count:
-            msg = f'initialisation repeats node names: {self.node_names}'
+        repeated = sorted({name for name in self.node_names if self.node_names.count(name) > 1})
+        if repeated:
+            msg = f'initialisation repeats node names: {", ".join(repeated)}'
             raise ConfigError(msg)
         if np.shape(self.points) != (count, 2):
             shape = np.shape(self.points)

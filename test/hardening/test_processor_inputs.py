@@ -716,7 +716,7 @@ def test_mono_auto_init_starts_from_a_detection_and_detects_again_after_a_reset(
         )
         np.testing.assert_allclose(points, mono_reference[f], rtol=0, atol=1e-5)
     assert detections.node_names == scene.model.node_names
-    processor.reset(None)
+    assert processor.reset(None) == 'initialising from a detection of the face (auto_init)'
     outputs = processor.handle('image', image_msg(frames[0].image, stamp(4)), NONE)
     np.testing.assert_array_equal(_image_points(outputs), mono_reference[0])
     status = processor.status()
@@ -757,7 +757,7 @@ def test_stereo_reset_without_points_restarts_from_the_last_ones_or_needs_auto_i
     processor = _stereo(pairs)
     _stereo_infos(processor)
     _pair(processor, pairs, 0)
-    processor.reset(None)  # the init file's points again
+    assert processor.reset(None).startswith('initialising from the last node positions given')
     restarted = _mesh(_pair(processor, pairs, 0, stamp(1)))
     np.testing.assert_array_equal(restarted, stereo_reference[0])
     without = StereoProcessor(FACTORY, StereoNodeConfig(), StereoTrackerConfig(), None, None)
@@ -775,7 +775,11 @@ def test_mono_reset_without_points_restarts_from_the_last_ones_or_needs_auto_ini
     names = tuple(f'{name}p' if name == 'nose_tip' else name for name in clicks.node_names)
     with pytest.raises(InputError, match=r'names 1 nodes \(nose_tipp\) it lacks \(misspelt'):
         processor.reset(Initialisation(node_names=names, points=clicks.points))
-    processor.reset(None)  # the init file's points again, for the next image
+    # The init file's points again, for the next image (an empty request replied 'automatic
+    # re-initialisation', though there was no detector).
+    assert processor.reset(None) == (
+        "initialising from the last node positions given (the init file's or a reset's)"
+    )
     outputs = processor.handle('image', image_msg(frames[0].image, stamp(1)), NONE)
     np.testing.assert_array_equal(_image_points(outputs), mono_reference[0])
     without = MonoProcessor(FACTORY, MonoNodeConfig(), MonoTrackerConfig(), scene.model, None)
