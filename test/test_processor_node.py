@@ -250,3 +250,34 @@ def test_problems_that_differ_in_their_numbers_alone_are_logged_as_one_kind(
         'in: stamp 1700000000017 ns repeats (stamp 1.7e+21)',
         'in: stamp -1 ns went back (stamp -1e+09)',
     ]
+
+
+class CompressedDoubling(Doubling):
+    """Doubling fed on an image-like topic's compressed transport and a plain input."""
+
+    inputs = (Port('image/compressed', FLOAT, QosClass.SENSOR), Port('camera_info', FLOAT))
+
+
+@pytest.mark.parametrize(
+    ('remaps', 'expected'),
+    [
+        ([], ['/image/compressed', '/camera_info']),
+        # image_transport's rule: the base's remapping carries to its compressed topic.
+        (['image:=/cam/image_raw'], ['/cam/image_raw/compressed', '/camera_info']),
+        (['image/compressed:=/other/c', 'image:=/cam/image_raw'], ['/other/c', '/camera_info']),
+        (['camera_info:=/cam/camera_info'], ['/image/compressed', '/cam/camera_info']),
+    ],
+)
+def test_a_compressed_input_follows_the_remapping_of_its_base_topic(monkeypatch, remaps, expected):
+    context = rclpy.Context()
+    rclpy.init(
+        args=['--ros-args', *(arg for rule in remaps for arg in ('-r', rule))], context=context
+    )
+    try:
+        node = _node_running(monkeypatch, context, CompressedDoubling([]), 'compressed')
+        try:
+            assert [s.topic_name for s in node._input_subscriptions] == expected
+        finally:
+            node.destroy_node()
+    finally:
+        rclpy.try_shutdown(context=context)

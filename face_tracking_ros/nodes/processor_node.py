@@ -53,6 +53,7 @@ PROBLEM_KIND_CHARS = 60  # problems whose messages start alike (numbers aside) a
 NUMBER = re.compile(r'\d+(\.\d+)?(e[-+]?\d+)?')
 STATUS_PERIOD_S = 1.0  # how often a Reporting processor's status is published (diagnostics' 1 Hz)
 SILENT_INPUT_S = 5.0  # a sensor input without a message for this long is reported
+COMPRESSED = 'compressed'  # image_transport's name for a compressed image topic under its base
 
 QOS_PROFILES = {
     QosClass.SENSOR: qos_profile_sensor_data,
@@ -155,6 +156,9 @@ class ProcessorNode(Endless, Node):
             port.topic: started for port in self._processor.inputs if port.qos == QosClass.SENSOR
         }
         self._last_problem: tuple[float, bytes, str] | None = None  # time, level, message
+        self._input_names = {
+            port.topic: self._input_name(port.topic) for port in self._processor.inputs
+        }
         if isinstance(self._processor, Reporting):  # on the steady clock: with use_sim_time,
             # a paused or finished bag stops ROS time, and the status must go on saying so
             steady = Clock(clock_type=ClockType.STEADY_TIME)
@@ -175,7 +179,21 @@ class ProcessorNode(Endless, Node):
             self._handle(port.topic, msg)
 
         msg_class = self._factory.message_class(port.msgtype)
-        return self.create_subscription(msg_class, port.topic, callback, QOS_PROFILES[port.qos])
+        name = self._input_names[port.topic]
+        return self.create_subscription(msg_class, name, callback, QOS_PROFILES[port.qos])
+
+    def _input_name(self, topic: str) -> str:
+        """The name an input ``topic`` is subscribed under, remapped.
+
+        A compressed image ``BASE/compressed`` that is not remapped itself follows its base's
+        remapping, as image_transport's subscribers do: with ``-r image:=/camera/image_raw``
+        and ``compressed:=true`` the node takes ``/camera/image_raw/compressed``.
+        """
+        base, _, transport = topic.rpartition('/')
+        remapped = self.resolve_topic_name(topic)
+        if transport != COMPRESSED or remapped != self.resolve_topic_name(topic, only_expand=True):
+            return remapped
+        return f'{self.resolve_topic_name(base)}/{COMPRESSED}'
 
     def _handle(self, topic: str, msg: Any) -> None:
         """Run the processor on one message; publish its outputs or report the bad input.
@@ -230,7 +248,7 @@ class ProcessorNode(Endless, Node):
         for topic, last in self._last_message.items():
             if now - last < SILENT_INPUT_S:
                 continue
-            name = self.resolve_topic_name(topic)
+            name = self._input_names[topic]
             publishers = self.count_publishers(name)
             source = (
                 f'{publishers} publisher{"s" if publishers != 1 else ""}'
