@@ -15,6 +15,8 @@ from face_tracking_ros.errors import ConfigError, InputError, check_fields
 from face_tracking_ros.nodes import processor_node
 from face_tracking_ros.processing.base import Output, Port, QosClass
 from face_tracking_ros.processing.parameters import OverrideParameters
+from face_tracking_ros.processing.track_counts import UNTRACKED_WARNING, TrackCounts
+from face_tracking_ros.tracking.result import TrackStatus
 
 FLOAT = 'std_msgs/msg/Float64'
 OK, WARN = DiagnosticStatus.OK, DiagnosticStatus.WARN
@@ -281,3 +283,37 @@ def test_a_compressed_input_follows_the_remapping_of_its_base_topic(monkeypatch,
             node.destroy_node()
     finally:
         rclpy.try_shutdown(context=context)
+
+
+class Untracked(CountingDoubling):
+    """CountingDoubling whose status warns as a tracker's does when it tracks nothing."""
+
+    def __init__(self, events: list) -> None:
+        """Count tracker results; feed them with :meth:`add`."""
+        super().__init__(events)
+        self.counts = TrackCounts('images')
+
+    def warning(self):
+        """The counts' warning."""
+        return self.counts.warning()
+
+
+def test_the_status_warns_while_a_tracker_tracks_nothing(monkeypatch, ros_context):
+    """A tracker that never initialises (clicks that do not fit) was OK, 'running'."""
+    processor = Untracked([])
+    node = _node_running(monkeypatch, ros_context, processor, 'untracked')
+    statuses: list = []
+    try:
+        monkeypatch.setattr(node._diagnostics, 'publish', lambda a: statuses.extend(a.status))
+        reason = 'initialisation failed: the points do not fit'
+        for _ in range(UNTRACKED_WARNING - 1):
+            processor.counts.add(TrackStatus.INITIALIZING, reason)
+        node._publish_status()
+        processor.counts.add(TrackStatus.INITIALIZING, reason)
+        node._publish_status()
+        processor.counts.add(TrackStatus.TRACKING, '')
+        node._publish_status()
+    finally:
+        node.destroy_node()
+    assert [s.level for s in statuses] == [OK, WARN, OK]
+    assert statuses[1].message == f'{UNTRACKED_WARNING} images in a row not tracked: {reason}'

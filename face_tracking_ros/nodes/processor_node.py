@@ -37,7 +37,14 @@ from rclpy.qos import (
 from face_tracking_ros.errors import ConfigError, FaceTrackingError
 from face_tracking_ros.io.messages import RclpyMessages
 from face_tracking_ros.nodes.graceful import Endless, StoppableNode, run_until_stopped
-from face_tracking_ros.processing.base import Deferring, Port, Processor, QosClass, Reporting
+from face_tracking_ros.processing.base import (
+    Deferring,
+    Port,
+    Processor,
+    QosClass,
+    Reporting,
+    Warns,
+)
 from face_tracking_ros.processing.parameters import (
     attribute_descriptions,
     build_config,
@@ -263,14 +270,18 @@ class ProcessorNode(Endless, Node):
 
         While problems keep coming (the last within STATUS_PERIOD_S) the status carries the last
         one's level and message, so that it does not hide them; otherwise it warns of silent
-        sensor inputs (:meth:`_silent_inputs`, logged too) or is OK.
+        sensor inputs (:meth:`_silent_inputs`, logged too), else of what the processor warns of
+        (:class:`~face_tracking_ros.processing.base.Warns`: a tracker that tracks nothing),
+        or is OK.
         """
         assert isinstance(self._processor, Reporting)
         level, message = DiagnosticStatus.OK, 'running'
         silent = self._silent_inputs()
-        if silent:
-            level, message = DiagnosticStatus.WARN, silent
-            self._log(level, message, 'silent inputs')
+        warning = self._processor.warning() if isinstance(self._processor, Warns) else ''
+        for kind, text in (('silent inputs', silent), ('warning', warning)):
+            if text and level == DiagnosticStatus.OK:
+                level, message = DiagnosticStatus.WARN, text
+                self._log(level, message, kind)
         if self._last_problem is not None:
             when, problem_level, problem = self._last_problem
             if time.monotonic() - when < STATUS_PERIOD_S:

@@ -104,6 +104,15 @@ class Reporting(Protocol):
 
 
 @runtime_checkable
+class Warns(Protocol):
+    """A reporting processor that can tell when its status should warn (a WARN diagnostic)."""
+
+    def warning(self) -> str:
+        """What the status should warn of now, or '' (a tracker that tracks nothing)."""
+        ...
+
+
+@runtime_checkable
 class Finishing(Protocol):
     """A processor with outputs for the end of its input stream (offline replay calls it)."""
 

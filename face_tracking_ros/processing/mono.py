@@ -199,6 +199,10 @@ class MonoProcessor:
         """
         return self._counts.report()
 
+    def warning(self) -> str:
+        """See :meth:`~face_tracking_ros.processing.track_counts.TrackCounts.warning`."""
+        return self._counts.warning()
+
     def run_deferred(self) -> None:
         """The last tracked image's share of the bundle adjustment (``MonoTracker.adjust``).
 

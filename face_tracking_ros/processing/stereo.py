@@ -219,6 +219,10 @@ class StereoProcessor:
             self._reset_tracker()
         return source
 
+    def warning(self) -> str:
+        """See :meth:`~face_tracking_ros.processing.track_counts.TrackCounts.warning`."""
+        return self._counts.warning()
+
     def status(self) -> dict[str, str]:
         """The pairs tracked and lost so far, the images left unpaired and the rig's corrections.
 

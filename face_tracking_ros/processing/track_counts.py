@@ -12,6 +12,7 @@ from __future__ import annotations
 from face_tracking_ros.tracking.result import TrackStatus
 
 NO_REASON = '-'  # the report's last_reason before any input went untracked
+UNTRACKED_WARNING = 30  # inputs in a row not tracked before the status warns (1 s at 30 Hz)
 
 
 class TrackCounts:
@@ -22,12 +23,24 @@ class TrackCounts:
         self._unit = unit
         self._counts = dict.fromkeys(TrackStatus, 0)
         self._last_reason = NO_REASON
+        self._untracked = 0  # inputs in a row whose result was not TRACKING
 
     def add(self, status: TrackStatus, reason: str) -> None:
         """Count one input's result; a non-empty ``reason`` becomes the last reason."""
         self._counts[TrackStatus(status)] += 1
+        self._untracked = 0 if status == TrackStatus.TRACKING else self._untracked + 1
         if reason:
             self._last_reason = reason
+
+    def warning(self) -> str:
+        """A warning once :data:`UNTRACKED_WARNING` inputs in a row were not tracked, else ''.
+
+        A tracker that never initialises (clicks that do not fit, no init file, a face out of
+        view) says so with its last reason, instead of an OK status.
+        """
+        if self._untracked < UNTRACKED_WARNING:
+            return ''
+        return f'{self._untracked} {self._unit} in a row not tracked: {self._last_reason}'
 
     def report(self) -> dict[str, str]:
         """``<status>_<unit>`` per status (e.g. ``lost_images``) and ``last_reason``."""

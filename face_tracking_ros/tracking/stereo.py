@@ -621,8 +621,8 @@ class StereoTracker:
                     break
                 initial = self._initial_nodes(pyramids, left_px)  # matched on the corrected pair
             check_face_scale(initial, self._topology, config.init)
-        except FaceTrackingError as error:
-            self._status = TrackStatus.LOST
+        except FaceTrackingError as error:  # no estimate yet: INITIALIZING, as the mono tracker
+            self._status = TrackStatus.INITIALIZING
             self._reason = f'initialisation failed: {error}'
             self._detect = self._detector is not None  # then look for the face again
             return self._not_tracking(self._status, self._reason)
