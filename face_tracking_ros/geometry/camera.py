@@ -56,6 +56,7 @@ class PinholeCamera:
         arrays = (self.k, self.p, self.d, self.r)
         _require(all(np.all(np.isfinite(a)) for a in arrays), 'K, P, D or R holds NaN or Inf')
         _require(self.p[0, 0] > 0 and self.p[1, 1] > 0, 'P has a focal length <= 0 (uncalibrated)')
+        _require(self.k[0, 0] > 0 and self.k[1, 1] > 0, 'K has a focal length <= 0 (uncalibrated)')
 
     @classmethod
     def from_camera_info(cls, info: Any) -> PinholeCamera:

@@ -168,15 +168,18 @@ def test_camera_info_of_malformed_matrix_length_is_refused_by_name(fields, name,
 
 
 @FEW
-@given(camera_infos(), st.sampled_from(['width', 'height', 'focal']))
+@given(camera_infos(), st.sampled_from(['width', 'height', 'focal', 'k_focal']))
 def test_camera_info_of_zero_size_or_focal_is_refused(fields, what):
-    if what == 'focal':
-        p = fields['p'].copy()
-        p[0] = 0.0
-        fields = {**fields, 'p': p}
+    if what in ('focal', 'k_focal'):  # P's, or K's alone (P valid: the name was NaN init points)
+        name = what.removesuffix('_focal') if what == 'k_focal' else 'p'
+        matrix = fields[name].copy()
+        matrix[0] = 0.0
+        fields = {**fields, name: matrix}
     else:
         fields = {**fields, what: 0}
-    with pytest.raises(InputError, match='invalid camera: (image size|P has a focal length <= 0)'):
+    with pytest.raises(
+        InputError, match='invalid camera: (image size|[KP] has a focal length <= 0)'
+    ):
         conversions.camera_from_info(_info(**fields))
 
 
