@@ -12,10 +12,12 @@ from rclpy.parameter import Parameter
 from std_msgs.msg import Float64
 
 from face_tracking_ros.errors import ConfigError, InputError, check_fields
+from face_tracking_ros.imaging.photometric import PhotometricModel
 from face_tracking_ros.nodes import processor_node
 from face_tracking_ros.processing.base import Output, Port, QosClass
 from face_tracking_ros.processing.parameters import OverrideParameters
 from face_tracking_ros.processing.track_counts import UNTRACKED_WARNING, TrackCounts
+from face_tracking_ros.tracking.mono import MonoTrackerConfig
 from face_tracking_ros.tracking.result import TrackStatus
 
 FLOAT = 'std_msgs/msg/Float64'
@@ -317,3 +319,25 @@ def test_the_status_warns_while_a_tracker_tracks_nothing(monkeypatch, ros_contex
         node.destroy_node()
     assert [s.level for s in statuses] == [OK, WARN, OK]
     assert statuses[1].message == f'{UNTRACKED_WARNING} images in a row not tracked: {reason}'
+
+
+def test_an_enum_parameter_is_given_by_its_member_s_name_live_and_offline(ros_context):
+    """tracker.photometric, documented by name: GAIN_BIAS was refused.
+
+    Live it was an INTEGER parameter; offline '2' was refused too (the enum called with text).
+    """
+    for value in ('GAIN_BIAS', 'gain_bias', 2):
+        node = _node_with(ros_context, photometric=value)
+        config = processor_node.NodeParameters(node).config(MonoTrackerConfig)
+        assert config.photometric is PhotometricModel.GAIN_BIAS
+        node.destroy_node()
+        offline = OverrideParameters.parse([f'photometric={value}']).config(MonoTrackerConfig)
+        assert offline.photometric is PhotometricModel.GAIN_BIAS
+    node = _node_with(ros_context)
+    assert processor_node.NodeParameters(node).config(MonoTrackerConfig).photometric is (
+        PhotometricModel.GAIN_FIELD
+    )
+    node.destroy_node()
+    expected = "parameter photometric = 'GAIN' is not one of NONE, BIAS, GAIN_BIAS, GAIN_FIELD"
+    with pytest.raises(ConfigError, match=expected):
+        OverrideParameters.parse(['photometric=GAIN']).config(MonoTrackerConfig)

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Mapping
 import dataclasses
+from enum import Enum
 import re
 import time
 import traceback
@@ -48,6 +49,7 @@ from face_tracking_ros.processing.base import (
 from face_tracking_ros.processing.parameters import (
     attribute_descriptions,
     build_config,
+    enum_member,
     field_default,
 )
 from face_tracking_ros.processing.registry import processor_factory
@@ -76,10 +78,13 @@ QOS_PROFILES = {
 def _declared(default: Any) -> Any:
     """The value to declare a parameter with; an empty tuple becomes a string-array type.
 
-    rclpy would type an empty list as a byte array and then refuse ``name:=[a, b]``.
+    rclpy would type an empty list as a byte array and then refuse ``name:=[a, b]``. An enum is
+    declared by its member's name (a string).
     """
     if isinstance(default, tuple):
         return list(default) if default else Parameter.Type.STRING_ARRAY
+    if isinstance(default, Enum):  # by name: -p tracker.photometric:=GAIN_BIAS
+        return default.name
     return default
 
 
@@ -127,8 +132,11 @@ class NodeParameters:
                 values[field.name] = self.config(type(default), f'{prefix}{field.name}.')
                 continue
             name, number = prefix + field.name, isinstance(default, float)
+            # Dynamic typing: a float may be given as an integer, an enum as a name or number.
             descriptor = ParameterDescriptor(
-                description=descriptions.get(field.name, ''), read_only=True, dynamic_typing=number
+                description=descriptions.get(field.name, ''),
+                read_only=True,
+                dynamic_typing=number or isinstance(default, Enum),
             )
             try:
                 declared = self._node.declare_parameter(name, _declared(default), descriptor)
@@ -137,6 +145,8 @@ class NodeParameters:
             value = declared.value
             if number:
                 value = _number(name, value)
+            elif isinstance(default, Enum):
+                value = enum_member(name, type(default), value)
             values[field.name] = tuple(value or ()) if isinstance(default, tuple) else value
         return build_config(config_type, values, prefix)
 

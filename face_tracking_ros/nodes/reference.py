@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+from enum import Enum
 from pathlib import Path
 
 from face_tracking_ros.errors import ConfigError
@@ -61,7 +62,13 @@ def parameter_rows(prefix: str, config_type: type) -> list[tuple[str, str, str]]
         if dataclasses.is_dataclass(default):
             rows += parameter_rows(f'{prefix}{field.name}.', type(default))
         else:
-            shown = repr(default) if isinstance(default, str) else str(default)
+            shown = (
+                repr(default)
+                if isinstance(default, str)
+                else default.name
+                if isinstance(default, Enum)
+                else str(default)
+            )
             rows.append((prefix + field.name, shown, descriptions.get(field.name, '')))
     return rows
 

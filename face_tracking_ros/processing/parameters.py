@@ -11,6 +11,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 import dataclasses
+from enum import Enum
 import inspect
 import re
 from typing import Any, Protocol, TypeVar
@@ -18,6 +19,7 @@ from typing import Any, Protocol, TypeVar
 from face_tracking_ros.errors import ConfigError, FieldError
 
 ConfigT = TypeVar('ConfigT')
+EnumT = TypeVar('EnumT', bound=Enum)
 
 _TRUE = {'true', '1', 'yes', 'on'}
 _FALSE = {'false', '0', 'no', 'off'}
@@ -119,6 +121,8 @@ class OverrideParameters:
 
 def _coerce(name: str, text: str, default: Any) -> Any:
     """Convert ``text`` to the type of ``default``."""
+    if isinstance(default, Enum):
+        return enum_member(name, type(default), text)
     try:
         if isinstance(default, bool):
             lowered = text.lower()
@@ -131,6 +135,21 @@ def _coerce(name: str, text: str, default: Any) -> Any:
     except ValueError:
         msg = f'parameter {name}={text!r} is not a valid {type(default).__name__}'
         raise ConfigError(msg) from None
+
+
+def enum_member(name: str, enum_type: type[EnumT], value: Any) -> EnumT:
+    """The member of enum parameter ``name`` given by its name (any case) or its number.
+
+    Raises:
+        ConfigError: naming the parameter and its members, for any other value.
+    """
+    text = str(value).strip()
+    for member in enum_type:
+        if text.upper() == member.name or text == str(member.value):
+            return member
+    names = ', '.join(member.name for member in enum_type)
+    msg = f'parameter {name} = {value!r} is not one of {names}'
+    raise ConfigError(msg)
 
 
 def attribute_descriptions(cls: type) -> dict[str, str]:
