@@ -214,7 +214,8 @@ class PlaybackSummary:
         counts: messages published per bag topic, over all passes.
         passes: passes played to their end.
         stopped: True if a stop request ended playback.
-        bag_span_s: bag time covered by one pass, first to last played message, s.
+        bag_span_s: bag time covered by one pass, first to last played message, s (stopped in
+            the first pass: by the part played).
         wall_s: wall time from the first pass's start to the end, s.
     """
 
@@ -227,6 +228,11 @@ class PlaybackSummary:
     def describe(self) -> str:
         """One line for the log, e.g. '30 messages on 2 topics, 1 pass, 1.5 s of bag in 0.8 s'."""
         total = sum(self.counts.values())
+        if not total and not self.stopped:
+            return (
+                'finished: no message played (the played topics have none, or start_offset is '
+                'past the end of the bag)'
+            )
         per_topic = ', '.join(f'{topic}: {n}' for topic, n in sorted(self.counts.items()))
         ending = 'stopped' if self.stopped else 'finished'
         return (
@@ -248,7 +254,7 @@ class Playback:
         self._counts: Counter[str] = Counter()
         self._last_clock_ns = -1
         self._passes = 0
-        self._span_ns = 0
+        self._span_ns = 0  # of one pass: the last complete one's, or the first's so far
         self._start_ns = clock.now_ns()
 
     def run(self, open_bag: Callable[[], Iterable[RawMessage]]) -> PlaybackSummary:
@@ -304,6 +310,8 @@ class Playback:
             self._sink.publish(message)
             self._counts[message.topic] += 1
             last_ns = max(last_ns, message.stamp_ns)
+            if not self._passes:
+                self._span_ns = max(last_ns - first_ns, 0)
         return max(last_ns - first_ns, 0)
 
     def _wait(self, timeline: Timeline, stamp_ns: int) -> bool:

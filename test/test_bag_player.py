@@ -168,6 +168,10 @@ def test_a_loop_with_nothing_to_play_ends() -> None:
     assert summary.passes == 1
     assert not summary.stopped
     assert summary.counts == {}
+    assert summary.describe() == (
+        'finished: no message played (the played topics have none, or start_offset is past the '
+        'end of the bag)'
+    )
 
 
 def test_stop_while_waiting_ends_playback_at_once() -> None:
@@ -177,6 +181,7 @@ def test_stop_while_waiting_ends_playback_at_once() -> None:
     assert summary.stopped
     assert summary.passes == 0
     assert summary.describe().startswith('stopped: 2 messages on 1 topics')
+    assert summary.bag_span_s == pytest.approx(0.1)  # the part played ('0.000 s of bag')
 
 
 def test_a_bag_error_part_way_propagates_and_the_summary_tells_what_was_played() -> None:
