@@ -245,7 +245,10 @@ def test_raw_images_of_a_calibrated_rig_are_rectified_before_tracking(
             '--param', 'rectify=false', '--quiet']  # fmt: skip
     assert main(argv) == 1
     printed = capsys.readouterr().out
-    assert 'tracking_pairs 0, lost_pairs 40' in printed and 'no image was tracked' in printed
+    assert (
+        'initializing_pairs 40, tracking_pairs 0, lost_pairs 0' in printed
+        and 'no image was tracked' in printed
+    )
     assert 'triangulate to a face 2.' in printed and 'times the size of an adult face' in printed
 
 

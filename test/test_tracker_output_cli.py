@@ -258,7 +258,10 @@ def test_stereo_clicks_with_left_and_right_swapped_are_named(tmp_path, capsys):
     argv = ['track', str(bag), '--init', str(mirrored), '--out', str(tmp_path / 'o'), '--quiet']
     assert main(argv) == 1
     printed = capsys.readouterr().out
-    assert 'lost_pairs 10' in printed and 'fit a face turned away from the camera' in printed
+    assert (
+        'initializing_pairs 10, tracking_pairs 0, lost_pairs 0' in printed
+        and 'fit a face turned away from the camera' in printed
+    )
     assert 'are left and right swapped?' in printed
 
 
