@@ -79,9 +79,9 @@ def run(args: argparse.Namespace) -> None:
         [tracked_sequence(tracked, truth) for tracked, truth in pairs]
         for pairs in (args.enrol, args.test, args.strangers)
     )
-    pairs = [*args.enrol, *args.test, *args.strangers]
-    _check_one_model([tracked for tracked, _ in pairs], [*enrol, *test, *strangers])
-    model = tracked_with([tracked for tracked, _ in pairs], args.model)
+    tracked_bags = [tracked for tracked, _ in [*args.enrol, *args.test, *args.strangers]]
+    _check_one_model(tracked_bags, [*enrol, *test, *strangers])
+    model = tracked_with(tracked_bags, args.model)
     fingerprint = load_model(model).fingerprint if model is not None else None
     classifier = ExpressionClassifier.load(args.classifier, enrol[0].alpha.shape[1], fingerprint)
     identity_config = IdentityConfig()

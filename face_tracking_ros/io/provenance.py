@@ -22,7 +22,7 @@ from face_tracking_ros.errors import ConfigError
 from face_tracking_ros.io.bags import custom_data
 
 KEY = 'face_tracking_ros.replay'
-TRACKERS = ('mono_tracker', 'stereo_tracker')
+MONO, STEREO = 'mono_tracker', 'stereo_tracker'
 MODEL_PARAMETER = 'model_file'
 
 
@@ -82,13 +82,15 @@ class Provenance:
             return None
 
     def tracking_model(self) -> tuple[str, str | None] | None:
-        """The tracker's ``model_file`` ('' for its packaged default) and the file's SHA-256.
+        """The tracker's ``model_file`` ('' for the mono tracker's default) and its SHA-256.
 
-        None if no tracker was replayed; the digest is None where the file was not found.
+        None if no tracker with a model was replayed (a stereo_tracker without ``model_file``
+        tracks meshes only); the digest is None where the file was not found.
         """
-        if not set(TRACKERS) & set(self.nodes):
+        value = self.parameters.get(MODEL_PARAMETER, '')
+        if MONO not in self.nodes and not (STEREO in self.nodes and value):
             return None
-        return self.parameters.get(MODEL_PARAMETER, ''), self.file_digests.get(MODEL_PARAMETER)
+        return value, self.file_digests.get(MODEL_PARAMETER)
 
     def same_inputs(self, other: Provenance) -> bool:
         """Whether ``other`` replayed the same bag through the same nodes, set up the same way."""
@@ -139,8 +141,9 @@ def tracked_with(bags: Sequence[Path], given: Path | None) -> Path | None:
             path = Path(value) if value else default_model_path()
             recorded[bag] = (path, digest or _digest_now(path))
     if given is not None and given.is_file():  # (a missing one is for its loader to name)
+        wanted = file_digest(given)
         for bag, (path, digest) in recorded.items():
-            if digest != file_digest(given):
+            if digest != wanted:
                 msg = f'{bag} was tracked with the face model {path}, not {given}'
                 raise ConfigError(f'{msg}: give that model')
         return given
