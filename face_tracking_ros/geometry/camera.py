@@ -62,18 +62,33 @@ class PinholeCamera:
     def from_camera_info(cls, info: Any) -> PinholeCamera:
         """Build from a sensor_msgs/CameraInfo-like object (fields width, height, k, d, p, r).
 
+        A camera that bins pixels (``binning_x``, ``binning_y`` > 1) sends images that much
+        smaller than the calibration's size: K, P and the size are scaled to them, as
+        image_geometry does (the distortion, in normalised coordinates, is unchanged).
+
         Raises:
-            InputError: for a zero (uncalibrated) or malformed CameraInfo.
+            InputError: for a zero (uncalibrated) or malformed CameraInfo, or one with a region
+                of interest (not supported).
         """
         k = np.asarray(info.k, dtype=float).reshape(3, 3)
         p = np.asarray(info.p, dtype=float).reshape(3, 4)
         if not np.any(p):
             p = np.hstack([k, np.zeros((3, 1))])
+        roi = getattr(info, 'roi', None)
+        if roi is not None and (roi.x_offset or roi.y_offset or roi.width or roi.height):
+            msg = (
+                f'camera_info has a region of interest ({roi.width}x{roi.height} at '
+                f'{roi.x_offset}, {roi.y_offset}): not supported; send full images'
+            )
+            raise InputError(msg)
+        binning_x = max(int(getattr(info, 'binning_x', 0)), 1)  # (0 means 1, as in the message)
+        binning_y = max(int(getattr(info, 'binning_y', 0)), 1)
+        scale = np.diag([1.0 / binning_x, 1.0 / binning_y, 1.0])
         return cls(
-            width=int(info.width),
-            height=int(info.height),
-            k=k,
-            p=p,
+            width=int(info.width) // binning_x,
+            height=int(info.height) // binning_y,
+            k=scale @ k,
+            p=scale @ p,
             d=np.asarray(info.d, dtype=float),
             distortion_model=str(info.distortion_model),
             r=np.asarray(info.r, dtype=float).reshape(3, 3) if np.any(info.r) else np.eye(3),

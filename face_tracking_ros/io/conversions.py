@@ -156,7 +156,9 @@ def calibration_key(msg: Any) -> tuple:
     Equal keys give equal cameras (:class:`CameraInfoReader`).
     """
     arrays = (np.asarray(getattr(msg, name), dtype=float).tobytes() for name in 'dkrp')
-    return (int(msg.width), int(msg.height), str(msg.distortion_model), *arrays)
+    roi = msg.roi
+    cropping = (msg.binning_x, msg.binning_y, roi.x_offset, roi.y_offset, roi.width, roi.height)
+    return (int(msg.width), int(msg.height), str(msg.distortion_model), *cropping, *arrays)
 
 
 class CameraInfoReader:

@@ -384,3 +384,38 @@ def test_rigid_align_refuses_fewer_than_three_weighted_nodes(seed, positive):
     weights[:positive] = 1.0
     with pytest.raises(InputError, match='at least 3 nodes a positive weight'):
         rigid_align(source, source, weights)
+
+
+@FEW
+@given(camera_infos(), st.integers(1, 4), st.integers(1, 4))
+def test_a_binning_camera_s_calibration_is_scaled_to_its_images(fields, binning_x, binning_y):
+    """A camera binning pixels sends images that much smaller than its calibration's size.
+
+    It was refused: the image size did not match camera_info's.
+    """
+    fields = {**fields, 'width': 4 * fields['width'], 'height': 4 * fields['height']}
+    full = conversions.camera_from_info(_info(**fields))
+    binned = conversions.camera_from_info(
+        _info(**fields, binning_x=binning_x, binning_y=binning_y)
+    )
+    sizes = (fields['width'] // binning_x, fields['height'] // binning_y)
+    assert (binned.width, binned.height) == sizes
+    point = np.array([[0.1, -0.05, 2.0]])
+    expected = full.project(point) / [binning_x, binning_y]
+    np.testing.assert_allclose(binned.project(point), expected, rtol=1e-9)
+    np.testing.assert_array_equal(binned.d, full.d)
+
+
+@FEW
+@given(camera_infos())
+def test_a_camera_info_with_a_region_of_interest_is_refused_by_name(fields):
+    roi = FACTORY.make(
+        'sensor_msgs/msg/RegionOfInterest',
+        x_offset=10,
+        y_offset=20,
+        height=100,
+        width=200,
+        do_rectify=False,
+    )
+    with pytest.raises(InputError, match=r'region of interest \(200x100 at 10, 20\): not supp'):
+        conversions.camera_from_info(_info(**fields, roi=roi))
