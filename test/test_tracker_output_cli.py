@@ -283,3 +283,12 @@ def test_the_recognizer_node_refuses_an_enrolment_it_cannot_save(tmp_path):
         bad = {'max_enroll_duration': str(duration)}
         with pytest.raises(ConfigError, match='max_enroll_duration must be > 1e-06 s'):
             make_identity_processor(OverrideParameters(bad), factory)
+
+
+def test_the_demo_does_not_empty_a_directory_it_did_not_make(tmp_path, capsys):
+    """`demo --out DIR` deleted any existing DIR: a user's data directory went with it."""
+    (tmp_path / 'data').mkdir()
+    (tmp_path / 'data' / 'recording.mcap').write_bytes(b'mine')
+    assert main(['demo', '--out', str(tmp_path / 'data')]) == 2
+    assert 'exists and was not made by the demo: not emptied' in capsys.readouterr().err
+    assert (tmp_path / 'data' / 'recording.mcap').read_bytes() == b'mine'

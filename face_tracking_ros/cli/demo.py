@@ -29,6 +29,8 @@ from face_tracking_ros.cli import main as cli
 from face_tracking_ros.cli.learn import STEREO_PARAMS
 from face_tracking_ros.errors import ConfigError
 
+MARKER = '.face-tracking-demo'  # in an --out the demo made, which a later demo may empty
+
 
 @dataclass(frozen=True)
 class DemoPlan:
@@ -56,12 +58,20 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help='run the whole system end to end on the synthetic world',
         description=__doc__.split('\n\n')[0],
     )
-    parser.add_argument('--out', type=Path, default=Path('out'), help='output directory')
+    parser.add_argument(
+        '--out',
+        type=Path,
+        default=Path('out'),
+        help='output directory; emptied first if an earlier demo made it, refused if it holds '
+        'anything else (%(default)s)',
+    )
     parser.add_argument(
         '--subjects', type=int, default=DemoPlan.subjects, help='training subjects'
     )
     parser.add_argument('--seed', type=int, default=DemoPlan.seed, help='seed of the world')
-    parser.add_argument('--keep', action='store_true', help='keep an existing --out directory')
+    parser.add_argument(
+        '--keep', action='store_true', help='write into an existing --out without emptying it'
+    )
     parser.set_defaults(func=run)
 
 
@@ -73,8 +83,9 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError(msg)
     out = args.out
     if out.exists() and not args.keep:
-        shutil.rmtree(out)
+        _empty_earlier_demo(out)
     (out / 'learn').mkdir(parents=True, exist_ok=True)
+    (out / MARKER).write_text('written by face-tracking demo: it empties this directory\n')
     start = time.perf_counter()
     for title, argv in steps(plan, out):
         _banner(title, argv, time.perf_counter() - start)
@@ -84,6 +95,22 @@ def run(args: argparse.Namespace) -> int:
             return status
     print(f'\ndemo finished in {time.perf_counter() - start:.0f} s; results in {out}/')
     return 0
+
+
+def _empty_earlier_demo(out: Path) -> None:
+    """Remove ``out`` if it is empty or an earlier demo's (it holds :data:`MARKER`).
+
+    Raises:
+        ConfigError: if it holds anything else: a user's directory is not deleted.
+    """
+    if (out / MARKER).exists() or not any(out.iterdir()):
+        shutil.rmtree(out)
+        return
+    msg = (
+        f'--out {out} exists and was not made by the demo: not emptied (remove it, give another '
+        '--out, or --keep to write into it)'
+    )
+    raise ConfigError(msg)
 
 
 def steps(plan: DemoPlan, out: Path) -> list[tuple[str, list[str]]]:

@@ -62,7 +62,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         'write its outputs to a new bag, and print the accuracy when the bag has truth.',
     )
     parser.add_argument('bag', type=Path, help='input rosbag2 directory')
-    parser.add_argument('--model', type=Path, help='face model file (default: packaged model)')
+    parser.add_argument(
+        '--model',
+        type=Path,
+        help='face model file (default: the packaged model for a mono bag; none for a stereo bag, '
+        'whose tracker then gives meshes only: no pose, sigma or alpha)',
+    )
     init = parser.add_mutually_exclusive_group()
     init.add_argument('--init', type=Path, help='init file: node names -> pixel positions')
     init.add_argument(
