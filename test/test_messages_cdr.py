@@ -15,6 +15,8 @@ from rclpy.serialization import deserialize_message, serialize_message
 from rosbags.typesys.base import Nodetype
 from rosbags.typesys.store import Typestore
 
+from face_tracking_ros.cli import main as cli
+
 from conftest import custom_msgtypes, rclpy_class, sample_fields, to_plain, to_rclpy, to_rosbags
 
 STANDARD_TYPES = ['sensor_msgs/msg/Image', 'sensor_msgs/msg/CameraInfo']
@@ -129,3 +131,15 @@ def test_every_custom_msg_is_in_the_typestore(store: Typestore) -> None:
 
     assert 'face_tracking_msgs/msg/FaceState' in names
     assert all(name in store.fielddefs for name in names)
+
+
+def test_msgs_prints_a_definition_by_full_or_short_name(capsys) -> None:
+    """The README's message table names the types short: 'msgs FaceState' was unknown."""
+    assert cli.main(['msgs', 'FaceState']) == 0
+    short = capsys.readouterr().out
+    assert cli.main(['msgs', 'face_tracking_msgs/msg/FaceState']) == 0
+    assert capsys.readouterr().out == short and 'float64[] sigma' in short
+    assert cli.main(['msgs', 'FaceStat']) == cli.EXIT_ERROR
+    assert "unknown message type 'FaceStat' (this package has ActionParams" in (
+        capsys.readouterr().err
+    )

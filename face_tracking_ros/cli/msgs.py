@@ -17,7 +17,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         'typestore (and where their .msg text was found), or print the full definition of one.',
     )
     parser.add_argument(
-        'msgtype', nargs='?', help="type to print, e.g. 'face_tracking_msgs/msg/FaceState'"
+        'msgtype',
+        nargs='?',
+        help="type to print, e.g. 'face_tracking_msgs/msg/FaceState' or, for this package's "
+        "own, 'FaceState'",
     )
     parser.set_defaults(func=run)
 
@@ -26,7 +29,7 @@ def run(args: argparse.Namespace) -> None:
     """List the custom types, or print the definition of ``args.msgtype``.
 
     Raises:
-        ConfigError: If ``args.msgtype`` is not a known type.
+        ConfigError: If ``args.msgtype`` is not a known type (the custom ones are listed).
     """
     store = typestore()
     if args.msgtype is None:
@@ -34,6 +37,9 @@ def run(args: argparse.Namespace) -> None:
         for name in custom_type_names():
             print(name)
         return
-    if args.msgtype not in store.fielddefs:
-        raise ConfigError(f'unknown message type {args.msgtype!r}')
-    print(store.generate_msgdef(args.msgtype)[0])
+    short = {name.rpartition('/')[2]: name for name in custom_type_names()}
+    msgtype = short.get(args.msgtype, args.msgtype)
+    if msgtype not in store.fielddefs:
+        known = ', '.join(sorted(short))
+        raise ConfigError(f'unknown message type {args.msgtype!r} (this package has {known})')
+    print(store.generate_msgdef(msgtype)[0])
