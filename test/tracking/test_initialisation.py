@@ -158,3 +158,18 @@ def test_fit_rejects_points_no_face_fits_or_outside_the_image(model_factory) -> 
     outside = ', '.join(n for n, (x, _) in zip(model.node_names, beyond, strict=True) if x > 639)
     with pytest.raises(InputError, match=f'outside the 640x480 image: {outside}$'):
         fit_model_to_points(model, CAMERA, Initialisation(model.node_names, beyond))
+
+
+@pytest.mark.parametrize('names', [SIX, None])
+def test_points_named_with_left_and_right_swapped_are_refused(model_factory, names) -> None:
+    """They fit the face turned round, seen from behind (six at about 1 px RMS: accepted)."""
+    model = model_factory()
+    names = names or model.node_names
+    pixels = _truth_points(model, np.array([0.1, 0.3, 0.0]), np.array([0.0, 0.0, 0.6]), None, None)
+    points = pixels[[model.node_names.index(name) for name in names]]
+    right = fit_model_to_points(model, CAMERA, Initialisation(names, points))
+    assert np.allclose(right.omega, [0.1, 0.3, 0.0], atol=1e-3)
+    swap = {'right': 'left', 'left': 'right'}
+    mirrored = tuple('_'.join(swap.get(p, p) for p in name.split('_')) for name in names)
+    with pytest.raises(InputError, match=r'fit a face turned 1\d\d degrees away .* swapped\?'):
+        fit_model_to_points(model, CAMERA, Initialisation(mirrored, points))
