@@ -50,7 +50,7 @@ from face_tracking_ros.processing.detection import (
 )
 from face_tracking_ros.processing.face_outputs import MESH_PORTS, MODEL_PORTS, face_outputs
 from face_tracking_ros.processing.parameters import ParameterSource
-from face_tracking_ros.processing.track_counts import TrackCounts
+from face_tracking_ros.processing.track_counts import NO_REASON, TrackCounts
 from face_tracking_ros.tracking.initialisation import Initialisation, load_init_file
 from face_tracking_ros.tracking.stereo import StereoResult, StereoTracker, StereoTrackerConfig
 
@@ -236,6 +236,8 @@ class StereoProcessor:
         report = {**self._counts.report(), 'unpaired_images': str(self.unpaired)}
         if self._unpaired_gap_ns is not None:
             report['unpaired_nearest_ms'] = f'{self._unpaired_gap_ns / 1e6:.3f}'
+            if not self._paired and report['last_reason'] == NO_REASON:  # (a short stream)
+                report['last_reason'] = _never_paired(self._unpaired_gap_ns / 1e6)
         if self._tracker is not None:
             report['right_gain'] = f'{self._tracker.right_gain:.3f}'
             report['right_row_offset_px'] = f'{self._tracker.right_row_offset:.2f}'
@@ -407,12 +409,7 @@ class StereoProcessor:
             self._unpair([queue.popitem(last=False)[0]], other)
         if dropped and not self._paired and other:
             gap_ms = min(abs(mine - theirs) for mine in queue for theirs in other) / 1e6
-            msg_text = (
-                'no left and right images have paired yet (unpaired_images counts them): the '
-                f'nearest stamps differ by {gap_ms:.3f} ms; pairing needs equal stamps, or '
-                'pairing_tolerance_ms for cameras that are not synchronised'
-            )
-            raise InputError(msg_text)
+            raise InputError(_never_paired(gap_ms))
         return None
 
     def _partner(self, stamp: int, waiting: OrderedDict[int, Any]) -> int | None:
@@ -553,3 +550,12 @@ def make_stereo_processor(params: ParameterSource, factory: MessageFactory) -> S
     init = load_init_file(config.init_file) if config.init_file else None
     detector_for = landmark_detector(params, config.auto_init)
     return StereoProcessor(factory, config, tracker_config, model, init, detector_for)
+
+
+def _never_paired(gap_ms: float) -> str:
+    """Why no pair was made: the cameras' stamps differ by at least ``gap_ms``."""
+    return (
+        'no left and right images have paired yet (unpaired_images counts them): the '
+        f'nearest stamps differ by {gap_ms:.3f} ms; pairing needs equal stamps, or '
+        'pairing_tolerance_ms for cameras that are not synchronised'
+    )

@@ -7,6 +7,7 @@ problem, then feeds good messages and checks they are processed as if nothing ha
 from __future__ import annotations
 
 from dataclasses import replace
+import re
 import sys
 
 from fault_scenes import (
@@ -557,6 +558,15 @@ def test_stereo_pairs_equal_stamps_only_and_says_why_nothing_pairs(pairs):
     processor.finish()  # the end of the stream: what still waits never pairs
     status = processor.status()
     assert (status['unpaired_images'], status['unpaired_nearest_ms']) == ('21', '2.000')
+    # A stream too short to overflow the queues: the status says why at its end ('-' before).
+    short = _stereo(pairs)
+    _stereo_infos(short)
+    for f in range(3):
+        short.handle('left/image_raw', image_msg(pairs[0][0].image, stamp(f)), NONE)
+        short.handle('right/image_raw', image_msg(pairs[1][0].image, stamp(f) + skew), NONE)
+    assert short.status()['last_reason'] == '-'
+    short.finish()
+    assert re.match(expected, short.status()['last_reason'])
 
 
 def test_stereo_pairs_the_nearest_stamp_within_the_tolerance(pairs, stereo_reference):
