@@ -83,12 +83,12 @@ class PinholeCamera:
             raise InputError(msg)
         binning_x = max(int(getattr(info, 'binning_x', 0)), 1)  # (0 means 1, as in the message)
         binning_y = max(int(getattr(info, 'binning_y', 0)), 1)
-        scale = np.diag([1.0 / binning_x, 1.0 / binning_y, 1.0])
+        rows = np.array([[binning_x], [binning_y], [1.0]])  # each row of K and P divided
         return cls(
             width=int(info.width) // binning_x,
             height=int(info.height) // binning_y,
-            k=scale @ k,
-            p=scale @ p,
+            k=k / rows,
+            p=p / rows,
             d=np.asarray(info.d, dtype=float),
             distortion_model=str(info.distortion_model),
             r=np.asarray(info.r, dtype=float).reshape(3, 3) if np.any(info.r) else np.eye(3),
