@@ -341,3 +341,23 @@ def test_an_enum_parameter_is_given_by_its_member_s_name_live_and_offline(ros_co
     expected = "parameter photometric = 'GAIN' is not one of NONE, BIAS, GAIN_BIAS, GAIN_FIELD"
     with pytest.raises(ConfigError, match=expected):
         OverrideParameters.parse(['photometric=GAIN']).config(MonoTrackerConfig)
+
+
+def test_a_parameter_the_node_does_not_have_is_named_in_a_warning(ros_context):
+    """A misspelt init_flie, which rclpy ignores, left the tracker waiting without a word."""
+    given = [Parameter('rate', value=3.0), Parameter('init_flie', value='clicks.yaml')]
+    node = rclpy.create_node(
+        'tunable', context=ros_context, parameter_overrides=given, **processor_node.DECLARE_GIVEN
+    )
+    logged: list = []
+    try:
+        parameters = processor_node.NodeParameters(node)
+        assert parameters.config(Tunables) == Tunables(rate=3.0)
+        assert node.describe_parameter('rate').description == 'a float.'
+        node.get_logger = lambda: _Logger(logged)
+        parameters.warn_unknown()
+    finally:
+        node.destroy_node()
+    assert logged == [
+        'unknown parameter(s), not used: init_flie (misspelt, or meant for another node?)'
+    ]

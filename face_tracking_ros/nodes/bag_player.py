@@ -34,7 +34,7 @@ from face_tracking_ros.errors import BagError, FaceTrackingError
 from face_tracking_ros.io.bags import RawMessage, bag_topics, read_raw
 from face_tracking_ros.io.messages import RclpyMessages
 from face_tracking_ros.nodes.graceful import run_until_stopped
-from face_tracking_ros.nodes.processor_node import NodeParameters
+from face_tracking_ros.nodes.processor_node import DECLARE_GIVEN, NodeParameters
 from face_tracking_ros.playback import (
     Playback,
     PlaybackConfig,
@@ -67,13 +67,15 @@ class BagPlayer(Node):
             ConfigError: If a parameter is out of range or a remap rule names no bag topic.
             BagError: If the bag cannot be read or lacks a topic asked for.
         """
-        super().__init__(NODE_NAME, **kwargs)
+        super().__init__(NODE_NAME, **DECLARE_GIVEN, **kwargs)
         self._stop = threading.Event()
         self._done = threading.Event()
         self._thread: threading.Thread | None = None
         self._summary: PlaybackSummary | None = None
         self._error: FaceTrackingError | None = None
-        self._config = NodeParameters(self).config(PlaybackConfig)
+        parameters = NodeParameters(self)
+        self._config = parameters.config(PlaybackConfig)
+        parameters.warn_unknown()
         planned = plan_topics(self._config.bag, bag_topics(self._config.bag), self._config)
         self._topic_publishers = self._create_publishers(planned)
         self._clock_publisher = (

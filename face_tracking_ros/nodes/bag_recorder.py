@@ -43,7 +43,7 @@ from face_tracking_ros.io.bags import BagWriter
 from face_tracking_ros.io.messages import RclpyMessages
 from face_tracking_ros.io.typestore import typestore
 from face_tracking_ros.nodes.graceful import run_until_stopped
-from face_tracking_ros.nodes.processor_node import NodeParameters
+from face_tracking_ros.nodes.processor_node import DECLARE_GIVEN, NodeParameters
 
 NODE_NAME = 'bag_recorder'
 RECORD_DEPTH = 100
@@ -136,9 +136,11 @@ class BagRecorder(Node):
             ConfigError: If a parameter is out of range.
             BagError: If the bag cannot be created (e.g. ``output`` exists).
         """
-        super().__init__(NODE_NAME, **kwargs)
+        super().__init__(NODE_NAME, **DECLARE_GIVEN, **kwargs)
         self._resources = ExitStack()
-        self._config = NodeParameters(self).config(RecorderConfig)
+        parameters = NodeParameters(self)
+        self._config = parameters.config(RecorderConfig)
+        parameters.warn_unknown()
         self._store = typestore() if store is None else store
         self._classes = RclpyMessages()
         self._wanted = frozenset(self.resolve_topic_name(topic) for topic in self._config.topics)

@@ -25,7 +25,7 @@ from face_tracking_ros.learning.methods import METHODS
 from face_tracking_ros.model.model_file import load_model
 from face_tracking_ros.model.topology import SUPPORTED_NODE_COUNTS
 from face_tracking_ros.nodes.graceful import Endless, run_until_stopped
-from face_tracking_ros.nodes.processor_node import QOS_PROFILES, NodeParameters
+from face_tracking_ros.nodes.processor_node import DECLARE_GIVEN, QOS_PROFILES, NodeParameters
 from face_tracking_ros.processing.base import QosClass
 
 
@@ -147,8 +147,10 @@ class LearnerNode(Endless, Node):
 
     def __init__(self) -> None:
         """Declare the parameters, learn, write the files and publish the model."""
-        super().__init__('learner')
-        config = NodeParameters(self).config(LearnerConfig)
+        super().__init__('learner', **DECLARE_GIVEN)
+        parameters = NodeParameters(self)
+        config = parameters.config(LearnerConfig)
+        parameters.warn_unknown()
         parser = argparse.ArgumentParser(prog='learner')
         learn.register(parser.add_subparsers())
         args = parser.parse_args(['learn', *learn_arguments(config)])

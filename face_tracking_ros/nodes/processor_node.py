@@ -62,6 +62,10 @@ PROBLEM_KIND_CHARS = 60  # problems whose messages start alike (numbers aside) a
 NUMBER = re.compile(r'\d+(\.\d+)?(e[-+]?\d+)?')
 STATUS_PERIOD_S = 1.0  # how often a Reporting processor's status is published (diagnostics' 1 Hz)
 SILENT_INPUT_S = 5.0  # a sensor input without a message for this long is reported
+# Node options under which NodeParameters sees the parameters a node was given but does not use.
+DECLARE_GIVEN = {'automatically_declare_parameters_from_overrides': True}
+RCLPY_PARAMETERS = frozenset({'use_sim_time', 'start_type_description_service'})  # rclpy's own
+QOS_OVERRIDES = 'qos_overrides.'  # rclpy's QoS override parameters
 COMPRESSED = 'compressed'  # image_transport's name for a compressed image topic under its base
 
 QOS_PROFILES = {
@@ -110,6 +114,12 @@ class NodeParameters:
     The parameters are read once, when the node starts, so they are declared read-only: setting
     one on a running node is refused rather than ignored. A float parameter also takes an integer
     (``-p pairing_tolerance_ms:=10``, which rclpy would otherwise refuse with an exception).
+
+    rclpy ignores a parameter given to a node (``-p``, ``--params-file``) that the node does not
+    declare, so a misspelt one (``init_flie``) went unnoticed. A node built with
+    ``automatically_declare_parameters_from_overrides`` (:data:`DECLARE_GIVEN`) has every given
+    parameter declared at once; each config re-declares its own with its description, and
+    :meth:`warn_unknown` logs the rest.
     """
 
     live = True
@@ -117,6 +127,7 @@ class NodeParameters:
     def __init__(self, node: Node) -> None:
         """Declare parameters on ``node``."""
         self._node = node
+        self._declared: set[str] = set()
 
     def config(self, config_type: type[ConfigT], prefix: str = '') -> ConfigT:
         """Declare ``prefix + field`` for every field, read the values and build the config.
@@ -138,6 +149,9 @@ class NodeParameters:
                 read_only=True,
                 dynamic_typing=number or isinstance(default, Enum),
             )
+            if self._node.has_parameter(name):  # given, and declared from its override
+                self._node.undeclare_parameter(name)
+            self._declared.add(name)
             try:
                 declared = self._node.declare_parameter(name, _declared(default), descriptor)
             except InvalidParameterTypeException as error:  # e.g. a string for an integer
@@ -150,15 +164,35 @@ class NodeParameters:
             values[field.name] = tuple(value or ()) if isinstance(default, tuple) else value
         return build_config(config_type, values, prefix)
 
+    def warn_unknown(self) -> None:
+        """Log the parameters the node was given that no config declared.
+
+        Misspelt ones, or another node's (a parameters file shared by several nodes).
+        """
+        unknown = sorted(
+            name
+            for name in self._node.list_parameters([], 0).names
+            if name not in self._declared
+            and name not in RCLPY_PARAMETERS
+            and not name.startswith(QOS_OVERRIDES)
+        )
+        if unknown:
+            self._node.get_logger().warning(
+                f'unknown parameter(s), not used: {", ".join(unknown)} (misspelt, or meant for '
+                'another node?)'
+            )
+
 
 class ProcessorNode(Endless, Node):
     """A node that runs a processor on its subscriptions and publishes what it returns."""
 
     def __init__(self, name: str) -> None:
         """Create the node ``name``, the processor registered under that name, and its topics."""
-        super().__init__(name)
+        super().__init__(name, **DECLARE_GIVEN)
         self._factory = RclpyMessages()
-        self._processor = processor_factory(name)(NodeParameters(self), self._factory)
+        parameters = NodeParameters(self)
+        self._processor = processor_factory(name)(parameters, self._factory)
+        parameters.warn_unknown()
         self._output_publishers = {
             port.topic: self._publisher(port) for port in self._processor.outputs
         }
