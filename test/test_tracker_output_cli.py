@@ -292,3 +292,18 @@ def test_the_demo_does_not_empty_a_directory_it_did_not_make(tmp_path, capsys):
     assert main(['demo', '--out', str(tmp_path / 'data')]) == 2
     assert 'exists and was not made by the demo: not emptied' in capsys.readouterr().err
     assert (tmp_path / 'data' / 'recording.mcap').read_bytes() == b'mine'
+
+
+def test_a_model_given_as_a_parameter_is_the_one_clicked_and_scored(tmp_path, capsys):
+    """The model of --param model_file (as of --model) is the one the clicks are made for.
+
+    The clicks named the packaged 34-node model's nodes, which the 19-node model lacks: every
+    image was refused.
+    """
+    mono = REPO / 'bags' / 'mono_test' / 'subject_00_seq_00'
+    argv = ['track', str(mono), '--simulate-clicks', '1', '--out', str(tmp_path / 'o'), '--quiet',
+            '--param', f'model_file={default_model_path(19)}']  # fmt: skip
+    assert main(argv) == 0
+    printed = capsys.readouterr().out
+    assert 'node RMS' in printed and 'lacks' not in printed
+    assert load_states(tmp_path / 'o').nodes.shape[1] == 19

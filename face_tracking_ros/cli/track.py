@@ -224,6 +224,7 @@ def run(args: argparse.Namespace) -> int:
     if args.model:
         params.append(f'model_file={args.model}')
     node_config = OverrideParameters.parse(params).config(NODE_CONFIGS[node])
+    model_file = Path(node_config.model_file) if node_config.model_file else None  # or --param
     given_init = node_config.init_file or node_config.auto_init
     if not (args.init or args.simulate_clicks is not None or args.auto_init or given_init):
         msg = (
@@ -240,7 +241,7 @@ def run(args: argparse.Namespace) -> int:
     if args.simulate_clicks is not None:
         init_file = args.out.parent / f'{args.out.name}.init.json'
         clicks = clicks_from_bag(args.bag, args.simulate_clicks)
-        write_init_file(clicks.only(tracked_nodes(node, params, args.model)), init_file)
+        write_init_file(clicks.only(tracked_nodes(node, params, model_file)), init_file)
     if init_file:
         params.append(f'init_file={init_file}')
     if args.auto_init:
@@ -277,7 +278,7 @@ def run(args: argparse.Namespace) -> int:
             print(evaluation.report())
             report = asdict(evaluation)
         else:
-            accuracy = score_against_truth(args.bag, args.out, args.model)
+            accuracy = score_against_truth(args.bag, args.out, model_file)
             print(format_accuracy(accuracy))
             report = accuracy.as_dict()
         if args.report:
