@@ -334,11 +334,14 @@ class StereoProcessor:
         except FaceTrackingError as error:
             self._unfit = f'cannot track with this calibration: {error}'
             raise
-        if tracked_px is not None:  # a new calibration mid-track: go on from where the face was
-            left = self._cameras[LEFT_INFO]
-            inside = inside_image(tracked_px, (left.height, left.width))
-            self._tracker.reset(np.where(inside[:, None], tracked_px, np.nan))  # NaN: not given
-        elif self._can_initialise:
+        left = self._cameras[LEFT_INFO]
+        inside = (
+            inside_image(tracked_px, (left.height, left.width)) if tracked_px is not None else None
+        )
+        if inside is not None and inside.sum() >= self._tracker_config.init.min_given_nodes:
+            # A new calibration mid-track: go on from where the face was (NaN: not given).
+            self._tracker.reset(np.where(inside[:, None], tracked_px, np.nan))
+        elif self._can_initialise:  # (too few of those nodes left inside: as at the start)
             self._reset_tracker()
 
     def _reset_tracker(self) -> None:

@@ -976,3 +976,20 @@ def test_identity_starts_over_when_the_face_is_lost(identity):
     identity.handle('face/state', _state(TrackStatus.LOST, round(62.8e9)), NONE)
     assert _identities(identity, [0.0, 0.02], 0.9, 63.0) == []
     assert _identities(identity, [0.0, 0.02], 0.3, 63.9) == ['unknown']
+
+
+def test_stereo_recalibration_with_the_face_gone_from_the_image_starts_as_at_first(
+    pairs, stereo_reference
+):
+    """A new calibration while the last tracked nodes are out of the image (under 6).
+
+    The new tracker was never started: 'not initialised' for every later pair.
+    """
+    processor = _stereo(pairs)
+    _stereo_infos(processor)
+    _pair(processor, pairs, 0)
+    processor._tracked_px = np.full_like(processor._tracked_px, -50.0)  # as if the face had left
+    longer = replace(RIG.right, p=RIG.right.p * [[1.0, 1.0, 1.0, 1.001], [1.0] * 4, [1.0] * 4])
+    processor.handle('right/camera_info', info_msg(longer), NONE)
+    restarted = _mesh(_pair(processor, pairs, 0, stamp(1)))  # from the init file's points
+    np.testing.assert_allclose(restarted, stereo_reference[0], atol=2e-3)
