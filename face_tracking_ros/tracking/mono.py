@@ -1155,17 +1155,18 @@ class MonoTracker:
             _carried(view.params, newest.params, params[-1], scale)
             for view in track.views[len(params) :]
         ]
-        track.rois, track.normals = adjusted.rois, self._normals(estimate.sigma)
-        track.depth = estimate.depth
-        track.views = [
-            _View.of(view.image, self._visibility(p, track.normals), p, view.frame)
+        # Everything is made before the track changes: a failure (InputError) leaves it as it was.
+        normals = self._normals(estimate.sigma)
+        views = [
+            _View.of(view.image, self._visibility(p, normals), p, view.frame)
             for view, p in zip(track.views, params + later, strict=True)
         ]
-        track.start = params[0]
-        first = self._templates(track.first, params[0], track.rois, track.normals)
-        track.keyframes = [self._keyframe(params[0].omega, first)]
-        track.previous = self._templates(pyramid, current, track.rois, track.normals)
-        track.current, track.before = current, None
+        first = self._templates(track.first, params[0], adjusted.rois, normals)
+        keyframe = self._keyframe(params[0].omega, first)
+        previous = self._templates(pyramid, current, adjusted.rois, normals)
+        track.rois, track.normals, track.depth = adjusted.rois, normals, estimate.depth
+        track.views, track.start, track.keyframes = views, params[0], [keyframe]
+        track.previous, track.current, track.before = previous, current, None
         track.last_good = self._result(
             TrackStatus.TRACKING,
             current,

@@ -326,6 +326,32 @@ def test_an_adjustment_that_fails_is_dropped_and_the_track_goes_on(
     _assert_unadjusted(results, unadjusted)
 
 
+def test_an_adjustment_that_fails_as_it_is_applied_leaves_the_track_as_it_was(
+    turning_head, unadjusted, monkeypatch
+):
+    """A failure while an adjustment is applied leaves the track as it was, not half adjusted.
+
+    Its ROIs, normals, depth and views were replaced before its templates were made.
+    """
+    images, _, model, _ = turning_head
+    camera = SceneConfig(kind='mono').cameras()['image']
+    applying = MonoTracker._apply_adjustment
+
+    def failing_at_the_keyframe(self, *args):
+        monkeypatch.setattr(self, '_keyframe', lambda *_: (_ for _ in ()).throw(InputError('x')))
+        try:
+            applying(self, *args)
+        finally:
+            monkeypatch.delattr(self, '_keyframe')
+
+    monkeypatch.setattr(MonoTracker, '_apply_adjustment', failing_at_the_keyframe)
+    calls = record_method(monkeypatch, MonoTracker, '_apply_adjustment', lambda *_: 'applied')
+    results, _ = track_images(MonoTracker(model, camera), images, _clicks(turning_head))
+    assert calls  # adjustments ended and failed as they were applied
+    assert all(result.ok for result in results)
+    _assert_unadjusted(results, unadjusted)
+
+
 def test_a_late_adjustment_carries_the_head_motion_since_its_view():
     # The adjusted world is the track's scaled by s about the camera centre (one camera cannot
     # tell size from distance), with another face frame: X_old = (Q X' + d) / s. A pose
