@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from face_tracking_ros.errors import BagError, ConfigError
-from face_tracking_ros.io.bags import read_messages
+from face_tracking_ros.io.bags import NS_PER_S, read_messages
 from face_tracking_ros.io.conversions import stamp_to_ns, truth_from_msg
 from face_tracking_ros.io.provenance import other_source, tracked_with
 from face_tracking_ros.io.series import require_parameters
@@ -41,7 +41,6 @@ from face_tracking_ros.recognition.sequences import ParameterSequence
 STATE_TOPIC = 'face/state'
 TRUTH_TOPIC = 'truth/face'
 STATUS_TRACKING = 1
-NS_PER_S = 1e9
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:

@@ -38,6 +38,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     parser.add_argument('bag', type=Path, help='input rosbag2 directory')
     add_replay_options(parser)
+    parser.add_argument(
+        '--echo',
+        action='append',
+        default=[],
+        metavar='TOPIC',
+        help='print the messages produced on TOPIC as they fire (e.g. face/expression)',
+    )
     parser.set_defaults(func=run)
 
 
@@ -66,13 +73,6 @@ def add_replay_options(parser: argparse.ArgumentParser) -> None:
         default=[],
         metavar='TOPIC',
         help='also produce this on-demand output (e.g. face/overlay), as if subscribed',
-    )
-    parser.add_argument(
-        '--echo',
-        action='append',
-        default=[],
-        metavar='TOPIC',
-        help='print the messages produced on TOPIC as they fire (e.g. face/expression)',
     )
 
 

@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from face_tracking_ros.errors import BagError, ConfigError, ModelFileError
-from face_tracking_ros.io.bags import read_messages
+from face_tracking_ros.io.bags import NS_PER_S, read_messages
 from face_tracking_ros.io.conversions import truth_from_msg
 from face_tracking_ros.model.face_model import FaceModel
 from face_tracking_ros.model.model_file import load_model
@@ -35,7 +35,6 @@ from face_tracking_ros.recognition.node_fit import fit_model_to_nodes
 from face_tracking_ros.recognition.sequences import ParameterSequence
 
 TRUTH_TOPIC = 'truth/face'
-NS_PER_S = 1e9
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:

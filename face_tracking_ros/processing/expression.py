@@ -23,7 +23,7 @@ import numpy as np
 
 from face_tracking_ros.data import default_classifier_path, default_model_path
 from face_tracking_ros.io import conversions
-from face_tracking_ros.io.bags import stamp_to_ns
+from face_tracking_ros.io.bags import NS_PER_S, stamp_to_ns
 from face_tracking_ros.io.messages import MessageFactory
 from face_tracking_ros.model.model_file import load_model
 from face_tracking_ros.processing.base import Output, Port
@@ -39,7 +39,6 @@ from face_tracking_ros.recognition.expression import ExpressionClassifier, Expre
 ACTION = 'face/action'
 EVENTS = 'face/expression'
 SCORES = 'face/expression_scores'
-NS_PER_S = 1e9
 
 
 @dataclass(frozen=True)

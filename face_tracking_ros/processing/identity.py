@@ -20,7 +20,7 @@ from typing import Any
 from face_tracking_ros.data import default_model_path
 from face_tracking_ros.errors import ConfigError
 from face_tracking_ros.io import conversions
-from face_tracking_ros.io.bags import stamp_to_ns
+from face_tracking_ros.io.bags import NS_PER_S, stamp_to_ns
 from face_tracking_ros.io.messages import MessageFactory
 from face_tracking_ros.model.model_file import load_model
 from face_tracking_ros.processing.base import Output, Port
@@ -36,7 +36,6 @@ from face_tracking_ros.recognition.identity import (
 
 SHAPE = 'face/shape'
 IDENTITY = 'face/identity'
-NS_PER_S = 1e9
 
 
 @dataclass(frozen=True)

@@ -53,11 +53,6 @@ class GaussianClasses:
             raise InputError(msg)
 
     @property
-    def num_classes(self) -> int:
-        """Number of classes K."""
-        return int(self.means.shape[0])
-
-    @property
     def dim(self) -> int:
         """Feature dimension d."""
         return int(self.means.shape[1])

@@ -327,10 +327,6 @@ class TruthBases:
         _, variances = self.identity_principal_axes()
         return 1000.0 * np.sqrt(variances / self.num_nodes)
 
-    def expression_rms_mm(self) -> np.ndarray:
-        """(E,) RMS node displacement of each expression at full intensity, mm."""
-        return 1000.0 * np.linalg.norm(self.expression_basis, axis=0) / np.sqrt(self.num_nodes)
-
 
 class FacePopulation:
     """A deterministic population of synthetic subjects with true identity and expression bases.

@@ -5,7 +5,8 @@
 results with :func:`~face_tracking_ros.tracking.accuracy.tracking_accuracy` (rotation and
 translation MAE per axis, alpha RMS as a percentage of its range, drift, loss count, jitter),
 adding what a still head needs (the standard deviation of the estimated angles) and the compute
-time per frame. The benchmark and ``face-tracking track`` call it; so do the slow accuracy checks.
+time per frame. The benchmark calls it, and so do the slow accuracy checks (``face-tracking
+track`` scores its output bag with ``tracking_accuracy`` directly).
 """
 
 from __future__ import annotations

@@ -208,7 +208,8 @@ class MonoTrackerConfig:
             Against templates sampled at the initial sigma this is poorly posed: on a
             1000-frame synthetic sequence 30 frames gave 7.5 degrees of pitch error and 100
             frames 1.4 / 2.1 degrees (x / y) against 2.4 / 1.1 with 0, so 0 is the default.
-        damping: initial Levenberg-Marquardt damping, relative to diag(H) (> 0).
+        damping: Levenberg-Marquardt damping, relative to diag(H), divided by 10 before each
+            step of a level (its first step uses a tenth of it; at least 1e-9) (> 0).
         convergence_px: level 0 stops when no node moves more than this, level px (> 0).
             Measured at 0.05 against 0.01 on issue 6's three 1000-frame sequences (34 nodes,
             true model): the rotation errors the same to 0.001 degrees, z and node RMS to 0.01

@@ -332,7 +332,7 @@ class StereoResult:
 
 @dataclass(frozen=True)
 class TrackedSequence:
-    """Output of :func:`track_sequence` for the learner.
+    """Output of :func:`track_sequence`.
 
     Attributes:
         meshes: (F, N, 3) nodes per frame in the left camera frame, m (the last valid nodes on
@@ -802,8 +802,9 @@ class StereoTracker:
     def _track(self, pyramids: tuple[ImagePyramid, ImagePyramid]) -> StereoResult:
         """Solve eq. 4 + eq. 5 for this pair from the predicted nodes, and update the state.
 
-        With ``coarsest_level_px`` set, the solve starts on level 0 and starts over from the
-        coarsest level (from the prediction) when level 0's first step exceeds it.
+        With ``coarsest_level_px`` set, the solve starts on level 0 and, when level 0's first
+        step exceeds it, starts over from the prediction on level 1 (and from the coarsest level
+        if level 1's does too: :func:`~.coarse_to_fine.coarse_to_fine`).
         """
         state = self._state
         assert state is not None
@@ -832,7 +833,7 @@ class StereoTracker:
             nodes = coarse_to_fine(
                 config.pyramid_levels, 0, config.coarsest_level_px, nodes, solve
             )
-        except (LinAlgError, FaceTrackingError, FloatingPointError) as error:
+        except (LinAlgError, FaceTrackingError) as error:
             return self._lose(f'solver failed: {error}')
         level, accepted = solved_levels[-1]  # level 0's
         statistics = group_statistics(
@@ -1185,7 +1186,10 @@ def track_sequence(
     frames: Iterable[tuple[np.ndarray, np.ndarray]],
     init: np.ndarray | Initialisation,
 ) -> TrackedSequence:
-    """Track a whole stereo sequence from given initial node positions (for the learner).
+    """Track a whole stereo sequence from given initial node positions, as ``learn`` does.
+
+    (``learn`` runs the stereo_tracker's processor through ``replay``, with the same
+    ``retroactive_depths``; this is the tracker alone, for tests on frames in memory.)
 
     Offline, every frame gets the frame-1 depths refined over the whole sequence
     (:meth:`StereoTracker.with_final_depths`).

@@ -306,11 +306,6 @@ def _rays(rig: StereoRig, left_px: np.ndarray) -> np.ndarray:
     return np.stack([x, y, np.ones_like(x)], axis=1)
 
 
-def _right_of_depth(rig: StereoRig, left_px: np.ndarray, depth: float) -> np.ndarray:
-    """Right-image pixels (K, 2) of the points at ``depth`` on the left viewing rays."""
-    return rig.right.project(_rays(rig, left_px) * depth)
-
-
 def _parabola_peak(response: np.ndarray, best: int) -> float:
     """Sub-sample offset in [-0.5, 0.5] of a peak from the parabola through three samples."""
     if best == 0 or best == response.size - 1:
@@ -331,7 +326,7 @@ def _trimmed_reference(
     within ``config.max_face_error``.
 
     Raises:
-        InputError: when fewer than ``config.min_given_nodes`` nodes remain.
+        InputError: when fewer than :data:`MIN_FIT_NODES` nodes remain.
     """
     while True:
         if use.sum() < MIN_FIT_NODES:
