@@ -75,18 +75,6 @@ def stamp_to_ns(stamp: StampLike) -> int:
     return stamp.sec * NS_PER_S + stamp.nanosec
 
 
-def ns_to_stamp(ns: int) -> Any:
-    """Convert integer nanoseconds since the epoch to a rosbags ``builtin_interfaces/msg/Time``.
-
-    Raises:
-        ValueError: If ``ns`` is negative.
-    """
-    if ns < 0:
-        raise ValueError(f'stamp must be >= 0 ns, got {ns}')
-    sec, nanosec = divmod(ns, NS_PER_S)
-    return typestore().types['builtin_interfaces/msg/Time'](sec=sec, nanosec=nanosec)
-
-
 class BagWriter:
     """Context manager writing a rosbag2 bag with MCAP storage.
 
