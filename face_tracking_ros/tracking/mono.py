@@ -906,7 +906,7 @@ class MonoTracker:
         level = min(_SEARCH_LEVEL, pyramid.num_levels - 1)
         image = pyramid.levels[level]
         size = np.array(image.shape[::-1])
-        inner = nodes_px[~self._edge_nodes] / float(1 << level)
+        inner = ImagePyramid.to_level(nodes_px[~self._edge_nodes], level)
         low = np.clip(np.floor(inner.min(axis=0)), 0, size - 1).astype(int)
         high = np.clip(np.ceil(inner.max(axis=0)) + 1, low + 1, size).astype(int)
         return _FaceView(image[low[1] : high[1], low[0] : high[0]].copy(), low)
