@@ -17,10 +17,12 @@ refined over the whole track applied to every pair
 ``face-tracking learn`` learns from. A live stream cannot be rewritten, so the live node refuses
 it.
 
-An image whose stamp repeats that of the last tracked pair is refused; one a little older (up to
-:data:`RESTART_JUMP_NS`, e.g. the late partner of a dropped image) is dropped as unpaired; a
-larger jump back (a looped bag, restarted cameras) resets the tracker to the initialisation and
-clears the pairing queues, and the new track starts with the pair of that image.
+An image whose stamp repeats that of the last tracked pair is refused. A jump back of
+:data:`RESTART_JUMP_NS` or more (a looped bag, restarted cameras) resets the tracker to the
+initialisation and clears the pairing queues, and the new track starts with the pair of that
+image. An image a little older than the last pair (e.g. the late partner of a dropped image) is
+put aside and counted as unpaired, unless the other camera's images went back too and it pairs
+with one of them: a bag shorter than that jump, looped, which restarts the track the same way.
 """
 
 from __future__ import annotations
@@ -178,6 +180,10 @@ class StereoProcessor:
             RIGHT_IMAGE: OrderedDict(),
         }
         self._held_pair: tuple[Any, Any] | None = None
+        self._stale: dict[str, OrderedDict[int, Any]] = {  # images older than the last pair
+            LEFT_IMAGE: OrderedDict(),
+            RIGHT_IMAGE: OrderedDict(),
+        }
         self._track_results: list[tuple[Any, StereoResult]] = []  # held: (header, result)
         self._ended_outputs: list[Output] = []  # held outputs of the tracks that ended
         self._last_stamp: int | None = None
@@ -361,33 +367,57 @@ class StereoProcessor:
     def _check_stamp(self, topic: str, msg: Any) -> bool:
         """Whether an image may be paired: its stamp is later than the last tracked pair's.
 
-        A slightly older image is dropped as unpaired (False). A repeated stamp is refused; a
-        jump back by :data:`RESTART_JUMP_NS` or more resets the track and keeps the image.
+        A repeated stamp is refused; a jump back by :data:`RESTART_JUMP_NS` or more restarts the
+        track (:meth:`_restart_stream`) and keeps the image. A smaller step back puts the image
+        aside, counted as unpaired (False), unless it pairs with an image the other camera put
+        aside: both cameras went back (a short bag, looped), and the track restarts with them.
 
         Raises:
             InputError: for a repeated stamp or a jump back.
         """
         stamp, last = stamp_to_ns(msg.header.stamp), self._last_stamp
+        other_topic = RIGHT_IMAGE if topic == LEFT_IMAGE else LEFT_IMAGE
         if last is None or stamp > last:
+            for side in (topic, other_topic):  # not a restart: what was put aside never pairs
+                self._stale[side].clear()
             return True
         if stamp == last:
             msg_text = f'{topic} stamp {stamp} ns repeats the previous pair stamp: image skipped'
             raise InputError(msg_text)
         if last - stamp < RESTART_JUMP_NS:
-            self.unpaired += 1
-            return False
-        self._last_stamp = None
-        for queue in self._waiting.values():
-            queue.clear()
+            partner = self._partner(stamp, self._stale[other_topic])
+            if partner is None:
+                self._put_aside(topic, stamp, msg)
+                return False
+            partner_msg = self._stale[other_topic].pop(partner)
+            self._restart_stream()
+            self.unpaired -= 1  # (the partner, counted when put aside, pairs after all)
+            self._waiting[other_topic][partner] = partner_msg
+            return True
+        self._restart_stream()
         self._waiting[topic][stamp] = msg
-        if self._tracker is not None and self._can_initialise:
-            self._end_track()
-            self._reset_tracker()
         msg_text = (
             f'{topic} stamp went back by {(last - stamp) / 1e9:.3f} s (looped bag or restarted '
             'cameras): tracker reset, a new track starts with this pair'
         )
         raise InputError(msg_text)
+
+    def _put_aside(self, topic: str, stamp: int, msg: Any) -> None:
+        """Keep an image older than the last pair (counted as unpaired), the newest few only."""
+        self.unpaired += 1
+        aside = self._stale[topic]
+        aside[stamp] = msg
+        while len(aside) > self._config.pairing_queue:
+            aside.popitem(last=False)
+
+    def _restart_stream(self) -> None:
+        """The cameras' stamps went back: empty the queues, start again from the initialisation."""
+        self._last_stamp = None
+        for queue in (*self._waiting.values(), *self._stale.values()):
+            queue.clear()
+        if self._tracker is not None and self._can_initialise:
+            self._end_track()
+            self._reset_tracker()
 
     def _pair(self, topic: str, msg: Any) -> tuple[Any, Any] | None:
         """The (left, right) pair completed by this image, if any; older unpaired ones dropped.

@@ -413,10 +413,29 @@ def test_a_reset_stereo_track_starts_from_the_next_pair_whatever_its_stamp(pairs
     processor = _stereo_started(pairs)
     for f in range(4):
         _pair(processor, pairs, f)
-    assert _pair(processor, pairs, 1) == []  # 0.13 s back: dropped as unpaired
+    # A whole pair 0.13 s back: both cameras went back, and a new track starts with it.
+    again = _pair(processor, pairs, 1)
+    assert stamp_to_ns(again[0].msg.header.stamp) == stamp(1)
     processor.reset(pairs[2])
     restarted = _mesh(_pair(processor, pairs, 0))
     np.testing.assert_allclose(restarted, _mesh(_pair(_stereo_started(pairs), pairs, 0)))
+
+
+def test_a_stereo_bag_shorter_than_the_restart_jump_looped_is_tracked_on_every_pass(
+    pairs, stereo_reference
+):
+    """Its stamps go back by less than 1 s: every image was dropped as unpaired after pass 1.
+
+    A lone image a little older than the last pair is still put aside (a late partner).
+    """
+    processor = _stereo_started(pairs)
+    for f in range(4):
+        _pair(processor, pairs, f)
+    late = image_msg(pairs[1][2].image, stamp(2))
+    assert processor.handle('right/image_raw', late, NONE) == [] and processor.unpaired == 1
+    for f in range(4):  # the loop's second pass: a new track from the initialisation
+        np.testing.assert_array_equal(_mesh(_pair(processor, pairs, f)), stereo_reference[f])
+    assert processor.unpaired == 1
 
 
 def _stereo_started(pairs) -> StereoProcessor:
