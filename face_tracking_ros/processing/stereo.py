@@ -192,6 +192,7 @@ class StereoProcessor:
         self._unpaired_gap_ns: int | None = None  # nearest other-camera stamp to a dropped image
         self._paired = False  # whether any left and right images have paired
         self._counts = TrackCounts('pairs')
+        self._restarts = 0  # tracks restarted by stamps that went back
         image_type, image_topics = (
             ('sensor_msgs/msg/CompressedImage', tuple(COMPRESSED))
             if config.compressed
@@ -234,12 +235,17 @@ class StereoProcessor:
 
         See :class:`~face_tracking_ros.processing.base.Reporting`: the pairs per status and the
         last reason (:class:`~face_tracking_ros.processing.track_counts.TrackCounts`),
-        ``unpaired_images`` with, if any, ``unpaired_nearest_ms`` (how near the other camera's
+        ``restarts`` (tracks restarted by stamps that went back), ``unpaired_images`` with, if
+        any, ``unpaired_nearest_ms`` (how near the other camera's
         stamps came to one of them: more than ``pairing_tolerance_ms`` means unsynchronised
         cameras), and once a tracker runs ``right_gain`` and ``right_row_offset_px``
         (:class:`StereoTracker`'s).
         """
-        report = {**self._counts.report(), 'unpaired_images': str(self.unpaired)}
+        report = {
+            **self._counts.report(),
+            'restarts': str(self._restarts),
+            'unpaired_images': str(self.unpaired),
+        }
         if self._unpaired_gap_ns is not None:
             report['unpaired_nearest_ms'] = f'{self._unpaired_gap_ns / 1e6:.3f}'
             if not self._paired and report['last_reason'] == NO_REASON:  # (a short stream)
@@ -413,6 +419,7 @@ class StereoProcessor:
     def _restart_stream(self) -> None:
         """The cameras' stamps went back: empty the queues, start again from the initialisation."""
         self._last_stamp = None
+        self._restarts += 1
         for queue in (*self._waiting.values(), *self._stale.values()):
             queue.clear()
         if self._tracker is not None and self._can_initialise:

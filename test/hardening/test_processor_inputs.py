@@ -252,12 +252,12 @@ def test_mono_repeated_stamp_is_refused_and_an_earlier_stamp_restarts_the_track(
         processor.handle('image', image_msg(frames[f].image, stamp(f)), NONE)
     with pytest.raises(InputError, match='repeats the previous image stamp'):
         processor.handle('image', image_msg(frames[2].image, stamp(2)), NONE)
-    with pytest.raises(InputError, match=r'stamp went back by 0\.133 s.*tracker reset'):
-        processor.handle('image', image_msg(frames[0].image, stamp(0)), NONE)
-    # A looped bag: the track starts again from the initialisation, on the first frame.
-    outputs = processor.handle('image', image_msg(frames[0].image, stamp(1)), NONE)
+    # A looped bag: the track starts again from the initialisation, on the first frame, which is
+    # tracked (it was dropped: the loop's second pass started one frame late, 12 mm off).
+    outputs = processor.handle('image', image_msg(frames[0].image, stamp(0)), NONE)
     assert _status(outputs) == TrackStatus.TRACKING
     np.testing.assert_array_equal(_image_points(outputs), mono_reference[0])
+    assert processor.status()['restarts'] == '1'
 
 
 def _model_msg(model):
@@ -436,6 +436,7 @@ def test_a_stereo_bag_shorter_than_the_restart_jump_looped_is_tracked_on_every_p
     for f in range(4):  # the loop's second pass: a new track from the initialisation
         np.testing.assert_array_equal(_mesh(_pair(processor, pairs, f)), stereo_reference[f])
     assert processor.unpaired == 1
+    assert processor.status()['restarts'] == '1'
 
 
 def _stereo_started(pairs) -> StereoProcessor:
