@@ -170,6 +170,7 @@ def test_status_counts_the_images_tracked_and_lost_with_the_last_reason(scene):
         'lost_images': '0',
         'last_reason': '-',
         'restarts': '0',
+        'model': model.fingerprint,
     }
     for f in range(4):
         processor.handle('image', _image(frames[f], f), frozenset())

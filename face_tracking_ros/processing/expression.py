@@ -1,7 +1,9 @@
 """Message-in, message-out expression recognition: the expression_recognizer node and its replay.
 
-Inputs: ``face/action`` (ActionParams) of one tracked face, and its tracker's ``face/state``
-(FaceState) for the status alone. Outputs: ``face/expression`` (ExpressionEvent) at every onset
+Inputs: ``face/action`` (ActionParams) of one tracked face, its tracker's ``face/state``
+(FaceState) for the status alone, and the latched ``face/model`` its tracker may take a new model
+from (:mod:`.model_agreement`: nothing is recognised while that is not the classifier's
+model). Outputs: ``face/expression`` (ExpressionEvent) at every onset
 and offset, and, while subscribed, ``face/expression_scores`` (std_msgs/Float64MultiArray: one
 posterior per label, the labels in the layout's dimension label, comma-separated), both stamped
 with the input's header. A stamp not later than the previous one starts a new track: the feature
@@ -27,6 +29,7 @@ from face_tracking_ros.io.bags import NS_PER_S, stamp_to_ns
 from face_tracking_ros.io.messages import MessageFactory
 from face_tracking_ros.model.model_file import load_model
 from face_tracking_ros.processing.base import Output, Port
+from face_tracking_ros.processing.model_agreement import MODEL_PORT, ModelAgreement
 from face_tracking_ros.processing.parameters import ParameterSource
 from face_tracking_ros.processing.track_status import STATE_PORT, TrackEnds
 from face_tracking_ros.recognition.events import (
@@ -70,7 +73,16 @@ class ExpressionProcessor:
         self._labels = ','.join(classifier.labels)
         self._last_stamp: int | None = None
         self._track_ends = TrackEnds()
-        self.inputs = (Port(ACTION, 'face_tracking_msgs/msg/ActionParams'), STATE_PORT)
+        self._agreement = ModelAgreement(
+            classifier.model,
+            'the expression classifier',
+            'or train one on it: face-tracking train-expressions --model',
+        )
+        self.inputs = (
+            Port(ACTION, 'face_tracking_msgs/msg/ActionParams'),
+            STATE_PORT,
+            MODEL_PORT,
+        )
         self.outputs = (
             Port(EVENTS, 'face_tracking_msgs/msg/ExpressionEvent'),
             Port(SCORES, 'std_msgs/msg/Float64MultiArray', on_demand=True),
@@ -81,11 +93,15 @@ class ExpressionProcessor:
 
         The scores are returned too when wanted (an ActionParams message).
         """
+        if topic == MODEL_PORT.topic:  # alpha from now on is of this model
+            self._agreement.model(msg)
+            return []
         stamp = stamp_to_ns(msg.header.stamp)
         if topic == STATE_PORT.topic:
             return self._end(msg, stamp) if self._track_ends.ended(msg) else []
         if self._track_ends.untracked(stamp):
             return []
+        self._agreement.check()
         alpha = conversions.finite_vector(msg.alpha, 'ActionParams.alpha')
         scores = self._recognizer.update(stamp / NS_PER_S, alpha)
         if self._last_stamp is not None and stamp <= self._last_stamp:

@@ -1,7 +1,9 @@
 """Message-in, message-out identity recognition: the identity_recognizer node and its replay.
 
-Inputs: ``face/shape`` (ShapeParams) of one tracked face, and its tracker's ``face/state``
-(FaceState) for the status alone. Output: ``face/identity`` (IdentityEvent) whenever the decision
+Inputs: ``face/shape`` (ShapeParams) of one tracked face, its tracker's ``face/state``
+(FaceState) for the status alone, and the latched ``face/model`` its tracker may take a new model
+from (:mod:`.model_agreement`: nothing is decided, or enrolled, while that is not the gallery's
+model). Output: ``face/identity`` (IdentityEvent) whenever the decision
 changes, stamped with the input's header. Enrolment (:meth:`IdentityProcessor.enroll`, the
 ``enroll_identity`` service) adds the tracked face to the gallery from its sigma estimates of the
 last ``duration`` seconds and saves the gallery. A stamp not later than the previous one starts
@@ -24,6 +26,7 @@ from face_tracking_ros.io.bags import NS_PER_S, stamp_to_ns
 from face_tracking_ros.io.messages import MessageFactory
 from face_tracking_ros.model.model_file import load_model
 from face_tracking_ros.processing.base import Output, Port
+from face_tracking_ros.processing.model_agreement import MODEL_PORT, ModelAgreement
 from face_tracking_ros.processing.parameters import ParameterSource
 from face_tracking_ros.processing.track_status import STATE_PORT, TrackEnds
 from face_tracking_ros.recognition.features import STAMP_TOLERANCE, SlidingWindow
@@ -79,7 +82,10 @@ class IdentityProcessor:
         self._history = SlidingWindow(node_config.max_enroll_duration, gallery.p)
         self._last: tuple[str, str] | None = None
         self._track_ends = TrackEnds()
-        self.inputs = (Port(SHAPE, 'face_tracking_msgs/msg/ShapeParams'), STATE_PORT)
+        self._agreement = ModelAgreement(
+            gallery.model, 'the identity gallery', 'or enrol the people again with it'
+        )
+        self.inputs = (Port(SHAPE, 'face_tracking_msgs/msg/ShapeParams'), STATE_PORT, MODEL_PORT)
         self.outputs = (Port(IDENTITY, 'face_tracking_msgs/msg/IdentityEvent'),)
 
     @property
@@ -109,6 +115,11 @@ class IdentityProcessor:
             if self._track_ends.ended(msg):
                 self._start_over()
             return []
+        if topic == MODEL_PORT.topic:  # sigma from now on is of this model
+            self._start_over()
+            self._agreement.model(msg)
+            return []
+        self._agreement.check()
         stamp_ns = stamp_to_ns(msg.header.stamp)
         if self._track_ends.untracked(stamp_ns):
             return []
@@ -138,6 +149,7 @@ class IdentityProcessor:
             ConfigError: for a duration out of range, no samples yet, a bad name, or a gallery
                 file that cannot be written (the gallery then stays as it was).
         """
+        self._agreement.check()
         if not 0 < duration <= self._node_config.max_enroll_duration:
             limit = self._node_config.max_enroll_duration
             msg = f'enrolment duration must be in (0, {limit}] s, got {duration}'

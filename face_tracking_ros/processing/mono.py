@@ -193,14 +193,15 @@ class MonoProcessor:
         return self._track(msg.header, gray, wanted)
 
     def status(self) -> dict[str, str]:
-        """The images per tracking status, the last reason, and the tracks restarted.
+        """The images per tracking status, the last reason, the restarts and the model.
 
-        ``restarts`` counts the tracks restarted by a stamp that went back.
-
+        ``restarts`` counts the tracks restarted by a stamp that went back; ``model`` is the
+        fingerprint of the face model in use (it changes with one taken from face/model).
         See :class:`~face_tracking_ros.processing.base.Reporting` and
         :class:`~face_tracking_ros.processing.track_counts.TrackCounts`.
         """
-        return {**self._counts.report(), 'restarts': str(self._restarts)}
+        model = self._model.fingerprint if self._model is not None else 'none'
+        return {**self._counts.report(), 'restarts': str(self._restarts), 'model': model}
 
     def warning(self) -> str:
         """See :meth:`~face_tracking_ros.processing.track_counts.TrackCounts.warning`."""
