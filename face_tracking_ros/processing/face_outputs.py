@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from typing import Any
 
+import numpy as np
+
 from face_tracking_ros.io import conversions
 from face_tracking_ros.io.messages import MessageFactory
 from face_tracking_ros.model.topology import MeshTopology
@@ -39,7 +41,9 @@ def face_outputs(
 
     The pose, action and shape are left out unless the result is TRACKING: published while the
     face is lost, their last valid values read as the face's current ones (an expression
-    recogniser would hold a smile for as long as the face is gone).
+    recogniser would hold a smile for as long as the face is gone). The mesh is left out while
+    there is no estimate at all (INITIALIZING): a FaceMesh has no status, and its nodes would be
+    the zeros the state carries then, a face at the camera's centre.
 
     Args:
         factory: message factory.
@@ -50,11 +54,9 @@ def face_outputs(
         with_model: include pose, action and shape (trackers without a model have none).
     """
     messages = conversions.face_messages(factory, header, face_id, result, topology)
-    outputs = [
-        Output('face/state', messages.state),
-        Output('face/mesh_raw', messages.mesh),
-        Output('face/mesh', messages.markers),
-    ]
+    outputs = [Output('face/state', messages.state)]
+    if np.isfinite(result.nodes_cam).all():
+        outputs += [Output('face/mesh_raw', messages.mesh), Output('face/mesh', messages.markers)]
     if with_model and result.ok:
         outputs += [
             Output('face/pose', messages.pose),

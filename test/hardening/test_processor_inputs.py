@@ -737,8 +737,10 @@ def test_mono_auto_init_starts_from_a_detection_and_detects_again_after_a_reset(
         FACTORY, config, MonoTrackerConfig(), scene.model, None, detector_for=detections.for_nodes
     )
     processor.handle('camera_info', info_msg(), NONE)
-    state = processor.handle('image', image_msg(frames[0].image, stamp(0)), NONE)[0].msg
-    assert TrackStatus(state.status) == TrackStatus.INITIALIZING  # no face found yet
+    outputs = processor.handle('image', image_msg(frames[0].image, stamp(0)), NONE)
+    assert TrackStatus(outputs[0].msg.status) == TrackStatus.INITIALIZING  # no face found yet
+    # No estimate: the state alone (a FaceMesh, without status, had its 34 nodes at the origin).
+    assert [output.topic for output in outputs] == ['face/state']
     for f in range(3):  # the track from an init file of the same points (to the pose
         # smoothing's rounding: its stamps are one frame later)
         points = _image_points(
@@ -767,8 +769,9 @@ def test_stereo_auto_init_starts_from_a_detection_and_detects_again_after_a_rese
         detector_for=detections.for_nodes,
     )
     _stereo_infos(processor)
-    state = next(o.msg for o in _pair(processor, pairs, 0) if o.topic == 'face/state')
-    assert TrackStatus(state.status) == TrackStatus.INITIALIZING  # no face found yet
+    outputs = _pair(processor, pairs, 0)
+    assert TrackStatus(outputs[0].msg.status) == TrackStatus.INITIALIZING  # no face found yet
+    assert [output.topic for output in outputs] == ['face/state']  # no mesh without estimate
     for f in range(4):  # the same track as from an init file of the same points
         np.testing.assert_array_equal(
             _mesh(_pair(processor, pairs, f, stamp(f + 1))), stereo_reference[f]
