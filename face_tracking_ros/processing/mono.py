@@ -43,6 +43,7 @@ from face_tracking_ros.processing.track_counts import TrackCounts
 from face_tracking_ros.tracking.initialisation import (
     MIN_INIT_NODES,
     Initialisation,
+    check_inside,
     load_init_file,
 )
 from face_tracking_ros.tracking.mono import MonoTracker, MonoTrackerConfig
@@ -160,12 +161,16 @@ class MonoProcessor:
         init file's or an earlier reset's). Returns what the restart starts from.
 
         Raises:
-            InputError: for None with neither a detector nor earlier positions, or for nodes the
-                face model does not have (the track goes on as it was).
+            InputError: for None with neither a detector nor earlier positions, for nodes the
+                face model does not have, or positions outside the image (the track goes on as
+                it was).
         """
         unknown = '' if self._model is None else _unknown_nodes(self._model, initialisation)
         if unknown:
             raise InputError(unknown)
+        if initialisation is not None and self._camera is not None:
+            size = (self._camera.width, self._camera.height)
+            check_inside(initialisation.node_names, initialisation.points, size)
         self._initialisation, source = restart_points(
             initialisation, self._initialisation, self._detector_for, 'mono'
         )

@@ -53,7 +53,11 @@ from face_tracking_ros.processing.detection import (
 from face_tracking_ros.processing.face_outputs import MESH_PORTS, MODEL_PORTS, face_outputs
 from face_tracking_ros.processing.parameters import ParameterSource
 from face_tracking_ros.processing.track_counts import NO_REASON, TrackCounts
-from face_tracking_ros.tracking.initialisation import Initialisation, load_init_file
+from face_tracking_ros.tracking.initialisation import (
+    Initialisation,
+    check_inside,
+    load_init_file,
+)
 from face_tracking_ros.tracking.stereo import StereoResult, StereoTracker, StereoTrackerConfig
 
 LEFT_IMAGE, RIGHT_IMAGE = 'left/image_raw', 'right/image_raw'
@@ -213,10 +217,14 @@ class StereoProcessor:
         (the init file's or an earlier reset's), as the mono tracker does.
 
         Raises:
-            InputError: for None with neither a detector nor earlier positions, or for nodes the
-                mesh does not have.
+            InputError: for None with neither a detector nor earlier positions, for nodes the
+                mesh does not have, or positions outside the left image.
         """
         _check_initialisation(initialisation, self._tracker_config, InputError)
+        left = self._cameras.get(LEFT_INFO)
+        if initialisation is not None and left is not None:
+            size = (left.width, left.height)
+            check_inside(initialisation.node_names, initialisation.points, size, 'left image')
         self._initialisation, source = restart_points(
             initialisation, self._initialisation, self._detector_for, 'stereo'
         )

@@ -277,14 +277,7 @@ def fit_model_to_points(
         InputError: if no pose puts the face in front of the camera.
     """
     config = config or FitConfig()
-    outside = ~inside_image(init.points, (camera.height, camera.width))
-    if outside.any():
-        names = [name for name, out in zip(init.node_names, outside, strict=True) if out]
-        msg = (
-            f'initial node positions outside the {camera.width}x{camera.height} image: '
-            f'{", ".join(names)}'
-        )
-        raise InputError(msg)
+    check_inside(init.node_names, init.points, (camera.width, camera.height))
     indices = init.node_indices(model)
     sigma_fixed = init.sigma is not None
     sigma0 = np.zeros(model.p) if init.sigma is None else np.asarray(init.sigma, dtype=float)
@@ -339,6 +332,28 @@ def fit_model_to_points(
         raise InputError(msg)
     _check_facing(fit)
     return fit
+
+
+def check_inside(
+    names: Sequence[str], points: np.ndarray, size: tuple[int, int], image: str = 'image'
+) -> None:
+    """Refuse given node positions outside an image of ``size`` (width, height).
+
+    Args:
+        names: the nodes' names.
+        points: (K, 2) their pixel positions; a NaN row is a node not given.
+        size: the image's width and height, px.
+        image: the image, for the message (e.g. 'left image').
+
+    Raises:
+        InputError: naming the nodes outside.
+    """
+    width, height = size
+    outside = np.all(np.isfinite(points), axis=1) & ~inside_image(points, (height, width))
+    if outside.any():
+        named = ', '.join(name for name, out in zip(names, outside, strict=True) if out)
+        msg = f'initial node positions outside the {width}x{height} {image}: {named}'
+        raise InputError(msg)
 
 
 def _check_facing(fit: ModelFit) -> None:

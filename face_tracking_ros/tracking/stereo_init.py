@@ -21,8 +21,9 @@ import numpy as np
 from face_tracking_ros.errors import InputError, check_fields
 from face_tracking_ros.geometry.camera import StereoRig
 from face_tracking_ros.geometry.procrustes import rigid_align
-from face_tracking_ros.imaging import inside_image, sample_patches, sample_points, square_offsets
+from face_tracking_ros.imaging import sample_patches, sample_points, square_offsets
 from face_tracking_ros.model.topology import Group, MeshTopology
+from face_tracking_ros.tracking.initialisation import check_inside
 from face_tracking_ros.tracking.stereo_data import SampleLayout, SampleSet, depth_terms
 
 FLAT_STD = 0.5  # grey levels: a correlation window flatter than this cannot be matched
@@ -178,12 +179,8 @@ def initial_nodes(
             outside the left image, or too few inner nodes are matched to fit the face.
     """
     height, width = left.shape
+    check_inside(topology.node_names, left_px, (width, height), 'left image')
     given = np.all(np.isfinite(left_px), axis=1)
-    inside = inside_image(left_px, left.shape)
-    if np.any(given & ~inside):
-        names = [topology.node_names[i] for i in np.flatnonzero(given & ~inside)]
-        msg = f'initial node positions outside the {width}x{height} left image: {names}'
-        raise InputError(msg)
     if given.sum() < config.min_given_nodes:
         msg = f'only {int(given.sum())} nodes given; at least {config.min_given_nodes} are needed'
         raise InputError(msg)

@@ -1016,3 +1016,21 @@ def test_stereo_recalibration_with_the_face_gone_from_the_image_starts_as_at_fir
     processor.handle('right/camera_info', info_msg(longer), NONE)
     restarted = _mesh(_pair(processor, pairs, 0, stamp(1)))  # from the init file's points
     np.testing.assert_allclose(restarted, stereo_reference[0], atol=2e-3)
+
+
+def test_a_reset_with_positions_outside_the_image_is_refused(scene, frames, pairs):
+    """A reset with positions outside the image is refused.
+
+    It was accepted ('initialising from the 34 node positions given') and every later image
+    stayed INITIALIZING, the status OK.
+    """
+    mono = _mono(scene, frames)
+    mono.handle('camera_info', info_msg(), NONE)
+    clicks = scene.initialisation(frames[0])
+    beyond = Initialisation(clicks.node_names, clicks.points + [5000.0, 0.0])
+    with pytest.raises(InputError, match=r'outside the \d+x\d+ image: right_eye, left_eye'):
+        mono.reset(beyond)
+    assert mono.reset(clicks).startswith('initialising from the')
+    stereo = _stereo_started(pairs)
+    with pytest.raises(InputError, match=r'outside the 320x240 left image: right_eye, left_eye'):
+        stereo.reset(Initialisation(clicks.node_names, clicks.points - [0.0, 1000.0]))
