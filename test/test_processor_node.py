@@ -101,7 +101,7 @@ def test_a_reporting_processor_s_status_is_published_with_the_last_problem(
     values = [{v.key: v.value for v in status.values} for status in statuses]
     assert [s.level for s in statuses] == [OK, WARN, WARN, OK]
     assert [s.message for s in statuses] == ['running', 'in: negative', 'in: negative', 'running']
-    assert [v.get('seen') for v in values] == ['1', None, '2', '2']
+    assert [v.get('seen') for v in values] == ['1', '2', '2', '2']  # the problem's too
     assert all(v['node'] == 'reporting' for v in values)
 
 

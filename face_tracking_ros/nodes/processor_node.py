@@ -275,10 +275,17 @@ class ProcessorNode(Endless, Node):
         return None
 
     def _problem(self, level: bytes, message: str) -> None:
-        """Log a problem once per WARNING_PERIOD_S per kind, and report it on /diagnostics."""
+        """Log a problem once per WARNING_PERIOD_S per kind, and report it on /diagnostics.
+
+        The report carries the processor's status values too, as the 1-Hz status does (a
+        monitor keeping the last status of the node would lose its counts otherwise).
+        """
         self._last_problem = (time.monotonic(), level, message)
         self._log(level, message, NUMBER.sub('#', message)[:PROBLEM_KIND_CHARS])
-        self._report(level, message)
+        processor = self._processor
+        self._report(
+            level, message, processor.status() if isinstance(processor, Reporting) else None
+        )
 
     def _log(self, level: bytes, message: str, kind: str) -> None:
         """Log ``message`` unless a message of the same kind was logged in WARNING_PERIOD_S."""

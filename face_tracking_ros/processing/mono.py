@@ -39,7 +39,7 @@ from face_tracking_ros.processing.detection import (
 )
 from face_tracking_ros.processing.face_outputs import MESH_PORTS, MODEL_PORTS, face_outputs
 from face_tracking_ros.processing.parameters import ParameterSource
-from face_tracking_ros.processing.track_counts import TrackCounts
+from face_tracking_ros.processing.track_counts import NO_REASON, TrackCounts
 from face_tracking_ros.tracking.initialisation import (
     MIN_INIT_NODES,
     Initialisation,
@@ -189,10 +189,13 @@ class MonoProcessor:
             self._rebuild()
             return []
         gray = conversions.message_to_gray(msg)
-        if self._camera is None:
-            self._held_image = (msg.header, gray)
+        if self._camera is None:  # held: a driver may send the camera_info just after it
+            dropped, self._held_image = self._held_image, (msg.header, gray)
+            if dropped is None:
+                return []
             msg_text = (
-                f'no calibration on {CAMERA_INFO} yet: holding the latest image until it comes'
+                f'no calibration on {CAMERA_INFO} yet: holding the latest image until it comes '
+                '(the one before dropped)'
             )
             raise InputError(msg_text)
         return self._track(msg.header, gray, wanted)
@@ -206,7 +209,10 @@ class MonoProcessor:
         :class:`~face_tracking_ros.processing.track_counts.TrackCounts`.
         """
         model = self._model.fingerprint if self._model is not None else 'none'
-        return {**self._counts.report(), 'restarts': str(self._restarts), 'model': model}
+        report = {**self._counts.report(), 'restarts': str(self._restarts), 'model': model}
+        if self._held_image is not None and report['last_reason'] == NO_REASON:
+            report['last_reason'] = f'no calibration on {CAMERA_INFO} yet: an image is held'
+        return report
 
     def warning(self) -> str:
         """See :meth:`~face_tracking_ros.processing.track_counts.TrackCounts.warning`."""

@@ -260,6 +260,10 @@ class StereoProcessor:
             report['unpaired_nearest_ms'] = f'{self._unpaired_gap_ns / 1e6:.3f}'
             if not self._paired and report['last_reason'] == NO_REASON:  # (a short stream)
                 report['last_reason'] = _never_paired(self._unpaired_gap_ns / 1e6)
+        if self._held_pair is not None and report['last_reason'] == NO_REASON:
+            report['last_reason'] = (
+                f'no calibration on {LEFT_INFO} and {RIGHT_INFO} yet: a pair is held'
+            )
         if self._tracker is not None:
             report['right_gain'] = f'{self._tracker.right_gain:.3f}'
             report['right_row_offset_px'] = f'{self._tracker.right_row_offset:.2f}'
@@ -296,10 +300,15 @@ class StereoProcessor:
         if not self._check_stamp(topic, msg):
             return []
         pair = self._pair(topic, msg)
-        if pair is not None and self._tracker is None:
-            self._held_pair = pair
-            msg_text = self._unfit or (
-                f'no calibration on {LEFT_INFO} and {RIGHT_INFO} yet: holding the latest pair'
+        if pair is not None and self._tracker is None:  # held until the calibration comes
+            dropped, self._held_pair = self._held_pair, pair
+            if self._unfit:
+                raise InputError(self._unfit)
+            if dropped is None:  # the first: a driver may send the camera_info just after it
+                return []
+            msg_text = (
+                f'no calibration on {LEFT_INFO} and {RIGHT_INFO} yet: holding the latest pair '
+                '(the one before dropped)'
             )
             raise InputError(msg_text)
         return [] if pair is None else self._track(*pair)
