@@ -219,6 +219,42 @@ def choose_tracker(bag: Path, args: argparse.Namespace) -> str:
 def run(args: argparse.Namespace) -> int:
     """Track, summarise, and score against truth when there is some."""
     node = choose_tracker(args.bag, args)
+    params, model_file = _parameters(args, node)
+    print(f'tracking {args.bag} with {node}')
+    options = {'image': args.image_topic, 'camera_info': args.camera_info_topic}
+    remaps = {**parse_remaps(args.remap), **input_remaps({**options, **stereo_topics(args)})}
+    stats = replay_bag(
+        [node],
+        args.bag,
+        args.out,
+        OverrideParameters.parse(params),
+        remaps,
+        args.record_inputs,
+        progress=not args.quiet,
+        wanted=frozenset(args.want),
+    )
+    print_stats(stats, args.out)
+    states = load_states(args.out).status if stats.outputs['face/state'] else np.empty(0)
+    if not np.any(states == TrackStatus.TRACKING):
+        print('no image was tracked (the input problems or last_reason above say why)')
+        return 1
+    scored = has_truth(args.bag)
+    if scored and stats.read_error:
+        print('not scored against the truth: the bag is damaged (above)')
+    elif scored:
+        _score(args, node, model_file)
+    return 1 if stats.interrupted or stats.read_error else 0
+
+
+def _parameters(args: argparse.Namespace, node: str) -> tuple[list[str], Path | None]:
+    """The tracker's parameters (NAME=VALUE) and its model file (None: the packaged one).
+
+    The simulated clicks (``--simulate-clicks``) are written beside ``--out`` for the model's
+    nodes, and given as ``init_file``.
+
+    Raises:
+        ConfigError: if nothing would initialise the track, or ``--out`` exists.
+    """
     given = (args.image_topic, args.left_topic)
     params = [*compressed_parameters(bag_topics(args.bag), given), *(args.param or [])]
     if args.model:
@@ -246,44 +282,21 @@ def run(args: argparse.Namespace) -> int:
         params.append(f'init_file={init_file}')
     if args.auto_init:
         params.append('auto_init=true')
-    remaps = parse_remaps(args.remap)
-    options = {
-        'image': args.image_topic,
-        'camera_info': args.camera_info_topic,
-        **stereo_topics(args),
-    }
-    remaps.update(input_remaps(options))
-    print(f'tracking {args.bag} with {node}')
-    stats = replay_bag(
-        [node],
-        args.bag,
-        args.out,
-        OverrideParameters.parse(params),
-        remaps,
-        args.record_inputs,
-        progress=not args.quiet,
-        wanted=frozenset(args.want),
-    )
-    print_stats(stats, args.out)
-    states = load_states(args.out).status if stats.outputs['face/state'] else np.empty(0)
-    if not np.any(states == TrackStatus.TRACKING):
-        print('no image was tracked (the input problems or last_reason above say why)')
-        return 1
-    scored = has_truth(args.bag)
-    if scored and stats.read_error:
-        print('not scored against the truth: the bag is damaged (above)')
-    elif scored:
-        if node == 'stereo_tracker':
-            evaluation = score_stereo_against_truth(args.bag, args.out)
-            print(evaluation.report())
-            report = asdict(evaluation)
-        else:
-            accuracy = score_against_truth(args.bag, args.out, model_file)
-            print(format_accuracy(accuracy))
-            report = accuracy.as_dict()
-        if args.report:
-            args.report.write_text(json.dumps(report, indent=2))
-    return 1 if stats.interrupted or stats.read_error else 0
+    return params, model_file
+
+
+def _score(args: argparse.Namespace, node: str, model_file: Path | None) -> None:
+    """Print the accuracy of the tracked bag against the truth, and write it to ``--report``."""
+    if node == 'stereo_tracker':
+        evaluation = score_stereo_against_truth(args.bag, args.out)
+        print(evaluation.report())
+        report = asdict(evaluation)
+    else:
+        accuracy = score_against_truth(args.bag, args.out, model_file)
+        print(format_accuracy(accuracy))
+        report = accuracy.as_dict()
+    if args.report:
+        args.report.write_text(json.dumps(report, indent=2))
 
 
 def score_stereo_against_truth(bag: Path, out: Path) -> StereoEvaluation:
