@@ -148,6 +148,8 @@ class IdentityProcessor:
         Raises:
             ConfigError: for a duration out of range, no samples yet, a bad name, or a gallery
                 file that cannot be written (the gallery then stays as it was).
+            InputError: while the tracker's face model is not the gallery's
+                (:mod:`.model_agreement`).
         """
         self._agreement.check()
         if not 0 < duration <= self._node_config.max_enroll_duration:

@@ -244,11 +244,10 @@ class StereoProcessor:
         See :class:`~face_tracking_ros.processing.base.Reporting`: the pairs per status and the
         last reason (:class:`~face_tracking_ros.processing.track_counts.TrackCounts`),
         ``restarts`` (tracks restarted by stamps that went back), ``model`` (the fingerprint of
-        the face model in use), ``unpaired_images`` with, if
-        any, ``unpaired_nearest_ms`` (how near the other camera's
-        stamps came to one of them: more than ``pairing_tolerance_ms`` means unsynchronised
-        cameras), and once a tracker runs ``right_gain`` and ``right_row_offset_px``
-        (:class:`StereoTracker`'s).
+        the face model in use), ``unpaired_images`` with, if any, ``unpaired_nearest_ms`` (how
+        near the other camera's stamps came to one of them: more than ``pairing_tolerance_ms``
+        means unsynchronised cameras), and once a tracker runs ``right_gain`` and
+        ``right_row_offset_px`` (:class:`StereoTracker`'s).
         """
         report = {
             **self._counts.report(),
