@@ -75,7 +75,8 @@ class PinholeCamera:
         if not np.any(p):
             p = np.hstack([k, np.zeros((3, 1))])
         roi = getattr(info, 'roi', None)
-        if roi is not None and (roi.x_offset or roi.y_offset or roi.width or roi.height):
+        full = (0, 0, 0, 0), (0, 0, int(info.width), int(info.height))  # both mean the whole image
+        if roi is not None and (roi.x_offset, roi.y_offset, roi.width, roi.height) not in full:
             msg = (
                 f'camera_info has a region of interest ({roi.width}x{roi.height} at '
                 f'{roi.x_offset}, {roi.y_offset}): not supported; send full images'

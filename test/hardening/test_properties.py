@@ -419,3 +419,13 @@ def test_a_camera_info_with_a_region_of_interest_is_refused_by_name(fields):
     )
     with pytest.raises(InputError, match=r'region of interest \(200x100 at 10, 20\): not supp'):
         conversions.camera_from_info(_info(**fields, roi=roi))
+    whole = FACTORY.make(  # as many drivers fill it: the whole image, which is no cropping
+        'sensor_msgs/msg/RegionOfInterest',
+        x_offset=0,
+        y_offset=0,
+        height=fields['height'],
+        width=fields['width'],
+        do_rectify=False,
+    )
+    camera = conversions.camera_from_info(_info(**fields, roi=whole))
+    assert (camera.width, camera.height) == (fields['width'], fields['height'])
