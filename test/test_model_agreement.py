@@ -64,7 +64,9 @@ def test_identity_decisions_stop_while_the_tracker_uses_another_model(tmp_path, 
         processor.handle('face/shape', _shape(2 * NS, sigma), NONE)
     with pytest.raises(InputError, match='the identity gallery was made with another'):
         processor.enroll('bob', 1.0)
+    assert 'the identity gallery was made with another' in processor.warning()  # the status's
     assert processor.handle('face/model', _model_msg(default), NONE) == []  # back: decided again
+    assert processor.warning() == ''
     decided = [
         processor.handle('face/shape', _shape(3 * NS + k * NS // 10, sigma), NONE)
         for k in range(11)

@@ -241,7 +241,7 @@ def test_input_and_config_errors() -> None:
             IdentityConfig(min_std=min_std)
     with pytest.raises(ConfigError, match='acceptance'):
         IdentityConfig(acceptance=1.0)
-    for window in (-1.0, 1e-9, np.nan):  # (1e-9: shorter than the stamp tolerance)
+    for window in (-1.0, 1e-9, np.nan, np.inf):  # (1e-9: shorter than the stamp tolerance)
         with pytest.raises(ConfigError, match='identity window must be > 1e-06 s'):
             IdentityConfig(window=window)
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from dataclasses import replace
 from pathlib import Path
+import shutil
 
 import numpy as np
 import pytest
@@ -148,6 +149,13 @@ def test_errors(pairs: dict, tmp_path: Path, capsys: pytest.CaptureFixture) -> N
     assert len(tracked_sequence(tmp_path / 'recorded', truth).times) > 0
     with pytest.raises(ConfigError, match=f'was tracked from {truth}, not from {other_truth}'):
         tracked_sequence(tmp_path / 'recorded', other_truth)
+    # Another bag of the same name (in another directory) is another bag; a link is the same.
+    namesake = tmp_path / 'elsewhere' / truth.name
+    shutil.copytree(other_truth, namesake)
+    with pytest.raises(ConfigError, match=f'was tracked from {truth}, not from {namesake}'):
+        tracked_sequence(tmp_path / 'recorded', namesake)
+    (tmp_path / 'link').symlink_to(truth)
+    assert len(tracked_sequence(tmp_path / 'recorded', tmp_path / 'link').times) > 0
     # A classifier trained on another model's alpha than the one the track names (the default).
     bound = tmp_path / 'bound.npz'
     loaded = ExpressionClassifier.load(pairs['classifier'][0], 6)

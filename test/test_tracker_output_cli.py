@@ -276,10 +276,13 @@ def test_the_recognizer_node_refuses_an_enrolment_it_cannot_save(tmp_path):
             'face_tracking_msgs/msg/ShapeParams', header=header, sigma=[0.01, 0.0]
         )
         processor.handle('face/shape', shape, frozenset())
+    assert processor.status()['gallery_file'].endswith(
+        f'no directory {absent.parent}, enrolments cannot be saved'
+    )
     with pytest.raises(ConfigError, match=r"cannot enrol 'ann': the gallery cannot be saved"):
         processor.enroll('ann', 1.0)
     assert processor.gallery.names == ()
-    for duration in (np.nan, 1e-9):
+    for duration in (np.nan, 1e-9, np.inf):  # (inf: the history would grow without bound)
         bad = {'max_enroll_duration': str(duration)}
         with pytest.raises(ConfigError, match='max_enroll_duration must be > 1e-06 s'):
             make_identity_processor(OverrideParameters(bad), factory)

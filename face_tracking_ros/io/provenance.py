@@ -109,12 +109,20 @@ def file_digest(path: Path) -> str:
 def other_source(made: Path, source: Path) -> str | None:
     """The bag ``made`` records it was replayed from, if that is not ``source``.
 
-    Compared by name (the bags may have moved since); None if it is, or ``made`` records none.
+    Compared as files when the recorded one is still there (a link to it is the same bag, a bag
+    of the same name in another directory is not), else by name (the bags may have moved
+    since); None if it is the same, or ``made`` records none.
     """
     provenance = Provenance.read(made)
-    if provenance is None or Path(provenance.source).name == source.name:
+    if provenance is None:
         return None
-    return provenance.source
+    recorded = Path(provenance.source)
+    same = (
+        recorded.resolve() == source.resolve()
+        if recorded.exists()
+        else recorded.name == source.name
+    )
+    return None if same else provenance.source
 
 
 def tracked_with(bags: Sequence[Path], given: Path | None) -> Path | None:

@@ -16,6 +16,7 @@ said so (from a tracker that publishes on while the face is lost) is ignored.
 from __future__ import annotations
 
 from dataclasses import dataclass
+import math
 from pathlib import Path
 from typing import Any
 
@@ -71,9 +72,9 @@ class IdentityProcessor:
         node_config: IdentityNodeConfig,
     ) -> None:
         """Start from ``gallery``; decide on ``config.window`` seconds of sigma."""
-        if not node_config.max_enroll_duration > STAMP_TOLERANCE:
+        if not STAMP_TOLERANCE < node_config.max_enroll_duration < math.inf:
             limit, value = STAMP_TOLERANCE, node_config.max_enroll_duration
-            msg = f'max_enroll_duration must be > {limit} s, got {value}'
+            msg = f'max_enroll_duration must be > {limit} s and finite, got {value}'
             raise ConfigError(msg)
         self._factory = factory
         self._node_config = node_config
@@ -105,9 +106,15 @@ class IdentityProcessor:
             kept = 'none given: enrolments are not saved'
         elif Path(path).exists():
             kept = path
+        elif not Path(path).parent.is_dir():
+            kept = f'{path}: no directory {Path(path).parent}, enrolments cannot be saved'
         else:
             kept = f'{path} does not exist yet (the first enrolment writes it)'
         return {'identities': ', '.join(self.gallery.names) or 'none', 'gallery_file': kept}
+
+    def warning(self) -> str:
+        """Why nothing is decided, while the tracker's model is not the gallery's; else ''."""
+        return self._agreement.problem
 
     def handle(self, topic: str, msg: Any, wanted: frozenset[str]) -> list[Output]:
         """Add a sigma estimate, or take a FaceState's status; an IdentityEvent if it changed."""

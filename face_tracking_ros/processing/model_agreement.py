@@ -54,6 +54,11 @@ class ModelAgreement:
             )
         self.check()
 
+    @property
+    def problem(self) -> str:
+        """Why nothing is to be decided now; '' while the models agree."""
+        return self._problem
+
     def check(self) -> None:
         """Raise while the tracker's model is not the file's.
 

@@ -32,6 +32,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from functools import cached_property
+import math
 import os
 
 import numpy as np
@@ -87,8 +88,8 @@ class IdentityConfig:
         if not 0.0 < self.acceptance < 1.0:
             msg = f'identity acceptance must be in (0, 1), got {self.acceptance}'
             raise ConfigError(msg)
-        if not self.window > STAMP_TOLERANCE:
-            msg = f'identity window must be > {STAMP_TOLERANCE} s, got {self.window}'
+        if not STAMP_TOLERANCE < self.window < math.inf:
+            msg = f'identity window must be > {STAMP_TOLERANCE} s and finite, got {self.window}'
             raise ConfigError(msg)
 
     def threshold(self, p: int) -> float:
