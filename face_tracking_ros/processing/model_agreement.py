@@ -18,6 +18,7 @@ from face_tracking_ros.errors import InputError
 from face_tracking_ros.io import conversions
 from face_tracking_ros.processing.base import Port, QosClass
 
+# The latched face model a tracker takes a new model from (the trackers' input as well).
 MODEL_PORT = Port('face/model', 'face_tracking_msgs/msg/FaceModel', QosClass.LATCHED)
 
 

@@ -38,6 +38,7 @@ from face_tracking_ros.processing.detection import (
     restart_points,
 )
 from face_tracking_ros.processing.face_outputs import MESH_PORTS, MODEL_PORTS, face_outputs
+from face_tracking_ros.processing.model_agreement import MODEL_PORT
 from face_tracking_ros.processing.parameters import ParameterSource
 from face_tracking_ros.processing.track_counts import NO_REASON, TrackCounts
 from face_tracking_ros.tracking.initialisation import (
@@ -54,7 +55,7 @@ from face_tracking_ros.visualization.overlay import draw_mesh
 IMAGE = 'image'
 COMPRESSED_IMAGE = 'image/compressed'
 CAMERA_INFO = 'camera_info'
-MODEL = 'face/model'
+MODEL = MODEL_PORT.topic
 
 
 @dataclass(frozen=True)
@@ -141,7 +142,7 @@ class MonoProcessor:
         self.inputs = (
             image,
             Port(CAMERA_INFO, 'sensor_msgs/msg/CameraInfo', QosClass.SENSOR),
-            Port(MODEL, 'face_tracking_msgs/msg/FaceModel', QosClass.LATCHED),
+            MODEL_PORT,
         )
         self.outputs = (
             *MESH_PORTS,

@@ -51,6 +51,7 @@ from face_tracking_ros.processing.detection import (
     restart_points,
 )
 from face_tracking_ros.processing.face_outputs import MESH_PORTS, MODEL_PORTS, face_outputs
+from face_tracking_ros.processing.model_agreement import MODEL_PORT
 from face_tracking_ros.processing.parameters import ParameterSource
 from face_tracking_ros.processing.track_counts import NO_REASON, TrackCounts
 from face_tracking_ros.tracking.initialisation import (
@@ -63,7 +64,7 @@ from face_tracking_ros.tracking.stereo import StereoResult, StereoTracker, Stere
 LEFT_IMAGE, RIGHT_IMAGE = 'left/image_raw', 'right/image_raw'
 COMPRESSED = {f'{LEFT_IMAGE}/compressed': LEFT_IMAGE, f'{RIGHT_IMAGE}/compressed': RIGHT_IMAGE}
 LEFT_INFO, RIGHT_INFO = 'left/camera_info', 'right/camera_info'
-MODEL = 'face/model'
+MODEL = MODEL_PORT.topic
 RESTART_JUMP_NS = 1_000_000_000  # an image stamp this much older than the last pair restarts
 
 
@@ -206,7 +207,7 @@ class StereoProcessor:
             *(Port(topic, image_type, QosClass.SENSOR) for topic in image_topics),
             Port(LEFT_INFO, 'sensor_msgs/msg/CameraInfo', QosClass.SENSOR),
             Port(RIGHT_INFO, 'sensor_msgs/msg/CameraInfo', QosClass.SENSOR),
-            Port(MODEL, 'face_tracking_msgs/msg/FaceModel', QosClass.LATCHED),
+            MODEL_PORT,
         )
         self.outputs = (*MESH_PORTS, *MODEL_PORTS)
 
