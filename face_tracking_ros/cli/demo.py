@@ -113,215 +113,209 @@ def _empty_earlier_demo(out: Path) -> None:
     raise ConfigError(msg)
 
 
-def steps(plan: DemoPlan, out: Path) -> list[tuple[str, list[str]]]:
+Step = tuple[str, list[str]]
+
+
+@dataclass(frozen=True)
+class DemoFiles:
+    """Where the demo's steps read and write, below its ``--out``.
+
+    Attributes:
+        out: the demo's output directory.
+        training: the stereo training bags, one per subject.
+        meshes: the stereo tracker's mesh bags, one per training bag.
+        enrolment: the monocular bags that enrol the known subjects (their sequence 0).
+        known: the known subjects' monocular test bags (their sequence 1).
+        stranger: a subject of another seed, never enrolled.
+        tracked: each monocular bag's tracked outputs.
+    """
+
+    out: Path
+    training: list[Path]
+    meshes: list[Path]
+    enrolment: list[Path]
+    known: list[Path]
+    stranger: Path
+    tracked: dict[Path, Path]
+
+    @classmethod
+    def of(cls, plan: DemoPlan, out: Path) -> DemoFiles:
+        """The files of ``plan``'s demo in ``out``.
+
+        The monocular test sequences are of the first ``plan.known`` training subjects:
+        sequence 0 enrols them, sequence 1 tests them; the stranger is a subject of another seed.
+        """
+        training = [out / 'train' / f'subject_{s:02d}_seq_00' for s in range(plan.subjects)]
+        enrolment = [out / 'test' / f'subject_{s:02d}_seq_00' for s in range(plan.known)]
+        known = [out / 'test' / f'subject_{s:02d}_seq_01' for s in range(plan.known)]
+        stranger = out / 'stranger' / 'subject_00_seq_00'
+        return cls(
+            out=out,
+            training=training,
+            meshes=[out / 'meshes' / bag.name for bag in training],
+            enrolment=enrolment,
+            known=known,
+            stranger=stranger,
+            tracked={
+                bag: out / 'tracked' / f'{bag.parent.name}_{bag.name}'
+                for bag in [*known, *enrolment, stranger]
+            },
+        )
+
+    @property
+    def model(self) -> Path:
+        """The learned face model."""
+        return self.out / 'model.npz'
+
+    @property
+    def classifier(self) -> Path:
+        """The expression classifier trained on the learned model."""
+        return self.out / 'expressions.npz'
+
+    @property
+    def gallery(self) -> Path:
+        """The identity gallery of the known subjects."""
+        return self.out / 'gallery.npz'
+
+
+def steps(plan: DemoPlan, out: Path) -> list[Step]:
     """The demo's commands, in order, as (title, face-tracking arguments)."""
-    train, test = out / 'train', out / 'test'
-    model, classifier, gallery = out / 'model.npz', out / 'expressions.npz', out / 'gallery.npz'
-    training = [train / f'subject_{s:02d}_seq_00' for s in range(plan.subjects)]
-    meshes = [out / 'meshes' / bag.name for bag in training]
-    # Test sequences of the first `known` training subjects: sequence 0 enrols them, sequence 1
-    # tests them; a stranger is a subject of another seed.
-    enrolment = [test / f'subject_{s:02d}_seq_00' for s in range(plan.known)]
-    known = [test / f'subject_{s:02d}_seq_01' for s in range(plan.known)]
-    stranger = out / 'stranger' / 'subject_00_seq_00'
-    tracked = {
-        bag: out / 'tracked' / f'{bag.parent.name}_{bag.name}'
-        for bag in [*known, *enrolment, stranger]
-    }
-    steps: list[tuple[str, list[str]]] = [
+    files = DemoFiles.of(plan, out)
+    return [
+        *_synthesis(plan, files),
+        *_stereo_tracking(files),
+        *_learning(files),
+        *_monocular_tracking(files),
+        *_recognition(files),
+        *_pictures(files),
+    ]
+
+
+def _synth(
+    kind: str, subjects: int, frames: int, seed: int, out: Path, sequences: int = 1
+) -> list[str]:
+    """``synth`` arguments: stereo training (10 fps, head still) or mono tests (30 fps, free)."""
+    fps, motion = ('10', 'still') if kind == 'stereo' else ('30', 'free')
+    more = ['--sequences', str(sequences)] if sequences > 1 else []
+    return [
+        *('synth', '--kind', kind, '--subjects', str(subjects), *more, '--frames', str(frames)),
+        *('--fps', fps, '--motion', motion, '--seed', str(seed), '--out', str(out)),
+    ]
+
+
+def _synthesis(plan: DemoPlan, files: DemoFiles) -> list[Step]:
+    """Step 1: the stereo training set, the known subjects' mono test sequences, a stranger."""
+    training, tests = files.training[0].parent, files.known[0].parent
+    return [
         (
             '1a. synthetic stereo training set',
-            [
-                'synth',
-                '--kind',
-                'stereo',
-                '--subjects',
-                str(plan.subjects),
-                '--frames',
-                str(plan.training_frames),
-                '--fps',
-                '10',
-                '--motion',
-                'still',
-                '--seed',
-                str(plan.seed),
-                '--out',
-                str(train),
-            ],
+            _synth('stereo', plan.subjects, plan.training_frames, plan.seed, training),
         ),
         (
             '1b. synthetic monocular test sequences (free head motion)',
-            [
-                'synth',
-                '--kind',
-                'mono',
-                '--subjects',
-                str(plan.known),
-                '--sequences',
-                '2',
-                '--frames',
-                str(plan.test_frames),
-                '--fps',
-                '30',
-                '--motion',
-                'free',
-                '--seed',
-                str(plan.seed),
-                '--out',
-                str(test),
-            ],
+            _synth('mono', plan.known, plan.test_frames, plan.seed, tests, sequences=2),
         ),
         (
             '1c. a stranger, never enrolled',
-            [
-                'synth',
-                '--kind',
-                'mono',
-                '--subjects',
-                '1',
-                '--frames',
-                str(plan.test_frames),
-                '--fps',
-                '30',
-                '--motion',
-                'free',
-                '--seed',
-                str(plan.seed + 1000),
-                '--out',
-                str(stranger.parent),
-            ],
+            _synth('mono', 1, plan.test_frames, plan.seed + 1000, files.stranger.parent),
         ),
     ]
-    steps += [
+
+
+def _stereo_tracking(files: DemoFiles) -> list[Step]:
+    """Step 2: each training bag through the stereo tracker, to 3-D meshes."""
+    return [
         (
             f'2. stereo tracking of {bag.name} (3-D meshes for learning)',
             [
-                'track',
-                str(bag),
-                '--simulate-clicks',
-                '1.0',
-                '--param',
-                STEREO_PARAMS,
-                '--out',
-                str(mesh),
-                '--quiet',
+                *('track', str(bag), '--simulate-clicks', '1.0', '--param', STEREO_PARAMS),
+                *('--out', str(mesh), '--quiet'),
             ],
         )
-        for bag, mesh in zip(training, meshes, strict=True)
+        for bag, mesh in zip(files.training, files.meshes, strict=True)
     ]
-    steps += [
+
+
+def _learning(files: DemoFiles) -> list[Step]:
+    """Steps 3 and 4: the face model from the meshes, the expression classifier on it."""
+    out = files.out
+    return [
         (
             '3. learning the face model from the tracked meshes',
             [
-                'learn',
-                *map(str, meshes),
-                '--truth',
-                *map(str, training),
-                '--out',
-                str(model),
-                '--report',
-                str(out / 'learn.json'),
-                '--plots',
-                str(out / 'learn'),
-                '--compare',
-                'seed',
+                *('learn', *map(str, files.meshes), '--truth', *map(str, files.training)),
+                *('--out', str(files.model), '--report', str(out / 'learn.json')),
+                *('--plots', str(out / 'learn'), '--compare', 'seed'),
             ],
         ),
         (
             '4. training the expression classifier on the learned model',
             [
-                'train-expressions',
-                *map(str, training),
-                '--model',
-                str(model),
-                '--out',
-                str(classifier),
+                *('train-expressions', *map(str, files.training)),
+                *('--model', str(files.model), '--out', str(files.classifier)),
             ],
         ),
     ]
-    steps += [
+
+
+def _monocular_tracking(files: DemoFiles) -> list[Step]:
+    """Step 5: each monocular bag through the mono tracker, scored against its truth."""
+    return [
         (
             f'5. monocular tracking of {bag.parent.name}/{bag.name}, scored against truth',
             [
-                'track',
-                str(bag),
-                '--model',
-                str(model),
-                '--simulate-clicks',
-                '1.0',
-                '--out',
-                str(result),
-                '--report',
-                str(result.parent / f'{result.name}.json'),
+                *('track', str(bag), '--model', str(files.model), '--simulate-clicks', '1.0'),
+                *('--out', str(result), '--report', str(result.parent / f'{result.name}.json')),
                 '--quiet',
             ],
         )
-        for bag, result in tracked.items()
+        for bag, result in files.tracked.items()
     ]
-    steps += [
+
+
+def _recognition(files: DemoFiles) -> list[Step]:
+    """Step 6: enrol the known subjects, then the recognisers' events on the test tracks."""
+    enrol = [
         (
             f'6a. enrolling subject_{s:02d}',
             [
-                'enroll',
-                str(tracked[bag]),
-                '--name',
-                f'subject_{s:02d}',
-                '--gallery',
-                str(gallery),
+                *('enroll', str(files.tracked[bag]), '--name', f'subject_{s:02d}'),
+                *('--gallery', str(files.gallery)),
             ],
         )
-        for s, bag in enumerate(enrolment)
+        for s, bag in enumerate(files.enrolment)
     ]
-    recognisers = 'expression_recognizer,identity_recognizer'
-    steps += [
+    models = [f'model_file={files.model}', f'classifier_file={files.classifier}']
+    models.append(f'gallery_file={files.gallery}')
+    events = [
         (
             f'6b. expression and identity events of {bag.parent.name}/{bag.name}',
             [
-                'replay',
-                recognisers,
-                str(tracked[bag]),
-                '--out',
-                str(out / 'events' / tracked[bag].name),
-                '--param',
-                f'model_file={model}',
-                '--param',
-                f'classifier_file={classifier}',
-                '--param',
-                f'gallery_file={gallery}',
-                '--echo',
-                'face/expression',
-                '--echo',
-                'face/identity',
-                '--quiet',
+                *('replay', 'expression_recognizer,identity_recognizer', str(files.tracked[bag])),
+                *('--out', str(files.out / 'events' / files.tracked[bag].name)),
+                *(item for model in models for item in ('--param', model)),
+                *('--echo', 'face/expression', '--echo', 'face/identity', '--quiet'),
             ],
         )
-        for bag in [*known, stranger]
+        for bag in [*files.known, files.stranger]
     ]
-    first = known[0]
-    steps += [
+    return enrol + events
+
+
+def _pictures(files: DemoFiles) -> list[Step]:
+    """Step 7: a plot and an overlay video of the first test sequence."""
+    first = files.known[0]
+    tracked = str(files.tracked[first])
+    return [
         (
             '7a. plot of the first test sequence',
-            [
-                'plot',
-                str(tracked[first]),
-                '--truth',
-                str(first),
-                '--png',
-                str(out / 'tracking.png'),
-            ],
+            ['plot', tracked, '--truth', str(first), '--png', str(files.out / 'tracking.png')],
         ),
         (
             '7b. overlay video of the first test sequence',
-            [
-                'overlay',
-                str(first),
-                str(tracked[first]),
-                '--video',
-                str(out / 'tracking.mp4'),
-            ],
+            ['overlay', str(first), tracked, '--video', str(files.out / 'tracking.mp4')],
         ),
     ]
-    return steps
 
 
 def _banner(title: str, argv: list[str], elapsed: float) -> None:
