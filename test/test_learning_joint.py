@@ -105,6 +105,7 @@ def test_model_records_method_and_prior(realistic_world):
             ConfigError,
         ),
         (JointConfig(p=11), r'at least p \+ 1 = 12 subjects are needed', ConfigError),
+        (JointConfig(max_iterations=0), r'max_iterations must be at least 1, got 0', ConfigError),
     ],
 )
 def test_bad_configuration(realistic_world, config, match, error):

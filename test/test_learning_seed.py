@@ -84,6 +84,7 @@ def test_eigenvalue_weighted_option_converges_to_a_close_model(default_world):
         (SeedConfig(p=0), r'p must be at least 1'),
         (SeedConfig(q=0), r'q must be between 1 and 101, got 0'),
         (SeedConfig(q=102), r'q must be between 1 and 101, got 102'),
+        (SeedConfig(max_iterations=0), r'max_iterations must be at least 1, got 0'),
     ],
 )
 def test_bad_dimensions(default_world, config, match):

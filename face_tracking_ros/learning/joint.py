@@ -58,12 +58,13 @@ face, which differs from the subject's by the sequence mean minus the subject me
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
 from face_tracking_ros.errors import ConfigError
 from face_tracking_ros.learning.result import LearningResult, assemble_result
-from face_tracking_ros.learning.seed import check_dimensions, choose_dimension
+from face_tracking_ros.learning.seed import check_dimensions, check_iterations, choose_dimension
 from face_tracking_ros.learning.subspace import (
     check_components,
     moment_components,
@@ -123,65 +124,112 @@ def learn_joint(training: TrainingSet, config: JointConfig | None = None) -> Lea
         The model (method 'joint') and the iteration history.
 
     Raises:
-        ConfigError: if there are fewer than p + 1 subjects, q is out of range or
-            neutral_weight is not positive.
+        ConfigError: if there are fewer than p + 1 subjects, q is out of range,
+            max_iterations is below 1 or neutral_weight is not positive.
     """
     config = config or JointConfig()
     check_dimensions(training, config.p, config.q)
+    check_iterations(config.max_iterations)
     if not config.neutral_weight > 0.0:
         msg = f'neutral_weight must be positive, got {config.neutral_weight}'
         raise ConfigError(msg)
     frames = training.flat()
     check_components(config.q, *frames.shape)
-    neutral = training.subject_means(frames, training.neutral)
     # Means and second moments of the frames, taken once: an iteration's means of (I - A A^T) X
     # and moment of the deviations follow from them (below), so it makes no (F, 3N) array.
     frame_means = _FrameMeans.of(training, frames)
     moments = _DeviationMoments.of(training, frames, frame_means.by_sequence)
-    sequence_offsets = np.zeros_like(frame_means.by_sequence)
-    label_weight = training.neutral.astype(float)
-    history: list[float] = []
-    action_basis: np.ndarray | None = None
+    state = _iterate(
+        training,
+        frames,
+        frame_means,
+        moments,
+        _Neutrals(
+            subject=training.subject_means(frames, training.neutral),
+            sequence_offsets=np.zeros_like(frame_means.by_sequence),
+            label_weight=training.neutral.astype(float),
+        ),
+        config,
+    )
+    history = [1.0]  # no earlier A to compare with
     converged = False
     while len(history) < config.max_iterations and not converged:
-        origins = neutral[training.sequence_subject] + sequence_offsets
-        shrink = 1.0 / (1.0 + config.neutral_weight * label_weight)
-        previous_basis = action_basis
-        action_basis = moment_components(moments.moment(origins, shrink), config.q).basis
-        projection = frames @ action_basis
+        previous = state
+        state = _iterate(training, frames, frame_means, moments, state.neutrals, config)
+        moved = float(np.sqrt(np.mean((state.neutrals.subject - previous.neutrals.subject) ** 2)))
+        history.append(1.0 - subspace_similarity(state.action_basis, previous.action_basis))
+        converged = history[-1] < config.tolerance and moved < config.neutral_tolerance
+    return _result(training, state, config, history, converged)
+
+
+class _Neutrals(NamedTuple):
+    """The neutral faces an iteration measures the frames from, and the labels' trust."""
+
+    subject: np.ndarray  # (subjects, 3N) each subject's neutral face
+    sequence_offsets: np.ndarray  # (sequences, 3N) each sequence's own neutral, off A
+    label_weight: np.ndarray  # (F,) c, the trust in each frame's neutral label
+
+
+class _JointState(NamedTuple):
+    """One iteration's A, the frames on it, and the neutrals it gives the next."""
+
+    action_basis: np.ndarray  # (3N, q) A
+    projection: np.ndarray  # (F, q) the frames on A
+    neutrals: _Neutrals
+
+
+def _iterate(
+    training: TrainingSet,
+    frames: np.ndarray,
+    frame_means: _FrameMeans,
+    moments: _DeviationMoments,
+    neutrals: _Neutrals,
+    config: JointConfig,
+) -> _JointState:
+    """One iteration: A from the within-subject moment, then the label weights and neutrals."""
+    origins = neutrals.subject[training.sequence_subject] + neutrals.sequence_offsets
+    shrink = 1.0 / (1.0 + config.neutral_weight * neutrals.label_weight)
+    action_basis = moment_components(moments.moment(origins, shrink), config.q).basis
+    projection = frames @ action_basis
+    label_weight = neutrals.label_weight
+    if config.robust_scale is not None:
         along = projection - (origins @ action_basis)[training.sequence_of_frame]
         alpha = along * shrink[:, None]
-        if config.robust_scale is not None:
-            label_weight = _label_weights(alpha, training.neutral, config.robust_scale)
-        previous_neutral = neutral
-        off_basis = frame_means.off_basis(projection, action_basis)
-        neutral = _neutral_given_basis(
-            training,
-            projection,
-            off_basis.by_subject,
-            action_basis,
-            config.neutral_weight * label_weight,
-        )
-        if config.neutral_per_sequence:
-            sequence_offsets = off_basis.sequence_offsets()
-        moved = float(np.sqrt(np.mean((neutral - previous_neutral) ** 2)))
-        change = (
-            1.0
-            if previous_basis is None
-            else (1.0 - subspace_similarity(action_basis, previous_basis))
-        )
-        history.append(change)
-        converged = change < config.tolerance and moved < config.neutral_tolerance
+        label_weight = _label_weights(alpha, training.neutral, config.robust_scale)
+    off_basis = frame_means.off_basis(projection, action_basis)
+    subject = _neutral_given_basis(
+        training,
+        projection,
+        off_basis.by_subject,
+        action_basis,
+        config.neutral_weight * label_weight,
+    )
+    sequence_offsets = (
+        off_basis.sequence_offsets() if config.neutral_per_sequence else neutrals.sequence_offsets
+    )
+    neutrals = _Neutrals(subject, sequence_offsets, label_weight)
+    return _JointState(action_basis, projection, neutrals)
+
+
+def _result(
+    training: TrainingSet,
+    state: _JointState,
+    config: JointConfig,
+    history: list[float],
+    converged: bool,
+) -> LearningResult:
+    """The model of the last iteration: S from its neutrals, alpha measured from them."""
+    neutral = state.neutrals.subject
     mean_shape = neutral.mean(axis=0)
     identity = principal_components(neutral - mean_shape, training.num_subjects - 1)
     p = config.p or choose_dimension(identity.explained, config.explained_variance)
-    origins = neutral[training.sequence_subject] + sequence_offsets
-    alpha = projection - (origins @ action_basis)[training.sequence_of_frame]
+    origins = neutral[training.sequence_subject] + state.neutrals.sequence_offsets
+    alpha = state.projection - (origins @ state.action_basis)[training.sequence_of_frame]
     return assemble_result(
         training,
         mean_shape=mean_shape,
         shape_basis=identity.basis[:, :p],
-        action_basis=action_basis,
+        action_basis=state.action_basis,
         subject_neutral=neutral,
         alpha=alpha,
         method='joint',

@@ -35,6 +35,7 @@ Coding in step 5:
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -83,71 +84,118 @@ def learn_seed(training: TrainingSet, config: SeedConfig | None = None) -> Learn
         The model (method 'seed' or 'seed-weighted') and the iteration history.
 
     Raises:
-        ConfigError: if there are fewer than p + 1 subjects or q is out of range.
+        ConfigError: if there are fewer than p + 1 subjects, q is out of range or
+            max_iterations is below 1.
     """
     config = config or SeedConfig()
     check_dimensions(training, config.p, config.q)
+    check_iterations(config.max_iterations)
     frames = training.flat()
     check_components(config.q, *frames.shape)
+    moments = _FrameMoments.of(training, frames)
     neutral = training.subject_means(frames, training.neutral)
-    # Every frame's deviation from mean_shape, and its residual off S, are linear in the frame:
-    # their second moments and their subject means follow from the frames' own, taken once, so
-    # an iteration makes no (F, 3N) array.
-    frame_mean = frames.mean(axis=0)
-    frame_covariance = scatter(frames, about=frame_mean) / len(frames)
-    subject_frame_means = training.subject_means(frames)
-    p = config.p
-    history: list[float] = []
-    previous: tuple[np.ndarray, np.ndarray] | None = None
+    estimate = _estimate(moments, neutral, config.p, config)
+    history = [1.0]  # no earlier S and A to compare with
     converged = False
     while len(history) < config.max_iterations and not converged:
-        mean_shape = neutral.mean(axis=0)
-        identity = principal_components(neutral - mean_shape, training.num_subjects - 1)
-        if p is None:
-            p = choose_dimension(identity.explained, config.explained_variance)
-        shape_basis = identity.basis[:, :p]
-        off_shape = np.eye(len(mean_shape)) - shape_basis @ shape_basis.T
-        offset = frame_mean - mean_shape
-        deviation_moment = frame_covariance + np.outer(offset, offset)
-        residual_moment = off_shape @ deviation_moment @ off_shape
-        action = moment_components(residual_moment, config.q)
-        if config.eigenvalue_weighted:
-            alpha = _weighted_alpha(
-                frames,
-                mean_shape,
-                shape_basis,
-                action.basis,
-                identity.variances[:p],
-                action.variances,
-                _noise_variance(residual_moment, action.variances),
-            )
-        else:
-            alpha = frames @ action.basis - mean_shape @ action.basis
-        if previous is not None:
-            history.append(
-                max(
-                    1.0 - subspace_similarity(shape_basis, previous[0]),
-                    1.0 - subspace_similarity(action.basis, previous[1]),
-                )
-            )
-            converged = history[-1] < config.tolerance
-        else:
-            history.append(1.0)
-        previous = (shape_basis, action.basis)
-        model_neutral = neutral
-        neutral = subject_frame_means - training.subject_means(alpha) @ action.basis.T
+        previous = estimate
+        neutral = _neutral_off_action(training, moments, previous)
+        estimate = _estimate(moments, neutral, previous.shape_basis.shape[1], config)
+        history.append(_change(estimate, previous))
+        converged = history[-1] < config.tolerance
     method = 'seed-weighted' if config.eigenvalue_weighted else 'seed'
     return assemble_result(
         training,
-        mean_shape=mean_shape,
-        shape_basis=shape_basis,
-        action_basis=action.basis,
-        subject_neutral=model_neutral,
-        alpha=alpha,
+        mean_shape=estimate.mean_shape,
+        shape_basis=estimate.shape_basis,
+        action_basis=estimate.action_basis,
+        subject_neutral=neutral,
+        alpha=estimate.alpha,
         method=method,
         history=history,
         converged=converged,
         metadata={'tolerance': config.tolerance},
+    )
+
+
+class _FrameMoments(NamedTuple):
+    """The training frames and the statistics every iteration needs, taken once.
+
+    Every frame's deviation from mean_shape, and its residual off S, are linear in the frame:
+    their second moments and their subject means follow from the frames' own, so an iteration
+    makes no (F, 3N) array.
+    """
+
+    frames: np.ndarray  # (F, 3N)
+    frame_mean: np.ndarray  # (3N,)
+    frame_covariance: np.ndarray  # (3N, 3N), about frame_mean
+    subject_frame_means: np.ndarray  # (subjects, 3N)
+
+    @classmethod
+    def of(cls, training: TrainingSet, frames: np.ndarray) -> _FrameMoments:
+        """The moments of ``training``'s flattened ``frames``."""
+        frame_mean = frames.mean(axis=0)
+        return cls(
+            frames=frames,
+            frame_mean=frame_mean,
+            frame_covariance=scatter(frames, about=frame_mean) / len(frames),
+            subject_frame_means=training.subject_means(frames),
+        )
+
+
+class _Estimate(NamedTuple):
+    """One iteration's model: steps 2 to 5 of the module docstring."""
+
+    mean_shape: np.ndarray  # (3N,)
+    shape_basis: np.ndarray  # (3N, p)
+    action_basis: np.ndarray  # (3N, q)
+    alpha: np.ndarray  # (F, q)
+
+
+def _estimate(
+    moments: _FrameMoments, neutral: np.ndarray, p: int | None, config: SeedConfig
+) -> _Estimate:
+    """Steps 2 to 5 from the subjects' ``neutral`` shapes; p None is chosen here (step 3)."""
+    mean_shape = neutral.mean(axis=0)
+    identity = principal_components(neutral - mean_shape, len(neutral) - 1)
+    if p is None:
+        p = choose_dimension(identity.explained, config.explained_variance)
+    shape_basis = identity.basis[:, :p]
+    off_shape = np.eye(len(mean_shape)) - shape_basis @ shape_basis.T
+    offset = moments.frame_mean - mean_shape
+    deviation_moment = moments.frame_covariance + np.outer(offset, offset)
+    residual_moment = off_shape @ deviation_moment @ off_shape
+    action = moment_components(residual_moment, config.q)
+    if config.eigenvalue_weighted:
+        alpha = _weighted_alpha(
+            moments.frames,
+            mean_shape,
+            shape_basis,
+            action.basis,
+            identity.variances[:p],
+            action.variances,
+            _noise_variance(residual_moment, action.variances),
+        )
+    else:
+        alpha = moments.frames @ action.basis - mean_shape @ action.basis
+    return _Estimate(mean_shape, shape_basis, action.basis, alpha)
+
+
+def _neutral_off_action(
+    training: TrainingSet, moments: _FrameMoments, estimate: _Estimate
+) -> np.ndarray:
+    """Step 5: each subject's mean over its frames of X - A alpha (subjects, 3N)."""
+    return (
+        moments.subject_frame_means
+        - training.subject_means(estimate.alpha) @ estimate.action_basis.T
+    )
+
+
+def _change(estimate: _Estimate, previous: _Estimate) -> float:
+    """Step 6's test: 1 - the smaller subspace similarity of S and of A to the last iteration's."""
+    return max(
+        1.0 - subspace_similarity(estimate.shape_basis, previous.shape_basis),
+        1.0 - subspace_similarity(estimate.action_basis, previous.action_basis),
     )
 
 
@@ -170,6 +218,13 @@ def check_dimensions(training: TrainingSet, p: int | None, q: int) -> None:
         raise ConfigError(msg)
     if not 1 <= q < 3 * training.num_nodes:
         msg = f'q must be between 1 and {3 * training.num_nodes - 1}, got {q}'
+        raise ConfigError(msg)
+
+
+def check_iterations(max_iterations: int) -> None:
+    """Raise ConfigError unless the iteration limit allows one iteration at least."""
+    if max_iterations < 1:
+        msg = f'max_iterations must be at least 1, got {max_iterations}'
         raise ConfigError(msg)
 
 
