@@ -279,44 +279,21 @@ def fit_model_to_points(
     config = config or FitConfig()
     check_inside(init.node_names, init.points, (camera.width, camera.height))
     indices = init.node_indices(model)
-    sigma_fixed = init.sigma is not None
     sigma0 = np.zeros(model.p) if init.sigma is None else np.asarray(init.sigma, dtype=float)
-    omega0, t0 = _pnp(model.identity_shape(sigma0)[indices], init.points, camera)
-    bases = [model.shape_basis_nodes()[indices]] if not sigma_fixed else []
-    whitening = [_whitening(model.sigma_prior_covariance)] if not sigma_fixed else []
-    if config.fit_alpha:
-        bases.append(model.action_basis_nodes()[indices])
-        whitening.append(_whitening(model.alpha_prior_covariance))
-    basis = np.concatenate(bases, axis=-1) if bases else None
-    prior = np.sqrt(config.prior_weight) * (
-        block_diag(*whitening) if whitening else np.zeros((0, 0))
-    )
-    base_shape = model.identity_shape(sigma0)[indices]
-
-    def unpack(params: np.ndarray) -> np.ndarray:
-        """Face-frame points of the given nodes for the coefficients in ``params``."""
-        if basis is None:
-            return base_shape
-        return base_shape + basis @ params[POSE_DIM:]
-
-    def residuals(params: np.ndarray) -> np.ndarray:
-        pixels = project_with_jacobian(camera, params[:3], params[3:6], unpack(params)).pixels
-        reprojection = (pixels - init.points).ravel() / config.pixel_noise
-        return np.concatenate([reprojection, prior @ params[POSE_DIM:]])
-
-    def jacobian(params: np.ndarray) -> np.ndarray:
-        projection = project_with_jacobian(camera, params[:3], params[3:6], unpack(params), basis)
-        data = projection.jacobian.reshape(-1, params.size) / config.pixel_noise
-        prior_rows = np.hstack([np.zeros((prior.shape[0], POSE_DIM)), prior])
-        return np.vstack([data, prior_rows])
-
-    coefficients = 0 if basis is None else basis.shape[-1]
-    start = np.concatenate([omega0, t0, np.zeros(coefficients)])
-    solution = least_squares(residuals, start, jac=jacobian, method='lm', x_scale='jac').x
+    problem = _FitProblem.of(model, camera, init, sigma0, config)
+    omega0, t0 = _pnp(problem.base_shape, init.points, camera)
+    start = np.concatenate([omega0, t0, np.zeros(problem.coefficients)])
+    solution = least_squares(
+        problem.residuals, start, jac=problem.jacobian, method='lm', x_scale='jac'
+    ).x
     omega, t, coefficient_values = solution[:3], solution[3:6], solution[POSE_DIM:]
-    sigma = sigma0 if sigma_fixed else coefficient_values[: model.p]
-    alpha = coefficient_values[coefficients - model.q :] if config.fit_alpha else np.zeros(model.q)
-    pixels = project_with_jacobian(camera, omega, t, unpack(solution)).pixels
+    sigma = sigma0 if init.sigma is not None else coefficient_values[: model.p]
+    alpha = (
+        coefficient_values[problem.coefficients - model.q :]
+        if config.fit_alpha
+        else np.zeros(model.q)
+    )
+    pixels = project_with_jacobian(camera, omega, t, problem.shape(solution)).pixels
     fit = ModelFit(
         omega=omega,
         t=t,
@@ -332,6 +309,84 @@ def fit_model_to_points(
         raise InputError(msg)
     _check_facing(fit)
     return fit
+
+
+@dataclass(frozen=True)
+class _FitProblem:
+    """The least-squares problem of :func:`fit_model_to_points` over (omega, t, coefficients).
+
+    The coefficients are sigma (unless the initialisation fixes it) then alpha (if fitted).
+
+    Attributes:
+        camera: the camera of the image the points were taken in.
+        points: (K, 2) the given nodes' pixel positions.
+        base_shape: (K, 3) the given nodes of the identity shape the coefficients start from.
+        basis: (K, 3, C) the given nodes' rows of the fitted bases; None when nothing is.
+        prior: (C, C) sqrt(prior_weight) times the whitening of the coefficients' priors.
+        pixel_noise: the points' standard deviation, px.
+    """
+
+    camera: PinholeCamera
+    points: np.ndarray
+    base_shape: np.ndarray
+    basis: np.ndarray | None
+    prior: np.ndarray
+    pixel_noise: float
+
+    @classmethod
+    def of(
+        cls,
+        model: FaceModel,
+        camera: PinholeCamera,
+        init: Initialisation,
+        sigma0: np.ndarray,
+        config: FitConfig,
+    ) -> _FitProblem:
+        """The problem of fitting ``model`` to ``init``'s points from the identity ``sigma0``."""
+        indices = init.node_indices(model)
+        sigma_fixed = init.sigma is not None
+        bases = [model.shape_basis_nodes()[indices]] if not sigma_fixed else []
+        whitening = [_whitening(model.sigma_prior_covariance)] if not sigma_fixed else []
+        if config.fit_alpha:
+            bases.append(model.action_basis_nodes()[indices])
+            whitening.append(_whitening(model.alpha_prior_covariance))
+        return cls(
+            camera=camera,
+            points=init.points,
+            base_shape=model.identity_shape(sigma0)[indices],
+            basis=np.concatenate(bases, axis=-1) if bases else None,
+            prior=np.sqrt(config.prior_weight)
+            * (block_diag(*whitening) if whitening else np.zeros((0, 0))),
+            pixel_noise=config.pixel_noise,
+        )
+
+    @property
+    def coefficients(self) -> int:
+        """C, the number of fitted coefficients."""
+        return 0 if self.basis is None else self.basis.shape[-1]
+
+    def shape(self, params: np.ndarray) -> np.ndarray:
+        """Face-frame points of the given nodes for the coefficients in ``params`` (eq. 3)."""
+        if self.basis is None:
+            return self.base_shape
+        return self.base_shape + self.basis @ params[POSE_DIM:]
+
+    def residuals(self, params: np.ndarray) -> np.ndarray:
+        """Whitened reprojection errors (eq. 1, 2), then the whitened coefficients."""
+        pixels = project_with_jacobian(
+            self.camera, params[:3], params[3:6], self.shape(params)
+        ).pixels
+        reprojection = (pixels - self.points).ravel() / self.pixel_noise
+        return np.concatenate([reprojection, self.prior @ params[POSE_DIM:]])
+
+    def jacobian(self, params: np.ndarray) -> np.ndarray:
+        """The derivative of :meth:`residuals` in ``params``."""
+        projection = project_with_jacobian(
+            self.camera, params[:3], params[3:6], self.shape(params), self.basis
+        )
+        data = projection.jacobian.reshape(-1, params.size) / self.pixel_noise
+        prior_rows = np.hstack([np.zeros((self.prior.shape[0], POSE_DIM)), self.prior])
+        return np.vstack([data, prior_rows])
 
 
 def check_inside(
