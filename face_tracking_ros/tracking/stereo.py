@@ -395,6 +395,15 @@ class _Point(NamedTuple):
     prior: PriorEvaluation | None
 
 
+@dataclass
+class _Solves:
+    """What the levels' solves of one pair spent, and each level with its last accepted point."""
+
+    iterations: int = 0
+    history: list[float] = field(default_factory=list)
+    levels: list[tuple[_Level, _Point]] = field(default_factory=list)
+
+
 class _System(NamedTuple):
     """Gauss-Newton normal equations (node-major) at a point."""
 
@@ -626,6 +635,12 @@ class StereoTracker:
             self._reason = f'initialisation failed: {error}'
             self._detect = self._detector is not None  # then look for the face again
             return self._not_tracking(self._status, self._reason)
+        self._state = self._start(pyramids, initial)
+        return self._state.result
+
+    def _start(self, pyramids: tuple[ImagePyramid, ImagePyramid], initial: InitialNodes) -> _State:
+        """The state of a track starting at ``initial`` on this pair: samples, templates, terms."""
+        config = self._config
         nodes = initial.nodes
         layouts = self._layouts(nodes)
         samples = SampleSet.of(layouts, self._topology.num_nodes)
@@ -633,8 +648,7 @@ class StereoTracker:
         templates = self._templates(pyramids, samples, nodes, offsets)
         prior, theta = self._action_prior(nodes)
         depth_std = np.where(initial.matched, config.matched_depth_std, config.placed_depth_std)
-        result = replace(self._result(nodes, nodes, np.eye(3), None), new_track=True)
-        self._state = _State(
+        return _State(
             first_nodes=nodes,
             nodes=nodes,
             rotation=np.eye(3),
@@ -653,9 +667,8 @@ class StereoTracker:
             theta=None if prior is None else prior.point(theta),
             noise=np.full(len(layouts), config.noise_floor),
             depths=DepthRefinement.start(nodes, depth_std) if config.refine_depths else None,
-            result=result,
+            result=replace(self._result(nodes, nodes, np.eye(3), None), new_track=True),
         )
-        return result
 
     def _initial_nodes(
         self, pyramids: tuple[ImagePyramid, ImagePyramid], left_px: np.ndarray
@@ -808,40 +821,58 @@ class StereoTracker:
         """
         state = self._state
         assert state is not None
-        config = self._config
-        huber = Huber.of(state.samples, config.huber_k * state.noise)
-        nodes = state.nodes
-        if config.predict_motion and state.before is not None:
-            nodes = 2.0 * state.nodes - state.before
-        iterations = 0
-        history: list[float] = []
-        solved_levels: list[tuple[_Level, _Point]] = []  # with their last accepted point
-
-        def solve(index: int, start: np.ndarray, first_step_limit: float) -> np.ndarray | None:
-            nonlocal iterations
-            level = self._level(state, pyramids, index)
-            solved = self._solve_level(state, level, huber, start, first_step_limit)
-            if solved is None:
-                return None
-            nodes, spent, costs, accepted = solved
-            iterations += spent
-            history.extend(costs)
-            solved_levels.append((level, accepted))
-            return nodes
-
         try:
-            nodes = coarse_to_fine(
-                config.pyramid_levels, 0, config.coarsest_level_px, nodes, solve
-            )
+            nodes, solves = self._solve_pair(state, pyramids)
         except (LinAlgError, FaceTrackingError) as error:
             return self._lose(f'solver failed: {error}')
-        level, accepted = solved_levels[-1]  # level 0's
+        level, accepted = solves.levels[-1]  # level 0's
         statistics = group_statistics(
             state.samples, accepted.sampled, accepted.residuals, level.templates[:, 0]
         )
         problem = self._check(nodes, statistics)
         if problem:
             return self._lose(problem)
+        return self._advance(state, pyramids, nodes, statistics, solves)
+
+    def _solve_pair(
+        self, state: _State, pyramids: tuple[ImagePyramid, ImagePyramid]
+    ) -> tuple[np.ndarray, _Solves]:
+        """The nodes that minimise eq. 4 + eq. 5 on this pair, coarse to fine (see :meth:`_track`).
+
+        Raises:
+            LinAlgError, FaceTrackingError: when a level's solve fails.
+        """
+        config = self._config
+        huber = Huber.of(state.samples, config.huber_k * state.noise)
+        nodes = state.nodes
+        if config.predict_motion and state.before is not None:
+            nodes = 2.0 * state.nodes - state.before
+        solves = _Solves()
+
+        def solve(index: int, start: np.ndarray, first_step_limit: float) -> np.ndarray | None:
+            level = self._level(state, pyramids, index)
+            solved = self._solve_level(state, level, huber, start, first_step_limit)
+            if solved is None:
+                return None
+            nodes, spent, costs, accepted = solved
+            solves.iterations += spent
+            solves.history.extend(costs)
+            solves.levels.append((level, accepted))
+            return nodes
+
+        nodes = coarse_to_fine(config.pyramid_levels, 0, config.coarsest_level_px, nodes, solve)
+        return nodes, solves
+
+    def _advance(
+        self,
+        state: _State,
+        pyramids: tuple[ImagePyramid, ImagePyramid],
+        nodes: np.ndarray,
+        statistics: GroupStatistics,
+        solves: _Solves,
+    ) -> StereoResult:
+        """Take this pair's solved ``nodes`` into the state: noise, rotation, depths, templates."""
+        config = self._config
         state.noise = np.array(
             [max(config.noise_floor, float(np.nanmedian(rms))) for rms in statistics.rms]
         )
@@ -858,8 +889,8 @@ class StereoTracker:
             state.first_nodes,
             state.rotation,
             statistics,
-            iterations,
-            tuple(history),
+            solves.iterations,
+            tuple(solves.history),
             fit_start=state.result.fit,
         )
         state.result = result
