@@ -18,6 +18,7 @@ from collections.abc import Iterator
 from dataclasses import dataclass, field, replace
 from enum import Enum, StrEnum
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
@@ -255,6 +256,12 @@ class SequenceRenderer:
         if sequence_index < 0:
             msg = f'sequence index must be >= 0, got {sequence_index}'
             raise ConfigError(msg)
+        sequence = self._sequence(sequence_index)
+        for index in range(self.config.frames):
+            yield self._frame(sequence, index)
+
+    def _sequence(self, sequence_index: int) -> _Sequence:
+        """Draw one sequence's head path, expressions, light, occluder and backdrop."""
         config, subject = self.config, self.subject
         seeds = (config.seed, subject.index, sequence_index)
         rng = np.random.default_rng(seeds)
@@ -277,35 +284,43 @@ class SequenceRenderer:
         backgrounds = {
             name: backdrop.view(camera, config.encoding) for name, camera in self.cameras.items()
         }
-        for index in range(config.frames):
-            time = index / config.fps
-            poses = [self._pose(trajectory, script, sample) for sample in self._instants(time)]
-            state = script.state(time)
-            images, visible = {}, {}
-            for number, (name, camera) in enumerate(self.cameras.items()):
-                occluders = () if occluder is None else occluder.at(time, camera, poses[0])
-                images[name], visible[name] = self.renderer.render_with_visibility(
-                    camera,
-                    poses,
-                    backgrounds[name],
-                    light.at(time),
-                    occluders,
-                    rng=np.random.default_rng((*seeds, index, number)),
-                )
-            pose = poses[len(poses) // 2]  # the frame's instant, mid-exposure
-            truth = FrameTruth(
-                subject_id=subject.subject_id,
-                omega=pose.omega,
-                t=pose.t,
-                sigma=subject.sigma_true,
-                alpha=state.alpha,
-                nodes_face=pose.nodes,
-                nodes_camera=pose.camera_nodes(),
-                label=state.label,
-                intensity=state.intensity,
-                visible=visible,
+        return _Sequence(seeds, trajectory, script, light, occluder, backgrounds)
+
+    def _frame(self, sequence: _Sequence, index: int) -> SyntheticFrame:
+        """Render frame ``index`` of ``sequence`` in every camera, with its truth."""
+        time = index / self.config.fps
+        poses = [
+            self._pose(sequence.trajectory, sequence.script, sample)
+            for sample in self._instants(time)
+        ]
+        state = sequence.script.state(time)
+        images, visible = {}, {}
+        for number, (name, camera) in enumerate(self.cameras.items()):
+            occluders = (
+                () if sequence.occluder is None else sequence.occluder.at(time, camera, poses[0])
             )
-            yield SyntheticFrame(index, config.stamp_ns(index), images, truth)
+            images[name], visible[name] = self.renderer.render_with_visibility(
+                camera,
+                poses,
+                sequence.backgrounds[name],
+                sequence.light.at(time),
+                occluders,
+                rng=np.random.default_rng((*sequence.seeds, index, number)),
+            )
+        pose = poses[len(poses) // 2]  # the frame's instant, mid-exposure
+        truth = FrameTruth(
+            subject_id=self.subject.subject_id,
+            omega=pose.omega,
+            t=pose.t,
+            sigma=self.subject.sigma_true,
+            alpha=state.alpha,
+            nodes_face=pose.nodes,
+            nodes_camera=pose.camera_nodes(),
+            label=state.label,
+            intensity=state.intensity,
+            visible=visible,
+        )
+        return SyntheticFrame(index, self.config.stamp_ns(index), images, truth)
 
     def _instants(self, time: float) -> list[float]:
         """Times of the poses averaged into one frame: one, or several over the exposure."""
@@ -319,6 +334,17 @@ class SequenceRenderer:
         omega, t = trajectory.pose(time)
         nodes = self.population.nodes(self.subject, script.state(time).alpha)
         return FacePose(nodes=nodes, omega=omega, t=t)
+
+
+class _Sequence(NamedTuple):
+    """What one sequence draws before its frames (:meth:`SequenceRenderer._sequence`)."""
+
+    seeds: tuple[int, int, int]  # (world, subject, sequence): each frame's noise seeds from them
+    trajectory: HeadTrajectory
+    script: ExpressionScript
+    light: _LightPath
+    occluder: _OccluderPass | None
+    backgrounds: dict[str, np.ndarray]  # per camera
 
 
 @dataclass(frozen=True)
