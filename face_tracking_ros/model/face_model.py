@@ -54,6 +54,32 @@ class FaceModel:
         """Validate shapes, finiteness and orthonormality; errors name the faulty field."""
         validate_model_arrays(self)
 
+    @classmethod
+    def with_prior(
+        cls,
+        node_names: tuple[str, ...],
+        mean_shape: np.ndarray,
+        shape_basis: np.ndarray,
+        action_basis: np.ndarray,
+        sigma_prior_covariance: np.ndarray,
+        alpha_prior_covariance: np.ndarray,
+        method: str,
+        metadata: dict[str, Any] | None = None,
+    ) -> FaceModel:
+        """A model whose eigenvalues are the diagonals of its prior covariances (§4.1)."""
+        return cls(
+            node_names=node_names,
+            mean_shape=mean_shape,
+            shape_basis=shape_basis,
+            action_basis=action_basis,
+            shape_eigenvalues=np.diag(sigma_prior_covariance).copy(),
+            action_eigenvalues=np.diag(alpha_prior_covariance).copy(),
+            sigma_prior_covariance=sigma_prior_covariance,
+            alpha_prior_covariance=alpha_prior_covariance,
+            method=method,
+            metadata={} if metadata is None else metadata,
+        )
+
     @property
     def num_nodes(self) -> int:
         """Number of mesh nodes N."""

@@ -33,13 +33,11 @@ def true_face_model(population: FacePopulation, num_nodes: int = 34, p: int = 4)
     action_basis = np.linalg.svd(expressions, full_matrices=False)[0]
     sigma_covariance = shape_basis.T @ identity @ identity.T @ shape_basis
     alpha_covariance = action_basis.T @ expressions @ expressions.T @ action_basis
-    return FaceModel(
+    return FaceModel.with_prior(
         node_names=truth.node_names,
         mean_shape=truth.mean_shape.copy(),
         shape_basis=shape_basis,
         action_basis=action_basis,
-        shape_eigenvalues=np.diag(sigma_covariance).copy(),
-        action_eigenvalues=np.diag(alpha_covariance).copy(),
         sigma_prior_covariance=sigma_covariance,
         alpha_prior_covariance=alpha_covariance,
         method='truth',
