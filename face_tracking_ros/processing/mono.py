@@ -23,24 +23,25 @@ import numpy as np
 
 from face_tracking_ros.data import default_model_path
 from face_tracking_ros.errors import ConfigError, FaceTrackingError, InputError
-from face_tracking_ros.geometry.camera import PinholeCamera
 from face_tracking_ros.imaging import inside_image
-from face_tracking_ros.imaging.rectification import Rectifier
 from face_tracking_ros.io import conversions
 from face_tracking_ros.io.bags import stamp_to_ns
 from face_tracking_ros.io.messages import MessageFactory
 from face_tracking_ros.model.face_model import FaceModel
 from face_tracking_ros.model.model_file import load_model
 from face_tracking_ros.processing.base import Output, Port, QosClass
+from face_tracking_ros.processing.calibration import CameraCalibration
 from face_tracking_ros.processing.detection import (
     DetectorFactory,
     landmark_detector,
     restart_points,
 )
 from face_tracking_ros.processing.face_outputs import MESH_PORTS, MODEL_PORTS, face_outputs
+from face_tracking_ros.processing.held_input import HeldInput
 from face_tracking_ros.processing.model_agreement import MODEL_PORT
 from face_tracking_ros.processing.parameters import ParameterSource
-from face_tracking_ros.processing.track_counts import NO_REASON, TrackCounts
+from face_tracking_ros.processing.stamp_guard import StampGuard
+from face_tracking_ros.processing.track_counts import TrackCounts
 from face_tracking_ros.tracking.initialisation import (
     MIN_INIT_NODES,
     Initialisation,
@@ -92,7 +93,15 @@ class MonoNodeConfig:
 
 
 class MonoProcessor:
-    """Runs :class:`~face_tracking_ros.tracking.mono.MonoTracker` on image messages."""
+    """Runs :class:`~face_tracking_ros.tracking.mono.MonoTracker` on image messages.
+
+    The stamp order (:class:`~face_tracking_ros.processing.stamp_guard.StampGuard`), the image
+    held until camera_info comes (:class:`~face_tracking_ros.processing.held_input.HeldInput`)
+    and the calibration (:class:`~face_tracking_ros.processing.calibration.CameraCalibration`)
+    follow the stereo processor's rules. Its own: an image's stamp is taken as soon as it passes,
+    and one that went back restarts the track at once, quietly; an image is held only while
+    there is no camera_info (a camera and model that do not fit are an error for every image).
+    """
 
     def __init__(
         self,
@@ -123,27 +132,17 @@ class MonoProcessor:
         self._model = model
         self._initialisation = initialisation
         self._detector_for = detector_for
-        self._camera: PinholeCamera | None = None
-        self._rectifier: Rectifier | None = None
-        self._camera_info = conversions.CameraInfoReader()
+        self._calibration = CameraCalibration(config.rectify)
         self._tracker: MonoTracker | None = None
         self._unfit = ''  # why the camera and model give no tracker, if they do not
         self._pose_filter: PoseFilter | None = None
-        self._held_image: tuple[Any, np.ndarray] | None = None
+        self._held: HeldInput[tuple[Any, np.ndarray]] = HeldInput(
+            CAMERA_INFO, 'image', ' until it comes'
+        )
         self._tracked: tuple[tuple[str, ...], np.ndarray] | None = None  # last image's nodes
-        self._last_stamp: int | None = None
+        self._stamps = StampGuard('image')
         self._counts = TrackCounts('images')
-        self._restarts = 0  # tracks restarted by a stamp that went back
-        image = (
-            Port(COMPRESSED_IMAGE, 'sensor_msgs/msg/CompressedImage', QosClass.SENSOR)
-            if (config.compressed)
-            else Port(IMAGE, 'sensor_msgs/msg/Image', QosClass.SENSOR)
-        )
-        self.inputs = (
-            image,
-            Port(CAMERA_INFO, 'sensor_msgs/msg/CameraInfo', QosClass.SENSOR),
-            MODEL_PORT,
-        )
+        self.inputs = _input_ports(config)
         self.outputs = (
             *MESH_PORTS,
             *MODEL_PORTS,
@@ -169,8 +168,9 @@ class MonoProcessor:
         unknown = '' if self._model is None else _unknown_nodes(self._model, initialisation)
         if unknown:
             raise InputError(unknown)
-        if initialisation is not None and self._camera is not None:
-            size = (self._camera.width, self._camera.height)
+        camera = self._calibration.camera
+        if initialisation is not None and camera is not None:
+            size = (camera.width, camera.height)
             check_inside(initialisation.node_names, initialisation.points, size)
         self._initialisation, source = restart_points(
             initialisation, self._initialisation, self._detector_for, 'mono'
@@ -181,7 +181,7 @@ class MonoProcessor:
     def handle(self, topic: str, msg: Any, wanted: frozenset[str]) -> list[Output]:
         """Process one message of an input port (see :class:`processing.base.Processor`)."""
         if topic == CAMERA_INFO:
-            self._set_camera(self._camera_info.read(msg))
+            self._set_camera(msg)
             return self._track_held_image(wanted)
         if topic == MODEL:
             model = conversions.model_from_msg(msg)
@@ -190,15 +190,11 @@ class MonoProcessor:
             self._rebuild()
             return []
         gray = conversions.message_to_gray(msg)
-        if self._camera is None:  # held: a driver may send the camera_info just after it
-            dropped, self._held_image = self._held_image, (msg.header, gray)
-            if dropped is None:
-                return []
-            msg_text = (
-                f'no calibration on {CAMERA_INFO} yet: holding the latest image until it comes '
-                '(the one before dropped)'
-            )
-            raise InputError(msg_text)
+        if self._calibration.camera is None:  # held until the calibration comes
+            dropped = self._held.hold((msg.header, gray))
+            if dropped:
+                raise InputError(dropped)
+            return []
         return self._track(msg.header, gray, wanted)
 
     def status(self) -> dict[str, str]:
@@ -210,9 +206,8 @@ class MonoProcessor:
         :class:`~face_tracking_ros.processing.track_counts.TrackCounts`.
         """
         model = self._model.fingerprint if self._model is not None else 'none'
-        report = {**self._counts.report(), 'restarts': str(self._restarts), 'model': model}
-        if self._held_image is not None and report['last_reason'] == NO_REASON:
-            report['last_reason'] = f'no calibration on {CAMERA_INFO} yet: an image is held'
+        report = {**self._counts.report(), 'restarts': str(self._stamps.restarts), 'model': model}
+        report['last_reason'] = self._held.reason(report['last_reason'])
         return report
 
     def warning(self) -> str:
@@ -229,24 +224,20 @@ class MonoProcessor:
 
     def _track_held_image(self, wanted: frozenset[str]) -> list[Output]:
         """Track the image that arrived before the first camera_info, once it has arrived."""
-        if self._held_image is None or self._tracker is None:
+        if self._tracker is None:
             return []
-        (header, gray), self._held_image = self._held_image, None
-        try:
-            return self._track(header, gray, wanted)
-        except InputError as error:  # the image's problem, not the calibration's
-            msg = f'the image held until the calibration came: {error}'
-            raise InputError(msg) from None
+        return self._held.release(lambda held: self._track(*held, wanted))
 
-    def _set_camera(self, camera: PinholeCamera) -> None:
-        """Keep the camera; rebuild the tracker only when the calibration changed.
+    def _set_camera(self, msg: Any) -> None:
+        """Keep the camera of a camera_info; rebuild the tracker only when the calibration changed.
 
         Raises:
-            InputError: for a distortion model that cannot be rectified (the old camera is kept).
+            InputError: for a bad camera_info or a distortion model that cannot be rectified
+                (the old camera is kept).
         """
-        if self._camera is None or not self._camera.same_calibration(camera):
-            rectifier = Rectifier(camera, self._config.rectify)
-            self._camera, self._rectifier = camera, rectifier
+        camera = self._calibration.read(msg)
+        if camera is not None:
+            self._calibration.keep(camera)
             self._rebuild()
 
     def _rebuild(self) -> None:
@@ -256,7 +247,8 @@ class MonoProcessor:
             FaceTrackingError: why the tracker cannot work with them (also kept, and given for
                 every image until a camera or model that fits arrives).
         """
-        if self._camera is not None and self._model is not None:
+        camera = self._calibration.camera
+        if camera is not None and self._model is not None:
             detector = (
                 None if self._detector_for is None else self._detector_for(self._model.node_names)
             )
@@ -264,12 +256,12 @@ class MonoProcessor:
             self._tracker, self._unfit = None, ''
             try:
                 self._tracker = MonoTracker(
-                    self._model, self._camera, self._tracker_config, detector=detector
+                    self._model, camera, self._tracker_config, detector=detector
                 )
             except FaceTrackingError as error:
                 self._unfit = f'cannot track with this camera and model: {error}'
                 raise
-            self._pose_filter = PoseFilter(self._camera, self._filter_config)
+            self._pose_filter = PoseFilter(camera, self._filter_config)
             self._restart(carried)
 
     def _carried_over(self) -> Initialisation | None:
@@ -280,10 +272,11 @@ class MonoProcessor:
         the nodes outside the image are left out.
         """
         tracked, self._tracked = self._tracked, None
-        if tracked is None or self._camera is None or tracked[0] != self._model.node_names:
+        camera = self._calibration.camera
+        if tracked is None or camera is None or tracked[0] != self._model.node_names:
             return None
         names, tracked_px = tracked
-        inside = inside_image(tracked_px, (self._camera.height, self._camera.width))
+        inside = inside_image(tracked_px, (camera.height, camera.width))
         if inside.sum() < MIN_INIT_NODES:
             return None
         kept = tuple(name for name, keep in zip(names, inside, strict=True) if keep)
@@ -297,9 +290,7 @@ class MonoProcessor:
         """
         if self._tracker is not None and self._pose_filter is not None:
             self._tracked = None
-            initialisation = self._initialisation
-            if initialisation is not None:
-                initialisation = initialisation.moved(self._rectifier.points)
+            initialisation = self._calibration.rectified(self._initialisation)
             self._tracker.reset(carried or initialisation)
             self._pose_filter.reset()
 
@@ -310,10 +301,11 @@ class MonoProcessor:
                 or f'no face model yet: set the model_file parameter or publish one on {MODEL}'
             )
             raise InputError(msg)
-        self._rectifier.check_size(gray)
+        rectifier = self._calibration.rectifier
+        rectifier.check_size(gray)
         stamp_ns = stamp_to_ns(header.stamp)
         self._check_stamp(stamp_ns)
-        gray = self._rectifier.image(gray)
+        gray = rectifier.image(gray)
         tracked = self._tracker.track(gray)
         ok = tracked.status == TrackStatus.TRACKING
         self._tracked = (self._model.node_names, tracked.nodes_px) if ok else None
@@ -337,14 +329,20 @@ class MonoProcessor:
         Raises:
             InputError: for a repeated stamp.
         """
-        last, self._last_stamp = self._last_stamp, stamp_ns
-        if last is None or stamp_ns > last:
-            return
-        if stamp_ns == last:
-            msg = f'image stamp {stamp_ns} ns repeats the previous image stamp: image skipped'
-            raise InputError(msg)
-        self._restart()
-        self._restarts += 1
+        if not self._stamps.later(stamp_ns, 'image'):
+            self._restart()
+            self._stamps.restart()
+        self._stamps.last = stamp_ns
+
+
+def _input_ports(config: MonoNodeConfig) -> tuple[Port, ...]:
+    """The image (raw or compressed, as ``config`` says), camera_info and face model ports."""
+    image = (
+        Port(COMPRESSED_IMAGE, 'sensor_msgs/msg/CompressedImage', QosClass.SENSOR)
+        if (config.compressed)
+        else Port(IMAGE, 'sensor_msgs/msg/Image', QosClass.SENSOR)
+    )
+    return (image, Port(CAMERA_INFO, 'sensor_msgs/msg/CameraInfo', QosClass.SENSOR), MODEL_PORT)
 
 
 def _check_model(

@@ -37,7 +37,6 @@ import numpy as np
 from face_tracking_ros.errors import ConfigError, FaceTrackingError, InputError, check_fields
 from face_tracking_ros.geometry.camera import PinholeCamera, StereoRig
 from face_tracking_ros.imaging import inside_image
-from face_tracking_ros.imaging.rectification import Rectifier
 from face_tracking_ros.io import conversions
 from face_tracking_ros.io.bags import stamp_to_ns
 from face_tracking_ros.io.messages import MessageFactory
@@ -45,14 +44,17 @@ from face_tracking_ros.model.face_model import FaceModel
 from face_tracking_ros.model.model_file import load_model
 from face_tracking_ros.model.topology import mesh_topology
 from face_tracking_ros.processing.base import Output, Port, QosClass
+from face_tracking_ros.processing.calibration import CameraCalibration
 from face_tracking_ros.processing.detection import (
     DetectorFactory,
     landmark_detector,
     restart_points,
 )
 from face_tracking_ros.processing.face_outputs import MESH_PORTS, MODEL_PORTS, face_outputs
+from face_tracking_ros.processing.held_input import HeldInput
 from face_tracking_ros.processing.model_agreement import MODEL_PORT
 from face_tracking_ros.processing.parameters import ParameterSource
+from face_tracking_ros.processing.stamp_guard import StampGuard
 from face_tracking_ros.processing.track_counts import NO_REASON, TrackCounts
 from face_tracking_ros.tracking.initialisation import (
     Initialisation,
@@ -64,6 +66,7 @@ from face_tracking_ros.tracking.stereo import StereoResult, StereoTracker, Stere
 LEFT_IMAGE, RIGHT_IMAGE = 'left/image_raw', 'right/image_raw'
 COMPRESSED = {f'{LEFT_IMAGE}/compressed': LEFT_IMAGE, f'{RIGHT_IMAGE}/compressed': RIGHT_IMAGE}
 LEFT_INFO, RIGHT_INFO = 'left/camera_info', 'right/camera_info'
+INFOS = (LEFT_INFO, RIGHT_INFO)
 MODEL = MODEL_PORT.topic
 RESTART_JUMP_NS = 1_000_000_000  # an image stamp this much older than the last pair restarts
 
@@ -138,6 +141,15 @@ class StereoProcessor:
     With ``retroactive_depths`` it holds every pair (its result until the track ends, then its
     messages) until :meth:`finish` (offline replay): about 20 kB per pair (peak RSS +8 MB for
     380 pairs at 640x480).
+
+    The stamp order (:class:`~face_tracking_ros.processing.stamp_guard.StampGuard`), the pair
+    held until the calibration comes (:class:`~face_tracking_ros.processing.held_input.HeldInput`)
+    and each camera's calibration
+    (:class:`~face_tracking_ros.processing.calibration.CameraCalibration`) follow the mono
+    processor's rules. Its own: the last stamp is that of the last pair tracked; an image a
+    little older than it is put aside, and a jump back restarts the track with a warning (see
+    the module's docstring); a pair is held while there is no tracker (a calibration missing or
+    refused); the two calibrations must form a rectified rig before either is kept.
     """
 
     def __init__(
@@ -172,43 +184,21 @@ class StereoProcessor:
         self._model = model
         self._initialisation = initialisation
         self._detector_for = detector_for
-        self._cameras: dict[str, PinholeCamera] = {}
-        self._rectifiers: dict[str, Rectifier] = {}
-        self._camera_infos = {
-            LEFT_INFO: conversions.CameraInfoReader(),
-            RIGHT_INFO: conversions.CameraInfoReader(),
-        }
+        self._calibrations = {info: CameraCalibration(config.rectify) for info in INFOS}
         self._tracker: StereoTracker | None = None
         self._unfit = ''  # why the calibration gives no tracker, if it does not
-        self._waiting: dict[str, OrderedDict[int, Any]] = {
-            LEFT_IMAGE: OrderedDict(),
-            RIGHT_IMAGE: OrderedDict(),
-        }
-        self._held_pair: tuple[Any, Any] | None = None
-        self._stale: dict[str, OrderedDict[int, Any]] = {  # images older than the last pair
-            LEFT_IMAGE: OrderedDict(),
-            RIGHT_IMAGE: OrderedDict(),
-        }
+        self._waiting = _per_camera_queues()
+        self._held: HeldInput[tuple[Any, Any]] = HeldInput(f'{LEFT_INFO} and {RIGHT_INFO}', 'pair')
+        self._stale = _per_camera_queues()  # images older than the last pair
         self._track_results: list[tuple[Any, StereoResult]] = []  # held: (header, result)
         self._ended_outputs: list[Output] = []  # held outputs of the tracks that ended
-        self._last_stamp: int | None = None
+        self._stamps = StampGuard('pair')
         self._tracked_px: np.ndarray | None = None  # left px of the last pair tracked, if it was
         self.unpaired = 0
         self._unpaired_gap_ns: int | None = None  # nearest other-camera stamp to a dropped image
         self._paired = False  # whether any left and right images have paired
         self._counts = TrackCounts('pairs')
-        self._restarts = 0  # tracks restarted by stamps that went back
-        image_type, image_topics = (
-            ('sensor_msgs/msg/CompressedImage', tuple(COMPRESSED))
-            if config.compressed
-            else ('sensor_msgs/msg/Image', (LEFT_IMAGE, RIGHT_IMAGE))
-        )
-        self.inputs = (
-            *(Port(topic, image_type, QosClass.SENSOR) for topic in image_topics),
-            Port(LEFT_INFO, 'sensor_msgs/msg/CameraInfo', QosClass.SENSOR),
-            Port(RIGHT_INFO, 'sensor_msgs/msg/CameraInfo', QosClass.SENSOR),
-            MODEL_PORT,
-        )
+        self.inputs = _input_ports(config)
         self.outputs = (*MESH_PORTS, *MODEL_PORTS)
 
     def reset(self, initialisation: Initialisation | None) -> str:
@@ -222,14 +212,14 @@ class StereoProcessor:
                 mesh does not have, or positions outside the left image.
         """
         _check_initialisation(initialisation, self._tracker_config, InputError)
-        left = self._cameras.get(LEFT_INFO)
+        left = self._calibrations[LEFT_INFO].camera
         if initialisation is not None and left is not None:
             size = (left.width, left.height)
             check_inside(initialisation.node_names, initialisation.points, size, 'left image')
         self._initialisation, source = restart_points(
             initialisation, self._initialisation, self._detector_for, 'stereo'
         )
-        self._last_stamp = None  # the next pair starts the track, whatever its stamp
+        self._stamps.last = None  # the next pair starts the track, whatever its stamp
         if self._tracker is not None:
             self._end_track()
             self._reset_tracker()
@@ -252,7 +242,7 @@ class StereoProcessor:
         """
         report = {
             **self._counts.report(),
-            'restarts': str(self._restarts),
+            'restarts': str(self._stamps.restarts),
             'model': self._model.fingerprint if self._model is not None else 'none (meshes only)',
             'unpaired_images': str(self.unpaired),
         }
@@ -260,10 +250,7 @@ class StereoProcessor:
             report['unpaired_nearest_ms'] = f'{self._unpaired_gap_ns / 1e6:.3f}'
             if not self._paired and report['last_reason'] == NO_REASON:  # (a short stream)
                 report['last_reason'] = _never_paired(self._unpaired_gap_ns / 1e6)
-        if self._held_pair is not None and report['last_reason'] == NO_REASON:
-            report['last_reason'] = (
-                f'no calibration on {LEFT_INFO} and {RIGHT_INFO} yet: a pair is held'
-            )
+        report['last_reason'] = self._held.reason(report['last_reason'])
         if self._tracker is not None:
             report['right_gain'] = f'{self._tracker.right_gain:.3f}'
             report['right_row_offset_px'] = f'{self._tracker.right_row_offset:.2f}'
@@ -287,8 +274,8 @@ class StereoProcessor:
 
     def handle(self, topic: str, msg: Any, wanted: frozenset[str]) -> list[Output]:
         """Process one message of an input port (see :class:`processing.base.Processor`)."""
-        if topic in (LEFT_INFO, RIGHT_INFO):
-            self._set_camera(topic, self._camera_infos[topic].read(msg))
+        if topic in INFOS:
+            self._set_camera(topic, msg)
             return self._track_held_pair()
         if topic == MODEL:
             model = conversions.model_from_msg(msg)
@@ -301,45 +288,43 @@ class StereoProcessor:
             return []
         pair = self._pair(topic, msg)
         if pair is not None and self._tracker is None:  # held until the calibration comes
-            dropped, self._held_pair = self._held_pair, pair
+            dropped = self._held.hold(pair)
             if self._unfit:
                 raise InputError(self._unfit)
-            if dropped is None:  # the first: a driver may send the camera_info just after it
-                return []
-            msg_text = (
-                f'no calibration on {LEFT_INFO} and {RIGHT_INFO} yet: holding the latest pair '
-                '(the one before dropped)'
-            )
-            raise InputError(msg_text)
+            if dropped:
+                raise InputError(dropped)
+            return []
         return [] if pair is None else self._track(*pair)
 
     def _track_held_pair(self) -> list[Output]:
         """Track the pair that arrived before its calibration, once the calibration is there."""
-        if self._held_pair is None or self._tracker is None:
+        if self._tracker is None:
             return []
-        pair, self._held_pair = self._held_pair, None
-        try:
-            return self._track(*pair)
-        except InputError as error:  # the pair's problem, not the calibration's
-            msg = f'the pair held until the calibration came: {error}'
-            raise InputError(msg) from None
+        return self._held.release(lambda pair: self._track(*pair))
 
-    def _set_camera(self, topic: str, camera: PinholeCamera) -> None:
+    def _set_camera(self, topic: str, msg: Any) -> None:
         """Keep a new calibration, unless it does not form a rectified rig with the other one.
 
         Raises:
-            InputError: if the two calibrations do not form a rig, or one has a distortion model
-                that cannot be rectified (the old ones are kept).
+            InputError: for a bad camera_info, if the two calibrations do not form a rig, or one
+                has a distortion model that cannot be rectified (the old ones are kept).
         """
-        old = self._cameras.get(topic)
-        if old is None or not old.same_calibration(camera):
-            cameras = {**self._cameras, topic: camera}
+        calibration = self._calibrations[topic]
+        camera = calibration.read(msg)
+        if camera is not None:
+            cameras = {**self._cameras(), topic: camera}
             if len(cameras) == 2:
                 StereoRig(cameras[LEFT_INFO], cameras[RIGHT_INFO])
-            rectifier = Rectifier(camera, self._config.rectify)
-            self._cameras = cameras
-            self._rectifiers[topic] = rectifier
+            calibration.keep(camera)
             self._rebuild()
+
+    def _cameras(self) -> dict[str, PinholeCamera]:
+        """The calibrations kept so far, by camera_info topic."""
+        return {
+            topic: calibration.camera
+            for topic, calibration in self._calibrations.items()
+            if calibration.camera is not None
+        }
 
     def _rebuild(self) -> None:
         """A tracker for the rig and model, once both calibrations are there.
@@ -352,11 +337,12 @@ class StereoProcessor:
             FaceTrackingError: why the tracker cannot work with them (also kept, and given for
                 every pair until a calibration or model that fits arrives).
         """
-        if len(self._cameras) < 2:
+        cameras = self._cameras()
+        if len(cameras) < 2:
             return
         tracked_px, self._tracked_px = self._tracked_px, None
         self._end_track()
-        rig = StereoRig(self._cameras[LEFT_INFO], self._cameras[RIGHT_INFO])
+        rig = StereoRig(cameras[LEFT_INFO], cameras[RIGHT_INFO])
         names = mesh_topology(self._tracker_config.num_nodes).node_names
         detector = None if self._detector_for is None else self._detector_for(names)
         self._tracker, self._unfit = None, ''
@@ -365,7 +351,7 @@ class StereoProcessor:
         except FaceTrackingError as error:
             self._unfit = f'cannot track with this calibration: {error}'
             raise
-        left = self._cameras[LEFT_INFO]
+        left = cameras[LEFT_INFO]
         inside = (
             inside_image(tracked_px, (left.height, left.width)) if tracked_px is not None else None
         )
@@ -379,10 +365,7 @@ class StereoProcessor:
         """Restart the tracker from the initialisation, its points moved to the rectified image."""
         assert self._tracker is not None
         self._tracked_px = None
-        initialisation = self._initialisation
-        if initialisation is not None:
-            initialisation = initialisation.moved(self._rectifiers[LEFT_INFO].points)
-        self._tracker.reset(initialisation)
+        self._tracker.reset(self._calibrations[LEFT_INFO].rectified(self._initialisation))
 
     @property
     def _can_initialise(self) -> bool:
@@ -400,32 +383,38 @@ class StereoProcessor:
         Raises:
             InputError: for a repeated stamp or a jump back.
         """
-        stamp, last = stamp_to_ns(msg.header.stamp), self._last_stamp
+        stamp = stamp_to_ns(msg.header.stamp)
         other_topic = RIGHT_IMAGE if topic == LEFT_IMAGE else LEFT_IMAGE
-        if last is None or stamp > last:
+        if self._stamps.later(stamp, topic):
             for side in (topic, other_topic):  # not a restart: what was put aside never pairs
                 self._stale[side].clear()
             return True
-        if stamp == last:
-            msg_text = f'{topic} stamp {stamp} ns repeats the previous pair stamp: image skipped'
-            raise InputError(msg_text)
-        if last - stamp < RESTART_JUMP_NS:
-            partner = self._partner(stamp, self._stale[other_topic])
-            if partner is None:
-                self._put_aside(topic, stamp, msg)
-                return False
-            partner_msg = self._stale[other_topic].pop(partner)
-            self._restart_stream()
-            self.unpaired -= 1  # (the partner, counted when put aside, pairs after all)
-            self._waiting[other_topic][partner] = partner_msg
-            return True
+        back_ns = self._stamps.last - stamp
+        if back_ns < RESTART_JUMP_NS:
+            return self._pairs_aside(topic, other_topic, stamp, msg)
         self._restart_stream()
         self._waiting[topic][stamp] = msg
         msg_text = (
-            f'{topic} stamp went back by {(last - stamp) / 1e9:.3f} s (looped bag or restarted '
+            f'{topic} stamp went back by {back_ns / 1e9:.3f} s (looped bag or restarted '
             'cameras): tracker reset, a new track starts with this pair'
         )
         raise InputError(msg_text)
+
+    def _pairs_aside(self, topic: str, other_topic: str, stamp: int, msg: Any) -> bool:
+        """Whether an image a little older than the last pair pairs with one put aside.
+
+        If it does, both cameras went back (a short bag, looped): the track restarts with them
+        (True). Else the image is put aside, counted as unpaired (False).
+        """
+        partner = self._partner(stamp, self._stale[other_topic])
+        if partner is None:
+            self._put_aside(topic, stamp, msg)
+            return False
+        partner_msg = self._stale[other_topic].pop(partner)
+        self._restart_stream()
+        self.unpaired -= 1  # (the partner, counted when put aside, pairs after all)
+        self._waiting[other_topic][partner] = partner_msg
+        return True
 
     def _put_aside(self, topic: str, stamp: int, msg: Any) -> None:
         """Keep an image older than the last pair (counted as unpaired), the newest few only."""
@@ -437,8 +426,7 @@ class StereoProcessor:
 
     def _restart_stream(self) -> None:
         """The cameras' stamps went back: empty the queues, start again from the initialisation."""
-        self._last_stamp = None
-        self._restarts += 1
+        self._stamps.restart()
         for queue in (*self._waiting.values(), *self._stale.values()):
             queue.clear()
         if self._tracker is not None and self._can_initialise:
@@ -514,7 +502,7 @@ class StereoProcessor:
             self._rectified_image(info, conversions.message_to_gray(msg))
             for info, msg in ((LEFT_INFO, left_msg), (RIGHT_INFO, right_msg))
         )
-        self._last_stamp = stamp_to_ns(left_msg.header.stamp)
+        self._stamps.last = stamp_to_ns(left_msg.header.stamp)
         result = self._tracker.step(left, right)
         self._tracked_px = result.left_px if result.ok else None
         self._counts.add(result.status, result.reason)
@@ -530,7 +518,7 @@ class StereoProcessor:
         Raises:
             InputError: if its size is not the one camera_info gives.
         """
-        rectifier = self._rectifiers[info]
+        rectifier = self._calibrations[info].rectifier
         rectifier.check_size(gray, f'{info.split("/")[0]} image')
         return rectifier.image(gray)
 
@@ -556,6 +544,26 @@ class StereoProcessor:
         for header, result in zip(headers, final, strict=True):
             self._ended_outputs += self._outputs(header, result)
         self._track_results = []
+
+
+def _input_ports(config: StereoNodeConfig) -> tuple[Port, ...]:
+    """The left and right images (raw or compressed, as ``config`` says), camera_infos, model."""
+    image_type, image_topics = (
+        ('sensor_msgs/msg/CompressedImage', tuple(COMPRESSED))
+        if config.compressed
+        else ('sensor_msgs/msg/Image', (LEFT_IMAGE, RIGHT_IMAGE))
+    )
+    return (
+        *(Port(topic, image_type, QosClass.SENSOR) for topic in image_topics),
+        Port(LEFT_INFO, 'sensor_msgs/msg/CameraInfo', QosClass.SENSOR),
+        Port(RIGHT_INFO, 'sensor_msgs/msg/CameraInfo', QosClass.SENSOR),
+        MODEL_PORT,
+    )
+
+
+def _per_camera_queues() -> dict[str, OrderedDict[int, Any]]:
+    """Empty queues of images by stamp, one per camera (by its image topic)."""
+    return {LEFT_IMAGE: OrderedDict(), RIGHT_IMAGE: OrderedDict()}
 
 
 def _check_nodes(
