@@ -84,23 +84,41 @@ def run(args: argparse.Namespace) -> None:
     fingerprint = load_model(model).fingerprint if model is not None else None
     classifier = ExpressionClassifier.load(args.classifier, enrol[0].alpha.shape[1], fingerprint)
     identity_config = IdentityConfig()
-    gallery = enroll_sequences(enrol, identity_config)
-    identity = identity_accuracy(gallery, test, strangers, identity_config)
+    _print_identity(enrol, test, strangers, identity_config)
+    _print_expressions(classifier, test + strangers)
+    print(separation_experiment(enrol, test, identity_config, ExpressionTrainingConfig()).format())
+
+
+def _print_identity(
+    enrol: list[ParameterSequence],
+    test: list[ParameterSequence],
+    strangers: list[ParameterSequence],
+    config: IdentityConfig,
+) -> None:
+    """The identity line: decisions on ``test`` and ``strangers`` by a gallery of ``enrol``.
+
+    Raises:
+        BagError: if no TRACKING stretch of the test bags spans a decision window.
+    """
+    identity = identity_accuracy(enroll_sequences(enrol, config), test, strangers, config)
     rejected = (
         f'strangers rejected {100 * identity.rejection:.1f} %' if strangers else 'no strangers'
     )
     if not identity.windows:
         msg = (
-            f'no TRACKING stretch of the --test bags spans a {identity_config.window:.0f}-s '
+            f'no TRACKING stretch of the --test bags spans a {config.window:.0f}-s '
             'window: no identity decision to score'
         )
         raise BagError(msg)
     print(
-        f'identity after {identity_config.window:.0f} s ({identity.windows} windows): '
+        f'identity after {config.window:.0f} s ({identity.windows} windows): '
         f'{100 * identity.closed_set:.1f} % closed set, {100 * identity.open_set:.1f} % with '
         f'rejection; {rejected}'
     )
-    scored = test + strangers
+
+
+def _print_expressions(classifier: ExpressionClassifier, scored: list[ParameterSequence]) -> None:
+    """The expression lines: per-frame accuracy, then events at two onset definitions."""
     accuracy = expression_accuracy(classifier, scored)
     print(
         f'expressions: {100 * accuracy.clear:.1f} % clear frames, '
@@ -120,7 +138,6 @@ def run(args: argparse.Namespace) -> None:
             else 'no onset found'
         )
         print(f'events (onset at {name}): F1 {score.f1:.3f}, {latency}')
-    print(separation_experiment(enrol, test, identity_config, ExpressionTrainingConfig()).format())
 
 
 def _check_one_model(bags: list[Path], sequences: list[ParameterSequence]) -> None:
