@@ -20,6 +20,9 @@ from face_tracking_ros.io import conversions
 from face_tracking_ros.io.bags import BagWriter, bag_topics, read_messages
 from face_tracking_ros.io.messages import RosbagsMessages
 from face_tracking_ros.io.typestore import typestore
+from face_tracking_ros.learning import stereo_meshes
+from face_tracking_ros.learning.learn_options import LearnOptions
+from face_tracking_ros.learning.mesh_bags import subject_of
 from face_tracking_ros.model.model_file import load_model
 from face_tracking_ros.replay import ReplayStats
 from face_tracking_ros.synthetic.clicks import clicks_from_bag, write_init_file
@@ -94,9 +97,9 @@ def test_bags_of_one_name_are_refused_and_a_pattern_names_the_subject(tmp_path, 
     assert main(argv) == 2
     assert f'are both named {BAGS[0].name}: the init files' in capsys.readouterr().err
     args = _learn_args(BAGS[0], tmp_path, '--subject-pattern', r'(.+)_seq_\d+')
-    assert learn.subject_of('anna_seq_02', args) == 'anna'
+    assert subject_of('anna_seq_02', args) == 'anna'
     with pytest.raises(ConfigError, match="does not match the bag name 'anna_2' with a group"):
-        learn.subject_of('anna_2', args)
+        subject_of('anna_2', args)
     assert main([*argv[:-4], '--subject-pattern', '(', *argv[-4:]]) == 2
     assert "--subject-pattern '(': not a regular expression" in capsys.readouterr().err
 
@@ -122,23 +125,23 @@ def _learn_meshes(
     The truth and the rig come from ``truth`` (default: ``bag``).
     """
     args = _learn_args(bag, where, '--from-images', '--simulate-clicks', '0', *options)
-    return score_stereo_against_truth(truth or bag, learn.mesh_bag(bag, args))
+    return score_stereo_against_truth(truth or bag, stereo_meshes.mesh_bag(bag, args))
 
 
-def _learn_args(bag: Path, where: Path, *options: str) -> argparse.Namespace:
-    """``face-tracking learn`` arguments for ``bag``, its outputs under ``where``."""
+def _learn_args(bag: Path, where: Path, *options: str) -> LearnOptions:
+    """``face-tracking learn``'s options for ``bag``, its outputs under ``where``."""
     parser = argparse.ArgumentParser()
     learn.register(parser.add_subparsers())
-    return parser.parse_args(
+    return learn.learn_options(parser.parse_args(
         ['learn', str(bag), '--out', str(where / 'm.npz'), '--report', str(where / 'r.json'),
          *options]
-    )  # fmt: skip
+    ))  # fmt: skip
 
 
 def test_scores_start_at_the_first_tracked_frame(still_bag, tmp_path):
     """Frames before the first tracked one have no estimate (zeros): not scored."""
     args = _learn_args(still_bag, tmp_path, '--from-images', '--simulate-clicks', '0')
-    tracked = learn.mesh_bag(still_bag, args)
+    tracked = stereo_meshes.mesh_bag(still_bag, args)
     late = tmp_path / 'late'  # the same output, as if the face had been found at the 4th pair
     factory = RosbagsMessages(typestore())
     zeros = conversions.array_to_points(factory, np.zeros((34, 3)))
@@ -191,13 +194,13 @@ def test_a_stereo_pair_not_found_by_name_is_asked_for(still_bag, tmp_path, capsy
     bag = compressed_copy(still_bag, tmp_path / 'infra', names)
     pair = r'\(/camera/infra1/image_rect_raw, /camera/infra2/image_rect_raw\)'
     with pytest.raises(ConfigError, match=f'no stereo pair found by name .*{pair}.*--left-'):
-        learn.mesh_bag(bag, _learn_args(bag, tmp_path, '--from-images'))
+        stereo_meshes.mesh_bag(bag, _learn_args(bag, tmp_path, '--from-images'))
     # The images given (without their leading '/', as a bag may spell them) but no camera_info.
     images = ['--left-topic', 'camera/infra1/image_rect_raw', '--right-topic',
               'camera/infra2/image_rect_raw', '--simulate-clicks', '0']  # fmt: skip
     infos = r'\(the bag has /camera/infra1/camera_info, /camera/infra2/camera_info\)'
     with pytest.raises(BagError, match=f'no mesh .*--left-info-topic .*{infos}'):
-        learn.mesh_bag(bag, _learn_args(bag, tmp_path, '--from-images', *images))
+        stereo_meshes.mesh_bag(bag, _learn_args(bag, tmp_path, '--from-images', *images))
     # track: neither tracker is a guess; the mono one on one of them, the stereo one on both.
     assert main(['track', str(bag), '--out', str(tmp_path / 'out')]) == 2
     err = capsys.readouterr().err
@@ -311,7 +314,7 @@ def test_an_interrupted_tracking_stops_learn(tmp_path, monkeypatch, capsys):
     def interrupted(*_args, **_kwargs) -> ReplayStats:  # Ctrl-C during the first bag's replay
         return ReplayStats(interrupted=True)
 
-    monkeypatch.setattr(learn, 'replay_bag', interrupted)
+    monkeypatch.setattr(stereo_meshes, 'replay_bag', interrupted)
     argv = ['learn', *map(str, BAGS), '--from-images', '--simulate-clicks', '1.0',
             '--out', str(tmp_path / 'm.npz'), '--report', str(tmp_path / 'r.json')]  # fmt: skip
     assert main(argv) == 130

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import argparse
 import signal
 import time
 
@@ -12,10 +11,9 @@ import numpy as np
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 
-from face_tracking_ros.cli import learn
 from face_tracking_ros.io import conversions
 from face_tracking_ros.model.model_file import load_model
-from face_tracking_ros.nodes.learner import LearnerConfig, learn_arguments
+from face_tracking_ros.nodes.learner import LearnerConfig, learn_options
 from face_tracking_ros.nodes.processor_node import QOS_PROFILES
 from face_tracking_ros.processing.base import QosClass
 
@@ -61,22 +59,22 @@ def test_model_reaches_a_subscriber_that_starts_after_it_was_published(ros_conte
 
 def test_tracker_params_reach_the_stereo_tracking_of_learn():
     config = LearnerConfig(bags=('a', 'b'), tracker_params=('retroactive_depths=false', 'x=1'))
-    parser = argparse.ArgumentParser()
-    learn.register(parser.add_subparsers())
-    args = parser.parse_args(['learn', *learn_arguments(config)])
-    assert [str(bag) for bag in args.bags] == ['a', 'b']
-    assert args.tracker_param == ['retroactive_depths=false', 'x=1']
-    assert (
-        parser.parse_args(['learn', *learn_arguments(LearnerConfig(bags=('a',)))]).tracker_param
-        is None
-    )
+    options = learn_options(config)
+    assert [str(bag) for bag in options.bags] == ['a', 'b']
+    assert options.tracker_params == ('retroactive_depths=false', 'x=1')
+    assert learn_options(LearnerConfig(bags=('a',))).tracker_params == ()
     automatic = LearnerConfig(bags=('a',), auto_init=True, from_images=True)
-    args = parser.parse_args(['learn', *learn_arguments(automatic)])
-    assert args.auto_init and args.from_images
-    assert (args.left_topic, args.right_topic, args.left_info_topic) == (None, None, None)
+    options = learn_options(automatic)
+    assert options.auto_init and options.from_images
+    assert (options.left_topic, options.right_topic, options.left_info_topic) == (None, None, None)
     topics = LearnerConfig(bags=('a',), left_topic='/c0', right_topic='/c1', right_info_topic='/i')
-    args = parser.parse_args(['learn', *learn_arguments(topics)])
-    given = (args.left_topic, args.right_topic, args.left_info_topic, args.right_info_topic)
+    options = learn_options(topics)
+    given = (
+        options.left_topic,
+        options.right_topic,
+        options.left_info_topic,
+        options.right_info_topic,
+    )
     assert given == ('/c0', '/c1', None, '/i')
 
 

@@ -14,6 +14,7 @@ import contextlib
 from dataclasses import asdict
 import json
 from pathlib import Path
+from typing import Protocol
 
 import numpy as np
 
@@ -156,7 +157,16 @@ def input_remaps(topics: Mapping[str, str | None]) -> dict[str, str]:
     return remaps | {compressed[port]: remaps[port] for port in compressed.keys() & remaps.keys()}
 
 
-def stereo_topics(args: argparse.Namespace) -> dict[str, str | None]:
+class StereoTopicOptions(Protocol):
+    """Options naming the stereo topics: ``track``'s arguments, or ``learn``'s LearnOptions."""
+
+    left_topic: str | None
+    right_topic: str | None
+    left_info_topic: str | None
+    right_info_topic: str | None
+
+
+def stereo_topics(args: StereoTopicOptions) -> dict[str, str | None]:
     """The stereo_tracker inputs given as --left-topic, --right-topic and their camera_info's."""
     return {
         LEFT_IMAGE: args.left_topic,

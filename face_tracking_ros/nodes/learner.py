@@ -1,27 +1,28 @@
 """The learner node: learns a face model from recorded bags and publishes it, latched.
 
-It runs exactly what ``face-tracking learn`` runs (:mod:`face_tracking_ros.cli.learn`), with the
-node's parameters as the command's options: bags of 3-D meshes (synthetic truth, FaceMesh or
-FaceState) or raw stereo image bags, which it first tracks with the stereo tracker (every mesh
-with the frame-1 depths refined over its whole track; ``tracker_params``). It writes
-the model file and the JSON report, then publishes the model on ``face/model`` with
-transient-local durability, so trackers started later still receive it, and keeps spinning.
+It runs the learning pipeline of ``face-tracking learn``
+(:func:`face_tracking_ros.learning.pipeline.learn_from_bags`), with the node's parameters as its
+options: bags of 3-D meshes (synthetic truth, FaceMesh or FaceState) or raw stereo image bags,
+which it first tracks with the stereo tracker (every mesh with the frame-1 depths refined over
+its whole track; ``tracker_params``). It writes the model file and the JSON report, then
+publishes the model on ``face/model`` with transient-local durability, so trackers started later
+still receive it, and keeps spinning.
 """
 
 from __future__ import annotations
 
-import argparse
 from dataclasses import dataclass
 from pathlib import Path
 
 from face_tracking_msgs.msg import FaceModel as FaceModelMsg
 from rclpy.node import Node
 
-from face_tracking_ros.cli import learn
 from face_tracking_ros.errors import ConfigError, check_fields
 from face_tracking_ros.io import conversions
 from face_tracking_ros.io.messages import RclpyMessages
+from face_tracking_ros.learning.learn_options import LearnOptions
 from face_tracking_ros.learning.methods import METHODS
+from face_tracking_ros.learning.pipeline import learn_from_bags
 from face_tracking_ros.model.model_file import load_model
 from face_tracking_ros.model.topology import SUPPORTED_NODE_COUNTS
 from face_tracking_ros.nodes.graceful import Endless, run_until_stopped
@@ -105,8 +106,12 @@ class LearnerConfig:
         check_fields(self, checks)
 
 
-def learn_arguments(config: LearnerConfig) -> list[str]:
-    """The ``face-tracking learn`` arguments equivalent to the node's parameters.
+def learn_options(config: LearnerConfig) -> LearnOptions:
+    """The learning pipeline's options from the node's parameters.
+
+    An empty string (or 0 nodes, a negative simulate_clicks) leaves the option unset; the
+    options the node does not declare keep ``face-tracking learn``'s defaults, but compare,
+    which is empty: only ``method`` is learned and evaluated.
 
     Raises:
         ConfigError: if no bag is given.
@@ -118,28 +123,29 @@ def learn_arguments(config: LearnerConfig) -> list[str]:
         msg = 'no bags to learn from: set the bags or bag_dir parameter'
         raise ConfigError(msg)
     output = Path(config.output)
-    report = Path(config.report) if config.report else output.with_suffix('.json')
-    argv = [*map(str, bags), '--out', str(output), '--report', str(report)]
-    argv += ['--method', config.method, '--p', str(config.p), '--q', str(config.q)]
-    argv += ['--compare', '--neutral-frames', str(config.neutral_frames)]
-    options = {
-        '--nodes': config.nodes or '',
-        '--topic': config.topic,
-        '--subject': config.subject,
-        '--subject-pattern': config.subject_pattern,
-        '--init-dir': config.init_dir,
-        '--simulate-clicks': config.simulate_clicks if config.simulate_clicks >= 0 else '',
-        '--left-topic': config.left_topic,
-        '--right-topic': config.right_topic,
-        '--left-info-topic': config.left_info_topic,
-        '--right-info-topic': config.right_info_topic,
-    }
-    argv += [
-        item for option, value in options.items() if value != '' for item in (option, str(value))
-    ]
-    argv += [item for param in config.tracker_params for item in ('--tracker-param', param)]
-    flags = {'--from-images': config.from_images, '--auto-init': config.auto_init}
-    return argv + [flag for flag, wanted in flags.items() if wanted]
+    return LearnOptions(
+        bags=tuple(bags),
+        out=output,
+        report=Path(config.report) if config.report else output.with_suffix('.json'),
+        nodes=config.nodes or None,
+        p=config.p,
+        q=config.q,
+        method=config.method,
+        compare=(),
+        topic=config.topic or None,
+        subject=config.subject or None,
+        subject_pattern=config.subject_pattern or None,
+        neutral_frames=config.neutral_frames,
+        from_images=config.from_images,
+        init_dir=Path(config.init_dir) if config.init_dir else None,
+        simulate_clicks=config.simulate_clicks if config.simulate_clicks >= 0 else None,
+        auto_init=config.auto_init,
+        left_topic=config.left_topic or None,
+        right_topic=config.right_topic or None,
+        left_info_topic=config.left_info_topic or None,
+        right_info_topic=config.right_info_topic or None,
+        tracker_params=config.tracker_params,
+    )
 
 
 class LearnerNode(Endless, Node):
@@ -151,14 +157,13 @@ class LearnerNode(Endless, Node):
         parameters = NodeParameters(self)
         config = parameters.config(LearnerConfig)
         parameters.warn_unknown()
-        parser = argparse.ArgumentParser(prog='learner')
-        learn.register(parser.add_subparsers())
-        args = parser.parse_args(['learn', *learn_arguments(config)])
+        options = learn_options(config)
         self.get_logger().info(
-            f'learning: face-tracking learn {" ".join(learn_arguments(config))}'
+            f'learning from {len(options.bags)} bag(s) by {options.method} '
+            f'(p={options.p}, q={options.q}) into {options.out} and {options.report}'
         )
-        args.func(args)
-        model = load_model(args.out)
+        saved = learn_from_bags(options)
+        model = load_model(saved)
         factory = RclpyMessages()
         stamp_ns = self.get_clock().now().nanoseconds
         header = conversions.make_header(factory, stamp_ns, config.frame_id)
@@ -167,7 +172,7 @@ class LearnerNode(Endless, Node):
         )
         self._model_publisher.publish(conversions.model_to_msg(factory, header, model))
         self.get_logger().info(
-            f'published {args.out} (method {model.method}, {model.num_nodes} nodes, '
+            f'published {saved} (method {model.method}, {model.num_nodes} nodes, '
             f'p={model.p}, q={model.q}) on face/model, latched'
         )
 

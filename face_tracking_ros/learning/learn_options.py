@@ -1,0 +1,148 @@
+"""What to learn from and how: the options of ``face-tracking learn`` and of the learner node.
+
+Both front ends fill one :class:`LearnOptions` (the command from its flags, the node from its
+parameters) and hand it to :func:`~face_tracking_ros.learning.pipeline.learn_from_bags`;
+:func:`check_options` refuses what the pipeline cannot run, before any work. The messages name
+the options by their ``face-tracking learn`` flags.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+import re
+
+from face_tracking_ros.errors import ConfigError
+from face_tracking_ros.io.series import has_truth
+from face_tracking_ros.learning.methods import DEFAULT_METHOD, METHODS
+
+
+@dataclass(frozen=True)
+class LearnOptions:
+    """The options of one learning run; the defaults are ``face-tracking learn``'s.
+
+    Attributes:
+        bags: bags of meshes (FaceTruth, FaceMesh, FaceState) or of raw stereo images.
+        out: model file to write (.npz).
+        report: JSON report to write.
+        nodes: mesh nodes (19 or 34: the first nodes of the bags' meshes); None: as in the bags.
+        p: dimension of the identity subspace (sigma, the columns of S).
+        explained_variance: choose p as the fewest identity modes explaining this share of the
+            variance (overrides ``p``); None: ``p``.
+        q: dimension of the expression subspace (alpha, the columns of A).
+        method: learner whose model is written (:data:`~.methods.METHODS`).
+        compare: methods evaluated side by side with ``method``.
+        plots: directory receiving PNG figures; None: no figures.
+        topic: mesh topic; None: the first of :data:`~.mesh_bags.DEFAULT_TOPICS` found.
+        subject: subject id of every bag without truth; None: from the bag's directory name.
+        subject_pattern: bags without truth: the subject id is the first group of this regular
+            expression matched against the bag's directory name; None: the whole name.
+        truth: one bag per bag of ``bags``, in the same order, whose truth/face messages label
+            the meshes of the same stamp (subject, expression, alpha); None: no such bags.
+        neutral_frames: bags without truth: the first K frames of each bag show the neutral face.
+        add_noise: white noise added to every node coordinate, m (0: none).
+        seed: seed of that noise.
+        truth_population: PRESET[:SEED] of the synthetic population the bags were rendered from
+            (adds the comparison with the true subspaces to the report); None: unknown.
+        truth_samples: population faces drawn to estimate the true identity axes.
+        from_images: track the images of stereo bags even when they also hold truth meshes.
+        init_dir: raw stereo bags: directory of init files <bag name>.yaml|.json; None: none.
+        simulate_clicks: synthetic raw stereo bags: initialise from the first frame's true nodes
+            with this many pixels of click noise; None: off.
+        auto_init: raw stereo bags without an init file: find the face with the optional
+            landmark detector.
+        left_topic: raw stereo bags: the left image topic; None: found by type and name.
+        right_topic: raw stereo bags: the right image topic; None: found as the left one.
+        left_info_topic: raw stereo bags: the left camera_info topic; None: found by name.
+        right_info_topic: raw stereo bags: the right camera_info topic; None: found by name.
+        meshes_dir: where the meshes tracked from raw stereo bags go; None: <report name>_meshes/
+            beside the report.
+        tracker_params: stereo_tracker parameters NAME=VALUE for tracking raw stereo bags, after
+            :data:`~.stereo_meshes.STEREO_PARAMS`.
+    """
+
+    bags: tuple[Path, ...]
+    out: Path
+    report: Path
+    nodes: int | None = None
+    p: int = 2
+    explained_variance: float | None = None
+    q: int = 5
+    method: str = DEFAULT_METHOD
+    compare: tuple[str, ...] = METHODS
+    plots: Path | None = None
+    topic: str | None = None
+    subject: str | None = None
+    subject_pattern: str | None = None
+    truth: tuple[Path, ...] | None = None
+    neutral_frames: int = 0
+    add_noise: float = 0.0
+    seed: int = 0
+    truth_population: str | None = None
+    truth_samples: int = 2000
+    from_images: bool = False
+    init_dir: Path | None = None
+    simulate_clicks: float | None = None
+    auto_init: bool = False
+    left_topic: str | None = None
+    right_topic: str | None = None
+    left_info_topic: str | None = None
+    right_info_topic: str | None = None
+    meshes_dir: Path | None = None
+    tracker_params: tuple[str, ...] = ()
+
+
+def check_options(options: LearnOptions) -> None:
+    """Refuse options the pipeline cannot run: values out of range, then bags and files.
+
+    Raises:
+        ConfigError: naming the first option at fault.
+    """
+    _check_values(options)
+    _check_bags_and_files(options)
+
+
+def _check_values(options: LearnOptions) -> None:
+    """Range checks (those argparse cannot express) and the subject pattern's syntax."""
+    if options.p < 1 or options.q < 1:
+        msg = f'--p and --q must be >= 1, got p={options.p}, q={options.q}'
+        raise ConfigError(msg)
+    share = options.explained_variance
+    if share is not None and not 0.0 < share <= 1.0:
+        msg = f'--explained-variance must be in (0, 1], got {share}'
+        raise ConfigError(msg)
+    if options.neutral_frames < 0 or not options.add_noise >= 0.0 or options.truth_samples < 10:
+        msg = '--neutral-frames and --add-noise must not be negative, --truth-samples >= 10'
+        raise ConfigError(msg)
+    if options.subject_pattern is not None:
+        try:
+            re.compile(options.subject_pattern)
+        except re.error as error:
+            msg = (
+                f'--subject-pattern {options.subject_pattern!r}: not a regular expression: {error}'
+            )
+            raise ConfigError(msg) from None
+
+
+def _check_bags_and_files(options: LearnOptions) -> None:
+    """The truth bags pair with the bags, the outputs can be written, the neutral frames known."""
+    if options.truth is not None and len(options.truth) != len(options.bags):
+        msg = f'--truth names {len(options.truth)} bag(s) for {len(options.bags)} input bag(s)'
+        raise ConfigError(msg)
+    if options.plots is not None and not options.plots.is_dir():
+        msg = f'--plots {options.plots} is not a directory'
+        raise ConfigError(msg)
+    if options.out.resolve() == options.report.resolve():
+        msg = f'--out and --report are both {options.out}: the report would overwrite the model'
+        raise ConfigError(msg)
+    for option, path in (('--out', options.out), ('--report', options.report)):
+        if not path.parent.is_dir():
+            msg = f'{option} {path}: no directory {path.parent} to write it in'
+            raise ConfigError(msg)
+    unlabelled = [bag for bag in options.bags if not has_truth(bag)]
+    if unlabelled and options.truth is None and options.neutral_frames == 0:
+        msg = (
+            f'{unlabelled[0]}: no truth says which frames show the neutral face; give '
+            '--neutral-frames K, the first K frames of each bag (the learner node: neutral_frames)'
+        )
+        raise ConfigError(msg)

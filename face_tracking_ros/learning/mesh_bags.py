@@ -1,0 +1,278 @@
+"""The training meshes of a bag: its subjects' meshes, neutral flags, labels and true alpha.
+
+A bag holds one of:
+
+* ``face_tracking_msgs/FaceTruth`` (synthetic truth, default topic ``truth/face``): nodes in the
+  camera frame, subject id and expression label per frame; frames labelled 'neutral' are the
+  neutral frames of §3.4;
+* ``face_tracking_msgs/FaceMesh`` or ``FaceState`` (a tracker's meshes): subject, label and
+  alpha come from a truth bag (matched by header stamp) when given; otherwise the subject is
+  :attr:`~.learn_options.LearnOptions.subject` or the bag's directory name, and the first
+  ``neutral_frames`` frames of each bag are taken as neutral. Frames the tracker did not track
+  are left out.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+import re
+from typing import Any, NamedTuple
+
+import numpy as np
+
+from face_tracking_ros.errors import BagError, ConfigError, InputError
+from face_tracking_ros.io.bags import bag_topics, read_messages
+from face_tracking_ros.io.conversions import (
+    TruthSample,
+    points_to_array,
+    stamp_to_ns,
+    truth_from_msg,
+)
+from face_tracking_ros.learning.learn_options import LearnOptions
+from face_tracking_ros.learning.training_set import MeshSequence
+from face_tracking_ros.model.topology import SUPPORTED_NODE_COUNTS
+from face_tracking_ros.replay import bag_spelling
+from face_tracking_ros.tracking.result import TrackStatus
+
+TRUTH_TYPE = 'face_tracking_msgs/msg/FaceTruth'
+MESH_TYPES = ('face_tracking_msgs/msg/FaceMesh', 'face_tracking_msgs/msg/FaceState')
+TRUTH_TOPIC = 'truth/face'
+STATE_TOPIC = 'face/state'
+TRACKED = int(TrackStatus.TRACKING)  # FaceState.STATUS_TRACKING
+DEFAULT_TOPICS = (TRUTH_TOPIC, 'face/mesh_raw', STATE_TOPIC)
+
+
+@dataclass(frozen=True)
+class BagMeshes:
+    """Meshes of one subject read from one bag.
+
+    Attributes:
+        sequence: the meshes, neutral flags and labels.
+        alpha: (F, E) true alpha when the bag holds truth, else None.
+        sigma: the subject's true sigma when the bag holds truth, else None.
+    """
+
+    sequence: MeshSequence
+    alpha: np.ndarray | None
+    sigma: np.ndarray | None = None
+
+
+class _Frame(NamedTuple):
+    """One tracked frame of a bag: its subject, message index, (N, 3) nodes (m) and truth."""
+
+    subject: str
+    index: int
+    nodes: np.ndarray
+    sample: TruthSample | None
+
+
+def read_bag_meshes(
+    bag: Path, options: LearnOptions, truth_bag: Path | None = None, name: str = ''
+) -> list[BagMeshes]:
+    """The meshes of one bag, one entry per subject found in it.
+
+    Args:
+        bag: a bag of FaceTruth, FaceMesh or FaceState messages.
+        options: the run's options (topic, subject, neutral frames, nodes).
+        truth_bag: for mesh bags, a bag whose ``truth/face`` messages give the subject, label and
+            alpha of the mesh with the same header stamp (e.g. the synthetic bag a tracker ran on).
+        name: the name the subject id is taken from without truth (:func:`subject_of`); empty:
+            the bag's (the raw bag's, for the meshes tracked from it).
+
+    Raises:
+        BagError: if a bag lacks the topic, holds no message on it, or the truth bag has no
+            truth for a mesh's stamp.
+        InputError: naming the bag, topic and message index of a malformed message.
+    """
+    topics = bag_topics(bag)
+    topic = _checked_mesh_topic(bag, topics, options)
+    frames, skipped = _tracked_frames(bag, topics, topic, options, truth_bag, name or bag.name)
+    if skipped:
+        print(f'{bag}: {skipped} frames the tracker did not track (initialising or lost) left out')
+    if not frames:
+        msg = (
+            f'{bag}: none of the {skipped} frames on {topic} was tracked'
+            if skipped
+            else f'{bag}: no message on {topic}'
+        )
+        raise BagError(msg)
+    by_subject: dict[str, list[_Frame]] = {}
+    for frame in frames:
+        by_subject.setdefault(frame.subject, []).append(frame)
+    return [_bag_meshes(bag, topic, items, options) for items in by_subject.values()]
+
+
+def subject_of(name: str, options: LearnOptions) -> str:
+    """The subject id of a bag without truth: ``options.subject``, else from its name.
+
+    The first group of ``options.subject_pattern`` matched against the name (the whole name
+    without a pattern).
+
+    Raises:
+        ConfigError: if the pattern does not match the name, or has no group.
+    """
+    if options.subject:
+        return options.subject
+    if not options.subject_pattern:
+        return name
+    match = re.fullmatch(options.subject_pattern, name)
+    if match is None or not match.groups():
+        msg = (
+            f'--subject-pattern {options.subject_pattern!r} does not match the bag name {name!r} '
+            'with a group (e.g. (.+)_\\d+)'
+        )
+        raise ConfigError(msg)
+    return match.group(1)
+
+
+def mesh_topic(topics: dict[str, str], options: LearnOptions) -> str | None:
+    """The bag's mesh topic: ``options.topic``, else the first of DEFAULT_TOPICS it has.
+
+    As the bag spells it (a recorder's names are absolute: '/face/mesh_raw'); None if it has none.
+    """
+    wanted = [options.topic] if options.topic else DEFAULT_TOPICS
+    spelt = [bag_spelling(name, topics) for name in wanted]
+    return next((name for name in spelt if name in topics), None)
+
+
+def mesh_from_message(msg: Any, msgtype: str) -> tuple[int, np.ndarray, TruthSample | None]:
+    """Header stamp (ns), (N, 3) nodes (m) and, for FaceTruth, the truth of one mesh message.
+
+    A candidate for :mod:`face_tracking_ros.io.conversions`.
+
+    Raises:
+        InputError: naming the field of a NaN or malformed value.
+    """
+    if msgtype == TRUTH_TYPE:
+        truth = truth_from_msg(msg)
+        return truth.stamp_ns, truth.nodes, truth
+    field = 'FaceMesh.points' if msgtype == MESH_TYPES[0] else 'FaceState.nodes'
+    points = msg.points if msgtype == MESH_TYPES[0] else msg.nodes
+    return stamp_to_ns(msg.header.stamp), points_to_array(points, field), None
+
+
+def _checked_mesh_topic(bag: Path, topics: dict[str, str], options: LearnOptions) -> str:
+    """The bag's mesh topic (:func:`mesh_topic`).
+
+    Raises:
+        BagError: if the bag has none, or it is of another type than a mesh's.
+    """
+    topic = mesh_topic(topics, options)
+    if topic is None:
+        wanted = options.topic or ' or '.join(DEFAULT_TOPICS)
+        msg = f'{bag}: no topic {wanted} in bag (topics: {", ".join(sorted(topics)) or "none"})'
+        raise BagError(msg)
+    msgtype = topics[topic]
+    if msgtype != TRUTH_TYPE and msgtype not in MESH_TYPES:
+        msg = f'{bag}: topic {topic} has type {msgtype}; expected FaceTruth, FaceMesh or FaceState'
+        raise BagError(msg)
+    return topic
+
+
+def _tracked_frames(
+    bag: Path,
+    topics: dict[str, str],
+    topic: str,
+    options: LearnOptions,
+    truth_bag: Path | None,
+    name: str,
+) -> tuple[list[_Frame], int]:
+    """The frames of ``topic`` that were tracked, with their truth, and how many were not.
+
+    The truth of a frame is its FaceTruth message's, else the truth bag's of its stamp; its
+    subject is the truth's, else the one named by ``name`` (:func:`subject_of`).
+
+    Raises:
+        BagError: if the truth bag has no truth for a mesh's stamp.
+        InputError: naming the bag, topic and message index of a malformed message.
+    """
+    msgtype = topics[topic]
+    truth = _truth_by_stamp(truth_bag) if truth_bag is not None else {}
+    # A FaceState says itself whether it was tracked; a FaceMesh by its bag's face/state.
+    untracked = _untracked_stamps(bag, topics) if msgtype == MESH_TYPES[0] else set()
+    frames: list[_Frame] = []
+    skipped = 0
+    for index, message in enumerate(read_messages(bag, [topic])):
+        try:
+            stamp_ns, nodes, sample = mesh_from_message(message.msg, msgtype)
+        except InputError as error:
+            msg = f'{bag}: {topic} message {index}: {error}'
+            raise InputError(msg) from None
+        state_untracked = msgtype == MESH_TYPES[1] and message.msg.status != TRACKED
+        if stamp_ns in untracked or state_untracked:
+            skipped += 1
+            continue
+        if truth_bag is not None:
+            sample = truth.get(stamp_ns)
+            if sample is None:
+                msg = f'{truth_bag}: no {TRUTH_TOPIC} message stamped {stamp_ns} ns for {bag}'
+                raise BagError(msg)
+        subject = sample.subject_id if sample else subject_of(name, options)
+        frames.append(_Frame(subject, index, nodes, sample))
+    return frames, skipped
+
+
+def _untracked_stamps(bag: Path, topics: dict[str, str]) -> set[int]:
+    """Header stamps of the frames a tracker's output bag says it did not track.
+
+    Its face/state messages whose status is not TRACKING: the mesh of such a frame is none
+    (zeros before the first initialisation) or the last one tracked, not the face.
+    """
+    state_topic = bag_spelling(STATE_TOPIC, topics)
+    if topics.get(state_topic) != MESH_TYPES[1]:
+        return set()
+    return {
+        stamp_to_ns(message.msg.header.stamp)
+        for message in read_messages(bag, [state_topic])
+        if message.msg.status != TRACKED
+    }
+
+
+def _truth_by_stamp(truth_bag: Path) -> dict[int, TruthSample]:
+    """The truth samples of a bag by header stamp."""
+    samples = (truth_from_msg(item.msg) for item in read_messages(truth_bag, [TRUTH_TOPIC]))
+    return {sample.stamp_ns: sample for sample in samples}
+
+
+def _bag_meshes(bag: Path, topic: str, items: list[_Frame], options: LearnOptions) -> BagMeshes:
+    """One subject's meshes of a bag; neutral frames from labels, else the first K frames.
+
+    ``items`` are the subject's frames, all with truth or all without; the first K are by
+    message index. With truth, the subject's true sigma is its first frame's.
+    """
+    subject = items[0].subject
+    counts = {len(item.nodes) for item in items}
+    if len(counts) > 1:
+        msg = f'{bag}: {topic} meshes of subject {subject!r} have node counts {sorted(counts)}'
+        raise InputError(msg)
+    meshes = _select_nodes(
+        np.array([item.nodes for item in items]), options.nodes, f'{bag}: {topic}'
+    )
+    samples = [item.sample for item in items if item.sample is not None]
+    if not samples:
+        neutral = np.array([item.index for item in items]) < options.neutral_frames
+        if neutral.all():
+            print(
+                f'{bag}: --neutral-frames {options.neutral_frames} covers all its {len(items)} '
+                'frames: all are taken as neutral, none shows an expression'
+            )
+        return BagMeshes(MeshSequence(subject, meshes, neutral, None, str(bag)), None)
+    labels = tuple(str(sample.label) for sample in samples)
+    alpha = np.array([sample.alpha for sample in samples])
+    return BagMeshes(
+        MeshSequence.labelled(subject, meshes, labels, str(bag)), alpha, samples[0].sigma
+    )
+
+
+def _select_nodes(meshes: np.ndarray, num_nodes: int | None, where: str) -> np.ndarray:
+    """Keep the first ``num_nodes`` nodes (the 19-node mesh is a prefix of the 34-node one)."""
+    if meshes.shape[1] not in SUPPORTED_NODE_COUNTS:
+        msg = f'{where}: meshes have {meshes.shape[1]} nodes; supported: {SUPPORTED_NODE_COUNTS}'
+        raise InputError(msg)
+    if num_nodes is None:
+        return meshes
+    if num_nodes > meshes.shape[1]:
+        msg = f'{where}: --nodes {num_nodes} but the meshes have only {meshes.shape[1]} nodes'
+        raise ConfigError(msg)
+    return meshes[:, :num_nodes]

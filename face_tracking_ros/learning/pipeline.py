@@ -1,0 +1,316 @@
+"""Learn a face model from bags and report its quality: ``face-tracking learn``, the learner node.
+
+The steps of :func:`learn_from_bags`:
+
+1. raw stereo bags are tracked into bags of 3-D meshes (:mod:`.stereo_meshes`), every one's
+   initialisation found before minutes of tracking;
+2. each bag's meshes are read, one sequence per subject (:mod:`.mesh_bags`), labelled by the
+   bag's truth or by a truth bag of the same stamps;
+3. the meshes are aligned (§3.3, :func:`~.alignment.align_training_set`);
+4. the model is learned by ``method`` (default ``joint``, issue 11; ``seed`` is the paper's
+   §3.4) and every compared method, each evaluated by :func:`~.evaluation.evaluate`
+   (leave-one-subject-out, and against the true subspaces with ``truth_population``);
+5. the model file, the JSON report and, with ``plots``, the PNG figures are written (Figure
+   5-like sigma scatter per method, comparison, convergence).
+
+Progress and the comparison table go to stdout.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import replace
+import json
+from pathlib import Path
+import time
+from typing import Any
+
+import numpy as np
+
+from face_tracking_ros.errors import ConfigError
+from face_tracking_ros.io.bags import bag_topics
+from face_tracking_ros.io.provenance import other_source
+from face_tracking_ros.io.series import has_truth
+from face_tracking_ros.learning.alignment import align_training_set
+from face_tracking_ros.learning.evaluation import (
+    Evaluation,
+    TrueSubspaces,
+    comparison_table,
+    evaluate,
+    population_truth,
+)
+from face_tracking_ros.learning.learn_options import LearnOptions, check_options
+from face_tracking_ros.learning.mesh_bags import BagMeshes, read_bag_meshes
+from face_tracking_ros.learning.methods import DEFAULT_EXPLAINED_VARIANCE, make_learner
+from face_tracking_ros.learning.plots import (
+    plot_comparison,
+    plot_convergence,
+    plot_sigma_scatter,
+)
+from face_tracking_ros.learning.result import LearningResult
+from face_tracking_ros.learning.stereo_meshes import (
+    mesh_bag,
+    needs_tracking,
+    stereo_initialisation,
+)
+from face_tracking_ros.learning.training_set import MeshSequence, TrainingSet
+from face_tracking_ros.model.face_model import FaceModel
+from face_tracking_ros.model.model_file import save_model
+from face_tracking_ros.synthetic.faces import PRESETS, FacePopulation
+
+
+def learn_from_bags(options: LearnOptions) -> Path:
+    """Read, align, learn, evaluate, write; return the model file written.
+
+    Raises:
+        FaceTrackingError: for options, bags or files the run cannot use (ConfigError, BagError,
+            InputError), naming what is wrong.
+        KeyboardInterrupt: if the tracking of a raw stereo bag was interrupted.
+    """
+    check_options(options)
+    initialisations = _initialisations(options)  # every raw bag's, before minutes of tracking
+    rng = np.random.default_rng(options.seed)
+    mesh_bags, truth_bags = _mesh_and_truth_bags(options, initialisations)
+    bag_meshes = _read_meshes(options, mesh_bags, truth_bags)
+    training, align_seconds = _aligned_training_set(options, bag_meshes, rng)
+    truth = _true_subspaces(options, training, bag_meshes)
+    results: dict[str, LearningResult] = {}
+    evaluations: dict[str, Evaluation] = {}
+    report_methods: dict[str, Any] = {}
+    for method in dict.fromkeys([options.method, *options.compare]):
+        results[method], evaluations[method], report_methods[method] = _learn_and_evaluate(
+            method, options, training, truth
+        )
+    print(comparison_table(evaluations))
+    saved = _save_model(options, results[options.method].model)
+    plots = _plots(options.plots, training, results, evaluations) if options.plots else []
+    report = {
+        'model': str(saved),
+        'method': options.method,
+        'bags': [str(bag) for bag in options.bags],
+        'subjects': list(training.subject_ids),
+        'frames': len(training.meshes),
+        'nodes': training.num_nodes,
+        'align_seconds': align_seconds,
+        'methods': report_methods,
+        'plots': [str(path) for path in plots],
+    }
+    _write_json(options.report, report)
+    print(f'report written to {options.report}')
+    return saved
+
+
+def _initialisations(options: LearnOptions) -> dict[Path, str]:
+    """The stereo_tracker parameter initialising each raw stereo bag's track, by bag.
+
+    Raises:
+        ConfigError: for a raw stereo bag without a way to initialise it, or one that
+            :func:`~.stereo_meshes.needs_tracking` refuses.
+    """
+    return {
+        bag: stereo_initialisation(bag, options)
+        for bag in options.bags
+        if needs_tracking(bag, bag_topics(bag), options)
+    }
+
+
+def _mesh_and_truth_bags(
+    options: LearnOptions, initialisations: dict[Path, str]
+) -> tuple[list[Path], list[Path | None]]:
+    """Each bag's bag of meshes (raw stereo bags tracked) and the bag labelling its meshes.
+
+    A raw stereo bag holding truth labels the meshes tracked from it; else the ``truth`` bag
+    given for it, if any.
+
+    Raises:
+        ConfigError: for a mesh bag paired with the truth of another bag than its source.
+        BagError: if the tracker produced no mesh from a raw stereo bag.
+    """
+    mesh_bags = [mesh_bag(bag, options, initialisations.get(bag)) for bag in options.bags]
+    given = options.truth or [None] * len(options.bags)
+    truth_bags = [
+        bag if mesh is not bag and has_truth(bag) else truth
+        for bag, mesh, truth in zip(options.bags, mesh_bags, given, strict=True)
+    ]
+    _check_truth_pairs(mesh_bags, truth_bags)
+    return mesh_bags, truth_bags
+
+
+def _check_truth_pairs(mesh_bags: Sequence[Path], truth_bags: Sequence[Path | None]) -> None:
+    """Check that a mesh bag recording the bag it was tracked from has that one as its truth.
+
+    Raises:
+        ConfigError: naming the first mesh bag paired with another bag's truth.
+    """
+    for mesh, truth in zip(mesh_bags, truth_bags, strict=True):
+        source = other_source(mesh, truth) if truth is not None else None
+        if source is not None:
+            msg = (
+                f'--truth pairs {mesh} with {truth}, but it was tracked from {source}: give '
+                'the truth bags in the order of the mesh bags'
+            )
+            raise ConfigError(msg)
+
+
+def _read_meshes(
+    options: LearnOptions, mesh_bags: Sequence[Path], truth_bags: Sequence[Path | None]
+) -> list[BagMeshes]:
+    """The meshes of every bag, one entry per bag and subject; named after the given bags."""
+    return [
+        item
+        for bag, mesh, truth_bag in zip(options.bags, mesh_bags, truth_bags, strict=True)
+        for item in read_bag_meshes(mesh, options, truth_bag, bag.name)
+    ]
+
+
+def _aligned_training_set(
+    options: LearnOptions, bag_meshes: Sequence[BagMeshes], rng: np.random.Generator
+) -> tuple[TrainingSet, float]:
+    """The training set aligned (§3.3), ``add_noise`` drawn from ``rng``; the seconds it took."""
+    sequences = [item.sequence for item in bag_meshes]
+    if options.add_noise > 0.0:
+        sequences = [_with_noise(sequence, options.add_noise, rng) for sequence in sequences]
+    training = TrainingSet.from_sequences(sequences)
+    print(
+        f'read {len(training.meshes)} meshes of {training.num_nodes} nodes, '
+        f'{training.num_subjects} subjects, {int(training.neutral.sum())} neutral frames'
+    )
+    start = time.perf_counter()
+    aligned = align_training_set(training)
+    return aligned, time.perf_counter() - start
+
+
+def _with_noise(sequence: MeshSequence, noise: float, rng: np.random.Generator) -> MeshSequence:
+    """The sequence with white node noise of standard deviation ``noise`` metres."""
+    noisy = sequence.meshes + rng.normal(scale=noise, size=sequence.meshes.shape)
+    return MeshSequence(
+        sequence.subject_id, noisy, sequence.neutral, sequence.labels, sequence.source
+    )
+
+
+def _true_subspaces(
+    options: LearnOptions, training: TrainingSet, bag_meshes: Sequence[BagMeshes]
+) -> TrueSubspaces | None:
+    """The population's true subspaces for ``truth_population``, or None.
+
+    Raises:
+        ConfigError: for a malformed PRESET[:SEED], a subject id that is not synthetic, or a
+            population whose subjects are not the bags' (another true sigma).
+    """
+    if not options.truth_population:
+        return None
+    preset, _, seed = options.truth_population.partition(':')
+    if preset not in PRESETS or (seed and not seed.isdigit()):
+        msg = f'--truth-population must be PRESET[:SEED] with PRESET in {PRESETS}'
+        raise ConfigError(msg)
+    population = FacePopulation(preset, int(seed or 0))
+    indices = [_synthetic_index(subject) for subject in training.subject_ids]
+    for item in bag_meshes:
+        subject = item.sequence.subject_id
+        expected = population.subject(_synthetic_index(subject)).sigma_true
+        given = item.sigma if item.sigma is not None else np.empty(0)
+        if len(given) and not (expected.shape == given.shape and np.allclose(expected, given)):
+            msg = (
+                f'--truth-population {options.truth_population}: its {subject} is not the one '
+                'of the bags (another true sigma): give the --population and --seed that synth '
+                'rendered them with'
+            )
+            raise ConfigError(msg)
+    alphas = [item.alpha for item in bag_meshes]
+    alpha = None if any(a is None for a in alphas) else np.concatenate(alphas)
+    return population_truth(population, training.num_nodes, indices, alpha, options.truth_samples)
+
+
+def _synthetic_index(subject: str) -> int:
+    """The population index of a synthetic subject id ('subject_07' -> 7).
+
+    Raises:
+        ConfigError: for another id.
+    """
+    number = subject.removeprefix('subject_')
+    if not number.isdigit():
+        msg = f'subject {subject!r} is not a synthetic subject id (subject_NN)'
+        raise ConfigError(msg)
+    return int(number)
+
+
+def _learn_and_evaluate(
+    method: str, options: LearnOptions, training: TrainingSet, truth: TrueSubspaces | None
+) -> tuple[LearningResult, Evaluation, dict[str, Any]]:
+    """Learn by ``method`` from the aligned ``training`` set and evaluate the model.
+
+    p is ``options.p``, or chosen for ``explained_variance`` when given.
+
+    Returns:
+        The learning result, its evaluation and the method's entry of the report.
+    """
+    share = options.explained_variance
+    p = options.p if share is None else None
+    learner = make_learner(method, p, options.q, share or DEFAULT_EXPLAINED_VARIANCE)
+    start = time.perf_counter()
+    result = learner(training)
+    learn_seconds = time.perf_counter() - start
+    print(f'{method}: learned in {learn_seconds:.3f} s, evaluating (leave one subject out)')
+    evaluation, loo, _ = evaluate(training, learner, result, truth)
+    if loo.skipped:
+        print(f'{method}: no leave-one-subject-out figures: {loo.skipped}')
+    entry = {
+        **evaluation.as_dict(),
+        'learn_seconds': learn_seconds,
+        'history': result.history.tolist(),
+        'loo_per_subject': {
+            'subjects': list(training.subject_ids),
+            'shape_similarity': loo.shape_similarity.tolist(),
+            'action_similarity': loo.action_similarity.tolist(),
+            'mean_variation_percent': loo.mean_variation_percent.tolist(),
+            'neutral_rms_mm': loo.neutral_rms_mm.tolist(),
+            'p': [int(dim) if np.isfinite(dim) else None for dim in loo.p],
+        },
+    }
+    return result, evaluation, entry
+
+
+def _save_model(options: LearnOptions, model: FaceModel) -> Path:
+    """Write the model, its metadata naming the bags it was learned from; return its path."""
+    metadata = {**model.metadata, 'bags': [str(bag) for bag in options.bags]}
+    saved = save_model(replace(model, metadata=metadata), options.out)
+    print(f'model ({options.method}, p={model.p}, q={model.q}) written to {saved}')
+    return saved
+
+
+def _plots(
+    directory: Path,
+    training: TrainingSet,
+    results: dict[str, LearningResult],
+    evaluations: dict[str, Evaluation],
+) -> list[Path]:
+    """Write the PNG figures of the report."""
+    paths = [
+        plot_sigma_scatter(
+            result.frame_sigma,
+            training.subject_index,
+            training.subject_ids,
+            directory / f'sigma_{method}.png',
+            title=f'sigma of every training frame, {method} model (cf. seed Figure 5)',
+        )
+        for method, result in results.items()
+    ]
+    paths.append(plot_comparison(evaluations, directory / 'comparison.png'))
+    paths.append(plot_convergence(results, directory / 'convergence.png'))
+    return paths
+
+
+def _write_json(path: Path, report: dict[str, Any]) -> None:
+    """Write the report; NaN (a figure that does not apply) becomes null."""
+    path.write_text(json.dumps(_json_safe(report), indent=2) + '\n')
+
+
+def _json_safe(value: Any) -> Any:
+    """Replace NaN floats by None in nested dicts and lists."""
+    if isinstance(value, dict):
+        return {key: _json_safe(item) for key, item in value.items()}
+    if isinstance(value, list | tuple):
+        return [_json_safe(item) for item in value]
+    if isinstance(value, float) and np.isnan(value):
+        return None
+    return value

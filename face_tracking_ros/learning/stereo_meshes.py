@@ -1,0 +1,230 @@
+"""Raw stereo bags to bags of 3-D meshes: the stereo tracking step of learning.
+
+A raw stereo bag (left and right images, Image or CompressedImage, found by their names or given
+as ``left_topic`` and ``right_topic``; no mesh topic, or any stereo bag with ``from_images``) is
+tracked by the stereo tracker (eq. 4, 5) through offline replay of the stereo_tracker node's own
+code, into ``meshes_dir``, before it is learned from. By default every mesh carries the frame-1
+depths refined over its whole track (the processor's ``retroactive_depths``); ``tracker_params``
+override it. Meshes an earlier run tracked from the same inputs are re-used.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+import shutil
+
+from face_tracking_ros.cli.replay import print_stats
+from face_tracking_ros.cli.track import (
+    CAMERA_INFO_TYPE,
+    check_one_transport,
+    compressed_parameters,
+    image_topics,
+    input_remaps,
+    is_stereo_bag,
+    score_stereo_against_truth,
+    stereo_topics,
+    tracked_nodes,
+)
+from face_tracking_ros.errors import BagError, ConfigError, FaceTrackingError
+from face_tracking_ros.io.bags import bag_topics
+from face_tracking_ros.io.provenance import Provenance
+from face_tracking_ros.io.series import has_truth
+from face_tracking_ros.learning.learn_options import LearnOptions
+from face_tracking_ros.learning.mesh_bags import mesh_topic
+from face_tracking_ros.processing.parameters import OverrideParameters
+from face_tracking_ros.replay import ReplayStats, replay_bag
+from face_tracking_ros.synthetic.clicks import clicks_from_bag, write_init_file
+
+STEREO_PARAMS = 'retroactive_depths=true'  # learn from meshes with each track's final depths
+TRACKER = 'stereo_tracker'
+
+
+def mesh_bag(bag: Path, options: LearnOptions, initialisation: str | None = None) -> Path:
+    """The bag of 3-D meshes to learn from: ``bag`` itself, or its stereo tracking.
+
+    A raw stereo bag (:func:`needs_tracking`) is tracked into ``options.meshes_dir``,
+    initialised from ``init_dir/<bag name>.{yaml,json}``, ``auto_init`` or, for synthetic bags,
+    ``simulate_clicks``; with ``tracker_params`` after :data:`STEREO_PARAMS`.
+    ``initialisation`` is that stereo_tracker parameter when already known
+    (:func:`stereo_initialisation`). Meshes an earlier run tracked from the same inputs are
+    re-used (:func:`_tracked_before`).
+
+    Raises:
+        ConfigError: for a raw stereo bag without a way to initialise it, or one that
+            :func:`needs_tracking` refuses.
+        BagError: if the tracker produced no mesh (the input problems named).
+        KeyboardInterrupt: if the tracking was interrupted (the meshes so far stay, and a later
+            run tracks the bag again).
+    """
+    topics = bag_topics(bag)
+    if not needs_tracking(bag, topics, options):
+        return bag  # meshes (or nothing: read_bag_meshes names the missing topic)
+    initialisation = initialisation or stereo_initialisation(bag, options)
+    out = _meshes_dir(options) / bag.name
+    compressed = compressed_parameters(topics, [options.left_topic])
+    params = OverrideParameters.parse(
+        [STEREO_PARAMS, *compressed, *options.tracker_params, initialisation]
+    )
+    remaps = input_remaps(stereo_topics(options))
+    if _tracked_before(out, Provenance.of(bag, [TRACKER], params.overrides, remaps)):
+        return out
+    _track(bag, topics, out, params, remaps)
+    if has_truth(bag):
+        _print_score(bag, out)
+    return out
+
+
+def needs_tracking(bag: Path, topics: dict[str, str], options: LearnOptions) -> bool:
+    """Whether ``bag`` (of ``topics``) is a raw stereo bag that :func:`mesh_bag` tracks.
+
+    Raises:
+        ConfigError: for a bag of images whose stereo pair is not found by name (and not given)
+            while there are no meshes to learn from or ``--from-images`` asks for tracking, or
+            for two raw stereo bags of one name.
+    """
+    has_meshes = options.topic or mesh_topic(topics, options) is not None
+    if not (is_stereo_bag(topics) or options.left_topic):
+        images, _ = image_topics(topics)
+        if options.from_images or (images and not has_meshes):
+            check_one_transport(bag, topics)
+            msg = (
+                f'{bag}: no stereo pair found by name among its image topics '
+                f'({", ".join(images) or "none"}): the left and right topics need "left" and '
+                '"right" in their names, else give --left-topic, --right-topic, '
+                '--left-info-topic and --right-info-topic'
+            )
+            raise ConfigError(msg)
+        return False
+    if has_meshes and not options.from_images:
+        return False
+    namesakes = [other for other in options.bags if other.name == bag.name and other != bag]
+    if namesakes:
+        msg = (
+            f'{bag} and {namesakes[0]} are both named {bag.name}: the init files and tracked '
+            'meshes of raw stereo bags are named after the bag, so rename one (--subject-pattern '
+            'can still give both the same subject)'
+        )
+        raise ConfigError(msg)
+    return True
+
+
+def stereo_initialisation(bag: Path, options: LearnOptions) -> str:
+    """The stereo_tracker parameter that initialises a raw stereo bag's track.
+
+    Its init file from --init-dir, else one of simulated clicks (--simulate-clicks, written to
+    --init-dir, default <meshes dir>_clicks/), else the landmark detector (--auto-init).
+
+    Raises:
+        ConfigError: if none of them is given.
+    """
+    if options.init_dir is not None:
+        for suffix in ('.yaml', '.yml', '.json'):
+            candidate = options.init_dir / f'{bag.name}{suffix}'
+            if candidate.is_file():
+                return f'init_file={candidate}'
+    if options.simulate_clicks is not None:
+        meshes = _meshes_dir(options)
+        directory = options.init_dir or meshes.with_name(f'{meshes.name}_clicks')
+        directory.mkdir(parents=True, exist_ok=True)
+        path = directory / f'{bag.name}.json'
+        nodes = tracked_nodes(TRACKER, list(options.tracker_params), None)
+        clicks = clicks_from_bag(bag, options.simulate_clicks).only(nodes)
+        return f'init_file={write_init_file(clicks, path)}'
+    if options.auto_init:
+        return 'auto_init=true'
+    if options.init_dir is None:
+        where = 'with --init-dir'
+    elif options.init_dir.is_dir():
+        where = f'in --init-dir {options.init_dir}, which has none'
+    else:
+        where = f'in --init-dir {options.init_dir}, which is not a directory'
+    msg = (
+        f'{bag} holds raw stereo images: give its initialisation {where} (a {bag.name}.yaml '
+        'node-name -> pixel file), --auto-init (the optional landmark detector) or, for '
+        'synthetic bags, --simulate-clicks'
+    )
+    raise ConfigError(msg)
+
+
+def _track(
+    bag: Path,
+    topics: dict[str, str],
+    out: Path,
+    params: OverrideParameters,
+    remaps: dict[str, str],
+) -> None:
+    """Track the raw stereo bag ``bag`` (of ``topics``) into ``out`` and print what it did.
+
+    Raises:
+        BagError: if the tracker produced no mesh (``out`` is removed).
+        KeyboardInterrupt: if the tracking was interrupted.
+    """
+    print(f'{bag}: raw stereo images: tracking them into {out}')
+    stats = replay_bag([TRACKER], bag, out, params, remaps, progress=False)
+    if stats.interrupted:  # the meshes so far stay, and a later run tracks the bag again
+        raise KeyboardInterrupt
+    print_stats(stats, out)
+    if not stats.outputs['face/mesh_raw']:
+        shutil.rmtree(out)  # nothing to learn from, and a later run must track it again
+        raise _no_mesh_error(bag, topics, stats)
+
+
+def _no_mesh_error(bag: Path, topics: dict[str, str], stats: ReplayStats) -> BagError:
+    """The error of a tracking that produced no mesh: the input problems, and a hint."""
+    problems = '; '.join(f'{count}x {error}' for error, count in stats.errors.items())
+    msg = f'{bag}: the stereo tracker produced no mesh ({problems or "no input problem"})'
+    if stats.errors and all('no calibration' in error for error in stats.errors):
+        infos = [topic for topic, kind in topics.items() if kind == CAMERA_INFO_TYPE]
+        msg += (
+            '; give the camera_info topics with --left-info-topic and --right-info-topic '
+            f'(the bag has {", ".join(infos) or "none"})'
+        )
+    return BagError(msg)
+
+
+def _print_score(bag: Path, out: Path) -> None:
+    """Print how the meshes tracked into ``out`` compare with the truth in ``bag``."""
+    try:
+        evaluation = score_stereo_against_truth(bag, out)
+    except FaceTrackingError as error:  # e.g. camera_info topics not named left / right
+        print(f'{out}: not scored against the truth of {bag}: {error}')
+        return
+    print(f'{out} against the truth of {bag}: {evaluation.report()}')
+
+
+def _tracked_before(out: Path, inputs: Provenance) -> bool:
+    """Whether ``out`` holds meshes an earlier run tracked from these inputs, to re-use.
+
+    An earlier tracking of the same bag from other inputs, one that did not finish, or one
+    whose bag was never closed (no metadata.yaml: the process was killed) is removed, to be
+    tracked again.
+
+    Raises:
+        ConfigError: if ``out`` exists but is not such a tracking (not ours to remove).
+    """
+    if not out.exists():
+        return False
+    files = list(out.iterdir()) if out.is_dir() else []
+    if files and all(file.suffix == '.mcap' for file in files):  # a writer killed before closing
+        print(f'{out}: an earlier run was stopped before it closed the bag: tracking again')
+        shutil.rmtree(out)
+        return False
+    earlier = Provenance.read(out)
+    if earlier is None or earlier.source != inputs.source:
+        msg = (
+            f'{out} exists and is not a tracking of {inputs.source} by learn: remove it or give '
+            'another --meshes-dir'
+        )
+        raise ConfigError(msg)
+    if earlier.complete and earlier.same_inputs(inputs):
+        print(f'{out}: re-using the meshes an earlier run tracked from the same inputs')
+        return True
+    why = 'did not finish' if earlier.same_inputs(inputs) else 'tracked it from other inputs'
+    print(f'{out}: an earlier run {why}: tracking again')
+    shutil.rmtree(out)
+    return False
+
+
+def _meshes_dir(options: LearnOptions) -> Path:
+    """Where tracked mesh bags of raw stereo bags go."""
+    return options.meshes_dir or options.report.parent / f'{options.report.stem}_meshes'
