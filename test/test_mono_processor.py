@@ -20,7 +20,7 @@ from face_tracking_ros.synthetic.render import FacePose, FaceRenderer
 from face_tracking_ros.synthetic.texture import procedural_texture
 from face_tracking_ros.synthetic.true_model import true_face_model
 from face_tracking_ros.tracking.initialisation import Initialisation
-from face_tracking_ros.tracking.mono import MonoTrackerConfig
+from face_tracking_ros.tracking.mono_config import MonoTrackerConfig
 from face_tracking_ros.tracking.pose_filter import PoseFilterConfig
 from face_tracking_ros.tracking.result import TrackStatus
 

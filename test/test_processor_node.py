@@ -17,7 +17,7 @@ from face_tracking_ros.nodes import processor_node
 from face_tracking_ros.processing.base import Output, Port, QosClass
 from face_tracking_ros.processing.parameters import OverrideParameters
 from face_tracking_ros.processing.track_counts import UNTRACKED_WARNING, TrackCounts
-from face_tracking_ros.tracking.mono import MonoTrackerConfig
+from face_tracking_ros.tracking.mono_config import MonoTrackerConfig
 from face_tracking_ros.tracking.result import TrackStatus
 
 FLOAT = 'std_msgs/msg/Float64'

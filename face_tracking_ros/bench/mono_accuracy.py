@@ -82,7 +82,8 @@ from face_tracking_ros.tracking.evaluation import (
     tracked_sequence,
 )
 from face_tracking_ros.tracking.initialisation import Initialisation
-from face_tracking_ros.tracking.mono import MonoTracker, MonoTrackerConfig
+from face_tracking_ros.tracking.mono import MonoTracker
+from face_tracking_ros.tracking.mono_config import MonoTrackerConfig
 from face_tracking_ros.tracking.pose_filter import FilteredTracker, PoseFilter, filter_results
 
 SEEDS = 3

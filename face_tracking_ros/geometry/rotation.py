@@ -58,6 +58,12 @@ def matrix_to_omega(rotation: np.ndarray) -> np.ndarray:
     return omega.ravel()
 
 
+def rotation_angle(omega_a: np.ndarray, omega_b: np.ndarray) -> float:
+    """Angle of the rotation between R(omega_a) and R(omega_b), rad."""
+    relative = rodrigues(omega_a)[0].T @ rodrigues(omega_b)[0]
+    return float(np.arccos(np.clip(0.5 * (np.trace(relative) - 1.0), -1.0, 1.0)))
+
+
 def omega_to_quaternion(omega: np.ndarray) -> np.ndarray:
     """Quaternion (x, y, z, w) of a rotation vector, as geometry_msgs/Quaternion orders it."""
     return Rotation.from_rotvec(np.asarray(omega, dtype=float)).as_quat()

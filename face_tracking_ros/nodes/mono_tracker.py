@@ -5,7 +5,7 @@ latched ``face/model``; publishes ``face/state``, ``face/mesh_raw``, ``face/mesh
 images ``face/pose``, ``face/action``, ``face/shape`` and, while subscribed, ``face/overlay``;
 serves ``reset_tracking``. Parameters:
 :class:`~face_tracking_ros.processing.mono.MonoNodeConfig` and, as ``tracker.*``,
-:class:`~face_tracking_ros.tracking.mono.MonoTrackerConfig`.
+:class:`~face_tracking_ros.tracking.mono_config.MonoTrackerConfig`.
 """
 
 from __future__ import annotations

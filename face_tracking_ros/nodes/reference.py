@@ -25,7 +25,7 @@ from face_tracking_ros.processing.stereo import StereoNodeConfig
 from face_tracking_ros.recognition.events import EventConfig
 from face_tracking_ros.recognition.identity import IdentityConfig
 from face_tracking_ros.tracking.detector import DetectorConfig
-from face_tracking_ros.tracking.mono import MonoTrackerConfig
+from face_tracking_ros.tracking.mono_config import MonoTrackerConfig
 from face_tracking_ros.tracking.pose_filter import PoseFilterConfig
 from face_tracking_ros.tracking.stereo import StereoTrackerConfig
 

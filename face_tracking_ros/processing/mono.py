@@ -48,7 +48,8 @@ from face_tracking_ros.tracking.initialisation import (
     check_inside,
     load_init_file,
 )
-from face_tracking_ros.tracking.mono import MonoTracker, MonoTrackerConfig
+from face_tracking_ros.tracking.mono import MonoTracker
+from face_tracking_ros.tracking.mono_config import MonoTrackerConfig
 from face_tracking_ros.tracking.pose_filter import PoseFilter, PoseFilterConfig
 from face_tracking_ros.tracking.result import TrackStatus
 from face_tracking_ros.visualization.overlay import draw_mesh
@@ -381,7 +382,7 @@ def make_mono_processor(params: ParameterSource, factory: MessageFactory) -> Mon
     """The mono_tracker processor configured from parameters (node or replay).
 
     Parameters: those of :class:`MonoNodeConfig`, ``tracker.*`` those of
-    :class:`~face_tracking_ros.tracking.mono.MonoTrackerConfig`, ``smoothing.*`` those of
+    :class:`~face_tracking_ros.tracking.mono_config.MonoTrackerConfig`, ``smoothing.*`` those of
     :class:`~face_tracking_ros.tracking.pose_filter.PoseFilterConfig` and ``detector.*`` those
     of :class:`~face_tracking_ros.tracking.detector.DetectorConfig`.
 

@@ -42,7 +42,7 @@ from face_tracking_ros.processing.stereo import (
 from face_tracking_ros.recognition.events import EventConfig, EventKind
 from face_tracking_ros.recognition.identity import IdentityConfig, IdentityGallery
 from face_tracking_ros.tracking.initialisation import Initialisation
-from face_tracking_ros.tracking.mono import MonoTrackerConfig
+from face_tracking_ros.tracking.mono_config import MonoTrackerConfig
 from face_tracking_ros.tracking.result import TrackStatus
 from face_tracking_ros.tracking.stereo import StereoTrackerConfig
 

@@ -19,7 +19,7 @@ from face_tracking_ros.synthetic.clicks import simulated_clicks
 from face_tracking_ros.synthetic.scenes import SceneConfig, SequenceRenderer
 from face_tracking_ros.synthetic.true_model import true_face_model
 from face_tracking_ros.tracking import bundle as bundle_module
-from face_tracking_ros.tracking import mono as mono_module
+from face_tracking_ros.tracking import mono_adjustment as adjustment_module
 from face_tracking_ros.tracking.bundle import (
     SURFACE_TERMS,
     BundleConfig,
@@ -34,7 +34,10 @@ from face_tracking_ros.tracking.bundle import (
 from face_tracking_ros.tracking.bundle_kernels import add_view_normal_equations
 from face_tracking_ros.tracking.evaluation import evaluate_sequence, track_images, tracked_sequence
 from face_tracking_ros.tracking.initialisation import Initialisation
-from face_tracking_ros.tracking.mono import MonoTracker, MonoTrackerConfig
+from face_tracking_ros.tracking.mono import MonoTracker
+from face_tracking_ros.tracking.mono_adjustment import ViewAdjuster
+from face_tracking_ros.tracking.mono_config import MonoTrackerConfig
+from face_tracking_ros.tracking.mono_rois import Params, RoiLayout
 
 SUBJECT = 9
 CAMERA = PinholeCamera.ideal(640, 480, 600.0)
@@ -256,13 +259,13 @@ def test_a_rejected_adjustment_still_keeps_its_view(turning_head, unadjusted, mo
     images, _, model, _ = turning_head
     camera = SceneConfig(kind='mono').cameras()['image']
     newest: list[np.ndarray] = []  # the rotation of each adjustment's newest view
-    stages = mono_module.adjustment_stages
+    stages = adjustment_module.adjustment_stages
 
     def recording(problem, views, visibility, start):
         newest.append(rodrigues(start.views[-1][0])[0])
         return (yield from stages(problem, views, visibility, start))
 
-    monkeypatch.setattr(mono_module, 'adjustment_stages', recording)
+    monkeypatch.setattr(adjustment_module, 'adjustment_stages', recording)
     bundle = BundleConfig(max_change=1e-12)
     results, _ = track_images(
         MonoTracker(model, camera, MonoTrackerConfig(bundle=bundle)), images, _clicks(turning_head)
@@ -320,7 +323,7 @@ def test_an_adjustment_that_fails_is_dropped_and_the_track_goes_on(
     def failing(problem, views, visibility, start):
         raise error
 
-    monkeypatch.setattr(mono_module, 'adjustment_stages', failing)
+    monkeypatch.setattr(adjustment_module, 'adjustment_stages', failing)
     results, _ = track_images(MonoTracker(model, camera), images, _clicks(turning_head))
     assert all(result.ok for result in results)
     _assert_unadjusted(results, unadjusted)
@@ -338,11 +341,13 @@ def test_an_adjustment_that_fails_as_it_is_applied_leaves_the_track_as_it_was(
     applying = MonoTracker._apply_adjustment
 
     def failing_at_the_keyframe(self, *args):
-        monkeypatch.setattr(self, '_keyframe', lambda *_: (_ for _ in ()).throw(InputError('x')))
+        monkeypatch.setattr(
+            self._sampler, 'keyframe', lambda *_: (_ for _ in ()).throw(InputError('x'))
+        )
         try:
             applying(self, *args)
         finally:
-            monkeypatch.delattr(self, '_keyframe')
+            monkeypatch.delattr(self._sampler, 'keyframe')
 
     monkeypatch.setattr(MonoTracker, '_apply_adjustment', failing_at_the_keyframe)
     calls = record_method(monkeypatch, MonoTracker, '_apply_adjustment', lambda *_: 'applied')
@@ -363,7 +368,7 @@ def test_a_late_adjustment_carries_the_head_motion_since_its_view():
     scale = 1.03
 
     def params(omega, t, alpha):
-        return mono_module._Params(np.array(omega), np.array(t), np.array(alpha), np.zeros(2))
+        return Params(np.array(omega), np.array(t), np.array(alpha), np.zeros(2))
 
     def in_new_world(old, alpha_change):
         rotation = rodrigues(old.omega)[0]
@@ -377,13 +382,13 @@ def test_a_late_adjustment_carries_the_head_motion_since_its_view():
     now_old = params([-0.15, 0.3, -0.1], [0.03, 0.01, 0.65], [0.3, -0.1])
     alpha_change = np.array([0.05, -0.02])
     view_new, now_new = (in_new_world(p, alpha_change) for p in (view_old, now_old))
-    carried = mono_module._carried(now_old, view_old, view_new, scale)
+    carried = adjustment_module.carried(now_old, view_old, view_new, scale)
     points = rng.normal(scale=0.05, size=(5, 3))
     expected = _project(points, now_new.omega, now_new.t)
     np.testing.assert_allclose(_project(points, carried.omega, carried.t), expected, atol=1e-9)
     np.testing.assert_allclose(carried.alpha, now_new.alpha, atol=1e-12)
     # Carried as a rigid change of the face frame alone, the frame now lands pixels away.
-    rigid = mono_module._carried(now_old, view_old, view_new, 1.0)
+    rigid = adjustment_module.carried(now_old, view_old, view_new, 1.0)
     assert np.abs(_project(points, rigid.omega, rigid.t) - expected).max() > 5.0
 
 
@@ -394,9 +399,9 @@ def test_an_adjustment_runs_at_most_stages_per_frame_stages_a_frame(turning_head
     camera = SceneConfig(kind='mono').cameras()['image']
     init = _clicks(turning_head)
     calls: list[str] = []
-    for name in ('_bundle_problem', '_roi'):
-        original = getattr(MonoTracker, name)
-        monkeypatch.setattr(MonoTracker, name, counted(calls, name, original))
+    for owner, name in ((ViewAdjuster, '_bundle_problem'), (RoiLayout, 'roi')):
+        original = getattr(owner, name)
+        monkeypatch.setattr(owner, name, counted(calls, name, original))
     monkeypatch.setattr(
         bundle_module,
         '_damped_step',

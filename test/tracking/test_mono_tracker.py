@@ -17,7 +17,9 @@ import pytest
 from face_tracking_ros.errors import ConfigError
 from face_tracking_ros.geometry.camera import PinholeCamera
 from face_tracking_ros.tracking.initialisation import Initialisation
-from face_tracking_ros.tracking.mono import MonoTracker, MonoTrackerConfig
+from face_tracking_ros.tracking.mono import MonoTracker
+from face_tracking_ros.tracking.mono_config import MonoTrackerConfig
+from face_tracking_ros.tracking.mono_solve import MonoSolver
 from face_tracking_ros.tracking.projection import project_with_jacobian
 from face_tracking_ros.tracking.result import TrackStatus
 
@@ -134,7 +136,7 @@ def test_a_steady_drift_is_predicted_and_costs_fewer_iterations(scene) -> None:
 def test_the_coarsest_level_runs_only_for_a_face_too_far_for_the_next(scene, monkeypatch) -> None:
     """A jump the next level cannot take restarts on the coarsest: the full solve exactly."""
     model, image, init = scene
-    levels = record_method(monkeypatch, MonoTracker, '_solve_level', lambda level, *_: level.index)
+    levels = record_method(monkeypatch, MonoSolver, '_solve_level', lambda level, *_: level.index)
     coarsest = MonoTrackerConfig().pyramid_levels - 1
     for shift, skipped in (((0.5, -0.4), True), ((11.0, 0.0), False)):
         tracker = _started(model, image, init)
@@ -161,7 +163,7 @@ def test_a_small_predicted_motion_starts_the_solve_on_level_0(
 ) -> None:
     """Level 1 runs only when the prediction moves a node fine_start_px or more."""
     model, image, init = scene
-    levels = record_method(monkeypatch, MonoTracker, '_solve_level', lambda level, *_: level.index)
+    levels = record_method(monkeypatch, MonoSolver, '_solve_level', lambda level, *_: level.index)
     tracker = _started(model, image, init, fine_start_px=fine_start_px)
     for frame in range(1, 7):
         shift = np.array(velocity) * frame
@@ -191,7 +193,7 @@ def test_a_failed_level_0_solve_is_made_again_from_the_last_estimate_then_the_co
     and 0 and, if that fails too, from the prediction on every level.
     """
     model, image, init = scene
-    levels = record_method(monkeypatch, MonoTracker, '_solve_level', lambda level, *_: level.index)
+    levels = record_method(monkeypatch, MonoSolver, '_solve_level', lambda level, *_: level.index)
     tracker = _started(model, image, init, coarsest_level_px=100.0)
     velocity = np.array([2.5, -1.5])
     for frame in (1, 2, 3, 4, 5, back_to):  # the prediction is frame 6: 5.8 or 8.7 px off
@@ -431,7 +433,7 @@ def test_coarse_templates_are_sampled_before_their_pyramid_is_rebuilt(scene, mon
         raise np.linalg.LinAlgError('singular')
 
     with monkeypatch.context() as patch:
-        patch.setattr(MonoTracker, '_solve_level', failing)
+        patch.setattr(MonoSolver, '_solve_level', failing)
         for other in (image, _warp(image, np.array([[1, 0, -3.0], [0, 1, 1.0]]))):
             assert tracker.step(other).status == TrackStatus.LOST
     levels = tracker._track.previous.levels

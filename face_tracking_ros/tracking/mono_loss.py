@@ -1,0 +1,161 @@
+"""The checks that declare the monocular track lost (seed §3.5, §4.4).
+
+Loss of track gives status LOST with the last valid estimate. It is declared when most textured
+nodes' ROIs do not match their templates, when they match the previous frame but no longer the
+first one (the median residual against the keyframe's templates alone, a drifted track), when
+too few nodes are visible, the rotation jumps, or the solve is ill-conditioned or non-finite. A
+node matches when its residual (the brightness change projected out) is small against its ROI's
+texture in the image: what is left of the ROI after removing the brightness change that needs
+no template (its mean and, for GAIN_FIELD, its linear ramp, which alone fit a smooth backdrop or
+hand). An image ROI with no texture above ``residual_scale_floor`` cannot confirm a textured
+template.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import NamedTuple
+
+import numpy as np
+
+from face_tracking_ros.geometry.camera import PinholeCamera
+from face_tracking_ros.geometry.rotation import rotation_angle
+from face_tracking_ros.imaging import PhotometricModel, PhotometricProjection, inside_image
+from face_tracking_ros.tracking.mono_config import MonoTrackerConfig
+from face_tracking_ros.tracking.mono_rois import FaceProjection, Params
+from face_tracking_ros.tracking.mono_templates import Keyframe, nearest_keyframe
+
+_MIN_DEPTH = 0.05  # m; a face nearer the camera than this has diverged
+
+
+class Reference(NamedTuple):
+    """What an estimate is checked against.
+
+    Attributes:
+        last: the track's last valid estimate.
+        frames: the frames since it (1 for the frame after it).
+        keyframes: the track's keyframes (the drift check's templates).
+    """
+
+    last: Params
+    frames: int
+    keyframes: Sequence[Keyframe]
+
+
+class LossChecks:
+    """Whether an estimate of eq. 6 is a valid track, and why not.
+
+    Args:
+        config: the tracker's tunables (the checks': ``max_rotation_step``, ``max_condition``,
+            ``min_visible_fraction``, ``residual_scale_floor``, ``lost_node_fraction``,
+            ``drift_residual_ratio``, and ``photometric``).
+        camera: the camera (its image size).
+        face: the model posed and projected.
+        grid: (M, 2) the ROI's sample offsets in grid steps.
+    """
+
+    def __init__(
+        self,
+        config: MonoTrackerConfig,
+        camera: PinholeCamera,
+        face: FaceProjection,
+        grid: np.ndarray,
+    ) -> None:
+        """Keep the collaborators; make the projection that leaves a ROI's texture."""
+        self._config = config
+        self._camera = camera
+        self._face = face
+        # The brightness change of a ROI that needs no template (a flat template's projection):
+        # its mean, and for GAIN_FIELD its linear ramp; what is left is the ROI's texture.
+        self._untextured = PhotometricProjection.of(
+            np.zeros((1, len(grid))), max(config.photometric, PhotometricModel.BIAS), grid
+        )
+
+    def reason(
+        self,
+        params: Params,
+        node_rms: np.ndarray,
+        samples: np.ndarray,
+        template: np.ndarray,
+        visibility: np.ndarray,
+        condition: float,
+        residual_ratio: float,
+        reference: Reference,
+    ) -> str:
+        """Why this estimate is not a valid track ('' if it is).
+
+        Args:
+            params: the solution.
+            node_rms: (N,) RMS of each node's (photometrically projected) residual.
+            samples: (N, M) level-0 samples of the image at the solution.
+            template: (N, M) level-0 template they were compared with.
+            visibility: (N,) node visibility at the solution.
+            condition: the solve's condition number.
+            residual_ratio: a node fails when its residual exceeds this multiple of its texture.
+            reference: the last valid estimate and the keyframes.
+        """
+        config = self._config
+        values = np.concatenate([params.omega, params.t, params.alpha, params.sigma])
+        if not np.all(np.isfinite(values)) or params.t[2] < _MIN_DEPTH:
+            return 'the solver diverged'
+        # The motion since the last valid estimate, whatever the solve started from (a search
+        # or a detection when re-acquiring), over the frames since.
+        frames = reference.frames
+        turn = rotation_angle(reference.last.omega, params.omega)
+        if turn > config.max_rotation_step * frames:
+            return f'implausible motion ({np.degrees(turn):.0f} degrees in {frames} frame(s))'
+        if condition > config.max_condition:
+            return f'ill-conditioned solve (condition {condition:.1e})'
+        pixels = self._face.nodes(params)[1]
+        visible = (visibility > 0) & inside_image(
+            pixels, (self._camera.height, self._camera.width)
+        )
+        if visible.mean() < config.min_visible_fraction:
+            return f'only {visible.sum()} of {len(visible)} nodes visible in the image'
+        # Each node's residual against the texture of its ROI in the image: near 1 when the
+        # template explains none of it. Nodes flat in both the image and the template abstain.
+        floor = config.residual_scale_floor
+        image_texture = self._texture(samples)
+        votes = visible & (np.maximum(image_texture, self._texture(template)) > floor)
+        matched = (image_texture > floor) & (node_rms < residual_ratio * image_texture)
+        failing = votes & ~matched
+        if not votes.any():
+            return (
+                f'no visible node shows texture above {floor:g} grey levels, in the image or its '
+                'template: a blank, dark or saturated image'
+            )
+        if failing.sum() > config.lost_node_fraction * votes.sum():
+            return f'{failing.sum()} of {votes.sum()} textured nodes do not match their templates'
+        keyframe = nearest_keyframe(reference.keyframes, params.omega)
+        drift = _drift_ratio(keyframe, samples, image_texture, visible & (image_texture > floor))
+        if drift > config.drift_residual_ratio:
+            return f'drifted: residual against the keyframe {drift:.2f} x the ROI texture'
+        return ''
+
+    def _texture(self, samples: np.ndarray) -> np.ndarray:
+        """(N,) RMS of (N, M) ROI samples beyond the brightness change that needs no template."""
+        return np.sqrt(np.mean(self._untextured.apply(samples) ** 2, axis=1))
+
+
+def _drift_ratio(
+    keyframe: Keyframe, samples: np.ndarray, texture: np.ndarray, nodes: np.ndarray
+) -> float:
+    """Median over ``nodes`` of the residual against ``keyframe`` alone / texture.
+
+    The drift check of :meth:`LossChecks.reason`: eq. 6's data term with epsilon = 1, i.e.
+    against the keyframe's templates without the previous frame's, photometrically projected
+    like the residuals of the solve.
+
+    Args:
+        keyframe: the keyframe nearest the solution.
+        samples: (N, M) level-0 samples of the image at the solution.
+        texture: (N,) their ROIs' texture (:meth:`LossChecks._texture`).
+        nodes: (N,) the visible nodes whose ROI shows texture.
+    """
+    key = keyframe.templates
+    nodes = nodes & (key.visibility > 0)
+    if not nodes.any():
+        return 0.0
+    residuals = keyframe.projection.apply(samples - key.levels[0])
+    rms = np.sqrt(np.mean(residuals[nodes] ** 2, axis=1))
+    return float(np.median(rms / texture[nodes]))

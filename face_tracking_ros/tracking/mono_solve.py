@@ -1,0 +1,439 @@
+"""Eq. 6 solved for one image: Levenberg-Marquardt, coarse to fine (seed §3.5, §4.1).
+
+The solve minimises, over (omega, t, alpha) and while it is estimated sigma, eq. 6 plus the
+§4.1/§4.4 Gaussian priors ``lambda alpha' Sigma_alpha^-1 alpha`` (and ``lambda sigma'
+Sigma_sigma^-1 sigma``, :class:`Priors`):
+
+- Both terms of eq. 6 share ``I_n(x_i(n))``, so eq. 6 equals ``sum (I_n(x_i(n)) - T)^2`` plus a
+  constant, with the blended template ``T = (1 - epsilon) I_(n-1)(x(n-1)) + epsilon I_1(x(1))``:
+  one residual per sample, and the exact Gauss-Newton step of eq. 6.
+- Residuals ignore a brightness gain and bias varying linearly across each ROI
+  (:mod:`~face_tracking_ros.imaging.photometric`): the shading of a turning head under a fixed
+  light changes far more than eq. 6's brightness constancy allows.
+- Levenberg-Marquardt over (omega, t, alpha) (and sigma during the first ``sigma_frames`` frames),
+  coarse to fine on a Gaussian pyramid (made where the ROIs read it,
+  :meth:`~face_tracking_ros.imaging.pyramid.ImagePyramid.level`), with Huber IRLS weights,
+  per-node visibility (nodes whose normal turns away from the camera lose their weight) and
+  analytic Jacobians: the image gradient sampled on the patches times d pixel / d X_c (eq. 2)
+  times d X_c / d(omega, t, alpha) (eq. 1, 3), evaluated where a pyramid level starts and
+  refreshed after half a pixel of motion. A level ends when the nodes stop moving or a step
+  raises the cost, and a coarser level runs only when the first step on a finer one shows the
+  face is too far for it (:func:`.coarse_to_fine`). The loops over the ROI samples are compiled
+  (:mod:`.mono_kernels`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from functools import cache
+from typing import NamedTuple
+
+import numpy as np
+from scipy.linalg import inv
+
+from face_tracking_ros.imaging import (
+    ImagePyramid,
+    PhotometricInvariance,
+    PhotometricProjection,
+    inside_xy,
+    sample_with_gradient_xy,
+)
+from face_tracking_ros.model.face_model import FaceModel
+from face_tracking_ros.tracking.coarse_to_fine import coarse_to_fine
+from face_tracking_ros.tracking.mono_config import MonoTrackerConfig
+from face_tracking_ros.tracking.mono_kernels import (
+    damped_step,
+    huber_irls,
+    normal_equations,
+    roi_jacobian,
+    weighted_gram,
+)
+from face_tracking_ros.tracking.mono_rois import FaceProjection, Params, Roi, Sampled
+from face_tracking_ros.tracking.projection import POSE_DIM
+
+_MAD_TO_STD = 1.4826  # robust standard deviation from the median absolute deviation
+
+
+class Priors(NamedTuple):
+    """The Gaussian priors of §4.1 on alpha and sigma: their precisions ``lambda Sigma^-1``.
+
+    Their costs, gradients and Hessians are in the solve's units (squared residuals over the
+    robust scale s squared) and padded to the pose, the gradients and Hessians halved like the
+    data term's.
+
+    Attributes:
+        alpha: (q, q) ``lambda Sigma_alpha^-1``.
+        sigma: (p, p) ``lambda Sigma_sigma^-1``.
+    """
+
+    alpha: np.ndarray
+    sigma: np.ndarray
+
+    @classmethod
+    def of(cls, model: FaceModel, weight: float) -> Priors:
+        """The model's priors weighed by ``weight`` (lambda, ``prior_weight``)."""
+        return cls(
+            weight * inv(model.alpha_prior_covariance), weight * inv(model.sigma_prior_covariance)
+        )
+
+    def hessian(self, free_sigma: bool) -> np.ndarray:
+        """Hessian (halved) of the alpha (and sigma) priors, padded to the pose."""
+        q = len(self.alpha)
+        size = POSE_DIM + q + (len(self.sigma) if free_sigma else 0)
+        hessian = np.zeros((size, size))
+        hessian[POSE_DIM : POSE_DIM + q, POSE_DIM : POSE_DIM + q] = self.alpha
+        if free_sigma:
+            hessian[POSE_DIM + q :, POSE_DIM + q :] = self.sigma
+        return hessian
+
+    def gradient(self, params: Params, free_sigma: bool) -> np.ndarray:
+        """Gradient (halved) of the alpha (and sigma) priors, padded to the pose."""
+        blocks = [np.zeros(POSE_DIM), self.alpha @ params.alpha]
+        if free_sigma:
+            blocks.append(self.sigma @ params.sigma)
+        return np.concatenate(blocks)
+
+    def cost(self, params: Params, free_sigma: bool) -> float:
+        """``alpha' L_a alpha`` (+ ``sigma' L_s sigma`` while sigma is free)."""
+        cost = float(params.alpha @ self.alpha @ params.alpha)
+        if free_sigma:
+            cost += float(params.sigma @ self.sigma @ params.sigma)
+        return cost
+
+
+class Level(NamedTuple):
+    """One pyramid level of a frame's solve: what stays fixed while it runs.
+
+    Attributes:
+        index: the level l.
+        pyramid: I_n's pyramid, read through :meth:`ImagePyramid.level`.
+        camera: (3, 4) projection matrix P of level pixels (its first two rows times 2^-l).
+        roi: the level's ROI samples.
+        template: (N, M) blended template T of the level.
+        projection: the photometric invariance of the residuals for ``template``.
+        visibility: (N, M) the node visibility weight of every sample.
+    """
+
+    index: int
+    pyramid: ImagePyramid
+    camera: np.ndarray
+    roi: Roi
+    template: np.ndarray
+    projection: PhotometricProjection
+    visibility: np.ndarray
+
+
+class Linearisation(NamedTuple):
+    """Jacobians at a linearisation point on one pyramid level.
+
+    Attributes:
+        params: the linearisation point.
+        sampled: the level's samples at ``params`` (taken with the gradient).
+        jacobian_t: (P, N M) transposed derivative of the projected residuals, grey levels per
+            parameter (rows contiguous, for the weighted products of the normal equations).
+        hessian: (P, P) ``J' V J`` with the samples' visibility weights V alone; the normal
+            equations of an iteration correct it for the samples whose weight differs.
+        node_jacobian: (2 N, P) derivative of the node pixels, level px per parameter.
+    """
+
+    params: Params
+    sampled: Sampled
+    jacobian_t: np.ndarray
+    hessian: np.ndarray
+    node_jacobian: np.ndarray
+
+
+class System(NamedTuple):
+    """Eq. 6 normal equations at one parameter vector on one pyramid level."""
+
+    cost: float
+    hessian: np.ndarray
+    gradient: np.ndarray
+    scale: float
+    sampled: Sampled
+    residuals: np.ndarray  # (N, M), photometrically projected
+
+
+class Solution(NamedTuple):
+    """Outcome of the coarse-to-fine solve.
+
+    Attributes:
+        params: the solution: level 0's last point, or the one before it if the last step (which
+            no iteration evaluated) raised the cost.
+        sampled: level 0's samples at ``params``.
+        residuals: (N, M) their photometrically projected residuals against level 0's template.
+        iterations: the iterations of every level solved.
+        costs: the cost of each iteration, in the order they were run, then that of ``params``.
+        condition: condition number of level 0's Jacobi-scaled normal matrix.
+        coarsest_solved: whether the coarsest pyramid level was solved.
+    """
+
+    params: Params
+    sampled: Sampled
+    residuals: np.ndarray
+    iterations: int
+    costs: tuple[float, ...]
+    condition: float
+    coarsest_solved: bool
+
+
+class MonoSolver:
+    """Levenberg-Marquardt on eq. 6 plus priors, coarse to fine down to level 0.
+
+    Args:
+        model: the face model (eq. 3).
+        config: the tracker's tunables (the solve's: ``damping``, ``max_iterations``,
+            ``convergence_px``, ``coarse_convergence_px``, ``jacobian_refresh_px``, ``huber_k``,
+            ``residual_scale_floor``).
+        face: the model posed and projected, which samples the ROIs.
+        invariance: the photometric invariance of the residuals.
+        priors: the priors on alpha and sigma.
+    """
+
+    def __init__(
+        self,
+        model: FaceModel,
+        config: MonoTrackerConfig,
+        face: FaceProjection,
+        invariance: PhotometricInvariance,
+        priors: Priors,
+    ) -> None:
+        """Keep the collaborators; precompute the node bases and the priors' Hessians."""
+        self._config = config
+        self._q = model.q
+        self._face = face
+        self._invariance = invariance
+        self._priors = priors
+        self._action_basis = np.ascontiguousarray(model.action_basis_nodes())  # (N, 3, q)
+        self._identity_action_basis = np.concatenate(
+            (self._action_basis, model.shape_basis_nodes()), axis=-1
+        )
+        self._prior_hessians = {free: priors.hessian(free) for free in (False, True)}
+
+    def solve(
+        self,
+        pyramid: ImagePyramid,
+        start: Params,
+        templates: Sequence[np.ndarray],
+        node_weights: np.ndarray,
+        rois: tuple[Roi, ...],
+        free_sigma: bool,
+        first_level: int,
+        restart_px: float,
+    ) -> Solution:
+        """Solve eq. 6 from ``start``, coarse to fine.
+
+        The solve starts on ``first_level``; when its first step exceeds ``restart_px`` (the
+        configured ``coarsest_level_px``, or infinite: never) it starts over from ``start`` on a
+        coarser level (:func:`.coarse_to_fine`). The Jacobian is
+        evaluated where a level starts and re-evaluated only once the samples have moved
+        ``jacobian_refresh_px`` since; the iterations in between only sample the image (one
+        ``cv2.remap`` of the ROI points each). A level ends when the nodes stop moving
+        (``convergence_px``, ``coarse_convergence_px``) or at the first step that raises the
+        cost: with the damping this small, a retry with more of it moves to about the same point.
+        Level 0's last step, which no iteration evaluated, is undone if it raised the cost.
+
+        Args:
+            pyramid: I_n's pyramid.
+            start: where the solve starts.
+            templates: (N, M) blended template T of every level.
+            node_weights: (N,) weight of each node's ROI.
+            rois: every level's ROI samples.
+            free_sigma: whether sigma is estimated too.
+            first_level: the level solved first.
+            restart_px: start over on a coarser level when the first step moves a node more
+                than this, px of level 0.
+        """
+        costs: list[float] = []
+
+        @cache  # made for the levels solved only
+        def projection(index: int) -> PhotometricProjection:
+            return self._invariance.projection(templates[index])
+
+        accepted: list[tuple[Params, System]] = []  # each level's last accepted point
+        coarsest = pyramid.num_levels - 1
+        coarsest_solved = False  # the coarsest level is always solved once it is started
+
+        def solve(index: int, params: Params, first_step_limit: float) -> Params | None:
+            nonlocal coarsest_solved
+            level = Level(
+                index=index,
+                pyramid=pyramid,
+                camera=self._face.level_cameras[index],
+                roi=rois[index],
+                template=templates[index],
+                projection=projection(index),
+                visibility=np.repeat(node_weights[:, None], templates[index].shape[1], axis=1),
+            )
+            solution, last = self._solve_level(level, params, free_sigma, costs, first_step_limit)
+            accepted.append(last)
+            coarsest_solved |= index == coarsest
+            return solution
+
+        params = coarse_to_fine(pyramid.num_levels, first_level, restart_px, start, solve)
+        fallback, system = accepted[-1]  # level 0's
+        condition = _condition(system.hessian)
+        first = self._face.sample(pyramid, params, 0, rois[0])
+        residuals = projection(0).apply(first.samples - templates[0])
+        weights = node_weights[:, None] * first.inside
+        cost = self._data_cost(residuals, weights, system.scale) + self._priors.cost(
+            params, free_sigma
+        )
+        if cost > system.cost:  # the last, unchecked step made things worse
+            params, first, residuals = fallback, system.sampled, system.residuals
+        return Solution(
+            params=params,
+            sampled=first,
+            residuals=residuals,
+            iterations=len(costs),
+            costs=(*costs, min(cost, system.cost)),
+            condition=condition,
+            coarsest_solved=coarsest_solved,
+        )
+
+    def _solve_level(
+        self,
+        level: Level,
+        params: Params,
+        free_sigma: bool,
+        costs: list[float],
+        first_step_limit: float,
+    ) -> tuple[Params | None, tuple[Params, System]]:
+        """Levenberg-Marquardt iterations on one pyramid level from ``params``.
+
+        Appends each evaluated cost to ``costs``.
+
+        Returns:
+            The level's solution (None, without a step, when the first step would move a node
+            more than ``first_step_limit`` level px) and the last accepted point with its
+            system (the solution or the point before it).
+        """
+        config = self._config
+        linear = self._linearise(level, params, free_sigma)
+        damping = config.damping
+        converged = config.coarse_convergence_px if level.index else config.convergence_px
+        accepted: tuple[Params, System] | None = None
+        scale = None
+        moved = 0.0
+        for _ in range(config.max_iterations):
+            system = self._evaluate(level, params, linear, scale)
+            scale = system.scale
+            costs.append(system.cost)
+            if accepted is not None and system.cost > accepted[1].cost:
+                return accepted[0], accepted  # no lower cost within reach: the level ends here
+            accepted = (params, system)
+            damping = max(0.1 * damping, 1e-9)
+            step = damped_step(system.hessian, system.gradient, damping)
+            motion = np.abs(linear.node_jacobian @ step).max(initial=0.0)
+            if motion > first_step_limit:
+                return None, accepted
+            first_step_limit = np.inf
+            params = params.updated(step, self._q)
+            if motion < converged:
+                break
+            moved += motion
+            if moved > config.jacobian_refresh_px:
+                linear = self._linearise(level, params, free_sigma)
+                moved = 0.0
+        assert accepted is not None  # max_iterations >= 1
+        return params, accepted
+
+    def _linearise(self, level: Level, params: Params, free_sigma: bool) -> Linearisation:
+        """The Jacobian of eq. 6's photometrically projected residuals at ``params``.
+
+        Image gradient (sampled on the ROIs only) x d pixel / d X_c (eq. 2) x d X_c / d(omega,
+        t, alpha[, sigma]) (eq. 1, 3) (:func:`~.mono_kernels.roi_jacobian`), then ``1 - P`` of the
+        photometric model.
+        """
+        basis = self._identity_action_basis if free_sigma else self._action_basis
+        rotation, shape = self._face.pose(params)
+        rotated, (x, y) = self._face.roi_points(params, level.camera, level.roi)
+        image = level.pyramid.level(level.index, x, y)
+        samples, gradient = sample_with_gradient_xy(image, x, y)
+        jacobian, node_jacobian = roi_jacobian(
+            rotated,
+            rotation @ shape.T,
+            params.t,
+            level.camera,
+            gradient,
+            rotation,
+            self._face.d_rotation(params),
+            basis,
+            level.roi.basis(free_sigma),
+        )
+        jacobian_t = level.projection.apply(jacobian).reshape(len(jacobian), -1)
+        return Linearisation(
+            params=params,
+            sampled=Sampled(samples, inside_xy(x, y, image.shape, margin=1.0)),
+            jacobian_t=jacobian_t,
+            hessian=weighted_gram(jacobian_t, level.visibility.ravel()),
+            node_jacobian=node_jacobian,
+        )
+
+    def _evaluate(
+        self,
+        level: Level,
+        params: Params,
+        linear: Linearisation,
+        scale: float | None,
+    ) -> System:
+        """Residuals, Huber-weighted normal equations and cost of eq. 6 on one level.
+
+        ``J' W J`` is the linearisation's ``J' V J`` plus the columns of the samples whose IRLS
+        weight W (Huber times visibility times inside the image) differs from their visibility V.
+
+        Args:
+            level: the pyramid level, with its template, photometric projection and visibility.
+            params: where to evaluate.
+            linear: the Jacobian (from a nearby linearisation point).
+            scale: the robust residual scale s, or None to estimate it from these residuals.
+        """
+        sampled = (
+            linear.sampled
+            if params is linear.params
+            else self._face.sample(level.pyramid, params, level.index, level.roi)
+        )
+        residuals = level.projection.apply(sampled.samples - level.template)
+        weights = level.visibility * sampled.inside
+        if scale is None:
+            active = np.abs(residuals[weights > 0])
+            spread = _MAD_TO_STD * _median(active) if active.size else 0.0
+            scale = max(self._config.residual_scale_floor, spread)
+        data_cost, hessian, gradient = normal_equations(
+            linear.jacobian_t,
+            residuals,
+            weights,
+            level.visibility,
+            scale,
+            self._config.huber_k,
+            linear.hessian,
+        )
+        free_sigma = linear.jacobian_t.shape[0] > POSE_DIM + self._q
+        return System(
+            cost=data_cost + self._priors.cost(params, free_sigma),
+            hessian=hessian + self._prior_hessians[free_sigma],
+            gradient=gradient + self._priors.gradient(params, free_sigma),
+            scale=scale,
+            sampled=sampled,
+            residuals=residuals,
+        )
+
+    def _data_cost(self, residuals: np.ndarray, weights: np.ndarray, scale: float) -> float:
+        """Huber cost ``sum w rho(r / s)`` of (N, M) residuals with (N, M) weights."""
+        return huber_irls(residuals, weights, scale, self._config.huber_k)[1]
+
+
+def _median(values: np.ndarray) -> float:
+    """``np.median`` of a non-empty 1-D array, by one partial sort."""
+    half = values.size // 2
+    if values.size % 2:
+        return float(np.partition(values, half)[half])
+    low, high = np.partition(values, (half - 1, half))[half - 1 : half + 1]
+    return float((low + high) / 2)
+
+
+def _condition(hessian: np.ndarray) -> float:
+    """Condition number of the Jacobi-scaled normal matrix (inf when singular)."""
+    scaling = 1.0 / np.sqrt(np.maximum(np.diag(hessian), 1e-12))
+    eigenvalues = np.linalg.eigvalsh(hessian * scaling[:, None] * scaling[None, :])
+    return float(eigenvalues[-1] / eigenvalues[0]) if eigenvalues[0] > 0 else float('inf')
