@@ -17,6 +17,7 @@ re-acquires it. What it composes has a module of its own:
 - :mod:`.mono_templates`: the templates of frames n-1 and 1 sampled on them, and the keyframes;
 - :mod:`.mono_solve`: eq. 6's Levenberg-Marquardt solve of one image, coarse to fine;
 - :mod:`.mono_loss`: the checks that declare the track lost;
+- :mod:`.mono_search`: frame 1's face found in an image, for re-acquiring a lost track;
 - :mod:`.mono_adjustment`: the bundle adjustment of the first views, which refines frame 1's
   estimate and the skin under the ROIs.
 
@@ -35,11 +36,12 @@ Design, in the seed's terms:
   it spends time on them, and an adjustment takes effect from the frame after its last stage.
 - Loss of track gives status LOST with the last valid estimate (:mod:`.mono_loss`).
 - Recovery needs no detector. While LOST, each image is solved as the frame after the last
-  valid one (eq. 6 from its estimate and templates); if that fails, as when tracking fails,
-  it is solved against the keyframe templates alone from the initial pose translated onto the
-  best normalised cross-correlation of frame 1's inner face over the image, and from a fresh
-  detection when a detector was given. The keyframe-only solves, and every solve while LOST,
-  pass only at the stricter ``reacquire_residual_ratio``: they can settle a few pixels off.
+  valid one (eq. 6 from its estimate and templates); if that fails, as when tracking fails, it
+  is solved against the keyframe templates alone from the initial pose translated onto the best
+  normalised cross-correlation of frame 1's inner face over the image (:mod:`.mono_search`),
+  and from a fresh detection when a detector was given. The keyframe-only solves, and every
+  solve while LOST, pass only at the stricter ``reacquire_residual_ratio``: they can settle a
+  few pixels off.
 """
 
 from __future__ import annotations
@@ -47,9 +49,7 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 import math
-from typing import NamedTuple
 
-import cv2
 import numpy as np
 from numpy.linalg import LinAlgError
 
@@ -69,6 +69,7 @@ from face_tracking_ros.tracking.mono_adjustment import Adjusted, FirstViews, Vie
 from face_tracking_ros.tracking.mono_config import MonoTrackerConfig
 from face_tracking_ros.tracking.mono_loss import LossChecks, Reference
 from face_tracking_ros.tracking.mono_rois import FaceProjection, Params, Roi, RoiLayout
+from face_tracking_ros.tracking.mono_search import FaceView
 from face_tracking_ros.tracking.mono_solve import MonoSolver, Priors, Solution
 from face_tracking_ros.tracking.mono_templates import (
     Keyframe,
@@ -83,23 +84,8 @@ from face_tracking_ros.tracking.result import TrackResult, TrackStatus
 Detector = Callable[[np.ndarray], Initialisation | None]
 """A landmark detector: (H, W) uint8 grey image -> 2-D node positions, or None if no face."""
 
-# Pyramid level of the search for a lost face (or the coarsest, if coarser): on the coarsest level
-# of a 320x240 image the inner face is 11x12 px and correlates as well with clutter.
-_SEARCH_LEVEL = 1
 # The level a solve starts on unless the motion prediction is small (fine_start_px).
 _START_LEVEL = 1
-
-
-class _FaceView(NamedTuple):
-    """Frame 1's inner face (the nodes off the face edge) on the search's pyramid level.
-
-    Attributes:
-        image: (h, w) crop of that level around the inner nodes.
-        corner: (2,) pixel (x, y) of the crop's top-left sample on that level.
-    """
-
-    image: np.ndarray
-    corner: np.ndarray
 
 
 @dataclass
@@ -119,7 +105,7 @@ class _Track:
     first_views: FirstViews
     previous: Templates
     start: Params
-    view: _FaceView
+    view: FaceView
     current: Params
     last_good: TrackResult
     frames: int = 1
@@ -303,7 +289,7 @@ class MonoTracker:
             ),
             previous=templates,
             start=params,
-            view=self._face_view(pyramid, result.nodes_px),
+            view=FaceView.of(pyramid, result.nodes_px, ~self._edge_nodes),
             current=params,
             last_good=result,
         )
@@ -314,16 +300,6 @@ class MonoTracker:
         if self._detector is None:
             return None
         return self._detector(np.clip(pyramid.levels[0], 0, 255).astype(np.uint8))
-
-    def _face_view(self, pyramid: ImagePyramid, nodes_px: np.ndarray) -> _FaceView:
-        """The crop of the search level spanned by the inner nodes, given (N, 2) level-0 pixels."""
-        level = min(_SEARCH_LEVEL, pyramid.num_levels - 1)
-        image = pyramid.levels[level]
-        size = np.array(image.shape[::-1])
-        inner = ImagePyramid.to_level(nodes_px[~self._edge_nodes], level)
-        low = np.clip(np.floor(inner.min(axis=0)), 0, size - 1).astype(int)
-        high = np.clip(np.ceil(inner.max(axis=0)) + 1, low + 1, size).astype(int)
-        return _FaceView(image[low[1] : high[1], low[0] : high[0]].copy(), low)
 
     def _reacquire(self, pyramid: ImagePyramid, reason: str) -> TrackResult:
         """When eq. 6 from the last valid estimate fails: solve against keyframe templates alone.
@@ -365,14 +341,11 @@ class MonoTracker:
     def _search(self, pyramid: ImagePyramid) -> Params:
         """The initial fit translated parallel to the image plane onto frame 1's inner face.
 
-        The face is where its view correlates best with the image (normalised cross-correlation,
-        robust to a gain and bias), the shift of a pixel being ``t_z / f`` in x and y.
+        The face is where its view correlates best with the image (:meth:`FaceView.shift`), the
+        shift of a pixel being ``t_z / f`` in x and y.
         """
         track = self._track
-        level = min(_SEARCH_LEVEL, pyramid.num_levels - 1)
-        scores = cv2.matchTemplate(pyramid.levels[level], track.view.image, cv2.TM_CCOEFF_NORMED)
-        best = np.unravel_index(np.argmax(scores), scores.shape)[::-1]
-        shift = (np.array(best) - track.view.corner) * float(1 << level)  # level-0 px
+        shift = track.view.shift(pyramid)  # level-0 px
         t = track.start.t.copy()
         t[:2] += shift * t[2] / np.diag(self._camera.p)[:2]
         return track.start._replace(t=t)
@@ -569,14 +542,9 @@ class MonoTracker:
         first = self._sampler.templates(track.first_views.first, start, adjusted.rois, normals)
         keyframe = self._sampler.keyframe(start.omega, first)
         previous = self._sampler.templates(pyramid, current, adjusted.rois, normals)
-        track.rois, track.normals, track.start, track.keyframes = (
-            adjusted.rois,
-            normals,
-            start,
-            [keyframe],
-        )
+        track.rois, track.normals, track.keyframes = adjusted.rois, normals, [keyframe]
         track.first_views.views, track.first_views.depth = views, estimate.depth
-        track.previous, track.current, track.before = previous, current, None
+        track.start, track.previous, track.current, track.before = start, previous, current, None
         track.last_good = self._result(
             TrackStatus.TRACKING,
             current,
