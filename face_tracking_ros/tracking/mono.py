@@ -529,12 +529,12 @@ class MonoTracker:
 
         ``result`` is this frame's (its residuals go into the last valid result, which a LOST
         frame reports). The current estimate and the views are carried into the adjusted scene
-        (:meth:`~.mono_adjustment.ViewAdjuster.moved`); frame 1's templates are sampled anew
+        (:meth:`~.mono_adjustment.ViewAdjuster.carry`); frame 1's templates are sampled anew
         on the adjusted ROIs, and this frame's.
         """
         track, estimate = self._track, adjusted.estimate
         normals = self._rois.normals(estimate.sigma)
-        views, current = self._adjuster.moved(
+        views, current = self._adjuster.carry(
             track.first_views, estimate, track.current, track.frames, normals
         )
         start = views[0].params

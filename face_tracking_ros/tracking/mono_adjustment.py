@@ -260,7 +260,7 @@ class ViewAdjuster:
             scale_floor=config.residual_scale_floor,
         )
 
-    def moved(
+    def carry(
         self,
         views: FirstViews,
         estimate: Estimate,
@@ -296,11 +296,11 @@ class ViewAdjuster:
             carried(view.params, newest.params, params[-1], scale)
             for view in views.views[len(params) :]
         ]
-        moved = [
+        carried_views = [
             View.of(view.image, self._face.visibility(p, normals), p, view.frame)
             for view, p in zip(views.views, params + later, strict=True)
         ]
-        return moved, now
+        return carried_views, now
 
     def _node_distance(self, params: Params) -> float:
         """Mean distance of the nodes from the camera centre at ``params``, m."""
