@@ -14,9 +14,8 @@ from collections.abc import Callable
 from face_tracking_ros.errors import InputError
 from face_tracking_ros.model.topology import mesh_topology
 from face_tracking_ros.processing.parameters import ParameterSource
-from face_tracking_ros.tracking.detector import DetectorConfig, DlibLandmarkDetector
+from face_tracking_ros.tracking.detector import Detector, DetectorConfig, DlibLandmarkDetector
 from face_tracking_ros.tracking.initialisation import Initialisation
-from face_tracking_ros.tracking.mono import Detector
 
 DetectorFactory = Callable[[tuple[str, ...]], Detector]
 """A mesh's node names -> the landmark detector of those nodes."""

@@ -13,6 +13,7 @@ nodes only the chin is taken from it.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 import copy
 from dataclasses import dataclass
 import importlib.util
@@ -23,6 +24,9 @@ import numpy as np
 
 from face_tracking_ros.errors import ConfigError, InputError
 from face_tracking_ros.tracking.initialisation import MIN_INIT_NODES, Initialisation
+
+Detector = Callable[[np.ndarray], Initialisation | None]
+"""A landmark detector: (H, W) uint8 grey image -> 2-D node positions, or None if no face."""
 
 INSTALL_HINT = 'pip install dlib-bin face_recognition_models'
 MODELS_PACKAGE = 'face_recognition_models'

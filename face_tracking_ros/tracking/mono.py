@@ -46,7 +46,7 @@ Design, in the seed's terms:
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, replace
 import math
 
@@ -64,6 +64,7 @@ from face_tracking_ros.imaging import (
 )
 from face_tracking_ros.model.face_model import FaceModel
 from face_tracking_ros.model.topology import Group
+from face_tracking_ros.tracking.detector import Detector
 from face_tracking_ros.tracking.initialisation import Initialisation, fit_model_to_points
 from face_tracking_ros.tracking.mono_adjustment import Adjusted, FirstViews, View, ViewAdjuster
 from face_tracking_ros.tracking.mono_config import MonoTrackerConfig
@@ -80,9 +81,6 @@ from face_tracking_ros.tracking.mono_templates import (
     nearest_keyframe,
 )
 from face_tracking_ros.tracking.result import TrackResult, TrackStatus
-
-Detector = Callable[[np.ndarray], Initialisation | None]
-"""A landmark detector: (H, W) uint8 grey image -> 2-D node positions, or None if no face."""
 
 # The level a solve starts on unless the motion prediction is small (fine_start_px).
 _START_LEVEL = 1

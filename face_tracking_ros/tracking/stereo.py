@@ -57,8 +57,8 @@ from face_tracking_ros.tracking.action_prior import ActionPrior, ModelPoint, Pri
 from face_tracking_ros.tracking.camera_gain import GAIN_RESOLUTION, relative_gain
 from face_tracking_ros.tracking.coarse_to_fine import coarse_to_fine
 from face_tracking_ros.tracking.depth_refinement import DepthRefinement, depth_evidence
+from face_tracking_ros.tracking.detector import Detector
 from face_tracking_ros.tracking.initialisation import Initialisation
-from face_tracking_ros.tracking.mono import Detector
 from face_tracking_ros.tracking.regularisation import RegularisationConfig, Regulariser
 from face_tracking_ros.tracking.result import TrackResult, TrackStatus
 from face_tracking_ros.tracking.row_offset import ROW_OFFSET_RESOLUTION_PX, row_offset
