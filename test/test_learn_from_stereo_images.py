@@ -20,10 +20,10 @@ from face_tracking_ros.io import conversions
 from face_tracking_ros.io.bags import BagWriter, bag_topics, read_messages
 from face_tracking_ros.io.messages import RosbagsMessages
 from face_tracking_ros.io.typestore import typestore
-from face_tracking_ros.learning import stereo_meshes
-from face_tracking_ros.learning.learn_options import LearnOptions
-from face_tracking_ros.learning.mesh_bags import subject_of
 from face_tracking_ros.model.model_file import load_model
+from face_tracking_ros.pipelines import stereo_meshes
+from face_tracking_ros.pipelines.learn_options import LearnOptions
+from face_tracking_ros.pipelines.mesh_bags import subject_of
 from face_tracking_ros.replay import ReplayStats
 from face_tracking_ros.synthetic.clicks import clicks_from_bag, write_init_file
 from face_tracking_ros.tracking.stereo_evaluation import StereoEvaluation

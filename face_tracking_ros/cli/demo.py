@@ -27,7 +27,7 @@ import time
 
 from face_tracking_ros.cli import main as cli
 from face_tracking_ros.errors import ConfigError
-from face_tracking_ros.learning.stereo_meshes import STEREO_PARAMS
+from face_tracking_ros.pipelines.stereo_meshes import STEREO_PARAMS
 
 MARKER = '.face-tracking-demo'  # in an --out the demo made, which a later demo may empty
 

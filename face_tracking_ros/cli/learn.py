@@ -10,7 +10,7 @@ Input bags hold one of:
   ``--subject`` or the bag's directory name and the first ``--neutral-frames`` frames of each
   bag are taken as neutral;
 * raw stereo images (left and right Image and CameraInfo): first tracked by the stereo tracker
-  into FaceMesh bags (:mod:`face_tracking_ros.learning.stereo_meshes`), every mesh with the
+  into FaceMesh bags (:mod:`face_tracking_ros.pipelines.stereo_meshes`), every mesh with the
   frame-1 depths refined over its whole track.
 
 The meshes are aligned (§3.3), the model is learned by ``--method`` (default ``joint``, issue 11;
@@ -18,8 +18,8 @@ The meshes are aligned (§3.3), the model is learned by ``--method`` (default ``
 runs for every compared method, and the command writes the model file, a JSON report and, with
 ``--plots``, PNG figures (Figure 5-like sigma scatter per method, comparison, convergence).
 
-The options become a :class:`~face_tracking_ros.learning.learn_options.LearnOptions`, run by
-:func:`face_tracking_ros.learning.pipeline.learn_from_bags` (as the learner node runs it).
+The options become a :class:`~face_tracking_ros.pipelines.learn_options.LearnOptions`, run by
+:func:`face_tracking_ros.pipelines.learn.learn_from_bags` (as the learner node runs it).
 """
 
 from __future__ import annotations
@@ -29,12 +29,12 @@ from dataclasses import fields
 from pathlib import Path
 
 from face_tracking_ros.cli.track import add_stereo_topic_options
-from face_tracking_ros.learning.learn_options import LearnOptions
-from face_tracking_ros.learning.mesh_bags import DEFAULT_TOPICS
 from face_tracking_ros.learning.methods import DEFAULT_METHOD, METHODS
-from face_tracking_ros.learning.pipeline import learn_from_bags
-from face_tracking_ros.learning.stereo_meshes import STEREO_PARAMS
 from face_tracking_ros.model.topology import SUPPORTED_NODE_COUNTS
+from face_tracking_ros.pipelines.learn import learn_from_bags
+from face_tracking_ros.pipelines.learn_options import LearnOptions
+from face_tracking_ros.pipelines.mesh_bags import DEFAULT_TOPICS
+from face_tracking_ros.pipelines.stereo_meshes import STEREO_PARAMS
 from face_tracking_ros.synthetic.faces import PRESETS
 
 _SEQUENCES = ('bags', 'compare', 'truth', 'tracker_params')  # tuples in LearnOptions

@@ -1,7 +1,7 @@
 """The learner node: learns a face model from recorded bags and publishes it, latched.
 
 It runs the learning pipeline of ``face-tracking learn``
-(:func:`face_tracking_ros.learning.pipeline.learn_from_bags`), with the node's parameters as its
+(:func:`face_tracking_ros.pipelines.learn.learn_from_bags`), with the node's parameters as its
 options: bags of 3-D meshes (synthetic truth, FaceMesh or FaceState) or raw stereo image bags,
 which it first tracks with the stereo tracker (every mesh with the frame-1 depths refined over
 its whole track; ``tracker_params``). It writes the model file and the JSON report, then
@@ -20,13 +20,13 @@ from rclpy.node import Node
 from face_tracking_ros.errors import ConfigError, check_fields
 from face_tracking_ros.io import conversions
 from face_tracking_ros.io.messages import RclpyMessages
-from face_tracking_ros.learning.learn_options import LearnOptions
 from face_tracking_ros.learning.methods import METHODS
-from face_tracking_ros.learning.pipeline import learn_from_bags
 from face_tracking_ros.model.model_file import load_model
 from face_tracking_ros.model.topology import SUPPORTED_NODE_COUNTS
 from face_tracking_ros.nodes.graceful import Endless, run_until_stopped
 from face_tracking_ros.nodes.processor_node import DECLARE_GIVEN, QOS_PROFILES, NodeParameters
+from face_tracking_ros.pipelines.learn import learn_from_bags
+from face_tracking_ros.pipelines.learn_options import LearnOptions
 from face_tracking_ros.processing.base import QosClass
 
 

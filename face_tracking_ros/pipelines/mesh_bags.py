@@ -29,9 +29,9 @@ from face_tracking_ros.io.conversions import (
     stamp_to_ns,
     truth_from_msg,
 )
-from face_tracking_ros.learning.learn_options import LearnOptions
 from face_tracking_ros.learning.training_set import MeshSequence
 from face_tracking_ros.model.topology import SUPPORTED_NODE_COUNTS
+from face_tracking_ros.pipelines.learn_options import LearnOptions
 from face_tracking_ros.replay import bag_spelling
 from face_tracking_ros.tracking.result import TrackStatus
 

@@ -6,10 +6,12 @@ The steps of :func:`learn_from_bags`:
    initialisation found before minutes of tracking;
 2. each bag's meshes are read, one sequence per subject (:mod:`.mesh_bags`), labelled by the
    bag's truth or by a truth bag of the same stamps;
-3. the meshes are aligned (§3.3, :func:`~.alignment.align_training_set`);
+3. the meshes are aligned (§3.3,
+   :func:`~face_tracking_ros.learning.alignment.align_training_set`);
 4. the model is learned by ``method`` (default ``joint``, issue 11; ``seed`` is the paper's
-   §3.4) and every compared method, each evaluated by :func:`~.evaluation.evaluate`
-   (leave-one-subject-out, and against the true subspaces with ``truth_population``);
+   §3.4) and every compared method, each evaluated by
+   :func:`~face_tracking_ros.learning.evaluation.evaluate` (leave-one-subject-out, and against
+   the true subspaces with ``truth_population``);
 5. the model file, the JSON report and, with ``plots``, the PNG figures are written (Figure
    5-like sigma scatter per method, comparison, convergence).
 
@@ -39,8 +41,6 @@ from face_tracking_ros.learning.evaluation import (
     evaluate,
     population_truth,
 )
-from face_tracking_ros.learning.learn_options import LearnOptions, check_options
-from face_tracking_ros.learning.mesh_bags import BagMeshes, read_bag_meshes
 from face_tracking_ros.learning.methods import DEFAULT_EXPLAINED_VARIANCE, make_learner
 from face_tracking_ros.learning.plots import (
     plot_comparison,
@@ -48,14 +48,16 @@ from face_tracking_ros.learning.plots import (
     plot_sigma_scatter,
 )
 from face_tracking_ros.learning.result import LearningResult
-from face_tracking_ros.learning.stereo_meshes import (
+from face_tracking_ros.learning.training_set import MeshSequence, TrainingSet
+from face_tracking_ros.model.face_model import FaceModel
+from face_tracking_ros.model.model_file import save_model
+from face_tracking_ros.pipelines.learn_options import LearnOptions, check_options
+from face_tracking_ros.pipelines.mesh_bags import BagMeshes, read_bag_meshes
+from face_tracking_ros.pipelines.stereo_meshes import (
     mesh_bag,
     needs_tracking,
     stereo_initialisation,
 )
-from face_tracking_ros.learning.training_set import MeshSequence, TrainingSet
-from face_tracking_ros.model.face_model import FaceModel
-from face_tracking_ros.model.model_file import save_model
 from face_tracking_ros.synthetic.faces import PRESETS, FacePopulation
 
 

@@ -1,9 +1,9 @@
 """What to learn from and how: the options of ``face-tracking learn`` and of the learner node.
 
 Both front ends fill one :class:`LearnOptions` (the command from its flags, the node from its
-parameters) and hand it to :func:`~face_tracking_ros.learning.pipeline.learn_from_bags`;
-:func:`check_options` refuses what the pipeline cannot run, before any work. The messages name
-the options by their ``face-tracking learn`` flags.
+parameters) and hand it to :func:`~.learn.learn_from_bags`; :func:`check_options` refuses what
+the pipeline cannot run, before any work. The messages name the options by their
+``face-tracking learn`` flags.
 """
 
 from __future__ import annotations
@@ -30,7 +30,8 @@ class LearnOptions:
         explained_variance: choose p as the fewest identity modes explaining this share of the
             variance (overrides ``p``); None: ``p``.
         q: dimension of the expression subspace (alpha, the columns of A).
-        method: learner whose model is written (:data:`~.methods.METHODS`).
+        method: learner whose model is written
+            (:data:`~face_tracking_ros.learning.methods.METHODS`).
         compare: methods evaluated side by side with ``method``.
         plots: directory receiving PNG figures; None: no figures.
         topic: mesh topic; None: the first of :data:`~.mesh_bags.DEFAULT_TOPICS` found.

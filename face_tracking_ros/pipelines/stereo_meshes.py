@@ -29,8 +29,8 @@ from face_tracking_ros.errors import BagError, ConfigError, FaceTrackingError
 from face_tracking_ros.io.bags import bag_topics
 from face_tracking_ros.io.provenance import Provenance
 from face_tracking_ros.io.series import has_truth
-from face_tracking_ros.learning.learn_options import LearnOptions
-from face_tracking_ros.learning.mesh_bags import mesh_topic
+from face_tracking_ros.pipelines.learn_options import LearnOptions
+from face_tracking_ros.pipelines.mesh_bags import mesh_topic
 from face_tracking_ros.processing.parameters import OverrideParameters
 from face_tracking_ros.replay import ReplayStats, replay_bag
 from face_tracking_ros.synthetic.clicks import clicks_from_bag, write_init_file
