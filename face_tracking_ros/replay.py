@@ -67,6 +67,26 @@ class ReplayStats:
     status: dict[str, dict[str, str]] = field(default_factory=dict)
 
 
+def print_stats(stats: ReplayStats, out: Path) -> None:
+    """Summarise a replay on stdout."""
+    inputs = ', '.join(f'{n} {t}' for t, n in sorted(stats.inputs.items())) or 'none'
+    outputs = ', '.join(f'{n} {t}' for t, n in sorted(stats.outputs.items())) or 'none'
+    print(f'read: {inputs}')
+    print(f'wrote to {out}: {outputs}')
+    if stats.errors:
+        print('input problems (the live node reports these on /diagnostics):')
+    for text, count in stats.errors.most_common():
+        print(f'  {count}x {text}')
+    if stats.read_error:
+        print(
+            f'input bag unreadable past this point, replayed the readable part: {stats.read_error}'
+        )
+    for node, status in stats.status.items():
+        print(f'{node}: ' + ', '.join(f'{key} {value}' for key, value in status.items()))
+    if stats.interrupted:
+        print('interrupted: the output bag holds what was processed so far')
+
+
 def resolve_inputs(
     ports: Iterable[Port], bag_topics: Mapping[str, str], overrides: Mapping[str, str]
 ) -> dict[str, str]:

@@ -18,7 +18,7 @@ from face_tracking_ros.io.bags import read_raw
 from face_tracking_ros.processing.base import Output
 from face_tracking_ros.processing.parameters import OverrideParameters
 from face_tracking_ros.processing.registry import PROCESSORS
-from face_tracking_ros.replay import ReplayStats, replay_bag
+from face_tracking_ros.replay import print_stats, replay_bag
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -90,26 +90,6 @@ def parse_remaps(items: list[str] | None) -> dict[str, str]:
             raise ConfigError(msg)
         remaps[port] = topic
     return remaps
-
-
-def print_stats(stats: ReplayStats, out: Path) -> None:
-    """Summarise a replay on stdout."""
-    inputs = ', '.join(f'{n} {t}' for t, n in sorted(stats.inputs.items())) or 'none'
-    outputs = ', '.join(f'{n} {t}' for t, n in sorted(stats.outputs.items())) or 'none'
-    print(f'read: {inputs}')
-    print(f'wrote to {out}: {outputs}')
-    if stats.errors:
-        print('input problems (the live node reports these on /diagnostics):')
-    for text, count in stats.errors.most_common():
-        print(f'  {count}x {text}')
-    if stats.read_error:
-        print(
-            f'input bag unreadable past this point, replayed the readable part: {stats.read_error}'
-        )
-    for node, status in stats.status.items():
-        print(f'{node}: ' + ', '.join(f'{key} {value}' for key, value in status.items()))
-    if stats.interrupted:
-        print('interrupted: the output bag holds what was processed so far')
 
 
 def run(args: argparse.Namespace) -> int:

@@ -13,8 +13,13 @@ from __future__ import annotations
 from pathlib import Path
 import shutil
 
-from face_tracking_ros.cli.replay import print_stats
-from face_tracking_ros.cli.track import (
+from face_tracking_ros.errors import BagError, ConfigError, FaceTrackingError
+from face_tracking_ros.io.bags import bag_topics
+from face_tracking_ros.io.provenance import Provenance
+from face_tracking_ros.io.series import has_truth
+from face_tracking_ros.pipelines.learn_options import LearnOptions
+from face_tracking_ros.pipelines.mesh_bags import mesh_topic
+from face_tracking_ros.pipelines.track import (
     CAMERA_INFO_TYPE,
     check_one_transport,
     compressed_parameters,
@@ -25,14 +30,8 @@ from face_tracking_ros.cli.track import (
     stereo_topics,
     tracked_nodes,
 )
-from face_tracking_ros.errors import BagError, ConfigError, FaceTrackingError
-from face_tracking_ros.io.bags import bag_topics
-from face_tracking_ros.io.provenance import Provenance
-from face_tracking_ros.io.series import has_truth
-from face_tracking_ros.pipelines.learn_options import LearnOptions
-from face_tracking_ros.pipelines.mesh_bags import mesh_topic
 from face_tracking_ros.processing.parameters import OverrideParameters
-from face_tracking_ros.replay import ReplayStats, replay_bag
+from face_tracking_ros.replay import ReplayStats, print_stats, replay_bag
 from face_tracking_ros.synthetic.clicks import clicks_from_bag, write_init_file
 
 STEREO_PARAMS = 'retroactive_depths=true'  # learn from meshes with each track's final depths
