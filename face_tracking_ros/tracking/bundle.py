@@ -146,7 +146,7 @@ class BundleConfig:
 
 
 class Patches(NamedTuple):
-    """The level-0 ROI samples of the track at frame 1's estimate (the tracker's ``_Roi``).
+    """The level-0 ROI samples of the track at frame 1's estimate (a :class:`.mono_rois.Roi`).
 
     Attributes:
         offsets: (3, N, M) offsets from the nodes to their samples at alpha = 0, face frame, m,
