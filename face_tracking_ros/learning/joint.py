@@ -139,26 +139,19 @@ def learn_joint(training: TrainingSet, config: JointConfig | None = None) -> Lea
     # and moment of the deviations follow from them (below), so it makes no (F, 3N) array.
     frame_means = _FrameMeans.of(training, frames)
     moments = _DeviationMoments.of(training, frames, frame_means.by_sequence)
-    state = _iterate(
-        training,
-        frames,
-        frame_means,
-        moments,
-        _Neutrals(
-            subject=training.subject_means(frames, training.neutral),
-            sequence_offsets=np.zeros_like(frame_means.by_sequence),
-            label_weight=training.neutral.astype(float),
-        ),
-        config,
+    start = _Neutrals(
+        subject=training.subject_means(frames, training.neutral),
+        sequence_offsets=np.zeros_like(frame_means.by_sequence),
+        label_weight=training.neutral.astype(float),
     )
+    state = _iterate(training, frames, frame_means, moments, start, config)
     history = [1.0]  # no earlier A to compare with
-    converged = False
+    converged = _converged(history[-1], state.neutrals, start, config)
     while len(history) < config.max_iterations and not converged:
         previous = state
-        state = _iterate(training, frames, frame_means, moments, state.neutrals, config)
-        moved = float(np.sqrt(np.mean((state.neutrals.subject - previous.neutrals.subject) ** 2)))
+        state = _iterate(training, frames, frame_means, moments, previous.neutrals, config)
         history.append(1.0 - subspace_similarity(state.action_basis, previous.action_basis))
-        converged = history[-1] < config.tolerance and moved < config.neutral_tolerance
+        converged = _converged(history[-1], state.neutrals, previous.neutrals, config)
     return _result(training, state, config, history, converged)
 
 
@@ -209,6 +202,12 @@ def _iterate(
     )
     neutrals = _Neutrals(subject, sequence_offsets, label_weight)
     return _JointState(action_basis, projection, neutrals)
+
+
+def _converged(change: float, neutrals: _Neutrals, before: _Neutrals, config: JointConfig) -> bool:
+    """Whether A changed by less than the tolerance and the neutrals moved less than theirs."""
+    moved = float(np.sqrt(np.mean((neutrals.subject - before.subject) ** 2)))
+    return change < config.tolerance and moved < config.neutral_tolerance
 
 
 def _result(

@@ -278,7 +278,6 @@ def fit_model_to_points(
     """
     config = config or FitConfig()
     check_inside(init.node_names, init.points, (camera.width, camera.height))
-    indices = init.node_indices(model)
     sigma0 = np.zeros(model.p) if init.sigma is None else np.asarray(init.sigma, dtype=float)
     problem = _FitProblem.of(model, camera, init, sigma0, config)
     omega0, t0 = _pnp(problem.base_shape, init.points, camera)
@@ -303,8 +302,8 @@ def fit_model_to_points(
     )
     if not (np.all(np.isfinite(solution)) and t[2] > 0 and fit.rms_px <= config.max_rms_px):
         msg = (
-            f'model fit to {len(indices)} points failed (t = {t} m, RMS error {fit.rms_px:.1f} '
-            f'px > {config.max_rms_px} px); check the init points'
+            f'model fit to {len(init.node_names)} points failed (t = {t} m, RMS error '
+            f'{fit.rms_px:.1f} px > {config.max_rms_px} px); check the init points'
         )
         raise InputError(msg)
     _check_facing(fit)
