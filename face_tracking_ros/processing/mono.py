@@ -333,7 +333,7 @@ class MonoProcessor:
         if not self._stamps.later(stamp_ns, 'image'):
             self._restart()
             self._stamps.restart()
-        self._stamps.last = stamp_ns
+        self._stamps.take(stamp_ns)
 
 
 def _input_ports(config: MonoNodeConfig) -> tuple[Port, ...]:

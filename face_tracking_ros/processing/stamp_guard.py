@@ -18,7 +18,8 @@ class StampGuard:
     """The last stamp taken and the tracks restarted by a stamp that went back.
 
     Attributes:
-        last: the last stamp taken, ns; None before the first one and after a restart.
+        last: the last stamp taken, ns (set by :meth:`take` and :meth:`forget`); None before
+            the first one and after a restart.
         restarts: tracks restarted by a stamp that went back, since the start.
     """
 
@@ -45,7 +46,15 @@ class StampGuard:
             raise InputError(msg)
         return False
 
+    def take(self, stamp_ns: int) -> None:
+        """``stamp_ns`` is the last stamp now (an image or pair that passed)."""
+        self.last = stamp_ns
+
+    def forget(self) -> None:
+        """The next stamp starts afresh, whatever it is (the track starts over)."""
+        self.last = None
+
     def restart(self) -> None:
         """A stamp went back: count the restarted track; the next stamp starts afresh."""
-        self.last = None
+        self.forget()
         self.restarts += 1

@@ -219,7 +219,7 @@ class StereoProcessor:
         self._initialisation, source = restart_points(
             initialisation, self._initialisation, self._detector_for, 'stereo'
         )
-        self._stamps.last = None  # the next pair starts the track, whatever its stamp
+        self._stamps.forget()  # the next pair starts the track, whatever its stamp
         if self._tracker is not None:
             self._end_track()
             self._reset_tracker()
@@ -502,7 +502,7 @@ class StereoProcessor:
             self._rectified_image(info, conversions.message_to_gray(msg))
             for info, msg in ((LEFT_INFO, left_msg), (RIGHT_INFO, right_msg))
         )
-        self._stamps.last = stamp_to_ns(left_msg.header.stamp)
+        self._stamps.take(stamp_to_ns(left_msg.header.stamp))
         result = self._tracker.step(left, right)
         self._tracked_px = result.left_px if result.ok else None
         self._counts.add(result.status, result.reason)
