@@ -60,7 +60,7 @@ def assemble_result(
     The prior is zero-mean, as the tracker assumes: sigma's covariance is the second moment of
     the subjects' sigma = S^T (neutral_s - mean_shape) (equal weight per subject), alpha's is the
     second moment about zero (alpha = 0 is the neutral face) of the learner's per-frame alpha.
-    The eigenvalues are the diagonals of these matrices (:meth:`FaceModel.with_prior`).
+    The eigenvalues are the diagonals of these matrices (:meth:`FaceModel.from_prior_covariances`).
 
     Args:
         training: the aligned training set.
@@ -78,7 +78,7 @@ def assemble_result(
     sigma_covariance = subject_sigma.T @ subject_sigma / len(subject_sigma)
     alpha_covariance = alpha.T @ alpha / len(alpha)
     p = shape_basis.shape[1]
-    model = FaceModel.with_prior(
+    model = FaceModel.from_prior_covariances(
         node_names=mesh_topology(training.num_nodes).node_names,
         mean_shape=mean_shape,
         shape_basis=shape_basis,

@@ -55,7 +55,7 @@ class FaceModel:
         validate_model_arrays(self)
 
     @classmethod
-    def with_prior(
+    def from_prior_covariances(
         cls,
         node_names: tuple[str, ...],
         mean_shape: np.ndarray,

@@ -33,7 +33,7 @@ def true_face_model(population: FacePopulation, num_nodes: int = 34, p: int = 4)
     action_basis = np.linalg.svd(expressions, full_matrices=False)[0]
     sigma_covariance = shape_basis.T @ identity @ identity.T @ shape_basis
     alpha_covariance = action_basis.T @ expressions @ expressions.T @ action_basis
-    return FaceModel.with_prior(
+    return FaceModel.from_prior_covariances(
         node_names=truth.node_names,
         mean_shape=truth.mean_shape.copy(),
         shape_basis=shape_basis,
