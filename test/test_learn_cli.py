@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from dataclasses import fields
 import json
 from pathlib import Path
 
@@ -9,7 +10,8 @@ from learning_population import mesh_sequences
 import numpy as np
 import pytest
 
-from face_tracking_ros.cli.main import main
+from face_tracking_ros.cli.learn import learn_options
+from face_tracking_ros.cli.main import build_parser, main
 from face_tracking_ros.io import conversions
 from face_tracking_ros.io.bags import BagWriter, read_raw
 from face_tracking_ros.io.messages import RosbagsMessages
@@ -17,6 +19,7 @@ from face_tracking_ros.io.typestore import typestore
 from face_tracking_ros.learning.training_set import MeshSequence
 from face_tracking_ros.model.model_file import load_model
 from face_tracking_ros.model.topology import mesh_topology
+from face_tracking_ros.pipelines.learn_options import LearnOptions
 from face_tracking_ros.synthetic.faces import FacePopulation
 
 from conftest import REPO
@@ -303,3 +306,11 @@ def test_p_chosen_by_explained_variance_is_reported_per_held_out_subject(tmp_pat
     folds = report['loo_per_subject']['p']
     assert len(folds) == 4 and all(isinstance(p, int) and 1 <= p <= 2 for p in folds)
     assert report['p'] == load_model(tmp_path / 'm.npz').p >= max(folds)
+
+
+def test_every_flag_is_a_pipeline_option_with_the_same_default():
+    args = build_parser().parse_args(['learn', 'a', '--out', 'm.npz', '--report', 'r.json'])
+    flags = set(vars(args)) - {'command', 'func', 'tracker_param'} | {'tracker_params'}
+    assert flags == {field.name for field in fields(LearnOptions)}
+    defaults = LearnOptions(bags=(Path('a'),), out=Path('m.npz'), report=Path('r.json'))
+    assert learn_options(args) == defaults
