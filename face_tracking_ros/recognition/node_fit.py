@@ -79,17 +79,7 @@ def fit_model_to_nodes(
             finite non-negative (N,) array, or start is a fit of another number of frames or
             parameters.
     """
-    nodes = np.asarray(nodes, dtype=float)
-    if nodes.ndim != 3 or nodes.shape[1:] != (model.num_nodes, 3) or not len(nodes):
-        msg = f'nodes must be (F >= 1, {model.num_nodes}, 3), got shape {nodes.shape}'
-        raise InputError(msg)
-    if not np.all(np.isfinite(nodes)):
-        msg = 'nodes to fit hold NaN or Inf'
-        raise InputError(msg)
-    w = np.ones(model.num_nodes) if weights is None else np.asarray(weights, dtype=float)
-    if w.shape != (model.num_nodes,) or not np.all(np.isfinite(w)) or np.any(w < 0):
-        msg = f'weights must be finite and >= 0 with shape ({model.num_nodes},)'
-        raise InputError(msg)
+    nodes, w = _checked(model, nodes, weights)
     row_scale = np.repeat(np.sqrt(w), 3)
     bases = np.hstack([model.shape_basis, model.action_basis])
     bases_nodes = bases.reshape(model.num_nodes, 3, -1)
@@ -104,12 +94,7 @@ def fit_model_to_nodes(
         residual, jacobian = _residual_and_jacobian(
             mean, bases_nodes, nodes, omega, t, coefficients
         )
-        residual, jacobian = residual * row_scale, jacobian * row_scale[:, None]
-        normal = np.swapaxes(jacobian, 1, 2) @ jacobian
-        diagonal = np.einsum('fii->fi', normal)  # a view
-        diagonal += LEVENBERG_DAMPING * diagonal
-        gradient = np.swapaxes(jacobian, 1, 2) @ residual[..., None]
-        step = -np.linalg.solve(normal, gradient)[..., 0]
+        step = _damped_step(residual * row_scale, jacobian * row_scale[:, None])
         omega, t, coefficients = omega + step[:, :3], t + step[:, 3:6], coefficients + step[:, 6:]
         converged = bool(np.max(np.abs(step)) < tolerance)
     residual = _residual(mean, bases_nodes, nodes, omega, t, coefficients)[0]
@@ -121,6 +106,37 @@ def fit_model_to_nodes(
         rms=np.sqrt(3.0 * np.mean(residual**2, axis=1)),
         iterations=iterations,
     )
+
+
+def _checked(
+    model: FaceModel, nodes: np.ndarray, weights: np.ndarray | None
+) -> tuple[np.ndarray, np.ndarray]:
+    """The meshes and node weights (ones if None) as float arrays, checked.
+
+    Raises:
+        InputError: as :func:`fit_model_to_nodes`.
+    """
+    nodes = np.asarray(nodes, dtype=float)
+    if nodes.ndim != 3 or nodes.shape[1:] != (model.num_nodes, 3) or not len(nodes):
+        msg = f'nodes must be (F >= 1, {model.num_nodes}, 3), got shape {nodes.shape}'
+        raise InputError(msg)
+    if not np.all(np.isfinite(nodes)):
+        msg = 'nodes to fit hold NaN or Inf'
+        raise InputError(msg)
+    w = np.ones(model.num_nodes) if weights is None else np.asarray(weights, dtype=float)
+    if w.shape != (model.num_nodes,) or not np.all(np.isfinite(w)) or np.any(w < 0):
+        msg = f'weights must be finite and >= 0 with shape ({model.num_nodes},)'
+        raise InputError(msg)
+    return nodes, w
+
+
+def _damped_step(residual: np.ndarray, jacobian: np.ndarray) -> np.ndarray:
+    """(F, D) Levenberg-Marquardt steps of every frame, damped by :data:`LEVENBERG_DAMPING`."""
+    normal = np.swapaxes(jacobian, 1, 2) @ jacobian
+    diagonal = np.einsum('fii->fi', normal)  # a view
+    diagonal += LEVENBERG_DAMPING * diagonal
+    gradient = np.swapaxes(jacobian, 1, 2) @ residual[..., None]
+    return -np.linalg.solve(normal, gradient)[..., 0]
 
 
 def _initial_estimate(

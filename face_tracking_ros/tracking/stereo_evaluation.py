@@ -103,15 +103,7 @@ def evaluate_stereo(
         InputError: if the arrays do not have the same (F, N, 3) shape with F >= 1 and the
             topology's N, or hold NaN.
     """
-    meshes = np.asarray(meshes, dtype=float)
-    truth = np.asarray(truth, dtype=float)
-    expected = (topology.num_nodes, 3)
-    if meshes.ndim != 3 or meshes.shape != truth.shape or meshes.shape[1:] != expected:
-        msg = f'meshes {meshes.shape} and truth {truth.shape} must both be (F, {expected[0]}, 3)'
-        raise InputError(msg)
-    if len(meshes) == 0 or not (np.all(np.isfinite(meshes)) and np.all(np.isfinite(truth))):
-        msg = 'meshes and truth must hold at least one frame and no NaN'
-        raise InputError(msg)
+    meshes, truth = _checked(meshes, truth, topology)
     error = meshes - truth
     distance = np.linalg.norm(error, axis=2)
     by_group = {
@@ -119,17 +111,7 @@ def evaluate_stereo(
         for group in Group
         if topology.group_mask(group).any()
     }
-    reprojection = max(
-        float(
-            np.max(
-                np.linalg.norm(
-                    camera.project(meshes.reshape(-1, 3)) - camera.project(truth.reshape(-1, 3)),
-                    axis=1,
-                )
-            )
-        )
-        for camera in (rig.left, rig.right)
-    )
+    reprojection = _max_reprojection(meshes, truth, rig)
     change = error - error[:1]
     final_change = np.linalg.norm(change[-1], axis=1)
     slip = _boundary_slip(change, truth, topology)
@@ -148,6 +130,41 @@ def evaluate_stereo(
         boundary_slip=float(np.max(slip)) if slip.size else float('nan'),
         boundary_slip_rms=float(np.sqrt(np.mean(slip**2))) if slip.size else float('nan'),
         tracked_fraction=tracked,
+    )
+
+
+def _checked(
+    meshes: np.ndarray, truth: np.ndarray, topology: MeshTopology
+) -> tuple[np.ndarray, np.ndarray]:
+    """The meshes and truth as float arrays, refused unless both are finite (F >= 1, N, 3).
+
+    Raises:
+        InputError: as :func:`evaluate_stereo`.
+    """
+    meshes = np.asarray(meshes, dtype=float)
+    truth = np.asarray(truth, dtype=float)
+    expected = (topology.num_nodes, 3)
+    if meshes.ndim != 3 or meshes.shape != truth.shape or meshes.shape[1:] != expected:
+        msg = f'meshes {meshes.shape} and truth {truth.shape} must both be (F, {expected[0]}, 3)'
+        raise InputError(msg)
+    if len(meshes) == 0 or not (np.all(np.isfinite(meshes)) and np.all(np.isfinite(truth))):
+        msg = 'meshes and truth must hold at least one frame and no NaN'
+        raise InputError(msg)
+    return meshes, truth
+
+
+def _max_reprojection(meshes: np.ndarray, truth: np.ndarray, rig: StereoRig) -> float:
+    """The largest distance between a tracked and a true node's projections, either camera, px."""
+    return max(
+        float(
+            np.max(
+                np.linalg.norm(
+                    camera.project(meshes.reshape(-1, 3)) - camera.project(truth.reshape(-1, 3)),
+                    axis=1,
+                )
+            )
+        )
+        for camera in (rig.left, rig.right)
     )
 
 
