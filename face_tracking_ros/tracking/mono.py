@@ -13,8 +13,11 @@ re-acquires it. What it composes has a module of its own:
 
 - :mod:`.mono_config`: the tunables, each tied to its symbol;
 - :mod:`.mono_rois`: the regions of interest, small 3-D surface patches around the nodes that
-  foreshorten with the head's rotation and deform with eq. 3, and the model posed there;
+  foreshorten with the head's rotation and deform with eq. 3;
+- :mod:`.mono_projection`: the model posed at an estimate (eq. 1, 3) and projected (eq. 2), its
+  nodes' visibility, and an image sampled on the ROIs there;
 - :mod:`.mono_templates`: the templates of frames n-1 and 1 sampled on them, and the keyframes;
+- :mod:`.mono_priors`: the Gaussian priors on alpha and sigma (§4.1), their precisions;
 - :mod:`.mono_solve`: eq. 6's Levenberg-Marquardt solve of one image, coarse to fine;
 - :mod:`.mono_loss`: the checks that declare the track lost;
 - :mod:`.mono_search`: frame 1's face found in an image, for re-acquiring a lost track;
@@ -69,9 +72,11 @@ from face_tracking_ros.tracking.initialisation import Initialisation, fit_model_
 from face_tracking_ros.tracking.mono_adjustment import Adjusted, FirstViews, View, ViewAdjuster
 from face_tracking_ros.tracking.mono_config import MonoTrackerConfig
 from face_tracking_ros.tracking.mono_loss import LossChecks, Reference
-from face_tracking_ros.tracking.mono_rois import FaceProjection, Params, Roi, RoiLayout
+from face_tracking_ros.tracking.mono_priors import Priors
+from face_tracking_ros.tracking.mono_projection import FaceProjection
+from face_tracking_ros.tracking.mono_rois import Params, Roi, RoiLayout
 from face_tracking_ros.tracking.mono_search import FaceView
-from face_tracking_ros.tracking.mono_solve import MonoSolver, Priors, Solution
+from face_tracking_ros.tracking.mono_solve import MonoSolver, Solution
 from face_tracking_ros.tracking.mono_templates import (
     Keyframe,
     OnDemand,

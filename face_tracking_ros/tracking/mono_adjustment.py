@@ -37,8 +37,9 @@ from face_tracking_ros.tracking.bundle import (
 )
 from face_tracking_ros.tracking.initialisation import Initialisation
 from face_tracking_ros.tracking.mono_config import MonoTrackerConfig
-from face_tracking_ros.tracking.mono_rois import FaceProjection, Params, Roi, RoiLayout
-from face_tracking_ros.tracking.mono_solve import Priors
+from face_tracking_ros.tracking.mono_priors import Priors
+from face_tracking_ros.tracking.mono_projection import FaceProjection
+from face_tracking_ros.tracking.mono_rois import Params, Roi, RoiLayout
 from face_tracking_ros.tracking.stages import Stages, run_stages
 
 
@@ -249,10 +250,10 @@ class ViewAdjuster:
             ),
             node_weights=self._node_weights,
             invariance=self._invariance,
-            alpha_precision=self._priors.alpha,
+            alpha_precision=self._priors.alpha_precision,
             sigma_precision=None
             if clicks is not None and clicks.sigma is not None
-            else self._priors.sigma,
+            else self._priors.sigma_precision,
             click_nodes=clicks.node_indices(model) if clicks is not None else np.zeros(0, int),
             clicks=clicks.points if clicks is not None else np.zeros((0, 2)),
             config=config.bundle,

@@ -22,7 +22,8 @@ from face_tracking_ros.geometry.camera import PinholeCamera
 from face_tracking_ros.geometry.rotation import rotation_angle
 from face_tracking_ros.imaging import PhotometricModel, PhotometricProjection, inside_image
 from face_tracking_ros.tracking.mono_config import MonoTrackerConfig
-from face_tracking_ros.tracking.mono_rois import FaceProjection, Params
+from face_tracking_ros.tracking.mono_projection import FaceProjection
+from face_tracking_ros.tracking.mono_rois import Params
 from face_tracking_ros.tracking.mono_templates import Keyframe, nearest_keyframe
 
 _MIN_DEPTH = 0.05  # m; a face nearer the camera than this has diverged

@@ -2,7 +2,7 @@
 
 The solve minimises, over (omega, t, alpha) and while it is estimated sigma, eq. 6 plus the
 §4.1/§4.4 Gaussian priors ``lambda alpha' Sigma_alpha^-1 alpha`` (and ``lambda sigma'
-Sigma_sigma^-1 sigma``, :class:`Priors`):
+Sigma_sigma^-1 sigma``, :class:`~.mono_priors.Priors`):
 
 - Both terms of eq. 6 share ``I_n(x_i(n))``, so eq. 6 equals ``sum (I_n(x_i(n)) - T)^2`` plus a
   constant, with the blended template ``T = (1 - epsilon) I_(n-1)(x(n-1)) + epsilon I_1(x(1))``:
@@ -29,7 +29,6 @@ from functools import cache
 from typing import NamedTuple
 
 import numpy as np
-from scipy.linalg import inv
 
 from face_tracking_ros.imaging import (
     ImagePyramid,
@@ -48,57 +47,12 @@ from face_tracking_ros.tracking.mono_kernels import (
     roi_jacobian,
     weighted_gram,
 )
-from face_tracking_ros.tracking.mono_rois import FaceProjection, Params, Roi, Sampled
+from face_tracking_ros.tracking.mono_priors import Priors
+from face_tracking_ros.tracking.mono_projection import FaceProjection, Sampled
+from face_tracking_ros.tracking.mono_rois import Params, Roi
 from face_tracking_ros.tracking.projection import POSE_DIM
 
 _MAD_TO_STD = 1.4826  # robust standard deviation from the median absolute deviation
-
-
-class Priors(NamedTuple):
-    """The Gaussian priors of §4.1 on alpha and sigma: their precisions ``lambda Sigma^-1``.
-
-    Their costs, gradients and Hessians are in the solve's units (squared residuals over the
-    robust scale s squared) and padded to the pose, the gradients and Hessians halved like the
-    data term's.
-
-    Attributes:
-        alpha: (q, q) ``lambda Sigma_alpha^-1``.
-        sigma: (p, p) ``lambda Sigma_sigma^-1``.
-    """
-
-    alpha: np.ndarray
-    sigma: np.ndarray
-
-    @classmethod
-    def of(cls, model: FaceModel, weight: float) -> Priors:
-        """The model's priors weighed by ``weight`` (lambda, ``prior_weight``)."""
-        return cls(
-            weight * inv(model.alpha_prior_covariance), weight * inv(model.sigma_prior_covariance)
-        )
-
-    def hessian(self, free_sigma: bool) -> np.ndarray:
-        """Hessian (halved) of the alpha (and sigma) priors, padded to the pose."""
-        q = len(self.alpha)
-        size = POSE_DIM + q + (len(self.sigma) if free_sigma else 0)
-        hessian = np.zeros((size, size))
-        hessian[POSE_DIM : POSE_DIM + q, POSE_DIM : POSE_DIM + q] = self.alpha
-        if free_sigma:
-            hessian[POSE_DIM + q :, POSE_DIM + q :] = self.sigma
-        return hessian
-
-    def gradient(self, params: Params, free_sigma: bool) -> np.ndarray:
-        """Gradient (halved) of the alpha (and sigma) priors, padded to the pose."""
-        blocks = [np.zeros(POSE_DIM), self.alpha @ params.alpha]
-        if free_sigma:
-            blocks.append(self.sigma @ params.sigma)
-        return np.concatenate(blocks)
-
-    def cost(self, params: Params, free_sigma: bool) -> float:
-        """``alpha' L_a alpha`` (+ ``sigma' L_s sigma`` while sigma is free)."""
-        cost = float(params.alpha @ self.alpha @ params.alpha)
-        if free_sigma:
-            cost += float(params.sigma @ self.sigma @ params.sigma)
-        return cost
 
 
 class Level(NamedTuple):

@@ -20,7 +20,8 @@ import numpy as np
 
 from face_tracking_ros.geometry.rotation import rodrigues
 from face_tracking_ros.imaging import ImagePyramid, PhotometricInvariance, PhotometricProjection
-from face_tracking_ros.tracking.mono_rois import FaceProjection, Params, Roi, Sampled
+from face_tracking_ros.tracking.mono_projection import FaceProjection, Sampled
+from face_tracking_ros.tracking.mono_rois import Params, Roi
 
 
 class OnDemand(Sequence[np.ndarray]):
