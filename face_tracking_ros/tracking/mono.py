@@ -256,7 +256,7 @@ class MonoTracker:
             if adjusted is not None:
                 self._apply_adjustment(pyramid, adjusted, result)
         except (InputError, LinAlgError):
-            track.first_views.adjustment = None
+            track.first_views.drop_adjustment()
 
     # --- initialisation and recovery -----------------------------------------------------------
 
@@ -546,7 +546,7 @@ class MonoTracker:
         keyframe = self._sampler.keyframe(start.omega, first)
         previous = self._sampler.templates(pyramid, current, adjusted.rois, normals)
         track.rois, track.normals, track.keyframes = adjusted.rois, normals, [keyframe]
-        track.first_views.views, track.first_views.depth = views, estimate.depth
+        track.first_views.rebase(views, estimate.depth)
         track.start, track.previous, track.current, track.before = start, previous, current, None
         track.last_good = self._result(
             TrackStatus.TRACKING,

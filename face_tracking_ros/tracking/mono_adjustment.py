@@ -82,12 +82,16 @@ class Adjusted(NamedTuple):
 class FirstViews:
     """A track's first views, kept for the bundle adjustment, and the adjustment under way.
 
+    Its fields change only through its methods: :class:`ViewAdjuster` keeps views and starts
+    and ends adjustments, the tracker drops one that failed and rebases the views on one it
+    applied.
+
     Attributes:
         first: frame 1's pyramid.
         views: frame 1 and the views kept.
         clicks: the initialisation's 2-D points.
         depth: (N, 6) skin depth of the last adjustment (None before one).
-        adjusted: how many of the views the adjustments started so far covered (frame 1
+        covered_views: how many of the views the adjustments started so far covered (frame 1
             included).
         adjustment: the adjustment under way.
     """
@@ -96,8 +100,26 @@ class FirstViews:
     views: list[View]
     clicks: Initialisation | None
     depth: np.ndarray | None = None
-    adjusted: int = 1
+    covered_views: int = 1
     adjustment: Stages[Adjusted | None] | None = None
+
+    def keep(self, view: View) -> None:
+        """Keep a frame as a view."""
+        self.views.append(view)
+
+    def start_adjustment(self, adjustment: Stages[Adjusted | None]) -> None:
+        """Make ``adjustment``, over every view so far, the one under way."""
+        self.adjustment = adjustment
+        self.covered_views = len(self.views)
+
+    def drop_adjustment(self) -> None:
+        """No adjustment under way: the last one ended, or failed."""
+        self.adjustment = None
+
+    def rebase(self, views: list[View], depth: np.ndarray) -> None:
+        """Take an applied adjustment's views (:meth:`ViewAdjuster.carry`) and skin depth."""
+        self.views = views
+        self.depth = depth
 
 
 class ViewAdjuster:
@@ -161,14 +183,14 @@ class ViewAdjuster:
         """
         if self._is_new_view(views, params.omega, frame):
             image = pyramid.levels[0].copy()  # the pyramid's levels are reused
-            views.views.append(View.of(image, visibility, params, frame))
+            views.keep(View.of(image, visibility, params, frame))
         if views.adjustment is None:
-            if views.adjusted == len(views.views):
+            if views.covered_views == len(views.views):
                 return None
-            views.adjustment = self._adjustment(views, pyramid.num_levels)
+            views.start_adjustment(self._adjustment(views, pyramid.num_levels))
         done, adjusted = run_stages(views.adjustment, self._config.bundle.stages_per_frame or None)
         if done:
-            views.adjustment = None
+            views.drop_adjustment()
         return adjusted
 
     def _is_new_view(self, views: FirstViews, omega: np.ndarray, frame: int) -> bool:
@@ -194,7 +216,6 @@ class ViewAdjuster:
         rejected, and the track kept the clicks' pose, 6.8 degrees of pitch error against 2.7.)
         """
         kept = list(views.views)
-        views.adjusted = len(kept)
         poses = [(v.params.omega, v.params.t, v.params.alpha) for v in kept]
         depth = views.depth
         start = Estimate(
