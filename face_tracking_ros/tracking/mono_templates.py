@@ -1,9 +1,9 @@
 """The templates of eq. 6 and the keyframes of its drift term.
 
 Eq. 6 compares I_n's samples on the ROIs with ``I_(n-1)(x_i(n-1))`` and ``I_1(x_i(1))``: the
-templates, each image's samples on the ROIs (:mod:`.mono_rois`) of every pyramid level at its
-estimate (:class:`Templates`). A frame's coarse levels are sampled only when a later solve first
-reads them (:class:`OnDemand`).
+templates, each image's samples (:mod:`.mono_projection`) on the ROIs (:mod:`.mono_rois`) of
+every pyramid level at its estimate (:class:`Templates`). A frame's coarse levels are sampled
+only when a later solve first reads them (:class:`OnDemand`).
 
 The drift term's templates are a keyframe's (:class:`Keyframe`): frame 1's, the seed's I_1.
 Optionally (``max_keyframes`` > 1) the drift term compares with the keyframe nearest in rotation
