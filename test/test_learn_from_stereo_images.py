@@ -23,7 +23,7 @@ from face_tracking_ros.model.model_file import load_model
 from face_tracking_ros.pipelines import stereo_meshes
 from face_tracking_ros.pipelines.learn_options import LearnOptions
 from face_tracking_ros.pipelines.mesh_bags import subject_of
-from face_tracking_ros.pipelines.track import score_stereo_against_truth
+from face_tracking_ros.pipelines.scoring import score_stereo_against_truth
 from face_tracking_ros.replay import ReplayStats
 from face_tracking_ros.synthetic.clicks import clicks_from_bag, write_init_file
 from face_tracking_ros.tracking.stereo_evaluation import StereoEvaluation

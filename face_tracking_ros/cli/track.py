@@ -3,8 +3,9 @@
 The tracker is chosen from the bag's image topics (one: mono_tracker; a left and a right one:
 stereo_tracker) and runs through :func:`face_tracking_ros.replay.replay_bag`, i.e. the node's own
 code. When the bag holds synthetic truth, the accuracy against it is printed and, with
-``--report``, written as JSON. The topic discovery, replay inputs and scoring are
-:mod:`face_tracking_ros.pipelines.track`'s, shared with ``face-tracking learn``.
+``--report``, written as JSON. The topic discovery and replay inputs
+(:mod:`face_tracking_ros.pipelines.bag_inputs`) and the scoring
+(:mod:`face_tracking_ros.pipelines.scoring`) are shared with ``face-tracking learn``.
 """
 
 from __future__ import annotations
@@ -20,17 +21,16 @@ from face_tracking_ros.cli.replay import add_replay_options, parse_remaps
 from face_tracking_ros.errors import BagError, ConfigError
 from face_tracking_ros.io.bags import bag_topics
 from face_tracking_ros.io.series import has_truth, load_states
-from face_tracking_ros.pipelines.track import (
+from face_tracking_ros.pipelines.bag_inputs import (
     check_one_transport,
     compressed_parameters,
     image_topics,
     input_remaps,
     is_stereo_bag,
-    score_against_truth,
-    score_stereo_against_truth,
     stereo_topics,
     tracked_nodes,
 )
+from face_tracking_ros.pipelines.scoring import score_against_truth, score_stereo_against_truth
 from face_tracking_ros.processing.mono import MonoNodeConfig
 from face_tracking_ros.processing.parameters import OverrideParameters
 from face_tracking_ros.processing.stereo import StereoNodeConfig

@@ -17,19 +17,19 @@ from face_tracking_ros.errors import BagError, ConfigError, FaceTrackingError
 from face_tracking_ros.io.bags import bag_topics
 from face_tracking_ros.io.provenance import Provenance
 from face_tracking_ros.io.series import has_truth
-from face_tracking_ros.pipelines.learn_options import LearnOptions
-from face_tracking_ros.pipelines.mesh_bags import mesh_topic
-from face_tracking_ros.pipelines.track import (
+from face_tracking_ros.pipelines.bag_inputs import (
     CAMERA_INFO_TYPE,
     check_one_transport,
     compressed_parameters,
     image_topics,
     input_remaps,
     is_stereo_bag,
-    score_stereo_against_truth,
     stereo_topics,
     tracked_nodes,
 )
+from face_tracking_ros.pipelines.learn_options import LearnOptions
+from face_tracking_ros.pipelines.mesh_bags import mesh_topic
+from face_tracking_ros.pipelines.scoring import score_stereo_against_truth
 from face_tracking_ros.processing.parameters import OverrideParameters
 from face_tracking_ros.replay import ReplayStats, print_stats, replay_bag
 from face_tracking_ros.synthetic.clicks import clicks_from_bag, write_init_file

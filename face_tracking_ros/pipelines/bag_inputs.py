@@ -1,27 +1,20 @@
-"""Tracking a recorded bag offline: its image topics, the tracker's replay inputs, its score.
+"""What a tracker replayed over a bag reads, and with which parameters.
 
-What ``face-tracking track`` and the learning pipeline's tracking of raw stereo bags
-(:mod:`.stereo_meshes`) share: a bag's image topics and their transport (Image or
-CompressedImage), the inputs and parameters of a tracker replayed over it
-(:func:`face_tracking_ros.replay.replay_bag`), the nodes it tracks, and the accuracy of the
-tracked bag against the synthetic truth the input bag holds.
+A bag's image topics and their transport (Image or CompressedImage), whether it is a stereo
+bag, the tracker inputs remapped to its topics, the ``compressed`` parameter, and the nodes the
+chosen tracker tracks (for its initialisation): what ``face-tracking track`` and the learning
+pipeline's tracking of raw stereo bags (:mod:`.stereo_meshes`) give
+:func:`face_tracking_ros.replay.replay_bag`.
 """
 
 from __future__ import annotations
 
 from collections.abc import Iterable, Mapping
-import contextlib
 from pathlib import Path
 from typing import Protocol
 
-import numpy as np
-
 from face_tracking_ros.data import default_model_path
-from face_tracking_ros.errors import BagError, ConfigError, InputError
-from face_tracking_ros.geometry.camera import PinholeCamera, StereoRig
-from face_tracking_ros.io.bags import bag_topics, read_messages
-from face_tracking_ros.io.conversions import camera_from_info
-from face_tracking_ros.io.series import load_states, load_truth
+from face_tracking_ros.errors import ConfigError
 from face_tracking_ros.model.model_file import load_model
 from face_tracking_ros.model.topology import mesh_topology
 from face_tracking_ros.processing.mono import COMPRESSED_IMAGE, IMAGE
@@ -29,10 +22,7 @@ from face_tracking_ros.processing.parameters import OverrideParameters
 from face_tracking_ros.processing.stereo import COMPRESSED as STEREO_COMPRESSED
 from face_tracking_ros.processing.stereo import LEFT_IMAGE, LEFT_INFO, RIGHT_IMAGE, RIGHT_INFO
 from face_tracking_ros.replay import bag_spelling
-from face_tracking_ros.tracking.accuracy import TrackingAccuracy, tracking_accuracy
-from face_tracking_ros.tracking.result import TrackStatus
 from face_tracking_ros.tracking.stereo import StereoTrackerConfig
-from face_tracking_ros.tracking.stereo_evaluation import StereoEvaluation, evaluate_stereo
 
 IMAGE_TYPE = 'sensor_msgs/msg/Image'
 COMPRESSED_TYPE = 'sensor_msgs/msg/CompressedImage'
@@ -139,88 +129,3 @@ def tracked_nodes(node: str, params: list[str], model_file: Path | None) -> tupl
         config = OverrideParameters.parse(params).config(StereoTrackerConfig, prefix='tracker.')
         return mesh_topology(config.num_nodes).node_names
     return load_model(model_file or default_model_path()).node_names
-
-
-def score_stereo_against_truth(bag: Path, out: Path) -> StereoEvaluation:
-    """Stereo-tracked meshes in ``out`` against the truth in ``bag`` (issue 5's figures).
-
-    The errors are over the frames from the first tracked one on: before it there is no
-    estimate (the published nodes are zeros); a frame lost later counts with the last estimate,
-    which is what the node publishes.
-
-    Raises:
-        BagError: if no frame was tracked.
-    """
-    states, truth = load_states(out), load_truth(bag)
-    est, ref = _matching_frames(states.stamps, truth.stamps, bag, out)
-    tracked = states.status[est] == TrackStatus.TRACKING
-    if not tracked.any():
-        msg = f'{out}: no frame was tracked'
-        raise BagError(msg)
-    since = int(np.argmax(tracked))
-    est, ref = est[since:], ref[since:]
-    nodes = states.nodes[est]
-    return evaluate_stereo(
-        nodes,
-        truth.nodes[ref][:, : nodes.shape[1]],
-        stereo_rig(bag),
-        mesh_topology(nodes.shape[1]),
-        states.status[est],
-    )
-
-
-def stereo_rig(bag: Path) -> StereoRig:
-    """The rig of a stereo bag, from the first valid left and right camera_info.
-
-    Raises:
-        BagError: if the bag lacks them.
-        InputError: if they do not form a rectified rig.
-    """
-    cameras: dict[str, PinholeCamera | None] = {
-        topic: None for topic, kind in bag_topics(bag).items() if kind == CAMERA_INFO_TYPE
-    }
-    for message in read_messages(bag, topics=list(cameras)):
-        if cameras[message.topic] is None:
-            with contextlib.suppress(InputError):  # e.g. an all-zero K: the tracker skips it too
-                cameras[message.topic] = camera_from_info(message.msg)
-        if all(cameras.values()):
-            break
-    left = next((c for t, c in cameras.items() if 'left' in t and c is not None), None)
-    right = next((c for t, c in cameras.items() if 'right' in t and c is not None), None)
-    if left is None or right is None:
-        msg = f'{bag}: no valid left and right camera_info to build the stereo rig'
-        raise BagError(msg)
-    return StereoRig(left, right)
-
-
-def _matching_frames(
-    stamps: np.ndarray, truth_stamps: np.ndarray, bag: Path, out: Path
-) -> tuple[np.ndarray, np.ndarray]:
-    """Indices of the output frames and of the truth frames with the same stamps.
-
-    Raises:
-        BagError: if no output frame has a truth frame of the same stamp.
-    """
-    index = {int(stamp): i for i, stamp in enumerate(truth_stamps)}
-    rows = [(i, index[int(s)]) for i, s in enumerate(stamps) if int(s) in index]
-    if not rows:
-        msg = f'{out}: no output frame has a truth frame of the same stamp in {bag}'
-        raise BagError(msg)
-    est, ref = np.array(rows).T
-    return est, ref
-
-
-def score_against_truth(bag: Path, out: Path, model_file: Path | None) -> TrackingAccuracy:
-    """Accuracy of the mono FaceState outputs in ``out`` against the truth in ``bag``."""
-    model = load_model(model_file or default_model_path())
-    states, truth = load_states(out), load_truth(bag)
-    est, ref = _matching_frames(states.stamps, truth.stamps, bag, out)
-    return tracking_accuracy(
-        model,
-        states.status[est],
-        states.omega[est],
-        states.t[est],
-        states.alpha[est],
-        states.nodes[est],
-        truth.nodes[ref][:, : model.num_nodes],
-    )
