@@ -36,7 +36,6 @@ from face_tracking_ros.processing.parameters import OverrideParameters
 from face_tracking_ros.processing.stereo import StereoNodeConfig
 from face_tracking_ros.replay import print_stats, replay_bag
 from face_tracking_ros.synthetic.clicks import clicks_from_bag, write_init_file
-from face_tracking_ros.tracking.accuracy import TrackingAccuracy, drift_window
 from face_tracking_ros.tracking.result import TrackStatus
 
 NODE_CONFIGS = {'mono_tracker': MonoNodeConfig, 'stereo_tracker': StereoNodeConfig}
@@ -193,26 +192,7 @@ def _score(args: argparse.Namespace, node: str, model_file: Path | None) -> None
         report = asdict(evaluation)
     else:
         accuracy = score_against_truth(args.bag, args.out, model_file)
-        print(format_accuracy(accuracy))
+        print(accuracy.report())
         report = accuracy.as_dict()
     if args.report:
         args.report.write_text(json.dumps(report, indent=2))
-
-
-def format_accuracy(accuracy: TrackingAccuracy) -> str:
-    """A short table of the accuracy figures."""
-    rotation = ' / '.join(f'{v:.2f}' for v in accuracy.rotation_mae_deg)
-    translation = ' / '.join(f'{v:.2f}' for v in accuracy.translation_mae_mm)
-    window = drift_window(accuracy.tracked)
-    drift = f'drift (last {window} - first {window}):'
-    return '\n'.join(
-        [
-            f'frames {accuracy.frames}: tracked {accuracy.tracked}, lost {accuracy.lost}',
-            f'rotation MAE about x / y / z:    {rotation} deg',
-            f'translation MAE in x / y / z:    {translation} mm',
-            f'3-D node RMS:                    {accuracy.node_rms_mm:.2f} mm',
-            f'alpha RMS (% of range):          {accuracy.alpha_rms_percent:.1f} %',
-            f'{drift:<33}{accuracy.drift_deg:+.3f} deg',
-            f'jitter (frame-to-frame):         {accuracy.jitter_deg:.3f} deg',
-        ]
-    )

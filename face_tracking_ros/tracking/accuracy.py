@@ -60,6 +60,24 @@ class TrackingAccuracy:
         """JSON-ready dictionary."""
         return asdict(self)
 
+    def report(self) -> str:
+        """A short table of the figures, one a line."""
+        rotation = ' / '.join(f'{v:.2f}' for v in self.rotation_mae_deg)
+        translation = ' / '.join(f'{v:.2f}' for v in self.translation_mae_mm)
+        window = drift_window(self.tracked)
+        drift = f'drift (last {window} - first {window}):'
+        return '\n'.join(
+            [
+                f'frames {self.frames}: tracked {self.tracked}, lost {self.lost}',
+                f'rotation MAE about x / y / z:    {rotation} deg',
+                f'translation MAE in x / y / z:    {translation} mm',
+                f'3-D node RMS:                    {self.node_rms_mm:.2f} mm',
+                f'alpha RMS (% of range):          {self.alpha_rms_percent:.1f} %',
+                f'{drift:<33}{self.drift_deg:+.3f} deg',
+                f'jitter (frame-to-frame):         {self.jitter_deg:.3f} deg',
+            ]
+        )
+
 
 def tracking_accuracy(
     model: FaceModel,
