@@ -66,25 +66,26 @@ class ReplayStats:
     read_error: str = ''
     status: dict[str, dict[str, str]] = field(default_factory=dict)
 
-
-def print_stats(stats: ReplayStats, out: Path) -> None:
-    """Summarise a replay on stdout."""
-    inputs = ', '.join(f'{n} {t}' for t, n in sorted(stats.inputs.items())) or 'none'
-    outputs = ', '.join(f'{n} {t}' for t, n in sorted(stats.outputs.items())) or 'none'
-    print(f'read: {inputs}')
-    print(f'wrote to {out}: {outputs}')
-    if stats.errors:
-        print('input problems (the live node reports these on /diagnostics):')
-    for text, count in stats.errors.most_common():
-        print(f'  {count}x {text}')
-    if stats.read_error:
-        print(
-            f'input bag unreadable past this point, replayed the readable part: {stats.read_error}'
-        )
-    for node, status in stats.status.items():
-        print(f'{node}: ' + ', '.join(f'{key} {value}' for key, value in status.items()))
-    if stats.interrupted:
-        print('interrupted: the output bag holds what was processed so far')
+    def summary(self, out: Path) -> list[str]:
+        """The replay summarised in lines of text, ``out`` being the output bag it wrote."""
+        inputs = ', '.join(f'{n} {t}' for t, n in sorted(self.inputs.items())) or 'none'
+        outputs = ', '.join(f'{n} {t}' for t, n in sorted(self.outputs.items())) or 'none'
+        lines = [f'read: {inputs}', f'wrote to {out}: {outputs}']
+        if self.errors:
+            lines.append('input problems (the live node reports these on /diagnostics):')
+        lines += [f'  {count}x {text}' for text, count in self.errors.most_common()]
+        if self.read_error:
+            lines.append(
+                'input bag unreadable past this point, replayed the readable part: '
+                f'{self.read_error}'
+            )
+        lines += [
+            f'{node}: ' + ', '.join(f'{key} {value}' for key, value in status.items())
+            for node, status in self.status.items()
+        ]
+        if self.interrupted:
+            lines.append('interrupted: the output bag holds what was processed so far')
+        return lines
 
 
 def resolve_inputs(

@@ -13,6 +13,7 @@ import pytest
 
 from face_tracking_ros import replay as replay_module
 from face_tracking_ros.cli.main import main
+from face_tracking_ros.cli.replay import print_stats
 from face_tracking_ros.errors import BagError, InputError
 from face_tracking_ros.io import conversions
 from face_tracking_ros.io.bags import BagWriter, read_messages
@@ -20,7 +21,7 @@ from face_tracking_ros.io.messages import RosbagsMessages
 from face_tracking_ros.io.typestore import typestore
 from face_tracking_ros.processing.base import Output, Port, QosClass
 from face_tracking_ros.processing.parameters import OverrideParameters
-from face_tracking_ros.replay import print_stats, replay, replay_bag, resolve_inputs
+from face_tracking_ros.replay import replay, replay_bag, resolve_inputs
 
 IMAGE = 'sensor_msgs/msg/Image'
 FLOAT = 'std_msgs/msg/Float64'

@@ -18,7 +18,7 @@ from face_tracking_ros.io.bags import read_raw
 from face_tracking_ros.processing.base import Output
 from face_tracking_ros.processing.parameters import OverrideParameters
 from face_tracking_ros.processing.registry import PROCESSORS
-from face_tracking_ros.replay import print_stats, replay_bag
+from face_tracking_ros.replay import ReplayStats, replay_bag
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -90,6 +90,12 @@ def parse_remaps(items: list[str] | None) -> dict[str, str]:
             raise ConfigError(msg)
         remaps[port] = topic
     return remaps
+
+
+def print_stats(stats: ReplayStats, out: Path) -> None:
+    """Print a replay's summary (:meth:`~face_tracking_ros.replay.ReplayStats.summary`)."""
+    for line in stats.summary(out):
+        print(line)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from face_tracking_ros.cli.replay import add_replay_options, parse_remaps
+from face_tracking_ros.cli.replay import add_replay_options, parse_remaps, print_stats
 from face_tracking_ros.errors import BagError, ConfigError
 from face_tracking_ros.io.bags import bag_topics
 from face_tracking_ros.io.series import has_truth, load_states
@@ -34,7 +34,7 @@ from face_tracking_ros.pipelines.scoring import score_against_truth, score_stere
 from face_tracking_ros.processing.mono import MonoNodeConfig
 from face_tracking_ros.processing.parameters import OverrideParameters
 from face_tracking_ros.processing.stereo import StereoNodeConfig
-from face_tracking_ros.replay import print_stats, replay_bag
+from face_tracking_ros.replay import replay_bag
 from face_tracking_ros.synthetic.clicks import clicks_from_bag, write_init_file
 from face_tracking_ros.tracking.result import TrackStatus
 

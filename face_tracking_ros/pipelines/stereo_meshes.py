@@ -31,7 +31,7 @@ from face_tracking_ros.pipelines.learn_options import LearnOptions
 from face_tracking_ros.pipelines.mesh_bags import mesh_topic
 from face_tracking_ros.pipelines.scoring import score_stereo_against_truth
 from face_tracking_ros.processing.parameters import OverrideParameters
-from face_tracking_ros.replay import ReplayStats, print_stats, replay_bag
+from face_tracking_ros.replay import ReplayStats, replay_bag
 from face_tracking_ros.synthetic.clicks import clicks_from_bag, write_init_file
 
 STEREO_PARAMS = 'retroactive_depths=true'  # learn from meshes with each track's final depths
@@ -162,7 +162,8 @@ def _track(
     stats = replay_bag([TRACKER], bag, out, params, remaps, progress=False)
     if stats.interrupted:  # the meshes so far stay, and a later run tracks the bag again
         raise KeyboardInterrupt
-    print_stats(stats, out)
+    for line in stats.summary(out):
+        print(line)
     if not stats.outputs['face/mesh_raw']:
         shutil.rmtree(out)  # nothing to learn from, and a later run must track it again
         raise _no_mesh_error(bag, topics, stats)
