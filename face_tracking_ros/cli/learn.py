@@ -192,7 +192,7 @@ def _add_stereo_options(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> None:
     """Read, align, learn, evaluate, write."""
-    learn_from_bags(learn_options(args))
+    learn_from_bags(learn_options(args), say=print)
 
 
 def learn_options(args: argparse.Namespace) -> LearnOptions:

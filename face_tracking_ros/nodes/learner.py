@@ -6,7 +6,8 @@ options: bags of 3-D meshes (synthetic truth, FaceMesh or FaceState) or raw ster
 which it first tracks with the stereo tracker (every mesh with the frame-1 depths refined over
 its whole track; ``tracker_params``). It writes the model file and the JSON report, then
 publishes the model on ``face/model`` with transient-local durability, so trackers started later
-still receive it, and keeps spinning.
+still receive it, and keeps spinning. The pipeline's progress and comparison table go to the
+node's log.
 """
 
 from __future__ import annotations
@@ -162,7 +163,7 @@ class LearnerNode(Endless, Node):
             f'learning from {len(options.bags)} bag(s) by {options.method} '
             f'(p={options.p}, q={options.q}) into {options.out} and {options.report}'
         )
-        saved = learn_from_bags(options)
+        saved = learn_from_bags(options, say=self.get_logger().info)
         model = load_model(saved)
         factory = RclpyMessages()
         stamp_ns = self.get_clock().now().nanoseconds

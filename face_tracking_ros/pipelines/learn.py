@@ -15,12 +15,13 @@ The steps of :func:`learn_from_bags`:
 5. the model file, the JSON report and, with ``plots``, the PNG figures are written (Figure
    5-like sigma scatter per method, comparison, convergence).
 
-Progress and the comparison table go to stdout.
+Progress and the comparison table go to the ``say`` it is given, line by line: stdout for
+``face-tracking learn``, the node's log for the learner node.
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import replace
 import json
 from pathlib import Path
@@ -61,8 +62,13 @@ from face_tracking_ros.pipelines.stereo_meshes import (
 from face_tracking_ros.synthetic.faces import PRESETS, FacePopulation
 
 
-def learn_from_bags(options: LearnOptions) -> Path:
+def learn_from_bags(options: LearnOptions, say: Callable[[str], None] = print) -> Path:
     """Read, align, learn, evaluate, write; return the model file written.
+
+    Args:
+        options: the bags, the method and its dimensions, the files to write.
+        say: where the progress and the comparison table go: ``print`` (``face-tracking
+            learn``) or a logger's ``info`` (the learner node).
 
     Raises:
         FaceTrackingError: for options, bags or files the run cannot use (ConfigError, BagError,
@@ -72,19 +78,20 @@ def learn_from_bags(options: LearnOptions) -> Path:
     check_options(options)
     initialisations = _initialisations(options)  # every raw bag's, before minutes of tracking
     rng = np.random.default_rng(options.seed)
-    mesh_bags, truth_bags = _mesh_and_truth_bags(options, initialisations)
-    bag_meshes = _read_meshes(options, mesh_bags, truth_bags)
-    training, align_seconds = _aligned_training_set(options, bag_meshes, rng)
+    mesh_bags, truth_bags = _mesh_and_truth_bags(options, initialisations, say)
+    bag_meshes = _read_meshes(options, mesh_bags, truth_bags, say)
+    training, align_seconds = _aligned_training_set(options, bag_meshes, rng, say)
     truth = _true_subspaces(options, training, bag_meshes)
     results: dict[str, LearningResult] = {}
     evaluations: dict[str, Evaluation] = {}
     report_methods: dict[str, Any] = {}
     for method in dict.fromkeys([options.method, *options.compare]):
         results[method], evaluations[method], report_methods[method] = _learn_and_evaluate(
-            method, options, training, truth
+            method, options, training, truth, say
         )
-    print(comparison_table(evaluations))
-    saved = _save_model(options, results[options.method].model)
+    for line in comparison_table(evaluations).splitlines():  # one log record a row, aligned
+        say(line)
+    saved = _save_model(options, results[options.method].model, say)
     plots = _plots(options.plots, training, results, evaluations) if options.plots else []
     report = {
         'model': str(saved),
@@ -98,7 +105,7 @@ def learn_from_bags(options: LearnOptions) -> Path:
         'plots': [str(path) for path in plots],
     }
     _write_json(options.report, report)
-    print(f'report written to {options.report}')
+    say(f'report written to {options.report}')
     return saved
 
 
@@ -117,7 +124,7 @@ def _initialisations(options: LearnOptions) -> dict[Path, str]:
 
 
 def _mesh_and_truth_bags(
-    options: LearnOptions, initialisations: dict[Path, str]
+    options: LearnOptions, initialisations: dict[Path, str], say: Callable[[str], None]
 ) -> tuple[list[Path], list[Path | None]]:
     """Each bag's bag of meshes (raw stereo bags tracked) and the bag labelling its meshes.
 
@@ -128,7 +135,7 @@ def _mesh_and_truth_bags(
         ConfigError: for a mesh bag paired with the truth of another bag than its source.
         BagError: if the tracker produced no mesh from a raw stereo bag.
     """
-    mesh_bags = [mesh_bag(bag, options, initialisations.get(bag)) for bag in options.bags]
+    mesh_bags = [mesh_bag(bag, options, initialisations.get(bag), say) for bag in options.bags]
     given = options.truth or [None] * len(options.bags)
     truth_bags = [
         bag if mesh is not bag and has_truth(bag) else truth
@@ -155,25 +162,31 @@ def _check_truth_pairs(mesh_bags: Sequence[Path], truth_bags: Sequence[Path | No
 
 
 def _read_meshes(
-    options: LearnOptions, mesh_bags: Sequence[Path], truth_bags: Sequence[Path | None]
+    options: LearnOptions,
+    mesh_bags: Sequence[Path],
+    truth_bags: Sequence[Path | None],
+    say: Callable[[str], None],
 ) -> list[BagMeshes]:
     """The meshes of every bag, one entry per bag and subject; named after the given bags."""
     return [
         item
         for bag, mesh, truth_bag in zip(options.bags, mesh_bags, truth_bags, strict=True)
-        for item in read_bag_meshes(mesh, options, truth_bag, bag.name)
+        for item in read_bag_meshes(mesh, options, truth_bag, bag.name, say)
     ]
 
 
 def _aligned_training_set(
-    options: LearnOptions, bag_meshes: Sequence[BagMeshes], rng: np.random.Generator
+    options: LearnOptions,
+    bag_meshes: Sequence[BagMeshes],
+    rng: np.random.Generator,
+    say: Callable[[str], None],
 ) -> tuple[TrainingSet, float]:
     """The training set aligned (§3.3), ``add_noise`` drawn from ``rng``; the seconds it took."""
     sequences = [item.sequence for item in bag_meshes]
     if options.add_noise > 0.0:
         sequences = [_with_noise(sequence, options.add_noise, rng) for sequence in sequences]
     training = TrainingSet.from_sequences(sequences)
-    print(
+    say(
         f'read {len(training.meshes)} meshes of {training.num_nodes} nodes, '
         f'{training.num_subjects} subjects, {int(training.neutral.sum())} neutral frames'
     )
@@ -237,7 +250,11 @@ def _synthetic_index(subject: str) -> int:
 
 
 def _learn_and_evaluate(
-    method: str, options: LearnOptions, training: TrainingSet, truth: TrueSubspaces | None
+    method: str,
+    options: LearnOptions,
+    training: TrainingSet,
+    truth: TrueSubspaces | None,
+    say: Callable[[str], None],
 ) -> tuple[LearningResult, Evaluation, dict[str, Any]]:
     """Learn by ``method`` from the aligned ``training`` set and evaluate the model.
 
@@ -252,10 +269,10 @@ def _learn_and_evaluate(
     start = time.perf_counter()
     result = learner(training)
     learn_seconds = time.perf_counter() - start
-    print(f'{method}: learned in {learn_seconds:.3f} s, evaluating (leave one subject out)')
+    say(f'{method}: learned in {learn_seconds:.3f} s, evaluating (leave one subject out)')
     evaluation, loo, _ = evaluate(training, learner, result, truth)
     if loo.skipped:
-        print(f'{method}: no leave-one-subject-out figures: {loo.skipped}')
+        say(f'{method}: no leave-one-subject-out figures: {loo.skipped}')
     entry = {
         **evaluation.as_dict(),
         'learn_seconds': learn_seconds,
@@ -272,11 +289,11 @@ def _learn_and_evaluate(
     return result, evaluation, entry
 
 
-def _save_model(options: LearnOptions, model: FaceModel) -> Path:
+def _save_model(options: LearnOptions, model: FaceModel, say: Callable[[str], None]) -> Path:
     """Write the model, its metadata naming the bags it was learned from; return its path."""
     metadata = {**model.metadata, 'bags': [str(bag) for bag in options.bags]}
     saved = save_model(replace(model, metadata=metadata), options.out)
-    print(f'model ({options.method}, p={model.p}, q={model.q}) written to {saved}')
+    say(f'model ({options.method}, p={model.p}, q={model.q}) written to {saved}')
     return saved
 
 

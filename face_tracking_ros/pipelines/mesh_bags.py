@@ -14,6 +14,7 @@ A bag holds one of:
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 import re
@@ -68,7 +69,11 @@ class _Frame(NamedTuple):
 
 
 def read_bag_meshes(
-    bag: Path, options: LearnOptions, truth_bag: Path | None = None, name: str = ''
+    bag: Path,
+    options: LearnOptions,
+    truth_bag: Path | None = None,
+    name: str = '',
+    say: Callable[[str], None] = print,
 ) -> list[BagMeshes]:
     """The meshes of one bag, one entry per subject found in it.
 
@@ -79,6 +84,7 @@ def read_bag_meshes(
             alpha of the mesh with the same header stamp (e.g. the synthetic bag a tracker ran on).
         name: the name the subject id is taken from without truth (:func:`subject_of`); empty:
             the bag's (the raw bag's, for the meshes tracked from it).
+        say: where the notes on what was left out or taken as neutral go, line by line.
 
     Raises:
         BagError: if a bag lacks the topic, holds no message on it, or the truth bag has no
@@ -89,7 +95,7 @@ def read_bag_meshes(
     topic = _checked_mesh_topic(bag, topics, options)
     frames, skipped = _tracked_frames(bag, topics, topic, options, truth_bag, name or bag.name)
     if skipped:
-        print(f'{bag}: {skipped} frames the tracker did not track (initialising or lost) left out')
+        say(f'{bag}: {skipped} frames the tracker did not track (initialising or lost) left out')
     if not frames:
         msg = (
             f'{bag}: none of the {skipped} frames on {topic} was tracked'
@@ -100,7 +106,7 @@ def read_bag_meshes(
     by_subject: dict[str, list[_Frame]] = {}
     for frame in frames:
         by_subject.setdefault(frame.subject, []).append(frame)
-    return [_bag_meshes(bag, topic, items, options) for items in by_subject.values()]
+    return [_bag_meshes(bag, topic, items, options, say) for items in by_subject.values()]
 
 
 def subject_of(name: str, options: LearnOptions) -> str:
@@ -235,11 +241,14 @@ def _truth_by_stamp(truth_bag: Path) -> dict[int, TruthSample]:
     return {sample.stamp_ns: sample for sample in samples}
 
 
-def _bag_meshes(bag: Path, topic: str, items: list[_Frame], options: LearnOptions) -> BagMeshes:
+def _bag_meshes(
+    bag: Path, topic: str, items: list[_Frame], options: LearnOptions, say: Callable[[str], None]
+) -> BagMeshes:
     """One subject's meshes of a bag; neutral frames from labels, else the first K frames.
 
     ``items`` are the subject's frames, all with truth or all without; the first K are by
-    message index. With truth, the subject's true sigma is its first frame's.
+    message index (``say`` notes it when they are all of them). With truth, the subject's true
+    sigma is its first frame's.
     """
     subject = items[0].subject
     counts = {len(item.nodes) for item in items}
@@ -253,7 +262,7 @@ def _bag_meshes(bag: Path, topic: str, items: list[_Frame], options: LearnOption
     if not samples:
         neutral = np.array([item.index for item in items]) < options.neutral_frames
         if neutral.all():
-            print(
+            say(
                 f'{bag}: --neutral-frames {options.neutral_frames} covers all its {len(items)} '
                 'frames: all are taken as neutral, none shows an expression'
             )

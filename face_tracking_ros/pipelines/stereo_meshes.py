@@ -10,6 +10,7 @@ override it. Meshes an earlier run tracked from the same inputs are re-used.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
 import shutil
 
@@ -38,7 +39,12 @@ STEREO_PARAMS = 'retroactive_depths=true'  # learn from meshes with each track's
 TRACKER = 'stereo_tracker'
 
 
-def mesh_bag(bag: Path, options: LearnOptions, initialisation: str | None = None) -> Path:
+def mesh_bag(
+    bag: Path,
+    options: LearnOptions,
+    initialisation: str | None = None,
+    say: Callable[[str], None] = print,
+) -> Path:
     """The bag of 3-D meshes to learn from: ``bag`` itself, or its stereo tracking.
 
     A raw stereo bag (:func:`needs_tracking`) is tracked into ``options.meshes_dir``,
@@ -46,7 +52,8 @@ def mesh_bag(bag: Path, options: LearnOptions, initialisation: str | None = None
     ``simulate_clicks``; with ``tracker_params`` after :data:`STEREO_PARAMS`.
     ``initialisation`` is that stereo_tracker parameter when already known
     (:func:`stereo_initialisation`). Meshes an earlier run tracked from the same inputs are
-    re-used (:func:`_tracked_before`).
+    re-used (:func:`_tracked_before`). What it does, the replay's summary and the score against
+    the bag's truth go to ``say``, line by line.
 
     Raises:
         ConfigError: for a raw stereo bag without a way to initialise it, or one that
@@ -65,11 +72,11 @@ def mesh_bag(bag: Path, options: LearnOptions, initialisation: str | None = None
         [STEREO_PARAMS, *compressed, *options.tracker_params, initialisation]
     )
     remaps = input_remaps(stereo_topics(options))
-    if _tracked_before(out, Provenance.of(bag, [TRACKER], params.overrides, remaps)):
+    if _tracked_before(out, Provenance.of(bag, [TRACKER], params.overrides, remaps), say):
         return out
-    _track(bag, topics, out, params, remaps)
+    _track(bag, topics, out, params, remaps, say)
     if has_truth(bag):
-        _print_score(bag, out)
+        say(_score_line(bag, out))
     return out
 
 
@@ -151,19 +158,20 @@ def _track(
     out: Path,
     params: OverrideParameters,
     remaps: dict[str, str],
+    say: Callable[[str], None],
 ) -> None:
-    """Track the raw stereo bag ``bag`` (of ``topics``) into ``out`` and print what it did.
+    """Track the raw stereo bag ``bag`` (of ``topics``) into ``out`` and ``say`` what it did.
 
     Raises:
         BagError: if the tracker produced no mesh (``out`` is removed).
         KeyboardInterrupt: if the tracking was interrupted.
     """
-    print(f'{bag}: raw stereo images: tracking them into {out}')
+    say(f'{bag}: raw stereo images: tracking them into {out}')
     stats = replay_bag([TRACKER], bag, out, params, remaps, progress=False)
     if stats.interrupted:  # the meshes so far stay, and a later run tracks the bag again
         raise KeyboardInterrupt
     for line in stats.summary(out):
-        print(line)
+        say(line)
     if not stats.outputs['face/mesh_raw']:
         shutil.rmtree(out)  # nothing to learn from, and a later run must track it again
         raise _no_mesh_error(bag, topics, stats)
@@ -182,22 +190,21 @@ def _no_mesh_error(bag: Path, topics: dict[str, str], stats: ReplayStats) -> Bag
     return BagError(msg)
 
 
-def _print_score(bag: Path, out: Path) -> None:
-    """Print how the meshes tracked into ``out`` compare with the truth in ``bag``."""
+def _score_line(bag: Path, out: Path) -> str:
+    """How the meshes tracked into ``out`` compare with the truth in ``bag``, in one line."""
     try:
         evaluation = score_stereo_against_truth(bag, out)
     except FaceTrackingError as error:  # e.g. camera_info topics not named left / right
-        print(f'{out}: not scored against the truth of {bag}: {error}')
-        return
-    print(f'{out} against the truth of {bag}: {evaluation.report()}')
+        return f'{out}: not scored against the truth of {bag}: {error}'
+    return f'{out} against the truth of {bag}: {evaluation.report()}'
 
 
-def _tracked_before(out: Path, inputs: Provenance) -> bool:
+def _tracked_before(out: Path, inputs: Provenance, say: Callable[[str], None]) -> bool:
     """Whether ``out`` holds meshes an earlier run tracked from these inputs, to re-use.
 
     An earlier tracking of the same bag from other inputs, one that did not finish, or one
     whose bag was never closed (no metadata.yaml: the process was killed) is removed, to be
-    tracked again.
+    tracked again; which of these it is goes to ``say``.
 
     Raises:
         ConfigError: if ``out`` exists but is not such a tracking (not ours to remove).
@@ -206,7 +213,7 @@ def _tracked_before(out: Path, inputs: Provenance) -> bool:
         return False
     files = list(out.iterdir()) if out.is_dir() else []
     if files and all(file.suffix == '.mcap' for file in files):  # a writer killed before closing
-        print(f'{out}: an earlier run was stopped before it closed the bag: tracking again')
+        say(f'{out}: an earlier run was stopped before it closed the bag: tracking again')
         shutil.rmtree(out)
         return False
     earlier = Provenance.read(out)
@@ -217,10 +224,10 @@ def _tracked_before(out: Path, inputs: Provenance) -> bool:
         )
         raise ConfigError(msg)
     if earlier.complete and earlier.same_inputs(inputs):
-        print(f'{out}: re-using the meshes an earlier run tracked from the same inputs')
+        say(f'{out}: re-using the meshes an earlier run tracked from the same inputs')
         return True
     why = 'did not finish' if earlier.same_inputs(inputs) else 'tracked it from other inputs'
-    print(f'{out}: an earlier run {why}: tracking again')
+    say(f'{out}: an earlier run {why}: tracking again')
     shutil.rmtree(out)
     return False
 
