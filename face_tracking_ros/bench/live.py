@@ -204,8 +204,8 @@ class Driver:
         ]
         header = conversions.make_header(factory, 0, 'camera')
         self._infos = [conversions.camera_to_info(factory, header, s.camera) for s in streams]
-        image_class = factory.message_class('sensor_msgs/msg/Image')
-        info_class = factory.message_class('sensor_msgs/msg/CameraInfo')
+        image_class = factory.message_class(conversions.IMAGE_TYPE)
+        info_class = factory.message_class(conversions.CAMERA_INFO_TYPE)
         self._publishers = [
             (
                 self._node.create_publisher(image_class, s.image_topic, qos_profile_sensor_data),

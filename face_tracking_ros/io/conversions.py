@@ -27,6 +27,10 @@ from face_tracking_ros.model.topology import MeshTopology
 from face_tracking_ros.tracking.initialisation import Initialisation
 from face_tracking_ros.tracking.result import TrackResult
 
+IMAGE_TYPE = 'sensor_msgs/msg/Image'
+COMPRESSED_IMAGE_TYPE = 'sensor_msgs/msg/CompressedImage'
+CAMERA_INFO_TYPE = 'sensor_msgs/msg/CameraInfo'
+
 
 def make_header(factory: MessageFactory, stamp_ns: int, frame_id: str) -> Any:
     """A std_msgs/Header with the given stamp (ns) and frame."""
@@ -122,7 +126,7 @@ def array_to_image(
         raise InputError(msg_text)
     height, width = pixels.shape[:2]
     return factory.make(
-        'sensor_msgs/msg/Image',
+        IMAGE_TYPE,
         header=header,
         height=height,
         width=width,
@@ -190,7 +194,7 @@ def camera_to_info(factory: MessageFactory, header: Any, camera: PinholeCamera) 
     """A sensor_msgs/CameraInfo describing ``camera``."""
     fields = camera.camera_info_fields()
     return factory.make(
-        'sensor_msgs/msg/CameraInfo',
+        CAMERA_INFO_TYPE,
         header=header,
         height=fields['height'],
         width=fields['width'],

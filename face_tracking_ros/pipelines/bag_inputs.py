@@ -15,6 +15,7 @@ from typing import Protocol
 
 from face_tracking_ros.data import default_model_path
 from face_tracking_ros.errors import ConfigError
+from face_tracking_ros.io.conversions import COMPRESSED_IMAGE_TYPE, IMAGE_TYPE
 from face_tracking_ros.model.model_file import load_model
 from face_tracking_ros.model.topology import mesh_topology
 from face_tracking_ros.processing.mono import COMPRESSED_IMAGE, IMAGE
@@ -23,10 +24,6 @@ from face_tracking_ros.processing.stereo import COMPRESSED as STEREO_COMPRESSED
 from face_tracking_ros.processing.stereo import LEFT_IMAGE, LEFT_INFO, RIGHT_IMAGE, RIGHT_INFO
 from face_tracking_ros.replay import bag_spelling
 from face_tracking_ros.tracking.stereo import StereoTrackerConfig
-
-IMAGE_TYPE = 'sensor_msgs/msg/Image'
-COMPRESSED_TYPE = 'sensor_msgs/msg/CompressedImage'
-CAMERA_INFO_TYPE = 'sensor_msgs/msg/CameraInfo'
 
 
 def image_topics(topics: Mapping[str, str]) -> tuple[list[str], bool]:
@@ -38,7 +35,7 @@ def image_topics(topics: Mapping[str, str]) -> tuple[list[str], bool]:
     raw = [topic for topic, kind in topics.items() if kind == IMAGE_TYPE]
     if raw:
         return raw, False
-    return [topic for topic, kind in topics.items() if kind == COMPRESSED_TYPE], True
+    return [topic for topic, kind in topics.items() if kind == COMPRESSED_IMAGE_TYPE], True
 
 
 def is_stereo_bag(topics: Mapping[str, str]) -> bool:
@@ -53,7 +50,7 @@ def check_one_transport(bag: Path, topics: Mapping[str, str]) -> None:
     Raises:
         ConfigError: naming the two topics: the stereo tracker takes one transport for both.
     """
-    images = {t: kind for t, kind in topics.items() if kind in (IMAGE_TYPE, COMPRESSED_TYPE)}
+    images = {t: kind for t, kind in topics.items() if kind in (IMAGE_TYPE, COMPRESSED_IMAGE_TYPE)}
     left = {kind for t, kind in images.items() if 'left' in t}
     right = {kind for t, kind in images.items() if 'right' in t}
     if left and right and not left & right:
@@ -78,7 +75,7 @@ def compressed_parameters(
     """
     chosen = [topics.get(bag_spelling(topic, topics)) for topic in given if topic]
     if chosen:
-        compressed = chosen[0] == COMPRESSED_TYPE
+        compressed = chosen[0] == COMPRESSED_IMAGE_TYPE
     else:
         images, only_compressed = image_topics(topics)
         compressed = only_compressed and bool(images)

@@ -20,11 +20,10 @@ from face_tracking_ros.data import default_model_path
 from face_tracking_ros.errors import BagError, InputError
 from face_tracking_ros.geometry.camera import PinholeCamera, StereoRig
 from face_tracking_ros.io.bags import bag_topics, read_messages
-from face_tracking_ros.io.conversions import camera_from_info
+from face_tracking_ros.io.conversions import CAMERA_INFO_TYPE, camera_from_info
 from face_tracking_ros.io.series import load_states, load_truth
 from face_tracking_ros.model.model_file import load_model
 from face_tracking_ros.model.topology import mesh_topology
-from face_tracking_ros.pipelines.bag_inputs import CAMERA_INFO_TYPE
 from face_tracking_ros.tracking.accuracy import TrackingAccuracy, tracking_accuracy
 from face_tracking_ros.tracking.result import TrackStatus
 from face_tracking_ros.tracking.stereo_evaluation import StereoEvaluation, evaluate_stereo

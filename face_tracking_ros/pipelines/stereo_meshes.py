@@ -16,10 +16,10 @@ import shutil
 
 from face_tracking_ros.errors import BagError, ConfigError, FaceTrackingError
 from face_tracking_ros.io.bags import bag_topics
+from face_tracking_ros.io.conversions import CAMERA_INFO_TYPE
 from face_tracking_ros.io.provenance import Provenance
 from face_tracking_ros.io.series import has_truth
 from face_tracking_ros.pipelines.bag_inputs import (
-    CAMERA_INFO_TYPE,
     check_one_transport,
     compressed_parameters,
     image_topics,

@@ -147,7 +147,7 @@ class MonoProcessor:
         self.outputs = (
             *MESH_PORTS,
             *MODEL_PORTS,
-            Port('face/overlay', 'sensor_msgs/msg/Image', QosClass.SENSOR, on_demand=True),
+            Port('face/overlay', conversions.IMAGE_TYPE, QosClass.SENSOR, on_demand=True),
         )
 
     @property
@@ -339,11 +339,11 @@ class MonoProcessor:
 def _input_ports(config: MonoNodeConfig) -> tuple[Port, ...]:
     """The image (raw or compressed, as ``config`` says), camera_info and face model ports."""
     image = (
-        Port(COMPRESSED_IMAGE, 'sensor_msgs/msg/CompressedImage', QosClass.SENSOR)
+        Port(COMPRESSED_IMAGE, conversions.COMPRESSED_IMAGE_TYPE, QosClass.SENSOR)
         if (config.compressed)
-        else Port(IMAGE, 'sensor_msgs/msg/Image', QosClass.SENSOR)
+        else Port(IMAGE, conversions.IMAGE_TYPE, QosClass.SENSOR)
     )
-    return (image, Port(CAMERA_INFO, 'sensor_msgs/msg/CameraInfo', QosClass.SENSOR), MODEL_PORT)
+    return (image, Port(CAMERA_INFO, conversions.CAMERA_INFO_TYPE, QosClass.SENSOR), MODEL_PORT)
 
 
 def _check_model(

@@ -549,14 +549,14 @@ class StereoProcessor:
 def _input_ports(config: StereoNodeConfig) -> tuple[Port, ...]:
     """The left and right images (raw or compressed, as ``config`` says), camera_infos, model."""
     image_type, image_topics = (
-        ('sensor_msgs/msg/CompressedImage', tuple(COMPRESSED))
+        (conversions.COMPRESSED_IMAGE_TYPE, tuple(COMPRESSED))
         if config.compressed
-        else ('sensor_msgs/msg/Image', (LEFT_IMAGE, RIGHT_IMAGE))
+        else (conversions.IMAGE_TYPE, (LEFT_IMAGE, RIGHT_IMAGE))
     )
     return (
         *(Port(topic, image_type, QosClass.SENSOR) for topic in image_topics),
-        Port(LEFT_INFO, 'sensor_msgs/msg/CameraInfo', QosClass.SENSOR),
-        Port(RIGHT_INFO, 'sensor_msgs/msg/CameraInfo', QosClass.SENSOR),
+        Port(LEFT_INFO, conversions.CAMERA_INFO_TYPE, QosClass.SENSOR),
+        Port(RIGHT_INFO, conversions.CAMERA_INFO_TYPE, QosClass.SENSOR),
         MODEL_PORT,
     )
 

@@ -80,7 +80,7 @@ def clicks_from_bag(
         BagError: if the bag has no truth or no camera_info of the clicked camera.
     """
     topics = bag_topics(bag)
-    infos = sorted(t for t, kind in topics.items() if kind == 'sensor_msgs/msg/CameraInfo')
+    infos = sorted(t for t, kind in topics.items() if kind == conversions.CAMERA_INFO_TYPE)
     info_topic = next((t for t in infos if 'left' in t), infos[0] if infos else None)
     truth_topic = next(
         (t for t, k in topics.items() if k == 'face_tracking_msgs/msg/FaceTruth'), None

@@ -32,8 +32,6 @@ from face_tracking_ros.synthetic.scenes import SceneConfig, SequenceRenderer, Sy
 
 TRUTH_TOPIC = 'truth/face'
 TRUTH_TYPE = 'face_tracking_msgs/msg/FaceTruth'
-IMAGE_TYPE = 'sensor_msgs/msg/Image'
-INFO_TYPE = 'sensor_msgs/msg/CameraInfo'
 
 # Per camera name: (image topic, camera_info topic, optical frame id).
 CAMERA_TOPICS = {
@@ -121,9 +119,9 @@ def write_sequence(
                 image_topic, info_topic, frame_id = CAMERA_TOPICS[name]
                 header = conversions.make_header(factory, frame.stamp_ns, frame_id)
                 message = conversions.array_to_image(factory, header, image)
-                bag.write(image_topic, IMAGE_TYPE, message, frame.stamp_ns)
+                bag.write(image_topic, conversions.IMAGE_TYPE, message, frame.stamp_ns)
                 info = conversions.camera_to_info(factory, header, cameras[name])
-                bag.write(info_topic, INFO_TYPE, info, frame.stamp_ns)
+                bag.write(info_topic, conversions.CAMERA_INFO_TYPE, info, frame.stamp_ns)
             reference = CAMERA_TOPICS[next(iter(cameras))][2]
             bag.write(
                 TRUTH_TOPIC,

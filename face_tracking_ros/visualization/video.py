@@ -23,10 +23,6 @@ from face_tracking_ros.model.topology import mesh_topology
 from face_tracking_ros.tracking.result import TrackStatus
 from face_tracking_ros.visualization.overlay import draw_mesh
 
-IMAGE_TYPE = 'sensor_msgs/msg/Image'
-COMPRESSED_TYPE = 'sensor_msgs/msg/CompressedImage'
-INFO_TYPE = 'sensor_msgs/msg/CameraInfo'
-
 
 def image_topic(bag: Path, requested: str | None = None) -> str:
     """The image topic to draw on: ``requested``, else the only one, else the left camera's.
@@ -34,7 +30,11 @@ def image_topic(bag: Path, requested: str | None = None) -> str:
     Raises:
         BagError: if there is no image topic or the choice is ambiguous.
     """
-    topics = [t for t, kind in bag_topics(bag).items() if kind in (IMAGE_TYPE, COMPRESSED_TYPE)]
+    topics = [
+        t
+        for t, kind in bag_topics(bag).items()
+        if kind in (conversions.IMAGE_TYPE, conversions.COMPRESSED_IMAGE_TYPE)
+    ]
     if requested:
         if requested not in topics:
             msg = f'{bag}: no image topic {requested}; image topics: {topics}'
@@ -54,7 +54,7 @@ def camera_info_topic(bag: Path, image: str) -> str | None:
     """
     namespace = image.removesuffix('/compressed').rpartition('/')[0]
     candidate = f'{namespace}/camera_info' if namespace else 'camera_info'
-    return candidate if bag_topics(bag).get(candidate) == INFO_TYPE else None
+    return candidate if bag_topics(bag).get(candidate) == conversions.CAMERA_INFO_TYPE else None
 
 
 def overlay_frames(
