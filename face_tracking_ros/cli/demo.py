@@ -84,8 +84,10 @@ def run(args: argparse.Namespace) -> int:
     out = args.out
     if out.exists() and not args.keep:
         _empty_earlier_demo(out)
+    made = not out.exists()  # only a directory the demo makes is marked as the demo's
     (out / 'learn').mkdir(parents=True, exist_ok=True)
-    (out / MARKER).write_text('written by face-tracking demo: it empties this directory\n')
+    if made:
+        (out / MARKER).write_text('written by face-tracking demo: it empties this directory\n')
     start = time.perf_counter()
     for title, argv in steps(plan, out):
         _banner(title, argv, time.perf_counter() - start)
