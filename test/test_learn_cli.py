@@ -314,3 +314,12 @@ def test_every_flag_is_a_pipeline_option_with_the_same_default():
     assert flags == {field.name for field in fields(LearnOptions)}
     defaults = LearnOptions(bags=(Path('a'),), out=Path('m.npz'), report=Path('r.json'))
     assert learn_options(args) == defaults
+
+
+def test_an_out_that_is_not_a_face_model_is_not_written_over(tmp_path, truth_bags, capsys):
+    notes = tmp_path / 'notes.txt'
+    notes.write_text('not a model')
+    args = [*map(str, truth_bags), '--out', str(notes), '--report', str(tmp_path / 'r.json')]
+    message = _error(['learn', *args], capsys)
+    assert f'--out {notes} exists and is not a face model' in message
+    assert notes.read_text() == 'not a model'
