@@ -215,6 +215,18 @@ def load_photo_texture(
     except (ValueError, TypeError, AttributeError, IndexError, KeyError) as error:
         msg = f'{nodes_path} must be a JSON object {{node name: [x, y]}}: {error}'
         raise ConfigError(msg) from None
+    height, width = photo.shape[:2]
+    outside = [
+        name
+        for name, (x, y) in node_pixels.items()
+        if not (0.0 <= x <= width - 1 and 0.0 <= y <= height - 1)  # NaN is not inside either
+    ]
+    if outside:
+        msg = (
+            f'{nodes_path}: node(s) {", ".join(outside)} not inside the {width}x{height} '
+            f'photo {photo_path} (or not finite)'
+        )
+        raise ConfigError(msg)
     return photo_texture(cv2.cvtColor(photo, cv2.COLOR_BGR2RGB), node_pixels, encoding)
 
 

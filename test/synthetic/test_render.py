@@ -272,5 +272,9 @@ def test_photo_texture_errors_name_the_problem(tmp_path):
     (tmp_path / 'nodes.json').write_text('[1, 2]')
     with pytest.raises(ConfigError, match='must be a JSON object'):
         load_photo_texture(tmp_path / 'photo.png', tmp_path / 'nodes.json')
+    for bad in (float('nan'), 1e6):  # these hung the renderer inside OpenCV
+        (tmp_path / 'nodes.json').write_text(json.dumps({**few, 'chin': (bad, 50)}))
+        with pytest.raises(ConfigError, match=r'node\(s\) chin not inside the 100x100 photo'):
+            load_photo_texture(tmp_path / 'photo.png', tmp_path / 'nodes.json')
     with pytest.raises(ConfigError, match="unknown image encoding 'bgr8'"):
         photo_texture(photo, few, encoding='bgr8')
