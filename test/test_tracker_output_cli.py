@@ -310,3 +310,18 @@ def test_a_model_given_as_a_parameter_is_the_one_clicked_and_scored(tmp_path, ca
     printed = capsys.readouterr().out
     assert 'node RMS' in printed and 'lacks' not in printed
     assert load_states(tmp_path / 'o').nodes.shape[1] == 19
+
+
+def test_a_report_that_is_an_input_or_not_json_is_not_written_over(tmp_path, capsys):
+    mono = REPO / 'bags' / 'mono_test' / 'subject_00_seq_00'
+    model = tmp_path / 'model.npz'
+    shutil.copy(default_model_path(34), model)
+    track = ['track', str(mono), '--simulate-clicks', '1', '--model', str(model)]
+    assert main([*track, '--out', str(tmp_path / 'a'), '--report', str(model)]) == 2
+    assert f'--report {model} is an input of this track' in capsys.readouterr().err
+    notes = tmp_path / 'notes.txt'
+    notes.write_text('not a report')
+    assert main([*track, '--out', str(tmp_path / 'b'), '--report', str(notes)]) == 2
+    assert 'is not a JSON report: not written over' in capsys.readouterr().err
+    assert notes.read_text() == 'not a report'
+    assert load_model(model).num_nodes == 34

@@ -171,6 +171,8 @@ def _parameters(args: argparse.Namespace, node: str) -> tuple[list[str], Path | 
     if args.out.exists():
         msg = f'--out {args.out} exists: give a new directory for the tracked bag'
         raise ConfigError(msg)
+    inputs = [args.init, model_file, node_config.init_file or None]
+    _check_report(args.report, [Path(path) for path in inputs if path])
     init_file = args.init
     args.out.parent.mkdir(parents=True, exist_ok=True)
     if args.simulate_clicks is not None:
@@ -182,6 +184,25 @@ def _parameters(args: argparse.Namespace, node: str) -> tuple[list[str], Path | 
     if args.auto_init:
         params.append('auto_init=true')
     return params, model_file
+
+
+def _check_report(report: Path | None, inputs: list[Path]) -> None:
+    """Refuse a ``--report`` that is an input (the model, the init file) or not a JSON file.
+
+    Raises:
+        ConfigError: naming the file: it would be written over.
+    """
+    if report is None:
+        return
+    if any(report.resolve() == path.resolve() for path in inputs):
+        msg = f'--report {report} is an input of this track (model or init file): not written over'
+        raise ConfigError(msg)
+    if report.is_file():
+        try:
+            json.loads(report.read_text())
+        except (UnicodeDecodeError, ValueError):
+            msg = f'--report {report} exists and is not a JSON report: not written over'
+            raise ConfigError(msg) from None
 
 
 def _score(args: argparse.Namespace, node: str, model_file: Path | None) -> None:
