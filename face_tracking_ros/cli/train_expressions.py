@@ -17,7 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
-from face_tracking_ros.errors import BagError, ConfigError, ModelFileError
+from face_tracking_ros.errors import BagError, ConfigError
+from face_tracking_ros.io.atomic import check_replaceable
 from face_tracking_ros.io.bags import NS_PER_S, read_messages
 from face_tracking_ros.io.conversions import truth_from_msg
 from face_tracking_ros.model.face_model import FaceModel
@@ -95,7 +96,12 @@ def run(args: argparse.Namespace) -> None:
         min_intensity=args.min_intensity,
         regularisation=args.regularisation,
     )
-    _check_out(args.out)
+    check_replaceable(
+        args.out,
+        '--out',
+        'an expression classifier',
+        lambda path: load_archive(path, CLASSIFIER_KIND, CLASSIFIER_FORMAT_VERSION),
+    )
     model = load_model(args.model) if args.model is not None else None
     sequences = [seq for bag in args.bags for seq in truth_sequences(bag, args.topic, model)]
     classifier = train_expression_classifier(sequences, config)
@@ -113,21 +119,6 @@ def run(args: argparse.Namespace) -> None:
     )
     print(f'training accuracy: {100 * accuracy.clear:.1f} % on clear frames')
     print(f'wrote {args.out}')
-
-
-def _check_out(out: Path) -> None:
-    """Refuse to write over a file that is not an expression classifier (a model, a gallery).
-
-    Raises:
-        ConfigError: naming the file and what it holds.
-    """
-    if not out.exists():
-        return
-    try:
-        load_archive(out, CLASSIFIER_KIND, CLASSIFIER_FORMAT_VERSION)
-    except ModelFileError as error:
-        msg = f'--out {out} exists and is not an expression classifier ({error}): not written over'
-        raise ConfigError(msg) from None
 
 
 def truth_sequences(

@@ -9,6 +9,7 @@ with the file.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 import os
 from pathlib import Path
 import tempfile
@@ -16,7 +17,25 @@ import zipfile
 
 import numpy as np
 
-from face_tracking_ros.errors import ModelFileError
+from face_tracking_ros.errors import ConfigError, ModelFileError
+
+
+def check_replaceable(path: Path, option: str, what: str, load: Callable[[Path], object]) -> None:
+    """Refuse to write over an existing file that ``load`` does not read as ``what``.
+
+    A command that writes a model, a gallery or a classifier may replace an earlier one of its
+    kind, never another file given by mistake.
+
+    Raises:
+        ConfigError: naming the option, the file and why ``load`` refused it.
+    """
+    if not path.exists():
+        return
+    try:
+        load(path)
+    except ModelFileError as error:
+        msg = f'{option} {path} exists and is not {what} ({error}): not written over'
+        raise ConfigError(msg) from None
 
 
 def write_npz_atomically(path: Path, arrays: dict[str, np.ndarray]) -> None:

@@ -12,7 +12,8 @@ from dataclasses import dataclass
 from pathlib import Path
 import re
 
-from face_tracking_ros.errors import ConfigError, ModelFileError
+from face_tracking_ros.errors import ConfigError
+from face_tracking_ros.io.atomic import check_replaceable
 from face_tracking_ros.io.series import has_truth
 from face_tracking_ros.learning.methods import DEFAULT_METHOD, METHODS
 from face_tracking_ros.model.model_file import load_model
@@ -141,7 +142,7 @@ def _check_bags_and_files(options: LearnOptions) -> None:
         if not path.parent.is_dir():
             msg = f'{option} {path}: no directory {path.parent} to write it in'
             raise ConfigError(msg)
-    _check_out(options.out)
+    check_replaceable(options.out, '--out', 'a face model', load_model)
     unlabelled = [bag for bag in options.bags if not has_truth(bag)]
     if unlabelled and options.truth is None and options.neutral_frames == 0:
         msg = (
@@ -149,18 +150,3 @@ def _check_bags_and_files(options: LearnOptions) -> None:
             '--neutral-frames K, the first K frames of each bag (the learner node: neutral_frames)'
         )
         raise ConfigError(msg)
-
-
-def _check_out(out: Path) -> None:
-    """Refuse to write over a file that is not a face model (a gallery, a classifier, notes).
-
-    Raises:
-        ConfigError: naming the file and what is wrong with it as a model.
-    """
-    if not out.exists():
-        return
-    try:
-        load_model(out)
-    except ModelFileError as error:
-        msg = f'--out {out} exists and is not a face model ({error}): not written over'
-        raise ConfigError(msg) from None
