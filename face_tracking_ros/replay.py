@@ -54,7 +54,7 @@ class ReplayStats:
         outputs: output messages written, per topic.
         errors: bad input messages, per error text (first 200 characters).
         interrupted: True if Ctrl-C stopped the replay early.
-        read_error: why the input bag stopped being readable part way ('' if it did not).
+        read_error: why part of the input bag was unreadable ('' if none was).
         status: what each reporting processor reported at the end, per node name
             (:class:`~face_tracking_ros.processing.base.Reporting`; filled by :func:`replay_bag`).
     """
@@ -75,10 +75,7 @@ class ReplayStats:
             lines.append('input problems (the live node reports these on /diagnostics):')
         lines += [f'  {count}x {text}' for text, count in self.errors.most_common()]
         if self.read_error:
-            lines.append(
-                'input bag unreadable past this point, replayed the readable part: '
-                f'{self.read_error}'
-            )
+            lines.append(f'input bag damaged, replayed its readable part: {self.read_error}')
         lines += [
             f'{node}: ' + ', '.join(f'{key} {value}' for key, value in status.items())
             for node, status in self.status.items()
@@ -314,7 +311,9 @@ def replay_bag(
 
     Returns:
         What was read, written and rejected. A bag that becomes unreadable part way (e.g.
-        truncated) ends the replay early with ``stats.read_error`` set; ``out`` stays valid.
+        truncated) ends the replay early with ``stats.read_error`` set; so does one whose
+        messages were not all readable (:func:`~face_tracking_ros.io.bags.read_raw`), once the
+        readable ones are replayed; ``out`` stays valid.
 
     Raises:
         BagError: if the bag cannot be opened or no topic matches the nodes' inputs.
@@ -367,7 +366,7 @@ def replay_bag(
 
 
 def _next_readable(iterator: Iterator[Record], stats: ReplayStats) -> Record | None:
-    """The next record, or None at the end or where the bag stops being readable."""
+    """The next record, or None at the end or where the bag says it is damaged."""
     try:
         return next(iterator)
     except StopIteration:

@@ -9,6 +9,7 @@ import shutil
 import numpy as np
 import pytest
 from rosbags.rosbag2 import StoragePlugin, Writer
+from zeroed_bags import zeroed_copy
 
 from face_tracking_ros.cli.main import main
 from face_tracking_ros.data import default_model_path
@@ -155,6 +156,31 @@ def test_track_of_a_truncated_bag_keeps_its_track_and_does_not_score_it(tmp_path
     assert 'not scored against the truth: the bag is damaged (above)' in printed
     states = [m.msg.status for m in read_messages(tmp_path / 'o', ['face/state'])]
     assert 5 < len(states) < 30 and set(states) == {TrackStatus.TRACKING}
+
+
+def test_track_of_a_bag_zeroed_in_its_middle_tracks_the_rest_and_is_not_complete(tmp_path, capsys):
+    """The messages under the zeros vanish silently in the reader; the summary counts them."""
+    zeroed = tmp_path / 'zeroed'
+    lost = zeroed_copy(REPO / 'bags' / 'mono_test' / 'subject_00_seq_00', zeroed)
+    assert lost['image'] > 0
+    out = tmp_path / 'o'
+    argv = ['track', str(zeroed), '--simulate-clicks', '0', '--out', str(out), '--quiet']
+    assert main(argv) == 1
+    printed = capsys.readouterr().out
+    short = ', '.join(
+        f'{30 - lost[topic]} of the 30 messages on {topic}'
+        for topic in ('camera_info', 'image')
+        if lost[topic]
+    )
+    assert (
+        f'input bag damaged, replayed its readable part: {zeroed}: damaged MCAP file, read only '
+        f'{short} that its summary counts (the others are unreadable)'
+    ) in printed
+    assert 'not scored against the truth: the bag is damaged (above)' in printed
+    provenance = Provenance.read(out)
+    assert provenance is not None and not provenance.complete
+    states = [m.msg.status for m in read_messages(out, ['face/state'])]
+    assert states == [TrackStatus.TRACKING] * (30 - lost['image'])
 
 
 def test_an_output_bag_of_inconsistent_states_is_named_not_a_traceback(tmp_path, capsys):

@@ -26,6 +26,7 @@ from types import TracebackType
 from typing import Any, NamedTuple, Protocol
 
 from mcap.exceptions import EndOfFile, McapError
+from mcap.reader import make_reader
 from mcap.records import Channel, Message, Schema
 from mcap.stream_reader import StreamReader
 from rosbags.rosbag2 import Reader, ReaderError, StoragePlugin, Writer, WriterError
@@ -226,7 +227,9 @@ def read_raw(path: Path | str, topics: Iterable[str] | None = None) -> Iterator[
     """Read the serialised messages of a rosbag2 bag (MCAP or SQLite 3) in record-time order.
 
     A bag whose metadata or MCAP summary is damaged (e.g. cut off by a power loss) is streamed
-    in file order up to the damage, then the BagError says where the damage is.
+    in file order up to the damage, then the BagError says where the damage is. A bag that
+    yields fewer messages on a topic than its MCAP summary counts (e.g. zeros written over part
+    of it) is read around the damage, then the BagError says how many were read.
 
     Args:
         path: Bag directory (holding ``metadata.yaml``).
@@ -243,9 +246,11 @@ def read_raw(path: Path | str, topics: Iterable[str] | None = None) -> Iterator[
     if reader is None:
         yield from _stream_records(path, topics)
         return
+    read: Counter[str] = Counter()
     try:
         wanted = _select(reader, path, topics)
         for connection, stamp_ns, data in reader.messages(connections=wanted):
+            read[connection.topic] += 1
             yield RawMessage(
                 connection.topic, connection.msgtype, stamp_ns, data, connection.msgdef.data
             )
@@ -253,6 +258,49 @@ def read_raw(path: Path | str, topics: Iterable[str] | None = None) -> Iterator[
         raise BagError(f'{path}: cannot read bag: {type(error).__name__}: {error}') from None
     finally:
         reader.close()
+    _check_all_read(path, read, {connection.topic for connection in wanted})
+
+
+def _check_all_read(path: Path, read: Counter[str], topics: set[str]) -> None:
+    """Raise if fewer messages were read on ``topics`` than the MCAP summaries count.
+
+    A stretch of an MCAP file overwritten with zeros (e.g. disk blocks lost) can read as
+    records of opcode 0, which readers skip: the messages there vanish without an error.
+
+    Raises:
+        BagError: naming the bag and, per short topic, how many of how many messages were read.
+    """
+    counted = _summary_counts(path)
+    short = [
+        f'{read[topic]} of the {counted[topic]} messages on {topic}'
+        for topic in sorted(topics)
+        if read[topic] < counted[topic]
+    ]
+    if short:
+        message = (
+            f'{path}: damaged MCAP file, read only {", ".join(short)} that its summary counts '
+            '(the others are unreadable)'
+        )
+        raise BagError(message)
+
+
+def _summary_counts(path: Path) -> Counter[str]:
+    """Messages per topic that the summaries of a bag's MCAP files count (none where none has).
+
+    A summary the mcap library cannot read counts nothing (rosbags, which read it, is laxer).
+    """
+    counts: Counter[str] = Counter()
+    for file in _mcap_files(path):
+        summary = None
+        with file.open('rb') as stream, contextlib.suppress(McapError, *_READ_ERRORS):
+            summary = make_reader(stream).get_summary()
+        if summary is None or summary.statistics is None:
+            continue
+        for channel_id, count in summary.statistics.channel_message_counts.items():
+            channel = summary.channels.get(channel_id)
+            if channel is not None:
+                counts[channel.topic] += count
+    return counts
 
 
 def _open_reader(path: Path) -> Reader | None:

@@ -13,6 +13,7 @@ from fault_scenes import CAMERA, image_msg, info_msg, stamp
 import numpy as np
 import pytest
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+from zeroed_bags import zeroed_copy
 
 from face_tracking_ros.cli.main import main
 from face_tracking_ros.errors import BagError
@@ -88,6 +89,29 @@ def test_a_bag_cut_anywhere_yields_an_unchanged_prefix_and_says_where_it_stopped
         shutil.rmtree(cut)
     assert recovered == sorted(recovered), 'a longer file must not recover fewer messages'
     assert recovered[-1] >= FRAMES, f'the last chunks should survive a late cut: {recovered}'
+
+
+def test_a_bag_zeroed_in_its_middle_is_read_around_the_damage_then_says_what_is_missing(
+    bag, tmp_path
+):
+    """Zeros that read as skippable records: the summary still counts the messages they hid."""
+    zeroed = tmp_path / 'zeroed'
+    lost = zeroed_copy(bag, zeroed)
+    assert lost['/cam/image'] > 0 and lost['/cam/camera_info'] > 0
+    messages, error = _read_until_damage(zeroed)
+    original, read = list(read_raw(bag)), set(messages)
+    assert messages == [m for m in original if m in read]  # the others, in order and unchanged
+    assert len(messages) == len(original) - lost.total()
+    short = ', '.join(
+        f'{FRAMES - n} of the {FRAMES} messages on {topic}' for topic, n in sorted(lost.items())
+    )
+    assert error == (
+        f'{zeroed}: damaged MCAP file, read only {short} that its summary counts '
+        '(the others are unreadable)'
+    )
+    info = f'{FRAMES - lost["/cam/camera_info"]} of the {FRAMES} messages on /cam/camera_info'
+    with pytest.raises(BagError, match=f'read only {info} that its summary'):  # topics read only
+        list(read_raw(zeroed, topics=['/cam/camera_info']))
 
 
 def test_a_bag_cut_inside_its_header_reports_nothing_recovered(bag, tmp_path):
@@ -192,7 +216,7 @@ def test_replay_of_a_cut_bag_processes_the_readable_part_and_exits_1(bag, tmp_pa
         assert status == 1, output
         read_line = f'read: {infos} camera_info, {len(images)} image' if readable else 'read: none'
         assert read_line in output
-        assert 'input bag unreadable past this point, replayed the readable part' in output
+        assert 'input bag damaged, replayed its readable part: ' in output
         assert f'damaged MCAP file, {len(readable)} messages recovered before' in output
         out = tmp_path / f'out{n}'
         states = list(read_messages(out, topics=['face/state'])) if images else []
