@@ -42,7 +42,8 @@ from face_tracking_ros.io.typestore import typestore
 
 BAG_VERSION = 9  # rosbag2 metadata version written (Jazzy and later read it)
 NS_PER_S = 1_000_000_000
-_READ_ERRORS = (ReaderError, KeyError, ValueError, EOFError, OSError, struct.error)
+# (OverflowError: rosbags seeks past a record whose length, read from damaged bytes, is >= 2**63)
+_READ_ERRORS = (ReaderError, KeyError, ValueError, EOFError, OSError, OverflowError, struct.error)
 
 
 class StampLike(Protocol):

@@ -114,6 +114,22 @@ def test_a_bag_zeroed_in_its_middle_is_read_around_the_damage_then_says_what_is_
         list(read_raw(zeroed, topics=['/cam/camera_info']))
 
 
+def test_a_bag_zeroed_anywhere_yields_messages_of_its_own_or_a_bag_error(bag, tmp_path):
+    """Short stretches of zeros at random: a record length read from them can pass 2**63."""
+    data = next(bag.glob('*.mcap')).read_bytes()
+    original = {(m.topic, m.stamp_ns) for m in read_raw(bag)}
+    rng = np.random.default_rng(2)
+    for n in range(CUTS):
+        start = round(rng.uniform(0.05, 0.9) * len(data))
+        end = start + round(rng.uniform(0.001, 0.05) * len(data))
+        zeroed = shutil.copytree(bag, tmp_path / f'zeroed{n}')
+        next(zeroed.glob('*.mcap')).write_bytes(data[:start] + bytes(end - start) + data[end:])
+        messages, error = _read_until_damage(zeroed)  # no other exception
+        assert {(m.topic, m.stamp_ns) for m in messages} <= original
+        assert error.startswith(f'{zeroed}: ') or not error and len(messages) == len(original)
+        shutil.rmtree(zeroed)
+
+
 def test_a_bag_cut_inside_its_header_reports_nothing_recovered(bag, tmp_path):
     cut = _cut_copy(bag, tmp_path / 'cut', 4 / next(bag.glob('*.mcap')).stat().st_size)
     messages, error = _read_until_damage(cut)
