@@ -39,8 +39,11 @@ def _states(
     sigmas: np.ndarray,
     status: int = TrackStatus.TRACKING,
     model_file: str | None = None,
+    alphas: np.ndarray | None = None,
 ) -> Path:
     """A tracker output bag: face/state with these (F, p) sigma, every frame of one status.
+
+    With ``alphas``, (F, q), the states carry them too.
 
     With ``model_file``, its metadata says the mono_tracker made it with that model ('': the
     packaged default), as replay records it.
@@ -53,7 +56,8 @@ def _states(
             writer.set_custom_data(PROVENANCE_KEY, provenance.text())
         for f, sigma in enumerate(sigmas):
             header = conversions.make_header(factory, 1000 + f, 'camera')
-            state = factory.make(STATE, header=header, status=status, sigma=sigma)
+            alpha = np.zeros(0) if alphas is None else alphas[f]
+            state = factory.make(STATE, header=header, status=status, sigma=sigma, alpha=alpha)
             writer.write('face/state', STATE, state, 1000 + f)
     return path
 
@@ -127,6 +131,21 @@ def test_a_model_less_track_is_not_plotted(tmp_path, capsys):
     assert main(['plot', str(bare), '--png', str(tmp_path / 'p.png')]) == 2
     assert f'{bare}: its face/state carries no sigma or alpha (a stereo' in capsys.readouterr().err
     assert not (tmp_path / 'p.png').exists()
+
+
+def test_a_track_is_plotted_against_the_truth_of_its_own_bag_only(tmp_path, capsys):
+    """As learn and recognition-report, by the input bag the track's metadata records."""
+    states = _states(tmp_path / 'states', np.zeros((3, 2)), model_file='', alphas=np.zeros((3, 1)))
+    mono = REPO / 'bags' / 'mono_test' / 'subject_00_seq_00'
+    own, other = shutil.copytree(mono, tmp_path / 'raw'), shutil.copytree(mono, tmp_path / 'o')
+    plot = ['plot', str(states), '--png', str(tmp_path / 'p.png'), '--truth']
+    assert main([*plot, str(other)]) == 2
+    assert f'--truth {other}: {states} was tracked from {own}, not from {other}' in (
+        capsys.readouterr().err
+    )
+    assert not (tmp_path / 'p.png').exists()
+    assert main([*plot, str(own)]) == 0  # the bag the states record (tmp_path / 'raw')
+    assert (tmp_path / 'p.png').read_bytes()[:8] == b'\x89PNG\r\n\x1a\n'
 
 
 def test_track_that_tracks_no_image_ends_with_status_1(tmp_path, capsys):

@@ -6,6 +6,7 @@ import argparse
 from pathlib import Path
 
 from face_tracking_ros.errors import ConfigError
+from face_tracking_ros.io.provenance import other_source
 from face_tracking_ros.io.series import has_truth, load_states, load_truth, require_parameters
 from face_tracking_ros.visualization.plots import plot_tracking
 
@@ -20,7 +21,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         'over time, against the truth of a synthetic bag when given.',
     )
     parser.add_argument('out', type=Path, help='bag holding face/state')
-    parser.add_argument('--truth', type=Path, help='synthetic bag with truth/face')
+    parser.add_argument(
+        '--truth', type=Path, help='synthetic bag with truth/face: the one OUT was tracked from'
+    )
     parser.add_argument('--png', type=Path, required=True, help='PNG file to write')
     parser.set_defaults(func=run)
 
@@ -32,6 +35,10 @@ def run(args: argparse.Namespace) -> None:
         raise ConfigError(msg)
     if args.truth and not has_truth(args.truth):
         msg = f'--truth {args.truth} holds no truth/face (a synthetic bag has it)'
+        raise ConfigError(msg)
+    source = other_source(args.out, args.truth) if args.truth else None
+    if source is not None:
+        msg = f'--truth {args.truth}: {args.out} was tracked from {source}, not from {args.truth}'
         raise ConfigError(msg)
     truth = load_truth(args.truth) if args.truth else None
     states = load_states(args.out)
