@@ -326,3 +326,16 @@ def test_a_misspelt_wanted_or_echoed_topic_is_named(tmp_path, monkeypatch, capsy
     assert expected in capsys.readouterr().err
     assert main([*replay, str(tmp_path / 'b'), '--echo', 'men']) == 0
     assert '--echo men: nothing was produced on it (outputs: mean)' in capsys.readouterr().out
+
+
+def test_a_node_named_twice_is_refused_before_any_work(tmp_path, capsys):
+    _write_images(tmp_path / 'in', 3)
+    argv = ['replay', 'mono_tracker,expression_recognizer, mono_tracker', str(tmp_path / 'in')]
+    with pytest.raises(SystemExit) as exit_info:
+        main([*argv, '--out', str(tmp_path / 'out')])
+    assert exit_info.value.code == 2
+    assert (
+        "node(s) mono_tracker named more than once in 'mono_tracker,expression_recognizer, "
+        "mono_tracker': a node runs once"
+    ) in capsys.readouterr().err
+    assert not (tmp_path / 'out').exists()

@@ -120,11 +120,18 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _node_list(text: str) -> list[str]:
-    """``'a,b'`` -> ``['a', 'b']``, each a node with a processor."""
+    """``'a,b'`` -> ``['a', 'b']``, each a node with a processor, named once."""
     nodes = [name.strip() for name in text.split(',') if name.strip()]
     unknown = [name for name in nodes if name not in PROCESSORS]
     if not nodes or unknown:
         msg = f'unknown node(s) {unknown or text!r}; choose from {", ".join(sorted(PROCESSORS))}'
+        raise argparse.ArgumentTypeError(msg)
+    repeated = sorted({name for name in nodes if nodes.count(name) > 1})
+    if repeated:
+        msg = (
+            f'node(s) {", ".join(repeated)} named more than once in {text!r}: a node runs once '
+            '(its outputs would be written twice to one bag)'
+        )
         raise argparse.ArgumentTypeError(msg)
     return nodes
 
