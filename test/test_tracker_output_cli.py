@@ -26,7 +26,7 @@ from face_tracking_ros.processing.identity import make_identity_processor
 from face_tracking_ros.processing.parameters import OverrideParameters
 from face_tracking_ros.recognition.identity import IdentityConfig, IdentityGallery
 from face_tracking_ros.synthetic.clicks import clicks_from_bag, write_init_file
-from face_tracking_ros.tracking.initialisation import Initialisation
+from face_tracking_ros.tracking.initialisation import Initialisation, load_init_file
 from face_tracking_ros.tracking.result import TrackStatus
 
 from conftest import REPO
@@ -234,6 +234,36 @@ def test_outputs_that_exist_or_options_out_of_range_are_refused_before_any_work(
     video = ['overlay', str(mono), str(states), '--video', str(tmp_path / 'v.mp4')]
     assert main([*video, '--every', '0']) == 2
     assert '--every must be >= 1, got 0' in capsys.readouterr().err
+
+
+def test_simulated_clicks_need_a_noise_of_0_or_more_and_replace_only_earlier_clicks(
+    tmp_path, capsys
+):
+    mono = REPO / 'bags' / 'mono_test' / 'subject_00_seq_00'
+    out, clicks = tmp_path / 'o', tmp_path / 'o.init.json'
+    track = ['track', str(mono), '--out', str(out), '--quiet', '--simulate-clicks']
+    refused = '--simulate-clicks must be a finite number of pixels >= 0 (0: exact), got'
+    for noise in ('-1', 'nan', 'inf'):
+        assert main([*track, noise]) == 2
+        assert f'{refused} {float(noise)}' in capsys.readouterr().err
+    assert not out.exists() and not clicks.exists()
+    clicks.write_text('notes')  # another file where the clicks would go
+    assert main([*track, '0']) == 2
+    assert (
+        f'--simulate-clicks: {clicks} exists and is not an init file (init file {clicks} is not '
+        'valid JSON'
+    ) in capsys.readouterr().err
+    assert clicks.read_text() == 'notes'
+    exact = write_init_file(clicks_from_bag(mono, 0.0), clicks).read_text()
+    assert main([*track, '1', '--param', f'init_file={clicks}']) == 2  # the track's input
+    assert f'--simulate-clicks: {clicks} (where the clicks go) is an input of this track' in (
+        capsys.readouterr().err
+    )
+    assert main([*track, '1', '--report', str(clicks)]) == 2  # written after the track
+    assert f'--report {clicks} is an input of this track' in capsys.readouterr().err
+    assert clicks.read_text() == exact and not out.exists()
+    assert main([*track, '1']) == 0  # earlier clicks are replaced
+    assert clicks.read_text() != exact and load_init_file(clicks).node_names
 
 
 def test_a_camera_info_topic_without_messages_is_named_not_a_traceback(tmp_path, capsys):

@@ -13,12 +13,14 @@ from __future__ import annotations
 import argparse
 from dataclasses import asdict
 import json
+import math
 from pathlib import Path
 
 import numpy as np
 
 from face_tracking_ros.cli.replay import add_replay_options, parse_remaps, print_stats
 from face_tracking_ros.errors import BagError, ConfigError
+from face_tracking_ros.io.atomic import check_replaceable
 from face_tracking_ros.io.bags import bag_topics
 from face_tracking_ros.io.series import has_truth, load_states
 from face_tracking_ros.pipelines.bag_inputs import (
@@ -36,6 +38,7 @@ from face_tracking_ros.processing.parameters import OverrideParameters
 from face_tracking_ros.processing.stereo import StereoNodeConfig
 from face_tracking_ros.replay import replay_bag
 from face_tracking_ros.synthetic.clicks import clicks_from_bag, write_init_file
+from face_tracking_ros.tracking.initialisation import load_init_file
 from face_tracking_ros.tracking.result import TrackStatus
 
 NODE_CONFIGS = {'mono_tracker': MonoNodeConfig, 'stereo_tracker': StereoNodeConfig}
@@ -62,8 +65,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         '--simulate-clicks',
         type=float,
         metavar='PX',
-        help="synthetic bags: initialise from the first frame's true nodes with PX pixels of "
-        'click noise (the semi-automatic initialisation, simulated); writes OUT.init.json',
+        help="synthetic bags: initialise from the first frame's true nodes with PX >= 0 pixels "
+        'of click noise (the semi-automatic initialisation, simulated); writes OUT.init.json '
+        '(replacing an init file there, never another file)',
     )
     init.add_argument(
         '--auto-init',
@@ -117,6 +121,10 @@ def choose_tracker(bag: Path, args: argparse.Namespace) -> str:
 
 def run(args: argparse.Namespace) -> int:
     """Track, summarise, and score against truth when there is some."""
+    noise = args.simulate_clicks
+    if noise is not None and not (math.isfinite(noise) and noise >= 0):
+        msg = f'--simulate-clicks must be a finite number of pixels >= 0 (0: exact), got {noise}'
+        raise ConfigError(msg)
     node = choose_tracker(args.bag, args)
     params, model_file = _parameters(args, node)
     print(f'tracking {args.bag} with {node}')
@@ -152,7 +160,8 @@ def _parameters(args: argparse.Namespace, node: str) -> tuple[list[str], Path | 
     nodes, and given as ``init_file``.
 
     Raises:
-        ConfigError: if nothing would initialise the track, or ``--out`` exists.
+        ConfigError: if nothing would initialise the track, ``--out`` exists, or the clicks or
+            ``--report`` would be written over an input or a file of another kind.
     """
     given = (args.image_topic, args.left_topic)
     params = [*compressed_parameters(bag_topics(args.bag), given), *(args.param or [])]
@@ -171,12 +180,14 @@ def _parameters(args: argparse.Namespace, node: str) -> tuple[list[str], Path | 
     if args.out.exists():
         msg = f'--out {args.out} exists: give a new directory for the tracked bag'
         raise ConfigError(msg)
-    inputs = [args.init, model_file, node_config.init_file or None]
-    _check_report(args.report, [Path(path) for path in inputs if path])
+    inputs = [Path(path) for path in (args.init, model_file, node_config.init_file) if path]
     init_file = args.init
-    args.out.parent.mkdir(parents=True, exist_ok=True)
     if args.simulate_clicks is not None:
         init_file = args.out.parent / f'{args.out.name}.init.json'
+        _check_clicks_file(init_file, inputs)
+    _check_report(args.report, [*inputs, *([init_file] if init_file else [])])
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    if args.simulate_clicks is not None:
         clicks = clicks_from_bag(args.bag, args.simulate_clicks)
         write_init_file(clicks.only(tracked_nodes(node, params, model_file)), init_file)
     if init_file:
@@ -184,6 +195,23 @@ def _parameters(args: argparse.Namespace, node: str) -> tuple[list[str], Path | 
     if args.auto_init:
         params.append('auto_init=true')
     return params, model_file
+
+
+def _check_clicks_file(path: Path, inputs: list[Path]) -> None:
+    """Refuse to write the simulated clicks over an input or a file that is not an init file.
+
+    An init file there (an earlier run's clicks) is replaced, as ``learn`` replaces a model.
+
+    Raises:
+        ConfigError: naming the file: it would be written over.
+    """
+    if any(path.resolve() == given.resolve() for given in inputs):
+        msg = (
+            f'--simulate-clicks: {path} (where the clicks go) is an input of this track (model '
+            'or init file): not written over'
+        )
+        raise ConfigError(msg)
+    check_replaceable(path, '--simulate-clicks:', 'an init file', load_init_file)
 
 
 def _check_report(report: Path | None, inputs: list[Path]) -> None:

@@ -23,8 +23,9 @@ from face_tracking_ros.errors import ConfigError, ModelFileError
 def check_replaceable(path: Path, option: str, what: str, load: Callable[[Path], object]) -> None:
     """Refuse to write over an existing file that ``load`` does not read as ``what``.
 
-    A command that writes a model, a gallery or a classifier may replace an earlier one of its
-    kind, never another file given by mistake.
+    A command that writes a model, a gallery, a classifier or an init file may replace an
+    earlier one of its kind, never another file given by mistake. ``load`` raises
+    ModelFileError (or, as the init file's loader, ConfigError) for a file of another kind.
 
     Raises:
         ConfigError: naming the option, the file and why ``load`` refused it.
@@ -33,7 +34,7 @@ def check_replaceable(path: Path, option: str, what: str, load: Callable[[Path],
         return
     try:
         load(path)
-    except ModelFileError as error:
+    except (ModelFileError, ConfigError) as error:
         msg = f'{option} {path} exists and is not {what} ({error}): not written over'
         raise ConfigError(msg) from None
 
