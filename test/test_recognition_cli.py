@@ -11,6 +11,10 @@ from recognition_streams import truth_model, write_truth_bag
 from face_tracking_ros.cli import main as cli
 from face_tracking_ros.cli.train_expressions import truth_sequences
 from face_tracking_ros.errors import BagError
+from face_tracking_ros.io.bags import BagWriter
+from face_tracking_ros.io.conversions import CAMERA_INFO_TYPE, make_header
+from face_tracking_ros.io.messages import RosbagsMessages
+from face_tracking_ros.io.typestore import typestore
 from face_tracking_ros.model.model_file import load_model, save_model
 from face_tracking_ros.recognition.evaluation import expression_accuracy
 from face_tracking_ros.recognition.expression import (
@@ -93,3 +97,24 @@ def test_errors_are_reported(bags: list[Path], tmp_path: Path, capsys) -> None:
     assert cli.main([*argv, '--out', str(tmp_path / 'model.npz')]) == cli.EXIT_ERROR
     assert 'exists and is not an expression classifier' in capsys.readouterr().err
     assert load_model(tmp_path / 'model.npz').fingerprint == model.fingerprint
+
+
+def test_topic_of_another_type_is_refused(tmp_path: Path, capsys) -> None:
+    bag = tmp_path / 'camera'
+    factory = RosbagsMessages(typestore())
+    with BagWriter(bag) as writer:
+        info = factory.make(CAMERA_INFO_TYPE, header=make_header(factory, 10**9, 'left'))
+        writer.write('left/camera_info', CAMERA_INFO_TYPE, info, 10**9)
+    out = tmp_path / 'expressions.npz'
+
+    status = cli.main(
+        ['train-expressions', str(bag), '--out', str(out), '--topic', 'left/camera_info']
+    )
+
+    assert status == cli.EXIT_ERROR
+    error = capsys.readouterr().err
+    assert error == (
+        f'error: {bag}: topic left/camera_info has type {CAMERA_INFO_TYPE}; '
+        'expected face_tracking_msgs/msg/FaceTruth\n'
+    )
+    assert not out.exists()

@@ -19,8 +19,9 @@ import numpy as np
 
 from face_tracking_ros.errors import BagError, ConfigError
 from face_tracking_ros.io.atomic import check_replaceable
-from face_tracking_ros.io.bags import NS_PER_S, read_messages
+from face_tracking_ros.io.bags import NS_PER_S, bag_topics, read_messages
 from face_tracking_ros.io.conversions import truth_from_msg
+from face_tracking_ros.io.series import TRUTH_TYPE
 from face_tracking_ros.model.face_model import FaceModel
 from face_tracking_ros.model.model_file import load_model
 from face_tracking_ros.recognition.archive import load_archive
@@ -133,9 +134,14 @@ def truth_sequences(
             otherwise the true sigma and alpha of the messages.
 
     Raises:
-        BagError: if the bag cannot be read or has no message on ``topic``.
+        BagError: if the bag cannot be read, has no message on ``topic`` or ``topic`` is not
+            a FaceTruth topic.
         ConfigError: if the truth lacks nodes of the model.
     """
+    msgtype = bag_topics(bag).get(topic, TRUTH_TYPE)  # (a missing topic: read_messages says so)
+    if msgtype != TRUTH_TYPE:
+        msg = f'{bag}: topic {topic} has type {msgtype}; expected {TRUTH_TYPE}'
+        raise BagError(msg)
     by_subject: dict[str, list] = {}
     for message in read_messages(bag, topics=[topic]):
         sample = truth_from_msg(message.msg)
