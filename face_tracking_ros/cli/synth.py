@@ -91,6 +91,8 @@ def run(args: argparse.Namespace) -> None:
     """
     if args.out is None and args.contact_sheet is None:
         raise ConfigError('give --out (bags) and/or --contact-sheet (PNG)')
+    if args.contact_sheet is not None:
+        _check_contact_sheet(args.contact_sheet)
     width, height = args.size
     config = SceneConfig(
         kind=args.kind,
@@ -129,6 +131,28 @@ def run(args: argparse.Namespace) -> None:
         if not cv2.imwrite(str(args.contact_sheet), contact_sheet(config)):
             raise ConfigError(f'cannot write contact sheet {args.contact_sheet}')
         print(f'contact sheet: {args.contact_sheet}')
+
+
+def _check_contact_sheet(path: Path) -> None:
+    """Refuse a ``--contact-sheet`` that OpenCV cannot write, before any rendering.
+
+    Raises:
+        ConfigError: naming the option: a directory, a directory path through a file, or a file
+            name of an extension OpenCV writes no image format for.
+    """
+    if path.is_dir():
+        msg = f'--contact-sheet {path} is a directory; give an image file name (e.g. sheet.png)'
+        raise ConfigError(msg)
+    if not cv2.haveImageWriter(str(path)):
+        msg = (
+            f'--contact-sheet {path}: OpenCV writes no image format of its extension '
+            f'({path.suffix or "none"}); give a .png (or .jpg, .tif...) file name'
+        )
+        raise ConfigError(msg)
+    existing = next(parent for parent in path.parents if parent.exists())
+    if not existing.is_dir():
+        msg = f'--contact-sheet {path}: {existing} is a file, not a directory'
+        raise ConfigError(msg)
 
 
 def _report(bag: RecordedBag) -> None:

@@ -10,6 +10,7 @@ from mcap_ros2.decoder import DecoderFactory
 import numpy as np
 import pytest
 
+from face_tracking_ros.cli import synth
 from face_tracking_ros.cli.main import main
 from face_tracking_ros.errors import ConfigError
 from face_tracking_ros.geometry.rotation import omega_to_quaternion
@@ -143,6 +144,35 @@ def test_bad_arguments_give_clear_errors(tmp_path, capsys, arguments, message):
     err = capsys.readouterr().err
     assert err.startswith('error: ')
     assert re.search(message, err)
+
+
+@pytest.mark.parametrize(
+    ('name', 'message'),
+    [
+        ('sheets', r'--contact-sheet \S*sheets is a directory; give an image file name'),
+        ('sheet.txt', r'--contact-sheet \S*sheet.txt: OpenCV writes no image format of its '),
+        ('sheet', r'--contact-sheet \S*sheet: .* of its extension \(none\)'),
+        ('notes.txt/sheet.png', r'--contact-sheet \S*sheet.png: \S*notes.txt is a file, not a'),
+    ],
+)
+def test_a_contact_sheet_that_cannot_be_written_is_refused_before_rendering(
+    tmp_path, capsys, monkeypatch, name, message
+):
+    (tmp_path / 'sheets').mkdir()
+    (tmp_path / 'notes.txt').write_text('kept')
+    rendered = []  # (the bags and the sheet, which take seconds to render)
+    monkeypatch.setattr(synth, 'record', lambda *args, **kwargs: rendered.append('bags') or [])
+    sheet = np.zeros((4, 4), np.uint8)
+    monkeypatch.setattr(synth, 'contact_sheet', lambda config: rendered.append('sheet') or sheet)
+    argv = ['synth', '--out', str(tmp_path / 'bags'), '--contact-sheet', str(tmp_path / name)]
+
+    status = main(argv)
+
+    assert status == 2
+    err = capsys.readouterr().err
+    assert re.fullmatch(f'error: {message}.*\n', err)
+    assert not rendered
+    assert (tmp_path / 'notes.txt').read_text() == 'kept'
 
 
 def test_scene_config_rejects_bad_values():
