@@ -515,6 +515,8 @@ def _sample(atlas: np.ndarray, coords: np.ndarray) -> np.ndarray:
     cv2.remap maps must be under 32767 wide, so the points are folded into rows.
     """
     count = len(coords)
+    if count == 0:  # a face covering no pixel centre (cv2.remap refuses empty maps)
+        return np.zeros((0, *atlas.shape[2:]), np.float32)
     padded = np.zeros((-(-count // _REMAP_ROW) * _REMAP_ROW, 2), np.float32)
     padded[:count] = coords
     folded = padded.reshape(-1, _REMAP_ROW, 2)

@@ -190,6 +190,16 @@ def test_scene_config_rejects_bad_values():
         next(SequenceRenderer(SceneConfig(**SMALL), 0).frames(-1))
 
 
+def test_a_face_smaller_than_a_pixel_renders_as_the_background():
+    # A wide field of view on a small image: the face spans 0.4 px and covers no pixel centre.
+    config = SceneConfig(kind='mono', motion='static', width=32, height=32, focal=2.0, frames=1)
+
+    frame = next(SequenceRenderer(config, 0).frames(0))
+
+    assert frame.images['image'].shape == (32, 32)
+    assert not frame.truth.visible['image'].any()
+
+
 def test_a_toed_in_rig_turns_each_raw_camera_towards_the_other():
     cameras = SceneConfig(toe_in_deg=3.0).cameras()
     axes = {name: camera.r[:, 2] for name, camera in cameras.items()}  # raw optical axes
