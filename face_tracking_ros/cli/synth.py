@@ -24,12 +24,23 @@ from face_tracking_ros.synthetic.contact_sheet import contact_sheet
 from face_tracking_ros.synthetic.faces import PRESETS
 from face_tracking_ros.synthetic.motion import Motion
 from face_tracking_ros.synthetic.recording import RecordedBag, record
-from face_tracking_ros.synthetic.scenes import Kind, SceneConfig
+from face_tracking_ros.synthetic.scenes import (
+    MAX_BASELINE,
+    MAX_FOV_DEG,
+    MAX_SIZE,
+    MIN_BASELINE,
+    MIN_FOV_DEG,
+    MIN_SIZE,
+    Kind,
+    SceneConfig,
+    focal_range,
+)
 from face_tracking_ros.synthetic.texture import ENCODINGS
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     """Add the ``synth`` subcommand."""
+    low, high = focal_range(640)
     parser = subparsers.add_parser(
         'synth',
         help='render synthetic faces (stereo or mono) with ground truth into MCAP bags',
@@ -53,10 +64,26 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         'free: test (free head motion, random expressions); '
         'static: head, neutral face and light fixed, only sensor noise (jitter)',
     )
-    parser.add_argument('--size', type=_size, default=(640, 480), help='WIDTHxHEIGHT, px')
+    parser.add_argument(
+        '--size',
+        type=_size,
+        default=(640, 480),
+        help=f'WIDTHxHEIGHT, px, {MIN_SIZE} to {MAX_SIZE} a side (640x480)',
+    )
     parser.add_argument('--encoding', choices=ENCODINGS, default='mono8')
-    parser.add_argument('--focal', type=float, default=600.0, help='focal length, px')
-    parser.add_argument('--baseline', type=float, default=0.11, help='stereo baseline, m')
+    parser.add_argument(
+        '--focal',
+        type=float,
+        default=600.0,
+        help=f'focal length, px, for a horizontal field of view of {MAX_FOV_DEG:g} down to '
+        f'{MIN_FOV_DEG:g} degrees ({low:.0f} to {high:.0f} px at 640 px wide; %(default)s)',
+    )
+    parser.add_argument(
+        '--baseline',
+        type=float,
+        default=0.11,
+        help=f'stereo baseline, m, {MIN_BASELINE} to {MAX_BASELINE} (%(default)s)',
+    )
     parser.add_argument('--texture', type=Path, help='face photo used as every subject texture')
     parser.add_argument(
         '--texture-nodes', type=Path, help='JSON {node name: [x, y]} of the photo node pixels'

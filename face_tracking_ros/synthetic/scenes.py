@@ -17,6 +17,7 @@ from __future__ import annotations
 from collections.abc import Iterator
 from dataclasses import dataclass, field, replace
 from enum import Enum, StrEnum
+import math
 from pathlib import Path
 from typing import NamedTuple
 
@@ -46,6 +47,8 @@ START_NS = 1_700_000_000 * 1_000_000_000  # stamp of frame 0, ns since the epoch
 MAX_FPS = 120.0
 MIN_BASELINE, MAX_BASELINE = 0.10, 0.12  # m
 MAX_TOE_IN_DEG = 10.0
+MIN_SIZE, MAX_SIZE = 32, 4096  # image width and height, px
+MIN_FOV_DEG, MAX_FOV_DEG = 1.0, 170.0  # horizontal field of view 2 atan(W / 2 focal)
 _EXPOSURE = 0.5  # exposure time as a fraction of the frame period (motion blur)
 _BLUR_SAMPLES = 3
 _LIGHT_SWAY = np.radians(15.0)  # amplitude of the moving light, rad
@@ -56,6 +59,19 @@ class Kind(StrEnum):
 
     STEREO = 'stereo'
     MONO = 'mono'
+
+
+def focal_range(width: int) -> tuple[float, float]:
+    """Focal lengths (px) from a horizontal field of view of MAX_FOV_DEG to one of MIN_FOV_DEG.
+
+    The field of view of an image ``width`` px wide is 2 atan(width / 2 focal). Beyond this
+    range no camera is simulated, and a focal length of 1e12 px shifted the stereo backdrop
+    (by focal x baseline / depth px) so far that OpenCV's border reflection ran for hours.
+    """
+    low, high = (
+        width / (2.0 * math.tan(math.radians(fov) / 2.0)) for fov in (MAX_FOV_DEG, MIN_FOV_DEG)
+    )
+    return low, high
 
 
 @dataclass(frozen=True)
@@ -73,10 +89,11 @@ class SceneConfig:
         motion: 'still' (training: head still, neutral start, expressions in turn), 'free'
             (test: free head motion, random expressions) or 'static' (head, neutral face and
             light fixed: only the sensor noise changes, for jitter).
-        width: image width, px.
-        height: image height, px.
+        width: image width, px, in [MIN_SIZE, MAX_SIZE].
+        height: image height, px, in [MIN_SIZE, MAX_SIZE].
         encoding: 'mono8' or 'rgb8'.
-        focal: focal length fx = fy, px.
+        focal: focal length fx = fy, px, in :func:`focal_range` of the width (a horizontal
+            field of view of MAX_FOV_DEG down to MIN_FOV_DEG degrees).
         baseline: stereo baseline B, m, in [0.10, 0.12].
         texture: optional face photo used as every subject's texture.
         texture_nodes: JSON of that photo's node pixels (required with ``texture``).
@@ -116,7 +133,7 @@ class SceneConfig:
         """Validate every field; errors name the field and the accepted range."""
         object.__setattr__(self, 'kind', _enum(Kind, self.kind, 'kind'))
         object.__setattr__(self, 'motion', _enum(Motion, self.motion, 'motion'))
-        for name in ('subjects', 'sequences', 'frames', 'width', 'height'):
+        for name in ('subjects', 'sequences', 'frames'):
             if getattr(self, name) < 1:
                 msg = f'{name} must be >= 1, got {getattr(self, name)}'
                 raise ConfigError(msg)
@@ -132,8 +149,19 @@ class SceneConfig:
         if self.encoding not in ENCODINGS:
             msg = f'unknown image encoding {self.encoding!r}; choose one of {ENCODINGS}'
             raise ConfigError(msg)
-        if self.focal <= 0.0:
-            msg = f'focal length must be > 0 px, got {self.focal}'
+        if not (MIN_SIZE <= self.width <= MAX_SIZE and MIN_SIZE <= self.height <= MAX_SIZE):
+            msg = (
+                f'size must be in [{MIN_SIZE}, {MAX_SIZE}] px a side, '
+                f'got {self.width}x{self.height}'
+            )
+            raise ConfigError(msg)
+        low, high = focal_range(self.width)
+        if not low <= self.focal <= high:
+            msg = (
+                f'focal must be in [{math.ceil(10 * low) / 10}, {math.floor(high)}] px for an '
+                f'image {self.width} px wide (a horizontal field of view of {MAX_FOV_DEG:g} down '
+                f'to {MIN_FOV_DEG:g} degrees), got {self.focal}'
+            )
             raise ConfigError(msg)
         if not MIN_BASELINE <= self.baseline <= MAX_BASELINE:
             msg = f'baseline must be in [{MIN_BASELINE}, {MAX_BASELINE}] m, got {self.baseline}'

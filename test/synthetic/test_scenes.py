@@ -136,6 +136,14 @@ def test_synth_command_writes_bags_and_a_contact_sheet(tmp_path, capsys):
         (['--baseline', '0.3'], r'baseline must be in \[0.1, 0.12\] m'),
         (['--distortion', '0.1,0.2'], 'distortion must be 5 finite plumb_bob coefficients'),
         (['--toe-in', '12'], r'toe_in_deg must be in \[0, 10\], got 12.0'),
+        (
+            ['--kind', 'mono', '--focal', '1e12', '--frames', '1'],
+            r'focal must be in \[28.0, 36668\] px for an image 640 px wide \(a horizontal field '
+            r'of view of 170 down to 1 degrees\), got 1000000000000.0',
+        ),
+        (['--focal', 'nan'], r'focal must be in \[28.0, 36668\] px .*, got nan'),
+        (['--size', '2x2', '--focal', '2', '--frames', '1'], r'size must be in \[32, 4096\] px'),
+        (['--size', '5000x480', '--frames', '1'], r'a side, got 5000x480'),
     ],
 )
 def test_bad_arguments_give_clear_errors(tmp_path, capsys, arguments, message):
@@ -186,6 +194,13 @@ def test_scene_config_rejects_bad_values():
         SceneConfig(encoding='yuv422')
     with pytest.raises(ConfigError, match='seed must be >= 0'):
         SceneConfig(seed=-1)
+    # A stereo backdrop 1e12 px * 0.11 m / 2.5 m away hung OpenCV's warp: refused before.
+    with pytest.raises(ConfigError, match=r'focal must .* got 1000000000000.0'):
+        SceneConfig(kind='stereo', focal=1e12)
+    with pytest.raises(ConfigError, match=r'focal must be in \[5.6, 7333\] px for an image 128'):
+        SceneConfig(width=128, height=96, focal=5.5)
+    for focal in (28.0, 36668.0):  # the bounds the message gives are accepted
+        SceneConfig(focal=focal)
     with pytest.raises(ConfigError, match='sequence index must be >= 0'):
         next(SequenceRenderer(SceneConfig(**SMALL), 0).frames(-1))
 
