@@ -12,11 +12,13 @@ from __future__ import annotations
 
 import json
 import os
+import re
 
 import pytest
 
 from face_tracking_ros.bench.common import BenchOptions
 from face_tracking_ros.bench.runner import finite_or_null, run_benchmarks
+from face_tracking_ros.cli import bench
 from face_tracking_ros.cli.bench import format_table
 from face_tracking_ros.cli.main import main
 from face_tracking_ros.errors import ConfigError
@@ -111,6 +113,41 @@ def test_quick_run_writes_finite_figures(tmp_path):
     assert nulls == [path for path, _ in leaves if _not_applicable(path)]
     assert '/benchmarks/stereo_accuracy/runs/nodes_19/pooled/boundary_slip_mm' in nulls
     assert sum(isinstance(value, int | float) for _, value in leaves) > 50
+
+
+@pytest.mark.parametrize(
+    ('arguments', 'message'),
+    [
+        (
+            ['--minutes', 'nan'],
+            r'--minutes must be a finite number > 0 \(the soak duration\), got nan',
+        ),
+        (['--minutes', 'inf'], r'--minutes must be a finite number > 0 .*, got inf'),
+        (['--minutes', '0'], r'--minutes must be a finite number > 0 .*, got 0.0'),
+        (['--domain-id', '-1'], r'--domain-id must be in \[0, 232\] .*, got -1'),
+        (['--domain-id', '233'], r'--domain-id must be in \[0, 232\] .*, got 233'),
+        (['--seed', '-1'], r'--seed must be >= 0, got -1'),
+        (
+            ['--json', '.'],
+            r'--json \. is a directory; give the results file \(e\.g\. results\.json\)',
+        ),
+    ],
+)
+def test_bad_options_are_refused_before_any_benchmark_runs(
+    tmp_path, capsys, monkeypatch, arguments, message
+):
+    ran = []
+    monkeypatch.setattr(
+        bench, 'run_benchmarks', lambda names, options: ran.append(names) or {'benchmarks': {}}
+    )
+    monkeypatch.chdir(tmp_path)
+
+    status = main(['bench', '--out', str(tmp_path), '--only', 'soak', *arguments])
+
+    assert status == 2
+    assert re.fullmatch(f'error: {message}\n', capsys.readouterr().err)
+    assert not ran
+    assert list(tmp_path.iterdir()) == []
 
 
 def test_unknown_benchmark_is_refused(tmp_path):

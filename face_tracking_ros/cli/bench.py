@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 from pathlib import Path
 from typing import Any
 
@@ -17,9 +18,11 @@ import numpy as np
 
 from face_tracking_ros.bench.common import BenchOptions
 from face_tracking_ros.bench.runner import BENCHMARKS, DEFAULT_BENCHMARKS, run_benchmarks
+from face_tracking_ros.errors import ConfigError
 
 TABLE_SIZE = '640x480'
 STAGE_NAMES = {'align_s': 'align', 'seed_s': 'learn', 'joint_s': 'joint learner'}  # learner rows
+MAX_DOMAIN_ID = 232  # the last whose DDS ports fit in 16 bits (ROS 2 docs, 'About Domain ID')
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -43,17 +46,27 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help=f'run only these benchmarks: {", ".join(BENCHMARKS)} (default: all but soak)',
     )
     parser.add_argument(
-        '--minutes', type=float, default=BenchOptions.minutes, help='soak duration, min'
+        '--minutes', type=float, default=BenchOptions.minutes, help='soak duration, min (> 0)'
     )
     parser.add_argument(
-        '--domain-id', type=int, default=BenchOptions.domain_id, help='ROS_DOMAIN_ID of live runs'
+        '--domain-id',
+        type=int,
+        default=BenchOptions.domain_id,
+        help=f'ROS_DOMAIN_ID of live runs, 0 to {MAX_DOMAIN_ID} (%(default)s)',
     )
-    parser.add_argument('--seed', type=int, default=BenchOptions.seed, help='synthetic world seed')
+    parser.add_argument(
+        '--seed', type=int, default=BenchOptions.seed, help='synthetic world seed (>= 0)'
+    )
     parser.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
-    """Run, write the JSON, print the table; 1 if a benchmark failed."""
+    """Run, write the JSON, print the table; 1 if a benchmark failed.
+
+    Raises:
+        ConfigError: for an option out of range, before any benchmark runs.
+    """
+    _check_options(args)
     work_dir = args.out / 'bench'
     options = BenchOptions(args.quick, work_dir, args.minutes, args.domain_id, args.seed)
     results = run_benchmarks(args.only or DEFAULT_BENCHMARKS, options)
@@ -66,6 +79,29 @@ def run(args: argparse.Namespace) -> int:
     for name in failed:
         print(f'{name} failed: {results["benchmarks"][name]["failed"]}')
     return 1 if failed else 0
+
+
+def _check_options(args: argparse.Namespace) -> None:
+    """Refuse option values the benchmarks cannot run with, before the first one starts.
+
+    Raises:
+        ConfigError: naming the option, its value and the range expected.
+    """
+    if not (math.isfinite(args.minutes) and args.minutes > 0.0):
+        msg = f'--minutes must be a finite number > 0 (the soak duration), got {args.minutes}'
+        raise ConfigError(msg)
+    if not 0 <= args.domain_id <= MAX_DOMAIN_ID:
+        msg = (
+            f'--domain-id must be in [0, {MAX_DOMAIN_ID}] (a ROS_DOMAIN_ID whose DDS ports '
+            f'exist), got {args.domain_id}'
+        )
+        raise ConfigError(msg)
+    if args.seed < 0:
+        msg = f'--seed must be >= 0, got {args.seed}'
+        raise ConfigError(msg)
+    if args.json is not None and args.json.is_dir():
+        msg = f'--json {args.json} is a directory; give the results file (e.g. results.json)'
+        raise ConfigError(msg)
 
 
 def format_table(results: dict[str, Any]) -> str:
