@@ -16,6 +16,7 @@ import re
 
 import pytest
 
+from face_tracking_ros.bench import runner
 from face_tracking_ros.bench.common import BenchOptions
 from face_tracking_ros.bench.runner import finite_or_null, run_benchmarks
 from face_tracking_ros.cli import bench
@@ -58,8 +59,9 @@ def test_quick_run_writes_finite_figures(tmp_path):
         ['bench', '--quick', '--out', str(tmp_path), '--json', str(out), '--domain-id', domain]
         + ['--only', *QUICK]
     )
+    failed = tmp_path / 'results.failed.json'  # (where a run with a failure writes)
+    assert status == 0, json.loads(failed.read_text())['benchmarks']
     results = json.loads(out.read_text())
-    assert status == 0, results['benchmarks']
     assert set(results['benchmarks']) == set(QUICK)
     assert results['machine']['nproc'] == len(os.sched_getaffinity(0))
     speed = results['benchmarks']['tracker_speed']['320x240']
@@ -148,6 +150,30 @@ def test_bad_options_are_refused_before_any_benchmark_runs(
     assert re.fullmatch(f'error: {message}\n', capsys.readouterr().err)
     assert not ran
     assert list(tmp_path.iterdir()) == []
+
+
+def test_a_run_with_a_failed_benchmark_keeps_the_earlier_results(tmp_path, capsys, monkeypatch):
+    parts = {'tracker_speed': {}, 'memory': {'failed': 'exit status 1: MemoryError'}}
+    monkeypatch.setattr(runner, '_run_child', lambda name, options: parts[name])
+    results = tmp_path / 'bench' / 'results.json'
+    results.parent.mkdir()
+    results.write_text('{"benchmarks": "of an earlier run"}')
+    argv = ['bench', '--out', str(tmp_path), '--only', 'tracker_speed', 'memory']
+
+    status = main(argv)
+
+    assert status == 1
+    assert results.read_text() == '{"benchmarks": "of an earlier run"}'
+    failed = results.with_name('results.failed.json')
+    assert json.loads(failed.read_text())['benchmarks'] == parts
+    printed = capsys.readouterr().out
+    assert f'results: {failed} ({results} not replaced)\n' in printed
+    assert 'memory failed: exit status 1: MemoryError' in printed
+    # A run without failures replaces them.
+    parts['memory'] = {}
+    assert main(argv) == 0
+    assert json.loads(results.read_text())['benchmarks'] == parts
+    assert f'results: {results}\n' in capsys.readouterr().out
 
 
 def test_unknown_benchmark_is_refused(tmp_path):

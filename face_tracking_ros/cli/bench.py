@@ -2,8 +2,10 @@
 
 Runs the benchmarks of :mod:`face_tracking_ros.bench` (each in its own process on one core; see
 :mod:`face_tracking_ros.bench.runner`), writes every figure to one JSON file and prints the
-headline table (the one in README.md, "Performance"). ``--only soak --minutes 30`` is the soak
-run of issue 10; it is not part of the default set.
+headline table (the one in README.md, "Performance"). A run in which a benchmark failed leaves
+the results file of an earlier run as it was and writes its own beside it (``results.json``:
+``results.failed.json``). ``--only soak --minutes 30`` is the soak run of issue 10; it is not
+part of the default set.
 """
 
 from __future__ import annotations
@@ -19,6 +21,7 @@ import numpy as np
 from face_tracking_ros.bench.common import BenchOptions
 from face_tracking_ros.bench.runner import BENCHMARKS, DEFAULT_BENCHMARKS, run_benchmarks
 from face_tracking_ros.errors import ConfigError
+from face_tracking_ros.io.atomic import write_text_atomically
 
 TABLE_SIZE = '640x480'
 STAGE_NAMES = {'align_s': 'align', 'seed_s': 'learn', 'joint_s': 'joint learner'}  # learner rows
@@ -34,7 +37,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         'and write the results as JSON.',
     )
     parser.add_argument('--quick', action='store_true', help='smoke-test sizes (seconds)')
-    parser.add_argument('--json', type=Path, help='results file (default: OUT/bench/results.json)')
+    parser.add_argument(
+        '--json',
+        type=Path,
+        help='results file (default: OUT/bench/results.json); a run in which a benchmark fails '
+        'writes NAME.failed.json beside it instead',
+    )
     parser.add_argument(
         '--out', type=Path, default=Path('out'), help='output directory (default: out)'
     )
@@ -61,7 +69,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    """Run, write the JSON, print the table; 1 if a benchmark failed.
+    """Run, write the JSON (atomically), print the table; 1 if a benchmark failed.
 
     Raises:
         ConfigError: for an option out of range, before any benchmark runs.
@@ -71,11 +79,12 @@ def run(args: argparse.Namespace) -> int:
     options = BenchOptions(args.quick, work_dir, args.minutes, args.domain_id, args.seed)
     results = run_benchmarks(args.only or DEFAULT_BENCHMARKS, options)
     path = args.json or work_dir / 'results.json'
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(results, indent=1))
-    print(format_table(results))
-    print(f'results: {path}')
     failed = [name for name, r in results['benchmarks'].items() if 'failed' in r]
+    written = path.with_name(f'{path.stem}.failed{path.suffix}') if failed else path
+    written.parent.mkdir(parents=True, exist_ok=True)
+    write_text_atomically(written, json.dumps(results, indent=1))
+    print(format_table(results))
+    print(f'results: {written}' + (f' ({path} not replaced)' if failed else ''))
     for name in failed:
         print(f'{name} failed: {results["benchmarks"][name]["failed"]}')
     return 1 if failed else 0

@@ -1,8 +1,8 @@
-"""Atomic writes of .npz files: a crash never leaves a half-written model, gallery or classifier.
+"""Atomic writes: a crash never leaves a half-written model, gallery, classifier or report.
 
-The arrays go to a temporary file beside the target, which is synced and then renamed over the
-target (:func:`os.replace`, atomic on POSIX). The file gets the usual permissions of a new file
-(0666 less the umask), not the private mode temporary files are created with.
+The arrays (or text) go to a temporary file beside the target, which is synced and then renamed
+over the target (:func:`os.replace`, atomic on POSIX). The file gets the usual permissions of a
+new file (0666 less the umask), not the private mode temporary files are created with.
 :func:`read_npz` reads them back, refusing pickled objects, with errors that say what is wrong
 with the file.
 """
@@ -13,6 +13,7 @@ from collections.abc import Callable
 import os
 from pathlib import Path
 import tempfile
+from typing import BinaryIO
 import zipfile
 
 import numpy as np
@@ -46,6 +47,21 @@ def write_npz_atomically(path: Path, arrays: dict[str, np.ndarray]) -> None:
         path: the target file; its directory must exist.
         arrays: members by name (plain numeric or string arrays: no pickled objects).
     """
+    _write_atomically(path, lambda handle: np.savez(handle, **arrays))
+
+
+def write_text_atomically(path: Path, text: str) -> None:
+    """Write ``text`` (UTF-8) at ``path``, atomically: an earlier file stays whole until then.
+
+    Args:
+        path: the target file; its directory must exist.
+        text: the whole content.
+    """
+    _write_atomically(path, lambda handle: handle.write(text.encode()))
+
+
+def _write_atomically(path: Path, write: Callable[[BinaryIO], object]) -> None:
+    """Write ``path`` through ``write`` on a synced temporary file renamed over it."""
     if not path.parent.is_dir():
         msg = f'no directory {path.parent} to write {path.name} in'
         raise FileNotFoundError(msg)
@@ -53,7 +69,7 @@ def write_npz_atomically(path: Path, arrays: dict[str, np.ndarray]) -> None:
     temporary = Path(name)
     try:
         with os.fdopen(descriptor, 'wb') as handle:
-            np.savez(handle, **arrays)
+            write(handle)
             handle.flush()
             os.fsync(handle.fileno())
         os.chmod(temporary, 0o666 & ~_umask())
