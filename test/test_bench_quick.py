@@ -129,10 +129,7 @@ def test_quick_run_writes_finite_figures(tmp_path):
         (['--domain-id', '-1'], r'--domain-id must be in \[0, 232\] .*, got -1'),
         (['--domain-id', '233'], r'--domain-id must be in \[0, 232\] .*, got 233'),
         (['--seed', '-1'], r'--seed must be >= 0, got -1'),
-        (
-            ['--json', '.'],
-            r'--json \. is a directory; give the results file \(e\.g\. results\.json\)',
-        ),
+        (['--json', '.'], r'--json \. is a directory, not a file'),
     ],
 )
 def test_bad_options_are_refused_before_any_benchmark_runs(

@@ -21,7 +21,7 @@ import numpy as np
 from face_tracking_ros.bench.common import BenchOptions
 from face_tracking_ros.bench.runner import BENCHMARKS, DEFAULT_BENCHMARKS, run_benchmarks
 from face_tracking_ros.errors import ConfigError
-from face_tracking_ros.io.atomic import write_text_atomically
+from face_tracking_ros.io.atomic import check_output_path, write_text_atomically
 
 TABLE_SIZE = '640x480'
 STAGE_NAMES = {'align_s': 'align', 'seed_s': 'learn', 'joint_s': 'joint learner'}  # learner rows
@@ -94,7 +94,8 @@ def _check_options(args: argparse.Namespace) -> None:
     """Refuse option values the benchmarks cannot run with, before the first one starts.
 
     Raises:
-        ConfigError: naming the option, its value and the range expected.
+        ConfigError: naming the option, its value and the range expected, or an output path
+            that cannot be written (:func:`~face_tracking_ros.io.atomic.check_output_path`).
     """
     if not (math.isfinite(args.minutes) and args.minutes > 0.0):
         msg = f'--minutes must be a finite number > 0 (the soak duration), got {args.minutes}'
@@ -108,9 +109,9 @@ def _check_options(args: argparse.Namespace) -> None:
     if args.seed < 0:
         msg = f'--seed must be >= 0, got {args.seed}'
         raise ConfigError(msg)
-    if args.json is not None and args.json.is_dir():
-        msg = f'--json {args.json} is a directory; give the results file (e.g. results.json)'
-        raise ConfigError(msg)
+    check_output_path(args.out, '--out', directory=True)
+    if args.json is not None:
+        check_output_path(args.json, '--json')
 
 
 def format_table(results: dict[str, Any]) -> str:

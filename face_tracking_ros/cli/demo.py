@@ -27,6 +27,7 @@ import time
 
 from face_tracking_ros.cli import main as cli
 from face_tracking_ros.errors import ConfigError
+from face_tracking_ros.io.atomic import check_output_path
 from face_tracking_ros.pipelines.stereo_meshes import STEREO_PARAMS
 
 MARKER = '.face-tracking-demo'  # in an --out the demo made, which a later demo may empty
@@ -82,6 +83,7 @@ def run(args: argparse.Namespace) -> int:
         msg = f'the demo needs at least 3 training subjects, got {plan.subjects}'
         raise ConfigError(msg)
     out = args.out
+    check_output_path(out, '--out', directory=True)
     if out.exists() and not args.keep:
         _empty_earlier_demo(out)
     made = not out.exists()  # only a directory the demo makes is marked as the demo's

@@ -6,6 +6,7 @@ import argparse
 from pathlib import Path
 
 from face_tracking_ros.errors import ConfigError
+from face_tracking_ros.io.atomic import check_output_path
 from face_tracking_ros.io.provenance import other_source
 from face_tracking_ros.io.series import has_truth, load_states, load_truth, require_parameters
 from face_tracking_ros.visualization.plots import plot_tracking
@@ -33,6 +34,7 @@ def run(args: argparse.Namespace) -> None:
     if args.png.suffix.lower() != '.png':
         msg = f'--png {args.png}: give a file name ending in .png'
         raise ConfigError(msg)
+    check_output_path(args.png, '--png')
     if args.truth and not has_truth(args.truth):
         msg = f'--truth {args.truth} holds no truth/face (a synthetic bag has it)'
         raise ConfigError(msg)

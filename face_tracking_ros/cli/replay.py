@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import Any
 
 from face_tracking_ros.errors import BagError, ConfigError
+from face_tracking_ros.io.atomic import check_output_path
 from face_tracking_ros.io.bags import read_raw
 from face_tracking_ros.processing.base import Output
 from face_tracking_ros.processing.parameters import OverrideParameters
@@ -100,6 +101,7 @@ def print_stats(stats: ReplayStats, out: Path) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Replay the bag; exit status 1 if it was interrupted or partly unreadable."""
+    check_output_path(args.out, '--out', directory=True)
     stats = replay_bag(
         args.nodes,
         args.bag,

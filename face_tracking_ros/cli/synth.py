@@ -20,6 +20,7 @@ import time
 import cv2
 
 from face_tracking_ros.errors import ConfigError
+from face_tracking_ros.io.atomic import check_output_path
 from face_tracking_ros.synthetic.contact_sheet import contact_sheet
 from face_tracking_ros.synthetic.faces import PRESETS
 from face_tracking_ros.synthetic.motion import Motion
@@ -118,6 +119,8 @@ def run(args: argparse.Namespace) -> None:
     """
     if args.out is None and args.contact_sheet is None:
         raise ConfigError('give --out (bags) and/or --contact-sheet (PNG)')
+    if args.out is not None:
+        check_output_path(args.out, '--out', directory=True)
     if args.contact_sheet is not None:
         _check_contact_sheet(args.contact_sheet)
     width, height = args.size
@@ -164,21 +167,16 @@ def _check_contact_sheet(path: Path) -> None:
     """Refuse a ``--contact-sheet`` that OpenCV cannot write, before any rendering.
 
     Raises:
-        ConfigError: naming the option: a directory, a directory path through a file, or a file
-            name of an extension OpenCV writes no image format for.
+        ConfigError: naming the option: a path OpenCV could not write into
+            (:func:`~face_tracking_ros.io.atomic.check_output_path`), or a file name of an
+            extension OpenCV writes no image format for.
     """
-    if path.is_dir():
-        msg = f'--contact-sheet {path} is a directory; give an image file name (e.g. sheet.png)'
-        raise ConfigError(msg)
+    check_output_path(path, '--contact-sheet')
     if not cv2.haveImageWriter(str(path)):
         msg = (
             f'--contact-sheet {path}: OpenCV writes no image format of its extension '
             f'({path.suffix or "none"}); give a .png (or .jpg, .tif...) file name'
         )
-        raise ConfigError(msg)
-    existing = next(parent for parent in path.parents if parent.exists())
-    if not existing.is_dir():
-        msg = f'--contact-sheet {path}: {existing} is a file, not a directory'
         raise ConfigError(msg)
 
 

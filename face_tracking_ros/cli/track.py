@@ -20,7 +20,7 @@ import numpy as np
 
 from face_tracking_ros.cli.replay import add_replay_options, parse_remaps, print_stats
 from face_tracking_ros.errors import BagError, ConfigError
-from face_tracking_ros.io.atomic import check_replaceable
+from face_tracking_ros.io.atomic import check_output_path, check_replaceable
 from face_tracking_ros.io.bags import bag_topics
 from face_tracking_ros.io.series import has_truth, load_states
 from face_tracking_ros.pipelines.bag_inputs import (
@@ -125,6 +125,9 @@ def run(args: argparse.Namespace) -> int:
     if noise is not None and not (math.isfinite(noise) and noise >= 0):
         msg = f'--simulate-clicks must be a finite number of pixels >= 0 (0: exact), got {noise}'
         raise ConfigError(msg)
+    check_output_path(args.out, '--out', directory=True)
+    if args.report is not None:
+        check_output_path(args.report, '--report')
     node = choose_tracker(args.bag, args)
     params, model_file = _parameters(args, node)
     print(f'tracking {args.bag} with {node}')

@@ -4,7 +4,8 @@ The arrays (or text) go to a temporary file beside the target, which is synced a
 over the target (:func:`os.replace`, atomic on POSIX). The file gets the usual permissions of a
 new file (0666 less the umask), not the private mode temporary files are created with.
 :func:`read_npz` reads them back, refusing pickled objects, with errors that say what is wrong
-with the file.
+with the file. :func:`check_output_path` and :func:`check_replaceable` refuse, before a
+command does any work, an output it could not write or should not write over.
 """
 
 from __future__ import annotations
@@ -19,6 +20,33 @@ import zipfile
 import numpy as np
 
 from face_tracking_ros.errors import ConfigError, ModelFileError
+
+
+def check_output_path(path: Path, option: str, *, directory: bool = False) -> None:
+    """Refuse an output path that cannot be written: a component of it is not a directory.
+
+    The nearest existing ancestor of ``path`` must be a directory (the missing ones below it
+    are made by the commands that make them, or reported by those that do not); ``path``
+    itself, if it exists, must be a directory when ``directory`` is set, else must not be one.
+
+    Args:
+        path: the output file, or directory with ``directory``.
+        option: the command-line option that gave it (named in the message).
+        directory: whether the output is a directory.
+
+    Raises:
+        ConfigError: naming the option, the path and the component that is of the wrong kind.
+    """
+    ancestor = next((parent for parent in path.parents if parent.exists()), None)
+    if ancestor is not None and not ancestor.is_dir():
+        msg = f'{option} {path}: {ancestor} is a file, not a directory'
+        raise ConfigError(msg)
+    if directory and path.exists() and not path.is_dir():
+        msg = f'{option} {path} is a file, not a directory'
+        raise ConfigError(msg)
+    if not directory and path.is_dir():
+        msg = f'{option} {path} is a directory, not a file'
+        raise ConfigError(msg)
 
 
 def check_replaceable(path: Path, option: str, what: str, load: Callable[[Path], object]) -> None:

@@ -157,7 +157,7 @@ def test_bad_arguments_give_clear_errors(tmp_path, capsys, arguments, message):
 @pytest.mark.parametrize(
     ('name', 'message'),
     [
-        ('sheets', r'--contact-sheet \S*sheets is a directory; give an image file name'),
+        ('sheets', r'--contact-sheet \S*sheets is a directory, not a file'),
         ('sheet.txt', r'--contact-sheet \S*sheet.txt: OpenCV writes no image format of its '),
         ('sheet', r'--contact-sheet \S*sheet: .* of its extension \(none\)'),
         ('notes.txt/sheet.png', r'--contact-sheet \S*sheet.png: \S*notes.txt is a file, not a'),

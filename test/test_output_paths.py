@@ -1,0 +1,75 @@
+"""Output paths a command cannot write are refused before any work, naming option and component.
+
+An --out under an existing regular file gave the raw errno text ('[Errno 20] Not a directory',
+'[Errno 17] File exists'), some commands only after their work (bench after its benchmarks,
+plot after drawing).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from face_tracking_ros.cli.main import main
+from face_tracking_ros.errors import ConfigError
+from face_tracking_ros.io.atomic import check_output_path
+
+from conftest import REPO
+
+MONO = REPO / 'bags' / 'mono_test' / 'subject_00_seq_00'
+
+
+def _commands(tmp_path: Path, under: Path) -> dict[str, list[str]]:
+    """Each command with one output under ``under`` (its other outputs in ``tmp_path``)."""
+    synth = ['synth', '--kind', 'mono', '--frames', '2']
+    track = ['track', str(MONO), '--simulate-clicks', '1', '--quiet']
+    return {
+        '--out': [*synth, '--out', str(under / 'bags')],
+        '--contact-sheet': [*synth, '--contact-sheet', str(under / 'sheet.png')],
+        'track --out': [*track, '--out', str(under / 'tracked')],
+        '--report': [*track, '--out', str(tmp_path / 'tracked'), '--report', str(under / 'r')],
+        'replay --out': ['replay', 'mono_tracker', str(MONO), '--out', str(under / 'o')],
+        'demo --out': ['demo', '--out', str(under / 'demo')],
+        '--json': ['bench', '--quick', '--out', str(tmp_path), '--json', str(under / 'b.json')],
+        '--png': ['plot', str(MONO), '--png', str(under / 'p.png')],
+    }
+
+
+CASES = ['--out', '--contact-sheet', 'track --out', '--report', 'replay --out', 'demo --out']
+
+
+@pytest.mark.parametrize('case', [*CASES, '--json', '--png'])
+def test_an_output_under_a_file_names_the_option_and_the_file(tmp_path, capsys, case):
+    notes = tmp_path / 'notes.txt'
+    notes.write_text('mine')
+    argv = _commands(tmp_path, notes / 'sub')[case]
+    option = case.split()[-1]
+    assert main(argv) == 2
+    error = capsys.readouterr().err
+    assert f'error: {option} {notes}/sub/' in error
+    assert f': {notes} is a file, not a directory' in error
+    assert 'Errno' not in error
+    assert notes.read_text() == 'mine'
+    assert sorted(path.name for path in tmp_path.iterdir()) == ['notes.txt']  # no work done
+
+
+def test_an_output_of_the_wrong_kind_is_named(tmp_path, capsys):
+    notes = tmp_path / 'notes.txt'
+    notes.write_text('mine')
+    assert main(['demo', '--out', str(notes)]) == 2
+    assert f'--out {notes} is a file, not a directory' in capsys.readouterr().err
+    assert main(['bench', '--out', str(tmp_path / 'b'), '--json', str(tmp_path)]) == 2
+    assert f'--json {tmp_path} is a directory, not a file' in capsys.readouterr().err
+    assert notes.read_text() == 'mine'
+    assert not (tmp_path / 'b').exists()
+
+
+def test_missing_directories_and_relative_paths_pass(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    check_output_path(tmp_path / 'a' / 'b' / 'c.json', '--json')
+    check_output_path(Path('x'), '--out', directory=True)
+    check_output_path(Path('.'), '--out', directory=True)
+    Path('x').write_text('')
+    with pytest.raises(ConfigError, match=r'--out x/y: x is a file, not a directory'):
+        check_output_path(Path('x/y'), '--out', directory=True)
