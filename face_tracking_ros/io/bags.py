@@ -11,8 +11,9 @@ Messages already serialised to CDR (what DDS carries) go in and out unchanged wi
 
 Messages are read as the bag defines their types (:mod:`.bag_definitions`), so bags of earlier
 versions of a message stay readable. Every failure of the underlying libraries (missing or
-truncated bag, a type neither the package nor the bag defines, topic re-used with another type)
-is raised as :class:`~face_tracking_ros.errors.BagError` naming the bag.
+truncated bag, a type neither the package nor the bag defines, topic re-used with another type,
+a topic whose type in ``metadata.yaml`` contradicts its MCAP file's schema) is raised as
+:class:`~face_tracking_ros.errors.BagError` naming the bag.
 """
 
 from __future__ import annotations
@@ -320,7 +321,53 @@ def _open_reader(path: Path) -> Reader | None:
             msg = f'{path}: not a rosbag2 bag (no metadata.yaml and no .mcap file in it)'
             raise BagError(msg) from None
         raise BagError(f'{path}: cannot read bag: {type(error).__name__}: {error}') from None
+    try:
+        _check_types_agree(reader, path)
+    except BaseException:
+        reader.close()
+        raise
     return reader
+
+
+def _check_types_agree(reader: Reader, path: Path) -> None:
+    """Refuse a bag whose ``metadata.yaml`` gives a topic another type than its MCAP file does.
+
+    rosbags pairs the two by topic and type: the messages of such a topic were silently not read.
+
+    Raises:
+        BagError: naming the topic, the type ``metadata.yaml`` says and the file's own (schema).
+    """
+    listed: dict[str, set[str]] = {}
+    for connection in reader.connections:
+        listed.setdefault(connection.topic, set()).add(connection.msgtype)
+    for name in _metadata(path).get('relative_file_paths') or []:
+        for topic, msgtype in _stored_types(path / str(name)):
+            if topic in listed and msgtype not in listed[topic]:
+                said = ' or '.join(sorted(listed[topic]))
+                msg = (
+                    f'{path}: metadata.yaml says topic {topic} is {said}, but {name} stores it '
+                    f'as {msgtype} (its schema): its messages cannot be read; correct the type in '
+                    'metadata.yaml'
+                )
+                raise BagError(msg)
+
+
+def _stored_types(file: Path) -> list[tuple[str, str]]:
+    """(topic, type) of each channel of an MCAP file, by its schemas; [] for another file.
+
+    A file that cannot be opened is left to the reading of the bag, which names its damage.
+    """
+    if file.suffix != '.mcap' or not file.is_file():
+        return []
+    try:
+        storage = Reader(file)
+        storage.open()
+    except _READ_ERRORS:
+        return []
+    try:
+        return [(connection.topic, connection.msgtype) for connection in storage.connections]
+    finally:
+        storage.close()
 
 
 def _mcap_files(path: Path) -> list[Path]:

@@ -150,6 +150,25 @@ def test_without_metadata_a_requested_topic_the_bag_lacks_is_named(bag, tmp_path
         list(read_messages(copy, topics=['/cam/image', '/cam/depth']))
 
 
+def test_a_type_in_metadata_that_contradicts_the_mcap_schema_names_both(bag, tmp_path, capsys):
+    """The reader pairs metadata and MCAP channels by topic and type: the image went unread."""
+    copy = _cut_copy(bag, tmp_path / 'copy', 1.0)
+    metadata = copy / 'metadata.yaml'
+    text = metadata.read_text()
+    assert text.count(f'type: {IMAGE}') == 1
+    metadata.write_text(text.replace(f'type: {IMAGE}', f'type: {INFO}'))
+    expected = (
+        f'{copy}: metadata.yaml says topic /cam/image is {INFO}, but camera.mcap stores it as '
+        f'{IMAGE} (its schema): its messages cannot be read; correct the type in metadata.yaml'
+    )
+    for read in (bag_topics, read_raw, read_messages):
+        with pytest.raises(BagError) as error:
+            list(read(copy))
+        assert str(error.value) == expected
+    assert main(['replay', 'mono_tracker', str(copy), '--out', str(tmp_path / 'out')]) == 2
+    assert capsys.readouterr().err == f'error: {expected}\n'
+
+
 @pytest.fixture(scope='module')
 def bag_with_unknown_type(tmp_path_factory) -> Path:
     """Five Float64 on /n and five robot_msgs/msg/Battery (unknown to the project) on /battery."""
