@@ -192,6 +192,16 @@ def test_nan_in_a_vector_field_is_named():
         conversions.finite_vector([0.0, np.nan], 'ActionParams.alpha')
 
 
+def test_nan_among_many_values_is_located_not_dumped():
+    """The error printed every value: 102 of them for a 34-node mesh."""
+    nodes = np.linspace(0.1, 0.9, 34 * 3).reshape(34, 3)
+    nodes[3, 0] = nodes[20, 2] = np.nan
+    with pytest.raises(InputError) as error:
+        conversions.finite_vector(nodes, 'FaceTruth.nodes')
+    expected = 'FaceTruth.nodes holds NaN or Inf: 2 of 102 values, the first (nan) at [3, 0]'
+    assert str(error.value) == expected
+
+
 def test_a_reset_request_becomes_an_initialisation_and_a_repeated_node_is_refused():
     """A request naming a node twice (a later click meant to correct one) is refused.
 

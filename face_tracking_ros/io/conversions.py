@@ -210,17 +210,24 @@ def camera_to_info(factory: MessageFactory, header: Any, camera: PinholeCamera) 
 
 
 def finite_vector(values: Any, field: str, length: int | None = None) -> np.ndarray:
-    """A finite float vector from a message field.
+    """A finite float vector from a message field (an array of any shape, flattened).
 
     Raises:
-        InputError: naming ``field`` if a value is NaN or Inf or the length is not ``length``.
+        InputError: naming ``field`` if a value is NaN or Inf (how many, and the first one's
+            index in ``values``' shape, not the values) or the length is not ``length``.
     """
-    vector = np.asarray(values, dtype=float).ravel()
+    array = np.asarray(values, dtype=float)
+    vector = array.ravel()
     if length is not None and vector.size != length:
         msg_text = f'{field} has {vector.size} values, expected {length}'
         raise InputError(msg_text)
-    if not np.all(np.isfinite(vector)):
-        msg_text = f'{field} holds NaN or Inf: {vector}'
+    bad = np.flatnonzero(~np.isfinite(vector))
+    if len(bad):
+        index = ', '.join(str(int(i)) for i in np.unravel_index(bad[0], array.shape))
+        msg_text = (
+            f'{field} holds NaN or Inf: {len(bad)} of {vector.size} values, the first '
+            f'({vector[bad[0]]}){f" at [{index}]" if index else ""}'
+        )
         raise InputError(msg_text)
     return vector
 
