@@ -226,7 +226,9 @@ def test_errors_name_the_bag_topic_or_subject(tmp_path, truth_bags, world, capsy
         alpha,
     )
     err = _error(['learn', str(bag), *out], capsys)
-    assert f'{bag}: truth/face message 7: FaceTruth.nodes holds NaN' in err
+    nan = 'FaceTruth.nodes holds NaN or Inf: 1 of 102 values, the first (nan) at [3, 1]'
+    assert f'{bag}: truth/face message 7 (stamp ' in err
+    assert f's): {nan}\n' in err
 
     small = sequences[2].__class__(
         'small', sequences[2].meshes[:, :19], sequences[2].neutral, sequences[2].labels, ''

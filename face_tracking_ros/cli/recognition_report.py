@@ -21,7 +21,7 @@ from face_tracking_ros.errors import BagError, ConfigError
 from face_tracking_ros.io.bags import NS_PER_S, read_messages
 from face_tracking_ros.io.conversions import stamp_to_ns, truth_from_msg
 from face_tracking_ros.io.provenance import other_source, tracked_with
-from face_tracking_ros.io.series import require_parameters
+from face_tracking_ros.io.series import read_converted, require_parameters
 from face_tracking_ros.model.model_file import load_model
 from face_tracking_ros.recognition.evaluation import (
     detect_events,
@@ -171,8 +171,7 @@ def tracked_sequence(tracked: Path, truth: Path) -> ParameterSequence:
         raise ConfigError(msg)
     labels = {}
     subject = ''
-    for message in read_messages(truth, topics=[TRUTH_TOPIC]):
-        sample = truth_from_msg(message.msg)
+    for _, sample in read_converted(truth, TRUTH_TOPIC, truth_from_msg):
         labels[sample.stamp_ns] = (sample.label, sample.intensity)
         subject = sample.subject_id
     frames = [

@@ -19,9 +19,9 @@ import numpy as np
 
 from face_tracking_ros.errors import BagError, ConfigError
 from face_tracking_ros.io.atomic import check_replaceable
-from face_tracking_ros.io.bags import NS_PER_S, bag_topics, read_messages
+from face_tracking_ros.io.bags import NS_PER_S, bag_topics
 from face_tracking_ros.io.conversions import truth_from_msg
-from face_tracking_ros.io.series import TRUTH_TYPE
+from face_tracking_ros.io.series import TRUTH_TYPE, read_converted
 from face_tracking_ros.model.face_model import FaceModel
 from face_tracking_ros.model.model_file import load_model
 from face_tracking_ros.recognition.archive import load_archive
@@ -143,11 +143,8 @@ def truth_sequences(
         msg = f'{bag}: topic {topic} has type {msgtype}; expected {TRUTH_TYPE}'
         raise BagError(msg)
     by_subject: dict[str, list] = {}
-    for message in read_messages(bag, topics=[topic]):
-        sample = truth_from_msg(message.msg)
-        by_subject.setdefault(sample.subject_id, []).append(
-            (sample, tuple(message.msg.node_names))
-        )
+    for msg, sample in read_converted(bag, topic, truth_from_msg):
+        by_subject.setdefault(sample.subject_id, []).append((sample, tuple(msg.node_names)))
     if not by_subject:
         msg = f'{bag}: no FaceTruth message on {topic}'
         raise BagError(msg)

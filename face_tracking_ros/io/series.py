@@ -6,18 +6,21 @@ frame, through these two loaders.
 
 from __future__ import annotations
 
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any, TypeVar
 
 import numpy as np
 
-from face_tracking_ros.errors import BagError
+from face_tracking_ros.errors import BagError, InputError
 from face_tracking_ros.io import conversions
 from face_tracking_ros.io.bags import bag_topics, read_messages, stamp_to_ns
 from face_tracking_ros.tracking.result import TrackStatus
 
 STATE_TYPE = 'face_tracking_msgs/msg/FaceState'
 TRUTH_TYPE = 'face_tracking_msgs/msg/FaceTruth'
+T = TypeVar('T')
 
 
 @dataclass(frozen=True)
@@ -136,9 +139,10 @@ def load_truth(bag: Path) -> TruthSeries:
 
     Raises:
         BagError: if the bag has no FaceTruth topic or it is empty.
+        InputError: naming the bag, topic and message of a NaN (:func:`read_converted`).
     """
     topic = _only_topic(bag, TRUTH_TYPE)
-    samples = [conversions.truth_from_msg(m.msg) for m in read_messages(bag, topics=[topic])]
+    samples = [sample for _, sample in read_converted(bag, topic, conversions.truth_from_msg)]
     if not samples:
         msg = f'{bag}: topic {topic} holds no FaceTruth message'
         raise BagError(msg)
@@ -153,6 +157,28 @@ def load_truth(bag: Path) -> TruthSeries:
         labels=np.array([s.label for s in samples]),
         intensity=np.array([s.intensity for s in samples]),
     )
+
+
+def read_converted(bag: Path, topic: str, convert: Callable[[Any], T]) -> Iterator[tuple[Any, T]]:
+    """Each message of ``topic`` (one with a header) and its conversion, in record order.
+
+    Args:
+        bag: bag directory.
+        topic: the topic to read.
+        convert: a reader of :mod:`~face_tracking_ros.io.conversions`, e.g. ``truth_from_msg``.
+
+    Raises:
+        InputError: for a message ``convert`` refuses (a NaN, a malformed field), naming the
+            bag, the topic, the message's index and header stamp, and what is wrong with it.
+    """
+    for index, message in enumerate(read_messages(bag, topics=[topic])):
+        try:
+            converted = convert(message.msg)
+        except InputError as error:
+            stamp = message.msg.header.stamp
+            where = f'{bag}: {topic} message {index} (stamp {stamp.sec}.{stamp.nanosec:09d} s)'
+            raise InputError(f'{where}: {error}') from None
+        yield message.msg, converted
 
 
 def require_parameters(bag: Path, lengths: dict[str, int]) -> None:

@@ -30,6 +30,7 @@ from face_tracking_ros.io.conversions import (
     stamp_to_ns,
     truth_from_msg,
 )
+from face_tracking_ros.io.series import read_converted
 from face_tracking_ros.learning.training_set import MeshSequence
 from face_tracking_ros.model.topology import SUPPORTED_NODE_COUNTS
 from face_tracking_ros.pipelines.learn_options import LearnOptions
@@ -199,13 +200,9 @@ def _tracked_frames(
     untracked = _untracked_stamps(bag, topics) if msgtype == MESH_TYPES[0] else set()
     frames: list[_Frame] = []
     skipped = 0
-    for index, message in enumerate(read_messages(bag, [topic])):
-        try:
-            stamp_ns, nodes, sample = mesh_from_message(message.msg, msgtype)
-        except InputError as error:
-            msg = f'{bag}: {topic} message {index}: {error}'
-            raise InputError(msg) from None
-        state_untracked = msgtype == MESH_TYPES[1] and message.msg.status != TRACKED
+    meshes = read_converted(bag, topic, lambda msg: mesh_from_message(msg, msgtype))
+    for index, (msg, (stamp_ns, nodes, sample)) in enumerate(meshes):
+        state_untracked = msgtype == MESH_TYPES[1] and msg.status != TRACKED
         if stamp_ns in untracked or state_untracked:
             skipped += 1
             continue
@@ -237,8 +234,8 @@ def _untracked_stamps(bag: Path, topics: dict[str, str]) -> set[int]:
 
 def _truth_by_stamp(truth_bag: Path) -> dict[int, TruthSample]:
     """The truth samples of a bag by header stamp."""
-    samples = (truth_from_msg(item.msg) for item in read_messages(truth_bag, [TRUTH_TOPIC]))
-    return {sample.stamp_ns: sample for sample in samples}
+    samples = read_converted(truth_bag, TRUTH_TOPIC, truth_from_msg)
+    return {sample.stamp_ns: sample for _, sample in samples}
 
 
 def _bag_meshes(

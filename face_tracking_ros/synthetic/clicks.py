@@ -19,6 +19,7 @@ from face_tracking_ros.errors import BagError
 from face_tracking_ros.geometry.camera import PinholeCamera
 from face_tracking_ros.io import conversions
 from face_tracking_ros.io.bags import bag_topics, read_messages
+from face_tracking_ros.io.series import read_converted
 from face_tracking_ros.tracking.initialisation import Initialisation
 
 DEFAULT_CLICK_NOISE_PX = 1.0
@@ -88,17 +89,14 @@ def clicks_from_bag(
     if info_topic is None or truth_topic is None:
         msg = f'{bag}: simulated clicks need a CameraInfo and a FaceTruth topic'
         raise BagError(msg)
-    first: dict[str, object] = {}
-    for message in read_messages(bag, topics=[info_topic, truth_topic]):
-        first.setdefault(message.topic, message.msg)
-        if len(first) == 2:
-            break
-    empty = [topic for topic in (info_topic, truth_topic) if topic not in first]
-    if empty:
+    info = next((message.msg for message in read_messages(bag, topics=[info_topic])), None)
+    first = next(read_converted(bag, truth_topic, conversions.truth_from_msg), None)
+    empty = [topic for topic, msg in ((info_topic, info), (truth_topic, first)) if msg is None]
+    if info is None or first is None:
         msg = f'{bag}: simulated clicks need a message on {" and ".join(empty)}, which has none'
         raise BagError(msg)
-    truth = conversions.truth_from_msg(first[truth_topic])
-    camera = conversions.camera_from_info(first[info_topic])
-    names = tuple(first[truth_topic].node_names)
+    truth_msg, truth = first
+    camera = conversions.camera_from_info(info)
+    names = tuple(truth_msg.node_names)
     draw = zlib.crc32(bag.name.encode()) if seed is None else seed
     return simulated_clicks(names, truth.nodes, camera, noise_px, np.random.default_rng(draw))
