@@ -129,6 +129,23 @@ def resolve_inputs(
     return mapping
 
 
+def _check_remaps(remaps: Mapping[str, str], nodes: Sequence[str], inputs: list[Port]) -> None:
+    """Refuse a remap whose input is not one the nodes read from the bag (it would be ignored).
+
+    Raises:
+        ConfigError: naming the remap and the nodes' inputs.
+    """
+    names = sorted({port.topic for port in inputs})
+    unknown = next((name for name in remaps if name not in names), None)
+    if unknown is not None:
+        whose = 'its' if len(nodes) == 1 else 'their'
+        msg = (
+            f'remap {unknown}={remaps[unknown]}: {unknown!r} is not an input of '
+            f'{", ".join(nodes)}; {whose} inputs from the bag are {", ".join(names)}'
+        )
+        raise ConfigError(msg)
+
+
 def bag_spelling(topic: str, bag_topics: Mapping[str, str]) -> str:
     """``topic`` as the bag spells it, with or without a leading '/' (else as given)."""
     other = topic[1:] if topic.startswith('/') else f'/{topic}'
@@ -333,6 +350,7 @@ def replay_bag(
         )
         raise ConfigError(msg)
     external = [port for p in processors for port in p.inputs if port.topic not in produced]
+    _check_remaps(remaps or {}, nodes, external)
     topics = bag_topics(bag)
     topic_map = resolve_inputs(external, topics, remaps or {})
     if not topic_map:

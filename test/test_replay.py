@@ -118,6 +118,26 @@ def test_remap_to_a_topic_of_another_type_is_refused():
         resolve_inputs([Port('image', IMAGE)], {'/x': FLOAT}, {'image': '/x'})
 
 
+def test_a_remap_of_an_input_the_nodes_lack_is_refused_naming_their_inputs(tmp_path, capsys):
+    """It was silently ignored (a misspelt input read the topic matched by name instead)."""
+    mono = str(Path(__file__).resolve().parents[1] / 'bags' / 'mono_test' / 'subject_00_seq_00')
+    remap = ['--remap', 'nosuch=image']
+    for argv in (
+        ['replay', 'mono_tracker', mono, '--out', str(tmp_path / 'a'), *remap],
+        ['track', mono, '--simulate-clicks', '1', '--out', str(tmp_path / 'b'), *remap],
+    ):
+        assert main(argv) == 2
+        assert capsys.readouterr().err == (
+            "error: remap nosuch=image: 'nosuch' is not an input of mono_tracker; its inputs "
+            'from the bag are camera_info, face/model, image\n'
+        )
+    assert not (tmp_path / 'a').exists() and not (tmp_path / 'b').exists()
+    graph = ['replay', 'mono_tracker,expression_recognizer', mono, '--out', str(tmp_path / 'c')]
+    assert main([*graph, '--remap', 'face/state=face/state']) == 2  # made by the tracker
+    error = capsys.readouterr().err
+    assert "'face/state' is not an input of mono_tracker, expression_recognizer; their" in error
+
+
 def test_replay_writes_one_output_per_good_frame_at_the_input_stamp(tmp_path):
     stamps = _write_images(tmp_path / 'in', 8)
     stats = _run(tmp_path / 'in', tmp_path / 'out', MeanProcessor())

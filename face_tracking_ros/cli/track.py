@@ -129,10 +129,11 @@ def run(args: argparse.Namespace) -> int:
     if args.report is not None:
         check_output_path(args.report, '--report')
     node = choose_tracker(args.bag, args)
-    params, model_file = _parameters(args, node)
+    params, model_file, compressed = _parameters(args, node)
     print(f'tracking {args.bag} with {node}')
     options = {'image': args.image_topic, 'camera_info': args.camera_info_topic}
-    remaps = {**parse_remaps(args.remap), **input_remaps({**options, **stereo_topics(args)})}
+    given = input_remaps({**options, **stereo_topics(args)}, compressed)
+    remaps = {**parse_remaps(args.remap), **given}
     stats = replay_bag(
         [node],
         args.bag,
@@ -156,11 +157,12 @@ def run(args: argparse.Namespace) -> int:
     return 1 if stats.interrupted or stats.read_error else 0
 
 
-def _parameters(args: argparse.Namespace, node: str) -> tuple[list[str], Path | None]:
-    """The tracker's parameters (NAME=VALUE) and its model file (None: the packaged one).
+def _parameters(args: argparse.Namespace, node: str) -> tuple[list[str], Path | None, bool]:
+    """The tracker's parameters (NAME=VALUE), model file (None: packaged) and image transport.
 
-    The simulated clicks (``--simulate-clicks``) are written beside ``--out`` for the model's
-    nodes, and given as ``init_file``.
+    The last is True if the tracker reads compressed images. The simulated clicks
+    (``--simulate-clicks``) are written beside ``--out`` for the model's nodes, and given as
+    ``init_file``.
 
     Raises:
         ConfigError: if nothing would initialise the track, ``--out`` exists, or the clicks or
@@ -197,7 +199,7 @@ def _parameters(args: argparse.Namespace, node: str) -> tuple[list[str], Path | 
         params.append(f'init_file={init_file}')
     if args.auto_init:
         params.append('auto_init=true')
-    return params, model_file
+    return params, model_file, node_config.compressed
 
 
 def _check_clicks_file(path: Path, inputs: list[Path]) -> None:

@@ -82,14 +82,18 @@ def compressed_parameters(
     return ['compressed=true'] if compressed else []
 
 
-def input_remaps(topics: Mapping[str, str | None]) -> dict[str, str]:
+def input_remaps(topics: Mapping[str, str | None], compressed: bool) -> dict[str, str]:
     """Processor input -> bag topic, of the topics given (input name -> bag topic, or None).
 
-    An image input's topic serves its ``/compressed`` input too (``compressed=true``).
+    With ``compressed`` (the tracker's ``compressed`` parameter), an image topic given for a raw
+    image input goes to its ``/compressed`` input, the one the tracker then reads.
     """
-    remaps = {port: topic for port, topic in topics.items() if topic}
-    compressed = {raw: port for port, raw in STEREO_COMPRESSED.items()} | {IMAGE: COMPRESSED_IMAGE}
-    return remaps | {compressed[port]: remaps[port] for port in compressed.keys() & remaps.keys()}
+    transport = {raw: port for port, raw in STEREO_COMPRESSED.items()} | {IMAGE: COMPRESSED_IMAGE}
+    return {
+        transport.get(port, port) if compressed else port: topic
+        for port, topic in topics.items()
+        if topic
+    }
 
 
 class StereoTopicOptions(Protocol):

@@ -32,6 +32,7 @@ from face_tracking_ros.pipelines.learn_options import LearnOptions
 from face_tracking_ros.pipelines.mesh_bags import mesh_topic
 from face_tracking_ros.pipelines.scoring import score_stereo_against_truth
 from face_tracking_ros.processing.parameters import OverrideParameters
+from face_tracking_ros.processing.stereo import StereoNodeConfig
 from face_tracking_ros.replay import ReplayStats, replay_bag
 from face_tracking_ros.synthetic.clicks import clicks_from_bag, write_init_file
 
@@ -71,7 +72,7 @@ def mesh_bag(
     params = OverrideParameters.parse(
         [STEREO_PARAMS, *compressed, *options.tracker_params, initialisation]
     )
-    remaps = input_remaps(stereo_topics(options))
+    remaps = input_remaps(stereo_topics(options), params.config(StereoNodeConfig).compressed)
     if _tracked_before(out, Provenance.of(bag, [TRACKER], params.overrides, remaps), say):
         return out
     _track(bag, topics, out, params, remaps, say)
