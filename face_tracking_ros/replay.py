@@ -17,7 +17,7 @@ not fatal.
 from __future__ import annotations
 
 from collections import Counter, deque
-from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Collection, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, TypeVar
@@ -92,9 +92,9 @@ def resolve_inputs(
 
     A port is matched by an override (port topic -> bag topic, with or without the leading
     '/' the bag's name has), else by the bag topic that ends with the port's name, else by the
-    only bag topic of the port's message type if no other port took it by name (a bag with only
-    ``left/camera_info`` feeds the left port, not the right one too). Ports with no match are
-    left out (e.g. an optional ``face/model``).
+    only bag topic of the port's message type if no other port took it (by override, name or
+    type: a bag with only ``left/camera_info`` feeds the left port, not the right one too).
+    Ports with no match are left out (e.g. an optional ``face/model``).
 
     Args:
         ports: the processor's input ports.
@@ -106,16 +106,23 @@ def resolve_inputs(
 
     Raises:
         BagError: if an override names a topic the bag lacks or of the wrong type.
+        ConfigError: if an override gives a port the topic of another (e.g. the left image's
+            to the right one).
     """
     ports = list(ports)
     named = {port.topic: _named(port, bag_topics) for port in ports}
+    given = {
+        port.topic: bag_spelling(overrides[port.topic], bag_topics)
+        for port in ports
+        if overrides.get(port.topic)
+    }
+    taken = {*named.values(), *given.values()}
     mapping: dict[str, str] = {}
     for port in ports:
-        given = overrides.get(port.topic)
         bag_topic = (
-            bag_spelling(given, bag_topics)
-            if given
-            else named[port.topic] or _only_of_type(port, bag_topics, set(named.values()))
+            given.get(port.topic)
+            or named[port.topic]
+            or _only_of_type(port, bag_topics, taken | mapping.keys())
         )
         if bag_topic is None:
             continue
@@ -125,6 +132,12 @@ def resolve_inputs(
             )
             msg = f'topic {bag_topic!r} for input {port.topic!r} must be {port.msgtype}: {found}'
             raise BagError(msg)
+        if bag_topic in mapping:
+            msg = (
+                f'topic {bag_topic!r} would feed both inputs {mapping[bag_topic]!r} and '
+                f'{port.topic!r}: give each its own topic'
+            )
+            raise ConfigError(msg)
         mapping[bag_topic] = port.topic
     return mapping
 
@@ -162,8 +175,10 @@ def _named(port: Port, bag_topics: Mapping[str, str]) -> str | None:
     return by_name[0] if len(by_name) == 1 else None
 
 
-def _only_of_type(port: Port, bag_topics: Mapping[str, str], taken: set[str | None]) -> str | None:
-    """The bag's only topic of the port's type, unless another port has it by name."""
+def _only_of_type(
+    port: Port, bag_topics: Mapping[str, str], taken: Collection[str | None]
+) -> str | None:
+    """The bag's only topic of the port's type, unless another port has it."""
     of_type = [topic for topic, msgtype in bag_topics.items() if msgtype == port.msgtype]
     return of_type[0] if len(of_type) == 1 and of_type[0] not in taken else None
 

@@ -14,7 +14,7 @@ import pytest
 from face_tracking_ros import replay as replay_module
 from face_tracking_ros.cli.main import main
 from face_tracking_ros.cli.replay import print_stats
-from face_tracking_ros.errors import BagError, InputError
+from face_tracking_ros.errors import BagError, ConfigError, InputError
 from face_tracking_ros.io import conversions
 from face_tracking_ros.io.bags import BagWriter, read_messages
 from face_tracking_ros.io.messages import RosbagsMessages
@@ -136,6 +136,22 @@ def test_a_remap_of_an_input_the_nodes_lack_is_refused_naming_their_inputs(tmp_p
     assert main([*graph, '--remap', 'face/state=face/state']) == 2  # made by the tracker
     error = capsys.readouterr().err
     assert "'face/state' is not an input of mono_tracker, expression_recognizer; their" in error
+
+
+def test_one_topic_for_two_inputs_is_refused():
+    """The second input took the topic from the first: a stereo pair of one camera, unnamed."""
+    ports = [Port('left/image_raw', IMAGE), Port('right/image_raw', IMAGE)]
+    topics = {'/cam/left': IMAGE, '/cam/right': IMAGE}
+    both = {'left/image_raw': '/cam/left', 'right/image_raw': 'cam/left'}
+    with pytest.raises(
+        ConfigError,
+        match="topic '/cam/left' would feed both inputs 'left/image_raw' and 'right/image_raw'",
+    ):
+        resolve_inputs(ports, topics, both)
+    # A topic given to one input is not matched by type to another too.
+    assert resolve_inputs(ports, {'/image': IMAGE}, {'left/image_raw': 'image'}) == {
+        '/image': 'left/image_raw'
+    }
 
 
 def test_replay_writes_one_output_per_good_frame_at_the_input_stamp(tmp_path):
