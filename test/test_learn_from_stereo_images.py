@@ -14,7 +14,7 @@ import pytest
 
 from face_tracking_ros.cli import learn
 from face_tracking_ros.cli.main import main
-from face_tracking_ros.errors import BagError, ConfigError
+from face_tracking_ros.errors import ConfigError
 from face_tracking_ros.io import conversions
 from face_tracking_ros.io.bags import BagWriter, bag_topics, read_messages
 from face_tracking_ros.io.messages import RosbagsMessages
@@ -198,13 +198,44 @@ def test_a_stereo_pair_not_found_by_name_is_asked_for(still_bag, tmp_path, capsy
     # The images given (without their leading '/', as a bag may spell them) but no camera_info.
     images = ['--left-topic', 'camera/infra1/image_rect_raw', '--right-topic',
               'camera/infra2/image_rect_raw', '--simulate-clicks', '0']  # fmt: skip
-    infos = r'\(the bag has /camera/infra1/camera_info, /camera/infra2/camera_info\)'
-    with pytest.raises(BagError, match=f'no mesh .*--left-info-topic .*{infos}'):
+    with pytest.raises(ConfigError) as refused:  # before any tracking (which gave no mesh)
         stereo_meshes.mesh_bag(bag, _learn_args(bag, tmp_path, '--from-images', *images))
+    message = str(refused.value)
+    assert "no topic for the stereo tracker's left/camera_info, right/camera_info" in message
+    infos = '/camera/infra1/camera_info, /camera/infra2/camera_info'
+    assert f'--right-info-topic); the bag has sensor_msgs/msg/CameraInfo: {infos};' in message
     # track: neither tracker is a guess; the mono one on one of them, the stereo one on both.
     assert main(['track', str(bag), '--out', str(tmp_path / 'out')]) == 2
     err = capsys.readouterr().err
     assert 'none named left or right: give one with --image-topic (mono tracker) or' in err
+
+
+def test_a_mono_bag_or_one_topic_for_both_cameras_is_refused_before_tracking(tmp_path, capsys):
+    """The stereo tracker ran with one camera's inputs: 'no image was tracked', nothing named."""
+    mono = str(REPO / 'bags' / 'mono_test' / 'subject_00_seq_00')
+    stereo = str(BAGS[0])
+    missing = (
+        f"error: {mono}: no topic for the stereo tracker's right/image_raw, right/camera_info "
+        '(matched by a name ending in it, else give --right-topic, --right-info-topic); the bag '
+        'has sensor_msgs/msg/CameraInfo: camera_info; sensor_msgs/msg/Image: image\n'
+    )
+    twice = 'error: --left-topic and --right-topic are both {}: the stereo tracker needs a '
+    track = ['track', '--simulate-clicks', '1', '--out', str(tmp_path / 'out')]
+    learn = ['learn', '--from-images', '--simulate-clicks', '1', '--out', str(tmp_path / 'm.npz')]
+    learn += ['--report', str(tmp_path / 'r.json')]
+    same = ['--left-topic', 'left/image_raw', '--right-topic', 'left/image_raw']
+    for argv, expected in (
+        ([*track, mono, '--left-topic', 'image'], missing),
+        ([*learn, mono, '--left-topic', 'image'], missing),
+        (
+            [*track, mono, '--left-topic', 'image', '--right-topic', '/image'],
+            twice.format('image'),
+        ),
+        ([*learn, stereo, *same], twice.format('left/image_raw')),
+    ):
+        assert main(argv) == 2
+        assert capsys.readouterr().err.startswith(expected)
+    assert sorted(path.name for path in tmp_path.iterdir()) == []  # no clicks, no meshes
 
 
 def test_learn_gives_every_mesh_the_depths_refined_over_its_track(still_bag, tmp_path):

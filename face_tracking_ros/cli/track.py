@@ -25,6 +25,7 @@ from face_tracking_ros.io.bags import bag_topics
 from face_tracking_ros.io.series import has_truth, load_states
 from face_tracking_ros.pipelines.bag_inputs import (
     check_one_transport,
+    check_stereo_topics,
     compressed_parameters,
     image_topics,
     input_remaps,
@@ -169,7 +170,8 @@ def _parameters(args: argparse.Namespace, node: str) -> tuple[list[str], Path | 
             ``--report`` would be written over an input or a file of another kind.
     """
     given = (args.image_topic, args.left_topic)
-    params = [*compressed_parameters(bag_topics(args.bag), given), *(args.param or [])]
+    topics = bag_topics(args.bag)
+    params = [*compressed_parameters(topics, given), *(args.param or [])]
     if args.model:
         params.append(f'model_file={args.model}')
     node_config = OverrideParameters.parse(params).config(NODE_CONFIGS[node])
@@ -185,6 +187,8 @@ def _parameters(args: argparse.Namespace, node: str) -> tuple[list[str], Path | 
     if args.out.exists():
         msg = f'--out {args.out} exists: give a new directory for the tracked bag'
         raise ConfigError(msg)
+    if node == 'stereo_tracker':
+        check_stereo_topics(args.bag, topics, args, node_config.compressed)
     inputs = [Path(path) for path in (args.init, model_file, node_config.init_file) if path]
     init_file = args.init
     if args.simulate_clicks is not None:

@@ -21,8 +21,15 @@ from face_tracking_ros.model.topology import mesh_topology
 from face_tracking_ros.processing.mono import COMPRESSED_IMAGE, IMAGE
 from face_tracking_ros.processing.parameters import OverrideParameters
 from face_tracking_ros.processing.stereo import COMPRESSED as STEREO_COMPRESSED
-from face_tracking_ros.processing.stereo import LEFT_IMAGE, LEFT_INFO, RIGHT_IMAGE, RIGHT_INFO
-from face_tracking_ros.replay import bag_spelling
+from face_tracking_ros.processing.stereo import (
+    LEFT_IMAGE,
+    LEFT_INFO,
+    MODEL,
+    RIGHT_IMAGE,
+    RIGHT_INFO,
+    input_ports,
+)
+from face_tracking_ros.replay import bag_spelling, resolve_inputs
 from face_tracking_ros.tracking.stereo import StereoTrackerConfig
 
 
@@ -116,6 +123,57 @@ def stereo_topics(args: StereoTopicOptions) -> dict[str, str | None]:
         LEFT_INFO: args.left_info_topic,
         RIGHT_INFO: args.right_info_topic,
     }
+
+
+STEREO_OPTIONS = {
+    LEFT_IMAGE: '--left-topic',
+    RIGHT_IMAGE: '--right-topic',
+    LEFT_INFO: '--left-info-topic',
+    RIGHT_INFO: '--right-info-topic',
+}
+
+
+def check_stereo_topics(
+    bag: Path, topics: Mapping[str, str], options: StereoTopicOptions, compressed: bool
+) -> None:
+    """Refuse stereo topics the tracker cannot pair: one topic for both sides, or a side missing.
+
+    Args:
+        bag: the bag, for the messages.
+        topics: its topics (name -> type).
+        options: the topics given (--left-topic, ...).
+        compressed: whether the tracker reads CompressedImage.
+
+    Raises:
+        ConfigError: naming the two options given one topic, or the inputs no topic of the
+            bag feeds (with the bag's image and camera_info topics).
+    """
+    given = {
+        port: bag_spelling(topic, topics) if topic else None
+        for port, topic in stereo_topics(options).items()
+    }
+    for left, right in ((LEFT_IMAGE, RIGHT_IMAGE), (LEFT_INFO, RIGHT_INFO)):
+        if given[left] and given[left] == given[right]:
+            msg = (
+                f'{STEREO_OPTIONS[left]} and {STEREO_OPTIONS[right]} are both {given[left]}: the '
+                'stereo tracker needs a topic of each camera'
+            )
+            raise ConfigError(msg)
+    ports = [port for port in input_ports(compressed) if port.topic != MODEL]
+    fed = set(resolve_inputs(ports, topics, input_remaps(given, compressed)).values())
+    missing = [port for port in ports if port.topic not in fed]
+    if missing:
+        names = [port.topic for port in missing]
+        flags = [STEREO_OPTIONS[name.removesuffix('/compressed')] for name in names]
+        found = '; '.join(
+            f'{kind}: {", ".join(t for t, k in topics.items() if k == kind) or "none"}'
+            for kind in sorted({port.msgtype for port in ports})
+        )
+        msg = (
+            f"{bag}: no topic for the stereo tracker's {', '.join(names)} (matched by a name "
+            f'ending in it, else give {", ".join(flags)}); the bag has {found}'
+        )
+        raise ConfigError(msg)
 
 
 def tracked_nodes(node: str, params: list[str], model_file: Path | None) -> tuple[str, ...]:

@@ -16,11 +16,11 @@ import shutil
 
 from face_tracking_ros.errors import BagError, ConfigError, FaceTrackingError
 from face_tracking_ros.io.bags import bag_topics
-from face_tracking_ros.io.conversions import CAMERA_INFO_TYPE
 from face_tracking_ros.io.provenance import Provenance
 from face_tracking_ros.io.series import has_truth
 from face_tracking_ros.pipelines.bag_inputs import (
     check_one_transport,
+    check_stereo_topics,
     compressed_parameters,
     image_topics,
     input_remaps,
@@ -68,14 +68,11 @@ def mesh_bag(
         return bag  # meshes (or nothing: read_bag_meshes names the missing topic)
     initialisation = initialisation or stereo_initialisation(bag, options)
     out = _meshes_dir(options) / bag.name
-    compressed = compressed_parameters(topics, [options.left_topic])
-    params = OverrideParameters.parse(
-        [STEREO_PARAMS, *compressed, *options.tracker_params, initialisation]
-    )
+    params = OverrideParameters.parse([*_tracker_params(topics, options), initialisation])
     remaps = input_remaps(stereo_topics(options), params.config(StereoNodeConfig).compressed)
     if _tracked_before(out, Provenance.of(bag, [TRACKER], params.overrides, remaps), say):
         return out
-    _track(bag, topics, out, params, remaps, say)
+    _track(bag, out, params, remaps, say)
     if has_truth(bag):
         say(_score_line(bag, out))
     return out
@@ -86,8 +83,9 @@ def needs_tracking(bag: Path, topics: dict[str, str], options: LearnOptions) -> 
 
     Raises:
         ConfigError: for a bag of images whose stereo pair is not found by name (and not given)
-            while there are no meshes to learn from or ``--from-images`` asks for tracking, or
-            for two raw stereo bags of one name.
+            while there are no meshes to learn from or ``--from-images`` asks for tracking,
+            for two raw stereo bags of one name, or for stereo topics the tracker cannot pair
+            (:func:`~.bag_inputs.check_stereo_topics`).
     """
     has_meshes = options.topic or mesh_topic(topics, options) is not None
     if not (is_stereo_bag(topics) or options.left_topic):
@@ -112,7 +110,15 @@ def needs_tracking(bag: Path, topics: dict[str, str], options: LearnOptions) -> 
             'can still give both the same subject)'
         )
         raise ConfigError(msg)
+    tracker = OverrideParameters.parse(_tracker_params(topics, options))
+    check_stereo_topics(bag, topics, options, tracker.config(StereoNodeConfig).compressed)
     return True
+
+
+def _tracker_params(topics: dict[str, str], options: LearnOptions) -> list[str]:
+    """The stereo tracker's parameters for a raw bag of ``topics``, but its initialisation."""
+    compressed = compressed_parameters(topics, [options.left_topic])
+    return [STEREO_PARAMS, *compressed, *options.tracker_params]
 
 
 def stereo_initialisation(bag: Path, options: LearnOptions) -> str:
@@ -155,13 +161,12 @@ def stereo_initialisation(bag: Path, options: LearnOptions) -> str:
 
 def _track(
     bag: Path,
-    topics: dict[str, str],
     out: Path,
     params: OverrideParameters,
     remaps: dict[str, str],
     say: Callable[[str], None],
 ) -> None:
-    """Track the raw stereo bag ``bag`` (of ``topics``) into ``out`` and ``say`` what it did.
+    """Track the raw stereo bag ``bag`` into ``out`` and ``say`` what it did.
 
     Raises:
         BagError: if the tracker produced no mesh (``out`` is removed).
@@ -175,19 +180,16 @@ def _track(
         say(line)
     if not stats.outputs['face/mesh_raw']:
         shutil.rmtree(out)  # nothing to learn from, and a later run must track it again
-        raise _no_mesh_error(bag, topics, stats)
+        raise _no_mesh_error(bag, stats)
 
 
-def _no_mesh_error(bag: Path, topics: dict[str, str], stats: ReplayStats) -> BagError:
-    """The error of a tracking that produced no mesh: the input problems, and a hint."""
+def _no_mesh_error(bag: Path, stats: ReplayStats) -> BagError:
+    """The error of a tracking that produced no mesh: the input problems.
+
+    (Camera_info topics not found are refused before, by :func:`needs_tracking`.)
+    """
     problems = '; '.join(f'{count}x {error}' for error, count in stats.errors.items())
     msg = f'{bag}: the stereo tracker produced no mesh ({problems or "no input problem"})'
-    if stats.errors and all('no calibration' in error for error in stats.errors):
-        infos = [topic for topic, kind in topics.items() if kind == CAMERA_INFO_TYPE]
-        msg += (
-            '; give the camera_info topics with --left-info-topic and --right-info-topic '
-            f'(the bag has {", ".join(infos) or "none"})'
-        )
     return BagError(msg)
 
 

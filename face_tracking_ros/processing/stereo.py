@@ -198,7 +198,7 @@ class StereoProcessor:
         self._unpaired_gap_ns: int | None = None  # nearest other-camera stamp to a dropped image
         self._paired = False  # whether any left and right images have paired
         self._counts = TrackCounts('pairs')
-        self.inputs = _input_ports(config)
+        self.inputs = input_ports(config.compressed)
         self.outputs = (*MESH_PORTS, *MODEL_PORTS)
 
     def reset(self, initialisation: Initialisation | None) -> str:
@@ -546,11 +546,11 @@ class StereoProcessor:
         self._track_results = []
 
 
-def _input_ports(config: StereoNodeConfig) -> tuple[Port, ...]:
-    """The left and right images (raw or compressed, as ``config`` says), camera_infos, model."""
+def input_ports(compressed: bool) -> tuple[Port, ...]:
+    """The left and right images (raw, or ``compressed``), camera_infos and model."""
     image_type, image_topics = (
         (conversions.COMPRESSED_IMAGE_TYPE, tuple(COMPRESSED))
-        if config.compressed
+        if compressed
         else (conversions.IMAGE_TYPE, (LEFT_IMAGE, RIGHT_IMAGE))
     )
     return (
