@@ -14,6 +14,7 @@ from collections.abc import Callable
 import os
 from pathlib import Path
 import tempfile
+from tokenize import TokenError
 from typing import BinaryIO
 import zipfile
 
@@ -111,8 +112,9 @@ def read_npz(path: Path) -> dict[str, np.ndarray]:
     """The members of a .npz file, refusing pickled objects.
 
     Raises:
-        ModelFileError: naming the file: missing, not an .npz (zip) archive or a damaged one,
-            or holding pickled objects.
+        ModelFileError: naming the file: missing, not an .npz (zip) archive or a damaged one
+            (naming the member and the damage, without the bytes a library quotes), or holding
+            pickled objects.
     """
     if not path.is_file():
         msg = f'{path}: is a directory, not a file' if path.is_dir() else f'{path}: no such file'
@@ -120,13 +122,56 @@ def read_npz(path: Path) -> dict[str, np.ndarray]:
     if not zipfile.is_zipfile(path):
         msg = f'{path}: not an .npz archive, or a damaged one (no zip directory)'
         raise ModelFileError(msg)
+    members: dict[str, np.ndarray] = {}
+    name = None
     try:
         with np.load(path, allow_pickle=False) as archive:
-            return {name: archive[name] for name in archive.files}
-    except (OSError, ValueError, EOFError, zipfile.BadZipFile, NotImplementedError) as error:
-        # (NotImplementedError: zipfile's word for a damaged header's 'version needed')
-        msg = f'{path}: not a readable pickle-free .npz archive ({error})'
+            for name in archive.files:
+                member = archive[name]
+                if not isinstance(member, np.ndarray):  # numpy's bytes for no .npy magic
+                    msg = (
+                        f'{path}: not a readable pickle-free .npz archive (member {name!r} is '
+                        'not an .npy array: its header is damaged)'
+                    )
+                    raise ModelFileError(msg)
+                members[name] = member
+    except _DAMAGE_ERRORS as error:
+        where = f'member {name!r}: ' if name is not None else ''
+        msg = f'{path}: not a readable pickle-free .npz archive ({where}{_damage(error)})'
         raise ModelFileError(msg) from None
+    return members
+
+
+# What numpy and zipfile raise for a damaged archive or .npy member. NotImplementedError is
+# zipfile's word for a damaged header's 'version needed'; SyntaxError and TokenError come out of
+# numpy's parsing of a damaged .npy header.
+_DAMAGE_ERRORS = (
+    OSError,
+    ValueError,
+    EOFError,
+    SyntaxError,
+    TokenError,
+    zipfile.BadZipFile,
+    NotImplementedError,
+)
+MAX_DAMAGE_TEXT = 120  # characters of a library's message shown
+
+
+def _damage(error: BaseException) -> str:
+    """A library's word on a damage, without the bytes it may quote.
+
+    numpy quotes a whole damaged .npy header ('Cannot parse header: ' and up to 10 KB as a
+    repr); a message longer than :data:`MAX_DAMAGE_TEXT` keeps its first phrase only. The
+    errors of Python's parser, which numpy runs on the header ('EOF in multi-line statement'),
+    are said as what they mean.
+    """
+    if isinstance(error, SyntaxError | TokenError):
+        return 'its .npy header cannot be parsed'
+    first = error.args[0] if error.args and isinstance(error.args[0], str) else str(error)
+    text = first.splitlines()[0] if first.strip() else type(error).__name__
+    if len(text) > MAX_DAMAGE_TEXT:
+        text = text.split(': ')[0][:MAX_DAMAGE_TEXT] + ' (the rest left out)'
+    return text
 
 
 def _umask() -> int:

@@ -11,6 +11,8 @@ from collections.abc import Callable
 import json
 from pathlib import Path
 import re
+import struct
+import zipfile
 
 from fault_scenes import smile_classifier
 import numpy as np
@@ -109,6 +111,44 @@ def test_a_file_without_its_header_is_refused(saved):
     _rewrite(path, members)
     with pytest.raises(ModelFileError, match='header'):
         load()
+
+
+@pytest.mark.parametrize('header_length', [200, 5000, 9000])
+def test_a_damaged_member_header_is_named_without_its_bytes(saved, header_length):
+    """The error quoted the damaged .npy header whole: ~20 KB of bytes; or raised TokenError."""
+    path, load = saved
+    with zipfile.ZipFile(path) as archive:
+        data = {name: archive.read(name) for name in archive.namelist()}
+    name = max(data, key=lambda n: len(data[n]))  # the largest member's header swallows data
+    npy = data[name]
+    data[name] = npy[:8] + struct.pack('<H', header_length) + npy[10:]  # .npy v1 header length
+    with zipfile.ZipFile(path, 'w') as archive:
+        for member, content in data.items():
+            archive.writestr(member, content)
+    with pytest.raises(ModelFileError) as error:
+        load()
+    message = str(error.value)
+    assert message.startswith(f"{path}: not a readable pickle-free .npz archive (member '")
+    assert name.removesuffix('.npy') in message
+    assert len(message) < len(str(path)) + 200, message
+
+
+def test_a_member_without_its_npy_magic_is_named(saved):
+    """Such a member was read as bytes: an AttributeError traceback followed."""
+    path, load = saved
+    with zipfile.ZipFile(path) as archive:
+        data = {name: archive.read(name) for name in archive.namelist()}
+    name = next(n for n in data if n != 'header.npy')
+    data[name] = b'XXXXXX' + data[name][6:]
+    with zipfile.ZipFile(path, 'w') as archive:
+        for member, content in data.items():
+            archive.writestr(member, content)
+    with pytest.raises(ModelFileError) as error:
+        load()
+    assert str(error.value) == (
+        f"{path}: not a readable pickle-free .npz archive (member '{name[:-4]}' is not an .npy "
+        'array: its header is damaged)'
+    )
 
 
 def test_a_file_cut_at_any_offset_is_a_model_file_error(saved):
