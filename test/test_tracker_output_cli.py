@@ -400,3 +400,17 @@ def test_a_report_that_is_an_input_or_not_json_is_not_written_over(tmp_path, cap
     assert 'is not a JSON report: not written over' in capsys.readouterr().err
     assert notes.read_text() == 'not a report'
     assert load_model(model).num_nodes == 34
+
+
+def test_an_init_file_naming_a_node_the_model_lacks_is_named_not_the_model(tmp_path, capsys):
+    """It said 'the face model has 34 nodes but the initialisation names ...: model refused'."""
+    mono = REPO / 'bags' / 'mono_test' / 'subject_00_seq_00'
+    clicks = clicks_from_bag(mono, 1.0)
+    names = tuple('nose_tipp' if name == 'nose_tip' else name for name in clicks.node_names)
+    init = write_init_file(replace(clicks, node_names=names), tmp_path / 'clicks.json')
+    assert main(['track', str(mono), '--init', str(init), '--out', str(tmp_path / 'o')]) == 2
+    model = load_model(default_model_path(34))
+    assert capsys.readouterr().err == (
+        f'error: init file {init} names 1 nodes (nose_tipp) that the 34-node face model lacks '
+        f'(misspelt? its nodes: {", ".join(model.node_names)})\n'
+    )

@@ -521,6 +521,8 @@ def initialisation_from_reset(request: Any) -> Initialisation | None:
         raise ConfigError(msg)
     points = np.array([[point.x, point.y] for point in request.points], dtype=float)
     try:
-        return Initialisation(tuple(request.node_names), points)
+        return Initialisation(
+            tuple(request.node_names), points, source='the reset_tracking request'
+        )
     except ConfigError as error:
         raise ConfigError(f'reset_tracking request: {error}') from None

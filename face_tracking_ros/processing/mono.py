@@ -360,7 +360,7 @@ def _check_model(
             raise error(msg)
     unknown = _unknown_nodes(model, initialisation)
     if unknown:
-        raise error(f'{unknown}: model refused')
+        raise error(unknown)
     sigma = initialisation.sigma if initialisation else None
     if sigma is not None and len(sigma) != model.p:
         msg = f'the initialisation holds {len(sigma)} sigma values, the face model p = {model.p}'
@@ -369,13 +369,8 @@ def _check_model(
 
 def _unknown_nodes(model: FaceModel, initialisation: Initialisation | None) -> str:
     """What names the initialisation's nodes that the model lacks; '' if there are none."""
-    unknown = initialisation.unknown_nodes(model.node_names) if initialisation else ''
-    if not unknown:
-        return ''
-    return (
-        f'the face model has {model.num_nodes} nodes but the initialisation names {unknown} it '
-        f'lacks (misspelt? its nodes: {", ".join(model.node_names)})'
-    )
+    owner = f'the {model.num_nodes}-node face model'
+    return initialisation.unknown_nodes(model.node_names, owner) if initialisation else ''
 
 
 def make_mono_processor(params: ParameterSource, factory: MessageFactory) -> MonoProcessor:

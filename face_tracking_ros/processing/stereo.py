@@ -585,13 +585,10 @@ def _check_initialisation(
 ) -> None:
     """Raise ``error`` if the initialisation names nodes the tracker's mesh does not have."""
     names = mesh_topology(tracker_config.num_nodes).node_names
-    unknown = initialisation.unknown_nodes(names) if initialisation else ''
+    owner = f'the {tracker_config.num_nodes}-node mesh (tracker.num_nodes)'
+    unknown = initialisation.unknown_nodes(names, owner) if initialisation else ''
     if unknown:
-        msg = (
-            f'the {tracker_config.num_nodes}-node mesh (tracker.num_nodes) lacks {unknown} the '
-            'initialisation names'
-        )
-        raise error(msg)
+        raise error(unknown)
 
 
 def make_stereo_processor(params: ParameterSource, factory: MessageFactory) -> StereoProcessor:

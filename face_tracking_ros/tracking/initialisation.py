@@ -23,7 +23,7 @@ Init file (YAML or JSON; node names are those of :mod:`face_tracking_ros.model.t
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 import json
 from pathlib import Path
 from typing import Any
@@ -54,11 +54,13 @@ class Initialisation:
         node_names: K distinct node names, K >= 6.
         points: (K, 2) pixel positions (x = column, y = row), px.
         sigma: (p,) identity parameters to hold fixed (an enrolled identity), or None to fit them.
+        source: where the positions come from, for messages (e.g. 'init file clicks.yaml').
     """
 
     node_names: tuple[str, ...]
     points: np.ndarray
     sigma: np.ndarray | None = None
+    source: str = field(default='the initialisation', compare=False)
 
     def __post_init__(self) -> None:
         """Check counts, shapes and finiteness; errors name the problem."""
@@ -102,13 +104,20 @@ class Initialisation:
         names = tuple(self.node_names[i] for i in keep)
         return replace(self, node_names=names, points=self.points[keep])
 
-    def unknown_nodes(self, node_names: Sequence[str]) -> str:
-        """The given nodes that ``node_names`` lacks, e.g. '2 nodes (chin, ear)'; '' if none."""
+    def unknown_nodes(self, node_names: Sequence[str], owner: str) -> str:
+        """What names the given nodes that ``owner``'s ``node_names`` lack; '' if none.
+
+        E.g. "init file a.yaml names 2 nodes (chin, ear) that the face model lacks (misspelt?
+        its nodes: ...)".
+        """
         missing = sorted(set(self.node_names) - set(node_names))
         if not missing:
             return ''
         listed = ', '.join(missing[:4]) + (', ...' if len(missing) > 4 else '')
-        return f'{len(missing)} nodes ({listed})'
+        return (
+            f'{self.source} names {len(missing)} nodes ({listed}) that {owner} lacks '
+            f'(misspelt? its nodes: {", ".join(node_names)})'
+        )
 
     def moved(self, move: Callable[[np.ndarray], np.ndarray]) -> Initialisation:
         """The same nodes at ``move(points)``, e.g. from the raw to the rectified image."""
@@ -146,6 +155,7 @@ class Initialisation:
                 node_names=tuple(names),
                 points=np.array(points, dtype=float).reshape(-1, 2),
                 sigma=None if sigma is None else np.array(sigma, dtype=float),
+                source=source,
             )
         except ConfigError as error:
             raise ConfigError(f'{source}: {error}') from None
