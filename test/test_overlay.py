@@ -112,3 +112,17 @@ def test_a_video_in_a_missing_directory_is_refused_before_any_work(turned, tmp_p
     for name in ('x.mp4', 'x.gif'):  # OpenCV's writer would drop every frame without a word
         with pytest.raises(ConfigError, match=f'video file .*{name}: no directory .*absent'):
             write_overlay_video(bag, load_states(out), tmp_path / 'absent' / name)
+
+
+def test_a_bag_without_images_is_named_with_its_topics(turned, tmp_path, capsys):
+    """It said 'choose the image topic (--image-topic) among none' (here: the two bags swapped)."""
+    _, out = turned
+    video = ['--video', str(tmp_path / 'v.mp4')]
+    expected = (
+        f'error: {out}: no sensor_msgs/msg/Image or CompressedImage topic to draw on (its topics: '
+        f'{", ".join(bag_topics(out))})\n'
+    )
+    for more in ([], ['--image-topic', 'image']):
+        assert main(['overlay', str(out), str(out), *video, *more]) == 2
+        assert capsys.readouterr().err == expected
+    assert not (tmp_path / 'v.mp4').exists()

@@ -28,22 +28,30 @@ def image_topic(bag: Path, requested: str | None = None) -> str:
     """The image topic to draw on: ``requested``, else the only one, else the left camera's.
 
     Raises:
-        BagError: if there is no image topic or the choice is ambiguous.
+        BagError: if there is no image topic (naming the bag's topics), ``requested`` is not
+            one, or the choice is ambiguous.
     """
+    every = bag_topics(bag)
     topics = [
         t
-        for t, kind in bag_topics(bag).items()
+        for t, kind in every.items()
         if kind in (conversions.IMAGE_TYPE, conversions.COMPRESSED_IMAGE_TYPE)
     ]
+    if not topics:
+        msg = (
+            f'{bag}: no sensor_msgs/msg/Image or CompressedImage topic to draw on (its topics: '
+            f'{", ".join(every) or "none"})'
+        )
+        raise BagError(msg)
     if requested:
         if requested not in topics:
-            msg = f'{bag}: no image topic {requested}; image topics: {topics}'
+            msg = f'{bag}: no image topic {requested}; its image topics: {", ".join(topics)}'
             raise BagError(msg)
         return requested
     left = [t for t in topics if 'left' in t]
     if len(topics) == 1 or len(left) == 1:
         return topics[0] if len(topics) == 1 else left[0]
-    msg = f'{bag}: choose the image topic (--image-topic) among {topics or "none"}'
+    msg = f'{bag}: choose the image topic (--image-topic) among {", ".join(topics)}'
     raise BagError(msg)
 
 
