@@ -309,15 +309,25 @@ def _open_reader(path: Path) -> Reader | None:
     """An open rosbags Reader (the caller closes it), or None for a damaged but streamable bag.
 
     Raises:
-        BagError: If the bag can be read neither way.
+        BagError: If the bag can be read neither way, or it is a directory of several MCAP
+            files without the metadata.yaml that would say they are one bag.
     """
     try:
         reader = Reader(path)
         reader.open()
     except _READ_ERRORS as error:
-        if _mcap_files(path):
+        files = _mcap_files(path)
+        unlisted = path.is_dir() and not (path / 'metadata.yaml').exists()
+        if unlisted and len(files) > 1:
+            msg = (
+                f'{path}: {len(files)} MCAP files ({", ".join(file.name for file in files)}) and '
+                'no metadata.yaml saying they are one bag: give one .mcap file, or a rosbag2 '
+                'directory (with its metadata.yaml)'
+            )
+            raise BagError(msg) from None
+        if files:
             return None
-        if path.is_dir() and not (path / 'metadata.yaml').exists():
+        if unlisted:
             msg = f'{path}: not a rosbag2 bag (no metadata.yaml and no .mcap file in it)'
             raise BagError(msg) from None
         raise BagError(f'{path}: cannot read bag: {type(error).__name__}: {error}') from None

@@ -169,6 +169,23 @@ def test_a_type_in_metadata_that_contradicts_the_mcap_schema_names_both(bag, tmp
     assert capsys.readouterr().err == f'error: {expected}\n'
 
 
+def test_a_directory_of_two_mcap_files_without_metadata_is_refused(bag, tmp_path):
+    """They were read as one bag, their messages interleaved file after file."""
+    two = tmp_path / 'two'
+    two.mkdir()
+    for name in ('a.mcap', 'b.mcap'):
+        shutil.copy(next(bag.glob('*.mcap')), two / name)
+    expected = (
+        f'{two}: 2 MCAP files (a.mcap, b.mcap) and no metadata.yaml saying they are one bag: '
+        'give one .mcap file, or a rosbag2 directory (with its metadata.yaml)'
+    )
+    for read in (bag_topics, read_raw, read_messages):
+        with pytest.raises(BagError) as error:
+            list(read(two))
+        assert str(error.value) == expected
+    assert len(list(read_raw(two / 'a.mcap'))) == 2 * FRAMES  # one of them, as the error says
+
+
 @pytest.fixture(scope='module')
 def bag_with_unknown_type(tmp_path_factory) -> Path:
     """Five Float64 on /n and five robot_msgs/msg/Battery (unknown to the project) on /battery."""
