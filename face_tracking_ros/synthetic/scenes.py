@@ -41,6 +41,7 @@ from face_tracking_ros.synthetic.texture import (
     TextureAtlas,
     load_photo_texture,
     procedural_texture,
+    require_file,
 )
 
 START_NS = 1_700_000_000 * 1_000_000_000  # stamp of frame 0, ns since the epoch
@@ -180,9 +181,8 @@ class SceneConfig:
             raise ConfigError(msg)
         for name in ('texture', 'texture_nodes'):
             path = getattr(self, name)
-            if path is not None and not Path(path).is_file():
-                msg = f'{name} file not found: {path}'
-                raise ConfigError(msg)
+            if path is not None:
+                require_file(Path(path), name)
 
     @property
     def duration(self) -> float:

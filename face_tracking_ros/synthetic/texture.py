@@ -192,6 +192,20 @@ def photo_texture(
     return atlas_from_rgb(atlas.astype(np.float32) / 255.0, encoding)
 
 
+def require_file(path: Path, what: str) -> None:
+    """Refuse a path to ``what`` (e.g. 'texture photo') that is not a file.
+
+    Raises:
+        ConfigError: saying whether it is a directory or does not exist.
+    """
+    if path.is_dir():
+        msg = f'{what} {path} is a directory, not a file'
+        raise ConfigError(msg)
+    if not path.is_file():
+        msg = f'{what} file not found: {path}'
+        raise ConfigError(msg)
+
+
 def load_photo_texture(
     photo_path: str | Path, nodes_path: str | Path, encoding: str = 'mono8'
 ) -> TextureAtlas:
@@ -201,10 +215,8 @@ def load_photo_texture(
         ConfigError: if a file is missing or unreadable, or the JSON is not a name -> [x, y] map.
     """
     photo_path, nodes_path = Path(photo_path), Path(nodes_path)
-    for path, what in ((photo_path, 'texture photo'), (nodes_path, 'texture node positions')):
-        if not path.is_file():
-            msg = f'{what} file not found: {path}'
-            raise ConfigError(msg)
+    require_file(photo_path, 'texture photo')
+    require_file(nodes_path, 'texture node positions')
     photo = cv2.imread(str(photo_path), cv2.IMREAD_COLOR)
     if photo is None:
         msg = f'cannot read texture photo {photo_path} as an image'

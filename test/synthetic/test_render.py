@@ -9,6 +9,7 @@ import cv2
 import numpy as np
 import pytest
 
+from face_tracking_ros.cli.main import main
 from face_tracking_ros.errors import ConfigError, InputError
 from face_tracking_ros.geometry.camera import PinholeCamera, StereoRig
 from face_tracking_ros.geometry.rotation import angles_to_omega
@@ -257,6 +258,20 @@ def test_photo_texture_maps_photo_features_onto_the_nodes(tmp_path, phase_render
     (tmp_path / 'nodes.json').write_text(json.dumps(node_pixels))
     loaded = load_photo_texture(tmp_path / 'photo.png', tmp_path / 'nodes.json')
     assert loaded.encoding == 'mono8' and loaded.levels[0].shape == atlas_uv()[0].shape
+
+
+def test_a_texture_file_that_is_a_directory_is_named_so(tmp_path, capsys):
+    """It said 'texture_nodes file not found: /tmp'."""
+    photo = tmp_path / 'photo.png'
+    cv2.imwrite(str(photo), np.zeros((100, 100), np.uint8))
+    synth = ['synth', '--out', str(tmp_path / 'bags'), '--texture']
+    assert main([*synth, str(photo), '--texture-nodes', str(tmp_path)]) == 2
+    assert (
+        capsys.readouterr().err == f'error: texture_nodes {tmp_path} is a directory, not a file\n'
+    )
+    with pytest.raises(ConfigError, match=f'^texture node positions {tmp_path} is a directory'):
+        load_photo_texture(photo, tmp_path)
+    assert not (tmp_path / 'bags').exists()
 
 
 def test_photo_texture_errors_name_the_problem(tmp_path):
