@@ -21,7 +21,7 @@ from __future__ import annotations
 from collections import Counter
 from collections.abc import Iterable, Iterator
 import contextlib
-from pathlib import Path
+from pathlib import Path, PurePath
 import struct
 from types import TracebackType
 from typing import Any, NamedTuple, Protocol
@@ -292,7 +292,7 @@ def _summary_counts(path: Path) -> Counter[str]:
     A summary the mcap library cannot read counts nothing (rosbags, which read it, is laxer).
     """
     counts: Counter[str] = Counter()
-    for file in _mcap_files(path):
+    for file in _listed_files(path):
         summary = None
         with file.open('rb') as stream, contextlib.suppress(McapError, *_READ_ERRORS):
             summary = make_reader(stream).get_summary()
@@ -378,6 +378,17 @@ def _stored_types(file: Path) -> list[tuple[str, str]]:
         return [(connection.topic, connection.msgtype) for connection in storage.connections]
     finally:
         storage.close()
+
+
+def _listed_files(path: Path) -> list[Path]:
+    """The MCAP files a bag's ``metadata.yaml`` lists, as rosbags finds them (by name, beside it).
+
+    Without that list, the MCAP files of the directory (:func:`_mcap_files`). Another file in
+    the directory (a copy, a backup) is not part of the bag.
+    """
+    names = _metadata(path).get('relative_file_paths') or []
+    listed = [path / PurePath(str(name)).name for name in names]
+    return [file for file in listed if file.suffix == '.mcap'] if listed else _mcap_files(path)
 
 
 def _mcap_files(path: Path) -> list[Path]:

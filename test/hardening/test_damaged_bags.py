@@ -114,6 +114,14 @@ def test_a_bag_zeroed_in_its_middle_is_read_around_the_damage_then_says_what_is_
         list(read_raw(zeroed, topics=['/cam/camera_info']))
 
 
+def test_a_stray_mcap_file_beside_a_bag_is_not_counted_as_its_messages(bag, tmp_path):
+    """Only the files metadata.yaml lists are the bag: a copy beside them is not damage."""
+    copied = shutil.copytree(bag, tmp_path / 'with_backup')
+    listed = next(copied.glob('*.mcap'))
+    shutil.copy(listed, copied / f'backup_of_{listed.name}')
+    assert len(list(read_raw(copied))) == len(list(read_raw(bag)))  # and no BagError
+
+
 def test_a_bag_zeroed_anywhere_yields_messages_of_its_own_or_a_bag_error(bag, tmp_path):
     """Short stretches of zeros at random: a record length read from them can pass 2**63."""
     data = next(bag.glob('*.mcap')).read_bytes()
