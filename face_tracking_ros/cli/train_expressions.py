@@ -20,8 +20,8 @@ import numpy as np
 from face_tracking_ros.errors import BagError, ConfigError
 from face_tracking_ros.io.atomic import check_replaceable
 from face_tracking_ros.io.bags import NS_PER_S, bag_topics
-from face_tracking_ros.io.conversions import truth_from_msg
-from face_tracking_ros.io.series import TRUTH_TYPE, read_converted
+from face_tracking_ros.io.conversions import TRUTH_TYPE, truth_from_msg
+from face_tracking_ros.io.series import read_converted
 from face_tracking_ros.model.face_model import FaceModel
 from face_tracking_ros.model.model_file import load_model
 from face_tracking_ros.recognition.archive import load_archive

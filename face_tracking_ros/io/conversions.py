@@ -30,6 +30,8 @@ from face_tracking_ros.tracking.result import TrackResult
 IMAGE_TYPE = 'sensor_msgs/msg/Image'
 COMPRESSED_IMAGE_TYPE = 'sensor_msgs/msg/CompressedImage'
 CAMERA_INFO_TYPE = 'sensor_msgs/msg/CameraInfo'
+STATE_TYPE = 'face_tracking_msgs/msg/FaceState'
+TRUTH_TYPE = 'face_tracking_msgs/msg/FaceTruth'
 
 
 def make_header(factory: MessageFactory, stamp_ns: int, frame_id: str) -> Any:

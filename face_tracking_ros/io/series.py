@@ -18,8 +18,6 @@ from face_tracking_ros.io import conversions
 from face_tracking_ros.io.bags import bag_topics, read_messages, stamp_to_ns
 from face_tracking_ros.tracking.result import TrackStatus
 
-STATE_TYPE = 'face_tracking_msgs/msg/FaceState'
-TRUTH_TYPE = 'face_tracking_msgs/msg/FaceTruth'
 T = TypeVar('T')
 
 
@@ -85,7 +83,7 @@ def load_states(bag: Path, topic: str | None = None) -> StateSeries:
     Raises:
         BagError: if the bag has no (or several, with no ``topic``) FaceState topic.
     """
-    topic = topic or _only_topic(bag, STATE_TYPE)
+    topic = topic or _only_topic(bag, conversions.STATE_TYPE)
     rows = [m.msg for m in read_messages(bag, topics=[topic])]
     if not rows:
         msg = f'{bag}: topic {topic} holds no FaceState message'
@@ -141,7 +139,7 @@ def load_truth(bag: Path) -> TruthSeries:
         BagError: if the bag has no FaceTruth topic or it is empty.
         InputError: naming the bag, topic and message of a NaN (:func:`read_converted`).
     """
-    topic = _only_topic(bag, TRUTH_TYPE)
+    topic = _only_topic(bag, conversions.TRUTH_TYPE)
     samples = [sample for _, sample in read_converted(bag, topic, conversions.truth_from_msg)]
     if not samples:
         msg = f'{bag}: topic {topic} holds no FaceTruth message'
@@ -203,7 +201,7 @@ def require_parameters(bag: Path, lengths: dict[str, int]) -> None:
 
 def has_truth(bag: Path) -> bool:
     """True if the bag has a FaceTruth topic."""
-    return TRUTH_TYPE in bag_topics(bag).values()
+    return conversions.TRUTH_TYPE in bag_topics(bag).values()
 
 
 def _only_topic(bag: Path, msgtype: str) -> str:

@@ -25,6 +25,8 @@ import numpy as np
 from face_tracking_ros.errors import BagError, ConfigError, InputError
 from face_tracking_ros.io.bags import bag_topics, read_messages
 from face_tracking_ros.io.conversions import (
+    STATE_TYPE,
+    TRUTH_TYPE,
     TruthSample,
     points_to_array,
     stamp_to_ns,
@@ -37,8 +39,7 @@ from face_tracking_ros.pipelines.learn_options import LearnOptions
 from face_tracking_ros.replay import bag_spelling
 from face_tracking_ros.tracking.result import TrackStatus
 
-TRUTH_TYPE = 'face_tracking_msgs/msg/FaceTruth'
-MESH_TYPES = ('face_tracking_msgs/msg/FaceMesh', 'face_tracking_msgs/msg/FaceState')
+MESH_TYPES = ('face_tracking_msgs/msg/FaceMesh', STATE_TYPE)
 TRUTH_TOPIC = 'truth/face'
 STATE_TOPIC = 'face/state'
 TRACKED = int(TrackStatus.TRACKING)  # FaceState.STATUS_TRACKING

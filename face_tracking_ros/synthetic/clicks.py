@@ -83,9 +83,7 @@ def clicks_from_bag(
     topics = bag_topics(bag)
     infos = sorted(t for t, kind in topics.items() if kind == conversions.CAMERA_INFO_TYPE)
     info_topic = next((t for t in infos if 'left' in t), infos[0] if infos else None)
-    truth_topic = next(
-        (t for t, k in topics.items() if k == 'face_tracking_msgs/msg/FaceTruth'), None
-    )
+    truth_topic = next((t for t, k in topics.items() if k == conversions.TRUTH_TYPE), None)
     if info_topic is None or truth_topic is None:
         msg = f'{bag}: simulated clicks need a CameraInfo and a FaceTruth topic'
         raise BagError(msg)

@@ -31,7 +31,6 @@ from face_tracking_ros.synthetic.faces import FacePopulation
 from face_tracking_ros.synthetic.scenes import SceneConfig, SequenceRenderer, SyntheticFrame
 
 TRUTH_TOPIC = 'truth/face'
-TRUTH_TYPE = 'face_tracking_msgs/msg/FaceTruth'
 
 # Per camera name: (image topic, camera_info topic, optical frame id).
 CAMERA_TOPICS = {
@@ -125,7 +124,7 @@ def write_sequence(
             reference = CAMERA_TOPICS[next(iter(cameras))][2]
             bag.write(
                 TRUTH_TOPIC,
-                TRUTH_TYPE,
+                conversions.TRUTH_TYPE,
                 _truth_msg(factory, frame, reference, names),
                 frame.stamp_ns,
             )
@@ -141,7 +140,7 @@ def _truth_msg(
     """The FaceTruth message of a frame."""
     truth = frame.truth
     return factory.make(
-        TRUTH_TYPE,
+        conversions.TRUTH_TYPE,
         header=conversions.make_header(factory, frame.stamp_ns, frame_id),
         subject_id=truth.subject_id,
         pose=conversions.pose_msg(factory, truth.omega, truth.t),
