@@ -73,3 +73,21 @@ def test_missing_directories_and_relative_paths_pass(tmp_path, monkeypatch):
     Path('x').write_text('')
     with pytest.raises(ConfigError, match=r'--out x/y: x is a file, not a directory'):
         check_output_path(Path('x/y'), '--out', directory=True)
+
+
+def test_a_file_output_into_a_missing_directory_is_refused_before_any_work(tmp_path, capsys):
+    """Outputs whose writers do not make directories: said at once, not after the work."""
+    absent = tmp_path / 'absent'
+    tracked = ['track', str(MONO), '--simulate-clicks', '1', '--quiet']
+    commands = {
+        '--png': ['plot', str(MONO), '--png', str(absent / 'p.png')],
+        '--report': [*tracked, '--out', str(tmp_path / 'tracked'), '--report', str(absent / 'r')],
+        '--gallery': ['enroll', str(MONO), '--name', 'ada', '--gallery', str(absent / 'g.npz')],
+        '--out': ['train-expressions', str(MONO), '--out', str(absent / 'c.npz')],
+    }
+    for option, argv in commands.items():
+        assert main(argv) == 2, option
+        error = capsys.readouterr().err
+        assert f'error: {option} {absent}/' in error
+        assert f': no directory {absent} to write it in' in error
+        assert list(tmp_path.iterdir()) == [], option  # nothing tracked, written or made

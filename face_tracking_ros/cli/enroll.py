@@ -20,6 +20,7 @@ import numpy as np
 
 from face_tracking_ros.data import default_model_path
 from face_tracking_ros.errors import BagError, ConfigError
+from face_tracking_ros.io.atomic import check_output_path
 from face_tracking_ros.io.provenance import tracked_with
 from face_tracking_ros.io.series import load_states, require_parameters
 from face_tracking_ros.model.model_file import load_model
@@ -55,6 +56,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> None:
     """Enrol and save the gallery."""
+    check_output_path(args.gallery, '--gallery', parent_made=False)
     model_path = tracked_with(args.bags, args.model) or default_model_path()
     model = load_model(model_path)
     sigmas = tracked_sigmas(args.bags)

@@ -34,7 +34,7 @@ def run(args: argparse.Namespace) -> None:
     if args.png.suffix.lower() != '.png':
         msg = f'--png {args.png}: give a file name ending in .png'
         raise ConfigError(msg)
-    check_output_path(args.png, '--png')
+    check_output_path(args.png, '--png', parent_made=False)
     if args.truth and not has_truth(args.truth):
         msg = f'--truth {args.truth} holds no truth/face (a synthetic bag has it)'
         raise ConfigError(msg)

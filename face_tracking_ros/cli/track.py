@@ -128,7 +128,7 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError(msg)
     check_output_path(args.out, '--out', directory=True)
     if args.report is not None:
-        check_output_path(args.report, '--report')
+        check_output_path(args.report, '--report', parent_made=False)
     node = choose_tracker(args.bag, args)
     params, model_file, compressed = _parameters(args, node)
     print(f'tracking {args.bag} with {node}')

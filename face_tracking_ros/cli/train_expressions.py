@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from face_tracking_ros.errors import BagError, ConfigError
-from face_tracking_ros.io.atomic import check_replaceable
+from face_tracking_ros.io.atomic import check_output_path, check_replaceable
 from face_tracking_ros.io.bags import NS_PER_S, bag_topics
 from face_tracking_ros.io.conversions import TRUTH_TYPE, truth_from_msg
 from face_tracking_ros.io.series import read_converted
@@ -97,6 +97,7 @@ def run(args: argparse.Namespace) -> None:
         min_intensity=args.min_intensity,
         regularisation=args.regularisation,
     )
+    check_output_path(args.out, '--out', parent_made=False)
     check_replaceable(
         args.out,
         '--out',

@@ -23,24 +23,32 @@ import numpy as np
 from face_tracking_ros.errors import ConfigError, ModelFileError
 
 
-def check_output_path(path: Path, option: str, *, directory: bool = False) -> None:
+def check_output_path(
+    path: Path, option: str, *, directory: bool = False, parent_made: bool = True
+) -> None:
     """Refuse an output path that cannot be written: a component of it is not a directory.
 
     The nearest existing ancestor of ``path`` must be a directory (the missing ones below it
-    are made by the commands that make them, or reported by those that do not); ``path``
-    itself, if it exists, must be a directory when ``directory`` is set, else must not be one.
+    are made by the commands that make them; for the others, ``parent_made`` False, the
+    directory ``path`` goes in must exist); ``path`` itself, if it exists, must be a directory
+    when ``directory`` is set, else must not be one.
 
     Args:
         path: the output file, or directory with ``directory``.
         option: the command-line option that gave it (named in the message).
         directory: whether the output is a directory.
+        parent_made: whether the command makes the missing directories above ``path``.
 
     Raises:
-        ConfigError: naming the option, the path and the component that is of the wrong kind.
+        ConfigError: naming the option, the path and the component that is of the wrong kind
+            or missing.
     """
     ancestor = next((parent for parent in path.parents if parent.exists()), None)
     if ancestor is not None and not ancestor.is_dir():
         msg = f'{option} {path}: {ancestor} is a file, not a directory'
+        raise ConfigError(msg)
+    if not parent_made and not path.parent.is_dir():
+        msg = f'{option} {path}: no directory {path.parent} to write it in'
         raise ConfigError(msg)
     if directory and path.exists() and not path.is_dir():
         msg = f'{option} {path} is a file, not a directory'

@@ -13,7 +13,7 @@ from pathlib import Path
 import re
 
 from face_tracking_ros.errors import ConfigError
-from face_tracking_ros.io.atomic import check_replaceable
+from face_tracking_ros.io.atomic import check_output_path, check_replaceable
 from face_tracking_ros.io.series import has_truth
 from face_tracking_ros.learning.methods import DEFAULT_METHOD, METHODS
 from face_tracking_ros.model.model_file import load_model
@@ -139,9 +139,7 @@ def _check_bags_and_files(options: LearnOptions) -> None:
         msg = f'--out and --report are both {options.out}: the report would overwrite the model'
         raise ConfigError(msg)
     for option, path in (('--out', options.out), ('--report', options.report)):
-        if not path.parent.is_dir():
-            msg = f'{option} {path}: no directory {path.parent} to write it in'
-            raise ConfigError(msg)
+        check_output_path(path, option, parent_made=False)
     check_replaceable(options.out, '--out', 'a face model', load_model)
     unlabelled = [bag for bag in options.bags if not has_truth(bag)]
     if unlabelled and options.truth is None and options.neutral_frames == 0:
