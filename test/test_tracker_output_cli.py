@@ -255,7 +255,7 @@ def test_simulated_clicks_need_a_noise_of_0_or_more_and_replace_only_earlier_cli
     ) in capsys.readouterr().err
     assert clicks.read_text() == 'notes'
     exact = write_init_file(clicks_from_bag(mono, 0.0), clicks).read_text()
-    assert main([*track, '1', '--param', f'init_file={clicks}']) == 2  # the track's input
+    assert main([*track, '1', '--model', str(clicks)]) == 2  # the track's input
     assert f'--simulate-clicks: {clicks} (where the clicks go) is an input of this track' in (
         capsys.readouterr().err
     )
@@ -264,6 +264,21 @@ def test_simulated_clicks_need_a_noise_of_0_or_more_and_replace_only_earlier_cli
     assert clicks.read_text() == exact and not out.exists()
     assert main([*track, '1']) == 0  # earlier clicks are replaced
     assert clicks.read_text() != exact and load_init_file(clicks).node_names
+
+
+def test_an_init_file_or_model_given_twice_is_refused_not_chosen_silently(tmp_path, capsys):
+    mono = REPO / 'bags' / 'mono_test' / 'subject_00_seq_00'
+    out = tmp_path / 'o'
+    track = ['track', str(mono), '--out', str(out), '--quiet']
+    cases = [
+        (['--simulate-clicks', '1', '--param', 'init_file=a.yaml'], '--simulate-clicks', 'init'),
+        (['--init', 'b.yaml', '--param', 'init_file=a.yaml'], '--init', 'init'),
+        (['--auto-init', '--model', 'm.npz', '--param', 'model_file=n.npz'], '--model', 'model'),
+    ]
+    for argv, option, name in cases:
+        assert main([*track, *argv]) == 2
+        assert f'error: {option} and --param {name}_file=' in capsys.readouterr().err, argv
+    assert list(tmp_path.iterdir()) == []
 
 
 def test_a_camera_info_topic_without_messages_is_named_not_a_traceback(tmp_path, capsys):

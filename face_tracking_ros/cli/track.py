@@ -169,6 +169,7 @@ def _parameters(args: argparse.Namespace, node: str) -> tuple[list[str], Path | 
         ConfigError: if nothing would initialise the track, ``--out`` exists, or the clicks or
             ``--report`` would be written over an input or a file of another kind.
     """
+    _check_given_once(args)
     given = (args.image_topic, args.left_topic)
     topics = bag_topics(args.bag)
     params = [*compressed_parameters(topics, given), *(args.param or [])]
@@ -204,6 +205,25 @@ def _parameters(args: argparse.Namespace, node: str) -> tuple[list[str], Path | 
     if args.auto_init:
         params.append('auto_init=true')
     return params, model_file, node_config.compressed
+
+
+def _check_given_once(args: argparse.Namespace) -> None:
+    """Refuse an init file or model given both by its option and by ``--param``.
+
+    One of the two would be used without a word (the later one).
+
+    Raises:
+        ConfigError: naming both.
+    """
+    overrides = OverrideParameters.parse(args.param).overrides
+    init = (
+        '--init' if args.init else '--simulate-clicks' if args.simulate_clicks is not None else ''
+    )
+    options = {'init_file': init, 'model_file': '--model' if args.model else ''}
+    for name, option in options.items():
+        if option and name in overrides:
+            msg = f'{option} and --param {name}={overrides[name]} both give the {name}: give one'
+            raise ConfigError(msg)
 
 
 def _check_clicks_file(path: Path, inputs: list[Path]) -> None:
