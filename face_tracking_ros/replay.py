@@ -364,7 +364,9 @@ def replay_bag(
             f'{", ".join(on_demand) or "none"})'
         )
         raise ConfigError(msg)
-    external = [port for p in processors for port in p.inputs if port.topic not in produced]
+    # An input two nodes read (both recognisers' face/state) is one input, fed to both.
+    inputs = {port.topic: port for p in processors for port in p.inputs}
+    external = [port for topic, port in inputs.items() if topic not in produced]
     _check_remaps(remaps or {}, nodes, external)
     topics = bag_topics(bag)
     topic_map = resolve_inputs(external, topics, remaps or {})

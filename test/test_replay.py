@@ -154,6 +154,22 @@ def test_one_topic_for_two_inputs_is_refused():
     }
 
 
+def test_an_input_two_nodes_read_is_one_input_fed_to_both(tmp_path, capsys):
+    """Both recognisers read face/state: the demo's replay of them was refused.
+
+    As one topic for two inputs, 'face/state' and 'face/state'.
+    """
+    factory = RosbagsMessages(typestore())
+    state_type = 'face_tracking_msgs/msg/FaceState'
+    with BagWriter(tmp_path / 'tracked') as bag:
+        for i in range(3):
+            header = conversions.make_header(factory, 1000 + i, 'camera')
+            bag.write('face/state', state_type, factory.make(state_type, header=header), 1000 + i)
+    argv = ['replay', 'expression_recognizer,identity_recognizer', str(tmp_path / 'tracked')]
+    assert main([*argv, '--out', str(tmp_path / 'out'), '--quiet']) == 0
+    assert 'read: 3 face/state\n' in capsys.readouterr().out
+
+
 def test_replay_writes_one_output_per_good_frame_at_the_input_stamp(tmp_path):
     stamps = _write_images(tmp_path / 'in', 8)
     stats = _run(tmp_path / 'in', tmp_path / 'out', MeanProcessor())
