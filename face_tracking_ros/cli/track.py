@@ -86,7 +86,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 def add_stereo_topic_options(parser: argparse._ActionsContainer) -> None:
     """The --left-topic, --right-topic, --left-info-topic and --right-info-topic options."""
-    parser.add_argument('--left-topic', help='stereo left image topic (default: found by type)')
+    parser.add_argument(
+        '--left-topic',
+        help='stereo left image topic (default: the one whose name ends in left/image_raw, '
+        'or left/image_raw/compressed)',
+    )
     parser.add_argument('--right-topic', help='stereo right image topic')
     parser.add_argument('--left-info-topic', help='stereo left camera_info topic')
     parser.add_argument('--right-info-topic', help='stereo right camera_info topic')

@@ -58,10 +58,12 @@ class LearnerConfig:
         auto_init: raw stereo bags without an init file in init_dir: find the face with the
             optional landmark detector (pip install dlib-bin face_recognition_models).
         left_topic: raw stereo bags: the left image topic (Image or CompressedImage); empty:
-            found by type and by 'left' in its name.
+            the one whose name ends in left/image_raw (or left/image_raw/compressed).
         right_topic: raw stereo bags: the right image topic; empty: found as the left one.
-        left_info_topic: raw stereo bags: the left camera_info topic; empty: found by name.
-        right_info_topic: raw stereo bags: the right camera_info topic; empty: found by name.
+        left_info_topic: raw stereo bags: the left camera_info topic; empty: the one whose name
+            ends in left/camera_info.
+        right_info_topic: raw stereo bags: the right camera_info topic; empty: found as the
+            left one.
         tracker_params: raw stereo bags: stereo_tracker parameters NAME=VALUE for their tracking,
             after the default retroactive_depths=true (each track's final depths on all its
             meshes).

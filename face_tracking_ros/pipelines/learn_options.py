@@ -54,7 +54,8 @@ class LearnOptions:
             with this many pixels of click noise; None: off.
         auto_init: raw stereo bags without an init file: find the face with the optional
             landmark detector.
-        left_topic: raw stereo bags: the left image topic; None: found by type and name.
+        left_topic: raw stereo bags: the left image topic; None: the one whose name ends in
+            left/image_raw (or left/image_raw/compressed).
         right_topic: raw stereo bags: the right image topic; None: found as the left one.
         left_info_topic: raw stereo bags: the left camera_info topic; None: found by name.
         right_info_topic: raw stereo bags: the right camera_info topic; None: found by name.
