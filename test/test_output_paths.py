@@ -76,12 +76,13 @@ def test_missing_directories_and_relative_paths_pass(tmp_path, monkeypatch):
 
 
 def test_a_file_output_into_a_missing_directory_is_refused_before_any_work(tmp_path, capsys):
-    """Outputs whose writers do not make directories: said at once, not after the work."""
+    """Outputs whose writers do not make directories: said at once, not after the work.
+
+    (``track`` makes the directories of its --report as of its --out: test_tracker_output_cli.)
+    """
     absent = tmp_path / 'absent'
-    tracked = ['track', str(MONO), '--simulate-clicks', '1', '--quiet']
     commands = {
         '--png': ['plot', str(MONO), '--png', str(absent / 'p.png')],
-        '--report': [*tracked, '--out', str(tmp_path / 'tracked'), '--report', str(absent / 'r')],
         '--gallery': ['enroll', str(MONO), '--name', 'ada', '--gallery', str(absent / 'g.npz')],
         '--out': ['train-expressions', str(MONO), '--out', str(absent / 'c.npz')],
     }

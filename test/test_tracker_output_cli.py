@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import replace
+import json
 from pathlib import Path
 import shutil
 
@@ -415,6 +416,15 @@ def test_a_report_that_is_an_input_or_not_json_is_not_written_over(tmp_path, cap
     assert 'is not a JSON report: not written over' in capsys.readouterr().err
     assert notes.read_text() == 'not a report'
     assert load_model(model).num_nodes == 34
+
+
+def test_a_report_goes_into_new_directories_as_the_tracked_bag_does(tmp_path):
+    """The demo's layout: --out and --report in a directory the track makes."""
+    mono = REPO / 'bags' / 'mono_test' / 'subject_00_seq_00'
+    tracked = tmp_path / 'tracked'
+    argv = ['track', str(mono), '--simulate-clicks', '1', '--quiet', '--out', str(tracked / 'o')]
+    assert main([*argv, '--report', str(tracked / 'o.json')]) == 0
+    assert json.loads((tracked / 'o.json').read_text())['frames'] > 0
 
 
 def test_an_init_file_naming_a_node_the_model_lacks_is_named_not_the_model(tmp_path, capsys):

@@ -132,7 +132,7 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError(msg)
     check_output_path(args.out, '--out', directory=True)
     if args.report is not None:
-        check_output_path(args.report, '--report', parent_made=False)
+        check_output_path(args.report, '--report')
     node = choose_tracker(args.bag, args)
     params, model_file, compressed = _parameters(args, node)
     print(f'tracking {args.bag} with {node}')
@@ -277,4 +277,5 @@ def _score(args: argparse.Namespace, node: str, model_file: Path | None) -> None
         print(accuracy.report())
         report = accuracy.as_dict()
     if args.report:
+        args.report.parent.mkdir(parents=True, exist_ok=True)  # as --out's
         args.report.write_text(json.dumps(report, indent=2))
