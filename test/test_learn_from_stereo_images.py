@@ -163,7 +163,7 @@ def test_simulated_clicks_are_of_the_nodes_the_tracker_tracks(still_bag, tmp_pat
 
 
 def test_compressed_images_under_any_names_are_tracked_like_raw_ones(still_bag, tmp_path):
-    """image_transport's compressed topics are found by name; other names are given."""
+    """image_transport's compressed topics are found by name, others by side, or given."""
     raw = _learn_meshes(still_bag, tmp_path / 'raw')
     found = compressed_copy(still_bag, tmp_path / 'found', {
         'left/image_raw': '/stereo/left/image_raw/compressed',
@@ -177,7 +177,12 @@ def test_compressed_images_under_any_names_are_tracked_like_raw_ones(still_bag, 
     given = compressed_copy(still_bag, tmp_path / 'given', given_names)
     topics = ['--left-topic', '/cam0/png', '--right-topic', '/cam1/png', '--left-info-topic',
               '/cam0/info', '--right-info-topic', '/cam1/info']  # fmt: skip
-    for bag, options in ((found, ()), (given, topics)):
+    by_side = compressed_copy(still_bag, tmp_path / 'by_side', {
+        'left/image_raw': '/stereo/left/image_rect/compressed',
+        'right/image_raw': '/stereo/right/image_rect/compressed',
+        'left/camera_info': '/stereo/left/info', 'right/camera_info': '/stereo/right/info',
+    })  # fmt: skip
+    for bag, options in ((found, ()), (given, topics), (by_side, ())):
         tracked = _learn_meshes(bag, tmp_path / bag.name, *options, truth=still_bag)
         assert tracked.frames == raw.frames == 40
         assert tracked.node_rms == pytest.approx(raw.node_rms, abs=1e-9)  # the same pixels

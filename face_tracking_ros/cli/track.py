@@ -42,7 +42,8 @@ from face_tracking_ros.synthetic.clicks import clicks_from_bag, write_init_file
 from face_tracking_ros.tracking.initialisation import load_init_file
 from face_tracking_ros.tracking.result import TrackStatus
 
-NODE_CONFIGS = {'mono_tracker': MonoNodeConfig, 'stereo_tracker': StereoNodeConfig}
+STEREO = 'stereo_tracker'
+NODE_CONFIGS = {'mono_tracker': MonoNodeConfig, STEREO: StereoNodeConfig}
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -89,7 +90,8 @@ def add_stereo_topic_options(parser: argparse._ActionsContainer) -> None:
     parser.add_argument(
         '--left-topic',
         help='stereo left image topic (default: the one whose name ends in left/image_raw, '
-        'or left/image_raw/compressed)',
+        "or left/image_raw/compressed, else the only one with 'left' and not 'right' in its "
+        'name)',
     )
     parser.add_argument('--right-topic', help='stereo right image topic')
     parser.add_argument('--left-info-topic', help='stereo left camera_info topic')
@@ -112,7 +114,7 @@ def choose_tracker(bag: Path, args: argparse.Namespace) -> str:
     if args.image_topic:
         return 'mono_tracker'
     if args.left_topic or is_stereo_bag(topics):
-        return 'stereo_tracker'
+        return STEREO
     check_one_transport(bag, topics)
     if len(images) > 1:
         msg = (
@@ -137,7 +139,8 @@ def run(args: argparse.Namespace) -> int:
     params, model_file, compressed = _parameters(args, node)
     print(f'tracking {args.bag} with {node}')
     options = {'image': args.image_topic, 'camera_info': args.camera_info_topic}
-    given = input_remaps({**options, **stereo_topics(args)}, compressed)
+    stereo = stereo_topics(args, bag_topics(args.bag), compressed) if node == STEREO else {}
+    given = input_remaps({**options, **stereo}, compressed)
     remaps = {**parse_remaps(args.remap), **given}
     stats = replay_bag(
         [node],
@@ -192,7 +195,7 @@ def _parameters(args: argparse.Namespace, node: str) -> tuple[list[str], Path | 
     if args.out.exists():
         msg = f'--out {args.out} exists: give a new directory for the tracked bag'
         raise ConfigError(msg)
-    if node == 'stereo_tracker':
+    if node == STEREO:
         check_stereo_topics(args.bag, topics, args, node_config.compressed)
     inputs = [Path(path) for path in (args.init, model_file, node_config.init_file) if path]
     init_file = args.init
@@ -268,7 +271,7 @@ def _check_report(report: Path | None, inputs: list[Path]) -> None:
 
 def _score(args: argparse.Namespace, node: str, model_file: Path | None) -> None:
     """Print the accuracy of the tracked bag against the truth, and write it to ``--report``."""
-    if node == 'stereo_tracker':
+    if node == STEREO:
         evaluation = score_stereo_against_truth(args.bag, args.out)
         print(evaluation.report())
         report = asdict(evaluation)

@@ -15,7 +15,7 @@ from typing import Protocol
 
 from face_tracking_ros.data import default_model_path
 from face_tracking_ros.errors import ConfigError
-from face_tracking_ros.io.conversions import COMPRESSED_IMAGE_TYPE, IMAGE_TYPE
+from face_tracking_ros.io.conversions import CAMERA_INFO_TYPE, COMPRESSED_IMAGE_TYPE, IMAGE_TYPE
 from face_tracking_ros.model.model_file import load_model
 from face_tracking_ros.model.topology import mesh_topology
 from face_tracking_ros.processing.mono import COMPRESSED_IMAGE, IMAGE
@@ -112,17 +112,45 @@ class StereoTopicOptions(Protocol):
     right_info_topic: str | None
 
 
-def stereo_topics(args: StereoTopicOptions) -> dict[str, str | None]:
+def stereo_topics(
+    args: StereoTopicOptions, topics: Mapping[str, str] | None = None, compressed: bool = False
+) -> dict[str, str | None]:
     """The stereo_tracker inputs given as ``left_topic``, ``right_topic`` and their camera_info's.
 
     On the command line: --left-topic, --right-topic, --left-info-topic, --right-info-topic.
+    With the bag's ``topics`` (name -> type), an input not given is found by its side
+    (:func:`_by_side`) where no topic's name ends in the input's (the tracker finds those).
+
+    Args:
+        args: the options.
+        topics: the bag's topics; None: the given topics only.
+        compressed: whether the tracker reads CompressedImage (the type of the images).
     """
-    return {
+    given = {
         LEFT_IMAGE: args.left_topic,
         RIGHT_IMAGE: args.right_topic,
         LEFT_INFO: args.left_info_topic,
         RIGHT_INFO: args.right_info_topic,
     }
+    if topics is None:
+        return given
+    return {port: topic or _by_side(port, topics, compressed) for port, topic in given.items()}
+
+
+def _by_side(port: str, topics: Mapping[str, str], compressed: bool) -> str | None:
+    """The one topic of ``port``'s type with its side, and not the other, in its name.
+
+    E.g. stereo_image_proc's ``/stereo/left/image_rect`` for ``left/image_raw``. None where a
+    topic's name ends in the port's (``.../left/image_raw[/compressed]``), or none or several
+    topics qualify.
+    """
+    if any(topic.strip('/').endswith((port, f'{port}/compressed')) for topic in topics):
+        return None
+    side, other = ('left', 'right') if port.startswith('left') else ('right', 'left')
+    image_type = COMPRESSED_IMAGE_TYPE if compressed else IMAGE_TYPE
+    msgtype = CAMERA_INFO_TYPE if port in (LEFT_INFO, RIGHT_INFO) else image_type
+    found = [t for t, kind in topics.items() if kind == msgtype and side in t and other not in t]
+    return found[0] if len(found) == 1 else None
 
 
 STEREO_OPTIONS = {
@@ -150,7 +178,7 @@ def check_stereo_topics(
     """
     given = {
         port: bag_spelling(topic, topics) if topic else None
-        for port, topic in stereo_topics(options).items()
+        for port, topic in stereo_topics(options, topics, compressed).items()
     }
     for left, right in ((LEFT_IMAGE, RIGHT_IMAGE), (LEFT_INFO, RIGHT_INFO)):
         if given[left] and given[left] == given[right]:

@@ -55,10 +55,12 @@ class LearnOptions:
         auto_init: raw stereo bags without an init file: find the face with the optional
             landmark detector.
         left_topic: raw stereo bags: the left image topic; None: the one whose name ends in
-            left/image_raw (or left/image_raw/compressed).
+            left/image_raw (or left/image_raw/compressed), else the only image topic with
+            'left' and not 'right' in its name.
         right_topic: raw stereo bags: the right image topic; None: found as the left one.
-        left_info_topic: raw stereo bags: the left camera_info topic; None: found by name.
-        right_info_topic: raw stereo bags: the right camera_info topic; None: found by name.
+        left_info_topic: raw stereo bags: the left camera_info topic; None: found as the left
+            image (its name ending in left/camera_info, else by 'left').
+        right_info_topic: raw stereo bags: the right camera_info topic; None: found so.
         meshes_dir: where the meshes tracked from raw stereo bags go; None: <report name>_meshes/
             beside the report.
         tracker_params: stereo_tracker parameters NAME=VALUE for tracking raw stereo bags, after

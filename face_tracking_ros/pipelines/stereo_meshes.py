@@ -69,7 +69,8 @@ def mesh_bag(
     initialisation = initialisation or stereo_initialisation(bag, options)
     out = _meshes_dir(options) / bag.name
     params = OverrideParameters.parse([*_tracker_params(topics, options), initialisation])
-    remaps = input_remaps(stereo_topics(options), params.config(StereoNodeConfig).compressed)
+    compressed = params.config(StereoNodeConfig).compressed
+    remaps = input_remaps(stereo_topics(options, topics, compressed), compressed)
     if _tracked_before(out, Provenance.of(bag, [TRACKER], params.overrides, remaps), say):
         return out
     _track(bag, out, params, remaps, say)
