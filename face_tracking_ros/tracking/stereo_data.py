@@ -66,6 +66,10 @@ from face_tracking_ros.tracking.stereo_kernels import node_normal_blocks, zssd_r
 from face_tracking_ros.tracking.surface_patches import surface_patch_offsets
 
 BRIGHTNESS_TERMS = 3  # 1, u, v: a brightness ramp over a node patch (see SampleLayout)
+# Where the node patches' surface passes beyond each face-boundary node: this far out in camera
+# x-y (away from the nodes' centroid) and this far behind it in camera z, m (see SampleLayout).
+RIM_OUTWARD = 0.010
+RIM_BEHIND = 0.020
 
 
 @dataclass(frozen=True)
@@ -109,20 +113,29 @@ class SampleLayout:
         points towards the centroid of the mesh (§4.2). The node's own sample lies on the rim
         and is left out (its offset is zero but for rounding, whose sign must not decide).
 
+        Beyond the face boundary the skin turns away from the cameras, towards the ears and
+        under the jaw, which the nodes alone do not tell: the thin plate through them runs on
+        flat there and lies behind the convex skin on the face side of a boundary node, 0.6
+        (temples) to 3.4 mm (jaw) on average over the one-sided 7x7 patches of issue 5's
+        subjects, so the left-right cost of those patches has its minimum 1.4 mm too near on
+        average (noise-free renders; 2.8 mm RMS, the jaws left out). The surface therefore also
+        passes through one point beyond each boundary node (:func:`rim_points`), which halves
+        that: 0.8 mm RMS off the skin, the cost's minimum 1.6 mm RMS off.
+
         Args:
             nodes: (N, 3) nodes in the left camera frame, m.
             spacing: (N,) sample spacing at level 0, m (about one pixel: depth / focal).
             half_size: h, samples each side of the node.
             one_sided: (N,) bool, the boundary nodes whose patch keeps the face side only.
         """
+        one_sided = np.asarray(one_sided, dtype=bool)
         square = square_offsets(half_size).astype(float)
         grid = spacing[:, None, None] * square[None]
-        offsets = surface_patch_offsets(nodes, grid)
+        offsets = surface_patch_offsets(nodes, grid, rim_points(nodes, one_sided))
         inward = nodes.mean(axis=0) - nodes
         facing = (np.einsum('nmd,nd->nm', offsets, inward) >= 0.0) & np.any(grid, axis=2)
         bary = np.zeros((grid.shape[1], 3))
         bary[:, 0] = 1.0
-        one_sided = np.asarray(one_sided, dtype=bool)
         return cls(
             nodes=np.repeat(np.arange(nodes.shape[0])[:, None], 3, axis=1),
             bary=bary,
@@ -161,6 +174,22 @@ class SampleLayout:
     def slot_count(self) -> int:
         """Nodes each group depends on: 1 for node patches, 3 for triangles."""
         return 1 if not np.any(self.bary[:, 1:]) else 3
+
+
+def rim_points(nodes: np.ndarray, boundary: np.ndarray) -> np.ndarray:
+    """(K, 3) points where the skin runs beyond the K face-boundary nodes, m.
+
+    Each lies :data:`RIM_OUTWARD` beyond its node in camera x-y, away from the centroid of the
+    nodes, and :data:`RIM_BEHIND` farther from the camera (see :meth:`SampleLayout.node_patches`).
+
+    Args:
+        nodes: (N, 3) nodes in the left camera frame, m.
+        boundary: (N,) bool, the face-boundary nodes.
+    """
+    edge = nodes[boundary]
+    outward = edge[:, :2] - nodes[:, :2].mean(axis=0)
+    outward /= np.linalg.norm(outward, axis=1, keepdims=True)
+    return np.column_stack([edge[:, :2] + RIM_OUTWARD * outward, edge[:, 2] + RIM_BEHIND])
 
 
 @dataclass(frozen=True)

@@ -134,18 +134,22 @@ def surface_patch_interpolation(
     return samples - shape[:, None, :], weights
 
 
-def surface_patch_offsets(shape: np.ndarray, grid: np.ndarray) -> np.ndarray:
+def surface_patch_offsets(
+    shape: np.ndarray, grid: np.ndarray, through: np.ndarray | None = None
+) -> np.ndarray:
     """3-D offsets of each node's patch samples on the thin-plate surface through the nodes.
 
     Args:
         shape: (N, 3) nodes in the face frame, m.
         grid: (M, 2) or (N, M, 2) sample offsets along the face frame's x and y, m.
+        through: optional (K, 3) further points the surface passes through (not nodes), m.
 
     Returns:
         (N, M, 3) offsets from each node to its samples ``(x, y, z(x, y))``, m.
     """
     grid = np.broadcast_to(grid, (shape.shape[0], *np.shape(grid)[-2:]))
-    surface = RBFInterpolator(shape[:, :2], shape[:, 2], kernel='thin_plate_spline')
+    points = shape if through is None else np.concatenate([shape, through])
+    surface = RBFInterpolator(points[:, :2], points[:, 2], kernel='thin_plate_spline')
     xy = shape[:, None, :2] + grid
     depth = surface(xy.reshape(-1, 2)).reshape(xy.shape[:2])
     return np.concatenate([xy, depth[..., None]], axis=-1) - shape[:, None, :]
