@@ -89,8 +89,8 @@ def clicks_from_bag(
         raise BagError(msg)
     info = next((message.msg for message in read_messages(bag, topics=[info_topic])), None)
     first = next(read_converted(bag, truth_topic, conversions.truth_from_msg), None)
-    empty = [topic for topic, msg in ((info_topic, info), (truth_topic, first)) if msg is None]
     if info is None or first is None:
+        empty = [topic for topic, msg in ((info_topic, info), (truth_topic, first)) if msg is None]
         msg = f'{bag}: simulated clicks need a message on {" and ".join(empty)}, which has none'
         raise BagError(msg)
     truth_msg, truth = first
