@@ -7,6 +7,8 @@ offending file, topic, field or parameter.
 
 from __future__ import annotations
 
+import math
+
 
 class FaceTrackingError(Exception):
     """Base class of every error raised by face_tracking_ros."""
@@ -25,16 +27,23 @@ class FieldError(ConfigError):
 
     Attributes:
         field: the field's name (a parameter source names it as its parameter).
+        expected: what the field takes, when the check says more than the field's description
+            (e.g. 'a finite number'); '' otherwise.
     """
 
-    def __init__(self, message: str, field: str) -> None:
-        """An error ``message`` about ``field``."""
+    def __init__(self, message: str, field: str, expected: str = '') -> None:
+        """An error ``message`` about ``field``, which takes ``expected``."""
         super().__init__(message)
         self.field = field
+        self.expected = expected
 
 
 def check_fields(config: object, checks: dict[str, bool]) -> None:
     """Raise a ConfigError naming the first field of ``config`` whose check is False.
+
+    A float field checked is also refused when it is not finite: a range check such as
+    ``value > 0`` lets inf through (NaN fails every comparison), and no tunable means anything
+    at infinity.
 
     Args:
         config: a configuration dataclass (its class name and the field's value go in the
@@ -42,9 +51,12 @@ def check_fields(config: object, checks: dict[str, bool]) -> None:
         checks: field name -> whether its value is valid.
     """
     for name, ok in checks.items():
-        if not ok:
-            msg = f'invalid {type(config).__name__}.{name} = {getattr(config, name)!r}'
-            raise FieldError(msg, name)
+        value = getattr(config, name)
+        finite = not isinstance(value, float) or math.isfinite(value)
+        if not (ok and finite):
+            expected = '' if finite else 'a finite number'
+            msg = f'invalid {type(config).__name__}.{name} = {value!r}'
+            raise FieldError(f'{msg}, expected {expected}' if expected else msg, name, expected)
 
 
 class ModelFileError(FaceTrackingError):

@@ -45,15 +45,16 @@ def build_config(config_type: type[ConfigT], values: Mapping[str, Any], prefix: 
 
     Raises:
         ConfigError: e.g. 'invalid parameter tracker.epsilon = 2.0 (its description gives the
-            valid values)'.
+            valid values)', or '... = inf (expected a finite number)'.
     """
     try:
         return config_type(**values)
     except FieldError as error:
         value = values.get(error.field)
+        expected = error.expected and f'expected {error.expected}'
         msg = (
-            f'invalid parameter {prefix}{error.field} = {value!r} (its description gives the '
-            'valid values)'
+            f'invalid parameter {prefix}{error.field} = {value!r} '
+            f'({expected or "its description gives the valid values"})'
         )
         raise ConfigError(msg) from None
 

@@ -75,6 +75,7 @@ class StereoInitConfig:
             ConfigError: naming the first inconsistent tunable.
         """
         checks = {
+            'max_depth': self.max_depth > 0.0,
             'min_depth': 0.0 < self.min_depth < self.max_depth,
             'match_half_size': self.match_half_size >= 2,
             'min_score': -1.0 <= self.min_score <= 1.0,
@@ -82,6 +83,7 @@ class StereoInitConfig:
             'min_given_nodes': self.min_given_nodes >= 3,
             'refine_iterations': self.refine_iterations >= 0,
             'refine_half_size': self.refine_half_size >= 1,
+            'max_face_scale': self.max_face_scale > 0.0,
             'min_face_scale': 0.0 < self.min_face_scale < self.max_face_scale,
         }
         check_fields(self, checks)
