@@ -14,6 +14,9 @@ import pytest
 from face_tracking_ros.errors import ConfigError
 from face_tracking_ros.processing.parameters import OverrideParameters
 from face_tracking_ros.processing.stereo import StereoNodeConfig
+from face_tracking_ros.recognition.events import EventConfig
+from face_tracking_ros.recognition.identity import IdentityConfig
+from face_tracking_ros.tracking.detector import DetectorConfig
 from face_tracking_ros.tracking.mono_config import MonoTrackerConfig
 from face_tracking_ros.tracking.pose_filter import PoseFilterConfig
 from face_tracking_ros.tracking.stereo import StereoTrackerConfig
@@ -54,3 +57,40 @@ def test_a_float_parameter_that_is_not_finite_is_refused_by_name(config, prefix,
     assert re.fullmatch(rf'invalid parameter {prefix}{name} = {value} \(.*\)', message)
     if value != 'nan':  # NaN fails the range check itself
         assert message.endswith('(expected a finite number)')
+
+
+# (config, prefix, parameter, value, what the message says is expected): configs that check
+# their fields with messages of their own, which named them without the parameter's prefix
+# (on_threshold for events.on_threshold) or not at all (tracker.fit.*).
+OWN_CHECKS = [
+    (
+        MonoTrackerConfig,
+        TRACKER,
+        'fit.pixel_noise',
+        '0.0',
+        'its description gives the valid values',
+    ),
+    (MonoTrackerConfig, TRACKER, 'fit.prior_weight', 'inf', 'expected a finite number'),
+    (
+        MonoTrackerConfig,
+        TRACKER,
+        'fit.max_rms_px',
+        '-1.0',
+        'its description gives the valid values',
+    ),
+    (StereoTrackerConfig, TRACKER, 'regularisation.beta', '-1.0', 'expected a finite number >= 0'),
+    (StereoTrackerConfig, TRACKER, 'regularisation.mouth', '2.0', r'expected in \[0, 1\]'),
+    (DetectorConfig, 'detector.', 'upsample', '3', 'expected 0, 1 or 2'),
+    (EventConfig, 'events.', 'on_threshold', '1.5', r'expected in \(0, 1\]'),
+    (EventConfig, 'events.', 'off_threshold', '0.9', r'expected in \[0, on_threshold=0.6\)'),
+    (EventConfig, 'events.', 'min_duration', 'inf', 'expected >= 0 s and finite'),
+    (IdentityConfig, 'identity.', 'min_std', '2.0', r'expected in \(0, 1.0\] m'),
+    (IdentityConfig, 'identity.', 'acceptance', '1.0', r'expected in \(0, 1\)'),
+    (IdentityConfig, 'identity.', 'window', 'nan', 'expected > 1e-06 s and finite'),
+]
+
+
+@pytest.mark.parametrize(('config', 'prefix', 'name', 'value', 'expected'), OWN_CHECKS)
+def test_a_value_out_of_range_is_named_as_its_parameter(config, prefix, name, value, expected):
+    message = _refused(config, prefix, name, value)
+    assert re.fullmatch(rf'invalid parameter {prefix}{name} = {value} \({expected}\)', message)

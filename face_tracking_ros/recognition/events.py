@@ -11,10 +11,11 @@ from __future__ import annotations
 
 from dataclasses import dataclass, replace
 from enum import IntEnum
+import math
 
 import numpy as np
 
-from face_tracking_ros.errors import ConfigError
+from face_tracking_ros.errors import ConfigError, FieldError
 from face_tracking_ros.recognition.expression import NEUTRAL, ExpressionScores
 
 
@@ -68,16 +69,14 @@ class EventConfig:
         """
         if not 0.0 < self.on_threshold <= 1.0:
             msg = f'on_threshold must be in (0, 1], got {self.on_threshold}'
-            raise ConfigError(msg)
+            raise FieldError(msg, 'on_threshold', 'in (0, 1]')
         if not 0.0 <= self.off_threshold < self.on_threshold:
-            msg = (
-                f'off_threshold must be in [0, on_threshold={self.on_threshold}), '
-                f'got {self.off_threshold}'
-            )
-            raise ConfigError(msg)
-        if not self.min_duration >= 0.0:
-            msg = f'min_duration must be >= 0 s, got {self.min_duration}'
-            raise ConfigError(msg)
+            expected = f'in [0, on_threshold={self.on_threshold})'
+            msg = f'off_threshold must be {expected}, got {self.off_threshold}'
+            raise FieldError(msg, 'off_threshold', expected)
+        if not 0.0 <= self.min_duration < math.inf:
+            msg = f'min_duration must be >= 0 s and finite, got {self.min_duration}'
+            raise FieldError(msg, 'min_duration', '>= 0 s and finite')
 
 
 class ExpressionEventDetector:

@@ -38,7 +38,7 @@ import os
 import numpy as np
 from scipy.stats import chi2
 
-from face_tracking_ros.errors import ConfigError, InputError
+from face_tracking_ros.errors import ConfigError, FieldError, InputError
 from face_tracking_ros.recognition.archive import load_archive, model_header, save_archive
 from face_tracking_ros.recognition.features import STAMP_TOLERANCE, SlidingWindow
 from face_tracking_ros.recognition.gaussian import GaussianClasses
@@ -83,14 +83,19 @@ class IdentityConfig:
             ConfigError: naming the parameter out of range.
         """
         if not 0.0 < self.min_std <= MAX_MIN_STD:
-            msg = f'identity min_std must be in (0, {MAX_MIN_STD}] m, got {self.min_std}'
-            raise ConfigError(msg)
+            expected = f'in (0, {MAX_MIN_STD}] m'
+            raise FieldError(
+                f'identity min_std must be {expected}, got {self.min_std}', 'min_std', expected
+            )
         if not 0.0 < self.acceptance < 1.0:
-            msg = f'identity acceptance must be in (0, 1), got {self.acceptance}'
-            raise ConfigError(msg)
+            expected = 'in (0, 1)'
+            msg = f'identity acceptance must be {expected}, got {self.acceptance}'
+            raise FieldError(msg, 'acceptance', expected)
         if not STAMP_TOLERANCE < self.window < math.inf:
-            msg = f'identity window must be > {STAMP_TOLERANCE} s and finite, got {self.window}'
-            raise ConfigError(msg)
+            expected = f'> {STAMP_TOLERANCE} s and finite'
+            raise FieldError(
+                f'identity window must be {expected}, got {self.window}', 'window', expected
+            )
 
     def threshold(self, p: int) -> float:
         """Largest accepted squared Mahalanobis distance in a p-dimensional sigma space."""

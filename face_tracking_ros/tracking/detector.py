@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from face_tracking_ros.errors import ConfigError, InputError
+from face_tracking_ros.errors import ConfigError, FieldError, InputError
 from face_tracking_ros.tracking.initialisation import MIN_INIT_NODES, Initialisation
 
 Detector = Callable[[np.ndarray], Initialisation | None]
@@ -79,7 +79,7 @@ class DetectorConfig:
         """Validate the upsampling count."""
         if not 0 <= self.upsample <= 2:
             msg = f'invalid DetectorConfig.upsample = {self.upsample}; use 0, 1 or 2'
-            raise ConfigError(msg)
+            raise FieldError(msg, 'upsample', '0, 1 or 2')
 
 
 class DlibLandmarkDetector:

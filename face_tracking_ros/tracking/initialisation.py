@@ -34,7 +34,7 @@ from scipy.linalg import block_diag, cholesky, solve_triangular
 from scipy.optimize import least_squares
 import yaml
 
-from face_tracking_ros.errors import ConfigError, InputError
+from face_tracking_ros.errors import ConfigError, InputError, check_fields
 from face_tracking_ros.geometry.camera import PinholeCamera
 from face_tracking_ros.geometry.rotation import rodrigues
 from face_tracking_ros.imaging import inside_image
@@ -230,10 +230,13 @@ class FitConfig:
     max_rms_px: float = 10.0
 
     def __post_init__(self) -> None:
-        """Validate ranges."""
-        if not (self.pixel_noise > 0 and self.prior_weight >= 0 and self.max_rms_px > 0):
-            msg = f'pixel_noise and max_rms_px must be > 0 and prior_weight >= 0, got {self}'
-            raise ConfigError(msg)
+        """Validate every field; the error names the field and its value."""
+        checks = {
+            'pixel_noise': self.pixel_noise > 0,
+            'prior_weight': self.prior_weight >= 0,
+            'max_rms_px': self.max_rms_px > 0,
+        }
+        check_fields(self, checks)
 
 
 @dataclass(frozen=True)

@@ -25,7 +25,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from face_tracking_ros.errors import ConfigError, InputError
+from face_tracking_ros.errors import FieldError, InputError
 from face_tracking_ros.model.topology import Group, MeshTopology
 from face_tracking_ros.tracking.block_assembly import scatter_blocks, scatter_vectors
 
@@ -73,11 +73,11 @@ class RegularisationConfig:
             value = getattr(self, name)
             if not np.isfinite(value) or value < 0:
                 msg = f'regularisation weight {name} must be finite and >= 0, got {value}'
-                raise ConfigError(msg)
+                raise FieldError(msg, name, 'a finite number >= 0')
         bad = {g.value: s for g, s in self.group_stiffness().items() if not 0.0 <= s <= 1.0}
         if bad:
             msg = f'group stiffness factors must lie in [0, 1], got {bad}'
-            raise ConfigError(msg)
+            raise FieldError(msg, next(iter(bad)), 'in [0, 1]')
 
     def group_stiffness(self) -> dict[Group, float]:
         """The stiffness factor s of every anatomical group.

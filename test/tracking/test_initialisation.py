@@ -91,7 +91,7 @@ def test_initialisation_validation(model_factory) -> None:
         Initialisation(SIX, points).node_indices(model)
     with pytest.raises(ConfigError, match=r'sigma has shape \(1,\), model p = 3'):
         Initialisation(SIX[:5] + ('nose_left',), points, sigma=np.ones(1)).node_indices(model)
-    with pytest.raises(ConfigError, match='pixel_noise and max_rms_px must be > 0'):
+    with pytest.raises(ConfigError, match=r'invalid FitConfig\.pixel_noise = 0\.0'):
         FitConfig(pixel_noise=0.0)
 
 
