@@ -12,6 +12,7 @@ import re
 import pytest
 
 from face_tracking_ros.errors import ConfigError
+from face_tracking_ros.nodes.learner import LearnerConfig, learn_options
 from face_tracking_ros.processing.parameters import OverrideParameters
 from face_tracking_ros.processing.stereo import StereoNodeConfig
 from face_tracking_ros.recognition.events import EventConfig
@@ -94,3 +95,28 @@ OWN_CHECKS = [
 def test_a_value_out_of_range_is_named_as_its_parameter(config, prefix, name, value, expected):
     message = _refused(config, prefix, name, value)
     assert re.fullmatch(rf'invalid parameter {prefix}{name} = {value} \({expected}\)', message)
+
+
+@pytest.mark.parametrize(
+    ('name', 'value', 'expected'),
+    [
+        ('output', '', 'its description gives the valid values'),
+        ('simulate_clicks', 'nan', 'expected a finite number'),  # was off, as a negative
+        ('simulate_clicks', 'inf', 'expected a finite number'),
+    ],
+)
+def test_a_learner_value_is_refused_by_name(name, value, expected):
+    message = _refused(LearnerConfig, '', name, value)
+    assert re.fullmatch(rf"invalid parameter {name} = '?{value}'? \({expected}\)", message)
+
+
+def test_a_learner_bag_dir_that_is_not_a_directory_is_named(tmp_path):
+    """It was a FileNotFoundError / NotADirectoryError traceback from iterdir."""
+    (tmp_path / 'file').write_text('')
+    for bag_dir, kind in (('absent', 'no such directory'), ('file', 'not a directory')):
+        config = LearnerConfig(bag_dir=str(tmp_path / bag_dir))
+        expected = (
+            f'parameter bag_dir: {tmp_path / bag_dir}: {kind} (expected a directory of bags)'
+        )
+        with pytest.raises(ConfigError, match=re.escape(expected)):
+            learn_options(config)

@@ -13,6 +13,7 @@ node's log.
 from __future__ import annotations
 
 from dataclasses import dataclass
+import math
 from pathlib import Path
 
 from face_tracking_msgs.msg import FaceModel as FaceModelMsg
@@ -106,6 +107,8 @@ class LearnerConfig:
             'q': self.q >= 1,
             'nodes': self.nodes in (0, *SUPPORTED_NODE_COUNTS),
             'neutral_frames': self.neutral_frames >= 0,
+            'output': bool(self.output),
+            'simulate_clicks': not math.isnan(self.simulate_clicks),  # (and finite)
         }
         check_fields(self, checks)
 
@@ -118,11 +121,16 @@ def learn_options(config: LearnerConfig) -> LearnOptions:
     which is empty: only ``method`` is learned and evaluated.
 
     Raises:
-        ConfigError: if no bag is given.
+        ConfigError: if no bag is given, or bag_dir is not a directory.
     """
     bags = [Path(bag) for bag in config.bags]
     if config.bag_dir:
-        bags += sorted(path for path in Path(config.bag_dir).iterdir() if path.is_dir())
+        bag_dir = Path(config.bag_dir)
+        if not bag_dir.is_dir():
+            kind = 'not a directory' if bag_dir.exists() else 'no such directory'
+            msg = f'parameter bag_dir: {bag_dir}: {kind} (expected a directory of bags)'
+            raise ConfigError(msg)
+        bags += sorted(path for path in bag_dir.iterdir() if path.is_dir())
     if not bags:
         msg = 'no bags to learn from: set the bags or bag_dir parameter'
         raise ConfigError(msg)
