@@ -116,6 +116,13 @@ def recorder(
     [
         ({'output': ''}, 'parameter output: no bag directory given'),
         ({'discovery_period': 0.0}, 'discovery_period must be a finite number > 0, got 0.0'),
+        # These were an RCLError traceback from resolve_topic_name.
+        (
+            {'topics': ['image', 'bad topic!']},
+            "parameter topics: 'bad topic!' is not a topic name: topic name must not contain "
+            'characters other than alphanumerics',
+        ),
+        ({'topics': ['a//b']}, "'a//b' is not a topic name: topic name must not contain repe"),
     ],
 )
 def test_bad_parameters_are_config_errors(

@@ -143,7 +143,7 @@ class BagRecorder(Node):
         parameters.warn_unknown()
         self._store = typestore() if store is None else store
         self._classes = RclpyMessages()
-        self._wanted = frozenset(self.resolve_topic_name(topic) for topic in self._config.topics)
+        self._wanted = frozenset(self._resolved(topic) for topic in self._config.topics)
         self._recorded: dict[str, Any] = {}  # topic -> subscription
         self._skipped: set[str] = set()
         self._counts: Counter[str] = Counter()
@@ -151,6 +151,20 @@ class BagRecorder(Node):
         self.get_logger().info(f'recording to {self._config.output}')
         self._discovery = self.create_timer(self._config.discovery_period, self._discover)
         self._discover()
+
+    def _resolved(self, topic: str) -> str:
+        """The full name of the ``topics`` entry ``topic`` in the node's namespace.
+
+        Raises:
+            ConfigError: for a string that is not a topic name (rcl's reason, e.g. 'topic name
+                must not contain repeated '/''), which rclpy raises as an RCLError.
+        """
+        try:
+            return self.resolve_topic_name(topic)
+        except RuntimeError as error:  # rclpy's RCLError: 'failed to resolve name: ..., at ...'
+            reason = str(error).removeprefix('failed to resolve name: ').split(', at ')[0]
+            msg = f'parameter topics: {topic!r} is not a topic name: {reason}'
+            raise ConfigError(msg) from None
 
     def finished(self) -> bool:
         """Never: the recorder runs until stopped."""
