@@ -132,6 +132,16 @@ def test_bad_parameters_are_config_errors(
         recorder(ros_context, **{'output': str(tmp_path / 'bag'), **parameters})
 
 
+def test_an_output_under_a_file_is_a_config_error(ros_context: Context, tmp_path: Path) -> None:
+    """It was a NotADirectoryError traceback from the bag writer's mkdir."""
+    (tmp_path / 'file').write_text('mine')
+    output = tmp_path / 'file' / 'bag'
+    expected = f'parameter output {output}: {tmp_path / "file"} is a file, not a directory'
+    with pytest.raises(ConfigError, match=expected):
+        recorder(ros_context, output=str(output))
+    assert (tmp_path / 'file').read_text() == 'mine'
+
+
 def test_an_existing_output_is_a_bag_error(ros_context: Context, tmp_path: Path) -> None:
     with pytest.raises(BagError, match=f'{tmp_path}: cannot create bag'):
         recorder(ros_context, output=str(tmp_path))

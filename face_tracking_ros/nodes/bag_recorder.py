@@ -29,6 +29,7 @@ from collections.abc import Sequence
 from contextlib import ExitStack
 from dataclasses import dataclass
 import math
+from pathlib import Path
 import time
 from typing import Any
 
@@ -39,6 +40,7 @@ from rclpy.subscription import MessageInfo
 from rosbags.typesys.store import Typestore
 
 from face_tracking_ros.errors import ConfigError
+from face_tracking_ros.io.atomic import check_output_path
 from face_tracking_ros.io.bags import BagWriter
 from face_tracking_ros.io.messages import RclpyMessages
 from face_tracking_ros.io.typestore import typestore
@@ -133,7 +135,7 @@ class BagRecorder(Node):
             **kwargs: passed to :class:`rclpy.node.Node` (e.g. ``parameter_overrides``).
 
         Raises:
-            ConfigError: If a parameter is out of range.
+            ConfigError: If a parameter is out of range, or output lies under a file.
             BagError: If the bag cannot be created (e.g. ``output`` exists).
         """
         super().__init__(NODE_NAME, **DECLARE_GIVEN, **kwargs)
@@ -147,6 +149,7 @@ class BagRecorder(Node):
         self._recorded: dict[str, Any] = {}  # topic -> subscription
         self._skipped: set[str] = set()
         self._counts: Counter[str] = Counter()
+        check_output_path(Path(self._config.output), 'parameter output', directory=True)
         self._bag = self._resources.enter_context(BagWriter(self._config.output, self._store))
         self.get_logger().info(f'recording to {self._config.output}')
         self._discovery = self.create_timer(self._config.discovery_period, self._discover)
