@@ -82,6 +82,7 @@ OWN_CHECKS = [
     (StereoTrackerConfig, TRACKER, 'regularisation.beta', '-1.0', 'expected a finite number >= 0'),
     (StereoTrackerConfig, TRACKER, 'regularisation.mouth', '2.0', r'expected in \[0, 1\]'),
     (DetectorConfig, 'detector.', 'upsample', '3', 'expected 0, 1 or 2'),
+    (StereoTrackerConfig, TRACKER, 'num_nodes', '20', 'its description gives the valid values'),
     (EventConfig, 'events.', 'on_threshold', '1.5', r'expected in \(0, 1\]'),
     (EventConfig, 'events.', 'off_threshold', '0.9', r'expected in \[0, on_threshold=0.6\)'),
     (EventConfig, 'events.', 'min_duration', 'inf', 'expected >= 0 s and finite'),

@@ -51,7 +51,12 @@ from face_tracking_ros.geometry.procrustes import rigid_align
 from face_tracking_ros.imaging import ImagePyramid, check_levels_fit, inside_image
 from face_tracking_ros.model.face_model import FaceModel
 from face_tracking_ros.model.model_file import load_model
-from face_tracking_ros.model.topology import Group, MeshTopology, mesh_topology
+from face_tracking_ros.model.topology import (
+    SUPPORTED_NODE_COUNTS,
+    Group,
+    MeshTopology,
+    mesh_topology,
+)
 from face_tracking_ros.recognition.node_fit import NodeFit, fit_model_to_nodes
 from face_tracking_ros.tracking.action_prior import ActionPrior, ModelPoint, PriorEvaluation
 from face_tracking_ros.tracking.camera_gain import GAIN_RESOLUTION, relative_gain
@@ -234,8 +239,8 @@ class StereoTrackerConfig:
         Raises:
             ConfigError: naming the first out-of-range tunable.
         """
-        mesh_topology(self.num_nodes)
         checks = {
+            'num_nodes': self.num_nodes in SUPPORTED_NODE_COUNTS,
             'gamma': 0.0 <= self.gamma <= 1.0,
             'boundary_gamma': 0.0 <= self.boundary_gamma <= 1.0,
             'epsilon': 0.0 <= self.epsilon < 1.0,
