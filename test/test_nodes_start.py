@@ -31,6 +31,17 @@ def test_node_with_a_bad_parameter_says_so_and_exits_2():
     assert 'Traceback' not in output
 
 
+def test_a_parameter_without_a_value_is_one_error_line_and_exit_code_2():
+    """``-p output:=`` (an empty string is ``-p "output:=''"``): rcl cannot parse it.
+
+    It was rclpy.init's RCLError traceback, exit code 1.
+    """
+    code, output = finish(start_node('bag_recorder', output=''))
+    assert code == 2
+    assert "Couldn't parse parameter override rule: '-p output:='" in output
+    assert 'Traceback' not in output and ', at /' not in output
+
+
 @pytest.mark.parametrize('delay_s', [0.8, 1.2, 1.6])
 def test_a_stop_signal_while_a_node_starts_ends_it_cleanly(delay_s):
     """SIGTERM (a launch system, a CI runner) while the node is still being built.

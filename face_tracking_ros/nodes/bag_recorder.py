@@ -44,7 +44,7 @@ from face_tracking_ros.io.atomic import check_output_path
 from face_tracking_ros.io.bags import BagWriter
 from face_tracking_ros.io.messages import RclpyMessages
 from face_tracking_ros.io.typestore import typestore
-from face_tracking_ros.nodes.graceful import run_until_stopped
+from face_tracking_ros.nodes.graceful import rcl_reason, run_until_stopped
 from face_tracking_ros.nodes.processor_node import DECLARE_GIVEN, NodeParameters
 
 NODE_NAME = 'bag_recorder'
@@ -165,7 +165,7 @@ class BagRecorder(Node):
         try:
             return self.resolve_topic_name(topic)
         except RuntimeError as error:  # rclpy's RCLError: 'failed to resolve name: ..., at ...'
-            reason = str(error).removeprefix('failed to resolve name: ').split(', at ')[0]
+            reason = rcl_reason(error).removeprefix('failed to resolve name: ')
             msg = f'parameter topics: {topic!r} is not a topic name: {reason}'
             raise ConfigError(msg) from None
 

@@ -36,6 +36,11 @@ ERROR_EXIT_CODE = 2
 USER_ERRORS = (FaceTrackingError, ParameterException, NameValidationException)
 
 
+def rcl_reason(error: RuntimeError) -> str:
+    """The message of rclpy's RCLError without rcl's source location (', at .../x.c:73')."""
+    return str(error).split(', at /')[0]
+
+
 class StoppableNode(Protocol):
     """A node that may end by itself and has work to finish before it is destroyed."""
 
@@ -109,11 +114,16 @@ def run_until_stopped(
             instead of ending it once built.
 
     Raises:
-        SystemExit: with code 2 after logging one of :data:`USER_ERRORS`; with 128 + the
-            signal's number for a stop signal that interrupted the node's building.
+        SystemExit: with code 2 after logging one of :data:`USER_ERRORS` or a command line rcl
+            cannot parse; with 128 + the signal's number for a stop signal that interrupted the
+            node's building.
     """
     limit_blas_threads()
-    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    try:
+        rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    except RuntimeError as error:  # rclpy's RCLError, e.g. for '-p output:=' (no value)
+        rclpy.logging.get_logger(name).error(rcl_reason(error))
+        raise SystemExit(ERROR_EXIT_CODE) from None
     stop = _StopSignals(interrupt_start)
     previous = {sig: signal.signal(sig, stop) for sig in STOP_SIGNALS}
     executor = None
