@@ -42,6 +42,19 @@ def test_a_parameter_without_a_value_is_one_error_line_and_exit_code_2():
     assert 'Traceback' not in output and ', at /' not in output
 
 
+def test_an_empty_list_parameter_is_one_error_line_and_exit_code_2(tmp_path):
+    """``-p topics:=[]``: rclpy cannot type it when the node declares what it was given.
+
+    It was a ValueError traceback ('Cannot declare a statically typed parameter with default
+    value of type PARAMETER_NOT_SET'), exit code 1.
+    """
+    code, output = finish(start_node('bag_recorder', output=str(tmp_path / 'bag'), topics=[]))
+    assert code == 2
+    assert 'a parameter is given as an empty list ([]), which rclpy cannot type' in output
+    assert 'Traceback' not in output
+    assert not (tmp_path / 'bag').exists()
+
+
 @pytest.mark.parametrize('delay_s', [0.8, 1.2, 1.6])
 def test_a_stop_signal_while_a_node_starts_ends_it_cleanly(delay_s):
     """SIGTERM (a launch system, a CI runner) while the node is still being built.

@@ -34,6 +34,13 @@ ERROR_EXIT_CODE = 2
 # What a user gets wrong: a bad bag or value (ours), a parameter of the wrong type
 # (e.g. rate:=2 for a float), an invalid topic name (e.g. in remap).
 USER_ERRORS = (FaceTrackingError, ParameterException, NameValidationException)
+# rclpy's ValueError when a node declares the parameters it was given and one is an empty list
+# ('-p topics:=[]', 'topics: []' in a parameters file), which has no type.
+UNTYPED_PARAMETER = 'Cannot declare a statically typed parameter with default value of type'
+UNTYPED_PARAMETER_ERROR = (
+    'a parameter is given as an empty list ([]), which rclpy cannot type: leave it out (every '
+    "list parameter's default is empty) or give it a value"
+)
 
 
 def rcl_reason(error: RuntimeError) -> str:
@@ -114,9 +121,9 @@ def run_until_stopped(
             instead of ending it once built.
 
     Raises:
-        SystemExit: with code 2 after logging one of :data:`USER_ERRORS` or a command line rcl
-            cannot parse; with 128 + the signal's number for a stop signal that interrupted the
-            node's building.
+        SystemExit: with code 2 after logging one of :data:`USER_ERRORS`, a command line rcl
+            cannot parse or an empty list given as a parameter; with 128 + the signal's
+            number for a stop signal that interrupted the node's building.
     """
     limit_blas_threads()
     try:
@@ -140,6 +147,11 @@ def run_until_stopped(
         raise SystemExit(128 + stop.signum) from None
     except USER_ERRORS as error:
         rclpy.logging.get_logger(name).error(str(error))
+        raise SystemExit(ERROR_EXIT_CODE) from None
+    except ValueError as error:
+        if not str(error).startswith(UNTYPED_PARAMETER):
+            raise
+        rclpy.logging.get_logger(name).error(UNTYPED_PARAMETER_ERROR)
         raise SystemExit(ERROR_EXIT_CODE) from None
     finally:
         for sig, handler in previous.items():
