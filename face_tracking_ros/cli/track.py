@@ -30,7 +30,7 @@ from face_tracking_ros.pipelines.bag_inputs import (
     image_topics,
     input_remaps,
     is_stereo_bag,
-    stereo_topics,
+    stereo_remaps,
     tracked_nodes,
 )
 from face_tracking_ros.pipelines.scoring import score_against_truth, score_stereo_against_truth
@@ -138,10 +138,7 @@ def run(args: argparse.Namespace) -> int:
     node = choose_tracker(args.bag, args)
     params, model_file, compressed = _parameters(args, node)
     print(f'tracking {args.bag} with {node}')
-    options = {'image': args.image_topic, 'camera_info': args.camera_info_topic}
-    stereo = stereo_topics(args, bag_topics(args.bag), compressed) if node == STEREO else {}
-    given = input_remaps({**options, **stereo}, compressed)
-    remaps = {**parse_remaps(args.remap), **given}
+    remaps = _remaps(args, node, compressed)
     stats = replay_bag(
         [node],
         args.bag,
@@ -196,7 +193,14 @@ def _parameters(args: argparse.Namespace, node: str) -> tuple[list[str], Path | 
         msg = f'--out {args.out} exists: give a new directory for the tracked bag'
         raise ConfigError(msg)
     if node == STEREO:
-        check_stereo_topics(args.bag, topics, args, node_config.compressed)
+        if args.camera_info_topic:
+            msg = (
+                f'--camera-info-topic {args.camera_info_topic} is for the mono tracker; the '
+                'stereo tracker takes --left-info-topic and --right-info-topic'
+            )
+            raise ConfigError(msg)
+        remaps = parse_remaps(args.remap)
+        check_stereo_topics(args.bag, topics, args, node_config.compressed, remaps)
     inputs = [Path(path) for path in (args.init, model_file, node_config.init_file) if path]
     init_file = args.init
     if args.simulate_clicks is not None:
@@ -212,6 +216,18 @@ def _parameters(args: argparse.Namespace, node: str) -> tuple[list[str], Path | 
     if args.auto_init:
         params.append('auto_init=true')
     return params, model_file, node_config.compressed
+
+
+def _remaps(args: argparse.Namespace, node: str, compressed: bool) -> dict[str, str]:
+    """Tracker input -> bag topic: ``--remap``, then the topic options over it.
+
+    The stereo tracker's inputs not given are found by side (:func:`stereo_remaps`).
+    """
+    remaps = parse_remaps(args.remap)
+    if node == STEREO:
+        return stereo_remaps(bag_topics(args.bag), args, compressed, remaps)
+    options = {'image': args.image_topic, 'camera_info': args.camera_info_topic}
+    return {**remaps, **input_remaps(options, compressed)}
 
 
 def _check_given_once(args: argparse.Namespace) -> None:

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 from collections.abc import Iterable, Mapping
 from pathlib import Path
+import re
 from typing import Protocol
 
 from face_tracking_ros.data import default_model_path
@@ -48,7 +49,7 @@ def image_topics(topics: Mapping[str, str]) -> tuple[list[str], bool]:
 def is_stereo_bag(topics: Mapping[str, str]) -> bool:
     """True if a bag's topics (name -> type) hold a left and a right image stream."""
     images, _ = image_topics(topics)
-    return any('left' in t for t in images) and any('right' in t for t in images)
+    return any(_has_word(t, 'left') for t in images) and any(_has_word(t, 'right') for t in images)
 
 
 def check_one_transport(bag: Path, topics: Mapping[str, str]) -> None:
@@ -58,8 +59,8 @@ def check_one_transport(bag: Path, topics: Mapping[str, str]) -> None:
         ConfigError: naming the two topics: the stereo tracker takes one transport for both.
     """
     images = {t: kind for t, kind in topics.items() if kind in (IMAGE_TYPE, COMPRESSED_IMAGE_TYPE)}
-    left = {kind for t, kind in images.items() if 'left' in t}
-    right = {kind for t, kind in images.items() if 'right' in t}
+    left = {kind for t, kind in images.items() if _has_word(t, 'left')}
+    right = {kind for t, kind in images.items() if _has_word(t, 'right')}
     if left and right and not left & right:
         named = ', '.join(f'{t} ({kind.rpartition("/")[2]})' for t, kind in images.items())
         msg = (
@@ -112,45 +113,63 @@ class StereoTopicOptions(Protocol):
     right_info_topic: str | None
 
 
-def stereo_topics(
-    args: StereoTopicOptions, topics: Mapping[str, str] | None = None, compressed: bool = False
-) -> dict[str, str | None]:
+def stereo_topics(args: StereoTopicOptions) -> dict[str, str | None]:
     """The stereo_tracker inputs given as ``left_topic``, ``right_topic`` and their camera_info's.
 
     On the command line: --left-topic, --right-topic, --left-info-topic, --right-info-topic.
-    With the bag's ``topics`` (name -> type), an input not given is found by its side
-    (:func:`_by_side`) where no topic's name ends in the input's (the tracker finds those).
-
-    Args:
-        args: the options.
-        topics: the bag's topics; None: the given topics only.
-        compressed: whether the tracker reads CompressedImage (the type of the images).
     """
-    given = {
+    return {
         LEFT_IMAGE: args.left_topic,
         RIGHT_IMAGE: args.right_topic,
         LEFT_INFO: args.left_info_topic,
         RIGHT_INFO: args.right_info_topic,
     }
-    if topics is None:
-        return given
-    return {port: topic or _by_side(port, topics, compressed) for port, topic in given.items()}
+
+
+def stereo_remaps(
+    topics: Mapping[str, str],
+    options: StereoTopicOptions,
+    compressed: bool,
+    remaps: Mapping[str, str] | None = None,
+) -> dict[str, str]:
+    """The stereo tracker's input -> bag topic: found by side, then ``remaps``, then ``options``.
+
+    Each over the one before: an input no topic's name ends in is found by its side
+    (:func:`_by_side`); ``remaps`` (``--remap INPUT=TOPIC``) and the topics ``options`` give
+    (``--left-topic``, ...) take precedence, in that order.
+
+    Args:
+        topics: the bag's topics (name -> type).
+        options: the topics given.
+        compressed: whether the tracker reads CompressedImage (the type of the images).
+        remaps: processor input -> bag topic, from the command line.
+    """
+    found = {port: _by_side(port, topics, compressed) for port in STEREO_PORTS}
+    given = input_remaps(stereo_topics(options), compressed)
+    return {**input_remaps(found, compressed), **(remaps or {}), **given}
 
 
 def _by_side(port: str, topics: Mapping[str, str], compressed: bool) -> str | None:
     """The one topic of ``port``'s type with its side, and not the other, in its name.
 
-    E.g. stereo_image_proc's ``/stereo/left/image_rect`` for ``left/image_raw``. None where a
-    topic's name ends in the port's (``.../left/image_raw[/compressed]``), or none or several
-    topics qualify.
+    E.g. stereo_image_proc's ``/stereo/left/image_rect`` for ``left/image_raw``; the side is a
+    word of the name (``left``, ``cam_left``, ``left_camera``; not ``bright``). None where a
+    topic of the type has a name ending in the port's (``.../left/image_raw[/compressed]``: the
+    tracker finds it so), or where none or several topics qualify.
     """
-    if any(topic.strip('/').endswith((port, f'{port}/compressed')) for topic in topics):
-        return None
-    side, other = ('left', 'right') if port.startswith('left') else ('right', 'left')
     image_type = COMPRESSED_IMAGE_TYPE if compressed else IMAGE_TYPE
     msgtype = CAMERA_INFO_TYPE if port in (LEFT_INFO, RIGHT_INFO) else image_type
-    found = [t for t, kind in topics.items() if kind == msgtype and side in t and other not in t]
+    of_type = [topic for topic, kind in topics.items() if kind == msgtype]
+    if any(topic.strip('/').endswith((port, f'{port}/compressed')) for topic in of_type):
+        return None
+    side, other = ('left', 'right') if port.startswith('left') else ('right', 'left')
+    found = [t for t in of_type if _has_word(t, side) and not _has_word(t, other)]
     return found[0] if len(found) == 1 else None
+
+
+def _has_word(topic: str, word: str) -> bool:
+    """Whether ``word`` stands in ``topic``'s name between non-letters (or its ends)."""
+    return re.search(rf'(?<![a-z]){word}(?![a-z])', topic.lower()) is not None
 
 
 STEREO_OPTIONS = {
@@ -159,10 +178,15 @@ STEREO_OPTIONS = {
     LEFT_INFO: '--left-info-topic',
     RIGHT_INFO: '--right-info-topic',
 }
+STEREO_PORTS = tuple(STEREO_OPTIONS)  # the stereo tracker's raw image and camera_info inputs
 
 
 def check_stereo_topics(
-    bag: Path, topics: Mapping[str, str], options: StereoTopicOptions, compressed: bool
+    bag: Path,
+    topics: Mapping[str, str],
+    options: StereoTopicOptions,
+    compressed: bool,
+    remaps: Mapping[str, str] | None = None,
 ) -> None:
     """Refuse stereo topics the tracker cannot pair: one topic for both sides, or a side missing.
 
@@ -171,6 +195,7 @@ def check_stereo_topics(
         topics: its topics (name -> type).
         options: the topics given (--left-topic, ...).
         compressed: whether the tracker reads CompressedImage.
+        remaps: processor input -> bag topic, from the command line (--remap).
 
     Raises:
         ConfigError: naming the two options given one topic, or the inputs no topic of the
@@ -178,7 +203,7 @@ def check_stereo_topics(
     """
     given = {
         port: bag_spelling(topic, topics) if topic else None
-        for port, topic in stereo_topics(options, topics, compressed).items()
+        for port, topic in stereo_topics(options).items()
     }
     for left, right in ((LEFT_IMAGE, RIGHT_IMAGE), (LEFT_INFO, RIGHT_INFO)):
         if given[left] and given[left] == given[right]:
@@ -188,7 +213,8 @@ def check_stereo_topics(
             )
             raise ConfigError(msg)
     ports = [port for port in input_ports(compressed) if port.topic != MODEL]
-    fed = set(resolve_inputs(ports, topics, input_remaps(given, compressed)).values())
+    mapping = stereo_remaps(topics, options, compressed, remaps)
+    fed = set(resolve_inputs(ports, topics, mapping).values())
     missing = [port for port in ports if port.topic not in fed]
     if missing:
         names = [port.topic for port in missing]

@@ -23,9 +23,8 @@ from face_tracking_ros.pipelines.bag_inputs import (
     check_stereo_topics,
     compressed_parameters,
     image_topics,
-    input_remaps,
     is_stereo_bag,
-    stereo_topics,
+    stereo_remaps,
     tracked_nodes,
 )
 from face_tracking_ros.pipelines.learn_options import LearnOptions
@@ -70,7 +69,7 @@ def mesh_bag(
     out = _meshes_dir(options) / bag.name
     params = OverrideParameters.parse([*_tracker_params(topics, options), initialisation])
     compressed = params.config(StereoNodeConfig).compressed
-    remaps = input_remaps(stereo_topics(options, topics, compressed), compressed)
+    remaps = stereo_remaps(topics, options, compressed)
     if _tracked_before(out, Provenance.of(bag, [TRACKER], params.overrides, remaps), say):
         return out
     _track(bag, out, params, remaps, say)
