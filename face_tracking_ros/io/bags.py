@@ -350,14 +350,14 @@ def _check_types_agree(reader: Reader, path: Path) -> None:
     listed: dict[str, set[str]] = {}
     for connection in reader.connections:
         listed.setdefault(connection.topic, set()).add(connection.msgtype)
-    for name in _metadata(path).get('relative_file_paths') or []:
-        for topic, msgtype in _stored_types(path / str(name)):
+    for file in _listed_files(path):
+        for topic, msgtype in _stored_types(file):
             if topic in listed and msgtype not in listed[topic]:
                 said = ' or '.join(sorted(listed[topic]))
                 msg = (
-                    f'{path}: metadata.yaml says topic {topic} is {said}, but {name} stores it '
-                    f'as {msgtype} (its schema): its messages cannot be read; correct the type in '
-                    'metadata.yaml'
+                    f'{path}: metadata.yaml says topic {topic} is {said}, but {file.name} stores '
+                    f'it as {msgtype} (its schema): its messages cannot be read; correct the type '
+                    'in metadata.yaml'
                 )
                 raise BagError(msg)
 

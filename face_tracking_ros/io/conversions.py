@@ -223,8 +223,9 @@ def finite_vector(values: Any, field: str, length: int | None = None) -> np.ndar
     if length is not None and vector.size != length:
         msg_text = f'{field} has {vector.size} values, expected {length}'
         raise InputError(msg_text)
-    bad = np.flatnonzero(~np.isfinite(vector))
-    if len(bad):
+    finite = np.isfinite(vector)
+    if not finite.all():
+        bad = np.flatnonzero(~finite)
         index = ', '.join(str(int(i)) for i in np.unravel_index(bad[0], array.shape))
         msg_text = (
             f'{field} holds NaN or Inf: {len(bad)} of {vector.size} values, the first '

@@ -13,7 +13,6 @@ node's log.
 from __future__ import annotations
 
 from dataclasses import dataclass
-import math
 from pathlib import Path
 
 from face_tracking_msgs.msg import FaceModel as FaceModelMsg
@@ -108,7 +107,7 @@ class LearnerConfig:
             'nodes': self.nodes in (0, *SUPPORTED_NODE_COUNTS),
             'neutral_frames': self.neutral_frames >= 0,
             'output': bool(self.output),
-            'simulate_clicks': not math.isnan(self.simulate_clicks),  # (and finite)
+            'simulate_clicks': True,  # any finite value (negative: off)
         }
         check_fields(self, checks)
 

@@ -31,6 +31,7 @@ from typing import Any
 import numpy as np
 
 from face_tracking_ros.errors import ConfigError
+from face_tracking_ros.io.atomic import write_text_atomically
 from face_tracking_ros.io.bags import bag_topics
 from face_tracking_ros.io.provenance import other_source
 from face_tracking_ros.io.series import has_truth
@@ -321,7 +322,7 @@ def _plots(
 
 def _write_json(path: Path, report: dict[str, Any]) -> None:
     """Write the report; NaN (a figure that does not apply) becomes null."""
-    path.write_text(json.dumps(_json_safe(report), indent=2) + '\n')
+    write_text_atomically(path, json.dumps(_json_safe(report), indent=2) + '\n')
 
 
 def _json_safe(value: Any) -> Any:

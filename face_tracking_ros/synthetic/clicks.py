@@ -18,6 +18,7 @@ import numpy as np
 from face_tracking_ros.errors import BagError
 from face_tracking_ros.geometry.camera import PinholeCamera
 from face_tracking_ros.io import conversions
+from face_tracking_ros.io.atomic import write_text_atomically
 from face_tracking_ros.io.bags import bag_topics, read_messages
 from face_tracking_ros.io.series import read_converted
 from face_tracking_ros.tracking.initialisation import Initialisation
@@ -64,7 +65,7 @@ def write_init_file(init: Initialisation, path: Path) -> Path:
     data: dict[str, object] = {'nodes': nodes}
     if init.sigma is not None:
         data['sigma'] = [float(v) for v in init.sigma]
-    path.write_text(json.dumps(data, indent=1))
+    write_text_atomically(path, json.dumps(data, indent=1))
     return path
 
 

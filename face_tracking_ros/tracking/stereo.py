@@ -107,7 +107,9 @@ class StereoTrackerConfig:
         gamma: weight of the cross-camera terms of eq. 4, in [0, 1].
         boundary_gamma: gamma of the face-boundary nodes, in [0, 1]: their left and right
             views show different skin (the face turns away from the cameras there), §4.2.
-        boundary_one_sided: face-boundary nodes use the face side of their patch only (§4.2).
+        boundary_one_sided: face-boundary nodes use the face side of their patch only (§4.2),
+            on a surface that runs on beyond them as the skin turns away (rim points, 10 mm
+            out, 20 mm back); false: whole patches on the surface through the nodes alone.
         epsilon: share of the frame-1 (drift) terms in every image term, in [0, 1).
         texture_weight: weight of a face-texture sample relative to a node-patch sample (§4.2);
             0 disables the texture term. It covers the triangles that have a face-edge node
