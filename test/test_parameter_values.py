@@ -121,3 +121,23 @@ def test_a_learner_bag_dir_that_is_not_a_directory_is_named(tmp_path):
         )
         with pytest.raises(ConfigError, match=re.escape(expected)):
             learn_options(config)
+
+
+@pytest.mark.parametrize(
+    ('config', 'name', 'largest'),
+    [
+        (MonoTrackerConfig, 'patch_half_size', 15),
+        (StereoTrackerConfig, 'patch_half_size', 15),
+        (StereoTrackerConfig, 'texture_subdivisions', 16),
+        (StereoTrackerConfig, 'init.match_half_size', 30),
+        (StereoTrackerConfig, 'init.refine_half_size', 15),
+    ],
+)
+def test_a_patch_too_large_for_memory_is_refused_by_name(config, name, largest):
+    """At 1000 the mono tracker asked for 34 GiB, the stereo matching for 69 GiB."""
+    given = OverrideParameters.parse([f'{TRACKER}{name}={largest}']).config(config, TRACKER)
+    for part in name.split('.'):
+        given = getattr(given, part)
+    assert given == largest
+    message = _refused(config, TRACKER, name, str(largest + 1))
+    assert message.startswith(f'invalid parameter {TRACKER}{name} = {largest + 1}')

@@ -13,6 +13,7 @@ from face_tracking_ros.imaging.photometric import (
 )
 from face_tracking_ros.imaging.pyramid import ImagePyramid, check_levels_fit
 from face_tracking_ros.imaging.sampling import (
+    MAX_HALF_SIZE,
     inside_image,
     inside_xy,
     sample_patches,
@@ -40,5 +41,6 @@ __all__ = [
     'sample_with_gradient_xy',
     'sample_xy',
     'square_offsets',
+    'MAX_HALF_SIZE',
     'to_gray',
 ]

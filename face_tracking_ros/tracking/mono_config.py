@@ -9,7 +9,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from face_tracking_ros.errors import check_fields
-from face_tracking_ros.imaging import PhotometricModel
+from face_tracking_ros.imaging import MAX_HALF_SIZE, PhotometricModel
 from face_tracking_ros.tracking.bundle import BundleConfig
 from face_tracking_ros.tracking.initialisation import FitConfig
 
@@ -39,7 +39,7 @@ class MonoTrackerConfig:
             half as large (the small-face row), 2.58 / 3.46 -> 1.88 / 2.57 deg where it tracked,
             but one seed lost 446 of its 1000 frames.
         max_iterations: Levenberg-Marquardt iterations per pyramid level (>= 1).
-        patch_half_size: h; each node's ROI has (2 h + 1)^2 samples (>= 1).
+        patch_half_size: h; each node's ROI has (2 h + 1)^2 samples (1 to 15).
         patch_spacing_px: ROI sample spacing at level 0 and the initial depth, px (> 0); the ROI
             is a 3-D patch, so its image size follows the face's distance and orientation.
         edge_weight: weight of the face-edge nodes' ROIs in eq. 6 relative to the inner nodes'
@@ -179,7 +179,7 @@ class MonoTrackerConfig:
             'epsilon': 0.0 <= self.epsilon <= 1.0,
             'pyramid_levels': self.pyramid_levels >= 1,
             'max_iterations': self.max_iterations >= 1,
-            'patch_half_size': self.patch_half_size >= 1,
+            'patch_half_size': 1 <= self.patch_half_size <= MAX_HALF_SIZE,
             'patch_spacing_px': self.patch_spacing_px > 0,
             'edge_weight': 0.0 <= self.edge_weight <= 1.0,
             'edge_patch_shift': 0.0 <= self.edge_patch_shift <= 1.0,

@@ -48,7 +48,12 @@ from face_tracking_ros.errors import (
 )
 from face_tracking_ros.geometry.camera import StereoRig
 from face_tracking_ros.geometry.procrustes import rigid_align
-from face_tracking_ros.imaging import ImagePyramid, check_levels_fit, inside_image
+from face_tracking_ros.imaging import (
+    MAX_HALF_SIZE,
+    ImagePyramid,
+    check_levels_fit,
+    inside_image,
+)
 from face_tracking_ros.model.face_model import FaceModel
 from face_tracking_ros.model.model_file import load_model
 from face_tracking_ros.model.topology import (
@@ -95,6 +100,7 @@ LEFT, RIGHT = 0, 1
 # the previous pair's fit the steps of tracked pairs run about 8e-3, 8e-5, 4e-6, 3e-8, so the
 # fit is then within ~1e-7 (1e-7 took a fourth iteration for nothing visible).
 FIT_TOLERANCE = 1e-5
+MAX_SUBDIVISIONS = 16  # of the texture triangles: (n + 1)(n + 2) / 2 = 153 samples each
 CORRECTION_ROUNDS = 3  # of the rig's gain and row offset at initialisation (see _corrected)
 
 
@@ -114,8 +120,8 @@ class StereoTrackerConfig:
         texture_weight: weight of a face-texture sample relative to a node-patch sample (§4.2);
             0 disables the texture term. It covers the triangles that have a face-edge node
             (none in the 19-node mesh).
-        texture_subdivisions: barycentric grid order of the texture samples (>= 3).
-        patch_half_size: node patches are (2 h + 1)^2 samples about one pixel apart.
+        texture_subdivisions: barycentric grid order of the texture samples (3 to 16).
+        patch_half_size: node patches are (2 h + 1)^2 samples about one pixel apart (1 to 15).
         pyramid_levels: coarse-to-fine levels (1 = full resolution only; the coarsest at least
             16 px).
         max_iterations: Levenberg-Marquardt iterations per pyramid level.
@@ -247,8 +253,8 @@ class StereoTrackerConfig:
             'boundary_gamma': 0.0 <= self.boundary_gamma <= 1.0,
             'epsilon': 0.0 <= self.epsilon < 1.0,
             'texture_weight': self.texture_weight >= 0.0,
-            'texture_subdivisions': self.texture_subdivisions >= 3,
-            'patch_half_size': self.patch_half_size >= 1,
+            'texture_subdivisions': 3 <= self.texture_subdivisions <= MAX_SUBDIVISIONS,
+            'patch_half_size': 1 <= self.patch_half_size <= MAX_HALF_SIZE,
             'pyramid_levels': self.pyramid_levels >= 1,
             'max_iterations': self.max_iterations >= 1,
             'step_tolerance': self.step_tolerance > 0.0,

@@ -21,7 +21,7 @@ import numpy as np
 from face_tracking_ros.errors import InputError, check_fields
 from face_tracking_ros.geometry.camera import StereoRig
 from face_tracking_ros.geometry.procrustes import rigid_align
-from face_tracking_ros.imaging import sample_patches, sample_points, square_offsets
+from face_tracking_ros.imaging import MAX_HALF_SIZE, sample_patches, sample_points, square_offsets
 from face_tracking_ros.model.topology import Group, MeshTopology
 from face_tracking_ros.tracking.initialisation import check_inside
 from face_tracking_ros.tracking.stereo_data import SampleLayout, SampleSet, depth_terms
@@ -38,7 +38,7 @@ class StereoInitConfig:
     Attributes:
         min_depth: nearest face distance searched along the epipolar line, m.
         max_depth: farthest face distance searched, m.
-        match_half_size: correlation windows are (2 h + 1)^2 pixels.
+        match_half_size: correlation windows are (2 h + 1)^2 pixels (2 to 30).
         min_score: normalised cross-correlation below which a match is rejected.
         max_face_error: an inner node farther than this from the reference face fitted to the
             inner nodes is rejected as a mismatch, m.
@@ -77,12 +77,12 @@ class StereoInitConfig:
         checks = {
             'max_depth': self.max_depth > 0.0,
             'min_depth': 0.0 < self.min_depth < self.max_depth,
-            'match_half_size': self.match_half_size >= 2,
+            'match_half_size': 2 <= self.match_half_size <= 2 * MAX_HALF_SIZE,
             'min_score': -1.0 <= self.min_score <= 1.0,
             'max_face_error': self.max_face_error > 0.0,
             'min_given_nodes': self.min_given_nodes >= 3,
             'refine_iterations': self.refine_iterations >= 0,
-            'refine_half_size': self.refine_half_size >= 1,
+            'refine_half_size': 1 <= self.refine_half_size <= MAX_HALF_SIZE,
             'max_face_scale': self.max_face_scale > 0.0,
             'min_face_scale': 0.0 < self.min_face_scale < self.max_face_scale,
         }
