@@ -59,10 +59,10 @@ class PoseFilterConfig:
     def __post_init__(self) -> None:
         """Validate every field; the error names the field and its value."""
         checks = {
-            'min_cutoff': 0.0 < self.min_cutoff < math.inf,
-            'beta_rotation': 0.0 <= self.beta_rotation < math.inf,
-            'beta_translation': 0.0 <= self.beta_translation < math.inf,
-            'derivative_cutoff': 0.0 < self.derivative_cutoff < math.inf,
+            'min_cutoff': self.min_cutoff > 0.0,
+            'beta_rotation': self.beta_rotation >= 0.0,
+            'beta_translation': self.beta_translation >= 0.0,
+            'derivative_cutoff': self.derivative_cutoff > 0.0,
         }
         check_fields(self, checks)
 
