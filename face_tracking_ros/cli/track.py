@@ -102,7 +102,7 @@ def add_stereo_topic_options(parser: argparse._ActionsContainer) -> None:
     parser.add_argument('--right-info-topic', help='stereo right camera_info topic')
 
 
-def choose_tracker(bag: Path, args: argparse.Namespace) -> str:
+def choose_tracker(bag: Path, topics: dict[str, str], args: argparse.Namespace) -> str:
     """'stereo_tracker' if the bag has a left and a right image topic, else 'mono_tracker'.
 
     Raises:
@@ -110,7 +110,6 @@ def choose_tracker(bag: Path, args: argparse.Namespace) -> str:
         ConfigError: if it has several, none given, and not a left and a right one by name, or
             a left and a right one of different transports.
     """
-    topics = bag_topics(bag)
     images = image_topics(topics)[0]
     if not images:
         msg = f'{bag}: no sensor_msgs/msg/Image or CompressedImage topic to track'
@@ -139,10 +138,11 @@ def run(args: argparse.Namespace) -> int:
     check_output_path(args.out, '--out', directory=True)
     if args.report is not None:
         check_output_path(args.report, '--report')
-    node = choose_tracker(args.bag, args)
-    params, model_file, compressed = _parameters(args, node)
+    topics = bag_topics(args.bag)
+    node = choose_tracker(args.bag, topics, args)
+    params, model_file, compressed = _parameters(args, node, topics)
     print(f'tracking {args.bag} with {node}')
-    remaps = _remaps(args, node, compressed)
+    remaps = _remaps(args, node, topics, compressed)
     stats = replay_bag(
         [node],
         args.bag,
@@ -166,7 +166,9 @@ def run(args: argparse.Namespace) -> int:
     return 1 if stats.interrupted or stats.read_error else 0
 
 
-def _parameters(args: argparse.Namespace, node: str) -> tuple[list[str], Path | None, bool]:
+def _parameters(
+    args: argparse.Namespace, node: str, topics: dict[str, str]
+) -> tuple[list[str], Path | None, bool]:
     """The tracker's parameters (NAME=VALUE), model file (None: packaged) and image transport.
 
     The last is True if the tracker reads compressed images. The simulated clicks
@@ -179,7 +181,6 @@ def _parameters(args: argparse.Namespace, node: str) -> tuple[list[str], Path | 
     """
     _check_given_once(args)
     given = (args.image_topic, args.left_topic)
-    topics = bag_topics(args.bag)
     params = [*compressed_parameters(topics, given), *(args.param or [])]
     if args.model:
         params.append(f'model_file={args.model}')
@@ -222,14 +223,16 @@ def _parameters(args: argparse.Namespace, node: str) -> tuple[list[str], Path | 
     return params, model_file, node_config.compressed
 
 
-def _remaps(args: argparse.Namespace, node: str, compressed: bool) -> dict[str, str]:
+def _remaps(
+    args: argparse.Namespace, node: str, topics: dict[str, str], compressed: bool
+) -> dict[str, str]:
     """Tracker input -> bag topic: ``--remap``, then the topic options over it.
 
     The stereo tracker's inputs not given are found by side (:func:`stereo_remaps`).
     """
     remaps = parse_remaps(args.remap)
     if node == STEREO:
-        return stereo_remaps(bag_topics(args.bag), args, compressed, remaps)
+        return stereo_remaps(topics, args, compressed, remaps)
     options = {'image': args.image_topic, 'camera_info': args.camera_info_topic}
     return {**remaps, **input_remaps(options, compressed)}
 
@@ -261,13 +264,19 @@ def _check_clicks_file(path: Path, inputs: list[Path]) -> None:
     Raises:
         ConfigError: naming the file: it would be written over.
     """
-    if any(path.resolve() == given.resolve() for given in inputs):
-        msg = (
-            f'--simulate-clicks: {path} (where the clicks go) is an input of this track (model '
-            'or init file): not written over'
-        )
-        raise ConfigError(msg)
+    _refuse_input(path, f'--simulate-clicks: {path} (where the clicks go)', inputs)
     check_replaceable(path, '--simulate-clicks:', 'an init file', load_init_file)
+
+
+def _refuse_input(path: Path, named: str, inputs: list[Path]) -> None:
+    """Refuse to write ``path`` (``named`` so in the message) if it is one of ``inputs``.
+
+    Raises:
+        ConfigError: it would be written over.
+    """
+    if any(path.resolve() == given.resolve() for given in inputs):
+        msg = f'{named} is an input of this track (model or init file): not written over'
+        raise ConfigError(msg)
 
 
 def _check_report(report: Path | None, inputs: list[Path]) -> None:
@@ -278,9 +287,7 @@ def _check_report(report: Path | None, inputs: list[Path]) -> None:
     """
     if report is None:
         return
-    if any(report.resolve() == path.resolve() for path in inputs):
-        msg = f'--report {report} is an input of this track (model or init file): not written over'
-        raise ConfigError(msg)
+    _refuse_input(report, f'--report {report}', inputs)
     if report.is_file():
         try:
             json.loads(report.read_text())
