@@ -13,6 +13,7 @@ import pytest
 
 from face_tracking_ros.errors import ConfigError
 from face_tracking_ros.nodes.learner import LearnerConfig, learn_options
+from face_tracking_ros.processing.mono import MonoNodeConfig
 from face_tracking_ros.processing.parameters import OverrideParameters
 from face_tracking_ros.processing.stereo import StereoNodeConfig
 from face_tracking_ros.recognition.events import EventConfig
@@ -109,6 +110,16 @@ def test_a_value_out_of_range_is_named_as_its_parameter(config, prefix, name, va
 def test_a_learner_value_is_refused_by_name(name, value, expected):
     message = _refused(LearnerConfig, '', name, value)
     assert re.fullmatch(rf"invalid parameter {name} = '?{value}'? \({expected}\)", message)
+
+
+@pytest.mark.parametrize('config', [MonoNodeConfig, StereoNodeConfig])
+def test_an_empty_or_blank_face_id_is_refused_by_name(config):
+    """``--param face_id=`` (or ``-p face_id:=' '``) tracked faces with no face_id."""
+    message = _refused(config, '', 'face_id', '')  # --param strips the value
+    assert message == "invalid parameter face_id = '' (its description gives the valid values)"
+    with pytest.raises(ConfigError, match=rf"invalid {config.__name__}.face_id = ' '"):
+        config(face_id=' ')
+    assert config(face_id=' face 1 ').face_id == ' face 1 '  # as given
 
 
 def test_a_learner_bag_dir_that_is_not_a_directory_is_named(tmp_path):

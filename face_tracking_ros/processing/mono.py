@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 
 from face_tracking_ros.data import default_model_path
-from face_tracking_ros.errors import ConfigError, FaceTrackingError, InputError
+from face_tracking_ros.errors import ConfigError, FaceTrackingError, InputError, check_fields
 from face_tracking_ros.imaging import inside_image
 from face_tracking_ros.io import conversions
 from face_tracking_ros.io.bags import stamp_to_ns
@@ -76,7 +76,7 @@ class MonoNodeConfig:
             no init_file, after every reset_tracking call without node positions, and to find
             the face again after a loss; a face found that the lost track's keyframes do not
             match (another person) starts a new track from the second LOST image on.
-        face_id: face_id of the outputs.
+        face_id: face_id of the outputs; not empty or blank.
         compressed: subscribe to image/compressed (sensor_msgs/CompressedImage) instead of image.
         rectify: the images are raw (image_raw): rectify them with camera_info's K, D, R and P
             before tracking, as image_proc does (nothing to do for a camera without distortion
@@ -91,6 +91,14 @@ class MonoNodeConfig:
     face_id: str = 'face_0'
     compressed: bool = False
     rectify: bool = True
+
+    def __post_init__(self) -> None:
+        """Validate the face_id.
+
+        Raises:
+            ConfigError: if it is empty or blank.
+        """
+        check_fields(self, {'face_id': bool(self.face_id.strip())})
 
 
 class MonoProcessor:

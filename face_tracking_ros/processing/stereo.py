@@ -95,7 +95,7 @@ class StereoNodeConfig:
         compressed: subscribe to left/image_raw/compressed and right/image_raw/compressed
             (sensor_msgs/CompressedImage, JPEG or PNG, as image_transport's compressed plugin
             publishes them) instead of the Image topics.
-        face_id: face_id of the outputs.
+        face_id: face_id of the outputs; not empty or blank.
         pairing_queue: unpaired images kept per camera while waiting for the other camera's
             image with the same stamp (>= 1).
         pairing_tolerance_ms: pair a left and a right image whose stamps differ by at most this
@@ -123,12 +123,13 @@ class StereoNodeConfig:
     retroactive_depths: bool = False
 
     def __post_init__(self) -> None:
-        """Validate the pairing.
+        """Validate the face_id and the pairing.
 
         Raises:
             ConfigError: naming the first invalid field.
         """
         checks = {
+            'face_id': bool(self.face_id.strip()),
             'pairing_queue': self.pairing_queue >= 1,
             'pairing_tolerance_ms': 0.0 <= self.pairing_tolerance_ms < 1000.0,
         }
