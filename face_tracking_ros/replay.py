@@ -314,6 +314,60 @@ def _guarded(work: Callable[[], ResultT], topic: str, stats: ReplayStats) -> Res
         return None
 
 
+def wire_replay(
+    nodes: Sequence[str],
+    bag: Path,
+    params: OverrideParameters,
+    remaps: Mapping[str, str],
+    wanted: frozenset[str],
+    topics: Mapping[str, str] | None = None,
+) -> tuple[list[Processor], dict[str, str]]:
+    """The nodes' processors and the bag topics they read (bag topic -> input), all checked.
+
+    Everything :func:`replay_bag` refuses before it writes anything is refused here (a command
+    that writes a file the replay then reads checks its replay so first).
+
+    Args:
+        nodes: node names (see :func:`replay_bag`).
+        bag: input rosbag2 directory.
+        params: the nodes' parameters.
+        remaps: processor input topic -> bag topic.
+        wanted: on-demand outputs to produce.
+        topics: the bag's topics (name -> type); None: read here, once the processors and
+            parameters are checked.
+
+    Raises:
+        BagError, ConfigError: as :func:`replay_bag`.
+    """
+    factory = RosbagsMessages(typestore())
+    processors = [processor_factory(node)(params, factory) for node in nodes]
+    params.check_all_used()
+    produced = {port.topic for p in processors for port in p.outputs}
+    on_demand = sorted({port.topic for p in processors for port in p.outputs if port.on_demand})
+    unknown = sorted(wanted - set(on_demand))
+    if unknown:
+        msg = (
+            f'{", ".join(unknown)}: not an on-demand output of {", ".join(nodes)} (they have '
+            f'{", ".join(on_demand) or "none"})'
+        )
+        raise ConfigError(msg)
+    # An input two nodes read (both recognisers' face/state) is one input, fed to both.
+    inputs = {port.topic: port for p in processors for port in p.inputs}
+    external = [port for topic, port in inputs.items() if topic not in produced]
+    _check_remaps(remaps, nodes, external)
+    topics = bag_topics(bag) if topics is None else topics
+    topic_map = resolve_inputs(external, topics, remaps)
+    if not topic_map:
+        wanted = ', '.join(f'{p.topic} ({p.msgtype})' for p in external)
+        found = ', '.join(f'{topic} ({msgtype})' for topic, msgtype in topics.items()) or 'none'
+        msg = (
+            f'{bag}: no topic matches the inputs of {", ".join(nodes)}: {wanted}; the bag has '
+            f'{found}'
+        )
+        raise BagError(msg)
+    return processors, topic_map
+
+
 def replay_bag(
     nodes: Sequence[str],
     bag: Path,
@@ -352,32 +406,7 @@ def replay_bag(
         ConfigError: for unknown parameters, a node without a processor, or a wanted topic
             that is not an on-demand output of the nodes.
     """
-    factory = RosbagsMessages(typestore())
-    processors = [processor_factory(node)(params, factory) for node in nodes]
-    params.check_all_used()
-    produced = {port.topic for p in processors for port in p.outputs}
-    on_demand = sorted({port.topic for p in processors for port in p.outputs if port.on_demand})
-    unknown = sorted(wanted - set(on_demand))
-    if unknown:
-        msg = (
-            f'{", ".join(unknown)}: not an on-demand output of {", ".join(nodes)} (they have '
-            f'{", ".join(on_demand) or "none"})'
-        )
-        raise ConfigError(msg)
-    # An input two nodes read (both recognisers' face/state) is one input, fed to both.
-    inputs = {port.topic: port for p in processors for port in p.inputs}
-    external = [port for topic, port in inputs.items() if topic not in produced]
-    _check_remaps(remaps or {}, nodes, external)
-    topics = bag_topics(bag)
-    topic_map = resolve_inputs(external, topics, remaps or {})
-    if not topic_map:
-        wanted = ', '.join(f'{p.topic} ({p.msgtype})' for p in external)
-        found = ', '.join(f'{topic} ({msgtype})' for topic, msgtype in topics.items()) or 'none'
-        msg = (
-            f'{bag}: no topic matches the inputs of {", ".join(nodes)}: {wanted}; the bag has '
-            f'{found}'
-        )
-        raise BagError(msg)
+    processors, topic_map = wire_replay(nodes, bag, params, remaps or {}, wanted)
     total = message_count(bag, topic_map)
     provenance = Provenance.of(bag, nodes, params.overrides, remaps)
     out.parent.mkdir(parents=True, exist_ok=True)

@@ -267,6 +267,29 @@ def test_simulated_clicks_need_a_noise_of_0_or_more_and_replace_only_earlier_cli
     assert clicks.read_text() != exact and load_init_file(clicks).node_names
 
 
+def test_a_track_refused_by_its_replay_writes_no_clicks(tmp_path, capsys):
+    """The replay's own refusals came after OUT.init.json (and OUT's parent) were written."""
+    mono = REPO / 'bags' / 'mono_test' / 'subject_00_seq_00'
+    out = tmp_path / 'new' / 'o'
+    track = ['track', str(mono), '--out', str(out), '--quiet', '--simulate-clicks', '1']
+    cases = [
+        (['--remap', 'imgae=/image'], "remap imgae=/image: 'imgae' is not an input of"),
+        (['--remap', 'image=/nothere'], "topic '/nothere' for input 'image' must be"),
+        (['--param', 'tracker.epsilon=2'], 'invalid parameter tracker.epsilon = 2.0'),
+        (['--param', 'nosuch=1'], 'unknown parameter(s): nosuch'),
+        (['--want', 'face/nothing'], 'face/nothing: not an on-demand output of mono_tracker'),
+    ]
+    for argv, expected in cases:
+        assert main([*track, *argv]) == 2
+        assert f'error: {expected}' in capsys.readouterr().err, argv
+    stereo = ['track', str(REPO / 'bags' / 'stereo_train' / 'subject_00_seq_00'), *track[2:]]
+    assert main([*stereo, '--remap', 'left=/left/image_raw']) == 2
+    assert "error: remap left=/left/image_raw: 'left' is not an input of stereo_tracker" in (
+        capsys.readouterr().err
+    )
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_an_init_file_or_model_given_twice_is_refused_not_chosen_silently(tmp_path, capsys):
     mono = REPO / 'bags' / 'mono_test' / 'subject_00_seq_00'
     out = tmp_path / 'o'

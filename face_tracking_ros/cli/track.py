@@ -41,7 +41,7 @@ from face_tracking_ros.pipelines.scoring import score_against_truth, score_stere
 from face_tracking_ros.processing.mono import MonoNodeConfig
 from face_tracking_ros.processing.parameters import OverrideParameters
 from face_tracking_ros.processing.stereo import StereoNodeConfig
-from face_tracking_ros.replay import replay_bag
+from face_tracking_ros.replay import replay_bag, wire_replay
 from face_tracking_ros.synthetic.clicks import clicks_from_bag, write_init_file
 from face_tracking_ros.tracking.initialisation import load_init_file
 from face_tracking_ros.tracking.result import TrackStatus
@@ -143,6 +143,10 @@ def run(args: argparse.Namespace) -> int:
     params, model_file, compressed = _parameters(args, node, topics)
     print(f'tracking {args.bag} with {node}')
     remaps = _remaps(args, node, topics, compressed)
+    wanted = frozenset(args.want)
+    if args.simulate_clicks is not None:  # a replay it refuses leaves no clicks written
+        wire_replay([node], args.bag, OverrideParameters.parse(params), remaps, wanted, topics)
+        params.append(f'init_file={_write_clicks(args, node, params, model_file)}')
     stats = replay_bag(
         [node],
         args.bag,
@@ -151,7 +155,7 @@ def run(args: argparse.Namespace) -> int:
         remaps,
         args.record_inputs,
         progress=not args.quiet,
-        wanted=frozenset(args.want),
+        wanted=wanted,
     )
     print_stats(stats, args.out)
     states = load_states(args.out).status if stats.outputs['face/state'] else np.empty(0)
@@ -171,9 +175,9 @@ def _parameters(
 ) -> tuple[list[str], Path | None, bool]:
     """The tracker's parameters (NAME=VALUE), model file (None: packaged) and image transport.
 
-    The last is True if the tracker reads compressed images. The simulated clicks
-    (``--simulate-clicks``) are written beside ``--out`` for the model's nodes, and given as
-    ``init_file``.
+    The last is True if the tracker reads compressed images. Where the simulated clicks
+    (``--simulate-clicks``) go is only checked: :func:`_write_clicks` writes them once the
+    replay is.
 
     Raises:
         ConfigError: if nothing would initialise the track, ``--out`` exists, or the clicks or
@@ -209,18 +213,36 @@ def _parameters(
     inputs = [Path(path) for path in (args.init, model_file, node_config.init_file) if path]
     init_file = args.init
     if args.simulate_clicks is not None:
-        init_file = args.out.parent / f'{args.out.name}.init.json'
+        init_file = _clicks_file(args.out)
         _check_clicks_file(init_file, inputs)
     _check_report(args.report, [*inputs, *([init_file] if init_file else [])])
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    if args.simulate_clicks is not None:
-        clicks = clicks_from_bag(args.bag, args.simulate_clicks)
-        write_init_file(clicks.only(tracked_nodes(node, params, model_file)), init_file)
-    if init_file:
-        params.append(f'init_file={init_file}')
+    if args.init:
+        params.append(f'init_file={args.init}')
     if args.auto_init:
         params.append('auto_init=true')
     return params, model_file, node_config.compressed
+
+
+def _clicks_file(out: Path) -> Path:
+    """Where the simulated clicks of a track into ``out`` go: OUT.init.json beside it."""
+    return out.parent / f'{out.name}.init.json'
+
+
+def _write_clicks(
+    args: argparse.Namespace, node: str, params: list[str], model_file: Path | None
+) -> Path:
+    """Write the simulated clicks (``--simulate-clicks``) of the tracker's nodes; their file.
+
+    Args:
+        args: the command's arguments.
+        node: the tracker.
+        params: its parameters (NAME=VALUE).
+        model_file: its model file; None: the packaged one.
+    """
+    clicks = clicks_from_bag(args.bag, args.simulate_clicks)
+    path = _clicks_file(args.out)
+    path.parent.mkdir(parents=True, exist_ok=True)  # as --out's
+    return write_init_file(clicks.only(tracked_nodes(node, params, model_file)), path)
 
 
 def _remaps(
