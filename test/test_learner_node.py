@@ -8,13 +8,16 @@ import time
 from bag_processes import finish, start_node
 from face_tracking_msgs.msg import FaceModel
 import numpy as np
+import pytest
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 
+from face_tracking_ros.errors import ConfigError
 from face_tracking_ros.io import conversions
 from face_tracking_ros.model.model_file import load_model
 from face_tracking_ros.nodes.learner import LearnerConfig, learn_options
 from face_tracking_ros.nodes.processor_node import QOS_PROFILES
+from face_tracking_ros.pipelines.learn import learn_from_bags
 from face_tracking_ros.processing.base import QosClass
 
 from conftest import REPO
@@ -76,6 +79,38 @@ def test_tracker_params_reach_the_stereo_tracking_of_learn():
         options.right_info_topic,
     )
     assert given == ('/c0', '/c1', None, '/i')
+
+
+def test_the_learning_pipeline_names_the_nodes_parameters_not_the_commands_options(tmp_path):
+    """Its messages said face-tracking learn's --out, --init-dir... to a user of parameters."""
+    bag = REPO / 'bags' / 'stereo_train' / 'subject_00_seq_00'
+    model, notes = tmp_path / 'm.npz', tmp_path / 'notes.npz'
+    notes.write_text('notes')
+    same = {'left_topic': 'left/image_raw', 'right_topic': 'left/image_raw'}
+    cases = [
+        ({'output': str(notes)}, f'parameter output {notes} exists and is not a face model ('),
+        (
+            {'report': str(model)},
+            f'parameter output and parameter report are both {model}: the report would',
+        ),
+        ({'subject_pattern': '('}, "parameter subject_pattern '(': not a regular expression"),
+        (
+            {'from_images': True},
+            f'{bag} holds raw stereo images: give its initialisation with parameter init_dir (a '
+            'subject_00_seq_00.yaml node-name -> pixel file), parameter auto_init (the optional '
+            'landmark detector) or, for synthetic bags, parameter simulate_clicks',
+        ),
+        ({'from_images': True, 'init_dir': str(tmp_path)}, f'in parameter init_dir {tmp_path},'),
+        (
+            {'from_images': True, **same},
+            'parameter left_topic and parameter right_topic are both left/image_raw',
+        ),
+    ]
+    for given, expected in cases:
+        config = LearnerConfig(bags=(str(bag),), **{'output': str(model), **given})
+        with pytest.raises(ConfigError) as error:
+            learn_from_bags(learn_options(config), say=lambda _: None)
+        assert expected in str(error.value) and '--' not in str(error.value), given
 
 
 def test_a_bag_it_cannot_read_is_one_error_line_and_exit_code_2(tmp_path):

@@ -38,6 +38,7 @@ from face_tracking_ros.pipelines.stereo_meshes import STEREO_PARAMS
 from face_tracking_ros.synthetic.faces import PRESETS
 
 _SEQUENCES = ('bags', 'compare', 'truth', 'tracker_params')  # tuples in LearnOptions
+_NOT_GIVEN = (*_SEQUENCES, 'named')  # named: the default, the options' flags
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -200,7 +201,7 @@ def learn_options(args: argparse.Namespace) -> LearnOptions:
     given = {
         field.name: getattr(args, field.name)
         for field in fields(LearnOptions)
-        if field.name not in _SEQUENCES
+        if field.name not in _NOT_GIVEN
     }
     return LearnOptions(
         **given,

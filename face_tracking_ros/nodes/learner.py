@@ -7,7 +7,8 @@ which it first tracks with the stereo tracker (every mesh with the frame-1 depth
 its whole track; ``tracker_params``). It writes the model file and the JSON report, then
 publishes the model on ``face/model`` with transient-local durability, so trackers started later
 still receive it, and keeps spinning. The pipeline's progress and comparison table go to the
-node's log.
+node's log. The pipeline's messages name the node's parameters (:func:`parameter_named`), not
+the command's options.
 """
 
 from __future__ import annotations
@@ -112,6 +113,16 @@ class LearnerConfig:
         check_fields(self, checks)
 
 
+# LearnOptions fields whose parameter has another name; the meshes of raw stereo bags go beside
+# the report (<report name>_meshes/): the node has no meshes_dir.
+RENAMED = {'out': 'output', 'meshes_dir': 'report'}
+
+
+def parameter_named(field: str) -> str:
+    """How the node's messages name the option ``field`` of LearnOptions: 'parameter output'."""
+    return f'parameter {RENAMED.get(field, field)}'
+
+
 def learn_options(config: LearnerConfig) -> LearnOptions:
     """The learning pipeline's options from the node's parameters.
 
@@ -156,6 +167,7 @@ def learn_options(config: LearnerConfig) -> LearnOptions:
         left_info_topic=config.left_info_topic or None,
         right_info_topic=config.right_info_topic or None,
         tracker_params=config.tracker_params,
+        named=parameter_named,
     )
 
 

@@ -9,7 +9,7 @@ pipeline's tracking of raw stereo bags (:mod:`.stereo_meshes`) give
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from pathlib import Path
 import re
 from typing import Protocol
@@ -19,6 +19,7 @@ from face_tracking_ros.errors import ConfigError
 from face_tracking_ros.io.conversions import CAMERA_INFO_TYPE, COMPRESSED_IMAGE_TYPE, IMAGE_TYPE
 from face_tracking_ros.model.model_file import load_model
 from face_tracking_ros.model.topology import mesh_topology
+from face_tracking_ros.pipelines.learn_options import option_flag
 from face_tracking_ros.processing.mono import COMPRESSED_IMAGE, IMAGE
 from face_tracking_ros.processing.parameters import OverrideParameters
 from face_tracking_ros.processing.stereo import COMPRESSED as STEREO_COMPRESSED
@@ -172,13 +173,13 @@ def _has_word(topic: str, word: str) -> bool:
     return re.search(rf'(?<![a-z]){word}(?![a-z])', topic.lower()) is not None
 
 
-STEREO_OPTIONS = {
-    LEFT_IMAGE: '--left-topic',
-    RIGHT_IMAGE: '--right-topic',
-    LEFT_INFO: '--left-info-topic',
-    RIGHT_INFO: '--right-info-topic',
+STEREO_FIELDS = {  # the option field giving each input's topic (StereoTopicOptions)
+    LEFT_IMAGE: 'left_topic',
+    RIGHT_IMAGE: 'right_topic',
+    LEFT_INFO: 'left_info_topic',
+    RIGHT_INFO: 'right_info_topic',
 }
-STEREO_PORTS = tuple(STEREO_OPTIONS)  # the stereo tracker's raw image and camera_info inputs
+STEREO_PORTS = tuple(STEREO_FIELDS)  # the stereo tracker's raw image and camera_info inputs
 
 
 def check_stereo_topics(
@@ -187,6 +188,7 @@ def check_stereo_topics(
     options: StereoTopicOptions,
     compressed: bool,
     remaps: Mapping[str, str] | None = None,
+    named: Callable[[str], str] = option_flag,
 ) -> None:
     """Refuse stereo topics the tracker cannot pair: one topic for both sides, or a side missing.
 
@@ -196,6 +198,8 @@ def check_stereo_topics(
         options: the topics given (--left-topic, ...).
         compressed: whether the tracker reads CompressedImage.
         remaps: processor input -> bag topic, from the command line (--remap).
+        named: how the messages name the option of a field of ``options`` (the learner node:
+            as its parameter).
 
     Raises:
         ConfigError: naming the two options given one topic, or the inputs no topic of the
@@ -208,8 +212,8 @@ def check_stereo_topics(
     for left, right in ((LEFT_IMAGE, RIGHT_IMAGE), (LEFT_INFO, RIGHT_INFO)):
         if given[left] and given[left] == given[right]:
             msg = (
-                f'{STEREO_OPTIONS[left]} and {STEREO_OPTIONS[right]} are both {given[left]}: the '
-                'stereo tracker needs a topic of each camera'
+                f'{named(STEREO_FIELDS[left])} and {named(STEREO_FIELDS[right])} are both '
+                f'{given[left]}: the stereo tracker needs a topic of each camera'
             )
             raise ConfigError(msg)
     ports = [port for port in input_ports(compressed) if port.topic != MODEL]
@@ -218,7 +222,7 @@ def check_stereo_topics(
     missing = [port for port in ports if port.topic not in fed]
     if missing:
         names = [port.topic for port in missing]
-        flags = [STEREO_OPTIONS[name.removesuffix('/compressed')] for name in names]
+        flags = [named(STEREO_FIELDS[name.removesuffix('/compressed')]) for name in names]
         found = '; '.join(
             f'{kind}: {", ".join(t for t, k in topics.items() if k == kind) or "none"}'
             for kind in sorted({port.msgtype for port in ports})

@@ -2,12 +2,13 @@
 
 Both front ends fill one :class:`LearnOptions` (the command from its flags, the node from its
 parameters) and hand it to :func:`~.learn.learn_from_bags`; :func:`check_options` refuses what
-the pipeline cannot run, before any work. The messages name the options by their
-``face-tracking learn`` flags.
+the pipeline cannot run, before any work. The messages name an option as its front end does
+(:attr:`LearnOptions.named`): by its ``face-tracking learn`` flag, or as the node's parameter.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 import re
@@ -17,6 +18,14 @@ from face_tracking_ros.io.atomic import check_output_path, check_replaceable
 from face_tracking_ros.io.series import has_truth
 from face_tracking_ros.learning.methods import DEFAULT_METHOD, METHODS
 from face_tracking_ros.model.model_file import load_model
+
+
+def option_flag(field: str) -> str:
+    """The command-line option of an option field, as ``learn`` and ``track`` spell it.
+
+    E.g. ``--subject-pattern`` for ``subject_pattern``, ``--left-topic`` for ``left_topic``.
+    """
+    return f'--{field.replace("_", "-")}'
 
 
 @dataclass(frozen=True)
@@ -65,6 +74,8 @@ class LearnOptions:
             beside the report.
         tracker_params: stereo_tracker parameters NAME=VALUE for tracking raw stereo bags, after
             :data:`~.stereo_meshes.STEREO_PARAMS`.
+        named: how a message names the option of a field (e.g. ``'out'``): its
+            ``face-tracking learn`` flag (:func:`option_flag`), or the learner node's parameter.
     """
 
     bags: tuple[Path, ...]
@@ -96,6 +107,7 @@ class LearnOptions:
     right_info_topic: str | None = None
     meshes_dir: Path | None = None
     tracker_params: tuple[str, ...] = ()
+    named: Callable[[str], str] = option_flag
 
 
 def check_options(options: LearnOptions) -> None:
@@ -124,9 +136,8 @@ def _check_values(options: LearnOptions) -> None:
         try:
             re.compile(options.subject_pattern)
         except re.error as error:
-            msg = (
-                f'--subject-pattern {options.subject_pattern!r}: not a regular expression: {error}'
-            )
+            named = options.named('subject_pattern')
+            msg = f'{named} {options.subject_pattern!r}: not a regular expression: {error}'
             raise ConfigError(msg) from None
 
 
@@ -138,16 +149,17 @@ def _check_bags_and_files(options: LearnOptions) -> None:
     if options.plots is not None and not options.plots.is_dir():
         msg = f'--plots {options.plots} is not a directory'
         raise ConfigError(msg)
+    out, report = options.named('out'), options.named('report')
     if options.out.resolve() == options.report.resolve():
-        msg = f'--out and --report are both {options.out}: the report would overwrite the model'
+        msg = f'{out} and {report} are both {options.out}: the report would overwrite the model'
         raise ConfigError(msg)
-    for option, path in (('--out', options.out), ('--report', options.report)):
+    for option, path in ((out, options.out), (report, options.report)):
         check_output_path(path, option, parent_made=False)
-    check_replaceable(options.out, '--out', 'a face model', load_model)
+    check_replaceable(options.out, out, 'a face model', load_model)
     unlabelled = [bag for bag in options.bags if not has_truth(bag)]
     if unlabelled and options.truth is None and options.neutral_frames == 0:
         msg = (
             f'{unlabelled[0]}: no truth says which frames show the neutral face; give '
-            '--neutral-frames K, the first K frames of each bag (the learner node: neutral_frames)'
+            f'{options.named("neutral_frames")} K, the first K frames of each bag'
         )
         raise ConfigError(msg)

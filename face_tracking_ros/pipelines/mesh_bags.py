@@ -127,8 +127,8 @@ def subject_of(name: str, options: LearnOptions) -> str:
     match = re.fullmatch(options.subject_pattern, name)
     if match is None or not match.groups():
         msg = (
-            f'--subject-pattern {options.subject_pattern!r} does not match the bag name {name!r} '
-            'with a group (e.g. (.+)_\\d+)'
+            f'{options.named("subject_pattern")} {options.subject_pattern!r} does not match the '
+            f'bag name {name!r} with a group (e.g. (.+)_\\d+)'
         )
         raise ConfigError(msg)
     return match.group(1)
@@ -253,16 +253,14 @@ def _bag_meshes(
     if len(counts) > 1:
         msg = f'{bag}: {topic} meshes of subject {subject!r} have node counts {sorted(counts)}'
         raise InputError(msg)
-    meshes = _select_nodes(
-        np.array([item.nodes for item in items]), options.nodes, f'{bag}: {topic}'
-    )
+    meshes = _select_nodes(np.array([item.nodes for item in items]), options, f'{bag}: {topic}')
     samples = [item.sample for item in items if item.sample is not None]
     if not samples:
         neutral = np.array([item.index for item in items]) < options.neutral_frames
         if neutral.all():
             say(
-                f'{bag}: --neutral-frames {options.neutral_frames} covers all its {len(items)} '
-                'frames: all are taken as neutral, none shows an expression'
+                f'{bag}: {options.named("neutral_frames")} {options.neutral_frames} covers all '
+                f'its {len(items)} frames: all are taken as neutral, none shows an expression'
             )
         return BagMeshes(MeshSequence(subject, meshes, neutral, None, str(bag)), None)
     labels = tuple(str(sample.label) for sample in samples)
@@ -272,14 +270,18 @@ def _bag_meshes(
     )
 
 
-def _select_nodes(meshes: np.ndarray, num_nodes: int | None, where: str) -> np.ndarray:
-    """Keep the first ``num_nodes`` nodes (the 19-node mesh is a prefix of the 34-node one)."""
+def _select_nodes(meshes: np.ndarray, options: LearnOptions, where: str) -> np.ndarray:
+    """Keep the first ``options.nodes`` nodes (the 19-node mesh is a prefix of the 34-node one)."""
     if meshes.shape[1] not in SUPPORTED_NODE_COUNTS:
         msg = f'{where}: meshes have {meshes.shape[1]} nodes; supported: {SUPPORTED_NODE_COUNTS}'
         raise InputError(msg)
+    num_nodes = options.nodes
     if num_nodes is None:
         return meshes
     if num_nodes > meshes.shape[1]:
-        msg = f'{where}: --nodes {num_nodes} but the meshes have only {meshes.shape[1]} nodes'
+        msg = (
+            f'{where}: {options.named("nodes")} {num_nodes} but the meshes have only '
+            f'{meshes.shape[1]} nodes'
+        )
         raise ConfigError(msg)
     return meshes[:, :num_nodes]

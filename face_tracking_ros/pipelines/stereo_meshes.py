@@ -19,6 +19,7 @@ from face_tracking_ros.io.bags import bag_topics
 from face_tracking_ros.io.provenance import Provenance
 from face_tracking_ros.io.series import has_truth
 from face_tracking_ros.pipelines.bag_inputs import (
+    STEREO_FIELDS,
     check_one_transport,
     check_stereo_topics,
     compressed_parameters,
@@ -70,7 +71,8 @@ def mesh_bag(
     params = OverrideParameters.parse([*_tracker_params(topics, options), initialisation])
     compressed = params.config(StereoNodeConfig).compressed
     remaps = stereo_remaps(topics, options, compressed)
-    if _tracked_before(out, Provenance.of(bag, [TRACKER], params.overrides, remaps), say):
+    inputs = Provenance.of(bag, [TRACKER], params.overrides, remaps)
+    if _tracked_before(out, inputs, options.named('meshes_dir'), say):
         return out
     _track(bag, out, params, remaps, say)
     if has_truth(bag):
@@ -92,11 +94,11 @@ def needs_tracking(bag: Path, topics: dict[str, str], options: LearnOptions) -> 
         images, _ = image_topics(topics)
         if options.from_images or (images and not has_meshes):
             check_one_transport(bag, topics)
+            left, right, left_info, right_info = map(options.named, STEREO_FIELDS.values())
             msg = (
                 f'{bag}: no stereo pair found by name among its image topics '
                 f'({", ".join(images) or "none"}): the left and right topics need "left" and '
-                '"right" in their names, else give --left-topic, --right-topic, '
-                '--left-info-topic and --right-info-topic'
+                f'"right" in their names, else give {left}, {right}, {left_info} and {right_info}'
             )
             raise ConfigError(msg)
         return False
@@ -106,12 +108,13 @@ def needs_tracking(bag: Path, topics: dict[str, str], options: LearnOptions) -> 
     if namesakes:
         msg = (
             f'{bag} and {namesakes[0]} are both named {bag.name}: the init files and tracked '
-            'meshes of raw stereo bags are named after the bag, so rename one (--subject-pattern '
-            'can still give both the same subject)'
+            f'meshes of raw stereo bags are named after the bag, so rename one '
+            f'({options.named("subject_pattern")} can still give both the same subject)'
         )
         raise ConfigError(msg)
     tracker = OverrideParameters.parse(_tracker_params(topics, options))
-    check_stereo_topics(bag, topics, options, tracker.config(StereoNodeConfig).compressed)
+    compressed = tracker.config(StereoNodeConfig).compressed
+    check_stereo_topics(bag, topics, options, compressed, named=options.named)
     return True
 
 
@@ -145,16 +148,17 @@ def stereo_initialisation(bag: Path, options: LearnOptions) -> str:
         return f'init_file={write_init_file(clicks, path)}'
     if options.auto_init:
         return 'auto_init=true'
+    init_dir = options.named('init_dir')
     if options.init_dir is None:
-        where = 'with --init-dir'
+        where = f'with {init_dir}'
     elif options.init_dir.is_dir():
-        where = f'in --init-dir {options.init_dir}, which has none'
+        where = f'in {init_dir} {options.init_dir}, which has none'
     else:
-        where = f'in --init-dir {options.init_dir}, which is not a directory'
+        where = f'in {init_dir} {options.init_dir}, which is not a directory'
     msg = (
         f'{bag} holds raw stereo images: give its initialisation {where} (a {bag.name}.yaml '
-        'node-name -> pixel file), --auto-init (the optional landmark detector) or, for '
-        'synthetic bags, --simulate-clicks'
+        f'node-name -> pixel file), {options.named("auto_init")} (the optional landmark '
+        f'detector) or, for synthetic bags, {options.named("simulate_clicks")}'
     )
     raise ConfigError(msg)
 
@@ -202,12 +206,20 @@ def _score_line(bag: Path, out: Path) -> str:
     return f'{out} against the truth of {bag}: {evaluation.report()}'
 
 
-def _tracked_before(out: Path, inputs: Provenance, say: Callable[[str], None]) -> bool:
+def _tracked_before(
+    out: Path, inputs: Provenance, meshes_dir: str, say: Callable[[str], None]
+) -> bool:
     """Whether ``out`` holds meshes an earlier run tracked from these inputs, to re-use.
 
     An earlier tracking of the same bag from other inputs, one that did not finish, or one
     whose bag was never closed (no metadata.yaml: the process was killed) is removed, to be
     tracked again; which of these it is goes to ``say``.
+
+    Args:
+        out: where the bag's meshes go.
+        inputs: what they are tracked from.
+        meshes_dir: the option that says where meshes go (named in the message).
+        say: where the message goes.
 
     Raises:
         ConfigError: if ``out`` exists but is not such a tracking (not ours to remove).
@@ -223,7 +235,7 @@ def _tracked_before(out: Path, inputs: Provenance, say: Callable[[str], None]) -
     if earlier is None or earlier.source != inputs.source:
         msg = (
             f'{out} exists and is not a tracking of {inputs.source} by learn: remove it or give '
-            'another --meshes-dir'
+            f'another {meshes_dir}'
         )
         raise ConfigError(msg)
     if earlier.complete and earlier.same_inputs(inputs):
