@@ -30,6 +30,7 @@ from mcap.exceptions import EndOfFile, McapError
 from mcap.reader import make_reader
 from mcap.records import Channel, Message, Schema
 from mcap.stream_reader import StreamReader
+from mcap.summary import Summary
 from rosbags.rosbag2 import Reader, ReaderError, StoragePlugin, Writer, WriterError
 from rosbags.rosbag2.writer import Connection
 from rosbags.serde import SerdeError
@@ -244,10 +245,11 @@ def read_raw(path: Path | str, topics: Iterable[str] | None = None) -> Iterator[
         BagError: If the bag is missing, truncated or corrupt, or lacks a requested topic.
     """
     path = Path(path)
-    reader = _open_reader(path)
-    if reader is None:
+    opened = _open_reader(path)
+    if opened is None:
         yield from _stream_records(path, topics)
         return
+    reader, counted = opened
     read: Counter[str] = Counter()
     try:
         wanted = _select(reader, path, topics)
@@ -260,11 +262,13 @@ def read_raw(path: Path | str, topics: Iterable[str] | None = None) -> Iterator[
         raise BagError(f'{path}: cannot read bag: {type(error).__name__}: {error}') from None
     finally:
         reader.close()
-    _check_all_read(path, read, {connection.topic for connection in wanted})
+    _check_all_read(path, read, {connection.topic for connection in wanted}, counted)
 
 
-def _check_all_read(path: Path, read: Counter[str], topics: set[str]) -> None:
-    """Raise if fewer messages were read on ``topics`` than the MCAP summaries count.
+def _check_all_read(
+    path: Path, read: Counter[str], topics: set[str], counted: Counter[str]
+) -> None:
+    """Raise if fewer messages were read on ``topics`` than the MCAP summaries count (``counted``).
 
     A stretch of an MCAP file overwritten with zeros (e.g. disk blocks lost) can read as
     records of opcode 0, which readers skip: the messages there vanish without an error.
@@ -272,7 +276,6 @@ def _check_all_read(path: Path, read: Counter[str], topics: set[str]) -> None:
     Raises:
         BagError: naming the bag and, per short topic, how many of how many messages were read.
     """
-    counted = _summary_counts(path)
     short = [
         f'{read[topic]} of the {counted[topic]} messages on {topic}'
         for topic in sorted(topics)
@@ -286,17 +289,28 @@ def _check_all_read(path: Path, read: Counter[str], topics: set[str]) -> None:
         raise BagError(message)
 
 
-def _summary_counts(path: Path) -> Counter[str]:
-    """Messages per topic that the summaries of a bag's MCAP files count (none where none has).
+def _summaries(path: Path) -> list[tuple[Path, Summary]]:
+    """The MCAP files of a bag (:func:`_listed_files`) with their summaries, read once per open.
 
-    A summary the mcap library cannot read counts nothing (rosbags, which read it, is laxer).
+    They serve both the type check at the open and the message counts after a full read. A
+    file whose summary the mcap library cannot read, or that has none, is left out: the reading
+    of the bag names its damage (rosbags, which read it, is laxer).
     """
-    counts: Counter[str] = Counter()
+    summaries = []
     for file in _listed_files(path):
         summary = None
-        with file.open('rb') as stream, contextlib.suppress(McapError, *_READ_ERRORS):
+        with contextlib.suppress(McapError, *_READ_ERRORS), file.open('rb') as stream:
             summary = make_reader(stream).get_summary()
-        if summary is None or summary.statistics is None:
+        if summary is not None:
+            summaries.append((file, summary))
+    return summaries
+
+
+def _summary_counts(summaries: list[tuple[Path, Summary]]) -> Counter[str]:
+    """Messages per topic that the summaries count (none where a file's has no statistics)."""
+    counts: Counter[str] = Counter()
+    for _, summary in summaries:
+        if summary.statistics is None:
             continue
         for channel_id, count in summary.statistics.channel_message_counts.items():
             channel = summary.channels.get(channel_id)
@@ -305,8 +319,10 @@ def _summary_counts(path: Path) -> Counter[str]:
     return counts
 
 
-def _open_reader(path: Path) -> Reader | None:
-    """An open rosbags Reader (the caller closes it), or None for a damaged but streamable bag.
+def _open_reader(path: Path) -> tuple[Reader, Counter[str]] | None:
+    """An open rosbags Reader and the messages per topic its MCAP summaries count.
+
+    The caller closes the reader. None for a damaged but streamable bag.
 
     Raises:
         BagError: If the bag can be read neither way, or it is a directory of several MCAP
@@ -332,17 +348,19 @@ def _open_reader(path: Path) -> Reader | None:
             raise BagError(msg) from None
         raise BagError(f'{path}: cannot read bag: {type(error).__name__}: {error}') from None
     try:
-        _check_types_agree(reader, path)
+        summaries = _summaries(path)
+        _check_types_agree(reader, path, summaries)
     except BaseException:
         reader.close()
         raise
-    return reader
+    return reader, _summary_counts(summaries)
 
 
-def _check_types_agree(reader: Reader, path: Path) -> None:
+def _check_types_agree(reader: Reader, path: Path, summaries: list[tuple[Path, Summary]]) -> None:
     """Refuse a bag whose ``metadata.yaml`` gives a topic another type than its MCAP file does.
 
     rosbags pairs the two by topic and type: the messages of such a topic were silently not read.
+    The MCAP files' types are their summaries' channels and schemas (:func:`_summaries`).
 
     Raises:
         BagError: naming the topic, the type ``metadata.yaml`` says and the file's own (schema).
@@ -350,8 +368,8 @@ def _check_types_agree(reader: Reader, path: Path) -> None:
     listed: dict[str, set[str]] = {}
     for connection in reader.connections:
         listed.setdefault(connection.topic, set()).add(connection.msgtype)
-    for file in _listed_files(path):
-        for topic, msgtype in _stored_types(file):
+    for file, summary in summaries:
+        for topic, msgtype in _stored_types(summary):
             if topic in listed and msgtype not in listed[topic]:
                 said = ' or '.join(sorted(listed[topic]))
                 msg = (
@@ -362,22 +380,14 @@ def _check_types_agree(reader: Reader, path: Path) -> None:
                 raise BagError(msg)
 
 
-def _stored_types(file: Path) -> list[tuple[str, str]]:
-    """(topic, type) of each channel of an MCAP file, by its schemas; [] for another file.
-
-    A file that cannot be opened is left to the reading of the bag, which names its damage.
-    """
-    if file.suffix != '.mcap' or not file.is_file():
-        return []
-    try:
-        storage = Reader(file)
-        storage.open()
-    except _READ_ERRORS:
-        return []
-    try:
-        return [(connection.topic, connection.msgtype) for connection in storage.connections]
-    finally:
-        storage.close()
+def _stored_types(summary: Summary) -> list[tuple[str, str]]:
+    """(topic, type) of each channel of an MCAP file's summary, the type its schema's name."""
+    schemas = summary.schemas
+    return [
+        (channel.topic, schemas[channel.schema_id].name)
+        for channel in summary.channels.values()
+        if channel.schema_id in schemas
+    ]
 
 
 def _listed_files(path: Path) -> list[Path]:
@@ -486,9 +496,10 @@ def message_count(path: Path | str, topics: Iterable[str]) -> int:
 
 def _connections(path: Path) -> list[Connection]:
     """The connections of a bag, from its metadata (or salvaged from a damaged MCAP file)."""
-    reader = _open_reader(path)
-    if reader is None:
+    opened = _open_reader(path)
+    if opened is None:
         return _salvaged_connections(path)
+    reader = opened[0]
     try:
         return list(reader.connections)
     finally:

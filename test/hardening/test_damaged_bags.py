@@ -6,6 +6,7 @@ offline replay processes the readable part, says so and exits with status 1.
 
 from __future__ import annotations
 
+from collections import Counter
 from pathlib import Path
 import shutil
 
@@ -112,6 +113,27 @@ def test_a_bag_zeroed_in_its_middle_is_read_around_the_damage_then_says_what_is_
     info = f'{FRAMES - lost["/cam/camera_info"]} of the {FRAMES} messages on /cam/camera_info'
     with pytest.raises(BagError, match=f'read only {info} that its summary'):  # topics read only
         list(read_raw(zeroed, topics=['/cam/camera_info']))
+
+
+def test_a_read_opens_its_mcap_file_for_rosbags_and_once_for_the_summary(bag, monkeypatch):
+    """The summary read at the open serves the type check and the counts of a full read.
+
+    The type check opened the file a second time (a rosbags Reader of the file alone), and the
+    counts after a full read a third (its summary again).
+    """
+    opened: Counter[str] = Counter()
+    path_open = Path.open
+
+    def counting_open(self: Path, *args, **kwargs):
+        opened[self.name] += self.suffix == '.mcap'
+        return path_open(self, *args, **kwargs)
+
+    monkeypatch.setattr(Path, 'open', counting_open)
+    assert len(list(read_raw(bag))) == 2 * FRAMES
+    assert opened['camera.mcap'] == 2
+    opened.clear()
+    assert bag_topics(bag) == {'/cam/camera_info': INFO, '/cam/image': IMAGE}
+    assert opened['camera.mcap'] == 2
 
 
 def test_a_stray_mcap_file_beside_a_bag_is_not_counted_as_its_messages(bag, tmp_path):
