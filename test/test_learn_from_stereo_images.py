@@ -6,6 +6,7 @@ import argparse
 from dataclasses import replace
 import json
 from pathlib import Path
+import shutil
 import sys
 
 from compressed_bags import compressed_copy
@@ -399,3 +400,32 @@ def test_a_calibration_that_changes_mid_track_goes_on_from_the_tracked_nodes(tmp
         assert main([*argv, '--quiet']) == 0
         scores[name] = score_stereo_against_truth(source, tmp_path / f'{name}_out').node_rms
     assert scores['changed'] < scores['plain'] + 0.005, scores
+
+
+def test_a_learn_refused_before_tracking_writes_no_clicks(tmp_path, capsys):
+    """Refusals that came after the simulated clicks (and meshes) were written."""
+    damaged = tmp_path / 'damaged' / BAGS[1].name
+    shutil.copytree(BAGS[1], damaged)
+    mcap = damaged / f'{BAGS[1].name}.mcap'
+    mcap.write_bytes(mcap.read_bytes()[:700_000])
+    init_dir = tmp_path / 'init'
+    init_dir.mkdir()
+    (init_dir / f'{BAGS[1].name}.yaml').write_text('nodes: [1, 2]\n')
+    foreign = tmp_path / 'other' / BAGS[1].name
+    foreign.mkdir(parents=True)
+    inputs = sorted(tmp_path.rglob('*'))
+    learn = ['learn', '--from-images', '--simulate-clicks', '1', '--out', str(tmp_path / 'm.npz'),
+             '--report', str(tmp_path / 'r.json')]  # fmt: skip
+    two = [*learn, str(BAGS[0]), str(BAGS[1])]
+    cases = [
+        ([*two, '--tracker-param', 'nosuch=1'], 'unknown parameter(s): nosuch'),
+        ([*two, '--tracker-param', 'tracker.epsilon=2'], 'invalid parameter tracker.epsilon'),
+        ([*two, '--init-dir', str(init_dir)], f'{init_dir}/{BAGS[1].name}.yaml'),
+        ([*two, '--meshes-dir', str(foreign.parent)], f'{foreign} exists and is not a tracking'),
+        ([*learn, str(BAGS[0]), str(damaged)], f'{mcap}: damaged MCAP file'),
+        ([*learn, str(BAGS[0]), '--truth-population', 'weird'], '--truth-population must be'),
+    ]
+    for argv, expected in cases:
+        assert main(argv) == 2, argv
+        assert expected in capsys.readouterr().err, argv
+        assert sorted(tmp_path.rglob('*')) == inputs, argv

@@ -3,7 +3,8 @@
 The steps of :func:`learn_from_bags`:
 
 1. raw stereo bags are tracked into bags of 3-D meshes (:mod:`.stereo_meshes`), every one's
-   initialisation found before minutes of tracking;
+   initialisation found and tracking checked before minutes of tracking, and before any
+   simulated clicks are written;
 2. each bag's meshes are read, one sequence per subject (:mod:`.mesh_bags`), labelled by the
    bag's truth or by a truth bag of the same stamps;
 3. the meshes are aligned (§3.3,
@@ -32,7 +33,6 @@ import numpy as np
 
 from face_tracking_ros.errors import ConfigError
 from face_tracking_ros.io.atomic import write_text_atomically
-from face_tracking_ros.io.bags import bag_topics
 from face_tracking_ros.io.provenance import other_source
 from face_tracking_ros.io.series import has_truth
 from face_tracking_ros.learning.alignment import align_training_set
@@ -53,14 +53,14 @@ from face_tracking_ros.learning.result import LearningResult
 from face_tracking_ros.learning.training_set import MeshSequence, TrainingSet
 from face_tracking_ros.model.face_model import FaceModel
 from face_tracking_ros.model.model_file import save_model
-from face_tracking_ros.pipelines.learn_options import LearnOptions, check_options
-from face_tracking_ros.pipelines.mesh_bags import BagMeshes, read_bag_meshes
-from face_tracking_ros.pipelines.stereo_meshes import (
-    mesh_bag,
-    needs_tracking,
-    stereo_initialisation,
+from face_tracking_ros.pipelines.learn_options import (
+    LearnOptions,
+    check_options,
+    truth_population,
 )
-from face_tracking_ros.synthetic.faces import PRESETS, FacePopulation
+from face_tracking_ros.pipelines.mesh_bags import BagMeshes, read_bag_meshes
+from face_tracking_ros.pipelines.stereo_meshes import mesh_bag, stereo_initialisations
+from face_tracking_ros.synthetic.faces import FacePopulation
 
 
 def learn_from_bags(options: LearnOptions, say: Callable[[str], None] = print) -> Path:
@@ -77,7 +77,7 @@ def learn_from_bags(options: LearnOptions, say: Callable[[str], None] = print) -
         KeyboardInterrupt: if the tracking of a raw stereo bag was interrupted.
     """
     check_options(options)
-    initialisations = _initialisations(options)  # every raw bag's, before minutes of tracking
+    initialisations = stereo_initialisations(options)  # all checked before any tracking
     rng = np.random.default_rng(options.seed)
     mesh_bags, truth_bags = _mesh_and_truth_bags(options, initialisations, say)
     bag_meshes = _read_meshes(options, mesh_bags, truth_bags, say)
@@ -108,20 +108,6 @@ def learn_from_bags(options: LearnOptions, say: Callable[[str], None] = print) -
     _write_json(options.report, report)
     say(f'report written to {options.report}')
     return saved
-
-
-def _initialisations(options: LearnOptions) -> dict[Path, str]:
-    """The stereo_tracker parameter initialising each raw stereo bag's track, by bag.
-
-    Raises:
-        ConfigError: for a raw stereo bag without a way to initialise it, or one that
-            :func:`~.stereo_meshes.needs_tracking` refuses.
-    """
-    return {
-        bag: stereo_initialisation(bag, options)
-        for bag in options.bags
-        if needs_tracking(bag, bag_topics(bag), options)
-    }
 
 
 def _mesh_and_truth_bags(
@@ -210,16 +196,13 @@ def _true_subspaces(
     """The population's true subspaces for ``truth_population``, or None.
 
     Raises:
-        ConfigError: for a malformed PRESET[:SEED], a subject id that is not synthetic, or a
-            population whose subjects are not the bags' (another true sigma).
+        ConfigError: for a subject id that is not synthetic, or a population whose subjects
+            are not the bags' (another true sigma).
     """
-    if not options.truth_population:
+    preset = truth_population(options)
+    if preset is None:
         return None
-    preset, _, seed = options.truth_population.partition(':')
-    if preset not in PRESETS or (seed and not seed.isdigit()):
-        msg = f'--truth-population must be PRESET[:SEED] with PRESET in {PRESETS}'
-        raise ConfigError(msg)
-    population = FacePopulation(preset, int(seed or 0))
+    population = FacePopulation(*preset)
     indices = [_synthetic_index(subject) for subject in training.subject_ids]
     for item in bag_meshes:
         subject = item.sequence.subject_id

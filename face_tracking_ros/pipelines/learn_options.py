@@ -18,6 +18,7 @@ from face_tracking_ros.io.atomic import check_output_path, check_replaceable
 from face_tracking_ros.io.series import has_truth
 from face_tracking_ros.learning.methods import DEFAULT_METHOD, METHODS
 from face_tracking_ros.model.model_file import load_model
+from face_tracking_ros.synthetic.faces import PRESETS
 
 
 def option_flag(field: str) -> str:
@@ -132,6 +133,7 @@ def _check_values(options: LearnOptions) -> None:
     if options.neutral_frames < 0 or not options.add_noise >= 0.0 or options.truth_samples < 10:
         msg = '--neutral-frames and --add-noise must not be negative, --truth-samples >= 10'
         raise ConfigError(msg)
+    truth_population(options)
     if options.subject_pattern is not None:
         try:
             re.compile(options.subject_pattern)
@@ -139,6 +141,24 @@ def _check_values(options: LearnOptions) -> None:
             named = options.named('subject_pattern')
             msg = f'{named} {options.subject_pattern!r}: not a regular expression: {error}'
             raise ConfigError(msg) from None
+
+
+def truth_population(options: LearnOptions) -> tuple[str, int] | None:
+    """The preset and seed of ``options.truth_population`` (PRESET[:SEED], seed 0 if not given).
+
+    None if it is not given.
+
+    Raises:
+        ConfigError: if it is not PRESET[:SEED] with PRESET in
+            :data:`~face_tracking_ros.synthetic.faces.PRESETS`.
+    """
+    if not options.truth_population:
+        return None
+    preset, _, seed = options.truth_population.partition(':')
+    if preset not in PRESETS or (seed and not seed.isdigit()):
+        msg = f'--truth-population must be PRESET[:SEED] with PRESET in {PRESETS}'
+        raise ConfigError(msg)
+    return preset, int(seed or 0)
 
 
 def _check_bags_and_files(options: LearnOptions) -> None:

@@ -5,7 +5,9 @@ as ``left_topic`` and ``right_topic``; no mesh topic, or any stereo bag with ``f
 tracked by the stereo tracker (eq. 4, 5) through offline replay of the stereo_tracker node's own
 code, into ``meshes_dir``, before it is learned from. By default every mesh carries the frame-1
 depths refined over its whole track (the processor's ``retroactive_depths``); ``tracker_params``
-override it. Meshes an earlier run tracked from the same inputs are re-used.
+override it. Meshes an earlier run tracked from the same inputs are re-used. Every raw bag's
+tracking is checked before any is tracked and before any simulated clicks are written
+(:func:`stereo_initialisations`), so that a refused run leaves nothing behind.
 """
 
 from __future__ import annotations
@@ -33,7 +35,7 @@ from face_tracking_ros.pipelines.mesh_bags import mesh_topic
 from face_tracking_ros.pipelines.scoring import score_stereo_against_truth
 from face_tracking_ros.processing.parameters import OverrideParameters
 from face_tracking_ros.processing.stereo import StereoNodeConfig
-from face_tracking_ros.replay import ReplayStats, replay_bag
+from face_tracking_ros.replay import ReplayStats, replay_bag, wire_replay
 from face_tracking_ros.synthetic.clicks import clicks_from_bag, write_init_file
 
 STEREO_PARAMS = 'retroactive_depths=true'  # learn from meshes with each track's final depths
@@ -52,13 +54,13 @@ def mesh_bag(
     initialised from ``init_dir/<bag name>.{yaml,json}``, ``auto_init`` or, for synthetic bags,
     ``simulate_clicks``; with ``tracker_params`` after :data:`STEREO_PARAMS`.
     ``initialisation`` is that stereo_tracker parameter when already known
-    (:func:`stereo_initialisation`). Meshes an earlier run tracked from the same inputs are
+    (:func:`stereo_initialisations`). Meshes an earlier run tracked from the same inputs are
     re-used (:func:`_tracked_before`). What it does, the replay's summary and the score against
     the bag's truth go to ``say``, line by line.
 
     Raises:
         ConfigError: for a raw stereo bag without a way to initialise it, or one that
-            :func:`needs_tracking` refuses.
+            :func:`needs_tracking` or :func:`_check_tracking` refuses.
         BagError: if the tracker produced no mesh (the input problems named).
         KeyboardInterrupt: if the tracking was interrupted (the meshes so far stay, and a later
             run tracks the bag again).
@@ -66,11 +68,9 @@ def mesh_bag(
     topics = bag_topics(bag)
     if not needs_tracking(bag, topics, options):
         return bag  # meshes (or nothing: read_bag_meshes names the missing topic)
-    initialisation = initialisation or stereo_initialisation(bag, options)
+    initialisation = initialisation or _initialise({bag: topics}, options)[bag]
     out = _meshes_dir(options) / bag.name
-    params = OverrideParameters.parse([*_tracker_params(topics, options), initialisation])
-    compressed = params.config(StereoNodeConfig).compressed
-    remaps = stereo_remaps(topics, options, compressed)
+    params, remaps = _tracking(topics, options, initialisation)
     inputs = Provenance.of(bag, [TRACKER], params.overrides, remaps)
     if _tracked_before(out, inputs, options.named('meshes_dir'), say):
         return out
@@ -78,6 +78,77 @@ def mesh_bag(
     if has_truth(bag):
         say(_score_line(bag, out))
     return out
+
+
+def stereo_initialisations(options: LearnOptions) -> dict[Path, str]:
+    """The stereo_tracker parameter initialising each raw stereo bag's track, by bag.
+
+    Every check that can refuse a bag's tracking (:func:`needs_tracking`,
+    :func:`_check_tracking`, the reading of its clicks) runs for every bag before any simulated
+    clicks are written: a refused run leaves none behind.
+
+    Raises:
+        ConfigError: for a raw stereo bag without a way to initialise it, or one that
+            :func:`needs_tracking` or :func:`_check_tracking` refuses.
+        BagError: for a bag that cannot be read, or whose clicks cannot be simulated.
+    """
+    topics = {bag: bag_topics(bag) for bag in options.bags}
+    raw = {bag: topics[bag] for bag in options.bags if needs_tracking(bag, topics[bag], options)}
+    return _initialise(raw, options)
+
+
+def _initialise(topics: dict[Path, dict[str, str]], options: LearnOptions) -> dict[Path, str]:
+    """The initialisation of each raw stereo bag of ``topics`` (bag -> its topics), by bag.
+
+    Each bag's tracking is checked (:func:`_check_tracking`) before any simulated clicks are
+    written (:func:`_write_clicks`).
+    """
+    given = {bag: _given_initialisation(bag, options) for bag in topics}
+    for bag, initialisation in given.items():
+        _check_tracking(bag, topics[bag], options, initialisation)
+    written = _write_clicks([bag for bag, init in given.items() if init is None], options)
+    return {bag: given[bag] or written[bag] for bag in topics}
+
+
+def _check_tracking(
+    bag: Path, topics: dict[str, str], options: LearnOptions, initialisation: str | None
+) -> None:
+    """Run every check the tracking of a raw stereo bag runs before it writes anything.
+
+    Those of :func:`~face_tracking_ros.replay.wire_replay` (the tracker parameters, the
+    initialisation's file or detector, the topics) and the one of :func:`_tracked_before` (its
+    meshes directory is not another's).
+
+    Args:
+        bag: the raw stereo bag.
+        topics: its topics (name -> type).
+        options: the learning run's options.
+        initialisation: its stereo_tracker initialisation parameter; None: none yet (the
+            simulated clicks, written once all is checked).
+
+    Raises:
+        BagError, ConfigError: naming what the tracking would refuse.
+    """
+    params, remaps = _tracking(topics, options, initialisation)
+    wire_replay([TRACKER], bag, params, remaps, frozenset(), topics)
+    inputs = Provenance.of(bag, [TRACKER], params.overrides, remaps)
+    _earlier_tracking(_meshes_dir(options) / bag.name, inputs, options.named('meshes_dir'))
+
+
+def _tracking(
+    topics: dict[str, str], options: LearnOptions, initialisation: str | None
+) -> tuple[OverrideParameters, dict[str, str]]:
+    """The stereo tracker's parameters and input remappings for a raw bag of ``topics``.
+
+    Args:
+        topics: the bag's topics (name -> type).
+        options: the learning run's options.
+        initialisation: the initialisation parameter (NAME=VALUE); None: none.
+    """
+    given = [initialisation] if initialisation else []
+    params = OverrideParameters.parse([*_tracker_params(topics, options), *given])
+    compressed = params.config(StereoNodeConfig).compressed
+    return params, stereo_remaps(topics, options, compressed)
 
 
 def needs_tracking(bag: Path, topics: dict[str, str], options: LearnOptions) -> bool:
@@ -124,11 +195,11 @@ def _tracker_params(topics: dict[str, str], options: LearnOptions) -> list[str]:
     return [STEREO_PARAMS, *compressed, *options.tracker_params]
 
 
-def stereo_initialisation(bag: Path, options: LearnOptions) -> str:
-    """The stereo_tracker parameter that initialises a raw stereo bag's track.
+def _given_initialisation(bag: Path, options: LearnOptions) -> str | None:
+    """The stereo_tracker parameter that initialises a raw stereo bag's track; None: clicks.
 
-    Its init file from --init-dir, else one of simulated clicks (--simulate-clicks, written to
-    --init-dir, default <meshes dir>_clicks/), else the landmark detector (--auto-init).
+    Its init file from --init-dir, else None for simulated clicks (--simulate-clicks, to be
+    written by :func:`_write_clicks`), else the landmark detector (--auto-init).
 
     Raises:
         ConfigError: if none of them is given.
@@ -139,13 +210,7 @@ def stereo_initialisation(bag: Path, options: LearnOptions) -> str:
             if candidate.is_file():
                 return f'init_file={candidate}'
     if options.simulate_clicks is not None:
-        meshes = _meshes_dir(options)
-        directory = options.init_dir or meshes.with_name(f'{meshes.name}_clicks')
-        directory.mkdir(parents=True, exist_ok=True)
-        path = directory / f'{bag.name}.json'
-        nodes = tracked_nodes(TRACKER, list(options.tracker_params), None)
-        clicks = clicks_from_bag(bag, options.simulate_clicks).only(nodes)
-        return f'init_file={write_init_file(clicks, path)}'
+        return None
     if options.auto_init:
         return 'auto_init=true'
     init_dir = options.named('init_dir')
@@ -161,6 +226,30 @@ def stereo_initialisation(bag: Path, options: LearnOptions) -> str:
         f'detector) or, for synthetic bags, {options.named("simulate_clicks")}'
     )
     raise ConfigError(msg)
+
+
+def _write_clicks(bags: list[Path], options: LearnOptions) -> dict[Path, str]:
+    """Write the simulated clicks of ``bags`` to --init-dir (default <meshes dir>_clicks/).
+
+    Every bag's clicks are drawn before any are written (a bag without truth writes none).
+
+    Returns:
+        By bag, the stereo_tracker parameter that initialises its track from its clicks.
+
+    Raises:
+        BagError: for a bag whose clicks cannot be simulated (no truth, no camera_info).
+    """
+    if not bags:
+        return {}
+    nodes = tracked_nodes(TRACKER, list(options.tracker_params), None)
+    clicks = {bag: clicks_from_bag(bag, options.simulate_clicks).only(nodes) for bag in bags}
+    meshes = _meshes_dir(options)
+    directory = options.init_dir or meshes.with_name(f'{meshes.name}_clicks')
+    directory.mkdir(parents=True, exist_ok=True)
+    return {
+        bag: f'init_file={write_init_file(init, directory / f"{bag.name}.json")}'
+        for bag, init in clicks.items()
+    }
 
 
 def _track(
@@ -224,20 +313,12 @@ def _tracked_before(
     Raises:
         ConfigError: if ``out`` exists but is not such a tracking (not ours to remove).
     """
-    if not out.exists():
+    earlier = _earlier_tracking(out, inputs, meshes_dir)
+    if earlier is None:
+        if out.exists():
+            say(f'{out}: an earlier run was stopped before it closed the bag: tracking again')
+            shutil.rmtree(out)
         return False
-    files = list(out.iterdir()) if out.is_dir() else []
-    if files and all(file.suffix == '.mcap' for file in files):  # a writer killed before closing
-        say(f'{out}: an earlier run was stopped before it closed the bag: tracking again')
-        shutil.rmtree(out)
-        return False
-    earlier = Provenance.read(out)
-    if earlier is None or earlier.source != inputs.source:
-        msg = (
-            f'{out} exists and is not a tracking of {inputs.source} by learn: remove it or give '
-            f'another {meshes_dir}'
-        )
-        raise ConfigError(msg)
     if earlier.complete and earlier.same_inputs(inputs):
         say(f'{out}: re-using the meshes an earlier run tracked from the same inputs')
         return True
@@ -245,6 +326,30 @@ def _tracked_before(
     say(f'{out}: an earlier run {why}: tracking again')
     shutil.rmtree(out)
     return False
+
+
+def _earlier_tracking(out: Path, inputs: Provenance, meshes_dir: str) -> Provenance | None:
+    """What an earlier tracking of ``inputs.source`` into ``out`` by learn was made from.
+
+    None if ``out`` does not exist or holds only MCAP files (a writer killed before closing).
+
+    Raises:
+        ConfigError: if ``out`` exists but is not such a tracking (not ours to remove), naming
+            ``meshes_dir``, the option that says where meshes go.
+    """
+    if not out.exists():
+        return None
+    files = list(out.iterdir()) if out.is_dir() else []
+    if files and all(file.suffix == '.mcap' for file in files):
+        return None
+    earlier = Provenance.read(out)
+    if earlier is None or earlier.source != inputs.source:
+        msg = (
+            f'{out} exists and is not a tracking of {inputs.source} by learn: remove it or give '
+            f'another {meshes_dir}'
+        )
+        raise ConfigError(msg)
+    return earlier
 
 
 def _meshes_dir(options: LearnOptions) -> Path:
