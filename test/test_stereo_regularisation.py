@@ -102,8 +102,9 @@ def test_gauss_newton_step_restores_a_translated_mesh_exactly() -> None:
 @pytest.mark.parametrize(
     ('kwargs', 'match'),
     [
-        ({'rho': -1.0}, 'rho must be finite'),
-        ({'delta': float('nan')}, 'delta must be finite'),
+        ({'rho': -1.0}, r'^invalid RegularisationConfig.rho = -1.0$'),
+        ({'delta': float('nan')}, 'invalid RegularisationConfig.delta = nan, expected a finite'),
+        ({'beta': float('inf')}, 'invalid RegularisationConfig.beta = inf, expected a finite'),
         ({'edge': 2.0}, r"must lie in \[0, 1\], got \{'edge': 2.0\}"),
         ({'mouth': -0.1}, r"\{'mouth': -0.1\}"),
     ],

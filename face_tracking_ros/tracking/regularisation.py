@@ -25,7 +25,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from face_tracking_ros.errors import FieldError, InputError
+from face_tracking_ros.errors import FieldError, InputError, check_fields
 from face_tracking_ros.model.topology import Group, MeshTopology
 from face_tracking_ros.tracking.block_assembly import scatter_blocks, scatter_vectors
 
@@ -35,10 +35,10 @@ class RegularisationConfig:
     """Weights of eq. 5 (plain numbers, so each is a ROS parameter of the stereo node).
 
     Attributes:
-        rho: rho_i of the stiffest nodes: cost of a node's motion, grey^2 / m^2.
-        beta: beta_ij of the stiffest edges: cost of differential motion, grey^2 / m^2.
-        delta: stiffness of the stiffest edges against stretching from frame 1, grey^2 / m^2
-            (delta_ij = delta * s_ij / (2 L_ij)^2, see the module docstring). 0 by default:
+        rho: rho_i of the stiffest nodes: cost of a node's motion, grey^2 / m^2, >= 0.
+        beta: beta_ij of the stiffest edges: cost of differential motion, grey^2 / m^2, >= 0.
+        delta: stiffness of the stiffest edges against stretching from frame 1, grey^2 / m^2,
+            >= 0 (delta_ij = delta * s_ij / (2 L_ij)^2, see the module docstring). 0 by default:
             the stereo tracker's face-model term keeps the mesh whole, and every expression
             stretches edges from frame 1 (on 380-frame training sequences 2e7 raised the largest
             reprojection error from 1.48 / 1.36 to 1.93 / 1.62 px).
@@ -67,13 +67,13 @@ class RegularisationConfig:
         """Validate the weights.
 
         Raises:
-            ConfigError: for a negative or non-finite weight, or a factor outside [0, 1].
+            ConfigError: for a negative or non-finite weight (naming it, e.g. 'invalid
+                RegularisationConfig.delta = nan, expected a finite number'), or a factor
+                outside [0, 1].
         """
-        for name in ('rho', 'beta', 'delta'):
-            value = getattr(self, name)
-            if not np.isfinite(value) or value < 0:
-                msg = f'regularisation weight {name} must be finite and >= 0, got {value}'
-                raise FieldError(msg, name, 'a finite number >= 0')
+        check_fields(
+            self, {'rho': self.rho >= 0, 'beta': self.beta >= 0, 'delta': self.delta >= 0}
+        )
         bad = {g.value: s for g, s in self.group_stiffness().items() if not 0.0 <= s <= 1.0}
         if bad:
             msg = f'group stiffness factors must lie in [0, 1], got {bad}'
