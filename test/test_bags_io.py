@@ -8,6 +8,7 @@ from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 import pytest
 from rosbags.typesys.store import Typestore
+import yaml
 
 from face_tracking_ros.errors import BagError
 from face_tracking_ros.io.bags import (
@@ -19,8 +20,9 @@ from face_tracking_ros.io.bags import (
 from face_tracking_ros.io.conversions import make_header
 from face_tracking_ros.io.messages import RosbagsMessages
 from face_tracking_ros.io.typestore import typestore
+from face_tracking_ros.io.yaml_text import _LOADER, parse_yaml
 
-from conftest import custom_msgtypes, sample_fields, to_plain, to_rosbags
+from conftest import REPO, custom_msgtypes, sample_fields, to_plain, to_rosbags
 
 MSGTYPES = custom_msgtypes() + ['sensor_msgs/msg/Image', 'sensor_msgs/msg/CameraInfo']
 T0 = 1_700_000_000_123_456_789
@@ -142,3 +144,17 @@ def test_bag_without_metadata_is_salvaged_from_its_mcap_file(tmp_path):
     (path / 'metadata.yaml').unlink()
     assert bag_topics(path) == {'n': 'std_msgs/msg/Float64'}
     assert [m.msg.data for m in read_messages(path)] == [0, 1, 2, 3, 4]
+
+
+def test_metadata_is_parsed_by_libyaml_into_what_the_pure_python_loader_gives():
+    """The safe loader of libyaml where PyYAML has it: 0.34 ms a metadata.yaml, not 2.76."""
+    assert _LOADER is (yaml.CSafeLoader if yaml.__with_libyaml__ else yaml.SafeLoader)
+    files = sorted((REPO / 'bags').glob('*/*/metadata.yaml'))
+    assert len(files) == 4
+    for metadata in files:
+        text = metadata.read_text()
+        parsed = parse_yaml(text)
+        assert repr(parsed) == repr(yaml.safe_load(text))
+        assert parsed['rosbag2_bagfile_information']['relative_file_paths'] == [
+            f'{metadata.parent.name}.mcap'
+        ]

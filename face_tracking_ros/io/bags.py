@@ -41,6 +41,7 @@ import yaml
 from face_tracking_ros.errors import BagError
 from face_tracking_ros.io.bag_definitions import BagDefinitions
 from face_tracking_ros.io.typestore import typestore
+from face_tracking_ros.io.yaml_text import parse_yaml
 
 BAG_VERSION = 9  # rosbag2 metadata version written (Jazzy and later read it)
 NS_PER_S = 1_000_000_000
@@ -547,7 +548,7 @@ def _metadata_topics(path: Path) -> dict[str, str]:
 def _metadata(path: Path) -> dict[str, Any]:
     """A bag's ``metadata.yaml`` information ({} if it is missing or unreadable)."""
     try:
-        info = yaml.safe_load((path / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
+        info = parse_yaml((path / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
     except (OSError, yaml.YAMLError, KeyError, TypeError):
         return {}
     return info if isinstance(info, dict) else {}

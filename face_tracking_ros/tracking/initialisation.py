@@ -38,6 +38,7 @@ from face_tracking_ros.errors import ConfigError, InputError, check_fields
 from face_tracking_ros.geometry.camera import PinholeCamera
 from face_tracking_ros.geometry.rotation import rodrigues
 from face_tracking_ros.imaging import inside_image
+from face_tracking_ros.io.yaml_text import parse_yaml
 from face_tracking_ros.model.face_model import FaceModel
 from face_tracking_ros.model.topology import mesh_topology
 from face_tracking_ros.tracking.projection import POSE_DIM, project_with_jacobian
@@ -189,7 +190,7 @@ def load_init_file(path: str | Path) -> Initialisation:
         msg = f'init file {path} is not text (UTF-8): an image or another binary file?'
         raise ConfigError(msg) from None
     try:
-        data = json.loads(text) if path.suffix.lower() == '.json' else yaml.safe_load(text)
+        data = json.loads(text) if path.suffix.lower() == '.json' else parse_yaml(text)
     except (json.JSONDecodeError, yaml.YAMLError) as error:
         kind = 'JSON' if path.suffix.lower() == '.json' else 'YAML'
         msg = f'init file {path} is not valid {kind}: {" ".join(str(error).split())}'

@@ -53,6 +53,7 @@ def test_yaml_and_json_init_files_parse(tmp_path: Path) -> None:
         ('nodes: {right_eye: [1, 2]}\n', 'at least 6 nodes, got 1'),
         ('nodes: {a: [1, 2]}\nsigma: oops\n', 'sigma must be a list of numbers'),
         ('nodes: {a: [1, 2]\n', 'is not valid YAML'),
+        ('nodes:\n  a: [1, 2]\n\tb: [3, 4]\n', r"found character '\\t' that cannot start"),
     ],
 )
 def test_bad_init_files_name_the_file_and_problem(tmp_path: Path, text: str, match: str) -> None:
