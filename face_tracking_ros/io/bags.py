@@ -220,7 +220,8 @@ def read_messages(
             )
             raise BagError(message)
         try:
-            msg = reading.deserialize_cdr(data, msgtype)
+            # A view: rosbags slices off the 4-byte header, which copies bytes (300 KB per image)
+            msg = reading.deserialize_cdr(memoryview(data), msgtype)
         except (SerdeError, *_READ_ERRORS) as error:
             message = f'{path}: cannot read bag: {topic}: {type(error).__name__}: {error}'
             raise BagError(message) from None
