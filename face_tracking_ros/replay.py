@@ -407,7 +407,7 @@ def replay_bag(
             that is not an on-demand output of the nodes.
     """
     processors, topic_map = wire_replay(nodes, bag, params, remaps or {}, wanted)
-    total = message_count(bag, topic_map)
+    total = message_count(bag, topic_map) if progress else None  # the bar's; opens the bag
     provenance = Provenance.of(bag, nodes, params.overrides, remaps)
     out.parent.mkdir(parents=True, exist_ok=True)
     with BagWriter(out) as writer, tqdm(total=total, unit='msg', disable=not progress) as bar:
