@@ -46,7 +46,7 @@ from face_tracking_ros.synthetic.texture import (
 
 START_NS = 1_700_000_000 * 1_000_000_000  # stamp of frame 0, ns since the epoch
 MAX_FPS = 120.0
-MIN_BASELINE, MAX_BASELINE = 0.10, 0.12  # m
+MIN_BASELINE, MAX_BASELINE = 0.03, 0.30  # m: RealSense D4xx 0.05, ZED Mini 0.063, ZED 2 0.12
 MAX_TOE_IN_DEG = 10.0
 MIN_SIZE, MAX_SIZE = 32, 4096  # image width and height, px
 MIN_FOV_DEG, MAX_FOV_DEG = 1.0, 170.0  # horizontal field of view 2 atan(W / 2 focal)
@@ -95,7 +95,7 @@ class SceneConfig:
         encoding: 'mono8' or 'rgb8'.
         focal: focal length fx = fy, px, in :func:`focal_range` of the width (a horizontal
             field of view of MAX_FOV_DEG down to MIN_FOV_DEG degrees).
-        baseline: stereo baseline B, m, in [0.10, 0.12].
+        baseline: stereo baseline B, m, in [MIN_BASELINE, MAX_BASELINE] (0.03 to 0.30).
         texture: optional face photo used as every subject's texture.
         texture_nodes: JSON of that photo's node pixels (required with ``texture``).
         motion_blur: average poses over half the frame period.

@@ -40,6 +40,19 @@ def test_stereo_truth_satisfies_the_rectified_epipolar_constraint(stereo_frames)
         assert frame.images['left'].shape == (120, 160) and frame.images['left'].dtype == np.uint8
 
 
+@pytest.mark.parametrize('baseline', [0.03, 0.30])
+def test_rigs_of_the_whole_baseline_range_film_the_face_in_both_cameras(baseline):
+    # The working volume is centred between the cameras: a 0.30 m rig sees the face too.
+    config = SceneConfig(kind='stereo', seed=2, baseline=baseline, frames=1)
+    cameras = config.cameras()
+    frame = next(SequenceRenderer(config, 0).frames(0))
+    nodes = frame.truth.nodes_camera
+    left, right = cameras['left'].project(nodes), cameras['right'].project(nodes)
+    np.testing.assert_allclose(left[:, 0] - right[:, 0], 600.0 * baseline / nodes[:, 2])
+    assert 0 < right[:, 0].min() and left[:, 0].max() < 640
+    assert frame.truth.visible['left'][:19].all() and frame.truth.visible['right'][:19].all()
+
+
 def test_frame_truth_is_eq3_with_true_bases_posed_by_eq1(stereo_frames):
     population = FacePopulation('default', seed=2)
     subject = population.subject(0)
@@ -133,7 +146,8 @@ def test_synth_command_writes_bags_and_a_contact_sheet(tmp_path, capsys):
             'texture file not found',
         ),
         (['--texture', 'missing.png'], 'needs its node positions'),
-        (['--baseline', '0.3'], r'baseline must be in \[0.1, 0.12\] m'),
+        (['--baseline', '0.31'], r'baseline must be in \[0.03, 0.3\] m, got 0.31'),
+        (['--baseline', '0.02'], r'baseline must be in \[0.03, 0.3\] m, got 0.02'),
         (['--distortion', '0.1,0.2'], 'distortion must be 5 finite plumb_bob coefficients'),
         (['--toe-in', '12'], r'toe_in_deg must be in \[0, 10\], got 12.0'),
         (
@@ -201,6 +215,8 @@ def test_scene_config_rejects_bad_values():
         SceneConfig(width=128, height=96, focal=5.5)
     for focal in (28.0, 36668.0):  # the bounds the message gives are accepted
         SceneConfig(focal=focal)
+    with pytest.raises(ConfigError, match=r'baseline must be in \[0.03, 0.3\] m, got nan'):
+        SceneConfig(baseline=float('nan'))
     with pytest.raises(ConfigError, match='sequence index must be >= 0'):
         next(SequenceRenderer(SceneConfig(**SMALL), 0).frames(-1))
 
