@@ -358,10 +358,10 @@ def wire_replay(
     topics = bag_topics(bag) if topics is None else topics
     topic_map = resolve_inputs(external, topics, remaps)
     if not topic_map:
-        wanted = ', '.join(f'{p.topic} ({p.msgtype})' for p in external)
+        expected = ', '.join(f'{p.topic} ({p.msgtype})' for p in external)
         found = ', '.join(f'{topic} ({msgtype})' for topic, msgtype in topics.items()) or 'none'
         msg = (
-            f'{bag}: no topic matches the inputs of {", ".join(nodes)}: {wanted}; the bag has '
+            f'{bag}: no topic matches the inputs of {", ".join(nodes)}: {expected}; the bag has '
             f'{found}'
         )
         raise BagError(msg)
