@@ -176,8 +176,8 @@ def _parameters(
     """The tracker's parameters (NAME=VALUE), model file (None: packaged) and image transport.
 
     The last is True if the tracker reads compressed images. Where the simulated clicks
-    (``--simulate-clicks``) go is only checked: :func:`_write_clicks` writes them once the
-    replay is.
+    (``--simulate-clicks``) go is only checked here: :func:`_write_clicks` writes them once the
+    replay is checked.
 
     Raises:
         ConfigError: if nothing would initialise the track, ``--out`` exists, or the clicks or

@@ -122,7 +122,7 @@ def check_options(options: LearnOptions) -> None:
 
 
 def _check_values(options: LearnOptions) -> None:
-    """Range checks (those argparse cannot express) and the subject pattern's syntax."""
+    """Range checks argparse cannot express; the truth population's and subject pattern's form."""
     if options.p < 1 or options.q < 1:
         msg = f'--p and --q must be >= 1, got p={options.p}, q={options.q}'
         raise ConfigError(msg)

@@ -102,6 +102,9 @@ def _initialise(topics: dict[Path, dict[str, str]], options: LearnOptions) -> di
 
     Each bag's tracking is checked (:func:`_check_tracking`) before any simulated clicks are
     written (:func:`_write_clicks`).
+
+    Raises:
+        BagError, ConfigError: as :func:`stereo_initialisations`.
     """
     given = {bag: _given_initialisation(bag, options) for bag in topics}
     for bag, initialisation in given.items():
