@@ -413,6 +413,10 @@ def test_a_learn_refused_before_tracking_writes_no_clicks(tmp_path, capsys):
     (init_dir / f'{BAGS[1].name}.yaml').write_text('nodes: [1, 2]\n')
     foreign = tmp_path / 'other' / BAGS[1].name
     foreign.mkdir(parents=True)
+    notes = tmp_path / 'noted_clicks' / f'{BAGS[1].name}.json'  # where its clicks would go
+    notes.parent.mkdir()
+    notes.write_text('notes')
+    (tmp_path / 'filed_clicks').write_text('notes')  # where the clicks directory would go
     inputs = sorted(tmp_path.rglob('*'))
     learn = ['learn', '--from-images', '--simulate-clicks', '1', '--out', str(tmp_path / 'm.npz'),
              '--report', str(tmp_path / 'r.json')]  # fmt: skip
@@ -424,6 +428,16 @@ def test_a_learn_refused_before_tracking_writes_no_clicks(tmp_path, capsys):
         ([*two, '--meshes-dir', str(foreign.parent)], f'{foreign} exists and is not a tracking'),
         ([*learn, str(BAGS[0]), str(damaged)], f'{mcap}: damaged MCAP file'),
         ([*learn, str(BAGS[0]), '--truth-population', 'weird'], '--truth-population must be'),
+        (
+            [*two, '--meshes-dir', str(tmp_path / 'noted')],
+            f'--simulate-clicks: {notes} exists and is not an init file (init file {notes} is '
+            'not valid JSON',
+        ),
+        (
+            [*two, '--meshes-dir', str(tmp_path / 'filed')],
+            f'--simulate-clicks: {tmp_path}/filed_clicks/{BAGS[0].name}.json: '
+            f'{tmp_path}/filed_clicks is a file, not a directory',
+        ),
     ]
     for argv, expected in cases:
         assert main(argv) == 2, argv

@@ -20,11 +20,7 @@ import numpy as np
 
 from face_tracking_ros.cli.replay import add_replay_options, parse_remaps, print_stats
 from face_tracking_ros.errors import BagError, ConfigError
-from face_tracking_ros.io.atomic import (
-    check_output_path,
-    check_replaceable,
-    write_text_atomically,
-)
+from face_tracking_ros.io.atomic import check_output_path, write_text_atomically
 from face_tracking_ros.io.bags import bag_topics
 from face_tracking_ros.io.series import has_truth, load_states
 from face_tracking_ros.pipelines.bag_inputs import (
@@ -42,8 +38,11 @@ from face_tracking_ros.processing.mono import MonoNodeConfig
 from face_tracking_ros.processing.parameters import OverrideParameters
 from face_tracking_ros.processing.stereo import StereoNodeConfig
 from face_tracking_ros.replay import replay_bag, wire_replay
-from face_tracking_ros.synthetic.clicks import clicks_from_bag, write_init_file
-from face_tracking_ros.tracking.initialisation import load_init_file
+from face_tracking_ros.synthetic.clicks import (
+    check_clicks_file,
+    clicks_from_bag,
+    write_init_file,
+)
 from face_tracking_ros.tracking.result import TrackStatus
 
 STEREO = 'stereo_tracker'
@@ -287,7 +286,7 @@ def _check_clicks_file(path: Path, inputs: list[Path]) -> None:
         ConfigError: naming the file: it would be written over.
     """
     _refuse_input(path, f'--simulate-clicks: {path} (where the clicks go)', inputs)
-    check_replaceable(path, '--simulate-clicks:', 'an init file', load_init_file)
+    check_clicks_file(path, '--simulate-clicks:')
 
 
 def _refuse_input(path: Path, named: str, inputs: list[Path]) -> None:

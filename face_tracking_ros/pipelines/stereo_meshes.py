@@ -36,7 +36,11 @@ from face_tracking_ros.pipelines.scoring import score_stereo_against_truth
 from face_tracking_ros.processing.parameters import OverrideParameters
 from face_tracking_ros.processing.stereo import StereoNodeConfig
 from face_tracking_ros.replay import ReplayStats, replay_bag, wire_replay
-from face_tracking_ros.synthetic.clicks import clicks_from_bag, write_init_file
+from face_tracking_ros.synthetic.clicks import (
+    check_clicks_file,
+    clicks_from_bag,
+    write_init_file,
+)
 
 STEREO_PARAMS = 'retroactive_depths=true'  # learn from meshes with each track's final depths
 TRACKER = 'stereo_tracker'
@@ -119,8 +123,9 @@ def _check_tracking(
     """Run every check the tracking of a raw stereo bag runs before it writes anything.
 
     Those of :func:`~face_tracking_ros.replay.wire_replay` (the tracker parameters, the
-    initialisation's file or detector, the topics) and the one of :func:`_tracked_before` (its
-    meshes directory is not another's).
+    initialisation's file or detector, the topics), the one of :func:`_tracked_before` (its
+    meshes directory is not another's) and, for simulated clicks, that of their file
+    (:func:`~face_tracking_ros.synthetic.clicks.check_clicks_file`: not a user's file).
 
     Args:
         bag: the raw stereo bag.
@@ -132,6 +137,8 @@ def _check_tracking(
     Raises:
         BagError, ConfigError: naming what the tracking would refuse.
     """
+    if initialisation is None:
+        check_clicks_file(_clicks_file(bag, options), f'{options.named("simulate_clicks")}:')
     params, remaps = _tracking(topics, options, initialisation)
     wire_replay([TRACKER], bag, params, remaps, frozenset(), topics)
     inputs = Provenance.of(bag, [TRACKER], params.overrides, remaps)
@@ -246,13 +253,19 @@ def _write_clicks(bags: list[Path], options: LearnOptions) -> dict[Path, str]:
         return {}
     nodes = tracked_nodes(TRACKER, list(options.tracker_params), None)
     clicks = {bag: clicks_from_bag(bag, options.simulate_clicks).only(nodes) for bag in bags}
+    written: dict[Path, str] = {}
+    for bag, init in clicks.items():
+        path = _clicks_file(bag, options)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        written[bag] = f'init_file={write_init_file(init, path)}'
+    return written
+
+
+def _clicks_file(bag: Path, options: LearnOptions) -> Path:
+    """Where the simulated clicks of ``bag`` go: <--init-dir or meshes dir_clicks>/<bag>.json."""
     meshes = _meshes_dir(options)
     directory = options.init_dir or meshes.with_name(f'{meshes.name}_clicks')
-    directory.mkdir(parents=True, exist_ok=True)
-    return {
-        bag: f'init_file={write_init_file(init, directory / f"{bag.name}.json")}'
-        for bag, init in clicks.items()
-    }
+    return directory / f'{bag.name}.json'
 
 
 def _track(

@@ -18,10 +18,14 @@ import numpy as np
 from face_tracking_ros.errors import BagError
 from face_tracking_ros.geometry.camera import PinholeCamera
 from face_tracking_ros.io import conversions
-from face_tracking_ros.io.atomic import write_text_atomically
+from face_tracking_ros.io.atomic import (
+    check_output_path,
+    check_replaceable,
+    write_text_atomically,
+)
 from face_tracking_ros.io.bags import bag_topics, read_messages
 from face_tracking_ros.io.series import read_converted
-from face_tracking_ros.tracking.initialisation import Initialisation
+from face_tracking_ros.tracking.initialisation import Initialisation, load_init_file
 
 DEFAULT_CLICK_NOISE_PX = 1.0
 
@@ -67,6 +71,24 @@ def write_init_file(init: Initialisation, path: Path) -> Path:
         data['sigma'] = [float(v) for v in init.sigma]
     write_text_atomically(path, json.dumps(data, indent=1))
     return path
+
+
+def check_clicks_file(path: Path, option: str) -> None:
+    """Refuse, before any work, an init file ``path`` the simulated clicks cannot go to.
+
+    The directories above it must be directories or missing (they are made), ``path`` must not
+    be a directory, and a file there must be an init file (an earlier run's clicks, replaced):
+    never a user's notes or a model given by mistake.
+
+    Args:
+        path: where the clicks go.
+        option: the option that asks for them, as the message names it ('--simulate-clicks:').
+
+    Raises:
+        ConfigError: naming the option and the file: it cannot be, or would not be, written.
+    """
+    check_output_path(path, option)
+    check_replaceable(path, option, 'an init file', load_init_file)
 
 
 def clicks_from_bag(
