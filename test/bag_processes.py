@@ -17,7 +17,8 @@ from rosbags.typesys.store import Typestore
 from face_tracking_ros.io.bags import BagWriter, read_messages
 from face_tracking_ros.io.typestore import typestore
 
-from conftest import REPO, sample_fields, to_plain, to_rosbags
+from message_samples import sample_fields, to_plain, to_rosbags
+from repo_root import REPO
 
 TIMEOUT_S = 20.0
 T0 = 1_700_000_000_000_000_000

@@ -11,7 +11,7 @@ from face_tracking_ros.cli.main import main
 from face_tracking_ros.errors import ConfigError
 from face_tracking_ros.pipelines.bag_inputs import check_stereo_topics, stereo_remaps
 
-from conftest import REPO
+from repo_root import REPO
 
 IMAGE, INFO = 'sensor_msgs/msg/Image', 'sensor_msgs/msg/CameraInfo'
 # stereo_image_proc's outputs: two images a side, so the side alone does not choose.

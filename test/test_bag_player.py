@@ -31,7 +31,7 @@ from face_tracking_ros.playback import (
     plan_topics,
 )
 
-from conftest import rclpy_class, sample_fields, to_plain
+from message_samples import rclpy_class, sample_fields, to_plain
 
 MS = 1_000_000
 FACE_STATE = 'face_tracking_msgs/msg/FaceState'

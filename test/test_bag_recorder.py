@@ -51,7 +51,7 @@ from face_tracking_ros.nodes.bag_recorder import (
     unrecordable,
 )
 
-from conftest import rclpy_class, sample_fields, to_plain, to_rclpy
+from message_samples import rclpy_class, sample_fields, to_plain, to_rclpy
 
 FACE_STATE = 'face_tracking_msgs/msg/FaceState'
 FACE_MODEL = 'face_tracking_msgs/msg/FaceModel'

@@ -22,7 +22,8 @@ from face_tracking_ros.io.messages import RosbagsMessages
 from face_tracking_ros.io.typestore import typestore
 from face_tracking_ros.io.yaml_text import _LOADER, parse_yaml
 
-from conftest import REPO, custom_msgtypes, sample_fields, to_plain, to_rosbags
+from message_samples import custom_msgtypes, sample_fields, to_plain, to_rosbags
+from repo_root import REPO
 
 MSGTYPES = custom_msgtypes() + ['sensor_msgs/msg/Image', 'sensor_msgs/msg/CameraInfo']
 T0 = 1_700_000_000_123_456_789

@@ -15,7 +15,7 @@ from types import ModuleType
 from ament_index_python.packages import get_package_prefix, get_package_share_directory
 import pytest
 
-from conftest import REPO
+from repo_root import REPO
 
 PACKAGE = 'face_tracking_ros'
 

@@ -22,7 +22,7 @@ from face_tracking_ros.model.topology import mesh_topology
 from face_tracking_ros.pipelines.learn_options import LearnOptions
 from face_tracking_ros.synthetic.faces import FacePopulation
 
-from conftest import REPO
+from repo_root import REPO
 
 TRUTH_TYPE = 'face_tracking_msgs/msg/FaceTruth'
 MESH_TYPE = 'face_tracking_msgs/msg/FaceMesh'

@@ -29,7 +29,7 @@ from face_tracking_ros.replay import ReplayStats
 from face_tracking_ros.synthetic.clicks import clicks_from_bag, write_init_file
 from face_tracking_ros.tracking.stereo_evaluation import StereoEvaluation
 
-from conftest import REPO
+from repo_root import REPO
 
 BAGS = sorted((REPO / 'bags' / 'stereo_train').glob('subject_*'))
 

@@ -20,7 +20,7 @@ from face_tracking_ros.nodes.processor_node import QOS_PROFILES
 from face_tracking_ros.pipelines.learn import learn_from_bags
 from face_tracking_ros.processing.base import QosClass
 
-from conftest import REPO
+from repo_root import REPO
 
 WAIT_S = 90.0
 

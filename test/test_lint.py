@@ -8,7 +8,7 @@ import sys
 
 import pytest
 
-from conftest import REPO
+from repo_root import REPO
 
 RUFF = Path(sys.executable).parent / 'ruff'
 PATHS = ['face_tracking_ros', 'test', 'tools', 'setup.py']

@@ -17,7 +17,14 @@ from rosbags.typesys.store import Typestore
 
 from face_tracking_ros.cli import main as cli
 
-from conftest import custom_msgtypes, rclpy_class, sample_fields, to_plain, to_rclpy, to_rosbags
+from message_samples import (
+    custom_msgtypes,
+    rclpy_class,
+    sample_fields,
+    to_plain,
+    to_rclpy,
+    to_rosbags,
+)
 
 STANDARD_TYPES = ['sensor_msgs/msg/Image', 'sensor_msgs/msg/CameraInfo']
 CDR_HEADER = 4  # encapsulation kind and options; alignment is relative to its end

@@ -21,7 +21,7 @@ from rosbags.typesys.store import Typestore
 
 from face_tracking_ros.io.typestore import msg_dir, typestore
 
-from conftest import custom_msgtypes, rclpy_class, sample_fields, to_plain, to_rclpy
+from message_samples import custom_msgtypes, rclpy_class, sample_fields, to_plain, to_rclpy
 
 TIMEOUT_S = 20.0
 RELIABLE = QoSProfile(

@@ -15,7 +15,7 @@ from face_tracking_ros.cli.main import main
 from face_tracking_ros.errors import ConfigError
 from face_tracking_ros.io.atomic import check_output_path
 
-from conftest import REPO
+from repo_root import REPO
 
 MONO = REPO / 'bags' / 'mono_test' / 'subject_00_seq_00'
 

@@ -30,7 +30,7 @@ from face_tracking_ros.synthetic.clicks import clicks_from_bag, write_init_file
 from face_tracking_ros.tracking.initialisation import Initialisation, load_init_file
 from face_tracking_ros.tracking.result import TrackStatus
 
-from conftest import REPO
+from repo_root import REPO
 
 STATE = 'face_tracking_msgs/msg/FaceState'
 
