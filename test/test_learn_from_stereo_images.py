@@ -22,8 +22,7 @@ from face_tracking_ros.io.messages import RosbagsMessages
 from face_tracking_ros.io.typestore import typestore
 from face_tracking_ros.model.model_file import load_model
 from face_tracking_ros.pipelines import stereo_meshes
-from face_tracking_ros.pipelines.learn_options import LearnOptions
-from face_tracking_ros.pipelines.mesh_bags import subject_of
+from face_tracking_ros.pipelines.learn_options import LearnOptions, subject_of
 from face_tracking_ros.pipelines.scoring import score_stereo_against_truth
 from face_tracking_ros.replay import ReplayStats
 from face_tracking_ros.synthetic.clicks import clicks_from_bag, write_init_file
@@ -443,3 +442,29 @@ def test_a_learn_refused_before_tracking_writes_no_clicks(tmp_path, capsys):
         assert main(argv) == 2, argv
         assert expected in capsys.readouterr().err, argv
         assert sorted(tmp_path.rglob('*')) == inputs, argv
+
+
+def test_too_few_subjects_named_by_the_bags_are_refused_before_tracking(tmp_path, capsys):
+    """Raw stereo bags without truth: their names give the subjects, counted before tracking."""
+    init_dir = tmp_path / 'init'
+    init_dir.mkdir()
+    clicks = clicks_from_bag(BAGS[0], 1.0)
+    bags = [tmp_path / 'bags' / f'anna_seq_0{index}' for index in range(2)]
+    for bag in bags:
+        with BagWriter(bag) as writer:  # BAGS[0] without its truth
+            for message in read_messages(BAGS[0]):
+                if message.topic != 'truth/face':
+                    writer.write(message.topic, message.msgtype, message.msg, message.stamp_ns)
+        write_init_file(clicks, init_dir / f'{bag.name}.json')
+    inputs = sorted(tmp_path.rglob('*'))
+    argv = ['learn', *map(str, bags), '--init-dir', str(init_dir), '--neutral-frames', '3',
+            '--subject-pattern', r'(.+)_seq_\d+', '--out', str(tmp_path / 'm.npz'),
+            '--report', str(tmp_path / 'r.json')]  # fmt: skip
+    for options, expected in (
+        ([], '1 subject(s) cannot give an identity subspace of p = 2: at least p + 1 = 3'),
+        (['--explained-variance', '0.9'], 'identity subspace of p = None: at least p + 1 = 2'),
+    ):
+        assert main([*argv, *options]) == 2
+        printed = capsys.readouterr()
+        assert expected in printed.err and printed.out == ''
+        assert sorted(tmp_path.rglob('*')) == inputs  # no meshes, no report

@@ -206,18 +206,26 @@ def choose_dimension(explained: np.ndarray, share: float) -> int:
 
 def check_dimensions(training: TrainingSet, p: int | None, q: int) -> None:
     """Raise ConfigError unless p + 1 <= subjects and 1 <= q < 3N."""
-    needed = 2 if p is None else p + 1
     if p is not None and p < 1:
         msg = f'p must be at least 1, got {p}'
         raise ConfigError(msg)
-    if training.num_subjects < needed:
-        msg = (
-            f'{training.num_subjects} subject(s) cannot give an identity subspace of p = {p}: '
-            f'at least p + 1 = {needed} subjects are needed'
-        )
-        raise ConfigError(msg)
+    check_subject_count(training.num_subjects, p)
     if not 1 <= q < 3 * training.num_nodes:
         msg = f'q must be between 1 and {3 * training.num_nodes - 1}, got {q}'
+        raise ConfigError(msg)
+
+
+def check_subject_count(num_subjects: int, p: int | None) -> None:
+    """Raise ConfigError unless p + 1 <= subjects (2 subjects when p is chosen, None).
+
+    The subjects' mean neutral shapes span at most subjects - 1 directions about their mean.
+    """
+    needed = 2 if p is None else p + 1
+    if num_subjects < needed:
+        msg = (
+            f'{num_subjects} subject(s) cannot give an identity subspace of p = {p}: '
+            f'at least p + 1 = {needed} subjects are needed'
+        )
         raise ConfigError(msg)
 
 

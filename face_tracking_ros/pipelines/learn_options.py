@@ -17,6 +17,7 @@ from face_tracking_ros.errors import ConfigError
 from face_tracking_ros.io.atomic import check_output_path, check_replaceable
 from face_tracking_ros.io.series import has_truth
 from face_tracking_ros.learning.methods import DEFAULT_METHOD, METHODS
+from face_tracking_ros.learning.seed import check_subject_count
 from face_tracking_ros.model.model_file import load_model
 from face_tracking_ros.synthetic.faces import PRESETS
 
@@ -114,11 +115,14 @@ class LearnOptions:
 def check_options(options: LearnOptions) -> None:
     """Refuse options the pipeline cannot run: values out of range, then bags and files.
 
+    Then, where the bags' names give the subjects (no truth), too few subjects for p.
+
     Raises:
         ConfigError: naming the first option at fault.
     """
     _check_values(options)
     _check_bags_and_files(options)
+    _check_named_subjects(options)
 
 
 def _check_values(options: LearnOptions) -> None:
@@ -141,6 +145,29 @@ def _check_values(options: LearnOptions) -> None:
             named = options.named('subject_pattern')
             msg = f'{named} {options.subject_pattern!r}: not a regular expression: {error}'
             raise ConfigError(msg) from None
+
+
+def subject_of(name: str, options: LearnOptions) -> str:
+    """The subject id of a bag without truth: ``options.subject``, else from its name.
+
+    The first group of ``options.subject_pattern`` matched against the name (the whole name
+    without a pattern).
+
+    Raises:
+        ConfigError: if the pattern does not match the name, or has no group.
+    """
+    if options.subject:
+        return options.subject
+    if not options.subject_pattern:
+        return name
+    match = re.fullmatch(options.subject_pattern, name)
+    if match is None or not match.groups():
+        msg = (
+            f'{options.named("subject_pattern")} {options.subject_pattern!r} does not match the '
+            f'bag name {name!r} with a group (e.g. (.+)_\\d+)'
+        )
+        raise ConfigError(msg)
+    return match.group(1)
 
 
 def truth_population(options: LearnOptions) -> tuple[str, int] | None:
@@ -183,3 +210,21 @@ def _check_bags_and_files(options: LearnOptions) -> None:
             f'{options.named("neutral_frames")} K, the first K frames of each bag'
         )
         raise ConfigError(msg)
+
+
+def _check_named_subjects(options: LearnOptions) -> None:
+    """Refuse too few subjects for p when the bags' names say who they are, before any tracking.
+
+    Only when no bag holds truth and no ``truth`` bags are given: each bag is then one subject,
+    named by :func:`subject_of`, known before any bag is tracked or read. Subjects from truth
+    are known only once the meshes are read; the learners check those
+    (:func:`~face_tracking_ros.learning.seed.check_dimensions`, the same message).
+
+    Raises:
+        ConfigError: if fewer than p + 1 subjects (2 when ``explained_variance`` chooses p), or
+            a bag's name that ``subject_pattern`` does not match.
+    """
+    if options.truth is not None or any(has_truth(bag) for bag in options.bags):
+        return
+    subjects = {subject_of(bag.name, options) for bag in options.bags}
+    check_subject_count(len(subjects), options.p if options.explained_variance is None else None)

@@ -17,7 +17,6 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-import re
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -35,7 +34,7 @@ from face_tracking_ros.io.conversions import (
 from face_tracking_ros.io.series import read_converted
 from face_tracking_ros.learning.training_set import MeshSequence
 from face_tracking_ros.model.topology import SUPPORTED_NODE_COUNTS
-from face_tracking_ros.pipelines.learn_options import LearnOptions
+from face_tracking_ros.pipelines.learn_options import LearnOptions, subject_of
 from face_tracking_ros.replay import bag_spelling
 from face_tracking_ros.tracking.result import TrackStatus
 
@@ -84,8 +83,9 @@ def read_bag_meshes(
         options: the run's options (topic, subject, neutral frames, nodes).
         truth_bag: for mesh bags, a bag whose ``truth/face`` messages give the subject, label and
             alpha of the mesh with the same header stamp (e.g. the synthetic bag a tracker ran on).
-        name: the name the subject id is taken from without truth (:func:`subject_of`); empty:
-            the bag's (the raw bag's, for the meshes tracked from it).
+        name: the name the subject id is taken from without truth
+            (:func:`~.learn_options.subject_of`); empty: the bag's (the raw bag's, for the meshes
+            tracked from it).
         say: where the notes on what was left out or taken as neutral go, line by line.
 
     Raises:
@@ -109,29 +109,6 @@ def read_bag_meshes(
     for frame in frames:
         by_subject.setdefault(frame.subject, []).append(frame)
     return [_bag_meshes(bag, topic, items, options, say) for items in by_subject.values()]
-
-
-def subject_of(name: str, options: LearnOptions) -> str:
-    """The subject id of a bag without truth: ``options.subject``, else from its name.
-
-    The first group of ``options.subject_pattern`` matched against the name (the whole name
-    without a pattern).
-
-    Raises:
-        ConfigError: if the pattern does not match the name, or has no group.
-    """
-    if options.subject:
-        return options.subject
-    if not options.subject_pattern:
-        return name
-    match = re.fullmatch(options.subject_pattern, name)
-    if match is None or not match.groups():
-        msg = (
-            f'{options.named("subject_pattern")} {options.subject_pattern!r} does not match the '
-            f'bag name {name!r} with a group (e.g. (.+)_\\d+)'
-        )
-        raise ConfigError(msg)
-    return match.group(1)
 
 
 def mesh_topic(topics: dict[str, str], options: LearnOptions) -> str | None:
@@ -189,7 +166,7 @@ def _tracked_frames(
     """The frames of ``topic`` that were tracked, with their truth, and how many were not.
 
     The truth of a frame is its FaceTruth message's, else the truth bag's of its stamp; its
-    subject is the truth's, else the one named by ``name`` (:func:`subject_of`).
+    subject is the truth's, else the one named by ``name`` (:func:`~.learn_options.subject_of`).
 
     Raises:
         BagError: if the truth bag has no truth for a mesh's stamp.
