@@ -121,8 +121,8 @@ def check_options(options: LearnOptions) -> None:
         ConfigError: naming the first option at fault.
     """
     _check_values(options)
-    _check_bags_and_files(options)
-    _check_named_subjects(options)
+    unlabelled = _check_bags_and_files(options)
+    _check_named_subjects(options, unlabelled)
 
 
 def _check_values(options: LearnOptions) -> None:
@@ -188,8 +188,12 @@ def truth_population(options: LearnOptions) -> tuple[str, int] | None:
     return preset, int(seed or 0)
 
 
-def _check_bags_and_files(options: LearnOptions) -> None:
-    """The truth bags pair with the bags, the outputs can be written, the neutral frames known."""
+def _check_bags_and_files(options: LearnOptions) -> list[Path]:
+    """The truth bags pair with the bags, the outputs can be written, the neutral frames known.
+
+    Returns:
+        The bags without truth (each bag read once for it).
+    """
     if options.truth is not None and len(options.truth) != len(options.bags):
         msg = f'--truth names {len(options.truth)} bag(s) for {len(options.bags)} input bag(s)'
         raise ConfigError(msg)
@@ -210,13 +214,15 @@ def _check_bags_and_files(options: LearnOptions) -> None:
             f'{options.named("neutral_frames")} K, the first K frames of each bag'
         )
         raise ConfigError(msg)
+    return unlabelled
 
 
-def _check_named_subjects(options: LearnOptions) -> None:
+def _check_named_subjects(options: LearnOptions, unlabelled: list[Path]) -> None:
     """Refuse too few subjects for p when the bags' names say who they are, before any tracking.
 
-    Only when no bag holds truth and no ``truth`` bags are given: each bag is then one subject,
-    named by :func:`subject_of`, known before any bag is tracked or read. Subjects from truth
+    Only when no bag holds truth (all are ``unlabelled``) and no ``truth`` bags are given: each
+    bag is then one subject, named by :func:`subject_of`, known before any bag is tracked or
+    read. Subjects from truth
     are known only once the meshes are read; the learners check those
     (:func:`~face_tracking_ros.learning.seed.check_dimensions`, the same message).
 
@@ -224,7 +230,7 @@ def _check_named_subjects(options: LearnOptions) -> None:
         ConfigError: if fewer than p + 1 subjects (2 when ``explained_variance`` chooses p), or
             a bag's name that ``subject_pattern`` does not match.
     """
-    if options.truth is not None or any(has_truth(bag) for bag in options.bags):
+    if options.truth is not None or len(unlabelled) < len(options.bags):
         return
     subjects = {subject_of(bag.name, options) for bag in options.bags}
     check_subject_count(len(subjects), options.p if options.explained_variance is None else None)
