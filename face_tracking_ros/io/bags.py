@@ -14,6 +14,9 @@ versions of a message stay readable. Every failure of the underlying libraries (
 truncated bag, a type neither the package nor the bag defines, topic re-used with another type,
 a topic whose type in ``metadata.yaml`` contradicts its MCAP file's schema) is raised as
 :class:`~face_tracking_ros.errors.BagError` naming the bag.
+
+:func:`topic_has_word` is how a topic's name tells the camera it comes from (``left``,
+``right``): every choice of a stereo bag's left or right topic goes by it.
 """
 
 from __future__ import annotations
@@ -22,6 +25,7 @@ from collections import Counter
 from collections.abc import Iterable, Iterator
 import contextlib
 from pathlib import Path, PurePath
+import re
 import struct
 from types import TracebackType
 from typing import Any, NamedTuple, Protocol
@@ -484,6 +488,15 @@ def bag_topics(path: Path | str) -> dict[str, str]:
         BagError: If the bag is missing or its metadata cannot be read.
     """
     return {connection.topic: connection.msgtype for connection in _connections(Path(path))}
+
+
+def topic_has_word(topic: str, word: str) -> bool:
+    """Whether ``word`` stands in ``topic``'s name between non-letters (or its ends).
+
+    E.g. ``left`` in ``/stereo/left/image_raw``, ``cam_left`` and ``left_camera``; not in
+    ``/cleft_palate/camera_info`` nor ``/leftover/camera_info``. Case is ignored.
+    """
+    return re.search(rf'(?<![a-z]){re.escape(word)}(?![a-z])', topic.lower()) is not None
 
 
 def message_count(path: Path | str, topics: Iterable[str]) -> int:

@@ -11,11 +11,11 @@ from __future__ import annotations
 
 from collections.abc import Callable, Iterable, Mapping
 from pathlib import Path
-import re
 from typing import Protocol
 
 from face_tracking_ros.data import default_model_path
 from face_tracking_ros.errors import ConfigError
+from face_tracking_ros.io.bags import topic_has_word
 from face_tracking_ros.io.conversions import CAMERA_INFO_TYPE, COMPRESSED_IMAGE_TYPE, IMAGE_TYPE
 from face_tracking_ros.model.model_file import load_model
 from face_tracking_ros.model.topology import mesh_topology
@@ -50,7 +50,7 @@ def image_topics(topics: Mapping[str, str]) -> tuple[list[str], bool]:
 def is_stereo_bag(topics: Mapping[str, str]) -> bool:
     """True if a bag's topics (name -> type) hold a left and a right image stream."""
     images, _ = image_topics(topics)
-    return any(_has_word(t, 'left') for t in images) and any(_has_word(t, 'right') for t in images)
+    return all(any(topic_has_word(t, side) for t in images) for side in ('left', 'right'))
 
 
 def check_one_transport(bag: Path, topics: Mapping[str, str]) -> None:
@@ -60,8 +60,8 @@ def check_one_transport(bag: Path, topics: Mapping[str, str]) -> None:
         ConfigError: naming the two topics: the stereo tracker takes one transport for both.
     """
     images = {t: kind for t, kind in topics.items() if kind in (IMAGE_TYPE, COMPRESSED_IMAGE_TYPE)}
-    left = {kind for t, kind in images.items() if _has_word(t, 'left')}
-    right = {kind for t, kind in images.items() if _has_word(t, 'right')}
+    left = {kind for t, kind in images.items() if topic_has_word(t, 'left')}
+    right = {kind for t, kind in images.items() if topic_has_word(t, 'right')}
     if left and right and not left & right:
         named = ', '.join(f'{t} ({kind.rpartition("/")[2]})' for t, kind in images.items())
         msg = (
@@ -164,13 +164,8 @@ def _by_side(port: str, topics: Mapping[str, str], compressed: bool) -> str | No
     if any(topic.strip('/').endswith((port, f'{port}/compressed')) for topic in of_type):
         return None
     side, other = ('left', 'right') if port.startswith('left') else ('right', 'left')
-    found = [t for t in of_type if _has_word(t, side) and not _has_word(t, other)]
+    found = [t for t in of_type if topic_has_word(t, side) and not topic_has_word(t, other)]
     return found[0] if len(found) == 1 else None
-
-
-def _has_word(topic: str, word: str) -> bool:
-    """Whether ``word`` stands in ``topic``'s name between non-letters (or its ends)."""
-    return re.search(rf'(?<![a-z]){word}(?![a-z])', topic.lower()) is not None
 
 
 STEREO_FIELDS = {  # the option field giving each input's topic (StereoTopicOptions)

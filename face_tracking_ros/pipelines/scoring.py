@@ -19,7 +19,7 @@ import numpy as np
 from face_tracking_ros.data import default_model_path
 from face_tracking_ros.errors import BagError, InputError
 from face_tracking_ros.geometry.camera import PinholeCamera, StereoRig
-from face_tracking_ros.io.bags import bag_topics, read_messages
+from face_tracking_ros.io.bags import bag_topics, read_messages, topic_has_word
 from face_tracking_ros.io.conversions import CAMERA_INFO_TYPE, camera_from_info
 from face_tracking_ros.io.series import load_states, load_truth
 from face_tracking_ros.model.model_file import load_model
@@ -60,6 +60,9 @@ def score_stereo_against_truth(bag: Path, out: Path) -> StereoEvaluation:
 def stereo_rig(bag: Path) -> StereoRig:
     """The rig of a stereo bag, from the first valid left and right camera_info.
 
+    A camera_info topic is the left (right) camera's if its name has the word ``left``
+    (``right``; :func:`~face_tracking_ros.io.bags.topic_has_word`): not ``/cleft_palate/...``.
+
     Raises:
         BagError: if the bag lacks them.
         InputError: if they do not form a rectified rig.
@@ -73,8 +76,10 @@ def stereo_rig(bag: Path) -> StereoRig:
                 cameras[message.topic] = camera_from_info(message.msg)
         if all(cameras.values()):
             break
-    left = next((c for t, c in cameras.items() if 'left' in t and c is not None), None)
-    right = next((c for t, c in cameras.items() if 'right' in t and c is not None), None)
+    left, right = (
+        next((c for t, c in cameras.items() if topic_has_word(t, side) and c is not None), None)
+        for side in ('left', 'right')
+    )
     if left is None or right is None:
         msg = f'{bag}: no valid left and right camera_info to build the stereo rig'
         raise BagError(msg)

@@ -23,7 +23,7 @@ from face_tracking_ros.io.atomic import (
     check_replaceable,
     write_text_atomically,
 )
-from face_tracking_ros.io.bags import bag_topics, read_messages
+from face_tracking_ros.io.bags import bag_topics, read_messages, topic_has_word
 from face_tracking_ros.io.series import read_converted
 from face_tracking_ros.tracking.initialisation import Initialisation, load_init_file
 
@@ -96,6 +96,10 @@ def clicks_from_bag(
 ) -> Initialisation:
     """Simulated clicks on the first frame of a synthetic bag (left camera for stereo).
 
+    The clicked camera is that of the first camera_info topic, by name, with the word ``left``
+    in its name (:func:`~face_tracking_ros.io.bags.topic_has_word`: not ``/cleft_palate/...``),
+    else of the first camera_info topic by name (a mono bag's only one).
+
     The noise is drawn from ``seed``; None (the default) seeds it from the bag's name, so that
     the clicks of different bags err independently, as a user's would, and those of one bag are
     the same in every run.
@@ -105,7 +109,7 @@ def clicks_from_bag(
     """
     topics = bag_topics(bag)
     infos = sorted(t for t, kind in topics.items() if kind == conversions.CAMERA_INFO_TYPE)
-    info_topic = next((t for t in infos if 'left' in t), infos[0] if infos else None)
+    info_topic = next((t for t in infos if topic_has_word(t, 'left')), infos[0] if infos else None)
     truth_topic = next((t for t, k in topics.items() if k == conversions.TRUTH_TYPE), None)
     if info_topic is None or truth_topic is None:
         msg = f'{bag}: simulated clicks need a CameraInfo and a FaceTruth topic'

@@ -17,7 +17,7 @@ import numpy as np
 from face_tracking_ros.errors import BagError, ConfigError, InputError
 from face_tracking_ros.imaging.rectification import Rectifier
 from face_tracking_ros.io import conversions
-from face_tracking_ros.io.bags import bag_topics, read_messages, stamp_to_ns
+from face_tracking_ros.io.bags import bag_topics, read_messages, stamp_to_ns, topic_has_word
 from face_tracking_ros.io.series import StateSeries
 from face_tracking_ros.model.topology import mesh_topology
 from face_tracking_ros.tracking.result import TrackStatus
@@ -26,6 +26,9 @@ from face_tracking_ros.visualization.overlay import draw_mesh
 
 def image_topic(bag: Path, requested: str | None = None) -> str:
     """The image topic to draw on: ``requested``, else the only one, else the left camera's.
+
+    The left camera's is the only image topic with the word ``left`` in its name
+    (:func:`~face_tracking_ros.io.bags.topic_has_word`: not ``/cleft_palate/image``).
 
     Raises:
         BagError: if there is no image topic (naming the bag's topics), ``requested`` is not
@@ -48,7 +51,7 @@ def image_topic(bag: Path, requested: str | None = None) -> str:
             msg = f'{bag}: no image topic {requested}; its image topics: {", ".join(topics)}'
             raise BagError(msg)
         return requested
-    left = [t for t in topics if 'left' in t]
+    left = [t for t in topics if topic_has_word(t, 'left')]
     if len(topics) == 1 or len(left) == 1:
         return topics[0] if len(topics) == 1 else left[0]
     msg = f'{bag}: choose the image topic (--image-topic) among {", ".join(topics)}'
