@@ -7,7 +7,7 @@ offending file, topic, field or parameter.
 
 from __future__ import annotations
 
-import math
+import numpy as np
 
 
 class FaceTrackingError(Exception):
@@ -41,9 +41,10 @@ class FieldError(ConfigError):
 def check_fields(config: object, checks: dict[str, bool]) -> None:
     """Raise a ConfigError naming the first field of ``config`` whose check is False.
 
-    A float field checked is also refused when it is not finite: a range check such as
-    ``value > 0`` lets inf through (NaN fails every comparison), and no tunable means anything
-    at infinity.
+    A float field checked (a Python float or a numpy floating scalar such as ``np.float32``,
+    which is no float; not a bool or an int) is also refused when it is not finite: a range
+    check such as ``value > 0`` lets inf through (NaN fails every comparison), and no tunable
+    means anything at infinity.
 
     Args:
         config: a configuration dataclass (its class name and the field's value go in the
@@ -52,7 +53,7 @@ def check_fields(config: object, checks: dict[str, bool]) -> None:
     """
     for name, ok in checks.items():
         value = getattr(config, name)
-        finite = not isinstance(value, float) or math.isfinite(value)
+        finite = not isinstance(value, (float, np.floating)) or bool(np.isfinite(value))
         if not (ok and finite):
             expected = '' if finite else 'a finite number'
             msg = f'invalid {type(config).__name__}.{name} = {value!r}'

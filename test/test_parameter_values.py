@@ -7,11 +7,13 @@ builds them for ``--param`` (the live node's source goes through the same
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 import re
 
+import numpy as np
 import pytest
 
-from face_tracking_ros.errors import ConfigError
+from face_tracking_ros.errors import ConfigError, FieldError, check_fields
 from face_tracking_ros.nodes.learner import LearnerConfig, learn_options
 from face_tracking_ros.processing.mono import MonoNodeConfig
 from face_tracking_ros.processing.parameters import OverrideParameters
@@ -59,6 +61,31 @@ def test_a_float_parameter_that_is_not_finite_is_refused_by_name(config, prefix,
     assert re.fullmatch(rf'invalid parameter {prefix}{name} = {value} \(.*\)', message)
     if value != 'nan':  # NaN fails the range check itself
         assert message.endswith('(expected a finite number)')
+
+
+@dataclass(frozen=True)
+class _Given:
+    """A field of any value, for :func:`check_fields` with its range check passed."""
+
+    value: object
+
+
+@pytest.mark.parametrize(
+    'value', [np.float32('inf'), np.float16('-inf'), np.longdouble('nan'), np.float64('nan')]
+)
+def test_a_numpy_float_field_that_is_not_finite_is_refused_by_name(value):
+    refused = r'^invalid _Given\.value = .*, expected a finite number$'
+    with pytest.raises(FieldError, match=refused):
+        check_fields(_Given(value), {'value': True})
+    with pytest.raises(FieldError, match=r'^invalid PoseFilterConfig\.beta_rotation = '):
+        PoseFilterConfig(beta_rotation=value)  # a direct caller's, not a parameter's, value
+
+
+@pytest.mark.parametrize(
+    'value', [np.float32(2.5), np.int64(2**62), np.bool_(True), True, 3, 'inf', None]
+)
+def test_finite_floats_and_other_types_pass_the_finiteness_check(value):
+    check_fields(_Given(value), {'value': True})  # no error
 
 
 # (config, prefix, parameter, value, what the message says is expected): configs that check
