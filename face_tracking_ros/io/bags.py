@@ -295,28 +295,28 @@ def _check_all_read(
         raise BagError(message)
 
 
-def _summaries(path: Path) -> list[tuple[Path, Summary]]:
+def _summaries(path: Path) -> list[tuple[Path, Summary | None]]:
     """The MCAP files of a bag (:func:`_listed_files`) with their summaries, read once per open.
 
     They serve both the type check at the open and the message counts after a full read. A
-    file whose summary the mcap library cannot read, or that has none, is left out: the reading
-    of the bag names its damage (rosbags, which read it, is laxer).
+    file whose summary the mcap library cannot read, or that has none, has None: the type check
+    reads its records instead, the counts leave it out and the reading of the bag names its
+    damage (rosbags, which read it, is laxer).
     """
     summaries = []
     for file in _listed_files(path):
         summary = None
         with contextlib.suppress(McapError, *_READ_ERRORS), file.open('rb') as stream:
             summary = make_reader(stream).get_summary()
-        if summary is not None:
-            summaries.append((file, summary))
+        summaries.append((file, summary))
     return summaries
 
 
-def _summary_counts(summaries: list[tuple[Path, Summary]]) -> Counter[str]:
-    """Messages per topic that the summaries count (none where a file's has no statistics)."""
+def _summary_counts(summaries: list[tuple[Path, Summary | None]]) -> Counter[str]:
+    """Messages per topic that the summaries count (none where a file has no statistics)."""
     counts: Counter[str] = Counter()
     for _, summary in summaries:
-        if summary.statistics is None:
+        if summary is None or summary.statistics is None:
             continue
         for channel_id, count in summary.statistics.channel_message_counts.items():
             channel = summary.channels.get(channel_id)
@@ -362,20 +362,27 @@ def _open_reader(path: Path) -> tuple[Reader, Counter[str]] | None:
     return reader, _summary_counts(summaries)
 
 
-def _check_types_agree(reader: Reader, path: Path, summaries: list[tuple[Path, Summary]]) -> None:
+def _check_types_agree(
+    reader: Reader, path: Path, summaries: list[tuple[Path, Summary | None]]
+) -> None:
     """Refuse a bag whose ``metadata.yaml`` gives a topic another type than its MCAP file does.
 
     rosbags pairs the two by topic and type: the messages of such a topic were silently not read.
-    The MCAP files' types are their summaries' channels and schemas (:func:`_summaries`).
+    The MCAP files' types are their summaries' channels and schemas (:func:`_summaries`), or,
+    for a file without a readable summary, those its records declare (:func:`_scanned_types`).
+    A single MCAP file (no ``metadata.yaml``) gives rosbags its types itself: nothing to check.
 
     Raises:
         BagError: naming the topic, the type ``metadata.yaml`` says and the file's own (schema).
     """
+    if not path.is_dir():
+        return
     listed: dict[str, set[str]] = {}
     for connection in reader.connections:
         listed.setdefault(connection.topic, set()).add(connection.msgtype)
     for file, summary in summaries:
-        for topic, msgtype in _stored_types(summary):
+        stored = _scanned_types(file) if summary is None else _stored_types(summary)
+        for topic, msgtype in stored:
             if topic in listed and msgtype not in listed[topic]:
                 said = ' or '.join(sorted(listed[topic]))
                 msg = (
@@ -394,6 +401,24 @@ def _stored_types(summary: Summary) -> list[tuple[str, str]]:
         for channel in summary.channels.values()
         if channel.schema_id in schemas
     ]
+
+
+def _scanned_types(file: Path) -> list[tuple[str, str]]:
+    """(topic, type) of each channel an MCAP file's records declare, the type its schema's name.
+
+    For a file without a readable summary. A channel is declared before its first message,
+    which can come anywhere in the file (a topic first published late), so every record is
+    read; past damage none is, and the reading of the bag names the damage.
+    """
+    schemas: dict[int, str] = {}
+    types = []
+    with contextlib.suppress(McapError, *_READ_ERRORS), file.open('rb') as stream:
+        for record in StreamReader(stream).records:
+            if isinstance(record, Schema):
+                schemas[record.id] = record.name
+            elif isinstance(record, Channel) and record.schema_id in schemas:
+                types.append((record.topic, schemas[record.schema_id]))
+    return types
 
 
 def _listed_files(path: Path) -> list[Path]:

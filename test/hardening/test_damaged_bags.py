@@ -11,9 +11,12 @@ from pathlib import Path
 import shutil
 
 from fault_scenes import CAMERA, image_msg, info_msg, stamp
+from mcap.records import Channel, Message
+from mcap.stream_reader import StreamReader
 import numpy as np
 import pytest
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+from summaryless_bags import summaryless_copy
 from zeroed_bags import zeroed_copy
 
 from face_tracking_ros.cli.main import main
@@ -57,6 +60,30 @@ def _cut_copy(bag: Path, target: Path, fraction: float, keep_metadata: bool = Tr
     data = mcap_file.read_bytes()
     mcap_file.write_bytes(data[: round(fraction * len(data))])
     return target
+
+
+def _refusals(path: Path) -> list[str]:
+    """The BagError of bag_topics, read_raw and read_messages on ``path`` (each must raise)."""
+    refusals = []
+    for read in (bag_topics, read_raw, read_messages):
+        with pytest.raises(BagError) as error:
+            list(read(path))
+        refusals.append(str(error.value))
+    return refusals
+
+
+@pytest.fixture
+def mcap_opens(monkeypatch) -> Counter[str]:
+    """How often each MCAP file is opened (Path.open, by file name) from here on."""
+    opened: Counter[str] = Counter()
+    path_open = Path.open
+
+    def counting_open(self: Path, *args, **kwargs):
+        opened[self.name] += self.suffix == '.mcap'
+        return path_open(self, *args, **kwargs)
+
+    monkeypatch.setattr(Path, 'open', counting_open)
+    return opened
 
 
 def _read_until_damage(path: Path) -> tuple[list, str]:
@@ -115,25 +142,17 @@ def test_a_bag_zeroed_in_its_middle_is_read_around_the_damage_then_says_what_is_
         list(read_raw(zeroed, topics=['/cam/camera_info']))
 
 
-def test_a_read_opens_its_mcap_file_for_rosbags_and_once_for_the_summary(bag, monkeypatch):
+def test_a_read_opens_its_mcap_file_for_rosbags_and_once_for_the_summary(bag, mcap_opens):
     """The summary read at the open serves the type check and the counts of a full read.
 
     The type check opened the file a second time (a rosbags Reader of the file alone), and the
     counts after a full read a third (its summary again).
     """
-    opened: Counter[str] = Counter()
-    path_open = Path.open
-
-    def counting_open(self: Path, *args, **kwargs):
-        opened[self.name] += self.suffix == '.mcap'
-        return path_open(self, *args, **kwargs)
-
-    monkeypatch.setattr(Path, 'open', counting_open)
     assert len(list(read_raw(bag))) == 2 * FRAMES
-    assert opened['camera.mcap'] == 2
-    opened.clear()
+    assert mcap_opens['camera.mcap'] == 2
+    mcap_opens.clear()
     assert bag_topics(bag) == {'/cam/camera_info': INFO, '/cam/image': IMAGE}
-    assert opened['camera.mcap'] == 2
+    assert mcap_opens['camera.mcap'] == 2
 
 
 def test_a_stray_mcap_file_beside_a_bag_is_not_counted_as_its_messages(bag, tmp_path):
@@ -180,23 +199,90 @@ def test_without_metadata_a_requested_topic_the_bag_lacks_is_named(bag, tmp_path
         list(read_messages(copy, topics=['/cam/image', '/cam/depth']))
 
 
+def _retype(bag: Path, stored: str, said: str) -> None:
+    """Make a bag's metadata.yaml say ``said`` for its one topic of type ``stored``."""
+    metadata = bag / 'metadata.yaml'
+    text = metadata.read_text()
+    assert text.count(f'type: {stored}') == 1
+    metadata.write_text(text.replace(f'type: {stored}', f'type: {said}'))
+
+
 def test_a_type_in_metadata_that_contradicts_the_mcap_schema_names_both(bag, tmp_path, capsys):
     """The reader pairs metadata and MCAP channels by topic and type: the image went unread."""
     copy = _cut_copy(bag, tmp_path / 'copy', 1.0)
-    metadata = copy / 'metadata.yaml'
-    text = metadata.read_text()
-    assert text.count(f'type: {IMAGE}') == 1
-    metadata.write_text(text.replace(f'type: {IMAGE}', f'type: {INFO}'))
+    _retype(copy, IMAGE, INFO)
     expected = (
         f'{copy}: metadata.yaml says topic /cam/image is {INFO}, but camera.mcap stores it as '
         f'{IMAGE} (its schema): its messages cannot be read; correct the type in metadata.yaml'
     )
-    for read in (bag_topics, read_raw, read_messages):
-        with pytest.raises(BagError) as error:
-            list(read(copy))
-        assert str(error.value) == expected
+    assert _refusals(copy) == [expected] * 3
     assert main(['replay', 'mono_tracker', str(copy), '--out', str(tmp_path / 'out')]) == 2
     assert capsys.readouterr().err == f'error: {expected}\n'
+
+
+LATE = 30  # the first frame of late_topic_bag with a camera_info
+
+
+@pytest.fixture(scope='module')
+def late_topic_bag(bag, tmp_path_factory) -> Path:
+    """``bag`` with camera_info from frame LATE on: its channel is declared in a late chunk."""
+    path = tmp_path_factory.mktemp('late') / 'late'
+    with BagWriter(path) as writer:
+        for message in read_raw(bag):
+            if message.topic == '/cam/image' or message.stamp_ns >= stamp(LATE):
+                writer.write_raw(message.topic, message.msgtype, message.data, message.stamp_ns)
+    return path
+
+
+def _messages_before_channel(mcap_file: Path, topic: str) -> int:
+    """How many messages an MCAP file holds before the channel record of ``topic``."""
+    with mcap_file.open('rb') as stream:
+        before = 0
+        for record in StreamReader(stream).records:
+            if isinstance(record, Channel) and record.topic == topic:
+                return before
+            before += isinstance(record, Message)
+    raise AssertionError(f'{mcap_file}: no channel {topic}')
+
+
+def test_a_bag_without_summary_whose_metadata_contradicts_a_late_schema_names_both(
+    late_topic_bag, tmp_path
+):
+    """Its records say the file's types; rosbags read the image as camera_info, silently none."""
+    copy = tmp_path / 'copy'
+    mcap_file = summaryless_copy(late_topic_bag, copy)
+    assert _messages_before_channel(mcap_file, '/cam/camera_info') == LATE  # after ~2 MB
+    _retype(copy, INFO, IMAGE)
+    expected = (
+        f'{copy}: metadata.yaml says topic /cam/camera_info is {IMAGE}, but late.mcap stores it '
+        f'as {INFO} (its schema): its messages cannot be read; correct the type in metadata.yaml'
+    )
+    assert _refusals(copy) == [expected] * 3
+
+
+def test_a_bag_without_summary_reads_every_message_and_streams_what_a_cut_leaves(
+    late_topic_bag, tmp_path, mcap_opens
+):
+    """Its file is read once more, for its types; alone (no metadata.yaml) it types itself."""
+    copy = tmp_path / 'copy'
+    mcap_file = summaryless_copy(late_topic_bag, copy)
+    original = list(read_raw(late_topic_bag))
+    assert len(original) == FRAMES + FRAMES - LATE
+    mcap_opens.clear()
+    assert list(read_raw(copy)) == original
+    assert mcap_opens['late.mcap'] == 3  # rosbags, its summary (none), its records
+    assert bag_topics(copy) == {'/cam/camera_info': INFO, '/cam/image': IMAGE}
+    assert [(m.topic, m.stamp_ns) for m in read_messages(copy)] == [
+        (m.topic, m.stamp_ns) for m in original
+    ]
+    mcap_opens.clear()
+    assert list(read_raw(mcap_file)) == original
+    assert mcap_opens['late.mcap'] == 2
+    cut = _cut_copy(copy, tmp_path / 'cut', 0.5)
+    messages, error = _read_until_damage(cut)
+    assert 0 < len(messages) < len(original)
+    assert messages == original[: len(messages)]
+    assert error.startswith(f'{cut / "late.mcap"}: damaged MCAP file, {len(messages)} messages ')
 
 
 def test_a_directory_of_two_mcap_files_without_metadata_is_refused(bag, tmp_path):
@@ -209,10 +295,7 @@ def test_a_directory_of_two_mcap_files_without_metadata_is_refused(bag, tmp_path
         f'{two}: 2 MCAP files (a.mcap, b.mcap) and no metadata.yaml saying they are one bag: '
         'give one .mcap file, or a rosbag2 directory (with its metadata.yaml)'
     )
-    for read in (bag_topics, read_raw, read_messages):
-        with pytest.raises(BagError) as error:
-            list(read(two))
-        assert str(error.value) == expected
+    assert _refusals(two) == [expected] * 3
     assert len(list(read_raw(two / 'a.mcap'))) == 2 * FRAMES  # one of them, as the error says
 
 
