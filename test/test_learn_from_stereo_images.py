@@ -468,3 +468,51 @@ def test_too_few_subjects_named_by_the_bags_are_refused_before_tracking(tmp_path
         printed = capsys.readouterr()
         assert expected in printed.err and printed.out == ''
         assert sorted(tmp_path.rglob('*')) == inputs  # no meshes, no report
+
+
+def test_subjects_of_names_and_truth_are_refused_before_tracking(tmp_path, capsys, monkeypatch):
+    """A bag name the subject pattern does not match, or too few subjects in names and truth.
+
+    The subjects of raw stereo bags, from their names or their truth, and of the bags of truth
+    learned beside them, are known before any bag is tracked: refused then, nothing written.
+    """
+
+    def never(*_args, **_kwargs) -> ReplayStats:
+        raise AssertionError('a bag was tracked')
+
+    monkeypatch.setattr(stereo_meshes, 'replay_bag', never)
+    anon = tmp_path / 'bags' / 'anna_2'
+    with BagWriter(anon) as writer:  # BAGS[0] without its truth
+        for message in read_messages(BAGS[0]):
+            if message.topic != 'truth/face':
+                writer.write(message.topic, message.msgtype, message.msg, message.stamp_ns)
+    init_dir = tmp_path / 'init'
+    init_dir.mkdir()
+    write_init_file(clicks_from_bag(BAGS[0], 1.0), init_dir / f'{anon.name}.json')
+    inputs = sorted(tmp_path.rglob('*'))
+    pattern = r'(.+)_seq_\d+'
+    learn = ['learn', '--simulate-clicks', '1', '--init-dir', str(init_dir), '--out',
+             str(tmp_path / 'm.npz'), '--report', str(tmp_path / 'r.json')]  # fmt: skip
+    mixed = [*learn, str(anon), *map(str, BAGS[1:]), '--neutral-frames', '3']
+    cases = [  # the others' clicks simulated, the truth-less bag's from its init file
+        (
+            [*mixed, '--from-images', '--subject-pattern', pattern],
+            f"--subject-pattern {pattern!r} does not match the bag name 'anna_2' with a group",
+        ),
+        (  # the subjects of the raw bags' truth
+            [*learn, *map(str, BAGS), '--from-images', '--p', '3'],
+            '3 subject(s) cannot give an identity subspace of p = 3: at least p + 1 = 4',
+        ),
+        (  # a name, and the truth of a bag of truth not tracked
+            [*learn, str(anon), str(BAGS[1]), '--neutral-frames', '3'],
+            '2 subject(s) cannot give an identity subspace of p = 2: at least p + 1 = 3',
+        ),
+    ]
+    for argv, expected in cases:
+        assert main(argv) == 2, argv
+        printed = capsys.readouterr()
+        assert expected in printed.err and printed.out == '', argv
+        assert sorted(tmp_path.rglob('*')) == inputs, argv  # no clicks, meshes or report
+    # The same subjects enough for p: tracked (here, refused by the stand-in tracker).
+    with pytest.raises(AssertionError, match='a bag was tracked'):
+        main([*mixed, '--from-images', '--subject-pattern', '(.+)', '--p', '2'])

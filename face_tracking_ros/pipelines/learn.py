@@ -3,8 +3,8 @@
 The steps of :func:`learn_from_bags`:
 
 1. raw stereo bags are tracked into bags of 3-D meshes (:mod:`.stereo_meshes`), every one's
-   initialisation found and tracking checked before minutes of tracking, and before any
-   simulated clicks are written;
+   initialisation found and tracking checked before minutes of tracking, and so are the
+   subjects (too few for p), before any simulated clicks are written;
 2. each bag's meshes are read, one sequence per subject (:mod:`.mesh_bags`), labelled by the
    bag's truth or by a truth bag of the same stamps;
 3. the meshes are aligned (§3.3,
@@ -22,7 +22,7 @@ Progress and the comparison table go to the ``say`` it is given, line by line: s
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Collection, Sequence
 from dataclasses import replace
 import json
 from pathlib import Path
@@ -34,7 +34,6 @@ import numpy as np
 from face_tracking_ros.errors import ConfigError
 from face_tracking_ros.io.atomic import write_text_atomically
 from face_tracking_ros.io.provenance import other_source
-from face_tracking_ros.io.series import has_truth
 from face_tracking_ros.learning.alignment import align_training_set
 from face_tracking_ros.learning.evaluation import (
     Evaluation,
@@ -50,6 +49,7 @@ from face_tracking_ros.learning.plots import (
     plot_sigma_scatter,
 )
 from face_tracking_ros.learning.result import LearningResult
+from face_tracking_ros.learning.seed import check_subject_count
 from face_tracking_ros.learning.training_set import MeshSequence, TrainingSet
 from face_tracking_ros.model.face_model import FaceModel
 from face_tracking_ros.model.model_file import save_model
@@ -58,8 +58,12 @@ from face_tracking_ros.pipelines.learn_options import (
     check_options,
     truth_population,
 )
-from face_tracking_ros.pipelines.mesh_bags import BagMeshes, read_bag_meshes
-from face_tracking_ros.pipelines.stereo_meshes import mesh_bag, stereo_initialisations
+from face_tracking_ros.pipelines.mesh_bags import BagMeshes, bag_subjects, read_bag_meshes
+from face_tracking_ros.pipelines.stereo_meshes import (
+    checked_stereo_bags,
+    mesh_bag,
+    stereo_initialisations,
+)
 from face_tracking_ros.synthetic.faces import FacePopulation
 
 
@@ -76,10 +80,9 @@ def learn_from_bags(options: LearnOptions, say: Callable[[str], None] = print) -
             InputError), naming what is wrong.
         KeyboardInterrupt: if the tracking of a raw stereo bag was interrupted.
     """
-    check_options(options)
-    initialisations = stereo_initialisations(options)  # all checked before any tracking
+    initialisations, truth_bags = _checked_before_tracking(options)
     rng = np.random.default_rng(options.seed)
-    mesh_bags, truth_bags = _mesh_and_truth_bags(options, initialisations, say)
+    mesh_bags = _mesh_bags(options, initialisations, truth_bags, say)
     bag_meshes = _read_meshes(options, mesh_bags, truth_bags, say)
     training, align_seconds = _aligned_training_set(options, bag_meshes, rng, say)
     truth = _true_subspaces(options, training, bag_meshes)
@@ -110,26 +113,89 @@ def learn_from_bags(options: LearnOptions, say: Callable[[str], None] = print) -
     return saved
 
 
-def _mesh_and_truth_bags(
-    options: LearnOptions, initialisations: dict[Path, str], say: Callable[[str], None]
-) -> tuple[list[Path], list[Path | None]]:
-    """Each bag's bag of meshes (raw stereo bags tracked) and the bag labelling its meshes.
+def _checked_before_tracking(
+    options: LearnOptions,
+) -> tuple[dict[Path, str], list[Path | None]]:
+    """Check all that can be checked before any bag is tracked, then write the simulated clicks.
 
-    A raw stereo bag holding truth labels the meshes tracked from it; else the ``truth`` bag
-    given for it, if any.
+    The options, every raw stereo bag's tracking (:func:`~.stereo_meshes.checked_stereo_bags`),
+    then the subjects (:func:`_check_subjects`).
+
+    Returns:
+        The initialisation of each raw stereo bag to track, by bag, and the bag labelling each
+        bag's meshes (:func:`_truth_bags`).
+    """
+    unlabelled = check_options(options)
+    raw = checked_stereo_bags(options)
+    truth_bags = _truth_bags(options, raw, unlabelled)
+    _check_subjects(options, raw, truth_bags, unlabelled)
+    return stereo_initialisations(raw, options), truth_bags
+
+
+def _truth_bags(
+    options: LearnOptions, raw: Collection[Path], unlabelled: Collection[Path]
+) -> list[Path | None]:
+    """The bag labelling each bag's meshes: a raw stereo bag's own truth, else its ``truth`` bag.
+
+    A raw stereo bag (of ``raw``, to be tracked) holding truth (not of ``unlabelled``) labels
+    the meshes tracked from it; else the ``truth`` bag given for a bag labels its meshes, if any.
+    """
+    given = options.truth or [None] * len(options.bags)
+    return [
+        bag if bag in raw and bag not in unlabelled else truth
+        for bag, truth in zip(options.bags, given, strict=True)
+    ]
+
+
+def _check_subjects(
+    options: LearnOptions,
+    raw: Collection[Path],
+    truth_bags: Sequence[Path | None],
+    unlabelled: Collection[Path],
+) -> None:
+    """Refuse too few subjects for p before any bag is tracked, where the bags say who they are.
+
+    Each bag's subjects are those its meshes will have (:func:`~.mesh_bags.bag_subjects`): its
+    truth's, read without its images or meshes, else the one its name gives. They are counted
+    when a raw stereo bag (of ``raw``) is to be tracked, or when all come from the bags' names
+    (no bag of ``options.bags`` holds truth: all are ``unlabelled``, and no ``truth`` bags);
+    else (bags of meshes and truth only) the learners count them once the meshes are read
+    (:func:`~face_tracking_ros.learning.seed.check_dimensions`, the same message), after the
+    meshes' own checks.
+
+    Raises:
+        ConfigError: if fewer than p + 1 subjects (2 when ``explained_variance`` chooses p), or
+            a bag's name that ``subject_pattern`` does not match.
+        BagError, InputError: for truth the reading of the meshes would refuse.
+    """
+    named = options.truth is None and len(unlabelled) == len(options.bags)
+    if not (raw or named):
+        return
+    subjects = [
+        bag_subjects(bag, options, truth, bag not in raw and bag not in unlabelled)
+        for bag, truth in zip(options.bags, truth_bags, strict=True)
+    ]
+    if not all(subjects):  # a truth bag naming none: refused when the meshes are read
+        return
+    count = len(set().union(*subjects))
+    check_subject_count(count, options.p if options.explained_variance is None else None)
+
+
+def _mesh_bags(
+    options: LearnOptions,
+    initialisations: dict[Path, str],
+    truth_bags: Sequence[Path | None],
+    say: Callable[[str], None],
+) -> list[Path]:
+    """Each bag's bag of meshes, raw stereo bags tracked, checked against its truth bag.
 
     Raises:
         ConfigError: for a mesh bag paired with the truth of another bag than its source.
         BagError: if the tracker produced no mesh from a raw stereo bag.
     """
     mesh_bags = [mesh_bag(bag, options, initialisations.get(bag), say) for bag in options.bags]
-    given = options.truth or [None] * len(options.bags)
-    truth_bags = [
-        bag if mesh is not bag and has_truth(bag) else truth
-        for bag, mesh, truth in zip(options.bags, mesh_bags, given, strict=True)
-    ]
     _check_truth_pairs(mesh_bags, truth_bags)
-    return mesh_bags, truth_bags
+    return mesh_bags
 
 
 def _check_truth_pairs(mesh_bags: Sequence[Path], truth_bags: Sequence[Path | None]) -> None:

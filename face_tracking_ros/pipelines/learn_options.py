@@ -17,7 +17,6 @@ from face_tracking_ros.errors import ConfigError
 from face_tracking_ros.io.atomic import check_output_path, check_replaceable
 from face_tracking_ros.io.series import has_truth
 from face_tracking_ros.learning.methods import DEFAULT_METHOD, METHODS
-from face_tracking_ros.learning.seed import check_subject_count
 from face_tracking_ros.model.model_file import load_model
 from face_tracking_ros.synthetic.faces import PRESETS
 
@@ -112,17 +111,17 @@ class LearnOptions:
     named: Callable[[str], str] = option_flag
 
 
-def check_options(options: LearnOptions) -> None:
+def check_options(options: LearnOptions) -> list[Path]:
     """Refuse options the pipeline cannot run: values out of range, then bags and files.
 
-    Then, where the bags' names give the subjects (no truth), too few subjects for p.
+    Returns:
+        The bags without truth (each bag read once for it).
 
     Raises:
         ConfigError: naming the first option at fault.
     """
     _check_values(options)
-    unlabelled = _check_bags_and_files(options)
-    _check_named_subjects(options, unlabelled)
+    return _check_bags_and_files(options)
 
 
 def _check_values(options: LearnOptions) -> None:
@@ -215,22 +214,3 @@ def _check_bags_and_files(options: LearnOptions) -> list[Path]:
         )
         raise ConfigError(msg)
     return unlabelled
-
-
-def _check_named_subjects(options: LearnOptions, unlabelled: list[Path]) -> None:
-    """Refuse too few subjects for p when the bags' names say who they are, before any tracking.
-
-    Only when no bag holds truth (all are ``unlabelled``) and no ``truth`` bags are given: each
-    bag is then one subject, named by :func:`subject_of`, known before any bag is tracked or
-    read. Subjects from truth
-    are known only once the meshes are read; the learners check those
-    (:func:`~face_tracking_ros.learning.seed.check_dimensions`, the same message).
-
-    Raises:
-        ConfigError: if fewer than p + 1 subjects (2 when ``explained_variance`` chooses p), or
-            a bag's name that ``subject_pattern`` does not match.
-    """
-    if options.truth is not None or len(unlabelled) < len(options.bags):
-        return
-    subjects = {subject_of(bag.name, options) for bag in options.bags}
-    check_subject_count(len(subjects), options.p if options.explained_variance is None else None)

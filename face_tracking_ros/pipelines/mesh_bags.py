@@ -111,6 +111,37 @@ def read_bag_meshes(
     return [_bag_meshes(bag, topic, items, options, say) for items in by_subject.values()]
 
 
+def bag_subjects(
+    bag: Path, options: LearnOptions, truth_bag: Path | None, truth_meshes: bool
+) -> set[str]:
+    """The subjects :func:`read_bag_meshes` finds in a bag's meshes, known without reading them.
+
+    Those of ``truth_bag``'s truth (it may hold more: a stamp without a mesh, or an untracked
+    one), else those of the bag's FaceTruth messages where its meshes are these, else the one
+    its name gives (:func:`~.learn_options.subject_of`).
+
+    Args:
+        bag: the bag given (a raw stereo bag: the meshes are yet to be tracked from it).
+        options: the run's options (topic, subject, subject pattern).
+        truth_bag: the bag labelling its meshes, as for :func:`read_bag_meshes`; None: none.
+        truth_meshes: whether its meshes may be its FaceTruth messages (it holds truth and is
+            not tracked).
+
+    Raises:
+        BagError, InputError: for truth that :func:`read_bag_meshes` would refuse (a missing
+            topic, a malformed message), or a bag of truth without the mesh topic.
+        ConfigError: if ``options.subject_pattern`` does not match the bag's name.
+    """
+    if truth_bag is not None:
+        return {sample.subject_id for sample in _truth_by_stamp(truth_bag).values()}
+    if truth_meshes:
+        topics = bag_topics(bag)
+        topic = _checked_mesh_topic(bag, topics, options)
+        if topics[topic] == TRUTH_TYPE:
+            return {truth.subject_id for _, truth in read_converted(bag, topic, truth_from_msg)}
+    return {subject_of(bag.name, options)}
+
+
 def mesh_topic(topics: dict[str, str], options: LearnOptions) -> str | None:
     """The bag's mesh topic: ``options.topic``, else the first of DEFAULT_TOPICS it has.
 

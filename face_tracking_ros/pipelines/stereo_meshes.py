@@ -7,7 +7,8 @@ code, into ``meshes_dir``, before it is learned from. By default every mesh carr
 depths refined over its whole track (the processor's ``retroactive_depths``); ``tracker_params``
 override it. Meshes an earlier run tracked from the same inputs are re-used. Every raw bag's
 tracking is checked before any is tracked and before any simulated clicks are written
-(:func:`stereo_initialisations`), so that a refused run leaves nothing behind.
+(:func:`checked_stereo_bags`, then :func:`stereo_initialisations`), so that a refused run leaves
+nothing behind.
 """
 
 from __future__ import annotations
@@ -72,7 +73,8 @@ def mesh_bag(
     topics = bag_topics(bag)
     if not needs_tracking(bag, topics, options):
         return bag  # meshes (or nothing: read_bag_meshes names the missing topic)
-    initialisation = initialisation or _initialise({bag: topics}, options)[bag]
+    if not initialisation:
+        initialisation = stereo_initialisations(_checked({bag: topics}, options), options)[bag]
     out = _meshes_dir(options) / bag.name
     params, remaps = _tracking(topics, options, initialisation)
     inputs = Provenance.of(bag, [TRACKER], params.overrides, remaps)
@@ -84,37 +86,50 @@ def mesh_bag(
     return out
 
 
-def stereo_initialisations(options: LearnOptions) -> dict[Path, str]:
-    """The stereo_tracker parameter initialising each raw stereo bag's track, by bag.
+def checked_stereo_bags(options: LearnOptions) -> dict[Path, str | None]:
+    """The raw stereo bags to track, each with its given initialisation, all checked.
 
-    Every check that can refuse a bag's tracking (:func:`needs_tracking`,
-    :func:`_check_tracking`, the reading of its clicks) runs for every bag before any simulated
-    clicks are written: a refused run leaves none behind.
+    The initialisation is the stereo_tracker parameter of its init file or of ``auto_init``;
+    None for simulated clicks, which :func:`stereo_initialisations` writes. Every check that can
+    refuse a bag's tracking (:func:`needs_tracking`, :func:`_check_tracking`) runs for every bag
+    first, and writes nothing: a run refused before :func:`stereo_initialisations` leaves no
+    clicks behind.
 
     Raises:
         ConfigError: for a raw stereo bag without a way to initialise it, or one that
             :func:`needs_tracking` or :func:`_check_tracking` refuses.
-        BagError: for a bag that cannot be read, or whose clicks cannot be simulated.
+        BagError: for a bag that cannot be read.
     """
     topics = {bag: bag_topics(bag) for bag in options.bags}
     raw = {bag: topics[bag] for bag in options.bags if needs_tracking(bag, topics[bag], options)}
-    return _initialise(raw, options)
+    return _checked(raw, options)
 
 
-def _initialise(topics: dict[Path, dict[str, str]], options: LearnOptions) -> dict[Path, str]:
-    """The initialisation of each raw stereo bag of ``topics`` (bag -> its topics), by bag.
+def stereo_initialisations(
+    checked: dict[Path, str | None], options: LearnOptions
+) -> dict[Path, str]:
+    """The stereo_tracker parameter initialising each raw stereo bag's track, by bag.
 
-    Each bag's tracking is checked (:func:`_check_tracking`) before any simulated clicks are
-    written (:func:`_write_clicks`).
+    The one given in ``checked`` (:func:`checked_stereo_bags`), else the bag's simulated clicks,
+    written here: all are drawn before any is written (:func:`_write_clicks`).
 
     Raises:
-        BagError, ConfigError: as :func:`stereo_initialisations`.
+        BagError: for a bag whose clicks cannot be simulated (no truth, no camera_info).
+    """
+    written = _write_clicks([bag for bag, init in checked.items() if init is None], options)
+    return {bag: init or written[bag] for bag, init in checked.items()}
+
+
+def _checked(topics: dict[Path, dict[str, str]], options: LearnOptions) -> dict[Path, str | None]:
+    """The given initialisation of each raw stereo bag of ``topics`` (bag -> its topics), checked.
+
+    Raises:
+        BagError, ConfigError: as :func:`checked_stereo_bags`, but for :func:`needs_tracking`.
     """
     given = {bag: _given_initialisation(bag, options) for bag in topics}
     for bag, initialisation in given.items():
         _check_tracking(bag, topics[bag], options, initialisation)
-    written = _write_clicks([bag for bag, init in given.items() if init is None], options)
-    return {bag: given[bag] or written[bag] for bag in topics}
+    return given
 
 
 def _check_tracking(
