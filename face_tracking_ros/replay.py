@@ -378,6 +378,7 @@ def replay_bag(
     progress: bool = True,
     on_output: Callable[[Output, int], None] | None = None,
     wanted: frozenset[str] = frozenset(),
+    topics: Mapping[str, str] | None = None,
 ) -> ReplayStats:
     """Replay a bag through one node's processor, or a graph of several, into a new MCAP bag.
 
@@ -394,6 +395,8 @@ def replay_bag(
         progress: show a progress bar on stderr.
         on_output: called with every output as it is produced (e.g. to print events).
         wanted: on-demand outputs to produce (e.g. 'face/overlay'); none by default.
+        topics: the bag's topics (name -> type), when the caller has read them; None: read
+            here.
 
     Returns:
         What was read, written and rejected. A bag that becomes unreadable part way (e.g.
@@ -406,7 +409,7 @@ def replay_bag(
         ConfigError: for unknown parameters, a node without a processor, or a wanted topic
             that is not an on-demand output of the nodes.
     """
-    processors, topic_map = wire_replay(nodes, bag, params, remaps or {}, wanted)
+    processors, topic_map = wire_replay(nodes, bag, params, remaps or {}, wanted, topics)
     total = message_count(bag, topic_map) if progress else None  # the bar's; opens the bag
     provenance = Provenance.of(bag, nodes, params.overrides, remaps)
     out.parent.mkdir(parents=True, exist_ok=True)

@@ -193,6 +193,25 @@ def test_a_replay_ends_with_what_the_reporting_processors_report(tmp_path, monke
     assert 'counter: seen 5' in capsys.readouterr().out
 
 
+def test_a_replay_given_the_bag_topics_does_not_read_them_again(tmp_path, monkeypatch):
+    """A caller that read the bag's topics (track, learn) hands them over: read once."""
+    _write_images(tmp_path / 'in', 5)
+    monkeypatch.setattr(
+        replay_module, 'processor_factory', lambda _node: lambda _params, _f: CountingProcessor()
+    )
+
+    def read_again(bag):
+        raise AssertionError(f'the topics of {bag} read again')
+
+    monkeypatch.setattr(replay_module, 'bag_topics', read_again)
+    params = OverrideParameters.parse([])
+    topics = {'/cam/image': IMAGE}
+    stats = replay_bag(
+        ['counter'], tmp_path / 'in', tmp_path / 'out', params, progress=False, topics=topics
+    )
+    assert stats.inputs == {'image': 5} and stats.status == {'counter': {'seen': '5'}}
+
+
 def test_truncated_input_bag_is_replayed_up_to_the_damage(tmp_path):
     _write_images(tmp_path / 'in', 40, size=(240, 320))  # ~3 MB: several MCAP chunks
     mcap_file = next((tmp_path / 'in').glob('*.mcap'))

@@ -155,6 +155,7 @@ def run(args: argparse.Namespace) -> int:
         args.record_inputs,
         progress=not args.quiet,
         wanted=wanted,
+        topics=topics,
     )
     print_stats(stats, args.out)
     states = load_states(args.out).status if stats.outputs['face/state'] else np.empty(0)

@@ -80,7 +80,7 @@ def mesh_bag(
     inputs = Provenance.of(bag, [TRACKER], params.overrides, remaps)
     if _tracked_before(out, inputs, options.named('meshes_dir'), say):
         return out
-    _track(bag, out, params, remaps, say)
+    _track(bag, topics, out, params, remaps, say)
     if has_truth(bag):
         say(_score_line(bag, out))
     return out
@@ -285,19 +285,20 @@ def _clicks_file(bag: Path, options: LearnOptions) -> Path:
 
 def _track(
     bag: Path,
+    topics: dict[str, str],
     out: Path,
     params: OverrideParameters,
     remaps: dict[str, str],
     say: Callable[[str], None],
 ) -> None:
-    """Track the raw stereo bag ``bag`` into ``out`` and ``say`` what it did.
+    """Track the raw stereo bag ``bag`` (of ``topics``) into ``out`` and ``say`` what it did.
 
     Raises:
         BagError: if the tracker produced no mesh (``out`` is removed).
         KeyboardInterrupt: if the tracking was interrupted.
     """
     say(f'{bag}: raw stereo images: tracking them into {out}')
-    stats = replay_bag([TRACKER], bag, out, params, remaps, progress=False)
+    stats = replay_bag([TRACKER], bag, out, params, remaps, progress=False, topics=topics)
     if stats.interrupted:  # the meshes so far stay, and a later run tracks the bag again
         raise KeyboardInterrupt
     for line in stats.summary(out):
