@@ -290,6 +290,18 @@ def test_a_track_refused_by_its_replay_writes_no_clicks(tmp_path, capsys):
     assert list(tmp_path.iterdir()) == []
 
 
+def test_a_malformed_remap_is_refused_before_the_track_starts(tmp_path, capsys):
+    """--remap is parsed once, before the other checks: mono or stereo, nothing printed."""
+    for bag in ('mono_test', 'stereo_train'):
+        argv = ['track', str(REPO / 'bags' / bag / 'subject_00_seq_00'), '--out',
+                str(tmp_path / 'o'), '--simulate-clicks', '1', '--remap', 'image']  # fmt: skip
+        assert main(argv) == 2
+        printed = capsys.readouterr()
+        assert printed.err == "error: remap 'image' must be written INPUT=TOPIC\n", bag
+        assert printed.out == '', bag
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_an_init_file_or_model_given_twice_is_refused_not_chosen_silently(tmp_path, capsys):
     mono = REPO / 'bags' / 'mono_test' / 'subject_00_seq_00'
     out = tmp_path / 'o'

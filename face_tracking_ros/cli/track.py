@@ -139,9 +139,10 @@ def run(args: argparse.Namespace) -> int:
         check_output_path(args.report, '--report')
     topics = bag_topics(args.bag)
     node = choose_tracker(args.bag, topics, args)
-    params, model_file, compressed = _parameters(args, node, topics)
+    given = parse_remaps(args.remap)
+    params, model_file, compressed = _parameters(args, node, topics, given)
     print(f'tracking {args.bag} with {node}')
-    remaps = _remaps(args, node, topics, compressed)
+    remaps = _remaps(args, node, topics, compressed, given)
     wanted = frozenset(args.want)
     if args.simulate_clicks is not None:  # a replay it refuses leaves no clicks written
         wire_replay([node], args.bag, OverrideParameters.parse(params), remaps, wanted, topics)
@@ -171,11 +172,12 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _parameters(
-    args: argparse.Namespace, node: str, topics: dict[str, str]
+    args: argparse.Namespace, node: str, topics: dict[str, str], remaps: dict[str, str]
 ) -> tuple[list[str], Path | None, bool]:
     """The tracker's parameters (NAME=VALUE), model file (None: packaged) and image transport.
 
-    The last is True if the tracker reads compressed images. Where the simulated clicks
+    The last is True if the tracker reads compressed images. The stereo tracker's inputs are
+    checked here, ``remaps`` (``--remap``, parsed) over those found. Where the simulated clicks
     (``--simulate-clicks``) go is only checked here: :func:`_write_clicks` writes them once the
     replay is checked.
 
@@ -208,7 +210,6 @@ def _parameters(
                 'stereo tracker takes --left-info-topic and --right-info-topic'
             )
             raise ConfigError(msg)
-        remaps = parse_remaps(args.remap)
         check_stereo_topics(args.bag, topics, args, node_config.compressed, remaps)
     inputs = [Path(path) for path in (args.init, model_file, node_config.init_file) if path]
     init_file = args.init
@@ -246,13 +247,16 @@ def _write_clicks(
 
 
 def _remaps(
-    args: argparse.Namespace, node: str, topics: dict[str, str], compressed: bool
+    args: argparse.Namespace,
+    node: str,
+    topics: dict[str, str],
+    compressed: bool,
+    remaps: dict[str, str],
 ) -> dict[str, str]:
-    """Tracker input -> bag topic: ``--remap``, then the topic options over it.
+    """Tracker input -> bag topic: ``remaps`` (``--remap``, parsed), then the topic options.
 
     The stereo tracker's inputs not given are found by side (:func:`stereo_remaps`).
     """
-    remaps = parse_remaps(args.remap)
     if node == STEREO:
         return stereo_remaps(topics, args, compressed, remaps)
     options = {'image': args.image_topic, 'camera_info': args.camera_info_topic}
