@@ -187,13 +187,18 @@ def _mesh_bags(
     truth_bags: Sequence[Path | None],
     say: Callable[[str], None],
 ) -> list[Path]:
-    """Each bag's bag of meshes, raw stereo bags tracked, checked against its truth bag.
+    """Each bag's bag of meshes, checked against its truth bag.
+
+    The bag itself, or for a raw stereo bag (one of ``initialisations``, checked) its tracking.
 
     Raises:
         ConfigError: for a mesh bag paired with the truth of another bag than its source.
         BagError: if the tracker produced no mesh from a raw stereo bag.
     """
-    mesh_bags = [mesh_bag(bag, options, initialisations.get(bag), say) for bag in options.bags]
+    mesh_bags = [
+        mesh_bag(bag, options, initialisations[bag], say) if bag in initialisations else bag
+        for bag in options.bags
+    ]
     _check_truth_pairs(mesh_bags, truth_bags)
     return mesh_bags
 

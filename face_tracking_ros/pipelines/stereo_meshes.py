@@ -59,9 +59,10 @@ def mesh_bag(
     initialised from ``init_dir/<bag name>.{yaml,json}``, ``auto_init`` or, for synthetic bags,
     ``simulate_clicks``; with ``tracker_params`` after :data:`STEREO_PARAMS`.
     ``initialisation`` is that stereo_tracker parameter when already known
-    (:func:`stereo_initialisations`). Meshes an earlier run tracked from the same inputs are
-    re-used (:func:`_tracked_before`). What it does, the replay's summary and the score against
-    the bag's truth go to ``say``, line by line.
+    (:func:`stereo_initialisations`): ``bag`` is then a raw stereo bag whose checks
+    (:func:`checked_stereo_bags`) passed, tracked without them. Meshes an earlier run tracked
+    from the same inputs are re-used (:func:`_tracked_before`). What it does, the replay's
+    summary and the score against the bag's truth go to ``say``, line by line.
 
     Raises:
         ConfigError: for a raw stereo bag without a way to initialise it, or one that
@@ -71,9 +72,9 @@ def mesh_bag(
             run tracks the bag again).
     """
     topics = bag_topics(bag)
-    if not needs_tracking(bag, topics, options):
-        return bag  # meshes (or nothing: read_bag_meshes names the missing topic)
     if not initialisation:
+        if not needs_tracking(bag, topics, options):
+            return bag  # meshes (or nothing: read_bag_meshes names the missing topic)
         initialisation = stereo_initialisations(_checked({bag: topics}, options), options)[bag]
     out = _meshes_dir(options) / bag.name
     params, remaps = _tracking(topics, options, initialisation)
