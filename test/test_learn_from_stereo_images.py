@@ -335,6 +335,31 @@ def test_truth_must_pair_each_tracked_bag_with_the_bag_it_was_tracked_from(tmp_p
     assert main([*argv, *map(str, BAGS[:2])]) == 0
 
 
+def test_truth_given_for_a_raw_stereo_bag_labels_the_meshes_tracked_from_it(tmp_path, capsys):
+    """A raw stereo bag without truth, its truth recorded in another bag: learned from both."""
+    raw = _without_truth(BAGS[0], tmp_path / 'raw_00')
+    init_dir = tmp_path / 'init'  # its clicks from a file, the others' simulated
+    init_dir.mkdir()
+    write_init_file(clicks_from_bag(BAGS[0], 0.0), init_dir / f'{raw.name}.json')
+    report = tmp_path / 'r.json'
+    argv = ['learn', str(raw), *map(str, BAGS[1:]), '--from-images', '--simulate-clicks', '0',
+            '--init-dir', str(init_dir),
+            '--p', '1', '--q', '1', '--out', str(tmp_path / 'm.npz'), '--report', str(report),
+            '--truth', *map(str, BAGS)]  # fmt: skip
+    assert main(argv) == 0, capsys.readouterr().err
+    subjects = json.loads(report.read_text())['subjects']
+    assert subjects == ['subject_00', 'subject_01', 'subject_02']  # not the name raw_00
+
+
+def _without_truth(bag: Path, out: Path) -> Path:
+    """Write ``bag`` without its truth to ``out``; return ``out``."""
+    with BagWriter(out) as writer:
+        for message in read_messages(bag):
+            if message.topic != 'truth/face':
+                writer.write(message.topic, message.msgtype, message.msg, message.stamp_ns)
+    return out
+
+
 def test_a_bag_without_initialisation_stops_learn_before_any_tracking(tmp_path, capsys):
     clicks = tmp_path / 'clicks'
     clicks.mkdir()
@@ -451,10 +476,7 @@ def test_too_few_subjects_named_by_the_bags_are_refused_before_tracking(tmp_path
     clicks = clicks_from_bag(BAGS[0], 1.0)
     bags = [tmp_path / 'bags' / f'anna_seq_0{index}' for index in range(2)]
     for bag in bags:
-        with BagWriter(bag) as writer:  # BAGS[0] without its truth
-            for message in read_messages(BAGS[0]):
-                if message.topic != 'truth/face':
-                    writer.write(message.topic, message.msgtype, message.msg, message.stamp_ns)
+        _without_truth(BAGS[0], bag)
         write_init_file(clicks, init_dir / f'{bag.name}.json')
     inputs = sorted(tmp_path.rglob('*'))
     argv = ['learn', *map(str, bags), '--init-dir', str(init_dir), '--neutral-frames', '3',
@@ -481,11 +503,7 @@ def test_subjects_of_names_and_truth_are_refused_before_tracking(tmp_path, capsy
         raise AssertionError('a bag was tracked')
 
     monkeypatch.setattr(stereo_meshes, 'replay_bag', never)
-    anon = tmp_path / 'bags' / 'anna_2'
-    with BagWriter(anon) as writer:  # BAGS[0] without its truth
-        for message in read_messages(BAGS[0]):
-            if message.topic != 'truth/face':
-                writer.write(message.topic, message.msgtype, message.msg, message.stamp_ns)
+    anon = _without_truth(BAGS[0], tmp_path / 'bags' / 'anna_2')
     init_dir = tmp_path / 'init'
     init_dir.mkdir()
     write_init_file(clicks_from_bag(BAGS[0], 1.0), init_dir / f'{anon.name}.json')

@@ -82,7 +82,7 @@ def learn_from_bags(options: LearnOptions, say: Callable[[str], None] = print) -
     """
     initialisations, truth_bags = _checked_before_tracking(options)
     rng = np.random.default_rng(options.seed)
-    mesh_bags = _mesh_bags(options, initialisations, truth_bags, say)
+    mesh_bags = _mesh_bags(options, initialisations, say)
     bag_meshes = _read_meshes(options, mesh_bags, truth_bags, say)
     training, align_seconds = _aligned_training_set(options, bag_meshes, rng, say)
     truth = _true_subspaces(options, training, bag_meshes)
@@ -119,7 +119,8 @@ def _checked_before_tracking(
     """Check all that can be checked before any bag is tracked, then write the simulated clicks.
 
     The options, every raw stereo bag's tracking (:func:`~.stereo_meshes.checked_stereo_bags`),
-    then the subjects (:func:`_check_subjects`).
+    the truth bags' pairing (:func:`_check_truth_pairs`), then the subjects
+    (:func:`_check_subjects`).
 
     Returns:
         The initialisation of each raw stereo bag to track, by bag, and the bag labelling each
@@ -128,6 +129,7 @@ def _checked_before_tracking(
     unlabelled = check_options(options)
     raw = checked_stereo_bags(options)
     truth_bags = _truth_bags(options, raw, unlabelled)
+    _check_truth_pairs(options.bags, truth_bags)
     _check_subjects(options, raw, truth_bags, unlabelled)
     return stereo_initialisations(raw, options), truth_bags
 
@@ -182,34 +184,31 @@ def _check_subjects(
 
 
 def _mesh_bags(
-    options: LearnOptions,
-    initialisations: dict[Path, str],
-    truth_bags: Sequence[Path | None],
-    say: Callable[[str], None],
+    options: LearnOptions, initialisations: dict[Path, str], say: Callable[[str], None]
 ) -> list[Path]:
-    """Each bag's bag of meshes, checked against its truth bag.
+    """Each bag's bag of meshes.
 
     The bag itself, or for a raw stereo bag (one of ``initialisations``, checked) its tracking.
 
     Raises:
-        ConfigError: for a mesh bag paired with the truth of another bag than its source.
         BagError: if the tracker produced no mesh from a raw stereo bag.
     """
-    mesh_bags = [
+    return [
         mesh_bag(bag, options, initialisations[bag], say) if bag in initialisations else bag
         for bag in options.bags
     ]
-    _check_truth_pairs(mesh_bags, truth_bags)
-    return mesh_bags
 
 
-def _check_truth_pairs(mesh_bags: Sequence[Path], truth_bags: Sequence[Path | None]) -> None:
-    """Check that a mesh bag recording the bag it was tracked from has that one as its truth.
+def _check_truth_pairs(bags: Sequence[Path], truth_bags: Sequence[Path | None]) -> None:
+    """Check that a given bag of meshes recording the bag it was tracked from has that as truth.
+
+    A raw stereo bag records no source: the meshes tracked from it here are labelled by the
+    truth bag given for it (matched by header stamp), which is never the raw bag itself.
 
     Raises:
         ConfigError: naming the first mesh bag paired with another bag's truth.
     """
-    for mesh, truth in zip(mesh_bags, truth_bags, strict=True):
+    for mesh, truth in zip(bags, truth_bags, strict=True):
         source = other_source(mesh, truth) if truth is not None else None
         if source is not None:
             msg = (
