@@ -93,8 +93,8 @@ def add_stereo_topic_options(parser: argparse._ActionsContainer) -> None:
     parser.add_argument(
         '--left-topic',
         help='stereo left image topic (default: the one whose name ends in left/image_raw, '
-        "or left/image_raw/compressed, else the only one with 'left' and not 'right' in its "
-        'name)',
+        "or left/image_raw/compressed, else the only one with the word 'left' and not 'right' in "
+        'its name)',
     )
     parser.add_argument('--right-topic', help='stereo right image topic')
     parser.add_argument('--left-info-topic', help='stereo left camera_info topic')

@@ -60,10 +60,11 @@ class LearnerConfig:
             optional landmark detector (pip install dlib-bin face_recognition_models).
         left_topic: raw stereo bags: the left image topic (Image or CompressedImage); empty:
             the one whose name ends in left/image_raw (or left/image_raw/compressed), else the
-            only image topic with 'left' and not 'right' in its name.
+            only image topic with the word 'left' and not 'right' in its name.
         right_topic: raw stereo bags: the right image topic; empty: found as the left one.
         left_info_topic: raw stereo bags: the left camera_info topic; empty: the one whose name
-            ends in left/camera_info, else the only camera_info topic with 'left' in its name.
+            ends in left/camera_info, else the only camera_info topic with the word
+            'left' in its name.
         right_info_topic: raw stereo bags: the right camera_info topic; empty: found as the
             left one.
         tracker_params: raw stereo bags: stereo_tracker parameters NAME=VALUE for their tracking,

@@ -66,10 +66,10 @@ class LearnOptions:
             landmark detector.
         left_topic: raw stereo bags: the left image topic; None: the one whose name ends in
             left/image_raw (or left/image_raw/compressed), else the only image topic with
-            'left' and not 'right' in its name.
+            the word 'left' and not 'right' in its name.
         right_topic: raw stereo bags: the right image topic; None: found as the left one.
         left_info_topic: raw stereo bags: the left camera_info topic; None: found as the left
-            image (its name ending in left/camera_info, else by 'left').
+            image (its name ending in left/camera_info, else by the word 'left').
         right_info_topic: raw stereo bags: the right camera_info topic; None: found so.
         meshes_dir: where the meshes tracked from raw stereo bags go; None: <report name>_meshes/
             beside the report.
