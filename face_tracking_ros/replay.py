@@ -25,6 +25,7 @@ from typing import Any, TypeVar
 from tqdm import tqdm
 
 from face_tracking_ros.errors import BagError, ConfigError, FaceTrackingError
+from face_tracking_ros.io import conversions
 from face_tracking_ros.io.bags import BagWriter, bag_topics, message_count, read_messages
 from face_tracking_ros.io.messages import RosbagsMessages
 from face_tracking_ros.io.provenance import KEY as PROVENANCE_KEY
@@ -41,6 +42,7 @@ from face_tracking_ros.processing.base import (
 from face_tracking_ros.processing.parameters import OverrideParameters
 from face_tracking_ros.processing.registry import processor_factory
 
+_IMAGE_TYPES = (conversions.IMAGE_TYPE, conversions.COMPRESSED_IMAGE_TYPE)
 Record = tuple[str, str, int, Any]  # (bag topic, msgtype, log time ns, message)
 ResultT = TypeVar('ResultT')
 
@@ -365,7 +367,39 @@ def wire_replay(
             f'{found}'
         )
         raise BagError(msg)
+    _check_image_inputs(bag, nodes, processors, topics, topic_map)
     return processors, topic_map
+
+
+def _check_image_inputs(
+    bag: Path,
+    nodes: Sequence[str],
+    processors: Sequence[Processor],
+    topics: Mapping[str, str],
+    topic_map: Mapping[str, str],
+) -> None:
+    """Refuse a node whose image inputs the bag feeds only in part (one camera of a stereo pair).
+
+    A mono bag's only image topic, matched by type to the stereo_tracker's left image, left it
+    no right image to pair: the replay wrote nothing and ended with status 0. (A missing
+    camera_info is not refused: the tracker holds the images and its status says why.)
+
+    Raises:
+        BagError: naming the node, its image inputs no topic feeds, those fed and by what, and
+            the bag's image topics.
+    """
+    fed = {port: topic for topic, port in topic_map.items()}
+    for node, processor in zip(nodes, processors, strict=True):
+        images = [port.topic for port in processor.inputs if port.msgtype in _IMAGE_TYPES]
+        missing = [port for port in images if port not in fed]
+        if missing and len(missing) < len(images):
+            reading = ', '.join(f'{port} reads {fed[port]}' for port in images if port in fed)
+            found = ', '.join(t for t, kind in topics.items() if kind in _IMAGE_TYPES)
+            msg = (
+                f"{bag}: no topic for the {node}'s {', '.join(missing)} ({reading}; matched by "
+                f"a name ending in it, else give --remap INPUT=TOPIC); the bag's images: {found}"
+            )
+            raise BagError(msg)
 
 
 def replay_bag(

@@ -410,3 +410,15 @@ def test_a_node_named_twice_is_refused_before_any_work(tmp_path, capsys):
         "mono_tracker': a node runs once"
     ) in capsys.readouterr().err
     assert not (tmp_path / 'out').exists()
+
+
+def test_a_tracker_fed_one_camera_of_a_pair_is_refused(tmp_path, capsys):
+    """A mono bag's image fed the stereo_tracker's left port by type: nothing paired, exit 0."""
+    mono = str(Path(__file__).resolve().parents[1] / 'bags' / 'mono_test' / 'subject_00_seq_00')
+    assert main(['replay', 'stereo_tracker', mono, '--out', str(tmp_path / 'a')]) == 2
+    assert capsys.readouterr().err == (
+        f"error: {mono}: no topic for the stereo_tracker's right/image_raw (left/image_raw reads "
+        "image; matched by a name ending in it, else give --remap INPUT=TOPIC); the bag's "
+        'images: image\n'
+    )
+    assert not (tmp_path / 'a').exists()
