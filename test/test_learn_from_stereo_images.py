@@ -534,3 +534,22 @@ def test_subjects_of_names_and_truth_are_refused_before_tracking(tmp_path, capsy
     # The same subjects enough for p: tracked (here, refused by the stand-in tracker).
     with pytest.raises(AssertionError, match='a bag was tracked'):
         main([*mixed, '--from-images', '--subject-pattern', '(.+)', '--p', '2'])
+
+
+def test_tracking_options_for_bags_learn_does_not_track_are_refused(tmp_path, capsys):
+    """The sample stereo bags hold truth: --init-dir and its clicks were ignored, truth learned."""
+    learn = ['learn', *map(str, BAGS), '--out', str(tmp_path / 'm.npz')]
+    learn += ['--report', str(tmp_path / 'r.json')]
+    for options, named in (
+        (['--init-dir', str(tmp_path)], '--init-dir'),
+        (['--simulate-clicks', '0'], '--simulate-clicks'),
+        (['--tracker-param', 'tracker.gamma=0.4', '--auto-init'], '--auto-init, --tracker-param'),
+    ):
+        assert main([*learn, *options]) == 2
+        assert capsys.readouterr().err == (
+            f'error: {named}: for raw stereo bags, and no bag is tracked: each holds meshes, '
+            'which learn reads (truth, FaceMesh or FaceState); --from-images tracks the images '
+            'of stereo bags\n'
+        )
+    assert sorted(path.name for path in tmp_path.iterdir()) == []
+    assert main(learn) == 0  # the truth, without them

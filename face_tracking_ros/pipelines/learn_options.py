@@ -24,9 +24,10 @@ from face_tracking_ros.synthetic.faces import PRESETS
 def option_flag(field: str) -> str:
     """The command-line option of an option field, as ``learn`` and ``track`` spell it.
 
-    E.g. ``--subject-pattern`` for ``subject_pattern``, ``--left-topic`` for ``left_topic``.
+    E.g. ``--subject-pattern`` for ``subject_pattern``, ``--left-topic`` for ``left_topic``;
+    ``--tracker-param`` (repeatable) for ``tracker_params``.
     """
-    return f'--{field.replace("_", "-")}'
+    return '--tracker-param' if field == 'tracker_params' else f'--{field.replace("_", "-")}'
 
 
 @dataclass(frozen=True)

@@ -45,6 +45,15 @@ from face_tracking_ros.synthetic.clicks import (
 
 STEREO_PARAMS = 'retroactive_depths=true'  # learn from meshes with each track's final depths
 TRACKER = 'stereo_tracker'
+# LearnOptions fields used only to track raw stereo bags (set: not None, False or empty).
+TRACKING_FIELDS = (
+    'init_dir',
+    'simulate_clicks',
+    'auto_init',
+    *STEREO_FIELDS.values(),
+    'meshes_dir',
+    'tracker_params',
+)
 
 
 def mesh_bag(
@@ -103,7 +112,30 @@ def checked_stereo_bags(options: LearnOptions) -> dict[Path, str | None]:
     """
     topics = {bag: bag_topics(bag) for bag in options.bags}
     raw = {bag: topics[bag] for bag in options.bags if needs_tracking(bag, topics[bag], options)}
+    if not raw:
+        _check_no_tracking_options(options)
     return _checked(raw, options)
+
+
+def _check_no_tracking_options(options: LearnOptions) -> None:
+    """Refuse options of the tracking of raw stereo bags when no bag is tracked.
+
+    Every bag holds meshes (a synthetic stereo bag's truth among them), which learn reads; an
+    init directory or simulated clicks given for its images were ignored, and the model learned
+    from the truth.
+
+    Raises:
+        ConfigError: naming the options and what the bags hold.
+    """
+    given = [field for field in TRACKING_FIELDS if getattr(options, field) not in (None, ())]
+    given = [field for field in given if getattr(options, field) is not False]  # 0 clicks: set
+    if given:
+        msg = (
+            f'{", ".join(options.named(field) for field in given)}: for raw stereo bags, and no '
+            f'bag is tracked: each holds meshes, which learn reads (truth, FaceMesh or '
+            f'FaceState); {options.named("from_images")} tracks the images of stereo bags'
+        )
+        raise ConfigError(msg)
 
 
 def stereo_initialisations(
