@@ -55,7 +55,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument('--frames', type=int, default=30, help='frames per sequence (>= 1)')
     parser.add_argument('--fps', type=float, default=10.0, help='frame rate, Hz (10, 15, 30...)')
     parser.add_argument('--seed', type=int, default=0, help='seed of population and sequences')
-    parser.add_argument('--out', type=Path, help='directory receiving the bags')
+    parser.add_argument(
+        '--out', type=Path, help='directory receiving the bags (none: --contact-sheet alone)'
+    )
     parser.add_argument('--population', choices=PRESETS, default='default')
     parser.add_argument(
         '--motion',
@@ -106,7 +108,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument('--motion-blur', action='store_true', help='blur over the exposure')
     parser.add_argument('--occlusion', action='store_true', help='pass an occluder once')
     parser.add_argument(
-        '--contact-sheet', type=Path, help='also write a PNG contact sheet of this world here'
+        '--contact-sheet',
+        type=Path,
+        help='write a PNG contact sheet of this world here (with --out, besides the bags)',
     )
     parser.set_defaults(func=run)
 
