@@ -17,12 +17,13 @@ from face_tracking_ros.cli import learn
 from face_tracking_ros.cli.main import main
 from face_tracking_ros.errors import ConfigError
 from face_tracking_ros.io import conversions
-from face_tracking_ros.io.bags import BagWriter, bag_topics, read_messages
+from face_tracking_ros.io.bags import BagWriter, bag_topics, read_messages, recording_name
 from face_tracking_ros.io.messages import RosbagsMessages
 from face_tracking_ros.io.typestore import typestore
 from face_tracking_ros.model.model_file import load_model
 from face_tracking_ros.pipelines import stereo_meshes
 from face_tracking_ros.pipelines.learn_options import LearnOptions, subject_of
+from face_tracking_ros.pipelines.mesh_bags import bag_subjects
 from face_tracking_ros.pipelines.scoring import score_stereo_against_truth
 from face_tracking_ros.replay import ReplayStats
 from face_tracking_ros.synthetic.clicks import clicks_from_bag, write_init_file
@@ -102,6 +103,33 @@ def test_bags_of_one_name_are_refused_and_a_pattern_names_the_subject(tmp_path, 
         subject_of('anna_2', args)
     assert main([*argv[:-4], '--subject-pattern', '(', *argv[-4:]]) == 2
     assert "--subject-pattern '(': not a regular expression" in capsys.readouterr().err
+
+
+def test_a_bag_given_as_its_mcap_file_is_named_as_its_directory(tmp_path, capsys):
+    """anna_1/, its MCAP file and a lone anna_1.mcap: one subject, clicks and init file.
+
+    A lone file was named anna_1.mcap (the pattern did not match it, its clicks differed and
+    its init file was not found) and one in its directory by the file (subject_00_seq_00).
+    """
+    directory = tmp_path / 'anna_1'
+    shutil.copytree(BAGS[0], directory)
+    (lone := tmp_path / 'lone' / 'anna_1.mcap').parent.mkdir()
+    shutil.copy(directory / f'{BAGS[0].name}.mcap', lone)
+    init_dir = tmp_path / 'init'
+    init_dir.mkdir()
+    init_file = write_init_file(clicks_from_bag(directory, 0.0), init_dir / 'anna_1.json')
+    clicks = clicks_from_bag(directory)
+    for bag in (directory, directory / f'{BAGS[0].name}.mcap', lone):
+        assert recording_name(bag) == 'anna_1', bag
+        options = _learn_args(bag, tmp_path, '--from-images', '--init-dir', str(init_dir))
+        pattern = replace(options, subject_pattern=r'(.+)_\d+')
+        assert bag_subjects(bag, pattern, None, truth_meshes=False) == {'anna'}, bag
+        assert stereo_meshes.checked_stereo_bags(options) == {bag: f'init_file={init_file}'}
+        assert np.array_equal(clicks_from_bag(bag).points, clicks.points), bag
+    argv = ['learn', str(directory), str(lone), '--from-images', '--simulate-clicks', '1',
+            '--out', str(tmp_path / 'm.npz'), '--report', str(tmp_path / 'r.json')]  # fmt: skip
+    assert main(argv) == 2
+    assert f'{directory} and {lone} are both named anna_1: the init' in capsys.readouterr().err
 
 
 @pytest.fixture(scope='module')

@@ -7,7 +7,7 @@ Input bags hold one of:
   neutral frames of §3.4;
 * ``face_tracking_msgs/FaceMesh`` or ``FaceState`` (a tracker's meshes): subject, label and
   alpha come from ``--truth`` bags (matched by header stamp) when given; otherwise the subject is
-  ``--subject`` or the bag's directory name and the first ``--neutral-frames`` frames of each
+  ``--subject`` or the bag's name and the first ``--neutral-frames`` frames of each
   bag are taken as neutral;
 * raw stereo images (left and right Image and CameraInfo): first tracked by the stereo tracker
   into FaceMesh bags (:mod:`face_tracking_ros.pipelines.stereo_meshes`), every mesh with the
@@ -102,8 +102,8 @@ def _add_mesh_options(parser: argparse.ArgumentParser) -> None:
         '--subject-pattern',
         metavar='REGEX',
         help='bags without truth: the subject id is the first group of REGEX matched against '
-        "the bag's directory name (default: the whole name), e.g. '(.+)_\\d+' makes anna_1 "
-        'and anna_2 two recordings of anna',
+        "the bag's name (a .mcap file's without .mcap; default: the whole name), e.g. "
+        "'(.+)_\\d+' makes anna_1 and anna_2 two recordings of anna",
     )
     parser.add_argument(
         '--truth',

@@ -17,6 +17,8 @@ a topic whose type in ``metadata.yaml`` contradicts its MCAP file's schema) is r
 
 :func:`topic_has_word` is how a topic's name tells the camera it comes from (``left``,
 ``right``): every choice of a stereo bag's left or right topic goes by it.
+:func:`recording_name` is the name of the recording a bag holds, whether it is given as a
+directory or as an MCAP file.
 """
 
 from __future__ import annotations
@@ -522,6 +524,20 @@ def topic_has_word(topic: str, word: str) -> bool:
     ``/cleft_palate/camera_info`` nor ``/leftover/camera_info``. Case is ignored.
     """
     return re.search(rf'(?<![a-z]){re.escape(word)}(?![a-z])', topic.lower()) is not None
+
+
+def recording_name(path: Path | str) -> str:
+    """The name of the recording a bag holds: its subject, init file and tracked meshes go by it.
+
+    A rosbag2 directory's name; an MCAP file's name without ``.mcap`` (``anna_1.mcap``:
+    ``anna_1``), or, for a file of a rosbag2 directory (beside its ``metadata.yaml``), the
+    directory's (``anna_1/anna_1_0.mcap``: ``anna_1``).
+    """
+    path = Path(path)
+    if path.suffix != '.mcap' or path.is_dir():
+        return path.name
+    directory = path.absolute().parent
+    return directory.name if (directory / 'metadata.yaml').is_file() else path.stem
 
 
 def message_count(path: Path | str, topics: Iterable[str]) -> int:

@@ -47,9 +47,9 @@ class LearnerConfig:
         nodes: mesh nodes, 19 or 34; 0: as in the bags.
         topic: mesh topic; empty: truth/face, face/mesh_raw or face/state, the first found.
         subject: subject id of every bag without truth (FaceMesh, FaceState, raw stereo
-            images); empty: from each bag's directory name (subject_pattern).
+            images); empty: from each bag's name (subject_pattern; a .mcap file's without .mcap).
         subject_pattern: bags without truth: the subject id is the first group of this regular
-            expression matched against the bag's directory name; empty: the whole name.
+            expression matched against the bag's name; empty: the whole name.
         neutral_frames: bags without truth (FaceMesh, FaceState, raw stereo images): the first
             K frames of each bag show the neutral face; required for them (0: not given).
         from_images: track the images of stereo bags even when they also hold truth meshes.

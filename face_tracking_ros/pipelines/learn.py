@@ -33,6 +33,7 @@ import numpy as np
 
 from face_tracking_ros.errors import ConfigError
 from face_tracking_ros.io.atomic import write_text_atomically
+from face_tracking_ros.io.bags import recording_name
 from face_tracking_ros.io.provenance import other_source
 from face_tracking_ros.learning.alignment import align_training_set
 from face_tracking_ros.learning.evaluation import (
@@ -228,7 +229,7 @@ def _read_meshes(
     return [
         item
         for bag, mesh, truth_bag in zip(options.bags, mesh_bags, truth_bags, strict=True)
-        for item in read_bag_meshes(mesh, options, truth_bag, bag.name, say)
+        for item in read_bag_meshes(mesh, options, truth_bag, recording_name(bag), say)
     ]
 
 

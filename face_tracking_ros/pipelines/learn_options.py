@@ -48,9 +48,10 @@ class LearnOptions:
         compare: methods evaluated side by side with ``method``.
         plots: directory receiving PNG figures; None: no figures.
         topic: mesh topic; None: the first of :data:`~.mesh_bags.DEFAULT_TOPICS` found.
-        subject: subject id of every bag without truth; None: from the bag's directory name.
+        subject: subject id of every bag without truth; None: from the bag's name
+            (:func:`~face_tracking_ros.io.bags.recording_name`).
         subject_pattern: bags without truth: the subject id is the first group of this regular
-            expression matched against the bag's directory name; None: the whole name.
+            expression matched against the bag's name; None: the whole name.
         truth: one bag per bag of ``bags``, in the same order, whose truth/face messages label
             the meshes of the same stamp (subject, expression, alpha); None: no such bags.
         neutral_frames: bags without truth: the first K frames of each bag show the neutral face.

@@ -7,7 +7,8 @@ A bag holds one of:
   neutral frames of §3.4;
 * ``face_tracking_msgs/FaceMesh`` or ``FaceState`` (a tracker's meshes): subject, label and
   alpha come from a truth bag (matched by header stamp) when given; otherwise the subject is
-  :attr:`~.learn_options.LearnOptions.subject` or the bag's directory name, and the first
+  :attr:`~.learn_options.LearnOptions.subject` or the bag's name (its
+  :func:`~face_tracking_ros.io.bags.recording_name`), and the first
   ``neutral_frames`` frames of each bag are taken as neutral. Frames the tracker did not track
   are left out.
 """
@@ -22,7 +23,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from face_tracking_ros.errors import BagError, ConfigError, InputError
-from face_tracking_ros.io.bags import bag_topics, read_messages
+from face_tracking_ros.io.bags import bag_topics, read_messages, recording_name
 from face_tracking_ros.io.conversions import (
     STATE_TYPE,
     TRUTH_TYPE,
@@ -95,7 +96,8 @@ def read_bag_meshes(
     """
     topics = bag_topics(bag)
     topic = _checked_mesh_topic(bag, topics, options)
-    frames, skipped = _tracked_frames(bag, topics, topic, options, truth_bag, name or bag.name)
+    name = name or recording_name(bag)
+    frames, skipped = _tracked_frames(bag, topics, topic, options, truth_bag, name)
     if skipped:
         say(f'{bag}: {skipped} frames the tracker did not track (initialising or lost) left out')
     if not frames:
@@ -139,7 +141,7 @@ def bag_subjects(
         topic = _checked_mesh_topic(bag, topics, options)
         if topics[topic] == TRUTH_TYPE:
             return {truth.subject_id for _, truth in read_converted(bag, topic, truth_from_msg)}
-    return {subject_of(bag.name, options)}
+    return {subject_of(recording_name(bag), options)}
 
 
 def mesh_topic(topics: dict[str, str], options: LearnOptions) -> str | None:

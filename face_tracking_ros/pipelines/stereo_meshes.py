@@ -18,7 +18,7 @@ from pathlib import Path
 import shutil
 
 from face_tracking_ros.errors import BagError, ConfigError, FaceTrackingError
-from face_tracking_ros.io.bags import bag_topics
+from face_tracking_ros.io.bags import bag_topics, recording_name
 from face_tracking_ros.io.provenance import Provenance
 from face_tracking_ros.io.series import has_truth
 from face_tracking_ros.pipelines.bag_inputs import (
@@ -85,7 +85,7 @@ def mesh_bag(
         if not needs_tracking(bag, topics, options):
             return bag  # meshes (or nothing: read_bag_meshes names the missing topic)
         initialisation = stereo_initialisations(_checked({bag: topics}, options), options)[bag]
-    out = _meshes_dir(options) / bag.name
+    out = _tracked_meshes(bag, options)
     params, remaps = _tracking(topics, options, initialisation)
     inputs = Provenance.of(bag, [TRACKER], params.overrides, remaps)
     if _tracked_before(out, inputs, options.named('meshes_dir'), say):
@@ -190,7 +190,7 @@ def _check_tracking(
     params, remaps = _tracking(topics, options, initialisation)
     wire_replay([TRACKER], bag, params, remaps, frozenset(), topics)
     inputs = Provenance.of(bag, [TRACKER], params.overrides, remaps)
-    _earlier_tracking(_meshes_dir(options) / bag.name, inputs, options.named('meshes_dir'))
+    _earlier_tracking(_tracked_meshes(bag, options), inputs, options.named('meshes_dir'))
 
 
 def _tracking(
@@ -233,10 +233,11 @@ def needs_tracking(bag: Path, topics: dict[str, str], options: LearnOptions) -> 
         return False
     if has_meshes and not options.from_images:
         return False
-    namesakes = [other for other in options.bags if other.name == bag.name and other != bag]
+    name = recording_name(bag)
+    namesakes = [other for other in options.bags if recording_name(other) == name and other != bag]
     if namesakes:
         msg = (
-            f'{bag} and {namesakes[0]} are both named {bag.name}: the init files and tracked '
+            f'{bag} and {namesakes[0]} are both named {name}: the init files and tracked '
             f'meshes of raw stereo bags are named after the bag, so rename one '
             f'({options.named("subject_pattern")} can still give both the same subject)'
         )
@@ -264,7 +265,7 @@ def _given_initialisation(bag: Path, options: LearnOptions) -> str | None:
     """
     if options.init_dir is not None:
         for suffix in ('.yaml', '.yml', '.json'):
-            candidate = options.init_dir / f'{bag.name}{suffix}'
+            candidate = options.init_dir / f'{recording_name(bag)}{suffix}'
             if candidate.is_file():
                 return f'init_file={candidate}'
     if options.simulate_clicks is not None:
@@ -279,9 +280,10 @@ def _given_initialisation(bag: Path, options: LearnOptions) -> str | None:
     else:
         where = f'in {init_dir} {options.init_dir}, which is not a directory'
     msg = (
-        f'{bag} holds raw stereo images: give its initialisation {where} (a {bag.name}.yaml '
-        f'node-name -> pixel file), {options.named("auto_init")} (the optional landmark '
-        f'detector) or, for synthetic bags, {options.named("simulate_clicks")}'
+        f'{bag} holds raw stereo images: give its initialisation {where} (a '
+        f'{recording_name(bag)}.yaml node-name -> pixel file), {options.named("auto_init")} '
+        f'(the optional landmark detector) or, for synthetic bags, '
+        f'{options.named("simulate_clicks")}'
     )
     raise ConfigError(msg)
 
@@ -313,7 +315,7 @@ def _clicks_file(bag: Path, options: LearnOptions) -> Path:
     """Where the simulated clicks of ``bag`` go: <--init-dir or meshes dir_clicks>/<bag>.json."""
     meshes = _meshes_dir(options)
     directory = options.init_dir or meshes.with_name(f'{meshes.name}_clicks')
-    return directory / f'{bag.name}.json'
+    return directory / f'{recording_name(bag)}.json'
 
 
 def _track(
@@ -420,3 +422,8 @@ def _earlier_tracking(out: Path, inputs: Provenance, meshes_dir: str) -> Provena
 def _meshes_dir(options: LearnOptions) -> Path:
     """Where tracked mesh bags of raw stereo bags go."""
     return options.meshes_dir or options.report.parent / f'{options.report.stem}_meshes'
+
+
+def _tracked_meshes(bag: Path, options: LearnOptions) -> Path:
+    """The bag of meshes tracked from the raw stereo bag ``bag``: named after its recording."""
+    return _meshes_dir(options) / recording_name(bag)

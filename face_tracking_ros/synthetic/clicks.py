@@ -23,7 +23,7 @@ from face_tracking_ros.io.atomic import (
     check_replaceable,
     write_text_atomically,
 )
-from face_tracking_ros.io.bags import bag_topics, read_messages, topic_has_word
+from face_tracking_ros.io.bags import bag_topics, read_messages, recording_name, topic_has_word
 from face_tracking_ros.io.series import read_converted
 from face_tracking_ros.tracking.initialisation import Initialisation, load_init_file
 
@@ -123,5 +123,5 @@ def clicks_from_bag(
     truth_msg, truth = first
     camera = conversions.camera_from_info(info)
     names = tuple(truth_msg.node_names)
-    draw = zlib.crc32(bag.name.encode()) if seed is None else seed
+    draw = zlib.crc32(recording_name(bag).encode()) if seed is None else seed
     return simulated_clicks(names, truth.nodes, camera, noise_px, np.random.default_rng(draw))
