@@ -126,3 +126,17 @@ def test_a_bag_without_images_is_named_with_its_topics(turned, tmp_path, capsys)
         assert main(['overlay', str(out), str(out), *video, *more]) == 2
         assert capsys.readouterr().err == expected
     assert not (tmp_path / 'v.mp4').exists()
+
+
+def test_the_bags_given_the_other_way_round_are_named_swapped(turned, tmp_path, capsys):
+    """It said only that the images bag has no FaceState topic."""
+    bag, out = turned
+    assert main(['overlay', str(out), str(bag), '--video', str(tmp_path / 'v.gif')]) == 2
+    assert capsys.readouterr().err == (
+        f'error: {bag}: expected one face_tracking_msgs/msg/FaceState topic, found none: the '
+        'first argument is a tracking output and the second holds images: give the images bag '
+        'first\n'
+    )
+    assert main(['overlay', str(bag), str(bag), '--video', str(tmp_path / 'v.gif')]) == 2
+    assert capsys.readouterr().err.endswith('FaceState topic, found none\n')  # no images first
+    assert not (tmp_path / 'v.gif').exists()

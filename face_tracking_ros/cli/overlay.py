@@ -5,8 +5,11 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from face_tracking_ros.errors import ConfigError
+from face_tracking_ros.errors import BagError, ConfigError
+from face_tracking_ros.io.bags import bag_topics
+from face_tracking_ros.io.conversions import STATE_TYPE
 from face_tracking_ros.io.series import load_states
+from face_tracking_ros.pipelines.bag_inputs import image_topics
 from face_tracking_ros.visualization.video import write_overlay_video
 
 
@@ -38,8 +41,27 @@ def run(args: argparse.Namespace) -> None:
     if args.every < 1:
         msg = f'--every must be >= 1, got {args.every}'
         raise ConfigError(msg)
-    states = load_states(args.out)
+    try:
+        states = load_states(args.out)
+    except BagError as error:
+        if _swapped(args.bag, args.out):
+            msg = (
+                f'{error}: the first argument is a tracking output and the second holds images: '
+                'give the images bag first'
+            )
+            raise BagError(msg) from None
+        raise
     count = write_overlay_video(
         args.bag, states, args.video, args.image_topic, args.every, rectify=args.rectify
     )
     print(f'wrote {count} frames to {args.video}')
+
+
+def _swapped(bag: Path, out: Path) -> bool:
+    """Whether the bags came swapped: FaceState and no images in ``bag``, images in ``out``.
+
+    Asked when ``out`` has no FaceState topic (:func:`~face_tracking_ros.io.series.load_states`).
+    """
+    first, second = bag_topics(bag), bag_topics(out)
+    tracked = STATE_TYPE in first.values() and not image_topics(first)[0]
+    return tracked and bool(image_topics(second)[0])
