@@ -53,11 +53,9 @@ def _not_applicable(path: str) -> bool:
 
 
 def test_quick_run_writes_finite_figures(tmp_path):
-    out = tmp_path / 'results.json'
-    domain = os.environ.get('ROS_DOMAIN_ID', '42')
+    out = tmp_path / 'results.json'  # (live runs on conftest's ROS_DOMAIN_ID)
     status = main(
-        ['bench', '--quick', '--out', str(tmp_path), '--json', str(out), '--domain-id', domain]
-        + ['--only', *QUICK]
+        ['bench', '--quick', '--out', str(tmp_path), '--json', str(out), '--only', *QUICK]
     )
     failed = tmp_path / 'results.failed.json'  # (where a run with a failure writes)
     assert status == 0, json.loads(failed.read_text())['benchmarks']
@@ -147,6 +145,38 @@ def test_bad_options_are_refused_before_any_benchmark_runs(
     assert re.fullmatch(f'error: {message}\n', capsys.readouterr().err)
     assert not ran
     assert list(tmp_path.iterdir()) == []
+
+
+def test_the_live_runs_are_on_the_environments_ros_domain_unless_given(
+    tmp_path, capsys, monkeypatch
+):
+    """--domain-id defaults to ROS_DOMAIN_ID when set (it was always 70), else to 70."""
+    domains = []
+    monkeypatch.setattr(
+        bench,
+        'run_benchmarks',
+        lambda names, options: domains.append(options.domain_id) or {'benchmarks': {}},
+    )
+    argv = ['bench', '--out', str(tmp_path), '--only', 'soak']
+    for environment, more, domain in [
+        ('76', [], 76),
+        ('76', ['--domain-id', '5'], 5),
+        ('', [], 70),
+        (None, [], 70),
+    ]:
+        monkeypatch.delenv('ROS_DOMAIN_ID', raising=False)
+        if environment is not None:
+            monkeypatch.setenv('ROS_DOMAIN_ID', environment)
+        assert main([*argv, *more]) == 0
+        assert domains.pop() == domain, (environment, more)
+    for environment, message in [
+        ('233', 'ROS_DOMAIN_ID (the default of --domain-id) must be in [0, 232] (a '),
+        ('seven', "ROS_DOMAIN_ID (the default of --domain-id) must be an integer, got 'seven'"),
+    ]:
+        monkeypatch.setenv('ROS_DOMAIN_ID', environment)
+        assert main(argv) == 2
+        assert capsys.readouterr().err.startswith(f'error: {message}')
+    assert not domains
 
 
 def test_a_run_with_a_failed_benchmark_keeps_the_earlier_results(tmp_path, capsys, monkeypatch):

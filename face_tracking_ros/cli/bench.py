@@ -5,7 +5,8 @@ Runs the benchmarks of :mod:`face_tracking_ros.bench` (each in its own process o
 headline table (the one in README.md, "Performance"). A run in which a benchmark failed leaves
 the results file of an earlier run as it was and writes its own beside it (``results.json``:
 ``results.failed.json``). ``--only soak --minutes 30`` is the soak run of issue 10; it is not
-part of the default set.
+part of the default set. The live benchmarks run on the ROS domain ``--domain-id``, by default
+the environment's ``ROS_DOMAIN_ID`` (as every ROS 2 tool), else 70.
 """
 
 from __future__ import annotations
@@ -13,6 +14,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 from pathlib import Path
 from typing import Any
 
@@ -59,8 +61,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument(
         '--domain-id',
         type=int,
-        default=BenchOptions.domain_id,
-        help=f'ROS_DOMAIN_ID of live runs, 0 to {MAX_DOMAIN_ID} (%(default)s)',
+        help=f'ROS domain of the live runs, 0 to {MAX_DOMAIN_ID} (default: ROS_DOMAIN_ID when '
+        f'set, else {BenchOptions.domain_id})',
     )
     parser.add_argument(
         '--seed', type=int, default=BenchOptions.seed, help='synthetic world seed (>= 0)'
@@ -74,9 +76,9 @@ def run(args: argparse.Namespace) -> int:
     Raises:
         ConfigError: for an option out of range, before any benchmark runs.
     """
-    _check_options(args)
+    domain_id = _check_options(args)
     work_dir = args.out / 'bench'
-    options = BenchOptions(args.quick, work_dir, args.minutes, args.domain_id, args.seed)
+    options = BenchOptions(args.quick, work_dir, args.minutes, domain_id, args.seed)
     results = run_benchmarks(args.only or DEFAULT_BENCHMARKS, options)
     path = args.json or work_dir / 'results.json'
     failed = [name for name, r in results['benchmarks'].items() if 'failed' in r]
@@ -90,20 +92,25 @@ def run(args: argparse.Namespace) -> int:
     return 1 if failed else 0
 
 
-def _check_options(args: argparse.Namespace) -> None:
+def _check_options(args: argparse.Namespace) -> int:
     """Refuse option values the benchmarks cannot run with, before the first one starts.
 
+    Returns:
+        The ROS domain of the live runs (:func:`_domain_id`).
+
     Raises:
-        ConfigError: naming the option, its value and the range expected, or an output path
-            that cannot be written (:func:`~face_tracking_ros.io.atomic.check_output_path`).
+        ConfigError: naming the option (or ROS_DOMAIN_ID), its value and the range expected, or
+            an output path that cannot be written
+            (:func:`~face_tracking_ros.io.atomic.check_output_path`).
     """
     if not (math.isfinite(args.minutes) and args.minutes > 0.0):
         msg = f'--minutes must be a finite number > 0 (the soak duration), got {args.minutes}'
         raise ConfigError(msg)
-    if not 0 <= args.domain_id <= MAX_DOMAIN_ID:
+    domain_id, source = _domain_id(args.domain_id)
+    if not 0 <= domain_id <= MAX_DOMAIN_ID:
         msg = (
-            f'--domain-id must be in [0, {MAX_DOMAIN_ID}] (a ROS_DOMAIN_ID whose DDS ports '
-            f'exist), got {args.domain_id}'
+            f'{source} must be in [0, {MAX_DOMAIN_ID}] (a ROS_DOMAIN_ID whose DDS ports '
+            f'exist), got {domain_id}'
         )
         raise ConfigError(msg)
     if args.seed < 0:
@@ -112,6 +119,28 @@ def _check_options(args: argparse.Namespace) -> None:
     check_output_path(args.out, '--out', directory=True)
     if args.json is not None:
         check_output_path(args.json, '--json')
+    return domain_id
+
+
+def _domain_id(given: int | None) -> tuple[int, str]:
+    """The ROS domain of the live runs and where it comes from, for messages.
+
+    ``given`` (--domain-id), else the environment's ROS_DOMAIN_ID when set (not empty), else
+    :attr:`BenchOptions.domain_id`.
+
+    Raises:
+        ConfigError: if ROS_DOMAIN_ID, used, is not an integer.
+    """
+    if given is not None:
+        return given, '--domain-id'
+    text = os.environ.get('ROS_DOMAIN_ID', '').strip()
+    if not text:
+        return BenchOptions.domain_id, '--domain-id'
+    try:
+        return int(text), 'ROS_DOMAIN_ID (the default of --domain-id)'
+    except ValueError:
+        msg = f'ROS_DOMAIN_ID (the default of --domain-id) must be an integer, got {text!r}'
+        raise ConfigError(msg) from None
 
 
 def format_table(results: dict[str, Any]) -> str:
