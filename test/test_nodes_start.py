@@ -27,7 +27,9 @@ def test_node_with_a_bad_parameter_says_so_and_exits_2():
     process = start_node('mono_tracker', **{'tracker.epsilon': 1.5})
     code, output = finish(process)
     assert code == 2
-    assert 'invalid parameter tracker.epsilon = 1.5' in output
+    # with its description: the node's parameter descriptions are gone with it
+    expected = 'invalid parameter tracker.epsilon = 1.5: drift-monitoring weight epsilon of eq. 6'
+    assert f'{expected}, in [0, 1] (seed: 0.2).\n' in output
     assert 'Traceback' not in output
 
 

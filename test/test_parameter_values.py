@@ -58,7 +58,7 @@ def _refused(config: type, prefix: str, name: str, value: str) -> str:
 @pytest.mark.parametrize('value', ['inf', 'nan'])
 def test_a_float_parameter_that_is_not_finite_is_refused_by_name(config, prefix, name, value):
     message = _refused(config, prefix, name, value)
-    assert re.fullmatch(rf'invalid parameter {prefix}{name} = {value} \(.*\)', message)
+    assert re.fullmatch(rf'invalid parameter {prefix}{name} = {value}(: | \().*', message)
     if value != 'nan':  # NaN fails the range check itself
         assert message.endswith('(expected a finite number)')
 
@@ -88,16 +88,17 @@ def test_finite_floats_and_other_types_pass_the_finiteness_check(value):
     check_fields(_Given(value), {'value': True})  # no error
 
 
-# (config, prefix, parameter, value, what the message says is expected): configs that check
-# their fields with messages of their own, which named them without the parameter's prefix
-# (on_threshold for events.on_threshold) or not at all (tracker.fit.*).
+# (config, prefix, parameter, value, what the message says is expected, or ': ' and the start of
+# the parameter's description when the check says no more): configs that check their fields
+# with messages of their own, which named them without the parameter's prefix (on_threshold for
+# events.on_threshold) or not at all (tracker.fit.*).
 OWN_CHECKS = [
     (
         MonoTrackerConfig,
         TRACKER,
         'fit.pixel_noise',
         '0.0',
-        'its description gives the valid values',
+        r': standard deviation of the given 2-D points, px \(> 0\); scales the',
     ),
     (MonoTrackerConfig, TRACKER, 'fit.prior_weight', 'inf', 'expected a finite number'),
     (
@@ -105,19 +106,19 @@ OWN_CHECKS = [
         TRACKER,
         'fit.max_rms_px',
         '-1.0',
-        'its description gives the valid values',
+        r': a fit whose RMS reprojection error exceeds this is rejected, px \(> 0\)',
     ),
     (
         StereoTrackerConfig,
         TRACKER,
         'regularisation.beta',
         '-1.0',
-        'its description gives the valid values',
+        r': beta_ij of the stiffest edges: cost of differential motion, grey\^2 / m\^2, >= 0\.',
     ),
     (StereoTrackerConfig, TRACKER, 'regularisation.delta', 'inf', 'expected a finite number'),
     (StereoTrackerConfig, TRACKER, 'regularisation.mouth', '2.0', r'expected in \[0, 1\]'),
     (DetectorConfig, 'detector.', 'upsample', '3', 'expected 0, 1 or 2'),
-    (StereoTrackerConfig, TRACKER, 'num_nodes', '20', 'its description gives the valid values'),
+    (StereoTrackerConfig, TRACKER, 'num_nodes', '20', r': mesh size, 19 or 34\.'),
     (EventConfig, 'events.', 'on_threshold', '1.5', r'expected in \(0, 1\]'),
     (EventConfig, 'events.', 'off_threshold', '0.9', r'expected in \[0, on_threshold=0.6\)'),
     (EventConfig, 'events.', 'min_duration', 'inf', 'expected >= 0 s and finite'),
@@ -130,27 +131,32 @@ OWN_CHECKS = [
 @pytest.mark.parametrize(('config', 'prefix', 'name', 'value', 'expected'), OWN_CHECKS)
 def test_a_value_out_of_range_is_named_as_its_parameter(config, prefix, name, value, expected):
     message = _refused(config, prefix, name, value)
-    assert re.fullmatch(rf'invalid parameter {prefix}{name} = {value} \({expected}\)', message)
+    assert re.match(rf'invalid parameter {prefix}{name} = {value}{_tail(expected)}', message)
+
+
+def _tail(expected: str) -> str:
+    """What follows the value in the message: ' (expected ...)', or ': ' and the description."""
+    return expected if expected.startswith(':') else rf' \({expected}\)$'
 
 
 @pytest.mark.parametrize(
     ('name', 'value', 'expected'),
     [
-        ('output', '', 'its description gives the valid values'),
+        ('output', '', r': model file to write \(\.npz\)\.'),
         ('simulate_clicks', 'nan', 'expected a finite number'),  # was off, as a negative
         ('simulate_clicks', 'inf', 'expected a finite number'),
     ],
 )
 def test_a_learner_value_is_refused_by_name(name, value, expected):
     message = _refused(LearnerConfig, '', name, value)
-    assert re.fullmatch(rf"invalid parameter {name} = '?{value}'? \({expected}\)", message)
+    assert re.fullmatch(rf"invalid parameter {name} = '?{value}'?{_tail(expected)}", message)
 
 
 @pytest.mark.parametrize('config', [MonoNodeConfig, StereoNodeConfig])
 def test_an_empty_or_blank_face_id_is_refused_by_name(config):
     """``--param face_id=`` (or ``-p face_id:=' '``) tracked faces with no face_id."""
     message = _refused(config, '', 'face_id', '')  # --param strips the value
-    assert message == "invalid parameter face_id = '' (its description gives the valid values)"
+    assert message == "invalid parameter face_id = '': face_id of the outputs; not empty or blank."
     with pytest.raises(ConfigError, match=rf"invalid {config.__name__}.face_id = ' '"):
         config(face_id=' ')
     assert config(face_id=' face 1 ').face_id == ' face 1 '  # as given

@@ -207,7 +207,7 @@ class Checked:
 
 def test_a_value_out_of_range_is_named_as_its_parameter_live_and_offline(ros_context):
     node = _node_with(ros_context, **{'inner.share': 2.0})
-    expected = r'invalid parameter inner\.share = 2\.0 \(its description gives the valid values\)'
+    expected = r'^invalid parameter inner\.share = 2\.0: in \[0, 1\]\.$'  # its description
     with pytest.raises(ConfigError, match=expected):
         processor_node.NodeParameters(node).config(Checked, prefix='inner.')
     node.destroy_node()

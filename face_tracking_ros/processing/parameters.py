@@ -43,19 +43,25 @@ class ParameterSource(Protocol):
 def build_config(config_type: type[ConfigT], values: Mapping[str, Any], prefix: str) -> ConfigT:
     """``config_type(**values)``, a field out of range named as the parameter ``prefix + field``.
 
+    The message says what the check expects when it says more than the field's description
+    (:attr:`~face_tracking_ros.errors.FieldError.expected`), else gives the description, the
+    parameter's (:func:`attribute_descriptions`): a node that stops at start-up shows no
+    parameter descriptions.
+
     Raises:
-        ConfigError: e.g. 'invalid parameter tracker.epsilon = 2.0 (its description gives the
-            valid values)', or '... = inf (expected a finite number)'.
+        ConfigError: e.g. 'invalid parameter tracker.epsilon = 2.0: drift-monitoring weight
+            epsilon of eq. 6, in [0, 1] (seed: 0.2).', or '... = inf (expected a finite
+            number)'.
     """
     try:
         return config_type(**values)
     except FieldError as error:
-        value = values.get(error.field)
-        expected = error.expected and f'expected {error.expected}'
-        msg = (
-            f'invalid parameter {prefix}{error.field} = {value!r} '
-            f'({expected or "its description gives the valid values"})'
-        )
+        invalid = f'invalid parameter {prefix}{error.field} = {values.get(error.field)!r}'
+        description = attribute_descriptions(config_type).get(error.field)
+        if error.expected or not description:
+            msg = f'{invalid} (expected {error.expected or "another value"})'
+        else:
+            msg = f'{invalid}: {description}'
         raise ConfigError(msg) from None
 
 
