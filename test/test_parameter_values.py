@@ -25,6 +25,8 @@ from face_tracking_ros.tracking.mono_config import MonoTrackerConfig
 from face_tracking_ros.tracking.pose_filter import PoseFilterConfig
 from face_tracking_ros.tracking.stereo import StereoTrackerConfig
 
+from repo_root import REPO
+
 TRACKER = 'tracker.'
 
 # (config, prefix, parameter): a float whose range check alone (> 0, >= 0) let inf through.
@@ -172,6 +174,19 @@ def test_a_learner_bag_dir_that_is_not_a_directory_is_named(tmp_path):
         )
         with pytest.raises(ConfigError, match=re.escape(expected)):
             learn_options(config)
+
+
+def test_a_learner_bag_dir_gives_its_directories_and_mcap_files(tmp_path):
+    """Bags as directories and as lone .mcap files; a bag given as bag_dir is named."""
+    (tmp_path / 'b_seq').mkdir()
+    for name in ('a_seq.mcap', 'notes.txt'):
+        (tmp_path / name).write_text('')
+    options = learn_options(LearnerConfig(bag_dir=str(tmp_path)))
+    assert options.bags == (tmp_path / 'a_seq.mcap', tmp_path / 'b_seq')
+    bag = REPO / 'bags' / 'stereo_train' / 'subject_00_seq_00'
+    expected = f'parameter bag_dir: {bag} is a bag itself, not a directory of bags: give it in'
+    with pytest.raises(ConfigError, match=re.escape(expected)):
+        learn_options(LearnerConfig(bag_dir=str(bag)))
 
 
 @pytest.mark.parametrize(

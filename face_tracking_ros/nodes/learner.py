@@ -38,7 +38,8 @@ class LearnerConfig:
 
     Attributes:
         bags: bag directories to learn from.
-        bag_dir: a directory whose sub-directories are all bags to learn from (added to bags).
+        bag_dir: a directory whose sub-directories and .mcap files are all bags to learn from
+            (added to bags).
         output: model file to write (.npz).
         report: JSON report to write; empty: the model file's name with .json.
         method: learning method: joint (default, issue 11), seed (§3.4) or seed-weighted (§4.3).
@@ -124,6 +125,25 @@ def parameter_named(field: str) -> str:
     return f'parameter {RENAMED.get(field, field)}'
 
 
+def _bags_in(bag_dir: Path) -> list[Path]:
+    """The bags in ``bag_dir``: its sub-directories and .mcap files, by name.
+
+    Raises:
+        ConfigError: if it is not a directory, or is itself a bag (holds metadata.yaml).
+    """
+    if not bag_dir.is_dir():
+        kind = 'not a directory' if bag_dir.exists() else 'no such directory'
+        msg = f'parameter bag_dir: {bag_dir}: {kind} (expected a directory of bags)'
+        raise ConfigError(msg)
+    if (bag_dir / 'metadata.yaml').is_file():
+        msg = (
+            f'parameter bag_dir: {bag_dir} is a bag itself, not a directory of bags: give it in '
+            'the bags parameter'
+        )
+        raise ConfigError(msg)
+    return sorted(path for path in bag_dir.iterdir() if path.is_dir() or path.suffix == '.mcap')
+
+
 def learn_options(config: LearnerConfig) -> LearnOptions:
     """The learning pipeline's options from the node's parameters.
 
@@ -132,16 +152,11 @@ def learn_options(config: LearnerConfig) -> LearnOptions:
     which is empty: only ``method`` is learned and evaluated.
 
     Raises:
-        ConfigError: if no bag is given, or bag_dir is not a directory.
+        ConfigError: if no bag is given, or bag_dir is not a directory of bags.
     """
     bags = [Path(bag) for bag in config.bags]
     if config.bag_dir:
-        bag_dir = Path(config.bag_dir)
-        if not bag_dir.is_dir():
-            kind = 'not a directory' if bag_dir.exists() else 'no such directory'
-            msg = f'parameter bag_dir: {bag_dir}: {kind} (expected a directory of bags)'
-            raise ConfigError(msg)
-        bags += sorted(path for path in bag_dir.iterdir() if path.is_dir())
+        bags += _bags_in(Path(config.bag_dir))
     if not bags:
         msg = 'no bags to learn from: set the bags or bag_dir parameter'
         raise ConfigError(msg)
