@@ -17,7 +17,7 @@ import re
 import pytest
 
 from face_tracking_ros.bench import runner
-from face_tracking_ros.bench.common import BenchOptions
+from face_tracking_ros.bench.common import BENCH_CORE, DRIVER_CORE, BenchOptions, pin_to_core
 from face_tracking_ros.bench.runner import finite_or_null, run_benchmarks
 from face_tracking_ros.cli import bench
 from face_tracking_ros.cli.bench import format_table
@@ -77,6 +77,10 @@ def test_quick_run_writes_finite_figures(tmp_path):
     assert live['at_30hz']['published'] == 150
     assert 0 < live['at_30hz']['received'] == live['at_30hz']['tracked']  # all TRACKING
     assert live['node_peak_rss_mb'] > 0
+    cores = sorted(os.sched_getaffinity(0))
+    if len(cores) > 1:  # the node on the benchmark's core, the driver on another
+        assert len(live['cores']['node']) == len(live['cores']['driver']) == 1
+        assert live['cores']['node'] != live['cores']['driver']
     protocol = results['benchmarks']['mono_accuracy']
     rows = ('true_model', 'unfiltered', 'learned_model', 'baseline', 'nodes_19')
     rows += ('epsilon_0', 'prior_off', 'bundle_off', 'true_model_click_draws')
@@ -113,6 +117,20 @@ def test_quick_run_writes_finite_figures(tmp_path):
     assert nulls == [path for path, _ in leaves if _not_applicable(path)]
     assert '/benchmarks/stereo_accuracy/runs/nodes_19/pooled/boundary_slip_mm' in nulls
     assert sum(isinstance(value, int | float) for _, value in leaves) > 50
+
+
+def test_pin_to_core_moves_a_pinned_process_to_another_core():
+    """The runner pins a benchmark to one core; a live one then moves its driver to another."""
+    saved = os.sched_getaffinity(0)
+    if not {BENCH_CORE, DRIVER_CORE} <= saved:
+        pytest.skip(f'cores {BENCH_CORE} and {DRIVER_CORE} are not both available here')
+    try:
+        assert pin_to_core() == BENCH_CORE
+        assert pin_to_core(DRIVER_CORE) == DRIVER_CORE
+        assert os.sched_getaffinity(0) == {DRIVER_CORE}
+        assert pin_to_core(4095) == DRIVER_CORE  # no such core: the lowest of the affinity
+    finally:
+        os.sched_setaffinity(0, saved)
 
 
 @pytest.mark.parametrize(

@@ -74,11 +74,19 @@ def time_calls(calls: Sequence[Callable[[], object]]) -> list[float]:
 
 
 def pin_to_core(core: int = BENCH_CORE) -> int:
-    """Pin the calling process to one core (the lowest available if ``core`` is not); its id."""
-    available = sorted(os.sched_getaffinity(0))
-    chosen = core if core in available else available[0]
-    os.sched_setaffinity(0, {chosen})
-    return chosen
+    """Pin the calling process to one core; its id.
+
+    ``core`` need not be in the process's affinity: a live benchmark's process, pinned to
+    BENCH_CORE by the runner, moves its driver to DRIVER_CORE, and starts its nodes on
+    BENCH_CORE from there. A core the process may not run on (a one-core machine, a cpuset
+    without it) gives the lowest core of its affinity instead.
+    """
+    try:
+        os.sched_setaffinity(0, {core})
+    except OSError:  # no such core here
+        core = min(os.sched_getaffinity(0))
+        os.sched_setaffinity(0, {core})
+    return core
 
 
 def proc_status_mb(pid: int, field: str) -> float:

@@ -27,7 +27,7 @@ from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 
-from face_tracking_ros.bench.common import BENCH_CORE, dds_env, proc_status_mb
+from face_tracking_ros.bench.common import dds_env, pin_to_core, proc_status_mb
 from face_tracking_ros.bench.world import model_file, render_sequence, scene_config
 from face_tracking_ros.errors import ConfigError
 from face_tracking_ros.geometry.camera import PinholeCamera
@@ -46,7 +46,7 @@ LATE_GRACE = 1.0  # s, waited after the last image for its state
 
 
 class NodeProcess:
-    """A node executable running in its own process on :data:`BENCH_CORE`.
+    """A node executable running in its own process on :data:`~.common.BENCH_CORE`.
 
     Args:
         node: executable name (a console script next to the Python interpreter).
@@ -76,7 +76,7 @@ class NodeProcess:
                 env=dds_env(domain_id),
                 stdout=stream,
                 stderr=subprocess.STDOUT,
-                preexec_fn=lambda: os.sched_setaffinity(0, {_bench_core()}),
+                preexec_fn=pin_to_core,  # BENCH_CORE
             )
 
     @property
@@ -87,6 +87,10 @@ class NodeProcess:
     def alive(self) -> bool:
         """Whether the process is still running."""
         return self._process.poll() is None
+
+    def cores(self) -> list[int]:
+        """The cores the process may run on (its CPU affinity)."""
+        return sorted(os.sched_getaffinity(self.pid))
 
     def peak_rss_mb(self) -> float:
         """Peak resident set size so far (VmHWM), MB."""
@@ -109,12 +113,6 @@ class NodeProcess:
     def tail(self, lines: int = 5) -> str:
         """The last lines of its log (for error reports)."""
         return ' | '.join(self.log.read_text(errors='replace').splitlines()[-lines:])
-
-
-def _bench_core() -> int:
-    """BENCH_CORE, or the lowest core this process may use."""
-    available = os.sched_getaffinity(0)
-    return BENCH_CORE if BENCH_CORE in available else min(available)
 
 
 @dataclass(frozen=True)

@@ -16,6 +16,7 @@ sequence backwards from its end.
 
 from __future__ import annotations
 
+import os
 from typing import Any
 
 from face_tracking_ros.bench.common import DRIVER_CORE, BenchOptions, pin_to_core
@@ -38,8 +39,9 @@ def run(options: BenchOptions) -> dict[str, Any]:
 
     Returns:
         ``{'at_30hz': {...}, 'rate_steps': [...], 'max_rate_without_drops_hz': r,
-        'node_peak_rss_mb': m, 'stream_frames': f}`` (``r`` is 0 when even the lowest step
-        dropped frames; ``f`` the rendered frames the stream plays).
+        'node_peak_rss_mb': m, 'cores': {'node': [...], 'driver': [...]}, 'stream_frames': f}``
+        (``r`` is 0 when even the lowest step dropped frames; ``cores`` the CPU affinities the
+        node and the driver ran with; ``f`` the rendered frames the stream plays).
     """
     pin_to_core(DRIVER_CORE)
     frames = QUICK_FRAMES if options.quick else FRAMES
@@ -60,6 +62,7 @@ def run(options: BenchOptions) -> dict[str, Any]:
             if steps[-1].dropped:
                 break
         peak_rss = node.peak_rss_mb()
+        cores = {'node': node.cores(), 'driver': sorted(os.sched_getaffinity(0))}
     finally:
         driver.close()
         node.stop()
@@ -70,5 +73,6 @@ def run(options: BenchOptions) -> dict[str, Any]:
         'rate_steps': [step.summary() for step in steps],
         'max_rate_without_drops_hz': max(sustained, default=0.0),
         'node_peak_rss_mb': peak_rss,
+        'cores': cores,
         'stream_frames': frames,
     }
