@@ -371,6 +371,11 @@ def wire_replay(
     return processors, topic_map
 
 
+def fed_topic(topic_map: Mapping[str, str], port: str) -> str | None:
+    """The bag topic that feeds input ``port`` in a :func:`wire_replay` topic map; None: none."""
+    return next((topic for topic, fed in topic_map.items() if fed == port), None)
+
+
 def _check_image_inputs(
     bag: Path,
     nodes: Sequence[str],

@@ -2,7 +2,8 @@
 
 The simulated clicks, the stereo scoring's rig and the overlay's image topic choose their
 camera by :func:`~face_tracking_ros.io.bags.topic_has_word`, as the stereo tracker's inputs do:
-a ``/cleft_palate/...`` or ``/leftover/...`` topic is no left camera's.
+a ``/cleft_palate/...`` or ``/leftover/...`` topic is no left camera's. Where the tracker's
+left camera is given (``--left-info-topic``), the clicks are in that camera whatever its name.
 """
 
 from __future__ import annotations
@@ -12,14 +13,18 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from face_tracking_ros.cli.main import main
 from face_tracking_ros.errors import BagError
 from face_tracking_ros.geometry.camera import PinholeCamera
 from face_tracking_ros.io import conversions
 from face_tracking_ros.io.bags import BagWriter, read_messages, topic_has_word
 from face_tracking_ros.io.messages import RosbagsMessages
 from face_tracking_ros.io.typestore import typestore
+from face_tracking_ros.pipelines import stereo_meshes
+from face_tracking_ros.pipelines.learn_options import LearnOptions
 from face_tracking_ros.pipelines.scoring import stereo_rig
 from face_tracking_ros.synthetic.clicks import clicks_from_bag
+from face_tracking_ros.tracking.initialisation import load_init_file
 from face_tracking_ros.visualization.video import image_topic
 
 from repo_root import REPO
@@ -106,3 +111,51 @@ def test_without_a_left_word_clicks_take_the_first_camera_info_and_the_rig_is_re
     )  # /leftover/ comes first by name: its (left) camera
     with pytest.raises(BagError, match='no valid left and right camera_info to build the stereo'):
         stereo_rig(bag)
+
+
+SIDES = {  # the unsided bag's topics: /cam_b/ is the left camera, /cam_a/ (first by name) right
+    'left/image_raw': '/cam_b/image_raw',
+    'right/image_raw': '/cam_a/image_raw',
+    'left/camera_info': '/cam_b/camera_info',
+    'right/camera_info': '/cam_a/camera_info',
+}
+
+
+@pytest.fixture(scope='module')
+def unsided(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The stereo bag's first pair, its topics named without a side (:data:`SIDES`)."""
+    names = {**SIDES, 'truth/face': 'truth/face'}
+    return _renamed(STEREO, tmp_path_factory.mktemp('unsided') / 'bag', names, ())
+
+
+def test_track_clicks_in_the_camera_given_as_the_left_one(unsided, tmp_path):
+    """Simulated clicks go where the tracker reads its left camera, not the first camera_info."""
+    out = tmp_path / 'tracked'
+    argv = ['track', str(unsided), '--simulate-clicks', '0', '--out', str(out), '--quiet',
+            '--left-topic', SIDES['left/image_raw'], '--right-topic', SIDES['right/image_raw'],
+            '--left-info-topic', SIDES['left/camera_info'],
+            '--right-info-topic', SIDES['right/camera_info']]  # fmt: skip
+    main(argv)
+    clicks = load_init_file(out.parent / f'{out.name}.init.json')
+    np.testing.assert_array_equal(clicks.points, clicks_from_bag(STEREO, 0.0).points)
+
+
+def test_learn_clicks_in_the_camera_given_as_the_left_one(unsided, tmp_path):
+    options = LearnOptions(
+        bags=(unsided,),
+        out=tmp_path / 'm.npz',
+        report=tmp_path / 'r.json',
+        from_images=True,
+        simulate_clicks=0.0,
+        left_topic=SIDES['left/image_raw'],
+        right_topic=SIDES['right/image_raw'],
+        left_info_topic=SIDES['left/camera_info'],
+        right_info_topic=SIDES['right/camera_info'],
+    )
+    written = stereo_meshes.stereo_initialisations({unsided: None}, options)
+    clicks = load_init_file(written[unsided].removeprefix('init_file='))
+    np.testing.assert_array_equal(clicks.points, clicks_from_bag(STEREO, 0.0).points)
+    reference = clicks_from_bag(unsided, 0.0)  # by name alone: the first camera_info, the right
+    assert np.mean(reference.points[:, 0] - clicks.points[:, 0]) < -5.0  # px of disparity
+    with pytest.raises(BagError, match=f'{unsided}: no CameraInfo topic /nope to click in'):
+        clicks_from_bag(unsided, 0.0, camera_info='/nope')

@@ -36,8 +36,8 @@ from face_tracking_ros.pipelines.bag_inputs import (
 from face_tracking_ros.pipelines.scoring import score_against_truth, score_stereo_against_truth
 from face_tracking_ros.processing.mono import MonoNodeConfig
 from face_tracking_ros.processing.parameters import OverrideParameters
-from face_tracking_ros.processing.stereo import StereoNodeConfig
-from face_tracking_ros.replay import replay_bag, wire_replay
+from face_tracking_ros.processing.stereo import LEFT_INFO, StereoNodeConfig
+from face_tracking_ros.replay import fed_topic, replay_bag, wire_replay
 from face_tracking_ros.synthetic.clicks import (
     check_clicks_file,
     clicks_from_bag,
@@ -145,8 +145,11 @@ def run(args: argparse.Namespace) -> int:
     remaps = _remaps(args, node, topics, compressed, given)
     wanted = frozenset(args.want)
     if args.simulate_clicks is not None:  # a replay it refuses leaves no clicks written
-        wire_replay([node], args.bag, OverrideParameters.parse(params), remaps, wanted, topics)
-        params.append(f'init_file={_write_clicks(args, node, params, model_file)}')
+        _, read = wire_replay(
+            [node], args.bag, OverrideParameters.parse(params), remaps, wanted, topics
+        )
+        camera_info = fed_topic(read, LEFT_INFO if node == STEREO else 'camera_info')
+        params.append(f'init_file={_write_clicks(args, node, params, model_file, camera_info)}')
     stats = replay_bag(
         [node],
         args.bag,
@@ -230,7 +233,11 @@ def _clicks_file(out: Path) -> Path:
 
 
 def _write_clicks(
-    args: argparse.Namespace, node: str, params: list[str], model_file: Path | None
+    args: argparse.Namespace,
+    node: str,
+    params: list[str],
+    model_file: Path | None,
+    camera_info: str | None,
 ) -> Path:
     """Write the simulated clicks (``--simulate-clicks``) of the tracker's nodes; their file.
 
@@ -239,8 +246,10 @@ def _write_clicks(
         node: the tracker.
         params: its parameters (NAME=VALUE).
         model_file: its model file; None: the packaged one.
+        camera_info: the camera_info topic the tracker reads for the camera it is initialised
+            in (the stereo tracker's left one).
     """
-    clicks = clicks_from_bag(args.bag, args.simulate_clicks)
+    clicks = clicks_from_bag(args.bag, args.simulate_clicks, camera_info=camera_info)
     path = _clicks_file(args.out)
     path.parent.mkdir(parents=True, exist_ok=True)  # as --out's
     return write_init_file(clicks.only(tracked_nodes(node, params, model_file)), path)

@@ -35,8 +35,8 @@ from face_tracking_ros.pipelines.learn_options import LearnOptions
 from face_tracking_ros.pipelines.mesh_bags import mesh_topic
 from face_tracking_ros.pipelines.scoring import score_stereo_against_truth
 from face_tracking_ros.processing.parameters import OverrideParameters
-from face_tracking_ros.processing.stereo import StereoNodeConfig
-from face_tracking_ros.replay import ReplayStats, replay_bag, wire_replay
+from face_tracking_ros.processing.stereo import LEFT_INFO, StereoNodeConfig
+from face_tracking_ros.replay import ReplayStats, fed_topic, replay_bag, wire_replay
 from face_tracking_ros.synthetic.clicks import (
     check_clicks_file,
     clicks_from_bag,
@@ -302,13 +302,26 @@ def _write_clicks(bags: list[Path], options: LearnOptions) -> dict[Path, str]:
     if not bags:
         return {}
     nodes = tracked_nodes(TRACKER, list(options.tracker_params), None)
-    clicks = {bag: clicks_from_bag(bag, options.simulate_clicks).only(nodes) for bag in bags}
+    clicks = {
+        bag: clicks_from_bag(
+            bag, options.simulate_clicks, camera_info=_left_camera_info(bag, options)
+        ).only(nodes)
+        for bag in bags
+    }
     written: dict[Path, str] = {}
     for bag, init in clicks.items():
         path = _clicks_file(bag, options)
         path.parent.mkdir(parents=True, exist_ok=True)
         written[bag] = f'init_file={write_init_file(init, path)}'
     return written
+
+
+def _left_camera_info(bag: Path, options: LearnOptions) -> str | None:
+    """The camera_info topic the tracker of ``bag`` reads for its left camera (the clicked one)."""
+    topics = bag_topics(bag)
+    params, remaps = _tracking(topics, options, None)
+    _, read = wire_replay([TRACKER], bag, params, remaps, frozenset(), topics)
+    return fed_topic(read, LEFT_INFO)
 
 
 def _clicks_file(bag: Path, options: LearnOptions) -> Path:

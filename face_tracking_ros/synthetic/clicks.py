@@ -92,13 +92,17 @@ def check_clicks_file(path: Path, option: str) -> None:
 
 
 def clicks_from_bag(
-    bag: Path, noise_px: float = DEFAULT_CLICK_NOISE_PX, seed: int | None = None
+    bag: Path,
+    noise_px: float = DEFAULT_CLICK_NOISE_PX,
+    seed: int | None = None,
+    camera_info: str | None = None,
 ) -> Initialisation:
     """Simulated clicks on the first frame of a synthetic bag (left camera for stereo).
 
-    The clicked camera is that of the first camera_info topic, by name, with the word ``left``
-    in its name (:func:`~face_tracking_ros.io.bags.topic_has_word`: not ``/cleft_palate/...``),
-    else of the first camera_info topic by name (a mono bag's only one).
+    The clicked camera is that of ``camera_info`` when given (the topic the tracker reads for
+    the camera it is initialised in), else of the first camera_info topic, by name, with the
+    word ``left`` in its name (:func:`~face_tracking_ros.io.bags.topic_has_word`: not
+    ``/cleft_palate/...``), else of the first camera_info topic by name (a mono bag's only one).
 
     The noise is drawn from ``seed``; None (the default) seeds it from the bag's name, so that
     the clicks of different bags err independently, as a user's would, and those of one bag are
@@ -109,7 +113,12 @@ def clicks_from_bag(
     """
     topics = bag_topics(bag)
     infos = sorted(t for t, kind in topics.items() if kind == conversions.CAMERA_INFO_TYPE)
-    info_topic = next((t for t in infos if topic_has_word(t, 'left')), infos[0] if infos else None)
+    if camera_info is not None and camera_info not in infos:
+        msg = f'{bag}: no CameraInfo topic {camera_info} to click in (it has {", ".join(infos)})'
+        raise BagError(msg)
+    info_topic = camera_info or next(
+        (t for t in infos if topic_has_word(t, 'left')), infos[0] if infos else None
+    )
     truth_topic = next((t for t, k in topics.items() if k == conversions.TRUTH_TYPE), None)
     if info_topic is None or truth_topic is None:
         msg = f'{bag}: simulated clicks need a CameraInfo and a FaceTruth topic'
