@@ -34,7 +34,7 @@ from face_tracking_ros.pipelines.bag_inputs import (
     tracked_nodes,
 )
 from face_tracking_ros.pipelines.scoring import score_against_truth, score_stereo_against_truth
-from face_tracking_ros.processing.mono import MonoNodeConfig
+from face_tracking_ros.processing.mono import CAMERA_INFO, MonoNodeConfig
 from face_tracking_ros.processing.parameters import OverrideParameters
 from face_tracking_ros.processing.stereo import LEFT_INFO, StereoNodeConfig
 from face_tracking_ros.replay import fed_topic, replay_bag, wire_replay
@@ -148,7 +148,7 @@ def run(args: argparse.Namespace) -> int:
         _, read = wire_replay(
             [node], args.bag, OverrideParameters.parse(params), remaps, wanted, topics
         )
-        camera_info = fed_topic(read, LEFT_INFO if node == STEREO else 'camera_info')
+        camera_info = fed_topic(read, LEFT_INFO if node == STEREO else CAMERA_INFO)
         params.append(f'init_file={_write_clicks(args, node, params, model_file, camera_info)}')
     stats = replay_bag(
         [node],
