@@ -87,6 +87,11 @@ def test_learn_again_re_uses_the_meshes_tracked_from_the_same_inputs(tmp_path, c
     argv[-1] = str(foreign / 'report.json')
     assert main(argv) == 2
     assert 'exists and is not a tracking of' in capsys.readouterr().err
+    argv[-1] = str(tmp_path / 'report.json')  # the first run's meshes, their bag given as a file
+    file = BAGS[0] / f'{BAGS[0].name}.mcap'
+    assert main([*argv[:1], str(file), *argv[2:]]) == 2
+    expected = f'{meshes} exists and is not a tracking of {file.absolute()} by learn (it was '
+    assert f'{expected}tracked from {BAGS[0].absolute()}): remove it' in capsys.readouterr().err
 
 
 def test_bags_of_one_name_are_refused_and_a_pattern_names_the_subject(tmp_path, capsys):

@@ -415,7 +415,9 @@ def _earlier_tracking(out: Path, inputs: Provenance, meshes_dir: str) -> Provena
 
     Raises:
         ConfigError: if ``out`` exists but is not such a tracking (not ours to remove), naming
-            ``meshes_dir``, the option that says where meshes go.
+            ``meshes_dir``, the option that says where meshes go, and the bag it was tracked
+            from if it says (the same recording given as its directory and as its MCAP file
+            are two inputs: a directory may hold more files).
     """
     if not out.exists():
         return None
@@ -424,9 +426,10 @@ def _earlier_tracking(out: Path, inputs: Provenance, meshes_dir: str) -> Provena
         return None
     earlier = Provenance.read(out)
     if earlier is None or earlier.source != inputs.source:
+        source = '' if earlier is None else f' (it was tracked from {earlier.source})'
         msg = (
-            f'{out} exists and is not a tracking of {inputs.source} by learn: remove it or give '
-            f'another {meshes_dir}'
+            f'{out} exists and is not a tracking of {inputs.source} by learn{source}: remove it '
+            f'or give another {meshes_dir}'
         )
         raise ConfigError(msg)
     return earlier
