@@ -60,8 +60,12 @@ def run(args: argparse.Namespace) -> None:
 def _swapped(bag: Path, out: Path) -> bool:
     """Whether the bags came swapped: FaceState and no images in ``bag``, images in ``out``.
 
-    Asked when ``out`` has no FaceState topic (:func:`~face_tracking_ros.io.series.load_states`).
+    Asked when ``out``'s states cannot be loaded (:func:`~face_tracking_ros.io.series.
+    load_states`); False where either bag cannot be read, so that error stays the one raised.
     """
-    first, second = bag_topics(bag), bag_topics(out)
+    try:
+        first, second = bag_topics(bag), bag_topics(out)
+    except BagError:
+        return False
     tracked = STATE_TYPE in first.values() and not image_topics(first)[0]
     return tracked and bool(image_topics(second)[0])

@@ -37,7 +37,7 @@ class LearnerConfig:
     """Parameters of the learner node (the options of ``face-tracking learn``).
 
     Attributes:
-        bags: bag directories to learn from.
+        bags: bags to learn from (rosbag2 directories or .mcap files).
         bag_dir: a directory whose sub-directories and .mcap files are all bags to learn from
             (added to bags).
         output: model file to write (.npz).

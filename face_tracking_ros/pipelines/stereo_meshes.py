@@ -226,8 +226,9 @@ def needs_tracking(bag: Path, topics: dict[str, str], options: LearnOptions) -> 
             left, right, left_info, right_info = map(options.named, STEREO_FIELDS.values())
             msg = (
                 f'{bag}: no stereo pair found by name among its image topics '
-                f'({", ".join(images) or "none"}): the left and right topics need "left" and '
-                f'"right" in their names, else give {left}, {right}, {left_info} and {right_info}'
+                f'({", ".join(images) or "none"}): the left and right topics need the words '
+                f'"left" and "right" in their names, else give {left}, {right}, {left_info} and '
+                f'{right_info}'
             )
             raise ConfigError(msg)
         return False

@@ -114,7 +114,8 @@ def clicks_from_bag(
     topics = bag_topics(bag)
     infos = sorted(t for t, kind in topics.items() if kind == conversions.CAMERA_INFO_TYPE)
     if camera_info is not None and camera_info not in infos:
-        msg = f'{bag}: no CameraInfo topic {camera_info} to click in (it has {", ".join(infos)})'
+        has = ', '.join(infos) or 'none'
+        msg = f'{bag}: no CameraInfo topic {camera_info} to click in (it has {has})'
         raise BagError(msg)
     info_topic = camera_info or next(
         (t for t in infos if topic_has_word(t, 'left')), infos[0] if infos else None
