@@ -51,6 +51,7 @@ from face_tracking_ros.io.yaml_text import parse_yaml
 
 BAG_VERSION = 9  # rosbag2 metadata version written (Jazzy and later read it)
 NS_PER_S = 1_000_000_000
+MAX_NAMED_BAGS = 5  # bags named in the error for a directory of bags given as one
 # (OverflowError: rosbags seeks past a record whose length, read from damaged bytes, is >= 2**63)
 _READ_ERRORS = (ReaderError, KeyError, ValueError, EOFError, OSError, OverflowError, struct.error)
 
@@ -352,8 +353,7 @@ def _open_reader(path: Path) -> tuple[Reader, Counter[str]] | None:
         if files:
             return None
         if unlisted:
-            msg = f'{path}: not a rosbag2 bag (no metadata.yaml and no .mcap file in it)'
-            raise BagError(msg) from None
+            raise BagError(_not_a_bag(path)) from None
         raise BagError(f'{path}: cannot read bag: {type(error).__name__}: {error}') from None
     try:
         summaries = _summaries(path)
@@ -362,6 +362,34 @@ def _open_reader(path: Path) -> tuple[Reader, Counter[str]] | None:
         reader.close()
         raise
     return reader, _summary_counts(summaries)
+
+
+def _not_a_bag(directory: Path) -> str:
+    """Why ``directory`` (no metadata.yaml, no .mcap file) is not a bag; the bags it holds, if any.
+
+    A directory of recordings (such as the repository's bags/stereo_train) is easily given where
+    its bags are meant.
+    """
+    held = _bags_in(directory)
+    msg = f'{directory}: not a rosbag2 bag (no metadata.yaml and no .mcap file in it)'
+    if not held:
+        return msg
+    shown = ', '.join(held[:MAX_NAMED_BAGS]) + (', ...' if len(held) > MAX_NAMED_BAGS else '')
+    return (
+        f'{msg}; it holds {len(held)} bag(s) ({shown}): give the bags themselves (e.g. '
+        f'{directory}/*), not the directory holding them'
+    )
+
+
+def _bags_in(directory: Path) -> list[str]:
+    """The names of the bags (metadata.yaml or .mcap files) among a directory's subdirectories."""
+    try:
+        subdirectories = [sub for sub in directory.iterdir() if sub.is_dir()]
+    except OSError:  # unreadable: no bags to name
+        return []
+    return sorted(
+        sub.name for sub in subdirectories if (sub / 'metadata.yaml').is_file() or _mcap_files(sub)
+    )
 
 
 def _check_types_agree(

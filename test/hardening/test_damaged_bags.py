@@ -192,6 +192,20 @@ def test_an_empty_bag_directory_is_a_bag_error(tmp_path):
         list(read_messages(tmp_path / 'empty'))
 
 
+def test_a_directory_of_bags_given_as_a_bag_names_the_bags_it_holds(bag, tmp_path):
+    recordings = tmp_path / 'recordings'
+    shutil.copytree(bag, recordings / 'anna_1')
+    _cut_copy(bag, recordings / 'ben_1', 1.0, keep_metadata=False)  # a directory with its .mcap
+    (recordings / 'notes').mkdir()
+    with pytest.raises(BagError) as raised:
+        list(read_messages(recordings))
+    assert str(raised.value) == (
+        f'{recordings}: not a rosbag2 bag (no metadata.yaml and no .mcap file in it); it holds 2 '
+        f'bag(s) (anna_1, ben_1): give the bags themselves (e.g. {recordings}/*), not the '
+        'directory holding them'
+    )
+
+
 def test_without_metadata_a_requested_topic_the_bag_lacks_is_named(bag, tmp_path):
     copy = _cut_copy(bag, tmp_path / 'copy', 1.0, keep_metadata=False)
     assert len(list(read_messages(copy, topics=['/cam/image']))) == FRAMES
