@@ -3,11 +3,14 @@
 from __future__ import annotations
 
 import argparse
+from collections import Counter
+from collections.abc import Callable
 from dataclasses import replace
 import json
 from pathlib import Path
 import shutil
 import sys
+from typing import Any
 
 from compressed_bags import compressed_copy
 import numpy as np
@@ -19,6 +22,7 @@ from face_tracking_ros.errors import ConfigError
 from face_tracking_ros.io import conversions
 from face_tracking_ros.io.bags import BagWriter, bag_topics, read_messages, recording_name
 from face_tracking_ros.io.messages import RosbagsMessages
+from face_tracking_ros.io.provenance import Provenance
 from face_tracking_ros.io.typestore import typestore
 from face_tracking_ros.model.model_file import load_model
 from face_tracking_ros.pipelines import stereo_meshes
@@ -129,7 +133,10 @@ def test_a_bag_given_as_its_mcap_file_is_named_as_its_directory(tmp_path, capsys
         options = _learn_args(bag, tmp_path, '--from-images', '--init-dir', str(init_dir))
         pattern = replace(options, subject_pattern=r'(.+)_\d+')
         assert bag_subjects(bag, pattern, None, truth_meshes=False) == {'anna'}, bag
-        assert stereo_meshes.checked_stereo_bags(options) == {bag: f'init_file={init_file}'}
+        checked = stereo_meshes.checked_stereo_bags(options)
+        assert {path: tracking.initialisation for path, tracking in checked.items()} == {
+            bag: f'init_file={init_file}'
+        }
         assert np.array_equal(clicks_from_bag(bag).points, clicks.points), bag
     argv = ['learn', str(directory), str(lone), '--from-images', '--simulate-clicks', '1',
             '--out', str(tmp_path / 'm.npz'), '--report', str(tmp_path / 'r.json')]  # fmt: skip
@@ -158,7 +165,14 @@ def _learn_meshes(
     The truth and the rig come from ``truth`` (default: ``bag``).
     """
     args = _learn_args(bag, where, '--from-images', '--simulate-clicks', '0', *options)
-    return score_stereo_against_truth(truth or bag, stereo_meshes.mesh_bag(bag, args))
+    return score_stereo_against_truth(truth or bag, _tracked(bag, args))
+
+
+def _tracked(bag: Path, options: LearnOptions) -> Path:
+    """The meshes learn tracks from the raw stereo bag ``bag``: checked, initialised, tracked."""
+    checked = stereo_meshes.checked_stereo_bags(options)
+    tracking = stereo_meshes.stereo_initialisations(checked, options)[bag]
+    return stereo_meshes.mesh_bag(tracking, options)
 
 
 def _learn_args(bag: Path, where: Path, *options: str) -> LearnOptions:
@@ -174,7 +188,7 @@ def _learn_args(bag: Path, where: Path, *options: str) -> LearnOptions:
 def test_scores_start_at_the_first_tracked_frame(still_bag, tmp_path):
     """Frames before the first tracked one have no estimate (zeros): not scored."""
     args = _learn_args(still_bag, tmp_path, '--from-images', '--simulate-clicks', '0')
-    tracked = stereo_meshes.mesh_bag(still_bag, args)
+    tracked = _tracked(still_bag, args)
     late = tmp_path / 'late'  # the same output, as if the face had been found at the 4th pair
     factory = RosbagsMessages(typestore())
     zeros = conversions.array_to_points(factory, np.zeros((34, 3)))
@@ -232,12 +246,12 @@ def test_a_stereo_pair_not_found_by_name_is_asked_for(still_bag, tmp_path, capsy
     bag = compressed_copy(still_bag, tmp_path / 'infra', names)
     pair = r'\(/camera/infra1/image_rect_raw, /camera/infra2/image_rect_raw\)'
     with pytest.raises(ConfigError, match=f'no stereo pair found by name .*{pair}.*--left-'):
-        stereo_meshes.mesh_bag(bag, _learn_args(bag, tmp_path, '--from-images'))
+        stereo_meshes.checked_stereo_bags(_learn_args(bag, tmp_path, '--from-images'))
     # The images given (without their leading '/', as a bag may spell them) but no camera_info.
     images = ['--left-topic', 'camera/infra1/image_rect_raw', '--right-topic',
               'camera/infra2/image_rect_raw', '--simulate-clicks', '0']  # fmt: skip
     with pytest.raises(ConfigError) as refused:  # before any tracking (which gave no mesh)
-        stereo_meshes.mesh_bag(bag, _learn_args(bag, tmp_path, '--from-images', *images))
+        stereo_meshes.checked_stereo_bags(_learn_args(bag, tmp_path, '--from-images', *images))
     message = str(refused.value)
     assert "no topic for the stereo tracker's left/camera_info, right/camera_info" in message
     infos = '/camera/infra1/camera_info, /camera/infra2/camera_info'
@@ -414,6 +428,37 @@ def test_an_interrupted_tracking_stops_learn(tmp_path, monkeypatch, capsys):
     assert main(argv) == 130
     assert capsys.readouterr().err == 'interrupted\n'
     assert not (tmp_path / 'm.npz').exists()
+
+
+def test_each_raw_bag_is_read_wired_and_hashed_once_until_its_tracking(tmp_path, monkeypatch):
+    """The checks plan every bag's tracking once; its clicks and its tracking use the plan.
+
+    Before, the clicks read each bag's topics and wired its tracker again, and the tracking
+    read them and hashed its inputs again: by the first bag's tracking, 7 topic reads, 6
+    wirings and 4 provenances for 3 bags.
+    """
+    calls: Counter[str] = Counter()
+
+    def counted(name: str, function: Callable[..., Any]) -> Callable[..., Any]:
+        def call(*args: Any, **kwargs: Any) -> Any:
+            calls[name] += 1
+            return function(*args, **kwargs)
+
+        return call
+
+    def tracked(*_args, **_kwargs) -> ReplayStats:
+        raise AssertionError('a bag was tracked')
+
+    for name in ('bag_topics', 'wire_replay'):
+        monkeypatch.setattr(stereo_meshes, name, counted(name, getattr(stereo_meshes, name)))
+    monkeypatch.setattr(Provenance, 'of', classmethod(counted('of', Provenance.of.__func__)))
+    monkeypatch.setattr(stereo_meshes, 'replay_bag', tracked)
+    argv = ['learn', *map(str, BAGS), '--from-images', '--simulate-clicks', '0',
+            '--out', str(tmp_path / 'm.npz'), '--report', str(tmp_path / 'r.json')]  # fmt: skip
+    with pytest.raises(AssertionError, match='a bag was tracked'):
+        main(argv)
+    assert calls == {'bag_topics': 3, 'wire_replay': 3, 'of': 1}  # 'of': the first bag's
+    assert len(list((tmp_path / 'r_meshes_clicks').iterdir())) == len(BAGS)
 
 
 def test_left_and_right_images_of_different_transports_are_named(tmp_path, capsys):

@@ -62,7 +62,7 @@ class Provenance:
             if value and Path(value).is_file()
         }
         return cls(
-            source=str(bag.resolve()),
+            source=replay_source(bag),
             nodes=tuple(nodes),
             parameters=dict(sorted(parameters.items())),
             file_digests=dict(sorted(digests.items())),
@@ -99,6 +99,11 @@ class Provenance:
     def text(self) -> str:
         """The JSON text recorded under :data:`KEY`."""
         return json.dumps(asdict(self), sort_keys=True)
+
+
+def replay_source(bag: Path) -> str:
+    """The input bag as its replay records it (:attr:`Provenance.source`): absolute, resolved."""
+    return str(bag.resolve())
 
 
 def file_digest(path: Path) -> str:

@@ -61,6 +61,7 @@ from face_tracking_ros.pipelines.learn_options import (
 )
 from face_tracking_ros.pipelines.mesh_bags import BagMeshes, bag_subjects, read_bag_meshes
 from face_tracking_ros.pipelines.stereo_meshes import (
+    StereoTracking,
     checked_stereo_bags,
     mesh_bag,
     stereo_initialisations,
@@ -81,9 +82,9 @@ def learn_from_bags(options: LearnOptions, say: Callable[[str], None] = print) -
             InputError), naming what is wrong.
         KeyboardInterrupt: if the tracking of a raw stereo bag was interrupted.
     """
-    initialisations, truth_bags = _checked_before_tracking(options)
+    trackings, truth_bags = _checked_before_tracking(options)
     rng = np.random.default_rng(options.seed)
-    mesh_bags = _mesh_bags(options, initialisations, say)
+    mesh_bags = _mesh_bags(options, trackings, say)
     bag_meshes = _read_meshes(options, mesh_bags, truth_bags, say)
     training, align_seconds = _aligned_training_set(options, bag_meshes, rng, say)
     truth = _true_subspaces(options, training, bag_meshes)
@@ -116,7 +117,7 @@ def learn_from_bags(options: LearnOptions, say: Callable[[str], None] = print) -
 
 def _checked_before_tracking(
     options: LearnOptions,
-) -> tuple[dict[Path, str], list[Path | None]]:
+) -> tuple[dict[Path, StereoTracking], list[Path | None]]:
     """Check all that can be checked before any bag is tracked, then write the simulated clicks.
 
     The options, every raw stereo bag's tracking (:func:`~.stereo_meshes.checked_stereo_bags`),
@@ -124,8 +125,9 @@ def _checked_before_tracking(
     (:func:`_check_subjects`).
 
     Returns:
-        The initialisation of each raw stereo bag to track, by bag, and the bag labelling each
-        bag's meshes (:func:`_truth_bags`).
+        The tracking of each raw stereo bag to track, by bag, planned by its checks and
+        initialised (:func:`~.stereo_meshes.stereo_initialisations`), and the bag labelling
+        each bag's meshes (:func:`_truth_bags`).
     """
     unlabelled = check_options(options)
     raw = checked_stereo_bags(options)
@@ -185,18 +187,18 @@ def _check_subjects(
 
 
 def _mesh_bags(
-    options: LearnOptions, initialisations: dict[Path, str], say: Callable[[str], None]
+    options: LearnOptions, trackings: dict[Path, StereoTracking], say: Callable[[str], None]
 ) -> list[Path]:
     """Each bag's bag of meshes.
 
-    The bag itself, or for a raw stereo bag (one of ``initialisations``, checked) its tracking.
+    The bag itself, or for a raw stereo bag (one of ``trackings``, checked and initialised) its
+    tracking (:func:`~.stereo_meshes.mesh_bag`).
 
     Raises:
         BagError: if the tracker produced no mesh from a raw stereo bag.
     """
     return [
-        mesh_bag(bag, options, initialisations[bag], say) if bag in initialisations else bag
-        for bag in options.bags
+        mesh_bag(trackings[bag], options, say) if bag in trackings else bag for bag in options.bags
     ]
 
 

@@ -6,20 +6,22 @@ tracked by the stereo tracker (eq. 4, 5) through offline replay of the stereo_tr
 code, into ``meshes_dir``, before it is learned from. By default every mesh carries the frame-1
 depths refined over its whole track (the processor's ``retroactive_depths``); ``tracker_params``
 override it. Meshes an earlier run tracked from the same inputs are re-used. Every raw bag's
-tracking is checked before any is tracked and before any simulated clicks are written
-(:func:`checked_stereo_bags`, then :func:`stereo_initialisations`), so that a refused run leaves
-nothing behind.
+tracking is checked and planned once (:class:`StereoTracking`) before any is tracked and before
+any simulated clicks are written (:func:`checked_stereo_bags`), so that a refused run leaves
+nothing behind; the plans are then completed with their initialisations
+(:func:`stereo_initialisations`) and tracked (:func:`mesh_bag`).
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, replace
 from pathlib import Path
 import shutil
 
 from face_tracking_ros.errors import BagError, ConfigError, FaceTrackingError
 from face_tracking_ros.io.bags import bag_topics, recording_name
-from face_tracking_ros.io.provenance import Provenance
+from face_tracking_ros.io.provenance import Provenance, replay_source
 from face_tracking_ros.io.series import has_truth
 from face_tracking_ros.pipelines.bag_inputs import (
     STEREO_FIELDS,
@@ -56,65 +58,86 @@ TRACKING_FIELDS = (
 )
 
 
-def mesh_bag(
-    bag: Path,
-    options: LearnOptions,
-    initialisation: str | None = None,
-    say: Callable[[str], None] = print,
-) -> Path:
-    """The bag of 3-D meshes to learn from: ``bag`` itself, or its stereo tracking.
+@dataclass(frozen=True)
+class StereoTracking:
+    """The tracking of one raw stereo bag, planned by its checks (:func:`checked_stereo_bags`).
 
-    A raw stereo bag (:func:`needs_tracking`) is tracked into ``options.meshes_dir``,
-    initialised from ``init_dir/<bag name>.{yaml,json}``, ``auto_init`` or, for synthetic bags,
-    ``simulate_clicks``; with ``tracker_params`` after :data:`STEREO_PARAMS`.
-    ``initialisation`` is that stereo_tracker parameter when already known
-    (:func:`stereo_initialisations`): ``bag`` is then a raw stereo bag whose checks
-    (:func:`checked_stereo_bags`) passed, tracked without them. Meshes an earlier run tracked
-    from the same inputs are re-used (:func:`_tracked_before`). What it does, the replay's
-    summary and the score against the bag's truth go to ``say``, line by line.
+    Attributes:
+        bag: the raw stereo bag.
+        topics: its topics (name -> type).
+        out: where its meshes go (:func:`_tracked_meshes`).
+        tracker_params: the stereo tracker's parameters but its initialisation (NAME=VALUE):
+            :data:`STEREO_PARAMS`, the image transport's, then ``tracker_params``.
+        remaps: the tracker's input -> bag topic.
+        left_info: the camera_info topic the tracker reads for its left camera (the one the
+            simulated clicks are in); None: none.
+        initialisation: the stereo_tracker parameter initialising the track (NAME=VALUE); None:
+            simulated clicks, not written yet (:func:`stereo_initialisations` adds them).
+    """
+
+    bag: Path
+    topics: dict[str, str]
+    out: Path
+    tracker_params: tuple[str, ...]
+    remaps: dict[str, str]
+    left_info: str | None
+    initialisation: str | None
+
+    def params(self) -> OverrideParameters:
+        """The stereo tracker's parameters: :attr:`tracker_params`, then the initialisation."""
+        return _parameters(self.tracker_params, self.initialisation)
+
+
+def mesh_bag(
+    tracking: StereoTracking, options: LearnOptions, say: Callable[[str], None] = print
+) -> Path:
+    """The bag of 3-D meshes tracked from a raw stereo bag, as planned: ``tracking.out``.
+
+    ``tracking`` is one of :func:`stereo_initialisations` (checked, then initialised): the bag
+    is tracked into ``tracking.out`` without checking it again, with its ``tracker_params``
+    and initialisation. Its inputs (:class:`~face_tracking_ros.io.provenance.Provenance`, which
+    hashes the files the parameters name: the init file) are taken here, just before it is
+    tracked; meshes an earlier run tracked from the same inputs are re-used
+    (:func:`_tracked_before`). What it does, the replay's summary and the score against the
+    bag's truth go to ``say``, line by line.
 
     Raises:
-        ConfigError: for a raw stereo bag without a way to initialise it, or one that
-            :func:`needs_tracking` or :func:`_check_tracking` refuses.
+        ConfigError: if ``tracking.out`` exists but is not a tracking of the bag by learn (put
+            there since the checks).
         BagError: if the tracker produced no mesh (the input problems named).
         KeyboardInterrupt: if the tracking was interrupted (the meshes so far stay, and a later
             run tracks the bag again).
     """
-    topics = bag_topics(bag)
-    if not initialisation:
-        if not needs_tracking(bag, topics, options):
-            return bag  # meshes (or nothing: read_bag_meshes names the missing topic)
-        initialisation = stereo_initialisations(_checked({bag: topics}, options), options)[bag]
-    out = _tracked_meshes(bag, options)
-    params, remaps = _tracking(topics, options, initialisation)
-    inputs = Provenance.of(bag, [TRACKER], params.overrides, remaps)
-    if _tracked_before(out, inputs, options.named('meshes_dir'), say):
-        return out
-    _track(bag, topics, out, params, remaps, say)
-    if has_truth(bag):
-        say(_score_line(bag, out))
-    return out
+    params = tracking.params()
+    inputs = Provenance.of(tracking.bag, [TRACKER], params.overrides, tracking.remaps)
+    if _tracked_before(tracking.out, inputs, options.named('meshes_dir'), say):
+        return tracking.out
+    _track(tracking, params, say)
+    if has_truth(tracking.bag):
+        say(_score_line(tracking.bag, tracking.out))
+    return tracking.out
 
 
-def checked_stereo_bags(options: LearnOptions) -> dict[Path, str | None]:
-    """The raw stereo bags to track, each with its given initialisation, all checked.
+def checked_stereo_bags(options: LearnOptions) -> dict[Path, StereoTracking]:
+    """The tracking of each raw stereo bag to track, by bag, checked and planned.
 
-    The initialisation is the stereo_tracker parameter of its init file or of ``auto_init``;
+    Its initialisation is the stereo_tracker parameter of its init file or of ``auto_init``;
     None for simulated clicks, which :func:`stereo_initialisations` writes. Every check that can
-    refuse a bag's tracking (:func:`needs_tracking`, :func:`_check_tracking`) runs for every bag
-    first, and writes nothing: a run refused before :func:`stereo_initialisations` leaves no
-    clicks behind.
+    refuse a bag's tracking (:func:`needs_tracking`, :func:`_planned_tracking`) runs for every
+    bag first, and writes nothing: a run refused before :func:`stereo_initialisations` leaves
+    no clicks behind.
 
     Raises:
         ConfigError: for a raw stereo bag without a way to initialise it, or one that
-            :func:`needs_tracking` or :func:`_check_tracking` refuses.
+            :func:`needs_tracking` or :func:`_planned_tracking` refuses.
         BagError: for a bag that cannot be read.
     """
     topics = {bag: bag_topics(bag) for bag in options.bags}
-    raw = {bag: topics[bag] for bag in options.bags if needs_tracking(bag, topics[bag], options)}
+    raw = [bag for bag in options.bags if needs_tracking(bag, topics[bag], options)]
     if not raw:
         _check_no_tracking_options(options)
-    return _checked(raw, options)
+    given = {bag: _given_initialisation(bag, options) for bag in raw}
+    return {bag: _planned_tracking(bag, topics[bag], options, init) for bag, init in given.items()}
 
 
 def _check_no_tracking_options(options: LearnOptions) -> None:
@@ -139,36 +162,28 @@ def _check_no_tracking_options(options: LearnOptions) -> None:
 
 
 def stereo_initialisations(
-    checked: dict[Path, str | None], options: LearnOptions
-) -> dict[Path, str]:
-    """The stereo_tracker parameter initialising each raw stereo bag's track, by bag.
+    checked: dict[Path, StereoTracking], options: LearnOptions
+) -> dict[Path, StereoTracking]:
+    """Each raw stereo bag's planned tracking, by bag, with the parameter initialising its track.
 
-    The one given in ``checked`` (:func:`checked_stereo_bags`), else the bag's simulated clicks,
+    The one its checks found (:func:`checked_stereo_bags`), else the bag's simulated clicks,
     written here: all are drawn before any is written (:func:`_write_clicks`).
 
     Raises:
         BagError: for a bag whose clicks cannot be simulated (no truth, no camera_info).
     """
-    written = _write_clicks([bag for bag, init in checked.items() if init is None], options)
-    return {bag: init or written[bag] for bag, init in checked.items()}
+    clicked = [tracking for tracking in checked.values() if tracking.initialisation is None]
+    written = _write_clicks(clicked, options)
+    return {
+        bag: replace(tracking, initialisation=tracking.initialisation or written[bag])
+        for bag, tracking in checked.items()
+    }
 
 
-def _checked(topics: dict[Path, dict[str, str]], options: LearnOptions) -> dict[Path, str | None]:
-    """The given initialisation of each raw stereo bag of ``topics`` (bag -> its topics), checked.
-
-    Raises:
-        BagError, ConfigError: as :func:`checked_stereo_bags`, but for :func:`needs_tracking`.
-    """
-    given = {bag: _given_initialisation(bag, options) for bag in topics}
-    for bag, initialisation in given.items():
-        _check_tracking(bag, topics[bag], options, initialisation)
-    return given
-
-
-def _check_tracking(
+def _planned_tracking(
     bag: Path, topics: dict[str, str], options: LearnOptions, initialisation: str | None
-) -> None:
-    """Run every check the tracking of a raw stereo bag runs before it writes anything.
+) -> StereoTracking:
+    """The tracking of a raw stereo bag, after every check it runs before it writes anything.
 
     Those of :func:`~face_tracking_ros.replay.wire_replay` (the tracker parameters, the
     initialisation's file or detector, the topics), the one of :func:`_tracked_before` (its
@@ -187,26 +202,20 @@ def _check_tracking(
     """
     if initialisation is None:
         check_clicks_file(_clicks_file(bag, options), f'{options.named("simulate_clicks")}:')
-    params, remaps = _tracking(topics, options, initialisation)
-    wire_replay([TRACKER], bag, params, remaps, frozenset(), topics)
-    inputs = Provenance.of(bag, [TRACKER], params.overrides, remaps)
-    _earlier_tracking(_tracked_meshes(bag, options), inputs, options.named('meshes_dir'))
+    tracker_params = tuple(_tracker_params(topics, options))
+    params = _parameters(tracker_params, initialisation)
+    remaps = stereo_remaps(topics, options, params.config(StereoNodeConfig).compressed)
+    _, read = wire_replay([TRACKER], bag, params, remaps, frozenset(), topics)
+    out = _tracked_meshes(bag, options)
+    _earlier_tracking(out, replay_source(bag), options.named('meshes_dir'))
+    left_info = fed_topic(read, LEFT_INFO)
+    return StereoTracking(bag, topics, out, tracker_params, remaps, left_info, initialisation)
 
 
-def _tracking(
-    topics: dict[str, str], options: LearnOptions, initialisation: str | None
-) -> tuple[OverrideParameters, dict[str, str]]:
-    """The stereo tracker's parameters and input remappings for a raw bag of ``topics``.
-
-    Args:
-        topics: the bag's topics (name -> type).
-        options: the learning run's options.
-        initialisation: the initialisation parameter (NAME=VALUE); None: none.
-    """
+def _parameters(tracker_params: Sequence[str], initialisation: str | None) -> OverrideParameters:
+    """The stereo tracker's parameters: ``tracker_params``, then ``initialisation`` (if any)."""
     given = [initialisation] if initialisation else []
-    params = OverrideParameters.parse([*_tracker_params(topics, options), *given])
-    compressed = params.config(StereoNodeConfig).compressed
-    return params, stereo_remaps(topics, options, compressed)
+    return OverrideParameters.parse([*tracker_params, *given])
 
 
 def needs_tracking(bag: Path, topics: dict[str, str], options: LearnOptions) -> bool:
@@ -289,10 +298,12 @@ def _given_initialisation(bag: Path, options: LearnOptions) -> str | None:
     raise ConfigError(msg)
 
 
-def _write_clicks(bags: list[Path], options: LearnOptions) -> dict[Path, str]:
-    """Write the simulated clicks of ``bags`` to --init-dir (default <meshes dir>_clicks/).
+def _write_clicks(trackings: list[StereoTracking], options: LearnOptions) -> dict[Path, str]:
+    """Write the simulated clicks of the bags of ``trackings``, each in its tracker's left camera.
 
-    Every bag's clicks are drawn before any are written (a bag without truth writes none).
+    They go to --init-dir (default <meshes dir>_clicks/), in the camera_info the tracker reads
+    as its left one (:attr:`StereoTracking.left_info`). Every bag's clicks are drawn before any
+    are written (a bag without truth writes none).
 
     Returns:
         By bag, the stereo_tracker parameter that initialises its track from its clicks.
@@ -300,14 +311,14 @@ def _write_clicks(bags: list[Path], options: LearnOptions) -> dict[Path, str]:
     Raises:
         BagError: for a bag whose clicks cannot be simulated (no truth, no camera_info).
     """
-    if not bags:
+    if not trackings:
         return {}
     nodes = tracked_nodes(TRACKER, list(options.tracker_params), None)
     clicks = {
-        bag: clicks_from_bag(
-            bag, options.simulate_clicks, camera_info=_left_camera_info(bag, options)
+        tracking.bag: clicks_from_bag(
+            tracking.bag, options.simulate_clicks, camera_info=tracking.left_info
         ).only(nodes)
-        for bag in bags
+        for tracking in trackings
     }
     written: dict[Path, str] = {}
     for bag, init in clicks.items():
@@ -315,14 +326,6 @@ def _write_clicks(bags: list[Path], options: LearnOptions) -> dict[Path, str]:
         path.parent.mkdir(parents=True, exist_ok=True)
         written[bag] = f'init_file={write_init_file(init, path)}'
     return written
-
-
-def _left_camera_info(bag: Path, options: LearnOptions) -> str | None:
-    """The camera_info topic the tracker of ``bag`` reads for its left camera (the clicked one)."""
-    topics = bag_topics(bag)
-    params, remaps = _tracking(topics, options, None)
-    _, read = wire_replay([TRACKER], bag, params, remaps, frozenset(), topics)
-    return fed_topic(read, LEFT_INFO)
 
 
 def _clicks_file(bag: Path, options: LearnOptions) -> Path:
@@ -333,21 +336,19 @@ def _clicks_file(bag: Path, options: LearnOptions) -> Path:
 
 
 def _track(
-    bag: Path,
-    topics: dict[str, str],
-    out: Path,
-    params: OverrideParameters,
-    remaps: dict[str, str],
-    say: Callable[[str], None],
+    tracking: StereoTracking, params: OverrideParameters, say: Callable[[str], None]
 ) -> None:
-    """Track the raw stereo bag ``bag`` (of ``topics``) into ``out`` and ``say`` what it did.
+    """Track a raw stereo bag as planned, with ``params``, and ``say`` what it did.
 
     Raises:
-        BagError: if the tracker produced no mesh (``out`` is removed).
+        BagError: if the tracker produced no mesh (``tracking.out`` is removed).
         KeyboardInterrupt: if the tracking was interrupted.
     """
+    bag, out = tracking.bag, tracking.out
     say(f'{bag}: raw stereo images: tracking them into {out}')
-    stats = replay_bag([TRACKER], bag, out, params, remaps, progress=False, topics=topics)
+    stats = replay_bag(
+        [TRACKER], bag, out, params, tracking.remaps, progress=False, topics=tracking.topics
+    )
     if stats.interrupted:  # the meshes so far stay, and a later run tracks the bag again
         raise KeyboardInterrupt
     for line in stats.summary(out):
@@ -394,7 +395,7 @@ def _tracked_before(
     Raises:
         ConfigError: if ``out`` exists but is not such a tracking (not ours to remove).
     """
-    earlier = _earlier_tracking(out, inputs, meshes_dir)
+    earlier = _earlier_tracking(out, inputs.source, meshes_dir)
     if earlier is None:
         if out.exists():
             say(f'{out}: an earlier run was stopped before it closed the bag: tracking again')
@@ -409,10 +410,12 @@ def _tracked_before(
     return False
 
 
-def _earlier_tracking(out: Path, inputs: Provenance, meshes_dir: str) -> Provenance | None:
-    """What an earlier tracking of ``inputs.source`` into ``out`` by learn was made from.
+def _earlier_tracking(out: Path, source: str, meshes_dir: str) -> Provenance | None:
+    """What an earlier tracking of ``source`` into ``out`` by learn was made from.
 
-    None if ``out`` does not exist or holds only MCAP files (a writer killed before closing).
+    ``source`` is the bag as its replay records it
+    (:func:`~face_tracking_ros.io.provenance.replay_source`). None if ``out`` does not exist or
+    holds only MCAP files (a writer killed before closing).
 
     Raises:
         ConfigError: if ``out`` exists but is not such a tracking (not ours to remove), naming
@@ -426,10 +429,10 @@ def _earlier_tracking(out: Path, inputs: Provenance, meshes_dir: str) -> Provena
     if files and all(file.suffix == '.mcap' for file in files):
         return None
     earlier = Provenance.read(out)
-    if earlier is None or earlier.source != inputs.source:
-        source = '' if earlier is None else f' (it was tracked from {earlier.source})'
+    if earlier is None or earlier.source != source:
+        recorded = '' if earlier is None else f' (it was tracked from {earlier.source})'
         msg = (
-            f'{out} exists and is not a tracking of {inputs.source} by learn{source}: remove it '
+            f'{out} exists and is not a tracking of {source} by learn{recorded}: remove it '
             f'or give another {meshes_dir}'
         )
         raise ConfigError(msg)
