@@ -23,7 +23,7 @@ from face_tracking_ros.recognition.identity import IdentityConfig
 from face_tracking_ros.tracking.detector import DetectorConfig
 from face_tracking_ros.tracking.mono_config import MonoTrackerConfig
 from face_tracking_ros.tracking.pose_filter import PoseFilterConfig
-from face_tracking_ros.tracking.stereo import StereoTrackerConfig
+from face_tracking_ros.tracking.stereo_config import StereoTrackerConfig
 
 from repo_root import REPO
 

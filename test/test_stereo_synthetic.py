@@ -18,7 +18,8 @@ from face_tracking_ros.model.topology import Group, mesh_topology
 from face_tracking_ros.synthetic.scenes import SceneConfig, SequenceRenderer
 from face_tracking_ros.tracking.regularisation import RegularisationConfig
 from face_tracking_ros.tracking.result import TrackStatus
-from face_tracking_ros.tracking.stereo import StereoTracker, StereoTrackerConfig, track_sequence
+from face_tracking_ros.tracking.stereo import StereoTracker, track_sequence
+from face_tracking_ros.tracking.stereo_config import StereoTrackerConfig
 from face_tracking_ros.tracking.stereo_evaluation import evaluate_stereo
 from face_tracking_ros.tracking.stereo_init import StereoInitConfig, initial_nodes
 

@@ -22,7 +22,8 @@ from face_tracking_ros.tracking.camera_gain import relative_gain
 from face_tracking_ros.tracking.depth_refinement import DepthRefinement, depth_evidence
 from face_tracking_ros.tracking.initialisation import Initialisation
 from face_tracking_ros.tracking.result import TrackStatus
-from face_tracking_ros.tracking.stereo import StereoTracker, StereoTrackerConfig, track_sequence
+from face_tracking_ros.tracking.stereo import StereoTracker, track_sequence
+from face_tracking_ros.tracking.stereo_config import StereoTrackerConfig
 from face_tracking_ros.tracking.stereo_data import (
     Huber,
     Residuals,

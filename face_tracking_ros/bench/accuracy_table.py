@@ -45,7 +45,8 @@ from face_tracking_ros.tracking.initialisation import Initialisation
 from face_tracking_ros.tracking.mono import MonoTracker
 from face_tracking_ros.tracking.pose_filter import FilteredTracker, PoseFilter
 from face_tracking_ros.tracking.result import TrackResult
-from face_tracking_ros.tracking.stereo import StereoTracker, StereoTrackerConfig
+from face_tracking_ros.tracking.stereo import StereoTracker
+from face_tracking_ros.tracking.stereo_config import StereoTrackerConfig
 from face_tracking_ros.tracking.stereo_evaluation import evaluate_stereo
 
 WIDTH, HEIGHT = 640, 480

@@ -55,7 +55,8 @@ from face_tracking_ros.synthetic.clicks import simulated_clicks
 from face_tracking_ros.synthetic.faces import FacePopulation
 from face_tracking_ros.synthetic.scenes import Kind, SceneConfig, SequenceRenderer
 from face_tracking_ros.tracking.initialisation import Initialisation
-from face_tracking_ros.tracking.stereo import StereoTracker, StereoTrackerConfig
+from face_tracking_ros.tracking.stereo import StereoTracker
+from face_tracking_ros.tracking.stereo_config import StereoTrackerConfig
 from face_tracking_ros.tracking.stereo_evaluation import StereoEvaluation, evaluate_stereo
 
 SUBJECTS, QUICK_SUBJECTS = 6, 3

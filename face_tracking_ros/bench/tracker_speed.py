@@ -31,7 +31,8 @@ from face_tracking_ros.synthetic.scenes import Kind
 from face_tracking_ros.tracking.baseline import LKPnPTracker
 from face_tracking_ros.tracking.mono import MonoTracker
 from face_tracking_ros.tracking.result import TrackStatus
-from face_tracking_ros.tracking.stereo import StereoTracker, StereoTrackerConfig
+from face_tracking_ros.tracking.stereo import StereoTracker
+from face_tracking_ros.tracking.stereo_config import StereoTrackerConfig
 
 SIZES = ((320, 240), (640, 480), (1280, 720))
 QUICK_SIZES = ((320, 240),)

@@ -6,7 +6,7 @@ Subscribes ``left/image_raw``, ``left/camera_info``, ``right/image_raw``, ``righ
 publishes ``face/mesh_raw``, ``face/mesh``, ``face/state`` and, with a model, for tracked pairs
 ``face/pose``, ``face/action``, ``face/shape``; serves ``reset_tracking``. Parameters:
 :class:`~face_tracking_ros.processing.stereo.StereoNodeConfig` and, as ``tracker.*``,
-:class:`~face_tracking_ros.tracking.stereo.StereoTrackerConfig`.
+:class:`~face_tracking_ros.tracking.stereo_config.StereoTrackerConfig`.
 """
 
 from __future__ import annotations

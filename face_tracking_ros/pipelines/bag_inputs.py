@@ -32,7 +32,7 @@ from face_tracking_ros.processing.stereo import (
     input_ports,
 )
 from face_tracking_ros.replay import bag_spelling, resolve_inputs
-from face_tracking_ros.tracking.stereo import StereoTrackerConfig
+from face_tracking_ros.tracking.stereo_config import StereoTrackerConfig
 
 
 def image_topics(topics: Mapping[str, str]) -> tuple[list[str], bool]:

@@ -61,7 +61,8 @@ from face_tracking_ros.tracking.initialisation import (
     check_inside,
     load_init_file,
 )
-from face_tracking_ros.tracking.stereo import StereoResult, StereoTracker, StereoTrackerConfig
+from face_tracking_ros.tracking.stereo import StereoResult, StereoTracker
+from face_tracking_ros.tracking.stereo_config import StereoTrackerConfig
 
 LEFT_IMAGE, RIGHT_IMAGE = 'left/image_raw', 'right/image_raw'
 COMPRESSED = {f'{LEFT_IMAGE}/compressed': LEFT_IMAGE, f'{RIGHT_IMAGE}/compressed': RIGHT_IMAGE}
@@ -596,8 +597,8 @@ def make_stereo_processor(params: ParameterSource, factory: MessageFactory) -> S
     """The stereo_tracker processor configured from parameters (node or replay).
 
     Parameters: those of :class:`StereoNodeConfig`, ``tracker.*`` those of
-    :class:`~face_tracking_ros.tracking.stereo.StereoTrackerConfig` and ``detector.*`` those of
-    :class:`~face_tracking_ros.tracking.detector.DetectorConfig`.
+    :class:`~face_tracking_ros.tracking.stereo_config.StereoTrackerConfig` and ``detector.*``
+    those of :class:`~face_tracking_ros.tracking.detector.DetectorConfig`.
 
     Raises:
         ConfigError: for ``retroactive_depths`` in a live node, a bad parameter, or

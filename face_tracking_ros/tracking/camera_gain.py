@@ -10,8 +10,8 @@ raised node RMS from 0.82 to 1.09 mm and the drift from 0.32 to 0.45 mm, the sub
 of reprojection error from 8 to 12; 13 % darker, node RMS 0.98 mm.
 
 The stereo tracker therefore measures the gain when it initialises (the
-:class:`~.stereo.StereoTrackerConfig` ``gain_compensation``) and divides it out of every right
-image. Per node patch, the contrast (RMS about the patch's mean) of its samples in the right
+:class:`~.stereo_config.StereoTrackerConfig` ``gain_compensation``) and divides it out of every
+right image. Per node patch, the contrast (RMS about the patch's mean) of its samples in the right
 image over that in the left is the gain: both sample the same skin, and a contrast hardly
 depends on where the patch is sampled exactly, so the initial nodes, millimetres off in depth,
 serve. The median over the textured patches ignores the few whose views differ (a highlight,

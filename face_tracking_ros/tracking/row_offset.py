@@ -10,11 +10,11 @@ calibration says raised node RMS from 0.82 to 1.32 mm, 0.5 px to 3.06 mm with ev
 above 1 px of reprojection error (8 of 24 without).
 
 So the tracker measures the offset when it initialises (the
-:class:`~.stereo.StereoTrackerConfig` ``row_offset_correction``) and moves the right camera's
-principal point by it. Each matched inner node is followed from its left-image position into the
-right image by pyramidal Lucas-Kanade (``cv2.calcOpticalFlowPyrLK``), starting where the rig
-projects the initial node; the median of how far it ends up below that is the offset. The
-face-edge nodes do not count: their windows hold background, which the two cameras see
+:class:`~.stereo_config.StereoTrackerConfig` ``row_offset_correction``) and moves the right
+camera's principal point by it. Each matched inner node is followed from its left-image
+position into the right image by pyramidal Lucas-Kanade (``cv2.calcOpticalFlowPyrLK``), starting
+where the rig projects the initial node; the median of how far it ends up below that is the offset.
+The face-edge nodes do not count: their windows hold background, which the two cameras see
 differently. Nodes matched on rows a few pixels off are themselves off (a test plane's 3 px
 measured 4.5 px), so while an offset exceeds what the measurement resolves the tracker matches
 the nodes again on the corrected pair and measures what is left (:data:`ROW_OFFSET_RESOLUTION_PX`,

@@ -44,7 +44,7 @@ from face_tracking_ros.recognition.identity import IdentityConfig, IdentityGalle
 from face_tracking_ros.tracking.initialisation import Initialisation
 from face_tracking_ros.tracking.mono_config import MonoTrackerConfig
 from face_tracking_ros.tracking.result import TrackStatus
-from face_tracking_ros.tracking.stereo import StereoTrackerConfig
+from face_tracking_ros.tracking.stereo_config import StereoTrackerConfig
 
 NONE = frozenset()
 RIG = StereoRig.ideal(CAMERA.width, CAMERA.height, CAMERA.focal, 0.11)

@@ -1,0 +1,191 @@
+"""Tunables of the stereo tracker (:class:`~.stereo.StereoTracker`), each tied to its symbol.
+
+The tracker minimises eq. 4 + eq. 5 (seed §3.3), each image term split with the drift term of
+eq. 6, plus the §4.2 face-texture term and the face-model term (eq. 1 and 3); every field below
+is one of that solve's tunables, of its initialisation and depth refinement, or of the checks
+on its outcome, validated when the config is made.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from face_tracking_ros.errors import check_fields
+from face_tracking_ros.imaging import MAX_HALF_SIZE
+from face_tracking_ros.model.topology import SUPPORTED_NODE_COUNTS
+from face_tracking_ros.tracking.regularisation import RegularisationConfig
+from face_tracking_ros.tracking.stereo_init import StereoInitConfig
+
+MAX_SUBDIVISIONS = 16  # of the texture triangles: (n + 1)(n + 2) / 2 = 153 samples each
+
+
+@dataclass(frozen=True)
+class StereoTrackerConfig:
+    """Tunables of the stereo tracker, each tied to its symbol in the seed.
+
+    Attributes:
+        num_nodes: mesh size, 19 or 34.
+        gamma: weight of the cross-camera terms of eq. 4, in [0, 1].
+        boundary_gamma: gamma of the face-boundary nodes, in [0, 1]: their left and right
+            views show different skin (the face turns away from the cameras there), §4.2.
+        boundary_one_sided: face-boundary nodes use the face side of their patch only (§4.2),
+            on a surface that runs on beyond them as the skin turns away (rim points, 10 mm
+            out, 20 mm back); false: whole patches on the surface through the nodes alone.
+        epsilon: share of the frame-1 (drift) terms in every image term, in [0, 1).
+        texture_weight: weight of a face-texture sample relative to a node-patch sample (§4.2);
+            0 disables the texture term. It covers the triangles that have a face-edge node
+            (none in the 19-node mesh).
+        texture_subdivisions: barycentric grid order of the texture samples (3 to 16).
+        patch_half_size: node patches are (2 h + 1)^2 samples about one pixel apart (1 to 15).
+        pyramid_levels: coarse-to-fine levels (1 = full resolution only; the coarsest at least
+            16 px).
+        max_iterations: Levenberg-Marquardt iterations per pyramid level.
+        step_tolerance: level 0 has converged when no node's projection moves more than this
+            in an iteration, px (that last step is taken without evaluating its cost).
+        coarse_step_tolerance: the same for the coarser levels, px of that level: the next
+            level refines their solution anyway. Measured at 0.5 against 0.1: linearisations
+            per pair 4.06 -> 3.06 on the speed benchmark's sequence (34 nodes, 300 pairs; node
+            RMS 3.55 mm both, and 4.63 -> 4.48 mm on seed 1); on issue 5's protocol over seeds
+            0-3 every figure within 0.06 (seed 3, 1 px clicks: largest reprojection 4.91 ->
+            4.97 px, slip 3.78 -> 3.80 mm), but for seed 0's node RMS with 1 px clicks, 3.52
+            -> 3.64 mm, its value before level 0's last step went unevaluated (3.63).
+        damping: initial Levenberg-Marquardt damping, relative to the Hessian diagonal.
+        predict_motion: start each pair's solve from the constant-velocity prediction of the
+            nodes (their motion between the last two pairs, repeated) instead of the last
+            pair's nodes; eq. 5 still measures the motion from the last pair. Measured on
+            issue 5's protocol (seed 0): every figure the same to the digits shown, and 29 %
+            fewer linearisations per pair on the speed benchmark's sequence (coarse level
+            3.7 -> 2.0).
+        coarsest_level_px: the solve starts on level 0, and the coarser levels are solved
+            (from level 1, :func:`.coarse_to_fine`; with the default two levels that is the
+            coarsest) only when level 0's first step moves a node more than this, px
+            (>= 0; 0, the default, always solves them). Faster but off by default: at 0.5 px,
+            linearisations per pair 3.06 -> 2.62 on the speed benchmark's sequence (4.06 ->
+            2.54 while the coarse level ran to ``step_tolerance``), but on issue 5's protocol
+            (measured then) the face edge slips more (seed 3, 1 px clicks: 3.75 -> 4.79 mm;
+            exact clicks 1.70 -> 1.76 mm) and the 19-node drift grows (seeds 0-3: 0.22 / 0.32 /
+            0.34 / 0.28 -> 0.27 / 0.37 / 0.32 / 0.37 mm), while seed 2's largest 19-node
+            reprojection error falls (1.19 -> 1.03 px).
+        huber_k: Huber threshold in robust standard deviations of the image residuals.
+        noise_floor: smallest robust standard deviation assumed for image residuals, grey levels.
+        lost_ratio: the track is LOST when the median over node patches of the residual RMS
+            divided by the template's contrast (about 1 for an unrelated image) exceeds this.
+        min_texture_ratio: the track is LOST when the median over node patches of their
+            contrast in the image divided by the template's (about 1 while the face is seen)
+            falls below this: a dark, blank or saturated image, which the residual test passes
+            (its residual is the template's own contrast, less the brightness ramp: a blank
+            pair measured 0.64 on the 19-node mesh).
+        model_weight_edge: lambda_i of the face-model term (:mod:`.action_prior`) for the
+            face-edge nodes, grey^2 / m^2; 0 disables the term for them.
+        model_weight_inner: lambda_i of that term for the other nodes, grey^2 / m^2. Three
+            synthetic populations' training sequences (19 nodes) against 1e8: the largest
+            reprojection error 0.93 / 1.34 / 1.52 -> 0.97 / 1.09 / 1.35 px (a smiling mouth
+            corner and a frowning inner brow stopped short of their motion), node RMS equal.
+            The term pulls towards the expressions of its model, here the packaged one learned
+            from the same synthetic world, so on faces whose expressions it lacks the gain may
+            not hold; 1e9 was kept out for that reason and is no better on these sequences.
+        refine_depths: pool the left-right evidence of every pair in the frame-1 node depths
+            (:mod:`.depth_refinement`). Off by default: the correction converges over the
+            first 20-75 pairs and, in a stream, shows as that much apparent motion of the mesh
+            (drift 0.2 -> 1.5-5 mm on the 380-frame sequences); meshes tracked that way and
+            learned from taught the demo's model spurious expression modes (LOO A 1.00 -> 0.93).
+            Offline, :meth:`StereoTracker.with_final_depths` applies the final depths to every
+            pair (the stereo_tracker's retroactive_depths, which face-tracking learn uses on raw
+            stereo bags), which is where it pays: node RMS 5.5 / 2.1 -> 1.5 / 1.8 mm on those
+            sequences.
+        matched_depth_std: standard deviation of a stereo-matched node's initial depth, m.
+            Measured over 18 synthetic subjects: 1.4-1.7 mm RMS per population, up to 8.6 mm.
+            The refinement corrects at most 3 standard deviations, so with 1 mm a node matched
+            10 mm off stayed 7 mm off (three populations, 19 nodes: node RMS 0.84 / 0.81 /
+            1.33 -> 0.78 / 0.78 / 0.83 mm with this and ``init.refine_half_size`` 5).
+        placed_depth_std: standard deviation of the initial depth of a node placed from the
+            reference face (face-edge nodes, unmatched nodes), m.
+        depth_gate: a node gets no depth update while its accumulated left-right residual
+            exceeds this multiple of its residual between consecutive images.
+        depth_step_px: largest depth change per pair, in pixels of disparity.
+        deform_patches: node patches deform with the mesh (:class:`.PatchDeformation`): a
+            raised brow stretches the skin between brow and eye. Rigid patches stop short of
+            the motion; over issue 5's six 380-frame training sequences the 19-node mesh's
+            largest reprojection error went 1.71 -> 0.95 px with this (and the texture term
+            on the face-edge triangles only), brows and lips; on a second population the
+            brows gained as much but a smiling mouth corner lost (1.23 -> 1.33 px).
+        fit_edge_weight: weight in [0, 1] of the face-edge nodes, against 1 for the others, in
+            the model fit reported with each result (their depth is the least certain: on a
+            150-frame free-motion sequence 0.1 brings the fitted rotation from 4.0 to 1.5
+            degrees of the truth and the translation from 2.2 to 0.4 mm).
+        gain_compensation: measure the right camera's gain relative to the left at each
+            (re)initialisation, on the node patches, and divide it out of the right images
+            (:mod:`.camera_gain`): eq. 4's cross-camera terms assume equal gains.
+        row_offset_correction: measure at each (re)initialisation how far the right image
+            shows the nodes below where the rig projects them and move the right camera's rows
+            by that much (:mod:`.row_offset`): eq. 4 assumes the pair is rectified exactly.
+        regularisation: the eq. 5 weights.
+        init: the epipolar search used at (re)initialisation.
+    """
+
+    num_nodes: int = 34
+    gamma: float = 0.5
+    boundary_gamma: float = 0.0
+    boundary_one_sided: bool = True
+    epsilon: float = 0.2
+    texture_weight: float = 0.5
+    texture_subdivisions: int = 4
+    patch_half_size: int = 3
+    pyramid_levels: int = 2
+    max_iterations: int = 6
+    step_tolerance: float = 0.1
+    coarse_step_tolerance: float = 0.5
+    damping: float = 1e-4
+    predict_motion: bool = True
+    coarsest_level_px: float = 0.0
+    huber_k: float = 1.345
+    noise_floor: float = 2.0
+    lost_ratio: float = 0.8
+    min_texture_ratio: float = 0.3
+    model_weight_edge: float = 1e9
+    model_weight_inner: float = 3e8
+    refine_depths: bool = False
+    matched_depth_std: float = 0.003
+    placed_depth_std: float = 0.005
+    depth_gate: float = 2.0
+    depth_step_px: float = 0.5
+    fit_edge_weight: float = 0.1
+    deform_patches: bool = True
+    gain_compensation: bool = True
+    row_offset_correction: bool = True
+    regularisation: RegularisationConfig = field(default_factory=RegularisationConfig)
+    init: StereoInitConfig = field(default_factory=StereoInitConfig)
+
+    def __post_init__(self) -> None:
+        """Validate ranges.
+
+        Raises:
+            ConfigError: naming the first out-of-range tunable.
+        """
+        checks = {
+            'num_nodes': self.num_nodes in SUPPORTED_NODE_COUNTS,
+            'gamma': 0.0 <= self.gamma <= 1.0,
+            'boundary_gamma': 0.0 <= self.boundary_gamma <= 1.0,
+            'epsilon': 0.0 <= self.epsilon < 1.0,
+            'texture_weight': self.texture_weight >= 0.0,
+            'texture_subdivisions': 3 <= self.texture_subdivisions <= MAX_SUBDIVISIONS,
+            'patch_half_size': 1 <= self.patch_half_size <= MAX_HALF_SIZE,
+            'pyramid_levels': self.pyramid_levels >= 1,
+            'max_iterations': self.max_iterations >= 1,
+            'step_tolerance': self.step_tolerance > 0.0,
+            'coarse_step_tolerance': self.coarse_step_tolerance > 0.0,
+            'damping': self.damping >= 0.0,
+            'coarsest_level_px': self.coarsest_level_px >= 0.0,
+            'huber_k': self.huber_k > 0.0,
+            'noise_floor': self.noise_floor > 0.0,
+            'lost_ratio': self.lost_ratio > 0.0,
+            'min_texture_ratio': 0.0 <= self.min_texture_ratio < 1.0,
+            'model_weight_edge': self.model_weight_edge >= 0.0,
+            'model_weight_inner': self.model_weight_inner >= 0.0,
+            'matched_depth_std': self.matched_depth_std > 0.0,
+            'placed_depth_std': self.placed_depth_std > 0.0,
+            'depth_gate': self.depth_gate > 0.0,
+            'depth_step_px': self.depth_step_px > 0.0,
+            'fit_edge_weight': 0.0 <= self.fit_edge_weight <= 1.0,
+        }
+        check_fields(self, checks)
