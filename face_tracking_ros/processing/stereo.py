@@ -61,8 +61,9 @@ from face_tracking_ros.tracking.initialisation import (
     check_inside,
     load_init_file,
 )
-from face_tracking_ros.tracking.stereo import StereoResult, StereoTracker
+from face_tracking_ros.tracking.stereo import StereoTracker
 from face_tracking_ros.tracking.stereo_config import StereoTrackerConfig
+from face_tracking_ros.tracking.stereo_result import StereoResult
 
 LEFT_IMAGE, RIGHT_IMAGE = 'left/image_raw', 'right/image_raw'
 COMPRESSED = {f'{LEFT_IMAGE}/compressed': LEFT_IMAGE, f'{RIGHT_IMAGE}/compressed': RIGHT_IMAGE}

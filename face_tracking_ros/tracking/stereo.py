@@ -24,8 +24,8 @@ The tunables are :class:`~.stereo_config.StereoTrackerConfig`; the image terms a
 layouts are in :mod:`.stereo_data`; initialisation by epipolar search in :mod:`.stereo_init`; the
 optional model fit (eq. 1-3) is :func:`face_tracking_ros.recognition.node_fit.fit_model_to_nodes`.
 
-The tracker never raises on a bad frame: it returns a :class:`StereoResult` whose status says
-what happened (:class:`~.result.TrackStatus`).
+The tracker never raises on a bad frame: it returns a :class:`~.stereo_result.StereoResult` whose
+status says what happened (:class:`~.result.TrackStatus`).
 """
 
 from __future__ import annotations
@@ -59,7 +59,7 @@ from face_tracking_ros.tracking.depth_refinement import DepthRefinement, depth_e
 from face_tracking_ros.tracking.detector import Detector
 from face_tracking_ros.tracking.initialisation import Initialisation
 from face_tracking_ros.tracking.regularisation import Regulariser
-from face_tracking_ros.tracking.result import TrackResult, TrackStatus
+from face_tracking_ros.tracking.result import TrackStatus
 from face_tracking_ros.tracking.row_offset import ROW_OFFSET_RESOLUTION_PX, row_offset
 from face_tracking_ros.tracking.stereo_config import StereoTrackerConfig
 from face_tracking_ros.tracking.stereo_data import (
@@ -82,6 +82,7 @@ from face_tracking_ros.tracking.stereo_init import (
     check_face_scale,
     initial_nodes,
 )
+from face_tracking_ros.tracking.stereo_result import StereoResult, TrackedSequence, split_tracks
 from face_tracking_ros.tracking.surface_patches import PatchDeformation
 
 LEFT, RIGHT = 0, 1
@@ -90,90 +91,6 @@ LEFT, RIGHT = 0, 1
 # fit is then within ~1e-7 (1e-7 took a fourth iteration for nothing visible).
 FIT_TOLERANCE = 1e-5
 CORRECTION_ROUNDS = 3  # of the rig's gain and row offset at initialisation (see _corrected)
-
-
-@dataclass(frozen=True)
-class StereoResult:
-    """The stereo tracker's estimate for one stereo pair.
-
-    Attributes:
-        status: TRACKING when valid; LOST carries the last valid nodes; INITIALIZING before the
-            first pair after a reset.
-        nodes_cam: (N, 3) nodes X_c in the left camera frame, m.
-        left_px: (N, 2) node projections in the left image, px.
-        right_px: (N, 2) node projections in the right image, px.
-        left_residuals: (N,) RMS photometric residual of each node patch in the left image
-            against frame n - 1 (brightness ramp or, face-edge nodes, mean removed), grey
-            levels.
-        right_residuals: (N,) the same in the right image, grey levels.
-        mean_residual: mean of both residual arrays, grey levels.
-        iterations: Levenberg-Marquardt iterations spent, summed over levels.
-        cost_history: total cost E(n) after each accepted iteration (a coarse level's last,
-            converged step is not evaluated).
-        fit: with a model loaded, its pose, sigma and alpha fitted to the nodes (eq. 1-3), as a
-            one-frame :class:`~face_tracking_ros.recognition.node_fit.NodeFit`; else None.
-        reason: why the status is not TRACKING ('' when tracking).
-        first_nodes: (N, 3) the frame-1 nodes as refined up to this pair
-            (:mod:`.depth_refinement`), m; None before the first pair.
-        rotation: (3, 3) the head's rotation since frame 1; None before the first pair.
-        new_track: this pair is frame 1 of a track (after a reset, or a detection after a loss).
-    """
-
-    status: TrackStatus
-    nodes_cam: np.ndarray
-    left_px: np.ndarray
-    right_px: np.ndarray
-    left_residuals: np.ndarray
-    right_residuals: np.ndarray
-    mean_residual: float
-    iterations: int = 0
-    cost_history: tuple[float, ...] = ()
-    fit: NodeFit | None = None
-    reason: str = ''
-    first_nodes: np.ndarray | None = None
-    rotation: np.ndarray | None = None
-    new_track: bool = False
-
-    @property
-    def ok(self) -> bool:
-        """True when the status is TRACKING."""
-        return self.status == TrackStatus.TRACKING
-
-    def as_track_result(self) -> TrackResult:
-        """The shared :class:`~.result.TrackResult` (left camera; NaN pose without a model)."""
-        fit = self.fit
-        return TrackResult(
-            status=self.status,
-            omega=np.full(3, np.nan) if fit is None else fit.omega[0],
-            t=np.full(3, np.nan) if fit is None else fit.t[0],
-            alpha=np.zeros(0) if fit is None else fit.alpha[0],
-            sigma=np.zeros(0) if fit is None else fit.sigma[0],
-            nodes_cam=self.nodes_cam,
-            nodes_px=self.left_px,
-            node_residuals=self.left_residuals,
-            mean_residual=self.mean_residual,
-            iterations=self.iterations,
-            cost_history=self.cost_history,
-            reason=self.reason,
-            right_node_residuals=self.right_residuals,
-        )
-
-
-@dataclass(frozen=True)
-class TrackedSequence:
-    """Output of :func:`track_sequence`.
-
-    Attributes:
-        meshes: (F, N, 3) nodes per frame in the left camera frame, m (the last valid nodes on
-            frames that were not TRACKING; NaN before the first), with the frame-1 depths as
-            refined over the whole sequence (:mod:`.depth_refinement`) applied to every frame.
-        status: (F,) TrackStatus values.
-        results: the per-frame results.
-    """
-
-    meshes: np.ndarray
-    status: np.ndarray
-    results: tuple[StereoResult, ...]
 
 
 @dataclass
@@ -407,7 +324,7 @@ class StereoTracker:
                 final depths.
         """
         final: list[StereoResult] = []
-        for track in _tracks(results):
+        for track in split_tracks(results):
             refined = [r.first_nodes for r in track if r.first_nodes is not None]
             final += [self._with_first_nodes(r, refined[-1]) for r in track] if refined else track
         return final
@@ -1069,16 +986,6 @@ def track_sequence(
     meshes = np.array([r.nodes_cam for r in final]).reshape(len(results), n, 3)
     status = np.array([int(r.status) for r in results], dtype=np.int64)
     return TrackedSequence(meshes=meshes, status=status, results=results)
-
-
-def _tracks(results: Sequence[StereoResult]) -> list[list[StereoResult]]:
-    """``results`` split before each result that starts a new track."""
-    tracks: list[list[StereoResult]] = [[]]
-    for result in results:
-        if result.new_track and tracks[-1]:
-            tracks.append([])
-        tracks[-1].append(result)
-    return tracks
 
 
 def _damped_step(system: _System, damping: float) -> np.ndarray:
