@@ -42,6 +42,7 @@ from face_tracking_ros.tracking.stereo_init import (
     epipolar_match,
     initial_nodes,
 )
+from face_tracking_ros.tracking.stereo_solve import PairEnergy
 from face_tracking_ros.tracking.surface_patches import surface_patch_offsets
 
 RIG = StereoRig.ideal()
@@ -396,7 +397,7 @@ def test_a_coarse_level_ends_at_its_own_step_tolerance(monkeypatch: pytest.Monke
     linearisations when written, the tracks 0.11 mm apart.
     """
     linearised = record_method(
-        monkeypatch, StereoTracker, '_linearise', lambda _state, level, _point: level.index
+        monkeypatch, PairEnergy, 'linearise', lambda level, _point: level.index
     )
     frames = [PLANE.moved(np.array([0.003, -0.002, 0.004]) * k) for k in range(5)]
     init = RIG.left.project(PLANE.nodes(19))

@@ -20,9 +20,10 @@ term, eq. 5 and the frame-1 templates then follow (``refine_depths``, :mod:`.dep
 one pair measures the depth of weakly textured skin and of the face-edge nodes only to
 millimetres. Offline, :meth:`StereoTracker.with_final_depths` gives every pair of a track the
 depths refined over all of it.
-The tunables are :class:`~.stereo_config.StereoTrackerConfig`; the image terms and their sample
-layouts are in :mod:`.stereo_data`; initialisation by epipolar search in :mod:`.stereo_init`; the
-optional model fit (eq. 1-3) is :func:`face_tracking_ros.recognition.node_fit.fit_model_to_nodes`.
+The tunables are :class:`~.stereo_config.StereoTrackerConfig`; E(n) and the Levenberg-Marquardt
+solve of one pyramid level are in :mod:`.stereo_solve`, the image terms and their sample layouts
+in :mod:`.stereo_data`; initialisation by epipolar search in :mod:`.stereo_init`; the optional
+model fit (eq. 1-3) is :func:`face_tracking_ros.recognition.node_fit.fit_model_to_nodes`.
 
 The tracker never raises on a bad frame: it returns a :class:`~.stereo_result.StereoResult` whose
 status says what happened (:class:`~.result.TrackStatus`).
@@ -32,11 +33,9 @@ from __future__ import annotations
 
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field, replace
-from typing import NamedTuple
 
 import numpy as np
 from scipy.linalg import LinAlgError
-from scipy.linalg.lapack import dpotrf, dpotrs
 
 from face_tracking_ros.data import default_model_path
 from face_tracking_ros.errors import (
@@ -52,7 +51,7 @@ from face_tracking_ros.model.face_model import FaceModel
 from face_tracking_ros.model.model_file import load_model
 from face_tracking_ros.model.topology import Group, MeshTopology, mesh_topology
 from face_tracking_ros.recognition.node_fit import NodeFit, fit_model_to_nodes
-from face_tracking_ros.tracking.action_prior import ActionPrior, ModelPoint, PriorEvaluation
+from face_tracking_ros.tracking.action_prior import ActionPrior, ModelPoint
 from face_tracking_ros.tracking.camera_gain import GAIN_RESOLUTION, relative_gain
 from face_tracking_ros.tracking.coarse_to_fine import coarse_to_fine
 from face_tracking_ros.tracking.depth_refinement import DepthRefinement, depth_evidence
@@ -65,16 +64,10 @@ from face_tracking_ros.tracking.stereo_config import StereoTrackerConfig
 from face_tracking_ros.tracking.stereo_data import (
     GroupStatistics,
     Huber,
-    Residuals,
-    Sampled,
     SampleLayout,
     SampleSet,
     group_statistics,
-    homogeneous_pixels,
     level_projections,
-    node_blocks,
-    robust_residuals,
-    sample_images,
     sample_values,
 )
 from face_tracking_ros.tracking.stereo_init import (
@@ -83,6 +76,7 @@ from face_tracking_ros.tracking.stereo_init import (
     initial_nodes,
 )
 from face_tracking_ros.tracking.stereo_result import StereoResult, TrackedSequence, split_tracks
+from face_tracking_ros.tracking.stereo_solve import Level, LevelSolver, PairEnergy, Point
 from face_tracking_ros.tracking.surface_patches import PatchDeformation
 
 LEFT, RIGHT = 0, 1
@@ -121,40 +115,13 @@ class _State:
     before: np.ndarray | None = None  # the pair before's nodes (the motion prediction)
 
 
-class _Level(NamedTuple):
-    """One pyramid level of the current pair, with everything its iterations share."""
-
-    index: int
-    images: tuple[np.ndarray, np.ndarray]
-    projections: np.ndarray  # (2, 3, 4) P of eq. 2 onto this level
-    offsets: np.ndarray  # (3, S) sample offsets at this level
-    templates: np.ndarray  # (2, K, S) float32 T_k of each image
-
-
-class _Point(NamedTuple):
-    """E(n) of eq. 4 + texture + eq. 5 + face-model term at some nodes."""
-
-    nodes: np.ndarray
-    cost: float
-    sampled: Sampled
-    residuals: Residuals
-    prior: PriorEvaluation | None
-
-
 @dataclass
 class _Solves:
     """What the levels' solves of one pair spent, and each level with its last accepted point."""
 
     iterations: int = 0
     history: list[float] = field(default_factory=list)
-    levels: list[tuple[_Level, _Point]] = field(default_factory=list)
-
-
-class _System(NamedTuple):
-    """Gauss-Newton normal equations (node-major) at a point."""
-
-    hessian: np.ndarray  # (3N, 3N)
-    gradient: np.ndarray  # (3N,)
+    levels: list[tuple[Level, Point]] = field(default_factory=list)
 
 
 class StereoTracker:
@@ -468,6 +435,7 @@ class StereoTracker:
             level_projections((rig.left, rig.right), level)
             for level in range(self._config.pyramid_levels)
         )
+        self._solver = LevelSolver(self._config, self._projections[0])
 
     def _measured_gain(
         self, pyramids: tuple[ImagePyramid, ImagePyramid], nodes: np.ndarray
@@ -589,7 +557,7 @@ class StereoTracker:
             LinAlgError, FaceTrackingError: when a level's solve fails.
         """
         config = self._config
-        huber = Huber.of(state.samples, config.huber_k * state.noise)
+        energy = self._energy(state)
         nodes = state.nodes
         if config.predict_motion and state.before is not None:
             nodes = 2.0 * state.nodes - state.before
@@ -597,7 +565,7 @@ class StereoTracker:
 
         def solve(index: int, start: np.ndarray, first_step_limit: float) -> np.ndarray | None:
             level = self._level(state, pyramids, index)
-            solved = self._solve_level(state, level, huber, start, first_step_limit)
+            solved = self._solver.solve(energy, level, start, first_step_limit)
             if solved is None:
                 return None
             nodes, spent, costs, accepted = solved
@@ -607,7 +575,23 @@ class StereoTracker:
             return nodes
 
         nodes = coarse_to_fine(config.pyramid_levels, 0, config.coarsest_level_px, nodes, solve)
+        state.theta = energy.theta  # the face-model term's fit, moved on by the solve
         return nodes, solves
+
+    def _energy(self, state: _State) -> PairEnergy:
+        """E(n) on this pair from the state: its samples, templates' weights, eq. 5, face model."""
+        return PairEnergy(
+            samples=state.samples,
+            coefficients=state.coefficients,
+            huber=Huber.of(state.samples, self._config.huber_k * state.noise),
+            regulariser=state.regulariser,
+            previous=state.nodes,
+            prior=state.prior,
+            theta=state.theta,
+            deformation=state.deformation,
+            first_nodes=state.first_nodes,
+            rotation=state.rotation,
+        )
 
     def _advance(
         self,
@@ -627,9 +611,12 @@ class StereoTracker:
             nodes = self._refine_depths(state, pyramids, nodes, statistics.rms[0][LEFT])
         state.before, state.nodes = state.nodes, nodes
         state.offsets = state.samples.level_offsets(state.rotation, 0)
-        state.previous_templates = self._templates(
-            pyramids, state.samples, nodes, self._deformed(state, state.offsets, nodes, 0)
-        )
+        offsets = state.offsets
+        if state.deformation is not None:
+            offsets = state.deformation.deformed(
+                offsets, nodes, state.first_nodes, state.rotation, 0
+            )
+        state.previous_templates = self._templates(pyramids, state.samples, nodes, offsets)
         result = self._result(
             nodes,
             state.first_nodes,
@@ -641,21 +628,6 @@ class StereoTracker:
         )
         state.result = result
         return result
-
-    def _deformed(
-        self, state: _State, offsets: np.ndarray, nodes: np.ndarray, level: int
-    ) -> np.ndarray:
-        """(3, S) rigid sample offsets of pyramid level ``level`` with the patches' deformation.
-
-        The node-patch samples move with the mesh's deformation at ``nodes``
-        (:class:`.PatchDeformation`), scaled like the offsets; without it, ``offsets`` as given.
-        """
-        if state.deformation is None:
-            return offsets
-        field = state.deformation.field(nodes, state.first_nodes, state.rotation)
-        deformed = offsets.copy()
-        deformed[:, : field.shape[1]] += float(1 << level) * field
-        return deformed
 
     def _rotation(self, first_nodes: np.ndarray, nodes: np.ndarray) -> np.ndarray:
         """The head's rotation since frame 1 (weighted Procrustes of the nodes, §3.3)."""
@@ -721,7 +693,7 @@ class StereoTracker:
 
     def _level(
         self, state: _State, pyramids: tuple[ImagePyramid, ImagePyramid], index: int
-    ) -> _Level:
+    ) -> Level:
         """Pyramid level ``index`` of the pair with its templates T_k (k = 0..3).
 
         For each image: frame n - 1 in the same camera, in the other camera, then frame 1 in
@@ -729,104 +701,13 @@ class StereoTracker:
         """
         previous = state.previous_templates[index]
         first = state.first_templates[index]
-        return _Level(
+        return Level(
             index=index,
             images=(pyramids[LEFT].levels[index], pyramids[RIGHT].levels[index]),
             projections=self._projections[index],
             offsets=float(1 << index) * state.offsets,
             templates=np.stack([previous, previous[::-1], first, first[::-1]], axis=1),
         )
-
-    def _solve_level(
-        self,
-        state: _State,
-        level: _Level,
-        huber: Huber,
-        nodes: np.ndarray,
-        first_step_limit: float = np.inf,
-    ) -> tuple[np.ndarray, int, list[float], _Point] | None:
-        """Levenberg-Marquardt at one pyramid level, from ``nodes``.
-
-        Each trial point's evaluation samples the images with their gradients, so an accepted
-        point is linearised from it without sampling again. The step that ends a level
-        (smaller than its step tolerance) is taken without evaluating its cost, as the mono
-        tracker takes its converged step: a coarse level's next level evaluates that point
-        first anyway, and level 0's result keeps the statistics of its last accepted point.
-
-        Returns:
-            The nodes, the iterations spent, the accepted costs and the last accepted point
-            (where the last linearisation was made); None when the first step would move a
-            node more than ``first_step_limit`` px of this level.
-        """
-        config = self._config
-        damping = config.damping
-        tolerance = config.coarse_step_tolerance if level.index else config.step_tolerance
-        point = self._evaluate(state, level, huber, nodes)
-        system = self._linearise(state, level, point)
-        history = [point.cost]
-        iterations = 0
-        while iterations < config.max_iterations:
-            iterations += 1
-            candidate = nodes + _damped_step(system, damping)
-            motion = self._pixel_motion(nodes, candidate) / (1 << level.index)  # level px
-            if motion > first_step_limit:
-                return None
-            first_step_limit = np.inf
-            if motion < tolerance:
-                nodes = candidate  # converged
-                break
-            trial = self._evaluate(state, level, huber, candidate)
-            if trial.cost <= point.cost:
-                nodes, point = candidate, trial
-                history.append(trial.cost)
-                damping = max(damping / 10.0, 1e-9)
-                system = self._linearise(state, level, point)
-            else:
-                damping *= 10.0
-                if damping > 1e3:
-                    break
-        return nodes, iterations, history[1:], point
-
-    def _pixel_motion(self, nodes: np.ndarray, moved: np.ndarray) -> float:
-        """Largest image motion of a node between two estimates, in either camera, px."""
-        homogeneous = homogeneous_pixels(self._projections[0], np.concatenate([nodes, moved]).T)
-        pixels = (homogeneous[:, :2] / homogeneous[:, 2:]).reshape(2, 2, 2, -1)
-        return float(np.abs(pixels[:, :, 1] - pixels[:, :, 0]).max())
-
-    def _evaluate(
-        self,
-        state: _State,
-        level: _Level,
-        huber: Huber,
-        nodes: np.ndarray,
-    ) -> _Point:
-        """E(n) of eq. 4 + texture + eq. 5 + face-model term at ``nodes``.
-
-        The images are sampled with their gradients, for a linearisation there.
-        """
-        samples = state.samples
-        points = samples.points(nodes, self._deformed(state, level.offsets, nodes, level.index))
-        sampled = sample_images(level.images, level.projections, points, samples.mask)
-        residuals = robust_residuals(samples, sampled, level.templates, state.coefficients, huber)
-        cost = state.regulariser.cost(nodes, state.nodes)
-        prior = None
-        if state.prior is not None and state.theta is not None:
-            prior = state.prior.evaluate(nodes, state.theta)
-            cost += prior.cost
-        return _Point(nodes, cost + residuals.cost, sampled, residuals, prior)
-
-    def _linearise(self, state: _State, level: _Level, point: _Point) -> _System:
-        """Gauss-Newton normal equations at an evaluated point; the face-model fit is kept."""
-        _, hessian, gradient = state.regulariser.normal_equations(point.nodes, state.nodes)
-        if state.prior is not None and point.prior is not None:
-            prior_hessian, prior_gradient = state.prior.normal_equations(point.prior)
-            hessian, gradient = hessian + prior_hessian, gradient + prior_gradient
-            state.theta = point.prior.point
-        blocks, vectors = node_blocks(
-            state.samples, point.sampled, point.residuals, level.projections
-        )
-        image_hessian, image_gradient = state.samples.assemble(blocks, vectors)
-        return _System(hessian + image_hessian, gradient + image_gradient)
 
     def _check(self, nodes: np.ndarray, statistics: GroupStatistics) -> str:
         """Why the solution is not a valid track ('' if it is)."""
@@ -986,22 +867,6 @@ def track_sequence(
     meshes = np.array([r.nodes_cam for r in final]).reshape(len(results), n, 3)
     status = np.array([int(r.status) for r in results], dtype=np.int64)
     return TrackedSequence(meshes=meshes, status=status, results=results)
-
-
-def _damped_step(system: _System, damping: float) -> np.ndarray:
-    """Levenberg-Marquardt step (N, 3): ``-(H + damping diag H)^-1 g``, by Cholesky.
-
-    The normal equations are finite: images are finite and non-finite sample points raise.
-    """
-    augmented = system.hessian.copy()
-    diagonal = np.einsum('ii->i', augmented)  # a view
-    diagonal += damping * diagonal
-    factor, info = dpotrf(augmented, lower=0, clean=0)  # the routines of cho_factor, cho_solve
-    if info != 0:
-        msg = f'damped normal matrix is not positive definite (LAPACK potrf info {info})'
-        raise LinAlgError(msg)
-    step, _ = dpotrs(factor, -system.gradient, lower=0)
-    return step.reshape(-1, 3)
 
 
 def _prior_model(config: StereoTrackerConfig, model: FaceModel | None) -> FaceModel | None:

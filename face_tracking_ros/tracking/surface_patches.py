@@ -207,3 +207,28 @@ class PatchDeformation:
         count = deformation.shape[1]
         field.reshape(3, count, -1)[...] -= deformation[:, :, None]
         return field
+
+    def deformed(
+        self,
+        offsets: np.ndarray,
+        nodes: np.ndarray,
+        first_nodes: np.ndarray,
+        rotation: np.ndarray,
+        level: int,
+    ) -> np.ndarray:
+        """(3, S) rigid sample offsets of pyramid level ``level`` with the patches' deformation.
+
+        The node-patch samples move with the mesh's deformation at ``nodes`` (:meth:`field`),
+        scaled like the offsets; the samples after them (S > S_p) keep their offsets.
+
+        Args:
+            offsets: (3, S) rigid sample offsets of that level, the node patches' first, m.
+            nodes: (N, 3) current nodes, m.
+            first_nodes: (N, 3) frame-1 nodes, m.
+            rotation: (3, 3) R, the head's rotation since frame 1.
+            level: the pyramid level l (its offsets are 2^l times level 0's).
+        """
+        field = self.field(nodes, first_nodes, rotation)
+        deformed = offsets.copy()
+        deformed[:, : field.shape[1]] += float(1 << level) * field
+        return deformed
