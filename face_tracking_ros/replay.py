@@ -38,6 +38,7 @@ from face_tracking_ros.processing.base import (
     Port,
     Processor,
     Reporting,
+    Warns,
 )
 from face_tracking_ros.processing.parameters import OverrideParameters
 from face_tracking_ros.processing.registry import processor_factory
@@ -59,6 +60,9 @@ class ReplayStats:
         read_error: why part of the input bag was unreadable ('' if none was).
         status: what each reporting processor reported at the end, per node name
             (:class:`~face_tracking_ros.processing.base.Reporting`; filled by :func:`replay_bag`).
+        warnings: what each processor that can warn warned of at the end, per node name, as the
+            live node's status would (:class:`~face_tracking_ros.processing.base.Warns`, e.g. a
+            tracker that tracked none of the last images; filled by :func:`replay_bag`).
     """
 
     inputs: Counter[str] = field(default_factory=Counter)
@@ -67,6 +71,7 @@ class ReplayStats:
     interrupted: bool = False
     read_error: str = ''
     status: dict[str, dict[str, str]] = field(default_factory=dict)
+    warnings: dict[str, str] = field(default_factory=dict)
 
     def summary(self, out: Path) -> list[str]:
         """The replay summarised in lines of text, ``out`` being the output bag it wrote."""
@@ -82,6 +87,7 @@ class ReplayStats:
             f'{node}: ' + ', '.join(f'{key} {value}' for key, value in status.items())
             for node, status in self.status.items()
         ]
+        lines += [f'{node}: warning: {warning}' for node, warning in self.warnings.items()]
         if self.interrupted:
             lines.append('interrupted: the output bag holds what was processed so far')
         return lines
@@ -468,6 +474,8 @@ def replay_bag(
     for node, processor in zip(nodes, processors, strict=True):
         if isinstance(processor, Reporting):
             stats.status[node] = processor.status()
+        if isinstance(processor, Warns) and processor.warning():
+            stats.warnings[node] = processor.warning()
     return stats
 
 

@@ -23,6 +23,8 @@ from face_tracking_ros.processing.base import Output, Port, QosClass
 from face_tracking_ros.processing.parameters import OverrideParameters
 from face_tracking_ros.replay import replay, replay_bag, resolve_inputs
 
+from repo_root import REPO
+
 IMAGE = 'sensor_msgs/msg/Image'
 FLOAT = 'std_msgs/msg/Float64'
 
@@ -191,6 +193,20 @@ def test_a_replay_ends_with_what_the_reporting_processors_report(tmp_path, monke
     assert stats.status == {'counter': {'seen': '5'}}
     print_stats(stats, tmp_path / 'out')
     assert 'counter: seen 5' in capsys.readouterr().out
+
+
+def test_a_tracker_that_tracked_none_of_the_last_images_warns_as_the_live_status_does(
+    tmp_path, capsys
+):
+    bag = REPO / 'bags' / 'mono_test' / 'subject_00_seq_00'  # 30 images, no initialisation given
+    assert (
+        main(['replay', 'mono_tracker', str(bag), '--out', str(tmp_path / 'out'), '--quiet']) == 0
+    )
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[-1] == (
+        'mono_tracker: warning: 30 images in a row not tracked: waiting for an initialisation '
+        '(init points or a detection)'
+    )
 
 
 def test_a_replay_given_the_bag_topics_does_not_read_them_again(tmp_path, monkeypatch):
