@@ -22,7 +22,8 @@ millimetres. Offline, :meth:`StereoTracker.with_final_depths` gives every pair o
 depths refined over all of it.
 The tunables are :class:`~.stereo_config.StereoTrackerConfig`; E(n) and the Levenberg-Marquardt
 solve of one pyramid level are in :mod:`.stereo_solve`, the image terms and their sample layouts
-in :mod:`.stereo_data`; initialisation by epipolar search in :mod:`.stereo_init`; the optional
+in :mod:`.stereo_data`, a track's templates (where they are sampled, their weights a_k) in
+:mod:`.stereo_templates`; initialisation by epipolar search in :mod:`.stereo_init`; the optional
 model fit (eq. 1-3) is :func:`face_tracking_ros.recognition.node_fit.fit_model_to_nodes`.
 
 The tracker never raises on a bad frame: it returns a :class:`~.stereo_result.StereoResult` whose
@@ -64,11 +65,9 @@ from face_tracking_ros.tracking.stereo_config import StereoTrackerConfig
 from face_tracking_ros.tracking.stereo_data import (
     GroupStatistics,
     Huber,
-    SampleLayout,
     SampleSet,
     group_statistics,
     level_projections,
-    sample_values,
 )
 from face_tracking_ros.tracking.stereo_init import (
     InitialNodes,
@@ -77,6 +76,7 @@ from face_tracking_ros.tracking.stereo_init import (
 )
 from face_tracking_ros.tracking.stereo_result import StereoResult, TrackedSequence, split_tracks
 from face_tracking_ros.tracking.stereo_solve import Level, LevelSolver, PairEnergy, Point
+from face_tracking_ros.tracking.stereo_templates import TemplateSamples, templates
 from face_tracking_ros.tracking.surface_patches import PatchDeformation
 
 LEFT, RIGHT = 0, 1
@@ -168,7 +168,7 @@ class StereoTracker:
         self._prior_model = _prior_model(config, model)
         self._detector = detector
         self._topology: MeshTopology = mesh_topology(config.num_nodes)
-        self._texture_triangles = _texture_triangles(self._topology)
+        self._template_samples = TemplateSamples(config, self._topology)
         self._boundary = self._topology.group_mask(Group.EDGE)
         self._use_rig(rig)
         self._spare: tuple[ImagePyramid, ImagePyramid] | None = None
@@ -355,10 +355,10 @@ class StereoTracker:
         """The state of a track starting at ``initial`` on this pair: samples, templates, terms."""
         config = self._config
         nodes = initial.nodes
-        layouts = self._layouts(nodes)
+        layouts = self._template_samples.layouts(nodes, self._rig.left.focal)
         samples = SampleSet.of(layouts, self._topology.num_nodes)
         offsets = samples.level_offsets(np.eye(3), 0)
-        templates = self._templates(pyramids, samples, nodes, offsets)
+        first_templates = templates(pyramids, self._projections, samples, nodes, offsets)
         prior, theta = self._action_prior(nodes)
         depth_std = np.where(initial.matched, config.matched_depth_std, config.placed_depth_std)
         return _State(
@@ -368,13 +368,13 @@ class StereoTracker:
             first_pyramids=pyramids,
             samples=samples,
             patches=SampleSet.of(layouts[:1], self._topology.num_nodes),
-            coefficients=self._coefficients(samples),
+            coefficients=self._template_samples.coefficients(samples),
             offsets=offsets,
             deformation=(
                 PatchDeformation.of(nodes, layouts[0].offsets) if config.deform_patches else None
             ),
-            first_templates=templates,
-            previous_templates=templates,
+            first_templates=first_templates,
+            previous_templates=first_templates,
             regulariser=Regulariser.build(self._topology, config.regularisation, nodes),
             prior=prior,
             theta=None if prior is None else prior.point(theta),
@@ -441,60 +441,13 @@ class StereoTracker:
         self, pyramids: tuple[ImagePyramid, ImagePyramid], nodes: np.ndarray
     ) -> float:
         """The right image's gain relative to the left at the node patches of ``nodes``."""
-        layout = self._node_patches(nodes)
+        layout = self._template_samples.node_patches(nodes, self._rig.left.focal)
         patches = SampleSet.of((layout,), self._topology.num_nodes)
         offsets = patches.level_offsets(np.eye(3), 0)
-        values = self._templates(pyramids, patches, nodes, offsets)[0]  # level 0's
+        values = templates(pyramids, self._projections, patches, nodes, offsets)[0]  # level 0's
         return relative_gain(
             values.reshape(2, *layout.mask.shape), layout.mask, self._config.noise_floor
         )
-
-    def _templates(
-        self,
-        pyramids: tuple[ImagePyramid, ImagePyramid],
-        samples: SampleSet,
-        nodes: np.ndarray,
-        offsets: np.ndarray,
-    ) -> tuple[np.ndarray, ...]:
-        """(2, S) grey levels of the samples in both images at every level (the templates).
-
-        Args:
-            pyramids: the pyramids of the pair sampled.
-            samples: the sample set.
-            nodes: (N, 3) nodes, m.
-            offsets: (3, S) level-0 sample offsets (turned as at ``nodes``), m.
-        """
-        return tuple(
-            sample_values(
-                (pyramids[LEFT].levels[level], pyramids[RIGHT].levels[level]),
-                projections,
-                samples.points(nodes, float(1 << level) * offsets),
-            )
-            for level, projections in enumerate(self._projections)
-        )
-
-    def _coefficients(self, samples: SampleSet) -> np.ndarray:
-        """(4, S) a_k of every sample, for the templates of :meth:`_level`.
-
-        Node patches: eq. 4 (same camera 1 - gamma, other camera gamma) at frame n - 1 and
-        frame 1 in the ratio (1 - epsilon) : epsilon. Texture: same camera only, scaled by the
-        texture weight (the flat triangles are not the curved face, so the cross-camera terms
-        would be biased there).
-        """
-        config = self._config
-        keep = 1.0 - config.epsilon
-        cross = np.where(self._boundary, config.boundary_gamma, config.gamma)
-        same = 1.0 - cross
-        patches = np.array(
-            [keep * same, keep * cross, config.epsilon * same, config.epsilon * cross]
-        )
-        columns = [np.repeat(patches, samples.layouts[0].mask.shape[1], axis=1)]
-        if len(samples.layouts) > 1:
-            texture = [keep * config.texture_weight, 0.0, config.epsilon * config.texture_weight]
-            columns.append(
-                np.repeat(np.array([*texture, 0.0])[:, None], samples.layouts[1].mask.size, axis=1)
-            )
-        return np.concatenate(columns, axis=1)
 
     def _action_prior(self, nodes: np.ndarray) -> tuple[ActionPrior | None, np.ndarray]:
         """The face-model term for a run starting at ``nodes`` (None without weights)."""
@@ -503,26 +456,6 @@ class StereoTracker:
         if self._prior_model is None or not np.any(weights > 0):
             return None, np.zeros(0)
         return ActionPrior.build(self._prior_model, nodes, weights)
-
-    def _layouts(self, nodes: np.ndarray) -> tuple[SampleLayout, ...]:
-        """Node patches (always) and the face-texture samples (if texture_weight > 0)."""
-        config = self._config
-        layouts = [self._node_patches(nodes)]
-        if config.texture_weight > 0 and len(self._texture_triangles):
-            layouts.append(
-                SampleLayout.triangle_texture(self._texture_triangles, config.texture_subdivisions)
-            )
-        return tuple(layouts)
-
-    def _node_patches(self, nodes: np.ndarray) -> SampleLayout:
-        """The node patches at ``nodes`` (one-sided on the face edge, as configured)."""
-        config = self._config
-        return SampleLayout.node_patches(
-            nodes,
-            nodes[:, 2] / self._rig.left.focal,
-            config.patch_half_size,
-            self._boundary & config.boundary_one_sided,
-        )
 
     # -- tracking ----------------------------------------------------------------------------
 
@@ -616,7 +549,9 @@ class StereoTracker:
             offsets = state.deformation.deformed(
                 offsets, nodes, state.first_nodes, state.rotation, 0
             )
-        state.previous_templates = self._templates(pyramids, state.samples, nodes, offsets)
+        state.previous_templates = templates(
+            pyramids, self._projections, state.samples, nodes, offsets
+        )
         result = self._result(
             nodes,
             state.first_nodes,
@@ -681,8 +616,9 @@ class StereoTracker:
             state.prior = state.prior.moved(shift)
             state.theta = state.prior.point(state.theta.theta)
         state.regulariser = state.regulariser.moved(state.first_nodes)
-        state.first_templates = self._templates(
+        state.first_templates = templates(
             state.first_pyramids,
+            self._projections,
             state.samples,
             state.first_nodes,
             state.samples.level_offsets(np.eye(3), 0),
@@ -697,7 +633,8 @@ class StereoTracker:
         """Pyramid level ``index`` of the pair with its templates T_k (k = 0..3).
 
         For each image: frame n - 1 in the same camera, in the other camera, then frame 1 in
-        the same and the other camera (:meth:`_coefficients` weighs them).
+        the same and the other camera (:meth:`~.stereo_templates.TemplateSamples.coefficients`
+        weighs them).
         """
         previous = state.previous_templates[index]
         first = state.first_templates[index]
@@ -878,15 +815,3 @@ def _prior_model(config: StereoTrackerConfig, model: FaceModel | None) -> FaceMo
     except ModelFileError as error:
         msg = f'the face-model term needs a model: {error} (or set its weights to 0)'
         raise ConfigError(msg) from None
-
-
-def _texture_triangles(topology: MeshTopology) -> np.ndarray:
-    """The triangles of the face-texture term: those with a face-edge node (§4.2).
-
-    The term is there for the face-edge nodes, whose own patches see little: a node sliding
-    along the boundary distorts the texture of its triangles. Inside the face the node patches
-    see enough, and a flat triangle stretched by its corners (the brows', when they rise) is
-    not how the skin between them moves, which biased the brows by up to a pixel.
-    """
-    edge = topology.group_mask(Group.EDGE)
-    return topology.triangles[np.any(edge[topology.triangles], axis=1)]
