@@ -27,7 +27,8 @@ in :mod:`.stereo_data`, a track's templates (where they are sampled, their weigh
 model fit (eq. 1-3) is :func:`face_tracking_ros.recognition.node_fit.fit_model_to_nodes`.
 
 The tracker never raises on a bad frame: it returns a :class:`~.stereo_result.StereoResult` whose
-status says what happened (:class:`~.result.TrackStatus`).
+status says what happened (:class:`~.result.TrackStatus`; what declares a track lost is
+:mod:`.stereo_loss`).
 """
 
 from __future__ import annotations
@@ -47,7 +48,7 @@ from face_tracking_ros.errors import (
 )
 from face_tracking_ros.geometry.camera import StereoRig
 from face_tracking_ros.geometry.procrustes import rigid_align
-from face_tracking_ros.imaging import ImagePyramid, check_levels_fit, inside_image
+from face_tracking_ros.imaging import ImagePyramid, check_levels_fit
 from face_tracking_ros.model.face_model import FaceModel
 from face_tracking_ros.model.model_file import load_model
 from face_tracking_ros.model.topology import Group, MeshTopology, mesh_topology
@@ -74,6 +75,7 @@ from face_tracking_ros.tracking.stereo_init import (
     check_face_scale,
     initial_nodes,
 )
+from face_tracking_ros.tracking.stereo_loss import loss_reason
 from face_tracking_ros.tracking.stereo_result import StereoResult, TrackedSequence, split_tracks
 from face_tracking_ros.tracking.stereo_solve import Level, LevelSolver, PairEnergy, Point
 from face_tracking_ros.tracking.stereo_templates import TemplateSamples, templates
@@ -476,7 +478,7 @@ class StereoTracker:
         statistics = group_statistics(
             state.samples, accepted.sampled, accepted.residuals, level.templates[:, 0]
         )
-        problem = self._check(nodes, statistics)
+        problem = loss_reason(nodes, statistics, self._rig, self._config)
         if problem:
             return self._lose(problem)
         return self._advance(state, pyramids, nodes, statistics, solves)
@@ -645,30 +647,6 @@ class StereoTracker:
             offsets=float(1 << index) * state.offsets,
             templates=np.stack([previous, previous[::-1], first, first[::-1]], axis=1),
         )
-
-    def _check(self, nodes: np.ndarray, statistics: GroupStatistics) -> str:
-        """Why the solution is not a valid track ('' if it is)."""
-        if not np.all(np.isfinite(nodes)):
-            return 'non-finite nodes'
-        if np.any(nodes[:, 2] <= 0):
-            return 'a node went behind the camera'
-        shape = (self._rig.left.height, self._rig.left.width)
-        for camera in (self._rig.left, self._rig.right):
-            if not np.all(inside_image(camera.project(nodes), shape)):
-                return 'a node left the image'
-        with np.errstate(invalid='ignore', divide='ignore'):
-            ratios = statistics.rms[0] / statistics.contrast[0]
-        ratio = float(np.nanmedian(ratios))
-        if not ratio <= self._config.lost_ratio:
-            return f'patch residual / contrast {ratio:.2f} exceeds {self._config.lost_ratio}'
-        with np.errstate(invalid='ignore', divide='ignore'):
-            texture = float(np.nanmedian(statistics.image_contrast[0] / statistics.contrast[0]))
-        if not texture >= self._config.min_texture_ratio:
-            return (
-                f'the images show almost no texture where the face was (patch contrast '
-                f'{texture:.2f} of the template contrast, below {self._config.min_texture_ratio})'
-            )
-        return ''
 
     # -- results -----------------------------------------------------------------------------
 

@@ -1,0 +1,62 @@
+"""The checks that declare the stereo track lost (§3.3; the mono tracker's are :mod:`.mono_loss`).
+
+Loss of track gives status LOST with the last valid nodes. A pair's solution is declared lost
+when a node is not finite, lies behind the camera or projects outside either image, or when the
+node patches (:class:`~.stereo_data.GroupStatistics` of level 0, both cameras) tell that the
+images no longer show the face tracked:
+
+    median_i r_i / c_i > ``lost_ratio``            the patches do not match their templates
+    median_i t_i / c_i < ``min_texture_ratio``     the images show almost no texture there
+
+medians over the node patches i of both images, with r_i the RMS of patch i's residual against
+its frame n - 1 template in the same camera (brightness ramp or, face-edge nodes, mean removed;
+about c_i for an unrelated image), c_i the template's contrast (the standard deviation of its
+grey levels) and t_i the image's. A blank or dark pair passes the first test (its residual is
+the template's own contrast less the ramp), hence the second.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from face_tracking_ros.geometry.camera import StereoRig
+from face_tracking_ros.imaging import inside_image
+from face_tracking_ros.tracking.stereo_config import StereoTrackerConfig
+from face_tracking_ros.tracking.stereo_data import GroupStatistics
+
+
+def loss_reason(
+    nodes: np.ndarray,
+    statistics: GroupStatistics,
+    rig: StereoRig,
+    config: StereoTrackerConfig,
+) -> str:
+    """Why the solution is not a valid track ('' if it is).
+
+    Args:
+        nodes: (N, 3) the pair's solution, left camera frame, m.
+        statistics: the residual summaries of its last accepted point, level 0.
+        rig: the rig tracked with (its image size and projections).
+        config: the tracker's tunables (the checks': ``lost_ratio``, ``min_texture_ratio``).
+    """
+    if not np.all(np.isfinite(nodes)):
+        return 'non-finite nodes'
+    if np.any(nodes[:, 2] <= 0):
+        return 'a node went behind the camera'
+    shape = (rig.left.height, rig.left.width)
+    for camera in (rig.left, rig.right):
+        if not np.all(inside_image(camera.project(nodes), shape)):
+            return 'a node left the image'
+    with np.errstate(invalid='ignore', divide='ignore'):
+        ratios = statistics.rms[0] / statistics.contrast[0]
+    ratio = float(np.nanmedian(ratios))
+    if not ratio <= config.lost_ratio:
+        return f'patch residual / contrast {ratio:.2f} exceeds {config.lost_ratio}'
+    with np.errstate(invalid='ignore', divide='ignore'):
+        texture = float(np.nanmedian(statistics.image_contrast[0] / statistics.contrast[0]))
+    if not texture >= config.min_texture_ratio:
+        return (
+            f'the images show almost no texture where the face was (patch contrast '
+            f'{texture:.2f} of the template contrast, below {config.min_texture_ratio})'
+        )
+    return ''
