@@ -6,7 +6,8 @@ duplicated message), and restart the track on one that went back (a looped bag, 
 camera); ``restarts`` in their status counts those. What counts as the last stamp, and what a
 stamp that went back does beyond the restart, differ: the mono processor takes an image's stamp
 as soon as it passes and restarts at once; the stereo processor takes the stamp of the pair it
-tracks and decides by how far the stamp went back (:mod:`~face_tracking_ros.processing.stereo`).
+tracks and its pairing decides by how far the stamp went back
+(:mod:`~face_tracking_ros.processing.stereo_pairing`).
 """
 
 from __future__ import annotations

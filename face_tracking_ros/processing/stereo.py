@@ -18,17 +18,18 @@ refined over the whole track applied to every pair
 it.
 
 An image whose stamp repeats that of the last tracked pair is refused. A jump back of
-:data:`RESTART_JUMP_NS` or more (a looped bag, restarted cameras) resets the tracker to the
-initialisation and clears the pairing queues, and the new track starts with the pair of that
-image. An image a little older than the last pair (e.g. the late partner of a dropped image) is
-put aside and counted as unpaired, unless the other camera's images went back too and it pairs
-with one of them: a bag shorter than that jump, looped, which restarts the track the same way.
+:data:`~face_tracking_ros.processing.stereo_pairing.RESTART_JUMP_NS` or more (a looped bag,
+restarted cameras) resets the tracker to the initialisation and clears the pairing queues, and
+the new track starts with the pair of that image. An image a little older than the last pair
+(e.g. the late partner of a dropped image) is put aside and counted as unpaired, unless the other
+camera's images went back too and it pairs with one of them: a bag shorter than that jump,
+looped, which restarts the track the same way. The pairing, its counts and these restarts are
+:class:`~face_tracking_ros.processing.stereo_pairing.StereoPairing`'s; the processor restarts
+the tracker when it is told to.
 """
 
 from __future__ import annotations
 
-from collections import OrderedDict
-from collections.abc import Iterable
 from dataclasses import dataclass, replace
 from typing import Any
 
@@ -55,6 +56,7 @@ from face_tracking_ros.processing.held_input import HeldInput
 from face_tracking_ros.processing.model_agreement import MODEL_PORT
 from face_tracking_ros.processing.parameters import ParameterSource
 from face_tracking_ros.processing.stamp_guard import StampGuard
+from face_tracking_ros.processing.stereo_pairing import StereoPairing
 from face_tracking_ros.processing.track_counts import NO_REASON, TrackCounts
 from face_tracking_ros.tracking.initialisation import (
     Initialisation,
@@ -70,7 +72,6 @@ COMPRESSED = {f'{LEFT_IMAGE}/compressed': LEFT_IMAGE, f'{RIGHT_IMAGE}/compressed
 LEFT_INFO, RIGHT_INFO = 'left/camera_info', 'right/camera_info'
 INFOS = (LEFT_INFO, RIGHT_INFO)
 MODEL = MODEL_PORT.topic
-RESTART_JUMP_NS = 1_000_000_000  # an image stamp this much older than the last pair restarts
 
 
 @dataclass(frozen=True)
@@ -149,10 +150,12 @@ class StereoProcessor:
     held until the calibration comes (:class:`~face_tracking_ros.processing.held_input.HeldInput`)
     and each camera's calibration
     (:class:`~face_tracking_ros.processing.calibration.CameraCalibration`) follow the mono
-    processor's rules. Its own: the last stamp is that of the last pair tracked; an image a
-    little older than it is put aside, and a jump back restarts the track with a warning (see
-    the module's docstring); a pair is held while there is no tracker (a calibration missing or
-    refused); the two calibrations must form a rectified rig before either is kept.
+    processor's rules. Its own: the pairing of left and right images
+    (:class:`~face_tracking_ros.processing.stereo_pairing.StereoPairing`), where the last stamp
+    is that of the last pair tracked, an image a little older than it is put aside, and a jump
+    back restarts the track with a warning (see the module's docstring); a pair is held while
+    there is no tracker (a calibration missing or refused); the two calibrations must form a
+    rectified rig before either is kept.
     """
 
     def __init__(
@@ -190,16 +193,18 @@ class StereoProcessor:
         self._calibrations = {info: CameraCalibration(config.rectify) for info in INFOS}
         self._tracker: StereoTracker | None = None
         self._unfit = ''  # why the calibration gives no tracker, if it does not
-        self._waiting = _per_camera_queues()
         self._held: HeldInput[tuple[Any, Any]] = HeldInput(f'{LEFT_INFO} and {RIGHT_INFO}', 'pair')
-        self._stale = _per_camera_queues()  # images older than the last pair
         self._track_results: list[tuple[Any, StereoResult]] = []  # held: (header, result)
         self._ended_outputs: list[Output] = []  # held outputs of the tracks that ended
         self._stamps = StampGuard('pair')
+        self._pairing: StereoPairing[Any] = StereoPairing(
+            (LEFT_IMAGE, RIGHT_IMAGE),
+            config.pairing_queue,
+            config.pairing_tolerance_ms,
+            self._stamps,
+            self._restart_track,
+        )
         self._tracked_px: np.ndarray | None = None  # left px of the last pair tracked, if it was
-        self.unpaired = 0
-        self._unpaired_gap_ns: int | None = None  # nearest other-camera stamp to a dropped image
-        self._paired = False  # whether any left and right images have paired
         self._counts = TrackCounts('pairs')
         self.inputs = input_ports(config.compressed)
         self.outputs = (*MESH_PORTS, *MODEL_PORTS)
@@ -228,6 +233,11 @@ class StereoProcessor:
             self._reset_tracker()
         return source
 
+    @property
+    def unpaired(self) -> int:
+        """Images that never paired so far (:attr:`StereoPairing.unpaired`)."""
+        return self._pairing.unpaired
+
     def warning(self) -> str:
         """See :meth:`~face_tracking_ros.processing.track_counts.TrackCounts.warning`."""
         return self._counts.warning()
@@ -240,19 +250,18 @@ class StereoProcessor:
         ``restarts`` (tracks restarted by stamps that went back), ``model`` (the fingerprint of
         the face model in use), ``unpaired_images`` with, if any, ``unpaired_nearest_ms`` (how
         near the other camera's stamps came to one of them: more than ``pairing_tolerance_ms``
-        means unsynchronised cameras), and once a tracker runs ``right_gain`` and
-        ``right_row_offset_px`` (:class:`StereoTracker`'s).
+        means unsynchronised cameras; :meth:`StereoPairing.report`), and once a tracker runs
+        ``right_gain`` and ``right_row_offset_px`` (:class:`StereoTracker`'s).
         """
         report = {
             **self._counts.report(),
             'restarts': str(self._stamps.restarts),
             'model': self._model.fingerprint if self._model is not None else 'none (meshes only)',
-            'unpaired_images': str(self.unpaired),
+            **self._pairing.report(),
         }
-        if self._unpaired_gap_ns is not None:
-            report['unpaired_nearest_ms'] = f'{self._unpaired_gap_ns / 1e6:.3f}'
-            if not self._paired and report['last_reason'] == NO_REASON:  # (a short stream)
-                report['last_reason'] = _never_paired(self._unpaired_gap_ns / 1e6)
+        never_paired = self._pairing.never_paired()
+        if never_paired and report['last_reason'] == NO_REASON:  # (a short stream)
+            report['last_reason'] = never_paired
         report['last_reason'] = self._held.reason(report['last_reason'])
         if self._tracker is not None:
             report['right_gain'] = f'{self._tracker.right_gain:.3f}'
@@ -266,11 +275,7 @@ class StereoProcessor:
         track applied (:meth:`StereoTracker.with_final_depths`); without the option there is
         nothing to emit. Images still waiting for a partner are counted as unpaired.
         """
-        left, right = self._waiting[LEFT_IMAGE], self._waiting[RIGHT_IMAGE]
-        self._unpair(list(left), right)
-        self._unpair(list(right), left)
-        left.clear()
-        right.clear()
+        self._pairing.finish()
         self._end_track()
         outputs, self._ended_outputs = self._ended_outputs, []
         return outputs
@@ -287,9 +292,7 @@ class StereoProcessor:
             self._rebuild()
             return []
         topic = COMPRESSED.get(topic, topic)  # pairs by side, whatever the transport
-        if not self._check_stamp(topic, msg):
-            return []
-        pair = self._pair(topic, msg)
+        pair = self._pairing.offer(topic, stamp_to_ns(msg.header.stamp), msg)
         if pair is not None and self._tracker is None:  # held until the calibration comes
             dropped = self._held.hold(pair)
             if self._unfit:
@@ -370,129 +373,16 @@ class StereoProcessor:
         self._tracked_px = None
         self._tracker.reset(self._calibrations[LEFT_INFO].rectified(self._initialisation))
 
-    @property
-    def _can_initialise(self) -> bool:
-        """Whether the tracker can start: it has node positions or a detector."""
-        return self._initialisation is not None or self._detector_for is not None
-
-    def _check_stamp(self, topic: str, msg: Any) -> bool:
-        """Whether an image may be paired: its stamp is later than the last tracked pair's.
-
-        A repeated stamp is refused; a jump back by :data:`RESTART_JUMP_NS` or more restarts the
-        track (:meth:`_restart_stream`) and keeps the image. A smaller step back puts the image
-        aside, counted as unpaired (False), unless it pairs with an image the other camera put
-        aside: both cameras went back (a short bag, looped), and the track restarts with them.
-
-        Raises:
-            InputError: for a repeated stamp or a jump back.
-        """
-        stamp = stamp_to_ns(msg.header.stamp)
-        other_topic = RIGHT_IMAGE if topic == LEFT_IMAGE else LEFT_IMAGE
-        if self._stamps.later(stamp, topic):
-            for side in (topic, other_topic):  # not a restart: what was put aside never pairs
-                self._stale[side].clear()
-            return True
-        back_ns = self._stamps.last - stamp
-        if back_ns < RESTART_JUMP_NS:
-            return self._pairs_aside(topic, other_topic, stamp, msg)
-        self._restart_stream()
-        self._waiting[topic][stamp] = msg
-        msg_text = (
-            f'{topic} stamp went back by {back_ns / 1e9:.3f} s (looped bag or restarted '
-            'cameras): tracker reset, a new track starts with this pair'
-        )
-        raise InputError(msg_text)
-
-    def _pairs_aside(self, topic: str, other_topic: str, stamp: int, msg: Any) -> bool:
-        """Whether an image a little older than the last pair pairs with one put aside.
-
-        If it does, both cameras went back (a short bag, looped): the track restarts with them
-        (True). Else the image is put aside, counted as unpaired (False).
-        """
-        partner = self._partner(stamp, self._stale[other_topic])
-        if partner is None:
-            self._put_aside(topic, stamp, msg)
-            return False
-        partner_msg = self._stale[other_topic].pop(partner)
-        self._restart_stream()
-        self.unpaired -= 1  # (the partner, counted when put aside, pairs after all)
-        self._waiting[other_topic][partner] = partner_msg
-        return True
-
-    def _put_aside(self, topic: str, stamp: int, msg: Any) -> None:
-        """Keep an image older than the last pair (counted as unpaired), the newest few only."""
-        self.unpaired += 1
-        aside = self._stale[topic]
-        aside[stamp] = msg
-        while len(aside) > self._config.pairing_queue:
-            aside.popitem(last=False)
-
-    def _restart_stream(self) -> None:
-        """The cameras' stamps went back: empty the queues, start again from the initialisation."""
-        self._stamps.restart()
-        for queue in (*self._waiting.values(), *self._stale.values()):
-            queue.clear()
+    def _restart_track(self) -> None:
+        """The cameras' stamps went back (the pairing restarted): start from the initialisation."""
         if self._tracker is not None and self._can_initialise:
             self._end_track()
             self._reset_tracker()
 
-    def _pair(self, topic: str, msg: Any) -> tuple[Any, Any] | None:
-        """The (left, right) pair completed by this image, if any; older unpaired ones dropped.
-
-        Raises:
-            InputError: when an image is dropped unpaired while no pair has been made yet (the
-                cameras' stamps do not match: the message says by how much).
-        """
-        stamp = stamp_to_ns(msg.header.stamp)
-        queue = self._waiting[topic]
-        other = self._waiting[RIGHT_IMAGE if topic == LEFT_IMAGE else LEFT_IMAGE]
-        partner = self._partner(stamp, other)
-        if partner is not None:
-            match = other.pop(partner)
-            self._drop_older(queue, stamp, other)
-            self._drop_older(other, partner, queue)
-            self._paired = True
-            return (msg, match) if topic == LEFT_IMAGE else (match, msg)
-        queue[stamp] = msg
-        dropped = len(queue) > self._config.pairing_queue
-        while len(queue) > self._config.pairing_queue:
-            self._unpair([queue.popitem(last=False)[0]], other)
-        if dropped and not self._paired and other:
-            gap_ms = min(abs(mine - theirs) for mine in queue for theirs in other) / 1e6
-            raise InputError(_never_paired(gap_ms))
-        return None
-
-    def _partner(self, stamp: int, waiting: OrderedDict[int, Any]) -> int | None:
-        """The stamp among ``waiting`` that pairs with ``stamp``, or None.
-
-        An equal stamp, else the nearest one within ``pairing_tolerance_ms``.
-        """
-        if stamp in waiting:
-            return stamp
-        tolerance_ns = self._config.pairing_tolerance_ms * 1e6
-        if not tolerance_ns:  # equal stamps only (the default): no search
-            return None
-        nearest = min(waiting, key=lambda other: abs(other - stamp), default=None)
-        return nearest if nearest is not None and abs(nearest - stamp) <= tolerance_ns else None
-
-    def _drop_older(
-        self, queue: OrderedDict[int, Any], stamp: int, other: OrderedDict[int, Any]
-    ) -> None:
-        """Drop (and count) the images of ``queue`` stamped before ``stamp``: they never pair."""
-        stale = [s for s in queue if s < stamp]
-        if not stale:  # the usual case, on every pair: nothing to count
-            return
-        self._unpair(stale, [*other, stamp])
-        for s in stale:
-            del queue[s]
-
-    def _unpair(self, stamps: list[int], others: Iterable[int]) -> None:
-        """Count images (their ``stamps``) that never pair; keep how near ``others`` came."""
-        self.unpaired += len(stamps)
-        gaps = [abs(mine - theirs) for mine in stamps for theirs in others]
-        if gaps:
-            known = self._unpaired_gap_ns
-            self._unpaired_gap_ns = min(gaps) if known is None else min(known, *gaps)
+    @property
+    def _can_initialise(self) -> bool:
+        """Whether the tracker can start: it has node positions or a detector."""
+        return self._initialisation is not None or self._detector_for is not None
 
     def _track(self, left_msg: Any, right_msg: Any) -> list[Output]:
         if not self._can_initialise:
@@ -564,11 +454,6 @@ def input_ports(compressed: bool) -> tuple[Port, ...]:
     )
 
 
-def _per_camera_queues() -> dict[str, OrderedDict[int, Any]]:
-    """Empty queues of images by stamp, one per camera (by its image topic)."""
-    return {LEFT_IMAGE: OrderedDict(), RIGHT_IMAGE: OrderedDict()}
-
-
 def _check_nodes(
     model: FaceModel, tracker_config: StereoTrackerConfig, error: type[Exception]
 ) -> None:
@@ -617,12 +502,3 @@ def make_stereo_processor(params: ParameterSource, factory: MessageFactory) -> S
     init = load_init_file(config.init_file) if config.init_file else None
     detector_for = landmark_detector(params, config.auto_init)
     return StereoProcessor(factory, config, tracker_config, model, init, detector_for)
-
-
-def _never_paired(gap_ms: float) -> str:
-    """Why no pair was made: the cameras' stamps differ by at least ``gap_ms``."""
-    return (
-        'no left and right images have paired yet (unpaired_images counts them): the '
-        f'nearest stamps differ by {gap_ms:.3f} ms; pairing needs equal stamps, or '
-        'pairing_tolerance_ms for cameras that are not synchronised'
-    )

@@ -1,0 +1,70 @@
+"""The stereo processor's pairing of left and right images by stamp, on its own (no images).
+
+The processor's tests (test/hardening/test_processor_inputs.py) cover the rest through it:
+equal stamps only and the error while nothing pairs, one partner within the tolerance, the
+repeated stamp, the late image put aside, and the restarts on stamps that go back.
+"""
+
+from __future__ import annotations
+
+import pytest
+
+from face_tracking_ros.errors import InputError
+from face_tracking_ros.processing.stamp_guard import StampGuard
+from face_tracking_ros.processing.stereo_pairing import StereoPairing
+
+LEFT, RIGHT = 'left/image_raw', 'right/image_raw'
+T = 1_700_000_000 * 10**9  # ns
+MS = 1_000_000  # ns
+
+
+def _pairing(queue_size: int = 10, tolerance_ms: float = 0.0) -> StereoPairing[str]:
+    """A pairing whose messages are names; stamps never go back in these tests."""
+
+    def no_restart() -> None:
+        raise AssertionError('no restart expected')
+
+    return StereoPairing((LEFT, RIGHT), queue_size, tolerance_ms, StampGuard('pair'), no_restart)
+
+
+def test_the_nearest_image_within_the_tolerance_pairs_never_one_beyond_it() -> None:
+    pairing = _pairing(tolerance_ms=5.0)
+    assert pairing.offer(RIGHT, T - 3 * MS, 'right -3 ms') is None
+    assert pairing.offer(RIGHT, T + 1 * MS, 'right +1 ms') is None
+    # Both are within 5 ms: the nearer pairs, the older one is dropped (it never pairs).
+    assert pairing.offer(LEFT, T, 'left 0') == ('left 0', 'right +1 ms')
+    assert pairing.unpaired == 1
+    assert pairing.offer(LEFT, T + 100 * MS, 'left 100') is None
+    assert pairing.offer(RIGHT, T + 106 * MS, 'right 106') is None  # 6 ms: not a partner
+    assert pairing.offer(RIGHT, T + 200 * MS, 'right 200') is None
+    assert pairing.offer(LEFT, T + 205 * MS, 'left 205') == ('left 205', 'right 200')  # at 5 ms
+    assert pairing.unpaired == 3  # left 100 and right 106, older than that pair
+
+
+def test_images_left_behind_count_as_unpaired_with_how_near_the_other_camera_came() -> None:
+    pairing = _pairing()
+    assert pairing.offer(LEFT, T, 'left 0') is None
+    assert pairing.offer(LEFT, T + 100 * MS, 'left 100') is None
+    assert pairing.offer(RIGHT, T + 100 * MS, 'right 100') == ('left 100', 'right 100')
+    # left 0 is older than the pair made: dropped, 100 ms from the nearest right stamp.
+    assert pairing.report() == {'unpaired_images': '1', 'unpaired_nearest_ms': '100.000'}
+    assert pairing.never_paired() == ''  # a pair was made
+    assert pairing.offer(RIGHT, T + 230 * MS, 'right 230') is None
+    assert pairing.offer(LEFT, T + 200 * MS, 'left 200') is None  # 30 ms apart: no pair
+    pairing.finish()  # the end of the stream: both never pair
+    assert pairing.report() == {'unpaired_images': '3', 'unpaired_nearest_ms': '30.000'}
+    pairing.finish()  # nothing waits any more: nothing counted twice
+    assert pairing.unpaired == 3
+
+
+def test_a_full_queue_drops_its_oldest_and_says_why_once_the_other_camera_sends() -> None:
+    pairing = _pairing(queue_size=2)
+    for k in range(3):  # the right camera silent: the oldest left image dropped, no error
+        assert pairing.offer(LEFT, T + k * 100 * MS, f'left {k}') is None
+    assert pairing.report() == {'unpaired_images': '1'}  # no right stamp to be near
+    assert pairing.never_paired() == ''
+    assert pairing.offer(RIGHT, T + 202 * MS, 'right 202') is None
+    with pytest.raises(InputError, match=r'have paired yet .* nearest stamps differ by 2\.000 ms'):
+        pairing.offer(LEFT, T + 300 * MS, 'left 300')
+    assert pairing.unpaired == 2
+    assert pairing.never_paired().startswith('no left and right images have paired yet')
