@@ -57,6 +57,20 @@ def test_images_left_behind_count_as_unpaired_with_how_near_the_other_camera_cam
     assert pairing.unpaired == 3
 
 
+def test_an_image_left_behind_a_pair_within_the_tolerance_is_measured_against_the_other_camera():
+    pairing = _pairing(tolerance_ms=5.0)
+    assert pairing.offer(LEFT, T + 100 * MS, 'left 100') is None
+    assert pairing.offer(LEFT, T + 133 * MS, 'left 133') is None
+    assert pairing.offer(RIGHT, T + 136 * MS, 'right 136') == ('left 133', 'right 136')
+    # left 100 never pairs: the nearest right stamp was 136 (36 ms), not left 133's own 33 ms.
+    assert pairing.report() == {'unpaired_images': '1', 'unpaired_nearest_ms': '36.000'}
+    assert pairing.offer(RIGHT, T + 200 * MS, 'right 200') is None
+    assert pairing.offer(RIGHT, T + 233 * MS, 'right 233') is None
+    assert pairing.offer(LEFT, T + 236 * MS, 'left 236') == ('left 236', 'right 233')
+    # right 200 never pairs either: 36 ms from left 236 (33 from its own camera's right 233).
+    assert pairing.report() == {'unpaired_images': '2', 'unpaired_nearest_ms': '36.000'}
+
+
 def test_a_full_queue_drops_its_oldest_and_says_why_once_the_other_camera_sends() -> None:
     pairing = _pairing(queue_size=2)
     for k in range(3):  # the right camera silent: the oldest left image dropped, no error

@@ -184,8 +184,9 @@ class StereoPairing(Generic[Message]):
         partner = self._partner(stamp, other)
         if partner is not None:
             match = other.pop(partner)
-            self._drop_older(queue, stamp, other)
-            self._drop_older(other, partner, queue)
+            # An image dropped is measured against the other camera's stamps, the pair's too.
+            self._drop_older(queue, stamp, [*other, partner])
+            self._drop_older(other, partner, [*queue, stamp])
             self._paired = True
             return (msg, match) if topic == self._sides[0] else (match, msg)
         queue[stamp] = msg
@@ -210,14 +211,15 @@ class StereoPairing(Generic[Message]):
         nearest = min(waiting, key=lambda other: abs(other - stamp), default=None)
         return nearest if nearest is not None and abs(nearest - stamp) <= tolerance_ns else None
 
-    def _drop_older(
-        self, queue: OrderedDict[int, Message], stamp: int, other: OrderedDict[int, Message]
-    ) -> None:
-        """Drop (and count) the images of ``queue`` stamped before ``stamp``: they never pair."""
+    def _drop_older(self, queue: OrderedDict[int, Message], stamp: int, others: list[int]) -> None:
+        """Drop (and count) the images of ``queue`` stamped before ``stamp``: they never pair.
+
+        ``others`` are the other camera's stamps (how near they came is kept).
+        """
         stale = [s for s in queue if s < stamp]
         if not stale:  # the usual case, on every pair: nothing to count
             return
-        self._unpair(stale, [*other, stamp])
+        self._unpair(stale, others)
         for s in stale:
             del queue[s]
 
