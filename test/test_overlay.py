@@ -17,7 +17,11 @@ from face_tracking_ros.io.bags import BagWriter, bag_topics, read_messages
 from face_tracking_ros.io.messages import RosbagsMessages
 from face_tracking_ros.io.series import load_states
 from face_tracking_ros.io.typestore import typestore
+from face_tracking_ros.tracking.result import TrackStatus
+from face_tracking_ros.visualization.overlay import draw_mesh
 from face_tracking_ros.visualization.video import overlay_frames, write_overlay_video
+
+NODE_RGB = (255, 90, 30)  # draw_mesh's node dots; its edges take the status colour
 
 
 @pytest.fixture(scope='module')
@@ -50,6 +54,30 @@ def test_frames_are_rectified_before_the_mesh_is_drawn(turned, tmp_path):
     assert all(_black_edge_columns(frame) == 1 for frame in rectified)
     assert all(_black_edge_columns(frame) == 0 for frame in recorded)
     assert write_overlay_video(bag, states, tmp_path / 'v.gif') == 3
+    # The mesh is drawn where the states put the nodes, in either view: a dot on each node.
+    for frames in (rectified, recorded):
+        for frame, points in zip(frames, states.image_points, strict=True):
+            columns, rows = np.round(points).astype(int).T
+            assert np.all(frame[rows, columns] == NODE_RGB)
+
+
+def test_the_mesh_is_drawn_on_its_nodes_and_edges_in_the_status_colour():
+    """Dots of radius 2 px on the nodes, 1-px lines on the edges; none to a NaN node."""
+    gray = np.full((40, 60), 50, np.uint8)
+    nodes = np.array([[10.0, 10.0], [50.0, 10.0], [30.0, 30.0], [np.nan, np.nan]])
+    edges = np.array([[0, 1], [1, 2], [2, 3]])
+    tracking = draw_mesh(gray, nodes, edges, TrackStatus.TRACKING)
+    assert np.all(tracking[[10, 10, 30], [10, 50, 30]] == NODE_RGB)
+    # The edge (50, 10)-(30, 30) runs diagonally through pixel centres: (40, 20) is on it.
+    np.testing.assert_array_equal(tracking[20, 40], (60, 220, 60))
+    np.testing.assert_array_equal(
+        draw_mesh(gray, nodes, edges, TrackStatus.LOST)[20, 40], [230, 50, 50]
+    )
+    # Nothing beyond the dots' reach of the valid nodes (3 px with the anti-aliasing): an edge to
+    # the NaN node would run to (0, 0).
+    rows, columns = np.nonzero(np.any(tracking != 50, axis=2))
+    assert rows.min() >= 10 - 3 and rows.max() <= 30 + 3
+    assert columns.min() >= 10 - 3 and columns.max() <= 50 + 3
 
 
 def test_compressed_frames_are_drawn_like_raw_ones(turned, tmp_path):
