@@ -82,6 +82,22 @@ def test_face_state_carries_result_and_header():
     assert state.iterations == 7
 
 
+def test_mesh_and_markers_hold_the_result_s_nodes_and_the_topology_s_edges():
+    """FaceMesh and the RViz markers: nodes as spheres, each edge as its two end nodes."""
+    messages = _face_messages(RosbagsMessages(typestore()))
+    nodes, topology = _result().nodes_cam, mesh_topology(34)
+    mesh = messages.mesh
+    np.testing.assert_array_equal(conversions.points_to_array(mesh.points, 'points'), nodes)
+    np.testing.assert_array_equal(np.reshape(mesh.edges, (-1, 2)), topology.edges)
+    assert list(mesh.node_names) == list(topology.node_names) and mesh.face_id == 'face_0'
+    spheres, lines = messages.markers.markers
+    assert (spheres.type, lines.type) == (7, 5)  # Marker.SPHERE_LIST, Marker.LINE_LIST
+    assert spheres.ns == lines.ns == 'face_0' and (spheres.id, lines.id) == (0, 1)
+    np.testing.assert_array_equal(conversions.points_to_array(spheres.points, 'spheres'), nodes)
+    segments = conversions.points_to_array(lines.points, 'lines').reshape(-1, 2, 3)
+    np.testing.assert_array_equal(segments, nodes[topology.edges])
+
+
 @pytest.mark.parametrize('factory', [RosbagsMessages(typestore()), RclpyMessages()])
 def test_an_initializing_result_is_published_with_zeros_for_its_nan(factory):
     header = conversions.make_header(factory, STAMP_NS, 'camera_optical')
