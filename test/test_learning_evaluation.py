@@ -5,6 +5,7 @@ from __future__ import annotations
 from learning_population import training_set
 import numpy as np
 import pytest
+from scipy.linalg import subspace_angles
 from scipy.spatial.transform import Rotation
 
 from face_tracking_ros.learning.alignment import align_training_set
@@ -144,6 +145,19 @@ def test_leave_one_out_figures(small_world):
     model = learner(training.without_subject(2)).model
     neutral = training.subject_means(training.flat(), training.neutral)[2].reshape(-1, 3)
     assert loo.neutral_rms_mm[2] == pytest.approx(1000.0 * fit_identity(model, neutral)[1])
+    # The similarities are the mean squared cosine of the principal angles between the model
+    # learned without the subject and the full one (§3.4), and the mean shape moves by a share
+    # of the full mean's size (its nodes' distance from their centroid, as a vector).
+    for similarity, held_out, every in (
+        (loo.shape_similarity, model.shape_basis, full.model.shape_basis),
+        (loo.action_similarity, model.action_basis, full.model.action_basis),
+    ):
+        expected = np.mean(np.cos(subspace_angles(held_out, every)) ** 2)
+        assert similarity[2] == pytest.approx(expected, rel=1e-9)
+    full_mean = full.model.mean_shape.reshape(-1, 3)
+    size = np.linalg.norm(full_mean - full_mean.mean(axis=0))
+    moved = np.linalg.norm(model.mean_shape - full.model.mean_shape)
+    assert loo.mean_variation_percent[2] == pytest.approx(100.0 * moved / size, rel=1e-9)
 
 
 def test_evaluate_table_and_plots(small_world, tmp_path):
