@@ -137,8 +137,12 @@ def test_errors(pairs: dict, tmp_path: Path, capsys: pytest.CaptureFixture) -> N
         tracked_sequence(tmp_path / 'later', other_truth)
     with pytest.raises(BagError, match='no topic face/state'):
         tracked_sequence(truth, truth)
-    with pytest.raises(SystemExit):
-        cli.main(['recognition-report', '--enrol', str(tracked), '--test', 'x=y'])
+    classifier = ['--classifier', pairs['classifier'][0]]  # required: not the error here
+    with pytest.raises(SystemExit) as refused:
+        cli.main(['recognition-report', '--enrol', str(tracked), '--test', 'x=y', *classifier])
+    assert refused.value.code == 2
+    expected = f'argument --enrol: expected TRACKED=TRUTH bag paths, got {str(tracked)!r}'
+    assert expected in capsys.readouterr().err
     # A track that records the bag it was tracked from, paired with another's truth (which
     # starts at the same stamp, as synthetic bags do: every frame would pair).
     provenance = Provenance.of(truth, ['mono_tracker'], {})
@@ -146,7 +150,8 @@ def test_errors(pairs: dict, tmp_path: Path, capsys: pytest.CaptureFixture) -> N
         bag.set_custom_data(PROVENANCE_KEY, provenance.text())
         for message in read_messages(tracked, topics=['face/state']):
             bag.write(message.topic, message.msgtype, message.msg, message.stamp_ns)
-    assert len(tracked_sequence(tmp_path / 'recorded', truth).times) > 0
+    paired = tracked_sequence(tracked, truth).times  # the frames of the bag it copies
+    assert np.array_equal(tracked_sequence(tmp_path / 'recorded', truth).times, paired)
     with pytest.raises(ConfigError, match=f'was tracked from {truth}, not from {other_truth}'):
         tracked_sequence(tmp_path / 'recorded', other_truth)
     # Another bag of the same name (in another directory) is another bag; a link is the same.
@@ -155,7 +160,7 @@ def test_errors(pairs: dict, tmp_path: Path, capsys: pytest.CaptureFixture) -> N
     with pytest.raises(ConfigError, match=f'was tracked from {truth}, not from {namesake}'):
         tracked_sequence(tmp_path / 'recorded', namesake)
     (tmp_path / 'link').symlink_to(truth)
-    assert len(tracked_sequence(tmp_path / 'recorded', tmp_path / 'link').times) > 0
+    assert np.array_equal(tracked_sequence(tmp_path / 'recorded', tmp_path / 'link').times, paired)
     # A classifier trained on another model's alpha than the one the track names (the default).
     bound = tmp_path / 'bound.npz'
     loaded = ExpressionClassifier.load(pairs['classifier'][0], 6)
