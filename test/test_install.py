@@ -62,7 +62,7 @@ def test_interface_package_is_installed() -> None:
     )
 
 
-@pytest.mark.parametrize('name', sorted(NODES) or ['face-tracking'])
+@pytest.mark.parametrize('name', [*sorted(NODES), 'face-tracking'])
 def test_executable_is_installed_for_ros2_run(name: str) -> None:
     path = executable(name)
 
