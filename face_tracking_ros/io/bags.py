@@ -387,9 +387,19 @@ def _bags_in(directory: Path) -> list[str]:
         subdirectories = [sub for sub in directory.iterdir() if sub.is_dir()]
     except OSError:  # unreadable: no bags to name
         return []
-    return sorted(
-        sub.name for sub in subdirectories if (sub / 'metadata.yaml').is_file() or _mcap_files(sub)
-    )
+    return sorted(sub.name for sub in subdirectories if _is_bag_directory(sub))
+
+
+def _is_bag_directory(directory: Path) -> bool:
+    """Whether ``directory`` holds a metadata.yaml or .mcap files; False if it cannot be entered.
+
+    A user may list a directory but not look inside it (a drive's lost+found): Path.is_file
+    raises PermissionError there, where the directory holding it was to be named as no bag.
+    """
+    try:
+        return (directory / 'metadata.yaml').is_file() or bool(_mcap_files(directory))
+    except OSError:
+        return False
 
 
 def _check_types_agree(

@@ -206,6 +206,28 @@ def test_a_directory_of_bags_given_as_a_bag_names_the_bags_it_holds(bag, tmp_pat
     )
 
 
+def test_a_subdirectory_that_cannot_be_entered_is_not_among_the_bags_named(
+    bag, tmp_path, monkeypatch
+):
+    """A drive's lost+found, say: listed in the directory, but a user may not look inside it."""
+    drive = tmp_path / 'drive'
+    shutil.copytree(bag, drive / 'anna_1')
+    locked = drive / 'lost+found'
+    locked.mkdir()
+    stat = Path.stat
+
+    def refused(path: Path, **kwargs: bool):  # os.stat of a path inside it, without root
+        if path.parent == locked:
+            raise PermissionError(13, 'Permission denied', str(path))
+        return stat(path, **kwargs)
+
+    monkeypatch.setattr(Path, 'stat', refused)
+    with pytest.raises(
+        BagError, match=r'drive: not a rosbag2 bag .* it holds 1 bag\(s\) \(anna_1\)'
+    ):
+        list(read_messages(drive))
+
+
 def test_without_metadata_a_requested_topic_the_bag_lacks_is_named(bag, tmp_path):
     copy = _cut_copy(bag, tmp_path / 'copy', 1.0, keep_metadata=False)
     assert len(list(read_messages(copy, topics=['/cam/image']))) == FRAMES
