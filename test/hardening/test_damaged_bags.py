@@ -206,6 +206,14 @@ def test_a_directory_of_bags_given_as_a_bag_names_the_bags_it_holds(bag, tmp_pat
     )
 
 
+def test_a_directory_of_many_bags_names_the_first_few(tmp_path):
+    for name in ('f', 'e', 'd', 'c', 'b', 'a'):  # a metadata.yaml is enough to be named
+        (tmp_path / 'many' / name).mkdir(parents=True)
+        (tmp_path / 'many' / name / 'metadata.yaml').touch()
+    with pytest.raises(BagError, match=r'it holds 6 bag\(s\) \(a, b, c, d, e, \.\.\.\): give'):
+        list(read_messages(tmp_path / 'many'))
+
+
 def test_a_subdirectory_that_cannot_be_entered_is_not_among_the_bags_named(
     bag, tmp_path, monkeypatch
 ):
