@@ -79,7 +79,7 @@ from face_tracking_ros.tracking.stereo_loss import loss_reason
 from face_tracking_ros.tracking.stereo_result import StereoResult, TrackedSequence, split_tracks
 from face_tracking_ros.tracking.stereo_solve import Level, LevelSolver, PairEnergy, Point
 from face_tracking_ros.tracking.stereo_templates import TemplateSamples, templates
-from face_tracking_ros.tracking.surface_patches import PatchDeformation
+from face_tracking_ros.tracking.surface_patches import PatchDeformation, deformed_offsets
 
 LEFT, RIGHT = 0, 1
 # The reported model fit's Gauss-Newton stops at a step this small (rad, m, basis units): from
@@ -546,11 +546,9 @@ class StereoTracker:
             nodes = self._refine_depths(state, pyramids, nodes, statistics.rms[0][LEFT])
         state.before, state.nodes = state.nodes, nodes
         state.offsets = state.samples.level_offsets(state.rotation, 0)
-        offsets = state.offsets
-        if state.deformation is not None:
-            offsets = state.deformation.deformed(
-                offsets, nodes, state.first_nodes, state.rotation, 0
-            )
+        offsets = deformed_offsets(
+            state.deformation, state.offsets, nodes, state.first_nodes, state.rotation, 0
+        )
         state.previous_templates = templates(
             pyramids, self._projections, state.samples, nodes, offsets
         )

@@ -32,7 +32,7 @@ from face_tracking_ros.tracking.stereo_data import (
     robust_residuals,
     sample_images,
 )
-from face_tracking_ros.tracking.surface_patches import PatchDeformation
+from face_tracking_ros.tracking.surface_patches import PatchDeformation, deformed_offsets
 
 
 class Level(NamedTuple):
@@ -99,11 +99,9 @@ class PairEnergy:
         The images are sampled with their gradients, for a linearisation there.
         """
         samples = self.samples
-        offsets = level.offsets
-        if self.deformation is not None:
-            offsets = self.deformation.deformed(
-                offsets, nodes, self.first_nodes, self.rotation, level.index
-            )
+        offsets = deformed_offsets(
+            self.deformation, level.offsets, nodes, self.first_nodes, self.rotation, level.index
+        )
         points = samples.points(nodes, offsets)
         sampled = sample_images(level.images, level.projections, points, samples.mask)
         residuals = robust_residuals(
