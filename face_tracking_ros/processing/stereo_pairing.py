@@ -4,7 +4,8 @@ The stereo processor (:mod:`~face_tracking_ros.processing.stereo`) tracks a left
 image taken at the same time. They are paired by exact stamp (or the nearest within
 ``pairing_tolerance_ms``) in a bounded queue per camera (``pairing_queue``); a stamp that never
 pairs is dropped and counted, never paired with another. While no pair has been made, an image
-dropped from a full queue is an error that says how far apart the cameras' stamps are.
+dropped from a full queue while the other camera's images wait is an error that says how far
+apart the cameras' stamps are (one camera silent: dropped and counted only).
 
 Stamps are compared with the last tracked pair's (a
 :class:`~face_tracking_ros.processing.stamp_guard.StampGuard` the processor gives each tracked
@@ -78,7 +79,8 @@ class StereoPairing(Generic[Message]):
 
         Raises:
             InputError: for a repeated stamp, a jump back (the image is kept: its pair starts
-                the new track), or an image dropped unpaired while no pair has been made yet.
+                the new track), or an image dropped unpaired while no pair has been made yet and
+                the other camera's images wait.
         """
         if not self._check_stamp(side, stamp, msg):
             return None
@@ -176,8 +178,9 @@ class StereoPairing(Generic[Message]):
         """The (left, right) pair completed by this image, if any; older unpaired ones dropped.
 
         Raises:
-            InputError: when an image is dropped unpaired while no pair has been made yet (the
-                cameras' stamps do not match: the message says by how much).
+            InputError: when an image is dropped unpaired while no pair has been made yet and
+                the other camera's images wait (the cameras' stamps do not match: the message
+                says by how much).
         """
         queue = self._waiting[topic]
         other = self._waiting[self._other(topic)]
