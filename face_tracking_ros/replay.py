@@ -474,8 +474,8 @@ def replay_bag(
     for node, processor in zip(nodes, processors, strict=True):
         if isinstance(processor, Reporting):
             stats.status[node] = processor.status()
-        if isinstance(processor, Warns) and processor.warning():
-            stats.warnings[node] = processor.warning()
+        if isinstance(processor, Warns) and (warning := processor.warning()):
+            stats.warnings[node] = warning
     return stats
 
 

@@ -61,7 +61,7 @@ from face_tracking_ros.pipelines.learn_options import (
 )
 from face_tracking_ros.pipelines.mesh_bags import BagMeshes, bag_subjects, read_bag_meshes
 from face_tracking_ros.pipelines.stereo_meshes import (
-    StereoTracking,
+    RawBagTracking,
     checked_stereo_bags,
     mesh_bag,
     stereo_initialisations,
@@ -117,7 +117,7 @@ def learn_from_bags(options: LearnOptions, say: Callable[[str], None] = print) -
 
 def _checked_before_tracking(
     options: LearnOptions,
-) -> tuple[dict[Path, StereoTracking], list[Path | None]]:
+) -> tuple[dict[Path, RawBagTracking], list[Path | None]]:
     """Check all that can be checked before any bag is tracked, then write the simulated clicks.
 
     The options, every raw stereo bag's tracking (:func:`~.stereo_meshes.checked_stereo_bags`),
@@ -187,7 +187,7 @@ def _check_subjects(
 
 
 def _mesh_bags(
-    options: LearnOptions, trackings: dict[Path, StereoTracking], say: Callable[[str], None]
+    options: LearnOptions, trackings: dict[Path, RawBagTracking], say: Callable[[str], None]
 ) -> list[Path]:
     """Each bag's bag of meshes.
 

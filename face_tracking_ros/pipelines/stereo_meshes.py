@@ -6,7 +6,7 @@ tracked by the stereo tracker (eq. 4, 5) through offline replay of the stereo_tr
 code, into ``meshes_dir``, before it is learned from. By default every mesh carries the frame-1
 depths refined over its whole track (the processor's ``retroactive_depths``); ``tracker_params``
 override it. Meshes an earlier run tracked from the same inputs are re-used. Every raw bag's
-tracking is checked and planned once (:class:`StereoTracking`) before any is tracked and before
+tracking is checked and planned once (:class:`RawBagTracking`) before any is tracked and before
 any simulated clicks are written (:func:`checked_stereo_bags`), so that a refused run leaves
 nothing behind; the plans are then completed with their initialisations
 (:func:`stereo_initialisations`) and tracked (:func:`mesh_bag`).
@@ -59,7 +59,7 @@ TRACKING_FIELDS = (
 
 
 @dataclass(frozen=True)
-class StereoTracking:
+class RawBagTracking:
     """The tracking of one raw stereo bag, planned by its checks (:func:`checked_stereo_bags`).
 
     Attributes:
@@ -89,7 +89,7 @@ class StereoTracking:
 
 
 def mesh_bag(
-    tracking: StereoTracking, options: LearnOptions, say: Callable[[str], None] = print
+    tracking: RawBagTracking, options: LearnOptions, say: Callable[[str], None] = print
 ) -> Path:
     """The bag of 3-D meshes tracked from a raw stereo bag, as planned: ``tracking.out``.
 
@@ -118,7 +118,7 @@ def mesh_bag(
     return tracking.out
 
 
-def checked_stereo_bags(options: LearnOptions) -> dict[Path, StereoTracking]:
+def checked_stereo_bags(options: LearnOptions) -> dict[Path, RawBagTracking]:
     """The tracking of each raw stereo bag to track, by bag, checked and planned.
 
     Its initialisation is the stereo_tracker parameter of its init file or of ``auto_init``;
@@ -162,8 +162,8 @@ def _check_no_tracking_options(options: LearnOptions) -> None:
 
 
 def stereo_initialisations(
-    checked: dict[Path, StereoTracking], options: LearnOptions
-) -> dict[Path, StereoTracking]:
+    checked: dict[Path, RawBagTracking], options: LearnOptions
+) -> dict[Path, RawBagTracking]:
     """Each raw stereo bag's planned tracking, by bag, with the parameter initialising its track.
 
     The one its checks found (:func:`checked_stereo_bags`), else the bag's simulated clicks,
@@ -182,7 +182,7 @@ def stereo_initialisations(
 
 def _planned_tracking(
     bag: Path, topics: dict[str, str], options: LearnOptions, initialisation: str | None
-) -> StereoTracking:
+) -> RawBagTracking:
     """The tracking of a raw stereo bag, after every check it runs before it writes anything.
 
     Those of :func:`~face_tracking_ros.replay.wire_replay` (the tracker parameters, the
@@ -209,7 +209,7 @@ def _planned_tracking(
     out = _tracked_meshes(bag, options)
     _earlier_tracking(out, replay_source(bag), options.named('meshes_dir'))
     left_info = fed_topic(read, LEFT_INFO)
-    return StereoTracking(bag, topics, out, tracker_params, remaps, left_info, initialisation)
+    return RawBagTracking(bag, topics, out, tracker_params, remaps, left_info, initialisation)
 
 
 def _parameters(tracker_params: Sequence[str], initialisation: str | None) -> OverrideParameters:
@@ -298,11 +298,11 @@ def _given_initialisation(bag: Path, options: LearnOptions) -> str | None:
     raise ConfigError(msg)
 
 
-def _write_clicks(trackings: list[StereoTracking], options: LearnOptions) -> dict[Path, str]:
+def _write_clicks(trackings: list[RawBagTracking], options: LearnOptions) -> dict[Path, str]:
     """Write the simulated clicks of the bags of ``trackings``, each in its tracker's left camera.
 
     They go to --init-dir (default <meshes dir>_clicks/), in the camera_info the tracker reads
-    as its left one (:attr:`StereoTracking.left_info`). Every bag's clicks are drawn before any
+    as its left one (:attr:`RawBagTracking.left_info`). Every bag's clicks are drawn before any
     are written (a bag without truth writes none).
 
     Returns:
@@ -336,7 +336,7 @@ def _clicks_file(bag: Path, options: LearnOptions) -> Path:
 
 
 def _track(
-    tracking: StereoTracking, params: OverrideParameters, say: Callable[[str], None]
+    tracking: RawBagTracking, params: OverrideParameters, say: Callable[[str], None]
 ) -> None:
     """Track a raw stereo bag as planned, with ``params``, and ``say`` what it did.
 
