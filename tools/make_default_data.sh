@@ -4,7 +4,9 @@
 #     the synthetic world's true meshes of 12 subjects with 0.5 mm node noise (issue 4 protocol);
 #   default_expressions.npz: the expression classifier trained on the 34-node model's alpha.
 # The training sequences follow the seed's protocol: head almost still, neutral, then each
-# expression in turn (15 s at 10 fps). Deterministic: the same seed gives the same files.
+# expression in turn (15 s at 10 fps). Deterministic up to round-off: the same seed gives the same
+# arrays to ~1e-14 (2026-12-05, against the committed files), not the same bytes; each model's
+# header also records the learner's options and the bags' absolute paths, so it names the checkout.
 set -euo pipefail
 repo=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
 python=${PYTHON:-$repo/.venv/bin/python}
