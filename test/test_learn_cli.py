@@ -89,7 +89,8 @@ def test_learns_compares_and_writes_model_report_and_plots(tmp_path, truth_bags,
     model_path, report_path = tmp_path / 'face.npz', tmp_path / 'report.json'
     status = main(
         ['learn', *map(str, truth_bags), '--out', str(model_path), '--report', str(report_path)]
-        + ['--nodes', '19', '--q', '3', '--plots', str(tmp_path), '--truth-population', 'default']
+        + ['--nodes', '19', '--q', '3', '--plots', str(tmp_path / 'figures' / 'run1')]
+        + ['--truth-population', 'default']
         + ['--add-noise', '0.0005', '--truth-samples', '200']
     )
     assert status == 0
@@ -107,7 +108,8 @@ def test_learns_compares_and_writes_model_report_and_plots(tmp_path, truth_bags,
     assert len(joint['loo_per_subject']['neutral_rms_mm']) == 4
     assert joint['loo_per_subject']['p'] == [2, 2, 2, 2]  # each held-out subject's model's p
     assert report['subjects'] == [s.name for s in truth_bags]
-    for plot in report['plots']:
+    for plot in report['plots']:  # in the directory made for them
+        assert Path(plot).parent == tmp_path / 'figures' / 'run1'
         assert Path(plot).read_bytes()[:8] == b'\x89PNG\r\n\x1a\n'
     assert {Path(plot).name for plot in report['plots']} >= {
         'sigma_joint.png',
@@ -263,8 +265,9 @@ def test_errors_name_the_bag_topic_or_subject(tmp_path, truth_bags, world, capsy
     err = _error(['learn', *bags, *same], capsys)
     assert f'--out and --report are both {tmp_path}/x.npz: the report would overwrite' in err
 
-    err = _error(['learn', *bags, *out, '--plots', str(tmp_path / 'absent')], capsys)
-    assert 'is not a directory' in err
+    (tmp_path / 'figures.png').write_bytes(b'')
+    err = _error(['learn', *bags, *out, '--plots', str(tmp_path / 'figures.png')], capsys)
+    assert f'--plots {tmp_path}/figures.png is a file, not a directory' in err
 
     err = _error(['learn', str(tmp_path / 'missing'), *out], capsys)
     assert 'missing' in err

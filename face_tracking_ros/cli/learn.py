@@ -88,7 +88,9 @@ def _add_model_options(parser: argparse.ArgumentParser) -> None:
         default=list(METHODS),
         help='methods to evaluate side by side (default: all; none: only --method)',
     )
-    parser.add_argument('--plots', type=Path, help='directory receiving PNG figures')
+    parser.add_argument(
+        '--plots', type=Path, help='directory receiving PNG figures (made if missing)'
+    )
 
 
 def _add_mesh_options(parser: argparse.ArgumentParser) -> None:

@@ -360,7 +360,8 @@ def _plots(
     results: dict[str, LearningResult],
     evaluations: dict[str, Evaluation],
 ) -> list[Path]:
-    """Write the PNG figures of the report."""
+    """Write the PNG figures of the report into ``directory`` (made if missing)."""
+    directory.mkdir(parents=True, exist_ok=True)
     paths = [
         plot_sigma_scatter(
             result.frame_sigma,

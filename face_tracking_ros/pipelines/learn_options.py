@@ -46,7 +46,7 @@ class LearnOptions:
         method: learner whose model is written
             (:data:`~face_tracking_ros.learning.methods.METHODS`).
         compare: methods evaluated side by side with ``method``.
-        plots: directory receiving PNG figures; None: no figures.
+        plots: directory receiving PNG figures (made if missing); None: no figures.
         topic: mesh topic; None: the first of :data:`~.mesh_bags.DEFAULT_TOPICS` found.
         subject: subject id of every bag without truth; None: from the bag's name
             (:func:`~face_tracking_ros.io.bags.recording_name`).
@@ -198,9 +198,8 @@ def _check_bags_and_files(options: LearnOptions) -> list[Path]:
     if options.truth is not None and len(options.truth) != len(options.bags):
         msg = f'--truth names {len(options.truth)} bag(s) for {len(options.bags)} input bag(s)'
         raise ConfigError(msg)
-    if options.plots is not None and not options.plots.is_dir():
-        msg = f'--plots {options.plots} is not a directory'
-        raise ConfigError(msg)
+    if options.plots is not None:  # made if missing, as track's --out
+        check_output_path(options.plots, options.named('plots'), directory=True)
     out, report = options.named('out'), options.named('report')
     if options.out.resolve() == options.report.resolve():
         msg = f'{out} and {report} are both {options.out}: the report would overwrite the model'
