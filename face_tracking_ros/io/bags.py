@@ -370,7 +370,7 @@ def _not_a_bag(directory: Path) -> str:
     A directory of recordings (such as the repository's bags/stereo_train) is easily given where
     its bags are meant.
     """
-    held = _bags_in(directory)
+    held = _bag_names_in(directory)
     msg = f'{directory}: not a rosbag2 bag (no metadata.yaml and no .mcap file in it)'
     if not held:
         return msg
@@ -381,7 +381,7 @@ def _not_a_bag(directory: Path) -> str:
     )
 
 
-def _bags_in(directory: Path) -> list[str]:
+def _bag_names_in(directory: Path) -> list[str]:
     """The names of the bags (metadata.yaml or .mcap files) among a directory's subdirectories."""
     try:
         subdirectories = [sub for sub in directory.iterdir() if sub.is_dir()]
