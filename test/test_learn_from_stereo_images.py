@@ -29,6 +29,8 @@ from face_tracking_ros.pipelines import stereo_meshes
 from face_tracking_ros.pipelines.learn_options import LearnOptions, subject_of
 from face_tracking_ros.pipelines.mesh_bags import bag_subjects
 from face_tracking_ros.pipelines.scoring import score_stereo_against_truth
+from face_tracking_ros.processing.parameters import OverrideParameters
+from face_tracking_ros.processing.stereo import StereoNodeConfig
 from face_tracking_ros.replay import ReplayStats
 from face_tracking_ros.synthetic.clicks import clicks_from_bag, write_init_file
 from face_tracking_ros.tracking.stereo_evaluation import StereoEvaluation
@@ -435,7 +437,8 @@ def test_each_raw_bag_is_read_wired_and_hashed_once_until_its_tracking(tmp_path,
 
     Before, the clicks read each bag's topics and wired its tracker again, and the tracking
     read them and hashed its inputs again: by the first bag's tracking, 7 topic reads, 6
-    wirings and 4 provenances for 3 bags.
+    wirings and 4 provenances for 3 bags. The checks worked out each bag's tracker parameters
+    twice: 9 StereoNodeConfig built for 3 bags (now one by the checks, one by the wiring).
     """
     calls: Counter[str] = Counter()
 
@@ -449,15 +452,24 @@ def test_each_raw_bag_is_read_wired_and_hashed_once_until_its_tracking(tmp_path,
     def tracked(*_args, **_kwargs) -> ReplayStats:
         raise AssertionError('a bag was tracked')
 
+    built = OverrideParameters.config
+
+    def config(params: OverrideParameters, config_type: type, prefix: str = '') -> Any:
+        if config_type is StereoNodeConfig:
+            calls['StereoNodeConfig'] += 1
+        return built(params, config_type, prefix)
+
     for name in ('bag_topics', 'wire_replay'):
         monkeypatch.setattr(stereo_meshes, name, counted(name, getattr(stereo_meshes, name)))
     monkeypatch.setattr(Provenance, 'of', classmethod(counted('of', Provenance.of.__func__)))
+    monkeypatch.setattr(OverrideParameters, 'config', config)
     monkeypatch.setattr(stereo_meshes, 'replay_bag', tracked)
     argv = ['learn', *map(str, BAGS), '--from-images', '--simulate-clicks', '0',
             '--out', str(tmp_path / 'm.npz'), '--report', str(tmp_path / 'r.json')]  # fmt: skip
     with pytest.raises(AssertionError, match='a bag was tracked'):
         main(argv)
-    assert calls == {'bag_topics': 3, 'wire_replay': 3, 'of': 1}  # 'of': the first bag's
+    counts = {'bag_topics': 3, 'wire_replay': 3, 'of': 1, 'StereoNodeConfig': 6}
+    assert calls == counts  # 'of': the first bag's
     assert len(list((tmp_path / 'r_meshes_clicks').iterdir())) == len(BAGS)
 
 

@@ -8,8 +8,9 @@ depths refined over its whole track (the processor's ``retroactive_depths``); ``
 override it. Meshes an earlier run tracked from the same inputs are re-used. Every raw bag's
 tracking is checked and planned once (:class:`RawBagTracking`) before any is tracked and before
 any simulated clicks are written (:func:`checked_stereo_bags`), so that a refused run leaves
-nothing behind; the plans are then completed with their initialisations
-(:func:`stereo_initialisations`) and tracked (:func:`mesh_bag`).
+nothing behind (its tracker's parameters are worked out once, by :func:`raw_bag_tracker`); the
+plans are then completed with their initialisations (:func:`stereo_initialisations`) and
+tracked (:func:`mesh_bag`).
 """
 
 from __future__ import annotations
@@ -56,6 +57,20 @@ TRACKING_FIELDS = (
     'meshes_dir',
     'tracker_params',
 )
+
+
+@dataclass(frozen=True)
+class StereoTracker:
+    """The stereo tracker of a raw stereo bag, but its initialisation (:func:`raw_bag_tracker`).
+
+    Attributes:
+        params: its parameters (NAME=VALUE): :data:`STEREO_PARAMS`, the image transport's, then
+            ``tracker_params``.
+        compressed: its ``compressed`` parameter (it reads the bag's images as CompressedImage).
+    """
+
+    params: tuple[str, ...]
+    compressed: bool
 
 
 @dataclass(frozen=True)
@@ -123,21 +138,25 @@ def checked_stereo_bags(options: LearnOptions) -> dict[Path, RawBagTracking]:
 
     Its initialisation is the stereo_tracker parameter of its init file or of ``auto_init``;
     None for simulated clicks, which :func:`stereo_initialisations` writes. Every check that can
-    refuse a bag's tracking (:func:`needs_tracking`, :func:`_planned_tracking`) runs for every
+    refuse a bag's tracking (:func:`raw_bag_tracker`, :func:`_planned_tracking`) runs for every
     bag first, and writes nothing: a run refused before :func:`stereo_initialisations` leaves
     no clicks behind.
 
     Raises:
         ConfigError: for a raw stereo bag without a way to initialise it, or one that
-            :func:`needs_tracking` or :func:`_planned_tracking` refuses.
+            :func:`raw_bag_tracker` or :func:`_planned_tracking` refuses.
         BagError: for a bag that cannot be read.
     """
     topics = {bag: bag_topics(bag) for bag in options.bags}
-    raw = [bag for bag in options.bags if needs_tracking(bag, topics[bag], options)]
+    trackers = {bag: raw_bag_tracker(bag, topics[bag], options) for bag in options.bags}
+    raw = {bag: tracker for bag, tracker in trackers.items() if tracker is not None}
     if not raw:
         _check_no_tracking_options(options)
     given = {bag: _given_initialisation(bag, options) for bag in raw}
-    return {bag: _planned_tracking(bag, topics[bag], options, init) for bag, init in given.items()}
+    return {
+        bag: _planned_tracking(bag, topics[bag], raw[bag], options, init)
+        for bag, init in given.items()
+    }
 
 
 def _check_no_tracking_options(options: LearnOptions) -> None:
@@ -181,7 +200,11 @@ def stereo_initialisations(
 
 
 def _planned_tracking(
-    bag: Path, topics: dict[str, str], options: LearnOptions, initialisation: str | None
+    bag: Path,
+    topics: dict[str, str],
+    tracker: StereoTracker,
+    options: LearnOptions,
+    initialisation: str | None,
 ) -> RawBagTracking:
     """The tracking of a raw stereo bag, after every check it runs before it writes anything.
 
@@ -193,6 +216,7 @@ def _planned_tracking(
     Args:
         bag: the raw stereo bag.
         topics: its topics (name -> type).
+        tracker: its stereo tracker, but the initialisation (:func:`raw_bag_tracker`).
         options: the learning run's options.
         initialisation: its stereo_tracker initialisation parameter; None: none yet (the
             simulated clicks, written once all is checked).
@@ -202,14 +226,13 @@ def _planned_tracking(
     """
     if initialisation is None:
         check_clicks_file(_clicks_file(bag, options), f'{options.named("simulate_clicks")}:')
-    tracker_params = tuple(_tracker_params(topics, options))
-    params = _parameters(tracker_params, initialisation)
-    remaps = stereo_remaps(topics, options, params.config(StereoNodeConfig).compressed)
+    params = _parameters(tracker.params, initialisation)
+    remaps = stereo_remaps(topics, options, tracker.compressed)
     _, read = wire_replay([TRACKER], bag, params, remaps, frozenset(), topics)
     out = _tracked_meshes(bag, options)
     _earlier_tracking(out, replay_source(bag), options.named('meshes_dir'))
     left_info = fed_topic(read, LEFT_INFO)
-    return RawBagTracking(bag, topics, out, tracker_params, remaps, left_info, initialisation)
+    return RawBagTracking(bag, topics, out, tracker.params, remaps, left_info, initialisation)
 
 
 def _parameters(tracker_params: Sequence[str], initialisation: str | None) -> OverrideParameters:
@@ -218,8 +241,13 @@ def _parameters(tracker_params: Sequence[str], initialisation: str | None) -> Ov
     return OverrideParameters.parse([*tracker_params, *given])
 
 
-def needs_tracking(bag: Path, topics: dict[str, str], options: LearnOptions) -> bool:
-    """Whether ``bag`` (of ``topics``) is a raw stereo bag that :func:`mesh_bag` tracks.
+def raw_bag_tracker(
+    bag: Path, topics: dict[str, str], options: LearnOptions
+) -> StereoTracker | None:
+    """The stereo tracker of ``bag`` (of ``topics``) if it is a raw stereo bag to track; else None.
+
+    A raw stereo bag is one that :func:`mesh_bag` tracks; the tracker's parameters (but the
+    initialisation, found later) are parsed here, once for the bag.
 
     Raises:
         ConfigError: for a bag of images whose stereo pair is not found by name (and not given)
@@ -240,9 +268,9 @@ def needs_tracking(bag: Path, topics: dict[str, str], options: LearnOptions) -> 
                 f'{right_info}'
             )
             raise ConfigError(msg)
-        return False
+        return None
     if has_meshes and not options.from_images:
-        return False
+        return None
     name = recording_name(bag)
     namesakes = [other for other in options.bags if recording_name(other) == name and other != bag]
     if namesakes:
@@ -252,16 +280,11 @@ def needs_tracking(bag: Path, topics: dict[str, str], options: LearnOptions) -> 
             f'({options.named("subject_pattern")} can still give both the same subject)'
         )
         raise ConfigError(msg)
-    tracker = OverrideParameters.parse(_tracker_params(topics, options))
-    compressed = tracker.config(StereoNodeConfig).compressed
+    transport = compressed_parameters(topics, [options.left_topic])
+    params = (STEREO_PARAMS, *transport, *options.tracker_params)
+    compressed = OverrideParameters.parse(list(params)).config(StereoNodeConfig).compressed
     check_stereo_topics(bag, topics, options, compressed, named=options.named)
-    return True
-
-
-def _tracker_params(topics: dict[str, str], options: LearnOptions) -> list[str]:
-    """The stereo tracker's parameters for a raw bag of ``topics``, but its initialisation."""
-    compressed = compressed_parameters(topics, [options.left_topic])
-    return [STEREO_PARAMS, *compressed, *options.tracker_params]
+    return StereoTracker(params, compressed)
 
 
 def _given_initialisation(bag: Path, options: LearnOptions) -> str | None:
@@ -361,7 +384,7 @@ def _track(
 def _no_mesh_error(bag: Path, stats: ReplayStats) -> BagError:
     """The error of a tracking that produced no mesh: the input problems.
 
-    (Camera_info topics not found are refused before, by :func:`needs_tracking`.)
+    (Camera_info topics not found are refused before, by :func:`raw_bag_tracker`.)
     """
     problems = '; '.join(f'{count}x {error}' for error, count in stats.errors.items())
     msg = f'{bag}: the stereo tracker produced no mesh ({problems or "no input problem"})'
