@@ -9,7 +9,11 @@ import pytest
 
 from face_tracking_ros.cli.main import main
 from face_tracking_ros.errors import ConfigError
-from face_tracking_ros.pipelines.bag_inputs import check_stereo_topics, stereo_remaps
+from face_tracking_ros.pipelines.bag_inputs import (
+    check_stereo_topics,
+    clicked_camera_topic,
+    stereo_remaps,
+)
 
 from repo_root import REPO
 
@@ -63,3 +67,10 @@ def test_the_mono_camera_info_option_on_a_stereo_bag_is_named(tmp_path, capsys):
         capsys.readouterr().err
     )
     assert list(tmp_path.iterdir()) == []
+
+
+def test_the_clicks_are_in_the_stereo_trackers_left_camera_and_the_mono_trackers_only_one():
+    read = {'/cam_b/camera_info': 'left/camera_info', '/cam_a/camera_info': 'right/camera_info'}
+    assert clicked_camera_topic(read, 'stereo_tracker') == '/cam_b/camera_info'
+    assert clicked_camera_topic(read, 'mono_tracker') is None  # no topic feeds its camera_info
+    assert clicked_camera_topic({'/cam/info': 'camera_info'}, 'mono_tracker') == '/cam/info'

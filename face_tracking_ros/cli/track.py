@@ -26,6 +26,7 @@ from face_tracking_ros.io.series import has_truth, load_states
 from face_tracking_ros.pipelines.bag_inputs import (
     check_one_transport,
     check_stereo_topics,
+    clicked_camera_topic,
     compressed_parameters,
     image_topics,
     input_remaps,
@@ -34,10 +35,10 @@ from face_tracking_ros.pipelines.bag_inputs import (
     tracked_nodes,
 )
 from face_tracking_ros.pipelines.scoring import score_against_truth, score_stereo_against_truth
-from face_tracking_ros.processing.mono import CAMERA_INFO, MonoNodeConfig
+from face_tracking_ros.processing.mono import MonoNodeConfig
 from face_tracking_ros.processing.parameters import OverrideParameters
-from face_tracking_ros.processing.stereo import LEFT_INFO, StereoNodeConfig
-from face_tracking_ros.replay import fed_topic, replay_bag, wire_replay
+from face_tracking_ros.processing.stereo import StereoNodeConfig
+from face_tracking_ros.replay import replay_bag, wire_replay
 from face_tracking_ros.synthetic.clicks import (
     check_clicks_file,
     clicks_from_bag,
@@ -148,7 +149,7 @@ def run(args: argparse.Namespace) -> int:
         _, read = wire_replay(
             [node], args.bag, OverrideParameters.parse(params), remaps, wanted, topics
         )
-        camera_info = fed_topic(read, LEFT_INFO if node == STEREO else CAMERA_INFO)
+        camera_info = clicked_camera_topic(read, node)
         params.append(f'init_file={_write_clicks(args, node, params, model_file, camera_info)}')
     stats = replay_bag(
         [node],

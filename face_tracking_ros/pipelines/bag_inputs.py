@@ -1,10 +1,10 @@
 """What a tracker replayed over a bag reads, and with which parameters.
 
 A bag's image topics and their transport (Image or CompressedImage), whether it is a stereo
-bag, the tracker inputs remapped to its topics, the ``compressed`` parameter, and the nodes the
-chosen tracker tracks (for its initialisation): what ``face-tracking track`` and the learning
-pipeline's tracking of raw stereo bags (:mod:`.stereo_meshes`) give
-:func:`face_tracking_ros.replay.replay_bag`.
+bag, the tracker inputs remapped to its topics, the ``compressed`` parameter, and, for its
+initialisation, the nodes the chosen tracker tracks and the camera it is initialised in: what
+``face-tracking track`` and the learning pipeline's tracking of raw stereo bags
+(:mod:`.stereo_meshes`) give :func:`face_tracking_ros.replay.replay_bag`.
 """
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ from face_tracking_ros.io.conversions import CAMERA_INFO_TYPE, COMPRESSED_IMAGE_
 from face_tracking_ros.model.model_file import load_model
 from face_tracking_ros.model.topology import mesh_topology
 from face_tracking_ros.pipelines.learn_options import option_flag
-from face_tracking_ros.processing.mono import COMPRESSED_IMAGE, IMAGE
+from face_tracking_ros.processing.mono import CAMERA_INFO, COMPRESSED_IMAGE, IMAGE
 from face_tracking_ros.processing.parameters import OverrideParameters
 from face_tracking_ros.processing.stereo import COMPRESSED as STEREO_COMPRESSED
 from face_tracking_ros.processing.stereo import (
@@ -31,7 +31,7 @@ from face_tracking_ros.processing.stereo import (
     RIGHT_INFO,
     input_ports,
 )
-from face_tracking_ros.replay import bag_spelling, resolve_inputs
+from face_tracking_ros.replay import bag_spelling, fed_topic, resolve_inputs
 from face_tracking_ros.tracking.stereo_config import StereoTrackerConfig
 
 
@@ -241,3 +241,21 @@ def tracked_nodes(node: str, params: list[str], model_file: Path | None) -> tupl
         config = OverrideParameters.parse(params).config(StereoTrackerConfig, prefix='tracker.')
         return mesh_topology(config.num_nodes).node_names
     return load_model(model_file or default_model_path()).node_names
+
+
+def clicked_camera_topic(topic_map: Mapping[str, str], node: str) -> str | None:
+    """The camera_info topic of the camera a tracker is initialised in; None: none fed.
+
+    The camera its init file's pixel positions (clicked, or simulated from the truth) are in:
+    the mono tracker's only camera, the stereo tracker's left one. The stereo tracker takes
+    the left camera as its reference: its meshes are in the left camera frame, and it reads the
+    init file (and ``auto_init`` finds the landmarks) in the left image, then finds each node
+    in the right image along its epipolar line
+    (:mod:`face_tracking_ros.tracking.stereo_init`).
+
+    Args:
+        topic_map: the tracker's replay's bag topic -> input
+            (:func:`~face_tracking_ros.replay.wire_replay`).
+        node: 'stereo_tracker' or 'mono_tracker'.
+    """
+    return fed_topic(topic_map, LEFT_INFO if node == 'stereo_tracker' else CAMERA_INFO)

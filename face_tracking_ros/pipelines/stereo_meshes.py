@@ -28,6 +28,7 @@ from face_tracking_ros.pipelines.bag_inputs import (
     STEREO_FIELDS,
     check_one_transport,
     check_stereo_topics,
+    clicked_camera_topic,
     compressed_parameters,
     image_topics,
     is_stereo_bag,
@@ -38,8 +39,8 @@ from face_tracking_ros.pipelines.learn_options import LearnOptions
 from face_tracking_ros.pipelines.mesh_bags import mesh_topic
 from face_tracking_ros.pipelines.scoring import score_stereo_against_truth
 from face_tracking_ros.processing.parameters import OverrideParameters
-from face_tracking_ros.processing.stereo import LEFT_INFO, StereoNodeConfig
-from face_tracking_ros.replay import ReplayStats, fed_topic, replay_bag, wire_replay
+from face_tracking_ros.processing.stereo import StereoNodeConfig
+from face_tracking_ros.replay import ReplayStats, replay_bag, wire_replay
 from face_tracking_ros.synthetic.clicks import (
     check_clicks_file,
     clicks_from_bag,
@@ -231,7 +232,7 @@ def _planned_tracking(
     _, read = wire_replay([TRACKER], bag, params, remaps, frozenset(), topics)
     out = _tracked_meshes(bag, options)
     _earlier_tracking(out, replay_source(bag), options.named('meshes_dir'))
-    left_info = fed_topic(read, LEFT_INFO)
+    left_info = clicked_camera_topic(read, TRACKER)
     return RawBagTracking(bag, topics, out, tracker.params, remaps, left_info, initialisation)
 
 
