@@ -46,7 +46,8 @@ def build_config(config_type: type[ConfigT], values: Mapping[str, Any], prefix: 
     The message says what the check expects when it says more than the field's description
     (:attr:`~face_tracking_ros.errors.FieldError.expected`), else gives the description, the
     parameter's (:func:`attribute_descriptions`): a node that stops at start-up shows no
-    parameter descriptions.
+    parameter descriptions. Every field of a config has one (test/test_readme.py checks those
+    of every node's configs, the ones given here).
 
     Raises:
         ConfigError: e.g. 'invalid parameter tracker.epsilon = 2.0: drift-monitoring weight
@@ -57,11 +58,10 @@ def build_config(config_type: type[ConfigT], values: Mapping[str, Any], prefix: 
         return config_type(**values)
     except FieldError as error:
         invalid = f'invalid parameter {prefix}{error.field} = {values.get(error.field)!r}'
-        description = attribute_descriptions(config_type).get(error.field)
-        if error.expected or not description:
-            msg = f'{invalid} (expected {error.expected or "another value"})'
+        if error.expected:
+            msg = f'{invalid} (expected {error.expected})'
         else:
-            msg = f'{invalid}: {description}'
+            msg = f'{invalid}: {attribute_descriptions(config_type)[error.field]}'
         raise ConfigError(msg) from None
 
 
