@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import shutil
 import signal
 import time
 
@@ -125,3 +126,36 @@ def test_a_learner_parameter_out_of_range_is_named_before_any_work():
     assert code == 2
     assert 'invalid parameter method = ' in output and "'jiont'" in output
     assert 'usage:' not in output and 'Traceback' not in output
+
+
+def test_a_run_whose_report_is_in_bag_dir_learns_again_past_its_meshes(tmp_path, capsys):
+    """bag_dir took every sub-directory for a bag: the second run read the first's meshes.
+
+    The meshes of raw stereo bags go beside the report (<report name>_meshes/, clicks in
+    <report name>_meshes_clicks/): written in bag_dir, the second run stopped at 'm_meshes: not
+    a rosbag2 bag (...); it holds 3 bag(s)'. An empty directory (a drive's lost+found) is no
+    bag either.
+    """
+    recordings = tmp_path / 'recordings'
+    bags = sorted((REPO / 'bags' / 'stereo_train').glob('subject_*'))
+    for bag in bags:
+        shutil.copytree(bag, recordings / bag.name)
+    (recordings / 'lost+found').mkdir()
+    output = recordings / 'm.npz'
+    config = LearnerConfig(
+        bag_dir=str(recordings),
+        output=str(output),
+        from_images=True,
+        simulate_clicks=0.0,
+        method='seed',
+        p=1,
+    )
+    for _ in range(2):
+        options = learn_options(config)
+        assert [bag.name for bag in options.bags] == [bag.name for bag in bags]
+        learn_from_bags(options, say=lambda _: None)
+        assert load_model(output).method == 'seed'
+    skipped = f'parameter bag_dir: {recordings}: skipped lost+found (sub-directories without'
+    first, second = capsys.readouterr().out.splitlines()
+    assert first.startswith(skipped) and first.endswith('metadata.yaml or .mcap files)')
+    assert second == first.replace('lost+found', 'lost+found, m_meshes, m_meshes_clicks')

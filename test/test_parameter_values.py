@@ -8,6 +8,7 @@ builds them for ``--param`` (the live node's source goes through the same
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 import re
 
 import numpy as np
@@ -176,13 +177,42 @@ def test_a_learner_bag_dir_that_is_not_a_directory_is_named(tmp_path):
             learn_options(config)
 
 
-def test_a_learner_bag_dir_gives_its_directories_and_mcap_files(tmp_path):
-    """Bags as directories and as lone .mcap files; a bag given as bag_dir is named."""
-    (tmp_path / 'b_seq').mkdir()
-    for name in ('a_seq.mcap', 'notes.txt'):
-        (tmp_path / name).write_text('')
-    options = learn_options(LearnerConfig(bag_dir=str(tmp_path)))
-    assert options.bags == (tmp_path / 'a_seq.mcap', tmp_path / 'b_seq')
+def _directory(path: Path, files: tuple[str, ...], directories: tuple[str, ...] = ()) -> Path:
+    """``path``, made with empty ``files`` (their directories made) and empty ``directories``."""
+    for file in files:
+        (path / file).parent.mkdir(parents=True, exist_ok=True)
+        (path / file).write_text('')
+    for directory in directories:
+        (path / directory).mkdir(parents=True)
+    return path
+
+
+def test_a_learner_bag_dir_gives_its_bags_and_names_its_other_directories(tmp_path):
+    """Bags as directories (metadata.yaml or .mcap files) and as lone .mcap files.
+
+    Sub-directories that are no bags are skipped and named; before, each was given as a bag,
+    which the learning then refused. A bag given as bag_dir is named.
+    """
+    bags = ('b_seq/metadata.yaml', 'c_seq/c_seq_0.mcap', 'a_seq.mcap')
+    mixed = _directory(tmp_path / 'mixed', (*bags, 'notes.txt', 'r_meshes/x.yaml'), ('plots',))
+    said: list[str] = []
+    options = learn_options(LearnerConfig(bag_dir=str(mixed)), say=said.append)
+    assert options.bags == (mixed / 'a_seq.mcap', mixed / 'b_seq', mixed / 'c_seq')
+    assert said == [
+        f'parameter bag_dir: {mixed}: skipped plots, r_meshes (sub-directories without '
+        'metadata.yaml or .mcap files)'
+    ]
+    others = _directory(tmp_path / 'others', ('r_meshes/x.yaml',), ('plots',))
+    expected = (
+        f'parameter bag_dir: {others} holds no bags (sub-directories without metadata.yaml or '
+        '.mcap files: plots, r_meshes)'
+    )
+    with pytest.raises(ConfigError, match=re.escape(expected)):
+        learn_options(LearnerConfig(bags=('a',), bag_dir=str(others)))
+    empty = _directory(tmp_path / 'empty', ('notes.txt',))
+    expected = f'parameter bag_dir: {empty} holds no bags (no sub-directory, no .mcap file)'
+    with pytest.raises(ConfigError, match=re.escape(expected)):
+        learn_options(LearnerConfig(bag_dir=str(empty)))
     bag = REPO / 'bags' / 'stereo_train' / 'subject_00_seq_00'
     expected = f'parameter bag_dir: {bag} is a bag itself, not a directory of bags: give it in'
     with pytest.raises(ConfigError, match=re.escape(expected)):

@@ -18,7 +18,8 @@ a topic whose type in ``metadata.yaml`` contradicts its MCAP file's schema) is r
 :func:`topic_has_word` is how a topic's name tells the camera it comes from (``left``,
 ``right``): every choice of a stereo bag's left or right topic goes by it.
 :func:`recording_name` is the name of the recording a bag holds, whether it is given as a
-directory or as an MCAP file.
+directory or as an MCAP file. :func:`is_bag_directory` is what makes a directory a bag (a
+``metadata.yaml`` or MCAP files): the bags a directory of bags holds are named by it.
 """
 
 from __future__ import annotations
@@ -387,14 +388,16 @@ def _bag_names_in(directory: Path) -> list[str]:
         subdirectories = [sub for sub in directory.iterdir() if sub.is_dir()]
     except OSError:  # unreadable: no bags to name
         return []
-    return sorted(sub.name for sub in subdirectories if _is_bag_directory(sub))
+    return sorted(sub.name for sub in subdirectories if is_bag_directory(sub))
 
 
-def _is_bag_directory(directory: Path) -> bool:
+def is_bag_directory(directory: Path) -> bool:
     """Whether ``directory`` holds a metadata.yaml or .mcap files; False if it cannot be entered.
 
-    A user may list a directory but not look inside it (a drive's lost+found): Path.is_file
-    raises PermissionError there, where the directory holding it was to be named as no bag.
+    The rule by which a directory is a bag: the one that names the bags of a directory given as
+    a bag (:func:`_bag_names_in`) and lists those of the learner node's ``bag_dir``. A user may
+    list a directory but not look inside it (a drive's lost+found): Path.is_file raises
+    PermissionError there, where the directory holding it was to be named as no bag.
     """
     try:
         return (directory / 'metadata.yaml').is_file() or bool(_mcap_files(directory))

@@ -13,6 +13,7 @@ the command's options.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -21,6 +22,7 @@ from rclpy.node import Node
 
 from face_tracking_ros.errors import ConfigError, check_fields
 from face_tracking_ros.io import conversions
+from face_tracking_ros.io.bags import is_bag_directory
 from face_tracking_ros.io.messages import RclpyMessages
 from face_tracking_ros.learning.methods import METHODS
 from face_tracking_ros.model.model_file import load_model
@@ -38,8 +40,10 @@ class LearnerConfig:
 
     Attributes:
         bags: bags to learn from (rosbag2 directories or .mcap files).
-        bag_dir: a directory whose sub-directories and .mcap files are all bags to learn from
-            (added to bags).
+        bag_dir: a directory of bags to learn from (added to bags): its sub-directories that
+            are bags (holding metadata.yaml or .mcap files) and its .mcap files; other
+            sub-directories (such as the tracked meshes' directory of a report written there,
+            named after it with _meshes) are skipped and named in the log.
         output: model file to write (.npz).
         report: JSON report to write; empty: the model file's name with .json.
         method: learning method: joint (default, issue 11), seed (§3.4) or seed-weighted (§4.3).
@@ -125,11 +129,16 @@ def parameter_named(field: str) -> str:
     return f'parameter {RENAMED.get(field, field)}'
 
 
-def _bags_in(bag_dir: Path) -> list[Path]:
-    """The bags in ``bag_dir``: its sub-directories and .mcap files, by name.
+def _bags_in(bag_dir: Path, say: Callable[[str], None]) -> list[Path]:
+    """The bags in ``bag_dir``, by name: its bag sub-directories and .mcap files.
+
+    A sub-directory is a bag by :func:`~face_tracking_ros.io.bags.is_bag_directory`; the
+    others (the tracked meshes of a run whose report was written in ``bag_dir``, a plots
+    directory, lost+found) are skipped and named to ``say``, once.
 
     Raises:
-        ConfigError: if it is not a directory, or is itself a bag (holds metadata.yaml).
+        ConfigError: if it is not a directory, is itself a bag (holds metadata.yaml), or holds
+            no bag (naming the sub-directories skipped).
     """
     if not bag_dir.is_dir():
         kind = 'not a directory' if bag_dir.exists() else 'no such directory'
@@ -141,22 +150,37 @@ def _bags_in(bag_dir: Path) -> list[Path]:
             'the bags parameter'
         )
         raise ConfigError(msg)
-    return sorted(path for path in bag_dir.iterdir() if path.is_dir() or path.suffix == '.mcap')
+    entries = sorted(bag_dir.iterdir())
+    skipped = [path.name for path in entries if path.is_dir() and not is_bag_directory(path)]
+    bags = [
+        path
+        for path in entries
+        if (path.is_dir() or path.suffix == '.mcap') and path.name not in skipped
+    ]
+    not_bags, names = 'sub-directories without metadata.yaml or .mcap files', ', '.join(skipped)
+    if not bags:
+        why = f'{not_bags}: {names}' if skipped else 'no sub-directory, no .mcap file'
+        msg = f'parameter bag_dir: {bag_dir} holds no bags ({why})'
+        raise ConfigError(msg)
+    if skipped:
+        say(f'parameter bag_dir: {bag_dir}: skipped {names} ({not_bags})')
+    return bags
 
 
-def learn_options(config: LearnerConfig) -> LearnOptions:
+def learn_options(config: LearnerConfig, say: Callable[[str], None] = print) -> LearnOptions:
     """The learning pipeline's options from the node's parameters.
 
     An empty string (or 0 nodes, a negative simulate_clicks) leaves the option unset; the
     options the node does not declare keep ``face-tracking learn``'s defaults, but compare,
-    which is empty: only ``method`` is learned and evaluated.
+    which is empty: only ``method`` is learned and evaluated. The sub-directories of bag_dir
+    that are no bags go to ``say``.
 
     Raises:
         ConfigError: if no bag is given, or bag_dir is not a directory of bags.
     """
     bags = [Path(bag) for bag in config.bags]
     if config.bag_dir:
-        bags += _bags_in(Path(config.bag_dir))
+        bags += _bags_in(Path(config.bag_dir), say)
     if not bags:
         msg = 'no bags to learn from: set the bags or bag_dir parameter'
         raise ConfigError(msg)
@@ -196,7 +220,7 @@ class LearnerNode(Endless, Node):
         parameters = NodeParameters(self)
         config = parameters.config(LearnerConfig)
         parameters.warn_unknown()
-        options = learn_options(config)
+        options = learn_options(config, say=self.get_logger().info)
         self.get_logger().info(
             f'learning from {len(options.bags)} bag(s) by {options.method} '
             f'(p={options.p}, q={options.q}) into {options.out} and {options.report}'
