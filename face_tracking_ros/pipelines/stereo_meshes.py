@@ -8,8 +8,8 @@ depths refined over its whole track (the processor's ``retroactive_depths``); ``
 override it. Meshes an earlier run tracked from the same inputs are re-used. Every raw bag's
 tracking is checked and planned once (:class:`RawBagTracking`) before any is tracked and before
 any simulated clicks are written (:func:`checked_stereo_bags`), so that a refused run leaves
-nothing behind (its tracker's parameters are worked out once, by :func:`raw_bag_tracker`); the
-plans are then completed with their initialisations (:func:`stereo_initialisations`) and
+nothing behind (its tracker's parameters are worked out once, by :func:`raw_bag_parameters`);
+the plans are then completed with their initialisations (:func:`stereo_initialisations`) and
 tracked (:func:`mesh_bag`).
 """
 
@@ -61,8 +61,10 @@ TRACKING_FIELDS = (
 
 
 @dataclass(frozen=True)
-class StereoTracker:
-    """The stereo tracker of a raw stereo bag, but its initialisation (:func:`raw_bag_tracker`).
+class TrackerParameters:
+    """The stereo tracker's parameters for a raw stereo bag, but its initialisation.
+
+    Worked out once per bag, by :func:`raw_bag_parameters`.
 
     Attributes:
         params: its parameters (NAME=VALUE): :data:`STEREO_PARAMS`, the image transport's, then
@@ -139,18 +141,18 @@ def checked_stereo_bags(options: LearnOptions) -> dict[Path, RawBagTracking]:
 
     Its initialisation is the stereo_tracker parameter of its init file or of ``auto_init``;
     None for simulated clicks, which :func:`stereo_initialisations` writes. Every check that can
-    refuse a bag's tracking (:func:`raw_bag_tracker`, :func:`_planned_tracking`) runs for every
+    refuse a bag's tracking (:func:`raw_bag_parameters`, :func:`_planned_tracking`) runs for every
     bag first, and writes nothing: a run refused before :func:`stereo_initialisations` leaves
     no clicks behind.
 
     Raises:
         ConfigError: for a raw stereo bag without a way to initialise it, or one that
-            :func:`raw_bag_tracker` or :func:`_planned_tracking` refuses.
+            :func:`raw_bag_parameters` or :func:`_planned_tracking` refuses.
         BagError: for a bag that cannot be read.
     """
     topics = {bag: bag_topics(bag) for bag in options.bags}
-    trackers = {bag: raw_bag_tracker(bag, topics[bag], options) for bag in options.bags}
-    raw = {bag: tracker for bag, tracker in trackers.items() if tracker is not None}
+    parameters = {bag: raw_bag_parameters(bag, topics[bag], options) for bag in options.bags}
+    raw = {bag: given for bag, given in parameters.items() if given is not None}
     if not raw:
         _check_no_tracking_options(options)
     given = {bag: _given_initialisation(bag, options) for bag in raw}
@@ -203,7 +205,7 @@ def stereo_initialisations(
 def _planned_tracking(
     bag: Path,
     topics: dict[str, str],
-    tracker: StereoTracker,
+    parameters: TrackerParameters,
     options: LearnOptions,
     initialisation: str | None,
 ) -> RawBagTracking:
@@ -217,7 +219,8 @@ def _planned_tracking(
     Args:
         bag: the raw stereo bag.
         topics: its topics (name -> type).
-        tracker: its stereo tracker, but the initialisation (:func:`raw_bag_tracker`).
+        parameters: its stereo tracker's parameters, but the initialisation
+            (:func:`raw_bag_parameters`).
         options: the learning run's options.
         initialisation: its stereo_tracker initialisation parameter; None: none yet (the
             simulated clicks, written once all is checked).
@@ -227,13 +230,13 @@ def _planned_tracking(
     """
     if initialisation is None:
         check_clicks_file(_clicks_file(bag, options), f'{options.named("simulate_clicks")}:')
-    params = _parameters(tracker.params, initialisation)
-    remaps = stereo_remaps(topics, options, tracker.compressed)
+    params = _parameters(parameters.params, initialisation)
+    remaps = stereo_remaps(topics, options, parameters.compressed)
     _, read = wire_replay([TRACKER], bag, params, remaps, frozenset(), topics)
     out = _tracked_meshes(bag, options)
     _earlier_tracking(out, replay_source(bag), options.named('meshes_dir'))
     left_info = clicked_camera_topic(read, TRACKER)
-    return RawBagTracking(bag, topics, out, tracker.params, remaps, left_info, initialisation)
+    return RawBagTracking(bag, topics, out, parameters.params, remaps, left_info, initialisation)
 
 
 def _parameters(tracker_params: Sequence[str], initialisation: str | None) -> OverrideParameters:
@@ -242,9 +245,9 @@ def _parameters(tracker_params: Sequence[str], initialisation: str | None) -> Ov
     return OverrideParameters.parse([*tracker_params, *given])
 
 
-def raw_bag_tracker(
+def raw_bag_parameters(
     bag: Path, topics: dict[str, str], options: LearnOptions
-) -> StereoTracker | None:
+) -> TrackerParameters | None:
     """The stereo tracker of ``bag`` (of ``topics``) if it is a raw stereo bag to track; else None.
 
     A raw stereo bag is one that :func:`mesh_bag` tracks; the tracker's parameters (but the
@@ -285,7 +288,7 @@ def raw_bag_tracker(
     params = (STEREO_PARAMS, *transport, *options.tracker_params)
     compressed = OverrideParameters.parse(list(params)).config(StereoNodeConfig).compressed
     check_stereo_topics(bag, topics, options, compressed, named=options.named)
-    return StereoTracker(params, compressed)
+    return TrackerParameters(params, compressed)
 
 
 def _given_initialisation(bag: Path, options: LearnOptions) -> str | None:
@@ -385,7 +388,7 @@ def _track(
 def _no_mesh_error(bag: Path, stats: ReplayStats) -> BagError:
     """The error of a tracking that produced no mesh: the input problems.
 
-    (Camera_info topics not found are refused before, by :func:`raw_bag_tracker`.)
+    (Camera_info topics not found are refused before, by :func:`raw_bag_parameters`.)
     """
     problems = '; '.join(f'{count}x {error}' for error, count in stats.errors.items())
     msg = f'{bag}: the stereo tracker produced no mesh ({problems or "no input problem"})'
