@@ -219,6 +219,18 @@ def test_a_learner_bag_dir_gives_its_bags_and_names_its_other_directories(tmp_pa
         learn_options(LearnerConfig(bag_dir=str(bag)))
 
 
+def test_a_learner_bag_dir_that_cannot_be_listed_is_named(tmp_path, monkeypatch):
+    """A directory one may enter but not read: iterdir's PermissionError was a traceback."""
+
+    def refuse(path: Path) -> None:
+        raise PermissionError(13, 'Permission denied', str(path))
+
+    monkeypatch.setattr(Path, 'iterdir', refuse)
+    expected = f'parameter bag_dir: {tmp_path}: cannot list it: Permission denied'
+    with pytest.raises(ConfigError, match=re.escape(expected)):
+        learn_options(LearnerConfig(bag_dir=str(tmp_path)))
+
+
 @pytest.mark.parametrize(
     ('config', 'name', 'largest'),
     [

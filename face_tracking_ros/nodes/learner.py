@@ -137,8 +137,8 @@ def _bags_in(bag_dir: Path, say: Callable[[str], None]) -> list[Path]:
     directory, lost+found) are skipped and named to ``say``, once.
 
     Raises:
-        ConfigError: if it is not a directory, is itself a bag (holds metadata.yaml), or holds
-            no bag (naming the sub-directories skipped).
+        ConfigError: if it is not a directory, is itself a bag (holds metadata.yaml), cannot be
+            listed, or holds no bag (naming the sub-directories skipped).
     """
     if not bag_dir.is_dir():
         kind = 'not a directory' if bag_dir.exists() else 'no such directory'
@@ -150,7 +150,11 @@ def _bags_in(bag_dir: Path, say: Callable[[str], None]) -> list[Path]:
             'the bags parameter'
         )
         raise ConfigError(msg)
-    entries = sorted(bag_dir.iterdir())
+    try:
+        entries = sorted(bag_dir.iterdir())
+    except OSError as error:  # listed, but not readable (its permissions)
+        msg = f'parameter bag_dir: {bag_dir}: cannot list it: {error.strerror or error}'
+        raise ConfigError(msg) from None
     skipped = [path.name for path in entries if path.is_dir() and not is_bag_directory(path)]
     bags = [
         path
