@@ -144,7 +144,7 @@ def _check_values(options: LearnOptions) -> None:
             re.compile(options.subject_pattern)
         except re.error as error:
             named = options.named('subject_pattern')
-            msg = f'{named} {options.subject_pattern!r}: not a regular expression: {error}'
+            msg = f"{named} '{options.subject_pattern}': not a regular expression: {error}"
             raise ConfigError(msg) from None
 
 
@@ -164,7 +164,7 @@ def subject_of(name: str, options: LearnOptions) -> str:
     match = re.fullmatch(options.subject_pattern, name)
     if match is None or not match.groups():
         msg = (
-            f'{options.named("subject_pattern")} {options.subject_pattern!r} does not match the '
+            f"{options.named('subject_pattern')} '{options.subject_pattern}' does not match the "
             f'bag name {name!r} with a group (e.g. (.+)_\\d+)'
         )
         raise ConfigError(msg)
