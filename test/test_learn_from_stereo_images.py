@@ -300,8 +300,8 @@ def test_learn_gives_every_mesh_the_depths_refined_over_its_track(still_bag, tmp
     streamed = _learn_meshes(
         still_bag, tmp_path / 'streamed', '--tracker-param', 'retroactive_depths=false'
     )
-    # Measured: node RMS 2.3 mm (face edge 3.6 mm), max reprojection 1.7 px with each track's
-    # final depths on all its meshes; 5.7 mm (9.7 mm), 2.5 px tracked as the live node does.
+    # Measured: node RMS 2.00 mm (face edge 3.39 mm), max reprojection 1.40 px with each track's
+    # final depths on all its meshes; 5.63 mm (9.73 mm), 2.51 px tracked as the live node does.
     assert refined.node_rms < 0.003 and refined.node_rms_by_group['edge'] < 0.005
     assert streamed.node_rms > 0.0045 and streamed.node_rms_by_group['edge'] > 0.008
     assert refined.max_reprojection < 2.0 < streamed.max_reprojection
@@ -326,8 +326,8 @@ def test_raw_images_of_a_calibrated_rig_are_rectified_before_tracking(
     raw_rig_bag, tmp_path, capsys
 ):
     rectified = _learn_meshes(raw_rig_bag, tmp_path / 'rectified')
-    # Measured: node RMS 2.45 mm (face edge 4.15 mm), max reprojection 1.89 px, as the same
-    # scene from an ideal rig (2.3 mm, 3.6 mm, 1.7 px, above).
+    # Measured: node RMS 2.11 mm (face edge 3.56 mm), max reprojection 1.69 px, as the same
+    # scene from an ideal rig (2.00 mm, 3.39 mm, 1.40 px, above).
     assert rectified.node_rms < 0.003 and rectified.node_rms_by_group['edge'] < 0.005
     assert rectified.max_reprojection < 2.5 and rectified.tracked_fraction == 1.0
     # Unrectified, the pair triangulates to a face 2.9 times too large (tracked, before the
