@@ -471,6 +471,6 @@ def test_an_init_file_naming_a_node_the_model_lacks_is_named_not_the_model(tmp_p
     assert main(['track', str(mono), '--init', str(init), '--out', str(tmp_path / 'o')]) == 2
     model = load_model(default_model_path(34))
     assert capsys.readouterr().err == (
-        f'error: init file {init} names 1 nodes (nose_tipp) that the 34-node face model lacks '
+        f'error: init file {init} names 1 node (nose_tipp) that the 34-node face model lacks '
         f'(misspelt? its nodes: {", ".join(model.node_names)})\n'
     )

@@ -115,8 +115,9 @@ class Initialisation:
         if not missing:
             return ''
         listed = ', '.join(missing[:4]) + (', ...' if len(missing) > 4 else '')
+        nodes = 'node' if len(missing) == 1 else 'nodes'
         return (
-            f'{self.source} names {len(missing)} nodes ({listed}) that {owner} lacks '
+            f'{self.source} names {len(missing)} {nodes} ({listed}) that {owner} lacks '
             f'(misspelt? its nodes: {", ".join(node_names)})'
         )
 

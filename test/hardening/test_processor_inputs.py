@@ -808,7 +808,7 @@ def test_mono_reset_without_points_restarts_from_the_last_ones_or_needs_auto_ini
     processor.handle('image', image_msg(frames[1].image, stamp(0)), NONE)
     clicks = scene.initialisation(frames[0])
     names = tuple(f'{name}p' if name == 'nose_tip' else name for name in clicks.node_names)
-    with pytest.raises(InputError, match=r'names 1 nodes \(nose_tipp\) that the 34-node face'):
+    with pytest.raises(InputError, match=r'names 1 node \(nose_tipp\) that the 34-node face'):
         processor.reset(Initialisation(node_names=names, points=clicks.points))
     # The init file's points again, for the next image (an empty request replied 'automatic
     # re-initialisation', though there was no detector).
