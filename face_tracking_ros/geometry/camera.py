@@ -36,7 +36,8 @@ class PinholeCamera:
         k: (3, 3) intrinsic matrix of the raw image.
         p: (3, 4) projection matrix of the rectified image (eq. 2).
         d: distortion coefficients of ``distortion_model`` (empty or zeros for none).
-        distortion_model: 'plumb_bob', 'rational_polynomial' or '' (none).
+        distortion_model: 'plumb_bob', 'rational_polynomial', 'equidistant' (OpenCV's fisheye
+            model) or '' (none).
         r: (3, 3) rectification rotation.
     """
 

@@ -68,8 +68,8 @@ class LearnerConfig:
             only image topic with the word 'left' and not 'right' in its name.
         right_topic: raw stereo bags: the right image topic; empty: found as the left one.
         left_info_topic: raw stereo bags: the left camera_info topic; empty: the one whose name
-            ends in left/camera_info, else the only camera_info topic with the word
-            'left' in its name.
+            ends in left/camera_info, else the only camera_info topic with the word 'left' and
+            not 'right' in its name.
         right_info_topic: raw stereo bags: the right camera_info topic; empty: found as the
             left one.
         tracker_params: raw stereo bags: stereo_tracker parameters NAME=VALUE for their tracking,
