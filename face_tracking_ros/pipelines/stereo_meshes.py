@@ -248,7 +248,7 @@ def _parameters(tracker_params: Sequence[str], initialisation: str | None) -> Ov
 def raw_bag_parameters(
     bag: Path, topics: dict[str, str], options: LearnOptions
 ) -> TrackerParameters | None:
-    """The stereo tracker of ``bag`` (of ``topics``) if it is a raw stereo bag to track; else None.
+    """The stereo tracker's parameters for ``bag`` (of ``topics``), a raw stereo bag; else None.
 
     A raw stereo bag is one that :func:`mesh_bag` tracks; the tracker's parameters (but the
     initialisation, found later) are parsed here, once for the bag.
