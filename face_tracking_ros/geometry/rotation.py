@@ -60,7 +60,12 @@ def matrix_to_omega(rotation: np.ndarray) -> np.ndarray:
 
 def rotation_angle(omega_a: np.ndarray, omega_b: np.ndarray) -> float:
     """Angle of the rotation between R(omega_a) and R(omega_b), rad."""
-    relative = rodrigues(omega_a)[0].T @ rodrigues(omega_b)[0]
+    return angle_between(rodrigues(omega_a)[0], rodrigues(omega_b)[0])
+
+
+def angle_between(rotation_a: np.ndarray, rotation_b: np.ndarray) -> float:
+    """Angle of the rotation between two (3, 3) rotation matrices R_a and R_b, rad."""
+    relative = rotation_a.T @ rotation_b
     return float(np.arccos(np.clip(0.5 * (np.trace(relative) - 1.0), -1.0, 1.0)))
 
 

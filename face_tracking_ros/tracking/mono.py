@@ -49,7 +49,7 @@ Design, in the seed's terms:
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 import math
 
@@ -58,7 +58,7 @@ from numpy.linalg import LinAlgError
 
 from face_tracking_ros.errors import ConfigError, InputError
 from face_tracking_ros.geometry.camera import PinholeCamera
-from face_tracking_ros.geometry.rotation import matrix_to_omega, rodrigues
+from face_tracking_ros.geometry.rotation import matrix_to_omega
 from face_tracking_ros.imaging import (
     ImagePyramid,
     PhotometricInvariance,
@@ -384,7 +384,7 @@ class MonoTracker:
         ratio = config.reacquire_residual_ratio if track.lost else config.lost_residual_ratio
         start, first_level = track.current, _START_LEVEL
         if config.predict_motion and track.before is not None and not track.lost:
-            start = _predicted(track.current, track.before)
+            start = _predicted(track.current, track.before, self._face.rotation)
             first_level = self._first_level(track.current, start)
         result, templates = self._solve_frame(
             pyramid, start, blended, weights, ratio, free_sigma, first_level, track.current
@@ -419,7 +419,7 @@ class MonoTracker:
             nearest = np.max(keyframe_cosines(track.keyframes, result.omega))
             if nearest < 1.0 + 2.0 * np.cos(config.keyframe_spacing):
                 track.keyframes.append(self._sampler.keyframe(result.omega, templates))
-        track.current = _params_of(result)
+        track.current = templates.params  # the result's own, whose pose is kept
         track.previous = templates
         track.last_good = result
         track.frames += 1
@@ -576,8 +576,8 @@ class MonoTracker:
             t=params.t.copy(),
             alpha=params.alpha.copy(),
             sigma=params.sigma.copy(),
-            nodes_cam=nodes_cam,
-            nodes_px=nodes_px,
+            nodes_cam=nodes_cam.copy(),
+            nodes_px=nodes_px.copy(),
             node_residuals=node_residuals,
             mean_residual=float(np.mean(node_residuals)),
             iterations=iterations,
@@ -614,20 +614,18 @@ class MonoTracker:
         return pyramid
 
 
-def _params_of(result: TrackResult) -> Params:
-    """The parameters of a result."""
-    return Params(result.omega, result.t, result.alpha, result.sigma)
-
-
-def _predicted(current: Params, before: Params) -> Params:
+def _predicted(
+    current: Params, before: Params, rotation: Callable[[Params], np.ndarray]
+) -> Params:
     """Constant-velocity prediction: the motion from ``before`` to ``current`` once more.
 
     The head turns about the face origin (eq. 1), so the rotation repeats as
     ``R_c R_b' R_c`` and the origin moves on by ``t_c - t_b``; alpha and sigma are kept. A head
-    that did not turn predicts ``omega_c`` exactly (no round trip through R).
+    that did not turn predicts ``omega_c`` exactly (no round trip through R). ``rotation``
+    gives R(omega) of a parameter vector (:meth:`.FaceProjection.rotation`).
     """
     omega = current.omega
     if not np.array_equal(omega, before.omega):
-        rotation = rodrigues(omega)[0]
-        omega = matrix_to_omega(rotation @ rodrigues(before.omega)[0].T @ rotation)
+        turned = rotation(current)
+        omega = matrix_to_omega(turned @ rotation(before).T @ turned)
     return current._replace(omega=omega, t=current.t + (current.t - before.t))

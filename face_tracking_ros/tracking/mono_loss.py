@@ -19,7 +19,7 @@ from typing import NamedTuple
 import numpy as np
 
 from face_tracking_ros.geometry.camera import PinholeCamera
-from face_tracking_ros.geometry.rotation import rotation_angle
+from face_tracking_ros.geometry.rotation import angle_between
 from face_tracking_ros.imaging import PhotometricModel, PhotometricProjection, inside_image
 from face_tracking_ros.tracking.mono_config import MonoTrackerConfig
 from face_tracking_ros.tracking.mono_projection import FaceProjection
@@ -102,7 +102,7 @@ class LossChecks:
         # The motion since the last valid estimate, whatever the solve started from (a search
         # or a detection when re-acquiring), over the frames since.
         frames = reference.frames
-        turn = rotation_angle(reference.last.omega, params.omega)
+        turn = angle_between(self._face.rotation(reference.last), self._face.rotation(params))
         if turn > config.max_rotation_step * frames:
             return f'implausible motion ({np.degrees(turn):.0f} degrees in {frames} frame(s))'
         if condition > config.max_condition:

@@ -7,6 +7,7 @@ weighs each node by how squarely it faces the camera, and samples an image on th
 
 from __future__ import annotations
 
+from functools import cached_property
 from typing import NamedTuple
 
 import numpy as np
@@ -26,11 +27,38 @@ class Sampled(NamedTuple):
     inside: np.ndarray  # (N, M) bool, at least 1 px inside
 
 
+class _Pose:
+    """The model posed at one parameter vector (eq. 1, 3), and its nodes seen (eq. 2) once asked.
+
+    Attributes:
+        params: the parameter vector.
+        rotation: (3, 3) R(omega).
+        d_rotation: (3, 3, 3) dR/domega_k.
+        shape: (N, 3) the shape of eq. 3.
+    """
+
+    def __init__(self, params: Params, model: FaceModel, camera: PinholeCamera) -> None:
+        """Pose the model at ``params``."""
+        self.params = params
+        self.rotation, self.d_rotation = rodrigues(params.omega)
+        self.shape = model.shape(params.sigma, params.alpha)
+        self._camera = camera
+
+    @cached_property
+    def nodes(self) -> tuple[np.ndarray, np.ndarray]:
+        """(N, 3) camera-frame nodes (eq. 1, 3) and their (N, 2) pixels (eq. 2)."""
+        points_cam = self.shape @ self.rotation.T + self.params.t
+        return points_cam, self._camera.project(points_cam)
+
+
 class FaceProjection:
     """The face model posed at a parameter vector (eq. 1, 3) and seen by the camera (eq. 2).
 
-    The last parameter vector's rotation and shape are kept: one is projected several times
-    (its evaluation, linearisation, templates, visibility, result).
+    The poses of the last ``_KEPT`` parameter vectors are kept, each made once: a frame poses
+    the last estimate, the one before it and the solve's points several times over (the motion
+    prediction, its evaluations and linearisations, templates, visibility, loss checks and
+    result). A parameter vector is known by its identity: :class:`~.mono_rois.Params` is
+    immutable, and no code changes its arrays in place.
 
     Args:
         model: the face model (eq. 3).
@@ -39,6 +67,8 @@ class FaceProjection:
         visibility_cos: a node's weight ramps from 0 to 1 as the cosine between its outward
             normal and the ray to the camera goes from this value to twice it.
     """
+
+    _KEPT = 8
 
     def __init__(
         self, model: FaceModel, camera: PinholeCamera, num_levels: int, visibility_cos: float
@@ -52,29 +82,33 @@ class FaceProjection:
             camera.p * np.array([[1.0 / (1 << level)], [1.0 / (1 << level)], [1.0]])
             for level in range(num_levels)
         )
-        self._posed: tuple[Params, tuple[np.ndarray, ...]] | None = None  # _posed_at's
+        self._poses: dict[int, _Pose] = {}  # by id(params), the least recently used first
 
     def pose(self, params: Params) -> tuple[np.ndarray, np.ndarray]:
         """R(omega) (eq. 1) and the (N, 3) shape (eq. 3) of ``params``."""
-        return self._posed_at(params)[:2]
+        posed = self._posed_at(params)
+        return posed.rotation, posed.shape
+
+    def rotation(self, params: Params) -> np.ndarray:
+        """(3, 3) R(omega) of ``params`` (eq. 1), kept with :meth:`pose`'s."""
+        return self._posed_at(params).rotation
 
     def d_rotation(self, params: Params) -> np.ndarray:
         """(3, 3, 3) dR/domega_k at ``params`` (eq. 1), kept with :meth:`pose`'s."""
-        return self._posed_at(params)[2]
+        return self._posed_at(params).d_rotation
 
-    def _posed_at(self, params: Params) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """R(omega), the shape and dR/domega of ``params``, computed once per parameter vector."""
-        if self._posed is None or params is not self._posed[0]:
-            rotation, d_rotation = rodrigues(params.omega)
-            shape = self._model.shape(params.sigma, params.alpha)
-            self._posed = (params, (rotation, shape, d_rotation))
-        return self._posed[1]
+    def _posed_at(self, params: Params) -> _Pose:
+        """The pose of ``params``, made once while it is among the last ``_KEPT`` used."""
+        # A kept pose holds its params, so no other live object can have their id.
+        posed = self._poses.pop(id(params), None) or _Pose(params, self._model, self._camera)
+        self._poses[id(params)] = posed  # now the most recently used
+        if len(self._poses) > self._KEPT:
+            del self._poses[next(iter(self._poses))]
+        return posed
 
     def nodes(self, params: Params) -> tuple[np.ndarray, np.ndarray]:
-        """(N, 3) camera-frame nodes (eq. 1, 3) and their (N, 2) pixels (eq. 2)."""
-        rotation, shape = self.pose(params)
-        points_cam = shape @ rotation.T + params.t
-        return points_cam, self._camera.project(points_cam)
+        """(N, 3) camera-frame nodes (eq. 1, 3) and (N, 2) pixels (eq. 2); kept: read only."""
+        return self._posed_at(params).nodes
 
     def visibility(self, params: Params, normals: np.ndarray) -> np.ndarray:
         """(N,) weights in [0, 1] from the angle between node normals and rays to the camera."""

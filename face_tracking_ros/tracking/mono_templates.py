@@ -79,11 +79,13 @@ class Templates(NamedTuple):
             (:class:`OnDemand`).
         visibility: (N,) node visibility weights.
         inside: (N, M) level-0 samples inside the image.
+        params: the pose they were sampled at.
     """
 
     levels: Sequence[np.ndarray]
     visibility: np.ndarray
     inside: np.ndarray
+    params: Params
 
     def sampled(self) -> Templates:
         """These templates with every level sampled (to keep past their pyramid)."""
@@ -141,7 +143,7 @@ class TemplateSampler:
             return self._face.sample(pyramid, params, level, rois[level]).samples
 
         levels = OnDemand(pyramid.num_levels, sample, source=pyramid, first=first.samples)
-        return Templates(levels, self._face.visibility(params, normals), first.inside)
+        return Templates(levels, self._face.visibility(params, normals), first.inside, params)
 
     def keyframe(self, omega: np.ndarray, templates: Templates) -> Keyframe:
         """A keyframe of ``templates`` sampled at rotation R(omega), every level sampled now."""
@@ -150,7 +152,9 @@ class TemplateSampler:
 
 
 def nearest_keyframe(keyframes: Sequence[Keyframe], omega: np.ndarray) -> Keyframe:
-    """The keyframe whose rotation is nearest R(omega)."""
+    """The keyframe whose rotation is nearest R(omega) (frame 1's alone by default, at once)."""
+    if len(keyframes) == 1:
+        return keyframes[0]
     return keyframes[int(np.argmax(keyframe_cosines(keyframes, omega)))]
 
 
