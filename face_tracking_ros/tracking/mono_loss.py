@@ -25,6 +25,7 @@ from face_tracking_ros.tracking.mono_config import MonoTrackerConfig
 from face_tracking_ros.tracking.mono_projection import FaceProjection
 from face_tracking_ros.tracking.mono_rois import Params
 from face_tracking_ros.tracking.mono_templates import Keyframe, nearest_keyframe
+from face_tracking_ros.tracking.robust import median
 
 _MIN_DEPTH = 0.05  # m; a face nearer the camera than this has diverged
 
@@ -159,4 +160,4 @@ def _drift_ratio(
         return 0.0
     residuals = keyframe.projection.apply(samples - key.levels[0])
     rms = np.sqrt(np.mean(residuals[nodes] ** 2, axis=1))
-    return float(np.median(rms / texture[nodes]))
+    return median(rms / texture[nodes])

@@ -51,6 +51,7 @@ from face_tracking_ros.tracking.mono_priors import Priors
 from face_tracking_ros.tracking.mono_projection import FaceProjection, Sampled
 from face_tracking_ros.tracking.mono_rois import Params, Roi
 from face_tracking_ros.tracking.projection import POSE_DIM
+from face_tracking_ros.tracking.robust import median
 
 _MAD_TO_STD = 1.4826  # robust standard deviation from the median absolute deviation
 
@@ -351,7 +352,7 @@ class MonoSolver:
         weights = level.visibility * sampled.inside
         if scale is None:
             active = np.abs(residuals[weights > 0])
-            spread = _MAD_TO_STD * _median(active) if active.size else 0.0
+            spread = _MAD_TO_STD * median(active) if active.size else 0.0
             scale = max(self._config.residual_scale_floor, spread)
         data_cost, hessian, gradient = normal_equations(
             linear.jacobian_t,
@@ -375,15 +376,6 @@ class MonoSolver:
     def _data_cost(self, residuals: np.ndarray, weights: np.ndarray, scale: float) -> float:
         """Huber cost ``sum w rho(r / s)`` of (N, M) residuals with (N, M) weights."""
         return huber_irls(residuals, weights, scale, self._config.huber_k)[1]
-
-
-def _median(values: np.ndarray) -> float:
-    """``np.median`` of a non-empty 1-D array, by one partial sort."""
-    half = values.size // 2
-    if values.size % 2:
-        return float(np.partition(values, half)[half])
-    low, high = np.partition(values, (half - 1, half))[half - 1 : half + 1]
-    return float((low + high) / 2)
 
 
 def _condition(hessian: np.ndarray) -> float:
