@@ -98,7 +98,7 @@ class LossChecks:
         """
         config = self._config
         values = np.concatenate([params.omega, params.t, params.alpha, params.sigma])
-        if not np.all(np.isfinite(values)) or params.t[2] < _MIN_DEPTH:
+        if not np.isfinite(values).all() or params.t[2] < _MIN_DEPTH:
             return 'the solver diverged'
         # The motion since the last valid estimate, whatever the solve started from (a search
         # or a detection when re-acquiring), over the frames since.

@@ -112,10 +112,10 @@ class FaceProjection:
 
     def visibility(self, params: Params, normals: np.ndarray) -> np.ndarray:
         """(N,) weights in [0, 1] from the angle between node normals and rays to the camera."""
-        rotation, shape = self.pose(params)
-        nodes = shape @ rotation.T + params.t
+        posed = self._posed_at(params)
+        nodes = posed.nodes[0]
         rays = nodes / np.linalg.norm(nodes, axis=1, keepdims=True)
-        facing = -np.einsum('na,na->n', normals @ rotation.T, rays)
+        facing = -np.einsum('na,na->n', normals @ posed.rotation.T, rays)
         low = self._visibility_cos
         return np.clip((facing - low) / max(low, 1e-6), 0.0, 1.0)
 
