@@ -2,10 +2,13 @@
 
 ``np.median`` of a 1-D array costs two selections and a few numpy calls more than it needs: on
 a followed mono frame, its residual scale (2754 samples) took 43 us and its drift check (34
-nodes) as much again. :func:`median` gives the same value from one partial sort.
+nodes) as much again. :func:`median` gives the same value from one partial sort, and
+:func:`nanmedian` ``np.nanmedian``'s (the stereo tracker's four a pair: 12 us each, 4 us so).
 """
 
 from __future__ import annotations
+
+import math
 
 import numpy as np
 
@@ -21,3 +24,13 @@ def median(values: np.ndarray) -> float:
     if values.size % 2:
         return float(part[half])
     return float((part[:half].max() + part[half]) / 2)
+
+
+def nanmedian(values: np.ndarray) -> float:
+    """``np.nanmedian`` of an array (of any shape) of values that are finite, +inf or NaN.
+
+    :func:`median` of the values that are not NaN, as ``np.nanmedian`` takes it; NaN (without
+    ``np.nanmedian``'s warning) if all are.
+    """
+    kept = values[~np.isnan(values)]
+    return median(kept) if kept.size else math.nan

@@ -61,6 +61,7 @@ from face_tracking_ros.tracking.detector import Detector
 from face_tracking_ros.tracking.initialisation import Initialisation
 from face_tracking_ros.tracking.regularisation import Regulariser
 from face_tracking_ros.tracking.result import TrackStatus
+from face_tracking_ros.tracking.robust import nanmedian
 from face_tracking_ros.tracking.row_offset import ROW_OFFSET_RESOLUTION_PX, row_offset
 from face_tracking_ros.tracking.stereo_config import StereoTrackerConfig
 from face_tracking_ros.tracking.stereo_data import (
@@ -538,9 +539,7 @@ class StereoTracker:
     ) -> StereoResult:
         """Take this pair's solved ``nodes`` into the state: noise, rotation, depths, templates."""
         config = self._config
-        state.noise = np.array(
-            [max(config.noise_floor, float(np.nanmedian(rms))) for rms in statistics.rms]
-        )
+        state.noise = np.array([max(config.noise_floor, nanmedian(rms)) for rms in statistics.rms])
         state.rotation = self._rotation(state.first_nodes, nodes)
         if state.depths is not None:
             nodes = self._refine_depths(state, pyramids, nodes, statistics.rms[0][LEFT])

@@ -21,6 +21,7 @@ import numpy as np
 
 from face_tracking_ros.geometry.camera import StereoRig
 from face_tracking_ros.imaging import inside_image
+from face_tracking_ros.tracking.robust import nanmedian
 from face_tracking_ros.tracking.stereo_config import StereoTrackerConfig
 from face_tracking_ros.tracking.stereo_data import GroupStatistics
 
@@ -48,12 +49,12 @@ def loss_reason(
         if not np.all(inside_image(camera.project(nodes), shape)):
             return 'a node left the image'
     with np.errstate(invalid='ignore', divide='ignore'):
-        ratios = statistics.rms[0] / statistics.contrast[0]
-    ratio = float(np.nanmedian(ratios))
+        ratios = statistics.rms[0] / statistics.contrast
+    ratio = nanmedian(ratios)
     if not ratio <= config.lost_ratio:
         return f'patch residual / contrast {ratio:.2f} exceeds {config.lost_ratio}'
     with np.errstate(invalid='ignore', divide='ignore'):
-        texture = float(np.nanmedian(statistics.image_contrast[0] / statistics.contrast[0]))
+        texture = nanmedian(statistics.image_contrast / statistics.contrast)
     if not texture >= config.min_texture_ratio:
         return (
             f'the images show almost no texture where the face was (patch contrast '
