@@ -215,8 +215,13 @@ class ActionPrior:
         """
         point = evaluation.point
         weighted = point.weighted
-        hessian = np.diag(self.row_weights) - weighted @ np.linalg.solve(point.normal, weighted.T)
+        hessian = self._weight_matrix - weighted @ np.linalg.solve(point.normal, weighted.T)
         return hessian, self.row_weights * evaluation.difference
+
+    @cached_property
+    def _weight_matrix(self) -> np.ndarray:
+        """(3N, 3N) W, diag(row_weights) (made once: the term's arrays are never changed)."""
+        return np.diag(self.row_weights)
 
     def _difference(self, nodes: np.ndarray, point: ModelPoint) -> np.ndarray:
         """(3N,) X - M(theta) as (X - X(1)) - (M - M(1))."""

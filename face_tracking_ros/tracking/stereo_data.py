@@ -211,6 +211,9 @@ class SampleSet:
         num_nodes: N.
         brightness: (S, BRIGHTNESS_TERMS) the brightness model of every sample.
         terms: per layout, (G_l,) int brightness terms of each group (:class:`SampleLayout`).
+        group_terms: (G,) int, ``terms`` of every group, layout after layout.
+        group_sizes: (L,) int, M_l, the samples of a group of each layout.
+        group_bounds: (L + 1,) the first group of every layout, then G.
     """
 
     layouts: tuple[SampleLayout, ...]
@@ -224,12 +227,17 @@ class SampleSet:
     num_nodes: int
     brightness: np.ndarray
     terms: tuple[np.ndarray, ...]
+    group_terms: np.ndarray
+    group_sizes: np.ndarray
+    group_bounds: tuple[int, ...]
 
     @classmethod
     def of(cls, layouts: Sequence[SampleLayout], num_nodes: int) -> SampleSet:
         """Lay out ``layouts`` (of a mesh of ``num_nodes`` nodes) along one sample axis."""
         layouts = tuple(layouts)
         sizes = [layout.mask.size for layout in layouts]
+        group_counts = [layout.mask.shape[0] for layout in layouts]
+        terms = [layout.terms.astype(np.int64) for layout in layouts]
         gather, weights, blocks, vectors = [], [], [], []
         for layout in layouts:
             groups, samples = layout.mask.shape
@@ -253,7 +261,10 @@ class SampleSet:
             brightness=np.concatenate(
                 [np.tile(layout.brightness, (layout.mask.shape[0], 1)) for layout in layouts]
             ),
-            terms=tuple(layout.terms.astype(np.int64) for layout in layouts),
+            terms=tuple(terms),
+            group_terms=np.concatenate(terms),
+            group_sizes=np.array([layout.mask.shape[1] for layout in layouts]),
+            group_bounds=tuple(int(b) for b in np.cumsum([0, *group_counts])),
         )
 
     @property
@@ -458,7 +469,6 @@ def robust_residuals(
         coefficients: (K, S) a_k >= 0 of every sample.
         huber: the Huber thresholds.
     """
-    group_sizes = np.array([layout.mask.shape[1] for layout in samples.layouts])
     differences, counts, weight, weighted_residual, cost = zssd_residuals(
         sampled.values,
         templates,
@@ -469,14 +479,14 @@ def robust_residuals(
         huber.square,
         huber.inlier_bound,
         samples.bounds,
-        group_sizes,
+        samples.group_sizes,
         samples.brightness,
-        np.concatenate(samples.terms),
+        samples.group_terms,
     )
-    splits = np.cumsum([layout.mask.shape[0] for layout in samples.layouts])[:-1]
+    bounds = samples.group_bounds
     return Residuals(
         differences=differences,
-        counts=tuple(np.split(counts, splits, axis=1)),
+        counts=tuple(counts[:, bounds[i] : bounds[i + 1]] for i in range(len(bounds) - 1)),
         weight=weight,
         weighted_residual=weighted_residual,
         cost=cost,

@@ -115,17 +115,24 @@ class PairEnergy:
         return Point(nodes, cost + residuals.cost, sampled, residuals, prior)
 
     def linearise(self, level: Level, point: Point) -> System:
-        """Gauss-Newton normal equations at an evaluated point; the face-model fit is kept."""
+        """Gauss-Newton normal equations at an evaluated point; the face-model fit is kept.
+
+        The terms are summed into the arrays the face-model and image terms made for this
+        point, so no (3N, 3N) matrix is allocated for a sum.
+        """
         _, hessian, gradient = self.regulariser.normal_equations(point.nodes, self.previous)
         if self.prior is not None and point.prior is not None:
             prior_hessian, prior_gradient = self.prior.normal_equations(point.prior)
-            hessian, gradient = hessian + prior_hessian, gradient + prior_gradient
+            hessian = np.add(hessian, prior_hessian, out=prior_hessian)
+            gradient = np.add(gradient, prior_gradient, out=prior_gradient)
             self.theta = point.prior.point
         blocks, vectors = node_blocks(
             self.samples, point.sampled, point.residuals, level.projections
         )
         image_hessian, image_gradient = self.samples.assemble(blocks, vectors)
-        return System(hessian + image_hessian, gradient + image_gradient)
+        np.add(hessian, image_hessian, out=image_hessian)
+        np.add(gradient, image_gradient, out=image_gradient)
+        return System(image_hessian, image_gradient)
 
 
 class LevelSolver:
