@@ -219,13 +219,19 @@ def test_a_learner_bag_dir_gives_its_bags_and_names_its_other_directories(tmp_pa
         learn_options(LearnerConfig(bag_dir=str(bag)))
 
 
-def test_a_learner_bag_dir_that_cannot_be_listed_is_named(tmp_path, monkeypatch):
-    """A directory one may enter but not read: iterdir's PermissionError was a traceback."""
+@pytest.mark.parametrize('refused', ['iterdir', 'is_file'])
+def test_a_learner_bag_dir_that_cannot_be_listed_is_named(tmp_path, monkeypatch, refused):
+    """A directory one may not read (iterdir) or not enter (is_file of its metadata.yaml).
+
+    Either's PermissionError was a traceback (Path.is_file raises it, as it does not mean the
+    file is absent).
+    """
 
     def refuse(path: Path) -> None:
         raise PermissionError(13, 'Permission denied', str(path))
 
-    monkeypatch.setattr(Path, 'iterdir', refuse)
+    (tmp_path / 'bag').mkdir()
+    monkeypatch.setattr(Path, refused, refuse)
     expected = f'parameter bag_dir: {tmp_path}: cannot list it: Permission denied'
     with pytest.raises(ConfigError, match=re.escape(expected)):
         learn_options(LearnerConfig(bag_dir=str(tmp_path)))

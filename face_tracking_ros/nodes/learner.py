@@ -144,22 +144,26 @@ def _bags_in(bag_dir: Path, say: Callable[[str], None]) -> list[Path]:
         kind = 'not a directory' if bag_dir.exists() else 'no such directory'
         msg = f'parameter bag_dir: {bag_dir}: {kind} (expected a directory of bags)'
         raise ConfigError(msg)
-    if (bag_dir / 'metadata.yaml').is_file():
+    try:  # a directory one may not read or enter (its permissions) raises on each of these
+        is_bag = (bag_dir / 'metadata.yaml').is_file()
+        entries = [] if is_bag else sorted(bag_dir.iterdir())
+        directories = {path.name for path in entries if path.is_dir()}
+    except OSError as error:
+        msg = f'parameter bag_dir: {bag_dir}: cannot list it: {error.strerror or error}'
+        raise ConfigError(msg) from None
+    if is_bag:
         msg = (
             f'parameter bag_dir: {bag_dir} is a bag itself, not a directory of bags: give it in '
             'the bags parameter'
         )
         raise ConfigError(msg)
-    try:
-        entries = sorted(bag_dir.iterdir())
-    except OSError as error:  # listed, but not readable (its permissions)
-        msg = f'parameter bag_dir: {bag_dir}: cannot list it: {error.strerror or error}'
-        raise ConfigError(msg) from None
-    skipped = [path.name for path in entries if path.is_dir() and not is_bag_directory(path)]
+    skipped = [
+        path.name for path in entries if path.name in directories and not is_bag_directory(path)
+    ]
     bags = [
         path
         for path in entries
-        if (path.is_dir() or path.suffix == '.mcap') and path.name not in skipped
+        if (path.name in directories or path.suffix == '.mcap') and path.name not in skipped
     ]
     not_bags, names = 'sub-directories without metadata.yaml or .mcap files', ', '.join(skipped)
     if not bags:
