@@ -152,7 +152,7 @@ def checked_stereo_bags(options: LearnOptions) -> dict[Path, RawBagTracking]:
     """
     topics = {bag: bag_topics(bag) for bag in options.bags}
     parameters = {bag: raw_bag_parameters(bag, topics[bag], options) for bag in options.bags}
-    raw = {bag: given for bag, given in parameters.items() if given is not None}
+    raw = {bag: found for bag, found in parameters.items() if found is not None}
     if not raw:
         _check_no_tracking_options(options)
     given = {bag: _given_initialisation(bag, options) for bag in raw}

@@ -396,10 +396,7 @@ class MonoTracker:
         return result
 
     def _first_level(self, current: Params, predicted: Params) -> int:
-        """The level a predicted frame's solve starts on: 0 for a small predicted motion.
-
-        ``predicted`` is projected last, so the solve that starts there finds its pose kept.
-        """
+        """The level a predicted frame's solve starts on: 0 for a small predicted motion."""
         at_current = self._face.nodes(current)[1]
         motion = self._face.nodes(predicted)[1] - at_current
         small = np.abs(motion).max(initial=0.0) < self._config.fine_start_px

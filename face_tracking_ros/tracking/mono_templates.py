@@ -79,7 +79,7 @@ class Templates(NamedTuple):
             (:class:`OnDemand`).
         visibility: (N,) node visibility weights.
         inside: (N, M) level-0 samples inside the image.
-        params: the pose they were sampled at.
+        params: the parameter vector they were sampled at.
     """
 
     levels: Sequence[np.ndarray]

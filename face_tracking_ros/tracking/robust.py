@@ -14,7 +14,7 @@ import numpy as np
 
 
 def median(values: np.ndarray) -> float:
-    """``np.median`` of a non-empty 1-D array of finite values, from one partial sort.
+    """``np.median`` of a non-empty 1-D array of finite or infinite values (no NaN), cheaply.
 
     The upper middle value is selected (``np.partition``); for an even count the lower one is
     the largest value below it, and the two are averaged as ``np.median`` does.

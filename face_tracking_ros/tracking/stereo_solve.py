@@ -123,15 +123,16 @@ class PairEnergy:
         _, hessian, gradient = self.regulariser.normal_equations(point.nodes, self.previous)
         if self.prior is not None and point.prior is not None:
             prior_hessian, prior_gradient = self.prior.normal_equations(point.prior)
-            hessian = np.add(hessian, prior_hessian, out=prior_hessian)
-            gradient = np.add(gradient, prior_gradient, out=prior_gradient)
+            prior_hessian += hessian
+            prior_gradient += gradient
+            hessian, gradient = prior_hessian, prior_gradient
             self.theta = point.prior.point
         blocks, vectors = node_blocks(
             self.samples, point.sampled, point.residuals, level.projections
         )
         image_hessian, image_gradient = self.samples.assemble(blocks, vectors)
-        np.add(hessian, image_hessian, out=image_hessian)
-        np.add(gradient, image_gradient, out=image_gradient)
+        image_hessian += hessian
+        image_gradient += gradient
         return System(image_hessian, image_gradient)
 
 
