@@ -19,6 +19,7 @@ from face_tracking_ros.geometry.camera import PinholeCamera
 from face_tracking_ros.tracking.initialisation import Initialisation
 from face_tracking_ros.tracking.mono import MonoTracker
 from face_tracking_ros.tracking.mono_config import MonoTrackerConfig
+from face_tracking_ros.tracking.mono_projection import FaceProjection
 from face_tracking_ros.tracking.mono_solve import MonoSolver
 from face_tracking_ros.tracking.projection import project_with_jacobian
 from face_tracking_ros.tracking.result import TrackStatus
@@ -440,3 +441,23 @@ def test_coarse_templates_are_sampled_before_their_pyramid_is_rebuilt(scene, mon
     assert len(levels) == len(expected) == 4
     for got, want in zip(levels, expected, strict=True):
         assert np.array_equal(got, want)
+
+
+def test_the_kept_poses_change_no_result_and_stay_bounded(scene, monkeypatch) -> None:
+    """FaceProjection keeps the last poses by parameter vector: a stale one would move a result.
+
+    The same frames tracked with nothing kept give every result to the bit; the kept poses
+    never exceed their bound, however many frames pass.
+    """
+    model, image, init = scene
+    frames = [_rolled(image, 0.3 * frame, (1.5 * frame, -frame)) for frame in range(1, 13)]
+    runs = {}
+    for kept in (FaceProjection._KEPT, 0):
+        monkeypatch.setattr(FaceProjection, '_KEPT', kept)
+        tracker = _started(model, image, init)
+        runs[kept] = [tracker.step(frame) for frame in frames]
+        assert len(tracker._face._poses) <= kept
+    for cached, fresh in zip(*runs.values(), strict=True):
+        assert cached.ok and fresh.ok
+        for field in ('omega', 't', 'alpha', 'nodes_cam', 'nodes_px', 'node_residuals'):
+            assert np.array_equal(getattr(cached, field), getattr(fresh, field)), field
