@@ -187,9 +187,8 @@ class StereoPairing(Generic[Message]):
         partner = self._partner(stamp, other)
         if partner is not None:
             match = other.pop(partner)
-            # An image dropped is measured against the other camera's stamps, the pair's too.
-            self._drop_older(queue, stamp, [*other, partner])
-            self._drop_older(other, partner, [*queue, stamp])
+            self._drop_older(queue, stamp, other, partner)
+            self._drop_older(other, partner, queue, stamp)
             self._paired = True
             return (msg, match) if topic == self._sides[0] else (match, msg)
         queue[stamp] = msg
@@ -214,15 +213,22 @@ class StereoPairing(Generic[Message]):
         nearest = min(waiting, key=lambda other: abs(other - stamp), default=None)
         return nearest if nearest is not None and abs(nearest - stamp) <= tolerance_ns else None
 
-    def _drop_older(self, queue: OrderedDict[int, Message], stamp: int, others: list[int]) -> None:
+    def _drop_older(
+        self,
+        queue: OrderedDict[int, Message],
+        stamp: int,
+        other: OrderedDict[int, Message],
+        other_paired: int,
+    ) -> None:
         """Drop (and count) the images of ``queue`` stamped before ``stamp``: they never pair.
 
-        ``others`` are the other camera's stamps (how near they came is kept).
+        How near the other camera's stamps came to them is kept: those waiting in ``other`` and
+        ``other_paired``, its image in the pair just made.
         """
         stale = [s for s in queue if s < stamp]
         if not stale:  # the usual case, on every pair: nothing to count
             return
-        self._unpair(stale, others)
+        self._unpair(stale, [*other, other_paired])
         for s in stale:
             del queue[s]
 
