@@ -143,7 +143,6 @@ class RunFigures:
         published: images (pairs) published.
         received: face/state messages received for them.
         latency_ms: (received,) image stamp to face/state receipt, ms, in publishing order.
-        receipt_s: (received,) receipt times since the start of the run, s.
         tracked: states with status TRACKING.
     """
 
@@ -152,7 +151,6 @@ class RunFigures:
     published: int
     received: int
     latency_ms: np.ndarray
-    receipt_s: np.ndarray
     tracked: int
 
     @property
@@ -292,7 +290,6 @@ class Driver:
             published=count,
             received=len(got),
             latency_ms=np.array([(receipts[s][0] - s) / 1e6 for s in got]),
-            receipt_s=np.array([(receipts[s][0] - start) / 1e9 for s in got]),
             tracked=sum(receipts[s][1] == TrackStatus.TRACKING for s in got),
         )
 
