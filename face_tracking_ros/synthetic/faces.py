@@ -288,18 +288,15 @@ class TruthBases:
         identity_basis: (3N, K) identity directions; orthonormal columns only on the preset's
             mesh (34 nodes for 'default', 19 for 'realistic').
         identity_variances: (K,) variances of sigma_true, m^2.
-        identity_mode_names: K names of the anatomical fields the modes came from.
-        expression_basis: (3N, E) full-intensity displacement of each active expression, metres.
-        expression_names: E names (:data:`ACTIVE_EXPRESSIONS`).
+        expression_basis: (3N, E) full-intensity displacement of each active expression, metres,
+            in the order of :data:`ACTIVE_EXPRESSIONS`.
     """
 
     node_names: tuple[str, ...]
     mean_shape: np.ndarray
     identity_basis: np.ndarray
     identity_variances: np.ndarray
-    identity_mode_names: tuple[str, ...]
     expression_basis: np.ndarray
-    expression_names: tuple[str, ...]
 
     @property
     def num_nodes(self) -> int:
@@ -448,9 +445,7 @@ class FacePopulation:
             mean_shape=self.mean_shape[rows],
             identity_basis=self.identity_basis_true[rows],
             identity_variances=self.identity_variances_true,
-            identity_mode_names=self.identity_mode_names,
             expression_basis=self.expression_basis_true[rows],
-            expression_names=ACTIVE_EXPRESSIONS,
         )
 
     def _pin_eye_centres(self, field: np.ndarray) -> np.ndarray:
