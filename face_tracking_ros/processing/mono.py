@@ -158,11 +158,6 @@ class MonoProcessor:
             Port('face/overlay', conversions.IMAGE_TYPE, QosClass.SENSOR, on_demand=True),
         )
 
-    @property
-    def tracker(self) -> MonoTracker | None:
-        """The tracker, once camera_info and a model are known."""
-        return self._tracker
-
     def reset(self, initialisation: Initialisation | None) -> str:
         """Restart tracking from 2-D node positions; None: a detection, or the last ones given.
 
