@@ -10,7 +10,7 @@ over the edges (i, j) of the mesh triangulation. The terms are written as least-
 ``r`` with ``E_reg = r . r`` so a Gauss-Newton solver can stack them with the image terms of eq. 4.
 
 Units: image terms are sums of squared grey levels, so rho and beta are in grey^2 / m^2. The raw
-delta_ij of eq. 5 is in grey^2 / m^6; it is set from a stiffness ``delta`` in grey^2 / m^2 as
+delta_ij of eq. 5 is in grey^2 / m^4; it is set from a stiffness ``delta`` in grey^2 / m^2 as
 ``delta_ij = delta * s_ij / (2 L_ij)^2`` with L_ij the frame-1 edge length, so that a stretch dL
 of any edge costs about ``delta * s_ij * dL^2`` whatever the edge length.
 
@@ -96,7 +96,7 @@ class Regulariser:
         edges: (E, 2) node index pairs (i, j).
         rho: (N,) rho_i, grey^2 / m^2.
         beta: (E,) beta_ij, grey^2 / m^2.
-        delta: (E,) delta_ij of eq. 5, grey^2 / m^6.
+        delta: (E,) delta_ij of eq. 5, grey^2 / m^4.
         stretch_stiffness: (E,) delta times the edge's stiffness factor s_ij, grey^2 / m^2.
         first_sq_lengths: (E,) ||X^i(1) - X^j(1)||^2, m^2.
         linear_jacobian: (3N + 3E, 3N) constant Jacobian of the rho and beta residuals.
