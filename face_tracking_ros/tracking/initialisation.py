@@ -289,7 +289,9 @@ def fit_model_to_points(
 
     Raises:
         ConfigError: for node names the model lacks or a sigma of the wrong length.
-        InputError: if no pose puts the face in front of the camera.
+        InputError: for points outside the image, if no pose puts the face in front of the
+            camera within ``config.max_rms_px`` RMS, or if the fit faces away from the camera
+            (left and right swapped).
     """
     config = config or FitConfig()
     check_inside(init.node_names, init.points, (camera.width, camera.height))
