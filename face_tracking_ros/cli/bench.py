@@ -1,4 +1,4 @@
-"""``face-tracking bench [--quick] [--json OUT] [--only NAME ...]``: the benchmark suite.
+"""``face-tracking bench [--quick] [--json FILE] [--only NAME ...]``: the benchmark suite.
 
 Runs the benchmarks of :mod:`face_tracking_ros.bench` (each in its own process on one core; see
 :mod:`face_tracking_ros.bench.runner`), writes every figure to one JSON file and prints the
@@ -43,7 +43,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         '--json',
         type=Path,
         help='results file (default: OUT/bench/results.json); a run in which a benchmark fails '
-        'writes NAME.failed.json beside it instead',
+        'writes STEM.failed.json beside it instead (results.failed.json)',
     )
     parser.add_argument(
         '--out', type=Path, default=Path('out'), help='output directory (default: out)'
@@ -56,7 +56,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help=f'run only these benchmarks: {", ".join(BENCHMARKS)} (default: all but soak)',
     )
     parser.add_argument(
-        '--minutes', type=float, default=BenchOptions.minutes, help='soak duration, min (> 0)'
+        '--minutes',
+        type=float,
+        default=BenchOptions.minutes,
+        help='soak duration, min, > 0 (%(default)g)',
     )
     parser.add_argument(
         '--domain-id',
@@ -65,7 +68,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         f'set, else {BenchOptions.domain_id})',
     )
     parser.add_argument(
-        '--seed', type=int, default=BenchOptions.seed, help='synthetic world seed (>= 0)'
+        '--seed',
+        type=int,
+        default=BenchOptions.seed,
+        help='synthetic world seed, >= 0 (%(default)s)',
     )
     parser.set_defaults(func=run)
 

@@ -62,7 +62,12 @@ def _add_model_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('bags', nargs='+', type=Path, metavar='BAG', help='bags of meshes')
     parser.add_argument('--out', required=True, type=Path, help='model file to write (.npz)')
     parser.add_argument('--report', required=True, type=Path, help='JSON report to write')
-    parser.add_argument('--nodes', type=int, choices=SUPPORTED_NODE_COUNTS, help='mesh nodes')
+    parser.add_argument(
+        '--nodes',
+        type=int,
+        choices=SUPPORTED_NODE_COUNTS,
+        help="mesh nodes: 19 keeps the first 19 of 34-node meshes (default: the bags' own)",
+    )
     parser.add_argument(
         '--p', type=int, default=LearnOptions.p, help='identity dimension (%(default)s)'
     )
