@@ -67,9 +67,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         'anything else (%(default)s)',
     )
     parser.add_argument(
-        '--subjects', type=int, default=DemoPlan.subjects, help='training subjects'
+        '--subjects',
+        type=int,
+        default=DemoPlan.subjects,
+        help='training subjects, >= 3 (%(default)s)',
     )
-    parser.add_argument('--seed', type=int, default=DemoPlan.seed, help='seed of the world')
+    parser.add_argument(
+        '--seed', type=int, default=DemoPlan.seed, help='seed of the world (%(default)s)'
+    )
     parser.add_argument(
         '--keep', action='store_true', help='write into an existing --out without emptying it'
     )

@@ -28,6 +28,7 @@ from face_tracking_ros.synthetic.recording import RecordedBag, record
 from face_tracking_ros.synthetic.scenes import (
     MAX_BASELINE,
     MAX_FOV_DEG,
+    MAX_FPS,
     MAX_SIZE,
     MIN_BASELINE,
     MIN_FOV_DEG,
@@ -49,23 +50,41 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         'rosbag2 (MCAP) bags: images, camera infos and truth/face (pose, true alpha and sigma, '
         'nodes, expression label). One bag per subject and sequence.',
     )
-    parser.add_argument('--kind', choices=[k.value for k in Kind], default='stereo')
-    parser.add_argument('--subjects', type=int, default=1, help='number of subjects (>= 1)')
-    parser.add_argument('--sequences', type=int, default=1, help='sequences per subject')
-    parser.add_argument('--frames', type=int, default=30, help='frames per sequence (>= 1)')
-    parser.add_argument('--fps', type=float, default=10.0, help='frame rate, Hz (10, 15, 30...)')
-    parser.add_argument('--seed', type=int, default=0, help='seed of population and sequences')
+    parser.add_argument(
+        '--kind', choices=[k.value for k in Kind], default='stereo', help='default: %(default)s'
+    )
+    parser.add_argument(
+        '--subjects', type=int, default=1, help='number of subjects, >= 1 (%(default)s)'
+    )
+    parser.add_argument(
+        '--sequences', type=int, default=1, help='sequences per subject (%(default)s)'
+    )
+    parser.add_argument(
+        '--frames', type=int, default=30, help='frames per sequence, >= 1 (%(default)s)'
+    )
+    parser.add_argument(
+        '--fps',
+        type=float,
+        default=10.0,
+        help=f'frame rate, Hz, in (0, {MAX_FPS:g}] (%(default)g)',
+    )
+    parser.add_argument(
+        '--seed', type=int, default=0, help='seed of population and sequences (%(default)s)'
+    )
     parser.add_argument(
         '--out', type=Path, help='directory receiving the bags (none: --contact-sheet alone)'
     )
-    parser.add_argument('--population', choices=PRESETS, default='default')
+    parser.add_argument(
+        '--population', choices=PRESETS, default='default', help='default: %(default)s'
+    )
     parser.add_argument(
         '--motion',
         choices=[m.value for m in Motion],
         default='still',
         help='still: training (head still, neutral start, expressions in turn); '
         'free: test (free head motion, random expressions); '
-        'static: head, neutral face and light fixed, only sensor noise (jitter)',
+        'static: head, neutral face and light fixed, only sensor noise (jitter); '
+        'default: %(default)s',
     )
     parser.add_argument(
         '--size',
@@ -73,7 +92,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         default=(640, 480),
         help=f'WIDTHxHEIGHT, px, {MIN_SIZE} to {MAX_SIZE} a side (640x480)',
     )
-    parser.add_argument('--encoding', choices=ENCODINGS, default='mono8')
+    parser.add_argument(
+        '--encoding', choices=ENCODINGS, default='mono8', help='default: %(default)s'
+    )
     parser.add_argument(
         '--focal',
         type=float,
