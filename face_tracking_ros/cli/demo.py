@@ -82,7 +82,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    """Run every step; stop at the first that fails."""
+    """Run every step; stop at the first that fails.
+
+    Raises:
+        ConfigError: for fewer than 3 subjects, or an ``--out`` that is not a directory or,
+            without ``--keep``, holds anything but an earlier demo's output.
+    """
     plan = DemoPlan(subjects=args.subjects, seed=args.seed)
     if plan.subjects < 3 or plan.known > plan.subjects:
         msg = f'the demo needs at least 3 training subjects, got {plan.subjects}'

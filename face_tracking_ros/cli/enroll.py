@@ -55,7 +55,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> None:
-    """Enrol and save the gallery."""
+    """Enrol and save the gallery.
+
+    Raises:
+        ConfigError: for an unusable ``--gallery`` path or ``--min-std``, bags tracked with
+            different models or another than ``--model``, or sigma of another p than the model's.
+        BagError: if no frame of the bags was tracked with a sigma (:func:`tracked_sigmas`).
+        ModelFileError: if the model or an existing gallery file is unusable or does not match.
+    """
     check_output_path(args.gallery, '--gallery', parent_made=False)
     model_path = tracked_with(args.bags, args.model) or default_model_path()
     model = load_model(model_path)

@@ -37,7 +37,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> None:
-    """Write the video."""
+    """Write the video.
+
+    Raises:
+        ConfigError: for ``--every`` < 1 or an unusable ``--video`` path.
+        BagError: if OUT holds no face/state (saying so when the two bags came swapped), or
+            BAG has no (or no such) image topic.
+        InputError: for a frame that cannot be drawn.
+    """
     if args.every < 1:
         msg = f'--every must be >= 1, got {args.every}'
         raise ConfigError(msg)

@@ -30,7 +30,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> None:
-    """Write the plot."""
+    """Write the plot.
+
+    Raises:
+        ConfigError: for a ``--png`` not ending in .png or in a missing directory, or a
+            ``--truth`` bag without truth/face or other than the one OUT was tracked from.
+        BagError: if OUT holds no face/state, or states without sigma and alpha.
+    """
     if args.png.suffix.lower() != '.png':
         msg = f'--png {args.png}: give a file name ending in .png'
         raise ConfigError(msg)

@@ -130,7 +130,14 @@ def choose_tracker(bag: Path, topics: dict[str, str], args: argparse.Namespace) 
 
 
 def run(args: argparse.Namespace) -> int:
-    """Track, summarise, and score against truth when there is some."""
+    """Track, summarise, and score against truth when there is some.
+
+    Raises:
+        ConfigError: for options out of range or that do not fit the bag (a negative
+            ``--simulate-clicks``, an unusable ``--out`` or ``--report``, topics or parameters
+            the tracker cannot use).
+        BagError: if the bag is unreadable or has no image topics to track.
+    """
     noise = args.simulate_clicks
     if noise is not None and not (math.isfinite(noise) and noise >= 0):
         msg = f'--simulate-clicks must be a finite number of pixels >= 0 (0: exact), got {noise}'
