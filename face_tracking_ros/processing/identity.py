@@ -71,7 +71,12 @@ class IdentityProcessor:
         config: IdentityConfig,
         node_config: IdentityNodeConfig,
     ) -> None:
-        """Start from ``gallery``; decide on ``config.window`` seconds of sigma."""
+        """Start from ``gallery``; decide on ``config.window`` seconds of sigma.
+
+        Raises:
+            ConfigError: if ``node_config.max_enroll_duration`` is not finite and above
+                :data:`STAMP_TOLERANCE` s.
+        """
         if not STAMP_TOLERANCE < node_config.max_enroll_duration < math.inf:
             limit, value = STAMP_TOLERANCE, node_config.max_enroll_duration
             msg = f'max_enroll_duration must be > {limit} s and finite, got {value}'
