@@ -12,7 +12,7 @@ import scipy.linalg
 
 from face_tracking_ros.errors import ConfigError
 
-_BLOCK_ROWS = 65536  # rows per block of :func:`scatter` (6.7 MB of 102 coordinates)
+_BLOCK_ROWS = 65536  # rows per block of :func:`scatter` (53 MB of 102 float64 coordinates)
 
 
 @dataclass(frozen=True)
