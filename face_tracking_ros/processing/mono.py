@@ -129,8 +129,8 @@ class MonoProcessor:
         ``initialisation`` or the points of a reset.
 
         Raises:
-            ConfigError: if the model has a singular prior covariance or lacks nodes the
-                initialisation names.
+            ConfigError: if the model has a singular prior covariance, lacks nodes the
+                initialisation names, or has another p than the initialisation's sigma.
         """
         if model is not None:
             _check_model(model, initialisation, ConfigError)
@@ -385,7 +385,9 @@ def make_mono_processor(params: ParameterSource, factory: MessageFactory) -> Mon
     of :class:`~face_tracking_ros.tracking.detector.DetectorConfig`.
 
     Raises:
-        ConfigError: for a bad parameter or file, or auto_init without the detector installed.
+        ConfigError: for a bad parameter or init file, auto_init without the detector
+            installed, or a model the tracker cannot use (see :class:`MonoProcessor`).
+        ModelFileError: for an unusable model file.
     """
     config = params.config(MonoNodeConfig)
     tracker_config = params.config(MonoTrackerConfig, prefix='tracker.')

@@ -175,7 +175,8 @@ class StereoProcessor:
         of a reset.
 
         Raises:
-            ConfigError: if the model's node count differs from the tracker's ``num_nodes``.
+            ConfigError: if the model's node count differs from the tracker's ``num_nodes``,
+                or the initialisation names nodes that mesh does not have.
         """
         if model is not None:
             _check_nodes(model, tracker_config, ConfigError)
@@ -487,8 +488,9 @@ def make_stereo_processor(params: ParameterSource, factory: MessageFactory) -> S
     those of :class:`~face_tracking_ros.tracking.detector.DetectorConfig`.
 
     Raises:
-        ConfigError: for ``retroactive_depths`` in a live node, a bad parameter, or
-            ``auto_init`` without the detector installed.
+        ConfigError: for ``retroactive_depths`` in a live node, a bad parameter or init file,
+            or ``auto_init`` without the detector installed.
+        ModelFileError: for an unusable model file.
     """
     config = params.config(StereoNodeConfig)
     if config.retroactive_depths and params.live:
