@@ -156,6 +156,11 @@ def make_expression_processor(
 
     Parameters: those of :class:`ExpressionNodeConfig`, and ``events.*`` those of
     :class:`~face_tracking_ros.recognition.events.EventConfig`.
+
+    Raises:
+        ConfigError: for a bad parameter.
+        ModelFileError: for an unusable model or classifier file, or a classifier trained for
+            another model.
     """
     config = params.config(ExpressionNodeConfig)
     events = params.config(EventConfig, prefix='events.')

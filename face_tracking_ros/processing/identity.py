@@ -200,6 +200,10 @@ def make_identity_processor(params: ParameterSource, factory: MessageFactory) ->
 
     Parameters: those of :class:`IdentityNodeConfig`, and ``identity.*`` those of
     :class:`~face_tracking_ros.recognition.identity.IdentityConfig`.
+
+    Raises:
+        ConfigError: for a bad parameter.
+        ModelFileError: for an unusable model or gallery file, or a gallery of another model.
     """
     node_config = params.config(IdentityNodeConfig)
     config = params.config(IdentityConfig, prefix='identity.')
