@@ -163,7 +163,11 @@ class FilteredTracker:
     """
 
     def __init__(self, tracker: Tracker, pose_filter: PoseFilter, frame_rate: float) -> None:
-        """Wrap ``tracker``; its images are ``1 / frame_rate`` s apart."""
+        """Wrap ``tracker``; its images are ``1 / frame_rate`` s apart.
+
+        Raises:
+            ConfigError: if ``frame_rate`` is not positive.
+        """
         _check_frame_rate(frame_rate)
         self._tracker = tracker
         self._filter = pose_filter
