@@ -63,8 +63,8 @@ class BenchmarkConfig:
         subjects: number of enrolled people (11 in issue 7), >= 2.
         strangers: number of people never enrolled, >= 1.
         training_sequences: training sequences per enrolled person, >= 1.
-        duration: length of every sequence, s.
-        fps: frame rate, Hz.
+        duration: length of every sequence, s, > 1.
+        fps: frame rate, Hz, > 0.
         node_noise: standard deviation of the tracking noise per node coordinate, m, >= 0.
     """
 
