@@ -146,33 +146,14 @@ def sample_patches(image: np.ndarray, centres: np.ndarray, offsets: np.ndarray) 
     return sample_points(image, centres[:, None, :] + offsets[None, :, :])
 
 
-def sample_with_gradient(image: np.ndarray, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Samples and image gradients at arbitrary points, from one ``cv2.remap`` call.
+def sample_with_gradient_xy(
+    image: np.ndarray, x: np.ndarray, y: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Samples and image gradients at points given by their x and y, from one ``cv2.remap`` call.
 
     The gradient is the central difference of the bilinear image one pixel either side of each
     point, along the image x and y axes, so it is correct for warped (non-square) patches too. Only
     the samples needed are touched; no full-image derivative is computed.
-
-    Args:
-        image: (H, W) float32 image.
-        points: (..., 2) pixel coordinates (x, y).
-
-    Returns:
-        ``(values, gradient)``: values (...) float32, gradient (..., 2) float32 (dI/dx, dI/dy) in
-        grey levels per pixel.
-    """
-    points = np.asarray(points, dtype=np.float32)
-    flat = points.reshape(-1, 2)
-    samples = _stencil_samples(image, *_checked(image, flat[:, 0], flat[:, 1]))
-    gradient = np.empty((flat.shape[0], 2), dtype=np.float32)
-    _central_differences(samples, gradient.T)
-    return samples[0].reshape(points.shape[:-1]), gradient.reshape(points.shape)
-
-
-def sample_with_gradient_xy(
-    image: np.ndarray, x: np.ndarray, y: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`sample_with_gradient` at separate x and y coordinates.
 
     Args:
         image: (H, W) float32 image.
