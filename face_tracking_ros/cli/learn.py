@@ -59,7 +59,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 def _add_model_options(parser: argparse.ArgumentParser) -> None:
     """The bags, the outputs and the learners: BAG, --out, --report, --nodes ... --plots."""
-    parser.add_argument('bags', nargs='+', type=Path, metavar='BAG', help='bags of meshes')
+    parser.add_argument(
+        'bags',
+        nargs='+',
+        type=Path,
+        metavar='BAG',
+        help='bags of meshes (FaceTruth, FaceMesh, FaceState) or of raw stereo images',
+    )
     parser.add_argument('--out', required=True, type=Path, help='model file to write (.npz)')
     parser.add_argument('--report', required=True, type=Path, help='JSON report to write')
     parser.add_argument(
