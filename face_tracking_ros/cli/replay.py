@@ -37,7 +37,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         metavar='NODE[,NODE...]',
         help=f'node(s) to replay, connected by topic name: {", ".join(sorted(PROCESSORS))}',
     )
-    parser.add_argument('bag', type=Path, help='input rosbag2 directory')
+    parser.add_argument('bag', type=Path, help='input bag: a rosbag2 directory or one .mcap file')
     add_replay_options(parser)
     parser.add_argument(
         '--echo',

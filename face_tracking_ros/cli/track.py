@@ -58,7 +58,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         description='Run the mono or stereo tracker (chosen from the image topics) over a bag, '
         'write its outputs to a new bag, and print the accuracy when the bag has truth.',
     )
-    parser.add_argument('bag', type=Path, help='input rosbag2 directory')
+    parser.add_argument('bag', type=Path, help='input bag: a rosbag2 directory or one .mcap file')
     parser.add_argument(
         '--model',
         type=Path,
