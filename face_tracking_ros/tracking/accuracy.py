@@ -41,7 +41,8 @@ class TrackingAccuracy:
             range in the sequence (the largest peak-to-peak range of a component of the
             reference alpha); nan for a sequence without expression.
         drift_deg: mean rotation error (all axes) over the last 100 tracked frames minus that
-            over the first 100, degrees (> 0: the error grows).
+            over the first 100 (half the tracked frames each when fewer than 200:
+            :func:`drift_window`), degrees (> 0: the error grows).
         jitter_deg: frame-to-frame noise of the rotation error, ``std(diff(error)) / sqrt(2)``
             averaged over axes, degrees: the jitter a still head would show.
     """
@@ -130,7 +131,7 @@ def tracking_accuracy(
 
 
 def _wrap(angles: np.ndarray) -> np.ndarray:
-    """Angles wrapped to (-pi, pi]."""
+    """Angles wrapped to [-pi, pi)."""
     return (angles + np.pi) % (2 * np.pi) - np.pi
 
 
