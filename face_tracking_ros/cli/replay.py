@@ -81,7 +81,7 @@ def parse_remaps(items: list[str] | None) -> dict[str, str]:
     """``['image=/cam/image_raw']`` -> ``{'image': '/cam/image_raw'}``.
 
     Raises:
-        ConfigError: for an item without ``=``.
+        ConfigError: for an item not of the form INPUT=TOPIC (no ``=``, or an empty side).
     """
     remaps = {}
     for item in items or []:
