@@ -40,7 +40,8 @@ loses its pull. Each half-step is solved exactly:
 Level 2, the between-subject fit: mean_shape is the mean of the neutral_s (equal weight per
 subject) and S the p leading principal components of neutral_s - mean_shape, i.e. mean_shape and
 S minimise sum_s ||r_s||^2. sigma_s = S^T (neutral_s - mean_shape); the model's alpha prior is
-the second moment of the per-frame alpha of level 1.
+the second moment of the per-frame alpha = A^T y, measured from the final neutral faces (without
+level 1's shrinkage 1 / (1 + lambda c) of the neutral-labelled frames).
 
 S and A need not be orthogonal to each other: an expression that moves the face along an
 identity direction keeps that component in A.
