@@ -3,10 +3,10 @@
 Stage 1 aligns each subject's meshes to that subject's neutral mesh (the generalised-Procrustes
 mean of its neutral-labelled frames); stage 2 aligns the subjects' neutral meshes together by
 generalised Procrustes and moves every frame of a subject with its subject's transform. Both
-stages use the weighted Procrustes of :mod:`face_tracking_ros.geometry.procrustes` (eyes and nose
-0.9, lips and brows 0.1). The pose of the common mean is fixed by the topology's reference face,
-and the result is translated so that the mean's eye-centre midpoint is the origin, as the face
-frame of :mod:`face_tracking_ros.model.topology` requires.
+stages use the weighted Procrustes of :mod:`face_tracking_ros.geometry.procrustes` (eyes, eye
+corners and nose 0.9, face edge 0.5, lips and brows 0.1). The pose of the common mean is fixed
+by the topology's reference face, and the result is translated so that the mean's eye-centre
+midpoint is the origin, as the face frame of :mod:`face_tracking_ros.model.topology` requires.
 """
 
 from __future__ import annotations
