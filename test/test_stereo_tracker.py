@@ -532,6 +532,10 @@ def test_reset_and_config_reject_bad_input() -> None:
         StereoTrackerConfig(num_nodes=20)
     with pytest.raises(ConfigError, match='min_depth'):
         StereoInitConfig(min_depth=3.0)
+    # An init file or ResetTracking request names at least 6 nodes (Initialisation), so a
+    # smaller minimum would be accepted here and never reached.
+    with pytest.raises(ConfigError, match='min_given_nodes'):
+        StereoInitConfig(min_given_nodes=5)
     with pytest.raises(ConfigError, match='model_weight_edge'):
         StereoTrackerConfig(model_weight_edge=-1.0)
     with pytest.raises(ConfigError, match='fit_edge_weight'):

@@ -211,9 +211,9 @@ class StereoTracker:
             init: an :class:`~.initialisation.Initialisation` (named nodes from an init file,
                 the ResetTracking service or a detector), or an (N, 2) array of left-image pixel
                 positions with NaN rows for nodes not given. At least
-                ``config.init.min_given_nodes`` (6) nodes must be given; the rest are filled in
-                from the reference face fitted to the given ones. None: run the detector on the
-                coming left images until it finds a face.
+                ``config.init.min_given_nodes`` (default 6) nodes must be given; the rest are
+                filled in from the reference face fitted to the given ones. None: run the
+                detector on the coming left images until it finds a face.
 
         Raises:
             InputError: if the array is not (N, 2) or gives fewer than

@@ -23,7 +23,7 @@ from face_tracking_ros.geometry.camera import StereoRig
 from face_tracking_ros.geometry.procrustes import rigid_align
 from face_tracking_ros.imaging import MAX_HALF_SIZE, sample_patches, sample_points, square_offsets
 from face_tracking_ros.model.topology import Group, MeshTopology
-from face_tracking_ros.tracking.initialisation import check_inside
+from face_tracking_ros.tracking.initialisation import MIN_INIT_NODES, check_inside
 from face_tracking_ros.tracking.stereo_data import SampleLayout, SampleSet, depth_terms
 
 FLAT_STD = 0.5  # grey levels: a correlation window flatter than this cannot be matched
@@ -42,7 +42,8 @@ class StereoInitConfig:
         min_score: normalised cross-correlation below which a match is rejected.
         max_face_error: an inner node farther than this from the reference face fitted to the
             inner nodes is rejected as a mismatch, m.
-        min_given_nodes: fewest nodes that must be given (and matched).
+        min_given_nodes: fewest nodes that must be given (and matched); at least 6, the fewest
+            an init file or a reset request may name.
         refine_iterations: Gauss-Newton iterations of the depth refinement.
         refine_half_size: the refinement patch is (2 h + 1)^2 samples on the face surface. A
             single pair's left-right cost of a 7x7 patch on smooth skin (lips, brows) can have
@@ -80,7 +81,7 @@ class StereoInitConfig:
             'match_half_size': 2 <= self.match_half_size <= 2 * MAX_HALF_SIZE,
             'min_score': -1.0 <= self.min_score <= 1.0,
             'max_face_error': self.max_face_error > 0.0,
-            'min_given_nodes': self.min_given_nodes >= 3,
+            'min_given_nodes': self.min_given_nodes >= MIN_INIT_NODES,
             'refine_iterations': self.refine_iterations >= 0,
             'refine_half_size': 1 <= self.refine_half_size <= MAX_HALF_SIZE,
             'max_face_scale': self.max_face_scale > 0.0,
