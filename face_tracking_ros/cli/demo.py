@@ -57,7 +57,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser = subparsers.add_parser(
         'demo',
         help='run the whole system end to end on the synthetic world',
-        description=__doc__.split('\n\n')[0],
+        description=__doc__.split('\n\n')[0].replace('``', ''),
     )
     parser.add_argument(
         '--out',

@@ -33,7 +33,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser = subparsers.add_parser(
         'enroll',
         help='enrol a person in an identity gallery from tracked recordings',
-        description=__doc__.split('\n\n')[1],
+        description=__doc__.split('\n\n')[1].replace('``', ''),
     )
     parser.add_argument('bags', nargs='+', type=Path, metavar='BAG', help='tracker output bags')
     parser.add_argument('--name', required=True, help="the person's name")
