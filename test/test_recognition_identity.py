@@ -9,11 +9,12 @@ import numpy as np
 import pytest
 from recognition_streams import sigma_population, sigma_stream
 from scipy.spatial.distance import mahalanobis
-from scipy.stats import chi2
+from scipy.stats import chi2, multivariate_normal
 
 from face_tracking_ros.errors import ConfigError, InputError, ModelFileError
 from face_tracking_ros.model.model_file import save_model
 from face_tracking_ros.recognition.archive import save_archive
+from face_tracking_ros.recognition.gaussian import GaussianClasses
 from face_tracking_ros.recognition.identity import (
     GALLERY_FORMAT_VERSION,
     GALLERY_KIND,
@@ -66,7 +67,58 @@ def test_enrolled_mean_is_recognised_at_distance_zero() -> None:
 
     assert decision.identity == 'person_1'
     assert decision.distance == 0.0
+    densities = [
+        multivariate_normal(mean, covariance).pdf(gallery.means[1])
+        for mean, covariance in zip(gallery.means, gallery.covariances, strict=True)
+    ]
+    assert decision.confidence == pytest.approx(densities[1] / sum(densities), rel=1e-9)
     assert decision.confidence > 0.99
+
+
+def test_gaussian_classes_match_scipy_densities_and_bayes_rule() -> None:
+    rng = np.random.default_rng(7)
+    means = rng.normal(size=(3, P))
+    factors = rng.normal(size=(3, P, P))
+    covariances = factors @ np.swapaxes(factors, 1, 2) + 0.5 * np.eye(P)
+    classes = GaussianClasses(means, covariances)
+    x = means[[0, 2]] + rng.normal(size=(2, P))
+
+    expected = np.array(
+        [
+            [
+                multivariate_normal(m, c).logpdf(row)
+                for m, c in zip(means, covariances, strict=True)
+            ]
+            for row in x
+        ]
+    )
+
+    np.testing.assert_allclose(classes.log_likelihoods(x), expected, rtol=1e-12)
+    np.testing.assert_allclose(
+        classes.posteriors(x), np.exp(expected) / np.exp(expected).sum(axis=1, keepdims=True)
+    )
+    assert classes.mahalanobis_squared(x).shape == (2, 3)
+    empty = GaussianClasses(np.zeros((0, P)), np.zeros((0, P, P)))  # zero classes are allowed
+    assert empty.mahalanobis_squared(x).shape == (2, 0)
+
+
+def test_gaussian_classes_refuse_bad_input() -> None:
+    classes = GaussianClasses(np.zeros((1, P)), np.eye(P)[None])
+    with pytest.raises(InputError, match='NaN or Inf'):
+        GaussianClasses(np.full((1, P), np.nan), np.eye(P)[None])
+    with pytest.raises(InputError, match='NaN or Inf'):
+        GaussianClasses(np.zeros((1, P)), np.full((1, P, P), np.inf))
+    with pytest.raises(InputError, match=r'need \(K, d\) means and \(K, d, d\) covariances'):
+        GaussianClasses(np.zeros((1, P)), np.eye(P))
+    asymmetric = np.eye(P)[None].copy()
+    asymmetric[0, 0, 1] = 0.1
+    with pytest.raises(InputError, match='not symmetric'):
+        GaussianClasses(np.zeros((1, P)), asymmetric)
+    with pytest.raises(InputError, match='not positive definite'):
+        GaussianClasses(np.zeros((1, P)), -np.eye(P)[None])
+    for x in (np.zeros((1, P + 1)), np.full((1, P), np.nan), np.zeros(P)):
+        with pytest.raises(InputError, match=r'features must be a finite \(M, 4\) array'):
+            classes.mahalanobis_squared(x)
 
 
 def test_eleven_subjects_recognised_after_one_second_and_strangers_rejected() -> None:

@@ -1,9 +1,10 @@
-"""Gaussian class-conditional densities: the Mahalanobis rule shared by identity and expression.
+"""Gaussian class-conditional densities: the Mahalanobis rule of identity recognition.
 
-Class k has density N(x; mu_k, C_k). Both recognisers score a feature vector x by the squared
-Mahalanobis distance d_k^2 = (x - mu_k)^T C_k^-1 (x - mu_k) and by the log-likelihood
--0.5 (d_k^2 + log det C_k + d log 2 pi), and turn log-likelihoods into posteriors with a softmax
-(Bayes' rule with the given priors).
+Class k has density N(x; mu_k, C_k). The identity gallery scores a feature vector x by the
+squared Mahalanobis distance d_k^2 = (x - mu_k)^T C_k^-1 (x - mu_k) and by the log-likelihood
+-0.5 (d_k^2 + log det C_k + d log 2 pi), and turns log-likelihoods into posteriors with a softmax
+(Bayes' rule with equal priors). (Expressions use a linear softmax instead, see
+:mod:`~face_tracking_ros.recognition.expression`.)
 """
 
 from __future__ import annotations
@@ -90,9 +91,6 @@ class GaussianClasses:
         """(M, K) log N(x_m; mu_k, C_k) of (M, d) feature vectors."""
         return -0.5 * (self.mahalanobis_squared(x) + self._log_normalisers[None, :])
 
-    def posteriors(self, x: np.ndarray, priors: np.ndarray | None = None) -> np.ndarray:
-        """(M, K) class posteriors of (M, d) feature vectors; equal priors unless given (K,)."""
-        scores = self.log_likelihoods(x)
-        if priors is not None:
-            scores = scores + np.log(priors)[None, :]
-        return softmax(scores, axis=1)
+    def posteriors(self, x: np.ndarray) -> np.ndarray:
+        """(M, K) class posteriors of (M, d) feature vectors, with equal priors."""
+        return softmax(self.log_likelihoods(x), axis=1)
