@@ -267,6 +267,10 @@ def test_file_errors(tmp_path: Path) -> None:
     save_model(true_face_model(FacePopulation('default'), 19), path)
     with pytest.raises(ModelFileError, match="holds a 'face_tracking_ros.face_model', expected"):
         IdentityGallery.load(path, P)
+    narrow = {**arrays, 'covariances': gallery.covariances, 'means': gallery.means[:, :3]}
+    save_archive(path, GALLERY_KIND, GALLERY_FORMAT_VERSION, header, narrow)
+    with pytest.raises(ModelFileError, match=r"'means' has shape \(2, 3\), expected \(2, 4\)"):
+        IdentityGallery.load(path, P)
     bad = {**arrays, 'covariances': gallery.covariances, 'counts': -gallery.counts}
     save_archive(path, GALLERY_KIND, GALLERY_FORMAT_VERSION, header, bad)
     with pytest.raises(ModelFileError, match=r'gallery counts must be >= 1'):
