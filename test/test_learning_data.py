@@ -102,6 +102,10 @@ def test_principal_components_match_svd_and_weights_act_as_repeats():
     _, singular, vt = np.linalg.svd(vectors, full_matrices=False)
     assert np.allclose(components.variances, singular[:3] ** 2 / 40)
     assert subspace_similarity(components.basis, vt[:3].T) == pytest.approx(1.0, abs=1e-12)
+    # The documented sign convention: each direction's largest-magnitude entry is positive.
+    expected = vt[:3].T * np.sign(vt[:3].T[np.argmax(np.abs(vt[:3]), axis=1), np.arange(3)])
+    np.testing.assert_allclose(components.basis, expected, atol=1e-9)
+    assert np.all(components.basis[np.argmax(np.abs(components.basis), axis=0), np.arange(3)] > 0)
     assert np.allclose(components.explained, singular[:3] ** 2 / np.sum(singular**2))
     repeats = np.array([1, 2] * 20)
     weighted = principal_components(vectors, 2, sample_weights=repeats.astype(float))
