@@ -13,7 +13,13 @@ from face_tracking_ros.learning.evaluation import (
     compare_with_truth,
     population_truth,
 )
-from face_tracking_ros.learning.seed import SeedConfig, choose_dimension, learn_seed
+from face_tracking_ros.learning.seed import (
+    SeedConfig,
+    check_dimensions,
+    check_iterations,
+    choose_dimension,
+    learn_seed,
+)
 from face_tracking_ros.learning.subspace import subspace_similarity
 from face_tracking_ros.learning.training_set import TrainingSet
 
@@ -62,9 +68,65 @@ def test_model_prior_and_parameters_are_consistent(default_world):
         training.flat() - model.mean_shape - sigma[training.subject_index] @ model.shape_basis.T
     ) @ model.action_basis
     assert np.allclose(result.frame_alpha, expected_alpha)
+    # alpha's prior is its second moment about zero over the training frames (result.py).
+    np.testing.assert_allclose(
+        model.alpha_prior_covariance,
+        result.frame_alpha.T @ result.frame_alpha / len(training.meshes),
+        rtol=1e-9,
+        atol=1e-15,
+    )
+    assert np.allclose(model.action_eigenvalues, np.diag(model.alpha_prior_covariance))
     assert result.frame_sigma.shape == (len(training.meshes), 2)
     assert model.metadata['subjects'] == list(training.subject_ids)
     assert model.metadata['iterations'] == result.iterations
+
+
+def residual_moment(training: TrainingSet, model) -> np.ndarray:
+    """(3N, 3N) second moment of the frames' deviations from the mean shape, off S (step 4)."""
+    off_shape = np.eye(3 * training.num_nodes) - model.shape_basis @ model.shape_basis.T
+    residual = (training.flat() - model.mean_shape) @ off_shape
+    return residual.T @ residual / len(residual)
+
+
+def test_action_basis_is_the_leading_eigenvectors_of_the_residual_moment(default_world):
+    training, _ = default_world
+    model = learn_seed(training).model  # q = 5 of the world's 6 expressions
+
+    variances, vectors = np.linalg.eigh(residual_moment(training, model))
+
+    assert subspace_similarity(model.action_basis, vectors[:, -model.q :]) == pytest.approx(
+        1.0, abs=1e-10
+    )
+    assert variances[-model.q - 1] < 0.5 * variances[-model.q]  # a well-defined subspace
+
+
+def test_eigenvalue_weighted_alpha_is_the_map_coding_of_section_4_3(default_world):
+    training, _ = default_world
+    model = learn_seed(training, SeedConfig(eigenvalue_weighted=True)).model
+    moment = residual_moment(training, model)
+    action_variances = np.linalg.eigvalsh(moment)[::-1][: model.q]
+    # Probabilistic PCA's noise: the residual variance A leaves, per remaining dimension.
+    noise = (np.trace(moment) - action_variances.sum()) / (len(moment) - model.q)
+    coding = np.hstack([model.shape_basis, model.action_basis])
+    priors = np.concatenate([model.shape_eigenvalues, action_variances])
+    deviations = training.flat() - model.mean_shape
+
+    coefficients = np.linalg.solve(
+        coding.T @ coding + np.diag(noise / priors), coding.T @ deviations.T
+    ).T
+
+    alpha = coefficients[:, model.p :]
+    assert noise > 1e-4 * action_variances[-1]  # q = 5 < 6 expressions: the priors act
+    np.testing.assert_allclose(
+        model.alpha_prior_covariance, alpha.T @ alpha / len(alpha), rtol=1e-7, atol=1e-15
+    )
+
+
+def test_smallest_allowed_dimensions_and_iterations_are_accepted(default_world):
+    training, _ = default_world
+    check_dimensions(training, 1, 1)
+    check_dimensions(training, None, 3 * training.num_nodes - 1)
+    check_iterations(1)
 
 
 def test_eigenvalue_weighted_option_converges_to_a_close_model(default_world):
