@@ -2,11 +2,14 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 from recognition_streams import ExpressionWorld, parameter_sequence
 
 from face_tracking_ros.errors import ConfigError
+from face_tracking_ros.io.typestore import typestore
 from face_tracking_ros.recognition.evaluation import (
     Segment,
     detect_events,
@@ -58,6 +61,15 @@ def test_onset_and_offset_after_the_minimum_duration() -> None:
     np.testing.assert_array_equal(onset.alpha, [4.0])
     assert offset.confidence == pytest.approx(0.9)
     assert offset.duration == pytest.approx(0.5)
+
+
+def test_event_kinds_are_the_message_constants() -> None:
+    message = typestore().types['face_tracking_msgs/msg/ExpressionEvent']
+    assert (
+        (EventKind.ONSET, EventKind.OFFSET)
+        == (message.EVENT_ONSET, message.EVENT_OFFSET)
+        == (0, 1)
+    )
 
 
 def test_hysteresis_band_neither_starts_nor_ends_an_expression() -> None:
@@ -125,6 +137,8 @@ def test_scoring_counts_and_latency() -> None:
     assert (score.true_positives, score.false_positives, score.false_negatives) == (2, 2, 1)
     np.testing.assert_allclose(score.latencies, [0.1, 0.05])
     assert score.f1 == pytest.approx(2 * 0.5 * (2 / 3) / (0.5 + 2 / 3))
+    missed = score_events([onset(1.1, 'frown')], segments[:1])
+    assert (missed.precision, missed.recall, missed.f1) == (0.0, 0.0, 0.0)
 
 
 def test_truth_segments_follow_labels_and_onset_level() -> None:
@@ -138,6 +152,12 @@ def test_truth_segments_follow_labels_and_onset_level() -> None:
         (sequence.labels != 'neutral') & np.r_[True, sequence.labels[1:] != sequence.labels[:-1]]
     )
     assert [s.onset for s in starts] == list(sequence.times[runs])
+    ends = np.flatnonzero(
+        (sequence.labels != 'neutral') & np.r_[sequence.labels[1:] != sequence.labels[:-1], True]
+    )
+    assert [s.end for s in starts] == list(sequence.times[ends])
+    # A labelled run that never rises above zero intensity is no expression.
+    assert truth_segments(replace(sequence, intensity=np.zeros(len(sequence.times)))) == []
     assert len(half) == len(starts)
     for early, late in zip(starts, half, strict=True):
         assert early.label == late.label
