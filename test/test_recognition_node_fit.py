@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 from recognition_streams import truth_model
@@ -58,6 +60,20 @@ def test_rms_measures_what_the_model_cannot_explain() -> None:
     assert np.sqrt(np.mean(fit.rms**2)) == pytest.approx(expected, rel=0.05)
 
 
+def test_the_procrustes_start_is_exact_on_the_posed_mean_shape() -> None:
+    model = truth_model(FacePopulation('default', 0))
+    omega, t = np.array([[0.3, -0.2, 0.1]]), np.array([[0.01, -0.02, 0.6]])
+    nodes = posed(model, np.zeros((1, model.p)), np.zeros((1, model.q)), omega, t)
+
+    start = fit_model_to_nodes(model, nodes, max_iterations=0)
+
+    assert start.iterations == 0
+    np.testing.assert_allclose(start.omega, omega, atol=1e-12)
+    np.testing.assert_allclose(start.t, t, atol=1e-12)
+    np.testing.assert_allclose(np.hstack([start.sigma, start.alpha]), 0.0, atol=1e-12)
+    assert start.rms[0] < 1e-12
+
+
 def test_input_errors() -> None:
     model = truth_model(FacePopulation('default', 0), 19)
     with pytest.raises(InputError, match=r'\(F >= 1, 19, 3\)'):
@@ -83,6 +99,12 @@ def test_zero_weight_nodes_are_ignored_by_the_fit() -> None:
     assert fit.rms[0] > 0.005  # rms counts every node, the corrupted ones too
     with pytest.raises(InputError, match='weights'):
         fit_model_to_nodes(model, nodes, weights=-weights)
+    # Checked before the Procrustes start (which refuses some too), so also with a given start.
+    for bad in (-weights, np.full(model.num_nodes, np.nan), np.ones(model.num_nodes + 1)):
+        with pytest.raises(
+            InputError, match=r'weights must be finite and >= 0 with shape \(34,\)'
+        ):
+            fit_model_to_nodes(model, nodes, weights=bad, start=fit)
 
 
 def test_a_start_from_the_previous_frames_fit_reaches_the_same_fit() -> None:
@@ -106,3 +128,9 @@ def test_a_start_from_the_previous_frames_fit_reaches_the_same_fit() -> None:
     assert fit_model_to_nodes(model, meshes[1:], tolerance=1e-7, start=cold).iterations == 1
     with pytest.raises(InputError, match='start fit has 1 frames'):
         fit_model_to_nodes(model, meshes, start=previous)
+    fewer = replace(previous, alpha=previous.alpha[:, 1:])
+    parameters = model.p + model.q
+    with pytest.raises(
+        InputError, match=f'1 frames and {parameters - 1} parameters, the fit 1 and {parameters}'
+    ):
+        fit_model_to_nodes(model, meshes[:1], start=fewer)
