@@ -65,6 +65,9 @@ def test_tracking_noise_has_the_requested_spread_and_memory() -> None:
     assert noise.std() == pytest.approx(0.002, rel=0.03)
     lag_one = np.mean(noise[1:] * noise[:-1]) / noise.var()
     assert lag_one == pytest.approx(0.5 * np.exp(-1.0 / 9.0), abs=0.02)
+    # The slow part starts from its stationary distribution: the first frame has the full spread.
+    first = tracking_noise(np.random.default_rng(2), 2, 20_000, 0.002, 30.0)[0]
+    assert first.std() == pytest.approx(0.002, rel=0.03)
 
 
 def test_config_errors() -> None:
@@ -74,6 +77,13 @@ def test_config_errors() -> None:
         BenchmarkConfig(node_noise=-1.0)
     with pytest.raises(ConfigError, match='duration > 1 s'):
         BenchmarkConfig(duration=0.5)
+    with pytest.raises(ConfigError, match='strangers must be >= 1, got 0'):
+        BenchmarkConfig(strangers=0)
+    with pytest.raises(ConfigError, match='training_sequences must be >= 1, got 0'):
+        BenchmarkConfig(training_sequences=0)
+    # The smallest scenario the ranges allow is accepted.
+    smallest = dict(subjects=2, strangers=1, training_sequences=1, fps=0.5, node_noise=0.0)
+    assert BenchmarkConfig(**smallest).fps == 0.5
 
 
 def test_identity_with_track_error_trades_acceptance_for_rejection() -> None:
