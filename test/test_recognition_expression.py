@@ -84,6 +84,16 @@ def test_held_out_accuracy_over_seven_classes(
     assert accuracy.confusion.sum() == sum(
         np.count_nonzero((s.labels == 'neutral') | (s.intensity >= 0.3)) for s in data[1]
     )
+    assert accuracy.clear == pytest.approx(np.trace(accuracy.confusion) / accuracy.confusion.sum())
+    predicted = [
+        np.asarray(classifier.labels)[
+            np.argmax(classifier.sequence_probabilities(s.times, s.alpha), 1)
+        ]
+        for s in data[1]
+    ]
+    right = np.concatenate([p == s.labels for p, s in zip(predicted, data[1], strict=True)])
+    assert accuracy.all_frames == pytest.approx(np.mean(right))
+    assert accuracy.all_frames < accuracy.clear  # faint frames, not scored as clear, are harder
 
 
 def test_without_baseline_the_online_recognizer_equals_vectorised_features(data: tuple) -> None:
@@ -245,6 +255,13 @@ def test_input_errors(classifier: ExpressionClassifier) -> None:
         sequence_features(np.zeros(3), np.zeros((3, Q)), 0.1)
     with pytest.raises(InputError, match=r'finite \(5,\) parameter vector'):
         ExpressionRecognizer(classifier).update(0.0, np.zeros(4))
+    for bad in (
+        {'feature_scale': np.where(np.arange(3 * Q) == 2, 0.0, classifier.feature_scale)},
+        {'window': 0.0},
+        {'calibration': -0.1},
+    ):
+        with pytest.raises(InputError, match='classifier feature_scale must be positive'):
+            replace(classifier, **bad)
     with pytest.raises(InputError, match='alpha has shape'):
         ParameterSequence(
             's',
