@@ -122,6 +122,9 @@ def test_recognition_measures_on_separable_data():
     pair = subjects[:80]
     one_sided = np.where(pair == 0, 'neutral', labels[:80])
     assert np.isnan(expression_accuracy(alpha[:80], one_sided, pair))
+    # Two labels are enough to tell apart.
+    two = np.isin(labels, ['neutral', 'smile'])
+    assert expression_accuracy(alpha[two], labels[two], subjects[two]) == 1.0
 
 
 @pytest.fixture(scope='module')
