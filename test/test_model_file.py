@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from collections import Counter
+from dataclasses import replace
 import json
 from pathlib import Path
 
@@ -12,7 +14,7 @@ from face_tracking_ros.errors import ModelFileError
 from face_tracking_ros.model import model_file
 from face_tracking_ros.model.face_model import FaceModel
 from face_tracking_ros.model.model_file import FORMAT_VERSION, load_model, save_model
-from face_tracking_ros.model.topology import mesh_topology
+from face_tracking_ros.model.topology import Group, mesh_topology
 
 
 def _model(num_nodes: int = 19, p: int = 2, q: int = 5, seed: int = 0) -> FaceModel:
@@ -132,6 +134,7 @@ def test_pickled_object_array_is_refused(tmp_path):
         ({'header': None, 'mean_shape': None}, r'missing field\(s\) header, mean_shape'),
         ({'header': np.array('{nope')}, r'header is not valid JSON'),
         ({'header': np.array([1.0])}, r'header must be a JSON string'),
+        ({'header': np.array(['{}', '{}'])}, r'header must be a JSON string, got dtype <U2 shape'),
         ({'header': np.array('[1, 2]')}, r'header is not a JSON object'),
         ({'mean_shape': np.array(['a'] * 57)}, r'mean_shape has dtype <U1, expected float64'),
     ],
@@ -218,3 +221,68 @@ def test_saving_into_a_missing_directory_names_it(tmp_path):
     with pytest.raises(ModelFileError, match=r'file: no directory .*nodir to write m\.npz in'):
         save_model(_model(), tmp_path / 'nodir' / 'm.npz')
     assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize('num_nodes', [19, 34])
+def test_reference_shape_is_in_the_documented_face_frame(num_nodes):
+    # topology.py: origin midway between the eye centres, x to the subject's left, y to the
+    # chin, z into the head; 'right_' and 'left_' nodes mirror each other about x = 0.
+    topology = mesh_topology(num_nodes)
+    shape = dict(zip(topology.node_names, topology.reference_shape, strict=True))
+
+    np.testing.assert_array_equal(shape['right_eye'] + shape['left_eye'], 0.0)
+    np.testing.assert_array_equal(shape['left_eye'], [0.0315, 0.0, 0.0])
+    for name, xyz in shape.items():
+        if 'left' in name:
+            np.testing.assert_array_equal(shape[name.replace('left', 'right')], xyz * [-1, 1, 1])
+        elif 'right' not in name:
+            assert xyz[0] == 0.0, name
+    lowest = 'chin' if num_nodes == 34 else 'lower_lip'
+    assert topology.node_names[np.argmax(topology.reference_shape[:, 1])] == lowest
+    assert topology.node_names[np.argmin(topology.reference_shape[:, 2])] == 'nose_tip'
+    counts = {Group.EYE: 2, Group.NOSE: 3, Group.MOUTH: 8, Group.BROW: 6}
+    if num_nodes == 34:
+        counts |= {Group.EYE_CORNER: 4, Group.EDGE: 11}
+    assert Counter(topology.groups) == counts
+
+
+@pytest.mark.parametrize('num_nodes', [19, 34])
+def test_edges_are_the_sides_of_the_triangulation(num_nodes):
+    topology = mesh_topology(num_nodes)
+    sides = {
+        tuple(sorted((int(a), int(b))))
+        for triangle in topology.triangles
+        for a, b in (
+            (triangle[0], triangle[1]),
+            (triangle[1], triangle[2]),
+            (triangle[0], triangle[2]),
+        )
+    }
+
+    assert [tuple(edge) for edge in topology.edges.tolist()] == sorted(sides)
+    # Euler's formula for a triangulated disc: V - E + T = 1.
+    assert num_nodes - len(topology.edges) + len(topology.triangles) == 1
+
+
+def test_a_mean_shape_of_another_unit_or_size_is_refused():
+    model = _model(34)  # the reference face: 0.0585 m RMS about its centroid
+    for scale, spread in ((1000.0, '58.5'), (6.0, '0.351'), (0.1, '0.00585')):
+        with pytest.raises(ModelFileError, match=rf'mean_shape spans {spread} m RMS'):
+            replace(model, mean_shape=model.mean_shape * scale)
+    for scale in (0.25, 4.0):  # 0.0146 m and 0.234 m: a child's face to a large helmet's
+        assert replace(model, mean_shape=model.mean_shape * scale).num_nodes == 34
+
+
+def test_prior_covariance_tolerances_are_relative_to_its_largest_entry():
+    model = _model()  # sigma_prior_covariance diag(2e-4, 1e-4) m^2
+    for asymmetry, symmetric in ((2e-11, False), (2e-14, True)):  # 1e-7 and 1e-10 relative
+        covariance = model.sigma_prior_covariance.copy()
+        covariance[0, 1] += asymmetry
+        if symmetric:
+            np.testing.assert_array_equal(
+                replace(model, sigma_prior_covariance=covariance).sigma_prior_covariance,
+                covariance,
+            )
+        else:
+            with pytest.raises(ModelFileError, match='sigma_prior_covariance is not symmetric'):
+                replace(model, sigma_prior_covariance=covariance)
