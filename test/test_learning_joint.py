@@ -85,6 +85,34 @@ def test_robust_label_weights_resist_expressive_frames_labelled_neutral(realisti
     assert trusting > 1.5 * robust
 
 
+def test_converged_neutrals_solve_the_robust_neutral_half_step(realistic_world):
+    """At convergence every neutral solves the module notes' neutral half-step.
+
+    Its part along A is the kappa-weighted mean of A^T X over the subject's neutral-labelled
+    frames, kappa = lambda c / (1 + lambda c), with c the Cauchy label weights.
+    """
+    training, _, _ = realistic_world
+    config = JointConfig(tolerance=1e-13, neutral_tolerance=1e-11, max_iterations=1000)
+    result = learn_joint(training, config)
+    action_basis, weight = result.model.action_basis, config.neutral_weight
+    projection = training.flat() @ action_basis
+    along = projection - (result.subject_neutral @ action_basis)[training.subject_index]
+    neutral = training.neutral
+    c = neutral.astype(float)
+    for _ in range(200):  # c and alpha = A^T (X - neutral_s) / (1 + lambda c) at their fixed point
+        norms = np.linalg.norm(along / (1.0 + weight * c)[:, None], axis=1)
+        k = config.robust_scale * np.median(norms[neutral])
+        c = np.where(neutral, 1.0 / (1.0 + (norms / k) ** 2), 0.0)
+    kappa = weight * c / (1.0 + weight * c)
+
+    assert result.converged
+    assert c[neutral].min() < 0.1 < 0.9 < c[neutral].max()  # the weights differ: kappa matters
+    for s in range(training.num_subjects):
+        rows = training.subject_index == s
+        expected = kappa[rows] @ projection[rows] / kappa[rows].sum()
+        np.testing.assert_allclose(result.subject_neutral[s] @ action_basis, expected, atol=1e-7)
+
+
 def test_model_records_method_and_prior(realistic_world):
     training, _, _ = realistic_world
     result = learn_joint(training)
