@@ -22,7 +22,11 @@ from face_tracking_ros.recognition.expression import (
     ExpressionTrainingConfig,
     train_expression_classifier,
 )
-from face_tracking_ros.recognition.features import sequence_features, window_features
+from face_tracking_ros.recognition.features import (
+    sequence_features,
+    subtract_baselines,
+    window_features,
+)
 from face_tracking_ros.recognition.sequences import ParameterSequence
 from face_tracking_ros.synthetic.faces import EXPRESSIONS
 
@@ -127,6 +131,24 @@ def test_neutral_baseline_cancels_a_constant_alpha_offset(
         np.abs(moved - uncalibrated.sequence_probabilities(sequence.times, sequence.alpha)).max()
         > 0.5
     )
+
+
+def test_the_calibration_takes_the_first_calibration_seconds_inclusive(
+    classifier: ExpressionClassifier,
+) -> None:
+    rng = np.random.default_rng(14)
+    times = 100.0 + np.arange(11) / 30.0  # frame 9 is 0.3 s (CONFIG.calibration) after frame 0
+    alpha = rng.normal(scale=0.01, size=(11, Q))
+    alpha[9] += 0.05  # not neutral: it does not refine the baseline once calibration is over
+
+    online = classifier.sequence_probabilities(times, alpha)
+
+    baseline = alpha[:10].mean(axis=0)  # frames 0 to 9
+    features = sequence_features(times, alpha, classifier.window)[10]
+    expected = classifier.probabilities(subtract_baselines(features[None], baseline[None]))[0]
+    assert times[9] - times[0] == pytest.approx(CONFIG.calibration, abs=1e-12)  # the boundary
+    assert online[9, classifier.labels.index('neutral')] < 0.9
+    np.testing.assert_allclose(online[10], expected, atol=1e-12)
 
 
 def test_a_new_track_restarts_window_and_baseline(classifier: ExpressionClassifier) -> None:
