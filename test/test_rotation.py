@@ -30,3 +30,14 @@ def test_angle_between_matches_trace_and_clip_to_the_bit():
     for omega_a, omega_b in rng.normal(0.0, 1.0, (500, 2, 3)):
         rotation_a, rotation_b = rodrigues(omega_a)[0], rodrigues(omega_b)[0]
         assert angle_between(rotation_a, rotation_b) == _reference(rotation_a, rotation_b)
+
+
+@pytest.mark.parametrize(
+    ('omega_a', 'omega_b', 'angle'),
+    [
+        ([0.2, 0.4, -0.7], [0.2, 0.4, -0.7], 0.0),  # R' R's cosine sums to 1 + 4.4e-16
+        ([0.0, 0.0, 0.0], np.pi * np.array([3.0, -2.0, 1.0]) / np.sqrt(14.0), np.pi),  # -1 - 2e-16
+    ],
+)
+def test_a_cosine_rounded_past_one_is_clipped_to_the_exact_angle(omega_a, omega_b, angle):
+    assert rotation_angle(np.array(omega_a), np.array(omega_b)) == angle
