@@ -141,3 +141,32 @@ def test_rigid_align_rejects_bad_input(source, target, weights, match):
 def test_generalized_procrustes_rejects_a_single_mesh_without_stack():
     with pytest.raises(InputError, match=r'non-empty \(F, N, 3\) stack'):
         generalized_procrustes(np.zeros((19, 3)))
+
+
+def test_generalized_procrustes_of_exact_copies_converges_on_its_first_pass():
+    # The first target (the first mesh) is already the mean: one pass, however many meshes.
+    rng = np.random.default_rng(6)
+    face = mesh_topology(19).reference_shape
+    rotations, translations = _random_poses(rng, 4)
+    meshes = np.einsum('fab,nb->fna', rotations, face) + translations[:, None, :]
+    for stack in (meshes, meshes[:1]):
+        result = generalized_procrustes(stack)
+        assert (result.iterations, result.converged) == (1, True)
+        np.testing.assert_allclose(result.mean, meshes[0], atol=1e-12)
+
+
+def test_generalized_procrustes_stops_after_max_iterations_unconverged():
+    rng = np.random.default_rng(7)
+    face = mesh_topology(19).reference_shape
+    rotations, translations = _random_poses(rng, 5)
+    noisy = face + rng.normal(scale=0.001, size=(5, 19, 3))
+    meshes = np.einsum('fab,fnb->fna', rotations, noisy) + translations[:, None, :]
+    for max_iterations in (1, 2):
+        result = generalized_procrustes(meshes, max_iterations=max_iterations)
+        assert (result.iterations, result.converged) == (max_iterations, False)
+    assert generalized_procrustes(meshes).converged
+
+
+def test_generalized_procrustes_rejects_an_empty_stack():
+    with pytest.raises(InputError, match=r'non-empty \(F, N, 3\) stack, got shape \(0, 19, 3\)'):
+        generalized_procrustes(np.zeros((0, 19, 3)))
