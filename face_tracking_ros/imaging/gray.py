@@ -65,7 +65,7 @@ def to_gray(array: np.ndarray, encoding: str) -> np.ndarray:
     shape_ok = array.ndim == 3 and array.shape[2] == channels
     if channels == 1:
         shape_ok = shape_ok or array.ndim == 2
-    if not shape_ok or min(array.shape[:2], default=0) < 1:
+    if not shape_ok or min(array.shape[:2]) < 1:
         expected = '(H, W)' if channels == 1 else f'(H, W, {channels})'
         msg = f'{encoding} image must be {expected}, got {array.shape}'
         raise InputError(msg)
