@@ -5,11 +5,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from face_tracking_ros.errors import InputError
+from face_tracking_ros.errors import ConfigError, InputError
 from face_tracking_ros.imaging import (
     ImagePyramid,
     PhotometricModel,
     PhotometricProjection,
+    check_levels_fit,
     inside_image,
     inside_xy,
     sample_patches,
@@ -163,9 +164,47 @@ def test_pyramid_made_where_sampled_only() -> None:
     made = level == 100
     rows, cols = np.nonzero(made)
     assert made[100, 150] and made.sum() < 0.05 * made.size
-    assert 100 - rows.min() <= 24 and cols.max() - 152 <= 24  # the points' reach and margin
+    # Made: the pixels the samples read (floor - 1 to floor + 2 of x and y, central
+    # differences), 2 more either side for rounding to 1/32 px (_SAMPLE_REACH = 3, exclusive
+    # end + 1), the margin of 16 and the 2 px the 5-tap kernel writes around its box.
+    assert (rows.min(), rows.max()) == (100 - 3 - 16 - 2, 101 + 3 + 16 + 2)
+    assert (cols.min(), cols.max()) == (150 - 3 - 16 - 2, 152 + 3 + 16 + 2)
     with pytest.raises(InputError, match='NaN'):
         pyramid.level(0, np.float32([np.nan]), np.float32([1.0]))
+
+
+def test_a_single_smoothed_level_is_the_binomial_smoothing_of_the_image() -> None:
+    image = np.zeros((32, 32), np.uint8)
+    image[10, 12] = 255  # an impulse: smoothed, the 5-tap binomial kernel's outer product
+    binomial = np.array([1, 4, 6, 4, 1]) / 16
+    expected = np.zeros((32, 32), np.float32)
+    expected[8:13, 10:15] = 255 * np.outer(binomial, binomial)
+    np.testing.assert_array_equal(
+        ImagePyramid.build(image, 1, smooth_base=True).levels[0], expected
+    )
+    pyramid = ImagePyramid.build(image, 1, smooth_base=True)
+    x, y = np.float32([[12.0]]), np.float32([[10.0]])
+    np.testing.assert_array_equal(pyramid.level(0, x, y)[8:13, 10:15], expected[8:13, 10:15])
+
+
+def test_a_scaled_pyramid_is_the_pyramid_of_the_scaled_image() -> None:
+    image = np.random.default_rng(9).integers(0, 256, (48, 64), dtype=np.uint8)
+    pyramid = ImagePyramid.build(image, 3, smooth_base=True)
+    pyramid.scale(0.5)
+    halved = ImagePyramid.build(image.astype(np.float32) / 2, 3, smooth_base=True).levels
+    for got, expected in zip(pyramid.levels, halved, strict=True):
+        np.testing.assert_array_equal(got, expected)  # halving is exact in float32
+
+
+def test_check_levels_fit_allows_the_levels_whose_coarsest_keeps_16_px() -> None:
+    check_levels_fit(5, 640, 480)  # level 4: 480 / 16 = 30 px on the shorter side
+    with pytest.raises(
+        ConfigError, match=r'pyramid_levels = 6 is too deep for 640x480 .* at most 5 '
+    ):
+        check_levels_fit(6, 640, 480)  # level 5 would keep 15 px
+    check_levels_fit(1, 16, 16)
+    with pytest.raises(ConfigError, match='at most 1 leave'):
+        check_levels_fit(2, 31, 100)
 
 
 @pytest.mark.parametrize(
@@ -252,7 +291,16 @@ def test_sample_with_gradient_on_ramp_and_smooth_image() -> None:
     assert np.abs(grad - expected).max() < 0.25  # of gradients up to 14 grey levels / px
 
 
-@pytest.mark.parametrize('shape', [(6, 7), (3, 5000), (2, 3, 4), (11,)])
+@pytest.mark.parametrize('shape', [(0, 5), (5, 0), (0,)])
+def test_no_points_sample_to_an_empty_array_of_their_shape(shape) -> None:
+    # cv2.remap refuses empty maps: an empty (H, W) map must not reach it.
+    x = y = np.zeros(shape, np.float32)
+    for values in (sample_xy(_ramp(), x, y), sample_with_gradient_xy(_ramp(), x, y)[0]):
+        assert values.shape == shape and values.dtype == np.float32
+
+
+# (1, 32767): one map as wide as cv2.remap refuses (SHRT_MAX), so the points are reshaped.
+@pytest.mark.parametrize('shape', [(6, 7), (3, 5000), (1, 32767), (2, 3, 4), (11,)])
 def test_separate_coordinates_sample_exactly_like_interleaved_points(shape) -> None:
     rng = np.random.default_rng(6)
     image = rng.uniform(0, 255, (40, 50)).astype(np.float32)
@@ -316,10 +364,11 @@ def test_photometric_projection_removes_exactly_its_brightness_changes(model) ->
     assert np.allclose(stacked[1], 2 * once)
 
 
-def test_photometric_projection_equals_the_projector_of_all_brightness_columns() -> None:
+@pytest.mark.parametrize('patches', [6, 2])  # 2: each its own basis, not the first's
+def test_photometric_projection_equals_the_projector_of_all_brightness_columns(patches) -> None:
     rng = np.random.default_rng(7)
     coordinates = square_offsets(4)
-    template = rng.uniform(20, 230, (6, len(coordinates)))
+    template = rng.uniform(20, 230, (patches, len(coordinates)))
     u, v = (np.broadcast_to(c, template.shape) for c in coordinates.T)
     contrast = template - template.mean(axis=1, keepdims=True)
     columns = np.stack([np.ones_like(u), u, v, contrast, contrast * u, contrast * v], axis=-1)
