@@ -321,6 +321,29 @@ def test_the_status_warns_while_a_tracker_tracks_nothing(monkeypatch, ros_contex
     assert statuses[1].message == f'{UNTRACKED_WARNING} images in a row not tracked: {reason}'
 
 
+def test_track_counts_count_each_status_and_warn_from_30_untracked_in_a_row():
+    counts = TrackCounts('pairs')
+    assert counts.report() == {
+        'initializing_pairs': '0',
+        'tracking_pairs': '0',
+        'lost_pairs': '0',
+        'last_reason': '-',
+    }
+    counts.add(TrackStatus.INITIALIZING, 'waiting for an initialisation')
+    counts.add(TrackStatus.TRACKING, '')  # no reason: the last one stays
+    for _ in range(29):  # 29 in a row after a tracked pair: no warning yet
+        counts.add(TrackStatus.LOST, 'lost: residual too high')
+    assert counts.warning() == ''
+    counts.add(TrackStatus.LOST, 'lost: drifted')
+    assert counts.warning() == '30 pairs in a row not tracked: lost: drifted'
+    assert counts.report() == {
+        'initializing_pairs': '1',
+        'tracking_pairs': '1',
+        'lost_pairs': '30',
+        'last_reason': 'lost: drifted',
+    }
+
+
 def test_an_enum_parameter_is_given_by_its_member_s_name_live_and_offline(ros_context):
     """tracker.photometric, documented by name: GAIN_BIAS was refused.
 
