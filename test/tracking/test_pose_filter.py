@@ -141,6 +141,7 @@ def test_filtering_raw_results_gives_what_the_filtered_tracker_publishes():
     used.filter(raw[5], 0.0)  # a filter with a past is reset first
     filtered, seconds = filter_results(used, raw, FPS)
     assert len(seconds) == len(raw)
+    assert np.all((seconds >= 0.0) & (seconds < 0.05))  # CPU seconds a result (about 1e-4)
     for ours, theirs in zip(filtered, published, strict=True):
         np.testing.assert_array_equal(ours.omega, theirs.omega)
         np.testing.assert_array_equal(ours.nodes_px, theirs.nodes_px)
@@ -168,3 +169,24 @@ def test_time_must_increase():
 def test_bad_config_names_the_field(name, value):
     with pytest.raises(ConfigError, match=name):
         PoseFilterConfig(**{name: value})
+
+
+@pytest.mark.parametrize('frame_rate', [0.0, -30.0])
+def test_frame_rate_must_be_positive(frame_rate):
+    match = rf'^frame_rate must be > 0, got {frame_rate}$'
+    with pytest.raises(ConfigError, match=match):
+        filter_results(PoseFilter(CAMERA), [], frame_rate)
+    with pytest.raises(ConfigError, match=match):
+        FilteredTracker(_Replay([]), PoseFilter(CAMERA), frame_rate)
+
+
+def test_a_frame_rate_below_one_hertz_spaces_the_frames_seconds_apart():
+    _, _, noisy_omega, noisy_t = _noisy_track(np.array([0.0, 0.4, 0.0]), np.zeros(3), 3)
+    raw = [_result(w, v) for w, v in zip(noisy_omega, noisy_t, strict=True)]
+    slow, _ = filter_results(PoseFilter(CAMERA), raw, 0.5)  # frames 2 s apart
+    pose_filter = PoseFilter(CAMERA)
+    by_time = [pose_filter.filter(result, 2.0 * k) for k, result in enumerate(raw)]
+    for ours, theirs in zip(slow, by_time, strict=True):
+        np.testing.assert_array_equal(ours.omega, theirs.omega)
+    fast, _ = filter_results(PoseFilter(CAMERA), raw, FPS)
+    assert np.abs(slow[-1].omega - fast[-1].omega).max() > 1e-4  # the spacing is what counts
