@@ -676,6 +676,11 @@ def test_a_pair_whose_projections_are_not_rectified_is_refused_by_name() -> None
     wider = replace(right, p=right.p * np.array([[1.2], [1.0], [1.0]]))  # fx 720 against 600
     with pytest.raises(InputError, match=r'left and right P differ in fx \(600 and 720\)'):
         StereoRig(RIG.left, wider)
+    taller = replace(right, p=right.p * np.array([[1.0], [1.1], [1.0]]))  # fy 660 against 600
+    with pytest.raises(InputError, match=r'left and right P differ in fy \(600 and 660\)'):
+        StereoRig(RIG.left, taller)
+    within = replace(right, p=right.p * np.array([[1.0], [1.00005], [1.0]]))  # 5e-5 <= 1e-4
+    assert StereoRig(RIG.left, within).right is within
     lower = right.p.copy()
     lower[1, 3] = -6.0  # a vertical baseline
     with pytest.raises(InputError, match=r'P\[1,3\] must be 0 \(a horizontal baseline\)'):
