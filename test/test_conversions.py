@@ -80,6 +80,13 @@ def test_face_state_carries_result_and_header():
     np.testing.assert_allclose(conversions.points_to_array(state.nodes, 'nodes'), result.nodes_cam)
     assert list(state.node_names) == list(mesh_topology(34).node_names)
     assert state.iterations == 7
+    position, orientation = state.pose.position, state.pose.orientation
+    assert (position.x, position.y, position.z) == (0.01, -0.02, 0.65)  # t, m
+    # The quaternion of omega: axis omega / |omega|, half the angle |omega| (x, y, z, w).
+    angle = np.linalg.norm(result.omega)
+    expected = [*np.sin(angle / 2) * result.omega / angle, np.cos(angle / 2)]
+    quaternion = [orientation.x, orientation.y, orientation.z, orientation.w]
+    np.testing.assert_allclose(quaternion, expected, rtol=0, atol=1e-15)
 
 
 def test_mesh_and_markers_hold_the_result_s_nodes_and_the_topology_s_edges():
@@ -93,6 +100,9 @@ def test_mesh_and_markers_hold_the_result_s_nodes_and_the_topology_s_edges():
     spheres, lines = messages.markers.markers
     assert (spheres.type, lines.type) == (7, 5)  # Marker.SPHERE_LIST, Marker.LINE_LIST
     assert spheres.ns == lines.ns == 'face_0' and (spheres.id, lines.id) == (0, 1)
+    assert (spheres.action, lines.action) == (0, 0)  # Marker.ADD
+    assert (spheres.scale.x, lines.scale.x) == (0.004, 0.001)  # sphere diameter, line width, m
+    assert spheres.color.a == lines.color.a == 1.0  # a tracked face: opaque
     np.testing.assert_array_equal(conversions.points_to_array(spheres.points, 'spheres'), nodes)
     segments = conversions.points_to_array(lines.points, 'lines').reshape(-1, 2, 3)
     np.testing.assert_array_equal(segments, nodes[topology.edges])
@@ -108,6 +118,12 @@ def test_an_initializing_result_is_published_with_zeros_for_its_nan(factory):
     assert (state.pose.position.x, state.pose.position.z) == (0.0, 0.0)
     assert conversions.points_to_array(state.nodes, 'nodes').tolist() == [[0.0] * 3] * 34
     assert state.mean_residual == 0.0
+    markers = conversions.face_messages(
+        factory, header, 'face_0', empty, mesh_topology(34)
+    ).markers
+    for marker in markers.markers:  # not tracked: grey, half transparent
+        colour = marker.color
+        assert (colour.r, colour.g, colour.b, colour.a) == (0.5, 0.5, 0.5, 0.5)
 
 
 def test_model_round_trips_through_its_message():
@@ -166,6 +182,13 @@ def test_image_with_row_padding_is_cropped_to_width():
     np.testing.assert_array_equal(conversions.image_to_gray(msg), data.reshape(4, 8)[:, :6])
 
 
+@pytest.mark.parametrize(('width', 'height'), [(4, 0), (0, 3)])
+def test_an_image_without_rows_or_columns_is_refused_as_empty(width, height):
+    msg = SimpleNamespace(encoding='mono8', height=height, width=width, step=4, data=b'')
+    with pytest.raises(InputError, match=rf'^image of {width}x{height} mono8 is empty$'):
+        conversions.image_to_gray(msg)
+
+
 def test_unsupported_encoding_is_named():
     msg = SimpleNamespace(encoding='16UC1', height=2, width=2, step=4, data=np.zeros(8, np.uint8))
     with pytest.raises(InputError, match="unsupported image encoding '16UC1'"):
@@ -201,6 +224,19 @@ def test_camera_info_round_trip():
     back = conversions.camera_from_info(msg)
     np.testing.assert_array_equal(back.p, camera.p)
     assert (back.width, back.height) == (320, 240)
+
+
+def test_a_repeated_camera_info_gives_the_camera_read_before_unconverted():
+    factory = RosbagsMessages(typestore())
+    header = conversions.make_header(factory, 0, 'c')
+    reader = conversions.CameraInfoReader()
+    first = reader.read(conversions.camera_to_info(factory, header, PinholeCamera.ideal()))
+    # A driver's repeat: another message, the same calibration.
+    assert reader.read(conversions.camera_to_info(factory, header, PinholeCamera.ideal())) is first
+    changed = reader.read(
+        conversions.camera_to_info(factory, header, PinholeCamera.ideal(focal=610.0))
+    )
+    assert changed is not first and changed.focal == 610.0
 
 
 def test_nan_in_a_vector_field_is_named():

@@ -186,7 +186,7 @@ class CameraInfoReader:
             InputError: as :func:`camera_from_info` (the previous calibration is kept).
         """
         key = calibration_key(msg)
-        if key != self._key or self._camera is None:
+        if key != self._key:  # None before the first calibration converted
             self._camera = camera_from_info(msg)
             self._key = key
         return self._camera
