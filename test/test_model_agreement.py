@@ -83,5 +83,5 @@ def test_expressions_are_not_recognised_while_the_tracker_uses_another_model(mod
         processor.handle('face/model', _model_msg(other), NONE)
     with pytest.raises(InputError, match='train-expressions --model'):
         processor.handle('face/action', _action(NS // 30, alpha), NONE)
-    processor.handle('face/model', _model_msg(default), NONE)
+    assert processor.handle('face/model', _model_msg(default), NONE) == []  # back: recognised
     assert processor.handle('face/action', _action(2 * NS // 30, alpha), NONE) == []

@@ -913,6 +913,23 @@ def test_expression_earlier_stamp_restarts_window_and_events():
     assert stamp_to_ns(again[0].header.stamp) > round(10.3e9)
 
 
+def test_expression_scores_are_the_classifier_s_posteriors_when_wanted():
+    """A constant alpha 0.45: posteriors softmax(0, 20 * 0.45 - 10) = (e, 1) / (1 + e)."""
+    processor = ExpressionProcessor(FACTORY, smile_classifier(), EventConfig())
+    for m in range(5):
+        msg = _action([0.45], round((10.0 + m / 30.0) * 1e9))
+        assert processor.handle('face/action', msg, NONE) == []  # no scores unless wanted
+    msg = _action([0.45], round((10.0 + 5 / 30.0) * 1e9))
+    outputs = processor.handle('face/action', msg, frozenset({'face/expression_scores'}))
+    assert [o.topic for o in outputs] == ['face/expression_scores']
+    scores = outputs[0].msg
+    smile = 1.0 / (1.0 + np.e)
+    np.testing.assert_allclose(scores.data, [1.0 - smile, smile], rtol=1e-12)
+    [dim] = scores.layout.dim
+    assert (dim.label, dim.size, dim.stride) == ('neutral,smile', 2, 2)
+    assert scores.layout.data_offset == 0
+
+
 # --- identity_recognizer ------------------------------------------------------------------------
 
 
@@ -943,6 +960,16 @@ def identity() -> IdentityProcessor:
     _identities(processor, [0.002, -0.001], 1.0, 50.0)
     processor.enroll('alice', 1.0)
     return processor
+
+
+def test_identity_enrolment_uses_the_sigma_of_the_last_duration_seconds(identity):
+    """30 shapes at 30 Hz, m / 30 s: the last 0.49 s holds m = 15..29 (15 of them), 1 s all 30."""
+    _identities(identity, [0.001, 0.001], 1.0, 70.0)
+    assert identity.enroll('bob', 0.49) == 15
+    assert identity.enroll('carol', 1.0) == 30
+    longest = r'enrolment duration must be in \(0, 30.0\] s, got 30.5'  # the default's
+    with pytest.raises(ConfigError, match=longest):
+        identity.enroll('dave', 30.5)
 
 
 def test_identity_status_names_the_gallery_and_its_file(identity, tmp_path):
