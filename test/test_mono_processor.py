@@ -21,8 +21,8 @@ from face_tracking_ros.synthetic.texture import procedural_texture
 from face_tracking_ros.synthetic.true_model import true_face_model
 from face_tracking_ros.tracking.initialisation import Initialisation
 from face_tracking_ros.tracking.mono_config import MonoTrackerConfig
-from face_tracking_ros.tracking.pose_filter import PoseFilterConfig
-from face_tracking_ros.tracking.result import TrackStatus
+from face_tracking_ros.tracking.pose_filter import PoseFilter, PoseFilterConfig
+from face_tracking_ros.tracking.result import TrackResult, TrackStatus
 
 CAMERA = PinholeCamera.ideal(320, 240, 300.0)
 FRAME_NS = 33_333_333
@@ -216,32 +216,54 @@ def test_rgb_frames_track_like_mono(scene):
     assert np.sqrt(np.mean(error_px**2)) < 1.5
 
 
-def _published_yaw(processor: MonoProcessor, frames: list[np.ndarray]) -> np.ndarray:
-    """The yaw (rotation vector's y, rad) of face/pose for every frame."""
+def _published_poses(
+    processor: MonoProcessor, frames: list[np.ndarray]
+) -> tuple[np.ndarray, np.ndarray]:
+    """The rotation vectors (rad) and translations (m) of face/pose, (F, 3) each."""
     processor.handle('camera_info', _info(), frozenset())
-    yaw = []
+    omegas, ts = [], []
     for f, pixels in enumerate(frames):
         pose = next(
             o.msg
             for o in processor.handle('image', _image(pixels, f), frozenset())
             if o.topic == 'face/pose'
-        )
-        q = pose.pose.orientation
-        yaw.append(quaternion_to_omega(np.array([q.x, q.y, q.z, q.w]))[1])
-    return np.array(yaw)
+        ).pose
+        q, p = pose.orientation, pose.position
+        omegas.append(quaternion_to_omega(np.array([q.x, q.y, q.z, q.w])))
+        ts.append([p.x, p.y, p.z])
+    return np.array(omegas), np.array(ts)
 
 
 def test_published_pose_is_smoothed_by_stamp_unless_disabled(scene):
     model, frames, nodes = scene
-    smoothed = _published_yaw(_processor(model, nodes[0]), frames)
-    raw = _published_yaw(_processor(model, nodes[0], PoseFilterConfig(enabled=False)), frames)
-    assert smoothed[0] == raw[0]  # a track starts at the tracker's estimate
+    smoothed, smoothed_t = _published_poses(_processor(model, nodes[0]), frames)
+    raw, raw_t = _published_poses(
+        _processor(model, nodes[0], PoseFilterConfig(enabled=False)), frames
+    )
+    assert np.array_equal(smoothed[0], raw[0])  # a track starts at the tracker's estimate
     # the head turns 0.02 rad a frame without moving: the filter lags a little behind
     # (measured 0.89 deg on frame 2, falling to 0.35-0.44 once the speed estimate has risen)
-    lag = np.degrees(raw[2:] - smoothed[2:])
+    lag = np.degrees(raw[2:, 1] - smoothed[2:, 1])
     assert np.all(lag > 0.1)
     assert np.all(lag < 1.2)
     assert lag[-6:].mean() < 0.6
+    # It is the One Euro filter of the raw estimates at the image stamps (frame f at f * 33.3 ms)
+    pose_filter = PoseFilter(CAMERA)
+    for f, (omega, t) in enumerate(zip(raw, raw_t, strict=True)):
+        estimate = TrackResult(
+            status=TrackStatus.TRACKING,
+            omega=omega,
+            t=t,
+            alpha=np.zeros(0),
+            sigma=np.zeros(0),
+            nodes_cam=t[None],  # (the filter moves nodes with the pose; one is enough)
+            nodes_px=np.zeros((1, 2)),
+            node_residuals=np.zeros(1),
+            mean_residual=0.0,
+        )
+        filtered = pose_filter.filter(estimate, f * FRAME_NS / 1e9)
+        np.testing.assert_allclose(smoothed[f], filtered.omega, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(smoothed_t[f], filtered.t, rtol=0, atol=1e-12)
 
 
 @pytest.mark.parametrize('rectify', [True, False])
