@@ -800,6 +800,20 @@ def test_stereo_reset_without_points_restarts_from_the_last_ones_or_needs_auto_i
         without.reset(None)
 
 
+def test_stereo_warns_once_30_pairs_in_a_row_were_not_tracked(pairs):
+    """Blank images: the initialisation fails on every pair; the 30th in a row warns."""
+    processor = _stereo(pairs)
+    _stereo_infos(processor)
+    blank = np.zeros_like(pairs[0][0].image)
+    for k in range(30):
+        assert processor.warning() == ''
+        blanks = image_msg(blank, stamp(k)), image_msg(blank, stamp(k))
+        assert _status(_pair(processor, pairs, 0, stamp(k), *blanks)) == TrackStatus.INITIALIZING
+    failed = 'initialisation failed: only 0 inner (non-boundary) nodes were matched in the right'
+    assert processor.warning().startswith(f'30 pairs in a row not tracked: {failed} image')
+    assert processor.status()['initializing_pairs'] == '30'
+
+
 def test_mono_reset_without_points_restarts_from_the_last_ones_or_needs_auto_init(
     scene, frames, mono_reference
 ):
