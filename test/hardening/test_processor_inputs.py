@@ -589,6 +589,12 @@ def test_stereo_pairs_equal_stamps_only_and_says_why_nothing_pairs(pairs):
     assert short.status()['last_reason'] == '-'
     short.finish()
     assert re.match(expected, short.status()['last_reason'])
+    # Equal means equal: images 1 us apart do not pair either.
+    near = _stereo(pairs)
+    _stereo_infos(near)
+    assert near.handle('left/image_raw', image_msg(pairs[0][0].image, stamp(0)), NONE) == []
+    right = image_msg(pairs[1][0].image, stamp(0) + 1_000)
+    assert near.handle('right/image_raw', right, NONE) == []
 
 
 def test_stereo_pairs_the_nearest_stamp_within_the_tolerance(pairs, stereo_reference):
@@ -604,8 +610,12 @@ def test_stereo_pairs_the_nearest_stamp_within_the_tolerance(pairs, stereo_refer
     assert _pair(processor, pairs, 2, right=late) == [] and processor.unpaired == 0
     with pytest.raises(ConfigError, match='pairing_tolerance_ms = -1.0'):
         StereoNodeConfig(pairing_tolerance_ms=-1.0)
+    with pytest.raises(ConfigError, match='pairing_tolerance_ms = 1000.0'):
+        StereoNodeConfig(pairing_tolerance_ms=1000.0)
     with pytest.raises(ConfigError, match='pairing_queue = 0'):
         StereoNodeConfig(pairing_queue=0)
+    edges = StereoNodeConfig(pairing_queue=1, pairing_tolerance_ms=999.0)  # accepted
+    assert (edges.pairing_queue, edges.pairing_tolerance_ms) == (1, 999.0)
 
 
 def test_stereo_repeated_stamp_is_refused_and_an_earlier_stamp_restarts_the_track(
@@ -708,6 +718,22 @@ def test_stereo_model_of_another_node_count_is_refused(pairs, scene):
     outputs = _pair(processor, pairs, 1)
     assert [o.topic for o in outputs][-3:] == ['face/pose', 'face/action', 'face/shape']
     assert TrackStatus(outputs[0].msg.status) == TrackStatus.TRACKING
+
+
+def test_stereo_takes_a_face_model_from_face_model_mid_track(pairs, scene, stereo_reference):
+    """Meshes only until a learner's model comes: then pose, action and shape follow."""
+    processor = _stereo(pairs)
+    _stereo_infos(processor)
+    meshes_only = _pair(processor, pairs, 0)
+    assert [o.topic for o in meshes_only if o.topic in ('face/action', 'face/shape')] == []
+    assert processor.status()['model'] == 'none (meshes only)'
+    assert processor.handle('face/model', _model_msg(scene.model), NONE) == []
+    assert processor.status()['model'] == scene.model.fingerprint
+    outputs = _pair(processor, pairs, 1)
+    assert [o.topic for o in outputs][-3:] == ['face/pose', 'face/action', 'face/shape']
+    state = outputs[0].msg
+    assert TrackStatus(state.status) == TrackStatus.TRACKING
+    assert (len(state.alpha), len(state.sigma)) == (scene.model.q, scene.model.p)
 
 
 # --- automatic initialisation (auto_init; dlib is optional, so a stand-in detector) -----------
