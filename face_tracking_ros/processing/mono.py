@@ -109,7 +109,9 @@ class MonoProcessor:
     and the calibration (:class:`~face_tracking_ros.processing.calibration.CameraCalibration`)
     follow the stereo processor's rules. Its own: an image's stamp is taken as soon as it passes,
     and one that went back restarts the track at once, quietly; an image is held only while
-    there is no camera_info (a camera and model that do not fit are an error for every image).
+    there is no camera_info (a camera and model that do not fit are an error for every image),
+    and tracked once there is a tracker: at the camera_info, or at the model that follows it
+    for a processor started without one.
     """
 
     def __init__(
@@ -192,7 +194,7 @@ class MonoProcessor:
             _check_model(model, self._initialisation, InputError)
             self._model = model
             self._rebuild()
-            return []
+            return self._track_held_image(wanted)  # (held for the camera_info and this model)
         gray = conversions.message_to_gray(msg)
         if self._calibration.camera is None:  # held until the calibration comes
             dropped = self._held.hold((msg.header, gray))
@@ -227,7 +229,11 @@ class MonoProcessor:
             self._tracker.adjust()
 
     def _track_held_image(self, wanted: frozenset[str]) -> list[Output]:
-        """Track the image that arrived before the first camera_info, once it has arrived."""
+        """Track the image that arrived before the first camera_info, once there is a tracker.
+
+        That is when the camera_info arrives, or the model after it for a processor started
+        without one.
+        """
         if self._tracker is None:
             return []
         return self._held.release(lambda held: self._track(*held, wanted))

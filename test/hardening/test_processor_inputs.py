@@ -314,6 +314,29 @@ def test_mono_refuses_a_bad_model_message_and_keeps_its_model(scene, frames):
     assert len(outputs[0].msg.node_names) == 34
 
 
+def test_mono_without_a_model_tracks_the_held_image_once_one_comes_on_face_model(
+    scene, frames, mono_reference
+):
+    """The image held for the camera_info waits for the model too.
+
+    It was held for ever, the status saying 'no calibration on camera_info yet: an image is
+    held' while the images after it were tracked.
+    """
+    init = scene.initialisation(frames[0])
+    processor = MonoProcessor(FACTORY, MonoNodeConfig(), MonoTrackerConfig(), None, init)
+    assert processor.handle('image', image_msg(frames[0].image, stamp(0)), NONE) == []  # held
+    assert processor.handle('camera_info', info_msg(), NONE) == []  # no model: still held
+    assert processor.status()['model'] == 'none'
+    outputs = processor.handle('face/model', _model_msg(scene.model), NONE)
+    assert stamp_to_ns(outputs[0].msg.header.stamp) == stamp(0)  # the held image, tracked
+    np.testing.assert_array_equal(_image_points(outputs), mono_reference[0])
+    outputs = processor.handle('image', image_msg(frames[1].image, stamp(1)), NONE)
+    np.testing.assert_array_equal(_image_points(outputs), mono_reference[1])
+    status = processor.status()
+    assert (status['tracking_images'], status['last_reason']) == ('2', '-')
+    assert status['model'] == scene.model.fingerprint
+
+
 def test_mono_camera_the_tracker_cannot_use_is_named_for_every_image(scene, frames):
     processor = _mono(scene, frames)
     small = PinholeCamera.ideal(160, 120, 150.0)
