@@ -350,6 +350,13 @@ def test_mono_camera_the_tracker_cannot_use_is_named_for_every_image(scene, fram
     assert processor.handle('camera_info', info_msg(), NONE) == []  # one that fits
     outputs = processor.handle('image', image_msg(frames[0].image, stamp(1)), NONE)
     assert _status(outputs) == TrackStatus.TRACKING
+    # A reset while the camera does not fit: no tracker to restart, the next one starts there.
+    with pytest.raises(FaceTrackingError, match='pyramid_levels = 4 is too deep for 160x120'):
+        processor.handle('camera_info', info_msg(small), NONE)
+    assert processor.reset(None).startswith('initialising from the last node positions given')
+    assert processor.handle('camera_info', info_msg(), NONE) == []
+    outputs = processor.handle('image', image_msg(frames[1].image, stamp(2)), NONE)
+    assert _status(outputs) == TrackStatus.TRACKING
 
 
 def test_stereo_calibration_the_tracker_cannot_use_is_named_for_every_pair(pairs):
