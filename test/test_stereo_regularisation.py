@@ -47,8 +47,22 @@ def test_normal_equations_equal_the_stacked_residuals() -> None:
     jacobian = regulariser.jacobian(current)
     cost, hessian, gradient = regulariser.normal_equations(current, previous)
     assert cost == pytest.approx(residuals @ residuals, rel=1e-10)
+    assert regulariser.cost(current, previous) == pytest.approx(cost, rel=1e-12)
     assert np.allclose(hessian, jacobian.T @ jacobian, rtol=1e-10, atol=1e-6)
     assert np.allclose(gradient, jacobian.T @ residuals, rtol=1e-10, atol=1e-9)
+
+
+def test_moved_regulariser_is_the_one_built_on_the_new_first_nodes() -> None:
+    """Depth refinement moves frame 1's nodes: the delta terms follow, as if built there."""
+    first, previous, current = _face(3)
+    topology = mesh_topology(34)
+    moved = Regulariser.build(topology, ALL_TERMS, first).moved(current)
+    rebuilt = Regulariser.build(topology, ALL_TERMS, current)
+    assert np.allclose(moved.delta, rebuilt.delta, rtol=1e-12, atol=0.0)
+    assert np.allclose(moved.first_sq_lengths, rebuilt.first_sq_lengths, rtol=1e-12, atol=0.0)
+    assert moved.residuals(previous, current) == pytest.approx(
+        rebuilt.residuals(previous, current), rel=1e-12, abs=0.0
+    )
 
 
 def test_eq5_values_by_hand() -> None:
