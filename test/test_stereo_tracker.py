@@ -22,9 +22,11 @@ from face_tracking_ros.tracking.camera_gain import relative_gain
 from face_tracking_ros.tracking.depth_refinement import DepthRefinement, depth_evidence
 from face_tracking_ros.tracking.initialisation import Initialisation
 from face_tracking_ros.tracking.result import TrackStatus
+from face_tracking_ros.tracking.row_offset import row_offset
 from face_tracking_ros.tracking.stereo import StereoTracker, track_sequence
 from face_tracking_ros.tracking.stereo_config import StereoTrackerConfig
 from face_tracking_ros.tracking.stereo_data import (
+    GroupStatistics,
     Huber,
     Residuals,
     Sampled,
@@ -42,6 +44,7 @@ from face_tracking_ros.tracking.stereo_init import (
     epipolar_match,
     initial_nodes,
 )
+from face_tracking_ros.tracking.stereo_loss import loss_reason
 from face_tracking_ros.tracking.stereo_solve import PairEnergy
 from face_tracking_ros.tracking.surface_patches import surface_patch_offsets
 
@@ -312,6 +315,24 @@ def test_the_right_cameras_gain_is_measured_and_divided_out(gain: float) -> None
     _, ignored = _moving_plane_error(replace(PLANE_CONFIG, gain_compensation=False), pairs)
     # Measured: 0.17 mm with the gain divided out (as with equal cameras), 0.33 / 0.30 without.
     assert compensated < 0.2 < 0.25 < ignored, (compensated, ignored)
+
+
+@pytest.mark.parametrize('offset', [0.5, -0.4])
+def test_row_offset_follows_three_nodes_into_a_shifted_image(offset: float) -> None:
+    """The right image is the left one moved down by ``offset`` px: three nodes measure it."""
+    texture = cv2.GaussianBlur(np.random.default_rng(5).uniform(0, 255, (240, 320)), (0, 0), 3.0)
+    left = (texture - texture.mean()) * 16.0 + 128.0  # a quarter of it beyond 0-255
+    down = np.float32([[1, 0, 0], [0, 1, offset]])
+    right = cv2.warpAffine(
+        left, down, (320, 240), flags=cv2.INTER_CUBIC, borderMode=cv2.BORDER_REFLECT
+    )
+    nodes = np.array([[100.0, 80.0], [160.0, 120.0], [220.0, 160.0]])
+    measured = row_offset(left, right, nodes, nodes)
+    assert measured == pytest.approx(offset, abs=0.05)  # measured 0.499, -0.424
+    # Grey levels beyond 0-255 read as saturated (wrapped round, 0.609 and -0.300 were measured).
+    saturated = row_offset(np.clip(left, 0, 255), np.clip(right, 0, 255), nodes, nodes)
+    assert measured == saturated
+    assert row_offset(left, right, nodes[:2], nodes[:2]) == 0.0  # fewer than MIN_NODES = 3
 
 
 @pytest.mark.parametrize('offset', [0.4, -0.4, 3.0])
@@ -686,3 +707,33 @@ def test_a_pair_whose_projections_are_not_rectified_is_refused_by_name() -> None
     with pytest.raises(InputError, match=r'P\[1,3\] must be 0 \(a horizontal baseline\)'):
         StereoRig(RIG.left, replace(right, p=lower))
     assert StereoRig(RIG.left, RIG.with_right_rows_shifted(0.3).right).baseline == RIG.baseline
+
+
+def test_loss_reason_names_each_check_by_hand() -> None:
+    """§3.3's checks one at a time: a face in view with matching patches is tracked."""
+    nodes = mesh_topology(34).reference_shape + np.array([0.0, 0.0, 0.6])
+    config = StereoTrackerConfig()  # lost_ratio 0.8, min_texture_ratio 0.3
+
+    def reason(points: np.ndarray, rms: float = 5.0, image_contrast: float = 10.0) -> str:
+        shape = (2, len(nodes))  # both cameras' node patches, template contrast 10
+        statistics = GroupStatistics(
+            (np.full(shape, rms),), np.full(shape, 10.0), np.full(shape, image_contrast)
+        )
+        return loss_reason(points, statistics, RIG, config)
+
+    assert reason(nodes) == ''
+    assert reason(np.where(np.arange(34)[:, None] == 3, np.nan, nodes)) == 'non-finite nodes'
+    behind = nodes.copy()
+    behind[3, 2] = -0.1
+    assert reason(behind) == 'a node went behind the camera'
+    # 50 px from the left image's edge, the right camera sees the node f B / z = 110 px further.
+    edge = nodes.copy()
+    edge[3] = [(50.0 - 319.5) * 0.6 / 600.0, 0.0, 0.6]
+    assert RIG.left.project(edge)[3] == pytest.approx([50.0, 239.5])
+    assert reason(edge) == 'a node left the image'
+    assert reason(nodes, rms=8.0) == ''
+    assert reason(nodes, rms=8.5) == 'patch residual / contrast 0.85 exceeds 0.8'
+    assert reason(nodes, image_contrast=3.0) == ''
+    assert reason(nodes, image_contrast=2.9).startswith(
+        'the images show almost no texture where the face was (patch contrast 0.29 of'
+    )
