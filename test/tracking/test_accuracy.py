@@ -13,7 +13,7 @@ from recognition_streams import truth_model
 from face_tracking_ros.errors import InputError
 from face_tracking_ros.geometry.rotation import angles_to_omega, omega_to_angles, rodrigues
 from face_tracking_ros.synthetic.faces import FacePopulation
-from face_tracking_ros.tracking.accuracy import tracking_accuracy
+from face_tracking_ros.tracking.accuracy import drift_window, tracking_accuracy
 from face_tracking_ros.tracking.result import TrackStatus
 
 MODEL = truth_model(FacePopulation('default', 0))
@@ -31,17 +31,24 @@ ANGLE_ERROR_DEG = np.array(
 T_ERROR_MM = np.array([[1.0, 0.0, -2.0], [-1.0, 0.0, -2.0], [1.0, 0.0, -2.0], [-1.0, 0.0, -2.0]])
 
 
-def _truth(expression: float = 0.01) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def _truth(
+    expression: float = 0.01, roll_deg: float | None = None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """True omega (F, 3), t (F, 3), alpha (F, q) and the (F, 34, 3) nodes of eq. 1 and 3.
 
     Args:
         expression: standard deviation of alpha's components (0: a face without expression).
+        roll_deg: the head's roll (angle about the camera z axis) in every frame, or random.
     """
     rng = np.random.default_rng(8)
     frames = len(STATUS)
     sigma = rng.normal(size=MODEL.p) * 0.03
     alpha = rng.normal(size=(frames, MODEL.q)) * expression
     omega = rng.uniform(-0.3, 0.3, size=(frames, 3))
+    if roll_deg is not None:
+        angles = omega_to_angles(omega)
+        angles[:, 2] = np.radians(roll_deg)
+        omega = angles_to_omega(angles)
     t = rng.normal(size=(frames, 3)) * 0.02 + [0.0, 0.0, 0.6]
     shapes = MODEL.mean_shape + MODEL.shape_basis @ sigma + alpha @ MODEL.action_basis.T
     nodes = [
@@ -92,3 +99,32 @@ def test_a_sequence_without_expression_has_no_alpha_figure_and_bad_input_is_refu
         tracking_accuracy(MODEL, lost, omega, t, alpha, nodes, nodes)
     with pytest.raises(InputError, match=r'estimated nodes \(6, 19, 3\) and true nodes \(6, 34'):
         tracking_accuracy(MODEL, STATUS, omega, t, alpha, nodes[:, :19], nodes)
+
+
+def test_the_drift_compares_the_first_and_last_100_tracked_frames_or_whole_halves():
+    assert [drift_window(n) for n in (1, 3, 150, 200, 201, 380)] == [0, 1, 75, 100, 100, 100]
+
+
+def test_the_drift_is_the_last_windows_mean_error_minus_the_first_windows():
+    omega, t, alpha, nodes = _truth()
+    tracking = np.full(len(STATUS), TrackStatus.TRACKING)
+    ramp = np.zeros((len(STATUS), 3))
+    ramp[:, 0] = np.arange(len(STATUS))  # about x: 0, 1, ..., 5 degrees
+    estimated = angles_to_omega(omega_to_angles(omega) + np.radians(ramp))
+    accuracy = tracking_accuracy(MODEL, tracking, estimated, t, alpha, nodes, nodes)
+    # Windows of 3 frames; the mean error over the axes is x / 3: (3 + 4 + 5 - 0 - 1 - 2) / 9.
+    assert accuracy.drift_deg == pytest.approx(1.0, abs=1e-6)
+    assert accuracy.jitter_deg == pytest.approx(0.0, abs=1e-6)  # steady steps of 1 degree
+    # Three tracked frames: windows of one frame, (2 - 0) / 3; two steps give a jitter.
+    tracking[3:] = TrackStatus.LOST
+    first_three = tracking_accuracy(MODEL, tracking, estimated, t, alpha, nodes, nodes)
+    assert first_three.drift_deg == pytest.approx(2.0 / 3.0, abs=1e-6)
+    assert first_three.jitter_deg == pytest.approx(0.0, abs=1e-6)
+
+
+def test_angle_errors_are_wrapped_across_180_degrees():
+    """A head upside down: roll 181 (-179) degrees estimated as 179 is 2 degrees off, not 358."""
+    omega, t, alpha, nodes = _truth(roll_deg=181.0)
+    estimated = angles_to_omega(omega_to_angles(omega) - np.radians([0.0, 0.0, 2.0]))
+    accuracy = tracking_accuracy(MODEL, STATUS, estimated, t, alpha, nodes, nodes)
+    assert accuracy.rotation_mae_deg == pytest.approx((0.0, 0.0, 2.0), abs=1e-6)
