@@ -85,6 +85,12 @@ def test_initialisation_validation(model_factory) -> None:
     for degenerate in (np.zeros((6, 2)), np.column_stack([np.arange(6.0), np.zeros(6)])):
         with pytest.raises(ConfigError, match='lie on one spot or one line'):
             Initialisation(SIX, degenerate)
+    # Clicks zigzagging about a line, +-1.5 px (1.43 px RMS across it) or +-0.8 px (0.76 px):
+    # the first still place a face seen edge-on, the second are one line (MIN_SPREAD_PX = 1).
+    zigzag = (-1.0) ** np.arange(6)
+    Initialisation(SIX, np.column_stack([40.0 * np.arange(6), 1.5 * zigzag]))
+    with pytest.raises(ConfigError, match=r'one line \(0\.76 px RMS across it\)'):
+        Initialisation(SIX, np.column_stack([40.0 * np.arange(6), 0.8 * zigzag]))
     with pytest.raises(ConfigError, match='sigma holds NaN'):
         Initialisation(SIX, points, sigma=np.array([np.inf]))
     model = model_factory(num_nodes=19)
