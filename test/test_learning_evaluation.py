@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 from learning_population import training_set
 import numpy as np
 import pytest
@@ -161,6 +163,23 @@ def test_leave_one_out_figures(small_world):
     size = np.linalg.norm(full_mean - full_mean.mean(axis=0))
     moved = np.linalg.norm(model.mean_shape - full.model.mean_shape)
     assert loo.mean_variation_percent[2] == pytest.approx(100.0 * moved / size, rel=1e-9)
+
+
+def test_calibrated_expression_accuracy_removes_each_subjects_offset(small_world):
+    """A per-subject alpha offset misleads the raw expression accuracy, not the calibrated one.
+
+    Each subject's mean alpha over its neutral-labelled frames takes the offset out exactly.
+    """
+    training, _ = small_world
+    learner = make_learner('joint', 2, 4)
+    result = learner(training)
+    plain = evaluate(training, learner, result)[0]
+    offsets = np.random.default_rng(7).normal(scale=0.05, size=(training.num_subjects, 4))
+    shifted = replace(result, frame_alpha=result.frame_alpha + offsets[training.subject_index])
+    offset = evaluate(training, learner, shifted)[0]
+    assert plain.expression_accuracy_calibrated > 0.85  # 7 labels: 1/7 by chance
+    assert offset.expression_accuracy < 0.2  # 0.0955: the offsets (5 cm) swamp alpha (1 cm)
+    assert offset.expression_accuracy_calibrated == plain.expression_accuracy_calibrated
 
 
 def test_evaluate_table_and_plots(small_world, tmp_path):
