@@ -120,6 +120,9 @@ def test_the_drift_is_the_last_windows_mean_error_minus_the_first_windows():
     first_three = tracking_accuracy(MODEL, tracking, estimated, t, alpha, nodes, nodes)
     assert first_three.drift_deg == pytest.approx(2.0 / 3.0, abs=1e-6)
     assert first_three.jitter_deg == pytest.approx(0.0, abs=1e-6)
+    tracking[1:] = TrackStatus.LOST  # one frame: nothing to compare it with
+    only_one = tracking_accuracy(MODEL, tracking, estimated, t, alpha, nodes, nodes)
+    assert np.isnan(only_one.drift_deg) and np.isnan(only_one.jitter_deg)
 
 
 def test_angle_errors_are_wrapped_across_180_degrees():
