@@ -1,0 +1,59 @@
+"""The mono tracker's drift check: eq. 6 against the keyframe alone (mono_loss._drift_ratio)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from face_tracking_ros.imaging.photometric import PhotometricInvariance, PhotometricModel
+from face_tracking_ros.tracking.mono_loss import _drift_ratio
+from face_tracking_ros.tracking.mono_rois import Params
+from face_tracking_ros.tracking.mono_templates import Keyframe, Templates
+
+GRID = np.stack(np.meshgrid(np.arange(3.0), np.arange(3.0)), axis=-1).reshape(-1, 2)  # M = 9
+# A pattern with no part in a patch's bias: zero mean over the patch.
+PATTERN = np.array([1.0, -1.0, 1.0, -1.0, 1.0, -1.0, 1.0, -1.0, 0.0])
+
+
+def _keyframe(template: np.ndarray, visibility: np.ndarray) -> Keyframe:
+    """A keyframe of (N, 9) level-0 templates under the BIAS model."""
+    invariance = PhotometricInvariance.of(PhotometricModel.BIAS, GRID)
+    zeros = np.zeros(3)
+    templates = Templates(
+        levels=[template],
+        visibility=visibility,
+        inside=np.ones(template.shape, dtype=bool),
+        params=Params(omega=zeros, t=zeros, alpha=np.zeros(1), sigma=np.zeros(1)),
+    )
+    return Keyframe(np.eye(3), templates, invariance.projection(template))
+
+
+def test_drift_ratio_is_the_median_residual_over_texture_ignoring_brightness() -> None:
+    template = np.outer([10.0, 20.0, 30.0], np.arange(9.0))
+    keyframe = _keyframe(template, np.ones(3))
+    # Node i: the template brightened by 5 (ignored) plus a_i times the pattern.
+    amplitude = np.array([0.0, 2.0, 6.0])
+    samples = template + 5.0 + amplitude[:, None] * PATTERN
+    texture = np.array([1.0, 1.0, 2.0])
+    rms = amplitude * np.sqrt(np.mean(PATTERN**2))  # the pattern has no bias to project out
+
+    ratio = _drift_ratio(keyframe, samples, texture, np.ones(3, dtype=bool))
+
+    assert ratio == np.median(rms / texture)  # 0, 1.89 and 2.83: the middle one
+    assert np.isclose(ratio, 2.0 * np.sqrt(8 / 9))
+
+
+def test_drift_ratio_counts_only_nodes_the_keyframe_sees() -> None:
+    template = np.outer([10.0, 20.0, 30.0], np.arange(9.0))
+    samples = template + np.array([50.0, 1.0, 1.0])[:, None] * PATTERN
+    texture = np.ones(3)
+    textured = np.array([True, True, False])
+
+    hidden_first = _drift_ratio(
+        _keyframe(template, np.array([0.0, 1.0, 1.0])), samples, texture, textured
+    )
+    none_seen = _drift_ratio(
+        _keyframe(template, np.array([0.0, 0.0, 1.0])), samples, texture, textured
+    )
+
+    assert np.isclose(hidden_first, np.sqrt(8 / 9))  # node 1 alone: node 0's 50 is not counted
+    assert none_seen == 0.0  # no textured node the keyframe sees: no evidence of drift
