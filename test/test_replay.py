@@ -195,6 +195,20 @@ def test_a_replay_ends_with_what_the_reporting_processors_report(tmp_path, monke
     assert 'counter: seen 5' in capsys.readouterr().out
 
 
+@pytest.mark.parametrize('progress', [True, False])
+def test_the_progress_bar_counts_the_messages_on_stderr_only_when_asked(
+    tmp_path, monkeypatch, capsys, progress
+):
+    _write_images(tmp_path / 'in', 5)
+    monkeypatch.setattr(
+        replay_module, 'processor_factory', lambda _node: lambda _params, _f: CountingProcessor()
+    )
+    params = OverrideParameters.parse([])
+    replay_bag(['counter'], tmp_path / 'in', tmp_path / 'out', params, progress=progress)
+    err = capsys.readouterr().err
+    assert ('| 5/5 [' in err) if progress else (err == '')
+
+
 def test_a_tracker_that_tracked_none_of_the_last_images_warns_as_the_live_status_does(
     tmp_path, capsys
 ):
