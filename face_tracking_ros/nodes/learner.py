@@ -147,7 +147,7 @@ def _bags_in(bag_dir: Path, say: Callable[[str], None]) -> list[Path]:
     try:  # a directory one may not read or enter (its permissions) raises on each of these
         is_bag = (bag_dir / 'metadata.yaml').is_file()
         entries = [] if is_bag else sorted(bag_dir.iterdir())
-        directories = {path.name for path in entries if path.is_dir()}
+        directories = [path for path in entries if path.is_dir()]
     except OSError as error:
         msg = f'parameter bag_dir: {bag_dir}: cannot list it: {error.strerror or error}'
         raise ConfigError(msg) from None
@@ -157,14 +157,10 @@ def _bags_in(bag_dir: Path, say: Callable[[str], None]) -> list[Path]:
             'the bags parameter'
         )
         raise ConfigError(msg)
-    skipped = [
-        path.name for path in entries if path.name in directories and not is_bag_directory(path)
-    ]
-    bags = [
-        path
-        for path in entries
-        if (path.name in directories or path.suffix == '.mcap') and path.name not in skipped
-    ]
+    is_bag_by_name = {path.name: is_bag_directory(path) for path in directories}
+    skipped = [name for name, bag in is_bag_by_name.items() if not bag]
+    # A sub-directory by the bag rule, any other entry by its name.
+    bags = [path for path in entries if is_bag_by_name.get(path.name, path.suffix == '.mcap')]
     not_bags, names = 'sub-directories without metadata.yaml or .mcap files', ', '.join(skipped)
     if not bags:
         why = f'{not_bags}: {names}' if skipped else 'no sub-directory, no .mcap file'
