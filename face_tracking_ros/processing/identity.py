@@ -52,8 +52,8 @@ class IdentityNodeConfig:
         model_file: face model the tracker uses; a gallery of another p, or enrolled with another
             model, is refused (the gallery records its model). Empty: the packaged default
             model.
-        max_enroll_duration: longest enrolment (EnrollIdentity.duration) accepted, s (> 0); this
-            much sigma history is kept.
+        max_enroll_duration: longest enrolment (EnrollIdentity.duration) accepted, s (finite, >
+            1e-6: the sliding windows' stamp tolerance); this much sigma history is kept.
     """
 
     gallery_file: str = ''
