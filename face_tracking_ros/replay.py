@@ -44,6 +44,7 @@ from face_tracking_ros.processing.parameters import OverrideParameters
 from face_tracking_ros.processing.registry import processor_factory
 
 _IMAGE_TYPES = (conversions.IMAGE_TYPE, conversions.COMPRESSED_IMAGE_TYPE)
+_CAMERA_INFO_TYPES = (conversions.CAMERA_INFO_TYPE,)
 Record = tuple[str, str, int, Any]  # (bag topic, msgtype, log time ns, message)
 ResultT = TypeVar('ResultT')
 
@@ -389,28 +390,37 @@ def _check_image_inputs(
     topics: Mapping[str, str],
     topic_map: Mapping[str, str],
 ) -> None:
-    """Refuse a node whose image inputs the bag feeds only in part (one camera of a stereo pair).
+    """Refuse a node whose camera inputs the bag feeds only in part.
 
     A mono bag's only image topic, matched by type to the stereo_tracker's left image, left it
-    no right image to pair: the replay wrote nothing and ended with status 0. (A missing
-    camera_info is not refused: the tracker holds the images and its status says why.)
+    no right image to pair: the replay wrote nothing and ended with status 0. Likewise a node
+    fed images but not the camera_info of a bag that has some (two of them, neither named for
+    the input: a stereo bag's left and right ones): it held every image and said its camera had
+    no calibration yet. (A bag without any camera_info is not refused: the tracker holds the
+    images and its status says why.)
 
     Raises:
-        BagError: naming the node, its image inputs no topic feeds, those fed and by what, and
-            the bag's image topics.
+        BagError: naming the node, its inputs no topic feeds, the image inputs fed and by what,
+            and the bag's topics of the missing inputs' kind.
     """
     fed = {port: topic for topic, port in topic_map.items()}
     for node, processor in zip(nodes, processors, strict=True):
         images = [port.topic for port in processor.inputs if port.msgtype in _IMAGE_TYPES]
-        missing = [port for port in images if port not in fed]
-        if missing and len(missing) < len(images):
-            reading = ', '.join(f'{port} reads {fed[port]}' for port in images if port in fed)
-            found = ', '.join(t for t, kind in topics.items() if kind in _IMAGE_TYPES)
-            msg = (
-                f"{bag}: no topic for the {node}'s {', '.join(missing)} ({reading}; matched by "
-                f"a name ending in it, else give --remap INPUT=TOPIC); the bag's images: {found}"
-            )
-            raise BagError(msg)
+        reading = ', '.join(f'{port} reads {fed[port]}' for port in images if port in fed)
+        if not reading:
+            continue
+        for kinds, found in ((_IMAGE_TYPES, 'images'), (_CAMERA_INFO_TYPES, 'camera_info topics')):
+            missing = [
+                p.topic for p in processor.inputs if p.msgtype in kinds and p.topic not in fed
+            ]
+            present = ', '.join(t for t, kind in topics.items() if kind in kinds)
+            if missing and present:
+                msg = (
+                    f"{bag}: no topic for the {node}'s {', '.join(missing)} ({reading}; "
+                    'matched by a name ending in it, else give --remap INPUT=TOPIC); the '
+                    f"bag's {found}: {present}"
+                )
+                raise BagError(msg)
 
 
 def replay_bag(

@@ -452,3 +452,22 @@ def test_a_tracker_fed_one_camera_of_a_pair_is_refused(tmp_path, capsys):
         'images: image\n'
     )
     assert not (tmp_path / 'a').exists()
+
+
+def test_a_tracker_whose_camera_info_the_bag_holds_under_other_names_is_refused(tmp_path, capsys):
+    """Two CameraInfo topics, neither chosen by name or type: the tracker read none.
+
+    It held every image and said 'no calibration on camera_info yet' of a bag that has two.
+    """
+    stereo = str(REPO / 'bags' / 'stereo_train' / 'subject_00_seq_00')
+    argv = ['replay', 'mono_tracker', stereo, '--remap', 'image=left/image_raw', '--quiet']
+    assert main([*argv, '--out', str(tmp_path / 'a')]) == 2
+    assert capsys.readouterr().err == (
+        f"error: {stereo}: no topic for the mono_tracker's camera_info (image reads "
+        'left/image_raw; matched by a name ending in it, else give --remap INPUT=TOPIC); the '
+        "bag's camera_info topics: left/camera_info, right/camera_info\n"
+    )
+    assert not (tmp_path / 'a').exists()
+    remapped = [*argv, '--remap', 'camera_info=left/camera_info', '--out', str(tmp_path / 'b')]
+    assert main(remapped) == 0
+    assert 'read: 10 camera_info, 10 image' in capsys.readouterr().out
