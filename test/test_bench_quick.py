@@ -18,11 +18,12 @@ import pytest
 
 from face_tracking_ros.bench import runner
 from face_tracking_ros.bench.common import BENCH_CORE, DRIVER_CORE, BenchOptions, pin_to_core
-from face_tracking_ros.bench.runner import finite_or_null, run_benchmarks
+from face_tracking_ros.bench.runner import run_benchmarks
 from face_tracking_ros.cli import bench
 from face_tracking_ros.cli.bench import format_table
 from face_tracking_ros.cli.main import main
 from face_tracking_ros.errors import ConfigError
+from face_tracking_ros.io.atomic import finite_or_null
 
 QUICK = ('tracker_speed', 'learner_scaling', 'live_latency', 'mono_accuracy', 'stereo_accuracy')
 

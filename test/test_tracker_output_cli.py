@@ -462,6 +462,26 @@ def test_a_report_goes_into_new_directories_as_the_tracked_bag_does(tmp_path):
     assert json.loads((tracked / 'o.json').read_text())['frames'] > 0
 
 
+def test_a_report_of_figures_a_track_cannot_give_is_json_with_nulls(tmp_path):
+    """One frame: no drift, jitter or alpha range. The report said NaN, which is not JSON."""
+    mono = REPO / 'bags' / 'mono_test' / 'subject_00_seq_00'
+    one = tmp_path / 'one'
+    with BagWriter(one) as writer:
+        for message in read_messages(mono):
+            if message.stamp_ns == 1_700_000_000 * 10**9:
+                writer.write(message.topic, message.msgtype, message.msg, message.stamp_ns)
+    argv = ['track', str(one), '--simulate-clicks', '0', '--quiet', '--out', str(tmp_path / 'o')]
+    assert main([*argv, '--report', str(tmp_path / 'o.json')]) == 0
+
+    def refuse(constant: str) -> None:
+        raise ValueError(constant)
+
+    report = json.loads((tmp_path / 'o.json').read_text(), parse_constant=refuse)
+    assert (report['frames'], report['tracked']) == (1, 1)
+    assert [report[key] for key in ('alpha_rms_percent', 'drift_deg', 'jitter_deg')] == [None] * 3
+    assert 0 < report['node_rms_mm'] < 50
+
+
 def test_an_init_file_naming_a_node_the_model_lacks_is_named_not_the_model(tmp_path, capsys):
     """It said 'the face model has 34 nodes but the initialisation names ...: model refused'."""
     mono = REPO / 'bags' / 'mono_test' / 'subject_00_seq_00'

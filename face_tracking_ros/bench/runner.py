@@ -16,7 +16,6 @@ from collections.abc import Sequence
 import datetime
 import importlib
 import json
-import math
 import os
 from pathlib import Path
 import platform
@@ -27,6 +26,7 @@ from typing import Any
 
 from face_tracking_ros.bench.common import BenchOptions, dds_env, pin_to_core
 from face_tracking_ros.errors import ConfigError
+from face_tracking_ros.io.atomic import write_json_atomically
 
 BENCHMARKS = (
     'tracker_speed',
@@ -133,19 +133,6 @@ def machine() -> dict[str, Any]:
     }
 
 
-def finite_or_null(value: Any) -> Any:
-    """A JSON-ready copy of ``value`` with NaN and infinities replaced by None."""
-    if isinstance(value, dict):
-        return {str(key): finite_or_null(item) for key, item in value.items()}
-    if isinstance(value, list | tuple):
-        return [finite_or_null(item) for item in value]
-    if hasattr(value, 'tolist'):
-        return finite_or_null(value.tolist())
-    if isinstance(value, float) and not math.isfinite(value):
-        return None
-    return value
-
-
 def main(argv: Sequence[str] | None = None) -> int:
     """Child entry point: run one benchmark pinned to one core and write its JSON part."""
     parser = argparse.ArgumentParser(
@@ -162,7 +149,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     pin_to_core()
     options = BenchOptions(args.quick, args.work_dir, args.minutes, args.domain_id, args.seed)
     result = importlib.import_module(f'{__package__}.{args.name}').run(options)
-    args.part.write_text(json.dumps(finite_or_null(result), indent=1))
+    write_json_atomically(args.part, result, indent=1)
     return 0
 
 

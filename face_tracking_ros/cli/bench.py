@@ -12,7 +12,6 @@ the environment's ``ROS_DOMAIN_ID`` (as every ROS 2 tool), else 70.
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import os
 from pathlib import Path
@@ -23,7 +22,7 @@ import numpy as np
 from face_tracking_ros.bench.common import BenchOptions
 from face_tracking_ros.bench.runner import BENCHMARKS, DEFAULT_BENCHMARKS, run_benchmarks
 from face_tracking_ros.errors import ConfigError
-from face_tracking_ros.io.atomic import check_output_path, write_text_atomically
+from face_tracking_ros.io.atomic import check_output_path, write_json_atomically
 
 TABLE_SIZE = '640x480'
 STAGE_NAMES = {'align_s': 'align', 'seed_s': 'learn', 'joint_s': 'joint learner'}  # learner rows
@@ -90,7 +89,7 @@ def run(args: argparse.Namespace) -> int:
     failed = [name for name, r in results['benchmarks'].items() if 'failed' in r]
     written = path.with_name(f'{path.stem}.failed{path.suffix}') if failed else path
     written.parent.mkdir(parents=True, exist_ok=True)
-    write_text_atomically(written, json.dumps(results, indent=1))
+    write_json_atomically(written, results, indent=1)
     print(format_table(results))
     print(f'results: {written}' + (f' ({path} not replaced)' if failed else ''))
     for name in failed:

@@ -20,7 +20,7 @@ import numpy as np
 
 from face_tracking_ros.cli.replay import add_replay_options, parse_remaps, print_stats
 from face_tracking_ros.errors import BagError, ConfigError
-from face_tracking_ros.io.atomic import check_output_path, write_text_atomically
+from face_tracking_ros.io.atomic import check_output_path, write_json_atomically
 from face_tracking_ros.io.bags import bag_topics
 from face_tracking_ros.io.series import has_truth, load_states
 from face_tracking_ros.pipelines.bag_inputs import (
@@ -351,4 +351,4 @@ def _score(args: argparse.Namespace, node: str, model_file: Path | None) -> None
         report = accuracy.as_dict()
     if args.report:
         args.report.parent.mkdir(parents=True, exist_ok=True)  # as --out's
-        write_text_atomically(args.report, json.dumps(report, indent=2))
+        write_json_atomically(args.report, report)

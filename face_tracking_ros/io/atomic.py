@@ -5,17 +5,20 @@ over the target (:func:`os.replace`, atomic on POSIX). The file gets the usual p
 new file (0666 less the umask), not the private mode temporary files are created with.
 :func:`read_npz` reads them back, refusing pickled objects, with errors that say what is wrong
 with the file. :func:`check_output_path` and :func:`check_replaceable` refuse, before a
-command does any work, an output it could not write or should not write over.
+command does any work, an output it could not write or should not write over. Reports are
+written as JSON proper (RFC 8259), a figure that does not apply (NaN) as null.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
+import json
+import math
 import os
 from pathlib import Path
 import tempfile
 from tokenize import TokenError
-from typing import BinaryIO
+from typing import Any, BinaryIO
 import zipfile
 
 import numpy as np
@@ -95,6 +98,29 @@ def write_text_atomically(path: Path, text: str) -> None:
         text: the whole content.
     """
     _write_atomically(path, lambda handle: handle.write(text.encode()))
+
+
+def write_json_atomically(path: Path, value: Any, indent: int = 2) -> None:
+    """Write ``value`` as JSON at ``path``, atomically (:func:`write_text_atomically`).
+
+    NaN and infinities, which JSON lacks (Python writes them as ``NaN``, which ``jq`` and
+    other parsers refuse), are written as null (:func:`finite_or_null`).
+    """
+    text = json.dumps(finite_or_null(value), indent=indent, allow_nan=False)
+    write_text_atomically(path, text + '\n')
+
+
+def finite_or_null(value: Any) -> Any:
+    """A JSON-ready copy of ``value`` with NaN and infinities replaced by None."""
+    if isinstance(value, dict):
+        return {str(key): finite_or_null(item) for key, item in value.items()}
+    if isinstance(value, list | tuple):
+        return [finite_or_null(item) for item in value]
+    if hasattr(value, 'tolist'):
+        return finite_or_null(value.tolist())
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return value
 
 
 def _write_atomically(path: Path, write: Callable[[BinaryIO], object]) -> None:

@@ -24,7 +24,6 @@ from __future__ import annotations
 
 from collections.abc import Callable, Collection, Sequence
 from dataclasses import replace
-import json
 from pathlib import Path
 import time
 from typing import Any
@@ -32,7 +31,7 @@ from typing import Any
 import numpy as np
 
 from face_tracking_ros.errors import ConfigError
-from face_tracking_ros.io.atomic import write_text_atomically
+from face_tracking_ros.io.atomic import write_json_atomically
 from face_tracking_ros.io.bags import recording_name
 from face_tracking_ros.io.provenance import other_source
 from face_tracking_ros.learning.alignment import align_training_set
@@ -110,7 +109,7 @@ def learn_from_bags(options: LearnOptions, say: Callable[[str], None] = print) -
         'methods': report_methods,
         'plots': [str(path) for path in plots],
     }
-    _write_json(options.report, report)
+    write_json_atomically(options.report, report)
     say(f'report written to {options.report}')
     return saved
 
@@ -375,19 +374,3 @@ def _plots(
     paths.append(plot_comparison(evaluations, directory / 'comparison.png'))
     paths.append(plot_convergence(results, directory / 'convergence.png'))
     return paths
-
-
-def _write_json(path: Path, report: dict[str, Any]) -> None:
-    """Write the report; NaN (a figure that does not apply) becomes null."""
-    write_text_atomically(path, json.dumps(_json_safe(report), indent=2) + '\n')
-
-
-def _json_safe(value: Any) -> Any:
-    """Replace NaN floats by None in nested dicts and lists."""
-    if isinstance(value, dict):
-        return {key: _json_safe(item) for key, item in value.items()}
-    if isinstance(value, list | tuple):
-        return [_json_safe(item) for item in value]
-    if isinstance(value, float) and np.isnan(value):
-        return None
-    return value
