@@ -255,3 +255,13 @@ def test_a_patch_too_large_for_memory_is_refused_by_name(config, name, largest):
     assert given == largest
     message = _refused(config, TRACKER, name, str(largest + 1))
     assert message.startswith(f'invalid parameter {TRACKER}{name} = {largest + 1}')
+
+
+def test_a_parameter_written_as_on_the_ros_command_line_is_refused_with_the_form_to_use():
+    """``--param gallery_file:=g.npz`` said only 'unknown parameter(s): gallery_file:'."""
+    with pytest.raises(ConfigError) as error:
+        OverrideParameters.parse(['tracker.epsilon=0.1', 'gallery_file:=g.npz'])
+    assert str(error.value) == (
+        "parameter 'gallery_file:=g.npz' must be written name=value "
+        "(gallery_file=g.npz; ':=' is ros2 run's -p form)"
+    )

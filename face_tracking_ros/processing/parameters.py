@@ -92,13 +92,20 @@ class OverrideParameters:
         """From ``['tracker.epsilon=0.1', ...]``.
 
         Raises:
-            ConfigError: for an item without ``=``.
+            ConfigError: for an item without ``=``, or written ``name:=value`` (ros2 run's
+                form, which read as a parameter ``name:`` that no node has).
         """
         overrides = {}
         for item in items or []:
             name, sep, value = item.partition('=')
             if not sep or not name:
                 msg = f'parameter {item!r} must be written name=value'
+                raise ConfigError(msg)
+            if name.endswith(':'):
+                msg = (
+                    f'parameter {item!r} must be written name=value '
+                    f"({name.removesuffix(':')}={value}; ':=' is ros2 run's -p form)"
+                )
                 raise ConfigError(msg)
             overrides[name.strip()] = value.strip()
         return cls(overrides)
