@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+import shutil
 
 from compressed_bags import compressed_copy
 import cv2
@@ -173,3 +174,17 @@ def test_the_bags_given_the_other_way_round_are_named_swapped(turned, tmp_path, 
         f'{bag}: expected one face_tracking_msgs/msg/FaceState topic, found none\n'
     )
     assert not (tmp_path / 'v.gif').exists()
+
+
+def test_a_track_drawn_on_another_bag_than_its_own_says_so(turned, tmp_path, capsys):
+    """Synthetic bags share their stamps: another bag's track was drawn on them without a word."""
+    bag, out = turned
+    other = shutil.copytree(bag, tmp_path / 'other')
+    assert main(['overlay', str(other), str(out), '--video', str(tmp_path / 'v.gif')]) == 0
+    assert capsys.readouterr().out == (
+        f'wrote 3 frames to {tmp_path / "v.gif"}\n'
+        f'note: {out} was tracked from {bag}, not from {other}: its meshes are drawn on the '
+        'images of the same stamps\n'
+    )
+    assert main(['overlay', str(bag), str(out), '--video', str(tmp_path / 'w.gif')]) == 0
+    assert capsys.readouterr().out == f'wrote 3 frames to {tmp_path / "w.gif"}\n'

@@ -8,6 +8,7 @@ from pathlib import Path
 from face_tracking_ros.errors import BagError, ConfigError
 from face_tracking_ros.io.bags import bag_topics
 from face_tracking_ros.io.conversions import STATE_TYPE
+from face_tracking_ros.io.provenance import other_source
 from face_tracking_ros.io.series import load_states
 from face_tracking_ros.pipelines.bag_inputs import image_topics
 from face_tracking_ros.visualization.video import write_overlay_video
@@ -37,7 +38,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> None:
-    """Write the video.
+    """Write the video, and say so when OUT records it was tracked from another bag than BAG.
 
     Raises:
         ConfigError: for ``--every`` < 1 or an unusable ``--video`` path.
@@ -62,6 +63,12 @@ def run(args: argparse.Namespace) -> None:
         args.bag, states, args.video, args.image_topic, args.every, rectify=args.rectify
     )
     print(f'wrote {count} frames to {args.video}')
+    source = other_source(args.out, args.bag)
+    if source is not None:  # a copy or another rendering of the bag may be meant: drawn
+        print(
+            f'note: {args.out} was tracked from {source}, not from {args.bag}: its meshes are '
+            'drawn on the images of the same stamps'
+        )
 
 
 def _swapped(bag: Path, out: Path) -> bool:
