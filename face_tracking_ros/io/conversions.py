@@ -83,16 +83,26 @@ def image_to_gray(msg: Any) -> np.ndarray:
 def compressed_to_gray(msg: Any) -> np.ndarray:
     """Grey (H, W) uint8 image decoded from a sensor_msgs/CompressedImage (JPEG or PNG).
 
+    An 8-bit image only, as of a raw Image (:func:`image_to_gray`): image_transport's PNG of a
+    mono16 camera or a depth image is refused, as their raw Image is, where OpenCV would hand
+    over its top byte.
+
     Raises:
-        InputError: if the data does not decode.
+        InputError: if the data does not decode, or decodes to a 16-bit image.
     """
     data = np.frombuffer(msg.data, dtype=np.uint8)
     if not len(data):
         msg_text = f'compressed image in format {msg.format!r} has no data'
         raise InputError(msg_text)
-    gray = cv2.imdecode(data, cv2.IMREAD_GRAYSCALE)
+    gray = cv2.imdecode(data, cv2.IMREAD_GRAYSCALE | cv2.IMREAD_ANYDEPTH)
     if gray is None:
         msg_text = f'compressed image in format {msg.format!r} does not decode'
+        raise InputError(msg_text)
+    if gray.dtype != np.uint8:
+        msg_text = (
+            f'compressed image in format {msg.format!r} is {8 * gray.itemsize}-bit: the trackers '
+            'take 8-bit images'
+        )
         raise InputError(msg_text)
     return gray
 

@@ -10,6 +10,7 @@ from dataclasses import replace
 import re
 import sys
 
+import cv2
 from fault_scenes import (
     CAMERA,
     FACTORY,
@@ -88,14 +89,20 @@ def _raw_image(width, height, encoding, step, data, stamp_ns=T0_NS):
     )
 
 
-def _compressed(data: bytes):
+def _compressed(data: bytes, image_format: str = 'mono8; png'):
     header = conversions.make_header(FACTORY, T0_NS, 'camera_optical')
     return FACTORY.make(
         'sensor_msgs/msg/CompressedImage',
         header=header,
-        format='mono8; png',
+        format=image_format,
         data=np.frombuffer(data, np.uint8),
     )
+
+
+def _png(image: np.ndarray) -> bytes:
+    encoded, data = cv2.imencode('.png', image)
+    assert encoded
+    return data.tobytes()
 
 
 def _nan_info():
@@ -135,6 +142,12 @@ BAD_MONO_INPUTS = [
     ('image', lambda: _raw_image(0, 0, 'mono8', 0, []), 'image of 0x0 mono8 is empty'),
     ('image', lambda: _compressed(b''), "compressed image in format 'mono8; png' has no data"),
     ('image', lambda: _compressed(b'not a png'), "format 'mono8; png' does not decode"),
+    (  # image_transport's png of a mono16 camera or a depth image: it was read as its top byte
+        'image',
+        lambda: _compressed(_png(np.full((240, 320), 4000, np.uint16)), 'mono16; png compressed'),
+        "compressed image in format 'mono16; png compressed' is 16-bit: the trackers take "
+        '8-bit images',
+    ),
     (
         'image',
         lambda: image_msg(np.zeros((120, 160), np.uint8), stamp(0)),
