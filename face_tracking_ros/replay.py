@@ -8,18 +8,23 @@ output is deterministic. A processor's deferred work
 adjustment stages) runs once its outputs for the message are written, as the node runs it once
 they are published. At the end of the bag, processors that hold outputs back for it
 (:class:`~face_tracking_ros.processing.base.Finishing`, e.g. the stereo tracker's
-``retroactive_depths``) emit them, written with the last input's log time. Ctrl-C stops the
-loop; the outputs held back until then are still emitted and the output bag is closed, so it
-stays readable and nothing already tracked is lost; bad input messages are counted and reported,
-not fatal.
+``retroactive_depths``) emit them, written with the last input's log time. Ctrl-C (and SIGTERM
+where it acts as one) stops the loop once the input it came in has all its outputs written (a
+second one at once); the outputs held back until then are still emitted and the output bag is
+closed, so it stays readable and nothing already tracked is lost; bad input messages are
+counted and reported, not fatal.
 """
 
 from __future__ import annotations
 
 from collections import Counter, deque
 from collections.abc import Callable, Collection, Iterable, Iterator, Mapping, Sequence
+import contextlib
 from dataclasses import dataclass, field, replace
 from pathlib import Path
+import signal
+import threading
+from types import FrameType
 from typing import Any, TypeVar
 
 from tqdm import tqdm
@@ -228,24 +233,70 @@ def replay(
     graph = _Graph(processors, write, wanted, stats, on_output)
     iterator = iter(records)
     log_time = 0
+    stop = _StopRequest()
     try:
-        while (record := _next_readable(iterator, stats)) is not None:
-            bag_topic, msgtype, log_time, msg = record
-            port_topic = topic_map.get(bag_topic)
-            if port_topic is None:
-                continue
-            if record_inputs:
-                write(bag_topic, msgtype, msg, log_time)
-            stats.inputs[port_topic] += 1
-            graph.deliver(None, [Output(port_topic, msg)], log_time)
-            if on_step is not None:
-                on_step()
+        with stop.held():
+            while not stop.requested and (record := _next_readable(iterator, stats)) is not None:
+                bag_topic, msgtype, log_time, msg = record
+                port_topic = topic_map.get(bag_topic)
+                if port_topic is None:
+                    continue
+                if record_inputs:
+                    write(bag_topic, msgtype, msg, log_time)
+                stats.inputs[port_topic] += 1
+                graph.deliver(None, [Output(port_topic, msg)], log_time)
+                if on_step is not None:
+                    on_step()
     except KeyboardInterrupt:
         stats.interrupted = True
+    stats.interrupted = stats.interrupted or stop.requested
     for processor in processors:
         if isinstance(processor, Finishing):
             graph.deliver(processor, processor.finish(), log_time)
     return stats
+
+
+class _StopRequest:
+    """Ctrl-C during a replay, held until the input it came in has all its outputs written.
+
+    Raised where it landed, it cut that input's outputs short (the bag held face/state but not
+    face/pose of the last image, and the tracker's counts were one image ahead of the bag). A
+    second signal interrupts at once, for an input that does not end.
+    """
+
+    def __init__(self) -> None:
+        """No stop requested yet."""
+        self.requested = False
+
+    @contextlib.contextmanager
+    def held(self) -> Iterator[None]:
+        """Within the block, a signal that would raise KeyboardInterrupt requests a stop.
+
+        SIGINT under Python's own handler, SIGTERM under the ``face-tracking`` command's; other
+        handlers, and threads other than the main one, are left as they are.
+        """
+        if threading.current_thread() is not threading.main_thread():
+            yield
+            return
+        previous = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)}
+        held = [sig for sig, handler in previous.items() if handler is signal.default_int_handler]
+        for sig in held:
+            signal.signal(sig, self._handle)
+        try:
+            yield
+        finally:
+            for sig in held:
+                signal.signal(sig, previous[sig])
+
+    def _handle(self, _signum: int, _frame: FrameType | None) -> None:
+        """Request a stop; the second time, interrupt at once.
+
+        Raises:
+            KeyboardInterrupt: at the second signal.
+        """
+        if self.requested:
+            raise KeyboardInterrupt
+        self.requested = True
 
 
 class _Graph:

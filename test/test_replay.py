@@ -282,8 +282,42 @@ def test_sigterm_stops_the_command_as_ctrl_c_does_leaving_a_valid_bag(tmp_path, 
     node = 'mono_tracker'  # a registered name; its processor is replaced
     argv = ['replay', node, str(tmp_path / 'in'), '--out', str(tmp_path / 'out'), '--quiet']
     assert main(argv) == 1  # interrupted
-    assert [m.msg.data for m in read_messages(tmp_path / 'out')] == [0, 1, 2, 4, 5, 6, 7, 8, 9]
+    means = [m.msg.data for m in read_messages(tmp_path / 'out')]
+    assert means == [0, 1, 2, 4, 5, 6, 7, 8, 9, 10]  # the 11th image's output, then stopped
     assert signal.getsignal(signal.SIGTERM) == signal.SIG_DFL  # restored after the command
+
+
+class SignalledProcessor(MeanProcessor):
+    """A MeanProcessor that sends its process SIGINT part way through the 11th message."""
+
+    def __init__(self, signals: int) -> None:
+        """Send SIGINT this many times on the 11th message."""
+        super().__init__()
+        self._signals = signals
+
+    def handle(self, topic, msg, wanted):
+        """As MeanProcessor, with the signals sent part way through the 11th message."""
+        if self._seen == 10:
+            for _ in range(self._signals):
+                os.kill(os.getpid(), signal.SIGINT)
+        return super().handle(topic, msg, wanted)
+
+
+@pytest.mark.parametrize(
+    ('signals', 'means'), [(1, [*range(3), *range(4, 11)]), (2, [0, 1, 2, 4, 5, 6, 7, 8, 9])]
+)
+def test_ctrl_c_stops_after_the_input_it_came_in_and_twice_at_once(tmp_path, signals, means):
+    """A Ctrl-C part way through an input cut its outputs short.
+
+    The output bag then held face/state but not face/pose of the last image, and the tracker's
+    counts were one image ahead of it. A second Ctrl-C is for an input that does not end.
+    """
+    _write_images(tmp_path / 'in', 20)
+    stats = _run(tmp_path / 'in', tmp_path / 'out', SignalledProcessor(signals))
+    assert stats.interrupted
+    assert stats.inputs['image'] == 11
+    assert [m.msg.data for m in read_messages(tmp_path / 'out')] == means
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # restored
 
 
 class DoublingProcessor:
