@@ -342,6 +342,23 @@ def test_a_camera_info_topic_without_messages_is_named_not_a_traceback(tmp_path,
     assert 'wrote 10 frames' in capsys.readouterr().out
 
 
+def test_a_calibration_the_clicks_cannot_use_is_named_with_its_bag_and_topic(tmp_path, capsys):
+    """It said only 'invalid camera: K, P, D or R holds NaN or Inf', of no bag or topic."""
+    mono = REPO / 'bags' / 'mono_test' / 'subject_00_seq_00'
+    bag = tmp_path / 'nan_k'
+    with BagWriter(bag) as writer:
+        for message in read_messages(mono):
+            msg = message.msg
+            if message.topic == 'camera_info':
+                msg = replace(msg, k=np.array([np.nan, *msg.k[1:]]))
+            writer.write(message.topic, message.msgtype, msg, message.stamp_ns)
+    assert main(['track', str(bag), '--simulate-clicks', '1', '--out', str(tmp_path / 'o')]) == 2
+    assert capsys.readouterr().err == (
+        f'error: {bag}: camera_info: invalid camera: K, P, D or R holds NaN or Inf\n'
+    )
+    assert not (tmp_path / 'o').exists()
+
+
 def test_a_stereo_bag_whose_first_right_calibration_is_void_is_scored_with_the_next(
     tmp_path, capsys
 ):

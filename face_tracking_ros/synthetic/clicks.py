@@ -15,7 +15,7 @@ import zlib
 
 import numpy as np
 
-from face_tracking_ros.errors import BagError
+from face_tracking_ros.errors import BagError, InputError
 from face_tracking_ros.geometry.camera import PinholeCamera
 from face_tracking_ros.io import conversions
 from face_tracking_ros.io.atomic import (
@@ -110,6 +110,8 @@ def clicks_from_bag(
 
     Raises:
         BagError: if the bag has no truth or no camera_info of the clicked camera.
+        InputError: if the first camera_info is not a calibration (NaN, an all-zero K),
+            naming the bag and the topic.
     """
     topics = bag_topics(bag)
     infos = sorted(t for t, kind in topics.items() if kind == conversions.CAMERA_INFO_TYPE)
@@ -131,7 +133,11 @@ def clicks_from_bag(
         msg = f'{bag}: simulated clicks need a message on {" and ".join(empty)}, which has none'
         raise BagError(msg)
     truth_msg, truth = first
-    camera = conversions.camera_from_info(info)
+    try:
+        camera = conversions.camera_from_info(info)
+    except InputError as error:
+        msg = f'{bag}: {info_topic}: {error}'
+        raise InputError(msg) from None
     names = tuple(truth_msg.node_names)
     draw = zlib.crc32(recording_name(bag).encode()) if seed is None else seed
     return simulated_clicks(names, truth.nodes, camera, noise_px, np.random.default_rng(draw))
