@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import tempfile
 from tokenize import TokenError
 
 import pytest
@@ -47,3 +48,16 @@ def test_a_damage_without_a_message_text_is_said_by_its_type_or_meaning():
     assert _damage(TokenError('EOF in multi-line statement', (2, 0))) == (
         'its .npy header cannot be parsed'
     )
+
+
+def test_a_file_that_cannot_be_made_is_named_not_its_temporary(tmp_path, monkeypatch):
+    """A directory it may not write in said "Permission denied: '.../.r.json.x1y2.tmp'"."""
+    target = tmp_path / 'r.json'
+
+    def refuse(dir: str, prefix: str, suffix: str) -> tuple[int, str]:  # noqa: A002
+        raise PermissionError(13, 'Permission denied', os.path.join(dir, f'{prefix}x1y2{suffix}'))
+
+    monkeypatch.setattr(tempfile, 'mkstemp', refuse)
+    with pytest.raises(PermissionError) as error:
+        write_text_atomically(target, '{}')
+    assert str(error.value) == f"[Errno 13] Permission denied: '{target}'"

@@ -128,7 +128,11 @@ def _write_atomically(path: Path, write: Callable[[BinaryIO], object]) -> None:
     if not path.parent.is_dir():
         msg = f'no directory {path.parent} to write {path.name} in'
         raise FileNotFoundError(msg)
-    descriptor, name = tempfile.mkstemp(dir=path.parent, prefix=f'.{path.name}.', suffix='.tmp')
+    prefix = f'.{path.name}.'
+    try:
+        descriptor, name = tempfile.mkstemp(dir=path.parent, prefix=prefix, suffix='.tmp')
+    except OSError as error:  # named by the file asked for, not the temporary it never made
+        raise OSError(error.errno, error.strerror, str(path)) from None
     temporary = Path(name)
     try:
         with os.fdopen(descriptor, 'wb') as handle:
