@@ -50,6 +50,9 @@ from face_tracking_ros.processing.registry import processor_factory
 
 _IMAGE_TYPES = (conversions.IMAGE_TYPE, conversions.COMPRESSED_IMAGE_TYPE)
 _CAMERA_INFO_TYPES = (conversions.CAMERA_INFO_TYPE,)
+# Problems a summary lists, the most frequent first: texts that name a stamp (a camera that
+# repeats each one) are one per message, and listed them all.
+SUMMARY_PROBLEMS = 10
 Record = tuple[str, str, int, Any]  # (bag topic, msgtype, log time ns, message)
 ResultT = TypeVar('ResultT')
 
@@ -80,13 +83,21 @@ class ReplayStats:
     warnings: dict[str, str] = field(default_factory=dict)
 
     def summary(self, out: Path) -> list[str]:
-        """The replay summarised in lines of text, ``out`` being the output bag it wrote."""
+        """The replay summarised in lines of text, ``out`` being the output bag it wrote.
+
+        Of the input problems, the :data:`SUMMARY_PROBLEMS` most frequent, then how many others.
+        """
         inputs = ', '.join(f'{n} {t}' for t, n in sorted(self.inputs.items())) or 'none'
         outputs = ', '.join(f'{n} {t}' for t, n in sorted(self.outputs.items())) or 'none'
         lines = [f'read: {inputs}', f'wrote to {out}: {outputs}']
         if self.errors:
             lines.append('input problems (the live node reports these on /diagnostics):')
-        lines += [f'  {count}x {text}' for text, count in self.errors.most_common()]
+        problems = self.errors.most_common()
+        lines += [f'  {count}x {text}' for text, count in problems[:SUMMARY_PROBLEMS]]
+        if len(problems) > SUMMARY_PROBLEMS:
+            rest = problems[SUMMARY_PROBLEMS:]
+            messages = sum(count for _, count in rest)
+            lines.append(f'  ... {len(rest)} other problems ({messages} messages)')
         if self.read_error:
             lines.append(f'input bag damaged, replayed its readable part: {self.read_error}')
         lines += [

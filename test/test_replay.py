@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections import Counter
 import os
 from pathlib import Path
 import signal
@@ -505,3 +506,21 @@ def test_a_tracker_whose_camera_info_the_bag_holds_under_other_names_is_refused(
     remapped = [*argv, '--remap', 'camera_info=left/camera_info', '--out', str(tmp_path / 'b')]
     assert main(remapped) == 0
     assert 'read: 10 camera_info, 10 image' in capsys.readouterr().out
+
+
+def test_a_summary_lists_ten_problems_and_counts_the_rest():
+    """A camera that repeats every stamp made one line per image: each text names its stamp."""
+    errors = Counter(
+        {f'image: image stamp {i} ns repeats the previous image stamp': 1 for i in range(25)}
+    )
+    errors['image: unsupported image encoding'] = 5
+    lines = replay_module.ReplayStats(errors=errors).summary(Path('o'))
+    problems = lines[
+        lines.index('input problems (the live node reports these on /diagnostics):') + 1 :
+    ]
+    assert problems[0] == '  5x image: unsupported image encoding'
+    assert problems[1:10] == [
+        f'  1x image: image stamp {i} ns repeats the previous image stamp' for i in range(9)
+    ]
+    assert problems[10] == '  ... 16 other problems (16 messages)'
+    assert len(problems) == 11
