@@ -7,7 +7,11 @@ offending file, topic, field or parameter.
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
+
+_NUMBER = re.compile(r'\d+(\.\d+)?(e[-+]?\d+)?')
 
 
 class FaceTrackingError(Exception):
@@ -66,3 +70,12 @@ class ModelFileError(FaceTrackingError):
 
 class BagError(FaceTrackingError):
     """A bag is missing, truncated, corrupt or lacks the topics asked for."""
+
+
+def problem_kind(message: str) -> str:
+    """The kind of problem ``message`` tells: the message with its numbers as '#'.
+
+    A camera that repeats every stamp gives one message per image, each naming its stamp; a
+    replay's summary counts them as one, and the live node logs one of a kind per period.
+    """
+    return _NUMBER.sub('#', message)

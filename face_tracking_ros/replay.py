@@ -29,7 +29,7 @@ from typing import Any, TypeVar
 
 from tqdm import tqdm
 
-from face_tracking_ros.errors import BagError, ConfigError, FaceTrackingError
+from face_tracking_ros.errors import BagError, ConfigError, FaceTrackingError, problem_kind
 from face_tracking_ros.io import conversions
 from face_tracking_ros.io.bags import BagWriter, bag_topics, message_count, read_messages
 from face_tracking_ros.io.messages import RosbagsMessages
@@ -50,9 +50,7 @@ from face_tracking_ros.processing.registry import processor_factory
 
 _IMAGE_TYPES = (conversions.IMAGE_TYPE, conversions.COMPRESSED_IMAGE_TYPE)
 _CAMERA_INFO_TYPES = (conversions.CAMERA_INFO_TYPE,)
-# Problems a summary lists, the most frequent first: texts that name a stamp (a camera that
-# repeats each one) are one per message, and listed them all.
-SUMMARY_PROBLEMS = 10
+SUMMARY_PROBLEMS = 10  # kinds of problem a summary lists, the most frequent first
 Record = tuple[str, str, int, Any]  # (bag topic, msgtype, log time ns, message)
 ResultT = TypeVar('ResultT')
 
@@ -64,7 +62,9 @@ class ReplayStats:
     Attributes:
         inputs: input messages fed to the processor, per port topic.
         outputs: output messages written, per topic.
-        errors: bad input messages, per error text (first 200 characters).
+        errors: bad input messages, per kind of problem
+            (:func:`~face_tracking_ros.errors.problem_kind`: messages alike but for their
+            numbers), under the first message of the kind (first 200 characters).
         interrupted: True if Ctrl-C stopped the replay early.
         read_error: why part of the input bag was unreadable ('' if none was).
         status: what each reporting processor reported at the end, per node name
@@ -81,23 +81,33 @@ class ReplayStats:
     read_error: str = ''
     status: dict[str, dict[str, str]] = field(default_factory=dict)
     warnings: dict[str, str] = field(default_factory=dict)
+    _first_of_kind: dict[str, str] = field(default_factory=dict, repr=False)
+
+    def count_error(self, text: str) -> None:
+        """Count a bad input message under the first message of its kind."""
+        first = self._first_of_kind.setdefault(problem_kind(text), text[:200])
+        self.errors[first] += 1
 
     def summary(self, out: Path) -> list[str]:
         """The replay summarised in lines of text, ``out`` being the output bag it wrote.
 
-        Of the input problems, the :data:`SUMMARY_PROBLEMS` most frequent, then how many others.
+        Of the input problems, the :data:`SUMMARY_PROBLEMS` most frequent kinds, then how many
+        others.
         """
         inputs = ', '.join(f'{n} {t}' for t, n in sorted(self.inputs.items())) or 'none'
         outputs = ', '.join(f'{n} {t}' for t, n in sorted(self.outputs.items())) or 'none'
         lines = [f'read: {inputs}', f'wrote to {out}: {outputs}']
         if self.errors:
-            lines.append('input problems (the live node reports these on /diagnostics):')
+            lines.append(
+                'input problems, each kind as its first message (the live node reports these on'
+                ' /diagnostics):'
+            )
         problems = self.errors.most_common()
         lines += [f'  {count}x {text}' for text, count in problems[:SUMMARY_PROBLEMS]]
         if len(problems) > SUMMARY_PROBLEMS:
             rest = problems[SUMMARY_PROBLEMS:]
             messages = sum(count for _, count in rest)
-            lines.append(f'  ... {len(rest)} other problems ({messages} messages)')
+            lines.append(f'  ... {len(rest)} other kinds of problem ({messages} messages)')
         if self.read_error:
             lines.append(f'input bag damaged, replayed its readable part: {self.read_error}')
         lines += [
@@ -381,7 +391,7 @@ def _guarded(work: Callable[[], ResultT], topic: str, stats: ReplayStats) -> Res
     try:
         return work()
     except FaceTrackingError as error:
-        stats.errors[f'{topic}: {error}'[:200]] += 1
+        stats.count_error(f'{topic}: {error}')
         return None
 
 

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-from collections import Counter
 import os
 from pathlib import Path
 import signal
@@ -508,19 +507,41 @@ def test_a_tracker_whose_camera_info_the_bag_holds_under_other_names_is_refused(
     assert 'read: 10 camera_info, 10 image' in capsys.readouterr().out
 
 
-def test_a_summary_lists_ten_problems_and_counts_the_rest():
-    """A camera that repeats every stamp made one line per image: each text names its stamp."""
-    errors = Counter(
-        {f'image: image stamp {i} ns repeats the previous image stamp': 1 for i in range(25)}
+def _problem_lines(stats: replay_module.ReplayStats) -> list[str]:
+    """The summary's lines after its heading of input problems."""
+    lines = stats.summary(Path('o'))
+    heading = (
+        'input problems, each kind as its first message (the live node reports these on'
+        ' /diagnostics):'
     )
-    errors['image: unsupported image encoding'] = 5
-    lines = replay_module.ReplayStats(errors=errors).summary(Path('o'))
-    problems = lines[
-        lines.index('input problems (the live node reports these on /diagnostics):') + 1 :
+    return lines[lines.index(heading) + 1 :]
+
+
+def test_a_summary_counts_messages_alike_but_for_their_numbers_as_one_problem():
+    """A camera that repeats every stamp made one line per image: each text names its stamp."""
+    stats = replay_module.ReplayStats()
+    for i in range(25):
+        stats.count_error(f'image: image stamp {i}.5 s repeats the previous image stamp')
+    for _ in range(3):
+        stats.count_error('image: unsupported image encoding 16UC1')
+    stats.count_error('image: unsupported image encoding mono16')
+    stats.count_error('camera_info: K holds NaN')
+    assert _problem_lines(stats) == [
+        '  25x image: image stamp 0.5 s repeats the previous image stamp',
+        '  3x image: unsupported image encoding 16UC1',
+        '  1x image: unsupported image encoding mono16',
+        '  1x camera_info: K holds NaN',
     ]
-    assert problems[0] == '  5x image: unsupported image encoding'
-    assert problems[1:10] == [
-        f'  1x image: image stamp {i} ns repeats the previous image stamp' for i in range(9)
+
+
+def test_a_summary_lists_ten_kinds_of_problem_and_counts_the_rest():
+    stats = replay_module.ReplayStats()
+    names = 'abcdefghijklmn'  # 14 kinds: topic names differ by letters, not numbers
+    for count, name in enumerate(names, start=1):
+        for _ in range(count):
+            stats.count_error(f'image_{name}: unsupported image encoding')
+    problems = _problem_lines(stats)
+    assert problems[:10] == [
+        f'  {14 - k}x image_{names[13 - k]}: unsupported image encoding' for k in range(10)
     ]
-    assert problems[10] == '  ... 16 other problems (16 messages)'
-    assert len(problems) == 11
+    assert problems[10:] == ['  ... 4 other kinds of problem (10 messages)']  # 4 + 3 + 2 + 1

@@ -16,7 +16,6 @@ from __future__ import annotations
 from collections.abc import Callable, Mapping
 import dataclasses
 from enum import Enum
-import re
 import time
 import traceback
 from typing import Any, TypeVar
@@ -35,7 +34,7 @@ from rclpy.qos import (
     qos_profile_sensor_data,
 )
 
-from face_tracking_ros.errors import ConfigError, FaceTrackingError
+from face_tracking_ros.errors import ConfigError, FaceTrackingError, problem_kind
 from face_tracking_ros.io.messages import RclpyMessages
 from face_tracking_ros.nodes.graceful import Endless, StoppableNode, run_until_stopped
 from face_tracking_ros.processing.base import (
@@ -59,7 +58,6 @@ ResultT = TypeVar('ResultT')
 
 WARNING_PERIOD_S = 5.0  # a problem of one kind is logged at most once per period
 PROBLEM_KIND_CHARS = 60  # problems whose messages start alike (numbers aside) are one kind
-NUMBER = re.compile(r'\d+(\.\d+)?(e[-+]?\d+)?')
 STATUS_PERIOD_S = 1.0  # how often a Reporting processor's status is published (diagnostics' 1 Hz)
 SILENT_INPUT_S = 5.0  # a sensor input without a message for this long is reported
 # Node options under which NodeParameters sees the parameters a node was given but does not use.
@@ -281,7 +279,7 @@ class ProcessorNode(Endless, Node):
         monitor keeping the last status of the node would lose its counts otherwise).
         """
         self._last_problem = (time.monotonic(), level, message)
-        self._log(level, message, NUMBER.sub('#', message)[:PROBLEM_KIND_CHARS])
+        self._log(level, message, problem_kind(message)[:PROBLEM_KIND_CHARS])
         processor = self._processor
         self._report(
             level, message, processor.status() if isinstance(processor, Reporting) else None
