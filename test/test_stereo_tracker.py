@@ -7,6 +7,8 @@ placed on the plane has a known 3-D position in every frame.
 from __future__ import annotations
 
 from dataclasses import replace
+import re
+from types import SimpleNamespace
 
 from call_recording import record_method
 import cv2
@@ -33,19 +35,28 @@ from face_tracking_ros.tracking.stereo_data import (
     SampleLayout,
     SampleSet,
     depth_terms,
+    group_contrast,
     level_projections,
     node_blocks,
+    rim_points,
     robust_residuals,
     sample_images,
     sample_values,
 )
 from face_tracking_ros.tracking.stereo_init import (
+    FLAT_STD,
     StereoInitConfig,
     epipolar_match,
     initial_nodes,
 )
 from face_tracking_ros.tracking.stereo_loss import loss_reason
-from face_tracking_ros.tracking.stereo_solve import PairEnergy
+from face_tracking_ros.tracking.stereo_solve import (
+    LevelSolver,
+    PairEnergy,
+    Point,
+    System,
+    _damped_step,
+)
 from face_tracking_ros.tracking.surface_patches import surface_patch_offsets
 
 RIG = StereoRig.ideal()
@@ -143,6 +154,55 @@ def test_epipolar_match_and_initial_nodes_are_sub_pixel() -> None:
         initial_nodes(RIG, left, right, edge_only, topology, PLANE_INIT)
 
 
+def test_a_faint_stretch_of_the_right_image_is_never_matched() -> None:
+    """A window flatter than FLAT_STD (the sensor noise) is not matched, however it correlates."""
+    left, right = PLANE.pair()
+    nose = PLANE.nodes()[2:3]
+    true_px = RIG.right.project(nose)  # 110 px disparity
+    # Nearer than the nose, the right image shows the left one 150 px on, at 1/40 the contrast:
+    # the nose's window there (NCC 0.9999 with the left one) is flatter than FLAT_STD.
+    faint = 128.0 + 0.025 * np.roll(left, -150, axis=1)
+    assert faint[240:255, 162:177].std() < FLAT_STD
+    right = right.copy()
+    right[:, :189] = faint[:, :189]
+    found, score = epipolar_match(
+        RIG, left, right, RIG.left.project(nose), (np.full(1, 0.3), np.full(1, 1.5)), 7
+    )
+    assert np.abs(found - true_px).max() < 0.1 and 0.95 < score[0] < 0.999
+
+
+def test_four_inner_nodes_place_the_face_and_three_do_not() -> None:
+    left, right = PLANE.pair()
+    topology = mesh_topology(34)
+    inner = ('right_eye', 'left_eye', 'nose_tip', 'mouth_right')
+    given = [topology.index(name) for name in (*inner, 'right_temple', 'left_temple')]
+    left_px = np.full((34, 2), np.nan)
+    left_px[given] = RIG.left.project(PLANE.nodes())[given]
+    initial = initial_nodes(RIG, left, right, left_px, topology, PLANE_INIT)
+    assert np.flatnonzero(initial.matched).tolist() == sorted(given[:4])
+    left_px[given[3]] = np.nan
+    left_px[topology.index('chin')] = RIG.left.project(PLANE.nodes())[topology.index('chin')]
+    with pytest.raises(InputError, match='gives 3 inner nodes .* at least 4 are needed'):
+        initial_nodes(RIG, left, right, left_px, topology, PLANE_INIT)
+
+
+def test_nodes_named_left_for_right_fit_a_face_turned_away_and_are_refused() -> None:
+    left, right = PLANE.pair()
+    topology = mesh_topology(34)
+    mirrored = [
+        topology.index(name.replace('right', '?').replace('left', 'right').replace('?', 'left'))
+        for name in topology.node_names
+    ]
+    with pytest.raises(InputError, match='turned away') as refused:
+        initial_nodes(
+            RIG, left, right, RIG.left.project(PLANE.nodes())[mirrored], topology, PLANE_INIT
+        )
+    # Measured 13 mm: the reference face's nose is 27 mm before its eyes; fitted turned round
+    # to a plane (no relief), it keeps part of that behind them.
+    behind = float(re.search(r'its nose (\d+) mm behind', str(refused.value)).group(1))
+    assert 10 <= behind <= 27, refused.value
+
+
 def _wave(phase: float) -> np.ndarray:
     """A smooth sinusoidal image, so the central-difference image gradient is the true slope."""
     rows, cols = np.mgrid[0:480, 0:640].astype(np.float64)
@@ -194,6 +254,45 @@ def test_image_normal_equations_gradient_matches_finite_differences(layout_kind:
     assert np.allclose(hessian, hessian.T) and np.linalg.eigvalsh(hessian).min() > -1e-6
 
 
+def test_the_damped_step_solves_the_normal_equations_with_a_relative_diagonal_damping() -> None:
+    # Two nodes: -(H + d diag(H))^-1 g, with the diagonal damped relative to itself.
+    rng = np.random.default_rng(3)
+    jacobian = rng.normal(size=(9, 6)) * [1.0, 2.0, 5.0, 10.0, 20.0, 50.0]
+    hessian, gradient = jacobian.T @ jacobian, rng.normal(size=6)
+    step = _damped_step(System(hessian, gradient), 0.5)
+    damped = hessian + 0.5 * np.diag(np.diag(hessian))
+    np.testing.assert_allclose(step.ravel(), -np.linalg.solve(damped, gradient), rtol=1e-10)
+    assert step.shape == (2, 3)
+
+
+class _UphillEnergy:
+    """A stand-in for PairEnergy whose cost |n - c|^2 rises along every linearised step."""
+
+    def __init__(self, centre: np.ndarray) -> None:
+        self.centre = centre
+
+    def evaluate(self, _level: object, nodes: np.ndarray) -> Point:
+        return Point(nodes, float(np.sum((nodes - self.centre) ** 2)), None, None, None)
+
+    def linearise(self, _level: object, point: Point) -> System:
+        return System(np.eye(point.nodes.size), (self.centre - point.nodes).ravel())
+
+
+def test_a_rejected_step_raises_the_damping_tenfold_until_it_passes_a_thousand() -> None:
+    nodes = PLANE.nodes(19)
+    solver = LevelSolver(
+        replace(PLANE_CONFIG, max_iterations=20), level_projections((RIG.left, RIG.right), 0)
+    )
+    energy = _UphillEnergy(nodes - [0.5, 0.0, 0.0])
+    solved = solver.solve(energy, SimpleNamespace(index=0), nodes)
+    assert solved is not None
+    found, iterations, costs, point = solved
+    # Damping 1e-4, 1e-3, ..., 1e3: eight rejected steps (the last 0.5 mm, over 0.1 px), then
+    # 1e4 > 1e3 ends the level where it started.
+    assert iterations == 8 and costs == [] and np.array_equal(found, nodes)
+    assert point.cost == pytest.approx(19 * 0.25)
+
+
 def test_face_edge_patches_follow_the_skin_that_turns_away_beyond_the_edge() -> None:
     # The synthetic head at rest (the reference face's nodes) 0.6 m in front of the camera.
     surface = head_surface()
@@ -213,6 +312,16 @@ def test_face_edge_patches_follow_the_skin_that_turns_away_beyond_the_edge() -> 
     inner = SampleLayout.node_patches(nodes, nodes[:, 2] / 600.0, 3, np.zeros(34, dtype=bool))
     grid = inner.offsets[..., :2]
     np.testing.assert_array_equal(inner.offsets, surface_patch_offsets(nodes, grid))
+
+
+def test_rim_points_lie_outward_of_each_boundary_node_and_behind_it() -> None:
+    # Four nodes about the centroid (0.01, -0.02): the two boundary ones 50 mm right of it and
+    # 30 mm below it; their rim points RIM_OUTWARD (10 mm) farther out, RIM_BEHIND (20 mm) deeper.
+    nodes = np.array(
+        [[0.06, -0.02, 0.6], [0.01, -0.05, 0.62], [-0.04, -0.02, 0.6], [0.01, 0.01, 0.58]]
+    )
+    rim = rim_points(nodes, np.array([True, True, False, False]))
+    np.testing.assert_allclose(rim, [[0.07, -0.02, 0.62], [0.01, -0.06, 0.64]], atol=1e-12)
 
 
 def test_robust_residuals_are_the_huber_terms_of_the_patch_and_texture_residuals() -> None:
@@ -356,6 +465,16 @@ def test_a_row_offset_between_the_images_is_measured_and_taken_into_the_rig(offs
         after = ignoring.step(*pairs[0])
         assert after.status == TrackStatus.INITIALIZING
         assert 'a face 3.29 times the size' in after.reason
+
+
+def test_group_contrast_is_the_rms_of_the_valid_values_about_their_mean() -> None:
+    values = np.array([[[1.0, 2.0, 3.0, 100.0], [4.0, 8.0, np.nan, 6.0], [5.0, 5.0, 5.0, 5.0]]])
+    valid = np.isfinite(values) & (values < 50.0)
+    valid[0, 2] = False
+    contrast = group_contrast(values, valid)
+    # sqrt(((1 - 2)^2 + 0 + (3 - 2)^2) / 3), sqrt((4 + 4 + 0) / 3); no valid value: NaN
+    np.testing.assert_allclose(contrast[0, :2], [np.sqrt(2 / 3), np.sqrt(8 / 3)], rtol=1e-12)
+    assert contrast.shape == (1, 3) and np.isnan(contrast[0, 2])
 
 
 def test_the_gain_is_the_median_contrast_ratio_of_the_textured_patches() -> None:
