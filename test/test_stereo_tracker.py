@@ -21,7 +21,11 @@ from face_tracking_ros.geometry.camera import PinholeCamera, StereoRig
 from face_tracking_ros.model.topology import Group, mesh_topology
 from face_tracking_ros.synthetic.surface import head_surface
 from face_tracking_ros.tracking.camera_gain import relative_gain
-from face_tracking_ros.tracking.depth_refinement import DepthRefinement, depth_evidence
+from face_tracking_ros.tracking.depth_refinement import (
+    DepthEvidence,
+    DepthRefinement,
+    depth_evidence,
+)
 from face_tracking_ros.tracking.initialisation import Initialisation
 from face_tracking_ros.tracking.result import TrackStatus
 from face_tracking_ros.tracking.row_offset import row_offset
@@ -57,7 +61,11 @@ from face_tracking_ros.tracking.stereo_solve import (
     System,
     _damped_step,
 )
-from face_tracking_ros.tracking.surface_patches import surface_patch_offsets
+from face_tracking_ros.tracking.surface_patches import (
+    PatchDeformation,
+    deformed_offsets,
+    surface_patch_offsets,
+)
 
 RIG = StereoRig.ideal()
 # A plane is no face: accept any depth difference from the reference face at initialisation.
@@ -322,6 +330,29 @@ def test_rim_points_lie_outward_of_each_boundary_node_and_behind_it() -> None:
     )
     rim = rim_points(nodes, np.array([True, True, False, False]))
     np.testing.assert_allclose(rim, [[0.07, -0.02, 0.62], [0.01, -0.06, 0.64]], atol=1e-12)
+
+
+@pytest.mark.parametrize('level', [0, 1])
+def test_patches_deform_with_an_affine_stretch_of_the_nodes_exactly(level: int) -> None:
+    """A thin plate reproduces an affine motion: a sample moves A o more than its node.
+
+    Times 2^level on that level (o is level 0's offset); the texture samples keep their offsets.
+    """
+    first = PLANE.nodes(19)
+    stretch = np.array([[0.1, 0.05], [0.0, -0.08]])  # on camera x-y
+    nodes = first.copy()
+    nodes[:, :2] += first[:, :2] @ stretch.T
+    patches = SampleLayout.node_patches(first, first[:, 2] / 600, 2, np.zeros(19, dtype=bool))
+    texture = SampleLayout.triangle_texture(mesh_topology(19).triangles, 4)
+    samples = SampleSet.of((patches, texture), 19)
+    rigid = samples.level_offsets(np.eye(3), level)
+    deformation = PatchDeformation.of(first, patches.offsets)
+    deformed = deformed_offsets(deformation, rigid, nodes, first, np.eye(3), level)
+    offsets = patches.offsets.reshape(-1, 3)
+    expected = rigid.copy()
+    expected[:2, : len(offsets)] += 2**level * (offsets[:, :2] @ stretch.T).T
+    np.testing.assert_allclose(deformed, expected, rtol=0, atol=1e-12)
+    assert np.abs(expected - rigid).max() > 1e-4  # m: the deformation moves samples
 
 
 def test_robust_residuals_are_the_huber_terms_of_the_patch_and_texture_residuals() -> None:
@@ -809,6 +840,25 @@ def test_depth_refinement_ignores_views_that_disagree() -> None:
     # The gate closes at once: no node moves, none gains information.
     assert not np.any(refinement.correction)
     np.testing.assert_array_equal(refinement.information, np.full(34, 1.0 / 0.002**2))
+
+
+def test_depth_refinement_steps_by_recursive_least_squares_within_three_sigmas() -> None:
+    refinement = DepthRefinement.start(PLANE.nodes()[:3], np.array([0.001, 0.002, 0.004]))
+    # Node 0 and 1 pulled far out and in (g = -+1e9 grey^2/m), node 2 a little (g = -2e3).
+    evidence = DepthEvidence(
+        slope=np.array([-1e9, 1e9, -2e3]),
+        curvature=np.array([1e9, 1e9, 1e6]),
+        minimum_sq=np.ones(3),
+    )
+    steps = [refinement.update(evidence, np.ones(3), 2.0, np.full(3, 0.01), 2.0) for _ in range(3)]
+    # Nodes 0 and 1 stop at CORRECTION_SIGMAS (3) initial standard deviations in one step.
+    # Node 2: I = 1 / 0.004^2 + k 1e6 / 2^2 after k pairs, step -(g / 2^2) / I = 500 / I m.
+    information = 1 / 0.004**2 + np.arange(1, 4) * 2.5e5
+    expected = np.zeros((3, 3))
+    expected[0, :2] = [0.003, -0.006]
+    expected[:, 2] = 500.0 / information
+    np.testing.assert_allclose(steps, expected, rtol=1e-12, atol=1e-15)
+    np.testing.assert_allclose(refinement.correction, expected.sum(axis=0), rtol=1e-12)
 
 
 def test_a_pair_whose_projections_are_not_rectified_is_refused_by_name() -> None:
