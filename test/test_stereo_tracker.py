@@ -689,6 +689,14 @@ def test_initialisation_failure_is_reported() -> None:
     assert np.all(np.isnan(later.nodes_cam))
 
 
+def test_config_accepts_the_smallest_noise_floor_and_patch_it_documents() -> None:
+    config = StereoTrackerConfig(noise_floor=0.5, patch_half_size=1)
+    assert (config.noise_floor, config.patch_half_size) == (0.5, 1)
+    for name, value in (('noise_floor', 0.0), ('patch_half_size', 0)):
+        with pytest.raises(ConfigError, match=f'{name} = {value}'):
+            StereoTrackerConfig(**{name: value})
+
+
 def test_reset_and_config_reject_bad_input() -> None:
     tracker = StereoTracker(RIG, StereoTrackerConfig(init=PLANE_INIT))
     with pytest.raises(InputError, match=r'\(34, 2\)'):
@@ -859,6 +867,10 @@ def test_depth_refinement_steps_by_recursive_least_squares_within_three_sigmas()
     expected[:, 2] = 500.0 / information
     np.testing.assert_allclose(steps, expected, rtol=1e-12, atol=1e-15)
     np.testing.assert_allclose(refinement.correction, expected.sum(axis=0), rtol=1e-12)
+    # A pair where node 2's temporal residual is unknown adds nothing to its residual sums.
+    refinement.update(evidence, np.array([1.0, 1.0, np.nan]), 2.0, np.full(3, 0.01), 2.0)
+    assert refinement.left_right_sq.tolist() == [4.0, 4.0, 3.0]
+    assert refinement.temporal_sq.tolist() == [4.0, 4.0, 3.0]
 
 
 def test_a_pair_whose_projections_are_not_rectified_is_refused_by_name() -> None:
