@@ -61,6 +61,7 @@ from face_tracking_ros.tracking.stereo_solve import (
     System,
     _damped_step,
 )
+from face_tracking_ros.tracking.stereo_templates import TemplateSamples, texture_triangles
 from face_tracking_ros.tracking.surface_patches import (
     PatchDeformation,
     deformed_offsets,
@@ -353,6 +354,28 @@ def test_patches_deform_with_an_affine_stretch_of_the_nodes_exactly(level: int) 
     expected[:2, : len(offsets)] += 2**level * (offsets[:, :2] @ stretch.T).T
     np.testing.assert_allclose(deformed, expected, rtol=0, atol=1e-12)
     assert np.abs(expected - rigid).max() > 1e-4  # m: the deformation moves samples
+
+
+def test_template_coefficients_split_gamma_and_epsilon_and_weigh_the_texture() -> None:
+    """The a_k of the table in stereo_templates' docstring.
+
+    k = frame n - 1 in the same / other camera, frame 1 in the same / other camera; face-edge
+    patches with boundary_gamma; the texture in the same camera only, times its weight.
+    """
+    topology = mesh_topology(34)
+    config = StereoTrackerConfig(gamma=0.4, boundary_gamma=0.1, epsilon=0.2, texture_weight=0.5)
+    template_samples = TemplateSamples(config, topology)
+    layouts = template_samples.layouts(PLANE.nodes(), RIG.left.focal)
+    samples = SampleSet.of(layouts, 34)
+    patches, texture = samples.grouped(template_samples.coefficients(samples))
+    edge = topology.group_mask(Group.EDGE)
+    # (1 - 0.2) (1 - 0.4), 0.8 0.4, 0.2 0.6, 0.2 0.4; edge: gamma 0.1; texture: 0.8 0.5, 0.2 0.5
+    assert np.allclose(patches[:, ~edge], np.array([0.48, 0.32, 0.12, 0.08])[:, None, None])
+    assert np.allclose(patches[:, edge], np.array([0.72, 0.08, 0.18, 0.02])[:, None, None])
+    assert np.allclose(texture, np.array([0.4, 0.0, 0.1, 0.0])[:, None, None])
+    assert texture.shape[1] == len(texture_triangles(topology)) > 0
+    without = TemplateSamples(replace(config, texture_weight=0.0), topology)
+    assert len(without.layouts(PLANE.nodes(), RIG.left.focal)) == 1
 
 
 def test_robust_residuals_are_the_huber_terms_of_the_patch_and_texture_residuals() -> None:
