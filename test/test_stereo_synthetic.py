@@ -129,11 +129,14 @@ def test_model_fit_gives_the_head_pose(scene) -> None:
     # initial depths, 3.0 after three pairs of refinement.
     initial, refined = equal_weights_error(False), equal_weights_error(True)
     assert initial > 3.5 and refined < initial - 1.0
-    # Without a model there is no fit and the pose is NaN.
+    # Without a model there is no fit: the pose is NaN, sigma and alpha are empty.
     plain = StereoTracker(rig, StereoTrackerConfig())
     plain.reset(rig.left.project(truth[0]))
     result = plain.step(*pairs[0])
-    assert result.fit is None and np.all(np.isnan(result.as_track_result().omega))
+    view = result.as_track_result()
+    assert result.fit is None and view.omega.shape == view.t.shape == (3,)
+    assert np.all(np.isnan(view.omega)) and np.all(np.isnan(view.t))
+    assert view.sigma.shape == view.alpha.shape == (0,)
 
 
 def test_patches_deforming_with_the_mesh_follow_a_brow_raise() -> None:

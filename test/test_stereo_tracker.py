@@ -480,6 +480,20 @@ def test_the_right_cameras_gain_is_measured_and_divided_out(gain: float) -> None
     assert compensated < 0.2 < 0.25 < ignored, (compensated, ignored)
 
 
+@pytest.mark.parametrize(('gain', 'matchings'), [(1.0, 1), (1.05, 2)])
+def test_a_gain_beyond_the_measurements_resolution_has_the_nodes_matched_again(
+    monkeypatch: pytest.MonkeyPatch, gain: float, matchings: int
+) -> None:
+    """Above GAIN_RESOLUTION (0.03) the nodes are matched again on the corrected pair."""
+    matched = record_method(monkeypatch, StereoTracker, '_initial_nodes', lambda *_: None)
+    left, right = PLANE.pair()
+    tracker = StereoTracker(RIG, replace(PLANE_CONFIG, row_offset_correction=False))
+    tracker.reset(RIG.left.project(PLANE.nodes(19)))
+    assert tracker.step(left, right * gain).ok
+    assert len(matched) == matchings
+    assert tracker.right_gain == pytest.approx(gain, abs=0.005)
+
+
 @pytest.mark.parametrize('offset', [0.5, -0.4])
 def test_row_offset_follows_three_nodes_into_a_shifted_image(offset: float) -> None:
     """The right image is the left one moved down by ``offset`` px: three nodes measure it."""
@@ -686,6 +700,7 @@ def test_bad_frames_never_raise() -> None:
     tracker = StereoTracker(RIG, StereoTrackerConfig(init=PLANE_INIT))
     before = tracker.step(left, right)
     assert before.status == TrackStatus.INITIALIZING and 'reset' in before.reason
+    assert before.iterations == 0 and before.cost_history == ()
     tracker.reset(RIG.left.project(PLANE.nodes()))
     assert tracker.step(left, right).ok
     wrong = tracker.step(left[:100], right)
