@@ -128,7 +128,8 @@ def epipolar_match(
         if strip.shape[1] <= 2 * h + 1 or windows[k].std() < FLAT_STD:
             continue
         response = cv2.matchTemplate(strip, windows[k], cv2.TM_CCOEFF_NORMED)[0]
-        # Flat (zero-variance) stretches of the strip correlate as 1 in OpenCV: exclude them.
+        # On near-flat stretches of the strip the correlation is the noise's (and 0 on exactly
+        # flat ones in OpenCV 5.0): exclude them.
         response[_window_std(strip, h) < FLAT_STD] = -1.0
         best = int(np.argmax(response))
         scores[k] = float(response[best])
