@@ -364,6 +364,22 @@ def test_photometric_projection_removes_exactly_its_brightness_changes(model) ->
     assert np.allclose(stacked[1], 2 * once)
 
 
+@pytest.mark.parametrize('model', list(PhotometricModel))
+def test_photometric_projection_of_float32_samples_is_float64(model) -> None:
+    """Every model gives float64 residuals, the only type the compiled robust cost takes.
+
+    The bundle adjustment's residuals are differences of float32 samples; NONE (no brightness
+    change removed) used to pass them through as float32, and its Huber cost raised TypeError.
+    """
+    coordinates = square_offsets(3)
+    template = np.random.default_rng(6).uniform(20, 230, (5, len(coordinates)))
+    values = (template - 100.0).astype(np.float32)
+    projected = PhotometricProjection.of(template, model, coordinates).apply(values)
+    assert projected.dtype == np.float64
+    if model == PhotometricModel.NONE:
+        np.testing.assert_array_equal(projected, values)
+
+
 @pytest.mark.parametrize('patches', [6, 2])  # 2: each its own basis, not the first's
 def test_photometric_projection_equals_the_projector_of_all_brightness_columns(patches) -> None:
     rng = np.random.default_rng(7)

@@ -74,9 +74,12 @@ class PhotometricProjection:
         return tuple(PhotometricProjection(basis=block.transpose(0, 2, 1)) for block in blocks)
 
     def apply(self, values: np.ndarray) -> np.ndarray:
-        """``(1 - P) values`` for (N, M) residuals or (J, N, M) stacks of them (Jacobian rows)."""
+        """``(1 - P) values`` for (N, M) residuals or (J, N, M) stacks of them (Jacobian rows).
+
+        float64 for every model, from float32 samples too: the compiled kernels take no other.
+        """
         if self.basis.shape[-1] == 0:
-            return values
+            return np.asarray(values, dtype=float)
         stack = np.ascontiguousarray(values if values.ndim == 3 else values[None], dtype=float)
         projected = _project_out(stack, self.basis_rows)
         return projected if values.ndim == 3 else projected[0]

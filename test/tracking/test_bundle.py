@@ -26,6 +26,7 @@ from face_tracking_ros.tracking.bundle import (
     Estimate,
     Patches,
     Problem,
+    adjustment_stages,
     ray_directions,
     rebased,
     skin_offsets,
@@ -38,6 +39,7 @@ from face_tracking_ros.tracking.mono import MonoTracker
 from face_tracking_ros.tracking.mono_adjustment import ViewAdjuster
 from face_tracking_ros.tracking.mono_config import MonoTrackerConfig
 from face_tracking_ros.tracking.mono_rois import Params, RoiLayout
+from face_tracking_ros.tracking.stages import run_stages
 
 SUBJECT = 9
 CAMERA = PinholeCamera.ideal(640, 480, 600.0)
@@ -69,18 +71,32 @@ def test_surface_basis_terms():
     np.testing.assert_allclose(surface_basis(grid)[:, 0, 0], [1.0, 0.5, -1.0, 0.25, -0.5, 1.0])
 
 
-def _problem(first: tuple[np.ndarray, np.ndarray, np.ndarray], nodes: int, q: int) -> Problem:
-    """A Problem of ``nodes`` nodes with frame 1 at ``first``; only its geometry is used."""
+def _problem(
+    first: tuple[np.ndarray, np.ndarray, np.ndarray],
+    nodes: int,
+    q: int,
+    mean_shape: np.ndarray | None = None,
+) -> Problem:
+    """A Problem of ``nodes`` nodes, one ROI sample at each, frame 1 at ``first``, sigma fixed.
+
+    ``mean_shape``: (nodes, 3) the nodes, face frame, m; random by default.
+    """
     rng = np.random.default_rng(1)
+    drawn = rng.normal(scale=0.05, size=(nodes, 3))
     samples = np.zeros((3, nodes, 1))
     return Problem(
         camera=CAMERA.p,
-        mean_shape=rng.normal(scale=0.05, size=(nodes, 3)),
+        mean_shape=drawn if mean_shape is None else mean_shape,
         action_nodes=rng.normal(scale=0.01, size=(nodes, 3, q)),
         shape_nodes=np.zeros((nodes, 3, 0)),
         first=first,
         first_sigma=np.zeros(0),
-        patches=Patches(samples, np.zeros((q, *samples.shape)), np.ones((1, nodes, 1)), samples),
+        patches=Patches(
+            samples,
+            np.zeros((q, *samples.shape)),
+            surface_basis(np.zeros((nodes, 1, 2))),
+            samples,
+        ),
         node_weights=np.ones(nodes),
         invariance=PhotometricInvariance.of(PhotometricModel.NONE, np.zeros((1, 2))),
         alpha_precision=np.eye(q),
@@ -148,6 +164,27 @@ def test_rebased_views_see_every_point_where_they_saw_it():
     assert np.abs(along).max() > 1e-3
     np.testing.assert_allclose(moved.depth[:, 0], estimate.depth[:, 0] - along, atol=1e-12)
     np.testing.assert_array_equal(moved.depth[:, 1:], estimate.depth[:, 1:])
+
+
+def test_the_photometric_term_counts_residuals_in_robust_scales_of_1_4826_mad():
+    """Eq. 6's term is sum rho(r / s), s = max(floor, 1.4826 median |r|) of the start's views.
+
+    One sample per node and every residual c grey levels: each adds (c / s)^2 (inside Huber's
+    k), so the start's cost is 5 / 1.4826^2, or 5 (c / floor)^2 once 1.4826 c is below the 2.0
+    floor. One sample lies 1.5 px from the image's edge: inside the 1 px both views need.
+    """
+    pixels = np.array([[1.5, 240.0], [100.0, 50.0], [320.0, 240.0], [500.0, 400.0], [600, 100]])
+    first = (np.zeros(3), np.array([0.0, 0.0, 0.6]), np.zeros(2))
+    nodes = np.column_stack([(pixels - CAMERA.p[:2, 2]) * 0.6 / 600.0, np.zeros(5)])
+    problem = _problem(first, nodes=5, q=2, mean_shape=nodes)
+    start = Estimate(np.zeros(0), np.zeros((5, SURFACE_TERMS)), first, (first,))
+    costs = []
+    for residual in (10.0, 1.0):
+        images = [np.zeros((480, 640), np.float32), np.full((480, 640), residual, np.float32)]
+        done, adjustment = run_stages(adjustment_stages(problem, images, [np.ones(5)] * 2, start))
+        assert done
+        costs.append(adjustment.initial_cost)
+    np.testing.assert_allclose(costs, [5 / 1.4826**2, 5 * (1.0 / 2.0) ** 2], rtol=1e-9)
 
 
 @pytest.mark.parametrize(
