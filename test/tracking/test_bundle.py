@@ -289,6 +289,25 @@ def test_a_still_head_gives_no_view_and_changes_nothing():
         np.testing.assert_array_equal(off.sigma, on.sigma)
 
 
+def test_an_enrolled_identity_is_held_through_the_adjustments(turning_head, monkeypatch):
+    """With sigma given by the initialisation, the adjustments solve for the rest and keep it."""
+    images, _, model, true_sigma = turning_head
+    camera = SceneConfig(kind='mono').cameras()['image']
+    init = _clicks(turning_head)
+    enrolled = Initialisation(init.node_names, init.points, sigma=true_sigma)
+    applied = record_method(
+        monkeypatch, MonoTracker, '_apply_adjustment', lambda _, adjusted, __: adjusted.estimate
+    )
+    results, _ = track_images(MonoTracker(model, camera), images, enrolled)
+    assert all(result.ok for result in results)
+    assert len(applied) >= 2  # measured 3
+    for estimate in applied:
+        np.testing.assert_array_equal(estimate.sigma, true_sigma)
+        assert np.abs(estimate.depth).max() > 1e-4  # the skin moved
+    for result in results:
+        np.testing.assert_array_equal(result.sigma, true_sigma)
+
+
 def test_a_rejected_adjustment_still_keeps_its_view(turning_head, unadjusted, monkeypatch):
     # Every adjustment rejected (it may not turn frame 1 at all): each frame that ran one is kept
     # as a view all the same, so the next one waits for the head to reach a new rotation rather
