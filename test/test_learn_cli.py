@@ -148,6 +148,17 @@ def test_mesh_bags_with_first_frames_neutral(tmp_path, world, capsys):
     assert f'{bags[0]}: --neutral-frames 75 covers all its 75 frames' in capsys.readouterr().out
 
 
+def test_subject_names_every_bag_without_truth(tmp_path, world, truth_bags):
+    """Two recordings of one person beside truth bags: --subject makes them one subject."""
+    sequences, alpha = world
+    bags = [_write_bag(tmp_path / f'rec{k}', sequences[3], alpha, kind='mesh') for k in (1, 2)]
+    args = ['learn', *map(str, [*truth_bags[:3], *bags]), '--out', str(tmp_path / 'm.npz')]
+    args += ['--report', str(tmp_path / 'r.json'), '--compare', '--q', '3']
+    assert main([*args, '--neutral-frames', '10', '--subject', 'anna']) == 0
+    report = json.loads((tmp_path / 'r.json').read_text())
+    assert report['subjects'] == ['subject_00', 'subject_01', 'subject_02', 'anna']
+
+
 def test_frames_a_tracker_did_not_track_are_left_out(tmp_path, world, capsys):
     """A tracker's bag: meshes of INITIALIZING or LOST frames (zeros, stale) are not learned."""
     sequences, alpha = world
@@ -260,6 +271,10 @@ def test_errors_name_the_bag_topic_or_subject(tmp_path, truth_bags, world, capsy
 
     err = _error(['learn', *bags, *out, '--add-noise', 'nan'], capsys)
     assert '--neutral-frames and --add-noise must not be negative' in err
+
+    for share in ('0', '1.5'):  # a share of the identity variance: 1 is all of it
+        err = _error(['learn', *bags, *out, '--explained-variance', share], capsys)
+        assert f'--explained-variance must be in (0, 1], got {float(share)}' in err
 
     same = ['--out', str(tmp_path / 'x.npz'), '--report', str(tmp_path / 'x.npz')]
     err = _error(['learn', *bags, *same], capsys)

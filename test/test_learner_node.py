@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from dataclasses import fields
 import shutil
 import signal
 import time
@@ -13,12 +14,15 @@ import pytest
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 
+from face_tracking_ros.cli import learn as learn_command
+from face_tracking_ros.cli.main import build_parser
 from face_tracking_ros.errors import ConfigError
 from face_tracking_ros.io import conversions
 from face_tracking_ros.model.model_file import load_model
 from face_tracking_ros.nodes.learner import LearnerConfig, learn_options
 from face_tracking_ros.nodes.processor_node import QOS_PROFILES
 from face_tracking_ros.pipelines.learn import learn_from_bags
+from face_tracking_ros.pipelines.learn_options import LearnOptions
 from face_tracking_ros.processing.base import QosClass
 
 from repo_root import REPO
@@ -80,6 +84,17 @@ def test_tracker_params_reach_the_stereo_tracking_of_learn():
         options.right_info_topic,
     )
     assert given == ('/c0', '/c1', None, '/i')
+
+
+def test_the_node_learns_by_default_as_face_tracking_learn_does():
+    """Both keep their own defaults (p, q, method...); docs/learning.md gives --p 2 --q 5."""
+    argv = ['learn', 'a', '--out', 'face_model.npz', '--report', 'face_model.json']
+    command = learn_command.learn_options(build_parser().parse_args(argv))
+    node = learn_options(LearnerConfig(bags=('a',)))
+    names = [field.name for field in fields(LearnOptions)]
+    differ = {name for name in names if getattr(command, name) != getattr(node, name)}
+    assert differ == {'compare', 'named'}  # the node evaluates only its method; its names
+    assert (command.p, command.q, command.method, command.neutral_frames) == (2, 5, 'joint', 0)
 
 
 def test_the_learning_pipeline_names_the_nodes_parameters_not_the_commands_options(tmp_path):
