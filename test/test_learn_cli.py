@@ -37,9 +37,11 @@ def _write_bag(
     kind: str = 'truth',
     status: np.ndarray | None = None,
 ) -> Path:
-    """A bag of the sequence's truth or meshes; with ``status``, also a tracker's face/state.
+    """A bag of the sequence's truth, FaceMesh meshes or FaceState states (``kind``).
 
-    A mesh whose status is not TRACKING (1) is written as a tracker leaves it: zeros.
+    With ``status``, each frame's tracker status: in the FaceState itself, or in a face/state
+    beside the truth or meshes. A frame whose status is not TRACKING (1) is written as a tracker
+    leaves it: zeros.
     """
     factory = RosbagsMessages(typestore())
     names = list(mesh_topology(sequence.meshes.shape[1]).node_names)
@@ -47,11 +49,11 @@ def _write_bag(
         for f, nodes in enumerate(sequence.meshes):
             stamp = START_NS + f * 33_000_000
             header = conversions.make_header(factory, stamp, 'camera')
-            if status is not None:
-                state = factory.make(STATE_TYPE, header=header, status=int(status[f]))
+            tracked = 1 if status is None else int(status[f])
+            points = conversions.array_to_points(factory, nodes * (tracked == 1))
+            if status is not None and kind != 'state':
+                state = factory.make(STATE_TYPE, header=header, status=tracked)
                 bag.write('face/state', STATE_TYPE, state, stamp)
-                nodes = nodes if status[f] == 1 else np.zeros_like(nodes)
-            points = conversions.array_to_points(factory, nodes)
             if kind == 'truth':
                 message = factory.make(
                     TRUTH_TYPE,
@@ -63,9 +65,14 @@ def _write_bag(
                     expression_label=sequence.labels[f],
                 )
                 bag.write('truth/face', TRUTH_TYPE, message, stamp)
-            else:
+            elif kind == 'mesh':
                 message = factory.make(MESH_TYPE, header=header, node_names=names, points=points)
                 bag.write('face/mesh_raw', MESH_TYPE, message, stamp)
+            else:
+                message = factory.make(
+                    STATE_TYPE, header=header, status=tracked, node_names=names, nodes=points
+                )
+                bag.write('face/state', STATE_TYPE, message, stamp)
     return path
 
 
@@ -164,16 +171,17 @@ def test_frames_a_tracker_did_not_track_are_left_out(tmp_path, world, capsys):
     sequences, alpha = world
     status = np.full(len(sequences[0].meshes), 1)  # FaceState.STATUS_TRACKING
     status[:5], status[40] = 0, 2  # waiting for the face, then one frame lost
-    bags = [
-        _write_bag(tmp_path / f'person{k}', s, alpha, kind='mesh', status=status)
-        for k, s in enumerate(sequences)
-    ]
-    args = ['learn', *map(str, bags), '--out', str(tmp_path / 'm.npz'), '--q', '3']
-    args += ['--report', str(tmp_path / 'r.json'), '--compare', '--neutral-frames', '10']
-    assert main(args) == 0
-    assert f'{bags[0]}: 6 frames the tracker did not track' in capsys.readouterr().out
-    report = json.loads((tmp_path / 'r.json').read_text())
-    assert report['frames'] == 4 * (len(status) - 6)
+    for kind in ('mesh', 'state'):  # FaceMesh beside face/state; FaceState alone
+        bags = [
+            _write_bag(tmp_path / kind / f'person{k}', s, alpha, kind=kind, status=status)
+            for k, s in enumerate(sequences)
+        ]
+        args = ['learn', *map(str, bags), '--out', str(tmp_path / 'm.npz'), '--q', '3']
+        args += ['--report', str(tmp_path / 'r.json'), '--compare', '--neutral-frames', '10']
+        assert main(args) == 0
+        assert f'{bags[0]}: 6 frames the tracker did not track' in capsys.readouterr().out
+        report = json.loads((tmp_path / 'r.json').read_text())
+        assert report['frames'] == 4 * (len(status) - 6)
     never = _write_bag(tmp_path / 'never', sequences[0], alpha, kind='mesh', status=status * 0)
     # with the other subjects' bags, as one subject is refused for p = 2 before any is read
     err = _error(['learn', str(never), *map(str, bags[1:]), '--out', str(tmp_path / 'n.npz'),
@@ -233,13 +241,10 @@ def test_errors_name_the_bag_topic_or_subject(tmp_path, truth_bags, world, capsy
 
     broken = sequences[1].meshes.copy()
     broken[7, 3, 1] = np.nan
-    bag = _write_bag(
-        tmp_path / 'broken',
-        sequences[1].__class__(
-            'subject_01', broken, sequences[1].neutral, sequences[1].labels, ''
-        ),
-        alpha,
+    broken_sequence = sequences[1].__class__(
+        'subject_01', broken, sequences[1].neutral, sequences[1].labels, ''
     )
+    bag = _write_bag(tmp_path / 'broken', broken_sequence, alpha)
     err = _error(['learn', str(bag), *out], capsys)
     nan = 'FaceTruth.nodes holds NaN or Inf: 1 of 102 values, the first (nan) at [3, 1]'
     assert f'{bag}: truth/face message 7 (stamp ' in err
@@ -254,6 +259,11 @@ def test_errors_name_the_bag_topic_or_subject(tmp_path, truth_bags, world, capsy
 
     err = _error(['learn', str(bag), *out, '--nodes', '34'], capsys)
     assert f'{bag}: truth/face: --nodes 34 but the meshes have only 19 nodes' in err
+
+    for kind, field in (('mesh', 'FaceMesh.points'), ('state', 'FaceState.nodes')):
+        bag = _write_bag(tmp_path / f'broken_{kind}', broken_sequence, alpha, kind=kind)
+        err = _error(['learn', str(bag), *bags, *out, '--neutral-frames', '10'], capsys)
+        assert f'{field} holds NaN or Inf: 1 of 102 values, the first (nan) at [3, 1]' in err
 
     mesh_bag = _write_bag(tmp_path / 'anon', sequences[3], alpha, kind='mesh')
     err = _error(['learn', str(mesh_bag), *bags, *out], capsys)

@@ -600,6 +600,7 @@ def test_subjects_of_names_and_truth_are_refused_before_tracking(tmp_path, capsy
     init_dir = tmp_path / 'init'
     init_dir.mkdir()
     write_init_file(clicks_from_bag(BAGS[0], 1.0), init_dir / f'{anon.name}.json')
+    again = shutil.copytree(BAGS[1], tmp_path / 'bags' / 'again')  # subject_01 by its truth
     inputs = sorted(tmp_path.rglob('*'))
     pattern = r'(.+)_seq_\d+'
     learn = ['learn', '--simulate-clicks', '1', '--init-dir', str(init_dir), '--out',
@@ -614,8 +615,8 @@ def test_subjects_of_names_and_truth_are_refused_before_tracking(tmp_path, capsy
             [*learn, *map(str, BAGS), '--from-images', '--p', '3'],
             '3 subject(s) cannot give an identity subspace of p = 3: at least p + 1 = 4',
         ),
-        (  # a name, and the truth of a bag of truth not tracked
-            [*learn, str(anon), str(BAGS[1]), '--neutral-frames', '3'],
+        (  # a name, and the truth of two bags of truth not tracked: not their names
+            [*learn, str(anon), str(BAGS[1]), str(again), '--neutral-frames', '3'],
             '2 subject(s) cannot give an identity subspace of p = 2: at least p + 1 = 3',
         ),
     ]
