@@ -5,6 +5,7 @@ from __future__ import annotations
 from dataclasses import fields
 import json
 from pathlib import Path
+import time
 
 from learning_population import mesh_sequences
 import numpy as np
@@ -94,12 +95,14 @@ def truth_bags(tmp_path_factory, world) -> list[Path]:
 
 def test_learns_compares_and_writes_model_report_and_plots(tmp_path, truth_bags, capsys):
     model_path, report_path = tmp_path / 'face.npz', tmp_path / 'report.json'
+    start = time.perf_counter()
     status = main(
         ['learn', *map(str, truth_bags), '--out', str(model_path), '--report', str(report_path)]
         + ['--nodes', '19', '--q', '3', '--plots', str(tmp_path / 'figures' / 'run1')]
         + ['--truth-population', 'default']
         + ['--add-noise', '0.0005', '--truth-samples', '200']
     )
+    seconds = time.perf_counter() - start
     assert status == 0
     out = capsys.readouterr().out
     assert 'read 300 meshes of 19 nodes, 4 subjects' in out
@@ -107,7 +110,10 @@ def test_learns_compares_and_writes_model_report_and_plots(tmp_path, truth_bags,
     model = load_model(model_path)
     assert (model.method, model.num_nodes, model.p, model.q) == ('joint', 19, 2, 3)
     assert model.metadata['bags'] == [str(bag) for bag in truth_bags]
+    assert f'model (joint, p=2, q=3) written to {model_path}\n' in out
     report = json.loads(report_path.read_text())
+    assert report['model'] == str(model_path)
+    assert 0.0 < report['align_seconds'] < seconds
     assert list(report['methods']) == ['joint', 'seed', 'seed-weighted']
     joint = report['methods']['joint']
     assert joint['truth']['action_share'] > 0.95

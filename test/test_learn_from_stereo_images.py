@@ -214,8 +214,12 @@ def test_simulated_clicks_are_of_the_nodes_the_tracker_tracks(still_bag, tmp_pat
     assert tracked.node_rms < 0.0012 and tracked.max_reprojection < 1.0  # 0.66 mm, 0.45 px
 
 
-def test_compressed_images_under_any_names_are_tracked_like_raw_ones(still_bag, tmp_path):
-    """image_transport's compressed topics are found by name, others by side, or given."""
+def test_compressed_images_under_any_names_are_tracked_like_raw_ones(still_bag, tmp_path, capsys):
+    """image_transport's compressed topics are found by name, others by side, or given.
+
+    The meshes are scored against the bag's truth as tracked, but for camera_info topics
+    named neither left nor right: the rig is not found, and the line says so.
+    """
     raw = _learn_meshes(still_bag, tmp_path / 'raw')
     found = compressed_copy(still_bag, tmp_path / 'found', {
         'left/image_raw': '/stereo/left/image_raw/compressed',
@@ -239,6 +243,10 @@ def test_compressed_images_under_any_names_are_tracked_like_raw_ones(still_bag, 
         assert tracked.frames == raw.frames == 40
         assert tracked.node_rms == pytest.approx(raw.node_rms, abs=1e-9)  # the same pixels
         assert tracked.max_reprojection == pytest.approx(raw.max_reprojection, abs=1e-6)
+        said = capsys.readouterr().out
+        no_rig = f'{bag}: no valid left and right camera_info to build the stereo rig'
+        assert (f'not scored against the truth of {bag}: {no_rig}\n' in said) == (bag == given)
+        assert (f' against the truth of {bag}: 40 frames, 100% tracked' in said) == (bag != given)
 
 
 def test_a_stereo_pair_not_found_by_name_is_asked_for(still_bag, tmp_path, capsys):
@@ -401,6 +409,37 @@ def test_truth_given_for_a_raw_stereo_bag_labels_the_meshes_tracked_from_it(tmp_
     assert main(argv) == 0, capsys.readouterr().err
     subjects = json.loads(report.read_text())['subjects']
     assert subjects == ['subject_00', 'subject_01', 'subject_02']  # not the name raw_00
+
+
+def test_a_raw_bag_tracked_into_no_mesh_is_refused_with_its_input_problems(tmp_path, capsys):
+    """Left images of half the calibrated height: named, and no meshes left to re-use."""
+    small = tmp_path / 'bags' / 'small'
+    factory = RosbagsMessages(typestore())
+    with BagWriter(small) as writer:
+        for message in read_messages(BAGS[0]):
+            msg = message.msg
+            if message.topic == 'left/image_raw':
+                rows = msg.height // 2
+                msg = factory.make(
+                    message.msgtype,
+                    header=msg.header,
+                    height=rows,
+                    width=msg.width,
+                    encoding=msg.encoding,
+                    step=msg.step,
+                    data=msg.data[: msg.step * rows],
+                )
+            writer.write(message.topic, message.msgtype, msg, message.stamp_ns)
+    argv = ['learn', str(small), *map(str, BAGS[1:]), '--from-images', '--simulate-clicks', '1']
+    argv += ['--p', '1', '--out', str(tmp_path / 'm.npz'), '--report', str(tmp_path / 'r.json')]
+    assert main(argv) == 2
+    size = 'left image is 320x120 but camera_info says 320x240'
+    assert capsys.readouterr().err == (
+        f'error: {small}: the stereo tracker produced no mesh (1x right/camera_info: the pair '
+        f'held until the calibration came: {size}; 9x right/image_raw: {size})\n'
+    )
+    assert not (tmp_path / 'r_meshes' / 'small').exists()
+    assert not (tmp_path / 'm.npz').exists()
 
 
 def _without_truth(bag: Path, out: Path) -> Path:
