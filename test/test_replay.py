@@ -178,6 +178,12 @@ def test_replay_writes_one_output_per_good_frame_at_the_input_stamp(tmp_path):
     assert stats.inputs['image'] == 8
     assert stats.outputs['mean'] == 7
     assert stats.errors == {'image: frame marked bad': 1}
+    assert stats.summary(tmp_path / 'out') == [
+        'read: 8 image',
+        f'wrote to {tmp_path / "out"}: 7 mean',
+        'input problems (the live node reports these on /diagnostics):',
+        '  1x image: frame marked bad',
+    ]
     written = list(read_messages(tmp_path / 'out'))
     assert [m.stamp_ns for m in written] == stamps[:3] + stamps[4:]
     assert [m.msg.data for m in written] == [0, 1, 2, 4, 5, 6, 7]
