@@ -26,3 +26,17 @@ def test_help_is_plain_text_and_explains_every_option(name: str) -> None:
         if not action.help and not isinstance(action, argparse._HelpAction)
     ]
     assert unexplained == []
+
+
+def test_a_description_from_the_module_docstring_is_its_summary() -> None:
+    """The enroll and demo help texts: a paragraph of their module's docstring."""
+    parsers = _subcommands()
+    enroll, demo = (' '.join(parsers[name].format_help().split()) for name in ('enroll', 'demo'))
+    assert "The offline counterpart of the identity_recognizer's enroll_identity service" in enroll
+    assert 'face-tracking demo --out DIR: the whole system, end to end, on the synthetic' in demo
+
+
+def test_synth_renders_the_size_its_help_states_by_default() -> None:
+    parser = _subcommands()['synth']
+    assert '(640x480)' in ' '.join(parser.format_help().split())
+    assert parser.parse_args([]).size == (640, 480)

@@ -8,12 +8,15 @@ plot after drawing).
 from __future__ import annotations
 
 from pathlib import Path
+import time
 
+import numpy as np
 import pytest
 
 from face_tracking_ros.cli.main import main
 from face_tracking_ros.errors import ConfigError
 from face_tracking_ros.io.atomic import check_output_path
+from face_tracking_ros.io.bags import read_messages
 
 from repo_root import REPO
 
@@ -63,6 +66,34 @@ def test_an_output_of_the_wrong_kind_is_named(tmp_path, capsys):
     assert f'--json {tmp_path} is a directory, not a file' in capsys.readouterr().err
     assert notes.read_text() == 'mine'
     assert not (tmp_path / 'b').exists()
+
+
+def test_a_contact_sheet_opencv_writes_no_format_of_is_named_before_rendering(tmp_path, capsys):
+    synth = ['synth', '--kind', 'mono', '--frames', '2', '--out', str(tmp_path / 'bags')]
+    for name, suffix in (('sheet.txt', '.txt'), ('sheet', 'none')):
+        assert main([*synth, '--contact-sheet', str(tmp_path / name)]) == 2
+        assert capsys.readouterr().err == (
+            f'error: --contact-sheet {tmp_path / name}: OpenCV writes no image format of its '
+            f'extension ({suffix}); give a .png (or .jpg, .tif...) file name\n'
+        )
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize(('kind', 'images'), [('mono', 30), ('stereo', 60)])
+def test_synth_says_what_it_wrote_by_default(tmp_path, capsys, kind, images):
+    """One subject's sequence of 30 frames; stereo cameras not toed in (R = I)."""
+    out = tmp_path / 'bags'
+    start = time.perf_counter()
+    assert main(['synth', '--kind', kind, '--size', '64x48', '--out', str(out)]) == 0
+    wall = time.perf_counter() - start
+    first, summary = capsys.readouterr().out.splitlines()
+    assert first.startswith(f'{out / "subject_00_seq_00"}: subject_00 sequence 0, 30 frames, ')
+    assert summary.startswith(f'1 bags, 30 frames ({images} images) in ')
+    assert 0.0 <= float(summary.split(' in ')[1].split(' s ')[0]) <= wall + 0.05  # .1f
+    assert sorted(path.name for path in out.iterdir()) == ['subject_00_seq_00']
+    infos = [m.msg for m in read_messages(out / 'subject_00_seq_00') if 'camera_info' in m.topic]
+    assert len(infos) == images
+    assert all(np.array_equal(info.r, np.eye(3).ravel()) for info in infos)
 
 
 def test_missing_directories_and_relative_paths_pass(tmp_path, monkeypatch):

@@ -13,7 +13,7 @@ import pytest
 
 from face_tracking_ros import replay as replay_module
 from face_tracking_ros.cli.main import main
-from face_tracking_ros.cli.replay import print_stats
+from face_tracking_ros.cli.replay import describe, print_stats
 from face_tracking_ros.errors import BagError, ConfigError, InputError
 from face_tracking_ros.io import conversions
 from face_tracking_ros.io.bags import BagWriter, read_messages
@@ -467,6 +467,33 @@ def test_a_misspelt_wanted_or_echoed_topic_is_named(tmp_path, monkeypatch, capsy
     assert expected in capsys.readouterr().err
     assert main([*replay, str(tmp_path / 'b'), '--echo', 'men']) == 0
     assert '--echo men: nothing was produced on it (outputs: mean)' in capsys.readouterr().out
+
+
+def test_echo_prints_each_output_timed_from_the_bags_first_message(tmp_path, monkeypatch, capsys):
+    _write_images(tmp_path / 'in', 5)  # 33 ms apart; frame 3 is marked bad: no output
+    monkeypatch.setattr(
+        replay_module, 'processor_factory', lambda _node: lambda _p, _f: MeanProcessor()
+    )
+    argv = ['replay', 'mono_tracker', str(tmp_path / 'in'), '--quiet', '--out']
+    assert main([*argv, str(tmp_path / 'out'), '--echo', 'mean']) == 0
+    echoed = [line for line in capsys.readouterr().out.splitlines() if line.startswith('t=')]
+    assert [line[:33] for line in echoed] == [
+        f't={seconds:8.3f} s  mean               ' for seconds in (0.0, 0.033, 0.066, 0.132)
+    ]
+    assert [line[33:].split('data=')[1][:3] for line in echoed] == ['0.0', '1.0', '2.0', '4.0']
+
+
+def test_an_echoed_event_is_one_line_of_its_fields():
+    factory = RosbagsMessages(typestore())
+    expression = 'face_tracking_msgs/msg/ExpressionEvent'
+    onset = factory.make(expression, label='smile', event=0, confidence=0.9, duration=0.0)
+    offset = factory.make(expression, label='smile', event=1, confidence=0.8, duration=1.25)
+    identity = factory.make(
+        'face_tracking_msgs/msg/IdentityEvent', identity='ann', distance=1.5, confidence=0.75
+    )
+    assert describe(onset) == 'ONSET  smile      confidence 0.90 duration 0.00 s'
+    assert describe(offset) == 'OFFSET smile      confidence 0.80 duration 1.25 s'
+    assert describe(identity) == 'ann          distance 1.50 confidence 0.75'
 
 
 def test_a_node_named_twice_is_refused_before_any_work(tmp_path, capsys):
