@@ -168,6 +168,14 @@ def test_the_bags_given_the_other_way_round_are_named_swapped(turned, tmp_path, 
     )
     assert main(['overlay', str(bag), str(bag), '--video', str(tmp_path / 'v.gif')]) == 2
     assert capsys.readouterr().err.endswith('FaceState topic, found none\n')  # no images first
+    other = tmp_path / 'other'  # neither images nor states first: not a tracking output
+    with BagWriter(other) as writer:
+        factory = RosbagsMessages(typestore())
+        writer.write('level', 'std_msgs/msg/Float64', factory.make('std_msgs/msg/Float64'), 1)
+    assert main(['overlay', str(other), str(bag), '--video', str(tmp_path / 'v.gif')]) == 2
+    assert capsys.readouterr().err.endswith(
+        f'{bag}: expected one face_tracking_msgs/msg/FaceState topic, found none\n'
+    )
     missing = tmp_path / 'no_such_bag'  # the check for swapped bags keeps the states' error
     assert main(['overlay', str(missing), str(bag), '--video', str(tmp_path / 'v.gif')]) == 2
     assert capsys.readouterr().err.endswith(

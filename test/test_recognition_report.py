@@ -188,3 +188,11 @@ def test_errors(pairs: dict, tmp_path: Path, capsys: pytest.CaptureFixture) -> N
     assert 'no TRACKING stretch of the --test bags spans a 1-s window' in capsys.readouterr().err
     assert cli.main([*enrol, '--test', f'{tmp_path / "narrow"}={truth}']) == 2
     assert f'{tmp_path / "narrow"}: sigma and alpha of p=' in capsys.readouterr().err
+    # The bag named is the one unlike the first bag, wherever it is given.
+    first = pairs['enrol'][0].split('=')[0]
+    odd = [pairs['enrol'][0], f'{tmp_path / "narrow"}={truth}', '--test', *pairs['test']]
+    assert cli.main(['recognition-report', '--enrol', *odd, *enrol[-2:]]) == 2
+    assert capsys.readouterr().err == (
+        f'error: {tmp_path / "narrow"}: sigma and alpha of p=4, q=5, {first} p=4, q=6: the bags '
+        'were tracked with different face models\n'
+    )
