@@ -25,6 +25,13 @@ from face_tracking_ros.recognition.benchmark import (
     synthetic_sequences,
     tracking_noise,
 )
+from face_tracking_ros.recognition.evaluation import (
+    detect_events,
+    merge_scores,
+    score_events,
+    truth_segments,
+)
+from face_tracking_ros.recognition.events import EventConfig
 from face_tracking_ros.recognition.expression import (
     ExpressionClassifier,
     ExpressionTrainingConfig,
@@ -100,6 +107,21 @@ def test_report_on_tracked_bags(pairs: dict, capsys: pytest.CaptureFixture) -> N
     clear = float(out.split('expressions: ')[1].split(' %')[0])
     assert clear >= 90.0
     assert 'identity   sigma      100.0%' in out
+    # Events scored with onsets at the label's start, then at half its rise (alpha level 0.5):
+    # here F1 1.000 for both, latencies 159 and 49 ms.
+    scored = [
+        tracked_sequence(*map(Path, p.split('='))) for p in pairs['test'] + pairs['strangers']
+    ]
+    classifier = ExpressionClassifier.load(pairs['classifier'][0], scored[0].alpha.shape[1])
+    events = [detect_events(classifier, s, EventConfig()) for s in scored]
+    for level, name in ((0.0, 'label start'), (0.5, 'half rise')):
+        segments = [truth_segments(sequence, level) for sequence in scored]
+        score = merge_scores(list(map(score_events, events, segments)))
+        latency = 1000 * np.mean(score.latencies)
+        assert (
+            f'events (onset at {name}): F1 {score.f1:.3f}, mean onset latency {latency:.0f} ms\n'
+            in out
+        )
 
 
 def test_report_without_strangers_says_so(pairs: dict, capsys: pytest.CaptureFixture) -> None:
