@@ -181,7 +181,8 @@ def test_replay_writes_one_output_per_good_frame_at_the_input_stamp(tmp_path):
     assert stats.summary(tmp_path / 'out') == [
         'read: 8 image',
         f'wrote to {tmp_path / "out"}: 7 mean',
-        'input problems (the live node reports these on /diagnostics):',
+        'input problems, each kind as its first message (the live node reports these on'
+        ' /diagnostics):',
         '  1x image: frame marked bad',
     ]
     written = list(read_messages(tmp_path / 'out'))
