@@ -73,8 +73,8 @@ class _Frame(NamedTuple):
 def read_bag_meshes(
     bag: Path,
     options: LearnOptions,
-    truth_bag: Path | None = None,
-    name: str = '',
+    truth_bag: Path | None,
+    name: str,
     say: Callable[[str], None] = print,
 ) -> list[BagMeshes]:
     """The meshes of one bag, one entry per subject found in it.
@@ -83,10 +83,11 @@ def read_bag_meshes(
         bag: a bag of FaceTruth, FaceMesh or FaceState messages.
         options: the run's options (topic, subject, neutral frames, nodes).
         truth_bag: for mesh bags, a bag whose ``truth/face`` messages give the subject, label and
-            alpha of the mesh with the same header stamp (e.g. the synthetic bag a tracker ran on).
-        name: the name the subject id is taken from without truth
-            (:func:`~.learn_options.subject_of`); empty: the bag's (the raw bag's, for the meshes
-            tracked from it).
+            alpha of the mesh with the same header stamp (e.g. the synthetic bag a tracker ran
+            on); None: the meshes carry their own truth (FaceTruth) or have none.
+        name: the recording name the subject id is taken from without truth
+            (:func:`~.learn_options.subject_of`): the raw bag's, for the meshes tracked from
+            it.
         say: where the notes on what was left out or taken as neutral go, line by line.
 
     Raises:
@@ -96,7 +97,6 @@ def read_bag_meshes(
     """
     topics = bag_topics(bag)
     topic = _checked_mesh_topic(bag, topics, options)
-    name = name or recording_name(bag)
     frames, skipped = _tracked_frames(bag, topics, topic, options, truth_bag, name)
     if skipped:
         say(f'{bag}: {skipped} frames the tracker did not track (initialising or lost) left out')

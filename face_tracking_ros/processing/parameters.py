@@ -143,8 +143,6 @@ def _coerce(name: str, text: str, default: Any) -> Any:
             if lowered not in _TRUE | _FALSE:
                 raise ValueError(text)
             return lowered in _TRUE
-        if isinstance(default, tuple):
-            return tuple(float(v) for v in text.split(',') if v.strip())
         return type(default)(text) if default is not None else text
     except ValueError:
         msg = f'parameter {name}={text!r} is not a valid {type(default).__name__}'
