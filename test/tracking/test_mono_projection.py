@@ -47,9 +47,8 @@ def test_a_sample_is_inside_when_its_central_differences_read_the_image(model_fa
     sampled = face.sample(pyramid, params, 0, roi)
 
     _, (x, y) = face.roi_points(params, face.level_cameras[0], roi)
-    assert np.allclose(x[0], pixels[:, 0], atol=1e-3) and np.allclose(
-        y[0], pixels[:, 1], atol=1e-3
-    )
+    assert np.allclose(x[0], pixels[:, 0], atol=1e-3)
+    assert np.allclose(y[0], pixels[:, 1], atol=1e-3)
     expected = [False, True, True, True, False, False, True, True, False]
     assert sampled.inside.shape == (count, size)
     assert (sampled.inside == np.array(expected)).all()
