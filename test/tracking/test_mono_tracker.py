@@ -316,6 +316,56 @@ def test_a_face_back_elsewhere_is_found_by_the_search(scene, texture_factory) ->
     assert np.abs(back.t[:2] - shift * DEPTH / CAMERA.focal).max() < 1e-4
 
 
+def test_the_search_moves_the_face_by_its_shift_over_each_axis_focal_length(
+    model_factory, texture_factory, monkeypatch
+) -> None:
+    """The search's start: the face's image shift times t_z / fx in x, t_z / fy in y.
+
+    A camera with non-square pixels (fx 600, fy 450 px) tells the two apart; the face is back
+    150, 100 px away (whole pixels of the search level, which the search finds exactly), so the
+    start is the initial fit moved by (150 * 0.6 / 600, 100 * 0.6 / 450) = (0.15, 0.1333) m.
+    """
+    k = np.array([[600.0, 0.0, 319.5], [0.0, 450.0, 239.5], [0.0, 0.0, 1.0]])
+    camera = PinholeCamera(
+        width=640, height=480, k=k, p=np.hstack([k, np.zeros((3, 1))]), d=np.zeros(5)
+    )
+    model = model_factory(planar=True)
+    t = np.array([0.0, 0.0, DEPTH])
+    init = Initialisation(
+        model.node_names, project_with_jacobian(camera, np.zeros(3), t, model.shape()).pixels
+    )
+    image = texture_factory()
+    starts = record_method(monkeypatch, MonoSolver, 'solve', lambda _pyramid, start, *_: start.t)
+    tracker = MonoTracker(model, camera)
+    tracker.reset(init)
+    assert tracker.step(image).ok
+    assert tracker.step(texture_factory(seed=7)).status == TrackStatus.LOST
+    starts.clear()
+    shift = np.array([150.0, 100.0])
+    back = tracker.step(_shifted(image, tuple(shift)))
+    assert back.ok, back.reason
+    searched = t + [150.0 * DEPTH / 600.0, 100.0 * DEPTH / 450.0, 0.0]
+    assert np.abs(starts[-1] - searched).max() < 1e-12
+    assert np.abs(back.t - searched).max() < 1e-4
+
+
+def test_a_reset_without_points_reuses_the_last_ones_or_detects(scene) -> None:
+    """reset() with no points restarts from the last ones given, or from a detection."""
+    model, image, init = scene
+    tracker = _started(model, image, init)
+    assert tracker.step(_shifted(image, (4.0, 0.0))).ok
+    tracker.reset()
+    again = tracker.step(image)
+    assert again.ok and again.iterations == 0, again.reason
+    assert np.abs(again.t - [0, 0, DEPTH]).max() < 1e-9
+    detections = []
+    tracker = MonoTracker(model, CAMERA, detector=lambda gray: detections.append(1) or init)
+    tracker.reset(init)
+    assert tracker.step(image).ok and detections == []  # the points given, not a detection
+    tracker.reset()
+    assert tracker.step(image).ok and detections == [1]
+
+
 def test_a_jump_beyond_the_solver_is_caught_by_the_search_in_the_same_image(scene) -> None:
     model, image, init = scene
     tracker = _started(model, image, init)
