@@ -16,6 +16,7 @@ import pytest
 
 from face_tracking_ros.errors import ConfigError
 from face_tracking_ros.geometry.camera import PinholeCamera
+from face_tracking_ros.geometry.rotation import angle_between
 from face_tracking_ros.tracking.initialisation import Initialisation
 from face_tracking_ros.tracking.mono import MonoTracker
 from face_tracking_ros.tracking.mono_config import MonoTrackerConfig
@@ -228,6 +229,22 @@ def _rolled(image: np.ndarray, degrees: float, shift: tuple[float, float]) -> np
     matrix = cv2.getRotationMatrix2D(CENTRE, -degrees, 1.0)
     matrix[:, 2] += shift
     return _warp(image, matrix)
+
+
+def test_a_frame_turned_beyond_the_keyframe_spacing_becomes_a_keyframe(scene) -> None:
+    """With max_keyframes 3 and a 3 degree spacing, rolls of 2, 4, 5.5, 7.5, 11 degrees.
+
+    By hand: 2 is within 3 of frame 1 (0); 4 is not, a keyframe; 5.5 is 1.5 from 4; 7.5 is 3.5
+    from 4, the third keyframe; 11 finds the three kept.
+    """
+    model, image, init = scene
+    tracker = _started(model, image, init, max_keyframes=3, keyframe_spacing=np.radians(3.0))
+    for roll, count in ((2.0, 1), (4.0, 2), (5.5, 2), (7.5, 3), (11.0, 3)):
+        result = tracker.step(_rolled(image, roll, (0.0, 0.0)))
+        assert result.ok, result.reason
+        assert len(tracker._track.keyframes) == count, roll
+    angles = [np.degrees(angle_between(k.rotation, np.eye(3))) for k in tracker._track.keyframes]
+    assert np.abs(np.array(angles) - [0.0, 4.0, 7.5]).max() < 0.05
 
 
 def test_the_motion_check_measures_from_the_last_valid_estimate(scene, texture_factory) -> None:
