@@ -231,6 +231,18 @@ def _rolled(image: np.ndarray, degrees: float, shift: tuple[float, float]) -> np
     return _warp(image, matrix)
 
 
+def test_sigma_is_estimated_on_the_sigma_frames_frames_after_the_initialisation(
+    scene, monkeypatch
+) -> None:
+    """sigma_frames 2: the two images after the initialised one solve sigma, later ones not."""
+    model, image, init = scene
+    free = record_method(monkeypatch, MonoSolver, 'solve', lambda *args: args[5])
+    tracker = _started(model, image, init, sigma_frames=2)
+    for frame in range(1, 5):
+        assert tracker.step(_shifted(image, (frame, 0.0))).ok
+    assert free == [True, True, False, False]
+
+
 def test_a_frame_turned_beyond_the_keyframe_spacing_becomes_a_keyframe(scene) -> None:
     """With max_keyframes 3 and a 3 degree spacing, rolls of 2, 4, 5.5, 7.5, 11 degrees.
 
