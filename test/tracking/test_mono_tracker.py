@@ -17,6 +17,7 @@ import pytest
 from face_tracking_ros.errors import ConfigError
 from face_tracking_ros.geometry.camera import PinholeCamera
 from face_tracking_ros.geometry.rotation import angle_between
+from face_tracking_ros.imaging import PhotometricModel
 from face_tracking_ros.tracking.initialisation import Initialisation
 from face_tracking_ros.tracking.mono import MonoTracker
 from face_tracking_ros.tracking.mono_config import MonoTrackerConfig
@@ -115,6 +116,22 @@ def test_tracking_follows_a_drifting_image_without_drift(scene) -> None:
 
 def _shifted(image: np.ndarray, shift: tuple[float, float]) -> np.ndarray:
     return _warp(image, np.array([[1, 0, shift[0]], [0, 1, shift[1]]]))
+
+
+def test_level_0s_last_step_is_kept_when_it_lowers_the_cost(scene) -> None:
+    """The step that ends level 0 (under convergence_px: no iteration evaluated it) is kept.
+
+    A whole-pixel shift is exact in the image, so the nodes must move by it: to 0.0006 px
+    measured with the last step, 0.020 px without it. The seed's photometric model (NONE), whose
+    residuals keep the whole template, shows the step's cost; the cost after it ends the history
+    and is below the last iteration's.
+    """
+    model, image, init = scene
+    tracker = _started(model, image, init, photometric=PhotometricModel.NONE)
+    result = tracker.step(_shifted(image, (3.0, -2.0)))
+    assert result.ok, result.reason
+    assert np.abs(result.nodes_px - init.points - [3.0, -2.0]).max() < 0.005
+    assert result.cost_history[-1] < result.cost_history[-2]
 
 
 def test_a_steady_drift_is_predicted_and_costs_fewer_iterations(scene) -> None:
