@@ -7,9 +7,10 @@ roll. These tests need no renderer.
 
 from __future__ import annotations
 
+from itertools import pairwise
 import re
 
-from call_recording import record_method
+from call_recording import record_method, recorded
 import cv2
 import numpy as np
 import pytest
@@ -18,6 +19,7 @@ from face_tracking_ros.errors import ConfigError
 from face_tracking_ros.geometry.camera import PinholeCamera
 from face_tracking_ros.geometry.rotation import angle_between
 from face_tracking_ros.imaging import PhotometricModel
+from face_tracking_ros.tracking import mono_solve
 from face_tracking_ros.tracking.initialisation import Initialisation
 from face_tracking_ros.tracking.mono import MonoTracker
 from face_tracking_ros.tracking.mono_config import MonoTrackerConfig
@@ -171,6 +173,55 @@ def test_the_coarsest_level_runs_only_for_a_face_too_far_for_the_next(scene, mon
         else:  # one cost evaluated on level 1 before starting over
             assert len(default.cost_history) == len(full.cost_history) + 1
             assert np.array_equal(default.nodes_px, full.nodes_px)
+
+
+def test_the_jacobian_is_refreshed_once_the_nodes_moved_jacobian_refresh_px(
+    scene, monkeypatch
+) -> None:
+    """A level re-linearises after a step exactly when the nodes have moved that far since.
+
+    The motion of a step is its largest node motion predicted by the linearisation (level px);
+    they add up from each linearisation of the level on.
+    """
+    model, image, init = scene
+    events: list[tuple] = []
+    linearise = MonoSolver._linearise
+
+    def linearised(self, level, params, free_sigma):
+        linear = linearise(self, level, params, free_sigma)
+        events.append(('linearise', linear.node_jacobian))
+        return linear
+
+    monkeypatch.setattr(MonoSolver, '_linearise', linearised)
+    monkeypatch.setattr(
+        MonoSolver,
+        '_solve_level',
+        recorded(events, lambda *_: ('level', None), MonoSolver._solve_level),
+    )
+    step = mono_solve.damped_step
+    monkeypatch.setattr(mono_solve, 'damped_step', lambda *args: _kept(events, step(*args)))
+    refresh = 0.5
+    tracker = _started(model, image, init, max_iterations=8, jacobian_refresh_px=refresh)
+    for frame in range(1, 4):
+        assert tracker.step(_rolled(image, 3.0 * frame, (6.0 * frame, -4.0 * frame))).ok
+    refreshes = steps_without = 0
+    for (kind, value), (following, _) in pairwise(events):
+        if kind == 'linearise':
+            moved, jacobian = 0.0, value
+        elif kind == 'step':
+            moved += np.abs(jacobian @ value).max()
+            if following == 'linearise':
+                assert moved > refresh
+                refreshes += 1
+            elif following == 'step':
+                assert moved <= refresh
+                steps_without += 1
+    assert refreshes > 0 and steps_without > 0
+
+
+def _kept(events: list[tuple], step: np.ndarray) -> np.ndarray:
+    events.append(('step', step))
+    return step
 
 
 @pytest.mark.parametrize(
