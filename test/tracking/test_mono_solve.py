@@ -18,5 +18,11 @@ def test_the_condition_is_the_largest_over_the_smallest_eigenvalue_after_jacobi_
 
 
 def test_a_singular_normal_matrix_has_an_infinite_condition() -> None:
-    assert _condition(np.array([[1.0, 1.0], [1.0, 1.0]])) == float('inf')
+    """So is one that rounding left slightly indefinite (inf, not negative).
+
+    A negative condition would pass the loss check's ``condition > max_condition``.
+    """
+    singular = np.array([[1.0, 1.0], [1.0, 1.0]])
+    assert _condition(singular) == float('inf')
+    assert _condition(singular - 1e-9 * np.eye(2)) == float('inf')
     assert _condition(np.zeros((2, 2))) == float('inf')
