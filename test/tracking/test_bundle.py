@@ -36,7 +36,7 @@ from face_tracking_ros.tracking.bundle_kernels import add_view_normal_equations
 from face_tracking_ros.tracking.evaluation import evaluate_sequence, track_images, tracked_sequence
 from face_tracking_ros.tracking.initialisation import Initialisation
 from face_tracking_ros.tracking.mono import MonoTracker
-from face_tracking_ros.tracking.mono_adjustment import ViewAdjuster
+from face_tracking_ros.tracking.mono_adjustment import FirstViews, View, ViewAdjuster
 from face_tracking_ros.tracking.mono_config import MonoTrackerConfig
 from face_tracking_ros.tracking.mono_rois import Params, RoiLayout
 from face_tracking_ros.tracking.stages import run_stages
@@ -478,3 +478,69 @@ def test_an_adjustment_runs_at_most_stages_per_frame_stages_a_frame(turning_head
     assert max(stages[1]) == 1
     assert max(stages[2]) == 2
     assert max(stages[0]) >= 1 + 2 + 3  # set-up, two iterations or more, three levels
+
+
+def test_an_adjustment_starts_from_frame_1_and_the_views_as_tracked(turning_head, monkeypatch):
+    # Each adjustment starts over frame 1 and every view so far, from their tracked estimates
+    # (frame 1's first) and the newest view's sigma.
+    images, _, model, _ = turning_head
+    camera = SceneConfig(kind='mono').cameras()['image']
+    tracker = MonoTracker(model, camera)
+    starts: list[tuple[Estimate, list[Params]]] = []
+    stages = adjustment_module.adjustment_stages
+
+    def recording(problem, views, visibility, start):
+        starts.append((start, [v.params for v in tracker._track.first_views.views]))
+        return (yield from stages(problem, views, visibility, start))
+
+    monkeypatch.setattr(adjustment_module, 'adjustment_stages', recording)
+    track_images(tracker, images[:60], _clicks(turning_head))
+    assert len(starts) >= 2
+    for start, tracked in starts:
+        covered = tracked[: 1 + len(start.views)]
+        assert len(start.views) >= 1
+        for pose, params in zip((start.first, *start.views), covered, strict=True):
+            for got, want in zip(pose, (params.omega, params.t, params.alpha), strict=True):
+                np.testing.assert_array_equal(got, want)
+        np.testing.assert_array_equal(start.sigma, covered[-1].sigma)
+
+
+def test_a_view_kept_while_an_adjustment_ran_is_carried_as_the_frame_now_is(model_factory):
+    # carry(): the views an adjustment covered take its estimates; a view kept after its newest
+    # one is moved into the adjusted scene by the head's motion since that view, as the current
+    # estimate of the same frame is.
+    model = model_factory()
+    adjuster = MonoTracker(model, CAMERA)._adjuster
+    zeros_sigma = np.zeros(model.p)
+
+    def params(omega, t, alpha):
+        return Params(np.array(omega), np.array(t), np.array(alpha), zeros_sigma)
+
+    tracked = [
+        params([0.0, 0.0, 0.0], [0.0, 0.0, 0.6], [0.0, 0.0, 0.0, 0.0]),
+        params([0.1, -0.05, 0.0], [0.01, 0.0, 0.6], [0.1, 0.0, 0.0, 0.0]),
+        params([0.2, -0.1, 0.02], [0.02, 0.01, 0.62], [0.2, -0.1, 0.0, 0.0]),
+    ]
+    image, visibility = np.zeros((480, 640), np.float32), np.ones(model.num_nodes)
+    views = FirstViews(
+        None,
+        [View.of(image, visibility, p, f) for p, f in zip(tracked, (1, 5, 9), strict=True)],
+        None,
+    )
+    estimate = Estimate(
+        sigma=np.array([0.5, -0.3, 0.2]),
+        depth=np.zeros((model.num_nodes, SURFACE_TERMS)),
+        first=(np.array([0.01, 0.02, -0.01]), np.array([0.002, -0.001, 0.61]), np.zeros(4)),
+        views=((np.array([0.12, -0.04, 0.01]), np.array([0.012, 0.001, 0.605]), np.ones(4) / 10),),
+    )
+    normals = np.tile([0.0, 0.0, -1.0], (model.num_nodes, 1))
+
+    carried_views, now = adjuster.carry(views, estimate, tracked[2], 9, normals)
+
+    assert [v.frame for v in carried_views] == [1, 5, 9]
+    for view, pose in zip(carried_views[:2], (estimate.first, *estimate.views), strict=True):
+        for got, want in zip(view.params, (*pose, estimate.sigma), strict=True):
+            np.testing.assert_array_equal(got, want)
+    for got, want in zip(carried_views[2].params, now, strict=True):
+        np.testing.assert_array_equal(got, want)
+    assert np.abs(now.t - tracked[2].t).max() > 1e-3  # moved with the adjustment
