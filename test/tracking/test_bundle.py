@@ -543,4 +543,15 @@ def test_a_view_kept_while_an_adjustment_ran_is_carried_as_the_frame_now_is(mode
             np.testing.assert_array_equal(got, want)
     for got, want in zip(carried_views[2].params, now, strict=True):
         np.testing.assert_array_equal(got, want)
-    assert np.abs(now.t - tracked[2].t).max() > 1e-3  # moved with the adjustment
+    # The scene's scale: the adjusted view's mean node distance from the camera over the old.
+    adjusted = Params(*estimate.views[0], estimate.sigma)
+
+    def distance(p: Params) -> float:
+        nodes = model.shape(p.sigma, p.alpha) @ rodrigues(p.omega)[0].T + p.t
+        return float(np.mean(np.sqrt(np.sum(nodes**2, axis=1))))
+
+    scale = distance(adjusted) / distance(tracked[1])
+    assert abs(scale - 1.0) > 1e-3
+    expected = adjustment_module.carried(tracked[2], tracked[1], adjusted, scale)
+    for got, want in zip(now, expected, strict=True):
+        np.testing.assert_allclose(got, want, rtol=0, atol=1e-12)
