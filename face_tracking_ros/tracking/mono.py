@@ -170,11 +170,6 @@ class MonoTracker:
         self._followed: tuple[ImagePyramid, TrackResult] | None = None  # awaiting adjust()
 
     @property
-    def config(self) -> MonoTrackerConfig:
-        """The tracker's configuration."""
-        return self._config
-
-    @property
     def status(self) -> TrackStatus:
         """INITIALIZING before a fit, LOST while re-acquiring, TRACKING otherwise."""
         if self._track is None:
