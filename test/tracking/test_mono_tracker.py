@@ -18,7 +18,7 @@ import pytest
 from face_tracking_ros.errors import ConfigError
 from face_tracking_ros.geometry.camera import PinholeCamera
 from face_tracking_ros.geometry.rotation import angle_between
-from face_tracking_ros.imaging import PhotometricModel
+from face_tracking_ros.imaging import MAX_HALF_SIZE, PhotometricModel
 from face_tracking_ros.tracking import mono_solve
 from face_tracking_ros.tracking.initialisation import Initialisation
 from face_tracking_ros.tracking.mono import MonoTracker
@@ -523,17 +523,38 @@ def test_a_face_leaving_the_image_is_lost(scene) -> None:
         ('fine_start_px', -1.0),
         ('patch_half_size', 0),
         ('patch_spacing_px', 0.0),
+        ('edge_weight', 1.5),
         ('huber_k', -1.0),
         ('prior_weight', -0.1),
         ('sigma_frames', -1),
         ('visibility_cos', 0.7),
         ('lost_node_fraction', 0.0),
+        ('min_visible_fraction', 1.5),
         ('max_condition', 1.0),
     ],
 )
 def test_config_errors_name_the_field(field, value) -> None:
     with pytest.raises(ConfigError, match=f'MonoTrackerConfig.{field} = '):
         MonoTrackerConfig(**{field: value})
+
+
+def test_the_documented_limits_of_the_config_fields_are_accepted() -> None:
+    limits = MonoTrackerConfig(
+        epsilon=1.0,
+        patch_half_size=MAX_HALF_SIZE,
+        patch_spacing_px=0.5,
+        edge_weight=1.0,
+        edge_patch_shift=1.0,
+        prior_weight=0.0,
+        sigma_frames=0,
+        fine_start_px=0.0,
+        coarsest_level_px=0.0,
+        visibility_cos=0.0,
+        lost_node_fraction=1.0,
+        min_visible_fraction=1.0,
+    )
+    assert (limits.edge_weight, limits.min_visible_fraction) == (1.0, 1.0)
+    assert MonoTrackerConfig(edge_weight=0.0, min_visible_fraction=0.0).edge_weight == 0.0
 
 
 def test_too_deep_a_pyramid_is_a_config_error(model_factory) -> None:
