@@ -524,6 +524,7 @@ def test_a_face_leaving_the_image_is_lost(scene) -> None:
         ('patch_half_size', 0),
         ('patch_spacing_px', 0.0),
         ('edge_weight', 1.5),
+        ('edge_patch_shift', -0.5),
         ('huber_k', -1.0),
         ('prior_weight', -0.1),
         ('sigma_frames', -1),
@@ -554,7 +555,8 @@ def test_the_documented_limits_of_the_config_fields_are_accepted() -> None:
         min_visible_fraction=1.0,
     )
     assert (limits.edge_weight, limits.min_visible_fraction) == (1.0, 1.0)
-    assert MonoTrackerConfig(edge_weight=0.0, min_visible_fraction=0.0).edge_weight == 0.0
+    lower = MonoTrackerConfig(edge_weight=0.0, edge_patch_shift=0.0, min_visible_fraction=0.0)
+    assert (lower.edge_weight, lower.edge_patch_shift, lower.min_visible_fraction) == (0, 0, 0)
 
 
 def test_too_deep_a_pyramid_is_a_config_error(model_factory) -> None:
