@@ -1,0 +1,32 @@
+"""RoiLayout.patch_coordinates (tracking/mono_rois.py): where a level's samples read the skin."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from face_tracking_ros.imaging import square_offsets
+from face_tracking_ros.model.topology import Group
+from face_tracking_ros.tracking.mono_config import MonoTrackerConfig
+from face_tracking_ros.tracking.mono_rois import RoiLayout
+
+
+def test_coarser_levels_reach_twice_as_far_each_held_at_the_level_0_roi_edge(
+    model_factory,
+) -> None:
+    """An inner node's sample 1 step right of centre (h = 4): 0.25 of the half-width on level 0.
+
+    By hand: 0.5 on level 1, 1.0 on level 2, and 2.0 held at the ROI's edge, 1.0, on level 3;
+    the corner sample (4, -4) stays at (1, -1) on every level.
+    """
+    model = model_factory()
+    config = MonoTrackerConfig(patch_half_size=4)
+    grid = square_offsets(4)
+    layout = RoiLayout(model, 600.0, grid, config)
+    inner = int(np.flatnonzero(~model.topology.group_mask(Group.EDGE))[0])
+    steps = layout.grid(model.shape())
+    right = int(np.flatnonzero((grid[:, 0] == 1) & (grid[:, 1] == 0))[0])
+    corner = int(np.flatnonzero((grid[:, 0] == 4) & (grid[:, 1] == -4))[0])
+    for level, expected in enumerate((0.25, 0.5, 1.0, 1.0)):
+        coordinates = layout.patch_coordinates(steps, level)[inner]
+        np.testing.assert_allclose(coordinates[right], [expected, 0.0], rtol=0, atol=1e-12)
+        np.testing.assert_allclose(coordinates[corner], [1.0, -1.0], rtol=0, atol=1e-12)
