@@ -1,0 +1,27 @@
+"""The re-acquisition search's view of the face (tracking/mono_search.py), by hand."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from face_tracking_ros.imaging import ImagePyramid
+from face_tracking_ros.tracking.mono_search import FaceView
+
+# Level-0 pixels of three nodes; the last is on the face edge and left out.
+NODES = np.array([[100.0, 50.0], [300.0, 150.0], [620.0, 470.0]])
+INNER = np.array([True, True, False])
+
+
+def test_the_view_is_the_search_levels_box_around_the_inner_nodes(texture_factory) -> None:
+    """On level 1 the inner nodes span (50, 25) to (150, 75): rows 25-75, columns 50-150."""
+    pyramid = ImagePyramid.build(texture_factory(), 4)
+    view = FaceView.of(pyramid, NODES, INNER)
+    np.testing.assert_array_equal(view.corner, [50, 25])
+    np.testing.assert_array_equal(view.image, pyramid.levels[1][25:76, 50:151])
+
+
+def test_the_shift_is_where_the_view_correlates_best_in_level_0_px(texture_factory) -> None:
+    texture = texture_factory()
+    view = FaceView.of(ImagePyramid.build(texture, 4), NODES, INNER)
+    moved = np.roll(texture, (-4, 6), axis=(0, 1))  # 6 px right, 4 px up
+    np.testing.assert_array_equal(view.shift(ImagePyramid.build(moved, 4)), [6.0, -4.0])
