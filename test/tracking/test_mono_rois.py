@@ -1,4 +1,4 @@
-"""RoiLayout.patch_coordinates (tracking/mono_rois.py): where a level's samples read the skin."""
+"""RoiLayout.patch_coordinates and Params.updated (tracking/mono_rois.py), by hand."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import numpy as np
 from face_tracking_ros.imaging import square_offsets
 from face_tracking_ros.model.topology import Group
 from face_tracking_ros.tracking.mono_config import MonoTrackerConfig
-from face_tracking_ros.tracking.mono_rois import RoiLayout
+from face_tracking_ros.tracking.mono_rois import Params, RoiLayout
 
 
 def test_coarser_levels_reach_twice_as_far_each_held_at_the_level_0_roi_edge(
@@ -30,3 +30,15 @@ def test_coarser_levels_reach_twice_as_far_each_held_at_the_level_0_roi_edge(
         coordinates = layout.patch_coordinates(steps, level)[inner]
         np.testing.assert_allclose(coordinates[right], [expected, 0.0], rtol=0, atol=1e-12)
         np.testing.assert_allclose(coordinates[corner], [1.0, -1.0], rtol=0, atol=1e-12)
+
+
+def test_a_solver_step_adds_to_omega_t_alpha_and_sigma_in_turn() -> None:
+    """Step (omega 3, t 3, alpha q = 2, sigma p = 1), and one without sigma leaves it."""
+    params = Params(np.zeros(3), np.array([0.0, 0.0, 0.6]), np.array([0.1, -0.1]), np.ones(1))
+    step = np.arange(1.0, 10.0) / 100
+    moved = params.updated(step, 2)
+    np.testing.assert_allclose(moved.omega, [0.01, 0.02, 0.03], rtol=0, atol=1e-15)
+    np.testing.assert_allclose(moved.t, [0.04, 0.05, 0.66], rtol=0, atol=1e-15)
+    np.testing.assert_allclose(moved.alpha, [0.17, -0.02], rtol=0, atol=1e-15)
+    np.testing.assert_allclose(moved.sigma, [1.09], rtol=0, atol=1e-15)
+    assert params.updated(step[:8], 2).sigma is params.sigma

@@ -13,11 +13,19 @@ INNER = np.array([True, True, False])
 
 
 def test_the_view_is_the_search_levels_box_around_the_inner_nodes(texture_factory) -> None:
-    """On level 1 the inner nodes span (50, 25) to (150, 75): rows 25-75, columns 50-150."""
-    pyramid = ImagePyramid.build(texture_factory(), 4)
+    """On level 1 the inner nodes span (50, 25) to (150, 75): rows 25-75, columns 50-150.
+
+    Level 1 with two levels or more; a one-level pyramid is searched on level 0.
+    """
+    for levels in (4, 2):
+        pyramid = ImagePyramid.build(texture_factory(), levels)
+        view = FaceView.of(pyramid, NODES, INNER)
+        np.testing.assert_array_equal(view.corner, [50, 25])
+        np.testing.assert_array_equal(view.image, pyramid.levels[1][25:76, 50:151])
+    pyramid = ImagePyramid.build(texture_factory(), 1)
     view = FaceView.of(pyramid, NODES, INNER)
-    np.testing.assert_array_equal(view.corner, [50, 25])
-    np.testing.assert_array_equal(view.image, pyramid.levels[1][25:76, 50:151])
+    np.testing.assert_array_equal(view.corner, [100, 50])
+    np.testing.assert_array_equal(view.image, pyramid.levels[0][50:151, 100:301])
 
 
 def test_the_shift_is_where_the_view_correlates_best_in_level_0_px(texture_factory) -> None:

@@ -4,12 +4,16 @@ from __future__ import annotations
 
 import numpy as np
 
+from face_tracking_ros.geometry.camera import PinholeCamera
 from face_tracking_ros.geometry.rotation import rodrigues
+from face_tracking_ros.imaging import PhotometricInvariance, PhotometricModel, square_offsets
+from face_tracking_ros.tracking.mono_projection import FaceProjection
 from face_tracking_ros.tracking.mono_rois import Params
 from face_tracking_ros.tracking.mono_templates import (
     Keyframe,
     OnDemand,
     Templates,
+    TemplateSampler,
     nearest_keyframe,
 )
 
@@ -54,3 +58,25 @@ def test_the_nearest_keyframe_is_the_one_nearest_in_rotation() -> None:
         assert nearest_keyframe(keyframes, np.array([0.0, yaw, 0.0])) is keyframes[nearest]
     assert nearest_keyframe(keyframes[:2], np.array([0.0, 0.25, 0.0])) is keyframes[1]
     assert nearest_keyframe(keyframes[:1], np.array([0.0, 1.0, 0.0])) is keyframes[0]
+
+
+def test_a_keyframes_projection_is_its_level_0_templates(model_factory) -> None:
+    """It removes the level-0 template's own gain and bias: 2 T_0 + 5 projects to zero."""
+    rng = np.random.default_rng(0)
+    level_0, level_1 = rng.uniform(20.0, 200.0, size=(2, 2, 9))
+    zeros = np.zeros(3)
+    templates = Templates(
+        levels=(level_0, level_1),
+        visibility=np.ones(2),
+        inside=np.ones((2, 9), dtype=bool),
+        params=Params(zeros, zeros, np.zeros(1), np.zeros(1)),
+    )
+    invariance = PhotometricInvariance.of(PhotometricModel.GAIN_BIAS, square_offsets(1))
+    face = FaceProjection(model_factory(), PinholeCamera.ideal(), 1, 0.1)
+    omega = np.array([0.1, -0.2, 0.05])
+
+    keyframe = TemplateSampler(face, invariance).keyframe(omega, templates)
+
+    np.testing.assert_array_equal(keyframe.rotation, rodrigues(omega)[0])
+    assert np.abs(keyframe.projection.apply(2.0 * level_0 + 5.0)).max() < 1e-9
+    assert np.abs(keyframe.projection.apply(level_1)).max() > 1.0
