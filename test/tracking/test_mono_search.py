@@ -33,3 +33,12 @@ def test_the_shift_is_where_the_view_correlates_best_in_level_0_px(texture_facto
     view = FaceView.of(ImagePyramid.build(texture, 4), NODES, INNER)
     moved = np.roll(texture, (-4, 6), axis=(0, 1))  # 6 px right, 4 px up
     np.testing.assert_array_equal(view.shift(ImagePyramid.build(moved, 4)), [6.0, -4.0])
+
+
+def test_a_view_of_nodes_beyond_the_image_is_clipped_to_its_corner(texture_factory) -> None:
+    """Inner nodes below and right of the image: level 1 (240 x 320) keeps its corner pixel."""
+    pyramid = ImagePyramid.build(texture_factory(), 4)
+    beyond = np.array([[700.0, 500.0], [720.0, 520.0]])
+    view = FaceView.of(pyramid, beyond, np.array([True, True]))
+    np.testing.assert_array_equal(view.corner, [319, 239])
+    np.testing.assert_array_equal(view.image, pyramid.levels[1][239:240, 319:320])
