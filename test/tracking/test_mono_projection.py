@@ -10,7 +10,10 @@ centre row (then column) of a 640 x 480 image, whose last pixel is 639 (479). By
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
+import pytest
 
 from face_tracking_ros.geometry.camera import PinholeCamera
 from face_tracking_ros.imaging import ImagePyramid, PhotometricInvariance, square_offsets
@@ -77,3 +80,28 @@ def test_the_solver_linearisation_counts_the_same_samples_inside(
 
     assert np.array_equal(linear.sampled.samples, template)
     assert (linear.sampled.inside == np.array(INSIDE)).all()
+
+
+def test_the_solvers_cost_at_the_templates_own_samples_is_the_prior_alone(
+    model_factory, texture_factory
+) -> None:
+    """Residuals all zero: eq. 6's cost is ``alpha' lambda Sigma_alpha^-1 alpha`` alone.
+
+    By hand, lambda 2 on alpha variances (4, 1): at alpha (2, 1) the prior costs
+    2 (4 / 4 + 1 / 1) = 4.
+    """
+    model = replace(model_factory(p=1, q=2), alpha_prior_covariance=np.diag([4.0, 1.0]))
+    roi, params = _hand_placed(model)
+    params = params._replace(alpha=np.array([2.0, 1.0]))
+    config = MonoTrackerConfig(patch_half_size=1)
+    face = FaceProjection(model, CAMERA, num_levels=1, visibility_cos=0.2)
+    invariance = PhotometricInvariance.of(config.photometric, square_offsets(1))
+    solver = MonoSolver(model, config, face, invariance, Priors.of(model, 2.0))
+    pyramid = ImagePyramid.build(texture_factory(), 1)
+    template = face.sample(pyramid, params, 0, roi).samples
+    camera = face.level_cameras[0]
+    projection = invariance.projection(template)
+    level = Level(0, pyramid, camera, roi, template, projection, np.ones(template.shape))
+    linear = solver._linearise(level, params, free_sigma=False)
+
+    assert solver._evaluate(level, params, linear, scale=1.0).cost == pytest.approx(4.0)
