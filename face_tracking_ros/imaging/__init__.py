@@ -13,6 +13,7 @@ from face_tracking_ros.imaging.photometric import (
 )
 from face_tracking_ros.imaging.pyramid import ImagePyramid, check_levels_fit
 from face_tracking_ros.imaging.sampling import (
+    GRADIENT_MARGIN,
     MAX_HALF_SIZE,
     inside_image,
     inside_xy,
@@ -25,6 +26,7 @@ from face_tracking_ros.imaging.sampling import (
 )
 
 __all__ = [
+    'GRADIENT_MARGIN',
     'SUPPORTED_ENCODINGS',
     'ImagePyramid',
     'PhotometricInvariance',

@@ -26,6 +26,9 @@ _STENCIL_Y = np.array([0, 0, 0, 1, -1], dtype=np.float32)[:, None]
 # The largest patch half size a tracker takes: (2 h + 1)^2 = 961 samples a node; at 1000 the
 # mono tracker asked for 34 GiB and the stereo initialisation's matching for 69 GiB.
 MAX_HALF_SIZE = 15
+# px: a point nearer the border than this has central differences (one pixel either side, as
+# sample_with_gradient_xy takes them) that read the replicated border, so it counts as outside.
+GRADIENT_MARGIN = 1.0
 
 
 def square_offsets(half_size: int, step: float = 1.0) -> np.ndarray:

@@ -59,6 +59,7 @@ from scipy.linalg import cho_factor, cho_solve
 from face_tracking_ros.errors import check_fields
 from face_tracking_ros.geometry.rotation import matrix_to_omega, rodrigues
 from face_tracking_ros.imaging import (
+    GRADIENT_MARGIN,
     PhotometricInvariance,
     PhotometricProjection,
     inside_xy,
@@ -448,7 +449,7 @@ def _template(problem: Problem, image: np.ndarray) -> _Template:
     shape = problem.nodes(problem.first_sigma, alpha)
     _, (x, y) = _points(problem, rodrigues(omega)[0], shape, t, alpha, problem.patches.offsets)
     values = sample_xy(image, x, y)
-    inside = inside_xy(x, y, image.shape, margin=1.0)
+    inside = inside_xy(x, y, image.shape, margin=GRADIENT_MARGIN)
     return _Template(values, inside, problem.invariance.projection(values))
 
 
@@ -519,7 +520,7 @@ def _view_residuals(
     rotated, (x, y) = _points(problem, rotation, shape, t, alpha, offsets)
     values, gradient = sample_with_gradient_xy(image, x, y)
     residuals = template.projection.apply(values - template.values)
-    inside = inside_xy(x, y, image.shape, margin=1.0) & template.inside
+    inside = inside_xy(x, y, image.shape, margin=GRADIENT_MARGIN) & template.inside
     return _ViewSamples(residuals, inside, rotated, gradient, rotation, d_rotation, shape)
 
 

@@ -14,7 +14,7 @@ import numpy as np
 
 from face_tracking_ros.geometry.camera import PinholeCamera
 from face_tracking_ros.geometry.rotation import rodrigues
-from face_tracking_ros.imaging import ImagePyramid, inside_xy, sample_xy
+from face_tracking_ros.imaging import GRADIENT_MARGIN, ImagePyramid, inside_xy, sample_xy
 from face_tracking_ros.model.face_model import FaceModel
 from face_tracking_ros.tracking.mono_kernels import roi_points
 from face_tracking_ros.tracking.mono_rois import Params, Roi
@@ -143,4 +143,5 @@ class FaceProjection:
         """Level ``level``'s samples of its ROIs ``roi`` at ``params``."""
         _, (x, y) = self.roi_points(params, self.level_cameras[level], roi)
         image = pyramid.level(level, x, y)
-        return Sampled(sample_xy(image, x, y), inside_xy(x, y, image.shape, margin=1.0))
+        inside = inside_xy(x, y, image.shape, margin=GRADIENT_MARGIN)
+        return Sampled(sample_xy(image, x, y), inside)

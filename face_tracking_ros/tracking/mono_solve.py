@@ -31,6 +31,7 @@ from typing import NamedTuple
 import numpy as np
 
 from face_tracking_ros.imaging import (
+    GRADIENT_MARGIN,
     ImagePyramid,
     PhotometricInvariance,
     PhotometricProjection,
@@ -319,7 +320,7 @@ class MonoSolver:
         jacobian_t = level.projection.apply(jacobian).reshape(len(jacobian), -1)
         return Linearisation(
             params=params,
-            sampled=Sampled(samples, inside_xy(x, y, image.shape, margin=1.0)),
+            sampled=Sampled(samples, inside_xy(x, y, image.shape, margin=GRADIENT_MARGIN)),
             jacobian_t=jacobian_t,
             hessian=weighted_gram(jacobian_t, level.visibility.ravel()),
             node_jacobian=node_jacobian,

@@ -56,6 +56,7 @@ import numpy as np
 
 from face_tracking_ros.geometry.camera import PinholeCamera, StereoRig
 from face_tracking_ros.imaging import (
+    GRADIENT_MARGIN,
     inside_xy,
     sample_with_gradient_rows,
     sample_xy,
@@ -426,7 +427,7 @@ def sample_images(
     homogeneous = homogeneous_pixels(projections, points)
     pixels = homogeneous[:, :2] / homogeneous[:, 2:]
     values, gradient = sample_with_gradient_rows(images, pixels[:, 0], pixels[:, 1])
-    inside = inside_xy(pixels[:, 0], pixels[:, 1], images[0].shape, margin=1.0)
+    inside = inside_xy(pixels[:, 0], pixels[:, 1], images[0].shape, margin=GRADIENT_MARGIN)
     return Sampled(
         homogeneous=homogeneous,
         values=values,
