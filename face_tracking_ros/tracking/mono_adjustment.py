@@ -98,7 +98,7 @@ class FirstViews:
 
     first: ImagePyramid
     views: list[View]
-    clicks: Initialisation | None
+    clicks: Initialisation
     depth: np.ndarray | None = None
     covered_views: int = 1
     adjustment: Stages[Adjusted | None] | None = None
@@ -272,11 +272,9 @@ class ViewAdjuster:
             node_weights=self._node_weights,
             invariance=self._invariance,
             alpha_precision=self._priors.alpha_precision,
-            sigma_precision=None
-            if clicks is not None and clicks.sigma is not None
-            else self._priors.sigma_precision,
-            click_nodes=clicks.node_indices(model) if clicks is not None else np.zeros(0, int),
-            clicks=clicks.points if clicks is not None else np.zeros((0, 2)),
+            sigma_precision=None if clicks.sigma is not None else self._priors.sigma_precision,
+            click_nodes=clicks.node_indices(model),
+            clicks=clicks.points,
             config=config.bundle,
             huber_k=config.huber_k,
             scale_floor=config.residual_scale_floor,
