@@ -446,7 +446,7 @@ def wire_replay(
             f'{found}'
         )
         raise BagError(msg)
-    _check_image_inputs(bag, nodes, processors, topics, topic_map)
+    _check_camera_inputs(bag, nodes, processors, topics, topic_map)
     return processors, topic_map
 
 
@@ -455,7 +455,7 @@ def fed_topic(topic_map: Mapping[str, str], port: str) -> str | None:
     return next((topic for topic, fed in topic_map.items() if fed == port), None)
 
 
-def _check_image_inputs(
+def _check_camera_inputs(
     bag: Path,
     nodes: Sequence[str],
     processors: Sequence[Processor],
