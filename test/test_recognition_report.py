@@ -218,3 +218,21 @@ def test_errors(pairs: dict, tmp_path: Path, capsys: pytest.CaptureFixture) -> N
         f'error: {tmp_path / "narrow"}: sigma and alpha of p=4, q=5, {first} p=4, q=6: the bags '
         'were tracked with different face models\n'
     )
+
+
+def test_test_subject_never_enrolled_is_refused_before_any_figure(
+    pairs: dict, capsys: pytest.CaptureFixture
+) -> None:
+    stranger = pairs['strangers'][0]
+    argv = ['recognition-report', '--enrol', *pairs['enrol'], '--test', pairs['test'][0],
+            stranger, '--classifier', pairs['classifier'][0]]  # fmt: skip
+
+    assert cli.main(argv) == 2
+
+    captured = capsys.readouterr()
+    assert captured.out == ''  # no identity or expression figures of a run that fails
+    assert captured.err == (
+        f"error: {stranger.split('=')[0]}: --test subject 'subject_03' is none of the --enrol "
+        "pairs' (subject_00, subject_01, subject_02): give people never enrolled with "
+        '--strangers\n'
+    )

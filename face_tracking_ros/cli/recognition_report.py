@@ -71,7 +71,8 @@ def run(args: argparse.Namespace) -> None:
     Raises:
         BagError: if a bag is unreadable, lacks its topic or no frame pairs up.
         ConfigError: if a tracked bag was tracked from another bag than its truth, or the bags
-            with different face models or another than ``--model``.
+            with different face models or another than ``--model``, or a ``--test`` subject
+            is none of the ``--enrol`` pairs'.
         ModelFileError: if the classifier does not match the tracked alpha or their model.
     """
     enrol, test, strangers = (
@@ -80,6 +81,7 @@ def run(args: argparse.Namespace) -> None:
     )
     tracked_bags = [tracked for tracked, _ in [*args.enrol, *args.test, *args.strangers]]
     _check_one_model(tracked_bags, [*enrol, *test, *strangers])
+    _check_enrolled([tracked for tracked, _ in args.test], test, enrol)
     model = tracked_with(tracked_bags, args.model)
     fingerprint = load_model(model).fingerprint if model is not None else None
     classifier = ExpressionClassifier.load(args.classifier, enrol[0].alpha.shape[1], fingerprint)
@@ -138,6 +140,27 @@ def _print_expressions(classifier: ExpressionClassifier, scored: list[ParameterS
             else 'no onset found'
         )
         print(f'events (onset at {name}): F1 {score.f1:.3f}, {latency}')
+
+
+def _check_enrolled(
+    bags: list[Path], test: list[ParameterSequence], enrol: list[ParameterSequence]
+) -> None:
+    """Check, before any figure, that every ``--test`` subject is enrolled.
+
+    The identity line and the separation table score test sequences of enrolled people; an
+    unenrolled one would count as a wrong decision (and the table refused it only at the end).
+
+    Raises:
+        ConfigError: naming the first test bag whose subject no ``--enrol`` pair shows.
+    """
+    enrolled = sorted({sequence.subject_id for sequence in enrol})
+    for bag, sequence in zip(bags, test, strict=True):
+        if sequence.subject_id not in enrolled:
+            msg = (
+                f"{bag}: --test subject {sequence.subject_id!r} is none of the --enrol pairs' "
+                f'({", ".join(enrolled)}): give people never enrolled with --strangers'
+            )
+            raise ConfigError(msg)
 
 
 def _check_one_model(bags: list[Path], sequences: list[ParameterSequence]) -> None:
