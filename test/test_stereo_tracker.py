@@ -928,6 +928,19 @@ def test_a_pair_whose_projections_are_not_rectified_is_refused_by_name() -> None
     assert StereoRig(RIG.left, RIG.with_right_rows_shifted(0.3).right).baseline == RIG.baseline
 
 
+def test_a_pair_given_left_for_right_is_said_to_be_swapped() -> None:
+    """Left and right topics exchanged: the right camera has Tx = 0 and the left -fx B."""
+    with pytest.raises(InputError) as refused:
+        StereoRig(RIG.right, RIG.left)
+    assert str(refused.value) == (
+        'invalid camera: right P[0,3] must be -fx*B < 0 for a rectified stereo pair (it is 0; '
+        "the left camera's is -66: are left and right swapped?)"
+    )
+    flat = replace(RIG.right, p=RIG.left.p)  # two cameras of Tx 0: no hint of a swap
+    with pytest.raises(InputError, match=r'rectified stereo pair \(it is 0\)$'):
+        StereoRig(RIG.left, flat)
+
+
 def test_loss_reason_names_each_check_by_hand() -> None:
     """§3.3's checks one at a time: a face in view with matching patches is tracked."""
     nodes = mesh_topology(34).reference_shape + np.array([0.0, 0.0, 0.6])

@@ -259,6 +259,18 @@ class PinholeCamera:
         }
 
 
+def _baseline_problem(left_tx: float, right_tx: float) -> str:
+    """Why a right camera whose P[0,3] (-fx B) is not negative cannot be a rectified pair's.
+
+    A left camera with the negative one is the right camera: the topics are exchanged.
+    """
+    swapped = f"; the left camera's is {left_tx:g}: are left and right swapped?"
+    return (
+        'right P[0,3] must be -fx*B < 0 for a rectified stereo pair '
+        f'(it is {right_tx:g}{swapped if left_tx < 0 else ""})'
+    )
+
+
 @dataclass(frozen=True)
 class StereoRig:
     """A rectified stereo pair: both cameras share R and intrinsics; the right one has Tx != 0.
@@ -276,7 +288,7 @@ class StereoRig:
         _require(
             same_size, f'left {left.width}x{left.height} != right {right.width}x{right.height}'
         )
-        _require(right.p[0, 3] < 0, 'right P[0,3] must be -fx*B < 0 for a rectified stereo pair')
+        _require(right.p[0, 3] < 0, _baseline_problem(left.p[0, 3], right.p[0, 3]))
         for (row, col), name in RECTIFIED_SHARED.items():
             mine, theirs = left.p[row, col], right.p[row, col]
             _require(
