@@ -153,3 +153,14 @@ def test_bad_dimensions(default_world, config, match):
     training, _ = default_world
     with pytest.raises(ConfigError, match=match):
         learn_seed(training, config)
+
+
+def test_q_beyond_the_training_meshes_is_refused_naming_q_and_their_count():
+    """30 meshes (3 subjects x 10 frames) give at most 30 expression modes, whatever 3N is."""
+    training, _, _ = training_set('default', 34, subjects=3, sequences=1, frames=10, noise=0.0)
+    with pytest.raises(ConfigError) as refused:
+        learn_seed(training, SeedConfig(p=2, q=31))
+    assert str(refused.value) == (
+        'q = 31 expression modes cannot come from 30 training meshes: at most 30'
+    )
+    assert learn_seed(training, SeedConfig(p=2, q=30)).model.action_basis.shape == (102, 30)

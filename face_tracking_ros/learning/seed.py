@@ -205,13 +205,22 @@ def choose_dimension(explained: np.ndarray, share: float) -> int:
 
 
 def check_dimensions(training: TrainingSet, p: int | None, q: int) -> None:
-    """Raise ConfigError unless p + 1 <= subjects and 1 <= q < 3N."""
+    """Raise ConfigError unless p + 1 <= subjects, 1 <= q < 3N and q <= the meshes (F).
+
+    The expression basis is q principal components of the F mesh vectors, so F bounds q too.
+    """
     if p is not None and p < 1:
         msg = f'p must be at least 1, got {p}'
         raise ConfigError(msg)
     check_subject_count(training.num_subjects, p)
     if not 1 <= q < 3 * training.num_nodes:
         msg = f'q must be between 1 and {3 * training.num_nodes - 1}, got {q}'
+        raise ConfigError(msg)
+    meshes = len(training.meshes)
+    if q > meshes:
+        msg = (
+            f'q = {q} expression modes cannot come from {meshes} training meshes: at most {meshes}'
+        )
         raise ConfigError(msg)
 
 
