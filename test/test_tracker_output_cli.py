@@ -73,8 +73,12 @@ def test_a_tracked_identity_is_enrolled_and_a_model_less_track_refused(tmp_path,
     np.testing.assert_allclose(enrolled.means[0], sigmas.mean(axis=0))
     floor = np.cov(sigmas, rowvar=False) + IdentityConfig().min_std ** 2 * np.eye(2)
     np.testing.assert_allclose(enrolled.covariances[0], floor)
+    assert "enrolled 'ann' from 20 shape estimates" in capsys.readouterr().out
     assert main(['enroll', str(tmp_path / 'ann'), '--name', 'ann', '--gallery', str(gallery),
                  '--min-std', '0.01']) == 0  # fmt: skip
+    out = capsys.readouterr().out  # the same name again: said to replace the entry
+    assert "enrolled 'ann' (replacing the earlier 'ann') from 20 shape estimates" in out
+    assert out.endswith(f'{gallery} holds ann\n')
     floor = np.cov(sigmas, rowvar=False) + 0.01**2 * np.eye(2)
     np.testing.assert_allclose(IdentityGallery.load(gallery, 2).covariances[0], floor)
     # A stereo_tracker's output without a face model: states without sigma.

@@ -75,11 +75,13 @@ def run(args: argparse.Namespace) -> None:
         if args.gallery.exists()
         else IdentityGallery.empty(model.p, model.fingerprint)
     )
+    replacing = f' (replacing the earlier {args.name!r})' if args.name in gallery.names else ''
     gallery = gallery.enroll(args.name, sigmas, IdentityConfig(min_std=args.min_std))
     gallery.save(args.gallery)
     print(
-        f'enrolled {args.name!r} from {len(sigmas)} shape estimates of the model {model_path} '
-        f'(fingerprint {model.fingerprint}); {args.gallery} holds {", ".join(gallery.names)}'
+        f'enrolled {args.name!r}{replacing} from {len(sigmas)} shape estimates of the model '
+        f'{model_path} (fingerprint {model.fingerprint}); '
+        f'{args.gallery} holds {", ".join(gallery.names)}'
     )
 
 
