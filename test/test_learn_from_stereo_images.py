@@ -442,6 +442,26 @@ def test_a_raw_bag_tracked_into_no_mesh_is_refused_with_its_input_problems(tmp_p
     assert not (tmp_path / 'm.npz').exists()
 
 
+def test_a_raw_bag_tracked_into_no_mesh_without_input_problems_says_why(tmp_path, capsys):
+    """Right images stamped 5 ms after the left: nothing pairs, the tracker's reason is given."""
+    late = tmp_path / 'bags' / 'late'
+    with BagWriter(late) as writer:
+        for message in read_messages(BAGS[0]):
+            if message.topic.startswith('right/'):
+                message.msg.header.stamp.nanosec += 5_000_000
+            writer.write(message.topic, message.msgtype, message.msg, message.stamp_ns)
+    argv = ['learn', str(late), *map(str, BAGS[1:]), '--from-images', '--simulate-clicks', '1']
+    argv += ['--p', '1', '--out', str(tmp_path / 'm.npz'), '--report', str(tmp_path / 'r.json')]
+    assert main(argv) == 2
+    assert capsys.readouterr().err == (
+        f'error: {late}: the stereo tracker produced no mesh (no input problem; last_reason: no '
+        'left and right images have paired yet (unpaired_images counts them): the nearest '
+        'stamps differ by 5.000 ms; pairing needs equal stamps, or pairing_tolerance_ms for '
+        'cameras that are not synchronised)\n'
+    )
+    assert not (tmp_path / 'm.npz').exists()
+
+
 def _without_truth(bag: Path, out: Path) -> Path:
     """Write ``bag`` without its truth to ``out``; return ``out``."""
     with BagWriter(out) as writer:

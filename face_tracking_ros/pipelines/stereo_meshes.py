@@ -386,12 +386,16 @@ def _track(
 
 
 def _no_mesh_error(bag: Path, stats: ReplayStats) -> BagError:
-    """The error of a tracking that produced no mesh: the input problems.
+    """The error of a tracking that produced no mesh: its input problems, else its last reason.
 
+    The last reason says what went wrong with good inputs (e.g. images that never paired).
     (Camera_info topics not found are refused before, by :func:`raw_bag_parameters`.)
     """
     problems = '; '.join(f'{count}x {error}' for error, count in stats.errors.items())
-    msg = f'{bag}: the stereo tracker produced no mesh ({problems or "no input problem"})'
+    if not problems:
+        reason = stats.status.get(TRACKER, {}).get('last_reason', '-')
+        problems = 'no input problem' + (f'; last_reason: {reason}' if reason != '-' else '')
+    msg = f'{bag}: the stereo tracker produced no mesh ({problems})'
     return BagError(msg)
 
 
