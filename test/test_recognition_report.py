@@ -236,3 +236,29 @@ def test_test_subject_never_enrolled_is_refused_before_any_figure(
         "pairs' (subject_00, subject_01, subject_02): give people never enrolled with "
         '--strangers\n'
     )
+
+
+def test_a_report_that_fails_at_its_separation_table_prints_no_figure(
+    pairs: dict, tmp_path: Path, capsys: pytest.CaptureFixture
+) -> None:
+    """Enrolment truth relabelled all neutral: no expression to train the table's classifier."""
+    enrol = []
+    for pair in pairs['enrol']:
+        tracked, truth = pair.split('=')
+        neutral = tmp_path / Path(truth).name
+        with BagWriter(neutral) as bag:
+            for message in read_messages(truth, topics=['truth/face']):
+                message.msg.expression_label, message.msg.expression_intensity = 'neutral', 0.0
+                bag.write(message.topic, message.msgtype, message.msg, message.stamp_ns)
+        enrol.append(f'{tracked}={neutral}')
+    argv = ['recognition-report', '--enrol', *enrol, '--test', *pairs['test'],
+            '--classifier', pairs['classifier'][0]]  # fmt: skip
+
+    assert cli.main(argv) == 2
+
+    captured = capsys.readouterr()
+    assert captured.out == ''  # not the identity and expression lines of a report cut short
+    assert captured.err == (
+        "error: training data hold only the label(s) ('neutral',); need neutral and an "
+        'expression\n'
+    )

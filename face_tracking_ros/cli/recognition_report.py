@@ -66,7 +66,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> None:
-    """Print the report.
+    """Print the report, once all of it is computed (a run that fails prints no figure).
 
     Raises:
         BagError: if a bag is unreadable, lacks its topic or no frame pairs up.
@@ -86,17 +86,20 @@ def run(args: argparse.Namespace) -> None:
     fingerprint = load_model(model).fingerprint if model is not None else None
     classifier = ExpressionClassifier.load(args.classifier, enrol[0].alpha.shape[1], fingerprint)
     identity_config = IdentityConfig()
-    _print_identity(enrol, test, strangers, identity_config)
-    _print_expressions(classifier, test + strangers)
-    print(separation_experiment(enrol, test, identity_config, ExpressionTrainingConfig()).format())
+    report = [
+        _identity_line(enrol, test, strangers, identity_config),
+        *_expression_lines(classifier, test + strangers),
+        separation_experiment(enrol, test, identity_config, ExpressionTrainingConfig()).format(),
+    ]
+    print('\n'.join(report))
 
 
-def _print_identity(
+def _identity_line(
     enrol: list[ParameterSequence],
     test: list[ParameterSequence],
     strangers: list[ParameterSequence],
     config: IdentityConfig,
-) -> None:
+) -> str:
     """The identity line: decisions on ``test`` and ``strangers`` by a gallery of ``enrol``.
 
     Raises:
@@ -112,20 +115,22 @@ def _print_identity(
             'window: no identity decision to score'
         )
         raise BagError(msg)
-    print(
+    return (
         f'identity after {config.window:.0f} s ({identity.windows} windows): '
         f'{100 * identity.closed_set:.1f} % closed set, {100 * identity.open_set:.1f} % with '
         f'rejection; {rejected}'
     )
 
 
-def _print_expressions(classifier: ExpressionClassifier, scored: list[ParameterSequence]) -> None:
+def _expression_lines(
+    classifier: ExpressionClassifier, scored: list[ParameterSequence]
+) -> list[str]:
     """The expression lines: per-frame accuracy, then events at two onset definitions."""
     accuracy = expression_accuracy(classifier, scored)
-    print(
+    lines = [
         f'expressions: {100 * accuracy.clear:.1f} % clear frames, '
         f'{100 * accuracy.all_frames:.1f} % all frames, {100 * accuracy.balanced:.1f} % balanced'
-    )
+    ]
     events = [detect_events(classifier, s, EventConfig()) for s in scored]
     for level, name in ((0.0, 'label start'), (0.5, 'half rise')):
         score = merge_scores(
@@ -139,7 +144,8 @@ def _print_expressions(classifier: ExpressionClassifier, scored: list[ParameterS
             if len(score.latencies)
             else 'no onset found'
         )
-        print(f'events (onset at {name}): F1 {score.f1:.3f}, {latency}')
+        lines.append(f'events (onset at {name}): F1 {score.f1:.3f}, {latency}')
+    return lines
 
 
 def _check_enrolled(
