@@ -315,7 +315,8 @@ def leave_one_out(training: TrainingSet, learner: Learner, full: LearningResult)
 
     Returns:
         The figures; NaN ones, with the reason, when the other subjects are too few for the
-        learner's p (it learned from all of them, so that is the only thing that can fail).
+        learner's p, or their meshes for its q (it learned from all of them, so those are the
+        only things that can fail).
     """
     neutrals = training.subject_means(training.flat(), training.neutral)
     full_model = full.model
