@@ -130,6 +130,9 @@ def test_pin_to_core_moves_a_pinned_process_to_another_core():
         assert pin_to_core(DRIVER_CORE) == DRIVER_CORE
         assert os.sched_getaffinity(0) == {DRIVER_CORE}
         assert pin_to_core(4095) == DRIVER_CORE  # no such core: the lowest of the affinity
+        os.sched_setaffinity(0, saved)
+        assert pin_to_core(4095) == min(saved)
+        assert os.sched_getaffinity(0) == {min(saved)}  # this process's, not another's
     finally:
         os.sched_setaffinity(0, saved)
 

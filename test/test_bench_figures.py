@@ -1,0 +1,428 @@
+"""The figures the benchmarks report, computed from by-hand inputs (no benchmark is run).
+
+Percentiles, ratios to the baseline, frames/s and multiples of real time, dropped frames, the
+highest rate without drops, scaling exponents, pooled errors and the soak's trends: the README's
+Performance table is read from these. The slow parts (trackers, nodes, DDS, bags) are replaced
+by fakes that return known figures.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import subprocess
+import sys
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from face_tracking_ros.bench import (
+    common,
+    learner_scaling,
+    live_latency,
+    mono_accuracy,
+    replay_throughput,
+    runner,
+    soak,
+    stereo_accuracy,
+    tracker_speed,
+)
+from face_tracking_ros.bench.common import (
+    BenchOptions,
+    dds_env,
+    proc_status_mb,
+    timing_summary,
+)
+from face_tracking_ros.bench.live import RunFigures
+from face_tracking_ros.cli.bench import format_table
+from face_tracking_ros.tracking.result import TrackStatus
+
+
+def _run(rate_hz=30.0, published=5, latency=(2.0, 4.0, 6.0), tracked=3, seconds=2.0):
+    """A RunFigures with ``published`` images and the given latencies (one per receipt)."""
+    return RunFigures(rate_hz, seconds, published, len(latency), np.array(latency), tracked)
+
+
+def test_timing_summary_gives_median_p99_and_mean_in_ms():
+    # ms 1, 2, 3, 4, 10: p99 interpolates 96 % of the way from 4 to 10 (index 3.96).
+    summary = timing_summary([0.001, 0.002, 0.003, 0.004, 0.010])
+    assert summary == pytest.approx(
+        {'median_ms': 3.0, 'p99_ms': 9.76, 'mean_ms': 4.0, 'samples': 5}
+    )
+    assert isinstance(summary['samples'], int)
+
+
+def test_a_run_counts_drops_and_gives_latency_percentiles():
+    summary = _run().summary()
+    # 5 published, 3 received; latencies 2, 4, 6 ms: p99 at index 1.98 -> 4 + 0.98 * 2.
+    assert summary == pytest.approx(
+        {
+            'rate_hz': 30.0,
+            'seconds': 2.0,
+            'published': 5,
+            'received': 3,
+            'dropped': 2,
+            'tracked': 3,
+            'latency_p50_ms': 4.0,
+            'latency_p99_ms': 5.96,
+            'latency_max_ms': 6.0,
+        }
+    )
+
+
+def test_a_run_without_receipts_has_no_latency():
+    summary = _run(latency=(), tracked=0).summary()
+    assert summary['dropped'] == 5
+    assert all(math.isnan(summary[f'latency_{k}_ms']) for k in ('p50', 'p99', 'max'))
+
+
+def test_proc_status_gives_a_field_in_mb(monkeypatch):
+    read = []
+    status = 'Name:\tmono_tracker\nVmHWM:\t  204800 kB\nVmRSS:\t  102912 kB\n'
+
+    def path(name):
+        read.append(name)
+        return SimpleNamespace(read_text=lambda: status)
+
+    monkeypatch.setattr(common, 'Path', path)
+    assert proc_status_mb(1234, 'VmHWM') == 200.0
+    assert proc_status_mb(1234, 'VmRSS') == 100.5
+    assert math.isnan(proc_status_mb(1234, 'NoSuchField'))
+    assert read == ['/proc/1234/status'] * 3
+
+
+def test_a_gone_process_has_no_memory_figure():
+    assert math.isnan(proc_status_mb(2**22 + 1, 'VmHWM'))  # above pid_max: no such process
+
+
+def test_a_benchmark_process_runs_on_one_blas_thread_and_loopback_dds(monkeypatch):
+    monkeypatch.setenv('FASTDDS_DEFAULT_PROFILES_FILE', '/etc/mine.xml')
+    monkeypatch.delenv('AMENT_PREFIX_PATH', raising=False)
+    env = dds_env(9)
+    assert env['ROS_DOMAIN_ID'] == '9'
+    assert env['ROS_AUTOMATIC_DISCOVERY_RANGE'] == 'LOCALHOST'
+    assert env['OMP_NUM_THREADS'] == env['OPENBLAS_NUM_THREADS'] == '1'
+    assert env['FASTDDS_DEFAULT_PROFILES_FILE'] == '/etc/mine.xml'
+    assert env['AMENT_PREFIX_PATH'] == sys.prefix
+    monkeypatch.delenv('FASTDDS_DEFAULT_PROFILES_FILE')
+    assert dds_env(9)['FASTDDS_DEFAULT_PROFILES_FILE'] == str(common.PROFILE)
+
+
+def test_tracker_timing_excludes_the_first_frame_and_counts_tracked_frames(monkeypatch):
+    calls = []
+    statuses = {1: TrackStatus.TRACKING, 2: TrackStatus.LOST, 3: TrackStatus.TRACKING}
+
+    def step(frame):
+        calls.append(frame)
+        return statuses.get(frame, TrackStatus.INITIALIZING)
+
+    def timed(calls):
+        for call in calls:
+            call()
+        return [0.001, 0.004, 0.002]
+
+    monkeypatch.setattr(tracker_speed, 'time_calls', timed)
+    figures = tracker_speed._timed(step, 4)
+    assert calls == [0, 1, 2, 3]
+    assert figures['median_ms'] == pytest.approx(2.0)
+    assert figures['samples'] == 3
+    assert figures['tracked'] == pytest.approx(2 / 3)
+
+
+def test_learner_exponents_are_the_slopes_of_log_time_against_log_meshes(monkeypatch):
+    sizes = []
+
+    def row(population, subjects, meshes, learners, rng):
+        sizes.append((subjects, meshes))
+        times = {'align_s': 2e-4 * meshes, 'seed_s': 1e-8 * meshes**2, 'joint_s': meshes**0.5}
+        return {'meshes': meshes, 'subjects': subjects, **times}
+
+    monkeypatch.setattr(learner_scaling, 'FacePopulation', lambda seed: None)
+    monkeypatch.setattr(learner_scaling, '_timed_row', row)
+    result = learner_scaling.run(BenchOptions())
+    assert result['meshes_exponent'] == pytest.approx(
+        {'align_s': 1.0, 'seed_s': 2.0, 'joint_s': 0.5}
+    )
+    by_meshes = [(10, m) for m in (10**3, 10**4, 10**5, 10**6)]
+    assert sizes == by_meshes + [(s, 20_000) for s in (5, 10, 20, 50)]
+    assert [r['meshes'] for r in result['meshes']] == [m for _, m in by_meshes]
+    assert [r['subjects'] for r in result['subjects']] == [5, 10, 20, 50]
+
+
+class _FakeNode:
+    """A node process that is never started."""
+
+    def __init__(self, *args):
+        self.stopped = False
+
+    def peak_rss_mb(self):
+        return 250.0
+
+    def cores(self):
+        return [0]
+
+    def stop(self):
+        self.stopped = True
+        return 0
+
+
+class _FakeDriver:
+    """A driver whose runs drop frames from ``drops_from`` Hz on."""
+
+    def __init__(self, drops_from):
+        self.drops_from = drops_from
+        self.runs = []
+
+    def __call__(self, streams):
+        return self
+
+    def wait_for(self, nodes):
+        pass
+
+    def run(self, rate_hz, seconds):
+        self.runs.append((rate_hz, seconds))
+        received = 3 if rate_hz < self.drops_from else 2
+        return _run(rate_hz, 3, (1.0, 2.0, 3.0)[:received], received, seconds)
+
+    def close(self):
+        pass
+
+
+@pytest.mark.parametrize(
+    ('drops_from', 'stepped', 'highest'),
+    [
+        (45.0, [10.0, 15.0, 20.0, 30.0, 45.0], 30.0),  # stops at the first step with drops
+        (10.0, [10.0], 0.0),
+        (1000.0, [10.0, 15.0, 20.0, 30.0, 45.0, 60.0, 90.0, 120.0], 120.0),
+    ],
+)
+def test_live_latency_finds_the_highest_rate_without_drops(
+    monkeypatch, tmp_path, drops_from, stepped, highest
+):
+    driver = _FakeDriver(drops_from)
+    saved = os.sched_getaffinity(0)
+    monkeypatch.setattr(live_latency, 'pin_to_core', lambda core: os.sched_setaffinity(0, {1}))
+    monkeypatch.setattr(live_latency, 'tracker_inputs', lambda *args: ([], {}))
+    monkeypatch.setattr(live_latency, 'NodeProcess', _FakeNode)
+    monkeypatch.setattr(live_latency, 'Driver', driver)
+
+    if 1 not in saved:
+        pytest.skip('core 1 is not available here')
+    try:
+        result = live_latency.run(BenchOptions(work_dir=tmp_path))
+    finally:
+        os.sched_setaffinity(0, saved)
+
+    assert driver.runs[:2] == [(30.0, 1.0), (30.0, 60.0)]  # warm-up, then the timed run
+    assert driver.runs[2:] == [(rate, 4.0) for rate in stepped]
+    assert result['max_rate_without_drops_hz'] == highest
+    assert result['at_30hz']['seconds'] == 60.0
+    assert result['at_30hz']['dropped'] == (0 if drops_from > 30.0 else 1)
+    assert [step['rate_hz'] for step in result['rate_steps']] == stepped
+    assert result['node_peak_rss_mb'] == 250.0
+    assert result['cores'] == {'node': [0], 'driver': [1]}  # the driver's: this process's
+    assert result['stream_frames'] == 1830
+
+
+def test_replay_throughput_is_frames_per_second_and_multiple_of_real_time(monkeypatch, tmp_path):
+    clock = iter([0.0, 2.0, 10.0, 13.0])  # mono replay 2 s, stereo 3 s
+    inputs = {'image': 600, 'left/image_raw': 300, 'right/image_raw': 300}
+    stats = SimpleNamespace(inputs=inputs, outputs={'face/state': 590}, errors={})
+    monkeypatch.setattr(
+        replay_throughput, 'time', SimpleNamespace(perf_counter=lambda: next(clock))
+    )
+    models = []
+    monkeypatch.setattr(
+        replay_throughput, 'model_file', lambda *args: models.append(args) or tmp_path / 'model'
+    )
+    monkeypatch.setattr(replay_throughput, 'recorded_bag', lambda *args: (tmp_path, tmp_path))
+    monkeypatch.setattr(replay_throughput, 'replay_bag', lambda *args, **kwargs: stats)
+
+    result = replay_throughput.run(BenchOptions(work_dir=tmp_path, seed=3))
+
+    assert models == [(tmp_path, 34, 3)]  # the 34-node model
+
+    assert result['mono'].pop('input_errors') == {}
+    assert result['mono'] == pytest.approx(
+        {
+            'size': '640x480',
+            'frames': 600,
+            'seconds': 2.0,
+            'frames_per_s': 300.0,
+            'x_real_time': 10.0,
+            'states': 590,
+        }
+    )
+    assert result['stereo']['frames_per_s'] == pytest.approx(100.0)
+    assert result['stereo']['x_real_time'] == pytest.approx(10.0 / 3.0)
+
+
+def test_soak_growth_is_from_the_first_window_after_warm_up_and_the_trend_a_slope():
+    # p50 5, 6, 7 ms at 1/6, 7/6, 13/6 min: 1 ms/min; RSS 103 MB after warm-up, 104.5 at the end.
+    windows = [
+        (10.0, 100.0, _run(published=4, latency=(5.0,), tracked=1)),
+        (70.0, 103.0, _run(published=4, latency=(6.0, 6.0), tracked=2)),
+        (130.0, 104.5, _run(published=4, latency=(7.0, 7.0, 7.0), tracked=3)),
+    ]
+    summary = soak._summary(windows, 5, {'tracker': 300.0, 'recorder': 80.0}, 2.5)
+    assert summary['rss_growth_mb'] == pytest.approx(1.5)
+    assert summary['latency_p50_slope_ms_per_min'] == pytest.approx(1.0)
+    assert (summary['published'], summary['received'], summary['recorded']) == (12, 6, 5)
+    assert summary['recorder_missing'] == 1
+    assert [w['dropped'] for w in summary['windows']] == [3, 2, 1]
+    assert [w['t_s'] for w in summary['windows']] == [10.0, 70.0, 130.0]
+    assert (summary['tracker_peak_rss_mb'], summary['recorder_peak_rss_mb']) == (300.0, 80.0)
+
+
+def test_a_soak_shorter_than_its_warm_up_has_no_growth_and_one_window_no_trend():
+    windows = [(10.0, 100.0, _run()), (20.0, 101.0, _run(latency=(5.0,), tracked=1))]
+    two = soak._summary(windows, 4, {'tracker': 1.0, 'recorder': 1.0}, 0.5)
+    # p50 4 then 5 ms, 10 s apart: 6 ms/min.
+    assert (two['rss_growth_mb'], two['latency_p50_slope_ms_per_min']) == (0.0, pytest.approx(6.0))
+    one = soak._summary(windows[:1], 3, {'tracker': 1.0, 'recorder': 1.0}, 0.5)
+    assert (one['rss_growth_mb'], one['latency_p50_slope_ms_per_min']) == (0.0, 0.0)
+
+
+def test_mono_accuracy_means_every_number_over_seeds_per_axis():
+    per_seed = [
+        {'frames': 20, 'rotation_mae_deg': [1.0, 2.0, 3.0], 'name': 'a', 'ok': True},
+        {'frames': 10, 'rotation_mae_deg': [3.0, 4.0, 8.0], 'name': 'b', 'ok': False},
+    ]
+    assert mono_accuracy._mean(per_seed) == {
+        'frames': 15.0,
+        'rotation_mae_deg': [2.0, 3.0, 5.5],
+    }
+    assert mono_accuracy._mean(per_seed[:1]) == {'frames': 20.0, 'rotation_mae_deg': [1, 2, 3]}
+
+
+def test_stereo_pooling_takes_rms_of_rms_figures_and_extremes_of_the_others():
+    def evaluation(node, group, by_node, reprojection, drift, max_drift, slip, tracked):
+        return SimpleNamespace(
+            node_rms=node,
+            node_rms_by_group={'eyes': group},
+            node_rms_by_node={'nose': by_node},
+            max_reprojection=reprojection,
+            drift=drift,
+            max_drift=max_drift,
+            boundary_slip=slip,
+            tracked_fraction=tracked,
+        )
+
+    pooled = stereo_accuracy._pooled(
+        [
+            evaluation(0.001, 0.002, 0.003, 1.5, 0.003, 0.002, 0.0015, 1.0),
+            evaluation(0.007, 0.014, 0.004, 0.5, 0.004, 0.009, 0.0005, 0.9),
+        ]
+    )
+    # RMS: sqrt((1 + 49) / 2) = 5, sqrt((4 + 196) / 2) = 10, sqrt((9 + 16) / 2) mm.
+    assert pooled.pop('node_rms_by_group_mm') == pytest.approx({'eyes': 10.0})
+    assert pooled.pop('node_rms_by_node_mm') == pytest.approx({'nose': math.sqrt(12.5)})
+    assert pooled == pytest.approx(
+        {
+            'node_rms_mm': 5.0,
+            'max_reprojection_px': 1.5,
+            'drift_mm': math.sqrt(12.5),
+            'max_drift_mm': 9.0,
+            'boundary_slip_mm': 1.5,
+            'tracked_fraction': 0.9,
+        }
+    )
+
+
+def test_runner_gives_a_child_its_options_and_reads_its_part(monkeypatch, tmp_path):
+    commands = []
+
+    def child(command, **kwargs):
+        commands.append(command)
+        part = command[command.index('--part') + 1]
+        with open(part, 'w') as file:
+            json.dump({'figure': 1.5}, file)
+        return SimpleNamespace(returncode=0, stderr='')
+
+    monkeypatch.setattr(runner.subprocess, 'run', child)
+    monkeypatch.setattr(runner, 'machine', lambda: {'nproc': 1})
+    clock = iter([0.0, 2.5, 10.0, 70.0])  # memory 2.5 s, soak 60 s
+    monkeypatch.setattr(runner, 'time', SimpleNamespace(perf_counter=lambda: next(clock)))
+    options = BenchOptions(quick=True, work_dir=tmp_path, minutes=2.0, domain_id=9, seed=4)
+    results = runner.run_benchmarks(['memory', 'soak'], options)
+    assert results['benchmarks'] == {'memory': {'figure': 1.5}, 'soak': {'figure': 1.5}}
+    assert results['seconds'] == {'memory': 2.5, 'soak': 60.0}
+    assert results['quick'] is True
+    assert commands[1][3:] == [
+        'soak',
+        '--part',
+        str(tmp_path / 'soak.json'),
+        '--work-dir',
+        str(tmp_path),
+        '--minutes',
+        '2.0',
+        '--domain-id',
+        '9',
+        '--seed',
+        '4',
+        '--quick',
+    ]
+
+
+def test_the_machine_is_described_by_its_cores_and_ram(monkeypatch):
+    saved = os.sched_getaffinity(0)
+    sizes = {'SC_PHYS_PAGES': 4_194_304, 'SC_PAGE_SIZE': 4096}  # 16 GiB
+    monkeypatch.setattr(runner.os, 'sysconf', sizes.__getitem__)
+    try:
+        os.sched_setaffinity(0, {min(saved)})
+        machine = runner.machine()
+    finally:
+        os.sched_setaffinity(0, saved)
+    assert (machine['nproc'], machine['ram_gb'], machine['measured_on_cores']) == (1, 16.0, 1)
+
+
+def test_runner_records_why_a_child_failed(monkeypatch, tmp_path):
+    timeouts = []
+
+    def timed_out(command, timeout, **kwargs):
+        timeouts.append(timeout)
+        raise subprocess.TimeoutExpired(command, timeout)
+
+    monkeypatch.setattr(runner.subprocess, 'run', timed_out)
+    options = BenchOptions(work_dir=tmp_path, minutes=1.5)
+    assert runner._run_child('soak', options) == {'failed': 'timed out after 990 s'}
+    assert runner._run_child('memory', options) == {'failed': 'timed out after 900 s'}
+    stderr = '\n'.join(f'line {k}' for k in range(10)) + '\n'
+    failed = SimpleNamespace(returncode=3, stderr=stderr)
+    monkeypatch.setattr(runner.subprocess, 'run', lambda command, **kwargs: failed)
+    tail = ' | '.join(f'line {k}' for k in range(2, 10))
+    assert runner._run_child('memory', options) == {'failed': f'exit status 3: {tail}'}
+    quiet = SimpleNamespace(returncode=0, stderr='wrote nothing\n')  # and no part file
+    monkeypatch.setattr(runner.subprocess, 'run', lambda command, **kwargs: quiet)
+    assert runner._run_child('memory', options) == {'failed': 'exit status 0: wrote nothing'}
+
+
+def test_table_shows_speed_ratios_replay_memory_and_soak():
+    figures = {'median_ms': 1.25, 'p99_ms': 2.5}
+    speed = {
+        '640x480': {
+            '34_nodes': {'mono': figures, 'mono_over_baseline': 1.44},
+            'rectification': {'median_ms': 0.5, 'p99_ms': 0.75},
+        },
+        '320x240': {'19_nodes': {'stereo': figures}},
+    }
+    replay = {'mono': {'size': '640x480', 'frames_per_s': 300.0, 'x_real_time': 10.0}}
+    soak_figures = {'minutes': 30.0, 'rss_growth_mb': 1.5, 'latency_p50_slope_ms_per_min': -0.25}
+    soak_figures |= {'recorder_missing': 1, 'received': 54000}
+    memory = {'mono_tracker': {'peak_rss_mb': 180.4}, 'learner': {'skipped': 'no | data'}}
+    benchmarks = {'tracker_speed': speed, 'replay_throughput': replay, 'soak': soak_figures}
+    table = format_table({'benchmarks': benchmarks | {'memory': memory}}).splitlines()
+    assert table[2:] == [
+        '| mono step, 640x480, 34 nodes | 1.2 ms median, 2.5 ms p99 | <= 2 ms |',
+        '| mono / baseline time, 640x480, 34 nodes | 1.4x |  |',
+        '| rectification of a raw image (distortion, R), 640x480 | 0.50 ms median, '
+        '0.75 ms p99 |  |',
+        '| stereo step, 320x240, 19 nodes | 1.2 ms median, 2.5 ms p99 |  |',
+        '| offline replay, mono, 640x480 | 300.0 frames/s = 10.00x real time (30 fps) | >= 30x |',
+        '| peak RSS, mono_tracker | 180 MB |  |',
+        '| peak RSS, learner | skipped: no / data |  |',
+        '| soak, 30 min at 30 Hz | RSS growth +1.5 MB, latency p50 trend -0.25 ms/min, '
+        'recorder missed 1 of 54000 | < 5 MB, no growth, none missed |',
+    ]
