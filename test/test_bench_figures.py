@@ -8,11 +8,13 @@ by fakes that return known figures.
 
 from __future__ import annotations
 
+import itertools
 import json
 import math
 import os
 import subprocess
 import sys
+import threading
 from types import SimpleNamespace
 
 import numpy as np
@@ -21,6 +23,7 @@ import pytest
 from face_tracking_ros.bench import (
     common,
     learner_scaling,
+    live,
     live_latency,
     mono_accuracy,
     replay_throughput,
@@ -35,7 +38,7 @@ from face_tracking_ros.bench.common import (
     proc_status_mb,
     timing_summary,
 )
-from face_tracking_ros.bench.live import RunFigures
+from face_tracking_ros.bench.live import Driver, RunFigures
 from face_tracking_ros.cli.bench import format_table
 from face_tracking_ros.tracking.result import TrackStatus
 
@@ -76,6 +79,31 @@ def test_a_run_without_receipts_has_no_latency():
     summary = _run(latency=(), tracked=0).summary()
     assert summary['dropped'] == 5
     assert all(math.isnan(summary[f'latency_{k}_ms']) for k in ('p50', 'p99', 'max'))
+
+
+def test_a_driver_run_times_the_states_of_its_own_images(monkeypatch):
+    # A driver without DDS: its images are stamped 100..500 ns and the states of three come back
+    # 2, 6 and 10 ms later (one LOST); a state of an earlier run's image is not counted.
+    driver = object.__new__(Driver)
+    driver._lock = threading.Lock()
+    driver._received = {}
+    stamps = itertools.count(100, 100)
+    driver._publish_next = lambda: next(stamps)
+    statuses = {100: TrackStatus.TRACKING, 300: TrackStatus.LOST, 500: TrackStatus.TRACKING}
+    for stamp, status in [(50, TrackStatus.TRACKING), *statuses.items()]:
+        header = SimpleNamespace(stamp=SimpleNamespace(sec=0, nanosec=stamp))
+        at = stamp + 20_000 * stamp
+        monkeypatch.setattr(live.time, 'time_ns', lambda at=at: at)
+        driver._on_state(SimpleNamespace(header=header, status=int(status)))
+    monkeypatch.undo()
+    monkeypatch.setattr(live, 'LATE_GRACE', 0.0)
+
+    figures = driver.run(1000.0, 0.005)
+
+    assert (figures.published, figures.received, figures.tracked) == (5, 3, 2)
+    assert figures.latency_ms.tolist() == [2.0, 6.0, 10.0]
+    assert driver._received == {50: (50 + 20_000 * 50, int(TrackStatus.TRACKING))}
+    assert driver.run(1000.0, 0.0001).published == 1  # at least one image
 
 
 def test_proc_status_gives_a_field_in_mb(monkeypatch):
@@ -329,6 +357,8 @@ def test_stereo_pooling_takes_rms_of_rms_figures_and_extremes_of_the_others():
             'tracked_fraction': 0.9,
         }
     )
+    one = stereo_accuracy._pooled([evaluation(0.001, 0.002, 0.003, 1.5, 0.003, 0.002, 0.0, 1.0)])
+    assert (one['node_rms_mm'], one['node_rms_by_node_mm']) == (1.0, {'nose': 3.0})
 
 
 def test_runner_gives_a_child_its_options_and_reads_its_part(monkeypatch, tmp_path):
@@ -370,12 +400,19 @@ def test_the_machine_is_described_by_its_cores_and_ram(monkeypatch):
     saved = os.sched_getaffinity(0)
     sizes = {'SC_PHYS_PAGES': 4_194_304, 'SC_PAGE_SIZE': 4096}  # 16 GiB
     monkeypatch.setattr(runner.os, 'sysconf', sizes.__getitem__)
+    cpuinfo = 'processor\t: 0\nmodel name\t: Chip X: 8 cores @ 2.0GHz\n'
+    monkeypatch.setattr(
+        runner,
+        'Path',
+        lambda path: SimpleNamespace(is_file=lambda: True, read_text=lambda: cpuinfo),
+    )
     try:
         os.sched_setaffinity(0, {min(saved)})
         machine = runner.machine()
     finally:
         os.sched_setaffinity(0, saved)
     assert (machine['nproc'], machine['ram_gb'], machine['measured_on_cores']) == (1, 16.0, 1)
+    assert machine['cpu_model'] == 'Chip X: 8 cores @ 2.0GHz'
 
 
 def test_runner_records_why_a_child_failed(monkeypatch, tmp_path):
