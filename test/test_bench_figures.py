@@ -106,6 +106,23 @@ def test_a_driver_run_times_the_states_of_its_own_images(monkeypatch):
     assert driver.run(1000.0, 0.0001).published == 1  # at least one image
 
 
+def test_a_driver_publishes_at_its_rate(monkeypatch):
+    # A clock that only sleep advances: 200 Hz for 20 ms is 4 images 5 ms apart.
+    now = [10**12]
+    clock = SimpleNamespace(time_ns=lambda: now[0])
+    clock.sleep = lambda seconds: now.__setitem__(0, now[0] + round(seconds * 1e9))
+    monkeypatch.setattr(live, 'time', clock)
+    driver = object.__new__(Driver)
+    driver._lock = threading.Lock()
+    driver._received = {}
+    published = []
+    driver._publish_next = lambda: published.append(now[0]) or now[0]
+
+    assert driver.run(200.0, 0.02).published == 4
+    assert [t - 10**12 for t in published] == [0, 5_000_000, 10_000_000, 15_000_000]
+    assert now[0] == published[-1] + round(live.LATE_GRACE * 1e9)  # waited for the last state
+
+
 def test_proc_status_gives_a_field_in_mb(monkeypatch):
     read = []
     status = 'Name:\tmono_tracker\nVmHWM:\t  204800 kB\nVmRSS:\t  102912 kB\n'
