@@ -25,6 +25,7 @@ from face_tracking_ros.bench import (
     learner_scaling,
     live,
     live_latency,
+    memory,
     mono_accuracy,
     replay_throughput,
     runner,
@@ -480,3 +481,93 @@ def test_table_shows_speed_ratios_replay_memory_and_soak():
         '| soak, 30 min at 30 Hz | RSS growth +1.5 MB, latency p50 trend -0.25 ms/min, '
         'recorder missed 1 of 54000 | < 5 MB, no growth, none missed |',
     ]
+
+
+class _MemoryNode:
+    """A node process that is never started: alive for ``lives`` polls, with a peak RSS."""
+
+    def __init__(self, name, lives=10**6):
+        self.name, self.lives, self.stopped = name, lives, False
+
+    def alive(self):
+        self.lives -= 1
+        return self.lives >= 0
+
+    def peak_rss_mb(self):
+        return 321.0
+
+    def tail(self, lines):
+        return f'last {lines} lines'
+
+    def stop(self):
+        self.stopped = True
+
+
+def test_a_node_runs_until_done_then_its_peak_rss_is_read(monkeypatch, tmp_path):
+    now = [0.0]
+    sleep = lambda seconds: now.__setitem__(0, now[0] + seconds)  # noqa: E731
+    monkeypatch.setattr(memory, 'time', SimpleNamespace(monotonic=lambda: now[0], sleep=sleep))
+    options = BenchOptions(work_dir=tmp_path)
+    for lives, done_after, expected in [
+        (10**6, 3.0, {'peak_rss_mb': 321.0, 'run': 'learning'}),
+        (2, 3.0, {'failed': 'exited early: last 2 lines'}),
+        (10**6, 601.0, {'failed': 'not done after 600 s: last 2 lines'}),
+    ]:
+        node = _MemoryNode('learner', lives)
+        monkeypatch.setattr(memory, 'NodeProcess', lambda *args, node=node: node)
+        now[0] = 0.0
+        done = lambda after=done_after: now[0] >= after  # noqa: E731
+        assert memory._peak_until('learner', {}, done, options, 'learning') == expected
+        assert node.stopped
+        assert now[0] == pytest.approx(min(done_after, 600.2 if lives > 2 else 0.4), abs=0.01)
+
+
+def test_nodes_that_die_at_start_up_are_reported_and_left_out():
+    nodes = [_MemoryNode('mono_tracker'), _MemoryNode('recorder', 0), _MemoryNode('rgbd', 0)]
+    waits = []
+
+    def wait_for(running):
+        waits.append([node.name for node in running])
+        if len(waits) == 1:
+            raise memory.ConfigError('did not connect')
+
+    results = {}
+    driver = SimpleNamespace(wait_for=wait_for)
+    assert memory._connected(driver, nodes, results) == nodes[:1]
+    assert waits == [['mono_tracker', 'recorder', 'rgbd'], ['mono_tracker']]
+    failed = {'failed': 'exited at start-up: last 2 lines'}
+    assert results == {'recorder': failed, 'rgbd': failed}
+
+    def never(running):
+        raise memory.ConfigError('did not connect')
+
+    with pytest.raises(memory.ConfigError, match='did not connect'):  # all alive: a real failure
+        memory._connected(SimpleNamespace(wait_for=never), [_MemoryNode('mono_tracker')], {})
+
+
+def test_memory_reads_the_peak_rss_of_the_nodes_that_run(monkeypatch, tmp_path):
+    def node_process(name, params, domain_id, log):
+        if name == 'rgbd':
+            raise memory.ConfigError('rgbd is not installed')
+        return _MemoryNode(name, 0 if name == 'recorder' else 10**6)
+
+    def wait_for(nodes):
+        if len(nodes) > 1:
+            raise memory.ConfigError('did not connect')
+
+    driver = _FakeDriver(1000.0)
+    driver.wait_for = wait_for
+    monkeypatch.setattr(memory, 'NodeProcess', node_process)
+    monkeypatch.setattr(memory, 'Driver', lambda streams, name: driver)
+    nodes = {'mono_tracker': {}, 'recorder': {}, 'rgbd': {}}
+    results = memory._measure(nodes, [], 30.0, 2.0, BenchOptions(work_dir=tmp_path), 'at 30 Hz')
+    assert results == {
+        'rgbd': {'skipped': 'rgbd is not installed'},
+        'recorder': {'failed': 'exited at start-up: last 2 lines'},
+        'mono_tracker': {'peak_rss_mb': 321.0, 'run': 'at 30 Hz'},
+    }
+    assert driver.runs == [(30.0, 2.0)]
+    monkeypatch.setattr(memory, 'NodeProcess', lambda *args: node_process('rgbd', *args[1:]))
+    assert memory._peak_until('rgbd', {}, lambda: True, BenchOptions(), '') == {
+        'skipped': 'rgbd is not installed'
+    }
