@@ -571,3 +571,36 @@ def test_memory_reads_the_peak_rss_of_the_nodes_that_run(monkeypatch, tmp_path):
     assert memory._peak_until('rgbd', {}, lambda: True, BenchOptions(), '') == {
         'skipped': 'rgbd is not installed'
     }
+
+
+def test_time_calls_times_each_call_in_order(monkeypatch):
+    clock, ran = iter([1.0, 1.5, 2.0, 3.5]), []
+    monkeypatch.setattr(common, 'time', SimpleNamespace(perf_counter=lambda: next(clock)))
+    assert common.time_calls([lambda: ran.append('a'), lambda: ran.append('b')]) == [0.5, 1.5]
+    assert ran == ['a', 'b']
+
+
+def test_table_shows_click_draws_and_the_learned_models_similarities():
+    mean = {'rotation_mae_deg': [1.0, 2.0, 0.25], 'translation_mae_mm': [3.0, 4.0, 5.0]}
+    mean |= {'alpha_rms_percent': None, 'drift_deg': -0.5, 'lost': 0.0}
+    rows = {
+        name: {'mean': mean, 'seeds': [{}, {}], 'click_draws': draws}
+        for name, draws in (('true_model_click_draws', 2), ('unfiltered', 1))
+    }
+    learned = {
+        'true': {'shape_similarity': 0.9991, 'action_similarity': 0.99},
+        'exact_clicks': {'shape_similarity': 0.98, 'action_similarity': 0.9},
+    }
+    benchmarks = {'mono_accuracy': {'rows': rows}}
+    benchmarks['stereo_accuracy'] = {'learning': {'34_nodes': learned}}
+    table = format_table({'benchmarks': benchmarks}).splitlines()
+    figures = 'rotation MAE 1.00 / 2.00 / 0.25 deg, t MAE 3.0 / 4.0 / 5.0 mm, alpha n/a, '
+    figures += 'drift -0.50 deg, lost 0'
+    assert [row.split(' | ')[:2] for row in table[2:]] == [
+        ['| mono protocol, true model click draws (mean of 2 seed(s) x 2 click draws)', figures],
+        ['| mono protocol, unfiltered (mean of 2 seed(s))', figures],
+        [
+            '| stereo protocol, 34 nodes: model learned from true / exact clicks meshes',
+            'S vs true identity 0.999 / 0.980, A vs true expressions 0.990 / 0.900',
+        ],
+    ]
