@@ -40,6 +40,7 @@ from face_tracking_ros.bench.common import (
     timing_summary,
 )
 from face_tracking_ros.bench.live import Driver, RunFigures
+from face_tracking_ros.cli import bench as bench_cli
 from face_tracking_ros.cli.bench import format_table
 from face_tracking_ros.tracking.result import TrackStatus
 
@@ -323,12 +324,33 @@ def test_soak_growth_is_from_the_first_window_after_warm_up_and_the_trend_a_slop
 
 
 def test_a_soak_shorter_than_its_warm_up_has_no_growth_and_one_window_no_trend():
+    """Not measured is NaN (null in the JSON, 'not measured' in the table), never 0."""
     windows = [(10.0, 100.0, _run()), (20.0, 101.0, _run(latency=(5.0,), tracked=1))]
     two = soak._summary(windows, 4, {'tracker': 1.0, 'recorder': 1.0}, 0.5)
     # p50 4 then 5 ms, 10 s apart: 6 ms/min.
-    assert (two['rss_growth_mb'], two['latency_p50_slope_ms_per_min']) == (0.0, pytest.approx(6.0))
+    assert math.isnan(two['rss_growth_mb'])
+    assert two['latency_p50_slope_ms_per_min'] == pytest.approx(6.0)
     one = soak._summary(windows[:1], 3, {'tracker': 1.0, 'recorder': 1.0}, 0.5)
-    assert (one['rss_growth_mb'], one['latency_p50_slope_ms_per_min']) == (0.0, 0.0)
+    assert math.isnan(one['rss_growth_mb']) and math.isnan(one['latency_p50_slope_ms_per_min'])
+    # One window after the warm-up: growth from it to itself is no measurement either.
+    late = soak._summary([*windows, (70.0, 103.0, _run())], 4, {'tracker': 1, 'recorder': 1}, 1)
+    assert math.isnan(late['rss_growth_mb'])
+
+
+def test_the_table_says_a_soak_figure_was_not_measured():
+    figures = {'minutes': 0.5, 'recorder_missing': 0, 'received': 15}
+    for missing in (float('nan'), None):  # as measured, and as read back from the JSON
+        row = bench_cli._soak_rows(
+            {**figures, 'rss_growth_mb': missing, 'latency_p50_slope_ms_per_min': missing}
+        )[0]
+        assert row[1] == (
+            'RSS growth not measured (shorter than its warm-up), latency p50 trend not '
+            'measured, recorder missed 0 of 15'
+        )
+    row = bench_cli._soak_rows(
+        {**figures, 'rss_growth_mb': 1.25, 'latency_p50_slope_ms_per_min': -0.5}
+    )[0]
+    assert row[1] == 'RSS growth +1.2 MB, latency p50 trend -0.50 ms/min, recorder missed 0 of 15'
 
 
 def test_mono_accuracy_means_every_number_over_seeds_per_axis():

@@ -10,6 +10,7 @@ recorder holding every face/state this process received. Not part of the tests.
 
 from __future__ import annotations
 
+import math
 import shutil
 from typing import Any
 
@@ -34,9 +35,10 @@ def run(options: BenchOptions) -> dict[str, Any]:
     """RSS samples and per-window latency of a long live run; the recorder's completeness.
 
     Returns:
-        ``{'minutes', 'windows': [{t_s, rss_mb, latency_p50_ms, latency_p99_ms, dropped}],
-        'rss_growth_mb', 'latency_p50_slope_ms_per_min', 'published', 'received', 'recorded',
-        'recorder_missing', 'tracker_peak_rss_mb', 'recorder_peak_rss_mb'}``.
+        ``{'minutes', 'size', 'rate_hz', 'windows': [{t_s, rss_mb,
+        latency_p50_ms, latency_p99_ms, dropped}], 'rss_growth_mb',
+        'latency_p50_slope_ms_per_min', 'published', 'received', 'recorded', 'recorder_missing',
+        'tracker_peak_rss_mb', 'recorder_peak_rss_mb'}``.
     """
     pin_to_core(DRIVER_CORE)
     minutes = min(options.minutes, QUICK_MINUTES) if options.quick else options.minutes
@@ -75,11 +77,16 @@ def _summary(
     peaks: dict[str, float],
     minutes: float,
 ) -> dict[str, Any]:
-    """Figures of the soak from its windows."""
+    """Figures of the soak from its windows.
+
+    The RSS growth is from the first window after the WARM_UP_S warm-up to the last, and NaN
+    (not measured) unless two windows follow it (a quick soak's do not); the latency trend is
+    NaN with one window.
+    """
     times = np.array([t for t, _, _ in windows])
     rss = np.array([r for _, r, _ in windows])
     p50 = np.array([f.summary()['latency_p50_ms'] for _, _, f in windows])
-    after_warm_up = times >= min(WARM_UP_S, times[-1])
+    after_warm_up = rss[times >= WARM_UP_S]
     received = sum(f.received for _, _, f in windows)
     return {
         'minutes': minutes,
@@ -93,10 +100,12 @@ def _summary(
             }
             for t, r, f in windows
         ],
-        'rss_growth_mb': float(rss[-1] - rss[after_warm_up][0]),
+        'rss_growth_mb': float(after_warm_up[-1] - after_warm_up[0])
+        if len(after_warm_up) > 1
+        else math.nan,
         'latency_p50_slope_ms_per_min': float(np.polyfit(times / 60.0, p50, 1)[0])
         if len(windows) > 1
-        else 0.0,
+        else math.nan,
         'published': sum(f.published for _, _, f in windows),
         'received': received,
         'recorded': recorded,

@@ -27,6 +27,7 @@ from face_tracking_ros.io.atomic import check_output_path, write_json_atomically
 TABLE_SIZE = '640x480'
 STAGE_NAMES = {'align_s': 'align', 'seed_s': 'learn', 'joint_s': 'joint learner'}  # learner rows
 MAX_DOMAIN_ID = 232  # the last whose DDS ports fit in 16 bits (ROS 2 docs, 'About Domain ID')
+_WARM_UP = ' (shorter than its warm-up)'  # why a soak has no RSS growth
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -407,12 +408,19 @@ def _soak_rows(soak: dict[str, Any]) -> list[tuple[str, str, str]]:
     return [
         (
             f'soak, {soak["minutes"]:g} min at 30 Hz',
-            f'RSS growth {soak["rss_growth_mb"]:+.1f} MB, latency p50 trend '
-            f'{soak["latency_p50_slope_ms_per_min"]:+.2f} ms/min, recorder missed '
-            f'{soak["recorder_missing"]} of {soak["received"]}',
+            f'RSS growth {_measured(soak["rss_growth_mb"], "+.1f", " MB", _WARM_UP)}, latency '
+            f'p50 trend {_measured(soak["latency_p50_slope_ms_per_min"], "+.2f", " ms/min")}, '
+            f'recorder missed {soak["recorder_missing"]} of {soak["received"]}',
             '< 5 MB, no growth, none missed',
         )
     ]
+
+
+def _measured(value: float | None, spec: str, unit: str, why: str = '') -> str:
+    """``value`` formatted by ``spec`` with its unit, or 'not measured' for NaN (or JSON null)."""
+    if value is None or math.isnan(value):
+        return f'not measured{why}'
+    return f'{value:{spec}}{unit}'
 
 
 def _why(entry: dict[str, Any]) -> str:
