@@ -166,6 +166,7 @@ def test_expression_weights_by_name_and_by_array_agree():
 
 def test_truth_restricts_to_the_19_node_mesh():
     population = FacePopulation('realistic')
+    assert population.node_names == TOPOLOGY.node_names
     truth = population.truth(19)
     assert truth.node_names == mesh_topology(19).node_names
     assert truth.identity_basis.shape == (57, 13) and truth.expression_basis.shape == (57, 6)
@@ -190,3 +191,35 @@ def test_bad_arguments_raise_config_error():
         population.alpha(np.zeros(7))
     with pytest.raises(ConfigError, match='num_nodes must be one of'):
         population.truth(20)
+
+
+def _mirror_pairs() -> tuple[list[int], list[int]]:
+    """Indices of the right-side nodes and of their left-side mirrors (x -> -x)."""
+    right = [name for name in TOPOLOGY.node_names if 'right' in name]
+    return [_node(n) for n in right], [_node(n.replace('right', 'left')) for n in right]
+
+
+@pytest.mark.parametrize('name', sorted(IDENTITY_FIELDS))
+def test_identity_fields_are_mirror_symmetric_except_the_nose_deviation(name: str):
+    reference_mm = 1000.0 * TOPOLOGY.reference_shape
+    right, left = _mirror_pairs()
+    np.testing.assert_array_equal(reference_mm[left] * [-1, 1, 1], reference_mm[right])
+    field = IDENTITY_FIELDS[name](reference_mm)
+    midline = np.abs(reference_mm[:, 0]) < 1e-9
+    if name == 'nose_deviation':  # the whole nose shifts sideways: same dx on both sides
+        np.testing.assert_allclose(field[left], field[right], atol=1e-12)
+        # a bump of radius 16 mm about (0, 45) mm; the nose tip is at (0, 38, -27) mm
+        nose_tip = reference_mm[_node('nose_tip')]
+        assert nose_tip[0] == 0.0 and nose_tip[1] == 38.0
+        np.testing.assert_allclose(field[_node('nose_tip')], [np.exp(-(7.0**2) / 512.0), 0, 0])
+        return
+    np.testing.assert_allclose(field[left], field[right] * [-1, 1, 1], atol=1e-12)
+    np.testing.assert_allclose(field[midline, 0], 0.0, atol=1e-12)
+
+
+def test_nose_projection_is_a_12_mm_bump_centred_on_the_nose_tip():
+    reference_mm = 1000.0 * TOPOLOGY.reference_shape
+    field = IDENTITY_FIELDS['nose_projection'](reference_mm)
+    np.testing.assert_allclose(field[_node('nose_tip')], [0.0, 0.0, -1.0], atol=1e-15)
+    # nose_right at (-17, 45) mm: 17^2 + 7^2 = 338 mm^2 from the (0, 38) mm centre
+    np.testing.assert_allclose(field[_node('nose_right')], [0, 0, -np.exp(-338.0 / 288.0)])

@@ -8,7 +8,6 @@ import pytest
 from face_tracking_ros.errors import ConfigError
 from face_tracking_ros.synthetic.faces import ACTIVE_EXPRESSIONS
 from face_tracking_ros.synthetic.motion import (
-    FREE_ANGLE_LIMITS,
     STILL_ANGLE_LIMIT,
     ExpressionScript,
     HeadTrajectory,
@@ -23,7 +22,7 @@ def test_free_motion_stays_in_the_working_volume_at_human_speed(seed: int):
     trajectory = HeadTrajectory.random('free', np.random.default_rng(seed))
     angles = np.array([trajectory.angles(t) for t in TIMES])
     positions = np.array([trajectory.pose(t)[1] for t in TIMES])
-    assert np.all(np.abs(angles) <= FREE_ANGLE_LIMITS + 1e-12)
+    assert np.all(np.abs(angles) <= np.radians([25.0, 35.0, 20.0]) + 1e-12)
     assert np.max(np.abs(angles[:, 1])) > np.radians(10.0)  # it does move
     assert np.all(np.ptp(positions, axis=0) <= 0.15)
     assert np.all((positions[:, 2] >= 0.5) & (positions[:, 2] <= 0.8))
@@ -62,6 +61,7 @@ def test_training_script_starts_neutral_and_plays_expressions_in_turn():
 def test_short_training_script_still_has_a_neutral_start_and_one_expression():
     script = ExpressionScript.training(duration=1.0)
     assert len(script.segments) == 1 and script.segments[0].start >= 0.5
+    assert script.segments[0].label == 'smile'  # by default the first expression comes first
     assert script.state(0.2).label == 'neutral'
 
 
@@ -79,6 +79,14 @@ def test_random_script_has_onsets_offsets_and_neutral_between(seed: int):
     for state in states:
         assert (state.label == 'neutral') == (state.intensity == 0.0)
         assert np.count_nonzero(state.alpha) == (state.label != 'neutral')
+    assert all(segment.label == 'jaw_open' for segment in script.segments if segment.talk)
+
+
+def test_half_the_random_jaw_open_segments_talk():
+    scripts = [ExpressionScript.random(60.0, np.random.default_rng(seed)) for seed in range(20)]
+    jaw = [s for script in scripts for s in script.segments if s.label == 'jaw_open']
+    talking = sum(s.talk for s in jaw)
+    assert len(jaw) >= 30 and 0.3 * len(jaw) <= talking <= 0.7 * len(jaw)
 
 
 def test_static_motion_holds_head_and_face_while_the_sensor_noise_changes():
