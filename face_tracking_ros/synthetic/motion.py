@@ -250,8 +250,9 @@ class ExpressionScript:
     def random(cls, duration: float, rng: np.random.Generator) -> ExpressionScript:
         """Test-sequence expressions: random labels, times, intensities and talking.
 
-        Segments last 1 to 3 s with 0.3 to 1.5 s of neutral between them; a jaw_open segment
-        is talking (oscillating jaw) half the time.
+        Segments last 0.8 to 3.1 s (rise 0.2-0.5 s, hold 0.4-2 s, fall 0.2-0.6 s, peak 0.5-1)
+        with 0.3 to 1.5 s of neutral between them; a jaw_open segment is talking (oscillating
+        jaw) half the time.
         """
         segments = []
         time = rng.uniform(0.3, 1.0)

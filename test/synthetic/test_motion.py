@@ -82,6 +82,16 @@ def test_random_script_has_onsets_offsets_and_neutral_between(seed: int):
     assert all(segment.label == 'jaw_open' for segment in script.segments if segment.talk)
 
 
+def test_random_segments_span_their_documented_rise_hold_and_fall_ranges():
+    scripts = [ExpressionScript.random(60.0, np.random.default_rng(seed)) for seed in range(20)]
+    segments = [s for script in scripts for s in script.segments]
+    for name, low, high in (('rise', 0.2, 0.5), ('hold', 0.4, 2.0), ('fall', 0.2, 0.6)):
+        values = np.array([getattr(s, name) for s in segments])
+        assert low <= values.min() < low + 0.05 and high - 0.05 < values.max() <= high, name
+    peaks = np.array([s.peak for s in segments])
+    assert 0.5 <= peaks.min() < 0.55 and 0.95 < peaks.max() <= 1.0
+
+
 def test_half_the_random_jaw_open_segments_talk():
     scripts = [ExpressionScript.random(60.0, np.random.default_rng(seed)) for seed in range(20)]
     jaw = [s for script in scripts for s in script.segments if s.label == 'jaw_open']
