@@ -17,9 +17,16 @@ from face_tracking_ros.geometry.rotation import omega_to_quaternion
 from face_tracking_ros.io.bags import read_messages
 from face_tracking_ros.synthetic.faces import FacePopulation
 from face_tracking_ros.synthetic.recording import TRUTH_TOPIC, record
-from face_tracking_ros.synthetic.scenes import SceneConfig, SequenceRenderer, SyntheticFrame
+from face_tracking_ros.synthetic.scenes import (
+    SceneConfig,
+    SequenceRenderer,
+    SyntheticFrame,
+    _LightPath,
+    _OccluderPass,
+)
 
 SMALL = {'width': 160, 'height': 120, 'focal': 150.0, 'frames': 3, 'fps': 15.0}
+SMALL_VIEW = {'width': 160, 'height': 120, 'focal': 150.0, 'fps': 10.0}
 
 
 @pytest.fixture(scope='module')
@@ -238,3 +245,80 @@ def test_a_toed_in_rig_turns_each_raw_camera_towards_the_other():
     assert axes['right'][0] == pytest.approx(-np.sin(np.radians(3.0)))
     assert all(camera.needs_rectification for camera in cameras.values())
     assert not any(camera.needs_rectification for camera in SceneConfig().cameras().values())
+
+
+def test_the_key_light_comes_from_the_upper_front_within_40_degrees_of_the_axis():
+    lights = [_LightPath.random(np.random.default_rng(seed)) for seed in range(200)]
+    bases = np.array([light.base for light in lights])
+    azimuth = np.arctan2(bases[:, 0], -bases[:, 2])  # towards +x, the subject's left
+    elevation = np.arcsin(-bases[:, 1])  # y is down
+    np.testing.assert_allclose(np.linalg.norm(bases, axis=1), 1.0)
+    assert -0.7 <= azimuth.min() < -0.6 and 0.6 < azimuth.max() <= 0.7
+    assert 0.2 <= elevation.min() < 0.25 and 0.65 < elevation.max() <= 0.7
+    # The sway turns the light about the camera's y axis by at most 15 degrees.
+    light = lights[0]
+    directions = np.array([light.at(t).direction for t in np.linspace(0.0, 60.0, 601)])
+    np.testing.assert_allclose(directions[:, 1], light.base[1])
+    turn = np.arccos(
+        np.clip(
+            directions[:, [0, 2]] @ light.base[[0, 2]] / np.linalg.norm(light.base[[0, 2]]) ** 2,
+            -1.0,
+            1.0,
+        )
+    )
+    assert np.radians(14.0) < turn.max() <= np.radians(15.0) + 1e-9
+
+
+def test_an_occluder_passes_15_cm_in_front_of_the_face_once_mid_sequence():
+    config = SceneConfig(kind='mono', motion='static', occlusion=True, frames=40, **SMALL_VIEW)
+    renderer = SequenceRenderer(config, 0)
+    sequence = renderer._sequence(0)
+    occluder = sequence.occluder
+    passes = [_OccluderPass.random(np.random.default_rng(seed), config) for seed in range(100)]
+    for name, values, low, high in (
+        ('start', [p.start for p in passes], 0.25 * 4.0 - 0.75, 0.75 * 4.0 - 0.75),
+        ('height', [p.height for p in passes], 0.0, 0.08),
+        ('width', [p.size[0] for p in passes], 0.03, 0.05),
+        ('length', [p.size[1] for p in passes], 0.05, 0.08),
+    ):
+        spread = 0.1 * (high - low)  # 100 draws come this close to both ends
+        assert low <= min(values) < low + spread and high - spread < max(values) <= high, name
+    assert {p.duration for p in passes} == {1.5}  # min(1.5 s, half the 4 s sequence)
+    camera = config.cameras()['image']
+    pose = renderer._pose(sequence.trajectory, sequence.script, 0.0)
+    assert occluder.at(occluder.start - 0.01, camera, pose) == ()
+    assert occluder.at(occluder.start + 1.51, camera, pose) == ()
+    [middle] = occluder.at(occluder.start + 0.75, camera, pose)
+    depth = pose.t[2] - 0.15
+    expected = camera.project(np.array([[pose.t[0], pose.t[1] + occluder.height, depth]]))[0]
+    np.testing.assert_allclose(middle.centre, expected)
+    np.testing.assert_allclose(middle.axes, np.array(occluder.size) * 150.0 / depth)
+    # Rendered: the still face is covered in mid-pass and shows only sensor noise before it.
+    before, during = (
+        renderer._frame(sequence, index).images['image'].astype(float)
+        for index in (0, round(10.0 * (occluder.start + 0.75)))
+    )
+    after = renderer._frame(sequence, 39).images['image'].astype(float)
+    assert (after - before).std() < 6.0 < (during - before).std()
+
+
+def test_motion_blur_averages_the_poses_over_half_the_frame_period():
+    config = SceneConfig(kind='mono', motion='free', motion_blur=True, seed=3, **SMALL)
+    renderer = SequenceRenderer(config, 0)
+    sequence = renderer._sequence(0)
+    frame = renderer._frame(sequence, 2)
+    time, half = 2 / 15.0, 0.25 / 15.0  # the exposure is half the 1/15 s frame period
+    poses = [
+        renderer._pose(sequence.trajectory, sequence.script, t)
+        for t in (time - half, time, time + half)
+    ]
+    image, _ = renderer.renderer.render_with_visibility(
+        config.cameras()['image'],
+        poses,
+        sequence.backgrounds['image'],
+        sequence.light.at(time),
+        (),
+        rng=np.random.default_rng((*sequence.seeds, 2, 0)),
+    )
+    np.testing.assert_array_equal(frame.images['image'], image)
+    np.testing.assert_array_equal(frame.truth.nodes_camera, poses[1].camera_nodes())
