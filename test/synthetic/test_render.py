@@ -171,12 +171,13 @@ def test_large_yaw_hides_the_far_face_edge_and_shows_the_near_one(phase_renderer
     assert visible[near].all()
 
 
-def test_render_without_noise_is_deterministic_and_noise_has_the_sensor_std():
-    atlas = atlas_from_rgb(np.full((*atlas_uv()[0].shape, 3), 0.5, np.float32), 'mono8')
+@pytest.mark.parametrize(('encoding', 'channels'), [('mono8', ()), ('rgb8', (3,))])
+def test_render_without_noise_is_deterministic_and_noise_has_the_sensor_std(encoding, channels):
+    atlas = atlas_from_rgb(np.full((*atlas_uv()[0].shape, 3), 0.5, np.float32), encoding)
     sensor = Sensor(blur_sigma=0.0, read_noise=2.0, shot_noise=0.05)
     renderer = FaceRenderer(atlas, sensor, seed=4)
     camera = PinholeCamera.ideal()
-    background = np.full((480, 640), 100.0, np.float32)
+    background = np.full((480, 640, *channels), 100.0, np.float32)
     pose = _pose((0, 0, 0), {})
     first = renderer.render(camera, [pose], background, FLAT)
     np.testing.assert_array_equal(first, renderer.render(camera, [pose], background, FLAT))
@@ -186,6 +187,11 @@ def test_render_without_noise_is_deterministic_and_noise_has_the_sensor_std():
     assert corner.std() == pytest.approx(np.sqrt(2.0**2 + 0.05 * 100.0 + 1 / 12), rel=0.05)
     again = renderer.render(camera, [pose], background, FLAT, rng=np.random.default_rng(0))
     np.testing.assert_array_equal(noisy, again)
+    if channels:  # each colour channel has its own noise
+        red, green, blue = (corner[..., k].ravel() for k in range(3))
+        assert (
+            abs(np.corrcoef(red, green)[0, 1]) < 0.05 and abs(np.corrcoef(red, blue)[0, 1]) < 0.05
+        )
 
 
 def test_motion_blur_of_a_still_face_is_the_sharp_image_and_smears_a_moving_one(phase_renderers):
