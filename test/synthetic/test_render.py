@@ -299,3 +299,17 @@ def test_photo_texture_errors_name_the_problem(tmp_path):
             load_photo_texture(tmp_path / 'photo.png', tmp_path / 'nodes.json')
     with pytest.raises(ConfigError, match="unknown image encoding 'bgr8'"):
         photo_texture(photo, few, encoding='bgr8')
+
+
+def test_shading_is_lambert_plus_a_narrow_blinn_phong_highlight(phase_renderers):
+    renderer = phase_renderers[0]
+    vertices = renderer.surface.vertices(mesh_topology(34).reference_shape) + [0.0, 0.0, 0.6]
+    light = Lighting()  # ambient 0.38, diffuse 0.72, specular 0.10, shininess 24
+    diffuse, highlight = renderer._shading(vertices, light)
+    # Lambert: ambient where the light does not reach, up to ambient + diffuse facing it.
+    assert diffuse.min() == pytest.approx(0.38) and 1.05 < diffuse.max() <= 0.38 + 0.72 + 1e-6
+    np.testing.assert_array_equal(highlight[diffuse <= 0.38 + 1e-7], 0.0)
+    # Blinn-Phong (n.h)^24: full strength near the mirror direction only.
+    lit = highlight[highlight > 0]
+    assert 0.09 < lit.max() <= 0.10 + 1e-7
+    assert np.median(lit) < 0.005 and np.mean(lit > 0.05) < 0.15  # within 14 deg of h only
