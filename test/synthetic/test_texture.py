@@ -1,0 +1,22 @@
+"""Tests of the subjects' appearance (texture.py): natural skin, lip and stubble colours."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from face_tracking_ros.synthetic.texture import Appearance
+
+
+def test_appearances_span_light_to_dark_skin_with_redder_lips_and_some_beards():
+    appearances = [Appearance.from_seed(seed) for seed in range(200)]
+    skin = np.array([a.skin for a in appearances])
+    lips = np.array([a.lips for a in appearances])
+    # skin between the dark (0.36, 0.23, 0.16) and light (0.86, 0.68, 0.58) tones, +- noise
+    assert np.all((skin > [0.28, 0.15, 0.08]) & (skin < [0.94, 0.76, 0.66]))
+    assert skin[:, 0].min() < 0.42 and skin[:, 0].max() > 0.80
+    # lips: the skin times (0.92, 0.6, 0.62), redder and darker than it
+    assert np.all(lips[:, 0] / lips[:, 2] > skin[:, 0] / skin[:, 2])
+    assert np.all(lips <= skin + 1e-12)
+    bearded = np.array([a.stubble > 0 for a in appearances])
+    assert 0.3 < bearded.mean() < 0.5  # 40 % of the subjects
+    assert all(0.3 <= a.stubble <= 1.0 for a in appearances if a.stubble)
