@@ -81,7 +81,7 @@ class ReplayStats:
     read_error: str = ''
     status: dict[str, dict[str, str]] = field(default_factory=dict)
     warnings: dict[str, str] = field(default_factory=dict)
-    _first_of_kind: dict[str, str] = field(default_factory=dict, repr=False)
+    _first_of_kind: dict[str, str] = field(default_factory=dict, init=False, repr=False)
 
     def count_error(self, text: str) -> None:
         """Count a bad input message under the first message of its kind."""
