@@ -40,6 +40,7 @@ from face_tracking_ros.pipelines.mesh_bags import mesh_topic
 from face_tracking_ros.pipelines.scoring import score_stereo_against_truth
 from face_tracking_ros.processing.parameters import OverrideParameters
 from face_tracking_ros.processing.stereo import StereoNodeConfig
+from face_tracking_ros.processing.track_counts import NO_REASON
 from face_tracking_ros.replay import ReplayStats, replay_bag, wire_replay
 from face_tracking_ros.synthetic.clicks import (
     check_clicks_file,
@@ -393,8 +394,8 @@ def _no_mesh_error(bag: Path, stats: ReplayStats) -> BagError:
     """
     problems = '; '.join(f'{count}x {error}' for error, count in stats.errors.items())
     if not problems:
-        reason = stats.status.get(TRACKER, {}).get('last_reason', '-')
-        problems = 'no input problem' + (f'; last_reason: {reason}' if reason != '-' else '')
+        reason = stats.status.get(TRACKER, {}).get('last_reason', NO_REASON)
+        problems = 'no input problem' + (f'; last_reason: {reason}' if reason != NO_REASON else '')
     msg = f'{bag}: the stereo tracker produced no mesh ({problems})'
     return BagError(msg)
 
