@@ -462,6 +462,70 @@ def test_a_raw_bag_tracked_into_no_mesh_without_input_problems_says_why(tmp_path
     assert not (tmp_path / 'm.npz').exists()
 
 
+def _with_baseline_times(bag: Path, factor: float, out: Path) -> Path:
+    """Write ``bag`` to ``out`` with its right camera_info's baseline (P[0,3]) times ``factor``."""
+    with BagWriter(out) as writer:
+        for message in read_messages(bag):
+            msg = message.msg
+            if message.topic == 'right/camera_info':
+                msg = replace(msg, p=msg.p * np.array([1, 1, 1, factor] * 3))
+            writer.write(message.topic, message.msgtype, msg, message.stamp_ns)
+    return out
+
+
+def test_a_bag_of_a_doubled_baseline_is_not_learned_from_and_the_calibration_named(
+    tmp_path, capsys
+):
+    """Its face triangulates twice its size (1.99 of an adult's).
+
+    Before the size check allowed only 0.7-1.5 (it allowed 0.5-2), learn learned from its
+    meshes, a face twice the size twice as far, with nothing said.
+    """
+    bag = _with_baseline_times(BAGS[0], 2.0, tmp_path / 'bags' / 'doubled')
+    assert main(['track', str(bag), '--simulate-clicks', '0', '--out', str(tmp_path / 't')]) == 1
+    reason = (
+        'initialisation failed: the matched inner nodes triangulate to a face 1.99 times the '
+        'size of an adult face (allowed 0.7-1.5): the stereo calibration does not fit these '
+        "images. Check its baseline first: the right camera_info's P[0,3] = -66 (-fx B) gives "
+        'B = 0.22 m, and an adult-sized face needs B = 0.111 m (P[0,3] = -33.23); then the '
+        'focal length, that raw images are rectified (rectify) and that the initial positions '
+        'are on the face'
+    )
+    summary = 'stereo_tracker: initializing_pairs 10, tracking_pairs 0, lost_pairs 0, last_reason'
+    assert f'{summary} {reason}, restarts 0' in capsys.readouterr().out
+    argv = ['learn', str(bag), *map(str, BAGS[1:]), '--from-images', '--simulate-clicks', '0']
+    argv += ['--p', '1', '--out', str(tmp_path / 'm.npz'), '--report', str(tmp_path / 'r.json')]
+    assert main(argv) == 2
+    assert capsys.readouterr().err == (
+        f'error: {bag}: the stereo tracker produced no mesh (no input problem; last_reason: '
+        f'{reason})\n'
+    )
+    assert not (tmp_path / 'm.npz').exists()
+
+
+def test_a_bag_of_a_baseline_in_millimetres_is_refused_by_its_calibration(tmp_path, capsys):
+    """P[0,3] = -fx B with B in mm: no tracker is built; the problems and status say why."""
+    bag = _with_baseline_times(BAGS[0], 1000.0, tmp_path / 'bags' / 'millimetres')
+    assert main(['track', str(bag), '--simulate-clicks', '0', '--out', str(tmp_path / 't')]) == 1
+    unfit = (
+        "the right camera_info's P[0,3] = -3.3e+04 (-fx B) gives a baseline B = 110 m: is it in "
+        'millimetres? P[0,3] takes B in metres (0.11 m: P[0,3] = -33). A face 0.25-2 m away '
+        'would be 16500 px or more apart between the images, wider than they are (320 px): no '
+        'face is seen by both cameras'
+    )
+    out = capsys.readouterr().out
+    first = f'right/image_raw: cannot track with this calibration: {unfit}'[:200]  # as kept
+    assert first.endswith('is it in millimetres? P[0,3] takes B in metres (0.11 m: P[0,3] = -33)')
+    assert f'  9x {first}\n' in out
+    assert f'last_reason cannot track with this calibration: {unfit}, restarts 0' in out
+    argv = ['learn', str(bag), *map(str, BAGS[1:]), '--from-images', '--simulate-clicks', '1']
+    argv += ['--p', '1', '--out', str(tmp_path / 'm.npz'), '--report', str(tmp_path / 'r.json')]
+    assert main(argv) == 2
+    error = capsys.readouterr().err
+    assert error.startswith(f'error: {bag}: the stereo tracker produced no mesh (1x '), error
+    assert 'B = 110 m: is it in millimetres?' in error
+
+
 def _without_truth(bag: Path, out: Path) -> Path:
     """Write ``bag`` without its truth to ``out``; return ``out``."""
     with BagWriter(out) as writer:

@@ -7,21 +7,29 @@ are in the README of the tracker (issue 5 closing note).
 
 from __future__ import annotations
 
+from dataclasses import replace
 import itertools
 
 import numpy as np
 import pytest
 from recognition_streams import truth_model
 
+from face_tracking_ros.errors import InputError
 from face_tracking_ros.geometry.camera import StereoRig
 from face_tracking_ros.model.topology import Group, mesh_topology
+from face_tracking_ros.synthetic.faces import ACTIVE_EXPRESSIONS, FacePopulation
 from face_tracking_ros.synthetic.scenes import SceneConfig, SequenceRenderer
 from face_tracking_ros.tracking.regularisation import RegularisationConfig
 from face_tracking_ros.tracking.result import TrackStatus
 from face_tracking_ros.tracking.stereo import StereoTracker, track_sequence
 from face_tracking_ros.tracking.stereo_config import StereoTrackerConfig
 from face_tracking_ros.tracking.stereo_evaluation import evaluate_stereo
-from face_tracking_ros.tracking.stereo_init import StereoInitConfig, initial_nodes
+from face_tracking_ros.tracking.stereo_init import (
+    InitialNodes,
+    StereoInitConfig,
+    check_face_scale,
+    initial_nodes,
+)
 
 FRAMES = 30
 TOPOLOGY = mesh_topology(34)
@@ -222,3 +230,59 @@ def test_initial_depths_of_smooth_lips_and_brows() -> None:
 
     assert rms(depth_errors(StereoInitConfig())) < 0.0028
     assert rms(depth_errors(StereoInitConfig(refine_half_size=3))) > 0.0032
+
+
+def _with_baseline_times(rig: StereoRig, factor: float) -> StereoRig:
+    """``rig`` whose right camera_info gives ``factor`` times the baseline (P[0,3] = -fx k B)."""
+    p = rig.right.p.copy()
+    p[0, 3] *= factor
+    return StereoRig(rig.left, replace(rig.right, p=p))
+
+
+@pytest.mark.parametrize(
+    ('factor', 'read', 'calibrated'),
+    [(2.0, '1.98 times', 'P[0,3] = -132 (-fx B) gives B = 0.22 m'),
+     (0.5, '0.50 times', 'P[0,3] = -33 (-fx B) gives B = 0.055 m')],
+)  # fmt: skip
+def test_a_rig_of_a_wrong_baseline_is_refused_with_the_baseline_that_fits(
+    scene, factor: float, read: str, calibrated: str
+) -> None:
+    """The sequence's first pair with its right camera_info's baseline doubled or halved.
+
+    Triangulated sizes scale with the baseline: subject 0's face (0.99 of the adult face) reads
+    1.98 and 0.50. Doubled, it was tracked (the check allowed 0.5-2) as TRACKING on every pair,
+    the nodes twice as far as they are.
+    """
+    rig, pairs, truth, _, _ = scene
+    tracker = StereoTracker(_with_baseline_times(rig, factor), StereoTrackerConfig())
+    tracker.reset(rig.left.project(truth[0]))
+    result = tracker.step(*pairs[0])
+    assert result.status == TrackStatus.INITIALIZING, result.reason
+    assert result.reason.startswith(
+        f'initialisation failed: the matched inner nodes triangulate to a face {read} the size '
+        'of an adult face (allowed 0.7-1.5): the stereo calibration does not fit these images. '
+        f"Check its baseline first: the right camera_info's {calibrated}, and an adult-sized "
+        'face needs B = 0.111 m'
+    ), result.reason
+    assert 'rectified (rectify)' in result.reason
+
+
+def test_no_face_of_the_synthetic_populations_reads_a_wrong_calibration() -> None:
+    """Their 200 first faces of seeds 0-2, neutral and each expression at full intensity.
+
+    Measured: sizes 0.85-1.21 of the adult face, within 0.7-1.5; twice each 1.70 or more.
+    """
+    config = StereoInitConfig()
+    rig = StereoRig.ideal()
+    for num_nodes in (19, 34):
+        topology = mesh_topology(num_nodes)
+        inner = ~topology.group_mask(Group.EDGE)
+        for preset, seed in itertools.product(('default', 'realistic'), range(3)):
+            population = FacePopulation(preset, seed)
+            for index in range(200):
+                subject = population.subject(index)
+                for weights in ({}, *({name: 1.0} for name in ACTIVE_EXPRESSIONS)):
+                    nodes = population.nodes(subject, weights)[:num_nodes]
+                    check_face_scale(InitialNodes(nodes, inner), topology, rig, config)
+                    with pytest.raises(InputError, match='Check its baseline first'):
+                        check_face_scale(InitialNodes(2 * nodes, inner), topology, rig, config)

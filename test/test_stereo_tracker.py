@@ -941,6 +941,30 @@ def test_a_pair_given_left_for_right_is_said_to_be_swapped() -> None:
         StereoRig(RIG.left, flat)
 
 
+def test_a_baseline_in_millimetres_is_refused_before_any_pair() -> None:
+    """The right camera_info's P[0,3] = -fx B with B = 110 (mm) instead of 0.11 m.
+
+    Every face 0.25-2 m away is 33000 px or more apart between the images: refused when the
+    tracker is built, naming the unit (matched regardless, 6 of 60 synthetic faces read 0.38 to
+    0.90 times an adult's, the others too few nodes). Left and right exchanged as well, the rig's
+    own check names the swap first.
+    """
+    millimetres = replace(RIG.right, p=RIG.right.p * np.array([[1, 1, 1, 1000]]))
+    rig = StereoRig(RIG.left, millimetres)
+    with pytest.raises(InputError) as refused:
+        StereoTracker(rig, StereoTrackerConfig())
+    assert str(refused.value) == (
+        "the right camera_info's P[0,3] = -6.6e+04 (-fx B) gives a baseline B = 110 m: is it "
+        'in millimetres? P[0,3] takes B in metres (0.11 m: P[0,3] = -66). A face 0.25-2 m away '
+        'would be 33000 px or more apart between the images, wider than they are (640 px): no '
+        'face is seen by both cameras'
+    )
+    with pytest.raises(InputError, match='are left and right swapped'):
+        StereoRig(millimetres, RIG.left)
+    # The widest baseline the synthetic rigs take (0.3 m) at a long focal length passes.
+    StereoTracker(StereoRig.ideal(focal=1400.0, baseline=0.3), StereoTrackerConfig())
+
+
 def test_loss_reason_names_each_check_by_hand() -> None:
     """§3.3's checks one at a time: a face in view with matching patches is tracked."""
     nodes = mesh_topology(34).reference_shape + np.array([0.0, 0.0, 0.6])

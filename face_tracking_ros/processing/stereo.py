@@ -247,11 +247,12 @@ class StereoProcessor:
         """The pairs tracked and lost so far, the images left unpaired and the rig's corrections.
 
         See :class:`~face_tracking_ros.processing.base.Reporting`: the pairs per status and the
-        last reason (:class:`~face_tracking_ros.processing.track_counts.TrackCounts`),
-        ``restarts`` (tracks restarted by stamps that went back), ``model`` (the fingerprint of
-        the face model in use), ``unpaired_images`` with, if any, ``unpaired_nearest_ms`` (how
-        near the other camera's stamps came to one of them: more than ``pairing_tolerance_ms``
-        means unsynchronised cameras; :meth:`StereoPairing.report`), and once a tracker runs
+        last reason (:class:`~face_tracking_ros.processing.track_counts.TrackCounts`; before
+        any, why the calibration gives no tracker, e.g. a baseline in mm), ``restarts`` (tracks
+        restarted by stamps that went back), ``model`` (the fingerprint of the face model in
+        use), ``unpaired_images`` with, if any, ``unpaired_nearest_ms`` (how near the other
+        camera's stamps came to one of them: more than ``pairing_tolerance_ms`` means
+        unsynchronised cameras; :meth:`StereoPairing.report`), and once a tracker runs
         ``right_gain`` and ``right_row_offset_px`` (:class:`StereoTracker`'s).
         """
         report = {
@@ -263,6 +264,8 @@ class StereoProcessor:
         never_paired = self._pairing.never_paired()
         if never_paired and report['last_reason'] == NO_REASON:  # (a short stream)
             report['last_reason'] = never_paired
+        if self._unfit and report['last_reason'] == NO_REASON:  # pairs held: no tracker
+            report['last_reason'] = self._unfit
         report['last_reason'] = self._held.reason(report['last_reason'])
         if self._tracker is not None:
             report['right_gain'] = f'{self._tracker.right_gain:.3f}'

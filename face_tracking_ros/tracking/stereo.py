@@ -73,6 +73,7 @@ from face_tracking_ros.tracking.stereo_data import (
 )
 from face_tracking_ros.tracking.stereo_init import (
     InitialNodes,
+    check_baseline,
     check_face_scale,
     initial_nodes,
 )
@@ -160,11 +161,14 @@ class StereoTracker:
             ConfigError: if the model's node count differs from ``config.num_nodes``, the
                 pyramid is too deep for the images, or the face-model term is on, no model is
                 given and the packaged one is missing.
+            InputError: if the rig's baseline shows no face of the initialisation's depth range
+                in both images (:func:`~.stereo_init.check_baseline`: a baseline in mm).
         """
         if model is not None and model.num_nodes != config.num_nodes:
             msg = f'model has {model.num_nodes} nodes but the tracker is set to {config.num_nodes}'
             raise ConfigError(msg)
         check_levels_fit(config.pyramid_levels, rig.left.width, rig.left.height)
+        check_baseline(rig, config.init)
         self._calibrated_rig = rig
         self._config = config
         self._model = model
@@ -347,7 +351,7 @@ class StereoTracker:
                 if not self._corrected(pyramids, initial):
                     break
                 initial = self._initial_nodes(pyramids, left_px)  # matched on the corrected pair
-            check_face_scale(initial, self._topology, config.init)
+            check_face_scale(initial, self._topology, self._rig, config.init)
         except FaceTrackingError as error:  # no estimate yet: INITIALIZING, as the mono tracker
             self._status = TrackStatus.INITIALIZING
             self._reason = f'initialisation failed: {error}'
