@@ -25,6 +25,7 @@ from typing import Protocol
 
 from face_tracking_ros.errors import BagError, ConfigError
 from face_tracking_ros.io.bags import NS_PER_S, RawMessage
+from face_tracking_ros.wording import counted
 
 CLOCK_PERIOD_S = 0.025  # /clock is published at 40 Hz between messages (rosbag2's default)
 REMAP_SEPARATOR = ':='
@@ -236,8 +237,9 @@ class PlaybackSummary:
         per_topic = ', '.join(f'{topic}: {n}' for topic, n in sorted(self.counts.items()))
         ending = 'stopped' if self.stopped else 'finished'
         return (
-            f'{ending}: {total} messages on {len(self.counts)} topics in {self.passes} '
-            f'complete pass(es), {self.bag_span_s:.3f} s of bag in {self.wall_s:.3f} s'
+            f'{ending}: {counted(total, "message")} on {counted(len(self.counts), "topic")} in '
+            f'{counted(self.passes, "complete pass", "complete passes")}, '
+            f'{self.bag_span_s:.3f} s of bag in {self.wall_s:.3f} s'
             f'{" (" + per_topic + ")" if per_topic else ""}'
         )
 

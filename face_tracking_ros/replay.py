@@ -47,6 +47,7 @@ from face_tracking_ros.processing.base import (
 )
 from face_tracking_ros.processing.parameters import OverrideParameters
 from face_tracking_ros.processing.registry import processor_factory
+from face_tracking_ros.wording import counted
 
 _IMAGE_TYPES = (conversions.IMAGE_TYPE, conversions.COMPRESSED_IMAGE_TYPE)
 _CAMERA_INFO_TYPES = (conversions.CAMERA_INFO_TYPE,)
@@ -107,7 +108,8 @@ class ReplayStats:
         if len(problems) > SUMMARY_PROBLEMS:
             rest = problems[SUMMARY_PROBLEMS:]
             messages = sum(count for _, count in rest)
-            lines.append(f'  ... {len(rest)} other kinds of problem ({messages} messages)')
+            kinds = counted(len(rest), 'other kind of problem', 'other kinds of problem')
+            lines.append(f'  ... {kinds} ({counted(messages, "message")})')
         if self.read_error:
             lines.append(f'input bag damaged, replayed its readable part: {self.read_error}')
         lines += [

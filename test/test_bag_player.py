@@ -180,7 +180,7 @@ def test_stop_while_waiting_ends_playback_at_once() -> None:
     assert [(stamp - T0) // MS for _, _, stamp in sink.published] == [0, 100]
     assert summary.stopped
     assert summary.passes == 0
-    assert summary.describe().startswith('stopped: 2 messages on 1 topics')
+    assert summary.describe().startswith('stopped: 2 messages on 1 topic in 0 complete passes')
     assert summary.bag_span_s == pytest.approx(0.1)  # the part played ('0.000 s of bag')
 
 
@@ -322,7 +322,7 @@ def test_player_publishes_every_message_in_order_with_its_timing_and_the_clock(
     code, output = finish(player)
 
     assert code == 0, output
-    assert 'finished: 7 messages on 2 topics in 1 complete pass(es)' in output
+    assert 'finished: 7 messages on 2 topics in 1 complete pass, ' in output
     renamed = {'num': 'played/num'}
     expected = [
         (renamed.get(topic, topic), sample_fields(store, msgtype, seed))
@@ -398,4 +398,4 @@ def test_truncated_bag_is_played_up_to_the_damage_then_exits_with_code_2(tmp_pat
     assert f'{mcap_file}: damaged MCAP file, ' in errors[0]
     recovered = int(errors[0].split('damaged MCAP file, ')[1].split()[0])
     assert 0 < recovered < 40
-    assert f'stopped: {recovered} messages on 1 topics' in output
+    assert f'stopped: {recovered} messages on 1 topic' in output

@@ -212,7 +212,7 @@ def test_mesh_bags_labelled_by_truth_bags(tmp_path, world, truth_bags, capsys):
     assert report['methods']['joint']['expression_accuracy'] == pytest.approx(4 * 27 / 300)
 
     err = _error([*args[:-1]], capsys)
-    assert '--truth names 3 bag(s) for 4 input bag(s)' in err
+    assert '--truth names 3 bags for 4 input bags' in err
     short = sequences[0].__class__(
         'x', sequences[0].meshes[:5], np.ones(5, bool), ('neutral',) * 5
     )
@@ -332,7 +332,7 @@ def test_a_recorder_s_absolute_topic_names_are_read(tmp_path, world, capsys):
         bags.append(tmp_path / f'person{k}')
     args = ['learn', *map(str, bags), '--out', str(tmp_path / 'm.npz'), '--q', '3']
     assert main([*args, '--report', str(tmp_path / 'r.json'), '--neutral-frames', '10']) == 0
-    assert f'{bags[0]}: 1 frames the tracker did not track' in capsys.readouterr().out
+    assert f'{bags[0]}: 1 frame the tracker did not track' in capsys.readouterr().out
     assert json.loads((tmp_path / 'r.json').read_text())['frames'] == 4 * (len(status) - 1)
 
 

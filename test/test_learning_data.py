@@ -74,7 +74,7 @@ def test_subject_means_and_without_subject():
         ([], r'no training sequences'),
         (
             [_sequence('a', meshes=np.full((4, 19, 3), np.nan))],
-            r"subject 'a' \(a\.bag\): 4 mesh\(es\) hold NaN or Inf, first at frame 0",
+            r"subject 'a' \(a\.bag\): 4 meshes hold NaN or Inf, first at frame 0",
         ),
         ([_sequence('a', meshes=np.zeros((4, 20, 3)))], r"'a'.*20 nodes; supported: \(19, 34\)"),
         ([_sequence('a', meshes=np.zeros((0, 19, 3)))], r'non-empty \(F, N, 3\) stack'),
@@ -87,7 +87,7 @@ def test_subject_means_and_without_subject():
             r"subject 'a' \(a\.bag\) has no neutral frames",
         ),
         ([_sequence('a', neutral=np.ones(3, bool))], r'3 neutral flags for 4 frames'),
-        ([_sequence('a', labels=('neutral',))], r'1 labels for 4 frames'),
+        ([_sequence('a', labels=('neutral',))], r'1 label for 4 frames'),
     ],
 )
 def test_bad_sequences_are_named(sequences, match):

@@ -88,7 +88,7 @@ def test_synth_says_what_it_wrote_by_default(tmp_path, capsys, kind, images):
     wall = time.perf_counter() - start
     first, summary = capsys.readouterr().out.splitlines()
     assert first.startswith(f'{out / "subject_00_seq_00"}: subject_00 sequence 0, 30 frames, ')
-    assert summary.startswith(f'1 bags, 30 frames ({images} images) in ')
+    assert summary.startswith(f'1 bag, 30 frames ({images} images) in ')
     assert 0.0 <= float(summary.split(' in ')[1].split(' s ')[0]) <= wall + 0.05  # .1f
     assert sorted(path.name for path in out.iterdir()) == ['subject_00_seq_00']
     infos = [m.msg for m in read_messages(out / 'subject_00_seq_00') if 'camera_info' in m.topic]

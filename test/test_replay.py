@@ -579,3 +579,7 @@ def test_a_summary_lists_ten_kinds_of_problem_and_counts_the_rest():
         f'  {14 - k}x image_{names[13 - k]}: unsupported image encoding' for k in range(10)
     ]
     assert problems[10:] == ['  ... 4 other kinds of problem (10 messages)']  # 4 + 3 + 2 + 1
+    stats = replay_module.ReplayStats()
+    for name in names[:11]:  # 11 kinds of one message each
+        stats.count_error(f'image_{name}: unsupported image encoding')
+    assert _problem_lines(stats)[10:] == ['  ... 1 other kind of problem (1 message)']

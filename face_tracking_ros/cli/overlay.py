@@ -12,6 +12,7 @@ from face_tracking_ros.io.provenance import other_source
 from face_tracking_ros.io.series import load_states
 from face_tracking_ros.pipelines.bag_inputs import image_topics
 from face_tracking_ros.visualization.video import write_overlay_video
+from face_tracking_ros.wording import counted
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -62,7 +63,7 @@ def run(args: argparse.Namespace) -> None:
     count = write_overlay_video(
         args.bag, states, args.video, args.image_topic, args.every, rectify=args.rectify
     )
-    print(f'wrote {count} frames to {args.video}')
+    print(f'wrote {counted(count, "frame")} to {args.video}')
     source = other_source(args.out, args.bag)
     if source is not None:  # a copy or another rendering of the bag may be meant: drawn
         print(

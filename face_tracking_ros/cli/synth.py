@@ -38,6 +38,7 @@ from face_tracking_ros.synthetic.scenes import (
     focal_range,
 )
 from face_tracking_ros.synthetic.texture import ENCODINGS
+from face_tracking_ros.wording import counted
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -178,7 +179,8 @@ def run(args: argparse.Namespace) -> None:
         images = frames * (2 if config.kind is Kind.STEREO else 1)
         megabytes = sum(bag.bytes for bag in bags) / 1e6
         print(
-            f'{len(bags)} bags, {frames} frames ({images} images) in {elapsed:.1f} s '
+            f'{counted(len(bags), "bag")}, {counted(frames, "frame")} '
+            f'({counted(images, "image")}) in {elapsed:.1f} s '
             f'({images / elapsed:.1f} images/s), {megabytes:.1f} MB'
         )
     if args.contact_sheet is not None:
@@ -207,7 +209,7 @@ def _check_contact_sheet(path: Path) -> None:
 
 def _report(bag: RecordedBag) -> None:
     """Print one written bag."""
-    print(f'{bag.path}: {bag.subject_id} sequence {bag.sequence}, {bag.frames} frames, '
+    print(f'{bag.path}: {bag.subject_id} sequence {bag.sequence}, {counted(bag.frames, "frame")}, '
           f'{bag.bytes / 1e6:.1f} MB')  # fmt: skip
 
 

@@ -35,6 +35,7 @@ from face_tracking_ros.recognition.expression import (
 )
 from face_tracking_ros.recognition.node_fit import fit_model_to_nodes
 from face_tracking_ros.recognition.sequences import ParameterSequence
+from face_tracking_ros.wording import counted
 
 TRUTH_TOPIC = 'truth/face'
 
@@ -113,7 +114,8 @@ def run(args: argparse.Namespace) -> None:
     accuracy = expression_accuracy(classifier, sequences, config.min_intensity)
     labels, counts = np.unique(training_features(sequences, config)[1], return_counts=True)
     source = f'alpha of {args.model}' if model is not None else 'true alpha'
-    print(f'trained on {sum(counts)} frames of {len(sequences)} sequences', end=' ')
+    trained = f'{counted(sum(counts), "frame")} of {counted(len(sequences), "sequence")}'
+    print(f'trained on {trained}', end=' ')
     # (expression frames below --min-intensity are not trained on, nor counted here)
     print(f'({source}, q={classifier.q})')
     print(

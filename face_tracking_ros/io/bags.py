@@ -45,6 +45,7 @@ from rosbags.typesys.base import TypesysError
 from rosbags.typesys.store import Typestore
 import yaml
 
+from face_tracking_ros import wording
 from face_tracking_ros.errors import BagError
 from face_tracking_ros.io.bag_definitions import BagDefinitions
 from face_tracking_ros.io.typestore import typestore
@@ -287,7 +288,7 @@ def _check_all_read(
         BagError: naming the bag and, per short topic, how many of how many messages were read.
     """
     short = [
-        f'{read[topic]} of the {counted[topic]} messages on {topic}'
+        f'{read[topic]} of the {wording.counted(counted[topic], "message")} on {topic}'
         for topic in sorted(topics)
         if read[topic] < counted[topic]
     ]
@@ -521,7 +522,8 @@ def _stream_records(path: Path, topics: Iterable[str] | None) -> Iterator[RawMes
                 if isinstance(error, EndOfFile)
                 else f'{type(error).__name__}: {error}'
             )
-            message = f'{file}: damaged MCAP file, {count} messages recovered before: {damage}'
+            recovered = wording.counted(count, 'message')
+            message = f'{file}: damaged MCAP file, {recovered} recovered before: {damage}'
             raise BagError(message) from None
     missing = (wanted or set()) - {topic for topic, _, _ in channels.values()}
     if missing:

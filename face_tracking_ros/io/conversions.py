@@ -26,6 +26,7 @@ from face_tracking_ros.model.face_model import FaceModel
 from face_tracking_ros.model.topology import MeshTopology
 from face_tracking_ros.tracking.initialisation import Initialisation
 from face_tracking_ros.tracking.result import TrackResult
+from face_tracking_ros.wording import counted
 
 IMAGE_TYPE = 'sensor_msgs/msg/Image'
 COMPRESSED_IMAGE_TYPE = 'sensor_msgs/msg/CompressedImage'
@@ -530,7 +531,8 @@ def initialisation_from_reset(request: Any) -> Initialisation | None:
     if not request.node_names and not request.points:
         return None
     if len(request.node_names) != len(request.points):
-        msg = f'{len(request.node_names)} node names but {len(request.points)} points'
+        names = counted(len(request.node_names), 'node name')
+        msg = f'{names} but {counted(len(request.points), "point")}'
         raise ConfigError(msg)
     points = np.array([[point.x, point.y] for point in request.points], dtype=float)
     try:

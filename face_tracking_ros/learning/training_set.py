@@ -16,6 +16,7 @@ import scipy.sparse
 
 from face_tracking_ros.errors import InputError
 from face_tracking_ros.model.topology import SUPPORTED_NODE_COUNTS
+from face_tracking_ros.wording import counted
 
 NEUTRAL_LABEL = 'neutral'
 
@@ -255,13 +256,16 @@ def _check_sequence(sequence: MeshSequence) -> int:
     bad = ~np.all(np.isfinite(meshes), axis=(1, 2))
     if np.any(bad):
         msg = (
-            f'{where}: {int(bad.sum())} mesh(es) hold NaN or Inf, first at frame {np.argmax(bad)}'
+            f'{where}: {counted(int(bad.sum()), "mesh", "meshes")} hold NaN or Inf, first at '
+            f'frame {np.argmax(bad)}'
         )
         raise InputError(msg)
     if np.shape(sequence.neutral) != (len(meshes),):
-        msg = f'{where}: {np.size(sequence.neutral)} neutral flags for {len(meshes)} frames'
+        flags = counted(np.size(sequence.neutral), 'neutral flag')
+        msg = f'{where}: {flags} for {counted(len(meshes), "frame")}'
         raise InputError(msg)
     if sequence.labels is not None and len(sequence.labels) != len(meshes):
-        msg = f'{where}: {len(sequence.labels)} labels for {len(meshes)} frames'
+        labels = counted(len(sequence.labels), 'label')
+        msg = f'{where}: {labels} for {counted(len(meshes), "frame")}'
         raise InputError(msg)
     return int(meshes.shape[1])

@@ -42,6 +42,7 @@ from face_tracking_ros.playback import (
     PlayedTopic,
     plan_topics,
 )
+from face_tracking_ros.wording import counted
 
 NODE_NAME = 'bag_player'
 LATCHED_TYPES = frozenset({'face_tracking_msgs/msg/FaceModel'})
@@ -162,8 +163,8 @@ class BagPlayer(Node):
             if time.monotonic() >= next_log:
                 next_log += WAIT_LOG_PERIOD_S
                 self.get_logger().info(
-                    f'waiting for {wanted} subscriber(s) on {waiting} (the topics parameter '
-                    'plays only the topics named)'
+                    f'waiting for {counted(wanted, "subscriber")} on {waiting} (the topics '
+                    'parameter plays only the topics named)'
                 )
             if self._stop.wait(0.05):
                 return False

@@ -46,6 +46,7 @@ from face_tracking_ros.io.messages import RclpyMessages
 from face_tracking_ros.io.typestore import typestore
 from face_tracking_ros.nodes.graceful import rcl_reason, run_until_stopped
 from face_tracking_ros.nodes.processor_node import DECLARE_GIVEN, NodeParameters
+from face_tracking_ros.wording import counted
 
 NODE_NAME = 'bag_recorder'
 RECORD_DEPTH = 100
@@ -184,9 +185,8 @@ class BagRecorder(Node):
                 break
         self._resources.close()
         counts = ', '.join(f'{topic}: {n}' for topic, n in sorted(self._counts.items()))
-        self.get_logger().info(
-            f'{self._config.output}: {self._counts.total()} messages ({counts or "none"})'
-        )
+        total = counted(self._counts.total(), 'message')
+        self.get_logger().info(f'{self._config.output}: {total} ({counts or "none"})')
         never = sorted(self._wanted - set(self._recorded))
         if never:
             self.get_logger().warning(f'no publisher seen on {", ".join(never)}')

@@ -32,6 +32,7 @@ from face_tracking_ros.nodes.processor_node import DECLARE_GIVEN, QOS_PROFILES, 
 from face_tracking_ros.pipelines.learn import learn_from_bags
 from face_tracking_ros.pipelines.learn_options import LearnOptions
 from face_tracking_ros.processing.base import QosClass
+from face_tracking_ros.wording import counted
 
 
 @dataclass(frozen=True)
@@ -226,7 +227,7 @@ class LearnerNode(Endless, Node):
         parameters.warn_unknown()
         options = learn_options(config, say=self.get_logger().info)
         self.get_logger().info(
-            f'learning from {len(options.bags)} bag(s) by {options.method} '
+            f'learning from {counted(len(options.bags), "bag")} by {options.method} '
             f'(p={options.p}, q={options.q}) into {options.out} and {options.report}'
         )
         saved = learn_from_bags(options, say=self.get_logger().info)

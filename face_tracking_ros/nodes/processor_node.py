@@ -52,6 +52,7 @@ from face_tracking_ros.processing.parameters import (
     field_default,
 )
 from face_tracking_ros.processing.registry import processor_factory
+from face_tracking_ros.wording import counted
 
 ConfigT = TypeVar('ConfigT')
 ResultT = TypeVar('ResultT')
@@ -307,7 +308,7 @@ class ProcessorNode(Endless, Node):
             name = self._input_names[topic]
             publishers = self.count_publishers(name)
             source = (
-                f'{publishers} publisher{"s" if publishers != 1 else ""}'
+                counted(publishers, 'publisher')
                 if publishers
                 else 'no publisher: check the topic name or remapping, and that its node runs'
             )

@@ -66,6 +66,7 @@ from face_tracking_ros.pipelines.stereo_meshes import (
     stereo_initialisations,
 )
 from face_tracking_ros.synthetic.faces import FacePopulation
+from face_tracking_ros.wording import counted
 
 
 def learn_from_bags(options: LearnOptions, say: Callable[[str], None] = print) -> Path:
@@ -246,8 +247,9 @@ def _aligned_training_set(
         sequences = [_with_noise(sequence, options.add_noise, rng) for sequence in sequences]
     training = TrainingSet.from_sequences(sequences)
     say(
-        f'read {len(training.meshes)} meshes of {training.num_nodes} nodes, '
-        f'{training.num_subjects} subjects, {int(training.neutral.sum())} neutral frames'
+        f'read {counted(len(training.meshes), "mesh", "meshes")} of {training.num_nodes} '
+        f'nodes, {counted(training.num_subjects, "subject")}, '
+        f'{counted(int(training.neutral.sum()), "neutral frame")}'
     )
     start = time.perf_counter()
     aligned = align_training_set(training)

@@ -19,6 +19,7 @@ from face_tracking_ros.io.series import has_truth
 from face_tracking_ros.learning.methods import DEFAULT_METHOD, METHODS
 from face_tracking_ros.model.model_file import load_model
 from face_tracking_ros.synthetic.faces import PRESETS
+from face_tracking_ros.wording import counted
 
 
 def option_flag(field: str) -> str:
@@ -196,7 +197,8 @@ def _check_bags_and_files(options: LearnOptions) -> list[Path]:
         The bags without truth (each bag read once for it).
     """
     if options.truth is not None and len(options.truth) != len(options.bags):
-        msg = f'--truth names {len(options.truth)} bag(s) for {len(options.bags)} input bag(s)'
+        truth, bags = counted(len(options.truth), 'bag'), counted(len(options.bags), 'input bag')
+        msg = f'--truth names {truth} for {bags}'
         raise ConfigError(msg)
     if options.plots is not None:  # made if missing, as track's --out
         check_output_path(options.plots, options.named('plots'), directory=True)

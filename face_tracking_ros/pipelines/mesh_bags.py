@@ -38,6 +38,7 @@ from face_tracking_ros.model.topology import SUPPORTED_NODE_COUNTS
 from face_tracking_ros.pipelines.learn_options import LearnOptions, subject_of
 from face_tracking_ros.replay import bag_spelling
 from face_tracking_ros.tracking.result import TrackStatus
+from face_tracking_ros.wording import counted
 
 MESH_TYPES = ('face_tracking_msgs/msg/FaceMesh', STATE_TYPE)
 TRUTH_TOPIC = 'truth/face'
@@ -99,10 +100,11 @@ def read_bag_meshes(
     topic = _checked_mesh_topic(bag, topics, options)
     frames, skipped = _tracked_frames(bag, topics, topic, options, truth_bag, name)
     if skipped:
-        say(f'{bag}: {skipped} frames the tracker did not track (initialising or lost) left out')
+        untracked = counted(skipped, 'frame')
+        say(f'{bag}: {untracked} the tracker did not track (initialising or lost) left out')
     if not frames:
         msg = (
-            f'{bag}: none of the {skipped} frames on {topic} was tracked'
+            f'{bag}: none of the {counted(skipped, "frame")} on {topic} was tracked'
             if skipped
             else f'{bag}: no message on {topic}'
         )
@@ -270,7 +272,8 @@ def _bag_meshes(
         if neutral.all():
             say(
                 f'{bag}: {options.named("neutral_frames")} {options.neutral_frames} covers all '
-                f'its {len(items)} frames: all are taken as neutral, none shows an expression'
+                f'its {counted(len(items), "frame")}: all are taken as neutral, none shows an '
+                'expression'
             )
         return BagMeshes(MeshSequence(subject, meshes, neutral, None, str(bag)), None)
     labels = tuple(str(sample.label) for sample in samples)

@@ -13,6 +13,7 @@ from typing import Literal
 import numpy as np
 
 from face_tracking_ros.errors import InputError
+from face_tracking_ros.wording import counted
 
 Parameter = Literal['sigma', 'alpha']
 PARAMETERS: tuple[Parameter, ...] = ('sigma', 'alpha')
@@ -51,7 +52,7 @@ class ParameterSequence:
             if value.ndim != ndim or len(value) != frames:
                 msg = (
                     f'sequence of {self.subject_id!r}: {name} has shape {value.shape}, expected '
-                    f'{frames} rows and {ndim} dimension(s)'
+                    f'{counted(frames, "row")} and {counted(ndim, "dimension")}'
                 )
                 raise InputError(msg)
             if name != 'labels' and not np.all(np.isfinite(value)):

@@ -26,6 +26,7 @@ from face_tracking_ros.tracking.initialisation import (
     fit_model_to_points,
 )
 from face_tracking_ros.tracking.result import TrackResult, TrackStatus
+from face_tracking_ros.wording import counted
 
 
 @dataclass(frozen=True)
@@ -95,7 +96,7 @@ class LKPnPTracker:
         points, active = self._follow(image)
         self._previous = image
         if active.sum() < MIN_INIT_NODES:
-            return self._lost(f'only {active.sum()} nodes followed')
+            return self._lost(f'only {counted(int(active.sum()), "node")} followed')
         found, rvec, tvec, inliers = cv2.solvePnPRansac(
             self._mean[active],
             points[active],

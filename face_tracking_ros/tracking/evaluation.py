@@ -24,6 +24,7 @@ from face_tracking_ros.model.face_model import FaceModel
 from face_tracking_ros.tracking.accuracy import TrackingAccuracy, tracking_accuracy
 from face_tracking_ros.tracking.initialisation import Initialisation
 from face_tracking_ros.tracking.result import TrackResult, TrackStatus
+from face_tracking_ros.wording import counted
 
 
 class Tracker(Protocol):
@@ -155,7 +156,8 @@ def evaluate_sequence(
         InputError: if the frame counts disagree or no frame was tracked.
     """
     if len(tracked.status) != len(true_nodes):
-        msg = f'{len(tracked.status)} images but {len(true_nodes)} frames of true nodes'
+        images, frames = counted(len(tracked.status), 'image'), counted(len(true_nodes), 'frame')
+        msg = f'{images} but {frames} of true nodes'
         raise InputError(msg)
     return score(tracked, model, true_nodes)
 

@@ -42,6 +42,7 @@ from face_tracking_ros.io.yaml_text import parse_yaml
 from face_tracking_ros.model.face_model import FaceModel
 from face_tracking_ros.model.topology import mesh_topology
 from face_tracking_ros.tracking.projection import POSE_DIM, project_with_jacobian
+from face_tracking_ros.wording import counted
 
 MIN_INIT_NODES = 6
 MIN_SPREAD_PX = 1.0  # RMS spread of the points across their thinnest direction, px
@@ -115,9 +116,8 @@ class Initialisation:
         if not missing:
             return ''
         listed = ', '.join(missing[:4]) + (', ...' if len(missing) > 4 else '')
-        nodes = 'node' if len(missing) == 1 else 'nodes'
         return (
-            f'{self.source} names {len(missing)} {nodes} ({listed}) that {owner} lacks '
+            f'{self.source} names {counted(len(missing), "node")} ({listed}) that {owner} lacks '
             f'(misspelt? its nodes: {", ".join(node_names)})'
         )
 

@@ -26,6 +26,7 @@ from face_tracking_ros.tracking.mono_projection import FaceProjection
 from face_tracking_ros.tracking.mono_rois import Params
 from face_tracking_ros.tracking.mono_templates import Keyframe, nearest_keyframe
 from face_tracking_ros.tracking.robust import median
+from face_tracking_ros.wording import counted
 
 _MIN_DEPTH = 0.05  # m; a face nearer the camera than this has diverged
 
@@ -105,7 +106,10 @@ class LossChecks:
         frames = reference.frames
         turn = angle_between(self._face.rotation(reference.last), self._face.rotation(params))
         if turn > config.max_rotation_step * frames:
-            return f'implausible motion ({np.degrees(turn):.0f} degrees in {frames} frame(s))'
+            return (
+                f'implausible motion ({np.degrees(turn):.0f} degrees in '
+                f'{counted(frames, "frame")})'
+            )
         if condition > config.max_condition:
             return f'ill-conditioned solve (condition {condition:.1e})'
         pixels = self._face.nodes(params)[1]

@@ -82,6 +82,7 @@ from face_tracking_ros.tracking.stereo_result import StereoResult, TrackedSequen
 from face_tracking_ros.tracking.stereo_solve import Level, LevelSolver, PairEnergy, Point
 from face_tracking_ros.tracking.stereo_templates import TemplateSamples, templates
 from face_tracking_ros.tracking.surface_patches import PatchDeformation, deformed_offsets
+from face_tracking_ros.wording import counted
 
 LEFT, RIGHT = 0, 1
 # The reported model fit's Gauss-Newton stops at a step this small (rad, m, basis units): from
@@ -249,7 +250,7 @@ class StereoTracker:
         given = np.all(np.isfinite(left_px), axis=1)
         if given.sum() < self._config.init.min_given_nodes:
             msg = (
-                f'only {int(given.sum())} nodes given; at least '
+                f'only {counted(int(given.sum()), "node")} given; at least '
                 f'{self._config.init.min_given_nodes} are needed'
             )
             raise InputError(msg)

@@ -23,6 +23,7 @@ import numpy as np
 from face_tracking_ros.errors import InputError
 from face_tracking_ros.geometry.camera import StereoRig
 from face_tracking_ros.model.topology import Group, MeshTopology
+from face_tracking_ros.wording import counted
 
 
 @dataclass(frozen=True)
@@ -75,7 +76,8 @@ class StereoEvaluation:
             f'{name} {1000 * rms:.2f}' for name, rms in self.node_rms_by_group.items()
         )
         return (
-            f'{self.frames} frames, {100 * self.tracked_fraction:.0f}% tracked: 3-D node RMS '
+            f'{counted(self.frames, "frame")}, {100 * self.tracked_fraction:.0f}% tracked: 3-D '
+            f'node RMS '
             f'{1000 * self.node_rms:.2f} mm ({groups}); max reprojection '
             f'{self.max_reprojection:.2f} px; drift frame 1 -> {self.frames} RMS '
             f'{1000 * self.drift:.2f} mm (max {1000 * self.max_drift:.2f}); boundary slip max '

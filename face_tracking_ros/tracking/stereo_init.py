@@ -25,6 +25,7 @@ from face_tracking_ros.imaging import MAX_HALF_SIZE, sample_patches, sample_poin
 from face_tracking_ros.model.topology import Group, MeshTopology
 from face_tracking_ros.tracking.initialisation import MIN_INIT_NODES, check_inside
 from face_tracking_ros.tracking.stereo_data import SampleLayout, SampleSet, depth_terms
+from face_tracking_ros.wording import counted
 
 FLAT_STD = 0.5  # grey levels: a correlation window flatter than this cannot be matched
 MIN_FIT_NODES = 4  # fewest inner nodes the reference face is fitted to
@@ -190,14 +191,16 @@ def initial_nodes(
     check_inside(topology.node_names, left_px, (width, height), 'left image')
     given = np.all(np.isfinite(left_px), axis=1)
     if given.sum() < config.min_given_nodes:
-        msg = f'only {int(given.sum())} nodes given; at least {config.min_given_nodes} are needed'
+        given_nodes = counted(int(given.sum()), 'node')
+        msg = f'only {given_nodes} given; at least {config.min_given_nodes} are needed'
         raise InputError(msg)
     search = given & ~topology.group_mask(Group.EDGE)
     count = int(search.sum())
     if count < MIN_FIT_NODES:
         msg = (
-            f'the initialisation gives {count} inner nodes (eyes, nose, mouth, brows); at least '
-            f'{MIN_FIT_NODES} are needed: the face edge alone cannot place the face'
+            f'the initialisation gives {counted(count, "inner node")} (eyes, nose, mouth, '
+            f'brows); at least {MIN_FIT_NODES} are needed: the face edge alone cannot place the '
+            'face'
         )
         raise InputError(msg)
     full_range = (np.full(count, config.min_depth), np.full(count, config.max_depth))
@@ -336,8 +339,8 @@ def _trimmed_reference(
     while True:
         if use.sum() < MIN_FIT_NODES:
             msg = (
-                f'only {int(use.sum())} inner (non-boundary) nodes were matched in the right '
-                f'image consistently with a face (need {MIN_FIT_NODES}); check the rig '
+                f'only {counted(int(use.sum()), "inner (non-boundary) node")} matched in the '
+                f'right image consistently with a face (need {MIN_FIT_NODES}); check the rig '
                 'calibration, the initial positions and that both images show the face with '
                 'some texture (exposure, focus)'
             )

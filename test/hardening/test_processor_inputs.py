@@ -878,7 +878,7 @@ def test_stereo_warns_once_30_pairs_in_a_row_were_not_tracked(pairs):
         assert processor.warning() == ''
         blanks = image_msg(blank, stamp(k)), image_msg(blank, stamp(k))
         assert _status(_pair(processor, pairs, 0, stamp(k), *blanks)) == TrackStatus.INITIALIZING
-    failed = 'initialisation failed: only 0 inner (non-boundary) nodes were matched in the right'
+    failed = 'initialisation failed: only 0 inner (non-boundary) nodes matched in the right'
     assert processor.warning().startswith(f'30 pairs in a row not tracked: {failed} image')
     assert processor.status()['initializing_pairs'] == '30'
 

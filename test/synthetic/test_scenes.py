@@ -139,7 +139,7 @@ def test_synth_command_writes_bags_and_a_contact_sheet(tmp_path, capsys):
     ])  # fmt: skip
     assert status == 0
     assert (tmp_path / 'bags' / 'subject_00_seq_00' / 'metadata.yaml').is_file()
-    assert '1 bags, 2 frames' in capsys.readouterr().out
+    assert '1 bag, 2 frames (2 images) in ' in capsys.readouterr().out
 
 
 @pytest.mark.parametrize(
