@@ -3,12 +3,14 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+import re
 
 from diagnostic_msgs.msg import DiagnosticStatus
 import pytest
 import rclpy
 from rclpy.clock import ClockType
 from rclpy.parameter import Parameter
+from rclpy.qos import ReliabilityPolicy
 from std_msgs.msg import Float64
 
 from face_tracking_ros.errors import ConfigError, InputError, check_fields
@@ -384,3 +386,80 @@ def test_a_parameter_the_node_does_not_have_is_named_in_a_warning(ros_context):
     assert logged == [
         'unknown parameter(s), not used: init_flie (misspelt, or meant for another node?)'
     ]
+
+
+def _node_given(monkeypatch, overrides: list[str]) -> processor_node.ProcessorNode:
+    """A ProcessorNode around SensorCounting, given ``-p`` overrides, in a context of its own.
+
+    The caller shuts down ``node.context``.
+    """
+    context = rclpy.Context()
+    rclpy.init(args=['--ros-args', *(a for o in overrides for a in ('-p', o))], context=context)
+    try:
+        return _node_running(monkeypatch, context, SensorCounting([]), 'overridden')
+    except BaseException:
+        rclpy.try_shutdown(context=context)
+        raise
+
+
+def test_qos_overrides_of_the_node_s_topics_apply_and_others_are_named_unknown(monkeypatch):
+    """ROS 2's qos_overrides parameters: a viewer that can only subscribe reliably.
+
+    They were neither applied nor named in the unknown-parameter warning: `-p
+    qos_overrides./face/overlay.publisher.reliability:=reliable` left the overlay best effort,
+    without a word.
+    """
+    logged: list = []
+    monkeypatch.setattr(rclpy.node.Node, 'get_logger', lambda _node: _Logger(logged))
+    node = _node_given(
+        monkeypatch,
+        [
+            'qos_overrides./in.subscription.reliability:=reliable',
+            'qos_overrides./in.subscription.depth:=2',
+            'qos_overrides./out.publisher.reliability:=best_effort',
+            'qos_overrides./inn.subscription.reliability:=reliable',  # misspelt topic
+        ],
+    )
+    try:
+        (subscription,) = node._input_subscriptions
+        assert subscription.qos_profile.reliability == ReliabilityPolicy.RELIABLE
+        assert subscription.qos_profile.depth == 2
+        publisher = node._output_publishers['out']
+        assert publisher.qos_profile.reliability == ReliabilityPolicy.BEST_EFFORT
+        assert publisher.qos_profile.depth == 10  # not overridden: the port's own
+        # the shared profiles are left as they were (rclpy writes the overrides into the one given)
+        assert processor_node.QOS_PROFILES[QosClass.SENSOR].depth == 5
+        name = 'qos_overrides./in.subscription.depth'
+        (result,) = node.set_parameters([Parameter(name, value=1)])
+        assert not result.successful and 'read-only' in result.reason
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown(context=node.context)
+    assert logged == [
+        'unknown parameter(s), not used: qos_overrides./inn.subscription.reliability '
+        '(misspelt, or meant for another node?)'
+    ]
+
+
+@pytest.mark.parametrize(
+    ('override', 'expected'),
+    [
+        (
+            'qos_overrides./in.subscription.reliability:=sometimes',
+            'qos_overrides./in.subscription.reliability = sometimes: must be one of '
+            'system_default, reliable, best_effort, best_available',
+        ),
+        (
+            'qos_overrides./out.publisher.depth:=0',
+            'qos_overrides./out.publisher.depth = 0: must be an integer >= 1',
+        ),
+        (
+            "qos_overrides./out.publisher.depth:='3'",  # a string
+            'qos_overrides./out.publisher.depth = 3: must be an integer >= 1',
+        ),
+    ],
+)
+def test_a_qos_override_rclpy_cannot_apply_is_refused_naming_it(monkeypatch, override, expected):
+    """It was rclpy's RuntimeError (a bad name) or an AssertionError without a message (depth)."""
+    with pytest.raises(ConfigError, match=f'^invalid parameter {re.escape(expected)}$'):
+        _node_given(monkeypatch, [override])

@@ -14,6 +14,7 @@ misspelt remapping or a stopped camera leaves it.
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping
+import copy
 import dataclasses
 from enum import Enum
 import time
@@ -29,10 +30,13 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import (
     DurabilityPolicy,
+    HistoryPolicy,
+    QoSPolicyKind,
     QoSProfile,
     ReliabilityPolicy,
     qos_profile_sensor_data,
 )
+from rclpy.qos_overriding_options import QoSOverridingOptions
 
 from face_tracking_ros.errors import ConfigError, FaceTrackingError, problem_kind
 from face_tracking_ros.io.messages import RclpyMessages
@@ -65,6 +69,11 @@ SILENT_INPUT_S = 5.0  # a sensor input without a message for this long is report
 DECLARE_GIVEN = {'automatically_declare_parameters_from_overrides': True}
 RCLPY_PARAMETERS = frozenset({'use_sim_time', 'start_type_description_service'})  # rclpy's own
 QOS_OVERRIDES = 'qos_overrides.'  # rclpy's QoS override parameters
+# The policies rclpy's default QoS overrides cover, but depth, by the names their values take.
+QOS_POLICY_VALUES = {
+    QoSPolicyKind.HISTORY: HistoryPolicy,
+    QoSPolicyKind.RELIABILITY: ReliabilityPolicy,
+}
 COMPRESSED = 'compressed'  # image_transport's name for a compressed image topic under its base
 
 QOS_PROFILES = {
@@ -103,6 +112,20 @@ def _number(name: str, value: Any) -> float:
     return float(value)
 
 
+def _qos_override_problem(policy: QoSPolicyKind, value: Any) -> str:
+    """What a QoS override's ``value`` must be, or '' if rclpy can apply it to ``policy``.
+
+    rclpy raises a RuntimeError for a policy value it does not know and an AssertionError
+    without a message for a depth that is not an integer; a depth below 1 would keep nothing.
+    """
+    if policy == QoSPolicyKind.DEPTH:
+        valid = isinstance(value, int) and not isinstance(value, bool) and value >= 1
+        return '' if valid else 'an integer >= 1'
+    names = [member.name.lower() for member in QOS_POLICY_VALUES[policy]]
+    names.remove('unknown')  # rclpy's for a policy it cannot tell, refused as an override
+    return '' if value in names else f'one of {", ".join(names)}'
+
+
 class NodeParameters:
     """A :class:`ParameterSource` that declares ROS parameters on a node.
 
@@ -117,7 +140,8 @@ class NodeParameters:
     rclpy ignores a parameter given to a node (``-p``, ``--params-file``) that the node does not
     declare, so a misspelt one (``init_flie``) went unnoticed. A node built with
     ``automatically_declare_parameters_from_overrides`` (:data:`DECLARE_GIVEN`) has every given
-    parameter declared at once; each config re-declares its own with its description, and
+    parameter declared at once; each config re-declares its own with its description, the QoS
+    overrides of the node's topics are checked and handed to rclpy (:meth:`qos_overriding`), and
     :meth:`warn_unknown` logs the rest.
     """
 
@@ -163,6 +187,35 @@ class NodeParameters:
             values[field.name] = tuple(value or ()) if isinstance(default, tuple) else value
         return build_config(config_type, values, prefix)
 
+    def qos_overriding(self, topic: str, entity: str) -> QoSOverridingOptions:
+        """The QoS overrides of a publisher or subscription on ``topic`` (rclpy's), checked.
+
+        ROS 2's ``qos_overrides.<topic>.<publisher|subscription>.<policy>`` parameters (history,
+        depth, reliability; ``topic`` as resolved): given, they replace the port's own policy;
+        they are read-only, as rclpy declares them.
+
+        Args:
+            topic: the topic name, resolved by rclpy as the entity is created.
+            entity: 'publisher' or 'subscription'.
+
+        Raises:
+            ConfigError: for a value rclpy cannot apply, naming the parameter.
+        """
+        options = QoSOverridingOptions.with_default_policies()
+        resolved = self._node.resolve_topic_name(topic)
+        for policy in options.policy_kinds:
+            name = f'{QOS_OVERRIDES}{resolved}.{entity}.{policy.name.lower()}'
+            self._declared.add(name)
+            if not self._node.has_parameter(name):
+                continue
+            value = self._node.get_parameter(name).value
+            problem = _qos_override_problem(policy, value)
+            if problem:
+                msg = f'invalid parameter {name} = {value}: must be {problem}'
+                raise ConfigError(msg)
+            self._node.undeclare_parameter(name)  # given: rclpy declares it again, read-only
+        return options
+
     def warn_unknown(self) -> None:
         """Log the parameters the node was given that no config declared.
 
@@ -171,9 +224,7 @@ class NodeParameters:
         unknown = sorted(
             name
             for name in self._node.list_parameters([], 0).names
-            if name not in self._declared
-            and name not in RCLPY_PARAMETERS
-            and not name.startswith(QOS_OVERRIDES)
+            if name not in self._declared and name not in RCLPY_PARAMETERS
         )
         if unknown:
             self._node.get_logger().warning(
@@ -191,9 +242,8 @@ class ProcessorNode(Endless, Node):
         self._factory = RclpyMessages()
         parameters = NodeParameters(self)
         self._processor = processor_factory(name)(parameters, self._factory)
-        parameters.warn_unknown()
         self._output_publishers = {
-            port.topic: self._publisher(port) for port in self._processor.outputs
+            port.topic: self._publisher(port, parameters) for port in self._processor.outputs
         }
         self._on_demand = [port.topic for port in self._processor.outputs if port.on_demand]
         self._deferred = (
@@ -213,24 +263,39 @@ class ProcessorNode(Endless, Node):
             # a paused or finished bag stops ROS time, and the status must go on saying so
             steady = Clock(clock_type=ClockType.STEADY_TIME)
             self.create_timer(STATUS_PERIOD_S, self._publish_status, clock=steady)
-        self._input_subscriptions = [self._subscribe(port) for port in self._processor.inputs]
+        self._input_subscriptions = [
+            self._subscribe(port, parameters) for port in self._processor.inputs
+        ]
+        parameters.warn_unknown()
 
     @property
     def processor(self) -> Processor:
         """The processor this node runs."""
         return self._processor
 
-    def _publisher(self, port: Port) -> Any:
-        msg_class = self._factory.message_class(port.msgtype)
-        return self.create_publisher(msg_class, port.topic, QOS_PROFILES[port.qos])
+    def _publisher(self, port: Port, parameters: NodeParameters) -> Any:
+        """A publisher of ``port`` with its QoS class's profile, as ``qos_overrides`` change it."""
+        return self.create_publisher(
+            self._factory.message_class(port.msgtype),
+            port.topic,
+            copy.copy(QOS_PROFILES[port.qos]),  # rclpy writes the overrides into the profile
+            qos_overriding_options=parameters.qos_overriding(port.topic, 'publisher'),
+        )
 
-    def _subscribe(self, port: Port) -> Any:
+    def _subscribe(self, port: Port, parameters: NodeParameters) -> Any:
+        """A subscription to ``port`` (as remapped), QoS as for :meth:`_publisher`."""
+
         def callback(msg: Any) -> None:
             self._handle(port.topic, msg)
 
-        msg_class = self._factory.message_class(port.msgtype)
         name = self._input_names[port.topic]
-        return self.create_subscription(msg_class, name, callback, QOS_PROFILES[port.qos])
+        return self.create_subscription(
+            self._factory.message_class(port.msgtype),
+            name,
+            callback,
+            copy.copy(QOS_PROFILES[port.qos]),
+            qos_overriding_options=parameters.qos_overriding(name, 'subscription'),
+        )
 
     def _input_name(self, topic: str) -> str:
         """The name an input ``topic`` is subscribed under, remapped.
