@@ -23,7 +23,6 @@ import numpy as np
 
 from face_tracking_ros.data import default_model_path
 from face_tracking_ros.errors import ConfigError, FaceTrackingError, InputError, check_fields
-from face_tracking_ros.imaging import inside_image
 from face_tracking_ros.io import conversions
 from face_tracking_ros.io.bags import stamp_to_ns
 from face_tracking_ros.io.messages import MessageFactory
@@ -150,7 +149,8 @@ class MonoProcessor:
         self._held: HeldInput[tuple[Any, np.ndarray]] = HeldInput(
             CAMERA_INFO, 'image', ' until it comes'
         )
-        self._tracked: tuple[tuple[str, ...], np.ndarray] | None = None  # last image's nodes
+        # The names and (N, 3) camera-frame nodes of the last image, if it was tracked.
+        self._tracked: tuple[tuple[str, ...], np.ndarray] | None = None
         self._stamps = StampGuard('image')
         self._counts = TrackCounts('images')
         self.inputs = _input_ports(config)
@@ -278,19 +278,24 @@ class MonoProcessor:
         """The nodes of the last image, if it was tracked, to go on from with a new tracker.
 
         A calibration or model that changes while a track runs restarts it from there, not from
-        the initialisation's points (made on the first image, the head may have moved since);
-        the nodes outside the image are left out.
+        the initialisation's points (made on the first image, the head may have moved since):
+        the nodes as the new calibration sees them (:meth:`CameraCalibration.seen`), those
+        outside its image left out.
         """
         tracked, self._tracked = self._tracked, None
-        camera = self._calibration.camera
-        if tracked is None or camera is None or tracked[0] != self._model.node_names:
+        if (
+            tracked is None
+            or self._calibration.camera is None
+            or tracked[0] != self._model.node_names
+        ):
             return None
-        names, tracked_px = tracked
-        inside = inside_image(tracked_px, (camera.height, camera.width))
+        names, nodes_cam = tracked
+        pixels = self._calibration.seen(nodes_cam)
+        inside = np.isfinite(pixels[:, 0])
         if inside.sum() < MIN_INIT_NODES:
             return None
         kept = tuple(name for name, keep in zip(names, inside, strict=True) if keep)
-        return Initialisation(node_names=kept, points=tracked_px[inside])
+        return Initialisation(node_names=kept, points=pixels[inside])
 
     def _restart(self, carried: Initialisation | None = None) -> None:
         """Restart the tracker and the pose filter from its next result.
@@ -318,7 +323,7 @@ class MonoProcessor:
         gray = rectifier.image(gray)
         tracked = self._tracker.track(gray)
         ok = tracked.status == TrackStatus.TRACKING
-        self._tracked = (self._model.node_names, tracked.nodes_px) if ok else None
+        self._tracked = (self._model.node_names, tracked.nodes_cam) if ok else None
         self._counts.add(tracked.status, tracked.reason)
         result = self._pose_filter.filter(tracked, stamp_ns * 1e-9)
         out_header = conversions.copy_header(self._factory, header)

@@ -37,7 +37,6 @@ import numpy as np
 
 from face_tracking_ros.errors import ConfigError, FaceTrackingError, InputError, check_fields
 from face_tracking_ros.geometry.camera import PinholeCamera, StereoRig
-from face_tracking_ros.imaging import inside_image
 from face_tracking_ros.io import conversions
 from face_tracking_ros.io.bags import stamp_to_ns
 from face_tracking_ros.io.messages import MessageFactory
@@ -155,7 +154,9 @@ class StereoProcessor:
     is that of the last pair tracked, an image a little older than it is put aside, and a jump
     back restarts the track with a warning (see the module's docstring); a pair is held while
     there is no tracker (a calibration missing or refused); the two calibrations must form a
-    rectified rig before either is kept.
+    rectified rig before either is kept: a new one that does not with the other camera's is set
+    aside, and kept with the other camera's next new one if those two do (a rig switched to
+    another resolution: each camera's new calibration fits only the other's new one).
     """
 
     def __init__(
@@ -205,7 +206,7 @@ class StereoProcessor:
             self._stamps,
             self._restart_track,
         )
-        self._tracked_px: np.ndarray | None = None  # left px of the last pair tracked, if it was
+        self._tracked_nodes: np.ndarray | None = None  # (N, 3) of the last pair, if tracked
         self._counts = TrackCounts('pairs')
         self.inputs = input_ports(config.compressed)
         self.outputs = (*MESH_PORTS, *MODEL_PORTS)
@@ -313,20 +314,33 @@ class StereoProcessor:
         return self._held.release(lambda pair: self._track(*pair))
 
     def _set_camera(self, topic: str, msg: Any) -> None:
-        """Keep a new calibration, unless it does not form a rectified rig with the other one.
+        """Keep a new calibration if it forms a rectified rig with the other camera's.
+
+        One that does not is set aside (:meth:`CameraCalibration.set_aside`), unless it forms one
+        with the other camera's calibration set aside: then both are kept.
 
         Raises:
-            InputError: for a bad camera_info, if the two calibrations do not form a rig, or one
-                has a distortion model that cannot be rectified (the old ones are kept).
+            InputError: for a bad camera_info, if the new calibration forms no rig (it is set
+                aside), or one has a distortion model that cannot be rectified (the old ones
+                are kept).
         """
         calibration = self._calibrations[topic]
         camera = calibration.read(msg)
-        if camera is not None:
-            cameras = {**self._cameras(), topic: camera}
-            if len(cameras) == 2:
-                StereoRig(cameras[LEFT_INFO], cameras[RIGHT_INFO])
-            calibration.keep(camera)
-            self._rebuild()
+        if camera is None:
+            return
+        other_topic = RIGHT_INFO if topic == LEFT_INFO else LEFT_INFO
+        other = self._calibrations[other_topic]
+        problem = '' if other.camera is None else _rig_problem(topic, camera, other.camera)
+        if problem and (
+            other.pending is None or _rig_problem(topic, camera, other.pending.camera)
+        ):
+            calibration.set_aside(camera)
+            msg = f'{problem}; set aside until {other_topic} brings a calibration that fits it'
+            raise InputError(msg)
+        calibration.keep(camera)
+        if problem:  # the other camera's new calibration, set aside, forms the rig with it
+            other.keep_pending()
+        self._rebuild()
 
     def _cameras(self) -> dict[str, PinholeCamera]:
         """The calibrations kept so far, by camera_info topic."""
@@ -339,9 +353,10 @@ class StereoProcessor:
     def _rebuild(self) -> None:
         """A tracker for the rig and model, once both calibrations are there.
 
-        A calibration or model that changes while a track runs restarts it from the left-image
-        positions of its last tracked pair (those inside the image), not from the
-        initialisation's (made on the first pair, the head may have moved since).
+        A calibration or model that changes while a track runs restarts it from the nodes of its
+        last tracked pair as the new left calibration sees them (those inside its image:
+        :meth:`CameraCalibration.seen`), not from the initialisation's positions (made on the
+        first pair, the head may have moved since).
 
         Raises:
             FaceTrackingError: why the tracker cannot work with them (also kept, and given for
@@ -350,7 +365,7 @@ class StereoProcessor:
         cameras = self._cameras()
         if len(cameras) < 2:
             return
-        tracked_px, self._tracked_px = self._tracked_px, None
+        tracked_nodes, self._tracked_nodes = self._tracked_nodes, None
         self._end_track()
         rig = StereoRig(cameras[LEFT_INFO], cameras[RIGHT_INFO])
         names = mesh_topology(self._tracker_config.num_nodes).node_names
@@ -361,20 +376,22 @@ class StereoProcessor:
         except FaceTrackingError as error:
             self._unfit = f'cannot track with this calibration: {error}'
             raise
-        left = cameras[LEFT_INFO]
-        inside = (
-            inside_image(tracked_px, (left.height, left.width)) if tracked_px is not None else None
+        pixels = (
+            None if tracked_nodes is None else self._calibrations[LEFT_INFO].seen(tracked_nodes)
         )
-        if inside is not None and inside.sum() >= self._tracker_config.init.min_given_nodes:
+        if (
+            pixels is not None
+            and np.isfinite(pixels[:, 0]).sum() >= self._tracker_config.init.min_given_nodes
+        ):
             # A new calibration mid-track: go on from where the face was (NaN: not given).
-            self._tracker.reset(np.where(inside[:, None], tracked_px, np.nan))
+            self._tracker.reset(pixels)
         elif self._can_initialise:  # (too few of those nodes left inside: as at the start)
             self._reset_tracker()
 
     def _reset_tracker(self) -> None:
         """Restart the tracker from the initialisation, its points moved to the rectified image."""
         assert self._tracker is not None
-        self._tracked_px = None
+        self._tracked_nodes = None
         self._tracker.reset(self._calibrations[LEFT_INFO].rectified(self._initialisation))
 
     def _restart_track(self) -> None:
@@ -401,7 +418,7 @@ class StereoProcessor:
         )
         self._stamps.take(stamp_to_ns(left_msg.header.stamp))
         result = self._tracker.step(left, right)
-        self._tracked_px = result.left_px if result.ok else None
+        self._tracked_nodes = result.nodes_cam if result.ok else None
         self._counts.add(result.status, result.reason)
         header = conversions.copy_header(self._factory, left_msg.header)
         if self._config.retroactive_depths:
@@ -481,6 +498,16 @@ def _check_initialisation(
     unknown = initialisation.unknown_nodes(names, owner) if initialisation else ''
     if unknown:
         raise error(unknown)
+
+
+def _rig_problem(topic: str, camera: PinholeCamera, other: PinholeCamera) -> str:
+    """Why ``camera``, of the camera_info ``topic``, and ``other`` form no rig; '' if they do."""
+    left, right = (camera, other) if topic == LEFT_INFO else (other, camera)
+    try:
+        StereoRig(left, right)
+    except InputError as error:
+        return str(error)
+    return ''
 
 
 def make_stereo_processor(params: ParameterSource, factory: MessageFactory) -> StereoProcessor:
