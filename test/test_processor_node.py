@@ -10,7 +10,7 @@ import pytest
 import rclpy
 from rclpy.clock import ClockType
 from rclpy.parameter import Parameter
-from rclpy.qos import ReliabilityPolicy
+from rclpy.qos import DurabilityPolicy, ReliabilityPolicy
 from std_msgs.msg import Float64
 
 from face_tracking_ros.errors import ConfigError, InputError, check_fields
@@ -463,3 +463,29 @@ def test_a_qos_override_rclpy_cannot_apply_is_refused_naming_it(monkeypatch, ove
     """It was rclpy's RuntimeError (a bad name) or an AssertionError without a message (depth)."""
     with pytest.raises(ConfigError, match=f'^invalid parameter {re.escape(expected)}$'):
         _node_given(monkeypatch, [override])
+
+
+def test_a_latched_sensor_input_is_watched_until_its_first_message(monkeypatch):
+    """A camera_info published once (a static calibration, transient-local).
+
+    The subscription could not be made transient-local (durability was not overridable), so
+    the message never came; made so, the status warned 'no message on /in' for ever after it.
+    """
+    latched = [
+        'qos_overrides./in.subscription.durability:=transient_local',
+        'qos_overrides./in.subscription.reliability:=reliable',
+    ]
+    node = _node_given(monkeypatch, latched)
+    statuses: list = []
+    try:
+        (subscription,) = node._input_subscriptions
+        assert subscription.qos_profile.durability == DurabilityPolicy.TRANSIENT_LOCAL
+        monkeypatch.setattr(node._diagnostics, 'publish', lambda a: statuses.extend(a.status))
+        monkeypatch.setattr(processor_node, 'SILENT_INPUT_S', 0.0)
+        node._publish_status()  # nothing came yet: watched
+        node._handle('in', Float64(data=1.0))
+        node._publish_status()  # it came: nothing more is expected of it
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown(context=node.context)
+    assert [s.level for s in statuses] == [WARN, OK]

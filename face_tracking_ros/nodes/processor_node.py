@@ -69,10 +69,12 @@ SILENT_INPUT_S = 5.0  # a sensor input without a message for this long is report
 DECLARE_GIVEN = {'automatically_declare_parameters_from_overrides': True}
 RCLPY_PARAMETERS = frozenset({'use_sim_time', 'start_type_description_service'})  # rclpy's own
 QOS_OVERRIDES = 'qos_overrides.'  # rclpy's QoS override parameters
-# The policies rclpy's default QoS overrides cover, but depth, by the names their values take.
+# The QoS policies a qos_overrides parameter may set (rclpy's default ones and durability, for
+# a camera_info published once, transient-local), but depth, by the names their values take.
 QOS_POLICY_VALUES = {
     QoSPolicyKind.HISTORY: HistoryPolicy,
     QoSPolicyKind.RELIABILITY: ReliabilityPolicy,
+    QoSPolicyKind.DURABILITY: DurabilityPolicy,
 }
 COMPRESSED = 'compressed'  # image_transport's name for a compressed image topic under its base
 
@@ -190,9 +192,9 @@ class NodeParameters:
     def qos_overriding(self, topic: str, entity: str) -> QoSOverridingOptions:
         """The QoS overrides of a publisher or subscription on ``topic`` (rclpy's), checked.
 
-        ROS 2's ``qos_overrides.<topic>.<publisher|subscription>.<policy>`` parameters (history,
-        depth, reliability; ``topic`` as resolved): given, they replace the port's own policy;
-        they are read-only, as rclpy declares them.
+        ROS 2's ``qos_overrides.<topic>.<publisher|subscription>.<policy>`` parameters (depth,
+        history, reliability, durability; ``topic`` as resolved): given, they replace the port's
+        own policy; they are read-only, as rclpy declares them.
 
         Args:
             topic: the topic name, resolved by rclpy as the entity is created.
@@ -201,7 +203,7 @@ class NodeParameters:
         Raises:
             ConfigError: for a value rclpy cannot apply, naming the parameter.
         """
-        options = QoSOverridingOptions.with_default_policies()
+        options = QoSOverridingOptions([QoSPolicyKind.DEPTH, *QOS_POLICY_VALUES])
         resolved = self._node.resolve_topic_name(topic)
         for policy in options.policy_kinds:
             name = f'{QOS_OVERRIDES}{resolved}.{entity}.{policy.name.lower()}'
@@ -266,6 +268,13 @@ class ProcessorNode(Endless, Node):
         self._input_subscriptions = [
             self._subscribe(port, parameters) for port in self._processor.inputs
         ]
+        self._published_once = frozenset(  # transient-local by a QoS override: a latched input
+            port.topic
+            for port, subscription in zip(
+                self._processor.inputs, self._input_subscriptions, strict=True
+            )
+            if subscription.qos_profile.durability == DurabilityPolicy.TRANSIENT_LOCAL
+        )
         parameters.warn_unknown()
 
     @property
@@ -314,9 +323,12 @@ class ProcessorNode(Endless, Node):
         """Run the processor on one message; publish its outputs or report the bad input.
 
         Work the processor defers (:class:`~face_tracking_ros.processing.base.Deferring`) runs
-        after the outputs are published.
+        after the outputs are published. A latched sensor input (a camera_info published once)
+        is not watched for silence after its first message.
         """
-        if topic in self._last_message:
+        if topic in self._published_once:
+            self._last_message.pop(topic, None)
+        elif topic in self._last_message:
             self._last_message[topic] = time.monotonic()
         wanted = frozenset(
             t for t in self._on_demand if self._output_publishers[t].get_subscription_count()
