@@ -7,6 +7,7 @@ import re
 
 from diagnostic_msgs.msg import DiagnosticStatus
 import pytest
+from rcl_interfaces.msg import ParameterType
 import rclpy
 from rclpy.clock import ClockType
 from rclpy.parameter import Parameter
@@ -369,8 +370,16 @@ def test_an_enum_parameter_is_given_by_its_member_s_name_live_and_offline(ros_co
 
 
 def test_a_parameter_the_node_does_not_have_is_named_in_a_warning(ros_context):
-    """A misspelt init_flie, which rclpy ignores, left the tracker waiting without a word."""
-    given = [Parameter('rate', value=3.0), Parameter('init_flie', value='clicks.yaml')]
+    """A misspelt init_flie, which rclpy ignores, left the tracker waiting without a word.
+
+    Setting it on the running node succeeded too, with no effect; now it is read-only, as the
+    node's own parameters are, and its description says it is not used.
+    """
+    given = [
+        Parameter('rate', value=3.0),
+        Parameter('init_flie', value='clicks.yaml'),
+        Parameter('nodez', value=[1, 2]),
+    ]
     node = rclpy.create_node(
         'tunable', context=ros_context, parameter_overrides=given, **processor_node.DECLARE_GIVEN
     )
@@ -381,10 +390,19 @@ def test_a_parameter_the_node_does_not_have_is_named_in_a_warning(ros_context):
         assert node.describe_parameter('rate').description == 'a float.'
         node.get_logger = lambda: _Logger(logged)
         parameters.warn_unknown()
+        assert node.get_parameter('init_flie').value == 'clicks.yaml'
+        (result,) = node.set_parameters([Parameter('init_flie', value='other.yaml')])
+        assert not result.successful and 'read-only' in result.reason
+        expected = 'unknown to this node, not used (misspelt, or meant for another node?)'
+        descriptors = node.describe_parameters(['init_flie', 'nodez'])
+        assert [(d.name, d.type, d.description) for d in descriptors] == [
+            ('init_flie', ParameterType.PARAMETER_STRING, expected),
+            ('nodez', ParameterType.PARAMETER_INTEGER_ARRAY, expected),
+        ]
     finally:
         node.destroy_node()
     assert logged == [
-        'unknown parameter(s), not used: init_flie (misspelt, or meant for another node?)'
+        'unknown parameter(s), not used: init_flie, nodez (misspelt, or meant for another node?)'
     ]
 
 

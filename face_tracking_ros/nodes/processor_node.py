@@ -69,6 +69,7 @@ SILENT_INPUT_S = 5.0  # a sensor input without a message for this long is report
 DECLARE_GIVEN = {'automatically_declare_parameters_from_overrides': True}
 RCLPY_PARAMETERS = frozenset({'use_sim_time', 'start_type_description_service'})  # rclpy's own
 QOS_OVERRIDES = 'qos_overrides.'  # rclpy's QoS override parameters
+UNKNOWN_HINT = 'misspelt, or meant for another node?'  # of a parameter the node does not have
 # The QoS policies a qos_overrides parameter may set (rclpy's default ones and durability, for
 # a camera_info published once, transient-local), but depth, by the names their values take.
 QOS_POLICY_VALUES = {
@@ -219,20 +220,28 @@ class NodeParameters:
         return options
 
     def warn_unknown(self) -> None:
-        """Log the parameters the node was given that no config declared.
+        """Log the parameters the node was given that no config declared; make them read-only.
 
-        Misspelt ones, or another node's (a parameters file shared by several nodes).
+        Misspelt ones, or another node's (a parameters file shared by several nodes). Declared
+        from the overrides, they could be set on the running node, to no effect; they are
+        declared again read-only, as the node's own, described as unknown.
         """
         unknown = sorted(
             name
             for name in self._node.list_parameters([], 0).names
             if name not in self._declared and name not in RCLPY_PARAMETERS
         )
-        if unknown:
-            self._node.get_logger().warning(
-                f'unknown parameter(s), not used: {", ".join(unknown)} (misspelt, or meant for '
-                'another node?)'
-            )
+        if not unknown:
+            return
+        self._node.get_logger().warning(
+            f'unknown parameter(s), not used: {", ".join(unknown)} ({UNKNOWN_HINT})'
+        )
+        for name in unknown:  # a descriptor each: rclpy keeps it and writes the name into it
+            value = self._node.get_parameter(name).value
+            self._node.undeclare_parameter(name)
+            description = f'unknown to this node, not used ({UNKNOWN_HINT})'
+            descriptor = ParameterDescriptor(description=description, read_only=True)
+            self._node.declare_parameter(name, value, descriptor)
 
 
 class ProcessorNode(Endless, Node):
