@@ -280,9 +280,11 @@ class MonoProcessor:
         A calibration or model that changes while a track runs restarts it from there, not from
         the initialisation's points (made on the first image, the head may have moved since):
         the nodes as the new calibration sees them (:meth:`CameraCalibration.seen`), those
-        outside its image left out.
+        outside its image left out. They stay the last tracked nodes until another image is
+        tracked or the track starts from the initialisation: a camera_info wrong for a moment
+        (its images refused) and then right again goes on from them too.
         """
-        tracked, self._tracked = self._tracked, None
+        tracked = self._tracked
         if (
             tracked is None
             or self._calibration.camera is None
@@ -301,10 +303,11 @@ class MonoProcessor:
         """Restart the tracker and the pose filter from its next result.
 
         The tracker starts from ``carried`` (node positions in the rectified image) if given,
-        else from the initialisation.
+        else from the initialisation (and the last tracked nodes are forgotten).
         """
         if self._tracker is not None and self._pose_filter is not None:
-            self._tracked = None
+            if carried is None:
+                self._tracked = None
             initialisation = self._calibration.rectified(self._initialisation)
             self._tracker.reset(carried or initialisation)
             self._pose_filter.reset()

@@ -365,7 +365,7 @@ class StereoProcessor:
         cameras = self._cameras()
         if len(cameras) < 2:
             return
-        tracked_nodes, self._tracked_nodes = self._tracked_nodes, None
+        tracked_nodes = self._tracked_nodes  # (kept until a pair is tracked, as the mono's)
         self._end_track()
         rig = StereoRig(cameras[LEFT_INFO], cameras[RIGHT_INFO])
         names = mesh_topology(self._tracker_config.num_nodes).node_names
