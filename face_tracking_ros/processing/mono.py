@@ -107,7 +107,8 @@ class MonoProcessor:
     held until camera_info comes (:class:`~face_tracking_ros.processing.held_input.HeldInput`)
     and the calibration (:class:`~face_tracking_ros.processing.calibration.CameraCalibration`)
     follow the stereo processor's rules. Its own: an image's stamp is taken as soon as it passes,
-    and one that went back restarts the track at once, quietly; an image is held only while
+    and one that went back restarts the track at once, the status warning of it for a while
+    after (:meth:`warning`); an image is held only while
     there is no camera_info (a camera and model that do not fit are an error for every image),
     and tracked once there is a tracker: at the camera_info, or at the model that follows it
     for a processor started without one.
@@ -217,8 +218,13 @@ class MonoProcessor:
         return report
 
     def warning(self) -> str:
-        """See :meth:`~face_tracking_ros.processing.track_counts.TrackCounts.warning`."""
-        return self._counts.warning()
+        """Images not tracked in a row, else stamps that went back a moment ago.
+
+        See :meth:`~face_tracking_ros.processing.track_counts.TrackCounts.warning` and
+        :meth:`~face_tracking_ros.processing.stamp_guard.StampGuard.warning` (the stereo
+        processor warns of each jump back as it comes).
+        """
+        return self._counts.warning() or self._stamps.warning()
 
     def run_deferred(self) -> None:
         """The last tracked image's share of the bundle adjustment (``MonoTracker.adjust``).

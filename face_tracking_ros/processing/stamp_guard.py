@@ -5,7 +5,9 @@ The mono and stereo processors refuse an image whose stamp repeats the last trac
 duplicated message), and restart the track on one that went back (a looped bag, a restarted
 camera); ``restarts`` in their status counts those. What counts as the last stamp, and what a
 stamp that went back does beyond the restart, differ: the mono processor takes an image's stamp
-as soon as it passes and restarts at once; the stereo processor takes the stamp of the pair it
+as soon as it passes and restarts at once, its status warning of it for the next
+:data:`RESTART_WARNING` images (:meth:`StampGuard.warning`); the stereo processor takes the
+stamp of the pair it
 tracks and its pairing decides by how far the stamp went back
 (:mod:`~face_tracking_ros.processing.stereo_pairing`).
 """
@@ -13,6 +15,8 @@ tracks and its pairing decides by how far the stamp went back
 from __future__ import annotations
 
 from face_tracking_ros.errors import InputError
+
+RESTART_WARNING = 30  # stamps after a restart while StampGuard.warning warns (1 s at 30 Hz)
 
 
 class StampGuard:
@@ -29,6 +33,8 @@ class StampGuard:
         self._unit = unit
         self.last: int | None = None
         self.restarts = 0
+        self._back_ns = 0  # how far the last stamp that went back went back
+        self._since_restart: int | None = None  # stamps taken since the last restart, if any
 
     def later(self, stamp_ns: int, source: str) -> bool:
         """Whether ``stamp_ns`` is later than the last stamp (or the first); False: it went back.
@@ -45,11 +51,14 @@ class StampGuard:
                 'image skipped'
             )
             raise InputError(msg)
+        self._back_ns = self.last - stamp_ns
         return False
 
     def take(self, stamp_ns: int) -> None:
         """``stamp_ns`` is the last stamp now (an image or pair that passed)."""
         self.last = stamp_ns
+        if self._since_restart is not None:
+            self._since_restart += 1
 
     def forget(self) -> None:
         """The next stamp starts afresh, whatever it is (the track starts over)."""
@@ -59,3 +68,20 @@ class StampGuard:
         """A stamp went back: count the restarted track; the next stamp starts afresh."""
         self.forget()
         self.restarts += 1
+        self._since_restart = 0
+
+    def warning(self) -> str:
+        """That the stamps went back, for :data:`RESTART_WARNING` stamps after a restart, else ''.
+
+        A restart now and then is a looped bag or a restarted camera; restarts that keep coming
+        are two sources publishing on one topic (a bag played while the camera runs), each
+        going back to the other's stamps, which no status showed but the count.
+        """
+        if self._since_restart is None or self._since_restart > RESTART_WARNING:
+            return ''
+        ago = f'{self._since_restart} {self._unit}{"s" if self._since_restart != 1 else ""} ago'
+        return (
+            f'{self._unit} stamp went back by {self._back_ns / 1e9:.3f} s {ago}: track restarted '
+            f'({self.restarts} restart{"s" if self.restarts != 1 else ""} so far: a looped bag, '
+            'a restarted camera, or two sources on one topic?)'
+        )

@@ -35,6 +35,7 @@ from face_tracking_ros.processing.identity import IdentityNodeConfig, IdentityPr
 from face_tracking_ros.processing.mono import MonoNodeConfig, MonoProcessor
 from face_tracking_ros.processing.parameters import OverrideParameters
 from face_tracking_ros.processing.registry import processor_factory
+from face_tracking_ros.processing.stamp_guard import RESTART_WARNING
 from face_tracking_ros.processing.stereo import (
     StereoNodeConfig,
     StereoProcessor,
@@ -318,6 +319,30 @@ def test_mono_repeated_stamp_is_refused_and_an_earlier_stamp_restarts_the_track(
     assert _status(outputs) == TrackStatus.TRACKING
     np.testing.assert_array_equal(_image_points(outputs), mono_reference[0])
     assert processor.status()['restarts'] == '1'
+
+
+def test_mono_stamps_that_keep_going_back_are_warned_of(scene, frames):
+    """Two sources on one image topic (a bag played while the camera runs), stamps 100 s apart.
+
+    Every other image restarted the track, LOST in between, and the status said nothing:
+    OK, 'running', with 'restarts' counting up. A single loop warns for a while, then no more.
+    """
+    processor = _mono(scene, frames)
+    processor.handle('camera_info', info_msg(), NONE)
+    assert processor.warning() == ''
+    for f in range(1, 5):
+        processor.handle('image', image_msg(frames[f].image, stamp(f)), NONE)
+        processor.handle('image', image_msg(frames[f].image, stamp(f) - 100 * 10**9), NONE)
+    assert processor.status()['restarts'] == '4'
+    assert processor.warning() == (
+        'image stamp went back by 100.000 s 1 image ago: track restarted (4 restarts so far: '
+        'a looped bag, a restarted camera, or two sources on one topic?)'
+    )
+    for f in range(5, 4 + RESTART_WARNING):  # one source again: the warning ends
+        processor.handle('image', image_msg(frames[0].image, stamp(f)), NONE)
+    assert processor.warning().startswith('image stamp went back by 100.000 s 30 images ago')
+    processor.handle('image', image_msg(frames[0].image, stamp(4 + RESTART_WARNING)), NONE)
+    assert processor.warning() == ''
 
 
 def _model_msg(model):
