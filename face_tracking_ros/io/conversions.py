@@ -472,6 +472,9 @@ def _nan_as_zero(values: Any) -> np.ndarray:
     return np.where(np.isnan(values), 0.0, values)
 
 
+MESH_MARKER_IDS = (0, 1)  # the mesh's markers in its face's namespace: nodes, edges
+
+
 def mesh_markers(
     factory: MessageFactory,
     header: Any,
@@ -512,12 +515,31 @@ def mesh_markers(
         )
 
     sphere_list, line_list = 7, 5  # visualization_msgs/Marker.SPHERE_LIST, LINE_LIST
+    nodes_id, edges_id = MESH_MARKER_IDS
     # Colours are exact in float32 (ColorRGBA), so rclpy and rosbags messages compare equal.
     return factory.make(
         'visualization_msgs/msg/MarkerArray',
         markers=[
-            marker(0, sphere_list, 0.004, (1.0, 0.375, 0.125, 1.0), points),
-            marker(1, line_list, 0.001, (0.125, 0.75, 1.0, 1.0), edge_points),
+            marker(nodes_id, sphere_list, 0.004, (1.0, 0.375, 0.125, 1.0), points),
+            marker(edges_id, line_list, 0.001, (0.125, 0.75, 1.0, 1.0), edge_points),
+        ],
+    )
+
+
+def deleted_mesh_markers(factory: MessageFactory, header: Any, face_id: str) -> Any:
+    """visualization_msgs/MarkerArray deleting the markers :func:`mesh_markers` draws.
+
+    For a face without an estimate (INITIALIZING): a marker stays on a viewer's screen until
+    it is deleted, so the last tracked mesh would stay drawn, in the tracked colour.
+    """
+    delete = 2  # visualization_msgs/Marker.DELETE
+    return factory.make(
+        'visualization_msgs/msg/MarkerArray',
+        markers=[
+            factory.make(
+                'visualization_msgs/msg/Marker', header=header, ns=face_id, id=i, action=delete
+            )
+            for i in MESH_MARKER_IDS
         ],
     )
 

@@ -43,7 +43,8 @@ def face_outputs(
     face is lost, their last valid values read as the face's current ones (an expression
     recogniser would hold a smile for as long as the face is gone). The mesh is left out while
     there is no estimate at all (INITIALIZING): a FaceMesh has no status, and its nodes would be
-    the zeros the state carries then, a face at the camera's centre.
+    the zeros the state carries then, a face at the camera's centre; its markers are deleted
+    then (:func:`~face_tracking_ros.io.conversions.deleted_mesh_markers`).
 
     Args:
         factory: message factory.
@@ -57,6 +58,9 @@ def face_outputs(
     outputs = [Output('face/state', messages.state)]
     if np.isfinite(result.nodes_cam).all():
         outputs += [Output('face/mesh_raw', messages.mesh), Output('face/mesh', messages.markers)]
+    else:
+        deleted = conversions.deleted_mesh_markers(factory, header, face_id)
+        outputs.append(Output('face/mesh', deleted))
     if with_model and result.ok:
         outputs += [
             Output('face/pose', messages.pose),

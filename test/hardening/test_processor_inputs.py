@@ -202,6 +202,39 @@ def test_mono_bad_input_is_named_and_tracking_goes_on(
         np.testing.assert_array_equal(_image_points(outputs), mono_reference[f])
 
 
+def _assert_markers_deleted(outputs, face_id: str) -> None:
+    """The outputs' face/mesh deletes the mesh markers (a sphere and a line list) of face_id."""
+    markers = next(o.msg for o in outputs if o.topic == 'face/mesh').markers
+    delete = 2  # visualization_msgs/Marker.DELETE
+    expected = [(face_id, 0, delete), (face_id, 1, delete)]
+    assert [(m.ns, m.id, m.action) for m in markers] == expected
+
+
+def test_mono_reset_to_no_estimate_deletes_the_mesh_markers_of_the_last_track(scene, frames):
+    """A reset with auto_init, the face not found: INITIALIZING, no estimate.
+
+    Nothing went out on face/mesh, so RViz went on drawing the last tracked mesh, in the
+    tracked colour, for as long as the tracker found no face.
+    """
+    detections = _Detections(scene.initialisation(frames[0]), None, None)
+    processor = MonoProcessor(
+        FACTORY,
+        MonoNodeConfig(auto_init=True),
+        MonoTrackerConfig(),
+        scene.model,
+        None,
+        detector_for=detections.for_nodes,
+    )
+    processor.handle('camera_info', info_msg(), NONE)
+    tracked = processor.handle('image', image_msg(frames[0].image, stamp(0)), NONE)
+    assert _status(tracked) == TrackStatus.TRACKING
+    processor.reset(None)
+    outputs = processor.handle('image', image_msg(frames[1].image, stamp(1)), NONE)
+    assert _status(outputs) == TrackStatus.INITIALIZING
+    assert [o.topic for o in outputs] == ['face/state', 'face/mesh']
+    _assert_markers_deleted(outputs, 'face_0')
+
+
 def test_mono_lost_face_publishes_its_state_and_a_grey_mesh_but_no_pose_action_or_shape(
     scene, frames
 ):
@@ -878,8 +911,10 @@ def test_mono_auto_init_starts_from_a_detection_and_detects_again_after_a_reset(
     processor.handle('camera_info', info_msg(), NONE)
     outputs = processor.handle('image', image_msg(frames[0].image, stamp(0)), NONE)
     assert TrackStatus(outputs[0].msg.status) == TrackStatus.INITIALIZING  # no face found yet
-    # No estimate: the state alone (a FaceMesh, without status, had its 34 nodes at the origin).
-    assert [output.topic for output in outputs] == ['face/state']
+    # No estimate: no FaceMesh (without status, it had its 34 nodes at the origin); the markers
+    # of the last mesh are deleted.
+    assert [output.topic for output in outputs] == ['face/state', 'face/mesh']
+    _assert_markers_deleted(outputs, 'face_0')
     for f in range(3):  # the track from an init file of the same points (to the pose
         # smoothing's rounding: its stamps are one frame later)
         points = _image_points(
@@ -910,7 +945,8 @@ def test_stereo_auto_init_starts_from_a_detection_and_detects_again_after_a_rese
     _stereo_infos(processor)
     outputs = _pair(processor, pairs, 0)
     assert TrackStatus(outputs[0].msg.status) == TrackStatus.INITIALIZING  # no face found yet
-    assert [output.topic for output in outputs] == ['face/state']  # no mesh without estimate
+    assert [output.topic for output in outputs] == ['face/state', 'face/mesh']  # no FaceMesh
+    _assert_markers_deleted(outputs, 'face_0')
     for f in range(4):  # the same track as from an init file of the same points
         np.testing.assert_array_equal(
             _mesh(_pair(processor, pairs, f, stamp(f + 1))), stereo_reference[f]
