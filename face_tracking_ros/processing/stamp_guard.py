@@ -15,6 +15,7 @@ tracks and its pairing decides by how far the stamp went back
 from __future__ import annotations
 
 from face_tracking_ros.errors import InputError
+from face_tracking_ros.wording import counted
 
 RESTART_WARNING = 30  # stamps after a restart while StampGuard.warning warns (1 s at 30 Hz)
 
@@ -79,9 +80,9 @@ class StampGuard:
         """
         if self._since_restart is None or self._since_restart > RESTART_WARNING:
             return ''
-        ago = f'{self._since_restart} {self._unit}{"s" if self._since_restart != 1 else ""} ago'
+        ago = counted(self._since_restart, self._unit)
         return (
-            f'{self._unit} stamp went back by {self._back_ns / 1e9:.3f} s {ago}: track restarted '
-            f'({self.restarts} restart{"s" if self.restarts != 1 else ""} so far: a looped bag, '
-            'a restarted camera, or two sources on one topic?)'
+            f'{self._unit} stamp went back by {self._back_ns / 1e9:.3f} s {ago} ago: track '
+            f'restarted ({counted(self.restarts, "restart")} so far: a looped bag, a restarted '
+            'camera, or two sources on one topic?)'
         )
