@@ -420,3 +420,16 @@ def test_photometric_projection_of_a_flat_template_keeps_the_bias_only() -> None
     assert np.allclose(projected.mean(axis=1), 0.0)
     u = coordinates[:, 0]
     assert np.abs(projection.apply(np.broadcast_to(u, template.shape).copy())).max() < 1e-9
+
+
+def test_cv_bridge_passthrough_encodings_read_as_grey_and_opencv_colour_order() -> None:
+    """cv_bridge.cv2_to_imgmsg(frame) (encoding 'passthrough') names OpenCV's type: 8UC1, 8UC3.
+
+    The trackers refused such images ('unsupported image encoding '8UC3''); cv_bridge and
+    image_view read 8UC3 as bgr8 and 8UC4 as bgra8, OpenCV's channel order.
+    """
+    rng = np.random.default_rng(2)
+    bgra = rng.integers(0, 256, (5, 7, 4), dtype=np.uint8)
+    np.testing.assert_array_equal(to_gray(bgra[..., 0], '8UC1'), bgra[..., 0])
+    np.testing.assert_array_equal(to_gray(bgra[..., :3], '8UC3'), to_gray(bgra[..., :3], 'bgr8'))
+    np.testing.assert_array_equal(to_gray(bgra, '8UC4'), to_gray(bgra, 'bgra8'))

@@ -22,6 +22,11 @@ _CONVERSIONS: dict[str, tuple[int, int | None]] = {
     'bayer_grbg8': (1, cv2.COLOR_BayerGB2GRAY),
     'yuv422': (2, cv2.COLOR_YUV2GRAY_UYVY),
     'yuv422_yuy2': (2, cv2.COLOR_YUV2GRAY_YUY2),
+    # OpenCV's own type names, which cv_bridge's cv2_to_imgmsg gives by default ('passthrough'):
+    # its colour images are BGR(A), as cv_bridge and image_view read 8UC3 and 8UC4.
+    '8UC1': (1, None),
+    '8UC3': (3, cv2.COLOR_BGR2GRAY),
+    '8UC4': (4, cv2.COLOR_BGRA2GRAY),
 }
 SUPPORTED_ENCODINGS: tuple[str, ...] = tuple(_CONVERSIONS)
 
@@ -44,9 +49,9 @@ def to_gray(array: np.ndarray, encoding: str) -> np.ndarray:
     """Grey image of an array in one of the :data:`SUPPORTED_ENCODINGS`.
 
     Args:
-        array: (H, W) or (H, W, 1) uint8 for mono8 and the Bayer patterns (demosaiced to grey);
-            (H, W, C) uint8 for the others: 3 for rgb8 and bgr8, 4 for rgba8 and bgra8, 2 for
-            the YUV 4:2:2 ones.
+        array: (H, W) or (H, W, 1) uint8 for mono8, 8UC1 and the Bayer patterns (demosaiced to
+            grey); (H, W, C) uint8 for the others: 3 for rgb8, bgr8 and 8UC3, 4 for rgba8, bgra8
+            and 8UC4, 2 for the YUV 4:2:2 ones.
         encoding: the sensor_msgs/Image encoding of ``array``.
 
     Returns:

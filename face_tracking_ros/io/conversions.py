@@ -56,7 +56,8 @@ def copy_header(factory: MessageFactory, header: Any) -> Any:
 def image_to_gray(msg: Any) -> np.ndarray:
     """Grey (H, W) uint8 image of a sensor_msgs/Image in a supported 8-bit encoding.
 
-    mono8, rgb8, bgr8, rgba8, bgra8, the four bayer_*8 patterns, yuv422 (UYVY) and yuv422_yuy2
+    mono8, rgb8, bgr8, rgba8, bgra8, the four bayer_*8 patterns, yuv422 (UYVY), yuv422_yuy2 and
+    cv_bridge's passthrough 8UC1, 8UC3 (BGR) and 8UC4 (BGRA)
     (:data:`~face_tracking_ros.imaging.gray.SUPPORTED_ENCODINGS`).
 
     Raises:

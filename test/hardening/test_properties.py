@@ -32,7 +32,10 @@ FACTORY = RosbagsMessages(typestore())
 HEADER = conversions.make_header(FACTORY, 1_700_000_000_000_000_000, 'camera_optical')
 CHANNELS = {'mono8': 1, 'rgb8': 3, 'bgr8': 3, 'rgba8': 4, 'bgra8': 4, 'yuv422': 2}
 CHANNELS |= {'yuv422_yuy2': 2} | {f'bayer_{p}8': 1 for p in ('rggb', 'bggr', 'gbrg', 'grbg')}
+CHANNELS |= {'8UC1': 1, '8UC3': 3, '8UC4': 4}
 TO_GRAY = {
+    '8UC3': cv2.COLOR_BGR2GRAY,
+    '8UC4': cv2.COLOR_BGRA2GRAY,
     'rgb8': cv2.COLOR_RGB2GRAY,
     'bgr8': cv2.COLOR_BGR2GRAY,
     'rgba8': cv2.COLOR_RGBA2GRAY,
@@ -77,7 +80,8 @@ def test_image_to_gray_of_any_valid_image_is_its_grey_conversion(image):
     fields, pixels = image
     gray = conversions.image_to_gray(_image(**fields))
     encoding = fields['encoding']
-    expected = pixels[:, :, 0] if encoding == 'mono8' else cv2.cvtColor(pixels, TO_GRAY[encoding])
+    grey = encoding in ('mono8', '8UC1')
+    expected = pixels[:, :, 0] if grey else cv2.cvtColor(pixels, TO_GRAY[encoding])
     assert gray.dtype == np.uint8
     np.testing.assert_array_equal(gray, expected)
 
