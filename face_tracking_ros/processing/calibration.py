@@ -70,7 +70,7 @@ class CameraCalibration:
             self.pending = Rectifier(camera, self._rectify)
 
     def keep_pending(self) -> None:
-        """Keep the calibration set aside (:attr:`pending`, not None); rebuild the tracker."""
+        """Keep the calibration set aside (:attr:`pending`, not None): as :meth:`keep` does."""
         self.rectifier, self.pending = self.pending, None
 
     def rectified(self, initialisation: Initialisation | None) -> Initialisation | None:
