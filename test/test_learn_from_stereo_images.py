@@ -140,7 +140,7 @@ def test_a_bag_given_as_its_mcap_file_is_named_as_its_directory(tmp_path, capsys
         assert bag_subjects(bag, pattern, None, truth_meshes=False) == {'anna'}, bag
         checked = stereo_meshes.checked_stereo_bags(options)
         assert {path: tracking.initialisation for path, tracking in checked.items()} == {
-            bag: f'init_file={init_file}'
+            bag: {'init_file': str(init_file)}
         }
         assert np.array_equal(clicks_from_bag(bag).points, clicks.points), bag
     argv = ['learn', str(directory), str(lone), '--from-images', '--simulate-clicks', '1',
@@ -565,6 +565,9 @@ def test_each_raw_bag_is_read_wired_and_hashed_once_until_its_tracking(tmp_path,
     read them and hashed its inputs again: by the first bag's tracking, 7 topic reads, 6
     wirings and 4 provenances for 3 bags. The checks worked out each bag's tracker parameters
     twice: 9 StereoNodeConfig built for 3 bags (now one by the checks, one by the wiring).
+    Each bag's tracker parameters were parsed by its checks, its plan and its tracking: 8
+    parses by the first bag's tracking, with the clicks' one of --tracker-param; now once a
+    bag, by its checks, the plan and the tracking taking the parsed parameters.
     """
     calls: Counter[str] = Counter()
 
@@ -588,14 +591,16 @@ def test_each_raw_bag_is_read_wired_and_hashed_once_until_its_tracking(tmp_path,
     for name in ('bag_topics', 'wire_replay'):
         monkeypatch.setattr(stereo_meshes, name, counted(name, getattr(stereo_meshes, name)))
     monkeypatch.setattr(Provenance, 'of', classmethod(counted('of', Provenance.of.__func__)))
+    parse = classmethod(counted('parse', OverrideParameters.parse.__func__))
+    monkeypatch.setattr(OverrideParameters, 'parse', parse)
     monkeypatch.setattr(OverrideParameters, 'config', config)
     monkeypatch.setattr(stereo_meshes, 'replay_bag', tracked)
     argv = ['learn', *map(str, BAGS), '--from-images', '--simulate-clicks', '0',
             '--out', str(tmp_path / 'm.npz'), '--report', str(tmp_path / 'r.json')]  # fmt: skip
     with pytest.raises(AssertionError, match='a bag was tracked'):
         main(argv)
-    counts = {'bag_topics': 3, 'wire_replay': 3, 'of': 1, 'StereoNodeConfig': 6}
-    assert calls == counts  # 'of': the first bag's
+    counts = {'bag_topics': 3, 'wire_replay': 3, 'of': 1, 'StereoNodeConfig': 6, 'parse': 4}
+    assert calls == counts  # 'of': the first bag's; 'parse': each bag's, and the clicks' nodes
     assert len(list((tmp_path / 'r_meshes_clicks').iterdir())) == len(BAGS)
 
 

@@ -155,7 +155,7 @@ def test_learn_clicks_in_the_camera_given_as_the_left_one(unsided, tmp_path):
     checked = stereo_meshes.checked_stereo_bags(options)
     initialisation = stereo_meshes.stereo_initialisations(checked, options)[unsided].initialisation
     assert checked[unsided].initialisation is None and initialisation is not None
-    clicks = load_init_file(initialisation.removeprefix('init_file='))
+    clicks = load_init_file(initialisation['init_file'])
     np.testing.assert_array_equal(clicks.points, clicks_from_bag(STEREO, 0.0).points)
     reference = clicks_from_bag(unsided, 0.0)  # by name alone: the first camera_info, the right
     assert np.mean(reference.points[:, 0] - clicks.points[:, 0]) < -5.0  # px of disparity

@@ -15,7 +15,7 @@ tracked (:func:`mesh_bag`).
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, replace
 from pathlib import Path
 import shutil
@@ -65,15 +65,15 @@ TRACKING_FIELDS = (
 class TrackerParameters:
     """The stereo tracker's parameters for a raw stereo bag, but its initialisation.
 
-    Worked out once per bag, by :func:`raw_bag_parameters`.
+    Worked out once per bag, by :func:`raw_bag_parameters`, which parses them.
 
     Attributes:
-        params: its parameters (NAME=VALUE): :data:`STEREO_PARAMS`, the image transport's, then
-            ``tracker_params``.
+        overrides: its parameters, name -> value text: :data:`STEREO_PARAMS`, the image
+            transport's, then ``tracker_params``, parsed.
         compressed: its ``compressed`` parameter (it reads the bag's images as CompressedImage).
     """
 
-    params: tuple[str, ...]
+    overrides: dict[str, str]
     compressed: bool
 
 
@@ -85,22 +85,23 @@ class RawBagTracking:
         bag: the raw stereo bag.
         topics: its topics (name -> type).
         out: where its meshes go (:func:`_tracked_meshes`).
-        tracker_params: the stereo tracker's parameters but its initialisation (NAME=VALUE):
-            :data:`STEREO_PARAMS`, the image transport's, then ``tracker_params``.
+        tracker_params: the stereo tracker's parameters but its initialisation, name -> value
+            text (:attr:`TrackerParameters.overrides`).
         remaps: the tracker's input -> bag topic.
         left_info: the camera_info topic the tracker reads for its left camera (the one the
             simulated clicks are in); None: none.
-        initialisation: the stereo_tracker parameter initialising the track (NAME=VALUE); None:
-            simulated clicks, not written yet (:func:`stereo_initialisations` adds them).
+        initialisation: the stereo_tracker parameter initialising the track, name -> value
+            text; None: simulated clicks, not written yet (:func:`stereo_initialisations` adds
+            them).
     """
 
     bag: Path
     topics: dict[str, str]
     out: Path
-    tracker_params: tuple[str, ...]
+    tracker_params: dict[str, str]
     remaps: dict[str, str]
     left_info: str | None
-    initialisation: str | None
+    initialisation: dict[str, str] | None
 
     def params(self) -> OverrideParameters:
         """The stereo tracker's parameters: :attr:`tracker_params`, then the initialisation."""
@@ -208,7 +209,7 @@ def _planned_tracking(
     topics: dict[str, str],
     parameters: TrackerParameters,
     options: LearnOptions,
-    initialisation: str | None,
+    initialisation: dict[str, str] | None,
 ) -> RawBagTracking:
     """The tracking of a raw stereo bag, after every check it runs before it writes anything.
 
@@ -223,27 +224,34 @@ def _planned_tracking(
         parameters: its stereo tracker's parameters, but the initialisation
             (:func:`raw_bag_parameters`).
         options: the learning run's options.
-        initialisation: its stereo_tracker initialisation parameter; None: none yet (the
-            simulated clicks, written once all is checked).
+        initialisation: its stereo_tracker initialisation parameter (name -> value text);
+            None: none yet (the simulated clicks, written once all is checked).
 
     Raises:
         BagError, ConfigError: naming what the tracking would refuse.
     """
     if initialisation is None:
         check_clicks_file(_clicks_file(bag, options), f'{options.named("simulate_clicks")}:')
-    params = _parameters(parameters.params, initialisation)
+    params = _parameters(parameters.overrides, initialisation)
     remaps = stereo_remaps(topics, options, parameters.compressed)
     _, read = wire_replay([TRACKER], bag, params, remaps, frozenset(), topics)
     out = _tracked_meshes(bag, options)
     _earlier_tracking(out, replay_source(bag), options.named('meshes_dir'))
     left_info = clicked_camera_topic(read, TRACKER)
-    return RawBagTracking(bag, topics, out, parameters.params, remaps, left_info, initialisation)
+    return RawBagTracking(
+        bag, topics, out, parameters.overrides, remaps, left_info, initialisation
+    )
 
 
-def _parameters(tracker_params: Sequence[str], initialisation: str | None) -> OverrideParameters:
-    """The stereo tracker's parameters: ``tracker_params``, then ``initialisation`` (if any)."""
-    given = [initialisation] if initialisation else []
-    return OverrideParameters.parse([*tracker_params, *given])
+def _parameters(
+    tracker_params: Mapping[str, str], initialisation: Mapping[str, str] | None
+) -> OverrideParameters:
+    """The stereo tracker's parameters: ``tracker_params``, then ``initialisation`` (if any).
+
+    Both are parsed already (name -> value text): an initialisation parameter overrides one of
+    ``tracker_params`` of its name, as it would given after them on a command line.
+    """
+    return OverrideParameters({**tracker_params, **(initialisation or {})})
 
 
 def raw_bag_parameters(
@@ -286,13 +294,13 @@ def raw_bag_parameters(
         )
         raise ConfigError(msg)
     transport = compressed_parameters(topics, [options.left_topic])
-    params = (STEREO_PARAMS, *transport, *options.tracker_params)
-    compressed = OverrideParameters.parse(list(params)).config(StereoNodeConfig).compressed
+    params = OverrideParameters.parse([STEREO_PARAMS, *transport, *options.tracker_params])
+    compressed = params.config(StereoNodeConfig).compressed
     check_stereo_topics(bag, topics, options, compressed, named=options.named)
-    return TrackerParameters(params, compressed)
+    return TrackerParameters(params.overrides, compressed)
 
 
-def _given_initialisation(bag: Path, options: LearnOptions) -> str | None:
+def _given_initialisation(bag: Path, options: LearnOptions) -> dict[str, str] | None:
     """The stereo_tracker parameter that initialises a raw stereo bag's track; None: clicks.
 
     Its init file from --init-dir, else None for simulated clicks (--simulate-clicks, to be
@@ -305,11 +313,11 @@ def _given_initialisation(bag: Path, options: LearnOptions) -> str | None:
         for suffix in ('.yaml', '.yml', '.json'):
             candidate = options.init_dir / f'{recording_name(bag)}{suffix}'
             if candidate.is_file():
-                return f'init_file={candidate}'
+                return {'init_file': str(candidate)}
     if options.simulate_clicks is not None:
         return None
     if options.auto_init:
-        return 'auto_init=true'
+        return {'auto_init': 'true'}
     init_dir = options.named('init_dir')
     if options.init_dir is None:
         where = f'with {init_dir}'
@@ -326,7 +334,9 @@ def _given_initialisation(bag: Path, options: LearnOptions) -> str | None:
     raise ConfigError(msg)
 
 
-def _write_clicks(trackings: list[RawBagTracking], options: LearnOptions) -> dict[Path, str]:
+def _write_clicks(
+    trackings: list[RawBagTracking], options: LearnOptions
+) -> dict[Path, dict[str, str]]:
     """Write the simulated clicks of the bags of ``trackings``, each in its tracker's left camera.
 
     They go to --init-dir (default <meshes dir>_clicks/), in the camera_info the tracker reads
@@ -348,11 +358,11 @@ def _write_clicks(trackings: list[RawBagTracking], options: LearnOptions) -> dic
         ).only(nodes)
         for tracking in trackings
     }
-    written: dict[Path, str] = {}
+    written: dict[Path, dict[str, str]] = {}
     for bag, init in clicks.items():
         path = _clicks_file(bag, options)
         path.parent.mkdir(parents=True, exist_ok=True)
-        written[bag] = f'init_file={write_init_file(init, path)}'
+        written[bag] = {'init_file': str(write_init_file(init, path))}
     return written
 
 
