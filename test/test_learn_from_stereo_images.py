@@ -19,7 +19,7 @@ import pytest
 from face_tracking_ros.cli import learn
 from face_tracking_ros.cli.main import main
 from face_tracking_ros.errors import ConfigError
-from face_tracking_ros.io import conversions
+from face_tracking_ros.io import bags, conversions
 from face_tracking_ros.io.bags import BagWriter, bag_topics, read_messages, recording_name
 from face_tracking_ros.io.messages import RosbagsMessages
 from face_tracking_ros.io.provenance import Provenance
@@ -602,6 +602,31 @@ def test_each_raw_bag_is_read_wired_and_hashed_once_until_its_tracking(tmp_path,
     counts = {'bag_topics': 3, 'wire_replay': 3, 'of': 1, 'StereoNodeConfig': 6, 'parse': 4}
     assert calls == counts  # 'of': the first bag's; 'parse': each bag's, and the clicks' nodes
     assert len(list((tmp_path / 'r_meshes_clicks').iterdir())) == len(BAGS)
+
+
+def test_each_raw_bag_s_truth_is_read_once_for_its_subjects_score_and_labels(
+    tmp_path, monkeypatch, capsys
+):
+    """A raw stereo bag's truth/face is read once a run, and once more for its clicks' start.
+
+    Before, the subjects' check, the score of its tracking and the labels of its meshes each
+    read the whole topic: with the simulated clicks' first message, 4 reads a bag.
+    """
+    reads: Counter[str] = Counter()
+    read_raw = bags.read_raw
+
+    def counted(path: Path | str, topics: Any = None) -> Any:
+        if topics is not None and 'truth/face' in topics:
+            reads[Path(path).name] += 1
+        return read_raw(path, topics)
+
+    monkeypatch.setattr(bags, 'read_raw', counted)
+    argv = ['learn', *map(str, BAGS[:2]), '--from-images', '--simulate-clicks', '0', '--p', '1',
+            '--q', '1', '--out', str(tmp_path / 'm.npz'),
+            '--report', str(tmp_path / 'r.json')]  # fmt: skip
+    assert main(argv) == 0
+    assert capsys.readouterr().out.count('% tracked: 3-D node RMS') == 2  # scored
+    assert reads == {bag.name: 2 for bag in BAGS[:2]}
 
 
 def test_left_and_right_images_of_different_transports_are_named(tmp_path, capsys):

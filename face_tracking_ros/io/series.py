@@ -6,7 +6,7 @@ frame, through these two loaders.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, TypeVar
@@ -141,8 +141,21 @@ def load_truth(bag: Path) -> TruthSeries:
     """
     topic = _only_topic(bag, conversions.TRUTH_TYPE)
     samples = [sample for _, sample in read_converted(bag, topic, conversions.truth_from_msg)]
+    return truth_series(samples, f'{bag}: topic {topic}')
+
+
+def truth_series(samples: Sequence[conversions.TruthSample], where: str) -> TruthSeries:
+    """The FaceTruth series of samples read already, one row per sample.
+
+    Args:
+        samples: the truth of the frames, in record order.
+        where: the bag and topic they were read from, for the message.
+
+    Raises:
+        BagError: if there are none.
+    """
     if not samples:
-        msg = f'{bag}: topic {topic} holds no FaceTruth message'
+        msg = f'{where} holds no FaceTruth message'
         raise BagError(msg)
     return TruthSeries(
         stamps=np.array([s.stamp_ns for s in samples], dtype=np.int64),

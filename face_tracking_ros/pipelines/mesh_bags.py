@@ -15,7 +15,7 @@ A bag holds one of:
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, NamedTuple
@@ -45,6 +45,8 @@ TRUTH_TOPIC = 'truth/face'
 STATE_TOPIC = 'face/state'
 TRACKED = int(TrackStatus.TRACKING)  # FaceState.STATUS_TRACKING
 DEFAULT_TOPICS = (TRUTH_TOPIC, 'face/mesh_raw', STATE_TOPIC)
+# The truth samples of a bag's FaceTruth topic (:func:`read_truth`, or a run's cache of it).
+TruthReader = Callable[[Path, str], Sequence[TruthSample]]
 
 
 @dataclass(frozen=True)
@@ -71,12 +73,23 @@ class _Frame(NamedTuple):
     sample: TruthSample | None
 
 
+def read_truth(bag: Path, topic: str) -> list[TruthSample]:
+    """The truth samples of a bag's FaceTruth ``topic``, in record order.
+
+    Raises:
+        BagError: if the bag lacks the topic.
+        InputError: naming the bag, topic and message index of a malformed message.
+    """
+    return [sample for _, sample in read_converted(bag, topic, truth_from_msg)]
+
+
 def read_bag_meshes(
     bag: Path,
     options: LearnOptions,
     truth_bag: Path | None,
     name: str,
     say: Callable[[str], None] = print,
+    truth_of: TruthReader = read_truth,
 ) -> list[BagMeshes]:
     """The meshes of one bag, one entry per subject found in it.
 
@@ -90,6 +103,8 @@ def read_bag_meshes(
             (:func:`~.learn_options.subject_of`): the raw bag's, for the meshes tracked from
             it.
         say: where the notes on what was left out or taken as neutral go, line by line.
+        truth_of: how the truth of a bag's topic is read: learn reads each once a run
+            (:func:`functools.cache` of :func:`read_truth`).
 
     Raises:
         BagError: if a bag lacks the topic, holds no message on it, or the truth bag has no
@@ -98,7 +113,7 @@ def read_bag_meshes(
     """
     topics = bag_topics(bag)
     topic = _checked_mesh_topic(bag, topics, options)
-    frames, skipped = _tracked_frames(bag, topics, topic, options, truth_bag, name)
+    frames, skipped = _tracked_frames(bag, topics, topic, options, truth_bag, name, truth_of)
     if skipped:
         untracked = counted(skipped, 'frame')
         say(f'{bag}: {untracked} the tracker did not track (initialising or lost) left out')
@@ -116,7 +131,11 @@ def read_bag_meshes(
 
 
 def bag_subjects(
-    bag: Path, options: LearnOptions, truth_bag: Path | None, truth_meshes: bool
+    bag: Path,
+    options: LearnOptions,
+    truth_bag: Path | None,
+    truth_meshes: bool,
+    truth_of: TruthReader = read_truth,
 ) -> set[str]:
     """The subjects :func:`read_bag_meshes` finds in a bag's meshes, known without reading them.
 
@@ -130,6 +149,7 @@ def bag_subjects(
         truth_bag: the bag labelling its meshes, as for :func:`read_bag_meshes`; None: none.
         truth_meshes: whether its meshes may be its FaceTruth messages (it holds truth and is
             not tracked).
+        truth_of: how the truth of a bag's topic is read, as for :func:`read_bag_meshes`.
 
     Raises:
         BagError, InputError: for truth that :func:`read_bag_meshes` would refuse (a missing
@@ -137,12 +157,12 @@ def bag_subjects(
         ConfigError: if ``options.subject_pattern`` does not match the bag's name.
     """
     if truth_bag is not None:
-        return {sample.subject_id for sample in _truth_by_stamp(truth_bag).values()}
+        return {sample.subject_id for sample in truth_of(truth_bag, TRUTH_TOPIC)}
     if truth_meshes:
         topics = bag_topics(bag)
         topic = _checked_mesh_topic(bag, topics, options)
         if topics[topic] == TRUTH_TYPE:
-            return {truth.subject_id for _, truth in read_converted(bag, topic, truth_from_msg)}
+            return {sample.subject_id for sample in truth_of(bag, topic)}
     return {subject_of(recording_name(bag), options)}
 
 
@@ -197,24 +217,27 @@ def _tracked_frames(
     options: LearnOptions,
     truth_bag: Path | None,
     name: str,
+    truth_of: TruthReader,
 ) -> tuple[list[_Frame], int]:
     """The frames of ``topic`` that were tracked, with their truth, and how many were not.
 
     The truth of a frame is its FaceTruth message's, else the truth bag's of its stamp; its
     subject is the truth's, else the one named by ``name`` (:func:`~.learn_options.subject_of`).
+    Truth is read by ``truth_of``, meshes of FaceTruth too.
 
     Raises:
         BagError: if the truth bag has no truth for a mesh's stamp.
         InputError: naming the bag, topic and message index of a malformed message.
     """
     msgtype = topics[topic]
-    truth = _truth_by_stamp(truth_bag) if truth_bag is not None else {}
+    truth = _by_stamp(truth_of(truth_bag, TRUTH_TOPIC)) if truth_bag is not None else {}
     # A FaceState says itself whether it was tracked; a FaceMesh by its bag's face/state.
     untracked = _untracked_stamps(bag, topics) if msgtype == MESH_TYPES[0] else set()
     frames: list[_Frame] = []
     skipped = 0
-    meshes = read_converted(bag, topic, lambda msg: mesh_from_message(msg, msgtype))
-    for index, (msg, (stamp_ns, nodes, sample)) in enumerate(meshes):
+    for index, (msg, (stamp_ns, nodes, sample)) in enumerate(
+        _mesh_messages(bag, topic, msgtype, truth_of)
+    ):
         state_untracked = msgtype == MESH_TYPES[1] and msg.status != TRACKED
         if stamp_ns in untracked or state_untracked:
             skipped += 1
@@ -245,10 +268,21 @@ def _untracked_stamps(bag: Path, topics: dict[str, str]) -> set[int]:
     }
 
 
-def _truth_by_stamp(truth_bag: Path) -> dict[int, TruthSample]:
-    """The truth samples of a bag by header stamp."""
-    samples = read_converted(truth_bag, TRUTH_TOPIC, truth_from_msg)
-    return {sample.stamp_ns: sample for _, sample in samples}
+def _mesh_messages(
+    bag: Path, topic: str, msgtype: str, truth_of: TruthReader
+) -> Iterable[tuple[Any, tuple[int, np.ndarray, TruthSample | None]]]:
+    """Each mesh message of ``topic`` (of ``msgtype``) and its :func:`mesh_from_message`.
+
+    FaceTruth is read by ``truth_of`` (the message is then None: only a FaceState's is used).
+    """
+    if msgtype == TRUTH_TYPE:
+        return [(None, (truth.stamp_ns, truth.nodes, truth)) for truth in truth_of(bag, topic)]
+    return read_converted(bag, topic, lambda msg: mesh_from_message(msg, msgtype))
+
+
+def _by_stamp(samples: Iterable[TruthSample]) -> dict[int, TruthSample]:
+    """Truth samples by header stamp."""
+    return {sample.stamp_ns: sample for sample in samples}
 
 
 def _bag_meshes(

@@ -21,7 +21,7 @@ from face_tracking_ros.errors import BagError, InputError
 from face_tracking_ros.geometry.camera import PinholeCamera, StereoRig
 from face_tracking_ros.io.bags import bag_topics, read_messages, topic_has_word
 from face_tracking_ros.io.conversions import CAMERA_INFO_TYPE, camera_from_info
-from face_tracking_ros.io.series import load_states, load_truth
+from face_tracking_ros.io.series import TruthSeries, load_states, load_truth
 from face_tracking_ros.model.model_file import load_model
 from face_tracking_ros.model.topology import mesh_topology
 from face_tracking_ros.tracking.accuracy import TrackingAccuracy, tracking_accuracy
@@ -29,17 +29,25 @@ from face_tracking_ros.tracking.result import TrackStatus
 from face_tracking_ros.tracking.stereo_evaluation import StereoEvaluation, evaluate_stereo
 
 
-def score_stereo_against_truth(bag: Path, out: Path) -> StereoEvaluation:
+def score_stereo_against_truth(
+    bag: Path, out: Path, truth: TruthSeries | None = None
+) -> StereoEvaluation:
     """Stereo-tracked meshes in ``out`` against the truth in ``bag`` (issue 5's figures).
 
     The errors are over the frames from the first tracked one on: before it there is no
     estimate (the published nodes are zeros); a frame lost later counts with the last estimate,
     which is what the node publishes.
 
+    Args:
+        bag: the bag tracked, holding truth and the stereo camera_info.
+        out: the tracker's output bag.
+        truth: the truth of ``bag`` when read already; None: read here (:func:`load_truth`).
+
     Raises:
         BagError: if no frame was tracked.
     """
-    states, truth = load_states(out), load_truth(bag)
+    states = load_states(out)
+    truth = load_truth(bag) if truth is None else truth
     est, ref = _matching_frames(states.stamps, truth.stamps, bag, out)
     tracked = states.status[est] == TrackStatus.TRACKING
     if not tracked.any():

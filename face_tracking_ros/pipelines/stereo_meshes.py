@@ -23,7 +23,7 @@ import shutil
 from face_tracking_ros.errors import BagError, ConfigError, FaceTrackingError
 from face_tracking_ros.io.bags import bag_topics, recording_name
 from face_tracking_ros.io.provenance import Provenance, replay_source
-from face_tracking_ros.io.series import has_truth
+from face_tracking_ros.io.series import has_truth, truth_series
 from face_tracking_ros.pipelines.bag_inputs import (
     STEREO_FIELDS,
     check_one_transport,
@@ -36,7 +36,7 @@ from face_tracking_ros.pipelines.bag_inputs import (
     tracked_nodes,
 )
 from face_tracking_ros.pipelines.learn_options import LearnOptions
-from face_tracking_ros.pipelines.mesh_bags import mesh_topic
+from face_tracking_ros.pipelines.mesh_bags import TRUTH_TOPIC, TruthReader, mesh_topic, read_truth
 from face_tracking_ros.pipelines.scoring import score_stereo_against_truth
 from face_tracking_ros.processing.parameters import OverrideParameters
 from face_tracking_ros.processing.stereo import StereoNodeConfig
@@ -109,7 +109,10 @@ class RawBagTracking:
 
 
 def mesh_bag(
-    tracking: RawBagTracking, options: LearnOptions, say: Callable[[str], None] = print
+    tracking: RawBagTracking,
+    options: LearnOptions,
+    say: Callable[[str], None] = print,
+    truth_of: TruthReader = read_truth,
 ) -> Path:
     """The bag of 3-D meshes tracked from a raw stereo bag, as planned: ``tracking.out``.
 
@@ -119,7 +122,8 @@ def mesh_bag(
     hashes the files the parameters name: the init file) are taken here, just before it is
     tracked; meshes an earlier run tracked from the same inputs are re-used
     (:func:`_tracked_before`). What it does, the replay's summary and the score against the
-    bag's truth go to ``say``, line by line.
+    bag's truth (read by ``truth_of``: learn reads each bag's once a run) go to ``say``, line by
+    line.
 
     Raises:
         ConfigError: if ``tracking.out`` exists but is not a tracking of the bag by learn (put
@@ -134,7 +138,7 @@ def mesh_bag(
         return tracking.out
     _track(tracking, params, say)
     if has_truth(tracking.bag):
-        say(_score_line(tracking.bag, tracking.out))
+        say(_score_line(tracking.bag, tracking.out, truth_of))
     return tracking.out
 
 
@@ -410,10 +414,14 @@ def _no_mesh_error(bag: Path, stats: ReplayStats) -> BagError:
     return BagError(msg)
 
 
-def _score_line(bag: Path, out: Path) -> str:
-    """How the meshes tracked into ``out`` compare with the truth in ``bag``, in one line."""
+def _score_line(bag: Path, out: Path, truth_of: TruthReader) -> str:
+    """How the meshes tracked into ``out`` compare with the truth in ``bag``, in one line.
+
+    The truth is that of its ``truth/face``, read by ``truth_of``, which labels the meshes.
+    """
     try:
-        evaluation = score_stereo_against_truth(bag, out)
+        truth = truth_series(truth_of(bag, TRUTH_TOPIC), f'{bag}: topic {TRUTH_TOPIC}')
+        evaluation = score_stereo_against_truth(bag, out, truth)
     except FaceTrackingError as error:  # e.g. camera_info topics not named left / right
         return f'{out}: not scored against the truth of {bag}: {error}'
     return f'{out} against the truth of {bag}: {evaluation.report()}'
