@@ -92,6 +92,31 @@ def test_a_tracked_identity_is_enrolled_and_a_model_less_track_refused(tmp_path,
     assert 'error: ' in (err := capsys.readouterr().err) and 'absent' in err
 
 
+def test_a_track_enrolled_under_one_name_is_refused_under_another(tmp_path, capsys):
+    """The same estimates under two names made recognition tie between them: refused, named."""
+    sigmas = np.random.default_rng(1).normal([0.01, -0.02], 0.001, (20, 2))
+    gallery = tmp_path / 'gallery.npz'
+    enroll = ['--gallery', str(gallery)]
+    assert main(['enroll', str(_states(tmp_path / 'ann', sigmas)), '--name', 'ann', *enroll]) == 0
+    capsys.readouterr()
+    # The same track copied, its frames in another order (the mean summed in another order).
+    copy = _states(tmp_path / 'copy', sigmas[::-1])
+    assert main(['enroll', str(copy), '--name', 'bea', *enroll]) == 2
+    assert capsys.readouterr().err == (
+        f"error: {copy}: these 20 shape estimates are the ones {gallery} holds as 'ann' (the "
+        "same mean sigma): enrolled as 'bea' too, the identity_recognizer could not tell the "
+        "two apart (they tie); enrol them as 'ann' to replace that entry, or enrol 'bea' from "
+        'other recordings\n'
+    )
+    assert IdentityGallery.load(gallery, 2).names == ('ann',)  # the gallery as it was
+    # Under its own name it replaces the entry; the estimates of another track are enrolled,
+    # even 0.1 um from ann's (a lookalike is the recogniser's matter: acceptance, posteriors).
+    assert main(['enroll', str(copy), '--name', 'ann', *enroll]) == 0
+    other = _states(tmp_path / 'bea', sigmas + 1e-7)
+    assert main(['enroll', str(other), '--name', 'bea', *enroll]) == 0
+    assert IdentityGallery.load(gallery, 2).names == ('ann', 'bea')
+
+
 def test_a_gallery_holds_the_sigma_of_the_model_the_bags_were_tracked_with(tmp_path, capsys):
     default = load_model(default_model_path())
     other = save_model(replace(default, shape_basis=-default.shape_basis), tmp_path / 'other.npz')

@@ -3,7 +3,8 @@
 The offline counterpart of the identity_recognizer's ``enroll_identity`` service: the sigma
 estimates of the TRACKING frames of tracker output bags (FaceState on ``face/state``) become the
 person's entry in the gallery (created if missing, else extended; an existing entry of the same
-name is replaced).
+name is replaced; estimates the gallery holds under another name are refused: the two entries
+would tie).
 
 A gallery holds one face model's sigma and records which model that is (its fingerprint); the
 identity_recognizer refuses a gallery of another model. The model is ``--model``, else the one
@@ -59,7 +60,8 @@ def run(args: argparse.Namespace) -> None:
 
     Raises:
         ConfigError: for an unusable ``--gallery`` path or ``--min-std``, bags tracked with
-            different models or another than ``--model``, or sigma of another p than the model's.
+            different models or another than ``--model``, sigma of another p than the model's,
+            or sigma the gallery holds under another name.
         BagError: if no frame of the bags was tracked with a sigma (:func:`tracked_sigmas`).
         ModelFileError: if the model or an existing gallery file is unusable or does not match.
     """
@@ -75,6 +77,7 @@ def run(args: argparse.Namespace) -> None:
         if args.gallery.exists()
         else IdentityGallery.empty(model.p, model.fingerprint)
     )
+    _check_not_enrolled_as_another(args, gallery, sigmas)
     replacing = f' (replacing the earlier {args.name!r})' if args.name in gallery.names else ''
     gallery = gallery.enroll(args.name, sigmas, IdentityConfig(min_std=args.min_std))
     gallery.save(args.gallery)
@@ -83,6 +86,27 @@ def run(args: argparse.Namespace) -> None:
         f'{model_path} (fingerprint {model.fingerprint}); '
         f'{args.gallery} holds {", ".join(gallery.names)}'
     )
+
+
+def _check_not_enrolled_as_another(
+    args: argparse.Namespace, gallery: IdentityGallery, sigmas: np.ndarray
+) -> None:
+    """Refuse sigma estimates the gallery holds under another name than ``args.name``.
+
+    Raises:
+        ConfigError: naming the entry (:meth:`IdentityGallery.enrolled_as`): under two names,
+            the identity_recognizer could not tell them apart.
+    """
+    twin = gallery.enrolled_as(sigmas)
+    if twin is not None and twin != args.name:
+        msg = (
+            f'{", ".join(map(str, args.bags))}: these {len(sigmas)} shape estimates are the '
+            f'ones {args.gallery} holds as {twin!r} (the same mean sigma): enrolled as '
+            f'{args.name!r} too, the identity_recognizer could not tell the two apart (they '
+            f'tie); enrol them as {twin!r} to replace that entry, or enrol {args.name!r} from '
+            'other recordings'
+        )
+        raise ConfigError(msg)
 
 
 def tracked_sigmas(bags: list[Path]) -> np.ndarray:

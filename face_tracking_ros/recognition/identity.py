@@ -48,6 +48,9 @@ GALLERY_KIND = 'identity_gallery'
 GALLERY_FORMAT_VERSION = 1
 UNKNOWN = 'unknown'
 MAX_MIN_STD = 1.0  # m: a floor beyond a face's size tells no one apart
+# m: entries whose mean sigma differ by no more are of the same estimates (summed in another
+# order, their mean differs by rounding, ~1e-18 m); two tracks differ by millimetres.
+SAME_SIGMA = 1e-12
 
 
 @dataclass(frozen=True)
@@ -208,6 +211,23 @@ class IdentityGallery:
             counts=np.append(self.counts[keep], len(sigmas)),
             model=self.model,
         )
+
+    def enrolled_as(self, sigmas: np.ndarray) -> str | None:
+        """The name of the entry these sigma estimates were enrolled as, if any.
+
+        The entry of their mean sigma, to :data:`SAME_SIGMA`: enrolled under another name too,
+        the two entries would tie in :meth:`classify` (the same mean; their spread the same
+        unless enrolled with another ``min_std``).
+
+        Args:
+            sigmas: (M, p) sigma samples, as for :meth:`enroll`.
+
+        Raises:
+            InputError: if sigmas is not a finite (M, p) array.
+        """
+        mean = _check_sigmas(sigmas, self.p).mean(axis=0)
+        same = np.all(np.abs(self.means - mean) <= SAME_SIGMA, axis=1)
+        return next((name for name, hit in zip(self.names, same, strict=True) if hit), None)
 
     def classify(self, sigmas: np.ndarray, config: IdentityConfig) -> IdentityDecision:
         """Decide the identity of a face from its recent sigma estimates.
