@@ -22,8 +22,9 @@ import shutil
 
 from face_tracking_ros.errors import BagError, ConfigError, FaceTrackingError
 from face_tracking_ros.io.bags import bag_topics, recording_name
+from face_tracking_ros.io.conversions import TRUTH_TYPE
 from face_tracking_ros.io.provenance import Provenance, replay_source
-from face_tracking_ros.io.series import has_truth, truth_series
+from face_tracking_ros.io.series import truth_series
 from face_tracking_ros.pipelines.bag_inputs import (
     STEREO_FIELDS,
     check_one_transport,
@@ -137,7 +138,7 @@ def mesh_bag(
     if _tracked_before(tracking.out, inputs, options.named('meshes_dir'), say):
         return tracking.out
     _track(tracking, params, say)
-    if has_truth(tracking.bag):
+    if TRUTH_TYPE in tracking.topics.values():  # the bag's topics as its plan read them
         say(_score_line(tracking.bag, tracking.out, truth_of))
     return tracking.out
 
