@@ -276,9 +276,7 @@ def _aligned_training_set(
 def _with_noise(sequence: MeshSequence, noise: float, rng: np.random.Generator) -> MeshSequence:
     """The sequence with white node noise of standard deviation ``noise`` metres."""
     noisy = sequence.meshes + rng.normal(scale=noise, size=sequence.meshes.shape)
-    return MeshSequence(
-        sequence.subject_id, noisy, sequence.neutral, sequence.labels, sequence.source
-    )
+    return replace(sequence, meshes=noisy)
 
 
 def _true_subspaces(
