@@ -359,7 +359,10 @@ def _write_clicks(
     nodes = tracked_nodes(TRACKER, list(options.tracker_params), None)
     clicks = {
         tracking.bag: clicks_from_bag(
-            tracking.bag, options.simulate_clicks, camera_info=tracking.left_info
+            tracking.bag,
+            options.simulate_clicks,
+            camera_info=tracking.left_info,
+            topics=tracking.topics,
         ).only(nodes)
         for tracking in trackings
     }

@@ -9,6 +9,7 @@ read exactly as they read a hand-made one.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 import json
 from pathlib import Path
 import zlib
@@ -96,6 +97,7 @@ def clicks_from_bag(
     noise_px: float = DEFAULT_CLICK_NOISE_PX,
     seed: int | None = None,
     camera_info: str | None = None,
+    topics: Mapping[str, str] | None = None,
 ) -> Initialisation:
     """Simulated clicks on the first frame of a synthetic bag (left camera for stereo).
 
@@ -108,12 +110,14 @@ def clicks_from_bag(
     the clicks of different bags err independently, as a user's would, and those of one bag are
     the same in every run.
 
+    ``topics`` are the bag's (name -> type) when the caller has read them; None: read here.
+
     Raises:
         BagError: if the bag has no truth or no camera_info of the clicked camera.
         InputError: if the first camera_info is not a calibration (NaN, an all-zero K),
             naming the bag and the topic.
     """
-    topics = bag_topics(bag)
+    topics = bag_topics(bag) if topics is None else topics
     infos = sorted(t for t, kind in topics.items() if kind == conversions.CAMERA_INFO_TYPE)
     if camera_info is not None and camera_info not in infos:
         has = ', '.join(infos) or 'none'
