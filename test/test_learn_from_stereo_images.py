@@ -563,8 +563,10 @@ def test_each_raw_bag_is_read_wired_and_hashed_once_until_its_tracking(tmp_path,
 
     Before, the clicks read each bag's topics and wired its tracker again, and the tracking
     read them and hashed its inputs again: by the first bag's tracking, 7 topic reads, 6
-    wirings and 4 provenances for 3 bags. The checks worked out each bag's tracker parameters
-    twice: 9 StereoNodeConfig built for 3 bags (now one by the checks, one by the wiring).
+    wirings and 4 provenances for 3 bags; the options' check (has the bag truth?) read each
+    bag's topics too, and the clicks still did: 9 reads of the bags' topics, now 3. The
+    checks worked out each bag's tracker parameters twice: 9 StereoNodeConfig built for 3
+    bags (now one by the checks, one by the wiring).
     Each bag's tracker parameters were parsed by its checks, its plan and its tracking: 8
     parses by the first bag's tracking, with the clicks' one of --tracker-param; now once a
     bag, by its checks, the plan and the tracking taking the parsed parameters.
@@ -588,8 +590,9 @@ def test_each_raw_bag_is_read_wired_and_hashed_once_until_its_tracking(tmp_path,
             calls['StereoNodeConfig'] += 1
         return built(params, config_type, prefix)
 
-    for name in ('bag_topics', 'wire_replay'):
-        monkeypatch.setattr(stereo_meshes, name, counted(name, getattr(stereo_meshes, name)))
+    wire_replay = counted('wire_replay', stereo_meshes.wire_replay)
+    monkeypatch.setattr(stereo_meshes, 'wire_replay', wire_replay)
+    monkeypatch.setattr(bags, '_connections', counted('topics', bags._connections))  # any step's
     monkeypatch.setattr(Provenance, 'of', classmethod(counted('of', Provenance.of.__func__)))
     parse = classmethod(counted('parse', OverrideParameters.parse.__func__))
     monkeypatch.setattr(OverrideParameters, 'parse', parse)
@@ -599,7 +602,7 @@ def test_each_raw_bag_is_read_wired_and_hashed_once_until_its_tracking(tmp_path,
             '--out', str(tmp_path / 'm.npz'), '--report', str(tmp_path / 'r.json')]  # fmt: skip
     with pytest.raises(AssertionError, match='a bag was tracked'):
         main(argv)
-    counts = {'bag_topics': 3, 'wire_replay': 3, 'of': 1, 'StereoNodeConfig': 6, 'parse': 4}
+    counts = {'topics': 3, 'wire_replay': 3, 'of': 1, 'StereoNodeConfig': 6, 'parse': 4}
     assert calls == counts  # 'of': the first bag's; 'parse': each bag's, and the clicks' nodes
     assert len(list((tmp_path / 'r_meshes_clicks').iterdir())) == len(BAGS)
 

@@ -6,7 +6,7 @@ frame, through these two loaders.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, TypeVar
@@ -140,8 +140,17 @@ def load_truth(bag: Path) -> TruthSeries:
         InputError: naming the bag, topic and message of a NaN (:func:`read_converted`).
     """
     topic = _only_topic(bag, conversions.TRUTH_TYPE)
-    samples = [sample for _, sample in read_converted(bag, topic, conversions.truth_from_msg)]
-    return truth_series(samples, f'{bag}: topic {topic}')
+    return truth_series(read_truth(bag, topic), f'{bag}: topic {topic}')
+
+
+def read_truth(bag: Path, topic: str) -> list[conversions.TruthSample]:
+    """The truth samples of a bag's FaceTruth ``topic``, in record order.
+
+    Raises:
+        BagError: if the bag lacks the topic.
+        InputError: naming the bag, topic and message index of a malformed message.
+    """
+    return [sample for _, sample in read_converted(bag, topic, conversions.truth_from_msg)]
 
 
 def truth_series(samples: Sequence[conversions.TruthSample], where: str) -> TruthSeries:
@@ -214,7 +223,12 @@ def require_parameters(bag: Path, lengths: dict[str, int]) -> None:
 
 def has_truth(bag: Path) -> bool:
     """True if the bag has a FaceTruth topic."""
-    return conversions.TRUTH_TYPE in bag_topics(bag).values()
+    return holds_truth(bag_topics(bag))
+
+
+def holds_truth(topics: Mapping[str, str]) -> bool:
+    """True if a bag's topics (name -> type) include a FaceTruth topic."""
+    return conversions.TRUTH_TYPE in topics.values()
 
 
 def _only_topic(bag: Path, msgtype: str) -> str:

@@ -24,7 +24,6 @@ from __future__ import annotations
 
 from collections.abc import Callable, Collection, Sequence
 from dataclasses import replace
-import functools
 from pathlib import Path
 import time
 from typing import Any
@@ -54,18 +53,13 @@ from face_tracking_ros.learning.seed import check_subject_count
 from face_tracking_ros.learning.training_set import MeshSequence, TrainingSet
 from face_tracking_ros.model.face_model import FaceModel
 from face_tracking_ros.model.model_file import save_model
+from face_tracking_ros.pipelines.bag_reads import BagReads
 from face_tracking_ros.pipelines.learn_options import (
     LearnOptions,
     check_options,
     truth_population,
 )
-from face_tracking_ros.pipelines.mesh_bags import (
-    BagMeshes,
-    TruthReader,
-    bag_subjects,
-    read_bag_meshes,
-    read_truth,
-)
+from face_tracking_ros.pipelines.mesh_bags import BagMeshes, bag_subjects, read_bag_meshes
 from face_tracking_ros.pipelines.stereo_meshes import (
     RawBagTracking,
     checked_stereo_bags,
@@ -89,11 +83,11 @@ def learn_from_bags(options: LearnOptions, say: Callable[[str], None] = print) -
             InputError), naming what is wrong.
         KeyboardInterrupt: if the tracking of a raw stereo bag was interrupted.
     """
-    truth_of = functools.cache(read_truth)  # each bag's truth read once: checks, score, labels
-    trackings, truth_bags = _checked_before_tracking(options, truth_of)
+    reads = BagReads.once()  # each bag's topics and truth read once: checks, tracking, meshes
+    trackings, truth_bags = _checked_before_tracking(options, reads)
     rng = np.random.default_rng(options.seed)
-    mesh_bags = _mesh_bags(options, trackings, say, truth_of)
-    bag_meshes = _read_meshes(options, mesh_bags, truth_bags, say, truth_of)
+    mesh_bags = _mesh_bags(options, trackings, say, reads)
+    bag_meshes = _read_meshes(options, mesh_bags, truth_bags, say, reads)
     training, align_seconds = _aligned_training_set(options, bag_meshes, rng, say)
     truth = _true_subspaces(options, training, bag_meshes)
     results: dict[str, LearningResult] = {}
@@ -124,24 +118,24 @@ def learn_from_bags(options: LearnOptions, say: Callable[[str], None] = print) -
 
 
 def _checked_before_tracking(
-    options: LearnOptions, truth_of: TruthReader
+    options: LearnOptions, reads: BagReads
 ) -> tuple[dict[Path, RawBagTracking], list[Path | None]]:
     """Check all that can be checked before any bag is tracked, then write the simulated clicks.
 
     The options, every raw stereo bag's tracking (:func:`~.stereo_meshes.checked_stereo_bags`),
     the truth bags' pairing (:func:`_check_truth_pairs`), then the subjects
-    (:func:`_check_subjects`, reading truth by ``truth_of``).
+    (:func:`_check_subjects`), reading the bags by ``reads``.
 
     Returns:
         The tracking of each raw stereo bag to track, by bag, planned by its checks and
         initialised (:func:`~.stereo_meshes.stereo_initialisations`), and the bag labelling
         each bag's meshes (:func:`_truth_bags`).
     """
-    unlabelled = check_options(options)
-    raw = checked_stereo_bags(options)
+    unlabelled = check_options(options, reads)
+    raw = checked_stereo_bags(options, reads)
     truth_bags = _truth_bags(options, raw, unlabelled)
     _check_truth_pairs(options.bags, truth_bags)
-    _check_subjects(options, raw, truth_bags, unlabelled, truth_of)
+    _check_subjects(options, raw, truth_bags, unlabelled, reads)
     return stereo_initialisations(raw, options), truth_bags
 
 
@@ -165,12 +159,12 @@ def _check_subjects(
     raw: Collection[Path],
     truth_bags: Sequence[Path | None],
     unlabelled: Collection[Path],
-    truth_of: TruthReader,
+    reads: BagReads,
 ) -> None:
     """Refuse too few subjects for p before any bag is tracked, where the bags say who they are.
 
     Each bag's subjects are those its meshes will have (:func:`~.mesh_bags.bag_subjects`): its
-    truth's, read by ``truth_of`` without its images or meshes, else the one its name gives.
+    truth's, read by ``reads`` without its images or meshes, else the one its name gives.
     They are counted when a raw stereo bag (of ``raw``) is to be tracked, or when all come from
     the bags' names (no bag of ``options.bags`` holds truth: all are ``unlabelled``, and no
     ``truth`` bags); else (bags of meshes and truth only) the learners count them once the
@@ -186,7 +180,7 @@ def _check_subjects(
     if not (raw or named):
         return
     subjects = [
-        bag_subjects(bag, options, truth, bag not in raw and bag not in unlabelled, truth_of)
+        bag_subjects(bag, options, truth, bag not in raw and bag not in unlabelled, reads)
         for bag, truth in zip(options.bags, truth_bags, strict=True)
     ]
     if not all(subjects):  # a truth bag naming none: refused when the meshes are read
@@ -199,18 +193,18 @@ def _mesh_bags(
     options: LearnOptions,
     trackings: dict[Path, RawBagTracking],
     say: Callable[[str], None],
-    truth_of: TruthReader,
+    reads: BagReads,
 ) -> list[Path]:
     """Each bag's bag of meshes.
 
     The bag itself, or for a raw stereo bag (one of ``trackings``, checked and initialised) its
-    tracking (:func:`~.stereo_meshes.mesh_bag`, scored against its truth read by ``truth_of``).
+    tracking (:func:`~.stereo_meshes.mesh_bag`, scored against its truth read by ``reads``).
 
     Raises:
         BagError: if the tracker produced no mesh from a raw stereo bag.
     """
     return [
-        mesh_bag(trackings[bag], options, say, truth_of) if bag in trackings else bag
+        mesh_bag(trackings[bag], options, say, reads) if bag in trackings else bag
         for bag in options.bags
     ]
 
@@ -239,16 +233,16 @@ def _read_meshes(
     mesh_bags: Sequence[Path],
     truth_bags: Sequence[Path | None],
     say: Callable[[str], None],
-    truth_of: TruthReader,
+    reads: BagReads,
 ) -> list[BagMeshes]:
     """The meshes of every bag, one entry per bag and subject; named after the given bags.
 
-    Truth (labels, and meshes of FaceTruth) is read by ``truth_of``.
+    Truth (labels, and meshes of FaceTruth) is read by ``reads``.
     """
     return [
         item
         for bag, mesh, truth_bag in zip(options.bags, mesh_bags, truth_bags, strict=True)
-        for item in read_bag_meshes(mesh, options, truth_bag, recording_name(bag), say, truth_of)
+        for item in read_bag_meshes(mesh, options, truth_bag, recording_name(bag), say, reads)
     ]
 
 

@@ -15,9 +15,10 @@ import re
 
 from face_tracking_ros.errors import ConfigError
 from face_tracking_ros.io.atomic import check_output_path, check_replaceable
-from face_tracking_ros.io.series import has_truth
+from face_tracking_ros.io.series import holds_truth
 from face_tracking_ros.learning.methods import DEFAULT_METHOD, METHODS
 from face_tracking_ros.model.model_file import load_model
+from face_tracking_ros.pipelines.bag_reads import AFRESH, BagReads
 from face_tracking_ros.synthetic.faces import PRESETS
 from face_tracking_ros.wording import counted
 
@@ -114,17 +115,17 @@ class LearnOptions:
     named: Callable[[str], str] = option_flag
 
 
-def check_options(options: LearnOptions) -> list[Path]:
+def check_options(options: LearnOptions, reads: BagReads = AFRESH) -> list[Path]:
     """Refuse options the pipeline cannot run: values out of range, then bags and files.
 
     Returns:
-        The bags without truth (each bag read once for it).
+        The bags without truth (each bag's topics read by ``reads`` for it).
 
     Raises:
         ConfigError: naming the first option at fault.
     """
     _check_values(options)
-    return _check_bags_and_files(options)
+    return _check_bags_and_files(options, reads)
 
 
 def _check_values(options: LearnOptions) -> None:
@@ -190,11 +191,11 @@ def truth_population(options: LearnOptions) -> tuple[str, int] | None:
     return preset, int(seed or 0)
 
 
-def _check_bags_and_files(options: LearnOptions) -> list[Path]:
+def _check_bags_and_files(options: LearnOptions, reads: BagReads) -> list[Path]:
     """The truth bags pair with the bags, the outputs can be written, the neutral frames known.
 
     Returns:
-        The bags without truth (each bag read once for it).
+        The bags without truth (each bag's topics read by ``reads`` for it).
     """
     if options.truth is not None and len(options.truth) != len(options.bags):
         truth, bags = counted(len(options.truth), 'bag'), counted(len(options.bags), 'input bag')
@@ -209,7 +210,7 @@ def _check_bags_and_files(options: LearnOptions) -> list[Path]:
     for option, path in ((out, options.out), (report, options.report)):
         check_output_path(path, option, parent_made=False)
     check_replaceable(options.out, out, 'a face model', load_model)
-    unlabelled = [bag for bag in options.bags if not has_truth(bag)]
+    unlabelled = [bag for bag in options.bags if not holds_truth(reads.topics(bag))]
     if unlabelled and options.truth is None and options.neutral_frames == 0:
         msg = (
             f'{unlabelled[0]}: no truth says which frames show the neutral face; give '

@@ -23,7 +23,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from face_tracking_ros.errors import BagError, ConfigError, InputError
-from face_tracking_ros.io.bags import bag_topics, read_messages, recording_name
+from face_tracking_ros.io.bags import read_messages, recording_name
 from face_tracking_ros.io.conversions import (
     STATE_TYPE,
     TRUTH_TYPE,
@@ -35,6 +35,7 @@ from face_tracking_ros.io.conversions import (
 from face_tracking_ros.io.series import read_converted
 from face_tracking_ros.learning.training_set import MeshSequence
 from face_tracking_ros.model.topology import SUPPORTED_NODE_COUNTS
+from face_tracking_ros.pipelines.bag_reads import AFRESH, BagReads
 from face_tracking_ros.pipelines.learn_options import LearnOptions, subject_of
 from face_tracking_ros.replay import bag_spelling
 from face_tracking_ros.tracking.result import TrackStatus
@@ -45,8 +46,6 @@ TRUTH_TOPIC = 'truth/face'
 STATE_TOPIC = 'face/state'
 TRACKED = int(TrackStatus.TRACKING)  # FaceState.STATUS_TRACKING
 DEFAULT_TOPICS = (TRUTH_TOPIC, 'face/mesh_raw', STATE_TOPIC)
-# The truth samples of a bag's FaceTruth topic (:func:`read_truth`, or a run's cache of it).
-TruthReader = Callable[[Path, str], Sequence[TruthSample]]
 
 
 @dataclass(frozen=True)
@@ -73,23 +72,13 @@ class _Frame(NamedTuple):
     sample: TruthSample | None
 
 
-def read_truth(bag: Path, topic: str) -> list[TruthSample]:
-    """The truth samples of a bag's FaceTruth ``topic``, in record order.
-
-    Raises:
-        BagError: if the bag lacks the topic.
-        InputError: naming the bag, topic and message index of a malformed message.
-    """
-    return [sample for _, sample in read_converted(bag, topic, truth_from_msg)]
-
-
 def read_bag_meshes(
     bag: Path,
     options: LearnOptions,
     truth_bag: Path | None,
     name: str,
     say: Callable[[str], None] = print,
-    truth_of: TruthReader = read_truth,
+    reads: BagReads = AFRESH,
 ) -> list[BagMeshes]:
     """The meshes of one bag, one entry per subject found in it.
 
@@ -103,17 +92,17 @@ def read_bag_meshes(
             (:func:`~.learn_options.subject_of`): the raw bag's, for the meshes tracked from
             it.
         say: where the notes on what was left out or taken as neutral go, line by line.
-        truth_of: how the truth of a bag's topic is read: learn reads each once a run
-            (:func:`functools.cache` of :func:`read_truth`).
+        reads: how the bags' topics and truth are read: learn reads each bag's once a run
+            (:meth:`~.bag_reads.BagReads.once`).
 
     Raises:
         BagError: if a bag lacks the topic, holds no message on it, or the truth bag has no
             truth for a mesh's stamp.
         InputError: naming the bag, topic and message index of a malformed message.
     """
-    topics = bag_topics(bag)
+    topics = reads.topics(bag)
     topic = _checked_mesh_topic(bag, topics, options)
-    frames, skipped = _tracked_frames(bag, topics, topic, options, truth_bag, name, truth_of)
+    frames, skipped = _tracked_frames(bag, topics, topic, options, truth_bag, name, reads.truth)
     if skipped:
         untracked = counted(skipped, 'frame')
         say(f'{bag}: {untracked} the tracker did not track (initialising or lost) left out')
@@ -135,7 +124,7 @@ def bag_subjects(
     options: LearnOptions,
     truth_bag: Path | None,
     truth_meshes: bool,
-    truth_of: TruthReader = read_truth,
+    reads: BagReads = AFRESH,
 ) -> set[str]:
     """The subjects :func:`read_bag_meshes` finds in a bag's meshes, known without reading them.
 
@@ -149,7 +138,7 @@ def bag_subjects(
         truth_bag: the bag labelling its meshes, as for :func:`read_bag_meshes`; None: none.
         truth_meshes: whether its meshes may be its FaceTruth messages (it holds truth and is
             not tracked).
-        truth_of: how the truth of a bag's topic is read, as for :func:`read_bag_meshes`.
+        reads: how the bags' topics and truth are read, as for :func:`read_bag_meshes`.
 
     Raises:
         BagError, InputError: for truth that :func:`read_bag_meshes` would refuse (a missing
@@ -157,12 +146,12 @@ def bag_subjects(
         ConfigError: if ``options.subject_pattern`` does not match the bag's name.
     """
     if truth_bag is not None:
-        return {sample.subject_id for sample in truth_of(truth_bag, TRUTH_TOPIC)}
+        return {sample.subject_id for sample in reads.truth(truth_bag, TRUTH_TOPIC)}
     if truth_meshes:
-        topics = bag_topics(bag)
+        topics = reads.topics(bag)
         topic = _checked_mesh_topic(bag, topics, options)
         if topics[topic] == TRUTH_TYPE:
-            return {sample.subject_id for sample in truth_of(bag, topic)}
+            return {sample.subject_id for sample in reads.truth(bag, topic)}
     return {subject_of(recording_name(bag), options)}
 
 
@@ -217,7 +206,7 @@ def _tracked_frames(
     options: LearnOptions,
     truth_bag: Path | None,
     name: str,
-    truth_of: TruthReader,
+    truth_of: Callable[[Path, str], Sequence[TruthSample]],
 ) -> tuple[list[_Frame], int]:
     """The frames of ``topic`` that were tracked, with their truth, and how many were not.
 
@@ -269,7 +258,7 @@ def _untracked_stamps(bag: Path, topics: dict[str, str]) -> set[int]:
 
 
 def _mesh_messages(
-    bag: Path, topic: str, msgtype: str, truth_of: TruthReader
+    bag: Path, topic: str, msgtype: str, truth_of: Callable[[Path, str], Sequence[TruthSample]]
 ) -> Iterable[tuple[Any, tuple[int, np.ndarray, TruthSample | None]]]:
     """Each mesh message of ``topic`` (of ``msgtype``) and its :func:`mesh_from_message`.
 

@@ -21,10 +21,9 @@ from pathlib import Path
 import shutil
 
 from face_tracking_ros.errors import BagError, ConfigError, FaceTrackingError
-from face_tracking_ros.io.bags import bag_topics, recording_name
-from face_tracking_ros.io.conversions import TRUTH_TYPE
+from face_tracking_ros.io.bags import recording_name
 from face_tracking_ros.io.provenance import Provenance, replay_source
-from face_tracking_ros.io.series import truth_series
+from face_tracking_ros.io.series import holds_truth, truth_series
 from face_tracking_ros.pipelines.bag_inputs import (
     STEREO_FIELDS,
     check_one_transport,
@@ -36,8 +35,9 @@ from face_tracking_ros.pipelines.bag_inputs import (
     stereo_remaps,
     tracked_nodes,
 )
+from face_tracking_ros.pipelines.bag_reads import AFRESH, BagReads
 from face_tracking_ros.pipelines.learn_options import LearnOptions
-from face_tracking_ros.pipelines.mesh_bags import TRUTH_TOPIC, TruthReader, mesh_topic, read_truth
+from face_tracking_ros.pipelines.mesh_bags import TRUTH_TOPIC, mesh_topic
 from face_tracking_ros.pipelines.scoring import score_stereo_against_truth
 from face_tracking_ros.processing.parameters import OverrideParameters
 from face_tracking_ros.processing.stereo import StereoNodeConfig
@@ -113,7 +113,7 @@ def mesh_bag(
     tracking: RawBagTracking,
     options: LearnOptions,
     say: Callable[[str], None] = print,
-    truth_of: TruthReader = read_truth,
+    reads: BagReads = AFRESH,
 ) -> Path:
     """The bag of 3-D meshes tracked from a raw stereo bag, as planned: ``tracking.out``.
 
@@ -123,7 +123,7 @@ def mesh_bag(
     hashes the files the parameters name: the init file) are taken here, just before it is
     tracked; meshes an earlier run tracked from the same inputs are re-used
     (:func:`_tracked_before`). What it does, the replay's summary and the score against the
-    bag's truth (read by ``truth_of``: learn reads each bag's once a run) go to ``say``, line by
+    bag's truth (read by ``reads``: learn reads each bag's once a run) go to ``say``, line by
     line.
 
     Raises:
@@ -138,26 +138,28 @@ def mesh_bag(
     if _tracked_before(tracking.out, inputs, options.named('meshes_dir'), say):
         return tracking.out
     _track(tracking, params, say)
-    if TRUTH_TYPE in tracking.topics.values():  # the bag's topics as its plan read them
-        say(_score_line(tracking.bag, tracking.out, truth_of))
+    if holds_truth(tracking.topics):
+        say(_score_line(tracking.bag, tracking.out, reads))
     return tracking.out
 
 
-def checked_stereo_bags(options: LearnOptions) -> dict[Path, RawBagTracking]:
+def checked_stereo_bags(
+    options: LearnOptions, reads: BagReads = AFRESH
+) -> dict[Path, RawBagTracking]:
     """The tracking of each raw stereo bag to track, by bag, checked and planned.
 
     Its initialisation is the stereo_tracker parameter of its init file or of ``auto_init``;
     None for simulated clicks, which :func:`stereo_initialisations` writes. Every check that can
     refuse a bag's tracking (:func:`raw_bag_parameters`, :func:`_planned_tracking`) runs for every
     bag first, and writes nothing: a run refused before :func:`stereo_initialisations` leaves
-    no clicks behind.
+    no clicks behind. Each bag's topics are read by ``reads``.
 
     Raises:
         ConfigError: for a raw stereo bag without a way to initialise it, or one that
             :func:`raw_bag_parameters` or :func:`_planned_tracking` refuses.
         BagError: for a bag that cannot be read.
     """
-    topics = {bag: bag_topics(bag) for bag in options.bags}
+    topics = {bag: reads.topics(bag) for bag in options.bags}
     parameters = {bag: raw_bag_parameters(bag, topics[bag], options) for bag in options.bags}
     raw = {bag: found for bag, found in parameters.items() if found is not None}
     if not raw:
@@ -418,13 +420,13 @@ def _no_mesh_error(bag: Path, stats: ReplayStats) -> BagError:
     return BagError(msg)
 
 
-def _score_line(bag: Path, out: Path, truth_of: TruthReader) -> str:
+def _score_line(bag: Path, out: Path, reads: BagReads) -> str:
     """How the meshes tracked into ``out`` compare with the truth in ``bag``, in one line.
 
-    The truth is that of its ``truth/face``, read by ``truth_of``, which labels the meshes.
+    The truth is that of its ``truth/face``, read by ``reads``, which labels the meshes.
     """
     try:
-        truth = truth_series(truth_of(bag, TRUTH_TOPIC), f'{bag}: topic {TRUTH_TOPIC}')
+        truth = truth_series(reads.truth(bag, TRUTH_TOPIC), f'{bag}: topic {TRUTH_TOPIC}')
         evaluation = score_stereo_against_truth(bag, out, truth)
     except FaceTrackingError as error:  # e.g. camera_info topics not named left / right
         return f'{out}: not scored against the truth of {bag}: {error}'
