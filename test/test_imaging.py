@@ -7,6 +7,8 @@ import pytest
 
 from face_tracking_ros.errors import ConfigError, InputError
 from face_tracking_ros.imaging import (
+    STENCIL_X,
+    STENCIL_Y,
     ImagePyramid,
     PhotometricModel,
     PhotometricProjection,
@@ -15,7 +17,7 @@ from face_tracking_ros.imaging import (
     inside_xy,
     sample_patches,
     sample_points,
-    sample_with_gradient_rows,
+    sample_stencils,
     sample_with_gradient_xy,
     sample_xy,
     square_offsets,
@@ -323,16 +325,18 @@ def test_images_sampled_at_once_equal_each_sampled_alone() -> None:
     rng = np.random.default_rng(7)
     images = [rng.uniform(0, 255, (40, 50)).astype(np.float32) for _ in range(2)]
     x, y = rng.uniform(-2, 52, (2, 2, 300))
-    values, gradient = sample_with_gradient_rows(images, x, y)
+    maps_x = x.astype(np.float32)[:, None, :] + STENCIL_X[:, None]  # (2, 5, 300)
+    maps_y = y.astype(np.float32)[:, None, :] + STENCIL_Y[:, None]
+    values, gradient = sample_stencils(images, maps_x, maps_y)
     assert values.shape == (2, 300) and gradient.shape == (2, 2, 300)
     for row, image in enumerate(images):
         alone, alone_gradient = sample_with_gradient_xy(image, x[row], y[row])
         np.testing.assert_array_equal(values[row], alone)
         np.testing.assert_array_equal(gradient[row], alone_gradient)
     with pytest.raises(InputError, match='for 2 images'):
-        sample_with_gradient_rows(images, x[:1], y[:1])
+        sample_stencils(images, maps_x[:1], maps_y[:1])
     with pytest.raises(InputError, match='float32'):
-        sample_with_gradient_rows([images[0], images[1].astype(float)], x, y)
+        sample_stencils([images[0], images[1].astype(float)], maps_x, maps_y)
 
 
 def test_inside_image() -> None:

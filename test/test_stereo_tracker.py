@@ -18,6 +18,7 @@ from scipy.interpolate import LinearNDInterpolator
 
 from face_tracking_ros.errors import ConfigError, InputError, ModelFileError
 from face_tracking_ros.geometry.camera import PinholeCamera, StereoRig
+from face_tracking_ros.imaging import GRADIENT_MARGIN, inside_xy
 from face_tracking_ros.model.topology import Group, mesh_topology
 from face_tracking_ros.synthetic.surface import head_surface
 from face_tracking_ros.tracking.camera_gain import relative_gain
@@ -64,7 +65,7 @@ from face_tracking_ros.tracking.stereo_solve import (
 from face_tracking_ros.tracking.stereo_templates import TemplateSamples, texture_triangles
 from face_tracking_ros.tracking.surface_patches import (
     PatchDeformation,
-    deformed_offsets,
+    patch_field,
     surface_patch_offsets,
 )
 
@@ -348,12 +349,48 @@ def test_patches_deform_with_an_affine_stretch_of_the_nodes_exactly(level: int) 
     samples = SampleSet.of((patches, texture), 19)
     rigid = samples.level_offsets(np.eye(3), level)
     deformation = PatchDeformation.of(first, patches.offsets)
-    deformed = deformed_offsets(deformation, rigid, nodes, first, np.eye(3), level)
+    field = patch_field(deformation, nodes, first, np.eye(3))
+    deformed = samples.points(nodes, rigid, field, 2.0**level) - samples.points(nodes, rigid)
     offsets = patches.offsets.reshape(-1, 3)
-    expected = rigid.copy()
-    expected[:2, : len(offsets)] += 2**level * (offsets[:, :2] @ stretch.T).T
+    expected = np.zeros_like(rigid)
+    expected[:2, : len(offsets)] = 2**level * (offsets[:, :2] @ stretch.T).T
     np.testing.assert_allclose(deformed, expected, rtol=0, atol=1e-12)
-    assert np.abs(expected - rigid).max() > 1e-4  # m: the deformation moves samples
+    assert np.abs(expected).max() > 1e-4  # m: the deformation moves samples
+    assert patch_field(None, nodes, first, np.eye(3)) is None  # rigid patches
+
+
+def test_sample_points_and_pixels_are_the_numpy_formulas_to_the_bit() -> None:
+    """The compiled passes of an evaluation: points, then pixels, stencil maps and validity.
+
+    A point behind the camera or a pixel within GRADIENT_MARGIN of the border is not valid; a
+    non-finite pixel is refused.
+    """
+    rng = np.random.default_rng(12)
+    first = PLANE.nodes(19)
+    nodes = first + rng.normal(0.0, 0.002, first.shape)
+    patches = SampleLayout.node_patches(first, first[:, 2] / 600, 2, np.zeros(19, dtype=bool))
+    texture = SampleLayout.triangle_texture(mesh_topology(19).triangles, 4)
+    samples = SampleSet.of((patches, texture), 19)
+    offsets = samples.level_offsets(np.eye(3), 1)
+    field = PatchDeformation.of(first, patches.offsets).field(nodes, first, np.eye(3))
+    points = samples.points(nodes, offsets, field, 2.0)
+    deformed = offsets.copy()
+    deformed[:, : field.shape[1]] += 2.0 * field
+    corners = nodes.T[:, texture.nodes]  # (3, T, 3): the nodes of each triangle
+    weighted = (corners[:, :, None, :] * texture.bary[None, None]).sum(axis=-1).reshape(3, -1)
+    expected = np.concatenate([np.repeat(nodes.T, len(patches.bary), axis=1), weighted], axis=1)
+    assert (points == expected + deformed).all()
+    points[:, :2] = [[-0.5, 0.0], [0.0, 0.0], [0.6, -0.6]]  # off both images; behind them
+    projections = level_projections((RIG.left, RIG.right), 1)
+    images = [np.zeros((RIG.left.height // 2, RIG.left.width // 2), np.float32)] * 2
+    sampled = sample_images(images, projections, points, samples.mask)
+    pixels = sampled.homogeneous[:, :2] / sampled.homogeneous[:, 2:]
+    inside = inside_xy(pixels[:, 0], pixels[:, 1], images[0].shape, GRADIENT_MARGIN)
+    assert (sampled.valid == inside & (points[2] > 0) & samples.mask).all()
+    assert not sampled.valid[:, :2].any() and sampled.valid[:, 2:].all()
+    points[:, 5] = np.nan
+    with pytest.raises(InputError, match='NaN or Inf'):
+        sample_images(images, projections, points, samples.mask)
 
 
 def test_template_coefficients_split_gamma_and_epsilon_and_weigh_the_texture() -> None:

@@ -15,11 +15,13 @@ from face_tracking_ros.imaging.pyramid import ImagePyramid, check_levels_fit
 from face_tracking_ros.imaging.sampling import (
     GRADIENT_MARGIN,
     MAX_HALF_SIZE,
+    STENCIL_X,
+    STENCIL_Y,
     inside_image,
     inside_xy,
     sample_patches,
     sample_points,
-    sample_with_gradient_rows,
+    sample_stencils,
     sample_with_gradient_xy,
     sample_xy,
     square_offsets,
@@ -27,6 +29,8 @@ from face_tracking_ros.imaging.sampling import (
 
 __all__ = [
     'GRADIENT_MARGIN',
+    'STENCIL_X',
+    'STENCIL_Y',
     'SUPPORTED_ENCODINGS',
     'ImagePyramid',
     'PhotometricInvariance',
@@ -37,7 +41,7 @@ __all__ = [
     'inside_xy',
     'sample_patches',
     'sample_points',
-    'sample_with_gradient_rows',
+    'sample_stencils',
     'sample_with_gradient_xy',
     'sample_xy',
     'square_offsets',

@@ -18,9 +18,9 @@ from face_tracking_ros.errors import InputError
 _MAP_LIMIT = 32767
 _MAP_WIDTH = 4096
 
-# Central-difference stencil: the point, then +x, -x, +y, -y (one pixel each), as (5, 1) shifts.
-_STENCIL_X = np.array([0, 1, -1, 0, 0], dtype=np.float32)[:, None]
-_STENCIL_Y = np.array([0, 0, 0, 1, -1], dtype=np.float32)[:, None]
+# Central-difference stencil: the point, then +x, -x, +y, -y (one pixel each), as (5,) shifts.
+STENCIL_X = np.array([0, 1, -1, 0, 0], dtype=np.float32)
+STENCIL_Y = np.array([0, 0, 0, 1, -1], dtype=np.float32)
 
 
 # The largest patch half size a tracker takes: (2 h + 1)^2 = 961 samples a node; at 1000 the
@@ -174,40 +174,43 @@ def sample_with_gradient_xy(
     return samples[0].reshape(x.shape), gradient.reshape(2, *x.shape)
 
 
-def sample_with_gradient_rows(
-    images: Sequence[np.ndarray], x: np.ndarray, y: np.ndarray
+def sample_stencils(
+    images: Sequence[np.ndarray], maps_x: np.ndarray, maps_y: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`sample_with_gradient_xy` of C images at once, image c at row c of the points.
+    """:func:`sample_with_gradient_xy` of C images at once, from their points' stencil maps.
+
+    Row c of the maps holds image c's K points shifted by the stencil, ``x + STENCIL_X[j]`` and
+    ``y + STENCIL_Y[j]`` (float32 sums) in row j, as a caller that finds its points in a
+    compiled pass of its own makes them (the stereo tracker's
+    :func:`~face_tracking_ros.tracking.stereo_kernels.stencil_maps`).
 
     Args:
         images: C (H, W) float32 images.
-        x: (C, K) column coordinates, px.
-        y: (C, K) row coordinates, px.
+        maps_x: (C, 5, K) float32 column coordinates, px.
+        maps_y: (C, 5, K) float32 row coordinates, px.
 
     Returns:
         ``(values, gradient)``: (C, K) float32 values and (C, 2, K) float32 gradients (dI/dx,
         dI/dy), each row equal to :func:`sample_with_gradient_xy`'s in its image.
 
     Raises:
-        InputError: as :func:`sample_xy`, or if x is not (C, K).
+        InputError: if an image is not (H, W) float32, or the maps are not (C, 5, K).
     """
-    x, y = _coordinates(x, y)
-    if x.shape[:1] != (len(images),) or x.ndim != 2:
-        msg = f'points must be (C, K) for {len(images)} images, got {x.shape}'
+    if maps_x.shape != maps_y.shape or maps_x.shape[:2] != (len(images), len(STENCIL_X)):
+        msg = f'stencil maps must be (C, 5, K) for {len(images)} images, got {maps_x.shape}'
         raise InputError(msg)
-    maps_x, maps_y = x[:, None, :] + _STENCIL_X, y[:, None, :] + _STENCIL_Y  # (C, 5, K)
     samples = np.empty(maps_x.shape, dtype=np.float32)
     for row, image in enumerate(images):
         _check_image(image)
         samples[row] = _remap(image, maps_x[row], maps_y[row])
-    gradient = np.empty((len(images), 2, x.shape[1]), dtype=np.float32)
+    gradient = np.empty((len(images), 2, maps_x.shape[2]), dtype=np.float32)
     _central_differences(samples, gradient)
     return samples[:, 0], gradient
 
 
 def _stencil_samples(image: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
     """(5, K) samples at (K,) checked float32 points and at the stencil's shifts of them."""
-    return _remap(image, x + _STENCIL_X, y + _STENCIL_Y)  # rows contiguous
+    return _remap(image, x + STENCIL_X[:, None], y + STENCIL_Y[:, None])  # rows contiguous
 
 
 def _central_differences(samples: np.ndarray, gradient: np.ndarray) -> None:

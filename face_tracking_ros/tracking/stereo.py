@@ -81,7 +81,7 @@ from face_tracking_ros.tracking.stereo_loss import loss_reason
 from face_tracking_ros.tracking.stereo_result import StereoResult, TrackedSequence, split_tracks
 from face_tracking_ros.tracking.stereo_solve import Level, LevelSolver, PairEnergy, Point
 from face_tracking_ros.tracking.stereo_templates import TemplateSamples, templates
-from face_tracking_ros.tracking.surface_patches import PatchDeformation, deformed_offsets
+from face_tracking_ros.tracking.surface_patches import PatchDeformation, patch_field
 from face_tracking_ros.wording import counted
 
 LEFT, RIGHT = 0, 1
@@ -552,11 +552,9 @@ class StereoTracker:
             nodes = self._refine_depths(state, pyramids, nodes, statistics.rms[0][LEFT])
         state.before, state.nodes = state.nodes, nodes
         state.offsets = state.samples.level_offsets(state.rotation, 0)
-        offsets = deformed_offsets(
-            state.deformation, state.offsets, nodes, state.first_nodes, state.rotation, 0
-        )
+        field = patch_field(state.deformation, nodes, state.first_nodes, state.rotation)
         state.previous_templates = templates(
-            pyramids, self._projections, state.samples, nodes, offsets
+            pyramids, self._projections, state.samples, nodes, state.offsets, field
         )
         result = self._result(
             nodes,

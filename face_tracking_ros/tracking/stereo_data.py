@@ -54,16 +54,23 @@ from typing import NamedTuple
 
 import numpy as np
 
+from face_tracking_ros.errors import InputError
 from face_tracking_ros.geometry.camera import PinholeCamera, StereoRig
 from face_tracking_ros.imaging import (
     GRADIENT_MARGIN,
-    inside_xy,
-    sample_with_gradient_rows,
+    STENCIL_X,
+    STENCIL_Y,
+    sample_stencils,
     sample_xy,
     square_offsets,
 )
 from face_tracking_ros.tracking.projection import space_gradient
-from face_tracking_ros.tracking.stereo_kernels import node_normal_blocks, zssd_residuals
+from face_tracking_ros.tracking.stereo_kernels import (
+    layout_points,
+    node_normal_blocks,
+    stencil_maps,
+    zssd_residuals,
+)
 from face_tracking_ros.tracking.surface_patches import surface_patch_offsets
 
 BRIGHTNESS_TERMS = 3  # 1, u, v: a brightness ramp over a node patch (see SampleLayout)
@@ -71,6 +78,7 @@ BRIGHTNESS_TERMS = 3  # 1, u, v: a brightness ramp over a node patch (see Sample
 # x-y (away from the nodes' centroid) and this far behind it in camera z, m (see SampleLayout).
 RIM_OUTWARD = 0.010
 RIM_BEHIND = 0.020
+_NO_FIELD = np.zeros((3, 0))  # SampleSet.points without a deformation
 
 
 @dataclass(frozen=True)
@@ -280,15 +288,28 @@ class SampleSet:
         """
         return (float(1 << level) * (self.offsets @ rotation.T)).T
 
-    def points(self, nodes: np.ndarray, offsets: np.ndarray) -> np.ndarray:
-        """(3, S) points ``sum_k b_k X^(n_k) + o`` for nodes (N, 3) and (3, S) offsets, m."""
-        columns = np.ascontiguousarray(nodes.T)
+    def points(
+        self,
+        nodes: np.ndarray,
+        offsets: np.ndarray,
+        field: np.ndarray | None = None,
+        scale: float = 1.0,
+    ) -> np.ndarray:
+        """(3, S) points ``sum_k b_k X^(n_k) + o`` for nodes (N, 3) and (3, S) offsets, m.
+
+        Args:
+            nodes: (N, 3) nodes, m.
+            offsets: (3, S) offsets o of the samples, m.
+            field: optional (3, S_p) deformation of the first S_p samples (the node patches,
+                :meth:`~.surface_patches.PatchDeformation.field`), m; their offsets are then
+                ``o + scale * field``.
+            scale: the field's factor: 2^l for offsets of pyramid level l.
+        """
+        field = _NO_FIELD if field is None else field
         points = np.empty((3, self.size))
-        for index, (gather, weights) in enumerate(zip(self.gather, self.weights, strict=True)):
-            start, stop = self.bounds[index], self.bounds[index + 1]
-            placed = np.take(columns, gather, axis=1)  # (3, k, S_l)
-            placed = placed[:, 0] if len(gather) == 1 else (placed * weights).sum(axis=1)
-            np.add(placed, offsets[:, start:stop], out=points[:, start:stop])
+        layouts = zip(self.bounds[:-1], self.gather, self.weights, strict=True)
+        for start, gather, weights in layouts:
+            layout_points(nodes, offsets, field, scale, gather, weights, start, points)
         return points
 
     def grouped(self, values: np.ndarray) -> tuple[np.ndarray, ...]:
@@ -418,22 +439,30 @@ def sample_images(
 ) -> Sampled:
     """Sample C images at 3-D points (eq. 2), with their gradients.
 
+    The pixels, their stencil maps and the valid samples come from one compiled pass
+    (:func:`~.stereo_kernels.stencil_maps`), the samples from ``cv2.remap``
+    (:func:`~face_tracking_ros.imaging.sampling.sample_stencils`).
+
     Args:
         images: C (H, W) float32 images (one pyramid level of each camera, all of one size).
         projections: (C, 3, 4) their projection matrices (:func:`level_projections`).
         points: (3, S) points in the left camera frame, m.
         mask: (S,) bool, the samples in use.
+
+    Raises:
+        InputError: if a point's pixel is not finite.
     """
     homogeneous = homogeneous_pixels(projections, points)
-    pixels = homogeneous[:, :2] / homogeneous[:, 2:]
-    values, gradient = sample_with_gradient_rows(images, pixels[:, 0], pixels[:, 1])
-    inside = inside_xy(pixels[:, 0], pixels[:, 1], images[0].shape, margin=GRADIENT_MARGIN)
-    return Sampled(
-        homogeneous=homogeneous,
-        values=values,
-        gradient=gradient,
-        valid=inside & (points[2] > 0) & mask,
+    height, width = images[0].shape
+    high_x, high_y = width - 1 - GRADIENT_MARGIN, height - 1 - GRADIENT_MARGIN
+    maps_x, maps_y, valid, finite = stencil_maps(
+        homogeneous, points[2], mask, STENCIL_X, STENCIL_Y, GRADIENT_MARGIN, high_x, high_y
     )
+    if not finite:
+        msg = 'points hold NaN or Inf'
+        raise InputError(msg)
+    values, gradient = sample_stencils(images, maps_x, maps_y)
+    return Sampled(homogeneous=homogeneous, values=values, gradient=gradient, valid=valid)
 
 
 def sample_values(

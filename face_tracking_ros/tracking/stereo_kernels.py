@@ -344,3 +344,107 @@ def node_normal_blocks(
                     if other > i:
                         blocks[g, other, i] += total
     return blocks, vectors
+
+
+@numba.njit(
+    'Tuple((f4[:, :, ::1], f4[:, :, ::1], b1[:, ::1], b1))(f8[:, :, ::1], f8[::1], b1[::1], '
+    'f4[::1], f4[::1], f8, f8, f8)',
+    **EXACT,
+)
+def stencil_maps(
+    homogeneous: np.ndarray,
+    depth: np.ndarray,
+    mask: np.ndarray,
+    shift_x: np.ndarray,
+    shift_y: np.ndarray,
+    low: float,
+    high_x: float,
+    high_y: float,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, bool]:
+    """The pixels of C images' samples as stencil maps for ``cv2.remap``, and which are valid.
+
+    Sample s lies at ``x = P_1 X / P_3 X``, ``y = P_2 X / P_3 X`` (eq. 2) of each image; its
+    map holds the float32 x and y plus each stencil shift (float32 sums,
+    :func:`~face_tracking_ros.imaging.sampling.sample_stencils`). It is valid when in the mask,
+    in front of the camera (``depth > 0``) and within ``[low, high]`` in x and y.
+
+    Args:
+        homogeneous: (C, 3, S) ``P X`` of the samples in each image, homogeneous pixels.
+        depth: (S,) the samples' camera z, m.
+        mask: (S,) the samples in use.
+        shift_x: (J,) float32 stencil shifts along x, px.
+        shift_y: (J,) float32 stencil shifts along y, px.
+        low: the smallest x and y inside the image, px.
+        high_x: the largest x inside, px.
+        high_y: the largest y inside, px.
+
+    Returns:
+        ``(maps_x, maps_y, valid, finite)``: (C, J, S) float32 maps, (C, S) valid samples, and
+        whether every float32 x and y is finite.
+    """
+    images, _, size = homogeneous.shape
+    shifts = shift_x.size
+    maps_x = np.empty((images, shifts, size), dtype=np.float32)
+    maps_y = np.empty((images, shifts, size), dtype=np.float32)
+    valid = np.empty((images, size), dtype=np.bool_)
+    x_32 = np.empty(size, dtype=np.float32)
+    y_32 = np.empty(size, dtype=np.float32)
+    non_finite = 0
+    for c in range(images):
+        for s in range(size):  # loops without branches, so that they vectorise
+            x = homogeneous[c, 0, s] / homogeneous[c, 2, s]
+            y = homogeneous[c, 1, s] / homogeneous[c, 2, s]
+            x_32[s], y_32[s] = x, y
+            inside = (x >= low) & (y >= low) & (x <= high_x) & (y <= high_y)
+            valid[c, s] = inside & (depth[s] > 0.0) & mask[s]
+        for s in range(size):
+            non_finite += ~(np.isfinite(x_32[s]) & np.isfinite(y_32[s]))
+        for j in range(shifts):
+            for s in range(size):
+                maps_x[c, j, s] = x_32[s] + shift_x[j]
+                maps_y[c, j, s] = y_32[s] + shift_y[j]
+    return maps_x, maps_y, valid, non_finite == 0
+
+
+@numba.njit(
+    'void(f8[:, :], f8[:, :], f8[:, ::1], f8, i8[:, ::1], f8[:, ::1], i8, f8[:, ::1])', **EXACT
+)
+def layout_points(
+    nodes: np.ndarray,
+    offsets: np.ndarray,
+    field: np.ndarray,
+    scale: float,
+    gather: np.ndarray,
+    weights: np.ndarray,
+    start: int,
+    points: np.ndarray,
+) -> None:
+    """One layout's sample points ``sum_k b_k X^(n_k) + o``, with the node patches' deformation.
+
+    Sample s of the layout is sample ``start + s`` of the set; the first S_p samples of the set
+    (the node patches) have the offset ``o + scale * field`` (see
+    :meth:`~.stereo_data.SampleSet.points`). The sum over the slots is in slot order.
+
+    Args:
+        nodes: (N, 3) nodes X, m.
+        offsets: (3, S) offsets o of all samples of the set, m.
+        field: (3, S_p) the deformation of the first S_p samples, m (S_p = 0: none).
+        scale: its factor (2^l on pyramid level l).
+        gather: (k, S_l) node index n_k of each slot of the layout's samples.
+        weights: (k, S_l) barycentric weight b_k of each slot (unused for k = 1).
+        start: the layout's first sample in the set.
+        points: (3, S) the set's points, whose ``start : start + S_l`` are written, m.
+    """
+    slots, size = gather.shape
+    deformed = field.shape[1]
+    for a in range(3):
+        for s in range(size):
+            placed = nodes[gather[0, s], a]
+            if slots > 1:
+                placed *= weights[0, s]
+                for k in range(1, slots):
+                    placed += nodes[gather[k, s], a] * weights[k, s]
+            offset = offsets[a, start + s]
+            if start + s < deformed:
+                offset += scale * field[a, start + s]
+            points[a, start + s] = placed + offset

@@ -32,7 +32,7 @@ from face_tracking_ros.tracking.stereo_data import (
     robust_residuals,
     sample_images,
 )
-from face_tracking_ros.tracking.surface_patches import PatchDeformation, deformed_offsets
+from face_tracking_ros.tracking.surface_patches import PatchDeformation, patch_field
 
 
 class Level(NamedTuple):
@@ -99,10 +99,8 @@ class PairEnergy:
         The images are sampled with their gradients, for a linearisation there.
         """
         samples = self.samples
-        offsets = deformed_offsets(
-            self.deformation, level.offsets, nodes, self.first_nodes, self.rotation, level.index
-        )
-        points = samples.points(nodes, offsets)
+        field = patch_field(self.deformation, nodes, self.first_nodes, self.rotation)
+        points = samples.points(nodes, level.offsets, field, float(1 << level.index))
         sampled = sample_images(level.images, level.projections, points, samples.mask)
         residuals = robust_residuals(
             samples, sampled, level.templates, self.coefficients, self.huber

@@ -97,6 +97,7 @@ def templates(
     samples: SampleSet,
     nodes: np.ndarray,
     offsets: np.ndarray,
+    field: np.ndarray | None = None,
 ) -> tuple[np.ndarray, ...]:
     """(2, S) grey levels of the samples in both images at every level (the templates).
 
@@ -106,12 +107,14 @@ def templates(
         samples: the sample set.
         nodes: (N, 3) nodes, m.
         offsets: (3, S) level-0 sample offsets (turned as at ``nodes``), m.
+        field: optional (3, S_p) level-0 deformation of the node patches at ``nodes``, m
+            (:meth:`~.stereo_data.SampleSet.points`).
     """
     return tuple(
         sample_values(
             tuple(pyramid.levels[level] for pyramid in pyramids),
             onto,
-            samples.points(nodes, float(1 << level) * offsets),
+            samples.points(nodes, float(1 << level) * offsets, field, float(1 << level)),
         )
         for level, onto in enumerate(projections)
     )

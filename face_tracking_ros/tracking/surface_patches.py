@@ -209,31 +209,15 @@ class PatchDeformation:
         return field
 
 
-def deformed_offsets(
+def patch_field(
     deformation: PatchDeformation | None,
-    offsets: np.ndarray,
     nodes: np.ndarray,
     first_nodes: np.ndarray,
     rotation: np.ndarray,
-    level: int,
-) -> np.ndarray:
-    """(3, S) rigid sample offsets of pyramid level ``level`` with the patches' deformation.
+) -> np.ndarray | None:
+    """(3, S_p) :meth:`PatchDeformation.field` at ``nodes``; None for rigid patches.
 
-    The node-patch samples move with the mesh's deformation at ``nodes``
-    (:meth:`PatchDeformation.field`), scaled like the offsets; the samples after them (S > S_p)
-    keep their offsets. Without a deformation (rigid patches), ``offsets`` as given.
-
-    Args:
-        deformation: the node patches' deformation; None: rigid patches.
-        offsets: (3, S) rigid sample offsets of that level, the node patches' first, m.
-        nodes: (N, 3) current nodes, m.
-        first_nodes: (N, 3) frame-1 nodes, m.
-        rotation: (3, 3) R, the head's rotation since frame 1.
-        level: the pyramid level l (its offsets are 2^l times level 0's).
+    The sample points take it with their level's offsets
+    (:meth:`~.stereo_data.SampleSet.points`).
     """
-    if deformation is None:
-        return offsets
-    field = deformation.field(nodes, first_nodes, rotation)
-    deformed = offsets.copy()
-    deformed[:, : field.shape[1]] += float(1 << level) * field
-    return deformed
+    return None if deformation is None else deformation.field(nodes, first_nodes, rotation)
