@@ -97,7 +97,7 @@ class ModelPoint:
     def damped_normal(self) -> np.ndarray:
         """J^T W J with the fit's relative Levenberg damping on its diagonal."""
         normal = self.normal.copy()
-        normal[np.diag_indices_from(normal)] *= 1.0 + ALPHA_DAMPING
+        normal.flat[:: len(normal) + 1] *= 1.0 + ALPHA_DAMPING  # the diagonal, in place
         return normal
 
 
@@ -193,17 +193,13 @@ class ActionPrior:
 
         Warm-started from ``start`` (the last fit), FIT_ITERATIONS Gauss-Newton steps.
         """
-        point = start
-        for _ in range(FIT_ITERATIONS):
-            difference = self._difference(nodes, point)
-            step = np.linalg.solve(point.damped_normal, point.weighted.T @ difference)
-            point = self.point(point.theta + step)
-        return point
+        return self._fit(nodes - self.first_nodes, start)
 
     def evaluate(self, nodes: np.ndarray, start: ModelPoint) -> PriorEvaluation:
         """E_model at ``nodes`` (N, 3), m, refitting the parameters from ``start``."""
-        point = self.fit(nodes, start)
-        difference = self._difference(nodes, point)
+        motion = nodes - self.first_nodes
+        point = self._fit(motion, start)
+        difference = self._difference(motion, point)
         cost = float(difference @ (self.row_weights * difference))
         return PriorEvaluation(cost, point, difference)
 
@@ -223,6 +219,15 @@ class ActionPrior:
         """(3N, 3N) W, diag(row_weights) (made once: the term's arrays are never changed)."""
         return np.diag(self.row_weights)
 
-    def _difference(self, nodes: np.ndarray, point: ModelPoint) -> np.ndarray:
-        """(3N,) X - M(theta) as (X - X(1)) - (M - M(1))."""
-        return ((nodes - self.first_nodes) - (point.nodes - self.first_model)).ravel()
+    def _fit(self, motion: np.ndarray, start: ModelPoint) -> ModelPoint:
+        """:meth:`fit` to the nodes' motion since frame 1, X - X(1) (N, 3), m."""
+        point = start
+        for _ in range(FIT_ITERATIONS):
+            difference = self._difference(motion, point)
+            step = np.linalg.solve(point.damped_normal, point.weighted.T @ difference)
+            point = self.point(point.theta + step)
+        return point
+
+    def _difference(self, motion: np.ndarray, point: ModelPoint) -> np.ndarray:
+        """(3N,) X - M(theta) as (X - X(1)) - (M - M(1)), from the motion X - X(1) (N, 3)."""
+        return (motion - (point.nodes - self.first_model)).ravel()

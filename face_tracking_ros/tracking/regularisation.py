@@ -22,6 +22,7 @@ the softer of its two nodes).
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from functools import cached_property
 
 import numpy as np
 
@@ -161,7 +162,7 @@ class Regulariser:
             self, delta=self.stretch_stiffness / (4.0 * sq_lengths), first_sq_lengths=sq_lengths
         )
 
-    @property
+    @cached_property
     def stretches(self) -> bool:
         """Whether any delta term is on (with delta = 0, the default, they all vanish)."""
         return bool(np.any(self.delta))
