@@ -383,11 +383,14 @@ def test_sample_points_and_pixels_are_the_numpy_formulas_to_the_bit() -> None:
     points[:, :2] = [[-0.5, 0.0], [0.0, 0.0], [0.6, -0.6]]  # off both images; behind them
     projections = level_projections((RIG.left, RIG.right), 1)
     images = [np.zeros((RIG.left.height // 2, RIG.left.width // 2), np.float32)] * 2
-    sampled = sample_images(images, projections, points, samples.mask)
+    mask = samples.mask
+    sampled = sample_images(images, projections, points, mask)
     pixels = sampled.homogeneous[:, :2] / sampled.homogeneous[:, 2:]
     inside = inside_xy(pixels[:, 0], pixels[:, 1], images[0].shape, GRADIENT_MARGIN)
-    assert (sampled.valid == inside & (points[2] > 0) & samples.mask).all()
+    assert (sampled.valid == inside & (points[2] > 0) & mask).all()
     assert not sampled.valid[:, :2].any() and sampled.valid[:, 2:].all()
+    strided = sample_images(images, projections, np.asfortranarray(points), mask.repeat(2)[::2])
+    assert (strided.valid == sampled.valid).all()  # any memory layout of the points and mask
     points[:, 5] = np.nan
     with pytest.raises(InputError, match='NaN or Inf'):
         sample_images(images, projections, points, samples.mask)

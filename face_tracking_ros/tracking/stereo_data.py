@@ -455,8 +455,9 @@ def sample_images(
     homogeneous = homogeneous_pixels(projections, points)
     height, width = images[0].shape
     high_x, high_y = width - 1 - GRADIENT_MARGIN, height - 1 - GRADIENT_MARGIN
+    depth, mask = np.ascontiguousarray(points[2]), np.ascontiguousarray(mask)  # the kernel's
     maps_x, maps_y, valid, finite = stencil_maps(
-        homogeneous, points[2], mask, STENCIL_X, STENCIL_Y, GRADIENT_MARGIN, high_x, high_y
+        homogeneous, depth, mask, STENCIL_X, STENCIL_Y, GRADIENT_MARGIN, high_x, high_y
     )
     if not finite:
         msg = 'points hold NaN or Inf'
