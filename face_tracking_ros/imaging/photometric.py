@@ -80,9 +80,26 @@ class PhotometricProjection:
         """
         if self.basis.shape[-1] == 0:
             return np.asarray(values, dtype=float)
-        stack = np.ascontiguousarray(values if values.ndim == 3 else values[None], dtype=float)
-        projected = _project_out(stack, self.basis_rows)
-        return projected if values.ndim == 3 else projected[0]
+        stack = np.array(values if values.ndim == 3 else values[None], dtype=float, order='C')
+        project_out(stack, self.basis_rows)
+        return stack if values.ndim == 3 else stack[0]
+
+    def residuals(self, samples: np.ndarray, template: np.ndarray) -> np.ndarray:
+        """``(1 - P) (samples - template)``: :meth:`apply` of their difference, in one pass.
+
+        Args:
+            samples: (N, M) float32 or float64 samples.
+            template: (N, M) float32 or float64 template; the difference is taken in the wider
+                type of the two, as numpy takes it.
+
+        Returns:
+            (N, M) float64 projected residuals.
+        """
+        if self.basis.shape[-1] == 0:
+            return np.asarray(samples - template, dtype=float)
+        return _projected_difference(
+            np.ascontiguousarray(samples), np.ascontiguousarray(template), self.basis_rows
+        )
 
 
 @dataclass(frozen=True)
@@ -150,22 +167,39 @@ def project_out_row(row: np.ndarray, patch: np.ndarray, weights: np.ndarray) -> 
             row[m] -= weight * patch[k, m]
 
 
-@numba.njit(
-    'f8[:, :, ::1](f8[:, :, ::1], f8[:, :, ::1])',
-    **FAST,
-)
-def _project_out(values: np.ndarray, basis_rows: np.ndarray) -> np.ndarray:
-    """``values - (values U) U'`` per patch n: (J, N, M) rows, (N, K, M) orthonormal rows U'.
+@numba.njit('(f8[:, :, ::1], f8[:, :, ::1])', **FAST)
+def project_out(values: np.ndarray, basis_rows: np.ndarray) -> None:
+    """``values - (values U) U'`` in place per patch n: (J, N, M) rows, (N, K, M) orthonormal U'.
 
-    A basis of one patch (N = 1) serves every patch.
+    A basis of one patch (N = 1) serves every patch. Other kernels call it on their own rows
+    (the mono tracker's Jacobian, :func:`~face_tracking_ros.tracking.mono_kernels.linearised`).
     """
-    projected = values.copy()
     weights = np.empty(basis_rows.shape[1])
     for n in range(values.shape[1]):
         patch = basis_rows[n if len(basis_rows) > 1 else 0]
         for j in range(values.shape[0]):
-            project_out_row(projected[j, n], patch, weights)
-    return projected
+            project_out_row(values[j, n], patch, weights)
+
+
+@numba.njit(
+    [
+        f'f8[:, ::1]({samples}[:, ::1], {template}[:, ::1], f8[:, :, ::1])'
+        for samples in ('f4', 'f8')
+        for template in ('f4', 'f8')
+    ],
+    **FAST,
+)
+def _projected_difference(
+    samples: np.ndarray, template: np.ndarray, basis_rows: np.ndarray
+) -> np.ndarray:
+    """(N, M) ``samples - template`` projected per patch by ``1 - U U'`` (:func:`project_out`)."""
+    count, size = samples.shape
+    projected = np.empty((1, count, size))
+    for n in range(count):
+        for m in range(size):
+            projected[0, n, m] = samples[n, m] - template[n, m]
+    project_out(projected, basis_rows)
+    return projected[0]
 
 
 @numba.njit(

@@ -154,14 +154,29 @@ class ImagePyramid:
             InputError: if the points hold NaN or Inf while level 0 is still being made (the
                 samplers refuse such points in any case).
         """
+        if index > 0 or self._source is None or self._complete or not np.size(x):
+            return self.level_reaching(index, (0.0, -1.0, 0.0, -1.0))  # nothing to make there
+        x, y = np.asarray(x), np.asarray(y)
+        return self.level_reaching(index, (x.min(), x.max(), y.min(), y.max()))  # methods: faster
+
+    def level_reaching(self, index: int, box: Sequence[float]) -> np.ndarray:
+        """:meth:`level` for points spanning ``box``: their least and greatest x, then y.
+
+        An empty box (least above greatest) reads nothing.
+
+        Raises:
+            InputError: if the box is not finite while level 0 is still being made.
+        """
         if index > 0:
             self._make_all()
-        elif self._source is not None and not self._complete and np.size(x):
-            x, y = np.asarray(x), np.asarray(y)
-            low_x, high_x, low_y, high_y = x.min(), x.max(), y.min(), y.max()  # methods: faster
+            return self._levels[index]
+        low_x, high_x, low_y, high_y = box
+        if self._source is not None and not self._complete:
             if not math.isfinite(low_x + high_x + low_y + high_y):
                 msg = 'points hold NaN or Inf'
                 raise InputError(msg)
+            if low_x > high_x:
+                return self._levels[0]
             # Clipped to the image, keeping its border pixel: points beyond it read that.
             height, width = self.shape
             self._make_base(

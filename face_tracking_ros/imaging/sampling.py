@@ -115,6 +115,15 @@ def _coordinates(x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return x, y
 
 
+def sample_maps(image: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """:func:`sample_xy` at coordinates known to be finite float32 arrays of one shape.
+
+    Nothing is checked: for maps whose maker checked them
+    (:meth:`~face_tracking_ros.tracking.mono_projection.FaceProjection.points`).
+    """
+    return _remap(image, x, y)
+
+
 def _remap(image: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
     """Bilinear samples (...) at float32 coordinates x, y (...) of one shape (not checked)."""
     lead = x.shape

@@ -7,12 +7,20 @@ samples that run at every Levenberg-Marquardt iteration are therefore compiled, 
 over the samples of a pyramid level:
 
 - :func:`roi_points`: the ROI samples of every node moved by eq. 3 and mapped through eq. 1-2;
+  :func:`roi_maps` adds what sampling them takes (``cv2.remap``'s maps, with the central
+  differences' points for a linearisation, the inside mask and the box the pixels span);
 - :func:`roi_jacobian`: their Jacobian with respect to (omega, t, c), the chain rule of
-  :mod:`.projection` contracted with the image gradient (the photometric projection of the
-  residuals is applied to its rows afterwards);
+  :mod:`.projection` contracted with the image gradient; :func:`linearised` makes the whole
+  linearisation of a level in one call: the gradient from the stencil's samples, the Jacobian,
+  its rows' photometric projection and ``J' V J``;
 - :func:`huber_irls`, :func:`normal_equations`, :func:`weighted_gram`: eq. 6's robust cost and
   its IRLS normal equations;
 - :func:`damped_step`: the Levenberg-Marquardt step.
+
+A level's linearisation is thus two compiled calls around one ``cv2.remap``, an evaluation two
+around another (the points, then the projected residuals of
+:meth:`~face_tracking_ros.imaging.PhotometricProjection.residuals`): the Python glue between
+kernels cost as much as the kernels.
 
 Arrays are component-major (one contiguous row per coordinate or parameter), and the loops run
 along a node's M samples, so the compiler vectorises them. Kernels are typed (compiled when this
@@ -28,6 +36,7 @@ import numpy as np
 from numpy.linalg import LinAlgError
 
 from face_tracking_ros.compiled import FAST
+from face_tracking_ros.imaging.photometric import project_out
 
 
 @numba.njit(**FAST)
@@ -185,6 +194,105 @@ def roi_points(
             x_row[m] = (m_00 * x + m_01 * y + m_02 * z + m_03) * inverse_depth
             y_row[m] = (m_10 * x + m_11 * y + m_12 * z + m_13) * inverse_depth
     return rotated, pixels
+
+
+@numba.njit(**FAST)
+def _span(values: np.ndarray) -> tuple[float, float]:
+    """The least and greatest of (K,) values (K > 0) with no NaN; 8 running extremes at once."""
+    lanes = 8
+    low, high = np.full(lanes, values[0]), np.full(lanes, values[0])
+    whole = values.size - values.size % lanes
+    for i in range(0, whole, lanes):
+        for j in range(lanes):
+            value = values[i + j]
+            low[j] = value if value < low[j] else low[j]
+            high[j] = value if value > high[j] else high[j]
+    least, greatest = low.min(), high.max()
+    for i in range(whole, values.size):
+        least, greatest = min(least, values[i]), max(greatest, values[i])
+    return least, greatest
+
+
+@numba.njit(
+    'Tuple((f8[:, :, ::1], f4[:, ::1], f4[:, ::1], b1[:, ::1], f4[::1]))(f8[:, ::1], f8[:, ::1], '
+    'f8[::1], f8[:, ::1], f8[:, :, ::1], f8[:, :, :, ::1], f8[::1], f8[:, :, :, ::1], f8[::1], '
+    'b1, f8, f8, f8)',
+    **FAST,
+)
+def roi_maps(
+    rotation: np.ndarray,
+    shape: np.ndarray,
+    t: np.ndarray,
+    camera: np.ndarray,
+    offsets: np.ndarray,
+    action: np.ndarray,
+    alpha: np.ndarray,
+    identity: np.ndarray,
+    sigma_change: np.ndarray,
+    stencil: bool,
+    width: float,
+    height: float,
+    margin: float,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The ROI points of :func:`roi_points` with what sampling them takes, in one pass.
+
+    The ``cv2.remap`` maps of the pixels (eq. 2) and, for ``stencil``, of the central
+    differences' points one pixel either side (+x, -x, +y, -y, as
+    :func:`~face_tracking_ros.imaging.sample_with_gradient_xy` takes them); which samples lie
+    ``margin`` px inside a (height, width) image (:func:`~face_tracking_ros.imaging.inside_xy`);
+    and the box the pixels span, which the pyramid makes level 0 over
+    (:meth:`~face_tracking_ros.imaging.ImagePyramid.level_reaching`).
+
+    Args:
+        rotation: (3, 3) R(omega).
+        shape: (N, 3) nodes of eq. 3 at (sigma, alpha), m.
+        t: (3,) translation of eq. 1, m.
+        camera: (3, 4) projection matrix of the level's pixels.
+        offsets: (3, N, M) offsets from the nodes to their samples at alpha = 0, sigma_0, m.
+        action: (q, 3, N, M) derivative of the offsets with respect to alpha.
+        alpha: (q,) expression coefficients.
+        identity: (p, 3, N, M) derivative of the offsets with respect to sigma.
+        sigma_change: (p,) ``sigma - sigma_0``.
+        stencil: whether the maps hold the central differences' points too.
+        width: the level's width, px.
+        height: the level's height, px.
+        margin: px a sample must lie inside the image.
+
+    Returns:
+        ``(rotated, map_x, map_y, inside, box)``: (3, N, M) ``R P``, m; (S, N M) float32 x and
+        y maps, row 0 the pixels and for ``stencil`` (S = 5) rows 1-4 the stencil's points;
+        (N, M) inside mask; (4,) float32 least and greatest x, then y, of the pixels (NaN if
+        any is not finite).
+    """
+    rotated, pixels = roi_points(
+        rotation, shape, t, camera, offsets, action, alpha, identity, sigma_change
+    )
+    count, size = pixels.shape[1], pixels.shape[2]
+    inside = np.empty((count, size), dtype=np.bool_)
+    finite = 0.0  # NaN once a pixel is not finite
+    right, bottom = width - 1 - margin, height - 1 - margin
+    for n in range(count):
+        x_row, y_row, inside_row = pixels[0, n], pixels[1, n], inside[n]
+        for m in range(size):
+            x, y = x_row[m], y_row[m]
+            finite += x * 0.0 + y * 0.0
+            inside_row[m] = (x >= margin) & (y >= margin) & (x <= right) & (y <= bottom)
+    points_x, points_y = pixels[0].reshape(count * size), pixels[1].reshape(count * size)
+    box = np.array([*_span(points_x), *_span(points_y)], dtype=np.float32)
+    if not np.isfinite(finite):
+        box[:] = np.nan
+    if not stencil:
+        return rotated, points_x.reshape(1, -1), points_y.reshape(1, -1), inside, box
+    # The stencil's points as float32 sums, x + 0 too (-0 becomes +0), as numpy makes them.
+    map_x = np.empty((5, count * size), dtype=np.float32)
+    map_y = np.empty((5, count * size), dtype=np.float32)
+    for row, (shift_x, shift_y) in enumerate(((0, 0), (1, 0), (-1, 0), (0, 1), (0, -1))):
+        step_x, step_y = np.float32(shift_x), np.float32(shift_y)
+        out_x, out_y = map_x[row], map_y[row]
+        for i in range(count * size):
+            out_x[i] = points_x[i] + step_x
+            out_y[i] = points_y[i] + step_y
+    return rotated, map_x, map_y, inside, box
 
 
 @numba.njit(
@@ -439,3 +547,63 @@ def normal_equations(
         for b in range(size):
             hessian[a, b] = (visible_hessian[a, b] + hessian[a, b]) * inverse_variance
     return cost, hessian, gradient
+
+
+@numba.njit(
+    'Tuple((f8[:, ::1], f8[:, ::1], f8[:, ::1]))(f4[:, ::1], f8[:, :, ::1], f8[:, ::1], '
+    'f8[::1], f8[:, ::1], f8[:, ::1], f8[:, :, ::1], f8[:, :, ::1], f8[:, :, :, ::1], '
+    'f8[:, :, ::1], f8[::1])',
+    **FAST,
+)
+def linearised(
+    stencil: np.ndarray,
+    rotated: np.ndarray,
+    rotated_nodes: np.ndarray,
+    t: np.ndarray,
+    camera: np.ndarray,
+    rotation: np.ndarray,
+    d_rotation: np.ndarray,
+    node_basis: np.ndarray,
+    sample_basis: np.ndarray,
+    basis_rows: np.ndarray,
+    visibility: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Eq. 6's linearisation on one level: projected Jacobian J, ``J' V J`` and node Jacobian.
+
+    The image gradient is the central difference of the stencil's samples (as
+    :func:`~face_tracking_ros.imaging.sample_with_gradient_xy` takes it); :func:`roi_jacobian`
+    carries it through eq. 1-3; each patch's rows are projected by ``1 - P`` of the photometric
+    model (:func:`~face_tracking_ros.imaging.photometric.project_out`); and ``J' V J`` is
+    :func:`weighted_gram` with the samples' visibility weights V.
+
+    Args:
+        stencil: (5, N M) float32 samples at the ROI pixels, then one pixel +x, -x, +y, -y.
+        rotated: (3, N, M) ``R P`` of the ROI samples, m.
+        rotated_nodes: (3, N) ``R X_n`` of the nodes, m.
+        t: (3,) translation, m.
+        camera: (3, 4) projection matrix of the level's pixels.
+        rotation: (3, 3) R(omega).
+        d_rotation: (3, 3, 3) dR/domega_k.
+        node_basis: (N, 3, c) derivative of eq. 3's nodes with respect to the coefficients.
+        sample_basis: (c, 3, N, M) derivative of the samples' offsets from their nodes.
+        basis_rows: (N, K, M) orthonormal rows U' of each patch's brightness changes.
+        visibility: (N M,) the samples' visibility weights V.
+
+    Returns:
+        ``(jacobian_t, hessian, node_jacobian)``: (6 + c, N M) projected J' (grey levels per
+        parameter), (6 + c, 6 + c) ``J' V J`` and (2 N, 6 + c) node Jacobian, level px.
+    """
+    count, size = rotated.shape[1], rotated.shape[2]
+    gradient = np.empty((2, count, size), dtype=np.float32)
+    half = np.float32(0.5)
+    for n in range(count):
+        for m in range(size):
+            i = n * size + m
+            gradient[0, n, m] = (stencil[1, i] - stencil[2, i]) * half
+            gradient[1, n, m] = (stencil[3, i] - stencil[4, i]) * half
+    jacobian, node_jacobian = roi_jacobian(
+        rotated, rotated_nodes, t, camera, gradient, rotation, d_rotation, node_basis, sample_basis
+    )
+    project_out(jacobian, basis_rows)
+    jacobian_t = jacobian.reshape(jacobian.shape[0], count * size)
+    return jacobian_t, weighted_gram(jacobian_t, visibility), node_jacobian

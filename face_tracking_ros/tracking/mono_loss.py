@@ -162,6 +162,6 @@ def _drift_ratio(
     nodes = nodes & (key.visibility > 0)
     if not nodes.any():
         return 0.0
-    residuals = keyframe.projection.apply(samples - key.levels[0])
+    residuals = keyframe.projection.residuals(samples, key.levels[0])
     rms = np.sqrt(np.mean(residuals[nodes] ** 2, axis=1))
     return median(rms / texture[nodes])

@@ -8,15 +8,17 @@ weighs each node by how squarely it faces the camera, and samples an image on th
 from __future__ import annotations
 
 from functools import cached_property
+import math
 from typing import NamedTuple
 
 import numpy as np
 
+from face_tracking_ros.errors import InputError
 from face_tracking_ros.geometry.camera import PinholeCamera
 from face_tracking_ros.geometry.rotation import rodrigues
-from face_tracking_ros.imaging import GRADIENT_MARGIN, ImagePyramid, inside_xy, sample_xy
+from face_tracking_ros.imaging import GRADIENT_MARGIN, ImagePyramid, sample_maps
 from face_tracking_ros.model.face_model import FaceModel
-from face_tracking_ros.tracking.mono_kernels import roi_points
+from face_tracking_ros.tracking.mono_kernels import roi_maps
 from face_tracking_ros.tracking.mono_rois import Params, Roi
 
 
@@ -25,6 +27,24 @@ class Sampled(NamedTuple):
 
     samples: np.ndarray  # (N, M) float32
     inside: np.ndarray  # (N, M) bool, at least 1 px inside
+
+
+class RoiMaps(NamedTuple):
+    """One level's ROI points at a pose and the ``cv2.remap`` maps of them.
+
+    Attributes:
+        rotated: (3, N, M) ``R P`` of the points (eq. 1, 3), m.
+        map_x: (S, N M) float32 x of the pixels (eq. 2), then of the stencil's points if any.
+        map_y: (S, N M) float32 y likewise.
+        inside: (N, M) the samples at least 1 px inside the image.
+        box: (4,) least and greatest x, then y, of the pixels.
+    """
+
+    rotated: np.ndarray
+    map_x: np.ndarray
+    map_y: np.ndarray
+    inside: np.ndarray
+    box: np.ndarray
 
 
 class _Pose:
@@ -82,6 +102,11 @@ class FaceProjection:
             camera.p * np.array([[1.0 / (1 << level)], [1.0 / (1 << level)], [1.0]])
             for level in range(num_levels)
         )
+        # (width, height) of each level: level l's is level 0's halved l times, rounded up.
+        self._level_sizes = tuple(
+            (float(-(-camera.width // (1 << level))), float(-(-camera.height // (1 << level))))
+            for level in range(num_levels)
+        )
         self._poses: dict[int, _Pose] = {}  # by id(params), the least recently used first
 
     def pose(self, params: Params) -> tuple[np.ndarray, np.ndarray]:
@@ -119,29 +144,56 @@ class FaceProjection:
         low = self._visibility_cos
         return np.clip((facing - low) / max(low, 1e-6), 0.0, 1.0)
 
-    def roi_points(
-        self, params: Params, camera: np.ndarray, roi: Roi
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """(3, N, M) ``R P`` of the ROI points (eq. 1, 3) and their (2, N, M) level pixels (eq. 2).
+    def points(self, params: Params, level: int, roi: Roi, stencil: bool = False) -> RoiMaps:
+        """Level ``level``'s ROI points ``roi`` at ``params`` (eq. 1-3), ready to sample.
 
-        ``camera`` is the level's projection matrix P.
+        ``stencil`` adds the central differences' points (:func:`~.mono_kernels.roi_maps`).
+
+        Raises:
+            InputError: if a point's pixel is not finite.
         """
         rotation, shape = self.pose(params)
-        return roi_points(
-            rotation,
-            shape,
-            params.t,
-            camera,
-            roi.offsets,
-            roi.action,
-            params.alpha,
-            roi.identity,
-            params.sigma - roi.sigma,
+        width, height = self._level_sizes[level]
+        maps = RoiMaps(
+            *roi_maps(
+                rotation,
+                shape,
+                params.t,
+                self.level_cameras[level],
+                roi.offsets,
+                roi.action,
+                params.alpha,
+                roi.identity,
+                params.sigma - roi.sigma,
+                stencil,
+                width,
+                height,
+                GRADIENT_MARGIN,
+            )
         )
+        if math.isnan(maps.box[0]):
+            msg = 'points hold NaN or Inf'
+            raise InputError(msg)
+        return maps
 
     def sample(self, pyramid: ImagePyramid, params: Params, level: int, roi: Roi) -> Sampled:
         """Level ``level``'s samples of its ROIs ``roi`` at ``params``."""
-        _, (x, y) = self.roi_points(params, self.level_cameras[level], roi)
-        image = pyramid.level(level, x, y)
-        inside = inside_xy(x, y, image.shape, margin=GRADIENT_MARGIN)
-        return Sampled(sample_xy(image, x, y), inside)
+        maps = self.points(params, level, roi)
+        shape = maps.inside.shape
+        image = pyramid.level_reaching(level, maps.box)
+        samples = sample_maps(image, maps.map_x.reshape(shape), maps.map_y.reshape(shape))
+        return Sampled(samples, maps.inside)
+
+    def sample_stencil(
+        self, pyramid: ImagePyramid, params: Params, level: int, roi: Roi
+    ) -> tuple[RoiMaps, Sampled, np.ndarray]:
+        """:meth:`sample` with its points and the central differences' samples.
+
+        Returns:
+            The points, the samples and the (5, N M) float32 stencil samples (at the points,
+            then one pixel +x, -x, +y, -y), all from one ``cv2.remap`` call.
+        """
+        maps = self.points(params, level, roi, stencil=True)
+        image = pyramid.level_reaching(level, maps.box)
+        stencil = sample_maps(image, maps.map_x, maps.map_y)
+        return maps, Sampled(stencil[0].reshape(maps.inside.shape), maps.inside), stencil

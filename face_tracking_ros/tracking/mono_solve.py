@@ -30,23 +30,15 @@ from typing import NamedTuple
 
 import numpy as np
 
-from face_tracking_ros.imaging import (
-    GRADIENT_MARGIN,
-    ImagePyramid,
-    PhotometricInvariance,
-    PhotometricProjection,
-    inside_xy,
-    sample_with_gradient_xy,
-)
+from face_tracking_ros.imaging import ImagePyramid, PhotometricInvariance, PhotometricProjection
 from face_tracking_ros.model.face_model import FaceModel
 from face_tracking_ros.tracking.coarse_to_fine import coarse_to_fine
 from face_tracking_ros.tracking.mono_config import MonoTrackerConfig
 from face_tracking_ros.tracking.mono_kernels import (
     damped_step,
     huber_irls,
+    linearised,
     normal_equations,
-    roi_jacobian,
-    weighted_gram,
 )
 from face_tracking_ros.tracking.mono_priors import Priors
 from face_tracking_ros.tracking.mono_projection import FaceProjection, Sampled
@@ -230,7 +222,7 @@ class MonoSolver:
         fallback, system = accepted[-1]  # level 0's
         condition = _condition(system.hessian)
         first = self._face.sample(pyramid, params, 0, rois[0])
-        residuals = projection(0).apply(first.samples - templates[0])
+        residuals = projection(0).residuals(first.samples, templates[0])
         weights = node_weights[:, None] * first.inside
         cost = self._data_cost(residuals, weights, system.scale) + self._priors.cost(
             params, free_sigma
@@ -298,33 +290,28 @@ class MonoSolver:
         """The Jacobian of eq. 6's photometrically projected residuals at ``params``.
 
         Image gradient (sampled on the ROIs only) x d pixel / d X_c (eq. 2) x d X_c / d(omega,
-        t, alpha[, sigma]) (eq. 1, 3) (:func:`~.mono_kernels.roi_jacobian`), then ``1 - P`` of the
-        photometric model.
+        t, alpha[, sigma]) (eq. 1, 3), then ``1 - P`` of the photometric model, and ``J' V J``:
+        one compiled pass over the samples (:func:`~.mono_kernels.linearised`).
         """
         basis = self._identity_action_basis if free_sigma else self._action_basis
         rotation, shape = self._face.pose(params)
-        rotated, (x, y) = self._face.roi_points(params, level.camera, level.roi)
-        image = level.pyramid.level(level.index, x, y)
-        samples, gradient = sample_with_gradient_xy(image, x, y)
-        jacobian, node_jacobian = roi_jacobian(
-            rotated,
+        maps, sampled, stencil = self._face.sample_stencil(
+            level.pyramid, params, level.index, level.roi
+        )
+        jacobian_t, hessian, node_jacobian = linearised(
+            stencil,
+            maps.rotated,
             rotation @ shape.T,
             params.t,
             level.camera,
-            gradient,
             rotation,
             self._face.d_rotation(params),
             basis,
             level.roi.basis(free_sigma),
+            level.projection.basis_rows,
+            level.visibility.ravel(),
         )
-        jacobian_t = level.projection.apply(jacobian).reshape(len(jacobian), -1)
-        return Linearisation(
-            params=params,
-            sampled=Sampled(samples, inside_xy(x, y, image.shape, margin=GRADIENT_MARGIN)),
-            jacobian_t=jacobian_t,
-            hessian=weighted_gram(jacobian_t, level.visibility.ravel()),
-            node_jacobian=node_jacobian,
-        )
+        return Linearisation(params, sampled, jacobian_t, hessian, node_jacobian)
 
     def _evaluate(
         self,
@@ -349,7 +336,7 @@ class MonoSolver:
             if params is linear.params
             else self._face.sample(level.pyramid, params, level.index, level.roi)
         )
-        residuals = level.projection.apply(sampled.samples - level.template)
+        residuals = level.projection.residuals(sampled.samples, level.template)
         weights = level.visibility * sampled.inside
         if scale is None:
             active = np.abs(residuals[weights > 0])

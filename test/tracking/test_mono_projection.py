@@ -15,6 +15,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from face_tracking_ros.errors import InputError
 from face_tracking_ros.geometry.camera import PinholeCamera
 from face_tracking_ros.imaging import ImagePyramid, PhotometricInvariance, square_offsets
 from face_tracking_ros.model.face_model import FaceModel
@@ -54,7 +55,8 @@ def test_a_sample_is_inside_when_its_central_differences_read_the_image(
 
     sampled = face.sample(pyramid, params, 0, roi)
 
-    _, (x, y) = face.roi_points(params, face.level_cameras[0], roi)
+    maps = face.points(params, 0, roi)
+    x, y = (axis.reshape(sampled.inside.shape) for axis in (maps.map_x, maps.map_y))
     assert np.abs(x - PIXELS[:, 0]).max() < 1e-3 and np.abs(y - PIXELS[:, 1]).max() < 1e-3
     assert sampled.inside.shape == (model.num_nodes, len(PIXELS))
     assert (sampled.inside == np.array(INSIDE)).all()
@@ -105,3 +107,18 @@ def test_the_solvers_cost_at_the_templates_own_samples_is_the_prior_alone(
     linear = solver._linearise(level, params, free_sigma=False)
 
     assert solver._evaluate(level, params, linear, scale=1.0).cost == pytest.approx(4.0)
+
+
+def test_sampling_at_a_non_finite_estimate_is_an_input_error(
+    model_factory, texture_factory
+) -> None:
+    """A diverged solve's points are refused before any image is read (the frame is LOST)."""
+    model = model_factory(planar=True)
+    roi, params = _hand_placed(model)
+    face = FaceProjection(model, CAMERA, num_levels=1, visibility_cos=0.2)
+    pyramid = ImagePyramid.build(texture_factory(), 1)
+    diverged = params._replace(t=np.array([np.nan, 0.0, DEPTH]))
+
+    for sample in (face.sample, face.sample_stencil):
+        with pytest.raises(InputError, match='NaN or Inf'):
+            sample(pyramid, diverged, 0, roi)

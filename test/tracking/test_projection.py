@@ -9,12 +9,23 @@ import pytest
 from face_tracking_ros.errors import InputError
 from face_tracking_ros.geometry.camera import PinholeCamera
 from face_tracking_ros.geometry.rotation import rodrigues
+from face_tracking_ros.imaging import (
+    PhotometricInvariance,
+    PhotometricModel,
+    inside_xy,
+    sample_maps,
+    sample_with_gradient_xy,
+    sample_xy,
+    square_offsets,
+)
 from face_tracking_ros.model.topology import mesh_topology
 from face_tracking_ros.tracking.mono_kernels import (
     damped_step,
     huber_irls,
+    linearised,
     normal_equations,
     roi_jacobian,
+    roi_maps,
     roi_points,
     weighted_gram,
 )
@@ -106,6 +117,91 @@ def test_roi_kernels_are_eq_1_to_3_and_the_gradient_contracted_chain_rule() -> N
     assert np.abs(jacobian - contracted).max() < 1e-9 * np.abs(contracted).max()
     nodes = project_with_jacobian(CAMERA, OMEGA, T, shape, node_basis).jacobian  # (N, 2, 8)
     assert np.abs(node_jacobian - nodes.reshape(8, 8)).max() < 1e-9 * np.abs(nodes).max()
+
+
+def _roi_inputs() -> tuple:
+    """roi_points' inputs for 4 nodes of 3 x 3 samples, some beyond a 40 x 30 image's border."""
+    rng = np.random.default_rng(2)
+    rotation, _ = rodrigues(OMEGA)
+    shape = rng.normal(0.0, 0.02, (4, 3))
+    offsets = rng.normal(0.0, 0.001, (3, 4, 9))
+    action = rng.normal(0.0, 0.001, (2, 3, 4, 9))
+    identity = rng.normal(0.0, 0.001, (1, 3, 4, 9))
+    camera = np.array([[40.0, 0, 1, 0], [0, 40.0, 15, 0], [0, 0, 1, 0]])  # x ~ 1: the border
+    return rotation, shape, T, camera, offsets, action, np.array([0.5, -1.0]), identity, np.ones(1)
+
+
+def test_roi_maps_are_the_pixels_the_stencil_and_the_inside_mask_of_roi_points() -> None:
+    """What the tracker samples is what the separate samplers made of roi_points' pixels."""
+    inputs = _roi_inputs()
+    rotated, (x, y) = roi_points(*inputs)
+    image = np.random.default_rng(3).uniform(0, 255, (30, 40)).astype(np.float32)
+    same_rotated, map_x, map_y, inside, box = roi_maps(*inputs, False, 40.0, 30.0, 1.0)
+
+    assert np.array_equal(same_rotated, rotated)
+    assert np.array_equal(
+        sample_maps(image, map_x.reshape(4, 9), map_y.reshape(4, 9)), sample_xy(image, x, y)
+    )
+    assert np.array_equal(inside, inside_xy(x, y, image.shape, margin=1.0)) and not inside.all()
+    assert np.array_equal(box, [x.min(), x.max(), y.min(), y.max()])
+    _, map_x, map_y, _, _ = roi_maps(*inputs, True, 40.0, 30.0, 1.0)
+    values, gradient = sample_with_gradient_xy(image, x, y)
+    stencil = sample_maps(image, map_x, map_y)
+    assert map_x.shape == (5, 36) and np.array_equal(stencil[0].reshape(4, 9), values)
+    assert np.array_equal((stencil[1] - stencil[2]) * np.float32(0.5), gradient[0].ravel())
+    assert np.array_equal((stencil[3] - stencil[4]) * np.float32(0.5), gradient[1].ravel())
+
+
+def test_roi_maps_box_is_nan_when_a_pixel_is_not_finite() -> None:
+    rotation, shape, t, camera, offsets, *rest = _roi_inputs()
+    offsets[2, 1, 4] = -t[2] - 1.0  # one sample far behind the camera, the rest in front
+    assert np.isfinite(
+        roi_maps(rotation, shape, t, camera, offsets, *rest, False, 40, 30, 1)[4]
+    ).all()
+    offsets[2, 1, 4] = np.inf
+    box = roi_maps(rotation, shape, t, camera, offsets, *rest, False, 40.0, 30.0, 1.0)[4]
+    assert np.isnan(box).all()
+
+
+def test_linearised_is_the_projected_jacobian_and_its_visible_gram() -> None:
+    """The linearisation: roi_jacobian of the stencil's gradient, projected, then J' V J."""
+    inputs = _roi_inputs()
+    rotation, shape, t, camera, _, action, _, _, _ = inputs
+    image = np.random.default_rng(4).uniform(0, 255, (30, 40)).astype(np.float32)
+    rotated, map_x, map_y, _, _ = roi_maps(*inputs, True, 40.0, 30.0, 1.0)
+    stencil = sample_maps(image, map_x, map_y)
+    values, gradient = sample_with_gradient_xy(
+        image, map_x[0].reshape(4, 9), map_y[0].reshape(4, 9)
+    )
+    d_rotation = rodrigues(OMEGA)[1]
+    node_basis = np.random.default_rng(5).normal(0.0, 1.0, (4, 3, 2))
+    args = (rotated, rotation @ shape.T, t, camera)
+    bases = (rotation, d_rotation, node_basis, action)
+    jacobian, node_jacobian = roi_jacobian(*args, gradient, *bases)
+    projection = PhotometricInvariance.of(
+        PhotometricModel.GAIN_FIELD, square_offsets(1)
+    ).projection(values)
+    expected = projection.apply(jacobian).reshape(8, -1)
+    visibility = np.repeat([1.0, 0.5, 0.0, 1.0], 9)
+
+    jacobian_t, hessian, same_node_jacobian = linearised(
+        stencil, *args, *bases, projection.basis_rows, visibility
+    )
+
+    assert np.array_equal(jacobian_t, expected)
+    assert np.array_equal(hessian, weighted_gram(expected, visibility))
+    assert np.array_equal(same_node_jacobian, node_jacobian)
+
+
+def test_projected_residuals_are_the_projected_difference() -> None:
+    rng = np.random.default_rng(6)
+    samples = rng.uniform(0, 255, (4, 9)).astype(np.float32)
+    invariance = PhotometricInvariance.of(PhotometricModel.GAIN_FIELD, square_offsets(1))
+    for template in (rng.uniform(0, 255, (4, 9)), samples[::-1].copy()):  # float64, float32
+        projection = invariance.projection(template)
+        residuals = projection.residuals(samples, template)
+        assert residuals.dtype == np.float64
+        assert np.array_equal(residuals, projection.apply(samples - template))
 
 
 def test_weighted_gram_and_huber_irls_match_their_formulas() -> None:
