@@ -71,6 +71,7 @@ from face_tracking_ros.tracking.detector import Detector
 from face_tracking_ros.tracking.initialisation import Initialisation, fit_model_to_points
 from face_tracking_ros.tracking.mono_adjustment import Adjusted, FirstViews, View, ViewAdjuster
 from face_tracking_ros.tracking.mono_config import MonoTrackerConfig
+from face_tracking_ros.tracking.mono_kernels import row_rms
 from face_tracking_ros.tracking.mono_loss import LossChecks, Reference
 from face_tracking_ros.tracking.mono_priors import Priors
 from face_tracking_ros.tracking.mono_projection import FaceProjection
@@ -498,7 +499,7 @@ class MonoTracker:
         sampled = self._sampler.templates(
             pyramid, params, track.rois, track.normals, solution.sampled
         )
-        node_rms = np.sqrt(np.mean(solution.residuals**2, axis=1))
+        node_rms = row_rms(solution.residuals)
         reason = self._loss.reason(
             params,
             node_rms,

@@ -35,18 +35,8 @@ import numba
 import numpy as np
 from numpy.linalg import LinAlgError
 
-from face_tracking_ros.compiled import FAST
+from face_tracking_ros.compiled import EXACT, FAST
 from face_tracking_ros.imaging.photometric import project_out
-
-
-@numba.njit(**FAST)
-def _rows_times(matrix: np.ndarray, points: np.ndarray, out: np.ndarray) -> None:
-    """``out = A points`` for (3, M) points and a (3, 3) matrix A."""
-    x_row, y_row, z_row = points[0], points[1], points[2]
-    for a in range(3):
-        a_0, a_1, a_2, row = matrix[a, 0], matrix[a, 1], matrix[a, 2], out[a]
-        for m in range(points.shape[1]):
-            row[m] = a_0 * x_row[m] + a_1 * y_row[m] + a_2 * z_row[m]
 
 
 @numba.njit(**FAST)
@@ -83,10 +73,10 @@ def _node_jacobian(
     gradient g = (1, 0) and (0, 1), the node moving with its basis B_n alone:
     ``h = (P_axis - x_axis P_3) / h_3``.
     """
+    homogeneous = np.empty(3)
     for n in range(rotated_nodes.shape[1]):
         x, y, z = rotated_nodes[0, n], rotated_nodes[1, n], rotated_nodes[2, n]
         point = (x + t[0], y + t[1], z + t[2])
-        homogeneous = np.zeros(3)
         for a in range(3):
             homogeneous[a] = camera[a, 3]
             for b in range(3):
@@ -168,6 +158,9 @@ def roi_points(
             for c in range(3):
                 mapping[a, c] += camera[a, b] * rotation[b, c]
     face = np.empty((3, size))  # P of one node's samples
+    r_00, r_01, r_02 = rotation[0, 0], rotation[0, 1], rotation[0, 2]
+    r_10, r_11, r_12 = rotation[1, 0], rotation[1, 1], rotation[1, 2]
+    r_20, r_21, r_22 = rotation[2, 0], rotation[2, 1], rotation[2, 2]
     for n in range(count):
         for a in range(3):
             point, offset, node = face[a], offsets[a, n], shape[n, a]
@@ -182,14 +175,18 @@ def roi_points(
                     weight, basis = sigma_change[k], identity[k, a, n]
                     for m in range(size):
                         point[m] += weight * basis[m]
-        _rows_times(rotation, face, rotated[:, n])
         x_row, y_row = pixels[0, n], pixels[1, n]
+        rotated_x, rotated_y, rotated_z = rotated[0, n], rotated[1, n], rotated[2, n]
         face_x, face_y, face_z = face[0], face[1], face[2]
         m_00, m_01, m_02, m_03 = mapping[0, 0], mapping[0, 1], mapping[0, 2], mapping[0, 3]
         m_10, m_11, m_12, m_13 = mapping[1, 0], mapping[1, 1], mapping[1, 2], mapping[1, 3]
         m_20, m_21, m_22, m_23 = mapping[2, 0], mapping[2, 1], mapping[2, 2], mapping[2, 3]
+        # R P and the pixels in one pass over contiguous rows (rotated[:, n] is not one).
         for m in range(size):
             x, y, z = face_x[m], face_y[m], face_z[m]
+            rotated_x[m] = r_00 * x + r_01 * y + r_02 * z
+            rotated_y[m] = r_10 * x + r_11 * y + r_12 * z
+            rotated_z[m] = r_20 * x + r_21 * y + r_22 * z
             inverse_depth = 1.0 / (m_20 * x + m_21 * y + m_22 * z + m_23)
             x_row[m] = (m_00 * x + m_01 * y + m_02 * z + m_03) * inverse_depth
             y_row[m] = (m_10 * x + m_11 * y + m_12 * z + m_13) * inverse_depth
@@ -607,3 +604,52 @@ def linearised(
     project_out(jacobian, basis_rows)
     jacobian_t = jacobian.reshape(jacobian.shape[0], count * size)
     return jacobian_t, weighted_gram(jacobian_t, visibility), node_jacobian
+
+
+@numba.njit('f8(f8[::1], i8, i8)', **EXACT)
+def _pairwise_sum(values: np.ndarray, start: int, count: int) -> float:
+    """The sum of ``values[start:start + count]`` in numpy's order (its ``pairwise_sum``).
+
+    Below 8 values one running sum; up to 128, eight running sums over the values taken eight
+    at a time, added as ``((s0 + s1) + (s2 + s3)) + ((s4 + s5) + (s6 + s7))``, then the rest
+    one by one; beyond, the two halves (the first a multiple of 8) summed so and added.
+    """
+    if count < 8:
+        total = 0.0
+        for i in range(start, start + count):
+            total += values[i]
+        return total
+    if count > 128:
+        half = count // 2
+        half -= half % 8
+        return _pairwise_sum(values, start, half) + _pairwise_sum(
+            values, start + half, count - half
+        )
+    s0, s1, s2, s3 = values[start], values[start + 1], values[start + 2], values[start + 3]
+    s4, s5, s6, s7 = values[start + 4], values[start + 5], values[start + 6], values[start + 7]
+    whole = start + count - count % 8
+    for i in range(start + 8, whole, 8):
+        s0, s1, s2, s3 = s0 + values[i], s1 + values[i + 1], s2 + values[i + 2], s3 + values[i + 3]
+        s4, s5 = s4 + values[i + 4], s5 + values[i + 5]
+        s6, s7 = s6 + values[i + 6], s7 + values[i + 7]
+    total = ((s0 + s1) + (s2 + s3)) + ((s4 + s5) + (s6 + s7))
+    for i in range(whole, start + count):
+        total += values[i]
+    return total
+
+
+@numba.njit('f8[::1](f8[:, ::1])', **EXACT)
+def row_rms(values: np.ndarray) -> np.ndarray:
+    """(N,) RMS of each row of (N, M) values: ``np.sqrt(np.mean(values**2, axis=1))``'s bits.
+
+    A node's RMS residual and its ROI's texture (:mod:`.mono_loss`): numpy's mean sums each
+    row pairwise (:func:`_pairwise_sum`), then divides by M.
+    """
+    count, size = values.shape
+    rms = np.empty(count)
+    squares = np.empty(size)
+    for n in range(count):
+        for m in range(size):
+            squares[m] = values[n, m] * values[n, m]
+        rms[n] = np.sqrt(_pairwise_sum(squares, 0, size) / size)
+    return rms

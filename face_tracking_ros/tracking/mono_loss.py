@@ -22,6 +22,7 @@ from face_tracking_ros.geometry.camera import PinholeCamera
 from face_tracking_ros.geometry.rotation import angle_between
 from face_tracking_ros.imaging import PhotometricModel, PhotometricProjection, inside_image
 from face_tracking_ros.tracking.mono_config import MonoTrackerConfig
+from face_tracking_ros.tracking.mono_kernels import row_rms
 from face_tracking_ros.tracking.mono_projection import FaceProjection
 from face_tracking_ros.tracking.mono_rois import Params
 from face_tracking_ros.tracking.mono_templates import Keyframe, nearest_keyframe
@@ -140,7 +141,7 @@ class LossChecks:
 
     def _texture(self, samples: np.ndarray) -> np.ndarray:
         """(N,) RMS of (N, M) ROI samples beyond the brightness change that needs no template."""
-        return np.sqrt(np.mean(self._untextured.apply(samples) ** 2, axis=1))
+        return row_rms(self._untextured.apply(samples))
 
 
 def _drift_ratio(
@@ -163,5 +164,5 @@ def _drift_ratio(
     if not nodes.any():
         return 0.0
     residuals = keyframe.projection.residuals(samples, key.levels[0])
-    rms = np.sqrt(np.mean(residuals[nodes] ** 2, axis=1))
+    rms = row_rms(residuals[nodes])
     return median(rms / texture[nodes])

@@ -27,6 +27,7 @@ from face_tracking_ros.tracking.mono_kernels import (
     roi_jacobian,
     roi_maps,
     roi_points,
+    row_rms,
     weighted_gram,
 )
 from face_tracking_ros.tracking.projection import project_with_jacobian
@@ -202,6 +203,14 @@ def test_projected_residuals_are_the_projected_difference() -> None:
         residuals = projection.residuals(samples, template)
         assert residuals.dtype == np.float64
         assert np.array_equal(residuals, projection.apply(samples - template))
+
+
+@pytest.mark.parametrize('size', [5, 9, 81, 169, 961])
+def test_row_rms_is_numpys_to_the_bit(size: int) -> None:
+    """np.sqrt(np.mean(v**2, axis=1)) summed in numpy's order: below 8, to 128, and beyond."""
+    rng = np.random.default_rng(size)
+    values = rng.normal(0.0, 1.0, (40, size)) * 10.0 ** rng.uniform(-3.0, 3.0, (40, 1))
+    assert np.array_equal(row_rms(values), np.sqrt(np.mean(values**2, axis=1)))
 
 
 def test_weighted_gram_and_huber_irls_match_their_formulas() -> None:
