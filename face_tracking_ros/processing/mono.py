@@ -36,6 +36,7 @@ from face_tracking_ros.processing.detection import (
     restart_points,
 )
 from face_tracking_ros.processing.face_outputs import MESH_PORTS, MODEL_PORTS, face_outputs
+from face_tracking_ros.processing.frame_intervals import FrameIntervals
 from face_tracking_ros.processing.held_input import HeldInput
 from face_tracking_ros.processing.model_agreement import MODEL_PORT
 from face_tracking_ros.processing.parameters import ParameterSource
@@ -153,6 +154,7 @@ class MonoProcessor:
         # The names and (N, 3) camera-frame nodes of the last image, if it was tracked.
         self._tracked: tuple[tuple[str, ...], np.ndarray] | None = None
         self._stamps = StampGuard('image')
+        self._intervals = FrameIntervals()
         self._counts = TrackCounts('images')
         self.inputs = _input_ports(config)
         self.outputs = (
@@ -328,9 +330,9 @@ class MonoProcessor:
         rectifier = self._calibration.rectifier
         rectifier.check_size(gray)
         stamp_ns = stamp_to_ns(header.stamp)
-        self._check_stamp(stamp_ns)
+        intervals = self._check_stamp(stamp_ns)
         gray = rectifier.image(gray)
-        tracked = self._tracker.track(gray)
+        tracked = self._tracker.track(gray, intervals)
         ok = tracked.status == TrackStatus.TRACKING
         self._tracked = (self._model.node_names, tracked.nodes_cam) if ok else None
         self._counts.add(tracked.status, tracked.reason)
@@ -344,11 +346,16 @@ class MonoProcessor:
             outputs.append(Output('face/overlay', overlay))
         return outputs
 
-    def _check_stamp(self, stamp_ns: int) -> None:
+    def _check_stamp(self, stamp_ns: int) -> int:
         """Accept a later stamp; refuse a repeated one; restart the track on an earlier one.
 
         An earlier stamp (a looped bag, a restarted camera) resets the tracker, and the track
         starts again with this image (counted in the status's ``restarts``).
+
+        Returns:
+            The frame intervals since the last image taken (:class:`FrameIntervals`): more than
+            1 when images were dropped (missing from a bag, or left in the queue while the
+            tracker was busy).
 
         Raises:
             InputError: for a repeated stamp.
@@ -356,7 +363,9 @@ class MonoProcessor:
         if not self._stamps.later(stamp_ns, 'image'):
             self._restart()
             self._stamps.restart()
+        previous = self._stamps.last
         self._stamps.take(stamp_ns)
+        return self._intervals.since(previous, stamp_ns)
 
 
 def _input_ports(config: MonoNodeConfig) -> tuple[Port, ...]:

@@ -34,6 +34,9 @@ Design, in the seed's terms:
 - Each frame starts from the constant-velocity prediction of the last two estimates, on level 0
   when that moves the nodes little (``fine_start_px``); a solve from level 0 that fails is made
   again (:meth:`MonoTracker._solve_frame`).
+- Time is counted in frame intervals: a caller that knows images were dropped (a gap in the
+  stamps) passes how many intervals passed (``intervals`` of :meth:`MonoTracker.track`), and
+  the motion prediction and the loss check's rotation limit run over that many.
 - The bundle adjustment's stages run after the frame's result is out (:meth:`MonoTracker.track`,
   then :meth:`MonoTracker.adjust`; ``step`` does both), so a live node publishes the pose before
   it spends time on them, and an adjustment takes effect from the frame after its last stage.
@@ -58,7 +61,7 @@ from numpy.linalg import LinAlgError
 
 from face_tracking_ros.errors import ConfigError, InputError
 from face_tracking_ros.geometry.camera import PinholeCamera
-from face_tracking_ros.geometry.rotation import matrix_to_omega
+from face_tracking_ros.geometry.rotation import matrix_to_omega, rodrigues
 from face_tracking_ros.imaging import (
     ImagePyramid,
     PhotometricInvariance,
@@ -100,7 +103,10 @@ class _Track:
     adjustment of the first views and the adjustment under way. ``before`` is the estimate of
     the frame before ``current`` when the two are consecutive valid frames (followed, or the
     second re-acquired) in the same face frame (None otherwise): the motion prediction's other
-    point. ``missed`` counts the images since ``current`` that gave no valid estimate (LOST).
+    point, ``span`` the frame intervals from it to ``current`` (more than 1 when images were
+    dropped between them). ``missed`` counts the images since ``current`` that gave no valid
+    estimate (LOST); ``elapsed`` the frame intervals from ``current`` to the image being
+    tracked, dropped images included (``missed + 1`` in a stream without gaps).
     """
 
     rois: tuple[Roi, ...]
@@ -114,7 +120,9 @@ class _Track:
     last_good: TrackResult
     frames: int = 1
     missed: int = 0
+    elapsed: int = 0
     before: Params | None = None
+    span: int = 1
 
     @property
     def lost(self) -> bool:
@@ -191,22 +199,26 @@ class MonoTracker:
         self._track = None
         self._followed = None
 
-    def step(self, image: np.ndarray) -> TrackResult:
+    def step(self, image: np.ndarray, intervals: int = 1) -> TrackResult:
         """Track the face into a new image, then run its share of the bundle adjustment.
 
         :meth:`track` followed by :meth:`adjust`, for callers with nothing to do in between.
 
         Args:
             image: (H, W) grey image (uint8 or float, grey levels 0-255) of the camera's size.
+            intervals: frame intervals since the previous image (see :meth:`track`).
 
         Returns:
             The :class:`TrackResult` of this image.
+
+        Raises:
+            InputError: if ``intervals`` is less than 1.
         """
-        result = self.track(image)
+        result = self.track(image, intervals)
         self.adjust()
         return result
 
-    def track(self, image: np.ndarray) -> TrackResult:
+    def track(self, image: np.ndarray, intervals: int = 1) -> TrackResult:
         """Track the face into a new image, leaving the bundle adjustment to :meth:`adjust`.
 
         Call :meth:`adjust` before the next image (once this result is published, say): until
@@ -217,11 +229,26 @@ class MonoTracker:
 
         Args:
             image: (H, W) grey image (uint8 or float, grey levels 0-255) of the camera's size.
+            intervals: frame intervals since the previous image: 1 for the next frame of the
+                stream, n + 1 after n dropped images. The motion prediction is carried on over
+                them, and the loss check allows ``max_rotation_step`` per interval since the
+                last valid estimate. Measured on two rendered 300-frame 30-fps sequences (free
+                motion, true model) with 2, 3 or 5 images dropped every 8-20 frames: LOST
+                frames 0 / 0, 0 / 53, 0 / 1 -> 0 everywhere; rotation MAE with 5 dropped
+                2.65 / 3.45 -> 0.54 / 0.31 degrees (0.51 / 0.30 without gaps).
 
         Returns:
             The :class:`TrackResult` of this image.
+
+        Raises:
+            InputError: if ``intervals`` is less than 1 (not a bad frame but a bad call).
         """
+        if intervals < 1:
+            msg = f'intervals must be >= 1 (frame intervals since the last image), got {intervals}'
+            raise InputError(msg)
         self._followed = None
+        if self._track is not None:
+            self._track.elapsed += intervals
         try:
             pyramid = self._pyramid(image)
             if self._track is None:
@@ -380,7 +407,8 @@ class MonoTracker:
         ratio = config.reacquire_residual_ratio if track.lost else config.lost_residual_ratio
         start, first_level = track.current, _START_LEVEL
         if config.predict_motion and track.before is not None and not track.lost:
-            start = _predicted(track.current, track.before, self._face.rotation)
+            ahead = track.elapsed / track.span
+            start = _predicted(track.current, track.before, ahead, self._face.rotation)
             first_level = self._first_level(track.current, start)
         result, templates = self._solve_frame(
             pyramid, start, blended, weights, ratio, free_sigma, first_level, track.current
@@ -402,10 +430,12 @@ class MonoTracker:
         """Make a successful frame the previous frame of the next one, and maybe a keyframe.
 
         The last valid estimate becomes ``before`` (the motion prediction's other point) if no
-        image was LOST since it, however this frame was found (followed or re-acquired).
+        image was LOST since it, however this frame was found (followed or re-acquired), the
+        frame intervals since it its ``span``.
         """
         track = self._track
         track.before = None if track.lost else track.current
+        track.span = track.elapsed
         config = self._config
         if len(track.keyframes) < config.max_keyframes:
             # trace(R) = 1 + 2 cos(angle)
@@ -417,6 +447,7 @@ class MonoTracker:
         track.last_good = result
         track.frames += 1
         track.missed = 0
+        track.elapsed = 0
 
     def _solve_frame(
         self,
@@ -508,7 +539,7 @@ class MonoTracker:
             sampled.visibility,
             solution.condition,
             residual_ratio,
-            Reference(track.current, track.missed + 1, track.keyframes),
+            Reference(track.current, track.elapsed, track.keyframes),
         )
         status = TrackStatus.LOST if reason else TrackStatus.TRACKING
         result = self._result(
@@ -608,17 +639,23 @@ class MonoTracker:
 
 
 def _predicted(
-    current: Params, before: Params, rotation: Callable[[Params], np.ndarray]
+    current: Params, before: Params, ahead: float, rotation: Callable[[Params], np.ndarray]
 ) -> Params:
-    """Constant-velocity prediction: the motion from ``before`` to ``current`` once more.
+    """Constant-velocity prediction: the motion from ``before`` to ``current``, ``ahead`` times.
 
-    The head turns about the face origin (eq. 1), so the rotation repeats as
-    ``R_c R_b' R_c`` and the origin moves on by ``t_c - t_b``; alpha and sigma are kept. A head
-    that did not turn predicts ``omega_c`` exactly (no round trip through R). ``rotation``
-    gives R(omega) of a parameter vector (:meth:`.FaceProjection.rotation`).
+    ``ahead`` is the ratio of the frame intervals to come to those from ``before`` to
+    ``current`` (1 in a stream without gaps). The head turns about the face origin (eq. 1) by
+    ``D = R_c R_b'``, so the rotation goes on as ``D^ahead R_c`` (``D^ahead`` the turn about
+    D's axis by ``ahead`` times its angle) and the origin moves on by ``ahead (t_c - t_b)``;
+    alpha and sigma are kept. A head that did not turn predicts ``omega_c`` exactly (no round
+    trip through R). ``rotation`` gives R(omega) of a parameter vector
+    (:meth:`.FaceProjection.rotation`).
     """
     omega = current.omega
     if not np.array_equal(omega, before.omega):
         turned = rotation(current)
-        omega = matrix_to_omega(turned @ rotation(before).T @ turned)
-    return current._replace(omega=omega, t=current.t + (current.t - before.t))
+        turn = turned @ rotation(before).T
+        if ahead != 1.0:
+            turn = rodrigues(matrix_to_omega(turn) * ahead)[0]
+        omega = matrix_to_omega(turn @ turned)
+    return current._replace(omega=omega, t=current.t + (current.t - before.t) * ahead)

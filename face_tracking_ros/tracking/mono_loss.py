@@ -37,7 +37,7 @@ class Reference(NamedTuple):
 
     Attributes:
         last: the track's last valid estimate.
-        frames: the frames since it (1 for the frame after it).
+        frames: the frame intervals since it (1 for the frame after it; dropped images count).
         keyframes: the track's keyframes (the drift check's templates).
     """
 

@@ -1,0 +1,123 @@
+"""Dropped images: the mono tracker and processor count the frame intervals of a gap.
+
+A stream can miss images (a bag with missing frames; a live node whose depth-1 image queue keeps
+only the newest while the tracker is busy). The tracker must carry its motion prediction over
+the gap and allow the rotation of that many frames; the processor tells it how many frame
+intervals passed from the image stamps (:class:`FrameIntervals`). Rendered 10-fps free head
+motion (seed 1, subject 0) with two images dropped.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from face_tracking_ros.errors import InputError
+from face_tracking_ros.io import conversions
+from face_tracking_ros.io.messages import RosbagsMessages
+from face_tracking_ros.io.typestore import typestore
+from face_tracking_ros.processing.frame_intervals import FrameIntervals
+from face_tracking_ros.processing.mono import MonoNodeConfig, MonoProcessor
+from face_tracking_ros.synthetic.clicks import simulated_clicks
+from face_tracking_ros.synthetic.scenes import SceneConfig, SequenceRenderer
+from face_tracking_ros.synthetic.true_model import true_face_model
+from face_tracking_ros.tracking.accuracy import tracking_accuracy
+from face_tracking_ros.tracking.evaluation import tracked_sequence
+from face_tracking_ros.tracking.mono import MonoTracker
+from face_tracking_ros.tracking.mono_config import MonoTrackerConfig
+from face_tracking_ros.tracking.pose_filter import PoseFilterConfig
+from face_tracking_ros.tracking.result import TrackResult
+
+SCENE = SceneConfig(kind='mono', frames=40, fps=10.0, seed=1, motion='free')
+KEPT = [*range(14), *range(16, 40)]  # images 14 and 15 dropped: 3 frame intervals from 13 to 16
+FRAME_NS = 100_000_000
+NONE: frozenset[str] = frozenset()
+
+
+@pytest.fixture(scope='module')
+def gapped():
+    """The kept images, their true nodes, the camera, the true model and clicks on image 0."""
+    renderer = SequenceRenderer(SCENE, 0)
+    frames = list(renderer.frames(0))
+    camera = SCENE.cameras()['image']
+    model = true_face_model(renderer.population)
+    nodes = np.array([frames[i].truth.nodes_camera[: model.num_nodes] for i in KEPT])
+    init = simulated_clicks(model.node_names, nodes[0], camera, 1.0, np.random.default_rng(3))
+    return [frames[i].images['image'] for i in KEPT], nodes, camera, model, init
+
+
+@pytest.fixture(scope='module')
+def tracked(gapped) -> list[TrackResult]:
+    """The kept images tracked, each with the frame intervals since the image before."""
+    images, _, camera, model, init = gapped
+    tracker = MonoTracker(model, camera)
+    tracker.reset(init)
+    intervals = [1, *np.diff(KEPT)]
+    return [tracker.step(image, int(n)) for image, n in zip(images, intervals, strict=True)]
+
+
+def test_tracker_bridges_a_gap_of_dropped_images(gapped, tracked):
+    """The image after the gap is tracked on, told 3 frame intervals passed.
+
+    Told 1 (as before the tracker counted intervals), the solve from a prediction one interval
+    long settled some degrees off and the track stayed there: rotation MAE 1.11 / 6.38 / 0.66
+    degrees about x / y / z over these frames, against 0.46 / 1.31 / 0.18.
+    """
+    _, nodes, _, model, _ = gapped
+    assert [r.reason for r in tracked] == [''] * len(KEPT)
+    estimated = tracked_sequence(tracked, np.zeros(len(tracked)))
+    accuracy = tracking_accuracy(
+        model,
+        estimated.status,
+        estimated.omega,
+        estimated.t,
+        estimated.alpha,
+        estimated.nodes,
+        nodes,
+    )
+    assert max(accuracy.rotation_mae_deg) < 2.0
+
+
+def test_intervals_below_one_are_refused(gapped):
+    images, _, camera, model, init = gapped
+    tracker = MonoTracker(model, camera)
+    tracker.reset(init)
+    with pytest.raises(InputError, match='intervals must be >= 1'):
+        tracker.track(images[0], 0)
+
+
+def test_processor_counts_the_intervals_of_a_gap_from_the_stamps(gapped, tracked):
+    """The raw pose published for each image is the tracker's told the intervals passed."""
+    images, _, camera, model, init = gapped
+    factory = RosbagsMessages(typestore())
+    raw = PoseFilterConfig(enabled=False)
+    processor = MonoProcessor(factory, MonoNodeConfig(), MonoTrackerConfig(), model, init, raw)
+    info_header = conversions.make_header(factory, 0, 'camera_optical')
+    processor.handle('camera_info', conversions.camera_to_info(factory, info_header, camera), NONE)
+    omegas = []
+    for frame, image in zip(KEPT, images, strict=True):
+        header = conversions.make_header(factory, frame * FRAME_NS, 'camera_optical')
+        msg = conversions.array_to_image(factory, header, image, 'mono8')
+        state = processor.handle('image', msg, NONE)[0].msg
+        processor.run_deferred()
+        omegas.append(np.array(state.omega))
+    assert np.array_equal(omegas, [r.omega for r in tracked])
+
+
+@pytest.mark.parametrize(
+    ('differences', 'expected'),
+    [
+        ([100] * 8 + [300], 3),  # a steady stream, then two images dropped
+        ([100, 300, 200, 100, 200, 300, 100, 200], 2),  # most images after a gap
+        ([100, 104, 96, 101, 99, 110], 1),  # jitter is no gap
+        ([100, 98, 102, 100, 503], 5),
+    ],
+)
+def test_frame_intervals_of_stamp_differences(differences, expected):
+    intervals = FrameIntervals()
+    stamp = 1_000
+    assert intervals.since(None, stamp) == 1
+    for difference in differences:
+        counted = intervals.since(stamp, stamp + difference)
+        stamp += difference
+    assert counted == expected
