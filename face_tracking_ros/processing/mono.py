@@ -11,7 +11,10 @@ last tracked one is refused; an earlier stamp (a looped bag, a restarted camera)
 tracker, so the next image starts a new track from the initialisation. The published pose (and the
 nodes, which move rigidly with it) is smoothed by the One Euro filter of
 :mod:`~face_tracking_ros.tracking.pose_filter` (parameters ``smoothing.*``), timed by the image
-stamps; the tracker itself continues from its raw estimate.
+stamps; the tracker itself continues from its raw estimate. The stamps also tell the tracker how
+many frame intervals passed since the last image
+(:class:`~face_tracking_ros.processing.frame_intervals.FrameIntervals`): images missing from a
+bag, or dropped by the depth-1 queue while the tracker was busy, count as the time they took.
 """
 
 from __future__ import annotations

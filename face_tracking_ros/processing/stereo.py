@@ -25,7 +25,9 @@ the new track starts with the pair of that image. An image a little older than t
 camera's images went back too and it pairs with one of them: a bag shorter than that jump,
 looped, which restarts the track the same way. The pairing, its counts and these restarts are
 :class:`~face_tracking_ros.processing.stereo_pairing.StereoPairing`'s; the processor restarts
-the tracker when it is told to.
+the tracker when it is told to. The pair stamps also tell the tracker how many frame intervals
+passed since the last pair (:class:`~face_tracking_ros.processing.frame_intervals.FrameIntervals`),
+so its motion prediction spans dropped pairs.
 """
 
 from __future__ import annotations
@@ -51,6 +53,7 @@ from face_tracking_ros.processing.detection import (
     restart_points,
 )
 from face_tracking_ros.processing.face_outputs import MESH_PORTS, MODEL_PORTS, face_outputs
+from face_tracking_ros.processing.frame_intervals import FrameIntervals
 from face_tracking_ros.processing.held_input import HeldInput
 from face_tracking_ros.processing.model_agreement import MODEL_PORT
 from face_tracking_ros.processing.parameters import ParameterSource
@@ -199,6 +202,7 @@ class StereoProcessor:
         self._track_results: list[tuple[Any, StereoResult]] = []  # held: (header, result)
         self._ended_outputs: list[Output] = []  # held outputs of the tracks that ended
         self._stamps = StampGuard('pair')
+        self._intervals = FrameIntervals()
         self._pairing: StereoPairing[Any] = StereoPairing(
             (LEFT_IMAGE, RIGHT_IMAGE),
             config.pairing_queue,
@@ -416,8 +420,10 @@ class StereoProcessor:
             self._rectified_image(info, conversions.message_to_gray(msg))
             for info, msg in ((LEFT_INFO, left_msg), (RIGHT_INFO, right_msg))
         )
-        self._stamps.take(stamp_to_ns(left_msg.header.stamp))
-        result = self._tracker.step(left, right)
+        stamp_ns = stamp_to_ns(left_msg.header.stamp)
+        previous = self._stamps.last
+        self._stamps.take(stamp_ns)
+        result = self._tracker.step(left, right, self._intervals.since(previous, stamp_ns))
         self._tracked_nodes = result.nodes_cam if result.ok else None
         self._counts.add(result.status, result.reason)
         header = conversions.copy_header(self._factory, left_msg.header)

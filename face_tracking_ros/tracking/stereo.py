@@ -118,6 +118,8 @@ class _State:
     depths: DepthRefinement | None
     result: StereoResult
     before: np.ndarray | None = None  # the pair before's nodes (the motion prediction)
+    span: int = 1  # frame intervals from ``before`` to ``nodes``
+    elapsed: int = 1  # frame intervals from ``nodes`` to the pair being tracked
 
 
 @dataclass
@@ -256,16 +258,27 @@ class StereoTracker:
             raise InputError(msg)
         return left_px
 
-    def step(self, left: np.ndarray, right: np.ndarray) -> StereoResult:
+    def step(self, left: np.ndarray, right: np.ndarray, intervals: int = 1) -> StereoResult:
         """Track one rectified stereo pair.
 
         Args:
             left: (H, W) grey left image (uint8 or float, grey levels 0-255).
             right: (H, W) grey right image.
+            intervals: frame intervals since the previous pair: 1 for the next pair of the
+                stream, n + 1 after n dropped pairs; the motion prediction is carried on over
+                them.
 
         Returns:
             The result; never raises on a bad frame (status LOST, reason set, state kept).
+
+        Raises:
+            InputError: if ``intervals`` is less than 1 (not a bad frame but a bad call).
         """
+        if intervals < 1:
+            msg = f'intervals must be >= 1 (frame intervals since the last pair), got {intervals}'
+            raise InputError(msg)
+        if self._state is not None:
+            self._state.elapsed = intervals
         try:
             pyramids = self._pyramids(left, right)
         except InputError as error:
@@ -503,7 +516,10 @@ class StereoTracker:
         energy = self._energy(state)
         nodes = state.nodes
         if config.predict_motion and state.before is not None:
-            nodes = 2.0 * state.nodes - state.before
+            # The nodes' motion between the last two pairs, per frame interval, carried on over
+            # the intervals since the last pair (1 and 1 without dropped pairs: 2 n - b).
+            ahead = state.elapsed / state.span
+            nodes = (1.0 + ahead) * state.nodes - ahead * state.before
         solves = _Solves()
 
         def solve(index: int, start: np.ndarray, first_step_limit: float) -> np.ndarray | None:
@@ -550,7 +566,7 @@ class StereoTracker:
         state.rotation = self._rotation(state.first_nodes, nodes)
         if state.depths is not None:
             nodes = self._refine_depths(state, pyramids, nodes, statistics.rms[0][LEFT])
-        state.before, state.nodes = state.nodes, nodes
+        state.before, state.nodes, state.span = state.nodes, nodes, state.elapsed
         state.offsets = state.samples.level_offsets(state.rotation, 0)
         field = patch_field(state.deformation, nodes, state.first_nodes, state.rotation)
         state.previous_templates = templates(
