@@ -5,11 +5,15 @@ it must know when images were dropped: a bag with missing frames, or a live node
 image queue keeps only the newest image while the tracker is busy. The stamps tell: an image
 that follows the one before by n frame intervals came after n - 1 dropped ones.
 
-The stream's frame interval is estimated as a low quantile (:data:`QUANTILE`) of the last
-:data:`WINDOW` stamp differences: dropped images only lengthen differences, so the quantile
-stays the interval while up to three quarters of the images follow a gap, and it stays
-within the stamps' jitter of it (a median would take the interval of a tracker that drops every
-other image to be two frames).
+The stream's frame interval is estimated as the lower quartile (:data:`QUANTILE`) of the last
+:data:`WINDOW` stamp differences: dropped images only lengthen differences, so it stays the
+interval while well over a quarter of the images follow their predecessor directly (a median
+would need half), and stamp jitter moves it little. On simulated 30 Hz stamps: none of 3000
+gap-free images is counted as a gap with 5 % jitter on each stamp, 17 with 10 %; with 0, 1, 2 or
+3 images dropped before each image (30, 40, 20, 10 %) 362 of 1438 gaps are counted short, by
+one interval; with 15 % of the images after no gap, most are (a lower quantile counts such
+gaps better, and jitter worse). A gap counted short is what the tracker assumed before it counted
+intervals at all.
 """
 
 from __future__ import annotations
