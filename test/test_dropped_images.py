@@ -148,6 +148,14 @@ def test_stereo_tracker_bridges_a_gap_of_dropped_pairs(stereo_gapped, stereo_tra
     assert max(rms_mm) < 8.5
 
 
+def test_stereo_intervals_below_one_are_refused(stereo_gapped):
+    pairs, nodes, rig = stereo_gapped
+    tracker = StereoTracker(rig, StereoTrackerConfig())
+    tracker.reset(rig.left.project(nodes[0]))
+    with pytest.raises(InputError, match='intervals must be >= 1'):
+        tracker.step(*pairs[0], 0)
+
+
 def test_stereo_processor_counts_the_intervals_of_a_gap_from_the_stamps(
     stereo_gapped, stereo_tracked
 ):
