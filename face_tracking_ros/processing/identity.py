@@ -158,8 +158,9 @@ class IdentityProcessor:
             The number of sigma samples used.
 
         Raises:
-            ConfigError: for a duration out of range, no samples yet, a bad name, or a gallery
-                file that cannot be written (the gallery then stays as it was).
+            ConfigError: for a duration out of range, no samples yet, a bad name, samples the
+                gallery holds under another name (:meth:`IdentityGallery.enrolled_as`), or a
+                gallery file that cannot be written (the gallery then stays as it was).
             InputError: while the tracker's face model is not the gallery's
                 (:mod:`.model_agreement`).
         """
@@ -172,6 +173,14 @@ class IdentityProcessor:
         recent = values[times >= times[-1] - duration] if len(times) else values
         if not len(recent):
             msg = f'cannot enrol {name!r}: no shape estimate of the tracked face yet'
+            raise ConfigError(msg)
+        twin = self.gallery.enrolled_as(recent)
+        if twin is not None and twin != name:  # the mono tracker holds sigma fixed in a track
+            msg = (
+                f'cannot enrol {name!r}: the tracked face is enrolled as {twin!r} (the same '
+                f'mean sigma): under two names the two entries would tie; enrol it as {twin!r} '
+                'to replace that entry'
+            )
             raise ConfigError(msg)
         gallery = self.gallery.enroll(name, recent, self._config)
         if self._node_config.gallery_file:

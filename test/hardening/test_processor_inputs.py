@@ -1153,10 +1153,22 @@ def test_identity_enrolment_uses_the_sigma_of_the_last_duration_seconds(identity
     """30 shapes at 30 Hz, m / 30 s: the last 0.49 s holds m = 15..29 (15 of them), 1 s all 30."""
     _identities(identity, [0.001, 0.001], 1.0, 70.0)
     assert identity.enroll('bob', 0.49) == 15
-    assert identity.enroll('carol', 1.0) == 30
+    assert identity.enroll('bob', 1.0) == 30  # replaces bob
     longest = r'enrolment duration must be in \(0, 30.0\] s, got 30.5'  # the default's
     with pytest.raises(ConfigError, match=longest):
         identity.enroll('dave', 30.5)
+
+
+def test_identity_enrolment_refuses_the_tracked_face_under_a_second_name(identity):
+    """The mono tracker holds sigma fixed in a track: any window's mean is the entry's."""
+    twin = (
+        "cannot enrol 'bob': the tracked face is enrolled as 'alice' (the same mean sigma): "
+        "under two names the two entries would tie; enrol it as 'alice' to replace that entry"
+    )
+    with pytest.raises(ConfigError, match=re.escape(twin)):
+        identity.enroll('bob', 0.49)
+    assert identity.gallery.names == ('alice',)
+    assert identity.enroll('alice', 0.49) == 15  # the same name replaces its entry
 
 
 def test_identity_status_names_the_gallery_and_its_file(identity, tmp_path):
