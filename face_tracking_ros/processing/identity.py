@@ -175,7 +175,7 @@ class IdentityProcessor:
             msg = f'cannot enrol {name!r}: no shape estimate of the tracked face yet'
             raise ConfigError(msg)
         twin = self.gallery.enrolled_as(recent)
-        if twin is not None and twin != name:  # the mono tracker holds sigma fixed in a track
+        if twin is not None and twin != name:  # sigma is fixed in a track once adjusted
             msg = (
                 f'cannot enrol {name!r}: the tracked face is enrolled as {twin!r} (the same '
                 f'mean sigma): under two names the two entries would tie; enrol it as {twin!r} '
