@@ -42,13 +42,14 @@ class StampGuard:
 
         Raises:
             InputError: for a stamp that repeats the last one, naming ``source`` (the image's
-                topic) and the stamp: the image is skipped.
+                topic) and the stamp, and a driver that leaves stamps at 0: the image is skipped.
         """
         if self.last is None or stamp_ns > self.last:
             return True
         if stamp_ns == self.last:
+            unset = '' if stamp_ns else ' (header.stamp unset: the driver must stamp its images)'
             msg = (
-                f'{source} stamp {stamp_ns} ns repeats the previous {self._unit} stamp: '
+                f'{source} stamp {stamp_ns} ns repeats the previous {self._unit} stamp{unset}: '
                 'image skipped'
             )
             raise InputError(msg)

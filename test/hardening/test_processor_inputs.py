@@ -346,6 +346,15 @@ def test_mono_repeated_stamp_is_refused_and_an_earlier_stamp_restarts_the_track(
         processor.handle('image', image_msg(frames[f].image, stamp(f)), NONE)
     with pytest.raises(InputError, match='repeats the previous image stamp'):
         processor.handle('image', image_msg(frames[2].image, stamp(2)), NONE)
+    unset = (
+        r'^image stamp 0 ns repeats the previous image stamp \(header.stamp unset: the driver '
+        r'must stamp its images\): image skipped$'
+    )
+    restarted = _mono(scene, frames)  # a driver that leaves every stamp at 0
+    restarted.handle('camera_info', info_msg(), NONE)
+    restarted.handle('image', image_msg(frames[0].image, 0), NONE)
+    with pytest.raises(InputError, match=unset):
+        restarted.handle('image', image_msg(frames[1].image, 0), NONE)
     # A looped bag: the track starts again from the initialisation, on the first frame, which is
     # tracked (it was dropped: the loop's second pass started one frame late, 12 mm off).
     outputs = processor.handle('image', image_msg(frames[0].image, stamp(0)), NONE)
