@@ -45,13 +45,19 @@ def _hand_placed(model: FaceModel) -> tuple[Roi, Params]:
     return roi, Params(np.zeros(3), np.array([0.0, 0.0, DEPTH]), np.zeros(q), np.zeros(p))
 
 
+def _hand_placed_face(
+    model: FaceModel, texture: np.ndarray
+) -> tuple[FaceProjection, ImagePyramid, Roi, Params]:
+    """The model's projection, a one-level pyramid of ``texture`` and :func:`_hand_placed`."""
+    face = FaceProjection(model, CAMERA, num_levels=1, visibility_cos=0.2)
+    return face, ImagePyramid.build(texture, 1), *_hand_placed(model)
+
+
 def test_a_sample_is_inside_when_its_central_differences_read_the_image(
     model_factory, texture_factory
 ) -> None:
     model = model_factory(planar=True)
-    roi, params = _hand_placed(model)
-    face = FaceProjection(model, CAMERA, num_levels=1, visibility_cos=0.2)
-    pyramid = ImagePyramid.build(texture_factory(), 1)
+    face, pyramid, roi, params = _hand_placed_face(model, texture_factory())
 
     sampled = face.sample(pyramid, params, 0, roi)
 
@@ -113,10 +119,7 @@ def test_sampling_at_a_non_finite_estimate_is_an_input_error(
     model_factory, texture_factory
 ) -> None:
     """A diverged solve's points are refused before any image is read (the frame is LOST)."""
-    model = model_factory(planar=True)
-    roi, params = _hand_placed(model)
-    face = FaceProjection(model, CAMERA, num_levels=1, visibility_cos=0.2)
-    pyramid = ImagePyramid.build(texture_factory(), 1)
+    face, pyramid, roi, params = _hand_placed_face(model_factory(planar=True), texture_factory())
     diverged = params._replace(t=np.array([np.nan, 0.0, DEPTH]))
 
     for sample in (face.sample, face.sample_stencil):
