@@ -20,8 +20,6 @@ from __future__ import annotations
 
 from collections import deque
 
-import numpy as np
-
 WINDOW = 32  # stamp differences kept
 QUANTILE = 0.25  # of the differences kept: the frame interval
 
@@ -45,5 +43,17 @@ class FrameIntervals:
             return 1
         difference = stamp_ns - previous_ns
         self._differences.append(difference)
-        interval = float(np.quantile(np.array(self._differences), QUANTILE))
-        return max(1, round(difference / interval))
+        return max(1, round(difference / self._interval()))
+
+    def _interval(self) -> float:
+        """The :data:`QUANTILE` of the differences kept, as ``np.quantile`` makes it.
+
+        Its linear interpolation between two sorted differences, in Python on the 32 integers:
+        ``np.quantile`` took 40 us an image, on the tracking's hot path. The two agree to the
+        bit: the position's fraction is a quarter, so every step is exact in floating point.
+        """
+        ordered = sorted(self._differences)
+        position = QUANTILE * (len(ordered) - 1)
+        low = int(position)
+        high = min(low + 1, len(ordered) - 1)
+        return ordered[low] + (ordered[high] - ordered[low]) * (position - low)
