@@ -24,9 +24,13 @@ TIMEOUT_S = 20.0
 T0 = 1_700_000_000_000_000_000
 
 
-def start_node(module: str, **parameters: object) -> subprocess.Popen:
-    """Start ``python -m face_tracking_ros.nodes.<module> --ros-args -p name:=value ...``."""
+def start_node(
+    module: str, remaps: tuple[str, ...] = (), **parameters: object
+) -> subprocess.Popen:
+    """Start ``python -m face_tracking_ros.nodes.<module> --ros-args -r R ... -p name:=value``."""
     command = [sys.executable, '-m', f'face_tracking_ros.nodes.{module}', '--ros-args']
+    for remap in remaps:
+        command += ['-r', remap]
     for name, value in parameters.items():
         command += ['-p', f'{name}:={_ros_arg(value)}']
     return subprocess.Popen(

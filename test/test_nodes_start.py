@@ -33,6 +33,19 @@ def test_node_with_a_bad_parameter_says_so_and_exits_2():
     assert 'Traceback' not in output
 
 
+def test_a_renamed_node_names_itself_in_its_start_up_error():
+    """The error line carries the name and namespace given on the command line.
+
+    It said ``[mono_tracker]`` whatever the node was renamed to, where every later line of a
+    node that starts says the name it runs under.
+    """
+    remaps = ('__node:=face_cam', '__ns:=/robot')
+    code, output = finish(start_node('mono_tracker', remaps, **{'tracker.epsilon': 1.5}))
+    assert code == 2
+    assert '[robot.face_cam]: invalid parameter tracker.epsilon = 1.5' in output
+    assert 'mono_tracker' not in output
+
+
 def test_a_parameter_without_a_value_is_one_error_line_and_exit_code_2():
     """``-p output:=`` (an empty string is ``-p "output:=''"``): rcl cannot parse it.
 

@@ -22,6 +22,7 @@ from typing import Protocol
 import rclpy
 from rclpy.exceptions import NameValidationException, ParameterException
 from rclpy.executors import Executor, SingleThreadedExecutor
+from rclpy.impl.rcutils_logger import RcutilsLogger
 import rclpy.logging
 from rclpy.signals import SignalHandlerOptions
 
@@ -46,6 +47,23 @@ UNTYPED_PARAMETER_ERROR = (
 def rcl_reason(error: RuntimeError) -> str:
     """The message of rclpy's RCLError without rcl's source location (', at .../x.c:73')."""
     return str(error).split(', at /')[0]
+
+
+def node_logger(name: str) -> RcutilsLogger:
+    """The logger of a node named ``name`` as the command line renames it (``-r __node:=...``).
+
+    For the error of a node that failed while it was built: its log line then carries the name
+    and namespace the node runs under, as every later line would, not the executable's default.
+    A probe node gives them (rcl applies the remapping; rclpy does not expose it otherwise); a
+    remapping rcl refuses leaves the default name.
+    """
+    try:
+        probe = rclpy.create_node(name, start_parameter_services=False, enable_rosout=False)
+    except NameValidationException:
+        return rclpy.logging.get_logger(name)
+    logger = probe.get_logger()
+    probe.destroy_node()
+    return logger
 
 
 class StoppableNode(Protocol):
@@ -146,12 +164,12 @@ def run_until_stopped(
     except KeyboardInterrupt:
         raise SystemExit(128 + stop.signum) from None
     except USER_ERRORS as error:
-        rclpy.logging.get_logger(name).error(str(error))
+        node_logger(name).error(str(error))
         raise SystemExit(ERROR_EXIT_CODE) from None
     except ValueError as error:
         if not str(error).startswith(UNTYPED_PARAMETER):
             raise
-        rclpy.logging.get_logger(name).error(UNTYPED_PARAMETER_ERROR)
+        node_logger(name).error(UNTYPED_PARAMETER_ERROR)
         raise SystemExit(ERROR_EXIT_CODE) from None
     finally:
         for sig, handler in previous.items():
