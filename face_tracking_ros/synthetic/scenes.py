@@ -218,7 +218,6 @@ class FrameTruth:
         t: (3,) face-frame origin in the reference camera frame, m.
         sigma: (K,) true identity coefficients (true identity basis), m.
         alpha: (E,) true expression coefficients (intensities on the true expression basis).
-        nodes_face: (34, 3) nodes in the face frame, m.
         nodes_camera: (34, 3) nodes in the reference (left or only) camera frame, m.
         label: expression being played ('neutral' between expressions).
         intensity: its intensity in [0, 1].
@@ -230,7 +229,6 @@ class FrameTruth:
     t: np.ndarray
     sigma: np.ndarray
     alpha: np.ndarray
-    nodes_face: np.ndarray
     nodes_camera: np.ndarray
     label: str
     intensity: float
@@ -342,7 +340,6 @@ class SequenceRenderer:
             t=pose.t,
             sigma=self.subject.sigma_true,
             alpha=state.alpha,
-            nodes_face=pose.nodes,
             nodes_camera=pose.camera_nodes(),
             label=state.label,
             intensity=state.intensity,

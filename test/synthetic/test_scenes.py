@@ -13,7 +13,7 @@ import pytest
 from face_tracking_ros.cli import synth
 from face_tracking_ros.cli.main import main
 from face_tracking_ros.errors import ConfigError
-from face_tracking_ros.geometry.rotation import omega_to_quaternion
+from face_tracking_ros.geometry.rotation import omega_to_quaternion, rodrigues
 from face_tracking_ros.io.bags import read_messages
 from face_tracking_ros.synthetic.faces import FacePopulation
 from face_tracking_ros.synthetic.recording import TRUTH_TOPIC, record
@@ -65,7 +65,9 @@ def test_frame_truth_is_eq3_with_true_bases_posed_by_eq1(stereo_frames):
     subject = population.subject(0)
     for frame in stereo_frames:
         truth = frame.truth
-        np.testing.assert_allclose(truth.nodes_face, population.nodes(subject, truth.alpha))
+        rotation, _ = rodrigues(truth.omega)
+        posed = population.nodes(subject, truth.alpha) @ rotation.T + truth.t
+        np.testing.assert_allclose(truth.nodes_camera, posed, rtol=0, atol=1e-12)
         np.testing.assert_array_equal(truth.sigma, subject.sigma_true)
         assert frame.stamp_ns == 1_700_000_000 * 10**9 + round(frame.index * 1e9 / 15.0)
         assert set(truth.visible) == {'left', 'right'} and truth.visible['left'].shape == (34,)
