@@ -619,8 +619,8 @@ def test_table_shows_click_draws_and_the_learned_models_similarities():
     figures = 'rotation MAE 1.00 / 2.00 / 0.25 deg, t MAE 3.0 / 4.0 / 5.0 mm, alpha n/a, '
     figures += 'drift -0.50 deg, lost 0'
     assert [row.split(' | ')[:2] for row in table[2:]] == [
-        ['| mono protocol, true model click draws (mean of 2 seed(s) x 2 click draws)', figures],
-        ['| mono protocol, unfiltered (mean of 2 seed(s))', figures],
+        ['| mono protocol, true model click draws (mean of 2 seeds x 2 click draws)', figures],
+        ['| mono protocol, unfiltered (mean of 2 seeds)', figures],
         [
             '| stereo protocol, 34 nodes: model learned from true / exact clicks meshes',
             'S vs true identity 0.999 / 0.980, A vs true expressions 0.990 / 0.900',

@@ -226,7 +226,7 @@ def test_a_run_with_a_failed_benchmark_keeps_the_earlier_results(tmp_path, capsy
 
 
 def test_unknown_benchmark_is_refused(tmp_path):
-    with pytest.raises(ConfigError, match=r"unknown benchmark\(s\) \['nope'\]"):
+    with pytest.raises(ConfigError, match='unknown benchmark nope; choose from '):
         run_benchmarks(['nope'], BenchOptions(work_dir=tmp_path))
 
 

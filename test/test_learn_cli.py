@@ -236,7 +236,7 @@ def test_errors_name_the_bag_topic_or_subject(tmp_path, truth_bags, world, capsy
     assert f'{truth_bags[0]}: no topic nope in bag (topics: truth/face)' in err
 
     err = _error(['learn', *bags, *out, '--p', '4'], capsys)
-    assert '4 subject(s) cannot give an identity subspace of p = 4' in err
+    assert '4 subjects cannot give an identity subspace of p = 4' in err
 
     smiling = sequences[0].__class__(
         'grumpy', sequences[0].meshes, np.zeros(75, bool), ('smile',) * 75, ''
@@ -308,7 +308,7 @@ def test_three_subjects_learn_p_2_without_the_leave_one_out_figures(tmp_path, tr
     report_path = tmp_path / 'r.json'
     args = ['learn', *map(str, truth_bags[:3]), '--out', str(tmp_path / 'm.npz')]
     assert main([*args, '--report', str(report_path), '--q', '3']) == 0
-    assert 'joint: no leave-one-subject-out figures: with one subject held out, 2 subject(s) ' in (
+    assert 'joint: no leave-one-subject-out figures: with one subject held out, 2 subjects ' in (
         capsys.readouterr().out
     )
     assert load_model(tmp_path / 'm.npz').p == 2

@@ -695,7 +695,7 @@ def test_a_learn_refused_before_tracking_writes_no_clicks(tmp_path, capsys):
              '--report', str(tmp_path / 'r.json')]  # fmt: skip
     two = [*learn, str(BAGS[0]), str(BAGS[1])]
     cases = [
-        ([*two, '--tracker-param', 'nosuch=1'], 'unknown parameter(s): nosuch'),
+        ([*two, '--tracker-param', 'nosuch=1'], 'unknown parameter nosuch'),
         ([*two, '--tracker-param', 'tracker.epsilon=2'], 'invalid parameter tracker.epsilon'),
         ([*two, '--init-dir', str(init_dir)], f'{init_dir}/{BAGS[1].name}.yaml'),
         ([*two, '--meshes-dir', str(foreign.parent)], f'{foreign} exists and is not a tracking'),
@@ -732,7 +732,7 @@ def test_too_few_subjects_named_by_the_bags_are_refused_before_tracking(tmp_path
             '--subject-pattern', r'(.+)_seq_\d+', '--out', str(tmp_path / 'm.npz'),
             '--report', str(tmp_path / 'r.json')]  # fmt: skip
     for options, expected in (
-        ([], '1 subject(s) cannot give an identity subspace of p = 2: at least p + 1 = 3'),
+        ([], '1 subject cannot give an identity subspace of p = 2: at least p + 1 = 3'),
         (['--explained-variance', '0.9'], 'identity subspace of p = None: at least p + 1 = 2'),
     ):
         assert main([*argv, *options]) == 2
@@ -769,11 +769,11 @@ def test_subjects_of_names_and_truth_are_refused_before_tracking(tmp_path, capsy
         ),
         (  # the subjects of the raw bags' truth
             [*learn, *map(str, BAGS), '--from-images', '--p', '3'],
-            '3 subject(s) cannot give an identity subspace of p = 3: at least p + 1 = 4',
+            '3 subjects cannot give an identity subspace of p = 3: at least p + 1 = 4',
         ),
         (  # a name, and the truth of two bags of truth not tracked: not their names
             [*learn, str(anon), str(BAGS[1]), str(again), '--neutral-frames', '3'],
-            '2 subject(s) cannot give an identity subspace of p = 2: at least p + 1 = 3',
+            '2 subjects cannot give an identity subspace of p = 2: at least p + 1 = 3',
         ),
     ]
     for argv, expected in cases:

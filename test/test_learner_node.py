@@ -148,7 +148,7 @@ def test_a_run_whose_report_is_in_bag_dir_learns_again_past_its_meshes(tmp_path,
 
     The meshes of raw stereo bags go beside the report (<report name>_meshes/, clicks in
     <report name>_meshes_clicks/): written in bag_dir, the second run stopped at 'm_meshes: not
-    a rosbag2 bag (...); it holds 3 bag(s)'. An empty directory (a drive's lost+found) is no
+    a rosbag2 bag (...); it holds 3 bags'. An empty directory (a drive's lost+found) is no
     bag either.
     """
     recordings = tmp_path / 'recordings'

@@ -142,7 +142,7 @@ def test_eigenvalue_weighted_option_converges_to_a_close_model(default_world):
 @pytest.mark.parametrize(
     ('config', 'match'),
     [
-        (SeedConfig(p=8), r'8 subject\(s\) cannot give an identity subspace of p = 8'),
+        (SeedConfig(p=8), r'8 subjects cannot give an identity subspace of p = 8'),
         (SeedConfig(p=0), r'p must be at least 1'),
         (SeedConfig(q=0), r'q must be between 1 and 101, got 0'),
         (SeedConfig(q=102), r'q must be between 1 and 101, got 102'),

@@ -258,7 +258,7 @@ def test_a_patch_too_large_for_memory_is_refused_by_name(config, name, largest):
 
 
 def test_a_parameter_written_as_on_the_ros_command_line_is_refused_with_the_form_to_use():
-    """``--param gallery_file:=g.npz`` said only 'unknown parameter(s): gallery_file:'."""
+    """``--param gallery_file:=g.npz`` said only 'unknown parameter gallery_file:'."""
     with pytest.raises(ConfigError) as error:
         OverrideParameters.parse(['tracker.epsilon=0.1', 'gallery_file:=g.npz'])
     assert str(error.value) == (

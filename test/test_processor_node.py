@@ -402,7 +402,7 @@ def test_a_parameter_the_node_does_not_have_is_named_in_a_warning(ros_context):
     finally:
         node.destroy_node()
     assert logged == [
-        'unknown parameter(s), not used: init_flie, nodez (misspelt, or meant for another node?)'
+        'unknown parameters init_flie, nodez, not used (misspelt, or meant for another node?)'
     ]
 
 
@@ -454,7 +454,7 @@ def test_qos_overrides_of_the_node_s_topics_apply_and_others_are_named_unknown(m
         node.destroy_node()
         rclpy.try_shutdown(context=node.context)
     assert logged == [
-        'unknown parameter(s), not used: qos_overrides./inn.subscription.reliability '
+        'unknown parameter qos_overrides./inn.subscription.reliability, not used '
         '(misspelt, or meant for another node?)'
     ]
 

@@ -259,6 +259,5 @@ def test_a_report_that_fails_at_its_separation_table_prints_no_figure(
     captured = capsys.readouterr()
     assert captured.out == ''  # not the identity and expression lines of a report cut short
     assert captured.err == (
-        "error: training data hold only the label(s) ('neutral',); need neutral and an "
-        'expression\n'
+        'error: training data hold only the label neutral; need neutral and an expression\n'
     )

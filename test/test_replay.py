@@ -504,7 +504,7 @@ def test_a_node_named_twice_is_refused_before_any_work(tmp_path, capsys):
         main([*argv, '--out', str(tmp_path / 'out')])
     assert exit_info.value.code == 2
     assert (
-        "node(s) mono_tracker named more than once in 'mono_tracker,expression_recognizer, "
+        "node mono_tracker named more than once in 'mono_tracker,expression_recognizer, "
         "mono_tracker': a node runs once"
     ) in capsys.readouterr().err
     assert not (tmp_path / 'out').exists()

@@ -305,7 +305,7 @@ def test_a_track_refused_by_its_replay_writes_no_clicks(tmp_path, capsys):
         (['--remap', 'imgae=/image'], "remap imgae=/image: 'imgae' is not an input of"),
         (['--remap', 'image=/nothere'], "topic '/nothere' for input 'image' must be"),
         (['--param', 'tracker.epsilon=2'], 'invalid parameter tracker.epsilon = 2.0'),
-        (['--param', 'nosuch=1'], 'unknown parameter(s): nosuch'),
+        (['--param', 'nosuch=1'], 'unknown parameter nosuch'),
         (['--param', 'tracker.epsilon'], "parameter 'tracker.epsilon' must be written name="),
         (['--param', '=2'], "parameter '=2' must be written name=value"),
         (['--want', 'face/nothing'], 'face/nothing: not an on-demand output of mono_tracker'),

@@ -27,6 +27,7 @@ from typing import Any
 from face_tracking_ros.bench.common import BenchOptions, dds_env, pin_to_core
 from face_tracking_ros.errors import ConfigError
 from face_tracking_ros.io.atomic import write_json_atomically
+from face_tracking_ros.wording import listed
 
 BENCHMARKS = (
     'tracker_speed',
@@ -59,7 +60,7 @@ def run_benchmarks(names: Sequence[str], options: BenchOptions) -> dict[str, Any
     """
     unknown = [name for name in names if name not in BENCHMARKS]
     if unknown:
-        msg = f'unknown benchmark(s) {unknown}; choose from {list(BENCHMARKS)}'
+        msg = f'unknown {listed("benchmark", unknown)}; choose from {", ".join(BENCHMARKS)}'
         raise ConfigError(msg)
     options.work_dir.mkdir(parents=True, exist_ok=True)
     results: dict[str, Any] = {}

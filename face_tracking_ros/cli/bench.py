@@ -23,6 +23,7 @@ from face_tracking_ros.bench.common import BenchOptions
 from face_tracking_ros.bench.runner import BENCHMARKS, DEFAULT_BENCHMARKS, run_benchmarks
 from face_tracking_ros.errors import ConfigError
 from face_tracking_ros.io.atomic import check_output_path, write_json_atomically
+from face_tracking_ros.wording import counted
 
 TABLE_SIZE = '640x480'
 STAGE_NAMES = {'align_s': 'align', 'seed_s': 'learn', 'joint_s': 'joint learner'}  # learner rows
@@ -345,7 +346,7 @@ def _mono_accuracy_rows(protocol: dict[str, Any]) -> list[tuple[str, str, str]]:
         rows.append(
             (
                 f'mono protocol, {name.replace("_", " ")} '
-                f'(mean of {len(entry["seeds"])} seed(s){draws})',
+                f'(mean of {counted(len(entry["seeds"]), "seed")}{draws})',
                 f'rotation MAE {rotation} deg, t MAE {translation} mm, alpha '
                 f'{"n/a" if alpha is None else f"{alpha:.0f} %"}, drift {f["drift_deg"]:+.2f} '
                 f'deg, lost {f["lost"]:.0f}',

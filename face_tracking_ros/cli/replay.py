@@ -20,6 +20,7 @@ from face_tracking_ros.processing.base import Output
 from face_tracking_ros.processing.parameters import OverrideParameters
 from face_tracking_ros.processing.registry import PROCESSORS
 from face_tracking_ros.replay import ReplayStats, replay_bag
+from face_tracking_ros.wording import listed
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -126,12 +127,13 @@ def _node_list(text: str) -> list[str]:
     nodes = [name.strip() for name in text.split(',') if name.strip()]
     unknown = [name for name in nodes if name not in PROCESSORS]
     if not nodes or unknown:
-        msg = f'unknown node(s) {unknown or text!r}; choose from {", ".join(sorted(PROCESSORS))}'
+        given = listed('node', unknown) if unknown else f'node {text!r}'
+        msg = f'unknown {given}; choose from {", ".join(sorted(PROCESSORS))}'
         raise argparse.ArgumentTypeError(msg)
     repeated = sorted({name for name in nodes if nodes.count(name) > 1})
     if repeated:
         msg = (
-            f'node(s) {", ".join(repeated)} named more than once in {text!r}: a node runs once '
+            f'{listed("node", repeated)} named more than once in {text!r}: a node runs once '
             '(its outputs would be written twice to one bag)'
         )
         raise argparse.ArgumentTypeError(msg)

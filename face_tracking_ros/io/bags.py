@@ -50,6 +50,7 @@ from face_tracking_ros.errors import BagError
 from face_tracking_ros.io.bag_definitions import BagDefinitions
 from face_tracking_ros.io.typestore import typestore
 from face_tracking_ros.io.yaml_text import parse_yaml
+from face_tracking_ros.wording import counted
 
 BAG_VERSION = 9  # rosbag2 metadata version written (Jazzy and later read it)
 NS_PER_S = 1_000_000_000
@@ -378,7 +379,7 @@ def _not_a_bag(directory: Path) -> str:
         return msg
     shown = ', '.join(held[:MAX_NAMED_BAGS]) + (', ...' if len(held) > MAX_NAMED_BAGS else '')
     return (
-        f'{msg}; it holds {len(held)} bag(s) ({shown}): give the bags themselves (e.g. '
+        f'{msg}; it holds {counted(len(held), "bag")} ({shown}): give the bags themselves (e.g. '
         f'{directory}/*), not the directory holding them'
     )
 

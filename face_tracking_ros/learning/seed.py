@@ -49,6 +49,7 @@ from face_tracking_ros.learning.subspace import (
     subspace_similarity,
 )
 from face_tracking_ros.learning.training_set import TrainingSet
+from face_tracking_ros.wording import counted
 
 
 @dataclass(frozen=True)
@@ -232,7 +233,7 @@ def check_subject_count(num_subjects: int, p: int | None) -> None:
     needed = 2 if p is None else p + 1
     if num_subjects < needed:
         msg = (
-            f'{num_subjects} subject(s) cannot give an identity subspace of p = {p}: '
+            f'{counted(num_subjects, "subject")} cannot give an identity subspace of p = {p}: '
             f'at least p + 1 = {needed} subjects are needed'
         )
         raise ConfigError(msg)

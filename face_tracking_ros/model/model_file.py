@@ -34,6 +34,7 @@ import numpy as np
 from face_tracking_ros.errors import ModelFileError
 from face_tracking_ros.io.atomic import read_npz, write_npz_atomically
 from face_tracking_ros.model.face_model import FaceModel
+from face_tracking_ros.wording import listed
 
 FORMAT_NAME = 'face_tracking_ros.face_model'
 FORMAT_VERSION = 1
@@ -102,7 +103,7 @@ def load_model(path: str | os.PathLike[str]) -> FaceModel:
     contents = read_npz(path)
     missing = [name for name in ('header', *ARRAY_FIELDS) if name not in contents]
     if missing:
-        _fail(path, f'missing field(s) {", ".join(missing)}')
+        _fail(path, f'missing {listed("field", missing)}')
     header = _read_header(path, contents['header'])
     arrays = {}
     for name in ARRAY_FIELDS:

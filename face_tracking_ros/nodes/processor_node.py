@@ -56,7 +56,7 @@ from face_tracking_ros.processing.parameters import (
     field_default,
 )
 from face_tracking_ros.processing.registry import processor_factory
-from face_tracking_ros.wording import counted
+from face_tracking_ros.wording import counted, listed
 
 ConfigT = TypeVar('ConfigT')
 ResultT = TypeVar('ResultT')
@@ -234,7 +234,7 @@ class NodeParameters:
         if not unknown:
             return
         self._node.get_logger().warning(
-            f'unknown parameter(s), not used: {", ".join(unknown)} ({UNKNOWN_HINT})'
+            f'unknown {listed("parameter", unknown)}, not used ({UNKNOWN_HINT})'
         )
         for name in unknown:  # a descriptor each: rclpy keeps it and writes the name into it
             value = self._node.get_parameter(name).value

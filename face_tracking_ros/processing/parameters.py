@@ -17,6 +17,7 @@ import re
 from typing import Any, Protocol, TypeVar
 
 from face_tracking_ros.errors import ConfigError, FieldError
+from face_tracking_ros.wording import listed
 
 ConfigT = TypeVar('ConfigT')
 EnumT = TypeVar('EnumT', bound=Enum)
@@ -129,7 +130,7 @@ class OverrideParameters:
         """Raise ConfigError naming overrides that matched no parameter."""
         unused = sorted(set(self._overrides) - self._used)
         if unused:
-            msg = f'unknown parameter(s): {", ".join(unused)}'
+            msg = f'unknown {listed("parameter", unused)}'
             raise ConfigError(msg)
 
 

@@ -55,6 +55,7 @@ from face_tracking_ros.recognition.features import (
 )
 from face_tracking_ros.recognition.sequences import Parameter, ParameterSequence
 from face_tracking_ros.recognition.validation import check_shapes
+from face_tracking_ros.wording import listed
 
 EXPRESSION_LABELS = ('neutral', 'smile', 'jaw_open', 'brow_raise', 'frown', 'pucker', 'surprise')
 NEUTRAL = EXPRESSION_LABELS[0]
@@ -306,7 +307,10 @@ def train_expression_classifier(
     x, y = training_features(sequences, config, parameter)
     present = tuple(label for label in EXPRESSION_LABELS if label in set(y))
     if len(present) < 2:
-        msg = f'training data hold only the label(s) {present}; need neutral and an expression'
+        msg = (
+            f'training data hold only the {listed("label", present)}; need neutral and an '
+            'expression'
+        )
         raise ConfigError(msg)
     scaler = StandardScaler().fit(x)
     scale = np.where(scaler.scale_ > 0.0, scaler.scale_, 1.0)
@@ -423,7 +427,8 @@ def _check_labels(labels: tuple[str, ...], error: type[Exception]) -> None:
     """Raise ``error`` for labels outside :data:`EXPRESSION_LABELS` or without 'neutral'."""
     unknown = sorted(str(label) for label in set(labels) - set(EXPRESSION_LABELS))
     if unknown:
-        msg = f'unknown expression label(s) {unknown}; known labels are {EXPRESSION_LABELS}'
+        known = ', '.join(EXPRESSION_LABELS)
+        msg = f'unknown expression {listed("label", unknown)}; known labels are {known}'
         raise error(msg)
     if NEUTRAL not in labels:
         msg = f'expression labels {labels} lack {NEUTRAL!r}'

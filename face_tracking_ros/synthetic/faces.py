@@ -68,6 +68,7 @@ from scipy.stats import truncnorm
 
 from face_tracking_ros.errors import ConfigError
 from face_tracking_ros.model.topology import mesh_topology
+from face_tracking_ros.wording import listed
 
 EXPRESSIONS = ('neutral', 'smile', 'jaw_open', 'brow_raise', 'frown', 'pucker', 'surprise')
 """Expression labels; index 0 is neutral (no displacement), the others have one basis column."""
@@ -414,7 +415,7 @@ class FacePopulation:
         if isinstance(weights, Mapping):
             unknown = sorted(set(weights) - set(EXPRESSIONS))
             if unknown:
-                msg = f'unknown expression(s) {unknown}; known: {EXPRESSIONS}'
+                msg = f'unknown {listed("expression", unknown)}; known: {", ".join(EXPRESSIONS)}'
                 raise ConfigError(msg)
             return np.array([float(weights.get(name, 0.0)) for name in ACTIVE_EXPRESSIONS])
         alpha = np.asarray(weights, dtype=float)

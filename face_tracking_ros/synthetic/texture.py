@@ -25,6 +25,7 @@ from scipy.interpolate import PchipInterpolator, RBFInterpolator
 from face_tracking_ros.errors import ConfigError
 from face_tracking_ros.model.topology import mesh_topology
 from face_tracking_ros.synthetic.surface import outline_radius
+from face_tracking_ros.wording import listed
 
 ENCODINGS = ('mono8', 'rgb8')
 
@@ -157,7 +158,8 @@ def photo_texture(
     names = mesh_topology(34).node_names
     unknown = sorted(set(node_pixels) - set(names))
     if unknown:
-        msg = f'photo node positions name unknown node(s) {unknown}; known: {names}'
+        known = ', '.join(names)
+        msg = f'photo node positions name unknown {listed("node", unknown)}; known: {known}'
         raise ConfigError(msg)
     if len(node_pixels) < MIN_PHOTO_NODES or not {'right_eye', 'left_eye'} <= set(node_pixels):
         msg = (
@@ -235,7 +237,7 @@ def load_photo_texture(
     ]
     if outside:
         msg = (
-            f'{nodes_path}: node(s) {", ".join(outside)} not inside the {width}x{height} '
+            f'{nodes_path}: {listed("node", outside)} not inside the {width}x{height} '
             f'photo {photo_path} (or not finite)'
         )
         raise ConfigError(msg)

@@ -185,7 +185,7 @@ def test_bad_arguments_raise_config_error():
     population = FacePopulation()
     with pytest.raises(ConfigError, match='subject index must be >= 0'):
         population.subject(-2)
-    with pytest.raises(ConfigError, match=r"unknown expression\(s\) \['grin'\]"):
+    with pytest.raises(ConfigError, match='unknown expression grin; known: '):
         population.alpha({'grin': 1.0})
     with pytest.raises(ConfigError, match=r'must have shape \(6,\)'):
         population.alpha(np.zeros(7))
