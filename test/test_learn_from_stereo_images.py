@@ -503,6 +503,42 @@ def test_a_bag_of_a_doubled_baseline_is_not_learned_from_and_the_calibration_nam
     assert not (tmp_path / 'm.npz').exists()
 
 
+def _with_images_swapped(bag: Path, out: Path) -> Path:
+    """Write ``bag`` to ``out`` with its image topics exchanged (the camera_infos kept)."""
+    other = {'left/image_raw': 'right/image_raw', 'right/image_raw': 'left/image_raw'}
+    with BagWriter(out) as writer:
+        for message in read_messages(bag):
+            topic = other.get(message.topic, message.topic)
+            writer.write(topic, message.msgtype, message.msg, message.stamp_ns)
+    return out
+
+
+def test_a_bag_of_swapped_images_is_not_learned_from_and_the_swap_named(tmp_path, capsys):
+    """Left and right images exchanged, camera_infos right: the message says so.
+
+    Before, the reason was the generic one of a pair that does not match: "only 3 inner
+    (non-boundary) nodes matched in the right image consistently with a face (need 4); check
+    the rig calibration, ...", the same as for a blurred or dark right image.
+    """
+    bag = _with_images_swapped(BAGS[0], tmp_path / 'bags' / 'swapped')
+    assert main(['track', str(bag), '--simulate-clicks', '0', '--out', str(tmp_path / 't')]) == 1
+    reason = (
+        'initialisation failed: the left and right images look swapped: 23 of the 23 inner '
+        "nodes match as a face with them exchanged, 3 as they come; check the image topics' "
+        "remapping (left/image_raw must carry the left camera's images, right/image_raw the "
+        "right one's)"
+    )
+    summary = 'stereo_tracker: initializing_pairs 10, tracking_pairs 0, lost_pairs 0, last_reason'
+    assert f'{summary} {reason}, restarts 0' in capsys.readouterr().out
+    argv = ['learn', str(bag), *map(str, BAGS[1:]), '--from-images', '--simulate-clicks', '1']
+    argv += ['--p', '1', '--out', str(tmp_path / 'm.npz'), '--report', str(tmp_path / 'r.json')]
+    assert main(argv) == 2
+    error = capsys.readouterr().err
+    no_mesh = f'error: {bag}: the stereo tracker produced no mesh (no input problem; last_reason:'
+    assert error.startswith(f'{no_mesh} {reason[:63]}'), error  # its counts: with 1 px clicks
+    assert not (tmp_path / 'm.npz').exists()
+
+
 def test_a_bag_of_a_baseline_in_millimetres_is_refused_by_its_calibration(tmp_path, capsys):
     """P[0,3] = -fx B with B in mm: no tracker is built; the problems and status say why."""
     bag = _with_baseline_times(BAGS[0], 1000.0, tmp_path / 'bags' / 'millimetres')

@@ -28,6 +28,7 @@ from face_tracking_ros.tracking.stereo_init import (
     InitialNodes,
     StereoInitConfig,
     check_face_scale,
+    check_not_swapped,
     initial_nodes,
 )
 
@@ -286,3 +287,43 @@ def test_no_face_of_the_synthetic_populations_reads_a_wrong_calibration() -> Non
                     check_face_scale(InitialNodes(nodes, inner), topology, rig, config)
                     with pytest.raises(InputError, match='Check its baseline first'):
                         check_face_scale(InitialNodes(2 * nodes, inner), topology, rig, config)
+
+
+def test_swapped_images_are_named_and_pairs_wired_right_never_look_swapped() -> None:
+    """12 subjects (2 of seeds 0-2 of both populations), 19 and 34 nodes alternately.
+
+    Exchanged images stop the initialisation saying so, whether the positions are the left
+    camera's (simulated clicks, an init file) or are found in the image given as the left one
+    (the detector, a user's clicks). Pairs wired right never look swapped, even with clicks 10 px
+    off. Measured on 30 subjects, both meshes: every swapped pair matched 22-23 of 23 and 19 of
+    19 inner nodes as a face exchanged, every pair wired right none.
+    """
+    config = StereoInitConfig()
+    rng = np.random.default_rng(0)
+    for index, (preset, seed, subject) in enumerate(
+        itertools.product(('default', 'realistic'), range(3), range(2))
+    ):
+        scene = SceneConfig(kind='stereo', frames=1, seed=seed, population=preset)
+        renderer = SequenceRenderer(scene, subject)
+        rig = StereoRig(renderer.cameras['left'], renderer.cameras['right'])
+        frame = next(iter(renderer.frames(0)))
+        left, right = (frame.images[side].astype(np.float32) for side in ('left', 'right'))
+        num_nodes = (19, 34)[index % 2]
+        topology = mesh_topology(num_nodes)
+        inner = ~topology.group_mask(Group.EDGE)
+        truth = frame.truth.nodes_camera[:num_nodes]
+        for camera in (rig.left, rig.right):  # positions in the left camera, or in the image
+            tracker = StereoTracker(rig, StereoTrackerConfig(num_nodes=num_nodes))
+            tracker.reset(camera.project(truth))
+            result = tracker.step(right, left)
+            assert result.status == TrackStatus.INITIALIZING
+            assert result.reason.startswith(
+                'initialisation failed: the left and right images look swapped: '
+            ), result.reason
+            assert result.reason.endswith(
+                "check the image topics' remapping (left/image_raw must carry the left camera's "
+                "images, right/image_raw the right one's)"
+            )
+        clicks = rig.left.project(truth)
+        for positions in (clicks, clicks + rng.normal(0.0, 10.0, clicks.shape)):
+            check_not_swapped(rig, left, right, positions, inner, topology, config, 0)  # passes
