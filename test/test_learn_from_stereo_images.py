@@ -47,7 +47,9 @@ def test_stereo_images_are_tracked_then_learned(tmp_path, capsys):
         str(tmp_path / 'report.json'),
     ]  # fmt: skip
     assert main(argv) == 0
-    assert capsys.readouterr().out.count('% tracked: 3-D node RMS') == len(BAGS)
+    out = capsys.readouterr().out
+    assert out.count('% tracked: 3-D node RMS') == len(BAGS)
+    assert 'warning' not in out  # true sizes 0.95-1.07 (see the baseline 25 % off below)
     meshes = sorted((tmp_path / 'report_meshes').glob('subject_*_seq_00'))
     assert [m.name for m in meshes] == [b.name for b in BAGS]
     assert bag_topics(meshes[0])['face/mesh_raw'] == 'face_tracking_msgs/msg/FaceMesh'
@@ -537,6 +539,29 @@ def test_a_bag_of_swapped_images_is_not_learned_from_and_the_swap_named(tmp_path
     no_mesh = f'error: {bag}: the stereo tracker produced no mesh (no input problem; last_reason:'
     assert error.startswith(f'{no_mesh} {reason[:63]}'), error  # its counts: with 1 px clicks
     assert not (tmp_path / 'm.npz').exists()
+
+
+def test_a_baseline_25_percent_long_is_warned_of_across_the_subjects(tmp_path, capsys):
+    """The three bags' right camera_infos give 1.25 times the baseline: learn warns, and learns.
+
+    Each face passes the tracker's own check (0.7-1.5); together they read 1.25 times an adult's
+    (median), above the 1.12 adults stay within (:mod:`~face_tracking_ros.pipelines.face_sizes`).
+    Before, nothing was said, and the model was learned from faces 25 % too large.
+    """
+    bags = [_with_baseline_times(bag, 1.25, tmp_path / 'bags' / bag.name) for bag in BAGS]
+    argv = ['learn', *map(str, bags), '--from-images', '--simulate-clicks', '1', '--p', '1']
+    argv += ['--out', str(tmp_path / 'm.npz'), '--report', str(tmp_path / 'r.json')]
+    assert main(argv) == 0
+    warning = (
+        "warning: the 3 subjects' faces read 1.23 times the size of an adult face (median; each "
+        '1.18-1.34), where adults stay within 0.89-1.12: a stereo baseline 1.23 times the true '
+        "one reads so. The right camera_info's P[0,3] = -41.25 (-fx B) gives B = 0.1375 m "
+        '(subject_00_seq_00, subject_01_seq_00, subject_02_seq_00): B = 0.112 m (P[0,3] = '
+        '-33.59) would make them adult-sized. A set of children, or of large faces only, reads '
+        'so too: learning goes on\n'
+    )
+    assert warning in capsys.readouterr().out
+    assert (tmp_path / 'm.npz').exists()
 
 
 def test_a_bag_of_a_baseline_in_millimetres_is_refused_by_its_calibration(tmp_path, capsys):

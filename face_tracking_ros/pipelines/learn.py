@@ -54,6 +54,7 @@ from face_tracking_ros.learning.training_set import MeshSequence, TrainingSet
 from face_tracking_ros.model.face_model import FaceModel
 from face_tracking_ros.model.model_file import save_model
 from face_tracking_ros.pipelines.bag_reads import BagReads
+from face_tracking_ros.pipelines.face_sizes import face_size_warning, subject_scales
 from face_tracking_ros.pipelines.learn_options import (
     LearnOptions,
     check_options,
@@ -64,6 +65,7 @@ from face_tracking_ros.pipelines.stereo_meshes import (
     RawBagTracking,
     checked_stereo_bags,
     mesh_bag,
+    right_baseline,
     stereo_initialisations,
 )
 from face_tracking_ros.synthetic.faces import FacePopulation
@@ -88,6 +90,7 @@ def learn_from_bags(options: LearnOptions, say: Callable[[str], None] = print) -
     rng = np.random.default_rng(options.seed)
     mesh_bags = _mesh_bags(options, trackings, say, reads)
     bag_meshes = _read_meshes(options, mesh_bags, truth_bags, say, reads)
+    _say_face_sizes(bag_meshes, trackings, say)
     training, align_seconds = _aligned_training_set(options, bag_meshes, rng, say)
     truth = _true_subspaces(options, training, bag_meshes)
     results: dict[str, LearningResult] = {}
@@ -244,6 +247,24 @@ def _read_meshes(
         for bag, mesh, truth_bag in zip(options.bags, mesh_bags, truth_bags, strict=True)
         for item in read_bag_meshes(mesh, options, truth_bag, recording_name(bag), say, reads)
     ]
+
+
+def _say_face_sizes(
+    bag_meshes: Sequence[BagMeshes],
+    trackings: dict[Path, RawBagTracking],
+    say: Callable[[str], None],
+) -> None:
+    """``say`` a warning if the subjects' faces are too large or small together (a baseline off).
+
+    :func:`~.face_sizes.face_size_warning`, naming the baselines of the raw stereo bags tracked.
+    """
+    scales = subject_scales([item.sequence for item in bag_meshes])
+    baselines = {bag: right_baseline(tracking) for bag, tracking in trackings.items()}
+    warning = face_size_warning(
+        scales, {bag: found for bag, found in baselines.items() if found is not None}
+    )
+    if warning is not None:
+        say(warning)
 
 
 def _aligned_training_set(

@@ -21,7 +21,8 @@ from pathlib import Path
 import shutil
 
 from face_tracking_ros.errors import BagError, ConfigError, FaceTrackingError
-from face_tracking_ros.io.bags import recording_name
+from face_tracking_ros.io.bags import read_messages, recording_name
+from face_tracking_ros.io.conversions import camera_from_info
 from face_tracking_ros.io.provenance import Provenance, replay_source
 from face_tracking_ros.io.series import holds_truth, truth_series
 from face_tracking_ros.pipelines.bag_inputs import (
@@ -40,9 +41,9 @@ from face_tracking_ros.pipelines.learn_options import LearnOptions
 from face_tracking_ros.pipelines.mesh_bags import TRUTH_TOPIC, mesh_topic
 from face_tracking_ros.pipelines.scoring import score_stereo_against_truth
 from face_tracking_ros.processing.parameters import OverrideParameters
-from face_tracking_ros.processing.stereo import StereoNodeConfig
+from face_tracking_ros.processing.stereo import RIGHT_INFO, StereoNodeConfig
 from face_tracking_ros.processing.track_counts import NO_REASON
-from face_tracking_ros.replay import ReplayStats, replay_bag, wire_replay
+from face_tracking_ros.replay import ReplayStats, fed_topic, replay_bag, wire_replay
 from face_tracking_ros.synthetic.clicks import (
     check_clicks_file,
     clicks_from_bag,
@@ -91,6 +92,8 @@ class RawBagTracking:
         remaps: the tracker's input -> bag topic.
         left_info: the camera_info topic the tracker reads for its left camera (the one the
             simulated clicks are in); None: none.
+        right_info: the camera_info topic it reads for its right camera (the baseline's);
+            None: none.
         initialisation: the stereo_tracker parameter initialising the track, name -> value
             text; None: simulated clicks, not written yet (:func:`stereo_initialisations` adds
             them).
@@ -102,6 +105,7 @@ class RawBagTracking:
     tracker_params: dict[str, str]
     remaps: dict[str, str]
     left_info: str | None
+    right_info: str | None
     initialisation: dict[str, str] | None
 
     def params(self) -> OverrideParameters:
@@ -245,9 +249,27 @@ def _planned_tracking(
     out = _tracked_meshes(bag, options)
     _earlier_tracking(out, replay_source(bag), options.named('meshes_dir'))
     left_info = clicked_camera_topic(read, TRACKER)
+    right_info = fed_topic(read, RIGHT_INFO)
     return RawBagTracking(
-        bag, topics, out, parameters.overrides, remaps, left_info, initialisation
+        bag, topics, out, parameters.overrides, remaps, left_info, right_info, initialisation
     )
+
+
+def right_baseline(tracking: RawBagTracking) -> tuple[float, float] | None:
+    """The right camera's P[0,3] (-fx B) and baseline B (m) of a raw stereo bag; None: none.
+
+    From the first camera_info on :attr:`RawBagTracking.right_info`.
+
+    Raises:
+        BagError: if the bag cannot be read.
+        InputError: for a camera_info that is not a calibration.
+    """
+    if tracking.right_info is None:
+        return None
+    for message in read_messages(tracking.bag, [tracking.right_info]):
+        p = camera_from_info(message.msg).p
+        return float(p[0, 3]), -float(p[0, 3]) / float(p[0, 0])
+    return None
 
 
 def _parameters(

@@ -488,7 +488,7 @@ def _trimmed_reference(
         use[worst] = False
 
 
-def _face_scale(topology: MeshTopology, nodes: np.ndarray, use: np.ndarray) -> float:
+def face_scale(topology: MeshTopology, nodes: np.ndarray, use: np.ndarray) -> float:
     """The size of the face the nodes marked ``use`` span, in sizes of the reference face."""
     source, target = np.asarray(topology.reference_shape)[use], nodes[use]
     spread_source = np.linalg.norm(source - source.mean(axis=0))
@@ -507,7 +507,7 @@ def check_face_scale(
     Raises:
         InputError: naming the size, that baseline and what else to check.
     """
-    scale = _face_scale(topology, initial.nodes, initial.matched)
+    scale = face_scale(topology, initial.nodes, initial.matched)
     if not config.min_face_scale <= scale <= config.max_face_scale:
         tx = float(rig.right.p[0, 3])
         msg = (
@@ -552,7 +552,7 @@ def check_baseline(rig: StereoRig, config: StereoInitConfig) -> None:
 def _fit_reference(topology: MeshTopology, nodes: np.ndarray, use: np.ndarray) -> np.ndarray:
     """The reference face (N, 3) moved and scaled onto the nodes marked ``use``."""
     reference = np.asarray(topology.reference_shape)
-    scale = _face_scale(topology, nodes, use)
+    scale = face_scale(topology, nodes, use)
     weights = topology.alignment_weights()[use]
     alignment = rigid_align(scale * reference[use], nodes[use], weights)
     return scale * reference @ alignment.rotation.T + alignment.t
