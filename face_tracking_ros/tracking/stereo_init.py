@@ -59,8 +59,8 @@ class StereoInitConfig:
             faces vary by about 15 %: the synthetic populations read 0.86-1.14, 0.85-1.21 with
             an expression at full intensity (600 faces each); tracked, 30 subjects read theirs
             within 0.34 %. A baseline doubled then reads 1.70 or more, one halved 0.61 or less;
-            one 25 % off passes, as a larger or smaller face does. Raw images of a rig toed in
-            by 3 degrees, tracked unrectified, read 2.9.
+            one 25 % off passes, as a larger or smaller face does (learn warns of it across
+            subjects). Raw images of a rig toed in by 3 degrees, tracked unrectified, read 2.9.
     """
 
     min_depth: float = 0.25
@@ -308,8 +308,8 @@ def check_not_swapped(
     disparities (positions found in the image given as the left one, e.g. by the detector or
     clicked on it). Either at least half of the searched inner nodes, at least
     :data:`MIN_FIT_NODES` and more than ``consistent``, matching as a face says so. On 30
-    rendered subjects, both meshes, a pair wired right matched none that way (also from clicks
-    10 px off), its images exchanged 22-23 of 23 and 19 of 19 (and 0-9 as they came).
+    rendered subjects, both meshes, pairs wired right matched at most 4 that way (8 of 23 from
+    clicks 10 px off), their images exchanged 22-23 of 23 and 19 of 19 (0-9 as they came).
 
     Args:
         rig: the rectified rig.
