@@ -8,7 +8,8 @@ same row of a rectified pair, ``cv2.matchTemplate``) within a depth range, trian
 difference of a patch lying on the face surface, which removes the bias that square windows
 have on sloping skin. Nodes not given, or whose match is weak or inconsistent with the
 face, take their position from the reference face of the topology fitted to the others (a
-similarity transform) and keep its depth.
+similarity transform) and keep its depth. A pair whose images come exchanged (the left
+camera's on the right topic) is refused as such (:func:`check_not_swapped`).
 """
 
 from __future__ import annotations
@@ -210,7 +211,9 @@ def initial_nodes(
 
     Raises:
         InputError: if fewer than ``config.min_given_nodes`` nodes are given, a given node lies
-            outside the left image, or too few inner nodes are matched to fit the face.
+            outside the left image, or too few inner nodes are matched to fit the face; or if
+            fewer than half of them are, and the images look exchanged
+            (:func:`check_not_swapped`).
     """
     height, width = left.shape
     check_inside(topology.node_names, left_px, (width, height), 'left image')
@@ -331,6 +334,7 @@ def check_not_swapped(
         rig, right, left, px, full_range, config.match_half_size
     )
     reversed_px, reversed_scores = _reversed_match(rig, left, right, px, config)
+    # Each reversed match moved to the same disparity the usual way round: its depth.
     mirrored = np.stack([2.0 * px[:, 0] - reversed_px[:, 0], reversed_px[:, 1]], axis=1)
     found = max(
         _face_matches(topology, search, rig.triangulate(px, exchanged), exchanged_scores, config),
