@@ -175,6 +175,59 @@ def test_pyramid_made_where_sampled_only() -> None:
         pyramid.level(0, np.float32([np.nan]), np.float32([1.0]))
 
 
+@pytest.mark.parametrize('borrow', [False, True])
+@pytest.mark.parametrize('factor', [1.0, 1 / 1.0077])
+def test_unsmoothed_8_bit_levels_read_by_boxes_equal_the_scaled_full_build(
+    factor: float, borrow: bool
+) -> None:
+    """Levels 0 and 1 of an unsmoothed 8-bit image, made by boxes, are the full build's bits.
+
+    As the stereo tracker reads them: scaled by the right camera's gain at build, the image
+    borrowed, the buffers of another image's pyramid reused; clusters of points all over (some
+    beyond the edges, odd sizes) grow the boxes.
+    """
+    rng = np.random.default_rng(11)
+    height, width = 97, 131
+    other, image = rng.integers(0, 256, (2, height, width), dtype=np.uint8)
+    previous = ImagePyramid.build(other, 3, borrow=borrow)
+    previous.levels  # noqa: B018 - made in full, so a pixel read outside a box holds other's
+    kept = image.copy()
+    pyramid = ImagePyramid.build(image, 3, reuse=previous, factor=factor, borrow=borrow)
+    full = ImagePyramid.build(image, 3)
+    full.scale(factor)
+    for cluster in range(40):
+        level = cluster % 2
+        size = np.array([width, height]) / (1 << level)
+        centre = rng.uniform(-5, size + 5)
+        x, y = (centre[:, None, None] + rng.normal(0.0, 3.0, (2, 5, 9))).astype(np.float32)
+        values, gradient = sample_with_gradient_xy(pyramid.level(level, x, y), x, y)
+        expected_values, expected_gradient = sample_with_gradient_xy(full.levels[level], x, y)
+        np.testing.assert_array_equal(values, expected_values)
+        np.testing.assert_array_equal(gradient, expected_gradient)
+    np.testing.assert_array_equal(image, kept)  # a borrowed image is read, never written
+    for got, expected in zip(pyramid.levels, full.levels, strict=True):
+        np.testing.assert_array_equal(got, expected)
+    image[...] = 0  # the caller's buffer, free once the pyramid is made in full
+    np.testing.assert_array_equal(pyramid.levels[0], full.levels[0])
+
+
+def test_unsmoothed_level_1_made_where_sampled_only() -> None:
+    """A read of a few points of level 1 makes it around them, to the bit, level 0 not at all."""
+    image = np.random.default_rng(5).integers(1, 256, (200, 300), dtype=np.uint8)
+    previous = ImagePyramid.build(np.zeros_like(image), 2)
+    previous.levels  # noqa: B018
+    pyramid = ImagePyramid.build(image, 2, reuse=previous, borrow=True)
+    x, y = np.float32([[70.5, 71.5]]), np.float32([[50.5, 51.5]])
+    level = pyramid.level(1, x, y)
+    made = level > 0
+    np.testing.assert_array_equal(level[made], ImagePyramid.build(image, 2).levels[1][made])
+    rows, cols = np.nonzero(made)
+    # The pixels the samples read (_SAMPLE_REACH = 3, exclusive end + 1) and the margin of 16.
+    assert (rows.min(), rows.max()) == (50 - 3 - 16, 51 + 3 + 16)
+    assert (cols.min(), cols.max()) == (70 - 3 - 16, 71 + 3 + 16)
+    assert not pyramid.level(0, np.float32([]), np.float32([])).any()
+
+
 def test_a_single_smoothed_level_is_the_binomial_smoothing_of_the_image() -> None:
     image = np.zeros((32, 32), np.uint8)
     image[10, 12] = 255  # an impulse: smoothed, the 5-tap binomial kernel's outer product

@@ -18,7 +18,7 @@ from scipy.interpolate import LinearNDInterpolator
 
 from face_tracking_ros.errors import ConfigError, InputError, ModelFileError
 from face_tracking_ros.geometry.camera import PinholeCamera, StereoRig
-from face_tracking_ros.imaging import GRADIENT_MARGIN, inside_xy
+from face_tracking_ros.imaging import GRADIENT_MARGIN, ImagePyramid, PyramidLevel, inside_xy
 from face_tracking_ros.model.topology import Group, mesh_topology
 from face_tracking_ros.synthetic.surface import head_surface
 from face_tracking_ros.tracking.camera_gain import relative_gain
@@ -416,6 +416,42 @@ def test_template_coefficients_split_gamma_and_epsilon_and_weigh_the_texture() -
     assert texture.shape[1] == len(texture_triangles(topology)) > 0
     without = TemplateSamples(replace(config, texture_weight=0.0), topology)
     assert len(without.layouts(PLANE.nodes(), RIG.left.focal)) == 1
+
+
+@pytest.mark.parametrize('level', [0, 1])
+def test_pyramid_levels_sample_as_their_full_images_made_around_the_face_only(level: int) -> None:
+    """Pyramids made where sampled give the full levels' samples to the bit, made in part.
+
+    As the tracker builds them: 8-bit images, the right one scaled by its camera's gain.
+    """
+    truth = PLANE.nodes()
+    layouts = (
+        SampleLayout.node_patches(truth, truth[:, 2] / 600, 3, np.zeros(34, dtype=bool)),
+        SampleLayout.triangle_texture(mesh_topology(34).triangles, 4),
+    )
+    samples = SampleSet.of(layouts, 34)
+    projections = level_projections((RIG.left, RIG.right), level)
+    offsets = float(1 << level) * samples.level_offsets(np.eye(3), 0)
+    points = samples.points(truth, offsets, None, float(1 << level))
+    images = [np.clip(_wave(phase), 0, 255).astype(np.uint8) for phase in (0.1, 0.5)]
+    factors = (1.0, 1 / 1.02)
+    blank = np.zeros_like(images[0])
+    pyramids = []
+    for image, factor in zip(images, factors, strict=True):
+        previous = ImagePyramid.build(blank, 2)
+        previous.levels  # noqa: B018 - zeros wherever the new pyramid is not made
+        pyramids.append(ImagePyramid.build(image, 2, reuse=previous, factor=factor))
+    full = [ImagePyramid.build(image, 2) for image in images]
+    full[1].scale(factors[1])
+    sources = [PyramidLevel(pyramid, level) for pyramid in pyramids]
+    arrays = [pyramid.levels[level] for pyramid in full]
+    got = sample_images(sources, projections, points, samples.mask)
+    expected = sample_images(arrays, projections, points, samples.mask)
+    assert (got.values == expected.values).all() and (got.gradient == expected.gradient).all()
+    assert (sample_values(sources, projections, points) == got.values).all()
+    for pyramid in pyramids:
+        made = pyramid.level_reaching(level, (0.0, -1.0, 0.0, -1.0))
+        assert 0.02 < np.mean(made != 0) < 0.5, np.mean(made != 0)
 
 
 def test_robust_residuals_are_the_huber_terms_of_the_patch_and_texture_residuals() -> None:

@@ -11,7 +11,7 @@ from face_tracking_ros.imaging.photometric import (
     PhotometricModel,
     PhotometricProjection,
 )
-from face_tracking_ros.imaging.pyramid import ImagePyramid, check_levels_fit
+from face_tracking_ros.imaging.pyramid import ImagePyramid, PyramidLevel, check_levels_fit
 from face_tracking_ros.imaging.sampling import (
     GRADIENT_MARGIN,
     MAX_HALF_SIZE,
@@ -37,6 +37,7 @@ __all__ = [
     'PhotometricInvariance',
     'PhotometricModel',
     'PhotometricProjection',
+    'PyramidLevel',
     'check_levels_fit',
     'inside_image',
     'inside_xy',

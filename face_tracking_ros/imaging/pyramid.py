@@ -7,8 +7,9 @@ centres output pixel ``i`` on input pixel ``2 i``, so a point at pixel ``x`` of 
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 import math
+from typing import NamedTuple
 
 import cv2
 import numpy as np
@@ -58,14 +59,16 @@ class ImagePyramid:
     """A float32 Gaussian pyramid of one grey image, made as it is read.
 
     :attr:`levels` gives every level in full. A tracker that samples a few patches of a frame
-    reads them through :meth:`level` instead: the coarser levels, which need all of level 0,
-    are made when first asked for, and a smoothed level 0 (``smooth_base``) only over the box
-    its samples reach, a face's patches being a tenth or so of a 640x480 frame. Every value
-    read either way is the full build's: smoothing a box of the image with a 2-px border of it
-    gives the values of smoothing the whole image, whose reflected border lies at its own
-    edges; to the bit for an 8-bit image (its weighted sums are exact in float32), within
-    float32 rounding for a float one (the filter's vector and scalar paths meet at other
-    columns).
+    reads them through :meth:`level` or :meth:`level_reaching` instead, which make a level only
+    over the box its samples reach, a face's patches being a tenth or so of a 640x480 frame:
+    level 0 when it is smoothed (``smooth_base``) or built from an 8-bit image, and level 1 too
+    for an 8-bit image unsmoothed (the stereo tracker's); other levels are made in full when
+    first asked for. Every value read either way is the full build's: smoothing a box of the
+    image with a 2-px border of it gives the values of smoothing the whole image, whose
+    reflected border lies at its own edges, and ``pyrDown`` of a box with a 2-px border the
+    values of ``pyrDown`` of the whole level; to the bit for an 8-bit image (its weighted sums
+    are exact in float32), within float32 rounding for a smoothed float one (the filter's vector
+    and scalar paths meet at other columns).
     """
 
     def __init__(
@@ -73,21 +76,36 @@ class ImagePyramid:
         levels: Sequence[np.ndarray],
         source: np.ndarray | None = None,
         coarse_made: bool = True,
+        smoothed: bool = True,
+        factor: float = 1.0,
+        owned: bool = True,
     ) -> None:
         """A pyramid of ``levels`` (level 0 first, float32), complete unless told otherwise.
 
         Args:
             levels: the levels, or buffers for those still to be made (:meth:`build`).
             source: the (H, W) grey image (uint8 or float32, owned by the pyramid) that level 0
-                is still to be made from, smoothed; None if level 0 is made.
+                is still to be made from; None if level 0 is made.
             coarse_made: whether the coarser levels are made.
+            smoothed: whether level 0 is ``source`` smoothed (else ``source`` itself).
+            factor: the factor the levels made from ``source`` multiply their grey levels by
+                (:meth:`build`'s).
+            owned: whether ``source`` is the pyramid's own (else the caller's image, read until
+                the pyramid is complete, and never written).
         """
         self._levels = tuple(levels)
         self._source = source
-        self._smoothed = source is not None
+        self._owned = owned
+        self._smoothed = smoothed and source is not None
+        # Level 1 made by boxes: pyrDown's sums of 8-bit values are exact, so any box's are the
+        # full level's.
+        self._coarse_boxed = not self._smoothed and source is not None and source.dtype == np.uint8
+        self._factor = np.float32(factor)
         height, width = self._levels[0].shape
-        # The box of level 0 made so far, (x0, y0, x1, y1) exclusive, and whether all is.
+        # The boxes of level 0 and level 1 made so far, (x0, y0, x1, y1) exclusive (level 1's
+        # only by boxes when unsmoothed), and whether all is.
         self._box = (0, 0, width, height) if source is None else (0, 0, 0, 0)
+        self._coarse_box = (0, 0, 0, 0)
         self._complete = source is None and (coarse_made or len(self._levels) == 1)
 
     @classmethod
@@ -97,11 +115,14 @@ class ImagePyramid:
         num_levels: int,
         smooth_base: bool = False,
         reuse: ImagePyramid | None = None,
+        factor: float = 1.0,
+        borrow: bool = False,
     ) -> ImagePyramid:
         """The pyramid of ``num_levels`` levels of ``gray``, made as it is read.
 
         Args:
-            gray: (H, W) uint8 or float grey image, copied (the caller may reuse its buffer).
+            gray: (H, W) uint8 or float grey image, copied (the caller may reuse its buffer)
+                unless borrowed.
             num_levels: number of levels, >= 1.
             smooth_base: smooth level 0 with pyrDown's binomial kernel (sigma ~ 1 px). Bilinear
                 sampling of a sharp image is biased towards whole-pixel positions; smoothing
@@ -113,6 +134,12 @@ class ImagePyramid:
                 per 640x480 frame, which costs ~1 ms of page faults whenever the allocator has
                 returned the previous frame's memory to the system. Ignored when it does not
                 match.
+            factor: multiply every level's grey levels by this (as float32), as :meth:`scale`
+                does after a build, but only where the levels are made. (A level is still made
+                from the unscaled one before it, so the values are :meth:`scale`'s to the bit.)
+            borrow: read a uint8 or float32 ``gray`` itself rather than a copy, until every
+                level is made (:attr:`levels`): the caller keeps it unchanged meanwhile. A
+                tracker that reads a tenth of each frame so saves copying the rest.
 
         Raises:
             InputError: if the image is not 2-D, not finite, or too small for the levels asked
@@ -125,13 +152,25 @@ class ImagePyramid:
         if not 1 <= num_levels <= _levels_that_fit(min(gray.shape), MIN_LEVEL_SIZE):
             msg = f'cannot build {num_levels} pyramid levels from a {gray.shape} image'
             raise InputError(msg)
-        source, levels = cls._buffers(gray, num_levels, smooth_base, reuse)
-        copy = levels[0] if source is None else source
-        copy[...] = gray
-        if not np.issubdtype(gray.dtype, np.integer) and not np.all(np.isfinite(copy)):
+        dtype = np.uint8 if gray.dtype == np.uint8 else np.float32
+        buffer, levels = cls._buffers(gray.shape, dtype, num_levels, smooth_base, reuse)
+        borrowed = borrow and gray.dtype == dtype
+        if borrowed:
+            source = gray
+        else:
+            source = np.empty(gray.shape, dtype) if buffer is None else buffer
+            source[...] = gray
+        if not np.issubdtype(gray.dtype, np.integer) and not np.all(np.isfinite(source)):
             msg = 'pyramid input holds NaN or Inf'
             raise InputError(msg)
-        return cls(levels, source, coarse_made=False)
+        return cls(
+            levels,
+            source,
+            coarse_made=False,
+            smoothed=smooth_base,
+            factor=factor,
+            owned=not borrowed,
+        )
 
     @property
     def levels(self) -> tuple[np.ndarray, ...]:
@@ -139,22 +178,22 @@ class ImagePyramid:
 
         In [0, 255] as built (:meth:`scale` may change that); every level made in full.
         """
-        self._make_all()
+        self.make_all()
         return self._levels
 
     def level(self, index: int, x: np.ndarray, y: np.ndarray) -> np.ndarray:
         """Level ``index``, made at least where samples at points (x, y) of it read it.
 
         The samples: bilinear ones at the points (``cv2.remap``) and one pixel either side
-        (central differences, :func:`~.sampling.sample_with_gradient_xy`). Level 0 is made over
-        the box they reach and a margin (``_BOX_MARGIN``), so that a solve's later steps near
-        the same points find it made; a coarser level is made in full.
+        (central differences, :func:`~.sampling.sample_with_gradient_xy`). A level made by
+        boxes (see the class) is made over the box they reach and a margin (``_BOX_MARGIN``), so
+        that a solve's later steps near the same points find it made; another is made in full.
 
         Raises:
-            InputError: if the points hold NaN or Inf while level 0 is still being made (the
-                samplers refuse such points in any case).
+            InputError: if the points hold NaN or Inf while their level is still being made
+                (the samplers refuse such points in any case).
         """
-        if index > 0 or self._source is None or self._complete or not np.size(x):
+        if self._complete or not np.size(x):
             return self.level_reaching(index, (0.0, -1.0, 0.0, -1.0))  # nothing to make there
         x, y = np.asarray(x), np.asarray(y)
         return self.level_reaching(index, (x.min(), x.max(), y.min(), y.max()))  # methods: faster
@@ -165,27 +204,32 @@ class ImagePyramid:
         An empty box (least above greatest) reads nothing.
 
         Raises:
-            InputError: if the box is not finite while level 0 is still being made.
+            InputError: if the box is not finite while its level is still being made.
         """
-        if index > 0:
-            self._make_all()
+        boxed = index == 0 or (index == 1 and self._coarse_boxed)
+        if not boxed:
+            self.make_all()
+        if self._complete or (index == 0 and self._source is None):
             return self._levels[index]
         low_x, high_x, low_y, high_y = box
-        if self._source is not None and not self._complete:
-            if not math.isfinite(low_x + high_x + low_y + high_y):
-                msg = 'points hold NaN or Inf'
-                raise InputError(msg)
-            if low_x > high_x:
-                return self._levels[0]
-            # Clipped to the image, keeping its border pixel: points beyond it read that.
-            height, width = self.shape
-            self._make_base(
-                (
-                    min(max(math.floor(low_x) - _SAMPLE_REACH, 0), width - 1),
-                    min(max(math.floor(low_y) - _SAMPLE_REACH, 0), height - 1),
-                    min(max(math.floor(high_x) + _SAMPLE_REACH + 1, 1), width),
-                    min(max(math.floor(high_y) + _SAMPLE_REACH + 1, 1), height),
-                )
+        if not math.isfinite(low_x + high_x + low_y + high_y):
+            msg = 'points hold NaN or Inf'
+            raise InputError(msg)
+        if low_x > high_x:
+            return self._levels[index]
+        # Clipped to the level, keeping its border pixel: points beyond it read that.
+        height, width = self._levels[index].shape
+        reach = (
+            min(max(math.floor(low_x) - _SAMPLE_REACH, 0), width - 1),
+            min(max(math.floor(low_y) - _SAMPLE_REACH, 0), height - 1),
+            min(max(math.floor(high_x) + _SAMPLE_REACH + 1, 1), width),
+            min(max(math.floor(high_y) + _SAMPLE_REACH + 1, 1), height),
+        )
+        if index == 0:
+            self._box = self._make_box(self._box, reach, (height, width), self._make_base)
+        else:
+            self._coarse_box = self._make_box(
+                self._coarse_box, reach, (height, width), self._make_coarse
             )
         return self._levels[index]
 
@@ -199,6 +243,11 @@ class ImagePyramid:
         """
         for level in self.levels:
             level *= np.float32(factor)
+
+    def level_shape(self, index: int) -> tuple[int, int]:
+        """(H, W) of level ``index``."""
+        height, width = self._levels[index].shape
+        return height, width
 
     @property
     def num_levels(self) -> int:
@@ -216,63 +265,139 @@ class ImagePyramid:
         """Level-0 pixel coordinates (..., 2) mapped to level ``level``."""
         return np.asarray(points) / float(1 << level)
 
-    def _make_base(self, reach: tuple[int, int, int, int]) -> None:
-        """Make level 0 over the box ``reach`` (x0, y0, x1, y1, exclusive, inside the image)."""
-        x0, y0, x1, y1 = self._box
+    @staticmethod
+    def _make_box(
+        made: tuple[int, int, int, int],
+        reach: tuple[int, int, int, int],
+        shape: tuple[int, int],
+        make: Callable[[slice, slice], None],
+    ) -> tuple[int, int, int, int]:
+        """The box of a level made once ``reach`` is: ``made`` if it holds it, else made anew.
+
+        Boxes are (x0, y0, x1, y1), exclusive, inside the level of (H, W) ``shape``; the new one
+        holds ``made`` and ``reach`` with a margin of ``_BOX_MARGIN`` and is made whole by
+        ``make(rows, cols)``.
+        """
+        x0, y0, x1, y1 = made
         if x0 <= reach[0] and y0 <= reach[1] and reach[2] <= x1 and reach[3] <= y1:
-            return
-        height, width = self.shape
+            return made
+        height, width = shape
         if x1 > x0:  # grow the box made to one holding it and the reach
             reach = (min(x0, reach[0]), min(y0, reach[1]), max(x1, reach[2]), max(y1, reach[3]))
         x0, y0 = max(reach[0] - _BOX_MARGIN, 0), max(reach[1] - _BOX_MARGIN, 0)
         x1, y1 = min(reach[2] + _BOX_MARGIN, width), min(reach[3] + _BOX_MARGIN, height)
-        # The box with the 2 px of image around it that the kernel reaches; the filter writes
-        # that border too, outside the box made so far (it only grows).
-        rows = slice(max(y0 - 2, 0), min(y1 + 2, height))
-        cols = slice(max(x0 - 2, 0), min(x1 + 2, width))
-        cv2.sepFilter2D(
-            self._source[rows, cols],
-            cv2.CV_32F,
-            _BINOMIAL,
-            _BINOMIAL,
-            dst=self._levels[0][rows, cols],
-            borderType=cv2.BORDER_REFLECT_101,
-        )
-        self._box = (x0, y0, x1, y1)
+        make(slice(y0, y1), slice(x0, x1))
+        return x0, y0, x1, y1
 
-    def _make_all(self) -> None:
-        """Make every level in full (level 0 first)."""
+    def _make_base(self, rows: slice, cols: slice) -> None:
+        """Make level 0 over ``rows`` and ``cols`` (inside the image)."""
+        assert self._source is not None
+        if self._smoothed:
+            # The box with the 2 px of image around it that the kernel reaches; the filter
+            # writes that border too, outside the box made so far (it only grows).
+            height, width = self.shape
+            rows = slice(max(rows.start - 2, 0), min(rows.stop + 2, height))
+            cols = slice(max(cols.start - 2, 0), min(cols.stop + 2, width))
+            cv2.sepFilter2D(
+                self._source[rows, cols],
+                cv2.CV_32F,
+                _BINOMIAL,
+                _BINOMIAL,
+                dst=self._levels[0][rows, cols],
+                borderType=cv2.BORDER_REFLECT_101,
+            )
+        else:
+            self._levels[0][rows, cols] = self._source[rows, cols]
+        self._scale_box(self._levels[0][rows, cols])
+
+    def _make_coarse(self, rows: slice, cols: slice) -> None:
+        """Make level 1 of an unsmoothed 8-bit image over ``rows`` and ``cols`` (inside it).
+
+        ``pyrDown`` of the level-0 box that holds the 5-px reach of each pixel (output pixel i
+        lies on input pixel 2 i), unscaled; exact, hence the full level's values.
+        """
+        assert self._source is not None
+        height, width = self.shape
+        top, left = max(2 * rows.start - 2, 0), max(2 * cols.start - 2, 0)
+        bottom, right = min(2 * rows.stop + 1, height), min(2 * cols.stop + 1, width)
+        reduced = cv2.pyrDown(self._source[top:bottom, left:right].astype(np.float32))
+        made = self._levels[1][rows, cols]
+        made[...] = reduced[
+            rows.start - top // 2 : rows.stop - top // 2,
+            cols.start - left // 2 : cols.stop - left // 2,
+        ]
+        self._scale_box(made)
+
+    def _scale_box(self, values: np.ndarray) -> None:
+        """Multiply ``values`` (a view of a level) by the pyramid's factor, in place."""
+        if self._factor != 1.0:
+            values *= self._factor
+
+    def make_all(self) -> None:
+        """Make every level in full (level 0 first), each from the unscaled one before it.
+
+        A pyramid built from a borrowed image no longer reads it then.
+        """
         if self._complete:
             return
-        height, width = self.shape
-        self._make_base((0, 0, width, height))
         levels = self._levels
+        if self._smoothed:
+            cv2.sepFilter2D(
+                self._source,
+                cv2.CV_32F,
+                _BINOMIAL,
+                _BINOMIAL,
+                dst=levels[0],
+                borderType=cv2.BORDER_REFLECT_101,
+            )
+        elif self._source is not None:
+            levels[0][...] = self._source
         if self._smoothed and len(levels) > 1:
             levels[1][...] = levels[0][::2, ::2]
         for level in range(2 if self._smoothed else 1, len(levels)):
             cv2.pyrDown(levels[level - 1], dst=levels[level])
+        for level in levels:
+            self._scale_box(level)
         self._complete = True
 
     @staticmethod
     def _buffers(
-        gray: np.ndarray, num_levels: int, smooth_base: bool, reuse: ImagePyramid | None
+        shape: tuple[int, ...],
+        dtype: type,
+        num_levels: int,
+        smooth_base: bool,
+        reuse: ImagePyramid | None,
     ) -> tuple[np.ndarray | None, tuple[np.ndarray, ...]]:
-        """The levels to build into, and a buffer for the image to smooth level 0 from (or None).
+        """``reuse``'s buffer for a copy of the (H, W) image (or None) and levels, if they fit.
 
-        ``reuse``'s when they fit.
+        Its image buffer only if its own and of ``dtype``; new levels if they do not fit.
         """
-        shape = gray.shape
-        dtype = np.uint8 if gray.dtype == np.uint8 else np.float32
         sizes = [
             ((shape[0] + (1 << k) - 1) >> k, (shape[1] + (1 << k) - 1) >> k)
             for k in range(num_levels)
         ]
         if (
-            reuse is not None
-            and [level.shape for level in reuse._levels] == sizes
-            and reuse._smoothed == smooth_base
-            and (reuse._source is None or reuse._source.dtype == dtype)
+            reuse is None
+            or [level.shape for level in reuse._levels] != sizes
+            or reuse._smoothed != smooth_base
+            or reuse._source is None
         ):
-            return reuse._source, reuse._levels
-        source = np.empty(shape, dtype) if smooth_base else None
-        return source, tuple(np.empty(size, dtype=np.float32) for size in sizes)
+            return None, tuple(np.empty(size, np.float32) for size in sizes)
+        fits = reuse._owned and reuse._source.dtype == dtype
+        return reuse._source if fits else None, reuse._levels
+
+
+class PyramidLevel(NamedTuple):
+    """Level ``index`` of ``pyramid``, for a sampler to make where it reads it."""
+
+    pyramid: ImagePyramid
+    index: int
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """(H, W) of the level."""
+        return self.pyramid.level_shape(self.index)
+
+    def reaching(self, box: Sequence[float]) -> np.ndarray:
+        """The level, made at least over ``box`` (:meth:`ImagePyramid.level_reaching`)."""
+        return self.pyramid.level_reaching(self.index, box)

@@ -44,7 +44,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from face_tracking_ros.geometry.camera import StereoRig
-from face_tracking_ros.tracking.stereo_data import SampleSet, depth_terms
+from face_tracking_ros.tracking.stereo_data import ImageSource, SampleSet, depth_terms
 
 CORRECTION_SIGMAS = 3.0  # largest total depth correction, in initial standard deviations
 
@@ -139,8 +139,8 @@ class DepthRefinement:
 
 def depth_evidence(
     rig: StereoRig,
-    left: np.ndarray,
-    right: np.ndarray,
+    left: ImageSource,
+    right: ImageSource,
     patches: SampleSet,
     nodes: np.ndarray,
     directions: np.ndarray,
@@ -151,8 +151,8 @@ def depth_evidence(
 
     Args:
         rig: the rectified rig.
-        left: (H, W) float32 full-resolution left image of the pair.
-        right: (H, W) float32 right image.
+        left: (H, W) float32 full-resolution left image of the pair, or its pyramid's level 0.
+        right: the right image so.
         patches: the node patches alone (one group per node).
         nodes: (N, 3) tracked nodes, m.
         directions: (N, 3) unit directions of the depth changes (R(n) u_i).

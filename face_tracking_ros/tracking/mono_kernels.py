@@ -194,7 +194,7 @@ def roi_points(
 
 
 @numba.njit(**FAST)
-def _span(values: np.ndarray) -> tuple[float, float]:
+def span(values: np.ndarray) -> tuple[float, float]:
     """The least and greatest of (K,) values (K > 0) with no NaN; 8 running extremes at once."""
     lanes = 8
     low, high = np.full(lanes, values[0]), np.full(lanes, values[0])
@@ -275,7 +275,7 @@ def roi_maps(
             finite += x * 0.0 + y * 0.0
             inside_row[m] = (x >= margin) & (y >= margin) & (x <= right) & (y <= bottom)
     points_x, points_y = pixels[0].reshape(count * size), pixels[1].reshape(count * size)
-    box = np.array([*_span(points_x), *_span(points_y)], dtype=np.float32)
+    box = np.array([*span(points_x), *span(points_y)], dtype=np.float32)
     if not np.isfinite(finite):
         box[:] = np.nan
     if not stencil:

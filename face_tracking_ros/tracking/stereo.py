@@ -48,7 +48,7 @@ from face_tracking_ros.errors import (
 )
 from face_tracking_ros.geometry.camera import StereoRig
 from face_tracking_ros.geometry.procrustes import rigid_align
-from face_tracking_ros.imaging import ImagePyramid, check_levels_fit
+from face_tracking_ros.imaging import ImagePyramid, PyramidLevel, check_levels_fit
 from face_tracking_ros.model.face_model import FaceModel
 from face_tracking_ros.model.model_file import load_model
 from face_tracking_ros.model.topology import Group, MeshTopology, mesh_topology
@@ -291,8 +291,12 @@ class StereoTracker:
             result = self._not_tracking(self._status, self._reason)
         else:
             result = self._track(pyramids)
-        # Only frame 1's pyramids are kept; the others' arrays take the next pair.
+        # Only frame 1's pyramids are kept, made in full (they read the caller's images until
+        # then); the others' arrays take the next pair.
         kept = self._state is not None and self._state.first_pyramids is pyramids
+        if kept:
+            for pyramid in pyramids:
+                pyramid.make_all()
         self._spare = None if kept else pyramids
         return result
 
@@ -612,8 +616,8 @@ class StereoTracker:
         directions = state.depths.rays @ state.rotation.T
         evidence = depth_evidence(
             self._rig,
-            pyramids[LEFT].levels[0],
-            pyramids[RIGHT].levels[0],
+            PyramidLevel(pyramids[LEFT], 0),
+            PyramidLevel(pyramids[RIGHT], 0),
             state.patches,
             nodes,
             directions,
@@ -660,7 +664,7 @@ class StereoTracker:
         first = state.first_templates[index]
         return Level(
             index=index,
-            images=(pyramids[LEFT].levels[index], pyramids[RIGHT].levels[index]),
+            images=(PyramidLevel(pyramids[LEFT], index), PyramidLevel(pyramids[RIGHT], index)),
             projections=self._projections[index],
             offsets=float(1 << index) * state.offsets,
             templates=np.stack([previous, previous[::-1], first, first[::-1]], axis=1),
@@ -763,13 +767,14 @@ class StereoTracker:
                 raise InputError(msg)
         levels = self._config.pyramid_levels
         spare = (None, None) if self._spare is None else self._spare
-        pyramids = (
-            ImagePyramid.build(left, levels, reuse=spare[LEFT]),
-            ImagePyramid.build(right, levels, reuse=spare[RIGHT]),
+        # The images are borrowed: step() returns before the caller may change them, and the
+        # pyramids it keeps are made in full first.
+        return (
+            ImagePyramid.build(left, levels, reuse=spare[LEFT], borrow=True),
+            ImagePyramid.build(
+                right, levels, reuse=spare[RIGHT], factor=1.0 / self._right_gain, borrow=True
+            ),
         )
-        if self._right_gain != 1.0:
-            pyramids[RIGHT].scale(1.0 / self._right_gain)
-        return pyramids
 
 
 def track_sequence(

@@ -60,10 +60,12 @@ from face_tracking_ros.imaging import (
     GRADIENT_MARGIN,
     STENCIL_X,
     STENCIL_Y,
+    PyramidLevel,
     sample_stencils,
     sample_xy,
     square_offsets,
 )
+from face_tracking_ros.tracking.mono_kernels import span
 from face_tracking_ros.tracking.projection import space_gradient
 from face_tracking_ros.tracking.stereo_kernels import (
     layout_points,
@@ -431,8 +433,12 @@ def homogeneous_pixels(projections: np.ndarray, points: np.ndarray) -> np.ndarra
     return (linear @ points + projections[:, :, 3].reshape(-1, 1)).reshape(count, 3, -1)
 
 
+# An image to sample: an array, or a pyramid level that the sampler makes where it reads it.
+ImageSource = np.ndarray | PyramidLevel
+
+
 def sample_images(
-    images: Sequence[np.ndarray],
+    images: Sequence[ImageSource],
     projections: np.ndarray,
     points: np.ndarray,
     mask: np.ndarray,
@@ -441,10 +447,12 @@ def sample_images(
 
     The pixels, their stencil maps and the valid samples come from one compiled pass
     (:func:`~.stereo_kernels.stencil_maps`), the samples from ``cv2.remap``
-    (:func:`~face_tracking_ros.imaging.sampling.sample_stencils`).
+    (:func:`~face_tracking_ros.imaging.sampling.sample_stencils`); a pyramid level is made over
+    the box its maps span.
 
     Args:
-        images: C (H, W) float32 images (one pyramid level of each camera, all of one size).
+        images: C (H, W) float32 images, or pyramid levels (one level of each camera, all of one
+            size).
         projections: (C, 3, 4) their projection matrices (:func:`level_projections`).
         points: (3, S) points in the left camera frame, m.
         mask: (S,) bool, the samples in use.
@@ -456,30 +464,37 @@ def sample_images(
     height, width = images[0].shape
     high_x, high_y = width - 1 - GRADIENT_MARGIN, height - 1 - GRADIENT_MARGIN
     depth, mask = np.ascontiguousarray(points[2]), np.ascontiguousarray(mask)  # the kernel's
-    maps_x, maps_y, valid, finite = stencil_maps(
+    maps_x, maps_y, valid, boxes, finite = stencil_maps(
         homogeneous, depth, mask, STENCIL_X, STENCIL_Y, GRADIENT_MARGIN, high_x, high_y
     )
     if not finite:
         msg = 'points hold NaN or Inf'
         raise InputError(msg)
-    values, gradient = sample_stencils(images, maps_x, maps_y)
+    made = [_made(image, box) for image, box in zip(images, boxes, strict=True)]
+    values, gradient = sample_stencils(made, maps_x, maps_y)
     return Sampled(homogeneous=homogeneous, values=values, gradient=gradient, valid=valid)
 
 
 def sample_values(
-    images: Sequence[np.ndarray], projections: np.ndarray, points: np.ndarray
+    images: Sequence[ImageSource], projections: np.ndarray, points: np.ndarray
 ) -> np.ndarray:
     """(C, S) float32 grey levels of C images at (3, S) points (:func:`sample_images` values)."""
     homogeneous = homogeneous_pixels(projections, points)
     return _values(images, homogeneous[:, :2] / homogeneous[:, 2:])
 
 
-def _values(images: Sequence[np.ndarray], pixels: np.ndarray) -> np.ndarray:
+def _values(images: Sequence[ImageSource], pixels: np.ndarray) -> np.ndarray:
     """(C, S) float32 samples of C images at their (C, 2, S) pixels."""
     values = np.empty(pixels[:, 0].shape, dtype=np.float32)
     for row, (image, (x, y)) in enumerate(zip(images, pixels, strict=True)):
-        values[row] = sample_xy(image, x, y)
+        box = (*span(x), *span(y)) if x.size else (0.0, -1.0, 0.0, -1.0)
+        values[row] = sample_xy(_made(image, box), x, y)
     return values
+
+
+def _made(image: ImageSource, box: Sequence[float]) -> np.ndarray:
+    """``image``, made at least over ``box`` (its pixels' least and greatest x, then y)."""
+    return image if isinstance(image, np.ndarray) else image.reaching(box)
 
 
 def robust_residuals(
@@ -642,8 +657,8 @@ class DepthTerms(NamedTuple):
 
 def depth_terms(
     rig: StereoRig,
-    left: np.ndarray,
-    right: np.ndarray,
+    left: ImageSource,
+    right: ImageSource,
     patches: SampleSet,
     nodes: np.ndarray,
     directions: np.ndarray,
@@ -658,8 +673,8 @@ def depth_terms(
 
     Args:
         rig: the rectified rig.
-        left: (H, W) float32 full-resolution left image.
-        right: (H, W) float32 right image.
+        left: (H, W) float32 full-resolution left image, or its pyramid's level 0.
+        right: the right image so.
         patches: a sample set of node patches alone (one group per node).
         nodes: (N, 3) nodes, m.
         directions: (N, 3) unit directions of the depth changes.

@@ -23,6 +23,7 @@ import numba
 import numpy as np
 
 from face_tracking_ros.compiled import EXACT, FAST
+from face_tracking_ros.tracking.mono_kernels import span
 
 RAMP_RIDGE = 1e-6  # added to the diagonal of a brightness ramp's normal matrix (terms ~ 1)
 UNIT = (1.0, 0.0, 0.0, 1.0, 0.0, 1.0)  # a ramp inverse not needed (a group's mean is removed)
@@ -347,7 +348,8 @@ def node_normal_blocks(
 
 
 @numba.njit(
-    'Tuple((f4[:, :, ::1], f4[:, :, ::1], b1[:, ::1], b1))(f8[:, :, ::1], f8[::1], b1[::1], '
+    'Tuple((f4[:, :, ::1], f4[:, :, ::1], b1[:, ::1], f4[:, ::1], b1))(f8[:, :, ::1], f8[::1], '
+    'b1[::1], '
     'f4[::1], f4[::1], f8, f8, f8)',
     **EXACT,
 )
@@ -360,13 +362,15 @@ def stencil_maps(
     low: float,
     high_x: float,
     high_y: float,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, bool]:
-    """The pixels of C images' samples as stencil maps for ``cv2.remap``, and which are valid.
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, bool]:
+    """The pixels of C images' samples as stencil maps for ``cv2.remap``, validity and boxes.
 
     Sample s lies at ``x = P_1 X / P_3 X``, ``y = P_2 X / P_3 X`` (eq. 2) of each image; its
     map holds the float32 x and y plus each stencil shift (float32 sums,
     :func:`~face_tracking_ros.imaging.sampling.sample_stencils`). It is valid when in the mask,
-    in front of the camera (``depth > 0``) and within ``[low, high]`` in x and y.
+    in front of the camera (``depth > 0``) and within ``[low, high]`` in x and y. The box
+    spans every sample's pixel, valid or not (``cv2.remap`` reads them all), for the pyramid to
+    make the image over (:meth:`~face_tracking_ros.imaging.ImagePyramid.level_reaching`).
 
     Args:
         homogeneous: (C, 3, S) ``P X`` of the samples in each image, homogeneous pixels.
@@ -379,14 +383,18 @@ def stencil_maps(
         high_y: the largest y inside, px.
 
     Returns:
-        ``(maps_x, maps_y, valid, finite)``: (C, J, S) float32 maps, (C, S) valid samples, and
-        whether every float32 x and y is finite.
+        ``(maps_x, maps_y, valid, boxes, finite)``: (C, J, S) float32 maps, (C, S) valid
+        samples, (C, 4) float32 least and greatest x, then y, of each image's pixels (an empty
+        box for no samples; meaningless unless finite), and whether every float32 x and y is
+        finite.
     """
     images, _, size = homogeneous.shape
     shifts = shift_x.size
     maps_x = np.empty((images, shifts, size), dtype=np.float32)
     maps_y = np.empty((images, shifts, size), dtype=np.float32)
     valid = np.empty((images, size), dtype=np.bool_)
+    boxes = np.empty((images, 4), dtype=np.float32)
+    boxes[:] = np.array([0.0, -1.0, 0.0, -1.0], dtype=np.float32)  # nothing read
     x_32 = np.empty(size, dtype=np.float32)
     y_32 = np.empty(size, dtype=np.float32)
     non_finite = 0
@@ -399,11 +407,14 @@ def stencil_maps(
             valid[c, s] = inside & (depth[s] > 0.0) & mask[s]
         for s in range(size):
             non_finite += ~(np.isfinite(x_32[s]) & np.isfinite(y_32[s]))
+        if size:
+            boxes[c, 0], boxes[c, 1] = span(x_32)
+            boxes[c, 2], boxes[c, 3] = span(y_32)
         for j in range(shifts):
             for s in range(size):
                 maps_x[c, j, s] = x_32[s] + shift_x[j]
                 maps_y[c, j, s] = y_32[s] + shift_y[j]
-    return maps_x, maps_y, valid, non_finite == 0
+    return maps_x, maps_y, valid, boxes, non_finite == 0
 
 
 @numba.njit(

@@ -19,6 +19,7 @@ import numpy as np
 from scipy.linalg import LinAlgError
 from scipy.linalg.lapack import dpotrf, dpotrs
 
+from face_tracking_ros.imaging import PyramidLevel
 from face_tracking_ros.tracking.action_prior import ActionPrior, ModelPoint, PriorEvaluation
 from face_tracking_ros.tracking.regularisation import Regulariser
 from face_tracking_ros.tracking.stereo_config import StereoTrackerConfig
@@ -39,7 +40,7 @@ class Level(NamedTuple):
     """One pyramid level of the current pair, with everything its iterations share."""
 
     index: int
-    images: tuple[np.ndarray, np.ndarray]
+    images: tuple[PyramidLevel, PyramidLevel]  # made where sampled
     projections: np.ndarray  # (2, 3, 4) P of eq. 2 onto this level
     offsets: np.ndarray  # (3, S) sample offsets at this level
     templates: np.ndarray  # (2, K, S) float32 T_k of each image

@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from face_tracking_ros.imaging import ImagePyramid
+from face_tracking_ros.imaging import ImagePyramid, PyramidLevel
 from face_tracking_ros.model.topology import Group, MeshTopology
 from face_tracking_ros.tracking.stereo_config import StereoTrackerConfig
 from face_tracking_ros.tracking.stereo_data import SampleLayout, SampleSet, sample_values
@@ -112,7 +112,7 @@ def templates(
     """
     return tuple(
         sample_values(
-            tuple(pyramid.levels[level] for pyramid in pyramids),
+            tuple(PyramidLevel(pyramid, level) for pyramid in pyramids),
             onto,
             samples.points(nodes, float(1 << level) * offsets, field, float(1 << level)),
         )
