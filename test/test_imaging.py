@@ -192,6 +192,7 @@ def test_unsmoothed_8_bit_levels_read_by_boxes_equal_the_scaled_full_build(
     previous = ImagePyramid.build(other, 3, borrow=borrow)
     previous.levels  # noqa: B018 - made in full, so a pixel read outside a box holds other's
     kept = image.copy()
+    image.flags.writeable = False  # as a message's buffer may be
     pyramid = ImagePyramid.build(image, 3, reuse=previous, factor=factor, borrow=borrow)
     full = ImagePyramid.build(image, 3)
     full.scale(factor)
@@ -207,6 +208,7 @@ def test_unsmoothed_8_bit_levels_read_by_boxes_equal_the_scaled_full_build(
     np.testing.assert_array_equal(image, kept)  # a borrowed image is read, never written
     for got, expected in zip(pyramid.levels, full.levels, strict=True):
         np.testing.assert_array_equal(got, expected)
+    image.flags.writeable = True
     image[...] = 0  # the caller's buffer, free once the pyramid is made in full
     np.testing.assert_array_equal(pyramid.levels[0], full.levels[0])
 
