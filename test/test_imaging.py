@@ -175,26 +175,27 @@ def test_pyramid_made_where_sampled_only() -> None:
         pyramid.level(0, np.float32([np.nan]), np.float32([1.0]))
 
 
+@pytest.mark.parametrize('smooth_base', [False, True])
 @pytest.mark.parametrize('borrow', [False, True])
 @pytest.mark.parametrize('factor', [1.0, 1 / 1.0077])
-def test_unsmoothed_8_bit_levels_read_by_boxes_equal_the_scaled_full_build(
-    factor: float, borrow: bool
+def test_8_bit_levels_read_by_boxes_equal_the_scaled_full_build(
+    factor: float, borrow: bool, smooth_base: bool
 ) -> None:
-    """Levels 0 and 1 of an unsmoothed 8-bit image, made by boxes, are the full build's bits.
+    """Levels 0 and 1 of an 8-bit image, made by boxes, are the full build's bits.
 
-    As the stereo tracker reads them: scaled by the right camera's gain at build, the image
-    borrowed, the buffers of another image's pyramid reused; clusters of points all over (some
-    beyond the edges, odd sizes) grow the boxes.
+    As the trackers read them (the stereo tracker's scaled by the right camera's gain at build,
+    its image borrowed), the buffers of another image's pyramid reused; clusters of points all
+    over (some beyond the edges, odd sizes) grow the boxes.
     """
     rng = np.random.default_rng(11)
     height, width = 97, 131
     other, image = rng.integers(0, 256, (2, height, width), dtype=np.uint8)
-    previous = ImagePyramid.build(other, 3, borrow=borrow)
+    previous = ImagePyramid.build(other, 3, smooth_base, borrow=borrow)
     previous.levels  # noqa: B018 - made in full, so a pixel read outside a box holds other's
     kept = image.copy()
     image.flags.writeable = False  # as a message's buffer may be
-    pyramid = ImagePyramid.build(image, 3, reuse=previous, factor=factor, borrow=borrow)
-    full = ImagePyramid.build(image, 3)
+    pyramid = ImagePyramid.build(image, 3, smooth_base, previous, factor, borrow)
+    full = ImagePyramid.build(image, 3, smooth_base)
     full.scale(factor)
     for cluster in range(40):
         level = cluster % 2
@@ -214,7 +215,10 @@ def test_unsmoothed_8_bit_levels_read_by_boxes_equal_the_scaled_full_build(
 
 
 def test_unsmoothed_level_1_made_where_sampled_only() -> None:
-    """A read of a few points of level 1 makes it around them, to the bit, level 0 not at all."""
+    """A read of a few points of level 1 makes it around them, to the bit, level 0 not at all.
+
+    (Smoothed, level 1 is made from level 0, made over the box first.)
+    """
     image = np.random.default_rng(5).integers(1, 256, (200, 300), dtype=np.uint8)
     previous = ImagePyramid.build(np.zeros_like(image), 2)
     previous.levels  # noqa: B018

@@ -61,14 +61,14 @@ class ImagePyramid:
     :attr:`levels` gives every level in full. A tracker that samples a few patches of a frame
     reads them through :meth:`level` or :meth:`level_reaching` instead, which make a level only
     over the box its samples reach, a face's patches being a tenth or so of a 640x480 frame:
-    level 0 when it is smoothed (``smooth_base``) or built from an 8-bit image, and level 1 too
-    for an 8-bit image unsmoothed (the stereo tracker's); other levels are made in full when
-    first asked for. Every value read either way is the full build's: smoothing a box of the
-    image with a 2-px border of it gives the values of smoothing the whole image, whose
-    reflected border lies at its own edges, and ``pyrDown`` of a box with a 2-px border the
-    values of ``pyrDown`` of the whole level; to the bit for an 8-bit image (its weighted sums
-    are exact in float32), within float32 rounding for a smoothed float one (the filter's vector
-    and scalar paths meet at other columns).
+    level 0, and level 1 too for an 8-bit image; the other levels are made in full when first
+    asked for. Every value read either way is the full build's: smoothing a box of the image
+    (``smooth_base``) with a 2-px border of it gives the values of smoothing the whole image,
+    whose reflected border lies at its own edges, and ``pyrDown`` of a box with a 2-px border
+    the values of ``pyrDown`` of the whole level (a smoothed level 1 is level 0 decimated); to
+    the bit for an 8-bit image (its weighted sums are exact in float32), within float32
+    rounding for a smoothed float one (the filter's vector and scalar paths meet at other
+    columns).
     """
 
     def __init__(
@@ -97,9 +97,9 @@ class ImagePyramid:
         self._source = source
         self._owned = owned
         self._smoothed = smoothed and source is not None
-        # Level 1 made by boxes: pyrDown's sums of 8-bit values are exact, so any box's are the
-        # full level's.
-        self._coarse_boxed = not self._smoothed and source is not None and source.dtype == np.uint8
+        # Level 1 made by boxes: the binomial sums of 8-bit values are exact, so any box's are
+        # the full level's.
+        self._coarse_boxed = source is not None and source.dtype == np.uint8
         self._factor = np.float32(factor)
         height, width = self._levels[0].shape
         # The boxes of level 0 and level 1 made so far, (x0, y0, x1, y1) exclusive (level 1's
@@ -311,13 +311,22 @@ class ImagePyramid:
         self._scale_box(self._levels[0][rows, cols])
 
     def _make_coarse(self, rows: slice, cols: slice) -> None:
-        """Make level 1 of an unsmoothed 8-bit image over ``rows`` and ``cols`` (inside it).
+        """Make level 1 of an 8-bit image over ``rows`` and ``cols`` (inside it).
 
-        ``pyrDown`` of the level-0 box that holds the 5-px reach of each pixel (output pixel i
-        lies on input pixel 2 i), unscaled; exact, hence the full level's values.
+        Smoothed: level 0 decimated, made first over the box that holds pixel 2 i of each
+        pixel i. Else ``pyrDown`` of the level-0 box that holds the 5-px reach of each pixel,
+        unscaled; exact, hence the full level's values.
         """
         assert self._source is not None
         height, width = self.shape
+        if self._smoothed:
+            below, right = min(2 * rows.stop - 1, height), min(2 * cols.stop - 1, width)
+            reach = (2 * cols.start, 2 * rows.start, right, below)
+            self._box = self._make_box(self._box, reach, (height, width), self._make_base)
+            self._levels[1][rows, cols] = self._levels[0][
+                2 * rows.start : below : 2, 2 * cols.start : right : 2
+            ]
+            return
         top, left = max(2 * rows.start - 2, 0), max(2 * cols.start - 2, 0)
         bottom, right = min(2 * rows.stop + 1, height), min(2 * cols.stop + 1, width)
         reduced = cv2.pyrDown(self._source[top:bottom, left:right].astype(np.float32))
