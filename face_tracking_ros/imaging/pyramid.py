@@ -103,7 +103,7 @@ class ImagePyramid:
         self._factor = np.float32(factor)
         height, width = self._levels[0].shape
         # The boxes of level 0 and level 1 made so far, (x0, y0, x1, y1) exclusive (level 1's
-        # only by boxes when unsmoothed), and whether all is.
+        # only for an 8-bit image), and whether all is.
         self._box = (0, 0, width, height) if source is None else (0, 0, 0, 0)
         self._coarse_box = (0, 0, 0, 0)
         self._complete = source is None and (coarse_made or len(self._levels) == 1)
