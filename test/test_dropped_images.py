@@ -148,6 +148,26 @@ def test_stereo_tracker_bridges_a_gap_of_dropped_pairs(stereo_gapped, stereo_tra
     assert max(rms_mm) < 8.5
 
 
+def test_stereo_tracker_counts_the_intervals_of_bad_frames(stereo_gapped, stereo_tracked):
+    """Pairs it refuses as bad frames count for the prediction, as dropped pairs do.
+
+    The dropped pairs 13-17 arrive as pairs of NaN images, each 1 interval after the one
+    before: the pairs after them are tracked as after the gap of 6 intervals, to the bit. The
+    tracker counted only the intervals of the pair it tracked (1): LOST after them.
+    """
+    pairs, _, rig = stereo_gapped
+    bad = np.full((rig.left.height, rig.left.width), np.nan)
+    kept = STEREO_KEPT.index(18)
+    stream = [*pairs[:kept], *[(bad, bad)] * 5, *pairs[kept:]]
+    tracker = StereoTracker(rig, StereoTrackerConfig())
+    tracker.reset(rig.left.project(stereo_gapped[1][0]))
+    results = [tracker.step(*pair) for pair in stream]
+    assert [r.reason.startswith('bad frame') for r in results[kept : kept + 5]] == [True] * 5
+    tracked = results[:kept] + results[kept + 5 :]
+    assert [r.reason for r in tracked] == [''] * len(STEREO_KEPT)
+    assert np.array_equal([r.nodes_cam for r in tracked], [r.nodes_cam for r in stereo_tracked])
+
+
 def test_stereo_intervals_below_one_are_refused(stereo_gapped):
     pairs, nodes, rig = stereo_gapped
     tracker = StereoTracker(rig, StereoTrackerConfig())

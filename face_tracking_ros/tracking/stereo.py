@@ -119,7 +119,7 @@ class _State:
     result: StereoResult
     before: np.ndarray | None = None  # the pair before's nodes (the motion prediction)
     span: int = 1  # frame intervals from ``before`` to ``nodes``
-    elapsed: int = 1  # frame intervals from ``nodes`` to the pair being tracked
+    elapsed: int = 0  # frame intervals from ``nodes`` to the pair being tracked (bad frames too)
 
 
 @dataclass
@@ -266,7 +266,8 @@ class StereoTracker:
             right: (H, W) grey right image.
             intervals: frame intervals since the previous pair: 1 for the next pair of the
                 stream, n + 1 after n dropped pairs; the motion prediction is carried on over
-                them.
+                them, and over those of bad frames since the last tracked pair (as over
+                dropped pairs: a bad frame keeps the track).
 
         Returns:
             The result; never raises on a bad frame (status LOST, reason set, state kept).
@@ -278,7 +279,7 @@ class StereoTracker:
             msg = f'intervals must be >= 1 (frame intervals since the last pair), got {intervals}'
             raise InputError(msg)
         if self._state is not None:
-            self._state.elapsed = intervals
+            self._state.elapsed += intervals
         try:
             pyramids = self._pyramids(left, right)
         except InputError as error:
@@ -570,7 +571,8 @@ class StereoTracker:
         state.rotation = self._rotation(state.first_nodes, nodes)
         if state.depths is not None:
             nodes = self._refine_depths(state, pyramids, nodes, statistics.rms[0][LEFT])
-        state.before, state.nodes, state.span = state.nodes, nodes, state.elapsed
+        state.before, state.nodes = state.nodes, nodes
+        state.span, state.elapsed = state.elapsed, 0
         state.offsets = state.samples.level_offsets(state.rotation, 0)
         field = patch_field(state.deformation, nodes, state.first_nodes, state.rotation)
         state.previous_templates = templates(
