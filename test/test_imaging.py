@@ -123,6 +123,47 @@ def test_pyramid_rebuilt_into_a_previous_one_equals_a_new_one(smooth_base: bool)
     assert not {id(level) for level in other.levels} & set(arrays)
 
 
+@pytest.mark.parametrize('smooth_base', [False, True])
+def test_pyramid_deepened_equals_the_deeper_build(smooth_base: bool) -> None:
+    """Its levels are the pyramid's own arrays, the added ones those a deeper build makes."""
+    image = np.random.default_rng(4).integers(0, 256, size=(61, 83), dtype=np.uint8)
+    pyramid = ImagePyramid.build(image, 2, smooth_base)
+    deepened = pyramid.deepened(3)
+    assert [id(level) for level in deepened.levels[:2]] == [id(level) for level in pyramid.levels]
+    for got, expected in zip(
+        deepened.levels, ImagePyramid.build(image, 3, smooth_base).levels, strict=True
+    ):
+        np.testing.assert_array_equal(got, expected)
+    with pytest.raises(InputError, match='cannot build 4 pyramid levels'):
+        pyramid.deepened(4)  # level 3 would keep 7 px
+
+
+def test_pyramid_deepened_of_a_borrowed_image_owned_carries_the_factor() -> None:
+    """A borrowed, partly made pyramid owning its image deepens as a deeper build scaled.
+
+    The stereo tracker keeps the last pair's pyramids past the pair (the caller then reuses the
+    images) and deepens them after a gap: the levels are those of the image as built, the added
+    one carries the right camera's gain factor (within float32 rounding).
+    """
+    rng = np.random.default_rng(5)
+    image, other = rng.integers(0, 256, size=(2, 61, 83), dtype=np.uint8)
+    borrowed = other.copy()
+    before = ImagePyramid.build(borrowed, 2, factor=0.8, borrow=True)
+    before.own()  # its copy of the image is the buffer the next pyramid owns its image in
+    borrowed[...] = image
+    pyramid = ImagePyramid.build(borrowed, 2, reuse=before, factor=0.8, borrow=True)
+    pyramid.level(1, np.array([10.0]), np.array([12.0]))  # a box of levels 0 and 1 made
+    pyramid.own()
+    borrowed[...] = other  # the caller's next image
+    expected = ImagePyramid.build(image, 3)
+    expected.scale(0.8)
+    deepened = pyramid.deepened(3)
+    for got, want in zip(deepened.levels[:2], expected.levels[:2], strict=True):
+        np.testing.assert_array_equal(got, want)
+    np.testing.assert_allclose(deepened.levels[2], expected.levels[2], rtol=1e-6, atol=1e-4)
+    assert np.abs(deepened.levels[2] - ImagePyramid.build(image, 3).levels[2]).max() > 1.0
+
+
 @pytest.mark.parametrize('dtype', [np.uint8, np.float32])
 @pytest.mark.parametrize('smooth_base', [False, True])
 def test_pyramid_read_where_sampled_equals_the_full_build(smooth_base: bool, dtype: type) -> None:

@@ -837,6 +837,8 @@ def test_reset_and_config_reject_bad_input() -> None:
         StereoTrackerConfig(coarsest_level_px=-1.0)
     with pytest.raises(ConfigError, match='coarse_step_tolerance'):
         StereoTrackerConfig(coarse_step_tolerance=0.0)
+    with pytest.raises(ConfigError, match='gap_pyramid_levels'):
+        StereoTrackerConfig(gap_pyramid_levels=0)
 
 
 def test_too_deep_a_pyramid_is_a_config_error() -> None:

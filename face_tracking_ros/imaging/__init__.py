@@ -11,7 +11,12 @@ from face_tracking_ros.imaging.photometric import (
     PhotometricModel,
     PhotometricProjection,
 )
-from face_tracking_ros.imaging.pyramid import ImagePyramid, PyramidLevel, check_levels_fit
+from face_tracking_ros.imaging.pyramid import (
+    ImagePyramid,
+    PyramidLevel,
+    check_levels_fit,
+    tracking_levels,
+)
 from face_tracking_ros.imaging.sampling import (
     GRADIENT_MARGIN,
     MAX_HALF_SIZE,
@@ -48,6 +53,7 @@ __all__ = [
     'sample_with_gradient_xy',
     'sample_xy',
     'square_offsets',
+    'tracking_levels',
     'MAX_HALF_SIZE',
     'to_gray',
 ]

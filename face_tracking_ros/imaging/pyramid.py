@@ -36,17 +36,24 @@ def _levels_that_fit(side: int, min_size: int) -> int:
     return (side // min_size).bit_length()
 
 
-def check_levels_fit(num_levels: int, width: int, height: int) -> None:
-    """Check at set-up that a tracker's pyramid fits its images.
+def tracking_levels(width: int, height: int) -> int:
+    """How many levels a tracker's pyramid of ``width`` x ``height`` images can have.
 
     The coarsest level must keep ``MIN_TRACKING_LEVEL_SIZE`` pixels on its shorter side. A
-    deeper pyramid leaves it too small for the node patches, or cannot be built at all, and then
-    every frame fails.
+    deeper pyramid leaves it too small for the node patches, or cannot be built at all.
+    """
+    return _levels_that_fit(min(width, height), MIN_TRACKING_LEVEL_SIZE)
+
+
+def check_levels_fit(num_levels: int, width: int, height: int) -> None:
+    """Check at set-up that a tracker's pyramid fits its images (:func:`tracking_levels`).
+
+    A pyramid too deep would fail on every frame.
 
     Raises:
         ConfigError: naming ``pyramid_levels`` and how many levels fit.
     """
-    fitting = _levels_that_fit(min(width, height), MIN_TRACKING_LEVEL_SIZE)
+    fitting = tracking_levels(width, height)
     if num_levels > fitting:
         msg = (
             f'pyramid_levels = {num_levels} is too deep for {width}x{height} images: at most '
@@ -79,6 +86,7 @@ class ImagePyramid:
         smoothed: bool = True,
         factor: float = 1.0,
         owned: bool = True,
+        spare: np.ndarray | None = None,
     ) -> None:
         """A pyramid of ``levels`` (level 0 first, float32), complete unless told otherwise.
 
@@ -92,10 +100,13 @@ class ImagePyramid:
                 (:meth:`build`'s).
             owned: whether ``source`` is the pyramid's own (else the caller's image, read until
                 the pyramid is complete, and never written).
+            spare: an array of a borrowed ``source``'s shape and type, for :meth:`own` to copy
+                it into (else it allocates one).
         """
         self._levels = tuple(levels)
         self._source = source
         self._owned = owned
+        self._spare = spare
         self._smoothed = smoothed and source is not None
         # Level 1 made by boxes: the binomial sums of 8-bit values are exact, so any box's are
         # the full level's.
@@ -170,6 +181,7 @@ class ImagePyramid:
             smoothed=smooth_base,
             factor=factor,
             owned=not borrowed,
+            spare=buffer if borrowed else None,
         )
 
     @property
@@ -248,6 +260,42 @@ class ImagePyramid:
         """(H, W) of level ``index``."""
         height, width = self._levels[index].shape
         return height, width
+
+    def deepened(self, num_levels: int) -> ImagePyramid:
+        """This pyramid with coarser levels added below its coarsest, ``num_levels`` in all.
+
+        The levels it has are shared, not copied (and made in full first); each added one is
+        ``pyrDown`` of the one above, as :meth:`build` would have made it. It so carries the
+        factor the levels above were multiplied by (:meth:`build`'s, :meth:`scale`'s), within
+        float32 rounding of a deeper build's levels multiplied by it. A tracker that needs a
+        deeper pyramid for an occasional frame so makes only the levels it lacks. One built
+        from a borrowed image reads it unless complete: the caller keeps it unchanged until
+        then, or the pyramid owns a copy (:meth:`own`).
+
+        Raises:
+            InputError: if the coarsest level would keep fewer than 8 pixels on a side.
+        """
+        if num_levels > _levels_that_fit(min(self.shape), MIN_LEVEL_SIZE):
+            msg = f'cannot build {num_levels} pyramid levels from a {self.shape} image'
+            raise InputError(msg)
+        levels = list(self.levels)
+        while len(levels) < num_levels:
+            levels.append(cv2.pyrDown(levels[-1]))
+        return ImagePyramid(levels)
+
+    def own(self) -> None:
+        """Copy a borrowed image (:meth:`build`), for the caller to change its own meanwhile.
+
+        A tracker keeping a frame's pyramid past the frame so leaves its levels to be made as
+        they are read, for a copy of the 8-bit image (~0.3 MB for 640x480) rather than making
+        every level (~1.5 MB of float32 written). The copy goes into the image buffer of the
+        pyramid :meth:`build` reused, if that owned one (no memory allocated frame after frame).
+        """
+        if not self._owned and not self._complete:
+            assert self._source is not None
+            copy = np.empty_like(self._source) if self._spare is None else self._spare
+            copy[...] = self._source
+            self._source, self._owned, self._spare = copy, True, None
 
     @property
     def num_levels(self) -> int:

@@ -111,12 +111,36 @@ def templates(
             (:meth:`~.stereo_data.SampleSet.points`).
     """
     return tuple(
-        sample_values(
-            tuple(PyramidLevel(pyramid, level) for pyramid in pyramids),
-            onto,
-            samples.points(nodes, float(1 << level) * offsets, field, float(1 << level)),
-        )
+        level_templates(pyramids, level, onto, samples, nodes, offsets, field)
         for level, onto in enumerate(projections)
+    )
+
+
+def level_templates(
+    pyramids: tuple[ImagePyramid, ImagePyramid],
+    level: int,
+    projections: np.ndarray,
+    samples: SampleSet,
+    nodes: np.ndarray,
+    offsets: np.ndarray,
+    field: np.ndarray | None = None,
+) -> np.ndarray:
+    """(2, S) grey levels of the samples in both images at pyramid level ``level``.
+
+    Args:
+        pyramids: the pyramids of the pair sampled, left then right.
+        level: the level.
+        projections: (2, 3, 4) P of eq. 2 of both cameras onto that level.
+        samples: the sample set.
+        nodes: (N, 3) nodes, m.
+        offsets: (3, S) level-0 sample offsets (turned as at ``nodes``), m.
+        field: optional (3, S_p) level-0 deformation of the node patches at ``nodes``, m.
+    """
+    scale = float(1 << level)
+    return sample_values(
+        tuple(PyramidLevel(pyramid, level) for pyramid in pyramids),
+        projections,
+        samples.points(nodes, scale * offsets, field, scale),
     )
 
 
