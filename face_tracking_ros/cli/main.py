@@ -13,7 +13,9 @@ A :class:`~face_tracking_ros.errors.FaceTrackingError` raised by a subcommand, o
 is printed as ``error: <message>`` on stderr with exit status 2; other exceptions propagate
 (they are bugs). SIGTERM (``timeout``, CI runners, schedulers) stops a command as Ctrl-C does,
 so that the bags it writes are closed and stay readable; a command that does not handle the
-interruption itself ends with ``interrupted`` and exit status 130.
+interruption itself ends with ``interrupted`` and exit status 130. Output piped into a reader
+that stops early (``face-tracking msgs FaceState | head -3``) ends the command quietly with exit
+status 141, as a tool stopped by SIGPIPE ends.
 """
 
 from __future__ import annotations
@@ -22,6 +24,8 @@ import argparse
 from collections.abc import Iterator, Sequence
 import contextlib
 import importlib
+import os
+import select
 import signal
 import sys
 import threading
@@ -47,6 +51,7 @@ SUBCOMMANDS: tuple[str, ...] = (
 
 EXIT_ERROR = 2
 EXIT_INTERRUPTED = 130  # 128 + SIGINT, as a shell reports Ctrl-C
+EXIT_BROKEN_PIPE = 141  # 128 + SIGPIPE, as a shell reports a writer whose reader went (| head)
 
 
 def build_parser(subcommands: Sequence[str] = SUBCOMMANDS) -> argparse.ArgumentParser:
@@ -75,20 +80,44 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     Returns:
         The exit status: the subcommand's (0 if it returns None), 2 on a FaceTrackingError or
-        an OSError, 130 on an interruption the subcommand does not handle.
+        an OSError, 130 on an interruption the subcommand does not handle, 141 when standard
+        output's reader has gone.
     """
     args = build_parser().parse_args(argv)
     limit_blas_threads()
     try:
         with _sigterm_as_ctrl_c():
             status = args.func(args)
+            sys.stdout.flush()  # a reader gone is found here, not at the interpreter's exit
     except (FaceTrackingError, OSError) as error:
+        if isinstance(error, BrokenPipeError) and _stdout_reader_gone():
+            return EXIT_BROKEN_PIPE  # (another pipe broken, such as a subprocess's, is an error)
         print(f'error: {error}', file=sys.stderr)
         return EXIT_ERROR
     except KeyboardInterrupt:
         print('interrupted', file=sys.stderr)
         return EXIT_INTERRUPTED
     return 0 if status is None else int(status)
+
+
+def _stdout_reader_gone() -> bool:
+    """Whether standard output is a pipe whose reader has closed it; if so, point it elsewhere.
+
+    A pipe without a reader polls as an error. Standard output is then sent to /dev/null, so
+    that what is left in its buffer does not fail again at the interpreter's exit.
+    """
+    try:
+        fd = sys.stdout.fileno()
+    except (AttributeError, OSError, ValueError):  # replaced by an object without a descriptor
+        return False
+    poll = select.poll()
+    poll.register(fd, select.POLLOUT)
+    if not any(events & select.POLLERR for _, events in poll.poll(0)):
+        return False
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(devnull, fd)
+    os.close(devnull)
+    return True
 
 
 @contextlib.contextmanager
