@@ -29,12 +29,13 @@ from typing import Any, TypeVar
 
 from tqdm import tqdm
 
+from face_tracking_ros.data import default_model_path
 from face_tracking_ros.errors import BagError, ConfigError, FaceTrackingError, problem_kind
 from face_tracking_ros.io import conversions
 from face_tracking_ros.io.bags import BagWriter, bag_topics, message_count, read_messages
 from face_tracking_ros.io.messages import RosbagsMessages
 from face_tracking_ros.io.provenance import KEY as PROVENANCE_KEY
-from face_tracking_ros.io.provenance import Provenance
+from face_tracking_ros.io.provenance import MODEL_PARAMETER, MONO, STEREO, Provenance, tracked_with
 from face_tracking_ros.io.typestore import typestore
 from face_tracking_ros.processing.base import (
     Deferring,
@@ -405,6 +406,24 @@ def _guarded(work: Callable[[], ResultT], topic: str, stats: ReplayStats) -> Res
         return None
 
 
+def _check_tracking_model(nodes: Sequence[str], bag: Path, params: OverrideParameters) -> None:
+    """Refuse recognisers replayed over tracks the bag says were made with another face model.
+
+    The recognisers read the tracks' sigma and alpha with their own ``model_file`` (the packaged
+    model when not given); another model's coefficients describe other faces and expressions, so
+    identities and expression events came out wrong without a word. A bag that a tracker's
+    replay wrote names its model (:func:`~face_tracking_ros.io.provenance.tracked_with`); one
+    without that record (a live recording) is not checked. A graph with its tracker in it feeds
+    the recognisers that tracker's coefficients, under the same ``model_file``.
+
+    Raises:
+        ConfigError: naming the model the bag was tracked with.
+    """
+    if {MONO, STEREO} & set(nodes):
+        return
+    tracked_with([bag], Path(params.overrides.get(MODEL_PARAMETER) or default_model_path()))
+
+
 def wire_replay(
     nodes: Sequence[str],
     bag: Path,
@@ -433,6 +452,7 @@ def wire_replay(
     factory = RosbagsMessages(typestore())
     processors = [processor_factory(node)(params, factory) for node in nodes]
     params.check_all_used()
+    _check_tracking_model(nodes, bag, params)
     produced = {port.topic for p in processors for port in p.outputs}
     on_demand = sorted({port.topic for p in processors for port in p.outputs if port.on_demand})
     unknown = sorted(wanted - set(on_demand))

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
 import os
 from pathlib import Path
 import signal
@@ -14,11 +15,15 @@ import pytest
 from face_tracking_ros import replay as replay_module
 from face_tracking_ros.cli.main import main
 from face_tracking_ros.cli.replay import describe, print_stats
+from face_tracking_ros.data import default_model_path
 from face_tracking_ros.errors import BagError, ConfigError, InputError
 from face_tracking_ros.io import conversions
 from face_tracking_ros.io.bags import BagWriter, read_messages
 from face_tracking_ros.io.messages import RosbagsMessages
+from face_tracking_ros.io.provenance import KEY as PROVENANCE_KEY
+from face_tracking_ros.io.provenance import Provenance
 from face_tracking_ros.io.typestore import typestore
+from face_tracking_ros.model.model_file import load_model, save_model
 from face_tracking_ros.processing.base import Output, Port, QosClass
 from face_tracking_ros.processing.parameters import OverrideParameters
 from face_tracking_ros.replay import replay, replay_bag, resolve_inputs
@@ -161,15 +166,48 @@ def test_an_input_two_nodes_read_is_one_input_fed_to_both(tmp_path, capsys):
 
     As one topic for two inputs, 'face/state' and 'face/state'.
     """
-    factory = RosbagsMessages(typestore())
-    state_type = 'face_tracking_msgs/msg/FaceState'
-    with BagWriter(tmp_path / 'tracked') as bag:
-        for i in range(3):
-            header = conversions.make_header(factory, 1000 + i, 'camera')
-            bag.write('face/state', state_type, factory.make(state_type, header=header), 1000 + i)
+    _write_states(tmp_path / 'tracked')
     argv = ['replay', 'expression_recognizer,identity_recognizer', str(tmp_path / 'tracked')]
     assert main([*argv, '--out', str(tmp_path / 'out'), '--quiet']) == 0
     assert 'read: 3 face/state\n' in capsys.readouterr().out
+
+
+def _write_states(path: Path, provenance: Provenance | None = None) -> None:
+    """Three FaceState messages, as a tracker's replay made them if ``provenance`` is given."""
+    factory = RosbagsMessages(typestore())
+    state_type = 'face_tracking_msgs/msg/FaceState'
+    with BagWriter(path) as bag:
+        for i in range(3):
+            header = conversions.make_header(factory, 1000 + i, 'camera')
+            bag.write('face/state', state_type, factory.make(state_type, header=header), 1000 + i)
+        if provenance is not None:
+            bag.set_custom_data(PROVENANCE_KEY, provenance.text())
+
+
+def test_recognisers_over_tracks_of_another_face_model_are_refused(tmp_path, capsys):
+    """The recognisers read the tracks' sigma and alpha with their own model_file.
+
+    Replayed without it over tracks of another model, they read that model's coefficients with
+    the packaged one: identities and expression events came out wrong without a word.
+    """
+    default = load_model(default_model_path())
+    other = save_model(replace(default, shape_basis=-default.shape_basis), tmp_path / 'other.npz')
+    camera = tmp_path / 'camera'
+    _write_states(tmp_path / 'packaged', Provenance.of(camera, ['mono_tracker'], {}))
+    _write_states(
+        tmp_path / 'other', Provenance.of(camera, ['mono_tracker'], {'model_file': str(other)})
+    )
+    graph = 'expression_recognizer,identity_recognizer'
+    assert main(['replay', graph, str(tmp_path / 'packaged'), '--out', str(tmp_path / 'a')]) == 0
+    capsys.readouterr()
+    assert main(['replay', graph, str(tmp_path / 'other'), '--out', str(tmp_path / 'b')]) == 2
+    assert capsys.readouterr().err == (
+        f'error: {tmp_path / "other"} was tracked with the face model {other}, not '
+        f'{default_model_path()}: give that model\n'
+    )
+    assert not (tmp_path / 'b').exists()
+    given = ['--param', f'model_file={other}', '--out', str(tmp_path / 'c'), '--quiet']
+    assert main(['replay', 'identity_recognizer', str(tmp_path / 'other'), *given]) == 0
 
 
 def test_replay_writes_one_output_per_good_frame_at_the_input_stamp(tmp_path):
