@@ -348,7 +348,7 @@ def test_raw_images_of_a_calibrated_rig_are_rectified_before_tracking(
     printed = capsys.readouterr().out
     assert (
         'initializing_pairs 40, tracking_pairs 0, lost_pairs 0' in printed
-        and 'no image was tracked' in printed
+        and 'no pair was tracked' in printed
     )
     assert 'triangulate to a face 2.' in printed and 'times the size of an adult face' in printed
 

@@ -172,7 +172,8 @@ def run(args: argparse.Namespace) -> int:
     print_stats(stats, args.out)
     states = load_states(args.out).status if stats.outputs['face/state'] else np.empty(0)
     if not np.any(states == TrackStatus.TRACKING):
-        print('no image was tracked (the input problems or last_reason above say why)')
+        frame = 'pair' if node == STEREO else 'image'
+        print(f'no {frame} was tracked (the input problems or last_reason above say why)')
         return 1
     scored = has_truth(args.bag)
     if scored and stats.read_error:
