@@ -91,7 +91,12 @@ class BundleConfig:
             view triggers one adjustment, so this also bounds their number.
         view_spacing: a tracked frame becomes a view when its rotation differs from frame 1's
             and every other view's by more than this, rad (> 0).
-        iterations: Levenberg-Marquardt iterations per adjustment (>= 1).
+        iterations: Levenberg-Marquardt iterations per adjustment (>= 1). The first two steps
+            take most of the cost's decrease (78-100 %, median 97 %, of what five take, on the
+            mono protocol's tracks); measured on its three sequences, 5 -> 2 left the rotation
+            errors as they were or lower (true model 0.81 / 0.83 / 0.21 -> 0.78 / 0.82 / 0.20
+            degrees, learned 1.58 / 1.27 -> 1.50 / 1.21) and cut the adjustments' time by a
+            fifth.
         surface_prior: tau of the skin depth's slope and curvature terms: their prior standard
             deviation, i.e. of the depth each adds at the ROI's edge, m (> 0).
         node_depth_prior: tau of the skin depth under the nodes (the constant term), m (> 0).
@@ -112,7 +117,7 @@ class BundleConfig:
 
     views: int = 8
     view_spacing: float = 0.2
-    iterations: int = 5
+    iterations: int = 2
     surface_prior: float = 0.003
     node_depth_prior: float = 0.005
     model_depth_noise: float = 0.001
