@@ -1,4 +1,4 @@
-"""RoiLayout.patch_coordinates and Params.updated (tracking/mono_rois.py), by hand."""
+"""RoiLayout.patch_coordinates and roi, and Params.updated (tracking/mono_rois.py), by hand."""
 
 from __future__ import annotations
 
@@ -30,6 +30,28 @@ def test_coarser_levels_reach_twice_as_far_each_held_at_the_level_0_roi_edge(
         coordinates = layout.patch_coordinates(steps, level)[inner]
         np.testing.assert_allclose(coordinates[right], [expected, 0.0], rtol=0, atol=1e-12)
         np.testing.assert_allclose(coordinates[corner], [1.0, -1.0], rtol=0, atol=1e-12)
+
+
+def test_a_skin_depth_moves_the_samples_and_leaves_their_bases(model_factory) -> None:
+    """2 mm of skin depth plus 1 mm times u^2 moves every sample by 2 + u^2 mm along its ray.
+
+    The bases that move the samples with alpha and sigma stay those of the thin-plate surface's
+    samples, to the bit, on every level.
+    """
+    model = model_factory()
+    layout = RoiLayout(model, 600.0, square_offsets(4), MonoTrackerConfig())
+    q, p = model.action_basis_nodes().shape[2], model.shape_basis_nodes().shape[2]
+    params = Params(np.zeros(3), np.array([0.0, 0.0, 0.6]), np.zeros(q), np.zeros(p))
+    depth = np.zeros((model.num_nodes, 6))
+    depth[:, 0], depth[:, 3] = 0.002, 0.001
+    u = layout.patch_coordinates(layout.grid(model.shape()), 0)[..., 0]
+    for level in range(4):
+        on_skin, on_surface = layout.roi(params, level, depth), layout.roi(params, level)
+        if level == 0:
+            moved = np.linalg.norm(on_skin.offsets - on_surface.offsets, axis=0)
+            np.testing.assert_allclose(moved, 0.002 + 0.001 * u**2, rtol=0, atol=1e-8)
+        np.testing.assert_array_equal(on_skin.action, on_surface.action)
+        np.testing.assert_array_equal(on_skin.identity, on_surface.identity)
 
 
 def test_a_solver_step_adds_to_omega_t_alpha_and_sigma_in_turn() -> None:
