@@ -311,7 +311,7 @@ class MonoTracker:
             normals=normals,
             keyframes=[self._sampler.keyframe(params.omega, templates)],
             first_views=FirstViews(
-                first, [View.of(first.levels[0], templates.visibility, params, 1)], init
+                first, [View.of(first.levels[0], templates.visibility, params, 1)], init, rois[0]
             ),
             previous=templates,
             start=params,
@@ -570,7 +570,7 @@ class MonoTracker:
         keyframe = self._sampler.keyframe(start.omega, first)
         previous = self._sampler.templates(pyramid, current, adjusted.rois, normals)
         track.rois, track.normals, track.keyframes = adjusted.rois, normals, [keyframe]
-        track.first_views.rebase(views, estimate.depth)
+        track.first_views.rebase(views, adjusted)
         track.start, track.previous, track.current, track.before = start, previous, current, None
         track.last_good = self._result(
             TrackStatus.TRACKING,

@@ -72,10 +72,13 @@ class Adjusted(NamedTuple):
     Attributes:
         estimate: the adjustment's estimate (:func:`~.bundle.rebased`).
         rois: each pyramid level's ROIs at its sigma, on its skin depth.
+        surface: level 0's ROIs before they were moved onto the skin (the next adjustment's
+            :attr:`FirstViews.surface`).
     """
 
     estimate: Estimate
     rois: tuple[Roi, ...]
+    surface: Roi
 
 
 @dataclass
@@ -90,6 +93,9 @@ class FirstViews:
         first: frame 1's pyramid.
         views: frame 1 and the views kept.
         clicks: the initialisation's 2-D points.
+        surface: level 0's ROIs on the thin-plate surface at frame 1's estimate (the first
+            view's): an adjustment's set-up starts from them. The track's own at its start; an
+            applied adjustment's (:attr:`Adjusted.surface`) after it.
         depth: (N, 6) skin depth of the last adjustment (None before one).
         covered_views: how many of the views the adjustments started so far covered (frame 1
             included).
@@ -99,6 +105,7 @@ class FirstViews:
     first: ImagePyramid
     views: list[View]
     clicks: Initialisation
+    surface: Roi
     depth: np.ndarray | None = None
     covered_views: int = 1
     adjustment: Stages[Adjusted | None] | None = None
@@ -116,10 +123,11 @@ class FirstViews:
         """No adjustment under way: the last one ended, or failed."""
         self.adjustment = None
 
-    def rebase(self, views: list[View], depth: np.ndarray) -> None:
+    def rebase(self, views: list[View], adjusted: Adjusted) -> None:
         """Take an applied adjustment's views (:meth:`ViewAdjuster.carry`) and skin depth."""
         self.views = views
-        self.depth = depth
+        self.depth = adjusted.estimate.depth
+        self.surface = adjusted.surface
 
 
 class ViewAdjuster:
@@ -239,17 +247,19 @@ class ViewAdjuster:
         ):
             return None
         first = Params(*estimate.first, estimate.sigma)
-        rois = []
-        for level in range(num_levels):
+        yield
+        surface = self._rois.roi(first, 0)
+        rois = [self._rois.on_skin(surface, first, 0, estimate.depth)]
+        for level in range(1, num_levels):
             yield
             rois.append(self._rois.roi(first, level, estimate.depth))
-        return Adjusted(estimate, tuple(rois))
+        return Adjusted(estimate, tuple(rois), surface)
 
     def _bundle_problem(self, views: FirstViews) -> Problem:
         """The fixed part of the bundle adjustment of a track's views."""
         model, config = self._model, self._config
         first = views.views[0].params
-        roi = self._rois.roi(first, 0)
+        roi = views.surface
         shape = model.identity_shape(first.sigma)
         grid = self._rois.patch_coordinates(self._rois.grid(shape), 0)
         points = shape[:, None, :] + roi.offsets.transpose(1, 2, 0)

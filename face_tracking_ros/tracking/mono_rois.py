@@ -133,31 +133,25 @@ class RoiLayout:
         spacing = self._config.patch_spacing_px * params.t[2] / self._focal
         steps = grid * (spacing * (1 << level))
         offsets, weights = surface_patch_interpolation(shape, steps)
-        if depth is not None:
-            offsets = self._with_skin(params, shape, offsets, grid, level, depth)
         action, identity = (
             np.ascontiguousarray(patch_basis(weights, basis).transpose(3, 2, 0, 1))
             for basis in self._node_bases
         )
-        offsets = np.ascontiguousarray(offsets.transpose(2, 0, 1))
-        return Roi(offsets, action, identity, params.sigma)
+        roi = Roi(np.ascontiguousarray(offsets.transpose(2, 0, 1)), action, identity, params.sigma)
+        return roi if depth is None else self.on_skin(roi, params, level, depth)
 
-    def _with_skin(
-        self,
-        params: Params,
-        shape: np.ndarray,
-        offsets: np.ndarray,
-        grid: np.ndarray,
-        level: int,
-        depth: np.ndarray,
-    ) -> np.ndarray:
-        """(N, M, 3) ROI offsets moved by the skin depth along the rays of frame 1 (params)."""
-        basis = surface_basis(self.patch_coordinates(grid, level))
-        direction = ray_directions(shape[:, None, :] + offsets, params.omega, params.t)
-        moved = skin_offsets(
-            offsets.transpose(2, 0, 1), basis, direction.transpose(2, 0, 1), depth
-        )
-        return moved.transpose(1, 2, 0)
+    def on_skin(self, roi: Roi, params: Params, level: int, depth: np.ndarray) -> Roi:
+        """``roi`` (:meth:`roi` at ``params``, on the thin-plate surface) on skin ``depth``.
+
+        Each sample moves along its ray from frame 1's camera (``params``) by the skin depth
+        (:func:`~.bundle.skin_offsets`); the bases stay (:meth:`roi`).
+        """
+        shape = self._model.identity_shape(params.sigma)
+        basis = surface_basis(self.patch_coordinates(self.grid(shape), level))
+        points = shape[:, None, :] + roi.offsets.transpose(1, 2, 0)
+        direction = ray_directions(points, params.omega, params.t).transpose(2, 0, 1)
+        moved = skin_offsets(roi.offsets, basis, direction, depth)
+        return roi._replace(offsets=np.ascontiguousarray(moved))
 
     def grid(self, shape: np.ndarray) -> np.ndarray:
         """(N, M, 2) ROI sample offsets in grid steps along the face frame's x and y.

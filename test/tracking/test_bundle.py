@@ -505,6 +505,41 @@ def test_an_adjustment_starts_from_frame_1_and_the_views_as_tracked(turning_head
         np.testing.assert_array_equal(start.sigma, covered[-1].sigma)
 
 
+def test_an_adjustment_sets_up_on_the_level_0_rois_it_was_given(turning_head, monkeypatch):
+    # The set-up's level-0 ROIs on the thin-plate surface at frame 1's estimate are the track's
+    # own (the first adjustment) or the last applied adjustment's before it moved them onto the
+    # skin: the same samples and bases, to the bit, without a thin-plate evaluation of its own.
+    images, _, model, _ = turning_head
+    camera = SceneConfig(kind='mono').cameras()['image']
+    tracker = MonoTracker(model, camera)
+    layout = tracker._rois
+    problems: list[tuple[Patches, Params]] = []
+    stages = adjustment_module.adjustment_stages
+
+    def recording(problem, views, visibility, start):
+        problems.append((problem.patches, tracker._track.first_views.views[0].params))
+        return (yield from stages(problem, views, visibility, start))
+
+    monkeypatch.setattr(adjustment_module, 'adjustment_stages', recording)
+    calls: list[str] = []
+    monkeypatch.setattr(RoiLayout, 'roi', counted(calls, 'roi', RoiLayout.roi))
+    set_up = ViewAdjuster._bundle_problem
+
+    def counting(self, views):
+        before = len(calls)
+        problem = set_up(self, views)
+        assert len(calls) == before  # no ROIs of its own
+        return problem
+
+    monkeypatch.setattr(ViewAdjuster, '_bundle_problem', counting)
+    track_images(tracker, images, _clicks(turning_head))
+    assert len(problems) >= 2
+    for patches, first in problems:
+        roi = layout.roi(first, 0)
+        np.testing.assert_array_equal(patches.offsets, roi.offsets)
+        np.testing.assert_array_equal(patches.action, roi.action)
+
+
 def test_a_view_kept_while_an_adjustment_ran_is_carried_as_the_frame_now_is(model_factory):
     # carry(): the views an adjustment covered take its estimates; a view kept after its newest
     # one is moved into the adjusted scene by the head's motion since that view, as the current
@@ -525,6 +560,7 @@ def test_a_view_kept_while_an_adjustment_ran_is_carried_as_the_frame_now_is(mode
     views = FirstViews(
         None,
         [View.of(image, visibility, p, f) for p, f in zip(tracked, (1, 5, 9), strict=True)],
+        None,
         None,
     )
     estimate = Estimate(
