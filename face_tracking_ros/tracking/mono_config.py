@@ -119,9 +119,10 @@ class MonoTrackerConfig:
             ROI's texture in the image (the RMS left after removing its mean and, for
             GAIN_FIELD, its linear ramp), i.e. when sqrt(1 - R^2) of the template's fit to that
             texture exceeds it, or when that texture is below ``residual_scale_floor`` (> 0).
-        reacquire_residual_ratio: the same ratio for the solves that may resume a lost track
-            and for the keyframe-only solves tried when tracking fails (> 0). Stricter: such a
-            solve can settle a few px off the face, which later frames do not correct.
+        reacquire_residual_ratio: the same ratio for the solves that may resume a lost track,
+            for the keyframe-only solves tried when tracking fails and, before
+            ``lost_residual_ratio``, for the first image after dropped ones (> 0). Stricter: such
+            a solve can settle a few px off the face, which later frames do not correct.
         drift_residual_ratio: LOST when the median, over the visible textured nodes, of a
             node's RMS residual against the nearest keyframe's templates alone (frame 1's by
             default; no blend with frame n-1) exceeds this multiple of its ROI's texture: the
