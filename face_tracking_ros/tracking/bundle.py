@@ -93,10 +93,11 @@ class BundleConfig:
             and every other view's by more than this, rad (> 0).
         iterations: Levenberg-Marquardt iterations per adjustment (>= 1). The first two steps
             take most of the cost's decrease (78-100 %, median 97 %, of what five take, on the
-            mono protocol's tracks); measured on its three sequences, 5 -> 2 left the rotation
-            errors as they were or lower (true model 0.81 / 0.83 / 0.21 -> 0.78 / 0.82 / 0.20
-            degrees, learned 1.58 / 1.27 -> 1.50 / 1.21) and cut the adjustments' time by a
-            fifth.
+            mono protocol's tracks), and 2 would cut the adjustments' time by a fifth with the
+            34-node rotation errors as they are or lower (true model 0.81 / 0.83 / 0.21 -> 0.78
+            / 0.82 / 0.20 degrees, learned 1.58 / 1.27 -> 1.50 / 1.21); but the 19-node mesh's
+            error about x grows from 1.37 to 1.81 degrees (mean of the three seeds; seed 1: 1.46,
+            2.40, 2.82 with 4, 3, 2 iterations).
         surface_prior: tau of the skin depth's slope and curvature terms: their prior standard
             deviation, i.e. of the depth each adds at the ROI's edge, m (> 0).
         node_depth_prior: tau of the skin depth under the nodes (the constant term), m (> 0).
@@ -117,7 +118,7 @@ class BundleConfig:
 
     views: int = 8
     view_spacing: float = 0.2
-    iterations: int = 2
+    iterations: int = 5
     surface_prior: float = 0.003
     node_depth_prior: float = 0.005
     model_depth_noise: float = 0.001

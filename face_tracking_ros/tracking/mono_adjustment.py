@@ -7,7 +7,7 @@ depth under every ROI and the views' poses runs over every view so far; the trac
 from its result (frame 1's templates re-sampled, the ROIs on the measured skin). Measured on the
 benchmark's 1000-frame sequences, 3 seeds x 3 draws of 1 px click noise: rotation error 1.21 /
 1.20 -> 0.62 / 0.77 degrees (x / y). An adjustment costs about ten times a frame's solve, so it
-runs two stages per frame (``bundle.stages_per_frame``, :mod:`.stages`) and is applied about four
+runs two stages per frame (``bundle.stages_per_frame``, :mod:`.stages`) and is applied about five
 frames after its newest view, the head's motion since then carried over (:func:`carried`); no
 frame pays for all of it.
 

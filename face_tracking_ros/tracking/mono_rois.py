@@ -29,6 +29,7 @@ from face_tracking_ros.tracking.projection import POSE_DIM
 from face_tracking_ros.tracking.surface_patches import (
     node_frames,
     patch_basis,
+    patch_interpolation,
     surface_patch_interpolation,
 )
 
@@ -120,23 +121,16 @@ class RoiLayout:
         surface through the nodes, with the spacing that gives ``patch_spacing_px`` at the
         initial depth, doubled on every coarser level; face-edge nodes' grids are shifted towards
         the face centre so they cover skin rather than the background beyond the face edge. With
-        a skin ``depth`` (a bundle adjustment's) the samples are moved onto that skin. The
-        samples move with eq. 3's bases carried to them by :func:`patch_basis`, from where they
-        lie on the thin-plate surface: moving them onto the skin along frame 1's rays (a few mm,
-        mostly towards the camera) moves them sideways by a fraction of a millimetre, over which
-        the bases hardly change. (Carrying the bases to the moved samples took a second
-        thin-plate evaluation per level, a fifth of an adjustment's time; on the mono protocol
-        the rotation errors moved by 0.05 degrees at most, 0.02 on average over the seeds.)
+        a skin ``depth`` (a bundle adjustment's) the samples are moved onto that skin
+        (:meth:`on_skin`). The samples move with eq. 3's bases carried to them by
+        :func:`patch_basis`.
         """
         shape = self._model.identity_shape(params.sigma)
         grid = self.grid(shape)
         spacing = self._config.patch_spacing_px * params.t[2] / self._focal
         steps = grid * (spacing * (1 << level))
         offsets, weights = surface_patch_interpolation(shape, steps)
-        action, identity = (
-            np.ascontiguousarray(patch_basis(weights, basis).transpose(3, 2, 0, 1))
-            for basis in self._node_bases
-        )
+        action, identity = self._bases(weights)
         roi = Roi(np.ascontiguousarray(offsets.transpose(2, 0, 1)), action, identity, params.sigma)
         return roi if depth is None else self.on_skin(roi, params, level, depth)
 
@@ -144,14 +138,30 @@ class RoiLayout:
         """``roi`` (:meth:`roi` at ``params``, on the thin-plate surface) on skin ``depth``.
 
         Each sample moves along its ray from frame 1's camera (``params``) by the skin depth
-        (:func:`~.bundle.skin_offsets`); the bases stay (:meth:`roi`).
+        (:func:`~.bundle.skin_offsets`), and eq. 3's bases are carried to where it moved. (Keeping
+        the surface samples' bases would save a thin-plate evaluation per level, a fifth of an
+        adjustment's time; it moved the mono protocol's rotation errors by 0.05 degrees at most,
+        but with it a 20-image gap at 30 fps (test_dropped_images) left the track 15 images on a
+        wrong pose.)
         """
         shape = self._model.identity_shape(params.sigma)
         basis = surface_basis(self.patch_coordinates(self.grid(shape), level))
         points = shape[:, None, :] + roi.offsets.transpose(1, 2, 0)
         direction = ray_directions(points, params.omega, params.t).transpose(2, 0, 1)
         moved = skin_offsets(roi.offsets, basis, direction, depth)
-        return roi._replace(offsets=np.ascontiguousarray(moved))
+        action, identity = self._bases(patch_interpolation(shape, moved.transpose(1, 2, 0)))
+        return Roi(np.ascontiguousarray(moved), action, identity, params.sigma)
+
+    def _bases(self, weights: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Eq. 3's action and identity bases at ROI samples of thin-plate ``weights``.
+
+        (q, 3, N, M) and (p, 3, N, M), as :class:`Roi` holds them (:func:`patch_basis`).
+        """
+        action, identity = (
+            np.ascontiguousarray(patch_basis(weights, node_basis).transpose(3, 2, 0, 1))
+            for node_basis in self._node_bases
+        )
+        return action, identity
 
     def grid(self, shape: np.ndarray) -> np.ndarray:
         """(N, M, 2) ROI sample offsets in grid steps along the face frame's x and y.

@@ -8,6 +8,7 @@ from face_tracking_ros.imaging import square_offsets
 from face_tracking_ros.model.topology import Group
 from face_tracking_ros.tracking.mono_config import MonoTrackerConfig
 from face_tracking_ros.tracking.mono_rois import Params, RoiLayout
+from face_tracking_ros.tracking.surface_patches import patch_basis, patch_interpolation
 
 
 def test_coarser_levels_reach_twice_as_far_each_held_at_the_level_0_roi_edge(
@@ -32,11 +33,11 @@ def test_coarser_levels_reach_twice_as_far_each_held_at_the_level_0_roi_edge(
         np.testing.assert_allclose(coordinates[corner], [1.0, -1.0], rtol=0, atol=1e-12)
 
 
-def test_a_skin_depth_moves_the_samples_and_leaves_their_bases(model_factory) -> None:
+def test_a_skin_depth_moves_the_samples_and_carries_their_bases(model_factory) -> None:
     """2 mm of skin depth plus 1 mm times u^2 moves every sample by 2 + u^2 mm along its ray.
 
-    The bases that move the samples with alpha and sigma stay those of the thin-plate surface's
-    samples, to the bit, on every level.
+    The bases that move the samples with alpha and sigma are carried to where they moved: the
+    thin-plate interpolation's at the moved samples, on every level, not the surface's.
     """
     model = model_factory()
     layout = RoiLayout(model, 600.0, square_offsets(4), MonoTrackerConfig())
@@ -50,8 +51,14 @@ def test_a_skin_depth_moves_the_samples_and_leaves_their_bases(model_factory) ->
         if level == 0:
             moved = np.linalg.norm(on_skin.offsets - on_surface.offsets, axis=0)
             np.testing.assert_allclose(moved, 0.002 + 0.001 * u**2, rtol=0, atol=1e-8)
-        np.testing.assert_array_equal(on_skin.action, on_surface.action)
-        np.testing.assert_array_equal(on_skin.identity, on_surface.identity)
+        weights = patch_interpolation(model.shape(), on_skin.offsets.transpose(1, 2, 0))
+        for basis, nodes in (
+            (on_skin.action, model.action_basis_nodes()),
+            (on_skin.identity, model.shape_basis_nodes()),
+        ):
+            expected = patch_basis(weights, nodes).transpose(3, 2, 0, 1)
+            np.testing.assert_allclose(basis, expected, rtol=0, atol=1e-15)
+        assert not np.array_equal(on_skin.action, on_surface.action)
 
 
 def test_a_solver_step_adds_to_omega_t_alpha_and_sigma_in_turn() -> None:
