@@ -38,6 +38,10 @@ from face_tracking_ros.tracking.stereo_evaluation import StereoEvaluation
 from repo_root import REPO
 
 BAGS = sorted((REPO / 'bags' / 'stereo_train').glob('subject_*'))
+# What track prints of a stereo bag it could not start on (every pair refused at initialisation).
+REFUSED_SUMMARY = (
+    'stereo_tracker: initializing_pairs 10, tracking_pairs 0, lost_pairs 0, last_reason'
+)
 
 
 def test_stereo_images_are_tracked_then_learned(tmp_path, capsys):
@@ -484,7 +488,7 @@ def test_a_bag_of_a_doubled_baseline_is_not_learned_from_and_the_calibration_nam
     meshes, a face twice the size twice as far, with nothing said.
     """
     bag = _with_baseline_times(BAGS[0], 2.0, tmp_path / 'bags' / 'doubled')
-    assert main(['track', str(bag), '--simulate-clicks', '0', '--out', str(tmp_path / 't')]) == 1
+    tracked, error = _tracked_and_learned(bag, tmp_path, capsys, learn_clicks='0')
     reason = (
         'initialisation failed: the matched inner nodes triangulate to a face 1.99 times the '
         'size of an adult face (allowed 0.7-1.5): the stereo calibration does not fit these '
@@ -493,16 +497,27 @@ def test_a_bag_of_a_doubled_baseline_is_not_learned_from_and_the_calibration_nam
         'focal length, that raw images are rectified (rectify) and that the initial positions '
         'are on the face'
     )
-    summary = 'stereo_tracker: initializing_pairs 10, tracking_pairs 0, lost_pairs 0, last_reason'
-    assert f'{summary} {reason}, restarts 0' in capsys.readouterr().out
-    argv = ['learn', str(bag), *map(str, BAGS[1:]), '--from-images', '--simulate-clicks', '0']
-    argv += ['--p', '1', '--out', str(tmp_path / 'm.npz'), '--report', str(tmp_path / 'r.json')]
-    assert main(argv) == 2
-    assert capsys.readouterr().err == (
+    assert f'{REFUSED_SUMMARY} {reason}, restarts 0' in tracked
+    assert error == (
         f'error: {bag}: the stereo tracker produced no mesh (no input problem; last_reason: '
         f'{reason})\n'
     )
+
+
+def _tracked_and_learned(
+    bag: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str], learn_clicks: str
+) -> tuple[str, str]:
+    """``track`` of ``bag`` (exact clicks), then ``learn`` from it and the other sample bags.
+
+    Both must refuse it (exit 1, and 2 with no model written); their output and error.
+    """
+    assert main(['track', str(bag), '--simulate-clicks', '0', '--out', str(tmp_path / 't')]) == 1
+    tracked = capsys.readouterr().out
+    argv = ['learn', str(bag), *map(str, BAGS[1:]), '--from-images']
+    argv += ['--simulate-clicks', learn_clicks, '--p', '1', '--out', str(tmp_path / 'm.npz')]
+    assert main([*argv, '--report', str(tmp_path / 'r.json')]) == 2
     assert not (tmp_path / 'm.npz').exists()
+    return tracked, capsys.readouterr().err
 
 
 def _with_images_swapped(bag: Path, out: Path) -> Path:
@@ -523,22 +538,16 @@ def test_a_bag_of_swapped_images_is_not_learned_from_and_the_swap_named(tmp_path
     the rig calibration, ...", the same as for a blurred or dark right image.
     """
     bag = _with_images_swapped(BAGS[0], tmp_path / 'bags' / 'swapped')
-    assert main(['track', str(bag), '--simulate-clicks', '0', '--out', str(tmp_path / 't')]) == 1
+    tracked, error = _tracked_and_learned(bag, tmp_path, capsys, learn_clicks='1')
     reason = (
         'initialisation failed: the left and right images look swapped: 23 of the 23 inner '
         "nodes match as a face with them exchanged, 3 as they come; check the image topics' "
         "remapping (left/image_raw must carry the left camera's images, right/image_raw the "
         "right one's)"
     )
-    summary = 'stereo_tracker: initializing_pairs 10, tracking_pairs 0, lost_pairs 0, last_reason'
-    assert f'{summary} {reason}, restarts 0' in capsys.readouterr().out
-    argv = ['learn', str(bag), *map(str, BAGS[1:]), '--from-images', '--simulate-clicks', '1']
-    argv += ['--p', '1', '--out', str(tmp_path / 'm.npz'), '--report', str(tmp_path / 'r.json')]
-    assert main(argv) == 2
-    error = capsys.readouterr().err
+    assert f'{REFUSED_SUMMARY} {reason}, restarts 0' in tracked
     no_mesh = f'error: {bag}: the stereo tracker produced no mesh (no input problem; last_reason:'
     assert error.startswith(f'{no_mesh} {reason[:63]}'), error  # its counts: with 1 px clicks
-    assert not (tmp_path / 'm.npz').exists()
 
 
 def test_a_baseline_25_percent_long_is_warned_of_across_the_subjects(tmp_path, capsys):
