@@ -830,7 +830,7 @@ class StereoTracker:
         levels = self._config.pyramid_levels
         spare = (None, None) if self._spare is None else self._spare
         # The images are borrowed: step() returns before the caller may change them, and the
-        # pyramids it keeps are made in full first.
+        # pyramids it keeps take copies of them first (ImagePyramid.own).
         return (
             ImagePyramid.build(left, levels, reuse=spare[LEFT], borrow=True),
             ImagePyramid.build(
