@@ -34,7 +34,7 @@ def subject_scales(sequences: Sequence[MeshSequence]) -> dict[str, float]:
 
     The median over the subject's neutral frames (every frame if none is labelled neutral) of
     the size its inner nodes span; frames without a finite mesh are left out, and so are
-    subjects without one. None for meshes of a node count without a reference face.
+    subjects without one or with meshes of a node count without a reference face.
     """
     frames: dict[str, list[np.ndarray]] = {}
     for sequence in sequences:
