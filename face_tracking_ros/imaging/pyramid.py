@@ -458,3 +458,7 @@ class PyramidLevel(NamedTuple):
     def reaching(self, box: Sequence[float]) -> np.ndarray:
         """The level, made at least over ``box`` (:meth:`ImagePyramid.level_reaching`)."""
         return self.pyramid.level_reaching(self.index, box)
+
+    def at(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """The level, made where samples at (x, y) read it (:meth:`ImagePyramid.level`)."""
+        return self.pyramid.level(self.index, x, y)

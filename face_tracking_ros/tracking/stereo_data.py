@@ -65,7 +65,6 @@ from face_tracking_ros.imaging import (
     sample_xy,
     square_offsets,
 )
-from face_tracking_ros.tracking.mono_kernels import span
 from face_tracking_ros.tracking.projection import space_gradient
 from face_tracking_ros.tracking.stereo_kernels import (
     layout_points,
@@ -487,8 +486,7 @@ def _values(images: Sequence[ImageSource], pixels: np.ndarray) -> np.ndarray:
     """(C, S) float32 samples of C images at their (C, 2, S) pixels."""
     values = np.empty(pixels[:, 0].shape, dtype=np.float32)
     for row, (image, (x, y)) in enumerate(zip(images, pixels, strict=True)):
-        box = (*span(x), *span(y)) if x.size else (0.0, -1.0, 0.0, -1.0)
-        values[row] = sample_xy(_made(image, box), x, y)
+        values[row] = sample_xy(image if isinstance(image, np.ndarray) else image.at(x, y), x, y)
     return values
 
 
