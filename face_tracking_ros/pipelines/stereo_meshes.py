@@ -21,10 +21,10 @@ from pathlib import Path
 import shutil
 
 from face_tracking_ros.errors import BagError, ConfigError, FaceTrackingError
-from face_tracking_ros.io.bags import read_messages, recording_name
+from face_tracking_ros.io.bags import recording_name
 from face_tracking_ros.io.conversions import camera_from_info
 from face_tracking_ros.io.provenance import Provenance, replay_source
-from face_tracking_ros.io.series import holds_truth, truth_series
+from face_tracking_ros.io.series import holds_truth, read_converted, truth_series
 from face_tracking_ros.pipelines.bag_inputs import (
     STEREO_FIELDS,
     check_one_transport,
@@ -262,14 +262,15 @@ def right_baseline(tracking: RawBagTracking) -> tuple[float, float] | None:
 
     Raises:
         BagError: if the bag cannot be read.
-        InputError: for a camera_info that is not a calibration.
+        InputError: for a camera_info that is not a calibration, naming the bag and topic.
     """
     if tracking.right_info is None:
         return None
-    for message in read_messages(tracking.bag, [tracking.right_info]):
-        p = camera_from_info(message.msg).p
-        return float(p[0, 3]), -float(p[0, 3]) / float(p[0, 0])
-    return None
+    first = next(read_converted(tracking.bag, tracking.right_info, camera_from_info), None)
+    if first is None:
+        return None
+    p = first[1].p
+    return float(p[0, 3]), -float(p[0, 3]) / float(p[0, 0])
 
 
 def _parameters(
