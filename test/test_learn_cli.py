@@ -172,6 +172,42 @@ def test_subject_names_every_bag_without_truth(tmp_path, world, truth_bags):
     assert report['subjects'] == ['subject_00', 'subject_01', 'subject_02', 'anna']
 
 
+def test_subject_options_where_truth_names_every_subject_are_refused(
+    tmp_path, world, truth_bags, capsys
+):
+    """Truth labels every bag's meshes: --subject and --subject-pattern were ignored.
+
+    The bags of truth, and bags of meshes labelled by --truth bags: the truth's subject ids were
+    learned whatever the options said; so was --subject-pattern beside --subject.
+    """
+    sequences, alpha = world
+    meshes = [
+        _write_bag(tmp_path / f'rec_{k}', s, alpha, kind='mesh') for k, s in enumerate(sequences)
+    ]
+    out = ['--out', str(tmp_path / 'm.npz'), '--report', str(tmp_path / 'r.json')]
+    labelled = [*map(str, meshes), '--truth', *map(str, truth_bags)]
+    for bags, options, named in (
+        (list(map(str, truth_bags)), ['--subject-pattern', r'(.+)_\d+'], '--subject-pattern'),
+        (labelled, ['--subject', 'anna', '--neutral-frames', '3'], '--subject'),
+    ):
+        assert _error(['learn', *bags, *out, *options], capsys) == (
+            f"error: {named}: for bags without truth, and truth labels every bag's meshes (its "
+            "own or a truth bag's): learn keeps the truth's subject ids\n"
+        )
+    both = ['--subject', 'anna', '--subject-pattern', '(.+)', '--neutral-frames', '3']
+    assert _error(['learn', *map(str, meshes), *out, *both], capsys) == (
+        'error: --subject-pattern: --subject names every bag without truth\n'
+    )
+    assert sorted(path.name for path in tmp_path.iterdir()) == [f'rec_{k}' for k in range(4)]
+    # One bag without truth: the pattern names its subject.
+    bags = [*map(str, truth_bags[:3]), str(meshes[3])]
+    assert (
+        main(['learn', *bags, *out, '--subject-pattern', r'(.+)_\d+', '--neutral-frames', '3'])
+        == 0
+    )
+    assert json.loads((tmp_path / 'r.json').read_text())['subjects'][-1] == 'rec'
+
+
 def test_frames_a_tracker_did_not_track_are_left_out(tmp_path, world, capsys):
     """A tracker's bag: meshes of INITIALIZING or LOST frames (zeros, stale) are not learned."""
     sequences, alpha = world

@@ -873,3 +873,16 @@ def test_tracking_options_for_bags_learn_does_not_track_are_refused(tmp_path, ca
         )
     assert sorted(path.name for path in tmp_path.iterdir()) == []
     assert main(learn) == 0  # the truth, without them
+
+
+def test_a_subject_pattern_for_raw_bags_labelled_by_their_truth_is_refused(tmp_path, capsys):
+    """Raw stereo bags holding truth: it labels their tracked meshes; the pattern was ignored."""
+    argv = ['learn', *map(str, BAGS), '--from-images', '--simulate-clicks', '1',
+            '--subject-pattern', r'(.+)_seq_\d+', '--out', str(tmp_path / 'm.npz'),
+            '--report', str(tmp_path / 'r.json')]  # fmt: skip
+    assert main(argv) == 2
+    assert capsys.readouterr().err == (
+        "error: --subject-pattern: for bags without truth, and truth labels every bag's meshes "
+        "(its own or a truth bag's): learn keeps the truth's subject ids\n"
+    )
+    assert list(tmp_path.iterdir()) == []  # refused before any clicks or tracking

@@ -60,7 +60,12 @@ from face_tracking_ros.pipelines.learn_options import (
     check_options,
     truth_population,
 )
-from face_tracking_ros.pipelines.mesh_bags import BagMeshes, bag_subjects, read_bag_meshes
+from face_tracking_ros.pipelines.mesh_bags import (
+    BagMeshes,
+    bag_subjects,
+    read_bag_meshes,
+    subject_from_name,
+)
 from face_tracking_ros.pipelines.stereo_meshes import (
     RawBagTracking,
     checked_stereo_bags,
@@ -70,6 +75,9 @@ from face_tracking_ros.pipelines.stereo_meshes import (
 )
 from face_tracking_ros.synthetic.faces import FacePopulation
 from face_tracking_ros.wording import counted
+
+# LearnOptions fields naming the subject of a bag without truth by its name (set: not None).
+SUBJECT_NAMING = ('subject', 'subject_pattern')
 
 
 def learn_from_bags(options: LearnOptions, say: Callable[[str], None] = print) -> Path:
@@ -138,6 +146,7 @@ def _checked_before_tracking(
     raw = checked_stereo_bags(options, reads)
     truth_bags = _truth_bags(options, raw, unlabelled)
     _check_truth_pairs(options.bags, truth_bags)
+    _check_subject_options(options, raw, truth_bags, unlabelled, reads)
     _check_subjects(options, raw, truth_bags, unlabelled, reads)
     return stereo_initialisations(raw, options), truth_bags
 
@@ -183,13 +192,49 @@ def _check_subjects(
     if not (raw or named):
         return
     subjects = [
-        bag_subjects(bag, options, truth, bag not in raw and bag not in unlabelled, reads)
+        bag_subjects(bag, options, truth, _truth_meshes(bag, raw, unlabelled), reads)
         for bag, truth in zip(options.bags, truth_bags, strict=True)
     ]
     if not all(subjects):  # a truth bag naming none: refused when the meshes are read
         return
     count = len(set().union(*subjects))
     check_subject_count(count, options.p if options.explained_variance is None else None)
+
+
+def _check_subject_options(
+    options: LearnOptions,
+    raw: Collection[Path],
+    truth_bags: Sequence[Path | None],
+    unlabelled: Collection[Path],
+    reads: BagReads,
+) -> None:
+    """Refuse the options naming subjects by bag names when no bag's subject comes from its name.
+
+    ``subject`` and ``subject_pattern`` name the subject of a bag whose meshes no truth labels
+    (:func:`~.mesh_bags.subject_from_name`); where every bag's meshes are labelled by truth (its
+    own, or its ``truth`` bag's), they would be ignored, and the truth's subject ids are the
+    ones learned (a synthetic subject's id names its true sigma).
+
+    Raises:
+        ConfigError: naming the options given and why they cannot apply.
+        BagError: for a bag of truth without the mesh topic.
+    """
+    given = [field for field in SUBJECT_NAMING if getattr(options, field)]
+    if not given or any(
+        subject_from_name(bag, options, truth, _truth_meshes(bag, raw, unlabelled), reads)
+        for bag, truth in zip(options.bags, truth_bags, strict=True)
+    ):
+        return
+    msg = (
+        f'{", ".join(map(options.named, given))}: for bags without truth, and truth labels every '
+        "bag's meshes (its own or a truth bag's): learn keeps the truth's subject ids"
+    )
+    raise ConfigError(msg)
+
+
+def _truth_meshes(bag: Path, raw: Collection[Path], unlabelled: Collection[Path]) -> bool:
+    """Whether a bag's meshes may be its own FaceTruth messages: it holds truth, is not tracked."""
+    return bag not in raw and bag not in unlabelled
 
 
 def _mesh_bags(

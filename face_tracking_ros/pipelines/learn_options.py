@@ -129,7 +129,10 @@ def check_options(options: LearnOptions, reads: BagReads = AFRESH) -> list[Path]
 
 
 def _check_values(options: LearnOptions) -> None:
-    """Range checks argparse cannot express; the truth population's and subject pattern's form."""
+    """Range checks argparse cannot express; the truth population's and subject pattern's form.
+
+    A subject pattern beside ``subject`` is refused: ``subject`` names every bag without truth.
+    """
     if options.p < 1 or options.q < 1:
         msg = f'--p and --q must be >= 1, got p={options.p}, q={options.q}'
         raise ConfigError(msg)
@@ -148,6 +151,10 @@ def _check_values(options: LearnOptions) -> None:
             named = options.named('subject_pattern')
             msg = f"{named} '{options.subject_pattern}': not a regular expression: {error}"
             raise ConfigError(msg) from None
+        if options.subject:
+            named = options.named('subject_pattern')
+            msg = f'{named}: {options.named("subject")} names every bag without truth'
+            raise ConfigError(msg)
 
 
 def subject_of(name: str, options: LearnOptions) -> str:

@@ -147,12 +147,46 @@ def bag_subjects(
     """
     if truth_bag is not None:
         return {sample.subject_id for sample in reads.truth(truth_bag, TRUTH_TOPIC)}
-    if truth_meshes:
-        topics = reads.topics(bag)
-        topic = _checked_mesh_topic(bag, topics, options)
-        if topics[topic] == TRUTH_TYPE:
-            return {sample.subject_id for sample in reads.truth(bag, topic)}
+    topic = _own_truth_topic(bag, options, truth_meshes, reads)
+    if topic is not None:
+        return {sample.subject_id for sample in reads.truth(bag, topic)}
     return {subject_of(recording_name(bag), options)}
+
+
+def subject_from_name(
+    bag: Path,
+    options: LearnOptions,
+    truth_bag: Path | None,
+    truth_meshes: bool,
+    reads: BagReads = AFRESH,
+) -> bool:
+    """Whether the subject of a bag's meshes is the one its name gives (no truth labels them).
+
+    As :func:`bag_subjects` finds it (same arguments): only then do ``options.subject`` and
+    ``options.subject_pattern`` (:func:`~.learn_options.subject_of`) name it.
+
+    Raises:
+        BagError: for a bag of truth without the mesh topic.
+    """
+    return truth_bag is None and _own_truth_topic(bag, options, truth_meshes, reads) is None
+
+
+def _own_truth_topic(
+    bag: Path, options: LearnOptions, truth_meshes: bool, reads: BagReads
+) -> str | None:
+    """The bag's mesh topic if its meshes are its own FaceTruth messages; else None.
+
+    They may be only where ``truth_meshes`` (it holds truth and is not tracked); the topics are
+    read by ``reads``.
+
+    Raises:
+        BagError: for such a bag without the mesh topic (:func:`_checked_mesh_topic`).
+    """
+    if not truth_meshes:
+        return None
+    topics = reads.topics(bag)
+    topic = _checked_mesh_topic(bag, topics, options)
+    return topic if topics[topic] == TRUTH_TYPE else None
 
 
 def mesh_topic(topics: dict[str, str], options: LearnOptions) -> str | None:
