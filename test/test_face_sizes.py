@@ -14,7 +14,7 @@ from face_tracking_ros.synthetic.faces import FacePopulation
 def _warned(sets: list[list[MeshSequence]], factor: float) -> int:
     """How many of ``sets`` warn with every mesh ``factor`` times its size (a baseline k B)."""
     scaled = [[_scaled(sequence, factor) for sequence in group] for group in sets]
-    return sum(face_size_warning(subject_scales(group), {}) is not None for group in scaled)
+    return sum(face_size_warning(subject_scales(group), dict) is not None for group in scaled)
 
 
 def _scaled(sequence: MeshSequence, factor: float) -> MeshSequence:

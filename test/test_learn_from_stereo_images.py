@@ -44,16 +44,22 @@ REFUSED_SUMMARY = (
 )
 
 
-def test_stereo_images_are_tracked_then_learned(tmp_path, capsys):
+def test_stereo_images_are_tracked_then_learned(tmp_path, capsys, monkeypatch):
     argv = [
         'learn', *map(str, BAGS), '--from-images', '--simulate-clicks', '1.0', '--p', '1',
         '--q', '2', '--compare', '--out', str(tmp_path / 'model.npz'), '--report',
         str(tmp_path / 'report.json'),
     ]  # fmt: skip
+    read: list[str] = []  # the topics the pipeline reads through stereo_meshes' reader
+    reader = stereo_meshes.read_converted
+    monkeypatch.setattr(
+        stereo_meshes, 'read_converted', lambda *args: read.append(args[1]) or reader(*args)
+    )
     assert main(argv) == 0
     out = capsys.readouterr().out
     assert out.count('% tracked: 3-D node RMS') == len(BAGS)
     assert 'warning' not in out  # true sizes 0.95-1.07 (see the baseline 25 % off below)
+    assert read == []  # no warning: no right camera_info read for one
     meshes = sorted((tmp_path / 'report_meshes').glob('subject_*_seq_00'))
     assert [m.name for m in meshes] == [b.name for b in BAGS]
     assert bag_topics(meshes[0])['face/mesh_raw'] == 'face_tracking_msgs/msg/FaceMesh'

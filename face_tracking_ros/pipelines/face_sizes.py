@@ -14,7 +14,7 @@ above :data:`SET_SCALE_BOUND` or below its inverse, from :data:`MIN_SUBJECTS` su
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -55,14 +55,15 @@ def _median_scale(meshes: list[np.ndarray]) -> float:
 
 
 def face_size_warning(
-    scales: Mapping[str, float], baselines: Mapping[Path, tuple[float, float]]
+    scales: Mapping[str, float], baselines: Callable[[], Mapping[Path, tuple[float, float]]]
 ) -> str | None:
     """The warning of a training set whose faces are too large or too small together; else None.
 
     Args:
         scales: each subject's face size (:func:`subject_scales`).
-        baselines: by raw stereo bag tracked for the set, its right camera's P[0,3] (-fx B) and
-            baseline B, m (named with the values that would make the faces adult-sized).
+        baselines: reads, by raw stereo bag tracked for the set, its right camera's P[0,3]
+            (-fx B) and baseline B, m (named with the values that would make the faces
+            adult-sized); called only when the warning is made.
 
     Returns:
         From :data:`MIN_SUBJECTS` subjects on, when their median size is above
@@ -78,7 +79,7 @@ def face_size_warning(
         f"warning: the {counted(len(values), 'subject')}' faces read {scale:.2f} times the size "
         f'of an adult face (median; each {values.min():.2f}-{values.max():.2f}), where adults '
         f'stay within {1 / SET_SCALE_BOUND:.2f}-{SET_SCALE_BOUND:.2f}: a stereo baseline '
-        f'{scale:.2f} times the true one reads so. {_adult_baselines(scale, baselines)}. A set '
+        f'{scale:.2f} times the true one reads so. {_adult_baselines(scale, baselines())}. A set '
         'of children, or of large faces only, reads so too: learning goes on'
     )
 

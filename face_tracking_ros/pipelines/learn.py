@@ -301,15 +301,22 @@ def _say_face_sizes(
 ) -> None:
     """``say`` a warning if the subjects' faces are too large or small together (a baseline off).
 
-    :func:`~.face_sizes.face_size_warning`, naming the baselines of the raw stereo bags tracked.
+    :func:`~.face_sizes.face_size_warning`, naming the baselines of the raw stereo bags tracked
+    (their right camera_infos are read only then).
     """
     scales = subject_scales([item.sequence for item in bag_meshes])
-    baselines = {bag: right_baseline(tracking) for bag, tracking in trackings.items()}
-    warning = face_size_warning(
-        scales, {bag: found for bag, found in baselines.items() if found is not None}
-    )
+    warning = face_size_warning(scales, lambda: _right_baselines(trackings))
     if warning is not None:
         say(warning)
+
+
+def _right_baselines(trackings: dict[Path, RawBagTracking]) -> dict[Path, tuple[float, float]]:
+    """By raw stereo bag tracked, its right camera's P[0,3] and baseline (:func:`right_baseline`).
+
+    Bags without a right camera_info are left out.
+    """
+    baselines = {bag: right_baseline(tracking) for bag, tracking in trackings.items()}
+    return {bag: found for bag, found in baselines.items() if found is not None}
 
 
 def _aligned_training_set(
