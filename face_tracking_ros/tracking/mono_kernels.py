@@ -37,6 +37,7 @@ from numpy.linalg import LinAlgError
 
 from face_tracking_ros.compiled import EXACT, FAST
 from face_tracking_ros.imaging.photometric import project_out
+from face_tracking_ros.tracking.pixel_box import span
 
 
 @numba.njit(**FAST)
@@ -191,23 +192,6 @@ def roi_points(
             x_row[m] = (m_00 * x + m_01 * y + m_02 * z + m_03) * inverse_depth
             y_row[m] = (m_10 * x + m_11 * y + m_12 * z + m_13) * inverse_depth
     return rotated, pixels
-
-
-@numba.njit(**FAST)
-def span(values: np.ndarray) -> tuple[float, float]:
-    """The least and greatest of (K,) values (K > 0) with no NaN; 8 running extremes at once."""
-    lanes = 8
-    low, high = np.full(lanes, values[0]), np.full(lanes, values[0])
-    whole = values.size - values.size % lanes
-    for i in range(0, whole, lanes):
-        for j in range(lanes):
-            value = values[i + j]
-            low[j] = value if value < low[j] else low[j]
-            high[j] = value if value > high[j] else high[j]
-    least, greatest = low.min(), high.max()
-    for i in range(whole, values.size):
-        least, greatest = min(least, values[i]), max(greatest, values[i])
-    return least, greatest
 
 
 @numba.njit(

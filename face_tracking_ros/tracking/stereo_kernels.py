@@ -23,7 +23,7 @@ import numba
 import numpy as np
 
 from face_tracking_ros.compiled import EXACT, FAST
-from face_tracking_ros.tracking.mono_kernels import span
+from face_tracking_ros.tracking.pixel_box import span
 
 RAMP_RIDGE = 1e-6  # added to the diagonal of a brightness ramp's normal matrix (terms ~ 1)
 UNIT = (1.0, 0.0, 0.0, 1.0, 0.0, 1.0)  # a ramp inverse not needed (a group's mean is removed)
