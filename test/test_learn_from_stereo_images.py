@@ -363,6 +363,27 @@ def test_raw_images_of_a_calibrated_rig_are_rectified_before_tracking(
     assert 'triangulate to a face 2.' in printed and 'times the size of an adult face' in printed
 
 
+def test_swapped_raw_images_of_a_turned_rig_are_named(raw_rig_bag, tmp_path, capsys):
+    """The raw rig's bag (cameras turned 3 degrees, distorted), its image topics exchanged.
+
+    Each raw image is rectified with the calibration of the topic it came on, so with the other
+    camera's rotation: the pair then matched as a face 2.95 times too large, and the reason was
+    the calibration's ("Check its baseline first"). Matched again with the raw images exchanged
+    before rectifying, every inner node matches as a face of adult size.
+    """
+    bag = _with_images_swapped(raw_rig_bag, tmp_path / 'bags' / 'swapped')
+    argv = ['track', str(bag), '--simulate-clicks', '0', '--out', str(tmp_path / 't'), '--quiet']
+    assert main(argv) == 1
+    printed = capsys.readouterr().out
+    assert (
+        'initializing_pairs 40, tracking_pairs 0, lost_pairs 0, last_reason initialisation '
+        'failed: the left and right images look swapped: with the raw images exchanged before '
+        'rectifying, 23 of the 23 inner nodes match as an adult-sized face; check the image '
+        "topics' remapping (left/image_raw must carry the left camera's images, right/image_raw "
+        "the right one's), restarts 0"
+    ) in printed, printed
+
+
 def test_raw_stereo_bag_without_initialisation_is_refused(tmp_path, capsys):
     argv = ['learn', str(BAGS[0]), '--from-images', '--out', str(tmp_path / 'm.npz'),
             '--report', str(tmp_path / 'r.json')]  # fmt: skip

@@ -65,7 +65,7 @@ from face_tracking_ros.tracking.initialisation import (
     check_inside,
     load_init_file,
 )
-from face_tracking_ros.tracking.stereo import StereoTracker
+from face_tracking_ros.tracking.stereo import ExchangedPair, StereoTracker
 from face_tracking_ros.tracking.stereo_config import StereoTrackerConfig
 from face_tracking_ros.tracking.stereo_result import StereoResult
 
@@ -416,14 +416,15 @@ class StereoProcessor:
                 'positions'
             )
             raise InputError(msg)
-        left, right = (
-            self._rectified_image(info, conversions.message_to_gray(msg))
-            for info, msg in ((LEFT_INFO, left_msg), (RIGHT_INFO, right_msg))
-        )
+        left_raw = conversions.message_to_gray(left_msg)
+        left = self._rectified_image(LEFT_INFO, left_raw)
+        right_raw = conversions.message_to_gray(right_msg)
+        right = self._rectified_image(RIGHT_INFO, right_raw)
         stamp_ns = stamp_to_ns(left_msg.header.stamp)
         previous = self._stamps.last
         self._stamps.take(stamp_ns)
-        result = self._tracker.step(left, right, self._intervals.since(previous, stamp_ns))
+        intervals = self._intervals.since(previous, stamp_ns)
+        result = self._tracker.step(left, right, intervals, self._exchanged(left_raw, right_raw))
         self._tracked_nodes = result.nodes_cam if result.ok else None
         self._counts.add(result.status, result.reason)
         header = conversions.copy_header(self._factory, left_msg.header)
@@ -441,6 +442,20 @@ class StereoProcessor:
         rectifier = self._calibrations[info].rectifier
         rectifier.check_size(gray, f'{info.split("/")[0]} image')
         return rectifier.image(gray)
+
+    def _exchanged(self, left: np.ndarray, right: np.ndarray) -> ExchangedPair | None:
+        """The raw pair exchanged, each rectified as its own camera's, made if the tracker asks.
+
+        Raw images whose topics are remapped the wrong way round are rectified each with the
+        other camera's rotation, which no stereo match survives from about 1.5 degrees on: this
+        is the pair as the topics wired right would give it, for the tracker to name the swap
+        (:func:`~face_tracking_ros.tracking.stereo_init.check_raw_not_swapped`). None when
+        neither camera's images are rectified here.
+        """
+        left_rectifier, right_rectifier = (self._calibrations[info].rectifier for info in INFOS)
+        if left_rectifier.identity and right_rectifier.identity:
+            return None
+        return lambda: (left_rectifier.image(right), right_rectifier.image(left))
 
     def _outputs(self, header: Any, result: StereoResult) -> list[Output]:
         """The messages of one pair's result, stamped with its left image's header."""

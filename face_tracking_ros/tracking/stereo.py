@@ -33,7 +33,7 @@ status says what happened (:class:`~.result.TrackStatus`; what declares a track 
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -80,6 +80,7 @@ from face_tracking_ros.tracking.stereo_init import (
     InitialNodes,
     check_baseline,
     check_face_scale,
+    check_raw_not_swapped,
     initial_nodes,
 )
 from face_tracking_ros.tracking.stereo_loss import loss_reason
@@ -94,6 +95,10 @@ from face_tracking_ros.tracking.surface_patches import PatchDeformation, patch_f
 from face_tracking_ros.wording import counted
 
 LEFT, RIGHT = 0, 1
+# A pair of raw images the caller rectified, made again when asked with the raw images exchanged
+# and each rectified as its own camera's (the right image topic's as the left camera's): the
+# pair as it would come if its image topics were remapped the wrong way round.
+ExchangedPair = Callable[[], tuple[np.ndarray, np.ndarray]]
 # The reported model fit's Gauss-Newton stops at a step this small (rad, m, basis units): from
 # the previous pair's fit the steps of tracked pairs run about 8e-3, 8e-5, 4e-6, 3e-8, so the
 # fit is then within ~1e-7 (1e-7 took a fourth iteration for nothing visible).
@@ -270,7 +275,13 @@ class StereoTracker:
             raise InputError(msg)
         return left_px
 
-    def step(self, left: np.ndarray, right: np.ndarray, intervals: int = 1) -> StereoResult:
+    def step(
+        self,
+        left: np.ndarray,
+        right: np.ndarray,
+        intervals: int = 1,
+        exchanged: ExchangedPair | None = None,
+    ) -> StereoResult:
         """Track one rectified stereo pair.
 
         Args:
@@ -281,6 +292,11 @@ class StereoTracker:
                 them, and over those of bad frames since the last tracked pair (as over
                 dropped pairs: a bad frame keeps the track), and a pair after such a gap is
                 solved from coarser pyramid levels too (``gap_pyramid_levels``).
+            exchanged: for raw images the caller rectified, the pair made from them exchanged
+                (:data:`ExchangedPair`, grey images as ``left`` and ``right``): an
+                initialisation that fails on this pair is tried on it, to name image topics
+                remapped the wrong way round (:func:`~.stereo_init.check_raw_not_swapped`).
+                None: the images came rectified.
 
         Returns:
             The result; never raises on a bad frame (status LOST, reason set, state kept).
@@ -301,7 +317,7 @@ class StereoTracker:
         if self._detect:
             self._pending = self._detected(left)
         if self._pending is not None:
-            result = self._initialise(pyramids)
+            result = self._initialise(pyramids, exchanged)
         elif self._state is None:
             result = self._not_tracking(self._status, self._reason)
         else:
@@ -379,8 +395,14 @@ class StereoTracker:
         self._detect = False
         return left_px
 
-    def _initialise(self, pyramids: tuple[ImagePyramid, ImagePyramid]) -> StereoResult:
-        """Triangulate the pending left-image nodes and start tracking on this pair."""
+    def _initialise(
+        self, pyramids: tuple[ImagePyramid, ImagePyramid], exchanged: ExchangedPair | None
+    ) -> StereoResult:
+        """Triangulate the pending left-image nodes and start tracking on this pair.
+
+        A failure's reason is the swap of the image topics if the pair made from the raw images
+        ``exchanged`` says so (:meth:`_failure_reason`).
+        """
         left_px, self._pending = self._pending, None
         config = self._config
         try:
@@ -392,11 +414,30 @@ class StereoTracker:
             check_face_scale(initial, self._topology, self._rig, config.init)
         except FaceTrackingError as error:  # no estimate yet: INITIALIZING, as the mono tracker
             self._status = TrackStatus.INITIALIZING
-            self._reason = f'initialisation failed: {error}'
+            reason = self._failure_reason(error, left_px, exchanged)
+            self._reason = f'initialisation failed: {reason}'
             self._detect = self._detector is not None  # then look for the face again
             return self._not_tracking(self._status, self._reason)
         self._state = self._start(pyramids, initial)
         return self._state.result
+
+    def _failure_reason(
+        self, error: FaceTrackingError, left_px: np.ndarray, exchanged: ExchangedPair | None
+    ) -> str:
+        """Why the initialisation failed: ``error``, unless the raw images look exchanged.
+
+        The pair made from them ``exchanged`` (if given) is initialised with the calibrated rig
+        (:func:`~.stereo_init.check_raw_not_swapped`), as float32 images (a pyramid's level 0).
+        """
+        if exchanged is not None:
+            left, right = (np.asarray(image, dtype=np.float32) for image in exchanged())
+            try:
+                check_raw_not_swapped(
+                    self._calibrated_rig, (left, right), left_px, self._topology, self._config.init
+                )
+            except InputError as swapped:
+                return str(swapped)
+        return str(error)
 
     def _start(self, pyramids: tuple[ImagePyramid, ImagePyramid], initial: InitialNodes) -> _State:
         """The state of a track starting at ``initial`` on this pair: samples, templates, terms."""

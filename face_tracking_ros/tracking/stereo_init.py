@@ -9,7 +9,8 @@ difference of a patch lying on the face surface, which removes the bias that squ
 have on sloping skin. Nodes not given, or whose match is weak or inconsistent with the
 face, take their position from the reference face of the topology fitted to the others (a
 similarity transform) and keep its depth. A pair whose images come exchanged (the left
-camera's on the right topic) is refused as such (:func:`check_not_swapped`).
+camera's on the right topic) is refused as such (:func:`check_not_swapped`; raw images the
+caller rectified each with the other camera's calibration: :func:`check_raw_not_swapped`).
 """
 
 from __future__ import annotations
@@ -31,6 +32,16 @@ from face_tracking_ros.wording import counted
 FLAT_STD = 0.5  # grey levels: a correlation window flatter than this cannot be matched
 MIN_FIT_NODES = 4  # fewest inner nodes the reference face is fitted to
 NOSE_BEHIND_EYES_M = 0.0  # a fitted face whose nose is behind its eyes is turned away
+# Share of the inner nodes given that must match as an adult-sized face with the raw images
+# exchanged before rectifying for them to be named swapped (check_raw_not_swapped): swapped
+# pairs of 12 rendered subjects on rigs turned 1-3 and 8 degrees matched all of them from
+# positions in the left camera, pairs wired right, exchanged, up to 11 of 19 (half named
+# 2 of 96 of those); at 4-6 degrees either pair, wrongly rectified, can read as a face.
+RAW_SWAP_SHARE = 0.75
+REMAP_HINT = (  # what to check for images that look exchanged
+    "check the image topics' remapping (left/image_raw must carry the left camera's images, "
+    "right/image_raw the right one's)"
+)
 
 
 @dataclass(frozen=True)
@@ -343,9 +354,52 @@ def check_not_swapped(
     if found >= max(MIN_FIT_NODES, count / 2, consistent + 1):
         msg = (
             f'the left and right images look swapped: {found} of the {count} inner nodes match '
-            f"as a face with them exchanged, {consistent} as they come; check the image topics' "
-            "remapping (left/image_raw must carry the left camera's images, right/image_raw the "
-            "right one's)"
+            f'as a face with them exchanged, {consistent} as they come; {REMAP_HINT}'
+        )
+        raise InputError(msg)
+
+
+def check_raw_not_swapped(
+    rig: StereoRig,
+    exchanged: tuple[np.ndarray, np.ndarray],
+    left_px: np.ndarray,
+    topology: MeshTopology,
+    config: StereoInitConfig,
+) -> None:
+    """Refuse raw images whose initialisation failed and that look exchanged before rectifying.
+
+    Raw images are rectified with the calibration of the topic they came on: exchanged, each is
+    rectified with the other camera's rotation R, and on a rig whose R turns the cameras by
+    about 1.5 degrees or more nothing matches either way (:func:`check_not_swapped` finds
+    nothing), or the pair matches as a face 3 times too large. ``exchanged`` is the raw
+    images exchanged back, each rectified with its own camera's maps: the pair as it would
+    come with the topics wired right. If the initialisation succeeds on it, at least
+    :data:`RAW_SWAP_SHARE` of the inner nodes given matched, and the face it finds is of adult
+    size (:func:`check_face_scale`), the images are exchanged.
+
+    Args:
+        rig: the rectified rig (the calibration's).
+        exchanged: (left, right) (H, W) float32: the raw image of the right image topic
+            rectified as the left camera's, that of the left topic as the right camera's.
+        left_px: (N, 2) the nodes' positions in the left camera (NaN rows: not given).
+        topology: the mesh.
+        config: the initialisation tunables.
+
+    Raises:
+        InputError: saying that the images look swapped and which topics to check.
+    """
+    search = np.all(np.isfinite(left_px), axis=1) & ~topology.group_mask(Group.EDGE)
+    try:
+        initial = initial_nodes(rig, *exchanged, left_px, topology, config)
+        check_face_scale(initial, topology, rig, config)
+    except InputError:  # (one that looks exchanged itself came wired right)
+        return
+    found, count = int(initial.matched[search].sum()), int(search.sum())
+    if found >= RAW_SWAP_SHARE * count:
+        msg = (
+            'the left and right images look swapped: with the raw images exchanged before '
+            f'rectifying, {found} of the {count} inner nodes match as an adult-sized face; '
+            f'{REMAP_HINT}'
         )
         raise InputError(msg)
 
