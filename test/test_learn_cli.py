@@ -175,10 +175,11 @@ def test_subject_names_every_bag_without_truth(tmp_path, world, truth_bags):
 def test_subject_options_where_truth_names_every_subject_are_refused(
     tmp_path, world, truth_bags, capsys
 ):
-    """Truth labels every bag's meshes: --subject and --subject-pattern were ignored.
+    """Truth labels every bag's meshes: --subject(-pattern) and --neutral-frames were ignored.
 
-    The bags of truth, and bags of meshes labelled by --truth bags: the truth's subject ids were
-    learned whatever the options said; so was --subject-pattern beside --subject.
+    The bags of truth, and bags of meshes labelled by --truth bags: the truth's subject ids and
+    neutral labels were learned whatever the options said; so was --subject-pattern beside
+    --subject.
     """
     sequences, alpha = world
     meshes = [
@@ -188,11 +189,12 @@ def test_subject_options_where_truth_names_every_subject_are_refused(
     labelled = [*map(str, meshes), '--truth', *map(str, truth_bags)]
     for bags, options, named in (
         (list(map(str, truth_bags)), ['--subject-pattern', r'(.+)_\d+'], '--subject-pattern'),
-        (labelled, ['--subject', 'anna', '--neutral-frames', '3'], '--subject'),
+        (labelled, ['--subject', 'anna', '--neutral-frames', '3'], '--subject, --neutral-frames'),
+        (list(map(str, truth_bags)), ['--neutral-frames', '3'], '--neutral-frames'),
     ):
         assert _error(['learn', *bags, *out, *options], capsys) == (
             f"error: {named}: for bags without truth, and truth labels every bag's meshes (its "
-            "own or a truth bag's): learn keeps the truth's subject ids\n"
+            "own or a truth bag's): learn keeps the truth's subject ids and neutral labels\n"
         )
     both = ['--subject', 'anna', '--subject-pattern', '(.+)', '--neutral-frames', '3']
     assert _error(['learn', *map(str, meshes), *out, *both], capsys) == (

@@ -77,7 +77,7 @@ def test_stereo_images_are_tracked_then_learned(tmp_path, capsys, monkeypatch):
 def test_learn_again_re_uses_the_meshes_tracked_from_the_same_inputs(tmp_path, capsys):
     argv = [
         'learn', *map(str, BAGS[:2]), '--from-images', '--simulate-clicks', '1.0', '--p', '1',
-        '--q', '2', '--compare', '--neutral-frames', '3', '--out', str(tmp_path / 'model.npz'),
+        '--q', '2', '--compare', '--out', str(tmp_path / 'model.npz'),
         '--report', str(tmp_path / 'report.json'),
     ]  # fmt: skip
     meshes = tmp_path / 'report_meshes' / BAGS[0].name
@@ -910,6 +910,6 @@ def test_a_subject_pattern_for_raw_bags_labelled_by_their_truth_is_refused(tmp_p
     assert main(argv) == 2
     assert capsys.readouterr().err == (
         "error: --subject-pattern: for bags without truth, and truth labels every bag's meshes "
-        "(its own or a truth bag's): learn keeps the truth's subject ids\n"
+        "(its own or a truth bag's): learn keeps the truth's subject ids and neutral labels\n"
     )
     assert list(tmp_path.iterdir()) == []  # refused before any clicks or tracking

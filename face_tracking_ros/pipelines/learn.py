@@ -76,8 +76,9 @@ from face_tracking_ros.pipelines.stereo_meshes import (
 from face_tracking_ros.synthetic.faces import FacePopulation
 from face_tracking_ros.wording import counted
 
-# LearnOptions fields naming the subject of a bag without truth by its name (set: not None).
-SUBJECT_NAMING = ('subject', 'subject_pattern')
+# LearnOptions fields that label the meshes of bags without truth (set: not None, not 0): the
+# subject by the bag's name, the neutral frames by their index.
+NO_TRUTH_LABELS = ('subject', 'subject_pattern', 'neutral_frames')
 
 
 def learn_from_bags(options: LearnOptions, say: Callable[[str], None] = print) -> Path:
@@ -146,7 +147,7 @@ def _checked_before_tracking(
     raw = checked_stereo_bags(options, reads)
     truth_bags = _truth_bags(options, raw, unlabelled)
     _check_truth_pairs(options.bags, truth_bags)
-    _check_subject_options(options, raw, truth_bags, unlabelled, reads)
+    _check_no_truth_options(options, raw, truth_bags, unlabelled, reads)
     _check_subjects(options, raw, truth_bags, unlabelled, reads)
     return stereo_initialisations(raw, options), truth_bags
 
@@ -201,25 +202,26 @@ def _check_subjects(
     check_subject_count(count, options.p if options.explained_variance is None else None)
 
 
-def _check_subject_options(
+def _check_no_truth_options(
     options: LearnOptions,
     raw: Collection[Path],
     truth_bags: Sequence[Path | None],
     unlabelled: Collection[Path],
     reads: BagReads,
 ) -> None:
-    """Refuse the options naming subjects by bag names when no bag's subject comes from its name.
+    """Refuse the options that label bags without truth when truth labels every bag's meshes.
 
     ``subject`` and ``subject_pattern`` name the subject of a bag whose meshes no truth labels
-    (:func:`~.mesh_bags.subject_from_name`); where every bag's meshes are labelled by truth (its
-    own, or its ``truth`` bag's), they would be ignored, and the truth's subject ids are the
-    ones learned (a synthetic subject's id names its true sigma).
+    (:func:`~.mesh_bags.subject_from_name`), ``neutral_frames`` its neutral frames; where every
+    bag's meshes are labelled by truth (its own, or its ``truth`` bag's), they would be ignored,
+    and the truth's subject ids and expression labels are the ones learned (a synthetic
+    subject's id names its true sigma).
 
     Raises:
         ConfigError: naming the options given and why they cannot apply.
         BagError: for a bag of truth without the mesh topic.
     """
-    given = [field for field in SUBJECT_NAMING if getattr(options, field)]
+    given = [field for field in NO_TRUTH_LABELS if getattr(options, field)]
     if not given or any(
         subject_from_name(bag, options, truth, _truth_meshes(bag, raw, unlabelled), reads)
         for bag, truth in zip(options.bags, truth_bags, strict=True)
@@ -227,7 +229,8 @@ def _check_subject_options(
         return
     msg = (
         f'{", ".join(map(options.named, given))}: for bags without truth, and truth labels every '
-        "bag's meshes (its own or a truth bag's): learn keeps the truth's subject ids"
+        "bag's meshes (its own or a truth bag's): learn keeps the truth's subject ids and "
+        'neutral labels'
     )
     raise ConfigError(msg)
 
