@@ -782,12 +782,17 @@ def test_bad_frames_never_raise() -> None:
     wrong = tracker.step(left[:100], right)
     assert wrong.status == TrackStatus.LOST and 'bad frame' in wrong.reason
     assert np.all(np.isfinite(wrong.nodes_cam))
-    # The track survives a bad frame; a blank pair then loses it for good until reset.
+    # The track survives a bad frame; a blank pair loses it, and another keeps it lost, with
+    # the reason it was lost and no estimate; without a detector the next pair that shows the
+    # face re-acquires it (it stayed LOST until a reset).
     assert tracker.step(left, right).ok
     blank = np.zeros_like(left)
     lost = tracker.step(blank + 255, blank)
     assert lost.status == TrackStatus.LOST and 'lost' in lost.reason
-    assert tracker.step(left, right).status == TrackStatus.LOST
+    still = tracker.step(blank + 255, blank)
+    assert still.status == TrackStatus.LOST and still.reason == lost.reason
+    assert np.all(np.isnan(still.nodes_cam))
+    assert tracker.step(left, right).ok
 
 
 def test_initialisation_failure_is_reported() -> None:

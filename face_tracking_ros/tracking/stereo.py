@@ -35,6 +35,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field, replace
+from typing import NamedTuple
 
 import numpy as np
 from scipy.linalg import LinAlgError
@@ -64,6 +65,7 @@ from face_tracking_ros.tracking.coarse_to_fine import coarse_to_fine
 from face_tracking_ros.tracking.depth_refinement import DepthRefinement, depth_evidence
 from face_tracking_ros.tracking.detector import Detector
 from face_tracking_ros.tracking.initialisation import Initialisation
+from face_tracking_ros.tracking.mono_search import FaceView
 from face_tracking_ros.tracking.regularisation import Regulariser
 from face_tracking_ros.tracking.result import TrackStatus
 from face_tracking_ros.tracking.robust import nanmedian
@@ -144,6 +146,16 @@ class _Solves:
     iterations: int = 0
     history: list[float] = field(default_factory=list)
     levels: list[tuple[Level, Point]] = field(default_factory=list)
+    theta: ModelPoint | None = None  # the face-model term's fit, moved on by the solves
+
+
+class _Attempt(NamedTuple):
+    """A pair solved from some start: the nodes, their level-0 statistics and why they fail."""
+
+    nodes: np.ndarray
+    statistics: GroupStatistics | None  # None when a level's solve failed
+    solves: _Solves
+    problem: str  # '' when the nodes pass the loss checks
 
 
 class StereoTracker:
@@ -152,8 +164,10 @@ class StereoTracker:
     Usage: ``reset(init)`` with the nodes' pixel positions in the next left image
     (semi-automatic), or ``reset()`` with a landmark detector (automatic: the detector's nodes
     in the next left image in which it finds a face), then ``step(left, right)`` for every pair.
-    A lost track (or a failed initialisation) stays LOST until the next reset, or with a
-    detector until it finds the face again, which starts a new track (``new_track``).
+    A lost track is re-acquired on a later pair where the face is found again (without a
+    detector, :meth:`_reacquire`); with a detector it stays LOST until the detector finds the
+    face, which starts a new track (``new_track``); a failed initialisation until the next
+    reset or detection.
     """
 
     def __init__(
@@ -203,6 +217,7 @@ class StereoTracker:
         self._pending: np.ndarray | None = None
         self._detect = False
         self._state: _State | None = None
+        self._lost: _State | None = None  # a lost track's, re-acquired without a detector
         self._status = TrackStatus.INITIALIZING
         self._reason = 'not initialised: call reset() with the initial node positions'
 
@@ -249,7 +264,7 @@ class StereoTracker:
             msg = 'reset() without node positions needs a landmark detector'
             raise ConfigError(msg)
         pending = None if init is None else self._left_px(init)
-        self._state = None
+        self._state = self._lost = None
         self._right_gain = 1.0  # the initialisation measures them afresh, on the raw images
         self._use_rig(self._calibrated_rig)
         self._status = TrackStatus.INITIALIZING
@@ -308,8 +323,9 @@ class StereoTracker:
             msg = f'intervals must be >= 1 (frame intervals since the last pair), got {intervals}'
             raise InputError(msg)
         before = self._held()
-        if self._state is not None:
-            self._state.elapsed += intervals
+        for state in (self._state, self._lost):
+            if state is not None:
+                state.elapsed += intervals
         try:
             pyramids = self._pyramids(left, right)
         except InputError as error:
@@ -318,10 +334,12 @@ class StereoTracker:
             self._pending = self._detected(left)
         if self._pending is not None:
             result = self._initialise(pyramids, exchanged)
-        elif self._state is None:
-            result = self._not_tracking(self._status, self._reason)
-        else:
+        elif self._state is not None:
             result = self._track(pyramids)
+        elif self._lost is not None:
+            result = self._reacquire(pyramids)
+        else:
+            result = self._not_tracking(self._status, self._reason)
         # Frame 1's pyramids and the last tracked pair's are kept, owning their images (they
         # read the caller's until then); the others' arrays take the next pair.
         kept = self._held()
@@ -332,8 +350,8 @@ class StereoTracker:
         return result
 
     def _held(self) -> tuple[tuple[ImagePyramid, ImagePyramid], ...]:
-        """The pyramids the track keeps: frame 1's and the last tracked pair's."""
-        state = self._state
+        """The pyramids a track (or a lost one) keeps: frame 1's and the last tracked pair's."""
+        state = self._lost if self._state is None else self._state
         return () if state is None else (state.first_pyramids, state.previous_pyramids)
 
     def with_final_depths(self, results: Sequence[StereoResult]) -> list[StereoResult]:
@@ -554,26 +572,86 @@ class StereoTracker:
         With ``coarsest_level_px`` set, the solve starts on level 0 and, when level 0's first
         step exceeds it, starts over from the prediction on level 1 (and from the coarsest level
         if level 1's does too: :func:`~.coarse_to_fine.coarse_to_fine`).
+
+        A pair after a gap (more than one frame interval since the last tracked pair) is
+        checked at ``gap_lost_ratio`` too, and if its solve fails the checks it is solved again
+        from where the face is found (:meth:`_searched`), as a lost track is re-acquired.
         """
         state = self._state
         assert state is not None
+        attempt = self._attempt(state, pyramids, self._predicted(state))
+        if attempt.problem and state.elapsed > 1:
+            found = self._attempt(state, pyramids, self._searched(state, pyramids))
+            attempt = attempt if found.problem else found
+        if attempt.problem:
+            return self._lose(attempt.problem)
+        return self._advance(state, pyramids, attempt)
+
+    def _reacquire(self, pyramids: tuple[ImagePyramid, ImagePyramid]) -> StereoResult:
+        """Solve a lost track's pair from where its face is found; LOST unless that passes.
+
+        Without a detector a lost track kept its state (:meth:`_lose`): the last tracked
+        pair's nodes, templates and pyramids. Each later pair is solved as a pair after a gap
+        (every pyramid level of ``gap_pyramid_levels``, checked at ``gap_lost_ratio``) from those
+        nodes moved onto the face's rigid displacement in the left image (:meth:`_searched`);
+        the track resumes where that passes the loss checks.
+        """
+        state = self._lost
+        assert state is not None
+        attempt = self._attempt(state, pyramids, self._searched(state, pyramids))
+        if attempt.problem:
+            return self._not_tracking(TrackStatus.LOST, self._reason)
+        self._state, self._lost = state, None
+        return self._advance(state, pyramids, attempt)
+
+    def _predicted(self, state: _State) -> np.ndarray:
+        """Where the nodes are expected on the pair being tracked (``predict_motion``)."""
+        if not self._config.predict_motion or state.before is None:
+            return state.nodes
+        # The nodes' motion between the last two pairs, per frame interval, carried on over
+        # the intervals since the last pair (1 and 1 without dropped pairs: 2 n - b).
+        ahead = state.elapsed / state.span
+        return (1.0 + ahead) * state.nodes - ahead * state.before
+
+    def _searched(self, state: _State, pyramids: tuple[ImagePyramid, ImagePyramid]) -> np.ndarray:
+        """The last tracked nodes moved with the face's displacement in this left image.
+
+        The displacement is where the inner face of the last tracked left image (the nodes off
+        the face edge) correlates best with this one (:class:`~.mono_search.FaceView`, the
+        mono tracker's search, on level 1), each node moved by it parallel to the image plane
+        at its depth.
+        """
+        left = self._rig.left
+        inner = ~self._boundary
+        view = FaceView.of(state.previous_pyramids[LEFT], left.project(state.nodes), inner)
+        shift = view.shift(pyramids[LEFT])  # level-0 px
+        moved = state.nodes.copy()
+        moved[:, :2] += shift * state.nodes[:, 2:] / left.focal
+        return moved
+
+    def _attempt(
+        self, state: _State, pyramids: tuple[ImagePyramid, ImagePyramid], start: np.ndarray
+    ) -> _Attempt:
+        """This pair solved from ``start`` (:meth:`_solve_pair`) and checked (:mod:`.stereo_loss`).
+
+        A pair after a gap is checked at the stricter ``gap_lost_ratio`` too.
+        """
         try:
-            nodes, solves = self._solve_pair(state, pyramids)
+            nodes, solves = self._solve_pair(state, pyramids, start)
         except (LinAlgError, FaceTrackingError) as error:
-            return self._lose(f'solver failed: {error}')
+            return _Attempt(start, None, _Solves(), f'solver failed: {error}')
         level, accepted = solves.levels[-1]  # level 0's
         statistics = group_statistics(
             state.samples, accepted.sampled, accepted.residuals, level.templates[:, 0]
         )
-        problem = loss_reason(nodes, statistics, self._rig, self._config)
-        if problem:
-            return self._lose(problem)
-        return self._advance(state, pyramids, nodes, statistics, solves)
+        after_gap = state.elapsed > 1
+        problem = loss_reason(nodes, statistics, self._rig, self._config, after_gap)
+        return _Attempt(nodes, statistics, solves, problem)
 
     def _solve_pair(
-        self, state: _State, pyramids: tuple[ImagePyramid, ImagePyramid]
+        self, state: _State, pyramids: tuple[ImagePyramid, ImagePyramid], start: np.ndarray
     ) -> tuple[np.ndarray, _Solves]:
-        """The nodes that minimise eq. 4 + eq. 5 on this pair, coarse to fine (see :meth:`_track`).
+        """The nodes that minimise eq. 4 + eq. 5 on this pair from ``start``, coarse to fine.
 
         After dropped pairs or bad frames (more than one frame interval since the last tracked
         pair) the prediction can be off by more than the coarsest level reaches (rendered free
@@ -582,33 +660,37 @@ class StereoTracker:
         term, refitted by one Gauss-Newton step a trial point from its fit at the last pair,
         held the nodes back near that pair's pose. Such a pair is solved from the coarser
         levels of ``gap_pyramid_levels`` too (:meth:`_coarser_levels`), the fit moved to the
-        prediction first.
+        start first.
+
+        The coarser levels leave the face-model term out: a level's image terms weigh 4 times
+        less per m^2 of node motion than the next finer one's (its pixels are twice as far
+        apart), the model term's the same on every level, so on level 3 it weighs 64 times
+        more against the images than on level 0, and it held the nodes 10-16 px off (rendered
+        10 fps, 3 pairs dropped: level 3 took seed 4's pair 41 from 16.5 to 15.7 px, 8.1
+        without the term; with the fit converged at every trial point, 13.0). The first finer
+        level moves the fit to where they left the nodes.
 
         Raises:
             LinAlgError, FaceTrackingError: when a level's solve fails.
         """
         config = self._config
         energy = self._energy(state)
-        nodes = state.nodes
-        if config.predict_motion and state.before is not None:
-            # The nodes' motion between the last two pairs, per frame interval, carried on over
-            # the intervals since the last pair (1 and 1 without dropped pairs: 2 n - b).
-            ahead = state.elapsed / state.span
-            nodes = (1.0 + ahead) * state.nodes - ahead * state.before
+        nodes = start
         coarser: tuple[Level, ...] = ()
         if state.elapsed > 1:
             coarser = self._coarser_levels(state, pyramids)
-            if energy.prior is not None and energy.theta is not None:
-                energy.theta = energy.prior.fit(nodes, energy.theta)
+            _move_fit(energy, nodes)
+        images_alone = replace(energy, prior=None) if coarser else energy  # the coarser levels
         solves = _Solves()
 
         def solve(index: int, start: np.ndarray, first_step_limit: float) -> np.ndarray | None:
-            level = (
-                coarser[index - config.pyramid_levels]
-                if index >= config.pyramid_levels
-                else self._level(state, pyramids, index)
-            )
-            solved = self._solver.solve(energy, level, start, first_step_limit)
+            if index >= config.pyramid_levels:
+                level, terms = coarser[index - config.pyramid_levels], images_alone
+            else:
+                level, terms = self._level(state, pyramids, index), energy
+                if solves.levels and solves.levels[-1][0].index >= config.pyramid_levels:
+                    _move_fit(energy, start)  # from a coarser level
+            solved = self._solver.solve(terms, level, start, first_step_limit)
             if solved is None:
                 return None
             nodes, spent, costs, accepted = solved
@@ -619,7 +701,7 @@ class StereoTracker:
 
         levels = config.pyramid_levels + len(coarser)
         nodes = coarse_to_fine(levels, 0, config.coarsest_level_px, nodes, solve)
-        state.theta = energy.theta  # the face-model term's fit, moved on by the solve
+        solves.theta = energy.theta
         return nodes, solves
 
     def _energy(self, state: _State) -> PairEnergy:
@@ -638,15 +720,13 @@ class StereoTracker:
         )
 
     def _advance(
-        self,
-        state: _State,
-        pyramids: tuple[ImagePyramid, ImagePyramid],
-        nodes: np.ndarray,
-        statistics: GroupStatistics,
-        solves: _Solves,
+        self, state: _State, pyramids: tuple[ImagePyramid, ImagePyramid], attempt: _Attempt
     ) -> StereoResult:
-        """Take this pair's solved ``nodes`` into the state: noise, rotation, depths, templates."""
+        """Take this pair's solved nodes into the state: noise, rotation, depths, templates."""
         config = self._config
+        nodes, statistics, solves = attempt.nodes, attempt.statistics, attempt.solves
+        assert statistics is not None
+        state.theta = solves.theta  # the face-model term's fit, moved on by the solve
         state.noise = np.array([max(config.noise_floor, nanmedian(rms)) for rms in statistics.rms])
         state.rotation = self._rotation(state.first_nodes, nodes)
         if state.depths is not None:
@@ -822,12 +902,13 @@ class StereoTracker:
         )
 
     def _lose(self, reason: str) -> StereoResult:
-        """Drop the track: LOST until the next reset, or with a detector a new detection."""
+        """Drop the track: LOST until re-acquired (:meth:`_reacquire`) or a new detection."""
         self._status = TrackStatus.LOST
         self._reason = f'track lost: {reason}'
         self._detect = self._detector is not None
         self._state, previous = None, self._state
         assert previous is not None
+        self._lost = None if self._detect else previous  # re-acquired (_reacquire)
         last = previous.result
         return StereoResult(
             status=TrackStatus.LOST,
@@ -931,6 +1012,12 @@ def _make_level(
         offsets=float(1 << index) * offsets,
         templates=np.stack([previous, previous[::-1], first, first[::-1]], axis=1),
     )
+
+
+def _move_fit(energy: PairEnergy, nodes: np.ndarray) -> None:
+    """Move the face-model term's fit to ``nodes`` (one Gauss-Newton step), if the term is on."""
+    if energy.prior is not None and energy.theta is not None:
+        energy.theta = energy.prior.fit(nodes, energy.theta)
 
 
 def _prior_model(config: StereoTrackerConfig, model: FaceModel | None) -> FaceModel | None:

@@ -6,6 +6,8 @@ node patches (:class:`~.stereo_data.GroupStatistics` of level 0, both cameras) t
 images no longer show the face tracked:
 
     median_i r_i / c_i > ``lost_ratio``            the patches do not match their templates
+                                                   (``gap_lost_ratio`` if lower, for a pair
+                                                   after a gap or re-acquiring a lost track)
     median_i t_i / c_i < ``min_texture_ratio``     the images show almost no texture there
 
 medians over the node patches i of both images, with r_i the RMS of patch i's residual against
@@ -31,6 +33,7 @@ def loss_reason(
     statistics: GroupStatistics,
     rig: StereoRig,
     config: StereoTrackerConfig,
+    after_gap: bool = False,
 ) -> str:
     """Why the solution is not a valid track ('' if it is).
 
@@ -38,7 +41,11 @@ def loss_reason(
         nodes: (N, 3) the pair's solution, left camera frame, m.
         statistics: the residual summaries of its last accepted point, level 0.
         rig: the rig tracked with (its image size and projections).
-        config: the tracker's tunables (the checks': ``lost_ratio``, ``min_texture_ratio``).
+        config: the tracker's tunables (the checks': ``lost_ratio``, ``min_texture_ratio``,
+            ``gap_lost_ratio``).
+        after_gap: whether the pair comes after dropped pairs or bad frames, or re-acquires a
+            lost track: its residual is checked against the stricter of ``lost_ratio`` and
+            ``gap_lost_ratio``.
     """
     if not np.all(np.isfinite(nodes)):
         return 'non-finite nodes'
@@ -51,8 +58,9 @@ def loss_reason(
     with np.errstate(invalid='ignore', divide='ignore'):
         ratios = statistics.rms[0] / statistics.contrast
     ratio = nanmedian(ratios)
-    if not ratio <= config.lost_ratio:
-        return f'patch residual / contrast {ratio:.2f} exceeds {config.lost_ratio}'
+    limit = min(config.lost_ratio, config.gap_lost_ratio) if after_gap else config.lost_ratio
+    if not ratio <= limit:
+        return f'patch residual / contrast {ratio:.2f} exceeds {limit}'
     with np.errstate(invalid='ignore', divide='ignore'):
         texture = nanmedian(statistics.image_contrast / statistics.contrast)
     if not texture >= config.min_texture_ratio:
