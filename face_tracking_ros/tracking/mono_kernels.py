@@ -31,13 +31,17 @@ with the numpy expressions of the same equations to rounding and a diverged solv
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numba
 import numpy as np
 from numpy.linalg import LinAlgError
 
 from face_tracking_ros.compiled import EXACT, FAST
-from face_tracking_ros.imaging.photometric import project_out
+from face_tracking_ros.imaging.photometric import project_out, project_out_row
 from face_tracking_ros.tracking.pixel_box import span
+
+MAD_TO_STD = 1.4826  # robust standard deviation from the median absolute deviation
 
 
 @numba.njit(**FAST)
@@ -192,6 +196,38 @@ def roi_points(
             x_row[m] = (m_00 * x + m_01 * y + m_02 * z + m_03) * inverse_depth
             y_row[m] = (m_10 * x + m_11 * y + m_12 * z + m_13) * inverse_depth
     return rotated, pixels
+
+
+@numba.njit('f8[::1](f8[:, :], f8[:, ::1], f8[:, ::1], f8)', **FAST)
+def node_visibility(
+    normals: np.ndarray, rotation: np.ndarray, nodes: np.ndarray, low: float
+) -> np.ndarray:
+    """(N,) weights in [0, 1]: ``clip((c - low) / max(low, 1e-6), 0, 1)`` per node.
+
+    c is the cosine between node n's outward normal turned by R (eq. 1) and the ray from the node
+    to the camera, ``-(R n_n) . X_n / |X_n|``.
+
+    Args:
+        normals: (N, 3) outward node normals, face frame.
+        rotation: (3, 3) R(omega).
+        nodes: (N, 3) camera-frame nodes X_n, m.
+        low: the cosine where the weight starts to rise from 0 (it reaches 1 at twice it).
+    """
+    weights = np.empty(len(nodes))
+    ramp = max(low, 1e-6)
+    for n in range(len(nodes)):
+        x, y, z = nodes[n, 0], nodes[n, 1], nodes[n, 2]
+        facing = 0.0
+        for a in range(3):
+            turned = (
+                rotation[a, 0] * normals[n, 0]
+                + rotation[a, 1] * normals[n, 1]
+                + rotation[a, 2] * normals[n, 2]
+            )
+            facing -= turned * nodes[n, a]
+        weight = (facing / np.sqrt(x * x + y * y + z * z) - low) / ramp
+        weights[n] = 0.0 if weight < 0.0 else (1.0 if weight > 1.0 else weight)  # NaN stays
+    return weights
 
 
 @numba.njit(
@@ -528,6 +564,179 @@ def normal_equations(
         for b in range(size):
             hessian[a, b] = (visible_hessian[a, b] + hessian[a, b]) * inverse_variance
     return cost, hessian, gradient
+
+
+@numba.njit('Tuple((f8, f8[::1]))(f8[:, ::1], f8[::1])', **EXACT)
+def prior_terms(prior_hessian: np.ndarray, coefficients: np.ndarray) -> tuple[float, np.ndarray]:
+    """The priors' cost ``x' L x`` and halved gradient ``L x`` (:class:`~.mono_priors.Priors`).
+
+    Args:
+        prior_hessian: (P, P) the priors' precision L padded to the pose (zero over it).
+        coefficients: (P - 6,) x: alpha (then sigma).
+
+    Returns:
+        ``(cost, L x)``, the latter (P - 6,).
+    """
+    first = prior_hessian.shape[0] - coefficients.size
+    gradient = np.empty(coefficients.size)
+    cost = 0.0
+    for a in range(coefficients.size):
+        total = 0.0
+        for b in range(coefficients.size):
+            total += prior_hessian[first + a, first + b] * coefficients[b]
+        gradient[a] = total
+        cost += coefficients[a] * total
+    return cost, gradient
+
+
+class Iteration(NamedTuple):
+    """What :func:`iteration` makes of one Levenberg-Marquardt iteration (see there)."""
+
+    residuals: np.ndarray
+    cost: float
+    hessian: np.ndarray
+    gradient: np.ndarray
+    scale: float
+    step: np.ndarray
+    motion: float
+
+
+@numba.njit(
+    [
+        f'Tuple((f8[:, ::1], f8, f8[:, ::1], f8[::1], f8, f8[::1], f8))(f4[:, ::1], '
+        f'{template}[:, ::1], f8[:, :, ::1], f8[:, ::1], b1[:, ::1], f8, f8, f8, f8[:, ::1], '
+        'f8[:, ::1], f8[:, ::1], f8[::1], f8, f8, f8[:, ::1])'
+        for template in ('f4', 'f8')
+    ],
+    **FAST,
+)
+def _iteration(
+    samples: np.ndarray,
+    template: np.ndarray,
+    basis_rows: np.ndarray,
+    visibility: np.ndarray,
+    inside: np.ndarray,
+    scale: float,
+    scale_floor: float,
+    k: float,
+    jacobian_t: np.ndarray,
+    visible_hessian: np.ndarray,
+    prior_hessian: np.ndarray,
+    coefficients: np.ndarray,
+    damping: float,
+    accepted_cost: float,
+    node_jacobian: np.ndarray,
+) -> tuple[np.ndarray, float, np.ndarray, np.ndarray, float, np.ndarray, float]:
+    """:func:`iteration`'s work on its arguments as arrays (NaN ``scale``: estimate it)."""
+    count, size = samples.shape
+    residuals = np.empty((count, size))
+    weights = np.empty((count, size))
+    projection_weights = np.empty(basis_rows.shape[1])
+    active = np.empty(count * size)
+    found = 0
+    for n in range(count):
+        row = residuals[n]
+        for m in range(size):
+            row[m] = samples[n, m] - template[n, m]
+        project_out_row(row, basis_rows[n], projection_weights)
+        for m in range(size):
+            weights[n, m] = visibility[n, m] * inside[n, m]
+            if weights[n, m] > 0.0:
+                active[found] = abs(row[m])
+                found += 1
+    if np.isnan(scale):
+        spread = MAD_TO_STD * np.median(active[:found]) if found else 0.0
+        scale = max(scale_floor, spread)
+    cost, hessian, gradient = normal_equations(
+        jacobian_t, residuals, weights, visibility, scale, k, visible_hessian
+    )
+    prior_cost, prior_gradient = prior_terms(prior_hessian, coefficients)
+    cost += prior_cost
+    first = gradient.size - coefficients.size
+    for a in range(first, gradient.size):
+        gradient[a] += prior_gradient[a - first]
+    for a in range(gradient.size):
+        for b in range(gradient.size):
+            hessian[a, b] += prior_hessian[a, b]
+    if cost > accepted_cost:  # the level ends before this point: no step from it
+        return residuals, cost, hessian, gradient, scale, np.empty(0), 0.0
+    step = damped_step(hessian, gradient, damping)
+    motion = 0.0
+    for i in range(node_jacobian.shape[0]):
+        total = 0.0
+        for a in range(step.size):
+            total += node_jacobian[i, a] * step[a]
+        motion = max(motion, abs(total))
+    return residuals, cost, hessian, gradient, scale, step, motion
+
+
+def iteration(
+    samples: np.ndarray,
+    template: np.ndarray,
+    basis_rows: np.ndarray,
+    visibility: np.ndarray,
+    inside: np.ndarray,
+    scale: float | None,
+    scale_floor: float,
+    k: float,
+    linear: tuple[np.ndarray, np.ndarray, np.ndarray],
+    prior_hessian: np.ndarray,
+    coefficients: np.ndarray,
+    damping: float,
+    accepted_cost: float,
+) -> Iteration:
+    """One Levenberg-Marquardt iteration of eq. 6 on a pyramid level, in one compiled pass.
+
+    From the level's samples at the iteration's point: the residuals ``(1 - P) (I - T)``
+    (photometrically projected, :func:`~face_tracking_ros.imaging.photometric.project_out`); the
+    robust scale s if not given (``max(scale_floor, 1.4826 median |r|)`` over the samples of
+    nonzero weight); the Huber cost and IRLS normal equations (:func:`normal_equations`) with the
+    priors' ``x' L x``, ``L x`` and L added; and, unless the cost exceeds ``accepted_cost``, the
+    damped step (:func:`damped_step`) and the most it moves a node, level px.
+
+    Args:
+        samples: (N, M) float32 samples of the level at the point.
+        template: (N, M) float32 or float64 template T.
+        basis_rows: (N, K, M) orthonormal rows U' of each patch's brightness changes.
+        visibility: (N, M) the samples' visibility weights V.
+        inside: (N, M) the samples inside the image (the others weigh 0).
+        scale: the robust residual scale s, or None to estimate it from these residuals.
+        scale_floor: the least estimated s.
+        k: the Huber threshold, in units of s.
+        linear: the linearisation's (P, N M) projected J', (P, P) ``J' V J`` and (2 N, P) node
+            Jacobian.
+        prior_hessian: (P, P) the priors' precision L, zero over the pose.
+        coefficients: (P - 6,) alpha (then sigma) at the point.
+        damping: lambda of the step, relative to diag(H).
+        accepted_cost: the cost of the level's last accepted point (inf for none).
+
+    Returns:
+        The :class:`Iteration`: (N, M) residuals, the cost (data plus priors), (P, P) H and (P,)
+        g, the scale, the (P,) step (empty when the cost rose) and its largest node motion.
+
+    Raises:
+        LinAlgError: as :func:`damped_step`.
+    """
+    jacobian_t, visible_hessian, node_jacobian = linear
+    return Iteration(
+        *_iteration(
+            samples,
+            template,
+            basis_rows,
+            visibility,
+            inside,
+            np.nan if scale is None else scale,
+            scale_floor,
+            k,
+            jacobian_t,
+            visible_hessian,
+            prior_hessian,
+            coefficients,
+            damping,
+            accepted_cost,
+            node_jacobian,
+        )
+    )
 
 
 @numba.njit(

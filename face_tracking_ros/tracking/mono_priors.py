@@ -13,16 +13,15 @@ import numpy as np
 from scipy.linalg import inv
 
 from face_tracking_ros.model.face_model import FaceModel
-from face_tracking_ros.tracking.mono_rois import Params
 from face_tracking_ros.tracking.projection import POSE_DIM
 
 
 class Priors(NamedTuple):
     """The Gaussian priors of §4.1 on alpha and sigma: their precisions ``lambda Sigma^-1``.
 
-    Their costs, gradients and Hessians are in the solve's units (squared residuals over the
-    robust scale s squared) and padded to the pose, the gradients and Hessians halved like the
-    data term's.
+    Their Hessians are in the solve's units (squared residuals over the robust scale s squared),
+    padded to the pose and halved like the data term's; the costs and halved gradients are
+    :func:`~.mono_kernels.prior_terms` of them.
 
     Attributes:
         alpha_precision: (q, q) ``lambda Sigma_alpha^-1``.
@@ -48,17 +47,3 @@ class Priors(NamedTuple):
         if free_sigma:
             hessian[POSE_DIM + q :, POSE_DIM + q :] = self.sigma_precision
         return hessian
-
-    def gradient(self, params: Params, free_sigma: bool) -> np.ndarray:
-        """Gradient (halved) of the alpha (and sigma) priors, padded to the pose."""
-        blocks = [np.zeros(POSE_DIM), self.alpha_precision @ params.alpha]
-        if free_sigma:
-            blocks.append(self.sigma_precision @ params.sigma)
-        return np.concatenate(blocks)
-
-    def cost(self, params: Params, free_sigma: bool) -> float:
-        """``alpha' L_a alpha`` (+ ``sigma' L_s sigma`` while sigma is free)."""
-        cost = float(params.alpha @ self.alpha_precision @ params.alpha)
-        if free_sigma:
-            cost += float(params.sigma @ self.sigma_precision @ params.sigma)
-        return cost

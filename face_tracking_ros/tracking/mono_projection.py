@@ -18,7 +18,7 @@ from face_tracking_ros.geometry.camera import PinholeCamera
 from face_tracking_ros.geometry.rotation import rodrigues
 from face_tracking_ros.imaging import GRADIENT_MARGIN, ImagePyramid, sample_maps
 from face_tracking_ros.model.face_model import FaceModel
-from face_tracking_ros.tracking.mono_kernels import roi_maps
+from face_tracking_ros.tracking.mono_kernels import node_visibility, roi_maps
 from face_tracking_ros.tracking.mono_rois import Params, Roi
 
 
@@ -138,11 +138,7 @@ class FaceProjection:
     def visibility(self, params: Params, normals: np.ndarray) -> np.ndarray:
         """(N,) weights in [0, 1] from the angle between node normals and rays to the camera."""
         posed = self._posed_at(params)
-        nodes = posed.nodes[0]
-        rays = nodes / np.linalg.norm(nodes, axis=1, keepdims=True)
-        facing = -np.einsum('na,na->n', normals @ posed.rotation.T, rays)
-        low = self._visibility_cos
-        return np.clip((facing - low) / max(low, 1e-6), 0.0, 1.0)
+        return node_visibility(normals, posed.rotation, posed.nodes[0], self._visibility_cos)
 
     def points(self, params: Params, level: int, roi: Roi, stencil: bool = False) -> RoiMaps:
         """Level ``level``'s ROI points ``roi`` at ``params`` (eq. 1-3), ready to sample.

@@ -35,18 +35,15 @@ from face_tracking_ros.model.face_model import FaceModel
 from face_tracking_ros.tracking.coarse_to_fine import coarse_to_fine
 from face_tracking_ros.tracking.mono_config import MonoTrackerConfig
 from face_tracking_ros.tracking.mono_kernels import (
-    damped_step,
     huber_irls,
+    iteration,
     linearised,
-    normal_equations,
+    prior_terms,
 )
 from face_tracking_ros.tracking.mono_priors import Priors
 from face_tracking_ros.tracking.mono_projection import FaceProjection, Sampled
 from face_tracking_ros.tracking.mono_rois import Params, Roi
 from face_tracking_ros.tracking.projection import POSE_DIM
-from face_tracking_ros.tracking.robust import median
-
-_MAD_TO_STD = 1.4826  # robust standard deviation from the median absolute deviation
 
 
 class Level(NamedTuple):
@@ -92,14 +89,25 @@ class Linearisation(NamedTuple):
 
 
 class System(NamedTuple):
-    """Eq. 6 normal equations at one parameter vector on one pyramid level."""
+    """Eq. 6 normal equations at one parameter vector on one pyramid level, and the step from it.
+
+    Attributes:
+        cost: the cost, data term and priors.
+        hessian: (P, P) the normal matrix H.
+        scale: the robust residual scale s.
+        sampled: the level's samples at the point.
+        residuals: (N, M) their photometrically projected residuals.
+        step: (P,) the damped step from the point (empty if the cost rose: none is taken).
+        motion: the most the step moves a node, level px.
+    """
 
     cost: float
     hessian: np.ndarray
-    gradient: np.ndarray
     scale: float
     sampled: Sampled
-    residuals: np.ndarray  # (N, M), photometrically projected
+    residuals: np.ndarray
+    step: np.ndarray
+    motion: float
 
 
 class Solution(NamedTuple):
@@ -151,7 +159,6 @@ class MonoSolver:
         self._q = model.q
         self._face = face
         self._invariance = invariance
-        self._priors = priors
         self._action_basis = np.ascontiguousarray(model.action_basis_nodes())  # (N, 3, q)
         self._identity_action_basis = np.concatenate(
             (self._action_basis, model.shape_basis_nodes()), axis=-1
@@ -224,7 +231,7 @@ class MonoSolver:
         first = self._face.sample(pyramid, params, 0, rois[0])
         residuals = projection(0).residuals(first.samples, templates[0])
         weights = node_weights[:, None] * first.inside
-        cost = self._data_cost(residuals, weights, system.scale) + self._priors.cost(
+        cost = self._data_cost(residuals, weights, system.scale) + self._prior_cost(
             params, free_sigma
         )
         if cost > system.cost:  # the last, unchecked step made things worse
@@ -264,19 +271,19 @@ class MonoSolver:
         scale = None
         moved = 0.0
         for _ in range(config.max_iterations):
-            system = self._evaluate(level, params, linear, scale)
+            damping = max(0.1 * damping, 1e-9)  # the step's, if this point is accepted
+            bound = np.inf if accepted is None else accepted[1].cost
+            system = self._evaluate(level, params, linear, scale, damping, bound)
             scale = system.scale
             costs.append(system.cost)
-            if accepted is not None and system.cost > accepted[1].cost:
+            if accepted is not None and system.cost > bound:
                 return accepted[0], accepted  # no lower cost within reach: the level ends here
             accepted = (params, system)
-            damping = max(0.1 * damping, 1e-9)
-            step = damped_step(system.hessian, system.gradient, damping)
-            motion = np.abs(linear.node_jacobian @ step).max(initial=0.0)
+            motion = system.motion
             if motion > first_step_limit:
                 return None, accepted
             first_step_limit = np.inf
-            params = params.updated(step, self._q)
+            params = params.updated(system.step, self._q)
             if motion < converged:
                 break
             moved += motion
@@ -319,51 +326,67 @@ class MonoSolver:
         params: Params,
         linear: Linearisation,
         scale: float | None,
+        damping: float,
+        bound: float,
     ) -> System:
-        """Residuals, Huber-weighted normal equations and cost of eq. 6 on one level.
+        """Residuals, Huber-weighted normal equations, cost and step of eq. 6 on one level.
 
         ``J' W J`` is the linearisation's ``J' V J`` plus the columns of the samples whose IRLS
-        weight W (Huber times visibility times inside the image) differs from their visibility V.
+        weight W (Huber times visibility times inside the image) differs from their visibility V;
+        the priors' terms are added, and the damped step taken unless the cost exceeds ``bound``
+        (:func:`~.mono_kernels.iteration`, one compiled call after the sampling).
 
         Args:
             level: the pyramid level, with its template, photometric projection and visibility.
             params: where to evaluate.
             linear: the Jacobian (from a nearby linearisation point).
             scale: the robust residual scale s, or None to estimate it from these residuals.
+            damping: the step's damping lambda.
+            bound: the cost of the level's last accepted point (inf for none).
         """
         sampled = (
             linear.sampled
             if params is linear.params
             else self._face.sample(level.pyramid, params, level.index, level.roi)
         )
-        residuals = level.projection.residuals(sampled.samples, level.template)
-        weights = level.visibility * sampled.inside
-        if scale is None:
-            active = np.abs(residuals[weights > 0])
-            spread = _MAD_TO_STD * median(active) if active.size else 0.0
-            scale = max(self._config.residual_scale_floor, spread)
-        data_cost, hessian, gradient = normal_equations(
-            linear.jacobian_t,
-            residuals,
-            weights,
-            level.visibility,
-            scale,
-            self._config.huber_k,
-            linear.hessian,
-        )
         free_sigma = linear.jacobian_t.shape[0] > POSE_DIM + self._q
-        return System(
-            cost=data_cost + self._priors.cost(params, free_sigma),
-            hessian=hessian + self._prior_hessians[free_sigma],
-            gradient=gradient + self._priors.gradient(params, free_sigma),
-            scale=scale,
-            sampled=sampled,
-            residuals=residuals,
+        result = iteration(
+            sampled.samples,
+            level.template,
+            level.projection.basis_rows,
+            level.visibility,
+            sampled.inside,
+            scale,
+            self._config.residual_scale_floor,
+            self._config.huber_k,
+            (linear.jacobian_t, linear.hessian, linear.node_jacobian),
+            self._prior_hessians[free_sigma],
+            _coefficients(params, free_sigma),
+            damping,
+            bound,
         )
+        return System(
+            cost=result.cost,
+            hessian=result.hessian,
+            scale=result.scale,
+            sampled=sampled,
+            residuals=result.residuals,
+            step=result.step,
+            motion=result.motion,
+        )
+
+    def _prior_cost(self, params: Params, free_sigma: bool) -> float:
+        """The priors' cost at ``params``, as :func:`~.mono_kernels.iteration` adds it."""
+        return prior_terms(self._prior_hessians[free_sigma], _coefficients(params, free_sigma))[0]
 
     def _data_cost(self, residuals: np.ndarray, weights: np.ndarray, scale: float) -> float:
         """Huber cost ``sum w rho(r / s)`` of (N, M) residuals with (N, M) weights."""
         return huber_irls(residuals, weights, scale, self._config.huber_k)[1]
+
+
+def _coefficients(params: Params, free_sigma: bool) -> np.ndarray:
+    """The coefficients the priors weigh: alpha, then sigma while it is free."""
+    return np.concatenate((params.alpha, params.sigma)) if free_sigma else params.alpha
 
 
 def _condition(hessian: np.ndarray) -> float:

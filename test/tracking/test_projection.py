@@ -22,6 +22,7 @@ from face_tracking_ros.model.topology import mesh_topology
 from face_tracking_ros.tracking.mono_kernels import (
     damped_step,
     huber_irls,
+    iteration,
     linearised,
     normal_equations,
     roi_jacobian,
@@ -356,3 +357,51 @@ def test_normal_equations_and_damped_step_match_their_formulas() -> None:
     hessian[2, 3] = np.nan
     with pytest.raises(LinAlgError, match='non-finite normal equations'):
         damped_step(hessian, gradient, 0.1)
+
+
+def test_an_iteration_is_its_residuals_scale_normal_equations_priors_and_step() -> None:
+    """:func:`iteration` in one call is the parts it fuses, taken one at a time."""
+    rng = np.random.default_rng(5)
+    invariance = PhotometricInvariance.of(PhotometricModel.GAIN_FIELD, square_offsets(1))
+    template = rng.uniform(50.0, 200.0, (4, 9))
+    samples = (template + rng.normal(0.0, 4.0, (4, 9))).astype(np.float32)
+    projection = invariance.projection(template)
+    visibility = np.repeat(rng.uniform(0.5, 1.0, (4, 1)), 9, axis=1)
+    inside = np.ones((4, 9), dtype=bool)
+    inside[1, :4] = False
+    jacobian_t = rng.normal(size=(8, 36))
+    visible_hessian = weighted_gram(jacobian_t, visibility.ravel())
+    node_jacobian = rng.normal(size=(8, 8))
+    prior_hessian = np.zeros((8, 8))
+    prior_hessian[6:, 6:] = [[2.0, 0.5], [0.5, 1.0]]
+    alpha = np.array([0.3, -0.2])
+    linear = (jacobian_t, visible_hessian, node_jacobian)
+
+    result = iteration(
+        samples, template, projection.basis_rows, visibility, inside, None, 0.5, 1.345, linear,
+        prior_hessian, alpha, 1e-3, np.inf,
+    )  # fmt: skip
+
+    residuals = projection.residuals(samples, template)
+    weights = visibility * inside
+    scale = 1.4826 * np.median(np.abs(residuals[weights > 0]))
+    cost, hessian, gradient = normal_equations(
+        jacobian_t, residuals, weights, visibility, scale, 1.345, visible_hessian
+    )
+    cost += alpha @ prior_hessian[6:, 6:] @ alpha
+    hessian += prior_hessian
+    gradient[6:] += prior_hessian[6:, 6:] @ alpha
+    step = damped_step(hessian, gradient, 1e-3)
+    assert np.abs(result.residuals - residuals).max() < 1e-12
+    assert result.scale == pytest.approx(scale, rel=1e-12)
+    assert result.cost == pytest.approx(cost, rel=1e-12)
+    assert np.abs(result.hessian - hessian).max() < 1e-10 * np.abs(hessian).max()
+    assert np.abs(result.gradient - gradient).max() < 1e-10 * np.abs(gradient).max()
+    assert np.abs(result.step - step).max() < 1e-10 * np.abs(step).max()
+    assert result.motion == pytest.approx(np.abs(node_jacobian @ step).max(), rel=1e-12)
+    # A given scale is kept; from a point costing more than the bound no step is taken.
+    again = iteration(
+        samples, template, projection.basis_rows, visibility, inside, 3.0, 0.5, 1.345, linear,
+        prior_hessian, alpha, 1e-3, 0.0,
+    )  # fmt: skip
+    assert again.scale == 3.0 and again.step.size == 0 and again.motion == 0.0
