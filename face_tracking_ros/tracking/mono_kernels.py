@@ -15,12 +15,15 @@ over the samples of a pyramid level:
   its rows' photometric projection and ``J' V J``;
 - :func:`huber_irls`, :func:`normal_equations`, :func:`weighted_gram`: eq. 6's robust cost and
   its IRLS normal equations;
-- :func:`damped_step`: the Levenberg-Marquardt step.
+- :func:`damped_step`: the Levenberg-Marquardt step; :func:`iteration` makes a whole iteration
+  from a level's samples in one call: the projected residuals, the robust scale, the normal
+  equations with the priors (:func:`prior_terms`) and the step;
+- :func:`condition_number`: the loss check's condition number of the solution's normal matrix;
+  :func:`node_visibility`: the nodes' visibility weights.
 
-A level's linearisation is thus two compiled calls around one ``cv2.remap``, an evaluation two
-around another (the points, then the projected residuals of
-:meth:`~face_tracking_ros.imaging.PhotometricProjection.residuals`): the Python glue between
-kernels cost as much as the kernels.
+A level's linearisation is thus two compiled calls around one ``cv2.remap``, an iteration two
+around another (the points, then :func:`iteration`): the Python glue between kernels cost as
+much as the kernels.
 
 Arrays are component-major (one contiguous row per coordinate or parameter), and the loops run
 along a node's M samples, so the compiler vectorises them. Kernels are typed (compiled when this
@@ -799,6 +802,26 @@ def linearised(
     return jacobian_t, weighted_gram(jacobian_t, visibility), node_jacobian
 
 
+@numba.njit('f8(f8[:, ::1])', **FAST)
+def condition_number(hessian: np.ndarray) -> float:
+    """Condition number of the Jacobi-scaled normal matrix ``S H S``, ``S = diag(H)^-1/2``.
+
+    Its largest eigenvalue over its smallest; inf when that is not positive (singular, or left
+    slightly indefinite by rounding: a negative condition would pass ``condition >
+    max_condition``).
+    """
+    size = hessian.shape[0]
+    scaling = np.empty(size)
+    for a in range(size):
+        scaling[a] = 1.0 / np.sqrt(max(hessian[a, a], 1e-12))
+    scaled = np.empty((size, size))
+    for a in range(size):
+        for b in range(size):
+            scaled[a, b] = hessian[a, b] * scaling[a] * scaling[b]
+    eigenvalues = np.linalg.eigvalsh(scaled)
+    return eigenvalues[-1] / eigenvalues[0] if eigenvalues[0] > 0 else np.inf
+
+
 @numba.njit('f8(f8[::1], i8, i8)', **EXACT)
 def _pairwise_sum(values: np.ndarray, start: int, count: int) -> float:
     """The sum of ``values[start:start + count]`` in numpy's order (its ``pairwise_sum``).
@@ -845,4 +868,28 @@ def row_rms(values: np.ndarray) -> np.ndarray:
         for m in range(size):
             squares[m] = values[n, m] * values[n, m]
         rms[n] = np.sqrt(_pairwise_sum(squares, 0, size) / size)
+    return rms
+
+
+@numba.njit(
+    [f'f8[::1]({values}[:, ::1], f8[:, :, ::1])' for values in ('f4', 'f8')],
+    **FAST,
+)
+def projected_rms(values: np.ndarray, basis_rows: np.ndarray) -> np.ndarray:
+    """(N,) RMS of each row of (N, M) values projected by ``1 - U U'``: a ROI's texture.
+
+    :func:`row_rms` of :meth:`~face_tracking_ros.imaging.PhotometricProjection.apply`, in one
+    pass (:mod:`.mono_loss`); (N, K, M) or (1, K, M) orthonormal rows U' (one basis for all).
+    """
+    count, size = values.shape
+    rms = np.empty(count)
+    row = np.empty(size)
+    weights = np.empty(basis_rows.shape[1])
+    for n in range(count):
+        for m in range(size):
+            row[m] = values[n, m]
+        project_out_row(row, basis_rows[n if len(basis_rows) > 1 else 0], weights)
+        for m in range(size):
+            row[m] *= row[m]
+        rms[n] = np.sqrt(_pairwise_sum(row, 0, size) / size)
     return rms

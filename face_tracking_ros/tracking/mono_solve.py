@@ -35,6 +35,7 @@ from face_tracking_ros.model.face_model import FaceModel
 from face_tracking_ros.tracking.coarse_to_fine import coarse_to_fine
 from face_tracking_ros.tracking.mono_config import MonoTrackerConfig
 from face_tracking_ros.tracking.mono_kernels import (
+    condition_number,
     huber_irls,
     iteration,
     linearised,
@@ -227,7 +228,7 @@ class MonoSolver:
 
         params = coarse_to_fine(pyramid.num_levels, first_level, restart_px, start, solve)
         fallback, system = accepted[-1]  # level 0's
-        condition = _condition(system.hessian)
+        condition = condition_number(system.hessian)
         first = self._face.sample(pyramid, params, 0, rois[0])
         residuals = projection(0).residuals(first.samples, templates[0])
         weights = node_weights[:, None] * first.inside
@@ -387,10 +388,3 @@ class MonoSolver:
 def _coefficients(params: Params, free_sigma: bool) -> np.ndarray:
     """The coefficients the priors weigh: alpha, then sigma while it is free."""
     return np.concatenate((params.alpha, params.sigma)) if free_sigma else params.alpha
-
-
-def _condition(hessian: np.ndarray) -> float:
-    """Condition number of the Jacobi-scaled normal matrix (inf when singular)."""
-    scaling = 1.0 / np.sqrt(np.maximum(np.diag(hessian), 1e-12))
-    eigenvalues = np.linalg.eigvalsh(hessian * scaling[:, None] * scaling[None, :])
-    return float(eigenvalues[-1] / eigenvalues[0]) if eigenvalues[0] > 0 else float('inf')
