@@ -298,6 +298,20 @@ def test_stereo_tracker_counts_the_intervals_of_bad_frames(stereo_gapped, stereo
     assert np.array_equal([r.nodes_cam for r in tracked], [r.nodes_cam for r in stereo_tracked])
 
 
+def _stereo_started(scene: SceneConfig) -> tuple[list, StereoRig, np.ndarray, StereoTracker]:
+    """Subject 0's frames of a stereo scene, its rig, its (F, 34, 3) true nodes, and a tracker.
+
+    The tracker is reset at frame 0's true nodes.
+    """
+    renderer = SequenceRenderer(scene, 0)
+    frames = list(renderer.frames(0))
+    rig = StereoRig(renderer.cameras['left'], renderer.cameras['right'])
+    nodes = np.array([frame.truth.nodes_camera[:34] for frame in frames])
+    tracker = StereoTracker(rig, StereoTrackerConfig())
+    tracker.reset(rig.left.project(nodes[0]))
+    return frames, rig, nodes, tracker
+
+
 def test_stereo_tracker_bridges_gaps_at_10_fps():
     """At 10 fps, after 2 and then 3 dropped pairs, every pair is tracked within 11.5 mm RMS.
 
@@ -308,12 +322,7 @@ def test_stereo_tracker_bridges_gaps_at_10_fps():
     prediction: 8.5 mm after the first gap and 11.2 mm after the second (8.7 mm at most
     before the gaps).
     """
-    renderer = SequenceRenderer(SLOW_STEREO_SCENE, 0)
-    frames = list(renderer.frames(0))
-    rig = StereoRig(renderer.cameras['left'], renderer.cameras['right'])
-    nodes = np.array([frame.truth.nodes_camera[:34] for frame in frames])
-    tracker = StereoTracker(rig, StereoTrackerConfig())
-    tracker.reset(rig.left.project(nodes[0]))
+    frames, rig, nodes, tracker = _stereo_started(SLOW_STEREO_SCENE)
     rms_mm = []
     for before, pair in itertools.pairwise([0, *SLOW_STEREO_KEPT]):
         images = frames[pair].images
@@ -354,12 +363,7 @@ def test_stereo_tracker_bridges_three_dropped_pairs_at_10_fps():
     stopped on a step of 0.5 of its px, 4 px of level 0, 9 px off. Every pair is now tracked,
     the inner nodes within 1 px of the truth (0.3 px at pair 41).
     """
-    renderer = SequenceRenderer(FAR_STEREO_SCENE, 0)
-    frames = list(renderer.frames(0))
-    rig = StereoRig(renderer.cameras['left'], renderer.cameras['right'])
-    nodes = np.array([frame.truth.nodes_camera[:34] for frame in frames])
-    tracker = StereoTracker(rig, StereoTrackerConfig())
-    tracker.reset(rig.left.project(nodes[0]))
+    frames, rig, nodes, tracker = _stereo_started(FAR_STEREO_SCENE)
     inner = ~tracker.topology.group_mask(Group.EDGE)
     for before, pair in itertools.pairwise([0, *FAR_STEREO_KEPT]):
         images = frames[pair].images

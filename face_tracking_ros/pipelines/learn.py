@@ -26,7 +26,7 @@ from collections.abc import Callable, Collection, Sequence
 from dataclasses import replace
 from pathlib import Path
 import time
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -79,6 +79,21 @@ from face_tracking_ros.wording import counted
 # LearnOptions fields that label the meshes of bags without truth (set: not None, not 0): the
 # subject by the bag's name, the neutral frames by their index.
 NO_TRUTH_LABELS = ('subject', 'subject_pattern', 'neutral_frames')
+
+
+class _Labelling(NamedTuple):
+    """What may label one bag's meshes (:func:`~.mesh_bags.bag_subjects`' arguments).
+
+    Attributes:
+        bag: the bag.
+        truth: the bag whose truth labels its meshes (:func:`_truth_bags`), if any.
+        truth_meshes: whether its meshes may be its own FaceTruth messages: it holds truth and
+            is not tracked.
+    """
+
+    bag: Path
+    truth: Path | None
+    truth_meshes: bool
 
 
 def learn_from_bags(options: LearnOptions, say: Callable[[str], None] = print) -> Path:
@@ -147,8 +162,14 @@ def _checked_before_tracking(
     raw = checked_stereo_bags(options, reads)
     truth_bags = _truth_bags(options, raw, unlabelled)
     _check_truth_pairs(options.bags, truth_bags)
-    _check_no_truth_options(options, raw, truth_bags, unlabelled, reads)
-    _check_subjects(options, raw, truth_bags, unlabelled, reads)
+    labellings = [
+        _Labelling(bag, truth, bag not in raw and bag not in unlabelled)
+        for bag, truth in zip(options.bags, truth_bags, strict=True)
+    ]
+    _check_no_truth_options(options, labellings, reads)
+    named = options.truth is None and len(unlabelled) == len(options.bags)
+    if raw or named:
+        _check_subjects(options, labellings, reads)
     return stereo_initialisations(raw, options), truth_bags
 
 
@@ -167,35 +188,23 @@ def _truth_bags(
     ]
 
 
-def _check_subjects(
-    options: LearnOptions,
-    raw: Collection[Path],
-    truth_bags: Sequence[Path | None],
-    unlabelled: Collection[Path],
-    reads: BagReads,
-) -> None:
+def _check_subjects(options: LearnOptions, labellings: list[_Labelling], reads: BagReads) -> None:
     """Refuse too few subjects for p before any bag is tracked, where the bags say who they are.
 
     Each bag's subjects are those its meshes will have (:func:`~.mesh_bags.bag_subjects`): its
     truth's, read by ``reads`` without its images or meshes, else the one its name gives.
-    They are counted when a raw stereo bag (of ``raw``) is to be tracked, or when all come from
-    the bags' names (no bag of ``options.bags`` holds truth: all are ``unlabelled``, and no
-    ``truth`` bags); else (bags of meshes and truth only) the learners count them once the
-    meshes are read (:func:`~face_tracking_ros.learning.seed.check_dimensions`, the same
-    message), after the meshes' own checks.
+    They are counted (by :func:`_checked_before_tracking`) when a raw stereo bag is to be
+    tracked, or when all come from the bags' names (no bag holds truth, and no ``truth`` bags);
+    else (bags of meshes and truth only) the learners count them once the meshes are read
+    (:func:`~face_tracking_ros.learning.seed.check_dimensions`, the same message), after the
+    meshes' own checks.
 
     Raises:
         ConfigError: if fewer than p + 1 subjects (2 when ``explained_variance`` chooses p), or
             a bag's name that ``subject_pattern`` does not match.
         BagError, InputError: for truth the reading of the meshes would refuse.
     """
-    named = options.truth is None and len(unlabelled) == len(options.bags)
-    if not (raw or named):
-        return
-    subjects = [
-        bag_subjects(bag, options, truth, _truth_meshes(bag, raw, unlabelled), reads)
-        for bag, truth in zip(options.bags, truth_bags, strict=True)
-    ]
+    subjects = [bag_subjects(b.bag, options, b.truth, b.truth_meshes, reads) for b in labellings]
     if not all(subjects):  # a truth bag naming none: refused when the meshes are read
         return
     count = len(set().union(*subjects))
@@ -203,11 +212,7 @@ def _check_subjects(
 
 
 def _check_no_truth_options(
-    options: LearnOptions,
-    raw: Collection[Path],
-    truth_bags: Sequence[Path | None],
-    unlabelled: Collection[Path],
-    reads: BagReads,
+    options: LearnOptions, labellings: list[_Labelling], reads: BagReads
 ) -> None:
     """Refuse the options that label bags without truth when truth labels every bag's meshes.
 
@@ -223,8 +228,7 @@ def _check_no_truth_options(
     """
     given = [field for field in NO_TRUTH_LABELS if getattr(options, field)]
     if not given or any(
-        subject_from_name(bag, options, truth, _truth_meshes(bag, raw, unlabelled), reads)
-        for bag, truth in zip(options.bags, truth_bags, strict=True)
+        subject_from_name(b.bag, options, b.truth, b.truth_meshes, reads) for b in labellings
     ):
         return
     msg = (
@@ -233,11 +237,6 @@ def _check_no_truth_options(
         'neutral labels'
     )
     raise ConfigError(msg)
-
-
-def _truth_meshes(bag: Path, raw: Collection[Path], unlabelled: Collection[Path]) -> bool:
-    """Whether a bag's meshes may be its own FaceTruth messages: it holds truth, is not tracked."""
-    return bag not in raw and bag not in unlabelled
 
 
 def _mesh_bags(
