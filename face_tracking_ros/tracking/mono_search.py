@@ -1,9 +1,11 @@
-"""Where a lost face is: frame 1's inner face found in an image by correlation.
+"""Where a lost face is: a view of its inner face found in an image by correlation.
 
 The monocular tracker re-acquires a lost face without a detector: it solves eq. 6 against the
 keyframe templates from the initial pose translated parallel to the image plane onto the spot
 where frame 1's inner face (the nodes off the face edge) correlates best with the image
-(normalised cross-correlation, robust to a gain and bias). :class:`FaceView` is that face.
+(normalised cross-correlation, robust to a gain and bias). After dropped images it also solves
+eq. 6 of a followed frame from where the last valid frame's inner face correlates best.
+:class:`FaceView` is such a view.
 """
 
 from __future__ import annotations
@@ -21,7 +23,7 @@ _SEARCH_LEVEL = 1
 
 
 class FaceView(NamedTuple):
-    """Frame 1's inner face on the search's pyramid level.
+    """A frame's inner face on the search's pyramid level.
 
     Attributes:
         image: (h, w) crop of that level around the inner nodes.
@@ -36,7 +38,7 @@ class FaceView(NamedTuple):
         """The crop of the search level spanned by the inner nodes.
 
         Args:
-            pyramid: frame 1's pyramid.
+            pyramid: the frame's pyramid.
             nodes_px: (N, 2) level-0 pixels of the nodes.
             inner: (N,) the nodes off the face edge.
         """
