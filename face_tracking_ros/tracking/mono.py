@@ -352,9 +352,10 @@ class MonoTracker:
         face correlates best with the image (:attr:`_Track.last_view`), checked at the same
         ratio. Frame 1's face is found only within some 25 degrees of its pose, while a head
         seen just before the gap is found as it turned on; the solve from the motion
-        prediction alone can settle 7-20 px off after a gap of fast motion. Measured at 10 fps
-        with 5 images dropped every 8-20 frames (true model, seeds 3 / 4 / 6): LOST frames 66 /
-        46 / 14 -> 3 / 39 / 8; at 30 fps with 20 dropped (seeds 1 / 2): 75 / 16 -> 36 / 12.
+        prediction alone can settle 7-21 px off after a gap of fast motion. Measured (with the
+        change in :meth:`_follow`) at 10 fps with 5 images dropped every 8-20 frames (true
+        model, seeds 1 / 3 / 4 / 6): LOST frames 13 / 66 / 46 / 14 -> 0 / 3 / 16 / 8; at 30 fps
+        with 20 dropped (seeds 1 / 2): 75 / 16 -> 36 / 12.
         Then a keyframe-only solve that fails the checks is made again from its solution with
         eq. 6's templates of a followed frame (:meth:`_blended_templates`), at the same ratio.
         After a long gap of fast motion the keyframe-only solve finds the face, but frame 1's
@@ -454,11 +455,11 @@ class MonoTracker:
         (:attr:`_Track.bridging`): over the gap the prediction can be several px off, and the
         solve from it settle 7-21 px off the face yet pass at ``lost_residual_ratio``, the track
         then staying that far off, TRACKING. If it fails there, the image is re-acquired
-        (:meth:`_reacquire`), or else LOST; it is not accepted at ``lost_residual_ratio`` after
-        all, as it was: measured on rendered free motion (true model, 10 fps, seeds 1-6 with 2 /
-        3 / 5 images dropped every 8-20 frames), that took 59 images TRACKING 6-21 px off on 3 of
-        18 runs and kept 10 others right (with the re-acquisition from the last valid frame's
-        face, which finds most of those).
+        (:meth:`_reacquire`), or else LOST; it is no longer accepted at ``lost_residual_ratio``
+        after all. Measured on rendered free motion (true model, 10 fps, seeds 1-6 with 2 / 3 /
+        5 images dropped every 8-20 frames), that took 59 images TRACKING 3.8-21 px off on 3 of
+        18 runs (now 0; the re-acquisition from the last valid frame's face finds most of them)
+        and kept one run's 9 images from a gap on right (0.8-1.0 px; 8 of them now LOST).
         """
         config = self._config
         strict = self._track.lost or self._track.bridging
