@@ -598,7 +598,6 @@ class Iteration(NamedTuple):
     residuals: np.ndarray
     cost: float
     hessian: np.ndarray
-    gradient: np.ndarray
     scale: float
     step: np.ndarray
     motion: float
@@ -606,7 +605,7 @@ class Iteration(NamedTuple):
 
 @numba.njit(
     [
-        f'Tuple((f8[:, ::1], f8, f8[:, ::1], f8[::1], f8, f8[::1], f8))(f4[:, ::1], '
+        f'Tuple((f8[:, ::1], f8, f8[:, ::1], f8, f8[::1], f8))(f4[:, ::1], '
         f'{template}[:, ::1], f8[:, :, ::1], f8[:, ::1], b1[:, ::1], f8, f8, f8, f8[:, ::1], '
         'f8[:, ::1], f8[:, ::1], f8[::1], f8, f8, f8[:, ::1])'
         for template in ('f4', 'f8')
@@ -629,7 +628,7 @@ def _iteration(
     damping: float,
     accepted_cost: float,
     node_jacobian: np.ndarray,
-) -> tuple[np.ndarray, float, np.ndarray, np.ndarray, float, np.ndarray, float]:
+) -> tuple[np.ndarray, float, np.ndarray, float, np.ndarray, float]:
     """:func:`iteration`'s work on its arguments as arrays (NaN ``scale``: estimate it)."""
     count, size = samples.shape
     residuals = np.empty((count, size))
@@ -662,7 +661,7 @@ def _iteration(
         for b in range(gradient.size):
             hessian[a, b] += prior_hessian[a, b]
     if cost > accepted_cost:  # the level ends before this point: no step from it
-        return residuals, cost, hessian, gradient, scale, np.empty(0), 0.0
+        return residuals, cost, hessian, scale, np.empty(0), 0.0
     step = damped_step(hessian, gradient, damping)
     motion = 0.0
     for i in range(node_jacobian.shape[0]):
@@ -670,7 +669,7 @@ def _iteration(
         for a in range(step.size):
             total += node_jacobian[i, a] * step[a]
         motion = max(motion, abs(total))
-    return residuals, cost, hessian, gradient, scale, step, motion
+    return residuals, cost, hessian, scale, step, motion
 
 
 def iteration(
@@ -714,8 +713,8 @@ def iteration(
         accepted_cost: the cost of the level's last accepted point (inf for none).
 
     Returns:
-        The :class:`Iteration`: (N, M) residuals, the cost (data plus priors), (P, P) H and (P,)
-        g, the scale, the (P,) step (empty when the cost rose) and its largest node motion.
+        The :class:`Iteration`: (N, M) residuals, the cost (data plus priors), (P, P) H, the
+        scale, the (P,) step (empty when the cost rose) and its largest node motion.
 
     Raises:
         LinAlgError: as :func:`damped_step`.
