@@ -163,7 +163,8 @@ def subject_from_name(
     """Whether the subject of a bag's meshes is the one its name gives (no truth labels them).
 
     As :func:`bag_subjects` finds it (same arguments): only then do ``options.subject`` and
-    ``options.subject_pattern`` (:func:`~.learn_options.subject_of`) name it.
+    ``options.subject_pattern`` (:func:`~.learn_options.subject_of`) name it, and
+    ``options.neutral_frames`` mark its neutral frames.
 
     Raises:
         BagError: for a bag of truth without the mesh topic.

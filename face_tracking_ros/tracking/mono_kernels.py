@@ -868,27 +868,3 @@ def row_rms(values: np.ndarray) -> np.ndarray:
             squares[m] = values[n, m] * values[n, m]
         rms[n] = np.sqrt(_pairwise_sum(squares, 0, size) / size)
     return rms
-
-
-@numba.njit(
-    [f'f8[::1]({values}[:, ::1], f8[:, :, ::1])' for values in ('f4', 'f8')],
-    **FAST,
-)
-def projected_rms(values: np.ndarray, basis_rows: np.ndarray) -> np.ndarray:
-    """(N,) RMS of each row of (N, M) values projected by ``1 - U U'``: a ROI's texture.
-
-    :func:`row_rms` of :meth:`~face_tracking_ros.imaging.PhotometricProjection.apply`, in one
-    pass (:mod:`.mono_loss`); (N, K, M) or (1, K, M) orthonormal rows U' (one basis for all).
-    """
-    count, size = values.shape
-    rms = np.empty(count)
-    row = np.empty(size)
-    weights = np.empty(basis_rows.shape[1])
-    for n in range(count):
-        for m in range(size):
-            row[m] = values[n, m]
-        project_out_row(row, basis_rows[n if len(basis_rows) > 1 else 0], weights)
-        for m in range(size):
-            row[m] *= row[m]
-        rms[n] = np.sqrt(_pairwise_sum(row, 0, size) / size)
-    return rms

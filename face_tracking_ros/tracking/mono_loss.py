@@ -22,7 +22,7 @@ from face_tracking_ros.geometry.camera import PinholeCamera
 from face_tracking_ros.geometry.rotation import angle_between
 from face_tracking_ros.imaging import PhotometricModel, PhotometricProjection, inside_image
 from face_tracking_ros.tracking.mono_config import MonoTrackerConfig
-from face_tracking_ros.tracking.mono_kernels import projected_rms, row_rms
+from face_tracking_ros.tracking.mono_kernels import row_rms
 from face_tracking_ros.tracking.mono_projection import FaceProjection
 from face_tracking_ros.tracking.mono_rois import Params
 from face_tracking_ros.tracking.mono_templates import Keyframe, nearest_keyframe
@@ -141,7 +141,7 @@ class LossChecks:
 
     def _texture(self, samples: np.ndarray) -> np.ndarray:
         """(N,) RMS of (N, M) ROI samples beyond the brightness change that needs no template."""
-        return projected_rms(samples, self._untextured.basis_rows)
+        return row_rms(self._untextured.apply(samples))
 
 
 def _drift_ratio(

@@ -25,7 +25,6 @@ from face_tracking_ros.tracking.mono_kernels import (
     iteration,
     linearised,
     normal_equations,
-    projected_rms,
     roi_jacobian,
     roi_maps,
     roi_points,
@@ -213,19 +212,6 @@ def test_row_rms_is_numpys_to_the_bit(size: int) -> None:
     rng = np.random.default_rng(size)
     values = rng.normal(0.0, 1.0, (40, size)) * 10.0 ** rng.uniform(-3.0, 3.0, (40, 1))
     assert np.array_equal(row_rms(values), np.sqrt(np.mean(values**2, axis=1)))
-
-
-def test_projected_rms_is_the_row_rms_of_the_projected_values() -> None:
-    """A ROI's texture: float32 samples or float64 templates, one basis or one per patch."""
-    rng = np.random.default_rng(7)
-    invariance = PhotometricInvariance.of(PhotometricModel.GAIN_FIELD, square_offsets(1))
-    flat = invariance.projection(np.zeros((1, 9)))  # one basis for every patch
-    per_patch = invariance.projection(rng.uniform(0, 255, (4, 9)))
-    for values in (rng.uniform(0, 255, (4, 9)).astype(np.float32), rng.uniform(0, 255, (4, 9))):
-        for projection in (flat, per_patch):
-            expected = row_rms(projection.apply(values))
-            rms = projected_rms(values, projection.basis_rows)
-            assert np.abs(rms - expected).max() < 1e-12 * expected.max()
 
 
 def test_weighted_gram_and_huber_irls_match_their_formulas() -> None:
