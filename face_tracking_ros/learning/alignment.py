@@ -11,8 +11,6 @@ midpoint is the origin, as the face frame of :mod:`face_tracking_ros.model.topol
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 
 from face_tracking_ros.geometry.procrustes import generalized_procrustes, rigid_align
@@ -20,47 +18,25 @@ from face_tracking_ros.learning.training_set import TrainingSet
 from face_tracking_ros.model.topology import Group, mesh_topology
 
 
-@dataclass(frozen=True)
-class AlignmentConfig:
-    """Parameters of the §3.3 alignment.
-
-    Attributes:
-        group_weights: Procrustes weight per anatomical group; None for the topology's defaults
-            (eyes, nose, eye corners 0.9; face edge 0.5; mouth and brows 0.1).
-        tolerance: generalised-Procrustes convergence, largest node move of the mean, metres.
-    """
-
-    group_weights: dict[Group, float] | None = None
-    tolerance: float = 1e-9
-
-
-def align_training_set(
-    training: TrainingSet, config: AlignmentConfig | None = None
-) -> TrainingSet:
+def align_training_set(training: TrainingSet) -> TrainingSet:
     """Two-stage alignment of §3.3: each subject to its neutral mesh, then all subjects together.
 
     Args:
         training: meshes in any per-frame rigid frame (e.g. the camera frame), metres.
-        config: weights and tolerance; defaults as in :class:`AlignmentConfig`.
 
     Returns:
         The same frames with meshes (F, N, 3) in the common face frame, metres.
     """
-    config = config or AlignmentConfig()
     topology = mesh_topology(training.num_nodes)
-    weights = topology.alignment_weights(config.group_weights)
+    weights = topology.alignment_weights()
     frames = [np.flatnonzero(training.subject_index == s) for s in range(training.num_subjects)]
     neutral_meshes = np.stack(
         [
-            generalized_procrustes(
-                training.meshes[mine[training.neutral[mine]]], weights, tolerance=config.tolerance
-            ).mean
+            generalized_procrustes(training.meshes[mine[training.neutral[mine]]], weights).mean
             for mine in frames
         ]
     )
-    together = generalized_procrustes(
-        neutral_meshes, weights, reference=topology.reference_shape, tolerance=config.tolerance
-    )
+    together = generalized_procrustes(neutral_meshes, weights, reference=topology.reference_shape)
     # The face frame's origin: between the eyes of the subjects' mean neutral.
     origin = together.mean[topology.group_mask(Group.EYE)].mean(axis=0)
     aligned = np.empty_like(training.meshes)

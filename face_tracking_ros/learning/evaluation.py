@@ -44,7 +44,6 @@ from sklearn.neighbors import NearestCentroid
 
 from face_tracking_ros.errors import ConfigError
 from face_tracking_ros.geometry.procrustes import generalized_procrustes, rigid_align
-from face_tracking_ros.learning.alignment import AlignmentConfig
 from face_tracking_ros.learning.methods import Learner
 from face_tracking_ros.learning.result import LearningResult
 from face_tracking_ros.learning.subspace import (
@@ -222,26 +221,19 @@ def compare_with_truth(model: FaceModel, truth: TrueSubspaces) -> TruthCompariso
     )
 
 
-def aligned_principal_axes(
-    faces: np.ndarray, k: int, config: AlignmentConfig | None = None
-) -> PrincipalComponents:
+def aligned_principal_axes(faces: np.ndarray, k: int) -> PrincipalComponents:
     """Principal axes of faces in the learner's gauge: generalised Procrustes (§3.3), then PCA.
 
     Args:
         faces: (M, N, 3) neutral faces, metres (e.g. true faces of many synthetic subjects).
         k: number of axes.
-        config: alignment weights and tolerance, as used for the training data.
 
     Returns:
         The k leading principal axes of the aligned faces about their mean, with variances.
     """
-    config = config or AlignmentConfig()
     topology = mesh_topology(faces.shape[1])
     aligned = generalized_procrustes(
-        faces,
-        topology.alignment_weights(config.group_weights),
-        reference=topology.reference_shape,
-        tolerance=config.tolerance,
+        faces, topology.alignment_weights(), reference=topology.reference_shape
     ).aligned.reshape(len(faces), -1)
     return principal_components(aligned - aligned.mean(axis=0), k)
 

@@ -82,7 +82,7 @@ _REFERENCE_MM: tuple[tuple[str, Group, tuple[float, float, float]], ...] = (
 SUPPORTED_NODE_COUNTS = (19, 34)
 
 # Procrustes weights of §3.3: rigid parts 0.9, deformable parts 0.1.
-DEFAULT_ALIGNMENT_WEIGHTS: dict[Group, float] = {
+ALIGNMENT_WEIGHTS: dict[Group, float] = {
     Group.EYE: 0.9,
     Group.NOSE: 0.9,
     Group.EYE_CORNER: 0.9,
@@ -133,13 +133,12 @@ class MeshTopology:
         """Boolean (N,) mask of the nodes in any of ``groups``."""
         return np.array([g in groups for g in self.groups])
 
-    def alignment_weights(self, weights: dict[Group, float] | None = None) -> np.ndarray:
-        """Per-node Procrustes weights (§3.3), (N,) float; defaults: DEFAULT_ALIGNMENT_WEIGHTS.
+    def alignment_weights(self) -> np.ndarray:
+        """Per-node Procrustes weights (§3.3), (N,) float: :data:`ALIGNMENT_WEIGHTS`.
 
         Rigid nodes (eyes, eye corners, nose) 0.9, the face edge 0.5, mouth and brows 0.1.
         """
-        table = DEFAULT_ALIGNMENT_WEIGHTS if weights is None else weights
-        return np.array([table[g] for g in self.groups], dtype=float)
+        return np.array([ALIGNMENT_WEIGHTS[g] for g in self.groups], dtype=float)
 
 
 @cache
