@@ -30,10 +30,8 @@ class PrincipalComponents:
     explained: np.ndarray
 
 
-def principal_components(
-    vectors: np.ndarray, k: int, sample_weights: np.ndarray | None = None
-) -> PrincipalComponents:
-    """The k leading eigenvectors of the weighted second-moment matrix sum_f w_f v_f v_f^T.
+def principal_components(vectors: np.ndarray, k: int) -> PrincipalComponents:
+    """The k leading eigenvectors of the mean second-moment matrix sum_f v_f v_f^T / F.
 
     The vectors are not centred: callers subtract what the model's origin is (the mean shape, a
     subject's neutral). Computed by ``scipy.linalg.eigh`` of the (D, D) second-moment matrix,
@@ -43,27 +41,15 @@ def principal_components(
     Args:
         vectors: (F, D) vectors.
         k: number of directions kept, 1 <= k <= min(F, D).
-        sample_weights: (F,) non-negative weights; None for equal weights. Normalised to sum 1.
 
     Returns:
-        Directions, their variances (eigenvalues of the weighted mean second moment) and shares.
+        Directions, their variances (eigenvalues of the mean second moment) and shares.
 
     Raises:
         ConfigError: if k is out of range.
     """
     check_components(k, *vectors.shape)
-    return moment_components(second_moment(vectors, sample_weights), k)
-
-
-def second_moment(vectors: np.ndarray, sample_weights: np.ndarray | None = None) -> np.ndarray:
-    """(D, D) weighted mean second moment sum_f w_f v_f v_f^T / sum_f w_f of (F, D) vectors.
-
-    Args:
-        vectors: (F, D) vectors.
-        sample_weights: (F,) non-negative weights, not all zero; None for equal weights.
-    """
-    total = len(vectors) if sample_weights is None else np.sum(sample_weights)
-    return scatter(vectors, sample_weights) / total
+    return moment_components(scatter(vectors) / len(vectors), k)
 
 
 def scatter(
