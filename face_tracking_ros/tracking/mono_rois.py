@@ -103,11 +103,9 @@ class RoiLayout:
             model.shape_basis_nodes(),
         )
 
-    def rois(
-        self, params: Params, num_levels: int, depth: np.ndarray | None = None
-    ) -> tuple[tuple[Roi, ...], np.ndarray]:
+    def rois(self, params: Params, num_levels: int) -> tuple[tuple[Roi, ...], np.ndarray]:
         """Every level's ROI samples (:meth:`roi`) and the (N, 3) node normals at ``params``."""
-        rois = tuple(self.roi(params, level, depth) for level in range(num_levels))
+        rois = tuple(self.roi(params, level) for level in range(num_levels))
         return rois, self.normals(params.sigma)
 
     def normals(self, sigma: np.ndarray) -> np.ndarray:
