@@ -199,18 +199,15 @@ class BagWriter:
         return connection
 
 
-def read_messages(
-    path: Path | str, topics: Iterable[str] | None = None, store: Typestore | None = None
-) -> Iterator[BagMessage]:
+def read_messages(path: Path | str, topics: Iterable[str] | None = None) -> Iterator[BagMessage]:
     """Read a rosbag2 bag (MCAP or SQLite 3) in record-time order.
 
-    A type that the bag defines otherwise than ``store`` (another version of a message) is read
-    with the bag's definition (:mod:`.bag_definitions`).
+    Messages are deserialised with :func:`typestore`; a type that the bag defines otherwise
+    (another version of a message) is read with the bag's definition (:mod:`.bag_definitions`).
 
     Args:
         path: Bag directory (holding ``metadata.yaml``).
         topics: Topics to read; default all. Every one must be in the bag.
-        store: Typestore to deserialise with; default :func:`typestore`.
 
     Yields:
         One :class:`BagMessage` per message.
@@ -220,7 +217,7 @@ def read_messages(
             a type neither the typestore nor the bag defines (naming the topic and type, when
             its first message is reached).
     """
-    definitions = BagDefinitions(typestore() if store is None else store)
+    definitions = BagDefinitions(typestore())
     for topic, msgtype, stamp_ns, data, msgdef in read_raw(path, topics):
         reading = definitions.store_for(msgtype, msgdef)
         if msgtype not in reading.types:

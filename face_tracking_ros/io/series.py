@@ -77,13 +77,13 @@ class TruthSeries:
     intensity: np.ndarray
 
 
-def load_states(bag: Path, topic: str | None = None) -> StateSeries:
-    """The FaceState series of a bag (the only FaceState topic unless ``topic`` is given).
+def load_states(bag: Path) -> StateSeries:
+    """The FaceState series of a bag (its only FaceState topic).
 
     Raises:
-        BagError: if the bag has no (or several, with no ``topic``) FaceState topic.
+        BagError: if the bag has no or several FaceState topics.
     """
-    topic = topic or _only_topic(bag, conversions.STATE_TYPE)
+    topic = _only_topic(bag, conversions.STATE_TYPE)
     rows = [m.msg for m in read_messages(bag, topics=[topic])]
     if not rows:
         msg = f'{bag}: topic {topic} holds no FaceState message'
