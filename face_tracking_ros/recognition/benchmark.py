@@ -272,25 +272,19 @@ def identity_with_track_error(
     )
 
 
-def run_benchmark(
-    model: FaceModel,
-    config: BenchmarkConfig,
-    identity_config: IdentityConfig | None = None,
-    expression_config: ExpressionTrainingConfig | None = None,
-    event_config: EventConfig | None = None,
-) -> RecognitionReport:
+def run_benchmark(model: FaceModel, config: BenchmarkConfig) -> RecognitionReport:
     """Measure identity, expression, event and separation figures on the scenario.
+
+    The recognisers run with their default tunables (:class:`IdentityConfig`,
+    :class:`ExpressionTrainingConfig`, :class:`EventConfig`).
 
     Args:
         model: the face model under test (19 or 34 nodes; its nodes are taken by name).
         config: the scenario.
-        identity_config: identity tunables; defaults if None.
-        expression_config: expression training tunables; defaults if None.
-        event_config: event tunables; defaults if None.
     """
-    identity_config = identity_config or IdentityConfig()
-    expression_config = expression_config or ExpressionTrainingConfig()
-    event_config = event_config or EventConfig()
+    identity_config = IdentityConfig()
+    expression_config = ExpressionTrainingConfig()
+    event_config = EventConfig()
     population = FacePopulation(config.preset, config.seed)
     rng = np.random.default_rng(config.seed)
     enrolled = range(config.subjects)
