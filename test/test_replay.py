@@ -302,13 +302,6 @@ def test_truncated_input_bag_is_replayed_up_to_the_damage(tmp_path):
     assert len(means) == stats.outputs['mean']
 
 
-def test_ctrl_c_leaves_a_valid_output_bag(tmp_path):
-    _write_images(tmp_path / 'in', 20)
-    stats = _run(tmp_path / 'in', tmp_path / 'out', MeanProcessor(interrupt_at=11))
-    assert stats.interrupted
-    assert [m.msg.data for m in read_messages(tmp_path / 'out')] == [0, 1, 2, 4, 5, 6, 7, 8, 9]
-
-
 class TerminatedProcessor(MeanProcessor):
     """A MeanProcessor whose process receives SIGTERM (timeout, a CI runner) at one message."""
 
@@ -433,9 +426,11 @@ def test_outputs_held_to_the_end_are_written_and_fed_on_at_the_last_stamp(tmp_pa
     assert {m.stamp_ns for m in written} == {stamps[-1]}
 
 
-def test_ctrl_c_still_writes_the_outputs_held_until_then(tmp_path):
+@pytest.mark.parametrize('processor', [MeanProcessor, HoldingProcessor])
+def test_ctrl_c_leaves_a_valid_output_bag_with_the_outputs_until_then(tmp_path, processor):
+    """Outputs written as they come (MeanProcessor) or held until then (HoldingProcessor)."""
     _write_images(tmp_path / 'in', 20)
-    stats = _run(tmp_path / 'in', tmp_path / 'out', HoldingProcessor(interrupt_at=11))
+    stats = _run(tmp_path / 'in', tmp_path / 'out', processor(interrupt_at=11))
     assert stats.interrupted
     assert [m.msg.data for m in read_messages(tmp_path / 'out')] == [0, 1, 2, 4, 5, 6, 7, 8, 9]
 
