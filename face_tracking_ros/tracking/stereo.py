@@ -49,6 +49,7 @@ from face_tracking_ros.errors import (
 )
 from face_tracking_ros.geometry.camera import StereoRig
 from face_tracking_ros.geometry.procrustes import rigid_align
+from face_tracking_ros.geometry.rotation import matrix_to_omega, rodrigues
 from face_tracking_ros.imaging import (
     ImagePyramid,
     PyramidLevel,
@@ -576,12 +577,22 @@ class StereoTracker:
         A pair after a gap (more than one frame interval since the last tracked pair) is
         checked at ``gap_lost_ratio`` too, and if its solve fails the checks it is solved again
         from where the face is found (:meth:`_searched`), as a lost track is re-acquired.
+
+        Eq. 5 measures such a pair's motion from the last tracked nodes moved rigidly over the
+        gap (:meth:`_rigid_predicted`), not from the nodes themselves: its rho and beta terms
+        cost the nodes' motion and the mesh's turn since the last pair, so over a gap they held
+        the mesh near that pair's pose, and a turned head's solve shifted the mesh to match the
+        last pair's templates instead (rendered free motion at 10 fps, 5 pairs dropped: the
+        head turned 22 degrees, the solve 7, and settled 3.4 px off at a residual ratio of 0.48,
+        where the check refuses above 0.65; the track went on there).
         """
         state = self._state
         assert state is not None
-        attempt = self._attempt(state, pyramids, self._predicted(state))
-        if attempt.problem and state.elapsed > 1:
-            found = self._attempt(state, pyramids, self._searched(state, pyramids))
+        gap = state.elapsed > 1
+        reference = self._rigid_predicted(state) if gap else state.nodes
+        attempt = self._attempt(state, pyramids, self._predicted(state), reference)
+        if attempt.problem and gap:
+            found = self._attempt(state, pyramids, self._searched(state, pyramids), reference)
             attempt = attempt if found.problem else found
         if attempt.problem:
             return self._lose(attempt.problem)
@@ -594,11 +605,12 @@ class StereoTracker:
         pair's nodes, templates and pyramids. Each later pair is solved as a pair after a gap
         (every pyramid level of ``gap_pyramid_levels``, checked at ``gap_lost_ratio``) from those
         nodes moved onto the face's rigid displacement in the left image (:meth:`_searched`);
-        the track resumes where that passes the loss checks.
+        the track resumes where that passes the loss checks. Eq. 5 measures the motion from the
+        last tracked nodes (the head's motion before the loss says nothing of where it is now).
         """
         state = self._lost
         assert state is not None
-        attempt = self._attempt(state, pyramids, self._searched(state, pyramids))
+        attempt = self._attempt(state, pyramids, self._searched(state, pyramids), state.nodes)
         if attempt.problem:
             return self._not_tracking(TrackStatus.LOST, self._reason)
         self._state, self._lost = state, None
@@ -612,6 +624,24 @@ class StereoTracker:
         # the intervals since the last pair (1 and 1 without dropped pairs: 2 n - b).
         ahead = state.elapsed / state.span
         return (1.0 + ahead) * state.nodes - ahead * state.before
+
+    def _rigid_predicted(self, state: _State) -> np.ndarray:
+        """The last tracked nodes moved rigidly as the head moved between the last two pairs.
+
+        The head's turn and shift from the pair before to the last pair (weighted Procrustes,
+        as :meth:`_rotation`) are carried on over the intervals since the last pair, about the
+        nodes' weighted centroid; the mesh keeps its shape. The last nodes without
+        ``predict_motion`` or a pair before.
+        """
+        if not self._config.predict_motion or state.before is None:
+            return state.nodes
+        weights = self._topology.alignment_weights()
+        motion = rigid_align(state.before, state.nodes, weights)
+        ahead = state.elapsed / state.span
+        turn, _ = rodrigues(ahead * matrix_to_omega(motion.rotation))
+        share = weights / weights.sum()
+        centre, centre_before = share @ state.nodes, share @ state.before
+        return centre + ahead * (centre - centre_before) + (state.nodes - centre) @ turn.T
 
     def _searched(self, state: _State, pyramids: tuple[ImagePyramid, ImagePyramid]) -> np.ndarray:
         """The last tracked nodes moved with the face's displacement in this left image.
@@ -630,14 +660,19 @@ class StereoTracker:
         return moved
 
     def _attempt(
-        self, state: _State, pyramids: tuple[ImagePyramid, ImagePyramid], start: np.ndarray
+        self,
+        state: _State,
+        pyramids: tuple[ImagePyramid, ImagePyramid],
+        start: np.ndarray,
+        reference: np.ndarray,
     ) -> _Attempt:
         """This pair solved from ``start`` (:meth:`_solve_pair`) and checked (:mod:`.stereo_loss`).
 
-        A pair after a gap is checked at the stricter ``gap_lost_ratio`` too.
+        ``reference``: (N, 3) the nodes eq. 5 measures the motion from. A pair after a gap is
+        checked at the stricter ``gap_lost_ratio`` too.
         """
         try:
-            nodes, solves = self._solve_pair(state, pyramids, start)
+            nodes, solves = self._solve_pair(state, pyramids, start, reference)
         except (LinAlgError, FaceTrackingError) as error:
             return _Attempt(start, None, _Solves(), f'solver failed: {error}')
         level, accepted = solves.levels[-1]  # level 0's
@@ -649,9 +684,16 @@ class StereoTracker:
         return _Attempt(nodes, statistics, solves, problem)
 
     def _solve_pair(
-        self, state: _State, pyramids: tuple[ImagePyramid, ImagePyramid], start: np.ndarray
+        self,
+        state: _State,
+        pyramids: tuple[ImagePyramid, ImagePyramid],
+        start: np.ndarray,
+        reference: np.ndarray,
     ) -> tuple[np.ndarray, _Solves]:
         """The nodes that minimise eq. 4 + eq. 5 on this pair from ``start``, coarse to fine.
+
+        Eq. 5 measures the nodes' motion from ``reference`` (the last tracked nodes, or over a
+        gap their rigid prediction).
 
         After dropped pairs or bad frames (more than one frame interval since the last tracked
         pair) the prediction can be off by more than the coarsest level reaches (rendered free
@@ -674,7 +716,7 @@ class StereoTracker:
             LinAlgError, FaceTrackingError: when a level's solve fails.
         """
         config = self._config
-        energy = self._energy(state)
+        energy = self._energy(state, reference)
         nodes = start
         coarser: tuple[Level, ...] = ()
         if state.elapsed > 1:
@@ -704,14 +746,17 @@ class StereoTracker:
         solves.theta = energy.theta
         return nodes, solves
 
-    def _energy(self, state: _State) -> PairEnergy:
-        """E(n) on this pair from the state: its samples, templates' weights, eq. 5, face model."""
+    def _energy(self, state: _State, reference: np.ndarray) -> PairEnergy:
+        """E(n) on this pair from the state: its samples, templates' weights, eq. 5, face model.
+
+        ``reference``: (N, 3) the nodes eq. 5 measures the motion from.
+        """
         return PairEnergy(
             samples=state.samples,
             coefficients=state.coefficients,
             huber=Huber.of(state.samples, self._config.huber_k * state.noise),
             regulariser=state.regulariser,
-            previous=state.nodes,
+            previous=reference,
             prior=state.prior,
             theta=state.theta,
             deformation=state.deformation,

@@ -75,7 +75,8 @@ class PairEnergy:
         coefficients: (4, S) a_k of every sample, weighing the templates T_k of a :class:`Level`.
         huber: the Huber thresholds of the image residuals.
         regulariser: the eq. 5 terms.
-        previous: (N, 3) the nodes of pair n - 1, m (eq. 5 measures the motion from them).
+        previous: (N, 3) the nodes eq. 5 measures the motion from, m: pair n - 1's (after
+            dropped pairs, moved rigidly over the gap).
         prior: the face-model term (None: off).
         theta: the face-model term's last fit (None: off).
         deformation: moves the node-patch samples with the mesh (None: rigid patches).
