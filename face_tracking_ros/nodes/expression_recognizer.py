@@ -1,7 +1,8 @@
 """The expression_recognizer node: expression events from a face's action parameters (§4.5).
 
-Subscribes ``face/action`` and ``face/state`` (whose status ends an expression when the face is
-lost); publishes ``face/expression`` (ExpressionEvent at onsets and offsets) and, while
+Subscribes ``face/action``, ``face/state`` (whose status ends an expression when the face is
+lost) and the latched ``face/model`` (nothing is recognised while the tracker's model is not the
+classifier's); publishes ``face/expression`` (ExpressionEvent at onsets and offsets) and, while
 subscribed, ``face/expression_scores``. Parameters:
 :class:`~face_tracking_ros.processing.expression.ExpressionNodeConfig` and, as ``events.*``,
 :class:`~face_tracking_ros.recognition.events.EventConfig`.

@@ -1,7 +1,9 @@
 """The identity_recognizer node: who the tracked face is, from its shape parameters (§3.6).
 
-Subscribes ``face/shape`` and ``face/state`` (whose status starts the decision over when the face
-is lost); publishes ``face/identity`` (IdentityEvent when the decision changes); serves
+Subscribes ``face/shape``, ``face/state`` (whose status starts the decision over when the face
+is lost) and the latched ``face/model`` (nothing is decided or enrolled while the tracker's model
+is not the gallery's); publishes ``face/identity`` (IdentityEvent when the decision changes, and
+for each new track); serves
 ``enroll_identity`` (EnrollIdentity.srv). Parameters:
 :class:`~face_tracking_ros.processing.identity.IdentityNodeConfig` and, as ``identity.*``,
 :class:`~face_tracking_ros.recognition.identity.IdentityConfig`.

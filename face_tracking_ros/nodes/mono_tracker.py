@@ -4,8 +4,10 @@ Subscribes ``image`` (or ``image/compressed`` with ``compressed:=true``), ``came
 latched ``face/model``; publishes ``face/state``, ``face/mesh_raw``, ``face/mesh``, for tracked
 images ``face/pose``, ``face/action``, ``face/shape`` and, while subscribed, ``face/overlay``;
 serves ``reset_tracking``. Parameters:
-:class:`~face_tracking_ros.processing.mono.MonoNodeConfig` and, as ``tracker.*``,
-:class:`~face_tracking_ros.tracking.mono_config.MonoTrackerConfig`.
+:class:`~face_tracking_ros.processing.mono.MonoNodeConfig`, as ``tracker.*``
+:class:`~face_tracking_ros.tracking.mono_config.MonoTrackerConfig`, as ``smoothing.*``
+:class:`~face_tracking_ros.tracking.pose_filter.PoseFilterConfig` and, as ``detector.*``,
+:class:`~face_tracking_ros.tracking.detector.DetectorConfig`.
 """
 
 from __future__ import annotations

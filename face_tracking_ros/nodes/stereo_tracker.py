@@ -5,8 +5,9 @@ Subscribes ``left/image_raw``, ``left/camera_info``, ``right/image_raw``, ``righ
 ``/compressed`` topics with ``compressed:=true``) and the latched ``face/model``;
 publishes ``face/mesh_raw``, ``face/mesh``, ``face/state`` and, with a model, for tracked pairs
 ``face/pose``, ``face/action``, ``face/shape``; serves ``reset_tracking``. Parameters:
-:class:`~face_tracking_ros.processing.stereo.StereoNodeConfig` and, as ``tracker.*``,
-:class:`~face_tracking_ros.tracking.stereo_config.StereoTrackerConfig`.
+:class:`~face_tracking_ros.processing.stereo.StereoNodeConfig`, as ``tracker.*``
+:class:`~face_tracking_ros.tracking.stereo_config.StereoTrackerConfig` and, as ``detector.*``,
+:class:`~face_tracking_ros.tracking.detector.DetectorConfig`.
 """
 
 from __future__ import annotations
