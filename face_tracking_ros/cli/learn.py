@@ -7,11 +7,11 @@ Input bags hold one of:
   neutral frames of §3.4;
 * ``face_tracking_msgs/FaceMesh`` or ``FaceState`` (a tracker's meshes): subject, label and
   alpha come from ``--truth`` bags (matched by header stamp) when given; otherwise the subject is
-  ``--subject`` or the bag's name and the first ``--neutral-frames`` frames of each
-  bag are taken as neutral;
-* raw stereo images (left and right Image and CameraInfo): first tracked by the stereo tracker
-  into FaceMesh bags (:mod:`face_tracking_ros.pipelines.stereo_meshes`), every mesh with the
-  frame-1 depths refined over its whole track.
+  ``--subject``, or the bag's name (the first group of ``--subject-pattern`` in it, if given),
+  and the first ``--neutral-frames`` frames of each bag are taken as neutral;
+* raw stereo images (left and right Image or CompressedImage, and CameraInfo): first tracked by
+  the stereo tracker into FaceMesh bags (:mod:`face_tracking_ros.pipelines.stereo_meshes`),
+  every mesh with the frame-1 depths refined over its whole track.
 
 The meshes are aligned (§3.3), the model is learned by ``--method`` (default ``joint``, issue 11;
 ``seed`` is the paper's §3.4), the evaluation of :mod:`face_tracking_ros.learning.evaluation`
