@@ -68,7 +68,7 @@ class StereoInitConfig:
         max_face_scale: at most this many times. Outside, the rig's calibration does not fit
             the images and the initialisation fails, saying so. Triangulated sizes scale with
             the baseline (one k times the true one reads k times the face's size), and adult
-            faces vary by about 15 %: the synthetic populations read 0.86-1.14, 0.85-1.21 with
+            faces vary by about 15 %: the synthetic populations read 0.87-1.14, 0.85-1.21 with
             an expression at full intensity (600 faces each); tracked, 30 subjects read theirs
             within 0.34 %. A baseline doubled then reads 1.70 or more, one halved 0.61 or less;
             one 25 % off passes, as a larger or smaller face does (learn warns of it across
