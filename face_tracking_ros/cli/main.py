@@ -83,10 +83,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         an OSError, 130 on an interruption the subcommand does not handle, 141 when standard
         output's reader has gone.
     """
-    args = build_parser().parse_args(argv)
-    limit_blas_threads()
     try:
         with _sigterm_as_ctrl_c():
+            # Inside: building the parser imports every subcommand's modules (seconds on a
+            # loaded machine), and a Ctrl-C or SIGTERM then ends the command as any other does.
+            args = build_parser().parse_args(argv)
+            limit_blas_threads()
             status = args.func(args)
             sys.stdout.flush()  # a reader gone is found here, not at the interpreter's exit
     except (FaceTrackingError, OSError) as error:
