@@ -1,8 +1,9 @@
 """The command lines the user documents show use options and node parameters that exist.
 
-README.md, docs/learning.md and DEVELOPERS.md show ``face-tracking`` commands whole in ``bash``
-blocks and as fragments in their prose, node command lines with ``-p NAME:=VALUE``, and a
-parameter file; an option or a parameter renamed in the code would leave them behind unnoticed.
+README.md, docs/learning.md, DEVELOPERS.md and bags/README.md show ``face-tracking`` commands
+whole in ``bash`` blocks and as fragments in their prose, node command lines with
+``-p NAME:=VALUE``, and a parameter file; an option or a parameter renamed in the code would leave
+them behind unnoticed.
 """
 
 from __future__ import annotations
@@ -19,7 +20,7 @@ from face_tracking_ros.nodes.reference import NODE_CONFIGS, parameter_rows
 
 from repo_root import REPO
 
-DOCS = ('README.md', 'docs/learning.md', 'DEVELOPERS.md')
+DOCS = ('README.md', 'docs/learning.md', 'DEVELOPERS.md', 'bags/README.md')
 NODE_COMMAND = re.compile(rf'^({"|".join(NODE_CONFIGS)}) --ros-args\b')
 
 
