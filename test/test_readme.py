@@ -1,4 +1,4 @@
-"""The README's node parameter tables match the nodes' config dataclasses and what they read."""
+"""The README's node parameter tables and node table match the nodes' configs, reads and topics."""
 
 from __future__ import annotations
 
@@ -52,3 +52,25 @@ def test_the_tables_list_what_each_processing_node_reads(node):
     parameters = _Recording()
     processor_factory(node)(parameters, RosbagsMessages(typestore()))
     assert tuple(parameters.read) == NODE_CONFIGS[node]
+
+
+def _node_row(node: str) -> list[str]:
+    """The README node table's subscribes, publishes and services cells of a node."""
+    (row,) = [line for line in README.read_text().splitlines() if line.startswith(f'| `{node}` |')]
+    return row.split(' | ')[1:]
+
+
+# Each processing node with its default parameters, and the trackers with compressed images.
+TOPIC_CASES = [(node, {}) for node in sorted(PROCESSORS)] + [
+    (node, {'compressed': 'true'}) for node in ('mono_tracker', 'stereo_tracker')
+]
+
+
+@pytest.mark.parametrize(('node', 'overrides'), TOPIC_CASES)
+def test_the_node_table_names_every_topic_a_processing_node_has(node, overrides):
+    processor = processor_factory(node)(
+        OverrideParameters(overrides), RosbagsMessages(typestore())
+    )
+    subscribes, publishes, *_ = _node_row(node)
+    assert [p.topic for p in processor.inputs if f'`{p.topic}`' not in subscribes] == []
+    assert [p.topic for p in processor.outputs if f'`{p.topic}`' not in publishes] == []
