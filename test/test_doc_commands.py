@@ -145,3 +145,12 @@ def test_parameter_files_name_declared_parameters() -> None:
     for content in files:
         for node, section in content.items():
             assert set(_flattened(section['ros__parameters'])) <= _parameters(node)
+
+
+def test_the_command_table_lists_every_subcommand() -> None:
+    text = _text('README.md')
+    start = text.index('### Command-line tools')
+    table = text[start : text.index('\n\n', text.index('| command |', start))]
+    listed = set(re.findall(r'^\| `([a-z-]+)[ `]', table, flags=re.MULTILINE))
+    listed |= set(re.findall(r'/ `([a-z-]+) ', table))  # `plot OUT ...` / `overlay BAG ...`
+    assert listed == set(_subcommands())
