@@ -78,3 +78,10 @@ def test_face_tracking_command_runs_from_the_ament_prefix() -> None:
 
     assert result.returncode == 0, result.stderr
     assert 'usage: face-tracking' in result.stdout
+
+
+def test_the_readme_node_table_lists_every_node_executable() -> None:
+    text = (REPO / 'README.md').read_text(encoding='utf-8')
+    start = text.index('| node | subscribes | publishes | services |')
+    rows = text[start : text.index('\n\n', start)].splitlines()[2:]
+    assert sorted(row.split('`')[1] for row in rows) == sorted(NODES)
