@@ -1,4 +1,4 @@
-"""The README's node parameter tables and node table match the nodes' configs, reads and topics."""
+"""README's node parameter tables, node table and message table match the code and msg_defs."""
 
 from __future__ import annotations
 
@@ -74,3 +74,14 @@ def test_the_node_table_names_every_topic_a_processing_node_has(node, overrides)
     subscribes, publishes, *_ = _node_row(node)
     assert [p.topic for p in processor.inputs if f'`{p.topic}`' not in subscribes] == []
     assert [p.topic for p in processor.outputs if f'`{p.topic}`' not in publishes] == []
+
+
+def test_the_message_table_lists_every_message_and_service() -> None:
+    text = README.read_text()
+    start = text.index('| Type | Topic | Content |')
+    rows = text[start : text.index('\n\n', start)].splitlines()[2:]
+    listed = sorted(row.split('`')[1] for row in rows)
+    msg_defs = README.parent / 'msg_defs'
+    defined = [p.stem for p in (msg_defs / 'msg').glob('*.msg')]
+    defined += [p.name for p in (msg_defs / 'srv').glob('*.srv')]  # listed as Name.srv
+    assert listed == sorted(defined)
