@@ -19,6 +19,7 @@ from face_tracking_ros.errors import ConfigError
 from face_tracking_ros.geometry.camera import PinholeCamera
 from face_tracking_ros.geometry.rotation import angle_between
 from face_tracking_ros.imaging import MAX_HALF_SIZE, PhotometricModel
+from face_tracking_ros.tracking import mono_solve
 from face_tracking_ros.tracking.initialisation import Initialisation
 from face_tracking_ros.tracking.mono import MonoTracker
 from face_tracking_ros.tracking.mono_config import MonoTrackerConfig
@@ -133,6 +134,29 @@ def test_level_0s_last_step_is_kept_when_it_lowers_the_cost(scene) -> None:
     assert result.ok, result.reason
     assert np.abs(result.nodes_px - init.points - [3.0, -2.0]).max() < 0.005
     assert result.cost_history[-1] < result.cost_history[-2]
+
+
+def test_level_0s_last_step_is_undone_when_it_raises_the_cost(scene, monkeypatch) -> None:
+    """The unevaluated step that ends level 0 is checked: one that raises the cost is not kept.
+
+    Every step is reversed (uphill) and the first one ends the only level (convergence_px
+    beyond it), so the solution is the start, the last frame's estimate (to 1e-13 px); kept,
+    the reversed step would move the nodes 0.48 px.
+    """
+    model, image, init = scene
+    compute = mono_solve.iteration
+
+    def uphill(*args):
+        result = compute(*args)
+        return result._replace(step=-result.step)
+
+    monkeypatch.setattr(mono_solve, 'iteration', uphill)
+    tracker = _started(model, image, init, pyramid_levels=1, convergence_px=1e3)
+    result = tracker.step(_shifted(image, (0.4, -0.3)))
+    assert result.ok, result.reason
+    assert result.iterations == 1
+    assert result.cost_history[-1] == result.cost_history[-2]
+    np.testing.assert_allclose(result.nodes_px, init.points, rtol=0, atol=1e-9)
 
 
 def test_a_steady_drift_is_predicted_and_costs_fewer_iterations(scene) -> None:
