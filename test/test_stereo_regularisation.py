@@ -89,6 +89,35 @@ def test_eq5_values_by_hand() -> None:
     assert cost == pytest.approx(expected, rel=0.05)
 
 
+def test_eq5_motion_terms_by_hand() -> None:
+    """rho_i ||dX^i||^2 and beta_ij ||dX^i - dX^j||^2, from the configured weights by hand.
+
+    A shift of the whole mesh costs the rho terms alone (no differential motion); one node
+    moved by d costs its rho_i |d|^2 plus beta_ij |d|^2 for each edge it has.
+    """
+    first, _, _ = _face(5)
+    topology = mesh_topology(34)
+    config = RegularisationConfig(rho=3e6, beta=2e7)
+    factors = config.group_stiffness()
+    stiffness = np.array([factors[g] for g in topology.groups])
+    regulariser = Regulariser.build(topology, config, first)
+    shift = np.array([0.002, -0.001, 0.0005])
+    squared = float(shift @ shift)
+    expected = 3e6 * stiffness.sum() * squared
+    assert regulariser.cost(first + shift, first) == pytest.approx(expected, rel=1e-12)
+    nose = topology.index('nose_tip')
+    moved = first.copy()
+    moved[nose] += shift
+    expected = 3e6 * stiffness[nose] * squared
+    for i, j in topology.edges:
+        if nose in (i, j):
+            expected += 2e7 * min(stiffness[i], stiffness[j]) * squared
+    assert regulariser.cost(moved, first) == pytest.approx(expected, rel=1e-12)
+    assert regulariser.normal_equations(moved, first)[0] == pytest.approx(expected, rel=1e-12)
+    residuals = regulariser.residuals(moved, first)
+    assert residuals @ residuals == pytest.approx(expected, rel=1e-12)
+
+
 def test_rigid_parts_are_stiffer_than_lips() -> None:
     first, _, _ = _face(3)
     topology = mesh_topology(34)
