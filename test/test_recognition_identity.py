@@ -60,6 +60,30 @@ def test_rule_matches_hand_computed_mahalanobis_and_chi_square() -> None:
     assert far.confidence == pytest.approx(chi2.cdf(far.distance**2, P))
 
 
+def test_the_most_likely_person_wins_over_the_mahalanobis_nearest() -> None:
+    """Maximum likelihood, with the log-determinant term, by hand; the window's mean decides.
+
+    Ann is enrolled with a floor of 10 mm, Ben with 2.5 mm (one sample each: floors alone).
+    The probe lies 20 mm from Ann (d^2 = 4) and 6.1 mm from Ben (d^2 = 6): Ben is less near but
+    more likely, as log det C_Ann - log det C_Ben = 8 log 4. Posterior of Ben: the logistic of
+    ``-0.5 (4 + log det C_Ann) + 0.5 (6 + log det C_Ben)`` negated.
+    """
+    ann, ben = np.zeros(P), np.zeros(P)
+    ben[0] = 0.02 + np.sqrt(6.0) * 0.0025
+    gallery = IdentityGallery.empty(P).enroll('ann', ann[None], replace(CONFIG, min_std=0.01))
+    gallery = gallery.enroll('ben', ben[None], replace(CONFIG, min_std=0.0025))
+    probe = np.array([0.02, 0.0, 0.0, 0.0])
+    log_ratio = 0.5 * (6.0 - 4.0 - 2 * P * np.log(0.01 / 0.0025))  # ann's over ben's
+    decision = gallery.classify(probe, CONFIG)
+    assert (decision.identity, decision.nearest) == ('ben', 'ben')
+    assert decision.distance == pytest.approx(np.sqrt(6.0), rel=1e-12)
+    assert decision.confidence == pytest.approx(1.0 / (1.0 + np.exp(log_ratio)), rel=1e-12)
+    # A window's mean is classified, not its last estimate (4 floors from ben: unknown).
+    window = ben + np.array([[-0.01, 0.0, 0.0, 0.0], [0.01, 0.0, 0.0, 0.0]])
+    assert gallery.classify(window, CONFIG).distance == pytest.approx(0.0, abs=1e-12)
+    assert gallery.classify(window[-1], CONFIG).identity == UNKNOWN
+
+
 def test_enrolled_mean_is_recognised_at_distance_zero() -> None:
     gallery, truth = enrolled(np.random.default_rng(1), 3, 0.002)
 
