@@ -14,12 +14,14 @@ from face_tracking_ros.errors import ConfigError, InputError, ModelFileError
 from face_tracking_ros.recognition.archive import load_archive, save_archive
 from face_tracking_ros.recognition.evaluation import expression_accuracy
 from face_tracking_ros.recognition.expression import (
+    BASELINE_MEMORY,
     CLASSIFIER_FORMAT_VERSION,
     CLASSIFIER_KIND,
     EXPRESSION_LABELS,
     ExpressionClassifier,
     ExpressionRecognizer,
     ExpressionTrainingConfig,
+    NeutralBaseline,
     train_expression_classifier,
 )
 from face_tracking_ros.recognition.features import (
@@ -149,6 +151,38 @@ def test_the_calibration_takes_the_first_calibration_seconds_inclusive(
     assert times[9] - times[0] == pytest.approx(CONFIG.calibration, abs=1e-12)  # the boundary
     assert online[9, classifier.labels.index('neutral')] < 0.9
     np.testing.assert_allclose(online[10], expected, atol=1e-12)
+
+
+def test_frames_classified_neutral_after_the_calibration_refine_the_baseline(
+    classifier: ExpressionClassifier,
+) -> None:
+    """Frames 10 and 11 (after the 0.3 s calibration) are neutral: the baseline is their mean too.
+
+    Without the refinement (the calibration's mean alone) frame 12 differs by 8e-4.
+    """
+    rng = np.random.default_rng(15)
+    times = 100.0 + np.arange(13) / 30.0
+    alpha = rng.normal(scale=0.002, size=(13, Q))
+
+    online = classifier.sequence_probabilities(times, alpha)
+
+    assert online[10:12, classifier.labels.index('neutral')].min() >= 0.9
+    features = sequence_features(times, alpha, classifier.window)[12]
+    baseline = alpha[:12].mean(axis=0)
+    expected = classifier.probabilities(subtract_baselines(features[None], baseline[None]))[0]
+    np.testing.assert_allclose(online[12], expected, rtol=0, atol=1e-12)
+
+
+def test_the_neutral_baseline_is_a_running_mean_forgetting_beyond_its_memory() -> None:
+    baseline = NeutralBaseline(2)
+    for value in (1.0, 2.0, 6.0):
+        baseline.add(np.array([value, -value]))
+    np.testing.assert_allclose(baseline.value, [3.0, -3.0], rtol=1e-15)
+    baseline.reset()
+    for _ in range(BASELINE_MEMORY):
+        baseline.add(np.array([1.0, 0.0]))
+    baseline.add(np.array([1.0 + BASELINE_MEMORY, 0.0]))  # weighs 1 / BASELINE_MEMORY: +1
+    np.testing.assert_allclose(baseline.value, [2.0, 0.0], rtol=1e-12)
 
 
 def test_a_new_track_restarts_window_and_baseline(classifier: ExpressionClassifier) -> None:
