@@ -88,6 +88,10 @@ def test_blips_shorter_than_the_minimum_duration_are_ignored() -> None:
 
     assert run(blip, config) == []
     assert [e.kind for e in run(dip, config)] == [EventKind.ONSET]
+    # Two blips 0.3 s apart are two blips, not one crossing held since the first.
+    assert run([0.1, 0.9, 0.9, 0.1, 0.9, 0.9, 0.1], config) == []
+    dips = [0.9, 0.9, 0.9, 0.9, 0.1, 0.1, 0.9, 0.1, 0.1, 0.9, 0.9]
+    assert [e.kind for e in run(dips, config)] == [EventKind.ONSET]
 
 
 def test_a_change_of_expression_ends_one_and_starts_the_other() -> None:
