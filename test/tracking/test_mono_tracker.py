@@ -159,6 +159,26 @@ def test_level_0s_last_step_is_undone_when_it_raises_the_cost(scene, monkeypatch
     np.testing.assert_allclose(result.nodes_px, init.points, rtol=0, atol=1e-9)
 
 
+@pytest.mark.parametrize('epsilon', [0.0, 0.2, 1.0])
+def test_eq6_blends_the_last_frame_s_template_with_frame_1_s_by_epsilon(
+    scene, monkeypatch, epsilon
+) -> None:
+    """Eq. 6's template is ``(1 - epsilon) I_(n-1) + epsilon I_1``.
+
+    Frame 2, 1.3 times as bright, is found where frame 1 was (the photometric model takes the
+    gain): its templates are 1.3 times frame 1's, and frame 3 is solved against
+    ``(1 - epsilon) 1.3 T_1 + epsilon T_1`` (measured within 3e-7 of it, relative).
+    """
+    model, image, init = scene
+    templates = record_method(monkeypatch, MonoSolver, 'solve', lambda *args: args[2][0].copy())
+    tracker = _started(model, image, init, epsilon=epsilon)
+    brighter = image * np.float32(1.3)
+    for _ in range(2):
+        assert tracker.step(brighter).ok
+    first, blended = templates
+    np.testing.assert_allclose(blended, (1.3 - 0.3 * epsilon) * first, rtol=1e-5)
+
+
 def test_a_steady_drift_is_predicted_and_costs_fewer_iterations(scene) -> None:
     """At constant velocity the prediction starts each solve where the face is."""
     model, image, init = scene
