@@ -453,6 +453,29 @@ def test_template_coefficients_split_gamma_and_epsilon_and_weigh_the_texture() -
     assert len(without.layouts(PLANE.nodes(), RIG.left.focal)) == 1
 
 
+def test_the_templates_are_frame_n_1_s_and_frame_1_s_in_the_same_and_the_other_camera(
+    monkeypatch,
+) -> None:
+    """T_k of eq. 4 with the drift term: k = 0, 1 frame n - 1, k = 2, 3 frame 1; then the other.
+
+    Pair 2 is pair 1 plus 20 grey levels (which the ZSSD removes: found 0.08 mm from pair 1),
+    so pair 3's frame n - 1 templates are frame 1's plus 20 (to 0.18 measured) and its frame-1
+    templates are frame 1's to the bit.
+    """
+    levels = record_method(monkeypatch, LevelSolver, 'solve', lambda _energy, level, *_: level)
+    left, right = PLANE.pair()
+    pairs = [(left, right), (left + 20, right + 20), (left + 20, right + 20)]
+    init = RIG.left.project(PLANE.nodes(19))
+    assert track_sequence(StereoTracker(RIG, PLANE_CONFIG), pairs, init).status.tolist() == [1] * 3
+    first, third = (level.templates for level in levels if level.index == 0)
+    assert np.abs(third[:, :2] - first[:, :2] - 20.0).max() < 0.5
+    assert np.array_equal(third[:, 2:], first[:, 2:])
+    assert np.array_equal(first[:, 0], first[:, 2])  # pair 2's frame n - 1 is frame 1
+    for templates in (first, third):  # left's of the right image, right's of the left
+        assert np.array_equal(templates[:, 1], templates[::-1, 0])
+        assert np.array_equal(templates[:, 3], templates[::-1, 2])
+
+
 @pytest.mark.parametrize('level', [0, 1])
 def test_pyramid_levels_sample_as_their_full_images_made_around_the_face_only(level: int) -> None:
     """Pyramids made where sampled give the full levels' samples to the bit, made in part.
