@@ -338,6 +338,34 @@ def test_a_rejected_step_raises_the_damping_tenfold_until_it_passes_a_thousand()
     assert point.cost == pytest.approx(19 * 0.25)
 
 
+class _BowlEnergy(_UphillEnergy):
+    """A stand-in for PairEnergy of cost |n - c|^2, whose Gauss-Newton step is exact."""
+
+    def linearise(self, _level: object, point: Point) -> System:
+        return System(np.eye(point.nodes.size), (point.nodes - self.centre).ravel())
+
+
+def test_an_accepted_step_lowers_the_damping_tenfold() -> None:
+    """Steps of damping 1, 0.1, 0.01, 0.001, then 1e-4 from a 0.5 m error.
+
+    A step of damping d leaves d / (1 + d) of the way to the minimum; the fifth moves less
+    than step_tolerance and ends the level unevaluated.
+    """
+    nodes = PLANE.nodes(19)
+    solver = LevelSolver(
+        replace(PLANE_CONFIG, damping=1.0, max_iterations=20),
+        level_projections((RIG.left, RIG.right), 0),
+    )
+    centre = nodes - [0.5, 0.0, 0.0]
+    solved = solver.solve(_BowlEnergy(centre), SimpleNamespace(index=0), nodes)
+    assert solved is not None
+    found, iterations, costs, _ = solved
+    left = np.cumprod([d / (1.0 + d) for d in (1.0, 0.1, 0.01, 0.001, 1e-4)])
+    assert iterations == 5
+    assert costs == pytest.approx(list(19 * 0.25 * left[:4] ** 2), rel=1e-9)
+    np.testing.assert_allclose(found, centre + left[-1] * (nodes - centre), rtol=0, atol=1e-15)
+
+
 def test_face_edge_patches_follow_the_skin_that_turns_away_beyond_the_edge() -> None:
     # The synthetic head at rest (the reference face's nodes) 0.6 m in front of the camera.
     surface = head_surface()
