@@ -549,12 +549,33 @@ def test_a_face_slowly_turning_into_another_texture_is_lost_by_the_drift_check(
     assert all(u.ok for _, u in statuses)  # without it the tracker follows the blend to the end
 
 
-def test_a_face_leaving_the_image_is_lost(scene) -> None:
+def test_a_blank_image_is_lost_as_an_ill_conditioned_solve(scene) -> None:
     model, image, init = scene
     tracker = _started(model, image, init, pyramid_levels=2)
     blank = np.full((480, 640), 128, np.uint8)
     gone = tracker.step(blank)
     assert gone.status == TrackStatus.LOST
+    assert gone.reason == 'lost: ill-conditioned solve (condition inf)'
+
+
+def test_a_face_leaving_the_image_is_followed_until_half_its_nodes_are_out(scene) -> None:
+    """A face sliding right by 15 px a frame over a grey background, its nodes from x = 253.5.
+
+    In full view (16 frames) the nodes are where they slid to within 0.005 px measured; while
+    they cross the border, within 0.5 px; at frame 22, 15 nodes lie at x <= 639 (by hand from
+    the nodes): fewer than min_visible_fraction (half), so the face is lost for that.
+    """
+    model, image, init = scene
+    tracker = _started(model, image, init, pyramid_levels=2)
+    for frame in range(1, 23):
+        shift = np.float32([[1, 0, 15 * frame], [0, 1, 0]])
+        slid = cv2.warpAffine(image, shift, (640, 480), flags=cv2.INTER_CUBIC, borderValue=128)
+        result = tracker.step(slid)
+        if frame < 22:
+            assert result.ok, (frame, result.reason)
+            error = np.abs(result.nodes_px - init.points - [15 * frame, 0]).max()
+            assert error < (0.01 if frame <= 16 else 1.0), (frame, error)
+    assert result.reason == 'lost: only 15 of 34 nodes visible in the image'
 
 
 @pytest.mark.parametrize(
