@@ -96,8 +96,12 @@ def test_19_node_model_tracks_too(free_sequence, true_model_factory):
     nodes = true_nodes[:, :19]
     init = simulated_clicks(model.node_names, nodes[0], camera, 1.0, np.random.default_rng(4))
     result = evaluate_tracker(MonoTracker(model, camera), model, images[:12], nodes[:12], init)
-    assert result.accuracy.lost == 0
-    assert max(result.accuracy.rotation_mae_deg) < 5.0
+    accuracy = result.accuracy
+    assert accuracy.lost == 0 and accuracy.tracked == 12
+    # Measured: 0.36 / 3.29 / 0.14 degrees, 0.13 / 0.43 mm laterally; frame 1's pose held
+    # throughout would give 0.68 / 9.49 / 1.05 degrees, 5.3 / 3.0 mm.
+    assert max(accuracy.rotation_mae_deg) < 4.0
+    assert max(accuracy.translation_mae_mm[:2]) < 1.5
 
 
 def test_occluded_face_is_lost_then_reacquired(free_sequence, true_model_factory):
