@@ -70,6 +70,20 @@ def test_drift_and_slip_along_the_boundary() -> None:
     assert evaluation.tracked_fraction == pytest.approx(0.8)
 
 
+def test_the_reprojection_error_is_the_larger_of_the_two_cameras() -> None:
+    """The nose tip (x = 0, y = 38 mm, 573 mm away) tracked 3 mm too deep.
+
+    By hand: in the left camera only v moves, by 600 * 0.038 (1 / 0.573 - 1 / 0.576) = 0.21 px;
+    in the right one (P[0, 3] = -66) u moves too, by 66 (1 / 0.573 - 1 / 0.576): 0.63 px in all.
+    """
+    truth = _truth()
+    tracked = truth.copy()
+    tracked[-1, TOPOLOGY.index('nose_tip'), 2] += 0.003
+    evaluation = evaluate_stereo(tracked, truth, RIG, TOPOLOGY)
+    shrink = 1 / 0.573 - 1 / 0.576
+    assert evaluation.max_reprojection == pytest.approx(shrink * np.hypot(66, 600 * 0.038))
+
+
 def test_mesh_without_edge_nodes_has_no_slip() -> None:
     truth = _truth()[:, :19]
     evaluation = evaluate_stereo(truth, truth, RIG, mesh_topology(19))
