@@ -9,7 +9,12 @@ import pytest
 
 from face_tracking_ros.errors import ConfigError, InputError
 from face_tracking_ros.geometry.camera import PinholeCamera
-from face_tracking_ros.geometry.rotation import omega_to_angles, rodrigues
+from face_tracking_ros.geometry.rotation import (
+    angle_between,
+    matrix_to_omega,
+    omega_to_angles,
+    rodrigues,
+)
 from face_tracking_ros.tracking.pose_filter import (
     FilteredTracker,
     PoseFilter,
@@ -86,6 +91,26 @@ def test_moving_head_lags_little_and_far_less_than_a_fixed_low_pass():
     x_mm = 1000 * (np.array([[r.t[0] for r in f] for f in (filtered, low_passed)]) - t[:, 0])
     adaptive_mm, lagging_mm = np.abs(x_mm[:, 30:]).mean(axis=1)
     assert adaptive_mm < 1.0 and lagging_mm > 20 * adaptive_mm
+
+
+def test_a_head_turning_alone_is_followed_about_its_own_axes():
+    """beta_rotation alone raises the cutoff, and the filtered pose turns in the head's frame.
+
+    Yaw at 0.4 rad/s, no translation: lag 0.36 degrees measured (5.3 without beta_rotation).
+    A head turned 1 rad in yaw, rolling about its own x axis at 0.4 rad/s, no noise: 0.37
+    degrees off on average measured (0.99 with the filter's turns taken about the camera axes).
+    """
+    omega, t, noisy_omega, noisy_t = _noisy_track(np.array([0.0, 0.4, 0.0]), np.zeros(3), 90)
+    assert np.abs(_angle_error_deg(_filtered(noisy_omega, noisy_t), omega)[30:, 1]).mean() < 1.0
+    turned = rodrigues(np.array([0.0, 1.0, 0.0]))[0]
+    rolls = [rodrigues(np.array([0.4 * k / FPS, 0.0, 0.0]))[0] for k in range(90)]
+    rolling = np.array([matrix_to_omega(turned @ roll) for roll in rolls])
+    filtered = _filtered(rolling, np.tile([0.0, 0.0, 0.6], (90, 1)))
+    errors = [
+        angle_between(rodrigues(result.omega)[0], rodrigues(true)[0])
+        for result, true in zip(filtered[30:], rolling[30:], strict=True)
+    ]
+    assert np.degrees(np.mean(errors)) < 0.6
 
 
 def test_nodes_move_rigidly_with_the_filtered_pose():
