@@ -333,6 +333,48 @@ def test_a_rejected_adjustment_still_keeps_its_view(turning_head, unadjusted, mo
     _assert_unadjusted(results, unadjusted)  # nothing was applied
 
 
+def _turned(pose: tuple, angle: float) -> tuple:
+    """The pose (omega, t, alpha) turned by ``angle`` rad more about its face's x axis."""
+    omega, t, alpha = pose
+    return matrix_to_omega(rodrigues(omega)[0] @ rodrigues([angle, 0.0, 0.0])[0]), t, alpha
+
+
+@pytest.mark.parametrize('change', ['cost not lower', 'frame 1 turned', 'newest view turned'])
+def test_an_adjustment_is_applied_only_if_it_lowers_the_cost_and_turns_neither_end_view_far(
+    turning_head, unadjusted, monkeypatch, change
+):
+    """Each adjustment is replaced by one that breaks one of the three conditions: none applies.
+
+    The others are those of the adjustment run (a lower cost, frame 1 and the newest view as
+    adjusted); the turns are twice ``max_change``.
+    """
+    images, _, model, _ = turning_head
+    camera = SceneConfig(kind='mono').cameras()['image']
+    stages, ran = adjustment_module.adjustment_stages, []
+    turn = 2 * BundleConfig().max_change
+
+    def breaking(problem, views, visibility, start):
+        adjustment = yield from stages(problem, views, visibility, start)
+        estimate = adjustment.estimate
+        ran.append(adjustment.cost < adjustment.initial_cost)
+        if change == 'cost not lower':
+            return adjustment._replace(cost=adjustment.initial_cost)
+        if change == 'frame 1 turned':
+            estimate = estimate._replace(first=_turned(estimate.first, turn))
+        else:
+            estimate = estimate._replace(
+                views=(*estimate.views[:-1], _turned(start.views[-1], turn))
+            )
+        return adjustment._replace(estimate=estimate)
+
+    monkeypatch.setattr(adjustment_module, 'adjustment_stages', breaking)
+    applied = record_method(monkeypatch, MonoTracker, '_apply_adjustment', lambda *_: None)
+    results, _ = track_images(MonoTracker(model, camera), images, _clicks(turning_head))
+    assert sum(ran) >= 2  # adjustments that lowered the cost, as run
+    assert applied == []
+    _assert_unadjusted(results, unadjusted)
+
+
 def test_adjust_runs_the_stages_and_the_next_frame_starts_from_their_result(
     turning_head, monkeypatch
 ):
