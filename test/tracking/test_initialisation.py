@@ -143,6 +143,48 @@ def test_fit_with_noise_and_prior_beats_mean_shape_pnp(model_factory) -> None:
     assert np.mean(errors['fit']) < 0.5 * np.mean(errors['pnp'])
 
 
+def test_the_fit_is_the_minimum_of_the_reprojection_and_prior_terms(model_factory) -> None:
+    """At the fit, the gradient of the objective written out by hand vanishes.
+
+    ``sum ||pi(R (mean + S sigma + A alpha) + t) - x||^2 / 0.5^2 + 2 (sigma' Sigma_s^-1 sigma
+    + alpha' Sigma_a^-1 alpha)``, by central differences: measured 0.0018 at most, against 257
+    for the prior terms' share (a fit without them leaves 483).
+    """
+    model = model_factory()
+    omega, t = np.array([-0.2, 0.4, 0.1]), np.array([-0.05, 0.04, 0.7])
+    sigma = 1.5 * np.sqrt(model.shape_eigenvalues)
+    alpha = np.sqrt(model.action_eigenvalues) * [1.0, -1.0, 0.5, 0.0]
+    points = _truth_points(model, omega, t, sigma, alpha, noise=0.5, seed=0)
+    init = Initialisation(model.node_names, points)
+    fit = fit_model_to_points(model, CAMERA, init, FitConfig(pixel_noise=0.5, prior_weight=2.0))
+    p = model.p
+    precisions = [np.linalg.inv(model.sigma_prior_covariance)]
+    precisions.append(np.linalg.inv(model.alpha_prior_covariance))
+
+    def terms(params: np.ndarray) -> tuple[float, float]:
+        coefficients = params[6 : 6 + p], params[6 + p :]
+        shape = model.shape(*coefficients)
+        pixels = project_with_jacobian(CAMERA, params[:3], params[3:6], shape).pixels
+        prior = sum(
+            c @ precision @ c for c, precision in zip(coefficients, precisions, strict=True)
+        )
+        return float(np.sum((pixels - points) ** 2) / 0.25), 2.0 * float(prior)
+
+    def gradient(part) -> np.ndarray:
+        params = np.concatenate([fit.omega, fit.t, fit.sigma, fit.alpha])
+        steps = 1e-7 * np.maximum(np.abs(params), 1e-3)
+        return np.array(
+            [
+                (part(params + step * unit) - part(params - step * unit)) / (2 * step)
+                for step, unit in zip(steps, np.eye(params.size), strict=True)
+            ]
+        )
+
+    prior_share = np.abs(gradient(lambda params: terms(params)[1])).max()
+    assert prior_share > 100.0
+    assert np.abs(gradient(lambda params: sum(terms(params)))).max() < 1e-3 * prior_share
+
+
 def test_fit_with_enrolled_sigma_and_subset(model_factory) -> None:
     model = model_factory()
     omega, t = np.array([0.0, 0.2, 0.0]), np.array([0.0, 0.0, 0.6])
