@@ -507,7 +507,8 @@ def test_a_report_goes_into_new_directories_as_the_tracked_bag_does(tmp_path):
     tracked = tmp_path / 'tracked'
     argv = ['track', str(mono), '--simulate-clicks', '1', '--quiet', '--out', str(tracked / 'o')]
     assert main([*argv, '--report', str(tracked / 'o.json')]) == 0
-    assert json.loads((tracked / 'o.json').read_text())['frames'] > 0
+    report = json.loads((tracked / 'o.json').read_text())
+    assert (report['frames'], report['tracked'], report['lost']) == (30, 30, 0)
 
 
 def test_a_report_of_figures_a_track_cannot_give_is_json_with_nulls(tmp_path):
