@@ -24,6 +24,7 @@ from face_tracking_ros.tracking.mono_kernels import (
     huber_irls,
     iteration,
     linearised,
+    node_visibility,
     normal_equations,
     roi_jacobian,
     roi_maps,
@@ -227,6 +228,23 @@ def test_weighted_gram_and_huber_irls_match_their_formulas() -> None:
     assert np.allclose(irls, (sample_weights * np.minimum(1.0, 2.0 / u)).ravel(), atol=1e-15)
     rho = np.where(u <= 2.0, u**2, 4.0 * u - 4.0)
     assert np.isclose(cost, np.sum(sample_weights * rho), rtol=1e-12)
+
+
+def test_node_visibility_ramps_from_the_cosine_low_to_twice_it() -> None:
+    """Weights ``clip((c - low) / low, 0, 1)``, c the cosine of the turned normal and the ray.
+
+    By hand for low = 0.2: nodes straight ahead with normals turned away by 0, 60 degrees
+    (c = 0.5: 1), acos(0.3) (0.5), 80 degrees (0.17: 0) and 180 degrees (-1: 0). The head
+    turned 60 degrees about y turns them all back by 60 degrees: 120 degrees is still away.
+    """
+    angles = np.radians([0.0, 60.0, np.degrees(np.arccos(0.3)), 80.0, 180.0])
+    normals = np.stack([np.sin(angles), np.zeros(5), -np.cos(angles)], axis=1)
+    nodes = np.array([[0.0, 0.0, 0.5]] * 5)
+    weights = node_visibility(normals, np.eye(3), nodes, 0.2)
+    np.testing.assert_allclose(weights, [1.0, 1.0, 0.5, 0.0, 0.0], rtol=0, atol=1e-12)
+    head_turn = np.ascontiguousarray(rodrigues(np.radians([0.0, 60.0, 0.0]))[0])
+    turned = node_visibility(normals, head_turn, nodes, 0.2)
+    np.testing.assert_allclose(turned, [1.0, 1.0, 1.0, 1.0, 0.0], rtol=0, atol=1e-12)
 
 
 def test_node_frames_are_orthonormal_and_face_the_camera() -> None:
