@@ -19,7 +19,12 @@ MAX_ROTATION_MAE_DEG = 5.0  # per axis; the 3-subject run: 0.1-3.6 deg
 def test_the_demo_tracks_learns_and_recognises_who_is_who(tmp_path):
     out = tmp_path / 'demo'
     assert main(['demo', '--out', str(out), '--subjects', '3']) == 0
-    for report in sorted((out / 'tracked').glob('*_seq_0?.json')):
+    reports = sorted((out / 'tracked').glob('*_seq_0?.json'))
+    assert [report.stem for report in reports] == [
+        'stranger_subject_00_seq_00',
+        *(f'test_subject_{s:02d}_seq_{q:02d}' for s in (0, 1) for q in (0, 1)),
+    ]
+    for report in reports:
         figures = json.loads(report.read_text())
         assert figures['tracked'] == figures['frames'] > 0, report.name
         if report.name.startswith('test_'):  # an enrolled subject (the stranger: unknown size)
