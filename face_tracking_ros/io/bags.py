@@ -55,8 +55,18 @@ from face_tracking_ros.wording import counted
 BAG_VERSION = 9  # rosbag2 metadata version written (Jazzy and later read it)
 NS_PER_S = 1_000_000_000
 MAX_NAMED_BAGS = 5  # bags named in the error for a directory of bags given as one
-# (OverflowError: rosbags seeks past a record whose length, read from damaged bytes, is >= 2**63)
-_READ_ERRORS = (ReaderError, KeyError, ValueError, EOFError, OSError, OverflowError, struct.error)
+# (OverflowError: rosbags seeks past a record whose length, read from damaged bytes, is >= 2**63;
+# MemoryError: it asks for a buffer of such a length, hundreds of gigabytes, to read the record)
+_READ_ERRORS = (
+    ReaderError,
+    KeyError,
+    ValueError,
+    EOFError,
+    OSError,
+    OverflowError,
+    MemoryError,
+    struct.error,
+)
 
 
 class StampLike(Protocol):

@@ -464,3 +464,26 @@ def test_a_cut_bag_is_decoded_up_to_the_damage(bag, tmp_path):
         decoded.extend(read_messages(cut))
     assert [(m.topic, m.stamp_ns) for m in decoded] == [(m.topic, m.stamp_ns) for m in raw]
     assert all(m.msg.header.stamp.sec > 0 for m in decoded)
+
+
+def _damaged_copy(bag: Path, target: Path, offset: int, xor: int) -> Path:
+    """A copy of ``bag`` whose MCAP file has the byte at ``offset`` XORed with ``xor``."""
+    shutil.copytree(bag, target)
+    mcap_file = next(target.glob('*.mcap'))
+    data = bytearray(mcap_file.read_bytes())
+    data[offset] ^= xor
+    mcap_file.write_bytes(bytes(data))
+    return target
+
+
+def test_a_header_whose_length_reads_as_hundreds_of_gigabytes_is_a_bag_error(bag, tmp_path):
+    """A byte of the header record's length (after the magic and the opcode) flipped.
+
+    rosbags asked for a buffer of that length, and its MemoryError came out of every reader.
+    """
+    damaged = _damaged_copy(bag, tmp_path / 'long_header', 8 + 1 + 4, 0x5A)
+    for read in (read_raw, read_messages):
+        with pytest.raises(BagError, match='damaged MCAP file, 0 messages recovered before') as e:
+            list(read(damaged))
+        assert str(e.value).startswith(str(damaged))
+    assert message_count(damaged, ['/cam/image']) == 0
