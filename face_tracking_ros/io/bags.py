@@ -341,7 +341,8 @@ def _summary_counts(summaries: list[tuple[Path, Summary | None]]) -> Counter[str
 def _open_reader(path: Path) -> tuple[Reader, Counter[str]] | None:
     """An open rosbags Reader and the messages per topic its MCAP summaries count.
 
-    The caller closes the reader. None for a damaged but streamable bag.
+    The caller closes the reader. None for a damaged but streamable bag, or one whose summary
+    disagrees with itself (:func:`_summary_agrees`).
 
     Raises:
         BagError: If the bag can be read neither way, or it is a directory of several MCAP
@@ -367,11 +368,32 @@ def _open_reader(path: Path) -> tuple[Reader, Counter[str]] | None:
         raise BagError(f'{path}: cannot read bag: {type(error).__name__}: {error}') from None
     try:
         summaries = _summaries(path)
+        listed = set(_metadata_topics(path))
+        if not all(_summary_agrees(summary, listed) for _, summary in summaries):
+            reader.close()
+            return None
         _check_types_agree(reader, path, summaries)
     except BaseException:
         reader.close()
         raise
     return reader, _summary_counts(summaries)
+
+
+def _summary_agrees(summary: Summary | None, listed: set[str]) -> bool:
+    """Whether an MCAP summary declares every channel its statistics count, on ``listed`` topics.
+
+    rosbags takes the channels from the summary and pairs them with ``metadata.yaml``'s topics
+    (``listed``; none to check without it): a summary's channel record damaged in its id or its
+    topic name leaves the messages the chunks give that channel silently unread. The chunks
+    declare their channels themselves, so such a file is streamed.
+    """
+    if summary is None:
+        return True
+    counted = (
+        set() if summary.statistics is None else set(summary.statistics.channel_message_counts)
+    )
+    topics = {channel.topic for channel in summary.channels.values()}
+    return counted <= set(summary.channels) and (not listed or topics <= listed)
 
 
 def _not_a_bag(directory: Path) -> str:

@@ -36,6 +36,7 @@ from face_tracking_ros.io.typestore import typestore
 FRAMES = 40
 CUTS = 24
 IMAGE, INFO = 'sensor_msgs/msg/Image', 'sensor_msgs/msg/CameraInfo'
+CHANNEL_OPCODE = 0x04
 
 
 @pytest.fixture(scope='module')
@@ -487,3 +488,25 @@ def test_a_header_whose_length_reads_as_hundreds_of_gigabytes_is_a_bag_error(bag
             list(read(damaged))
         assert str(e.value).startswith(str(damaged))
     assert message_count(damaged, ['/cam/image']) == 0
+
+
+@pytest.mark.parametrize(('field', 'at'), [('id', 0), ('topic', 2 + 2 + 4)])
+def test_a_bag_whose_summary_misnames_a_channel_is_read_whole(bag, tmp_path, field, at):
+    """The summary's copy of the image channel's record, a byte of its id or topic flipped.
+
+    rosbags took the channels from the summary: the image messages were of no channel (of
+    another id) or of a topic metadata.yaml does not list (/cam/3mage), and the bag read as its
+    camera_info alone, without an error.
+    """
+    data = next(bag.glob('*.mcap')).read_bytes()
+    offset, summary_channel = 8, None  # after the magic
+    while offset < len(data) - 8:  # the records outside chunks: in the summary for a channel
+        length = int.from_bytes(data[offset + 1 : offset + 9], 'little')
+        if data[offset] == CHANNEL_OPCODE and b'/cam/image' in data[offset : offset + 9 + length]:
+            summary_channel = offset
+        offset += 9 + length
+    assert summary_channel is not None
+    damaged = _damaged_copy(bag, tmp_path / field, summary_channel + 9 + at, 0x5A)
+    messages, error = _read_until_damage(damaged)
+    assert messages == list(read_raw(bag))
+    assert error == ''
