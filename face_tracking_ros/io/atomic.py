@@ -180,6 +180,14 @@ def read_npz(path: Path) -> dict[str, np.ndarray]:
     return members
 
 
+def is_real_array(array: np.ndarray) -> bool:
+    """Whether ``array`` holds real numbers (integers or floats), as every saved array does.
+
+    ``np.number`` also takes complex numbers, whose imaginary part ``astype(float)`` drops.
+    """
+    return array.dtype.kind in 'iuf'
+
+
 # What numpy and zipfile raise for a damaged archive or .npy member. NotImplementedError is
 # zipfile's word for a damaged header's 'version needed'; SyntaxError and TokenError come out of
 # numpy's parsing of a damaged .npy header.

@@ -32,7 +32,7 @@ from typing import Any, NoReturn
 import numpy as np
 
 from face_tracking_ros.errors import ModelFileError
-from face_tracking_ros.io.atomic import read_npz, write_npz_atomically
+from face_tracking_ros.io.atomic import is_real_array, read_npz, write_npz_atomically
 from face_tracking_ros.model.face_model import FaceModel
 from face_tracking_ros.wording import listed
 
@@ -107,7 +107,7 @@ def load_model(path: str | os.PathLike[str]) -> FaceModel:
     header = _read_header(path, contents['header'])
     arrays = {}
     for name in ARRAY_FIELDS:
-        if not np.issubdtype(contents[name].dtype, np.number):
+        if not is_real_array(contents[name]):
             _fail(path, f'{name} has dtype {contents[name].dtype}, expected float64')
         arrays[name] = contents[name].astype(np.float64)
     n3 = arrays['mean_shape'].size

@@ -21,7 +21,7 @@ from typing import Any, NoReturn
 import numpy as np
 
 from face_tracking_ros.errors import ModelFileError
-from face_tracking_ros.io.atomic import read_npz, write_npz_atomically
+from face_tracking_ros.io.atomic import is_real_array, read_npz, write_npz_atomically
 
 HEADER_KEY = 'header'
 MODEL_FIELD = 'model_fingerprint'
@@ -56,8 +56,8 @@ class Archive:
             e is not None and a != e for a, e in zip(actual, shape, strict=True)
         ):
             self.fail(f'array {name!r} has shape {actual}, expected {shape}')
-        if not np.issubdtype(value.dtype, np.number) or not np.all(np.isfinite(value)):
-            self.fail(f'array {name!r} is not a finite numeric array')
+        if not is_real_array(value) or not np.all(np.isfinite(value)):
+            self.fail(f'array {name!r} is not a finite real array (dtype {value.dtype})')
         return value.astype(float)
 
     def field(self, name: str, kind: type) -> Any:

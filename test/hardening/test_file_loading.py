@@ -104,6 +104,17 @@ def test_a_nan_in_an_array_is_refused_naming_it(saved):
         load()
 
 
+def test_a_complex_array_is_refused_naming_it(saved):
+    """Its imaginary part was dropped (numpy's ComplexWarning) and the real part loaded."""
+    path, load = saved
+    members = _members(path)
+    name = max((n for n in members if n != 'header'), key=lambda n: members[n].size)
+    _rewrite(path, {**members, name: members[name] + 1j})
+    refusal = f"{name}'? (has dtype complex128|is not a finite real array)"
+    with pytest.raises(ModelFileError, match=refusal):
+        load()
+
+
 def test_a_file_without_its_header_is_refused(saved):
     path, load = saved
     members = _members(path)
