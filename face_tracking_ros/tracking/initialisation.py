@@ -26,6 +26,7 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 import json
 from pathlib import Path
+import sys
 from typing import Any
 
 import cv2
@@ -192,7 +193,7 @@ def load_init_file(path: str | Path) -> Initialisation:
         raise ConfigError(msg) from None
     try:
         data = json.loads(text) if path.suffix.lower() == '.json' else parse_yaml(text)
-    except (json.JSONDecodeError, yaml.YAMLError) as error:
+    except (ValueError, yaml.YAMLError) as error:  # json's, and an integer of > 4300 digits
         kind = 'JSON' if path.suffix.lower() == '.json' else 'YAML'
         msg = f'init file {path} is not valid {kind}: {" ".join(str(error).split())}'
         raise ConfigError(msg) from None
@@ -205,10 +206,19 @@ def _is_point(value: Any) -> bool:
 
 
 def _is_number_list(value: Any) -> bool:
-    """True for a list or tuple of ints and floats (not bools)."""
+    """True for a list or tuple of floats and of ints a float can hold (not bools).
+
+    YAML and JSON read any integer, such as a 400-digit one, which float() cannot convert.
+    """
     return isinstance(value, list | tuple) and all(
-        isinstance(v, int | float) and not isinstance(v, bool) for v in value
+        isinstance(v, float) or (isinstance(v, int) and not isinstance(v, bool) and _fits_float(v))
+        for v in value
     )
+
+
+def _fits_float(value: int) -> bool:
+    """Whether float(value) is a number (not an OverflowError)."""
+    return abs(value) <= sys.float_info.max
 
 
 @dataclass(frozen=True)

@@ -54,6 +54,11 @@ def test_yaml_and_json_init_files_parse(tmp_path: Path) -> None:
         ('nodes: {a: [1, 2]}\nsigma: oops\n', 'sigma must be a list of numbers'),
         ('nodes: {a: [1, 2]\n', 'is not valid YAML'),
         ('nodes:\n  a: [1, 2]\n\tb: [3, 4]\n', r"found character '\\t' that cannot start"),
+        # An integer past float's range: float() raised OverflowError
+        (f'nodes: {{right_eye: [{10**400}, 2]}}\n', "node 'right_eye' must be \\[x, y\\]"),
+        (f'nodes: {{a: [1, 2]}}\nsigma: [{10**400}]\n', 'sigma must be a list of numbers'),
+        # One past Python's limit on parsing integers: its ValueError came out of the parser
+        (f'nodes: {{right_eye: [{"1" * 5000}, 2]}}\n', 'not valid YAML: Exceeds the limit'),
     ],
 )
 def test_bad_init_files_name_the_file_and_problem(tmp_path: Path, text: str, match: str) -> None:
