@@ -10,9 +10,11 @@ offending character (e.g. a tab) where libyaml's does not.
 
 from __future__ import annotations
 
+from collections.abc import Hashable
 from typing import Any
 
 import yaml
+from yaml.constructor import ConstructorError
 
 _LOADER = getattr(yaml, 'CSafeLoader', yaml.SafeLoader)  # libyaml's, where PyYAML has it
 
@@ -27,3 +29,32 @@ def parse_yaml(text: str) -> Any:
         return yaml.load(text, Loader=_LOADER)
     except yaml.YAMLError:
         return yaml.load(text, Loader=yaml.SafeLoader)  # its value, or its error message
+
+
+class _UniqueKeyLoader(yaml.SafeLoader):
+    """PyYAML's safe loader, refusing a mapping that gives a key twice (it keeps the last)."""
+
+    def construct_mapping(self, node: yaml.MappingNode, deep: bool = False) -> dict[Hashable, Any]:
+        """The mapping of ``node``; raises ConstructorError naming a key it gives twice."""
+        seen: set[Any] = set()
+        for key_node, _ in node.value:
+            key = self.construct_object(key_node, deep=deep)
+            if key in seen:
+                msg = f'found key {key!r} twice'
+                raise ConstructorError(
+                    'while constructing a mapping', node.start_mark, msg, key_node.start_mark
+                )
+            seen.add(key)
+        return super().construct_mapping(node, deep=deep)
+
+
+def parse_yaml_unique_keys(text: str) -> Any:
+    """The value of a YAML document typed by hand, where a key given twice is a mistake.
+
+    As :func:`parse_yaml` (its pure-Python parser: such files are small), but a mapping that
+    gives a key twice is refused where PyYAML keeps the last value (e.g. a node clicked twice).
+
+    Raises:
+        yaml.YAMLError: for malformed YAML or a key given twice, naming the line.
+    """
+    return yaml.load(text, Loader=_UniqueKeyLoader)

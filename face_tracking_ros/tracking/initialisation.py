@@ -39,7 +39,7 @@ from face_tracking_ros.errors import ConfigError, InputError, check_fields
 from face_tracking_ros.geometry.camera import PinholeCamera
 from face_tracking_ros.geometry.rotation import rodrigues
 from face_tracking_ros.imaging import inside_image
-from face_tracking_ros.io.yaml_text import parse_yaml
+from face_tracking_ros.io.yaml_text import parse_yaml_unique_keys
 from face_tracking_ros.model.face_model import FaceModel
 from face_tracking_ros.model.topology import mesh_topology
 from face_tracking_ros.tracking.projection import POSE_DIM, project_with_jacobian
@@ -192,12 +192,26 @@ def load_init_file(path: str | Path) -> Initialisation:
         msg = f'init file {path} is not text (UTF-8): an image or another binary file?'
         raise ConfigError(msg) from None
     try:
-        data = json.loads(text) if path.suffix.lower() == '.json' else parse_yaml(text)
+        data = (
+            json.loads(text, object_pairs_hook=_unique_keys)
+            if path.suffix.lower() == '.json'
+            else parse_yaml_unique_keys(text)
+        )
     except (ValueError, yaml.YAMLError) as error:  # json's, and an integer of > 4300 digits
         kind = 'JSON' if path.suffix.lower() == '.json' else 'YAML'
         msg = f'init file {path} is not valid {kind}: {" ".join(str(error).split())}'
         raise ConfigError(msg) from None
     return Initialisation.from_mapping(data, source=f'init file {path}')
+
+
+def _unique_keys(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
+    """A JSON object of ``pairs``; ValueError for a key given twice (json keeps the last)."""
+    keys = [key for key, _ in pairs]
+    twice = sorted({key for key in keys if keys.count(key) > 1})
+    if twice:
+        msg = f'key {twice[0]!r} given twice'
+        raise ValueError(msg)
+    return dict(pairs)
 
 
 def _is_point(value: Any) -> bool:

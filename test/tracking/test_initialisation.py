@@ -57,6 +57,8 @@ def test_yaml_and_json_init_files_parse(tmp_path: Path) -> None:
         # An integer past float's range: float() raised OverflowError
         (f'nodes: {{right_eye: [{10**400}, 2]}}\n', "node 'right_eye' must be \\[x, y\\]"),
         (f'nodes: {{a: [1, 2]}}\nsigma: [{10**400}]\n', 'sigma must be a list of numbers'),
+        # A node clicked twice: the second position was taken without a word
+        ('nodes:\n  a: [1, 2]\n  b: [3, 4]\n  a: [5, 6]\n', "found key 'a' twice"),
         # One past Python's limit on parsing integers: its ValueError came out of the parser
         (f'nodes: {{right_eye: [{"1" * 5000}, 2]}}\n', 'not valid YAML: Exceeds the limit'),
     ],
@@ -227,3 +229,11 @@ def test_points_named_with_left_and_right_swapped_are_refused(model_factory, nam
     mirrored = tuple('_'.join(swap.get(p, p) for p in name.split('_')) for name in names)
     with pytest.raises(InputError, match=r'fit a face turned 1\d\d degrees away .* swapped\?'):
         fit_model_to_points(model, CAMERA, Initialisation(mirrored, points))
+
+
+def test_a_json_init_file_giving_a_node_twice_is_refused(tmp_path: Path) -> None:
+    """json, as YAML, kept the second position of a node given twice without a word."""
+    path = tmp_path / 'init.json'
+    path.write_text('{"nodes": {"right_eye": [1, 2], "left_eye": [3, 4], "right_eye": [5, 6]}}')
+    with pytest.raises(ConfigError, match="is not valid JSON: key 'right_eye' given twice"):
+        load_init_file(path)
