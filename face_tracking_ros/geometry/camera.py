@@ -24,6 +24,8 @@ SAME_CALIBRATION_RTOL = 1e-4  # relative difference of K, D, R, P within one cal
 # and corrects, StereoRig.with_right_rows_shifted; cx may too, as stereoRectify leaves it.)
 RECTIFIED_SHARED = {(0, 0): 'fx', (1, 1): 'fy'}
 RECTIFIED_TOLERANCE = 1e-4  # relative
+LAST_ROW_TOLERANCE = 1e-2  # of K's and P's last rows from (0, 0, 1[, 0]), which eq. 2 assumes
+ROTATION_TOLERANCE = 1e-3  # of R^T R from I: a calibration file's R printed to 4 decimals
 
 
 @dataclass(frozen=True)
@@ -58,6 +60,14 @@ class PinholeCamera:
         _require(all(np.all(np.isfinite(a)) for a in arrays), 'K, P, D or R holds NaN or Inf')
         _require(self.p[0, 0] > 0 and self.p[1, 1] > 0, 'P has a focal length <= 0 (uncalibrated)')
         _require(self.k[0, 0] > 0 and self.k[1, 1] > 0, 'K has a focal length <= 0 (uncalibrated)')
+        for name, matrix in (('K', self.k), ('P', self.p)):
+            _require_last_row(name, matrix)
+        rotation_error = np.abs(self.r.T @ self.r - np.eye(3)).max()
+        _require(
+            rotation_error < ROTATION_TOLERANCE and np.linalg.det(self.r) > 0,
+            f'R is not a rotation (max |R^T R - I| = {rotation_error:.2g}, det R = '
+            f'{np.linalg.det(self.r):.3g})',
+        )
 
     @classmethod
     def from_camera_info(cls, info: Any) -> PinholeCamera:
@@ -334,6 +344,20 @@ class StereoRig:
             self.left.p, self.right.p, left_px.T.astype(float), right_px.T.astype(float)
         )
         return (homogeneous[:3] / homogeneous[3]).T
+
+
+def _require_last_row(name: str, matrix: np.ndarray) -> None:
+    """Raise InputError unless K's or P's last row is CameraInfo's (0, 0, 1[, 0]), as eq. 2 needs.
+
+    Any other row gives no depth (a zero row projects every point to infinity).
+    """
+    expected = np.eye(3, matrix.shape[1])[2]
+    shown = ', '.join(f'{value:g}' for value in matrix[2])
+    wanted = ', '.join(f'{value:g}' for value in expected)
+    _require(
+        bool(np.allclose(matrix[2], expected, rtol=0.0, atol=LAST_ROW_TOLERANCE)),
+        f"{name}'s last row is [{shown}], expected [{wanted}]",
+    )
 
 
 def _require(condition: bool, problem: str) -> None:

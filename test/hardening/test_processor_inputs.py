@@ -112,6 +112,14 @@ def _nan_info():
     return info
 
 
+def _info_with(**fields: np.ndarray):
+    """The camera_info of CAMERA with the given fields (k, r, p) replaced."""
+    info = info_msg()
+    for name, values in fields.items():
+        getattr(info, name)[:] = values
+    return info
+
+
 def _zero_info():
     info = info_msg()
     info.k[:] = 0.0
@@ -160,6 +168,21 @@ BAD_MONO_INPUTS = [
         'camera_info',
         lambda: info_msg(replace(CAMERA, width=0)),
         'invalid camera: image size 0x240',
+    ),
+    (  # projected every point to depth 0: least_squares's ValueError 'Residuals are not finite'
+        'camera_info',
+        lambda: _info_with(k=np.r_[CAMERA.k.ravel()[:8], 0.0]),
+        r'invalid camera: K\'s last row is \[0, 0, 0\], expected \[0, 0, 1\]',
+    ),
+    (
+        'camera_info',
+        lambda: _info_with(p=np.r_[CAMERA.p.ravel()[:8], 0.0, 0.0, 0.0, 0.0]),
+        r'invalid camera: P\'s last row is \[0, 0, 0, 0\], expected \[0, 0, 1, 0\]',
+    ),
+    (  # a zero row: 'initialisation points lie on one spot or one line', of no camera
+        'camera_info',
+        lambda: _info_with(r=np.diag([1.0, 0.0, 1.0]).ravel()),
+        'invalid camera: R is not a rotation',
     ),
 ]
 
