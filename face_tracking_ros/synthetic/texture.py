@@ -25,6 +25,7 @@ from scipy.interpolate import PchipInterpolator, RBFInterpolator
 from face_tracking_ros.errors import ConfigError
 from face_tracking_ros.model.topology import mesh_topology
 from face_tracking_ros.synthetic.surface import outline_radius
+from face_tracking_ros.tracking.initialisation import is_point, unique_json_keys
 from face_tracking_ros.wording import listed
 
 ENCODINGS = ('mono8', 'rgb8')
@@ -223,12 +224,7 @@ def load_photo_texture(
     if photo is None:
         msg = f'cannot read texture photo {photo_path} as an image'
         raise ConfigError(msg)
-    try:
-        raw = json.loads(nodes_path.read_text())
-        node_pixels = {str(name): (float(xy[0]), float(xy[1])) for name, xy in raw.items()}
-    except (ValueError, TypeError, AttributeError, IndexError, KeyError) as error:
-        msg = f'{nodes_path} must be a JSON object {{node name: [x, y]}}: {error}'
-        raise ConfigError(msg) from None
+    node_pixels = _node_pixels(nodes_path)
     height, width = photo.shape[:2]
     outside = [
         name
@@ -242,6 +238,29 @@ def load_photo_texture(
         )
         raise ConfigError(msg)
     return photo_texture(cv2.cvtColor(photo, cv2.COLOR_BGR2RGB), node_pixels, encoding)
+
+
+def _node_pixels(path: Path) -> dict[str, tuple[float, float]]:
+    """The ``{node name: [x, y]}`` of a JSON file, each node once, two numbers a node.
+
+    Raises:
+        ConfigError: naming the file and the problem (not JSON, not an object, a node given
+            twice, a position that is not two numbers).
+    """
+    problem = f'{path} must be a JSON object {{node name: [x, y]}}'
+    try:
+        raw = json.loads(path.read_text(), object_pairs_hook=unique_json_keys)
+    except ValueError as error:  # json's, a key given twice, an integer of > 4300 digits
+        msg = f'{problem}: {error}'
+        raise ConfigError(msg) from None
+    if not isinstance(raw, dict):
+        msg = f'{problem}: got a JSON {type(raw).__name__}'
+        raise ConfigError(msg)
+    for name, xy in raw.items():
+        if not is_point(xy):
+            msg = f'{problem}: node {name!r} must be [x, y] in pixels, got {xy!r}'
+            raise ConfigError(msg)
+    return {str(name): (float(x), float(y)) for name, (x, y) in raw.items()}
 
 
 def _check_encoding(encoding: str) -> None:

@@ -144,7 +144,7 @@ class Initialisation:
             raise ConfigError(msg)
         names, points = [], []
         for name, value in data['nodes'].items():
-            if not _is_point(value):
+            if not is_point(value):
                 msg = f'{source}: node {name!r} must be [x, y] in pixels, got {value!r}'
                 raise ConfigError(msg)
             names.append(str(name))
@@ -193,7 +193,7 @@ def load_init_file(path: str | Path) -> Initialisation:
         raise ConfigError(msg) from None
     try:
         data = (
-            json.loads(text, object_pairs_hook=_unique_keys)
+            json.loads(text, object_pairs_hook=unique_json_keys)
             if path.suffix.lower() == '.json'
             else parse_yaml_unique_keys(text)
         )
@@ -204,7 +204,7 @@ def load_init_file(path: str | Path) -> Initialisation:
     return Initialisation.from_mapping(data, source=f'init file {path}')
 
 
-def _unique_keys(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
+def unique_json_keys(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
     """A JSON object of ``pairs``; ValueError for a key given twice (json keeps the last)."""
     keys = [key for key, _ in pairs]
     twice = sorted({key for key in keys if keys.count(key) > 1})
@@ -214,7 +214,7 @@ def _unique_keys(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
     return dict(pairs)
 
 
-def _is_point(value: Any) -> bool:
+def is_point(value: Any) -> bool:
     """True for a 2-element list of numbers."""
     return _is_number_list(value) and len(value) == 2
 

@@ -293,6 +293,17 @@ def test_photo_texture_errors_name_the_problem(tmp_path):
     (tmp_path / 'nodes.json').write_text('[1, 2]')
     with pytest.raises(ConfigError, match='must be a JSON object'):
         load_photo_texture(tmp_path / 'photo.png', tmp_path / 'nodes.json')
+    # An integer past float's range crashed with OverflowError; a third value and a node given
+    # twice (the last kept) were taken without a word
+    for text, problem in (
+        (json.dumps(few)[:-1] + f', "chin": [{10**400}, 50]}}', 'must be \\[x, y\\]'),
+        (json.dumps({**few, 'chin': (50, 50, 7)}), 'must be \\[x, y\\]'),
+        (json.dumps(few)[:-1] + ', "nose_tip": [1, 2]}', "key 'nose_tip' given twice"),
+        ('[1, 2]', 'got a JSON list'),
+    ):
+        (tmp_path / 'nodes.json').write_text(text)
+        with pytest.raises(ConfigError, match=f'must be a JSON object .*{problem}'):
+            load_photo_texture(tmp_path / 'photo.png', tmp_path / 'nodes.json')
     for bad in (float('nan'), 1e6):  # these hung the renderer inside OpenCV
         (tmp_path / 'nodes.json').write_text(json.dumps({**few, 'chin': (bad, 50)}))
         with pytest.raises(ConfigError, match='node chin not inside the 100x100 photo'):
