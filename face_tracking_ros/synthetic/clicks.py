@@ -16,7 +16,7 @@ import zlib
 
 import numpy as np
 
-from face_tracking_ros.errors import BagError, InputError
+from face_tracking_ros.errors import BagError, ConfigError, InputError
 from face_tracking_ros.geometry.camera import PinholeCamera
 from face_tracking_ros.io import conversions
 from face_tracking_ros.io.atomic import (
@@ -26,7 +26,11 @@ from face_tracking_ros.io.atomic import (
 )
 from face_tracking_ros.io.bags import bag_topics, read_messages, recording_name, topic_has_word
 from face_tracking_ros.io.series import read_converted
-from face_tracking_ros.tracking.initialisation import Initialisation, load_init_file
+from face_tracking_ros.tracking.initialisation import (
+    MIN_INIT_NODES,
+    Initialisation,
+    load_init_file,
+)
 
 DEFAULT_CLICK_NOISE_PX = 1.0
 
@@ -47,8 +51,13 @@ def simulated_clicks(
             rectified image of eq. 2 for a camera that needs no rectification).
         noise_px: standard deviation of the click error, px.
         rng: noise generator; None for no noise.
+
+    Raises:
+        ConfigError: if fewer than :data:`MIN_INIT_NODES` clicks fall inside the image (the
+            face out of the frame, or a noise of the image's size), naming the noise.
     """
     points = camera.raw_pixels(nodes_cam)
+    noise_px = noise_px if rng is not None else 0.0
     if rng is not None and noise_px > 0:
         points = points + rng.normal(0.0, noise_px, points.shape)
     inside = (
@@ -57,6 +66,13 @@ def simulated_clicks(
         & (points[:, 1] >= 0)
         & (points[:, 1] <= camera.height - 1)
     )
+    if np.count_nonzero(inside) < MIN_INIT_NODES:
+        msg = (
+            f'simulated clicks: {np.count_nonzero(inside)} of the {len(points)} nodes fall inside '
+            f'the {camera.width}x{camera.height} image with a click noise of {noise_px:g} px; the '
+            f'initialisation needs at least {MIN_INIT_NODES}'
+        )
+        raise ConfigError(msg)
     names = tuple(name for name, keep in zip(node_names, inside, strict=True) if keep)
     return Initialisation(node_names=names, points=points[inside])
 

@@ -7,6 +7,7 @@ import zlib
 import numpy as np
 import pytest
 
+from face_tracking_ros.errors import ConfigError
 from face_tracking_ros.geometry.camera import PinholeCamera
 from face_tracking_ros.synthetic.clicks import clicks_from_bag, simulated_clicks, write_init_file
 from face_tracking_ros.synthetic.faces import FacePopulation
@@ -35,6 +36,19 @@ def test_noiseless_clicks_are_the_projections_inside_the_image():
     init = simulated_clicks(names, _nodes_at(pixels), CAMERA, rng=None)
     assert init.node_names == names[2:8]
     np.testing.assert_allclose(init.points, pixels[2:8], atol=1e-9)
+
+
+def test_clicks_that_leave_too_few_nodes_in_the_image_name_the_noise():
+    """A noise of 1e6 px left no node inside: 'initialisation needs at least 6 nodes, got 0'."""
+    pixels = np.column_stack([np.linspace(100, 500, 10), np.full(10, 240.0)])
+    names = tuple(f'n{k}' for k in range(len(pixels)))
+    with pytest.raises(
+        ConfigError,
+        match=r'^simulated clicks: 0 of the 10 nodes fall inside the '
+        r'640x480 image with a click noise of 1e\+06 px; the initialisation needs '
+        r'at least 6$',
+    ):
+        simulated_clicks(names, _nodes_at(pixels), CAMERA, 1e6, np.random.default_rng(0))
 
 
 @pytest.mark.parametrize('noise_px', [None, 0.5])
