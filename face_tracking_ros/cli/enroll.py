@@ -22,6 +22,7 @@ import numpy as np
 from face_tracking_ros.data import default_model_path
 from face_tracking_ros.errors import BagError, ConfigError
 from face_tracking_ros.io.atomic import check_output_path
+from face_tracking_ros.io.bags import check_distinct_bags
 from face_tracking_ros.io.provenance import tracked_with
 from face_tracking_ros.io.series import load_states, require_parameters
 from face_tracking_ros.model.model_file import load_model
@@ -65,6 +66,7 @@ def run(args: argparse.Namespace) -> None:
         BagError: if no frame of the bags was tracked with a sigma (:func:`tracked_sigmas`).
         ModelFileError: if the model or an existing gallery file is unusable or does not match.
     """
+    check_distinct_bags(args.bags)
     check_output_path(args.gallery, '--gallery', parent_made=False)
     model_path = tracked_with(args.bags, args.model) or default_model_path()
     model = load_model(model_path)

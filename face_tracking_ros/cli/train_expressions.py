@@ -19,7 +19,7 @@ import numpy as np
 
 from face_tracking_ros.errors import BagError, ConfigError
 from face_tracking_ros.io.atomic import check_output_path, check_replaceable
-from face_tracking_ros.io.bags import NS_PER_S, bag_topics
+from face_tracking_ros.io.bags import NS_PER_S, bag_topics, check_distinct_bags
 from face_tracking_ros.io.conversions import TRUTH_TYPE, truth_from_msg
 from face_tracking_ros.io.series import read_converted
 from face_tracking_ros.model.face_model import FaceModel
@@ -98,6 +98,7 @@ def run(args: argparse.Namespace) -> None:
         min_intensity=args.min_intensity,
         regularisation=args.regularisation,
     )
+    check_distinct_bags(args.bags)
     check_output_path(args.out, '--out', parent_made=False)
     check_replaceable(
         args.out,

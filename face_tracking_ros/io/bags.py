@@ -46,7 +46,7 @@ from rosbags.typesys.store import Typestore
 import yaml
 
 from face_tracking_ros import wording
-from face_tracking_ros.errors import BagError
+from face_tracking_ros.errors import BagError, ConfigError
 from face_tracking_ros.io.bag_definitions import BagDefinitions
 from face_tracking_ros.io.typestore import typestore
 from face_tracking_ros.io.yaml_text import parse_yaml
@@ -611,6 +611,31 @@ def recording_name(path: Path | str) -> str:
         return path.name
     directory = path.absolute().parent
     return directory.name if (directory / 'metadata.yaml').is_file() else path.stem
+
+
+def check_distinct_bags(bags: Iterable[Path | str]) -> None:
+    """Refuse a bag given twice to a command that pools its bags' frames.
+
+    The same bag however written: a path through ``.``, a symbolic link, or a bag's only MCAP
+    file beside its directory (:func:`_bag_identity`).
+
+    Raises:
+        ConfigError: naming the bag and its second spelling.
+    """
+    seen: dict[Path, Path] = {}
+    for bag in map(Path, bags):
+        first = seen.setdefault(_bag_identity(bag), bag)
+        if first is not bag:
+            msg = f'bag {first} given twice (also as {bag}): its frames would count twice'
+            raise ConfigError(msg)
+
+
+def _bag_identity(bag: Path) -> Path:
+    """The resolved directory of a bag, or of the MCAP file that is its only one."""
+    resolved = bag.resolve()
+    if resolved.suffix == '.mcap' and _listed_files(resolved.parent) == [resolved]:
+        return resolved.parent
+    return resolved
 
 
 def message_count(path: Path | str, topics: Iterable[str]) -> int:

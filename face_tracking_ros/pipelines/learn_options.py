@@ -15,6 +15,7 @@ import re
 
 from face_tracking_ros.errors import ConfigError
 from face_tracking_ros.io.atomic import check_output_path, check_replaceable
+from face_tracking_ros.io.bags import check_distinct_bags
 from face_tracking_ros.io.series import holds_truth
 from face_tracking_ros.learning.methods import DEFAULT_METHOD, METHODS
 from face_tracking_ros.model.model_file import load_model
@@ -204,6 +205,7 @@ def _check_bags_and_files(options: LearnOptions, reads: BagReads) -> list[Path]:
     Returns:
         The bags without truth (each bag's topics read by ``reads`` for it).
     """
+    check_distinct_bags(options.bags)
     if options.truth is not None and len(options.truth) != len(options.bags):
         truth, bags = counted(len(options.truth), 'bag'), counted(len(options.bags), 'input bag')
         msg = f'--truth names {truth} for {bags}'
