@@ -31,11 +31,11 @@ from pathlib import Path, PurePath
 import re
 import struct
 from types import TracebackType
-from typing import Any, NamedTuple, Protocol
+from typing import Any, BinaryIO, NamedTuple, Protocol
 
 from mcap.exceptions import EndOfFile, McapError
 from mcap.reader import make_reader
-from mcap.records import Channel, Message, Schema
+from mcap.records import Channel, McapRecord, Message, Schema
 from mcap.stream_reader import StreamReader
 from mcap.summary import Summary
 from rosbags.rosbag2 import Reader, ReaderError, StoragePlugin, Writer, WriterError
@@ -535,7 +535,7 @@ def _stream_records(path: Path, topics: Iterable[str] | None) -> Iterator[RawMes
     for file in files:
         try:
             with file.open('rb') as stream:
-                for record in StreamReader(stream).records:
+                for record in _file_records(stream, file.stat().st_size):
                     if isinstance(record, Schema):
                         schemas[record.id] = (record.name, _schema_text(record))
                     elif isinstance(record, Channel):
@@ -558,6 +558,20 @@ def _stream_records(path: Path, topics: Iterable[str] | None) -> Iterator[RawMes
     missing = (wanted or set()) - {topic for topic, _, _ in channels.values()}
     if missing:
         raise BagError(f'{path}: no topic {", ".join(sorted(missing))} in bag')
+
+
+def _file_records(stream: BinaryIO, size: int) -> Iterator[McapRecord]:
+    """The records of an MCAP file of ``size`` bytes, as StreamReader reads them.
+
+    A file that ends inside a record's header (its opcode and length) or its closing magic made
+    StreamReader unpack too few bytes: its struct.error is the EndOfFile of a truncated file.
+    """
+    try:
+        yield from StreamReader(stream).records
+    except struct.error:
+        if stream.tell() < size:  # a short read inside the file: damage, not its end
+            raise
+        raise EndOfFile from None
 
 
 def _schema_text(schema: Schema) -> str:

@@ -510,3 +510,16 @@ def test_a_bag_whose_summary_misnames_a_channel_is_read_whole(bag, tmp_path, fie
     messages, error = _read_until_damage(damaged)
     assert messages == list(read_raw(bag))
     assert error == ''
+
+
+@pytest.mark.parametrize('cut_from_end', [False, True])
+def test_a_bag_cut_inside_a_record_header_says_it_is_truncated(bag, tmp_path, cut_from_end):
+    """Cut 3 bytes into the header record's length, or 1 byte short of the closing magic.
+
+    It said 'error: unpack requires a buffer of 8 bytes' (struct's words for a short read).
+    """
+    size = next(bag.glob('*.mcap')).stat().st_size
+    cut = _cut_copy(bag, tmp_path / 'cut', (size - 1 if cut_from_end else 8 + 1 + 3) / size)
+    messages, error = _read_until_damage(cut)
+    assert len(messages) == (2 * FRAMES if cut_from_end else 0)
+    assert error.endswith(' recovered before: the file ends part way (truncated)'), error
