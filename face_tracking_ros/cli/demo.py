@@ -52,13 +52,9 @@ class DemoPlan:
     seed: int = 7
 
 
-def register(subparsers: argparse._SubParsersAction) -> None:
-    """Add the ``demo`` subcommand."""
-    parser = subparsers.add_parser(
-        'demo',
-        help='run the whole system end to end on the synthetic world',
-        description=__doc__.split('\n\n')[0].replace('``', ''),
-    )
+def register(parser: argparse.ArgumentParser) -> None:
+    """Register the ``demo`` subcommand's options."""
+    parser.description = __doc__.split('\n\n')[0].replace('``', '')
     parser.add_argument(
         '--out',
         type=Path,

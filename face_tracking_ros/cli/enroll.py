@@ -30,13 +30,9 @@ from face_tracking_ros.recognition.identity import IdentityConfig, IdentityGalle
 from face_tracking_ros.tracking.result import TrackStatus
 
 
-def register(subparsers: argparse._SubParsersAction) -> None:
-    """Add the ``enroll`` subcommand."""
-    parser = subparsers.add_parser(
-        'enroll',
-        help='enrol a person in an identity gallery from tracked recordings',
-        description=__doc__.split('\n\n')[1].replace('``', ''),
-    )
+def register(parser: argparse.ArgumentParser) -> None:
+    """Register the ``enroll`` subcommand's options."""
+    parser.description = __doc__.split('\n\n')[1].replace('``', '')
     parser.add_argument('bags', nargs='+', type=Path, metavar='BAG', help='tracker output bags')
     parser.add_argument('--name', required=True, help="the person's name")
     parser.add_argument('--gallery', required=True, type=Path, help='gallery file (.npz)')

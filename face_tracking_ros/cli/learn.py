@@ -41,14 +41,12 @@ _SEQUENCES = ('bags', 'compare', 'truth', 'tracker_params')  # tuples in LearnOp
 _NOT_GIVEN = (*_SEQUENCES, 'named')  # named: the default, the options' flags
 
 
-def register(subparsers: argparse._SubParsersAction) -> None:
-    """Add the ``learn`` subcommand."""
-    parser = subparsers.add_parser(
-        'learn',
-        help='learn a face model (mean shape, S, A, prior) from bags of 3-D meshes',
-        description='Align 3-D training meshes (§3.3), learn mean shape, identity basis S, '
+def register(parser: argparse.ArgumentParser) -> None:
+    """Register the ``learn`` subcommand's options."""
+    parser.description = (
+        'Align 3-D training meshes (§3.3), learn mean shape, identity basis S, '
         'expression basis A and their Gaussian prior, evaluate the methods side by side '
-        '(leave-one-subject-out, truth), write the model file, a JSON report and PNG plots.',
+        '(leave-one-subject-out, truth), write the model file, a JSON report and PNG plots.'
     )
     _add_model_options(parser)
     _add_mesh_options(parser)

@@ -2,12 +2,16 @@
 
 Each subcommand lives in its own module ``face_tracking_ros.cli.<name>`` that exposes::
 
-    def register(subparsers: argparse._SubParsersAction) -> None:
-        parser = subparsers.add_parser('<name>', help='...')
+    def register(parser: argparse.ArgumentParser) -> None:
+        parser.description = '...'
         ...
         parser.set_defaults(func=run)  # run(args: argparse.Namespace) -> int | None
 
-Add a subcommand by writing that module and adding its module name to :data:`SUBCOMMANDS`.
+Add a subcommand by writing that module and adding its module name, with the one-line help that
+``face-tracking --help`` lists, to :data:`SUBCOMMANDS`. Only the chosen subcommand's module is
+imported (with what it runs: OpenCV, scipy, numba kernels, rosbags: seconds on a loaded
+machine, for all of them together), once parsing has chosen it.
+
 A :class:`~face_tracking_ros.errors.FaceTrackingError` raised by a subcommand, or an OSError
 (a file or directory that is missing or cannot be written: the user's or the machine's matter),
 is printed as ``error: <message>`` on stderr with exit status 2; other exceptions propagate
@@ -21,7 +25,7 @@ status 141, as a tool stopped by SIGPIPE ends.
 from __future__ import annotations
 
 import argparse
-from collections.abc import Iterator, Sequence
+from collections.abc import Collection, Iterator, Sequence
 import contextlib
 import importlib
 import os
@@ -29,36 +33,41 @@ import select
 import signal
 import sys
 import threading
+from typing import Any
 
 from face_tracking_ros.errors import FaceTrackingError
 from face_tracking_ros.threads import limit_blas_threads
 
-# Module names under face_tracking_ros.cli, one per subcommand, in help order.
-SUBCOMMANDS: tuple[str, ...] = (
-    'msgs',
-    'synth',
-    'learn',
-    'track',
-    'replay',
-    'plot',
-    'overlay',
-    'train_expressions',
-    'recognition_report',
-    'enroll',
-    'demo',
-    'bench',
-)
+# Module names under face_tracking_ros.cli, one per subcommand (named as its module with '-'
+# for '_'), in help order, with the subcommand's one-line help.
+SUBCOMMANDS: dict[str, str] = {
+    'msgs': 'list the face_tracking_msgs message types known to the bag typestore',
+    'synth': 'render synthetic faces (stereo or mono) with ground truth into MCAP bags',
+    'learn': 'learn a face model (mean shape, S, A, prior) from bags of 3-D meshes',
+    'track': 'track the face in a recorded bag (mono or stereo) and score it against truth',
+    'replay': "run a node's message processing over a bag into an output bag",
+    'plot': 'plot a tracking output bag (pose, alpha, sigma over time)',
+    'overlay': 'write a video of the input frames with the tracked mesh drawn',
+    'train_expressions': 'train the expression classifier from the truth topics of labelled bags',
+    'recognition_report': (
+        'identity, expression and event accuracy on tracked bags against their truth'
+    ),
+    'enroll': 'enrol a person in an identity gallery from tracked recordings',
+    'demo': 'run the whole system end to end on the synthetic world',
+    'bench': 'speed, scaling, memory and accuracy benchmarks with their baseline (JSON)',
+}
 
 EXIT_ERROR = 2
 EXIT_INTERRUPTED = 130  # 128 + SIGINT, as a shell reports Ctrl-C
 EXIT_BROKEN_PIPE = 141  # 128 + SIGPIPE, as a shell reports a writer whose reader went (| head)
 
 
-def build_parser(subcommands: Sequence[str] = SUBCOMMANDS) -> argparse.ArgumentParser:
-    """Build the argument parser with every subcommand registered.
+def build_parser(registered: Collection[str] = tuple(SUBCOMMANDS)) -> argparse.ArgumentParser:
+    """Build the argument parser: every subcommand listed, some registered now.
 
     Args:
-        subcommands: Module names under ``face_tracking_ros.cli``.
+        registered: Module names under ``face_tracking_ros.cli`` whose subcommands' options are
+            registered (their modules imported) now; the others' are once parsing chooses them.
 
     Returns:
         The parser; parsed arguments carry ``func``, the subcommand's handler.
@@ -66,10 +75,48 @@ def build_parser(subcommands: Sequence[str] = SUBCOMMANDS) -> argparse.ArgumentP
     parser = argparse.ArgumentParser(
         prog='face-tracking', description='3-D face tracking: offline tools of face_tracking_ros.'
     )
-    subparsers = parser.add_subparsers(dest='command', metavar='COMMAND', required=True)
-    for name in subcommands:
-        importlib.import_module(f'{__package__}.{name}').register(subparsers)
+    subparsers = parser.add_subparsers(
+        dest='command', metavar='COMMAND', required=True, action=_Subcommands
+    )
+    for module, summary in SUBCOMMANDS.items():
+        subparsers.add_subcommand(module, summary)
+    for module in registered:
+        subparsers.load(_command(module))
     return parser
+
+
+def _command(module: str) -> str:
+    """The subcommand implemented by a module under ``face_tracking_ros.cli``."""
+    return module.replace('_', '-')
+
+
+class _Subcommands(argparse._SubParsersAction):
+    """The subcommands' parsers, whose options are registered when parsing chooses them."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self._unregistered: dict[str, str] = {}  # subcommand -> module
+
+    def add_subcommand(self, module: str, summary: str) -> None:
+        """List a subcommand implemented by a module under ``face_tracking_ros.cli``."""
+        self.add_parser(_command(module), help=summary)
+        self._unregistered[_command(module)] = module
+
+    def load(self, command: str) -> None:
+        """Import a listed subcommand's module and register its options, unless done."""
+        module = self._unregistered.pop(command, None)
+        if module is not None:
+            importlib.import_module(f'{__package__}.{module}').register(self.choices[command])
+
+    def __call__(
+        self,
+        parser: argparse.ArgumentParser,
+        namespace: argparse.Namespace,
+        values: Any,
+        option_string: str | None = None,
+    ) -> None:
+        self.load(values[0])  # a valid subcommand: argparse has checked it
+        super().__call__(parser, namespace, values, option_string)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -85,9 +132,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     """
     try:
         with _sigterm_as_ctrl_c():
-            # Inside: building the parser imports every subcommand's modules (seconds on a
+            # Inside: parsing imports the chosen subcommand's modules (a second or more on a
             # loaded machine), and a Ctrl-C or SIGTERM then ends the command as any other does.
-            args = build_parser().parse_args(argv)
+            args = build_parser(()).parse_args(argv)
             limit_blas_threads()
             status = args.func(args)
             sys.stdout.flush()  # a reader gone is found here, not at the interpreter's exit

@@ -8,13 +8,11 @@ from face_tracking_ros.errors import ConfigError
 from face_tracking_ros.io.typestore import custom_type_names, msg_dir, typestore
 
 
-def register(subparsers: argparse._SubParsersAction) -> None:
-    """Add the ``msgs`` subcommand."""
-    parser = subparsers.add_parser(
-        'msgs',
-        help='list the face_tracking_msgs message types known to the bag typestore',
-        description='List the face_tracking_msgs message types registered in the rosbags '
-        'typestore (and where their .msg text was found), or print the full definition of one.',
+def register(parser: argparse.ArgumentParser) -> None:
+    """Register the ``msgs`` subcommand's options."""
+    parser.description = (
+        'List the face_tracking_msgs message types registered in the rosbags '
+        'typestore (and where their .msg text was found), or print the full definition of one.'
     )
     parser.add_argument(
         'msgtype',

@@ -15,13 +15,11 @@ from face_tracking_ros.visualization.video import write_overlay_video
 from face_tracking_ros.wording import counted
 
 
-def register(subparsers: argparse._SubParsersAction) -> None:
-    """Add the ``overlay`` subcommand."""
-    parser = subparsers.add_parser(
-        'overlay',
-        help='write a video of the input frames with the tracked mesh drawn',
-        description='Match the images of BAG with the FaceState outputs of OUT by stamp and '
-        'write them, with the mesh drawn (green tracking, red lost), as an MP4 or a GIF.',
+def register(parser: argparse.ArgumentParser) -> None:
+    """Register the ``overlay`` subcommand's options."""
+    parser.description = (
+        'Match the images of BAG with the FaceState outputs of OUT by stamp and '
+        'write them, with the mesh drawn (green tracking, red lost), as an MP4 or a GIF.'
     )
     parser.add_argument('bag', type=Path, help='input bag (images)')
     parser.add_argument('out', type=Path, help='tracking output bag (face/state)')

@@ -12,14 +12,12 @@ from face_tracking_ros.io.series import has_truth, load_states, load_truth, requ
 from face_tracking_ros.visualization.plots import plot_tracking
 
 
-def register(subparsers: argparse._SubParsersAction) -> None:
-    """Add the ``plot`` subcommand."""
-    parser = subparsers.add_parser(
-        'plot',
-        help='plot a tracking output bag (pose, alpha, sigma over time)',
-        description='Draw the FaceState series of a tracking output bag (face-tracking track or '
+def register(parser: argparse.ArgumentParser) -> None:
+    """Register the ``plot`` subcommand's options."""
+    parser.description = (
+        'Draw the FaceState series of a tracking output bag (face-tracking track or '
         'replay, or a recorded bag) as a PNG: rotation angles, translation, alpha and sigma '
-        'over time, against the truth of a synthetic bag when given.',
+        'over time, against the truth of a synthetic bag when given.'
     )
     parser.add_argument('out', type=Path, help='bag holding face/state')
     parser.add_argument(

@@ -43,13 +43,11 @@ TRUTH_TOPIC = 'truth/face'
 STATUS_TRACKING = 1
 
 
-def register(subparsers: argparse._SubParsersAction) -> None:
-    """Add the ``recognition-report`` subcommand."""
-    parser = subparsers.add_parser(
-        'recognition-report',
-        help='identity, expression and event accuracy on tracked bags against their truth',
-        description='Score identity (enrolled from tracked sigma), expressions, expression '
-        'events and the separation table on tracker output bags paired with their truth bags.',
+def register(parser: argparse.ArgumentParser) -> None:
+    """Register the ``recognition-report`` subcommand's options."""
+    parser.description = (
+        'Score identity (enrolled from tracked sigma), expressions, expression '
+        'events and the separation table on tracker output bags paired with their truth bags.'
     )
     pair = {'type': _pair, 'nargs': '+', 'metavar': 'TRACKED=TRUTH'}
     parser.add_argument('--enrol', required=True, help='pairs to enrol and train on', **pair)

@@ -23,14 +23,12 @@ from face_tracking_ros.replay import ReplayStats, replay_bag
 from face_tracking_ros.wording import listed
 
 
-def register(subparsers: argparse._SubParsersAction) -> None:
-    """Add the ``replay`` subcommand."""
-    parser = subparsers.add_parser(
-        'replay',
-        help="run a node's message processing over a bag into an output bag",
-        description="Feed a bag's messages to a node's processor (the code the live node runs), "
+def register(parser: argparse.ArgumentParser) -> None:
+    """Register the ``replay`` subcommand's options."""
+    parser.description = (
+        "Feed a bag's messages to a node's processor (the code the live node runs), "
         'deterministically and as fast as the CPU allows, and write its outputs to a '
-        'rosbag2/MCAP bag. Ctrl-C stops early and leaves a valid output bag.',
+        'rosbag2/MCAP bag. Ctrl-C stops early and leaves a valid output bag.'
     )
     parser.add_argument(
         'nodes',

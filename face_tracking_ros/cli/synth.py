@@ -41,15 +41,13 @@ from face_tracking_ros.synthetic.texture import ENCODINGS
 from face_tracking_ros.wording import counted
 
 
-def register(subparsers: argparse._SubParsersAction) -> None:
-    """Add the ``synth`` subcommand."""
+def register(parser: argparse.ArgumentParser) -> None:
+    """Register the ``synth`` subcommand's options."""
     low, high = focal_range(640)
-    parser = subparsers.add_parser(
-        'synth',
-        help='render synthetic faces (stereo or mono) with ground truth into MCAP bags',
-        description='Render synthetic subjects from a ground-truth face population into '
+    parser.description = (
+        'Render synthetic subjects from a ground-truth face population into '
         'rosbag2 (MCAP) bags: images, camera infos and truth/face (pose, true alpha and sigma, '
-        'nodes, expression label). One bag per subject and sequence.',
+        'nodes, expression label). One bag per subject and sequence.'
     )
     parser.add_argument(
         '--kind', choices=[k.value for k in Kind], default='stereo', help='default: %(default)s'

@@ -50,13 +50,11 @@ STEREO = 'stereo_tracker'
 NODE_CONFIGS = {'mono_tracker': MonoNodeConfig, STEREO: StereoNodeConfig}
 
 
-def register(subparsers: argparse._SubParsersAction) -> None:
-    """Add the ``track`` subcommand."""
-    parser = subparsers.add_parser(
-        'track',
-        help='track the face in a recorded bag (mono or stereo) and score it against truth',
-        description='Run the mono or stereo tracker (chosen from the image topics) over a bag, '
-        'write its outputs to a new bag, and print the accuracy when the bag has truth.',
+def register(parser: argparse.ArgumentParser) -> None:
+    """Register the ``track`` subcommand's options."""
+    parser.description = (
+        'Run the mono or stereo tracker (chosen from the image topics) over a bag, '
+        'write its outputs to a new bag, and print the accuracy when the bag has truth.'
     )
     parser.add_argument('bag', type=Path, help='input bag: a rosbag2 directory or one .mcap file')
     parser.add_argument(

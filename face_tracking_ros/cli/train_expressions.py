@@ -40,15 +40,13 @@ from face_tracking_ros.wording import counted
 TRUTH_TOPIC = 'truth/face'
 
 
-def register(subparsers: argparse._SubParsersAction) -> None:
-    """Add the ``train-expressions`` subcommand."""
+def register(parser: argparse.ArgumentParser) -> None:
+    """Register the ``train-expressions`` subcommand's options."""
     defaults = ExpressionTrainingConfig()
-    parser = subparsers.add_parser(
-        'train-expressions',
-        help='train the expression classifier from the truth topics of labelled bags',
-        description='Train the expression classifier (alpha and its short-term dynamics -> '
+    parser.description = (
+        'Train the expression classifier (alpha and its short-term dynamics -> '
         'neutral, smile, jaw_open, brow_raise, frown, pucker, surprise) from the FaceTruth '
-        'messages of labelled bags and write it as a pickle-free .npz file.',
+        'messages of labelled bags and write it as a pickle-free .npz file.'
     )
     parser.add_argument('bags', nargs='+', type=Path, metavar='BAG', help='labelled bags')
     parser.add_argument('--out', required=True, type=Path, help='classifier file to write')

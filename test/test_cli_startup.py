@@ -1,0 +1,71 @@
+"""What ``face-tracking`` imports before it runs: the chosen subcommand's modules only.
+
+Building the parser imported every subcommand's module, and with them OpenCV, scipy, the numba
+kernels, rosbags, matplotlib and scikit-learn: ``face-tracking --help`` took 3.4-5.8 s on a
+loaded 2-core machine and 313 MB, and every command paid that before doing anything.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+
+import pytest
+
+from face_tracking_ros.cli import main as cli_main
+
+from repo_root import REPO
+
+# Runs main(argv[1:]) with its output discarded, then prints the names of the loaded modules.
+LOADED_MODULES = """
+import contextlib, io, json, sys
+from face_tracking_ros.cli.main import main
+with contextlib.redirect_stdout(io.StringIO()), contextlib.suppress(SystemExit):
+    main(sys.argv[1:])
+print(json.dumps(sorted(sys.modules)))
+"""
+
+# Libraries of the algorithms and the bags, imported by some subcommands only.
+HEAVY = frozenset({'cv2', 'scipy', 'numba', 'rosbags', 'matplotlib', 'sklearn'})
+
+
+def _loaded(argv: list[str]) -> tuple[set[str], set[str]]:
+    """The heavy libraries and the face_tracking_ros.cli modules that ``argv`` loads."""
+    done = subprocess.run(
+        [sys.executable, '-c', LOADED_MODULES, *argv],
+        capture_output=True,
+        text=True,
+        cwd=REPO,
+        check=True,
+        timeout=120,
+    )
+    modules = json.loads(done.stdout)
+    heavy = {name for name in modules if name in HEAVY}
+    prefix = 'face_tracking_ros.cli.'
+    cli = {name.removeprefix(prefix) for name in modules if name.startswith(prefix)}
+    return heavy, cli
+
+
+def test_the_list_of_subcommands_imports_none_of_them() -> None:
+    assert _loaded(['--help']) == (set(), {'main'})
+
+
+def test_a_subcommand_imports_its_own_module_only() -> None:
+    heavy, cli = _loaded(['msgs', '--help'])
+    assert heavy == {'rosbags'}  # msgs lists the rosbags typestore's types
+    assert cli == {'main', 'msgs'}
+
+
+@pytest.mark.parametrize('argv', [['bogus'], ['--foo'], []])
+def test_a_wrong_command_line_imports_no_subcommand(argv: list[str]) -> None:
+    assert _loaded(argv) == (set(), {'main'})
+
+
+def test_the_full_parser_registers_every_subcommand_its_table_lists() -> None:
+    """build_parser() (what the help and documentation tests read) has every option."""
+    parser = cli_main.build_parser()
+    (action,) = (a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    assert list(action.choices) == [name.replace('_', '-') for name in cli_main.SUBCOMMANDS]
+    assert all(sub._defaults.get('func') for sub in action.choices.values())
