@@ -31,8 +31,8 @@ print(json.dumps(sorted(sys.modules)))
 HEAVY = frozenset({'cv2', 'scipy', 'numba', 'rosbags', 'matplotlib', 'sklearn'})
 
 
-def _loaded(argv: list[str]) -> tuple[set[str], set[str]]:
-    """The heavy libraries and the face_tracking_ros.cli modules that ``argv`` loads."""
+def _modules(argv: list[str]) -> set[str]:
+    """The modules loaded by ``face-tracking ARGV``."""
     done = subprocess.run(
         [sys.executable, '-c', LOADED_MODULES, *argv],
         capture_output=True,
@@ -41,11 +41,15 @@ def _loaded(argv: list[str]) -> tuple[set[str], set[str]]:
         check=True,
         timeout=120,
     )
-    modules = json.loads(done.stdout)
-    heavy = {name for name in modules if name in HEAVY}
+    return set(json.loads(done.stdout))
+
+
+def _loaded(argv: list[str]) -> tuple[set[str], set[str]]:
+    """The heavy libraries and the face_tracking_ros.cli modules that ``argv`` loads."""
+    modules = _modules(argv)
     prefix = 'face_tracking_ros.cli.'
     cli = {name.removeprefix(prefix) for name in modules if name.startswith(prefix)}
-    return heavy, cli
+    return modules & HEAVY, cli
 
 
 def test_the_list_of_subcommands_imports_none_of_them() -> None:
@@ -56,6 +60,12 @@ def test_a_subcommand_imports_its_own_module_only() -> None:
     heavy, cli = _loaded(['msgs', '--help'])
     assert heavy == {'rosbags'}  # msgs lists the rosbags typestore's types
     assert cli == {'main', 'msgs'}
+
+
+def test_tracking_loads_none_of_the_learning_side() -> None:
+    """The tracking side named its options through the learning options' module."""
+    learning = {'scipy.stats', 'sklearn', 'matplotlib', 'face_tracking_ros.synthetic.faces'}
+    assert _modules(['track', '--help']) & learning == set()
 
 
 @pytest.mark.parametrize('argv', [['bogus'], ['--foo'], []])

@@ -19,7 +19,7 @@ from face_tracking_ros.io.bags import topic_has_word
 from face_tracking_ros.io.conversions import CAMERA_INFO_TYPE, COMPRESSED_IMAGE_TYPE, IMAGE_TYPE
 from face_tracking_ros.model.model_file import load_model
 from face_tracking_ros.model.topology import mesh_topology
-from face_tracking_ros.pipelines.learn_options import option_flag
+from face_tracking_ros.pipelines.option_flags import option_flag
 from face_tracking_ros.processing.mono import CAMERA_INFO, COMPRESSED_IMAGE, IMAGE
 from face_tracking_ros.processing.parameters import OverrideParameters
 from face_tracking_ros.processing.stereo import COMPRESSED as STEREO_COMPRESSED

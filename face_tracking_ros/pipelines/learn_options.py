@@ -20,17 +20,9 @@ from face_tracking_ros.io.series import holds_truth
 from face_tracking_ros.learning.methods import DEFAULT_METHOD, METHODS
 from face_tracking_ros.model.model_file import load_model
 from face_tracking_ros.pipelines.bag_reads import AFRESH, BagReads
+from face_tracking_ros.pipelines.option_flags import option_flag
 from face_tracking_ros.synthetic.faces import PRESETS
 from face_tracking_ros.wording import counted
-
-
-def option_flag(field: str) -> str:
-    """The command-line option of an option field, as ``learn`` and ``track`` spell it.
-
-    E.g. ``--subject-pattern`` for ``subject_pattern``, ``--left-topic`` for ``left_topic``;
-    ``--tracker-param`` (repeatable) for ``tracker_params``.
-    """
-    return '--tracker-param' if field == 'tracker_params' else f'--{field.replace("_", "-")}'
 
 
 @dataclass(frozen=True)
