@@ -740,24 +740,31 @@ def test_a_steady_motion_is_predicted_and_costs_fewer_iterations() -> None:
 def test_the_coarsest_level_runs_only_for_a_plane_too_far_for_the_next(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
-    """coarsest_level_px on: level 0 alone for a small motion, level 1 first for a jump."""
+    """coarsest_level_px on: level 0 alone for a small motion, level 1 first for a jump.
+
+    The plane stands still for a pair first: the first pair after the initial one is solved as
+    a pair after a gap (every level of ``gap_pyramid_levels``).
+    """
     levels = record_method(monkeypatch, StereoTracker, '_level', lambda _s, _p, index: index)
     init = RIG.left.project(PLANE.nodes(19))
     for shift, order in ((0.0002, [0]), (0.004, [0, 1, 0])):
-        frames = [PLANE, PLANE.moved(np.array([shift, 0.0, 0.0]))]
+        frames = [PLANE, PLANE, PLANE.moved(np.array([shift, 0.0, 0.0]))]
         nodes = {}
         for limit in (0.5, 0.0):
             tracker = StereoTracker(RIG, replace(PLANE_CONFIG, coarsest_level_px=limit))
             tracker.reset(init)
-            tracker.step(*frames[0].pair())
+            for frame in frames[:2]:
+                tracker.step(*frame.pair())
             levels.clear()
-            result = tracker.step(*frames[1].pair())
+            result = tracker.step(*frames[2].pair())
             assert levels == (order if limit else [1, 0])
             # Measured 0.15-0.16 mm; frame 0's nodes are 0.26 mm off after the 0.2 mm shift.
-            assert _rms_mm(result.nodes_cam, frames[1].nodes(19)) < 0.2
+            assert _rms_mm(result.nodes_cam, frames[2].nodes(19)) < 0.2
             nodes[limit] = result.nodes_cam
-        if len(order) > 1:  # started over from the same point: the full solve exactly
-            assert np.array_equal(nodes[0.5], nodes[0.0])
+        if len(order) > 1:  # started over from the same point: the full solve
+            # (but pair 1, solved from level 0 alone with the limit and from every level
+            # without, ends 27 um apart, and this pair 2 um)
+            assert np.abs(nodes[0.5] - nodes[0.0]).max() < 1e-5
 
 
 def test_a_coarse_level_ends_at_its_own_step_tolerance(monkeypatch: pytest.MonkeyPatch) -> None:

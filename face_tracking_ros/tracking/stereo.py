@@ -139,6 +139,19 @@ class _State:
     span: int = 1  # frame intervals from ``before`` to ``nodes``
     elapsed: int = 0  # frame intervals from ``nodes`` to the pair being tracked (bad frames too)
 
+    @property
+    def after_gap(self) -> bool:
+        """Whether the pair being tracked is solved and checked as a pair after a gap.
+
+        After dropped pairs or bad frames (more than one frame interval since ``nodes``), and
+        on the first pair after the initial one: with no pair before, nothing predicts the
+        head's motion, so the solve starts from the initial nodes and their error is the whole
+        motion of one interval (rendered free motion at 10 fps: 9-10 px on seeds 9 and 12,
+        where the pyramid's two levels reach about 5; seed 9's pair 1 settled 8.7 px off at a
+        residual ratio of 0.77, under ``lost_ratio``, and the track went on 10-12 px off).
+        """
+        return self.elapsed > 1 or self.before is None
+
 
 @dataclass
 class _Solves:
@@ -588,7 +601,7 @@ class StereoTracker:
         """
         state = self._state
         assert state is not None
-        gap = state.elapsed > 1
+        gap = state.after_gap
         reference = self._rigid_predicted(state) if gap else state.nodes
         attempt = self._attempt(state, pyramids, self._predicted(state), reference)
         if attempt.problem and gap:
@@ -679,8 +692,7 @@ class StereoTracker:
         statistics = group_statistics(
             state.samples, accepted.sampled, accepted.residuals, level.templates[:, 0]
         )
-        after_gap = state.elapsed > 1
-        problem = loss_reason(nodes, statistics, self._rig, self._config, after_gap)
+        problem = loss_reason(nodes, statistics, self._rig, self._config, state.after_gap)
         return _Attempt(nodes, statistics, solves, problem)
 
     def _solve_pair(
@@ -719,7 +731,7 @@ class StereoTracker:
         energy = self._energy(state, reference)
         nodes = start
         coarser: tuple[Level, ...] = ()
-        if state.elapsed > 1:
+        if state.after_gap:
             coarser = self._coarser_levels(state, pyramids)
             _move_fit(energy, nodes)
         images_alone = replace(energy, prior=None) if coarser else energy  # the coarser levels
