@@ -40,14 +40,15 @@ class StereoTrackerConfig:
         pyramid_levels: coarse-to-fine levels (1 = full resolution only; the coarsest at least
             16 px).
         gap_pyramid_levels: coarse-to-fine levels of a pair after dropped pairs or bad frames
-            (more than one frame interval since the last tracked pair), as many as fit the
-            images (the coarsest at least 16 px; ``pyramid_levels`` if fewer). The prediction
-            over several intervals errs by more than two levels reach (about 5 px of level 0;
-            three levels about 9, four 12-16), so such a pair is solved from these coarser
-            levels too, made for it alone; pairs without a gap are solved as before, to the
-            bit. Rendered free motion, 150 pairs at 10 fps, 2 pairs dropped every 8-20: LOST
-            120 / 92 / 70 / 96 -> 0 on four sequences (with the face-model term's fit moved to
-            the prediction; README, "Loss and recovery (stereo)").
+            (more than one frame interval since the last tracked pair), and of the first pair
+            after the initial one (no motion to predict it from), as many as fit the images
+            (the coarsest at least 16 px; ``pyramid_levels`` if fewer). The prediction over
+            several intervals errs by more than two levels reach (about 5 px of level 0; three
+            levels about 9, four 12-16), so such a pair is solved from these coarser levels
+            too, made for it alone; the other pairs are solved as before, to the bit. Rendered
+            free motion, 150 pairs at 10 fps, 2 pairs dropped every 8-20: LOST 120 / 92 / 70 /
+            96 -> 0 on four sequences (with the face-model term's fit moved to the prediction;
+            README, "Loss and recovery (stereo)").
         max_iterations: Levenberg-Marquardt iterations per pyramid level.
         step_tolerance: level 0 has converged when no node's projection moves more than this
             in an iteration, px (that last step is taken without evaluating its cost).
@@ -80,8 +81,9 @@ class StereoTrackerConfig:
         noise_floor: smallest robust standard deviation assumed for image residuals, grey levels.
         lost_ratio: the track is LOST when the median over node patches of the residual RMS
             divided by the template's contrast (about 1 for an unrelated image) exceeds this.
-        gap_lost_ratio: the same test's limit for a pair after dropped pairs or bad frames, and
-            for a lost track's re-acquisition, if lower than ``lost_ratio``. Such a pair is
+        gap_lost_ratio: the same test's limit for a pair after dropped pairs or bad frames (and
+            the first pair after the initial one), and for a lost track's re-acquisition, if
+            lower than ``lost_ratio``. Such a pair is
             solved from far coarser levels and can settle on another part of the face and pass
             at 0.8 (rendered 10 fps, 5 pairs dropped: 10-33 px off at 0.76-0.80, then followed
             there at 0.5-0.65; the 34-node mesh's gap pairs tracked right measured 0.18-0.61).
