@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import argparse
 from collections import Counter
 from collections.abc import Callable
 from dataclasses import replace
@@ -17,7 +16,7 @@ import numpy as np
 import pytest
 
 from face_tracking_ros.cli import learn
-from face_tracking_ros.cli.main import main
+from face_tracking_ros.cli.main import build_parser, main
 from face_tracking_ros.errors import ConfigError
 from face_tracking_ros.io import bags, conversions
 from face_tracking_ros.io.bags import BagWriter, bag_topics, read_messages, recording_name
@@ -115,7 +114,7 @@ def test_learn_again_re_uses_the_meshes_tracked_from_the_same_inputs(tmp_path, c
 def test_bags_of_one_name_are_refused_and_a_pattern_names_the_subject(tmp_path, capsys):
     twin = tmp_path / 'copy' / BAGS[0].name
     twin.parent.mkdir()
-    twin.symlink_to(BAGS[0].resolve())
+    twin.symlink_to(BAGS[1].resolve())  # another bag of the same name
     argv = ['learn', str(BAGS[0]), str(twin), '--from-images', '--simulate-clicks', '1.0',
             '--out', str(tmp_path / 'm.npz'), '--report', str(tmp_path / 'r.json')]  # fmt: skip
     assert main(argv) == 2
@@ -194,9 +193,7 @@ def _tracked(bag: Path, options: LearnOptions) -> Path:
 
 def _learn_args(bag: Path, where: Path, *options: str) -> LearnOptions:
     """``face-tracking learn``'s options for ``bag``, its outputs under ``where``."""
-    parser = argparse.ArgumentParser()
-    learn.register(parser.add_subparsers())
-    return learn.learn_options(parser.parse_args(
+    return learn.learn_options(build_parser(('learn',)).parse_args(
         ['learn', str(bag), '--out', str(where / 'm.npz'), '--report', str(where / 'r.json'),
          *options]
     ))  # fmt: skip
