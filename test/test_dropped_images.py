@@ -366,6 +366,22 @@ def _stereo_started(scene: SceneConfig) -> tuple[list, StereoRig, np.ndarray, St
     return frames, rig, nodes, tracker
 
 
+def _assert_stereo_tracked_within(scene: SceneConfig, kept: list[int], limit_px: float) -> None:
+    """Track ``scene``'s pairs ``kept`` (frame 0's true nodes the start): every one TRACKING.
+
+    Each pair is told the intervals since the one before it (1 for frame 0 itself), and its
+    inner nodes' median error in the left image must stay under ``limit_px``.
+    """
+    frames, rig, nodes, tracker = _stereo_started(scene)
+    inner = ~tracker.topology.group_mask(Group.EDGE)
+    for before, pair in itertools.pairwise([0, *kept]):
+        images = frames[pair].images
+        result = tracker.step(images['left'], images['right'], max(pair - before, 1))
+        assert result.reason == '', pair
+        error = rig.left.project(result.nodes_cam[inner]) - rig.left.project(nodes[pair][inner])
+        assert np.median(np.linalg.norm(error, axis=1)) < limit_px, pair
+
+
 def test_stereo_tracker_bridges_gaps_at_10_fps():
     """At 10 fps, after 2 and then 3 dropped pairs, every pair is tracked within 11.5 mm RMS.
 
@@ -417,14 +433,7 @@ def test_stereo_tracker_bridges_three_dropped_pairs_at_10_fps():
     stopped on a step of 0.5 of its px, 4 px of level 0, 9 px off. Every pair is now tracked,
     the inner nodes within 1 px of the truth (0.3 px at pair 41).
     """
-    frames, rig, nodes, tracker = _stereo_started(FAR_STEREO_SCENE)
-    inner = ~tracker.topology.group_mask(Group.EDGE)
-    for before, pair in itertools.pairwise([0, *FAR_STEREO_KEPT]):
-        images = frames[pair].images
-        result = tracker.step(images['left'], images['right'], max(pair - before, 1))
-        assert result.reason == '', pair
-        error = rig.left.project(result.nodes_cam[inner]) - rig.left.project(nodes[pair][inner])
-        assert np.median(np.linalg.norm(error, axis=1)) < 1.0, pair
+    _assert_stereo_tracked_within(FAR_STEREO_SCENE, FAR_STEREO_KEPT, 1.0)
 
 
 def test_stereo_tracker_does_not_settle_off_the_face_after_five_dropped_pairs():
@@ -438,14 +447,7 @@ def test_stereo_tracker_does_not_settle_off_the_face_after_five_dropped_pairs():
     shift carried on over the gap), the solve turns it 14 degrees and every pair is within
     1.2 px.
     """
-    frames, rig, nodes, tracker = _stereo_started(TURNED_STEREO_SCENE)
-    inner = ~tracker.topology.group_mask(Group.EDGE)
-    for before, pair in itertools.pairwise([0, *TURNED_STEREO_KEPT]):
-        images = frames[pair].images
-        result = tracker.step(images['left'], images['right'], max(pair - before, 1))
-        assert result.reason == '', pair
-        error = rig.left.project(result.nodes_cam[inner]) - rig.left.project(nodes[pair][inner])
-        assert np.median(np.linalg.norm(error, axis=1)) < 2.0, pair
+    _assert_stereo_tracked_within(TURNED_STEREO_SCENE, TURNED_STEREO_KEPT, 2.0)
 
 
 def test_stereo_tracker_follows_a_head_moving_fast_from_the_initial_pair():
@@ -458,13 +460,8 @@ def test_stereo_tracker_follows_a_head_moving_fast_from_the_initial_pair():
     ``gap_pyramid_levels``, checked at ``gap_lost_ratio``), pair 1 is 0.2 px off and every pair
     within 1.7 px.
     """
-    frames, rig, nodes, tracker = _stereo_started(FAST_START_STEREO_SCENE)
-    inner = ~tracker.topology.group_mask(Group.EDGE)
-    for pair, frame in enumerate(frames):
-        result = tracker.step(frame.images['left'], frame.images['right'])
-        assert result.reason == '', pair
-        error = rig.left.project(result.nodes_cam[inner]) - rig.left.project(nodes[pair][inner])
-        assert np.median(np.linalg.norm(error, axis=1)) < 2.0, pair
+    every = list(range(FAST_START_STEREO_SCENE.frames))  # frame 0, the initial pair, too
+    _assert_stereo_tracked_within(FAST_START_STEREO_SCENE, every, 2.0)
 
 
 def test_stereo_intervals_below_one_are_refused(stereo_gapped):
