@@ -35,9 +35,8 @@ from face_tracking_ros.pipelines.bag_inputs import (
     tracked_nodes,
 )
 from face_tracking_ros.pipelines.scoring import score_against_truth, score_stereo_against_truth
-from face_tracking_ros.processing.mono import MonoNodeConfig
+from face_tracking_ros.processing.node_configs import MonoNodeConfig, StereoNodeConfig
 from face_tracking_ros.processing.parameters import OverrideParameters
-from face_tracking_ros.processing.stereo import StereoNodeConfig
 from face_tracking_ros.replay import replay_bag, wire_replay
 from face_tracking_ros.synthetic.clicks import (
     check_clicks_file,

@@ -19,9 +19,8 @@ from face_tracking_ros.nodes.learner import LearnerConfig
 from face_tracking_ros.playback import PlaybackConfig
 from face_tracking_ros.processing.expression import ExpressionNodeConfig
 from face_tracking_ros.processing.identity import IdentityNodeConfig
-from face_tracking_ros.processing.mono import MonoNodeConfig
+from face_tracking_ros.processing.node_configs import MonoNodeConfig, StereoNodeConfig
 from face_tracking_ros.processing.parameters import attribute_descriptions, field_default
-from face_tracking_ros.processing.stereo import StereoNodeConfig
 from face_tracking_ros.recognition.events import EventConfig
 from face_tracking_ros.recognition.identity import IdentityConfig
 from face_tracking_ros.tracking.detector import DetectorConfig

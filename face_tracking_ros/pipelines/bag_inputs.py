@@ -20,19 +20,20 @@ from face_tracking_ros.io.conversions import CAMERA_INFO_TYPE, COMPRESSED_IMAGE_
 from face_tracking_ros.model.model_file import load_model
 from face_tracking_ros.model.topology import mesh_topology
 from face_tracking_ros.pipelines.option_flags import option_flag
-from face_tracking_ros.processing.mono import CAMERA_INFO, COMPRESSED_IMAGE, IMAGE
-from face_tracking_ros.processing.parameters import OverrideParameters
-from face_tracking_ros.processing.stereo import COMPRESSED as STEREO_COMPRESSED
-from face_tracking_ros.processing.stereo import (
+from face_tracking_ros.processing.node_configs import (
+    CAMERA_INFO,
+    COMPRESSED_IMAGE,
+    IMAGE,
     LEFT_IMAGE,
     LEFT_INFO,
     MODEL,
     RIGHT_IMAGE,
     RIGHT_INFO,
-    input_ports,
+    stereo_input_ports,
 )
+from face_tracking_ros.processing.node_configs import COMPRESSED as STEREO_COMPRESSED
+from face_tracking_ros.processing.parameters import OverrideParameters
 from face_tracking_ros.replay import bag_spelling, fed_topic, resolve_inputs
-from face_tracking_ros.tracking.stereo_config import StereoTrackerConfig
 
 
 def image_topics(topics: Mapping[str, str]) -> tuple[list[str], bool]:
@@ -211,7 +212,7 @@ def check_stereo_topics(
                 f'{given[left]}: the stereo tracker needs a topic of each camera'
             )
             raise ConfigError(msg)
-    ports = [port for port in input_ports(compressed) if port.topic != MODEL]
+    ports = [port for port in stereo_input_ports(compressed) if port.topic != MODEL]
     mapping = stereo_remaps(topics, options, compressed, remaps)
     fed = set(resolve_inputs(ports, topics, mapping).values())
     missing = [port for port in ports if port.topic not in fed]
@@ -238,6 +239,9 @@ def tracked_nodes(node: str, params: list[str], model_file: Path | None) -> tupl
         model_file: the mono tracker's model file; None: the packaged one.
     """
     if node == 'stereo_tracker':
+        # Here, not at the top: its initialisation's import loads the stereo kernels.
+        from face_tracking_ros.tracking.stereo_config import StereoTrackerConfig
+
         config = OverrideParameters.parse(params).config(StereoTrackerConfig, prefix='tracker.')
         return mesh_topology(config.num_nodes).node_names
     return load_model(model_file or default_model_path()).node_names

@@ -40,8 +40,8 @@ from face_tracking_ros.pipelines.bag_reads import AFRESH, BagReads
 from face_tracking_ros.pipelines.learn_options import LearnOptions
 from face_tracking_ros.pipelines.mesh_bags import TRUTH_TOPIC, mesh_topic
 from face_tracking_ros.pipelines.scoring import score_stereo_against_truth
+from face_tracking_ros.processing.node_configs import RIGHT_INFO, StereoNodeConfig
 from face_tracking_ros.processing.parameters import OverrideParameters
-from face_tracking_ros.processing.stereo import RIGHT_INFO, StereoNodeConfig
 from face_tracking_ros.processing.track_counts import NO_REASON
 from face_tracking_ros.replay import ReplayStats, fed_topic, replay_bag, wire_replay
 from face_tracking_ros.synthetic.clicks import (

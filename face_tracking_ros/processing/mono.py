@@ -19,13 +19,12 @@ bag, or dropped by the depth-1 queue while the tracker was busy, count as the ti
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 from face_tracking_ros.data import default_model_path
-from face_tracking_ros.errors import ConfigError, FaceTrackingError, InputError, check_fields
+from face_tracking_ros.errors import ConfigError, FaceTrackingError, InputError
 from face_tracking_ros.io import conversions
 from face_tracking_ros.io.bags import stamp_to_ns
 from face_tracking_ros.io.messages import MessageFactory
@@ -42,6 +41,13 @@ from face_tracking_ros.processing.face_outputs import MESH_PORTS, MODEL_PORTS, f
 from face_tracking_ros.processing.frame_intervals import FrameIntervals
 from face_tracking_ros.processing.held_input import HeldInput
 from face_tracking_ros.processing.model_agreement import MODEL_PORT
+from face_tracking_ros.processing.node_configs import (
+    CAMERA_INFO,
+    COMPRESSED_IMAGE,
+    IMAGE,
+    MODEL,
+    MonoNodeConfig,
+)
 from face_tracking_ros.processing.parameters import ParameterSource
 from face_tracking_ros.processing.stamp_guard import StampGuard
 from face_tracking_ros.processing.track_counts import TrackCounts
@@ -56,52 +62,6 @@ from face_tracking_ros.tracking.mono_config import MonoTrackerConfig
 from face_tracking_ros.tracking.pose_filter import PoseFilter, PoseFilterConfig
 from face_tracking_ros.tracking.result import TrackStatus
 from face_tracking_ros.visualization.overlay import draw_mesh
-
-IMAGE = 'image'
-COMPRESSED_IMAGE = 'image/compressed'
-CAMERA_INFO = 'camera_info'
-MODEL = MODEL_PORT.topic
-
-
-@dataclass(frozen=True)
-class MonoNodeConfig:
-    """Parameters of the mono_tracker node besides the tracker's own.
-
-    Attributes:
-        model_file: face model file (.npz); empty: the packaged default model. A model received
-            on face/model replaces it.
-        init_file: YAML or JSON file of node names to pixel positions in the first image
-            (semi-automatic initialisation); empty: wait for the reset_tracking service, or
-            detect the face with auto_init.
-        auto_init: automatic initialisation: find the face and its landmarks with dlib's
-            68-point predictor (an optional extra: pip install dlib-bin
-            face_recognition_models; parameters detector.*) in the first image, when there is
-            no init_file, after every reset_tracking call without node positions, and to find
-            the face again after a loss; a face found that the lost track's keyframes do not
-            match (another person) starts a new track from the second LOST image on.
-        face_id: face_id of the outputs; not empty or blank.
-        compressed: subscribe to image/compressed (sensor_msgs/CompressedImage) instead of image.
-        rectify: the images are raw (image_raw): rectify them with camera_info's K, D, R and P
-            before tracking, as image_proc does (nothing to do for a camera without distortion
-            or rectification), and read the pixel positions of init_file and reset_tracking in
-            the raw image; false for images that arrive rectified with the raw camera's
-            camera_info (image_rect).
-    """
-
-    model_file: str = ''
-    init_file: str = ''
-    auto_init: bool = False
-    face_id: str = 'face_0'
-    compressed: bool = False
-    rectify: bool = True
-
-    def __post_init__(self) -> None:
-        """Validate the face_id.
-
-        Raises:
-            ConfigError: if it is empty or blank.
-        """
-        check_fields(self, {'face_id': bool(self.face_id.strip())})
 
 
 class MonoProcessor:

@@ -32,12 +32,12 @@ so its motion prediction spans dropped pairs.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
 
-from face_tracking_ros.errors import ConfigError, FaceTrackingError, InputError, check_fields
+from face_tracking_ros.errors import ConfigError, FaceTrackingError, InputError
 from face_tracking_ros.geometry.camera import PinholeCamera, StereoRig
 from face_tracking_ros.io import conversions
 from face_tracking_ros.io.bags import stamp_to_ns
@@ -45,7 +45,7 @@ from face_tracking_ros.io.messages import MessageFactory
 from face_tracking_ros.model.face_model import FaceModel
 from face_tracking_ros.model.model_file import load_model
 from face_tracking_ros.model.topology import mesh_topology
-from face_tracking_ros.processing.base import Output, Port, QosClass
+from face_tracking_ros.processing.base import Output
 from face_tracking_ros.processing.calibration import CameraCalibration
 from face_tracking_ros.processing.detection import (
     DetectorFactory,
@@ -55,7 +55,17 @@ from face_tracking_ros.processing.detection import (
 from face_tracking_ros.processing.face_outputs import MESH_PORTS, MODEL_PORTS, face_outputs
 from face_tracking_ros.processing.frame_intervals import FrameIntervals
 from face_tracking_ros.processing.held_input import HeldInput
-from face_tracking_ros.processing.model_agreement import MODEL_PORT
+from face_tracking_ros.processing.node_configs import (
+    COMPRESSED,
+    INFOS,
+    LEFT_IMAGE,
+    LEFT_INFO,
+    MODEL,
+    RIGHT_IMAGE,
+    RIGHT_INFO,
+    StereoNodeConfig,
+    stereo_input_ports,
+)
 from face_tracking_ros.processing.parameters import ParameterSource
 from face_tracking_ros.processing.stamp_guard import StampGuard
 from face_tracking_ros.processing.stereo_pairing import StereoPairing
@@ -68,77 +78,6 @@ from face_tracking_ros.tracking.initialisation import (
 from face_tracking_ros.tracking.stereo import ExchangedPair, StereoTracker
 from face_tracking_ros.tracking.stereo_config import StereoTrackerConfig
 from face_tracking_ros.tracking.stereo_result import StereoResult
-
-LEFT_IMAGE, RIGHT_IMAGE = 'left/image_raw', 'right/image_raw'
-COMPRESSED = {f'{LEFT_IMAGE}/compressed': LEFT_IMAGE, f'{RIGHT_IMAGE}/compressed': RIGHT_IMAGE}
-LEFT_INFO, RIGHT_INFO = 'left/camera_info', 'right/camera_info'
-INFOS = (LEFT_INFO, RIGHT_INFO)
-MODEL = MODEL_PORT.topic
-
-
-@dataclass(frozen=True)
-class StereoNodeConfig:
-    """Parameters of the stereo_tracker node besides the tracker's own.
-
-    Attributes:
-        model_file: face model file (.npz) to fit pose, sigma and alpha to the tracked nodes;
-            empty: meshes only, unless a model arrives on face/model.
-        init_file: YAML or JSON file of node names to left-image pixel positions in the first
-            pair (semi-automatic initialisation); empty: wait for the reset_tracking service,
-            or detect the face with auto_init.
-        auto_init: automatic initialisation: find the face and its landmarks in the left image
-            with dlib's 68-point predictor (an optional extra: pip install dlib-bin
-            face_recognition_models; parameters detector.*), when there is no init_file, after
-            every reset_tracking call without node positions and after a loss; the landmarks are
-            matched in the right image and the rest of the mesh placed from the reference face,
-            as for an init file.
-        rectify: the images are raw (image_raw): rectify each with its camera_info's K, D, R
-            and P before tracking, as stereo_image_proc does (nothing to do for cameras without
-            distortion or rectification), and read the pixel positions of init_file and
-            reset_tracking in the raw left image; false for images that arrive rectified with
-            the raw cameras' camera_info (image_rect).
-        compressed: subscribe to left/image_raw/compressed and right/image_raw/compressed
-            (sensor_msgs/CompressedImage, JPEG or PNG, as image_transport's compressed plugin
-            publishes them) instead of the Image topics.
-        face_id: face_id of the outputs; not empty or blank.
-        pairing_queue: unpaired images kept per camera while waiting for the other camera's
-            image with the same stamp (>= 1).
-        pairing_tolerance_ms: pair a left and a right image whose stamps differ by at most this
-            much, the nearest one waiting; 0 (the default): equal stamps only, as synchronised
-            stereo cameras (one driver, one trigger) stamp them. For two free-running cameras,
-            about a third of the frame period; their images are then up to that far apart in
-            time, which a moving face turns into depth error.
-        retroactive_depths: offline replay only (face-tracking track, learn; the live node
-            refuses it): refine the frame-1 node depths over every pair (turns
-            tracker.refine_depths on), hold each track's outputs until it ends (a reset or the
-            end of the bag; about 20 kB per pair) and emit them with the final depths applied to
-            every pair. The default of face-tracking learn on raw stereo bags: on the 380-frame
-            still sequences of subjects 0 and 1, node RMS 5.5 / 2.1 -> 1.5 / 1.8 mm from exact
-            clicks, 5.8 / 3.0 -> 3.4 / 3.4 mm from clicks with 1 px of noise.
-    """
-
-    model_file: str = ''
-    init_file: str = ''
-    auto_init: bool = False
-    rectify: bool = True
-    compressed: bool = False
-    face_id: str = 'face_0'
-    pairing_queue: int = 10
-    pairing_tolerance_ms: float = 0.0
-    retroactive_depths: bool = False
-
-    def __post_init__(self) -> None:
-        """Validate the face_id and the pairing.
-
-        Raises:
-            ConfigError: naming the first invalid field.
-        """
-        checks = {
-            'face_id': bool(self.face_id.strip()),
-            'pairing_queue': self.pairing_queue >= 1,
-            'pairing_tolerance_ms': 0.0 <= self.pairing_tolerance_ms < 1000.0,
-        }
-        check_fields(self, checks)
 
 
 class StereoProcessor:
@@ -212,7 +151,7 @@ class StereoProcessor:
         )
         self._tracked_nodes: np.ndarray | None = None  # (N, 3) of the last pair, if tracked
         self._counts = TrackCounts('pairs')
-        self.inputs = input_ports(config.compressed)
+        self.inputs = stereo_input_ports(config.compressed)
         self.outputs = (*MESH_PORTS, *MODEL_PORTS)
 
     def reset(self, initialisation: Initialisation | None) -> str:
@@ -479,21 +418,6 @@ class StereoProcessor:
         for header, result in zip(headers, final, strict=True):
             self._ended_outputs += self._outputs(header, result)
         self._track_results = []
-
-
-def input_ports(compressed: bool) -> tuple[Port, ...]:
-    """The left and right images (raw, or ``compressed``), camera_infos and model."""
-    image_type, image_topics = (
-        (conversions.COMPRESSED_IMAGE_TYPE, tuple(COMPRESSED))
-        if compressed
-        else (conversions.IMAGE_TYPE, (LEFT_IMAGE, RIGHT_IMAGE))
-    )
-    return (
-        *(Port(topic, image_type, QosClass.SENSOR) for topic in image_topics),
-        Port(LEFT_INFO, conversions.CAMERA_INFO_TYPE, QosClass.SENSOR),
-        Port(RIGHT_INFO, conversions.CAMERA_INFO_TYPE, QosClass.SENSOR),
-        MODEL_PORT,
-    )
 
 
 def _check_nodes(
