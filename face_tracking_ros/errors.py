@@ -7,9 +7,9 @@ offending file, topic, field or parameter.
 
 from __future__ import annotations
 
+import math
+from numbers import Integral, Real
 import re
-
-import numpy as np
 
 _NUMBER = re.compile(r'\d+(\.\d+)?(e[-+]?\d+)?')
 
@@ -57,11 +57,20 @@ def check_fields(config: object, checks: dict[str, bool]) -> None:
     """
     for name, ok in checks.items():
         value = getattr(config, name)
-        finite = not isinstance(value, (float, np.floating)) or bool(np.isfinite(value))
+        finite = not _is_float(value) or math.isfinite(value)
         if not (ok and finite):
             expected = '' if finite else 'a finite number'
             msg = f'invalid {type(config).__name__}.{name} = {value!r}'
             raise FieldError(f'{msg}, expected {expected}' if expected else msg, name, expected)
+
+
+def _is_float(value: object) -> bool:
+    """Whether ``value`` is a real number other than an integer: a float, or a numpy floating.
+
+    numpy registers its floating scalars as :class:`numbers.Real` and its integers (and bool)
+    as :class:`numbers.Integral`, so this needs no numpy import.
+    """
+    return isinstance(value, Real) and not isinstance(value, Integral)
 
 
 class ModelFileError(FaceTrackingError):
