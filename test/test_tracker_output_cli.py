@@ -92,6 +92,24 @@ def test_a_tracked_identity_is_enrolled_and_a_model_less_track_refused(tmp_path,
     assert 'error: ' in (err := capsys.readouterr().err) and 'absent' in err
 
 
+def test_tracking_frames_whose_sigma_has_a_nan_are_left_out_and_counted(tmp_path, capsys):
+    """They were left out silently: enrolled from 5 of 6 TRACKING frames, no word of the 6th."""
+    sigmas = np.random.default_rng(2).normal([0.01, -0.02], 0.001, (6, 2))
+    sigmas[3, 1] = np.nan
+    gallery = tmp_path / 'gallery.npz'
+    bag = _states(tmp_path / 'ann', sigmas)
+    assert main(['enroll', str(bag), '--name', 'ann', '--gallery', str(gallery)]) == 0
+    out = capsys.readouterr().out
+    assert "enrolled 'ann' from 5 shape estimates" in out
+    assert ', leaving out 1 TRACKING frame whose sigma has a NaN or inf; ' in out
+    kept = np.delete(sigmas, 3, axis=0)
+    np.testing.assert_allclose(IdentityGallery.load(gallery, 2).means[0], kept.mean(axis=0))
+    void = _states(tmp_path / 'void', np.full((2, 2), np.nan))
+    assert main(['enroll', str(void), '--name', 'bea', '--gallery', str(gallery)]) == 2
+    expected = f'no TRACKING frame whose sigma is finite (2 have a NaN or inf) in {void}: nothing'
+    assert expected in capsys.readouterr().err
+
+
 def test_a_track_enrolled_under_one_name_is_refused_under_another(tmp_path, capsys):
     """The same estimates under two names made recognition tie between them: refused, named."""
     sigmas = np.random.default_rng(1).normal([0.01, -0.02], 0.001, (20, 2))

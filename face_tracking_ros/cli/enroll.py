@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
@@ -28,6 +29,7 @@ from face_tracking_ros.io.series import load_states, require_parameters
 from face_tracking_ros.model.model_file import load_model
 from face_tracking_ros.recognition.identity import IdentityConfig, IdentityGallery
 from face_tracking_ros.tracking.result import TrackStatus
+from face_tracking_ros.wording import counted
 
 
 def register(parser: argparse.ArgumentParser) -> None:
@@ -66,7 +68,7 @@ def run(args: argparse.Namespace) -> None:
     check_output_path(args.gallery, '--gallery', parent_made=False)
     model_path = tracked_with(args.bags, args.model) or default_model_path()
     model = load_model(model_path)
-    sigmas = tracked_sigmas(args.bags)
+    sigmas, not_finite = tracked_sigmas(args.bags)
     if sigmas.shape[1] != model.p:
         msg = f'the bags hold sigma of p={sigmas.shape[1]}, the model {model_path} has p={model.p}'
         raise ConfigError(msg)
@@ -81,9 +83,16 @@ def run(args: argparse.Namespace) -> None:
     gallery.save(args.gallery)
     print(
         f'enrolled {args.name!r}{replacing} from {len(sigmas)} shape estimates of the model '
-        f'{model_path} (fingerprint {model.fingerprint}); '
+        f'{model_path} (fingerprint {model.fingerprint}){_left_out(not_finite)}; '
         f'{args.gallery} holds {", ".join(gallery.names)}'
     )
+
+
+def _left_out(not_finite: int) -> str:
+    """What the enrolment says of the TRACKING frames it left out: none, or how many and why."""
+    if not not_finite:
+        return ''
+    return f', leaving out {counted(not_finite, "TRACKING frame")} whose sigma has a NaN or inf'
 
 
 def _check_not_enrolled_as_another(
@@ -107,12 +116,24 @@ def _check_not_enrolled_as_another(
         raise ConfigError(msg)
 
 
-def tracked_sigmas(bags: list[Path]) -> np.ndarray:
-    """(M, p) sigma of the TRACKING frames of tracker output bags (those with a sigma).
+class TrackedSigmas(NamedTuple):
+    """The sigma estimates enrolled from tracker output bags, and the TRACKING frames left out.
+
+    Attributes:
+        sigmas: (M, p) sigma of the TRACKING frames whose sigma is finite.
+        not_finite: how many TRACKING frames were left out for a NaN or inf in their sigma.
+    """
+
+    sigmas: np.ndarray
+    not_finite: int
+
+
+def tracked_sigmas(bags: list[Path]) -> TrackedSigmas:
+    """Sigma of the TRACKING frames of tracker output bags (those with a finite sigma).
 
     Raises:
-        BagError: if no frame of the bags was tracked, the states carry no sigma, or sigma of
-            different p.
+        BagError: if no frame of the bags was tracked with a finite sigma, the states carry
+            no sigma, or sigma of different p.
     """
     series = [load_states(bag) for bag in bags]
     for bag, states in zip(bags, series, strict=True):
@@ -122,12 +143,15 @@ def tracked_sigmas(bags: list[Path]) -> np.ndarray:
         listed = ', '.join(f'{bag} p={p}' for bag, p in widths.items())
         msg = f'the bags hold sigma of different p ({listed}), tracked with different models'
         raise BagError(msg)
-    sigmas = [
-        s.sigma[(s.status == TrackStatus.TRACKING) & np.all(np.isfinite(s.sigma), axis=1)]
-        for s in series
-    ]
-    stacked = np.concatenate(sigmas) if sigmas else np.zeros((0, 0))
-    if not len(stacked):
-        msg = f'no TRACKING frame in {", ".join(map(str, bags))}: nothing to enrol'
+    tracking = np.concatenate([s.sigma[s.status == TrackStatus.TRACKING] for s in series])
+    finite = np.all(np.isfinite(tracking), axis=1)
+    not_finite = int(np.count_nonzero(~finite))
+    if not finite.any():
+        nan = counted(not_finite, 'has', 'have')
+        frames = f'TRACKING frame whose sigma is finite ({nan} a NaN or inf)'
+        msg = (
+            f'no {frames if not_finite else "TRACKING frame"} in {", ".join(map(str, bags))}: '
+            'nothing to enrol'
+        )
         raise BagError(msg)
-    return stacked
+    return TrackedSigmas(tracking[finite], not_finite)
