@@ -74,6 +74,8 @@ class ReplayStats:
         warnings: what each processor that can warn warned of at the end, per node name, as the
             live node's status would (:class:`~face_tracking_ros.processing.base.Warns`, e.g. a
             tracker that tracked none of the last images; filled by :func:`replay_bag`).
+        read_topics: the bag topics read, each to the input it fed (bag topic -> input; filled
+            by :func:`replay_bag`).
     """
 
     inputs: Counter[str] = field(default_factory=Counter)
@@ -83,6 +85,7 @@ class ReplayStats:
     read_error: str = ''
     status: dict[str, dict[str, str]] = field(default_factory=dict)
     warnings: dict[str, str] = field(default_factory=dict)
+    read_topics: dict[str, str] = field(default_factory=dict)
     _first_of_kind: dict[str, str] = field(default_factory=dict, init=False, repr=False)
 
     def count_error(self, text: str) -> None:
@@ -588,6 +591,7 @@ def replay_bag(
             stats.status[node] = processor.status()
         if isinstance(processor, Warns) and (warning := processor.warning()):
             stats.warnings[node] = warning
+    stats.read_topics = topic_map
     return stats
 
 

@@ -211,6 +211,28 @@ def test_track_that_tracks_no_image_ends_with_status_1(tmp_path, capsys):
     assert 'no image was tracked (the input problems or last_reason above say why)' in printed
 
 
+def test_track_of_a_bag_without_images_names_the_empty_image_topic(tmp_path, capsys):
+    """'read: none' and 'the input problems or last_reason above say why', which none did."""
+    mono = REPO / 'bags' / 'mono_test' / 'subject_00_seq_00'
+    init = write_init_file(clicks_from_bag(mono, 0.0), tmp_path / 'init.json')
+    bag = tmp_path / 'no_images'
+    with Writer(bag, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
+        store = typestore()
+        connections = {
+            topic: writer.add_connection(topic, msgtype, typestore=store)
+            for topic, msgtype in bag_topics(mono).items()
+        }
+        for message in read_messages(mono, ['camera_info']):
+            data = store.serialize_cdr(message.msg, message.msgtype)
+            writer.write(connections[message.topic], message.stamp_ns, data)
+    argv = ['track', str(bag), '--init', str(init), '--out', str(tmp_path / 'o'), '--quiet']
+    assert main(argv) == 1
+    printed = capsys.readouterr().out
+    assert 'read: 30 camera_info\n' in printed
+    expected = 'no image was tracked: the bag holds no message on image, the image topic the '
+    assert f'{expected}mono_tracker reads\n' in printed
+
+
 def test_track_of_a_truncated_bag_keeps_its_track_and_does_not_score_it(tmp_path, capsys):
     mono = REPO / 'bags' / 'mono_test' / 'subject_00_seq_00'
     cut = tmp_path / 'cut'

@@ -11,6 +11,7 @@ code. When the bag holds synthetic truth, the accuracy against it is printed and
 from __future__ import annotations
 
 import argparse
+from collections.abc import Mapping
 from dataclasses import asdict
 import json
 import math
@@ -22,6 +23,7 @@ from face_tracking_ros.cli.replay import add_replay_options, parse_remaps, print
 from face_tracking_ros.errors import BagError, ConfigError
 from face_tracking_ros.io.atomic import check_output_path, write_json_atomically
 from face_tracking_ros.io.bags import bag_topics
+from face_tracking_ros.io.conversions import COMPRESSED_IMAGE_TYPE, IMAGE_TYPE
 from face_tracking_ros.io.series import has_truth, load_states
 from face_tracking_ros.pipelines.bag_inputs import (
     check_one_transport,
@@ -37,7 +39,7 @@ from face_tracking_ros.pipelines.bag_inputs import (
 from face_tracking_ros.pipelines.scoring import score_against_truth, score_stereo_against_truth
 from face_tracking_ros.processing.node_configs import MonoNodeConfig, StereoNodeConfig
 from face_tracking_ros.processing.parameters import OverrideParameters
-from face_tracking_ros.replay import replay_bag, wire_replay
+from face_tracking_ros.replay import ReplayStats, replay_bag, wire_replay
 from face_tracking_ros.synthetic.clicks import (
     check_clicks_file,
     clicks_from_bag,
@@ -169,8 +171,7 @@ def run(args: argparse.Namespace) -> int:
     print_stats(stats, args.out)
     states = load_states(args.out).status if stats.outputs['face/state'] else np.empty(0)
     if not np.any(states == TrackStatus.TRACKING):
-        frame = 'pair' if node == STEREO else 'image'
-        print(f'no {frame} was tracked (the input problems or last_reason above say why)')
+        print(_nothing_tracked(node, stats, topics))
         return 1
     scored = has_truth(args.bag)
     if scored and stats.read_error:
@@ -178,6 +179,29 @@ def run(args: argparse.Namespace) -> int:
     elif scored:
         _score(args, node, model_file)
     return 1 if stats.interrupted or stats.read_error else 0
+
+
+def _nothing_tracked(node: str, stats: ReplayStats, topics: Mapping[str, str]) -> str:
+    """Why ``node`` tracked no image: none on its image topics, or what the summary above says.
+
+    Args:
+        node: the tracker.
+        stats: its replay over the bag.
+        topics: the bag's topics (name -> type).
+    """
+    frame = 'pair' if node == STEREO else 'image'
+    images = [
+        topic
+        for topic in stats.read_topics
+        if topics[topic] in (IMAGE_TYPE, COMPRESSED_IMAGE_TYPE)
+    ]
+    fed = any(stats.inputs[stats.read_topics[topic]] for topic in images)
+    if fed or stats.read_error or stats.interrupted:
+        return f'no {frame} was tracked (the input problems or last_reason above say why)'
+    return (
+        f'no {frame} was tracked: the bag holds no message on {", ".join(images)}, the '
+        f'{"image topic" if len(images) == 1 else "image topics"} the {node} reads'
+    )
 
 
 def _parameters(
