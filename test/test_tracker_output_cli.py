@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import replace
 import json
 from pathlib import Path
@@ -211,20 +212,26 @@ def test_track_that_tracks_no_image_ends_with_status_1(tmp_path, capsys):
     assert 'no image was tracked (the input problems or last_reason above say why)' in printed
 
 
-def test_track_of_a_bag_without_images_names_the_empty_image_topic(tmp_path, capsys):
-    """'read: none' and 'the input problems or last_reason above say why', which none did."""
-    mono = REPO / 'bags' / 'mono_test' / 'subject_00_seq_00'
-    init = write_init_file(clicks_from_bag(mono, 0.0), tmp_path / 'init.json')
-    bag = tmp_path / 'no_images'
+def _copied(source: Path, bag: Path, kept: Callable[[str], bool]) -> Path:
+    """A copy of ``source`` at ``bag`` declaring every topic, the messages of ``kept`` ones."""
     with Writer(bag, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
         store = typestore()
         connections = {
             topic: writer.add_connection(topic, msgtype, typestore=store)
-            for topic, msgtype in bag_topics(mono).items()
+            for topic, msgtype in bag_topics(source).items()
         }
-        for message in read_messages(mono, ['camera_info']):
-            data = store.serialize_cdr(message.msg, message.msgtype)
-            writer.write(connections[message.topic], message.stamp_ns, data)
+        for message in read_messages(source):
+            if kept(message.topic):
+                data = store.serialize_cdr(message.msg, message.msgtype)
+                writer.write(connections[message.topic], message.stamp_ns, data)
+    return bag
+
+
+def test_track_of_a_bag_without_images_names_the_empty_image_topic(tmp_path, capsys):
+    """'read: none' and 'the input problems or last_reason above say why', which none did."""
+    mono = REPO / 'bags' / 'mono_test' / 'subject_00_seq_00'
+    init = write_init_file(clicks_from_bag(mono, 0.0), tmp_path / 'init.json')
+    bag = _copied(mono, tmp_path / 'no_images', lambda topic: topic == 'camera_info')
     argv = ['track', str(bag), '--init', str(init), '--out', str(tmp_path / 'o'), '--quiet']
     assert main(argv) == 1
     printed = capsys.readouterr().out
@@ -391,17 +398,7 @@ def test_an_init_file_or_model_given_twice_is_refused_not_chosen_silently(tmp_pa
 def test_a_camera_info_topic_without_messages_is_named_not_a_traceback(tmp_path, capsys):
     """ros2 bag record keeps a topic whose publisher never sent: declared, no message."""
     source = REPO / 'bags' / 'stereo_train' / 'subject_00_seq_00'
-    bag = tmp_path / 'empty_info'
-    with Writer(bag, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
-        store = typestore()
-        connections = {
-            topic: writer.add_connection(topic, msgtype, typestore=store)
-            for topic, msgtype in bag_topics(source).items()
-        }
-        for message in read_messages(source):
-            if message.topic != 'left/camera_info':
-                data = store.serialize_cdr(message.msg, message.msgtype)
-                writer.write(connections[message.topic], message.stamp_ns, data)
+    bag = _copied(source, tmp_path / 'empty_info', lambda topic: topic != 'left/camera_info')
     out = tmp_path / 'o'
     assert main(['track', str(bag), '--simulate-clicks', '1', '--out', str(out)]) == 2
     expected = 'simulated clicks need a message on left/camera_info, which has none'
