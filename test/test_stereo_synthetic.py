@@ -23,11 +23,10 @@ from face_tracking_ros.synthetic.scenes import SceneConfig, SequenceRenderer
 from face_tracking_ros.tracking.regularisation import RegularisationConfig
 from face_tracking_ros.tracking.result import TrackStatus
 from face_tracking_ros.tracking.stereo import StereoTracker, track_sequence
-from face_tracking_ros.tracking.stereo_config import StereoTrackerConfig
+from face_tracking_ros.tracking.stereo_config import StereoInitConfig, StereoTrackerConfig
 from face_tracking_ros.tracking.stereo_evaluation import evaluate_stereo
 from face_tracking_ros.tracking.stereo_init import (
     InitialNodes,
-    StereoInitConfig,
     check_face_scale,
     check_not_swapped,
     check_raw_not_swapped,

@@ -31,7 +31,7 @@ from face_tracking_ros.tracking.initialisation import Initialisation
 from face_tracking_ros.tracking.result import TrackStatus
 from face_tracking_ros.tracking.row_offset import row_offset
 from face_tracking_ros.tracking.stereo import StereoTracker, track_sequence
-from face_tracking_ros.tracking.stereo_config import StereoTrackerConfig
+from face_tracking_ros.tracking.stereo_config import StereoInitConfig, StereoTrackerConfig
 from face_tracking_ros.tracking.stereo_data import (
     GroupStatistics,
     Huber,
@@ -50,7 +50,6 @@ from face_tracking_ros.tracking.stereo_data import (
 )
 from face_tracking_ros.tracking.stereo_init import (
     FLAT_STD,
-    StereoInitConfig,
     epipolar_match,
     initial_nodes,
 )

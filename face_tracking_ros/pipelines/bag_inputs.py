@@ -34,6 +34,7 @@ from face_tracking_ros.processing.node_configs import (
 from face_tracking_ros.processing.node_configs import COMPRESSED as STEREO_COMPRESSED
 from face_tracking_ros.processing.parameters import OverrideParameters
 from face_tracking_ros.replay import bag_spelling, fed_topic, resolve_inputs
+from face_tracking_ros.tracking.stereo_config import StereoTrackerConfig
 
 
 def image_topics(topics: Mapping[str, str]) -> tuple[list[str], bool]:
@@ -239,9 +240,6 @@ def tracked_nodes(node: str, params: list[str], model_file: Path | None) -> tupl
         model_file: the mono tracker's model file; None: the packaged one.
     """
     if node == 'stereo_tracker':
-        # Here, not at the top: its initialisation's import loads the stereo kernels.
-        from face_tracking_ros.tracking.stereo_config import StereoTrackerConfig
-
         config = OverrideParameters.parse(params).config(StereoTrackerConfig, prefix='tracker.')
         return mesh_topology(config.num_nodes).node_names
     return load_model(model_file or default_model_path()).node_names
