@@ -35,10 +35,15 @@ class _UniqueKeyLoader(yaml.SafeLoader):
     """PyYAML's safe loader, refusing a mapping that gives a key twice (it keeps the last)."""
 
     def construct_mapping(self, node: yaml.MappingNode, deep: bool = False) -> dict[Hashable, Any]:
-        """The mapping of ``node``; raises ConstructorError naming a key it gives twice."""
-        seen: set[Any] = set()
+        """The mapping of ``node``; raises ConstructorError naming a key it gives twice.
+
+        An unhashable key (a list) is left to PyYAML's own check, which names it.
+        """
+        seen: set[Hashable] = set()
         for key_node, _ in node.value:
             key = self.construct_object(key_node, deep=deep)
+            if not isinstance(key, Hashable):
+                break
             if key in seen:
                 msg = f'found key {key!r} twice'
                 raise ConstructorError(

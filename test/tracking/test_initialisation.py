@@ -59,6 +59,8 @@ def test_yaml_and_json_init_files_parse(tmp_path: Path) -> None:
         (f'nodes: {{a: [1, 2]}}\nsigma: [{10**400}]\n', 'sigma must be a list of numbers'),
         # A node clicked twice: the second position was taken without a word
         ('nodes:\n  a: [1, 2]\n  b: [3, 4]\n  a: [5, 6]\n', "found key 'a' twice"),
+        # A list as a key: the check for keys given twice raised TypeError (unhashable)
+        ('nodes:\n  ? [1, 2]\n  : [3, 4]\n', 'not valid YAML: .*found unhashable key'),
         # One past Python's limit on parsing integers: its ValueError came out of the parser
         (f'nodes: {{right_eye: [{"1" * 5000}, 2]}}\n', 'not valid YAML: Exceeds the limit'),
     ],
