@@ -240,6 +240,21 @@ def test_track_of_a_bag_without_images_names_the_empty_image_topic(tmp_path, cap
     assert f'{expected}mono_tracker reads\n' in printed
 
 
+def test_track_of_a_stereo_bag_with_one_side_empty_names_that_side(tmp_path, capsys):
+    """Left images and both camera_infos but no right image: every left image goes unpaired."""
+    stereo = REPO / 'bags' / 'stereo_train' / 'subject_00_seq_00'
+    bag = _copied(stereo, tmp_path / 'no_right', lambda topic: topic != 'right/image_raw')
+    argv = ['track', str(bag), '--simulate-clicks', '0', '--out', str(tmp_path / 'o'), '--quiet']
+    assert main(argv) == 1
+    printed = capsys.readouterr().out
+    assert 'unpaired_images 10' in printed
+    expected = (
+        'no pair was tracked: the bag holds no message on right/image_raw, one of the image '
+        'topics the stereo_tracker reads, so no image on left/image_raw had its pair\n'
+    )
+    assert expected in printed
+
+
 def test_track_of_a_truncated_bag_keeps_its_track_and_does_not_score_it(tmp_path, capsys):
     mono = REPO / 'bags' / 'mono_test' / 'subject_00_seq_00'
     cut = tmp_path / 'cut'

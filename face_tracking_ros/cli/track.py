@@ -182,7 +182,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _nothing_tracked(node: str, stats: ReplayStats, topics: Mapping[str, str]) -> str:
-    """Why ``node`` tracked no image: none on its image topics, or what the summary above says.
+    """Why ``node`` tracked no image: none on (one of) its image topics, or the summary above.
 
     Args:
         node: the tracker.
@@ -195,12 +195,16 @@ def _nothing_tracked(node: str, stats: ReplayStats, topics: Mapping[str, str]) -
         for topic in stats.read_topics
         if topics[topic] in (IMAGE_TYPE, COMPRESSED_IMAGE_TYPE)
     ]
-    fed = any(stats.inputs[stats.read_topics[topic]] for topic in images)
-    if fed or stats.read_error or stats.interrupted:
+    empty = [topic for topic in images if not stats.inputs[stats.read_topics[topic]]]
+    if not empty or stats.read_error or stats.interrupted:
         return f'no {frame} was tracked (the input problems or last_reason above say why)'
+    fed = [topic for topic in images if topic not in empty]
+    unpaired = f', so no image on {", ".join(fed)} had its pair' if fed else ''
+    kind = 'image topic' if len(images) == 1 else 'image topics'
     return (
-        f'no {frame} was tracked: the bag holds no message on {", ".join(images)}, the '
-        f'{"image topic" if len(images) == 1 else "image topics"} the {node} reads'
+        f'no {frame} was tracked: the bag holds no message on {", ".join(empty)}, '
+        f'{"the" if len(empty) == len(images) else "one of the"} {kind} the {node} '
+        f'reads{unpaired}'
     )
 
 
