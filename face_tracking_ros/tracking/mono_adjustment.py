@@ -246,13 +246,13 @@ class ViewAdjuster:
             adjustment.cost < adjustment.initial_cost and moved < self._config.bundle.max_change
         ):
             return None
-        first = Params(*estimate.first, estimate.sigma)
         yield
-        surface = self._rois.roi(first, 0)
-        rois = [self._rois.on_skin(surface, first, 0, estimate.depth)]
+        face = self._rois.at(Params(*estimate.first, estimate.sigma))
+        surface = self._rois.roi(face, 0)
+        rois = [self._rois.on_skin(surface.offsets, face, 0, estimate.depth)]
         for level in range(1, num_levels):
             yield
-            rois.append(self._rois.roi(first, level, estimate.depth))
+            rois.append(self._rois.roi(face, level, estimate.depth))
         return Adjusted(estimate, tuple(rois), surface)
 
     def _bundle_problem(self, views: FirstViews) -> Problem:

@@ -88,32 +88,54 @@ def patch_basis(weights: np.ndarray, basis: np.ndarray) -> np.ndarray:
     return dense.reshape(count, samples, *basis.shape[1:]) - basis[:, None]
 
 
-def patch_interpolation(shape: np.ndarray, offsets: np.ndarray) -> np.ndarray:
+@dataclass(frozen=True)
+class ThinPlate:
+    """The thin-plate interpolation over the face frame's x-y through a set of nodes.
+
+    Solved once (the spline's (N + 3)-square system for each node's unit value, scipy's
+    ``RBFInterpolator``) and evaluated at any number of point sets: every pyramid level's ROIs
+    at one sigma, on the thin-plate surface and on the skin, take their weights from one.
+
+    Attributes:
+        nodes: (N, 3) the nodes, m.
+        interpolation: the spline through their x-y, one value column per node.
+    """
+
+    nodes: np.ndarray
+    interpolation: RBFInterpolator
+
+    @classmethod
+    def through(cls, nodes: np.ndarray) -> ThinPlate:
+        """The thin plate through (N, 3) ``nodes`` (m)."""
+        count = nodes.shape[0]
+        return cls(nodes, RBFInterpolator(nodes[:, :2], np.eye(count), kernel='thin_plate_spline'))
+
+    def weights(self, xy: np.ndarray) -> np.ndarray:
+        """(..., N) the nodes' thin-plate weights at (..., 2) points ``xy``."""
+        count = self.nodes.shape[0]
+        return self.interpolation(xy.reshape(-1, 2)).reshape(*xy.shape[:-1], count)
+
+
+def patch_interpolation(plate: ThinPlate, offsets: np.ndarray) -> np.ndarray:
     """Thin-plate weights that carry a motion of the nodes to every patch sample.
 
     A sample at ``shape_i + offset`` moves by ``sum_j w_j (x, y) d_j`` when the nodes move by
-    d (interpolated over the face frame's x-y at ``shape``). The weights of each sample sum to
-    1 and reproduce any affine motion of the nodes exactly.
+    d (interpolated over the face frame's x-y at ``shape``, the plate's nodes). The weights of
+    each sample sum to 1 and reproduce any affine motion of the nodes exactly.
 
     Args:
-        shape: (N, 3) nodes, m, where the interpolation is set up.
+        plate: the thin plate through the nodes ``shape`` (N, 3), m, where the interpolation
+            is set up.
         offsets: (N, M, 3) offsets from each node to its samples, m.
 
     Returns:
         (N, M, N) weight w_j of node j at each sample.
     """
-    return _thin_plate_weights(shape, shape[:, None, :2] + offsets[..., :2])
-
-
-def _thin_plate_weights(shape: np.ndarray, xy: np.ndarray) -> np.ndarray:
-    """(..., N) thin-plate weights of the nodes ``shape`` (x-y) at (..., 2) points ``xy``."""
-    count = shape.shape[0]
-    interpolation = RBFInterpolator(shape[:, :2], np.eye(count), kernel='thin_plate_spline')
-    return interpolation(xy.reshape(-1, 2)).reshape(*xy.shape[:-1], count)
+    return plate.weights(plate.nodes[:, None, :2] + offsets[..., :2])
 
 
 def surface_patch_interpolation(
-    shape: np.ndarray, grid: np.ndarray
+    plate: ThinPlate, grid: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
     """:func:`surface_patch_offsets` and the :func:`patch_interpolation` weights at them.
 
@@ -121,15 +143,16 @@ def surface_patch_interpolation(
     to the nodes' depths (the thin-plate interpolant is linear in the values it interpolates).
 
     Args:
-        shape: (N, 3) nodes in the face frame, m.
+        plate: the thin plate through the nodes (N, 3), face frame, m.
         grid: (N, M, 2) sample offsets along the face frame's x and y, m.
 
     Returns:
         ``(offsets, weights)``: (N, M, 3) offsets from each node to its samples on the surface,
         m, and (N, M, N) the weight w_j of node j at each sample.
     """
+    shape = plate.nodes
     xy = shape[:, None, :2] + grid
-    weights = _thin_plate_weights(shape, xy)
+    weights = plate.weights(xy)
     samples = np.concatenate([xy, (weights @ shape[:, 2])[..., None]], axis=-1)
     return samples - shape[:, None, :], weights
 
@@ -189,7 +212,8 @@ class PatchDeformation:
             first_nodes: (N, 3) frame-1 nodes, m.
             offsets: (N, M, 3) frame-1 offsets from each node to its patch samples, m.
         """
-        weights = patch_interpolation(first_nodes, offsets).reshape(-1, first_nodes.shape[0])
+        plate = ThinPlate.through(first_nodes)
+        weights = patch_interpolation(plate, offsets).reshape(-1, first_nodes.shape[0])
         return cls(weights=np.ascontiguousarray(weights.T))
 
     def field(

@@ -577,7 +577,7 @@ def test_an_adjustment_sets_up_on_the_level_0_rois_it_was_given(turning_head, mo
     track_images(tracker, images, _clicks(turning_head))
     assert len(problems) >= 2
     for patches, first in problems:
-        roi = layout.roi(first, 0)
+        roi = layout.roi(layout.at(first), 0)
         np.testing.assert_array_equal(patches.offsets, roi.offsets)
         np.testing.assert_array_equal(patches.action, roi.action)
 

@@ -8,7 +8,7 @@ from face_tracking_ros.imaging import square_offsets
 from face_tracking_ros.model.topology import Group
 from face_tracking_ros.tracking.mono_config import MonoTrackerConfig
 from face_tracking_ros.tracking.mono_rois import Params, RoiLayout
-from face_tracking_ros.tracking.surface_patches import patch_basis, patch_interpolation
+from face_tracking_ros.tracking.surface_patches import ThinPlate, patch_basis, patch_interpolation
 
 
 def test_coarser_levels_reach_twice_as_far_each_held_at_the_level_0_roi_edge(
@@ -46,12 +46,15 @@ def test_a_skin_depth_moves_the_samples_and_carries_their_bases(model_factory) -
     depth = np.zeros((model.num_nodes, 6))
     depth[:, 0], depth[:, 3] = 0.002, 0.001
     u = layout.patch_coordinates(layout.grid(model.shape()), 0)[..., 0]
+    surface = layout.at(params)
     for level in range(4):
-        on_skin, on_surface = layout.roi(params, level, depth), layout.roi(params, level)
+        on_skin, on_surface = layout.roi(surface, level, depth), layout.roi(surface, level)
         if level == 0:
             moved = np.linalg.norm(on_skin.offsets - on_surface.offsets, axis=0)
             np.testing.assert_allclose(moved, 0.002 + 0.001 * u**2, rtol=0, atol=1e-8)
-        weights = patch_interpolation(model.shape(), on_skin.offsets.transpose(1, 2, 0))
+        weights = patch_interpolation(
+            ThinPlate.through(model.shape()), on_skin.offsets.transpose(1, 2, 0)
+        )
         for basis, nodes in (
             (on_skin.action, model.action_basis_nodes()),
             (on_skin.identity, model.shape_basis_nodes()),

@@ -35,6 +35,7 @@ from face_tracking_ros.tracking.mono_kernels import (
 from face_tracking_ros.tracking.projection import project_with_jacobian
 from face_tracking_ros.tracking.surface_patches import (
     PatchDeformation,
+    ThinPlate,
     node_frames,
     patch_basis,
     patch_interpolation,
@@ -291,9 +292,10 @@ def test_surface_patch_offsets_lie_on_the_thin_plate_surface() -> None:
 def test_surface_patch_interpolation_is_the_offsets_and_their_weights_at_once() -> None:
     shape = mesh_topology(34).reference_shape
     grid = np.random.default_rng(1).normal(0.0, 0.004, (34, 5, 2))
-    offsets, weights = surface_patch_interpolation(shape, grid)
+    plate = ThinPlate.through(shape)
+    offsets, weights = surface_patch_interpolation(plate, grid)
     np.testing.assert_allclose(offsets, surface_patch_offsets(shape, grid), rtol=0, atol=1e-12)
-    np.testing.assert_allclose(weights, patch_interpolation(shape, offsets), rtol=0, atol=1e-10)
+    np.testing.assert_allclose(weights, patch_interpolation(plate, offsets), rtol=0, atol=1e-10)
     assert np.abs(offsets[..., 2]).max() > 1e-3  # off the flat: the surface's depth is used
 
 
@@ -311,7 +313,7 @@ def test_patch_basis_carries_node_motion_to_the_samples() -> None:
     single = np.zeros_like(shape)
     single[lip] = rng.normal(size=3) * 0.003
     basis = np.stack([stretch, single], axis=-1)  # (N, 3, 2)
-    dense = patch_basis(patch_interpolation(shape, offsets), basis)
+    dense = patch_basis(patch_interpolation(ThinPlate.through(shape), offsets), basis)
     assert dense.shape == (34, 3, 3, 2)
     samples = shape[:, None, :] + offsets
     expected = samples @ affine.T + [0.001, -0.002, 0.0005] - stretch[:, None, :]
