@@ -20,6 +20,7 @@ from face_tracking_ros.synthetic.scenes import SceneConfig, SequenceRenderer
 from face_tracking_ros.synthetic.true_model import true_face_model
 from face_tracking_ros.tracking import bundle as bundle_module
 from face_tracking_ros.tracking import mono_adjustment as adjustment_module
+from face_tracking_ros.tracking import surface_patches
 from face_tracking_ros.tracking.bundle import (
     SURFACE_TERMS,
     BundleConfig,
@@ -580,6 +581,43 @@ def test_an_adjustment_sets_up_on_the_level_0_rois_it_was_given(turning_head, mo
         roi = layout.roi(layout.at(first), 0)
         np.testing.assert_array_equal(patches.offsets, roi.offsets)
         np.testing.assert_array_equal(patches.action, roi.action)
+
+
+def test_an_adjustments_rois_share_one_thin_plate_solve(turning_head, monkeypatch):
+    # Every level's new ROIs at the adjusted frame 1 lie on one thin plate through its nodes,
+    # solved once (as the track's first ROIs are), and equal ROIs laid level by level, each
+    # from a solve of its own, to the bit: on the surface (level 0, the next set-up's) and on
+    # the skin.
+    images, _, model, _ = turning_head
+    camera = SceneConfig(kind='mono').cameras()['image']
+    tracker = MonoTracker(model, camera)
+    layout = tracker._rois
+    solves: list[str] = []
+    monkeypatch.setattr(
+        surface_patches,
+        'RBFInterpolator',
+        counted(solves, 'solve', surface_patches.RBFInterpolator),
+    )
+    applied = record_method(
+        monkeypatch, MonoTracker, '_apply_adjustment', lambda _, adjusted, __: adjusted
+    )
+    track_images(tracker, images, _clicks(turning_head))
+    assert len(applied) >= 2
+    assert len(solves) == 1 + len(applied)  # the track's start, then one per adjustment
+    for adjusted in applied:
+        estimate = adjusted.estimate
+        first = Params(*estimate.first, estimate.sigma)
+        surface = layout.roi(layout.at(first), 0)
+        expected = [layout.on_skin(surface.offsets, layout.at(first), 0, estimate.depth)]
+        expected += [
+            layout.roi(layout.at(first), level, estimate.depth)
+            for level in range(1, len(adjusted.rois))
+        ]
+        for got, want in zip(
+            (adjusted.surface, *adjusted.rois), (surface, *expected), strict=True
+        ):
+            for got_array, want_array in zip(got, want, strict=True):
+                np.testing.assert_array_equal(got_array, want_array)
 
 
 def test_a_view_kept_while_an_adjustment_ran_is_carried_as_the_frame_now_is(model_factory):
