@@ -6,6 +6,7 @@ from pathlib import Path
 
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
+import numpy as np
 import pytest
 from rosbags.typesys.store import Typestore
 import yaml
@@ -13,6 +14,7 @@ import yaml
 from face_tracking_ros.errors import BagError
 from face_tracking_ros.io.bags import (
     BagWriter,
+    CdrSerialiser,
     bag_topics,
     read_messages,
     stamp_to_ns,
@@ -127,6 +129,44 @@ def test_message_of_wrong_type_raises_bag_error(tmp_path: Path, store: Typestore
 
     with BagWriter(tmp_path / 'bag') as bag, pytest.raises(BagError, match='cannot serialise'):
         bag.write('face/state', FACE_STATE, shape, T0)
+
+
+def _mesh(factory: RosbagsMessages, frame_id: str, nodes: int, edges: int) -> object:
+    """A FaceMesh of ``nodes`` points and ``edges`` edges (every kind of field that grows)."""
+    points = np.arange(3.0 * nodes).reshape(nodes, 3) / 7.0
+    return factory.make(
+        'face_tracking_msgs/msg/FaceMesh',
+        header=make_header(factory, T0, frame_id),
+        face_id='face_0',
+        node_names=[f'node_{i}' for i in range(nodes)],
+        points=factory.points(points),
+        edges=np.arange(2 * edges, dtype=np.uint32) % max(nodes, 1),
+    )
+
+
+@pytest.mark.parametrize(
+    'sizes',
+    [
+        [('cam', 3, 2), ('cam', 40, 2)],  # more points than the buffer holds (struct.pack_into)
+        [('cam', 3, 2), ('c' * 500, 3, 2)],  # a longer string (a memoryview slice)
+        [('cam', 3, 2), ('cam', 3, 900)],  # a longer array of numbers (numpy into memoryview)
+        [('cam', 40, 90), ('cam', 0, 0), ('cam', 3, 2), ('cam', 41, 90)],  # smaller, then larger
+    ],
+)
+def test_cdr_serialiser_gives_serialize_cdrs_bytes(store: Typestore, sizes: list) -> None:
+    factory, serialiser = RosbagsMessages(store), CdrSerialiser(store)
+    for frame_id, nodes, edges in sizes:
+        mesh = _mesh(factory, frame_id, nodes, edges)
+        expected = bytes(store.serialize_cdr(mesh, 'face_tracking_msgs/msg/FaceMesh'))
+        assert bytes(serialiser.serialise(mesh, 'face_tracking_msgs/msg/FaceMesh')) == expected
+
+
+def test_cdr_serialiser_refuses_a_message_of_another_type(store: Typestore) -> None:
+    factory, serialiser = RosbagsMessages(store), CdrSerialiser(store)
+    serialiser.serialise(_mesh(factory, 'cam', 3, 2), 'face_tracking_msgs/msg/FaceMesh')
+    shape = factory.make('face_tracking_msgs/msg/ShapeParams', sigma=np.zeros(2))
+    with pytest.raises(AttributeError):
+        serialiser.serialise(shape, 'face_tracking_msgs/msg/FaceMesh')
 
 
 def test_stamp_conversions_are_inverse() -> None:

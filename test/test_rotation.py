@@ -1,11 +1,17 @@
-"""geometry.rotation.angle_between: the relative angle, np.trace and np.clip's value to the bit."""
+"""geometry.rotation: angle_between (np.trace and np.clip's value to the bit) and quaternions."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 
-from face_tracking_ros.geometry.rotation import angle_between, rodrigues, rotation_angle
+from face_tracking_ros.geometry.rotation import (
+    angle_between,
+    omega_to_quaternion,
+    rodrigues,
+    rotation_angle,
+)
 
 
 def _reference(rotation_a: np.ndarray, rotation_b: np.ndarray) -> float:
@@ -41,3 +47,25 @@ def test_angle_between_matches_trace_and_clip_to_the_bit():
 )
 def test_a_cosine_rounded_past_one_is_clipped_to_the_exact_angle(omega_a, omega_b, angle):
     assert rotation_angle(np.array(omega_a), np.array(omega_b)) == angle
+
+
+@pytest.mark.parametrize(
+    ('omega', 'quaternion'),
+    [
+        ([0.0, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0]),
+        ([np.pi, 0.0, 0.0], [1.0, 0.0, 0.0, np.cos(np.pi / 2)]),  # half a turn about x
+        ([0.0, -np.pi / 2, 0.0], [0.0, -np.sqrt(0.5), 0.0, np.sqrt(0.5)]),
+        ([0.0, 0.0, 2e-4], [0.0, 0.0, np.sin(1e-4), np.cos(1e-4)]),  # the Taylor series
+    ],
+)
+def test_omega_to_quaternion_is_the_half_angle_quaternion(omega, quaternion):
+    np.testing.assert_allclose(omega_to_quaternion(np.array(omega)), quaternion, atol=1e-15)
+
+
+def test_omega_to_quaternion_gives_scipys_bits():
+    rng = np.random.default_rng(1)
+    scales = rng.choice([1e-5, 9e-4, 1e-3, 0.01, 0.3, 1.0, 3.0, 10.0], size=(20000, 1))
+    omegas = np.vstack([rng.normal(0.0, 1.0, (20000, 3)) * scales, [[1e-3, 0.0, 0.0]]])
+    for omega in omegas:
+        expected = Rotation.from_rotvec(omega).as_quat()
+        np.testing.assert_array_equal(omega_to_quaternion(omega), expected)

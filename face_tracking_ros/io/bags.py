@@ -30,6 +30,7 @@ import contextlib
 from pathlib import Path, PurePath
 import re
 import struct
+import sys
 from types import TracebackType
 from typing import Any, BinaryIO, NamedTuple, Protocol
 
@@ -54,6 +55,8 @@ from face_tracking_ros.wording import counted
 
 BAG_VERSION = 9  # rosbag2 metadata version written (Jazzy and later read it)
 NS_PER_S = 1_000_000_000
+CDR_HEADER_BYTES = 4  # the encapsulation header before a message's CDR
+LITTLE_ENDIAN = sys.byteorder == 'little'  # messages are written in the host's byte order
 MAX_NAMED_BAGS = 5  # bags named in the error for a directory of bags given as one
 # (OverflowError: rosbags seeks past a record whose length, read from damaged bytes, is >= 2**63;
 # MemoryError: it asks for a buffer of such a length, hundreds of gigabytes, to read the record)
@@ -100,6 +103,54 @@ def stamp_to_ns(stamp: StampLike) -> int:
     return stamp.sec * NS_PER_S + stamp.nanosec
 
 
+class CdrSerialiser:
+    """Serialises messages to CDR as rosbags' ``Typestore.serialize_cdr`` does, to the byte.
+
+    ``serialize_cdr`` first walks the whole message to size its buffer (the generated
+    ``getsize_cdr``), then walks it again to fill it: for a tracker's outputs, 300 and more
+    geometry_msgs/Point a frame, the first walk is a seventh of the time. Here a type's message
+    is serialised by the same generated function (``Msgdef.serialize_cdr_le``) into a zeroed
+    buffer twice the size of the largest of its type so far, and the part written is the message.
+    rosbags' functions never write past the buffer they are given (struct.pack_into and memoryview
+    slices refuse it): a larger message (or a bad one) goes to ``serialize_cdr`` after all, which
+    sizes the next buffers, or raises as before.
+    """
+
+    def __init__(self, store: Typestore) -> None:
+        """Serialise the types of ``store``; no buffer size known yet."""
+        self._store = store
+        self._capacity: dict[str, int] = {}
+
+    def serialise(self, msg: Any, msgtype: str) -> memoryview:
+        """The CDR of ``msg`` with its encapsulation header (``Typestore.serialize_cdr``'s).
+
+        Raises:
+            KeyError, AttributeError, TypeError, ValueError, struct.error: as
+                ``Typestore.serialize_cdr`` does, for an unknown type or a message not fitting it.
+        """
+        capacity = self._capacity.get(msgtype, 0)
+        data = self._into_buffer(msg, msgtype, capacity) if capacity else None
+        if data is None:
+            data = self._store.serialize_cdr(msg, msgtype, little_endian=LITTLE_ENDIAN)
+            self._capacity[msgtype] = max(capacity, 2 * len(data))
+        return data
+
+    def _into_buffer(self, msg: Any, msgtype: str, capacity: int) -> memoryview | None:
+        """``msg`` serialised into a new buffer of ``capacity`` bytes; None if it does not fit.
+
+        The header is serialize_cdr's: representation CDR (0), the byte order, two zero options.
+        """
+        msgdef = self._store.get_msgdef(msgtype)
+        fill = msgdef.serialize_cdr_le if LITTLE_ENDIAN else msgdef.serialize_cdr_be
+        buffer = memoryview(bytearray(capacity))
+        buffer[1] = int(LITTLE_ENDIAN)
+        try:
+            end = CDR_HEADER_BYTES + fill(buffer[CDR_HEADER_BYTES:], 0, msg, self._store)
+        except (struct.error, ValueError):  # past the buffer's end, or a bad message
+            return None
+        return buffer[:end].toreadonly()
+
+
 class BagWriter:
     """Context manager writing a rosbag2 bag with MCAP storage.
 
@@ -115,6 +166,7 @@ class BagWriter:
         """
         self.path = Path(path)
         self._store = typestore() if store is None else store
+        self._serialiser = CdrSerialiser(self._store)
         self._writer: Writer | None = None
         self._connections: dict[str, Connection] = {}
 
@@ -164,7 +216,7 @@ class BagWriter:
                 fit it.
         """
         try:
-            data = self._store.serialize_cdr(msg, msgtype)
+            data = self._serialiser.serialise(msg, msgtype)
         except (KeyError, AttributeError, TypeError, ValueError, struct.error) as error:
             message = f'{self.path}: cannot serialise {msgtype} on {topic}: {error}'
             raise BagError(message) from None

@@ -257,7 +257,8 @@ def array_to_points(factory: MessageFactory, array: np.ndarray) -> list[Any]:
     """geometry_msgs/Point list of an (N, 2) or (N, 3) array (z = 0 for 2-D points)."""
     array = np.asarray(array, dtype=float)
     if array.shape[1] == 2:
-        array = np.hstack([array, np.zeros((len(array), 1))])
+        planar, array = array, np.zeros((len(array), 3))
+        array[:, :2] = planar
     return factory.points(array)
 
 
@@ -469,8 +470,9 @@ _UNTRACKED_COLOUR = (0.5, 0.5, 0.5, 0.5)  # RGBA of the mesh of a face that is n
 
 def _nan_as_zero(values: Any) -> np.ndarray:
     """Float array of ``values`` with NaN (no estimate yet, INITIALIZING) as 0."""
-    values = np.asarray(values, dtype=float)
-    return np.where(np.isnan(values), 0.0, values)
+    values = np.array(values, dtype=float)
+    values[np.isnan(values)] = 0.0
+    return values
 
 
 MESH_MARKER_IDS = (0, 1)  # the mesh's markers in its face's namespace: nodes, edges

@@ -130,8 +130,8 @@ class PoseFilter:
         state.velocity += derivative * (shift / dt - state.velocity)
         cutoff = (
             config.min_cutoff
-            + config.beta_rotation * float(np.linalg.norm(state.angular_velocity))
-            + config.beta_translation * float(np.linalg.norm(state.velocity))
+            + config.beta_rotation * _norm(state.angular_velocity)
+            + config.beta_translation * _norm(state.velocity)
         )
         share = smoothing_factor(cutoff, dt)
         state.rotation = state.rotation @ rodrigues(share * turn)[0]
@@ -153,6 +153,11 @@ class PoseFilter:
             nodes_cam=nodes_cam,
             nodes_px=self._camera.project(nodes_cam),
         )
+
+
+def _norm(vector: np.ndarray) -> float:
+    """Euclidean norm of a vector: np.linalg.norm's sqrt(x . x), without its checks (a third)."""
+    return math.sqrt(vector.dot(vector))
 
 
 class FilteredTracker:
