@@ -39,6 +39,7 @@ from mcap.reader import make_reader
 from mcap.records import Channel, McapRecord, Message, Schema
 from mcap.stream_reader import StreamReader
 from mcap.summary import Summary
+from rosbags.interfaces import CDRSer
 from rosbags.rosbag2 import Reader, ReaderError, StoragePlugin, Writer, WriterError
 from rosbags.rosbag2.writer import Connection
 from rosbags.serde import SerdeError
@@ -106,20 +107,20 @@ def stamp_to_ns(stamp: StampLike) -> int:
 class CdrSerialiser:
     """Serialises messages to CDR as rosbags' ``Typestore.serialize_cdr`` does, to the byte.
 
-    ``serialize_cdr`` first walks the whole message to size its buffer (the generated
-    ``getsize_cdr``), then walks it again to fill it: for a tracker's outputs, 300 and more
-    geometry_msgs/Point a frame, the first walk is a seventh of the time. Here a type's message
-    is serialised by the same generated function (``Msgdef.serialize_cdr_le``) into a zeroed
-    buffer twice the size of the largest of its type so far, and the part written is the message.
-    rosbags' functions never write past the buffer they are given (struct.pack_into and memoryview
-    slices refuse it): a larger message (or a bad one) goes to ``serialize_cdr`` after all, which
-    sizes the next buffers, or raises as before.
+    ``serialize_cdr`` looks up the type's generated functions, walks the whole message to size
+    its buffer (``getsize_cdr``), then walks it again to fill it: for a tracker's outputs, 300
+    and more geometry_msgs/Point a frame, the sizing walk is a seventh of the time. Here each
+    type's generated serialiser (``Msgdef.serialize_cdr_le``) is looked up once, and fills a
+    zeroed buffer twice the size of the largest message of its type so far; the part written is
+    the message. rosbags' functions never write past the buffer they are given
+    (``struct.pack_into`` and memoryview slices refuse it): a larger message (or a bad one) goes
+    to ``serialize_cdr`` after all, which sizes the next buffers, or raises as before.
     """
 
     def __init__(self, store: Typestore) -> None:
-        """Serialise the types of ``store``; no buffer size known yet."""
+        """Serialise the types of ``store``; no type's serialiser or buffer size known yet."""
         self._store = store
-        self._capacity: dict[str, int] = {}
+        self._sized: dict[str, tuple[CDRSer, int]] = {}  # per type: serialiser, buffer bytes
 
     def serialise(self, msg: Any, msgtype: str) -> memoryview:
         """The CDR of ``msg`` with its encapsulation header (``Typestore.serialize_cdr``'s).
@@ -128,20 +129,25 @@ class CdrSerialiser:
             KeyError, AttributeError, TypeError, ValueError, struct.error: as
                 ``Typestore.serialize_cdr`` does, for an unknown type or a message not fitting it.
         """
-        capacity = self._capacity.get(msgtype, 0)
-        data = self._into_buffer(msg, msgtype, capacity) if capacity else None
+        sized = self._sized.get(msgtype)
+        data = None if sized is None else self._into_buffer(msg, *sized)
         if data is None:
             data = self._store.serialize_cdr(msg, msgtype, little_endian=LITTLE_ENDIAN)
-            self._capacity[msgtype] = max(capacity, 2 * len(data))
+            self._keep_size(msgtype, len(data))
         return data
 
-    def _into_buffer(self, msg: Any, msgtype: str, capacity: int) -> memoryview | None:
-        """``msg`` serialised into a new buffer of ``capacity`` bytes; None if it does not fit.
+    def _keep_size(self, msgtype: str, size: int) -> None:
+        """Make ``msgtype``'s next buffers twice ``size`` bytes, unless they are larger already."""
+        msgdef = self._store.get_msgdef(msgtype)
+        fill = msgdef.serialize_cdr_le if LITTLE_ENDIAN else msgdef.serialize_cdr_be
+        capacity = self._sized.get(msgtype, (fill, 0))[1]
+        self._sized[msgtype] = (fill, max(capacity, 2 * size))
+
+    def _into_buffer(self, msg: Any, fill: CDRSer, capacity: int) -> memoryview | None:
+        """``msg`` serialised by ``fill`` into a new ``capacity``-byte buffer; None if it is short.
 
         The header is serialize_cdr's: representation CDR (0), the byte order, two zero options.
         """
-        msgdef = self._store.get_msgdef(msgtype)
-        fill = msgdef.serialize_cdr_le if LITTLE_ENDIAN else msgdef.serialize_cdr_be
         buffer = memoryview(bytearray(capacity))
         buffer[1] = int(LITTLE_ENDIAN)
         try:
