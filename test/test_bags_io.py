@@ -148,9 +148,9 @@ def _mesh(factory: RosbagsMessages, frame_id: str, nodes: int, edges: int) -> ob
     'sizes',
     [
         [('cam', 3, 2), ('cam', 40, 2)],  # more points than the buffer holds (struct.pack_into)
-        [('cam', 3, 2), ('c' * 500, 3, 2)],  # a longer string (a memoryview slice)
+        [('cam', 3, 2), ('c' * 5000, 3, 2)],  # a longer string (a memoryview slice)
         [('cam', 3, 2), ('cam', 3, 900)],  # a longer array of numbers (numpy into memoryview)
-        [('cam', 40, 90), ('cam', 0, 0), ('cam', 3, 2), ('cam', 41, 90)],  # smaller, then larger
+        [('cam', 40, 90), ('cam', 0, 0), ('cam', 41, 90)],  # smaller, then larger in the slack
     ],
 )
 def test_cdr_serialiser_gives_serialize_cdrs_bytes(store: Typestore, sizes: list) -> None:
