@@ -78,7 +78,7 @@ from face_tracking_ros.tracking.detector import Detector
 from face_tracking_ros.tracking.initialisation import Initialisation, fit_model_to_points
 from face_tracking_ros.tracking.mono_adjustment import Adjusted, FirstViews, View, ViewAdjuster
 from face_tracking_ros.tracking.mono_config import MonoTrackerConfig
-from face_tracking_ros.tracking.mono_kernels import row_rms
+from face_tracking_ros.tracking.mono_kernels import blended_template, row_rms
 from face_tracking_ros.tracking.mono_loss import LossChecks, Reference
 from face_tracking_ros.tracking.mono_priors import Priors
 from face_tracking_ros.tracking.mono_projection import FaceProjection
@@ -543,11 +543,11 @@ class MonoTracker:
         """
         track = self._track
         keyframe = nearest_keyframe(track.keyframes, track.current.omega).templates
-        epsilon = self._config.epsilon * keyframe.visibility[:, None]
+        epsilon = self._config.epsilon * keyframe.visibility
         previous = track.previous.levels
         blended = OnDemand(
             len(previous),
-            lambda level: previous[level] + epsilon * (keyframe.levels[level] - previous[level]),
+            lambda level: blended_template(previous[level], keyframe.levels[level], epsilon),
         )
         return blended, track.previous.visibility
 
@@ -856,7 +856,7 @@ def _predicted(
     (:meth:`.FaceProjection.rotation`).
     """
     omega = current.omega
-    if not np.array_equal(omega, before.omega):
+    if not (omega == before.omega).all():  # np.array_equal's answer for two (3,) vectors
         turned = rotation(current)
         turn = turned @ rotation(before).T
         if ahead != 1.0:

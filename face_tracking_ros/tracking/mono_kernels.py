@@ -821,6 +821,125 @@ def condition_number(hessian: np.ndarray) -> float:
     return eigenvalues[-1] / eigenvalues[0] if eigenvalues[0] > 0 else np.inf
 
 
+@numba.njit(
+    [
+        f'f8[:, ::1]({previous}[:, ::1], {keyframe}[:, ::1], f8[::1])'
+        for previous in ('f4', 'f8')
+        for keyframe in ('f4', 'f8')
+    ],
+    **EXACT,
+)
+def blended_template(
+    previous: np.ndarray, keyframe: np.ndarray, epsilon: np.ndarray
+) -> np.ndarray:
+    """Eq. 6's blended template ``T = I_(n-1) + epsilon (I_1 - I_(n-1))`` of (N, M) templates.
+
+    ``epsilon`` is (N,), one weight per node's ROI. numpy's bits: the difference is taken in
+    the wider type of the two templates, the rest in float64.
+    """
+    count, size = previous.shape
+    blended = np.empty((count, size))
+    for n in range(count):
+        weight = epsilon[n]
+        for m in range(size):
+            blended[n, m] = previous[n, m] + weight * (keyframe[n, m] - previous[n, m])
+    return blended
+
+
+class Votes(NamedTuple):
+    """What :func:`loss_votes` makes of a solution's nodes for the loss checks (see there)."""
+
+    visible: np.ndarray
+    textured: np.ndarray
+    visible_count: int
+    voting: int
+    failing: int
+
+
+@numba.njit(
+    'Tuple((b1[::1], b1[::1], i8, i8, i8))(f8[::1], f8[:, ::1], f8, f8, f8[::1], f8[::1], '
+    'f8[::1], f8, f8)',
+    **EXACT,
+)
+def _loss_votes(
+    visibility: np.ndarray,
+    pixels: np.ndarray,
+    width: float,
+    height: float,
+    image_texture: np.ndarray,
+    template_texture: np.ndarray,
+    node_rms: np.ndarray,
+    floor: float,
+    ratio: float,
+) -> tuple[np.ndarray, np.ndarray, int, int, int]:
+    """:func:`loss_votes`'s work on its arguments as arrays."""
+    count = visibility.size
+    visible = np.empty(count, dtype=np.bool_)
+    textured = np.empty(count, dtype=np.bool_)
+    visible_count = voting = failing = 0
+    right, bottom = width - 1.0, height - 1.0
+    for n in range(count):
+        x, y = pixels[n, 0], pixels[n, 1]
+        seen = visibility[n] > 0.0 and x >= 0.0 and y >= 0.0 and x <= right and y <= bottom
+        image, template = image_texture[n], template_texture[n]
+        # np.maximum's: NaN if either is.
+        larger = np.nan if np.isnan(image) or np.isnan(template) else max(image, template)
+        votes = seen and larger > floor
+        matched = image > floor and node_rms[n] < ratio * image
+        visible[n] = seen
+        textured[n] = seen and image > floor
+        visible_count += seen
+        voting += votes
+        failing += votes and not matched
+    return visible, textured, visible_count, voting, failing
+
+
+def loss_votes(
+    visibility: np.ndarray,
+    pixels: np.ndarray,
+    size: tuple[int, int],
+    texture: tuple[np.ndarray, np.ndarray],
+    node_rms: np.ndarray,
+    floor: float,
+    ratio: float,
+) -> Votes:
+    """Which nodes are visible and which match their templates, for the loss checks.
+
+    A node is visible when its visibility weight is positive and its pixel lies in the (width,
+    height) image; it votes when visible and its ROI shows texture above ``floor`` in the image
+    or its template; it fails when it votes and its residual is not below ``ratio`` times the
+    image ROI's texture (or that texture is not above ``floor``).
+    (:meth:`~.mono_loss.LossChecks.reason`, in one compiled pass.)
+
+    Args:
+        visibility: (N,) node visibility weights.
+        pixels: (N, 2) node pixels, level 0.
+        size: the image's (width, height).
+        texture: (N,) the ROIs' texture in the image and in the template.
+        node_rms: (N,) RMS of each node's residual.
+        floor: the least texture that counts, grey levels.
+        ratio: the residual-to-texture ratio a node must stay below.
+
+    Returns:
+        The :class:`Votes`: (N,) visible mask, (N,) mask of those textured in the image, and
+        how many nodes are visible, vote and fail.
+    """
+    width, height = size
+    return Votes(
+        *_loss_votes(
+            visibility,
+            pixels,
+            float(width),
+            float(height),
+            texture[0],
+            texture[1],
+            node_rms,
+            floor,
+            ratio,
+        )
+    )
+
+
 @numba.njit('f8(f8[::1], i8, i8)', **EXACT)
 def _pairwise_sum(values: np.ndarray, start: int, count: int) -> float:
     """The sum of ``values[start:start + count]`` in numpy's order (its ``pairwise_sum``).

@@ -20,9 +20,9 @@ import numpy as np
 
 from face_tracking_ros.geometry.camera import PinholeCamera
 from face_tracking_ros.geometry.rotation import angle_between
-from face_tracking_ros.imaging import PhotometricModel, PhotometricProjection, inside_image
+from face_tracking_ros.imaging import PhotometricModel, PhotometricProjection
 from face_tracking_ros.tracking.mono_config import MonoTrackerConfig
-from face_tracking_ros.tracking.mono_kernels import row_rms
+from face_tracking_ros.tracking.mono_kernels import loss_votes, row_rms
 from face_tracking_ros.tracking.mono_projection import FaceProjection
 from face_tracking_ros.tracking.mono_rois import Params
 from face_tracking_ros.tracking.mono_templates import Keyframe, nearest_keyframe
@@ -113,35 +113,46 @@ class LossChecks:
             )
         if condition > config.max_condition:
             return f'ill-conditioned solve (condition {condition:.1e})'
-        pixels = self._face.nodes(params)[1]
-        visible = (visibility > 0) & inside_image(
-            pixels, (self._camera.height, self._camera.width)
-        )
-        if visible.mean() < config.min_visible_fraction:
-            return f'only {visible.sum()} of {len(visible)} nodes visible in the image'
         # Each node's residual against the texture of its ROI in the image: near 1 when the
         # template explains none of it. Nodes flat in both the image and the template abstain.
         floor = config.residual_scale_floor
-        image_texture = self._texture(samples)
-        votes = visible & (np.maximum(image_texture, self._texture(template)) > floor)
-        matched = (image_texture > floor) & (node_rms < residual_ratio * image_texture)
-        failing = votes & ~matched
-        if not votes.any():
+        image_texture, template_texture = self._textures(samples, template)
+        votes = loss_votes(
+            visibility,
+            self._face.nodes(params)[1],
+            (self._camera.width, self._camera.height),
+            (image_texture, template_texture),
+            node_rms,
+            floor,
+            residual_ratio,
+        )
+        nodes = len(votes.visible)
+        if votes.visible_count / nodes < config.min_visible_fraction:
+            return f'only {votes.visible_count} of {nodes} nodes visible in the image'
+        if not votes.voting:
             return (
                 f'no visible node shows texture above {floor:g} grey levels, in the image or its '
                 'template: a blank, dark or saturated image'
             )
-        if failing.sum() > config.lost_node_fraction * votes.sum():
-            return f'{failing.sum()} of {votes.sum()} textured nodes do not match their templates'
+        if votes.failing > config.lost_node_fraction * votes.voting:
+            return f'{votes.failing} of {votes.voting} textured nodes do not match their templates'
         keyframe = nearest_keyframe(reference.keyframes, params.omega)
-        drift = _drift_ratio(keyframe, samples, image_texture, visible & (image_texture > floor))
+        drift = _drift_ratio(keyframe, samples, image_texture, votes.textured)
         if drift > config.drift_residual_ratio:
             return f'drifted: residual against the keyframe {drift:.2f} x the ROI texture'
         return ''
 
-    def _texture(self, samples: np.ndarray) -> np.ndarray:
-        """(N,) RMS of (N, M) ROI samples beyond the brightness change that needs no template."""
-        return row_rms(self._untextured.apply(samples))
+    def _textures(
+        self, samples: np.ndarray, template: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """The ROIs' texture in the image and in the template, in one projection.
+
+        Each is the (N,) RMS of the (N, M) ROI values beyond the brightness change that needs
+        no template.
+        """
+        projected = self._untextured.apply(np.stack((samples, template)))
+        rms = row_rms(projected.reshape(-1, projected.shape[-1]))
+        return rms[: len(samples)], rms[len(samples) :]
 
 
 def _drift_ratio(
@@ -156,7 +167,7 @@ def _drift_ratio(
     Args:
         keyframe: the keyframe nearest the solution.
         samples: (N, M) level-0 samples of the image at the solution.
-        texture: (N,) their ROIs' texture (:meth:`LossChecks._texture`).
+        texture: (N,) their ROIs' texture (:meth:`LossChecks._textures`).
         nodes: (N,) the visible nodes whose ROI shows texture.
     """
     key = keyframe.templates

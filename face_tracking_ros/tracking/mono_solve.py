@@ -25,7 +25,6 @@ Sigma_sigma^-1 sigma``, :class:`~.mono_priors.Priors`):
 from __future__ import annotations
 
 from collections.abc import Sequence
-from functools import cache
 from typing import NamedTuple
 
 import numpy as np
@@ -201,10 +200,13 @@ class MonoSolver:
                 than this, px of level 0.
         """
         costs: list[float] = []
+        projections: list[PhotometricProjection | None] = [None] * pyramid.num_levels
 
-        @cache  # made for the levels solved only
         def projection(index: int) -> PhotometricProjection:
-            return self._invariance.projection(templates[index])
+            made = projections[index]  # made for the levels solved only
+            if made is None:
+                made = projections[index] = self._invariance.projection(templates[index])
+            return made
 
         accepted: list[tuple[Params, System]] = []  # each level's last accepted point
         coarsest = pyramid.num_levels - 1

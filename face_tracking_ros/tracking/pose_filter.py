@@ -83,6 +83,11 @@ class _Filtered:
     time_s: float
 
 
+def _norm(vector: np.ndarray) -> float:
+    """The Euclidean norm of a 1-D vector: np.linalg.norm's value (``sqrt(v . v)``), cheaply."""
+    return math.sqrt(vector.dot(vector))
+
+
 class PoseFilter:
     """One Euro filter of a tracker's pose results (see the module docstring)."""
 

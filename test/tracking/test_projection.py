@@ -20,10 +20,12 @@ from face_tracking_ros.imaging import (
 )
 from face_tracking_ros.model.topology import mesh_topology
 from face_tracking_ros.tracking.mono_kernels import (
+    blended_template,
     damped_step,
     huber_irls,
     iteration,
     linearised,
+    loss_votes,
     node_visibility,
     normal_equations,
     roi_jacobian,
@@ -214,6 +216,41 @@ def test_row_rms_is_numpys_to_the_bit(size: int) -> None:
     rng = np.random.default_rng(size)
     values = rng.normal(0.0, 1.0, (40, size)) * 10.0 ** rng.uniform(-3.0, 3.0, (40, 1))
     assert np.array_equal(row_rms(values), np.sqrt(np.mean(values**2, axis=1)))
+
+
+def test_blended_template_is_numpys_to_the_bit() -> None:
+    """T = I_(n-1) + epsilon (I_1 - I_(n-1)) as numpy takes it, for float32 and float64 ones."""
+    rng = np.random.default_rng(11)
+    epsilon = rng.uniform(0.0, 0.2, 6)
+    for previous_type, keyframe_type in ((np.float32, np.float32), (np.float32, np.float64)):
+        previous = rng.uniform(0.0, 255.0, (6, 81)).astype(previous_type)
+        keyframe = rng.uniform(0.0, 255.0, (6, 81)).astype(keyframe_type)
+        expected = previous + epsilon[:, None] * (keyframe - previous)
+        blended = blended_template(previous, keyframe, epsilon)
+        assert blended.dtype == np.float64
+        assert np.array_equal(blended, expected)
+
+
+def test_loss_votes_are_the_loss_checks_masks_and_counts() -> None:
+    """Visible nodes (weight > 0, inside the image), voters (textured) and failures."""
+    rng = np.random.default_rng(12)
+    count, floor, ratio = 200, 2.0, 0.8
+    visibility = np.where(rng.uniform(size=count) < 0.2, 0.0, rng.uniform(size=count))
+    pixels = rng.uniform(-20.0, 660.0, (count, 2))
+    pixels[:4] = [[0.0, 0.0], [639.0, 479.0], [639.5, 10.0], [10.0, -0.5]]  # the edges
+    image = rng.uniform(0.0, 5.0, count)
+    template = rng.uniform(0.0, 5.0, count)
+    template[:3] = np.nan  # np.maximum's NaN: the node abstains
+    node_rms = rng.uniform(0.0, 5.0, count)
+    votes = loss_votes(visibility, pixels, (640, 480), (image, template), node_rms, floor, ratio)
+    visible = (visibility > 0) & inside_xy(pixels[:, 0], pixels[:, 1], (480, 640))
+    voting = visible & (np.maximum(image, template) > floor)
+    matched = (image > floor) & (node_rms < ratio * image)
+    assert np.array_equal(votes.visible, visible)
+    assert np.array_equal(votes.textured, visible & (image > floor))
+    assert (votes.visible_count, votes.voting) == (visible.sum(), voting.sum())
+    assert votes.failing == (voting & ~matched).sum()
+    assert 0 < votes.failing < votes.voting < votes.visible_count < count
 
 
 def test_weighted_gram_and_huber_irls_match_their_formulas() -> None:
