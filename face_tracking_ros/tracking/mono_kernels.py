@@ -972,18 +972,50 @@ def _pairwise_sum(values: np.ndarray, start: int, count: int) -> float:
     return total
 
 
+@numba.njit('f8(f8[::1], f8[::1])', **EXACT)
+def _rms(row: np.ndarray, squares: np.ndarray) -> float:
+    """RMS of an (M,) row, ``np.sqrt(np.mean(row**2))``'s bits; ``squares`` an (M,) buffer.
+
+    numpy's mean sums the squares pairwise (:func:`_pairwise_sum`), then divides by M.
+    """
+    size = row.size
+    for m in range(size):
+        squares[m] = row[m] * row[m]
+    return np.sqrt(_pairwise_sum(squares, 0, size) / size)
+
+
 @numba.njit('f8[::1](f8[:, ::1])', **EXACT)
 def row_rms(values: np.ndarray) -> np.ndarray:
     """(N,) RMS of each row of (N, M) values: ``np.sqrt(np.mean(values**2, axis=1))``'s bits.
 
-    A node's RMS residual and its ROI's texture (:mod:`.mono_loss`): numpy's mean sums each
-    row pairwise (:func:`_pairwise_sum`), then divides by M.
+    A node's RMS residual and its ROI's texture (:mod:`.mono_loss`).
     """
     count, size = values.shape
     rms = np.empty(count)
     squares = np.empty(size)
     for n in range(count):
-        for m in range(size):
-            squares[m] = values[n, m] * values[n, m]
-        rms[n] = np.sqrt(_pairwise_sum(squares, 0, size) / size)
+        rms[n] = _rms(values[n], squares)
     return rms
+
+
+@numba.njit('f8(f8[:, ::1], f8[::1], b1[::1])', **EXACT)
+def median_rms_ratio(residuals: np.ndarray, texture: np.ndarray, nodes: np.ndarray) -> float:
+    """Median over ``nodes`` of each row's RMS over its texture; 0 for no node.
+
+    The drift check's ratio (:func:`~.mono_loss._drift_ratio`): ``np.median(row_rms(
+    residuals[nodes]) / texture[nodes])``'s value.
+
+    Args:
+        residuals: (N, M) residuals, a row per node.
+        texture: (N,) the nodes' ROI texture.
+        nodes: (N,) the nodes counted.
+    """
+    count, size = residuals.shape
+    ratios = np.empty(count)
+    squares = np.empty(size)
+    found = 0
+    for n in range(count):
+        if nodes[n]:
+            ratios[found] = _rms(residuals[n], squares) / texture[n]
+            found += 1
+    return np.median(ratios[:found]) if found else 0.0

@@ -22,11 +22,10 @@ from face_tracking_ros.geometry.camera import PinholeCamera
 from face_tracking_ros.geometry.rotation import angle_between
 from face_tracking_ros.imaging import PhotometricModel, PhotometricProjection
 from face_tracking_ros.tracking.mono_config import MonoTrackerConfig
-from face_tracking_ros.tracking.mono_kernels import loss_votes, row_rms
+from face_tracking_ros.tracking.mono_kernels import loss_votes, median_rms_ratio, row_rms
 from face_tracking_ros.tracking.mono_projection import FaceProjection
 from face_tracking_ros.tracking.mono_rois import Params
 from face_tracking_ros.tracking.mono_templates import Keyframe, nearest_keyframe
-from face_tracking_ros.tracking.robust import median
 from face_tracking_ros.wording import counted
 
 _MIN_DEPTH = 0.05  # m; a face nearer the camera than this has diverged
@@ -150,8 +149,7 @@ class LossChecks:
         Each is the (N,) RMS of the (N, M) ROI values beyond the brightness change that needs
         no template.
         """
-        projected = self._untextured.apply(np.stack((samples, template)))
-        rms = row_rms(projected.reshape(-1, projected.shape[-1]))
+        rms = row_rms(self._untextured.apply(np.concatenate((samples, template))))
         return rms[: len(samples)], rms[len(samples) :]
 
 
@@ -171,9 +169,5 @@ def _drift_ratio(
         nodes: (N,) the visible nodes whose ROI shows texture.
     """
     key = keyframe.templates
-    nodes = nodes & (key.visibility > 0)
-    if not nodes.any():
-        return 0.0
     residuals = keyframe.projection.residuals(samples, key.levels[0])
-    rms = row_rms(residuals[nodes])
-    return median(rms / texture[nodes])
+    return median_rms_ratio(residuals, texture, nodes & (key.visibility > 0))

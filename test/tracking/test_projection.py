@@ -26,6 +26,7 @@ from face_tracking_ros.tracking.mono_kernels import (
     iteration,
     linearised,
     loss_votes,
+    median_rms_ratio,
     node_visibility,
     normal_equations,
     roi_jacobian,
@@ -251,6 +252,17 @@ def test_loss_votes_are_the_loss_checks_masks_and_counts() -> None:
     assert (votes.visible_count, votes.voting) == (visible.sum(), voting.sum())
     assert votes.failing == (voting & ~matched).sum()
     assert 0 < votes.failing < votes.voting < votes.visible_count < count
+
+
+@pytest.mark.parametrize('counted', [0, 1, 6, 7])
+def test_median_rms_ratio_is_numpys_median_of_the_rows_rms_over_texture(counted: int) -> None:
+    rng = np.random.default_rng(counted)
+    residuals = rng.normal(0.0, 1.0, (9, 81)) * 10.0 ** rng.uniform(-2.0, 2.0, (9, 1))
+    texture = rng.uniform(0.5, 20.0, 9)
+    nodes = np.zeros(9, dtype=bool)
+    nodes[rng.permutation(9)[:counted]] = True
+    expected = np.median(row_rms(residuals[nodes]) / texture[nodes]) if counted else 0.0
+    assert median_rms_ratio(residuals, texture, nodes) == expected  # odd and even counts
 
 
 def test_weighted_gram_and_huber_irls_match_their_formulas() -> None:
