@@ -97,7 +97,7 @@ class PhotometricProjection:
         """
         if self.basis.shape[-1] == 0:
             return np.asarray(samples - template, dtype=float)
-        return _projected_difference(
+        return projected_difference(
             np.ascontiguousarray(samples), np.ascontiguousarray(template), self.basis_rows
         )
 
@@ -189,10 +189,13 @@ def project_out(values: np.ndarray, basis_rows: np.ndarray) -> None:
     ],
     **FAST,
 )
-def _projected_difference(
+def projected_difference(
     samples: np.ndarray, template: np.ndarray, basis_rows: np.ndarray
 ) -> np.ndarray:
-    """(N, M) ``samples - template`` projected per patch by ``1 - U U'`` (:func:`project_out`)."""
+    """(N, M) ``samples - template`` projected per patch by ``1 - U U'`` (:func:`project_out`).
+
+    :meth:`PhotometricProjection.residuals`; other kernels call it on their own samples.
+    """
     count, size = samples.shape
     projected = np.empty((1, count, size))
     for n in range(count):

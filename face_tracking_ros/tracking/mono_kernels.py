@@ -41,7 +41,11 @@ import numpy as np
 from numpy.linalg import LinAlgError
 
 from face_tracking_ros.compiled import EXACT, FAST
-from face_tracking_ros.imaging.photometric import project_out, project_out_row
+from face_tracking_ros.imaging.photometric import (
+    project_out,
+    project_out_row,
+    projected_difference,
+)
 from face_tracking_ros.tracking.pixel_box import span
 
 MAD_TO_STD = 1.4826  # robust standard deviation from the median absolute deviation
@@ -590,6 +594,56 @@ def prior_terms(prior_hessian: np.ndarray, coefficients: np.ndarray) -> tuple[fl
         gradient[a] = total
         cost += coefficients[a] * total
     return cost, gradient
+
+
+@numba.njit(
+    [
+        f'Tuple((f8[:, ::1], f8))(f4[:, ::1], {template}[:, ::1], f8[:, :, ::1], f8[::1], '
+        'b1[:, ::1], f8, f8, f8[:, ::1], f8[::1])'
+        for template in ('f4', 'f8')
+    ],
+    **FAST,
+)
+def point_cost(
+    samples: np.ndarray,
+    template: np.ndarray,
+    basis_rows: np.ndarray,
+    node_weights: np.ndarray,
+    inside: np.ndarray,
+    scale: float,
+    k: float,
+    prior_hessian: np.ndarray,
+    coefficients: np.ndarray,
+) -> tuple[np.ndarray, float]:
+    """The cost of eq. 6 and the priors at a point, and its residuals, in one compiled call.
+
+    What an iteration (:func:`iteration`) costs a point without its normal equations: for the
+    point a level's last step reached, which no iteration evaluated.
+
+    Args:
+        samples: (N, M) float32 samples of the level at the point.
+        template: (N, M) float32 or float64 template T.
+        basis_rows: (N, K, M) orthonormal rows U' of each patch's brightness changes.
+        node_weights: (N,) weight of each node's ROI.
+        inside: (N, M) the samples inside the image (the others weigh 0).
+        scale: the robust residual scale s.
+        k: the Huber threshold, in units of s.
+        prior_hessian: (P, P) the priors' precision L, zero over the pose.
+        coefficients: (P - 6,) alpha (then sigma) at the point.
+
+    Returns:
+        ``(residuals, cost)``: the (N, M) residuals ``(1 - P) (I - T)`` and the Huber cost
+        (:func:`huber_irls`) with sample weights ``node_weights`` times ``inside``, plus the
+        priors' ``x' L x`` (:func:`prior_terms`).
+    """
+    residuals = projected_difference(samples, template, basis_rows)
+    count, size = samples.shape
+    weights = np.empty((count, size))
+    for n in range(count):
+        for m in range(size):
+            weights[n, m] = node_weights[n] * inside[n, m]
+    cost = huber_irls(residuals, weights, scale, k)[1]
+    return residuals, cost + prior_terms(prior_hessian, coefficients)[0]
 
 
 class Iteration(NamedTuple):

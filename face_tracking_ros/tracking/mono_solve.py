@@ -35,10 +35,9 @@ from face_tracking_ros.tracking.coarse_to_fine import coarse_to_fine
 from face_tracking_ros.tracking.mono_config import MonoTrackerConfig
 from face_tracking_ros.tracking.mono_kernels import (
     condition_number,
-    huber_irls,
     iteration,
     linearised,
-    prior_terms,
+    point_cost,
 )
 from face_tracking_ros.tracking.mono_priors import Priors
 from face_tracking_ros.tracking.mono_projection import FaceProjection, Sampled
@@ -232,10 +231,16 @@ class MonoSolver:
         fallback, system = accepted[-1]  # level 0's
         condition = condition_number(system.hessian)
         first = self._face.sample(pyramid, params, 0, rois[0])
-        residuals = projection(0).residuals(first.samples, templates[0])
-        weights = node_weights[:, None] * first.inside
-        cost = self._data_cost(residuals, weights, system.scale) + self._prior_cost(
-            params, free_sigma
+        residuals, cost = point_cost(
+            first.samples,
+            templates[0],
+            projection(0).basis_rows,
+            node_weights,
+            first.inside,
+            system.scale,
+            self._config.huber_k,
+            self._prior_hessians[free_sigma],
+            _coefficients(params, free_sigma),
         )
         if cost > system.cost:  # the last, unchecked step made things worse
             params, first, residuals = fallback, system.sampled, system.residuals
@@ -377,14 +382,6 @@ class MonoSolver:
             step=result.step,
             motion=result.motion,
         )
-
-    def _prior_cost(self, params: Params, free_sigma: bool) -> float:
-        """The priors' cost at ``params``, as :func:`~.mono_kernels.iteration` adds it."""
-        return prior_terms(self._prior_hessians[free_sigma], _coefficients(params, free_sigma))[0]
-
-    def _data_cost(self, residuals: np.ndarray, weights: np.ndarray, scale: float) -> float:
-        """Huber cost ``sum w rho(r / s)`` of (N, M) residuals with (N, M) weights."""
-        return huber_irls(residuals, weights, scale, self._config.huber_k)[1]
 
 
 def _coefficients(params: Params, free_sigma: bool) -> np.ndarray:

@@ -29,6 +29,8 @@ from face_tracking_ros.tracking.mono_kernels import (
     median_rms_ratio,
     node_visibility,
     normal_equations,
+    point_cost,
+    prior_terms,
     roi_jacobian,
     roi_maps,
     roi_points,
@@ -426,6 +428,32 @@ def test_normal_equations_and_damped_step_match_their_formulas() -> None:
     hessian[2, 3] = np.nan
     with pytest.raises(LinAlgError, match='non-finite normal equations'):
         damped_step(hessian, gradient, 0.1)
+
+
+@pytest.mark.parametrize('model', [PhotometricModel.NONE, PhotometricModel.GAIN_FIELD])
+def test_point_cost_is_the_projected_residuals_huber_cost_and_priors(
+    model: PhotometricModel,
+) -> None:
+    """:func:`point_cost` in one call is the parts it fuses, to the bit."""
+    rng = np.random.default_rng(7)
+    invariance = PhotometricInvariance.of(model, square_offsets(1))
+    samples = rng.uniform(50.0, 200.0, (5, 9)).astype(np.float32)
+    node_weights = rng.uniform(0.0, 1.0, 5)
+    inside = rng.uniform(size=(5, 9)) > 0.2
+    prior_hessian = np.zeros((8, 8))
+    prior_hessian[6:, 6:] = [[2.0, 0.5], [0.5, 1.0]]
+    alpha = np.array([0.3, -0.2])
+    for template in (samples + rng.normal(0.0, 9.0, (5, 9)), samples[::-1].copy()):
+        projection = invariance.projection(template)
+        residuals, cost = point_cost(
+            samples, template, projection.basis_rows, node_weights, inside, 2.5, 1.345,
+            prior_hessian, alpha,
+        )  # fmt: skip
+        expected = projection.residuals(samples, template)
+        weights = node_weights[:, None] * inside
+        data_cost = huber_irls(expected, weights, 2.5, 1.345)[1]
+        assert np.array_equal(residuals, expected)
+        assert cost == data_cost + prior_terms(prior_hessian, alpha)[0]
 
 
 def test_an_iteration_is_its_residuals_scale_normal_equations_priors_and_step() -> None:
