@@ -209,9 +209,9 @@ def test_pyramid_made_where_sampled_only() -> None:
     assert made[100, 150] and made.sum() < 0.05 * made.size
     # Made: the pixels the samples read (floor - 1 to floor + 2 of x and y, central
     # differences), 2 more either side for rounding to 1/32 px (_SAMPLE_REACH = 3, exclusive
-    # end + 1), the margin of 16 and the 2 px the 5-tap kernel writes around its box.
-    assert (rows.min(), rows.max()) == (100 - 3 - 16 - 2, 101 + 3 + 16 + 2)
-    assert (cols.min(), cols.max()) == (150 - 3 - 16 - 2, 152 + 3 + 16 + 2)
+    # end + 1), the margin of 4 and the 2 px the 5-tap kernel writes around its box.
+    assert (rows.min(), rows.max()) == (100 - 3 - 4 - 2, 101 + 3 + 4 + 2)
+    assert (cols.min(), cols.max()) == (150 - 3 - 4 - 2, 152 + 3 + 4 + 2)
     with pytest.raises(InputError, match='NaN'):
         pyramid.level(0, np.float32([np.nan]), np.float32([1.0]))
 
@@ -269,9 +269,9 @@ def test_unsmoothed_level_1_made_where_sampled_only() -> None:
     made = level > 0
     np.testing.assert_array_equal(level[made], ImagePyramid.build(image, 2).levels[1][made])
     rows, cols = np.nonzero(made)
-    # The pixels the samples read (_SAMPLE_REACH = 3, exclusive end + 1) and the margin of 16.
-    assert (rows.min(), rows.max()) == (50 - 3 - 16, 51 + 3 + 16)
-    assert (cols.min(), cols.max()) == (70 - 3 - 16, 71 + 3 + 16)
+    # The pixels the samples read (_SAMPLE_REACH = 3, exclusive end + 1) and the margin of 4.
+    assert (rows.min(), rows.max()) == (50 - 3 - 4, 51 + 3 + 4)
+    assert (cols.min(), cols.max()) == (70 - 3 - 4, 71 + 3 + 4)
     assert not pyramid.level(0, np.float32([]), np.float32([])).any()
 
 
