@@ -57,11 +57,11 @@ class _Pose:
         shape: (N, 3) the shape of eq. 3.
     """
 
-    def __init__(self, params: Params, model: FaceModel, camera: PinholeCamera) -> None:
-        """Pose the model at ``params``."""
+    def __init__(self, params: Params, shape: np.ndarray, camera: PinholeCamera) -> None:
+        """Pose the model of (N, 3) ``shape`` (eq. 3 at ``params``) at ``params``."""
         self.params = params
         self.rotation, self.d_rotation = rodrigues(params.omega)
-        self.shape = model.shape(params.sigma, params.alpha)
+        self.shape = shape
         self._camera = camera
 
     @cached_property
@@ -108,6 +108,9 @@ class FaceProjection:
             for level in range(num_levels)
         )
         self._poses: dict[int, _Pose] = {}  # by id(params), the least recently used first
+        # The last sigma's neutral mesh, flat (eq. 3 at alpha = 0): sigma stays while a track
+        # runs (but during its first sigma_frames), alpha changes with every step.
+        self._neutral: tuple[bytes, np.ndarray] | None = None
 
     def pose(self, params: Params) -> tuple[np.ndarray, np.ndarray]:
         """R(omega) (eq. 1) and the (N, 3) shape (eq. 3) of ``params``."""
@@ -125,11 +128,24 @@ class FaceProjection:
     def _posed_at(self, params: Params) -> _Pose:
         """The pose of ``params``, made once while it is among the last ``_KEPT`` used."""
         # A kept pose holds its params, so no other live object can have their id.
-        posed = self._poses.pop(id(params), None) or _Pose(params, self._model, self._camera)
+        posed = self._poses.pop(id(params), None) or _Pose(
+            params, self._shape(params), self._camera
+        )
         self._poses[id(params)] = posed  # now the most recently used
         if len(self._poses) > self._KEPT:
             del self._poses[next(iter(self._poses))]
         return posed
+
+    def _shape(self, params: Params) -> np.ndarray:
+        """(N, 3) eq. 3 at ``params``: :meth:`FaceModel.shape`'s bits, its sigma part kept.
+
+        ``(mean + S sigma) + A alpha``, as that sums them, with ``mean + S sigma`` made once per
+        sigma.
+        """
+        model, key = self._model, params.sigma.tobytes()
+        if self._neutral is None or self._neutral[0] != key:
+            self._neutral = (key, model.mean_shape + model.shape_basis @ params.sigma)
+        return (self._neutral[1] + model.action_basis @ params.alpha).reshape(-1, 3)
 
     def nodes(self, params: Params) -> tuple[np.ndarray, np.ndarray]:
         """(N, 3) camera-frame nodes (eq. 1, 3) and (N, 2) pixels (eq. 2); kept: read only."""

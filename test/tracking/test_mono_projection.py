@@ -127,3 +127,17 @@ def test_sampling_at_a_non_finite_estimate_is_an_input_error(
     for sample in (face.sample, face.sample_stencil):
         with pytest.raises(InputError, match='NaN or Inf'):
             sample(pyramid, diverged, 0, roi)
+
+
+def test_the_posed_shape_is_the_models_to_the_bit_as_sigma_and_alpha_change(
+    model_factory,
+) -> None:
+    """Eq. 3 with its sigma part kept between poses: FaceModel.shape's values, sigma changing."""
+    model = model_factory(p=2, q=3)
+    face = FaceProjection(model, CAMERA, num_levels=1, visibility_cos=0.2)
+    rng = np.random.default_rng(3)
+    sigmas = [rng.normal(size=2) for _ in range(2)]
+    for sigma in (sigmas[0], sigmas[0].copy(), sigmas[1], sigmas[0]):
+        alpha = rng.normal(size=3)
+        params = Params(rng.normal(0.0, 0.1, 3), np.array([0.0, 0.0, DEPTH]), alpha, sigma)
+        assert np.array_equal(face.pose(params)[1], model.shape(sigma, alpha))
