@@ -38,8 +38,16 @@ class BagDefinitions:
         return self._chosen[key]
 
     def _choose(self, msgtype: str, msgdef: str) -> Typestore:
+        """The package's store, or one of the bag's definition (see :meth:`store_for`).
+
+        The package's definition is compared as a rosbag2 writer gives it (ROS 2's text:
+        ``builtin_interfaces/Time stamp``, not ROS 1's ``time stamp``); compared as ROS 1's, no
+        bag agreed, and each read parsed and compiled a store of every type it read (10 ms of a
+        replay's start).
+        """
         known = msgtype in self._store.types
-        if not msgdef or (known and self._store.generate_msgdef(msgtype)[0] == msgdef):
+        ours = self._store.generate_msgdef(msgtype, ros_version=2)[0] if known else ''
+        if not msgdef or ours == msgdef:
             return self._store
         own = get_typestore(Stores.EMPTY)
         try:
