@@ -11,20 +11,19 @@ code. When the bag holds synthetic truth, the accuracy against it is printed and
 from __future__ import annotations
 
 import argparse
-from collections.abc import Mapping
+from collections import Counter
+from collections.abc import Callable, Mapping
 from dataclasses import asdict
 import json
 import math
 from pathlib import Path
-
-import numpy as np
 
 from face_tracking_ros.cli.replay import add_replay_options, parse_remaps, print_stats
 from face_tracking_ros.errors import BagError, ConfigError
 from face_tracking_ros.io.atomic import check_output_path, write_json_atomically
 from face_tracking_ros.io.bags import bag_topics
 from face_tracking_ros.io.conversions import COMPRESSED_IMAGE_TYPE, IMAGE_TYPE
-from face_tracking_ros.io.series import has_truth, load_states
+from face_tracking_ros.io.series import holds_truth
 from face_tracking_ros.pipelines.bag_inputs import (
     check_one_transport,
     check_stereo_topics,
@@ -37,8 +36,10 @@ from face_tracking_ros.pipelines.bag_inputs import (
     tracked_nodes,
 )
 from face_tracking_ros.pipelines.scoring import score_against_truth, score_stereo_against_truth
+from face_tracking_ros.processing.base import Output
 from face_tracking_ros.processing.node_configs import MonoNodeConfig, StereoNodeConfig
 from face_tracking_ros.processing.parameters import OverrideParameters
+from face_tracking_ros.processing.track_status import STATE_PORT
 from face_tracking_ros.replay import ReplayStats, replay_bag, wire_replay
 from face_tracking_ros.synthetic.clicks import (
     check_clicks_file,
@@ -157,6 +158,7 @@ def run(args: argparse.Namespace) -> int:
         )
         camera_info = clicked_camera_topic(read, node)
         params.append(f'init_file={_write_clicks(args, node, params, model_file, camera_info)}')
+    statuses: Counter[int] = Counter()
     stats = replay_bag(
         [node],
         args.bag,
@@ -165,20 +167,34 @@ def run(args: argparse.Namespace) -> int:
         remaps,
         args.record_inputs,
         progress=not args.quiet,
+        on_output=_status_counter(statuses),
         wanted=wanted,
         topics=topics,
     )
     print_stats(stats, args.out)
-    states = load_states(args.out).status if stats.outputs['face/state'] else np.empty(0)
-    if not np.any(states == TrackStatus.TRACKING):
+    if not statuses[TrackStatus.TRACKING]:
         print(_nothing_tracked(node, stats, topics))
         return 1
-    scored = has_truth(args.bag)
+    scored = holds_truth(topics)
     if scored and stats.read_error:
         print('not scored against the truth: the bag is damaged (above)')
     elif scored:
         _score(args, node, model_file)
     return 1 if stats.interrupted or stats.read_error else 0
+
+
+def _status_counter(statuses: Counter[int]) -> Callable[[Output, int], None]:
+    """A replay's ``on_output`` that counts its ``face/state`` outputs by status into ``statuses``.
+
+    What the track tracked, known as it is written: read back from the output bag, the states
+    took 0.22 s of a 900-image track (read again to be scored).
+    """
+
+    def count(output: Output, _log_time: int) -> None:
+        if output.topic == STATE_PORT.topic:
+            statuses[int(output.msg.status)] += 1
+
+    return count
 
 
 def _nothing_tracked(node: str, stats: ReplayStats, topics: Mapping[str, str]) -> str:
