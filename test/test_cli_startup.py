@@ -87,7 +87,12 @@ def test_the_full_parser_registers_every_subcommand_its_table_lists() -> None:
 
 
 TRACKERS = {
-    'mono_test': ('processing.mono', 'tracking.mono', 'tracking.mono_kernels'),
+    'mono_test': (
+        'processing.mono',
+        'tracking.mono',
+        'tracking.mono_kernels',
+        'imaging.photometric',
+    ),
     'stereo_train': ('processing.stereo', 'tracking.stereo', 'tracking.stereo_kernels'),
 }
 
@@ -99,10 +104,25 @@ def test_a_track_imports_its_own_tracker_only(bags: str, other: str, tmp_path) -
     """The port names and node configs came from both processors' modules, and their kernels.
 
     A mono track took 0.17-0.28 s more to start importing the stereo tracker, and a stereo one
-    imported the mono tracker.
+    imported the mono tracker; then still the mono tracker's photometric kernels (0.04 s),
+    through the image conversions and the mono tracker's configuration.
     """
     bag = REPO / 'bags' / bags / 'subject_00_seq_00'
     argv = ['track', str(bag), '--simulate-clicks', '0', '--out', str(tmp_path / 'o'), '--quiet']
     trackers = {name.removeprefix('face_tracking_ros.') for name in _modules(argv)}
     assert trackers >= set(TRACKERS[bags])
     assert trackers.isdisjoint(TRACKERS[other])
+
+
+def test_a_recogniser_replay_loads_no_compiled_kernels(tmp_path) -> None:
+    """The image conversions, which every replay imports, loaded the photometric kernels.
+
+    With numba and its start-up, 0.3 s of a replay that runs no tracker. (The bag has no
+    face/state for the recogniser: the replay stops once its inputs are checked, its modules
+    loaded.)
+    """
+    bag = REPO / 'bags' / 'mono_test' / 'subject_00_seq_00'
+    argv = ['replay', 'expression_recognizer', str(bag), '--out', str(tmp_path / 'o'), '--quiet']
+    modules = _modules(argv)
+    assert 'face_tracking_ros.processing.expression' in modules
+    assert 'numba' not in modules

@@ -11,7 +11,6 @@ from face_tracking_ros.imaging import (
     STENCIL_Y,
     ImagePyramid,
     PhotometricModel,
-    PhotometricProjection,
     check_levels_fit,
     inside_image,
     inside_xy,
@@ -23,6 +22,7 @@ from face_tracking_ros.imaging import (
     square_offsets,
     to_gray,
 )
+from face_tracking_ros.imaging.photometric import PhotometricProjection
 
 
 def _ramp(height: int = 60, width: int = 80) -> np.ndarray:

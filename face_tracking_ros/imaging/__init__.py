@@ -2,15 +2,13 @@
 
 Grey conversion (:mod:`.gray`), float32 Gaussian pyramids (:mod:`.pyramid`), sub-pixel sampling
 of patches with their image gradients through one ``cv2.remap`` call (:mod:`.sampling`) and
-patch residuals invariant to brightness changes (:mod:`.photometric`).
+patch residuals invariant to brightness changes (:mod:`.photometric`, imported from there: loaded
+with this package, its compiled kernels and numba took 0.28 s of every command that converts an
+image message, a stereo track's and a recogniser's replay too).
 """
 
 from face_tracking_ros.imaging.gray import SUPPORTED_ENCODINGS, to_gray
-from face_tracking_ros.imaging.photometric import (
-    PhotometricInvariance,
-    PhotometricModel,
-    PhotometricProjection,
-)
+from face_tracking_ros.imaging.photometric_model import PhotometricModel
 from face_tracking_ros.imaging.pyramid import (
     ImagePyramid,
     PyramidLevel,
@@ -39,9 +37,7 @@ __all__ = [
     'STENCIL_Y',
     'SUPPORTED_ENCODINGS',
     'ImagePyramid',
-    'PhotometricInvariance',
     'PhotometricModel',
-    'PhotometricProjection',
     'PyramidLevel',
     'check_levels_fit',
     'inside_image',

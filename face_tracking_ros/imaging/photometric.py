@@ -15,21 +15,12 @@ the arithmetic.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from enum import IntEnum
 
 import numba
 import numpy as np
 
 from face_tracking_ros.compiled import FAST
-
-
-class PhotometricModel(IntEnum):
-    """Which brightness change of a patch the residual ignores."""
-
-    NONE = 0
-    BIAS = 1
-    GAIN_BIAS = 2
-    GAIN_FIELD = 3
+from face_tracking_ros.imaging.photometric_model import PhotometricModel
 
 
 @dataclass(frozen=True)

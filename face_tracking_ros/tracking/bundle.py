@@ -60,12 +60,11 @@ from face_tracking_ros.errors import check_fields
 from face_tracking_ros.geometry.rotation import matrix_to_omega, rodrigues
 from face_tracking_ros.imaging import (
     GRADIENT_MARGIN,
-    PhotometricInvariance,
-    PhotometricProjection,
     inside_xy,
     sample_with_gradient_xy,
     sample_xy,
 )
+from face_tracking_ros.imaging.photometric import PhotometricInvariance, PhotometricProjection
 from face_tracking_ros.tracking.bundle_kernels import add_view_normal_equations
 from face_tracking_ros.tracking.mono_kernels import (
     huber_irls,

@@ -66,12 +66,8 @@ from numpy.linalg import LinAlgError
 from face_tracking_ros.errors import ConfigError, InputError
 from face_tracking_ros.geometry.camera import PinholeCamera
 from face_tracking_ros.geometry.rotation import matrix_to_omega, rodrigues
-from face_tracking_ros.imaging import (
-    ImagePyramid,
-    PhotometricInvariance,
-    check_levels_fit,
-    square_offsets,
-)
+from face_tracking_ros.imaging import ImagePyramid, check_levels_fit, square_offsets
+from face_tracking_ros.imaging.photometric import PhotometricInvariance
 from face_tracking_ros.model.face_model import FaceModel
 from face_tracking_ros.model.topology import Group
 from face_tracking_ros.tracking.detector import Detector

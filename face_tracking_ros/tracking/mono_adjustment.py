@@ -24,7 +24,8 @@ from typing import NamedTuple
 import numpy as np
 
 from face_tracking_ros.geometry.rotation import matrix_to_omega, rodrigues, rotation_angle
-from face_tracking_ros.imaging import ImagePyramid, PhotometricInvariance
+from face_tracking_ros.imaging import ImagePyramid
+from face_tracking_ros.imaging.photometric import PhotometricInvariance
 from face_tracking_ros.model.face_model import FaceModel
 from face_tracking_ros.tracking.bundle import (
     SURFACE_TERMS,

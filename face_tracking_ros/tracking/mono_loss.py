@@ -20,7 +20,8 @@ import numpy as np
 
 from face_tracking_ros.geometry.camera import PinholeCamera
 from face_tracking_ros.geometry.rotation import angle_between
-from face_tracking_ros.imaging import PhotometricModel, PhotometricProjection
+from face_tracking_ros.imaging import PhotometricModel
+from face_tracking_ros.imaging.photometric import PhotometricProjection
 from face_tracking_ros.tracking.mono_config import MonoTrackerConfig
 from face_tracking_ros.tracking.mono_kernels import loss_votes, median_rms_ratio, row_rms
 from face_tracking_ros.tracking.mono_projection import FaceProjection

@@ -29,7 +29,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-from face_tracking_ros.imaging import ImagePyramid, PhotometricInvariance, PhotometricProjection
+from face_tracking_ros.imaging import ImagePyramid
+from face_tracking_ros.imaging.photometric import PhotometricInvariance, PhotometricProjection
 from face_tracking_ros.model.face_model import FaceModel
 from face_tracking_ros.tracking.coarse_to_fine import coarse_to_fine
 from face_tracking_ros.tracking.mono_config import MonoTrackerConfig

@@ -19,7 +19,8 @@ from typing import NamedTuple
 import numpy as np
 
 from face_tracking_ros.geometry.rotation import rodrigues
-from face_tracking_ros.imaging import ImagePyramid, PhotometricInvariance, PhotometricProjection
+from face_tracking_ros.imaging import ImagePyramid
+from face_tracking_ros.imaging.photometric import PhotometricInvariance, PhotometricProjection
 from face_tracking_ros.tracking.mono_projection import FaceProjection, Sampled
 from face_tracking_ros.tracking.mono_rois import Params, Roi
 

@@ -14,7 +14,8 @@ import pytest
 from face_tracking_ros.errors import ConfigError, InputError
 from face_tracking_ros.geometry.camera import PinholeCamera
 from face_tracking_ros.geometry.rotation import matrix_to_omega, rodrigues
-from face_tracking_ros.imaging import PhotometricInvariance, PhotometricModel
+from face_tracking_ros.imaging import PhotometricModel
+from face_tracking_ros.imaging.photometric import PhotometricInvariance
 from face_tracking_ros.synthetic.clicks import simulated_clicks
 from face_tracking_ros.synthetic.scenes import SceneConfig, SequenceRenderer
 from face_tracking_ros.synthetic.true_model import true_face_model

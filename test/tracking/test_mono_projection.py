@@ -17,7 +17,8 @@ import pytest
 
 from face_tracking_ros.errors import InputError
 from face_tracking_ros.geometry.camera import PinholeCamera
-from face_tracking_ros.imaging import ImagePyramid, PhotometricInvariance, square_offsets
+from face_tracking_ros.imaging import ImagePyramid, square_offsets
+from face_tracking_ros.imaging.photometric import PhotometricInvariance
 from face_tracking_ros.model.face_model import FaceModel
 from face_tracking_ros.tracking.mono_config import MonoTrackerConfig
 from face_tracking_ros.tracking.mono_priors import Priors

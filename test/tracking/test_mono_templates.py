@@ -6,7 +6,8 @@ import numpy as np
 
 from face_tracking_ros.geometry.camera import PinholeCamera
 from face_tracking_ros.geometry.rotation import rodrigues
-from face_tracking_ros.imaging import PhotometricInvariance, PhotometricModel, square_offsets
+from face_tracking_ros.imaging import PhotometricModel, square_offsets
+from face_tracking_ros.imaging.photometric import PhotometricInvariance
 from face_tracking_ros.tracking.mono_projection import FaceProjection
 from face_tracking_ros.tracking.mono_rois import Params
 from face_tracking_ros.tracking.mono_templates import (

@@ -10,7 +10,6 @@ from face_tracking_ros.errors import InputError
 from face_tracking_ros.geometry.camera import PinholeCamera
 from face_tracking_ros.geometry.rotation import rodrigues
 from face_tracking_ros.imaging import (
-    PhotometricInvariance,
     PhotometricModel,
     inside_xy,
     sample_maps,
@@ -18,6 +17,7 @@ from face_tracking_ros.imaging import (
     sample_xy,
     square_offsets,
 )
+from face_tracking_ros.imaging.photometric import PhotometricInvariance
 from face_tracking_ros.model.topology import mesh_topology
 from face_tracking_ros.tracking.mono_kernels import (
     blended_template,
