@@ -27,7 +27,11 @@ much as the kernels.
 
 Arrays are component-major (one contiguous row per coordinate or parameter), and the loops run
 along a node's M samples, so the compiler vectorises them. Kernels are typed (compiled when this
-module is imported, from numba's on-disk cache when it holds them). Their floating point may be
+module is imported, from numba's on-disk cache when it holds them), but for those a replay may
+not need: the ones only other kernels call (:func:`weighted_gram`, :func:`damped_step`,
+:func:`normal_equations`, compiled into their callers) and :func:`iteration`'s, of a float32 or
+float64 template, are compiled (or loaded) at their first call, for the types they are called
+with (loading each from the cache took 3-16 ms of a replay's start). Their floating point may be
 reassociated and contracted (fused multiply-add) but keeps IEEE infinities and NaNs, so they agree
 with the numpy expressions of the same equations to rounding and a diverged solve still shows.
 """
@@ -416,7 +420,7 @@ def roi_jacobian(
     return jacobian, node_jacobian
 
 
-@numba.njit('f8[:, ::1](f8[:, ::1], f8[::1])', **FAST)
+@numba.njit(**FAST)
 def weighted_gram(jacobian_t: np.ndarray, weights: np.ndarray) -> np.ndarray:
     """``J' W J`` of eq. 6's normal equations: (P, K) rows J' of K samples, (K,) weights W.
 
@@ -472,7 +476,7 @@ def huber_irls(
     return irls, cost
 
 
-@numba.njit('f8[::1](f8[:, ::1], f8[::1], f8)', **FAST)
+@numba.njit(**FAST)
 def damped_step(hessian: np.ndarray, gradient: np.ndarray, damping: float) -> np.ndarray:
     """Levenberg-Marquardt step ``-(H + lambda diag H)^-1 g``, solved Jacobi-scaled.
 
@@ -518,11 +522,7 @@ def damped_step(hessian: np.ndarray, gradient: np.ndarray, damping: float) -> np
     return -scaling * step
 
 
-@numba.njit(
-    'Tuple((f8, f8[:, ::1], f8[::1]))(f8[:, ::1], f8[:, ::1], f8[:, ::1], f8[:, ::1], f8, f8, '
-    'f8[:, ::1])',
-    **FAST,
-)
+@numba.njit(**FAST)
 def normal_equations(
     jacobian_t: np.ndarray,
     residuals: np.ndarray,
@@ -657,15 +657,7 @@ class Iteration(NamedTuple):
     motion: float
 
 
-@numba.njit(
-    [
-        f'Tuple((f8[:, ::1], f8, f8[:, ::1], f8, f8[::1], f8))(f4[:, ::1], '
-        f'{template}[:, ::1], f8[:, :, ::1], f8[:, ::1], b1[:, ::1], f8, f8, f8, f8[:, ::1], '
-        'f8[:, ::1], f8[:, ::1], f8[::1], f8, f8, f8[:, ::1])'
-        for template in ('f4', 'f8')
-    ],
-    **FAST,
-)
+@numba.njit(**FAST)
 def _iteration(
     samples: np.ndarray,
     template: np.ndarray,
