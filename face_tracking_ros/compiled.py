@@ -1,8 +1,9 @@
 """The numba options of the package's compiled kernels, in one place.
 
-Every kernel is cached on disk (compiled once, on the first import after installation), releases
-the GIL and follows numpy's error model (a division by zero gives inf or NaN, no exception), so a
-diverged solve still shows as non-finite numbers:
+Every kernel is cached on disk (compiled once: on the first import after installation, or at its
+first call for one declared without signatures), releases the GIL and follows numpy's error
+model (a division by zero gives inf or NaN, no exception), so a diverged solve still shows as
+non-finite numbers:
 
 - :data:`EXACT`: IEEE arithmetic in the written order, for kernels that must agree with numpy bit
   for bit (the stereo tracker's ZSSD residuals);
