@@ -142,7 +142,14 @@ kernels = {
 }
 print(json.dumps({name: len(kernel.overloads) for name, kernel in kernels.items()}))
 """
-DEFERRED_KERNELS = ['weighted_gram', 'damped_step', 'normal_equations', '_iteration']
+DEFERRED_KERNELS = [
+    'weighted_gram',
+    'damped_step',
+    'normal_equations',
+    '_iteration',
+    'point_cost',
+    'blended_template',
+]
 
 
 def test_kernels_a_replay_may_not_need_are_not_loaded_with_their_module() -> None:

@@ -29,11 +29,13 @@ Arrays are component-major (one contiguous row per coordinate or parameter), and
 along a node's M samples, so the compiler vectorises them. Kernels are typed (compiled when this
 module is imported, from numba's on-disk cache when it holds them), but for those a replay may
 not need: the ones only other kernels call (:func:`weighted_gram`, :func:`damped_step`,
-:func:`normal_equations`, compiled into their callers) and :func:`iteration`'s, of a float32 or
-float64 template, are compiled (or loaded) at their first call, for the types they are called
-with (loading each from the cache took 3-16 ms of a replay's start). Their floating point may be
-reassociated and contracted (fused multiply-add) but keeps IEEE infinities and NaNs, so they agree
-with the numpy expressions of the same equations to rounding and a diverged solve still shows.
+:func:`normal_equations`: compiled into their callers) and those of a float32 or float64
+template (:func:`iteration`'s, :func:`point_cost`, :func:`blended_template`) are compiled, or
+loaded, at their first call for the types they are called with (loading each from the cache
+took 3-16 ms of a replay's start; :func:`prior_terms` and ``_rms`` so changed the tracker's
+results in the last bits, and stay typed). Their floating point may be reassociated and
+contracted (fused multiply-add) but keeps IEEE infinities and NaNs, so they agree with the numpy
+expressions of the same equations to rounding and a diverged solve still shows.
 """
 
 from __future__ import annotations
@@ -596,14 +598,7 @@ def prior_terms(prior_hessian: np.ndarray, coefficients: np.ndarray) -> tuple[fl
     return cost, gradient
 
 
-@numba.njit(
-    [
-        f'Tuple((f8[:, ::1], f8))(f4[:, ::1], {template}[:, ::1], f8[:, :, ::1], f8[::1], '
-        'b1[:, ::1], f8, f8, f8[:, ::1], f8[::1])'
-        for template in ('f4', 'f8')
-    ],
-    **FAST,
-)
+@numba.njit(**FAST)
 def point_cost(
     samples: np.ndarray,
     template: np.ndarray,
@@ -867,14 +862,7 @@ def condition_number(hessian: np.ndarray) -> float:
     return eigenvalues[-1] / eigenvalues[0] if eigenvalues[0] > 0 else np.inf
 
 
-@numba.njit(
-    [
-        f'f8[:, ::1]({previous}[:, ::1], {keyframe}[:, ::1], f8[::1])'
-        for previous in ('f4', 'f8')
-        for keyframe in ('f4', 'f8')
-    ],
-    **EXACT,
-)
+@numba.njit(**EXACT)
 def blended_template(
     previous: np.ndarray, keyframe: np.ndarray, epsilon: np.ndarray
 ) -> np.ndarray:
