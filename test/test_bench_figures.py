@@ -274,11 +274,18 @@ def test_live_latency_finds_the_highest_rate_without_drops(
 
 
 def test_replay_throughput_is_frames_per_second_and_multiple_of_real_time(monkeypatch, tmp_path):
-    clock = iter([0.0, 2.0, 10.0, 13.0])  # mono replay 2 s, stereo 3 s
+    # mono replay 2 s and command 4 s, stereo replay 3 s and command 5 s
+    clock = iter([0.0, 2.0, 2.0, 6.0, 10.0, 13.0, 13.0, 18.0])
     inputs = {'image': 600, 'left/image_raw': 300, 'right/image_raw': 300}
     stats = SimpleNamespace(inputs=inputs, outputs={'face/state': 590}, errors={})
     monkeypatch.setattr(
         replay_throughput, 'time', SimpleNamespace(perf_counter=lambda: next(clock))
+    )
+    commands = []
+    monkeypatch.setattr(
+        replay_throughput,
+        'subprocess',
+        SimpleNamespace(run=lambda command, **_: commands.append(command) or _exited(0)),
     )
     models = []
     monkeypatch.setattr(
@@ -299,11 +306,40 @@ def test_replay_throughput_is_frames_per_second_and_multiple_of_real_time(monkey
             'seconds': 2.0,
             'frames_per_s': 300.0,
             'x_real_time': 10.0,
+            'command_seconds': 4.0,
+            'command_x_real_time': 5.0,
             'states': 590,
         }
     )
     assert result['stereo']['frames_per_s'] == pytest.approx(100.0)
     assert result['stereo']['x_real_time'] == pytest.approx(10.0 / 3.0)
+    assert result['stereo']['command_x_real_time'] == pytest.approx(2.0)
+    assert [command[3:6] for command in commands] == [
+        ['replay', 'mono_tracker', str(tmp_path)],
+        ['replay', 'stereo_tracker', str(tmp_path)],
+    ]
+    assert commands[0][6:] == [
+        '--out', str(tmp_path / 'replay_mono_command'), '--quiet',
+        f'--param=model_file={tmp_path / "model"}', f'--param=init_file={tmp_path}',
+    ]  # fmt: skip
+
+
+def _exited(status: int) -> SimpleNamespace:
+    """A finished subprocess.run with ``status`` and a standard error."""
+    return SimpleNamespace(returncode=status, stderr='loading\nBagError: no such bag\n')
+
+
+def test_a_failed_replay_command_names_its_node_status_and_error(monkeypatch, tmp_path):
+    stats = SimpleNamespace(inputs={'image': 10}, outputs={'face/state': 10}, errors={})
+    monkeypatch.setattr(replay_throughput, 'model_file', lambda *args: tmp_path / 'model')
+    monkeypatch.setattr(replay_throughput, 'recorded_bag', lambda *args: (tmp_path, tmp_path))
+    monkeypatch.setattr(replay_throughput, 'replay_bag', lambda *args, **kwargs: stats)
+    monkeypatch.setattr(
+        replay_throughput, 'subprocess', SimpleNamespace(run=lambda *_, **__: _exited(2))
+    )
+    expected = 'face-tracking replay mono_tracker exited with status 2: loading | BagError'
+    with pytest.raises(RuntimeError, match=expected):
+        replay_throughput.run(BenchOptions(work_dir=tmp_path, seed=3))
 
 
 def test_soak_growth_is_from_the_first_window_after_warm_up_and_the_trend_a_slope():
@@ -486,6 +522,7 @@ def test_table_shows_speed_ratios_replay_memory_and_soak():
         '320x240': {'19_nodes': {'stereo': figures}},
     }
     replay = {'mono': {'size': '640x480', 'frames_per_s': 300.0, 'x_real_time': 10.0}}
+    replay['mono'] |= {'frames': 900, 'command_seconds': 3.5, 'command_x_real_time': 8.57}
     soak_figures = {'minutes': 30.0, 'rss_growth_mb': 1.5, 'latency_p50_slope_ms_per_min': -0.25}
     soak_figures |= {'recorder_missing': 1, 'received': 54000}
     memory = {'mono_tracker': {'peak_rss_mb': 180.4}, 'learner': {'skipped': 'no | data'}}
@@ -498,6 +535,8 @@ def test_table_shows_speed_ratios_replay_memory_and_soak():
         '0.75 ms p99 |  |',
         '| stereo step, 320x240, 19 nodes | 1.2 ms median, 2.5 ms p99 |  |',
         '| offline replay, mono, 640x480 | 300.0 frames/s = 10.00x real time (30 fps) | >= 30x |',
+        '| face-tracking replay command from launch, mono, 640x480 | 900 frames in 3.50 s = '
+        '8.57x real time (30 fps) |  |',
         '| peak RSS, mono_tracker | 180 MB |  |',
         '| peak RSS, learner | skipped: no / data |  |',
         '| soak, 30 min at 30 Hz | RSS growth +1.5 MB, latency p50 trend -0.25 ms/min, '

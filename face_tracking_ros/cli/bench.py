@@ -204,15 +204,27 @@ def _speed_rows(speed: dict[str, Any]) -> list[tuple[str, str, str]]:
 
 
 def _replay_rows(replay: dict[str, Any]) -> list[tuple[str, str, str]]:
-    return [
-        (
-            f'offline replay, {kind}, {f["size"]}',
-            f'{f["frames_per_s"]:.1f} frames/s = {f["x_real_time"]:.2f}x real time (30 fps)',
-            '>= 30x' if kind == 'mono' else '',
+    rows = []
+    for kind, f in replay.items():
+        if not (isinstance(f, dict) and 'frames_per_s' in f):
+            continue
+        rows.append(
+            (
+                f'offline replay, {kind}, {f["size"]}',
+                f'{f["frames_per_s"]:.1f} frames/s = {f["x_real_time"]:.2f}x real time (30 fps)',
+                '>= 30x' if kind == 'mono' else '',
+            )
         )
-        for kind, f in replay.items()
-        if isinstance(f, dict) and 'frames_per_s' in f
-    ]
+        if 'command_seconds' in f:
+            rows.append(
+                (
+                    f'face-tracking replay command from launch, {kind}, {f["size"]}',
+                    f'{f["frames"]} frames in {f["command_seconds"]:.2f} s = '
+                    f'{f["command_x_real_time"]:.2f}x real time (30 fps)',
+                    '',
+                )
+            )
+    return rows
 
 
 def _live_rows(live: dict[str, Any]) -> list[tuple[str, str, str]]:
