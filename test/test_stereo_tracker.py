@@ -41,6 +41,7 @@ from face_tracking_ros.tracking.stereo_data import (
     SampleSet,
     depth_terms,
     group_contrast,
+    group_statistics,
     level_projections,
     node_blocks,
     rim_points,
@@ -704,6 +705,45 @@ def test_group_contrast_is_the_rms_of_the_valid_values_about_their_mean() -> Non
     # sqrt(((1 - 2)^2 + 0 + (3 - 2)^2) / 3), sqrt((4 + 4 + 0) / 3); no valid value: NaN
     np.testing.assert_allclose(contrast[0, :2], [np.sqrt(2 / 3), np.sqrt(8 / 3)], rtol=1e-12)
     assert contrast.shape == (1, 3) and np.isnan(contrast[0, 2])
+
+
+def test_group_statistics_are_numpys_sums_to_the_bit() -> None:
+    """The compiled RMS and contrasts equal the numpy expressions they replace, bit for bit.
+
+    Node patches (a one-sided one among them, a group with no valid sample) and face-texture
+    triangles, float32 grey levels at random valid samples.
+    """
+    rng = np.random.default_rng(5)
+    truth = PLANE.nodes()
+    one_sided = np.arange(34) % 7 == 0
+    layouts = (
+        SampleLayout.node_patches(truth, truth[:, 2] / 600, 3, one_sided),
+        SampleLayout.triangle_texture(mesh_topology(34).triangles, 5),
+    )
+    samples = SampleSet.of(layouts, 34)
+    size = samples.size
+    valid = samples.mask & (rng.random((2, size)) < 0.8)
+    valid[:, :49] = False  # node 0's patch: nothing valid in either image
+    values = rng.uniform(0, 255, (2, size)).astype(np.float32)
+    templates = rng.uniform(0, 255, (2, 4, size)).astype(np.float32)
+    sampled = Sampled(np.ones((2, 3, size)), values, np.zeros((2, 2, size), np.float32), valid)
+    coefficients = np.full((4, size), 0.25)
+    residuals = robust_residuals(
+        samples, sampled, templates, coefficients, Huber.of(samples, [3.0, 4.0])
+    )
+    got = group_statistics(samples, sampled, residuals, templates[:, 0])
+    with np.errstate(invalid='ignore', divide='ignore'):
+        rms = [
+            np.sqrt((difference**2).sum(axis=-1) / count)
+            for difference, count in zip(
+                samples.grouped(residuals.differences[:, 0]), residuals.counts, strict=True
+            )
+        ]
+    patches = [samples.grouped(array)[0] for array in (templates[:, 0], values, valid)]
+    expected = (group_contrast(patches[0], patches[2]), group_contrast(patches[1], patches[2]))
+    for new, old in [*zip(got.rms, rms, strict=True), *zip(got[1:], expected, strict=True)]:
+        assert new.shape == old.shape and np.array_equal(new, old, equal_nan=True)
+    assert np.isnan(got.rms[0][:, 0]).all() and np.isnan(got.contrast[:, 0]).all()
 
 
 def test_the_gain_is_the_median_contrast_ratio_of_the_textured_patches() -> None:

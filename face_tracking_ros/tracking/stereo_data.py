@@ -61,14 +61,17 @@ from face_tracking_ros.imaging import (
     STENCIL_X,
     STENCIL_Y,
     PyramidLevel,
+    sample_maps,
     sample_stencils,
     sample_xy,
     square_offsets,
 )
 from face_tracking_ros.tracking.projection import space_gradient
 from face_tracking_ros.tracking.stereo_kernels import (
+    group_summaries,
     layout_points,
     node_normal_blocks,
+    pixel_maps,
     stencil_maps,
     zssd_residuals,
 )
@@ -477,16 +480,24 @@ def sample_images(
 def sample_values(
     images: Sequence[ImageSource], projections: np.ndarray, points: np.ndarray
 ) -> np.ndarray:
-    """(C, S) float32 grey levels of C images at (3, S) points (:func:`sample_images` values)."""
-    homogeneous = homogeneous_pixels(projections, points)
-    return _values(images, homogeneous[:, :2] / homogeneous[:, 2:])
+    """(C, S) float32 grey levels of C images at (3, S) points (:func:`sample_images` values).
 
+    The float32 pixels and the boxes they span come from one compiled pass
+    (:func:`~.stereo_kernels.pixel_maps`); a pyramid level is made over its box.
 
-def _values(images: Sequence[ImageSource], pixels: np.ndarray) -> np.ndarray:
-    """(C, S) float32 samples of C images at their (C, 2, S) pixels."""
-    values = np.empty(pixels[:, 0].shape, dtype=np.float32)
-    for row, (image, (x, y)) in enumerate(zip(images, pixels, strict=True)):
-        values[row] = sample_xy(image if isinstance(image, np.ndarray) else image.at(x, y), x, y)
+    Raises:
+        InputError: if a point's pixel is not finite.
+    """
+    x, y, boxes, finite = pixel_maps(homogeneous_pixels(projections, points))
+    if not finite:
+        msg = 'points hold NaN or Inf'
+        raise InputError(msg)
+    values = np.empty(x.shape, dtype=np.float32)
+    for row, (image, box) in enumerate(zip(images, boxes, strict=True)):
+        if isinstance(image, np.ndarray):
+            values[row] = sample_xy(image, x[row], y[row])  # its type checked
+        else:
+            values[row] = sample_maps(image.reaching(box), x[row], y[row])
     return values
 
 
@@ -606,8 +617,8 @@ def group_statistics(
 ) -> GroupStatistics:
     """RMS residual of every group; template and image contrast of the first layout's groups.
 
-    (The loss checks read the node patches' contrasts alone: the face texture's, made too
-    before, took a fifth of the 0.15 ms this takes in a 34-node pair.)
+    One compiled pass (:func:`~.stereo_kernels.group_summaries`, numpy's bits). The loss
+    checks read the node patches' contrasts alone, so the face texture's are not made.
 
     Args:
         samples: the sample set.
@@ -615,13 +626,21 @@ def group_statistics(
         residuals: their robust residuals.
         leading: (C, S) the leading template T_0 of each image.
     """
-    grouped = zip(samples.grouped(residuals.differences[:, 0]), residuals.counts, strict=True)
-    template, image, valid = (
-        samples.grouped(values)[0] for values in (leading, sampled.values, sampled.valid)
+    rms, contrast, image_contrast = group_summaries(
+        residuals.differences[:, 0],
+        leading,
+        sampled.values,
+        sampled.valid,
+        np.concatenate(residuals.counts, axis=1),
+        samples.bounds,
+        samples.group_sizes,
     )
-    with np.errstate(invalid='ignore', divide='ignore'):
-        rms = tuple(np.sqrt((difference**2).sum(axis=-1) / count) for difference, count in grouped)
-        return GroupStatistics(rms, group_contrast(template, valid), group_contrast(image, valid))
+    bounds = samples.group_bounds
+    return GroupStatistics(
+        tuple(rms[:, bounds[i] : bounds[i + 1]] for i in range(len(bounds) - 1)),
+        contrast,
+        image_contrast,
+    )
 
 
 def group_contrast(values: np.ndarray, valid: np.ndarray) -> np.ndarray:

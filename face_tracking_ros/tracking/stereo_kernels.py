@@ -347,6 +347,21 @@ def node_normal_blocks(
     return blocks, vectors
 
 
+@numba.njit(**EXACT)
+def _box_of(x_32: np.ndarray, y_32: np.ndarray, box: np.ndarray) -> int:
+    """How many of the (S,) float32 pixels are not finite; their least and greatest x, y in box.
+
+    ``box`` (4,) is left as it is for no pixels (meaningless unless every pixel is finite).
+    """
+    non_finite = 0
+    for s in range(x_32.size):
+        non_finite += ~(np.isfinite(x_32[s]) & np.isfinite(y_32[s]))
+    if x_32.size:
+        box[0], box[1] = span(x_32)
+        box[2], box[3] = span(y_32)
+    return non_finite
+
+
 @numba.njit(
     'Tuple((f4[:, :, ::1], f4[:, :, ::1], b1[:, ::1], f4[:, ::1], b1))(f8[:, :, ::1], f8[::1], '
     'b1[::1], '
@@ -405,16 +420,124 @@ def stencil_maps(
             x_32[s], y_32[s] = x, y
             inside = (x >= low) & (y >= low) & (x <= high_x) & (y <= high_y)
             valid[c, s] = inside & (depth[s] > 0.0) & mask[s]
-        for s in range(size):
-            non_finite += ~(np.isfinite(x_32[s]) & np.isfinite(y_32[s]))
-        if size:
-            boxes[c, 0], boxes[c, 1] = span(x_32)
-            boxes[c, 2], boxes[c, 3] = span(y_32)
+        non_finite += _box_of(x_32, y_32, boxes[c])
         for j in range(shifts):
             for s in range(size):
                 maps_x[c, j, s] = x_32[s] + shift_x[j]
                 maps_y[c, j, s] = y_32[s] + shift_y[j]
     return maps_x, maps_y, valid, boxes, non_finite == 0
+
+
+@numba.njit('Tuple((f4[:, ::1], f4[:, ::1], f4[:, ::1], b1))(f8[:, :, ::1])', **EXACT)
+def pixel_maps(homogeneous: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, bool]:
+    """The float32 pixels of C images' samples, for ``cv2.remap``, and the boxes they span.
+
+    Sample s lies at ``x = P_1 X / P_3 X``, ``y = P_2 X / P_3 X`` (eq. 2) of each image,
+    rounded to float32 as ``cv2.remap`` reads it (:func:`stencil_maps` without the stencil).
+
+    Args:
+        homogeneous: (C, 3, S) ``P X`` of the samples in each image, homogeneous pixels.
+
+    Returns:
+        ``(x, y, boxes, finite)``: (C, S) float32 x and y, (C, 4) float32 least and greatest x,
+        then y, of each image's pixels (an empty box for no samples; meaningless unless
+        finite), and whether every x and y is finite.
+    """
+    images, _, size = homogeneous.shape
+    x_32 = np.empty((images, size), dtype=np.float32)
+    y_32 = np.empty((images, size), dtype=np.float32)
+    boxes = np.empty((images, 4), dtype=np.float32)
+    boxes[:] = np.array([0.0, -1.0, 0.0, -1.0], dtype=np.float32)  # nothing read
+    non_finite = 0
+    for c in range(images):
+        for s in range(size):
+            x_32[c, s] = homogeneous[c, 0, s] / homogeneous[c, 2, s]
+            y_32[c, s] = homogeneous[c, 1, s] / homogeneous[c, 2, s]
+        non_finite += _box_of(x_32[c], y_32[c], boxes[c])
+    return x_32, y_32, boxes, non_finite == 0
+
+
+@numba.njit(**EXACT)
+def _contrast(
+    values: np.ndarray,
+    valid: np.ndarray,
+    first: int,
+    members: int,
+    masked: np.ndarray,
+    centred: np.ndarray,
+) -> float:
+    """RMS of a group's valid float32 values about their mean (NaN without any), as numpy's.
+
+    ``masked`` (M,) float32 and ``centred`` (M,) float64 are scratch.
+    """
+    count = 0
+    for m in range(members):
+        count += valid[first + m]
+        masked[m] = values[first + m] if valid[first + m] else np.float32(0.0)
+    mean = float(_pairwise_sum(masked, 0, members)) / float(max(count, 1))
+    for m in range(members):
+        centred[m] = float(masked[m]) - mean if valid[first + m] else 0.0
+        centred[m] *= centred[m]
+    return np.sqrt(_pairwise_sum(centred, 0, members) / float(count))
+
+
+@numba.njit(
+    'Tuple((f8[:, ::1], f8[:, ::1], f8[:, ::1]))(f4[:, :], f4[:, :], f4[:, :], b1[:, ::1], '
+    'i8[:, ::1], i8[::1], i8[::1])',
+    **EXACT,
+)
+def group_summaries(
+    differences: np.ndarray,
+    leading: np.ndarray,
+    values: np.ndarray,
+    valid: np.ndarray,
+    counts: np.ndarray,
+    bounds: np.ndarray,
+    group_sizes: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Every group's RMS residual; the template's and image's contrast of the first layout's.
+
+    numpy's arithmetic in numpy's order (float32 pairwise sums of float32 values, float64
+    sums of float64 ones), for :func:`~.stereo_data.group_statistics`: the RMS is
+    ``sqrt(sum r^2 / count)`` of the float32 residuals r, a contrast
+    :func:`~.stereo_data.group_contrast`'s (NaN for a group without valid samples).
+
+    Args:
+        differences: (C, S) float32 leading ZSSD residuals (0 where not valid).
+        leading: (C, S) float32 leading template T_0 of each image.
+        values: (C, S) float32 grey levels of the images.
+        valid: (C, S) the samples in use.
+        counts: (C, sum G_l) valid samples of each group, layout after layout.
+        bounds: (L + 1,) first sample of every layout, then S.
+        group_sizes: (L,) M_l.
+
+    Returns:
+        ``(rms, contrast, image_contrast)``: (C, sum G_l), (C, G_0) and (C, G_0).
+    """
+    images, groups = counts.shape
+    first_groups = (bounds[1] - bounds[0]) // group_sizes[0]
+    rms = np.empty((images, groups))
+    contrast = np.empty((images, first_groups))
+    image_contrast = np.empty((images, first_groups))
+    squares = np.empty(differences.shape[1], dtype=np.float32)
+    masked = np.empty(group_sizes[0], dtype=np.float32)
+    centred = np.empty(group_sizes[0])
+    for c in range(images):
+        group = 0
+        for layout in range(group_sizes.size):
+            members = group_sizes[layout]
+            for first in range(bounds[layout], bounds[layout + 1], members):
+                for s in range(first, first + members):
+                    squares[s] = differences[c, s] * differences[c, s]
+                total = _pairwise_sum(squares, first, members)
+                rms[c, group] = np.sqrt(float(total) / float(counts[c, group]))
+                group += 1
+        members = group_sizes[0]
+        for g in range(first_groups):
+            first = bounds[0] + g * members
+            contrast[c, g] = _contrast(leading[c], valid[c], first, members, masked, centred)
+            image_contrast[c, g] = _contrast(values[c], valid[c], first, members, masked, centred)
+    return rms, contrast, image_contrast
 
 
 @numba.njit(
