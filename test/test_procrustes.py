@@ -7,7 +7,11 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from face_tracking_ros.errors import InputError
-from face_tracking_ros.geometry.procrustes import generalized_procrustes, rigid_align
+from face_tracking_ros.geometry.procrustes import (
+    generalized_procrustes,
+    rigid_align,
+    rigid_rotation,
+)
 from face_tracking_ros.model.topology import Group, mesh_topology
 
 
@@ -96,6 +100,17 @@ def test_batched_equals_pairwise():
         single = rigid_align(sources[k], targets[k])
         assert np.allclose(batched.rotation[k], single.rotation, atol=1e-12)
         assert np.allclose(batched.rms[k], single.rms, atol=1e-12)
+
+
+def test_rigid_rotation_is_rigid_aligns_rotation_to_the_bit():
+    rng = np.random.default_rng(3)
+    source = rng.normal(size=(4, 34, 3))
+    target = source @ Rotation.random(4, random_state=3).as_matrix() + rng.normal(size=(4, 1, 3))
+    weights = mesh_topology(34).alignment_weights()
+    for pair in ((source[0], target[0]), (source, target)):
+        assert np.array_equal(rigid_rotation(*pair, weights), rigid_align(*pair, weights).rotation)
+    with pytest.raises(InputError, match='NaN'):
+        rigid_rotation(np.full((3, 3), np.nan), source[0, :3])
 
 
 def test_generalized_procrustes_aligns_moved_copies_to_the_reference():

@@ -83,6 +83,36 @@ def rigid_align(
     """
     source = _as_meshes(source, 'source')
     target = _as_meshes(target, 'target')
+    w, rotation, t = _transform(source, target, weights)
+    aligned = source @ np.swapaxes(rotation, -1, -2) + t[..., None, :]
+    rms = np.sqrt(np.sum((aligned - target) ** 2, axis=-1) @ w)
+    return RigidAlignment(rotation=rotation, t=t, aligned=aligned, rms=rms)
+
+
+def rigid_rotation(
+    source: np.ndarray, target: np.ndarray, weights: np.ndarray | None = None
+) -> np.ndarray:
+    """The rotation of :func:`rigid_align` alone, (3, 3) or (F, 3, 3) (nothing aligned).
+
+    Raises:
+        InputError: as :func:`rigid_align`.
+    """
+    return _transform(_as_meshes(source, 'source'), _as_meshes(target, 'target'), weights)[1]
+
+
+def _transform(
+    source: np.ndarray, target: np.ndarray, weights: np.ndarray | None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(w, rotation, t)``: the normalised weights and the transform of :func:`rigid_align`.
+
+    Args:
+        source: (..., N, 3) checked meshes to move, metres.
+        target: (..., N, 3) checked meshes to move onto, metres.
+        weights: (N,) non-negative node weights; None for equal weights.
+
+    Raises:
+        InputError: if the node counts differ or the weights are not usable.
+    """
     num_nodes = source.shape[-2]
     if target.shape[-2] != num_nodes:
         msg = f'source has {num_nodes} nodes but target has {target.shape[-2]}'
@@ -99,9 +129,7 @@ def rigid_align(
     vt[..., 2, :] *= d[..., None]
     rotation = np.swapaxes(u @ vt, -1, -2)
     t = target_centroid - (rotation @ source_centroid[..., None])[..., 0]
-    aligned = source @ np.swapaxes(rotation, -1, -2) + t[..., None, :]
-    rms = np.sqrt(np.sum((aligned - target) ** 2, axis=-1) @ w)
-    return RigidAlignment(rotation=rotation, t=t, aligned=aligned, rms=rms)
+    return w, rotation, t
 
 
 def generalized_procrustes(

@@ -211,7 +211,8 @@ class ActionPrior:
         """
         point = evaluation.point
         weighted = point.weighted
-        hessian = self._weight_matrix - weighted @ np.linalg.solve(point.normal, weighted.T)
+        hessian = weighted @ np.linalg.solve(point.normal, weighted.T)
+        np.subtract(self._weight_matrix, hessian, out=hessian)  # W - that, in place
         return hessian, self.row_weights * evaluation.difference
 
     @cached_property

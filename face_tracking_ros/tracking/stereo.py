@@ -48,7 +48,7 @@ from face_tracking_ros.errors import (
     ModelFileError,
 )
 from face_tracking_ros.geometry.camera import StereoRig
-from face_tracking_ros.geometry.procrustes import rigid_align
+from face_tracking_ros.geometry.procrustes import rigid_rotation
 from face_tracking_ros.geometry.rotation import matrix_to_omega, rodrigues
 from face_tracking_ros.imaging import (
     ImagePyramid,
@@ -225,6 +225,8 @@ class StereoTracker:
         self._topology: MeshTopology = mesh_topology(config.num_nodes)
         self._template_samples = TemplateSamples(config, self._topology)
         self._boundary = self._topology.group_mask(Group.EDGE)
+        self._alignment_weights = self._topology.alignment_weights()  # of the head's rotation
+        self._fit_weights = np.where(self._boundary, config.fit_edge_weight, 1.0)
         self._use_rig(rig)
         self._spare: tuple[ImagePyramid, ImagePyramid] | None = None
         self._right_gain = 1.0  # divided out of the right images (measured at initialisation)
@@ -648,10 +650,11 @@ class StereoTracker:
         """
         if not self._config.predict_motion or state.before is None:
             return state.nodes
-        weights = self._topology.alignment_weights()
-        motion = rigid_align(state.before, state.nodes, weights)
+        weights = self._alignment_weights
         ahead = state.elapsed / state.span
-        turn, _ = rodrigues(ahead * matrix_to_omega(motion.rotation))
+        turn, _ = rodrigues(
+            ahead * matrix_to_omega(rigid_rotation(state.before, state.nodes, weights))
+        )
         share = weights / weights.sum()
         centre, centre_before = share @ state.nodes, share @ state.before
         return centre + ahead * (centre - centre_before) + (state.nodes - centre) @ turn.T
@@ -809,7 +812,7 @@ class StereoTracker:
 
     def _rotation(self, first_nodes: np.ndarray, nodes: np.ndarray) -> np.ndarray:
         """The head's rotation since frame 1 (weighted Procrustes of the nodes, §3.3)."""
-        return rigid_align(first_nodes, nodes, self._topology.alignment_weights()).rotation
+        return rigid_rotation(first_nodes, nodes, self._alignment_weights)
 
     def _refine_depths(
         self,
@@ -953,9 +956,12 @@ class StereoTracker:
         """
         if self._model is None:
             return None
-        weights = np.where(self._boundary, self._config.fit_edge_weight, 1.0)
         return fit_model_to_nodes(
-            self._model, nodes[None], tolerance=FIT_TOLERANCE, weights=weights, start=start
+            self._model,
+            nodes[None],
+            tolerance=FIT_TOLERANCE,
+            weights=self._fit_weights,
+            start=start,
         )
 
     def _lose(self, reason: str) -> StereoResult:

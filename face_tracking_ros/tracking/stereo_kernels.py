@@ -457,6 +457,32 @@ def pixel_maps(homogeneous: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndar
     return x_32, y_32, boxes, non_finite == 0
 
 
+@numba.njit('f8(f8[:, :, ::1])', **EXACT)
+def largest_motion(homogeneous: np.ndarray) -> float:
+    """The largest pixel motion of N points between two estimates, in any of C images (NaN if any).
+
+    Args:
+        homogeneous: (C, 3, 2 N) ``P X`` of the N points at the first estimate, then at the
+            second, homogeneous pixels.
+
+    Returns:
+        ``max |x_2 - x_1|`` over the points, both pixel coordinates and the images, px.
+    """
+    images, _, size = homogeneous.shape
+    count = size // 2
+    largest = 0.0
+    for c in range(images):
+        for a in range(2):
+            for i in range(count):
+                before = homogeneous[c, a, i] / homogeneous[c, 2, i]
+                after = homogeneous[c, a, count + i] / homogeneous[c, 2, count + i]
+                motion = abs(after - before)
+                if np.isnan(motion):
+                    return np.nan
+                largest = max(largest, motion)
+    return largest
+
+
 @numba.njit(**EXACT)
 def _contrast(
     values: np.ndarray,

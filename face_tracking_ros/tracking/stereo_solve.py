@@ -33,6 +33,7 @@ from face_tracking_ros.tracking.stereo_data import (
     robust_residuals,
     sample_images,
 )
+from face_tracking_ros.tracking.stereo_kernels import largest_motion
 from face_tracking_ros.tracking.surface_patches import PatchDeformation, patch_field
 
 
@@ -201,9 +202,8 @@ class LevelSolver:
 
     def _pixel_motion(self, nodes: np.ndarray, moved: np.ndarray) -> float:
         """Largest image motion of a node between two estimates, in either camera, px."""
-        homogeneous = homogeneous_pixels(self._projections, np.concatenate([nodes, moved]).T)
-        pixels = (homogeneous[:, :2] / homogeneous[:, 2:]).reshape(2, 2, 2, -1)
-        return float(np.abs(pixels[:, :, 1] - pixels[:, :, 0]).max())
+        points = np.concatenate([nodes, moved]).T
+        return largest_motion(homogeneous_pixels(self._projections, points))
 
 
 def _step_tolerance(config: StereoTrackerConfig, index: int) -> float:
