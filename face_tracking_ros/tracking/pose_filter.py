@@ -160,11 +160,6 @@ class PoseFilter:
         )
 
 
-def _norm(vector: np.ndarray) -> float:
-    """Euclidean norm of a vector: np.linalg.norm's sqrt(x . x), without its checks (a third)."""
-    return math.sqrt(vector.dot(vector))
-
-
 class FilteredTracker:
     """A tracker whose results pass through a :class:`PoseFilter`, frames at a fixed rate.
 
