@@ -77,6 +77,16 @@ PLANE_CONFIG = StereoTrackerConfig(num_nodes=19, init=PLANE_INIT)
 TEXEL = 0.0005  # m per texel
 
 
+def _grouped(samples: SampleSet, values: np.ndarray) -> tuple[np.ndarray, ...]:
+    """Views (..., G_l, M_l) of (..., S) sample arrays, one per layout of ``samples``."""
+    return tuple(
+        values[..., samples.bounds[index] : samples.bounds[index + 1]].reshape(
+            *values.shape[:-1], *layout.mask.shape
+        )
+        for index, layout in enumerate(samples.layouts)
+    )
+
+
 def _texture(seed: int = 0, size: int = 512) -> np.ndarray:
     """Multi-scale smooth noise in [30, 230] grey levels, float32."""
     rng = np.random.default_rng(seed)
@@ -470,7 +480,7 @@ def test_template_coefficients_split_gamma_and_epsilon_and_weigh_the_texture() -
     template_samples = TemplateSamples(config, topology)
     layouts = template_samples.layouts(PLANE.nodes(), RIG.left.focal)
     samples = SampleSet.of(layouts, 34)
-    patches, texture = samples.grouped(template_samples.coefficients(samples))
+    patches, texture = _grouped(samples, template_samples.coefficients(samples))
     edge = topology.group_mask(Group.EDGE)
     # (1 - 0.2) (1 - 0.4), 0.8 0.4, 0.2 0.6, 0.2 0.4; edge: gamma 0.1; texture: 0.8 0.5, 0.2 0.5
     assert np.allclose(patches[:, ~edge], np.array([0.48, 0.32, 0.12, 0.08])[:, None, None])
@@ -560,8 +570,8 @@ def test_robust_residuals_are_the_huber_terms_of_the_patch_and_texture_residuals
     huber = Huber.of(samples, [15.0, 10.0])
     residuals = robust_residuals(samples, sampled, templates, coefficients, huber)
     expected = sampled.values[:, None] - templates
-    patches, texture = samples.grouped(expected)
-    patches_valid, texture_valid = samples.grouped(valid)
+    patches, texture = _grouped(samples, expected)
+    patches_valid, texture_valid = _grouped(samples, valid)
     # Texture: I - T_k minus its group's mean over the valid samples (float32 sums, as numpy).
     total = (texture * texture_valid[:, None]).sum(axis=-1, keepdims=True)
     texture -= total / np.maximum(texture_valid.sum(axis=-1), 1)[:, None, :, None]
@@ -575,7 +585,7 @@ def test_robust_residuals_are_the_huber_terms_of_the_patch_and_texture_residuals
     expected *= valid[:, None]
     fitted *= patches_valid[:, None]
     assert residuals.differences.dtype == np.float32
-    patch_residuals, texture_residuals = samples.grouped(residuals.differences)
+    patch_residuals, texture_residuals = _grouped(samples, residuals.differences)
     assert np.array_equal(texture_residuals, texture * texture_valid[:, None])  # bit for bit
     np.testing.assert_allclose(patch_residuals, fitted, atol=1e-3)  # of residuals up to ~80
     assert np.abs(fitted).max() > 40.0
@@ -592,7 +602,7 @@ def test_robust_residuals_are_the_huber_terms_of_the_patch_and_texture_residuals
     )
     assert residuals.cost == float((coefficients * loss).sum())
     assert [c.tolist() for c in residuals.counts] == [
-        v.sum(axis=-1).tolist() for v in samples.grouped(valid)
+        v.sum(axis=-1).tolist() for v in _grouped(samples, valid)
     ]
 
 
@@ -736,10 +746,10 @@ def test_group_statistics_are_numpys_sums_to_the_bit() -> None:
         rms = [
             np.sqrt((difference**2).sum(axis=-1) / count)
             for difference, count in zip(
-                samples.grouped(residuals.differences[:, 0]), residuals.counts, strict=True
+                _grouped(samples, residuals.differences[:, 0]), residuals.counts, strict=True
             )
         ]
-    patches = [samples.grouped(array)[0] for array in (templates[:, 0], values, valid)]
+    patches = [_grouped(samples, array)[0] for array in (templates[:, 0], values, valid)]
     expected = (group_contrast(patches[0], patches[2]), group_contrast(patches[1], patches[2]))
     for new, old in [*zip(got.rms, rms, strict=True), *zip(got[1:], expected, strict=True)]:
         assert new.shape == old.shape and np.array_equal(new, old, equal_nan=True)

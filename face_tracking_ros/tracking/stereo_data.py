@@ -316,15 +316,6 @@ class SampleSet:
             layout_points(nodes, offsets, field, scale, gather, weights, start, points)
         return points
 
-    def grouped(self, values: np.ndarray) -> tuple[np.ndarray, ...]:
-        """Views (..., G_l, M_l) of (..., S) sample arrays, one per layout."""
-        return tuple(
-            values[..., self.bounds[index] : self.bounds[index + 1]].reshape(
-                *values.shape[:-1], *layout.mask.shape
-            )
-            for index, layout in enumerate(self.layouts)
-        )
-
     def assemble(
         self, blocks: Sequence[np.ndarray], vectors: Sequence[np.ndarray]
     ) -> tuple[np.ndarray, np.ndarray]:
