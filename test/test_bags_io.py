@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+import re
 
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
@@ -167,6 +168,21 @@ def test_cdr_serialiser_refuses_a_message_of_another_type(store: Typestore) -> N
     shape = factory.make('face_tracking_msgs/msg/ShapeParams', sigma=np.zeros(2))
     with pytest.raises(AttributeError):
         serialiser.serialise(shape, 'face_tracking_msgs/msg/FaceMesh')
+
+
+@pytest.mark.parametrize('wrong_points', [False, True], ids=['no names', 'wrong points'])
+def test_cdr_serialiser_raises_serialize_cdrs_error(store: Typestore, wrong_points: bool) -> None:
+    factory, serialiser = RosbagsMessages(store), CdrSerialiser(store)
+    serialiser.serialise(_mesh(factory, 'cam', 3, 2), 'face_tracking_msgs/msg/FaceMesh')
+    bad = _mesh(factory, 'cam', 3, 2)
+    if wrong_points:  # filled first; serialize_cdr's sizing finds no edges first
+        bad.points, bad.edges = [factory.make('face_tracking_msgs/msg/ShapeParams')], None
+    else:  # serialize_cdr's sizing finds it not iterable; filled, it has no len()
+        bad.node_names = None
+    with pytest.raises(Exception) as expected:  # noqa: B017 (whatever rosbags raises)
+        store.serialize_cdr(bad, 'face_tracking_msgs/msg/FaceMesh')
+    with pytest.raises(expected.type, match=f'^{re.escape(str(expected.value))}$'):
+        serialiser.serialise(bad, 'face_tracking_msgs/msg/FaceMesh')
 
 
 def test_stamp_conversions_are_inverse() -> None:

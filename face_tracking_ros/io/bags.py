@@ -62,6 +62,8 @@ LITTLE_ENDIAN = sys.byteorder == 'little'  # messages are written in the host's 
 # 1 kB, or an eighth of the message if that is more.
 SLACK_BYTES = 1024
 SLACK_FRACTION = 8
+# What rosbags' serialisers raise for an unknown type or a message not fitting it
+_SERIALISE_ERRORS = (KeyError, AttributeError, TypeError, ValueError, struct.error)
 MAX_NAMED_BAGS = 5  # bags named in the error for a directory of bags given as one
 # (OverflowError: rosbags seeks past a record whose length, read from damaged bytes, is >= 2**63;
 # MemoryError: it asks for a buffer of such a length, hundreds of gigabytes, to read the record)
@@ -118,9 +120,11 @@ class CdrSerialiser:
     zeroed buffer the size of the largest message of its type so far and some slack; the part
     written is the message. rosbags' functions never write past the buffer they are given
     (``struct.pack_into`` and memoryview slices refuse it): a larger message (or a bad one) goes
-    to ``serialize_cdr`` after all, which sizes the next buffers, or raises as before. The slack
-    is small beside a large message (an image), whose sizing is cheap and whose buffer's zeroing
-    is not: twice its size made a 640x480 image's serialisation 13 -> 23 us.
+    to ``serialize_cdr`` after all, which sizes the next buffers, or raises its own error, as
+    before (its sizing walk runs first: it may find another of a bad message's faults than the
+    fill, or word the same one otherwise). The slack is small beside a large message (an image),
+    whose sizing is cheap and whose buffer's zeroing is not: twice its size made a 640x480
+    image's serialisation 13 -> 23 us.
     """
 
     def __init__(self, store: Typestore) -> None:
@@ -154,12 +158,13 @@ class CdrSerialiser:
         """``msg`` serialised by ``fill`` into a new ``capacity``-byte buffer; None if it is short.
 
         The header is serialize_cdr's: representation CDR (0), the byte order, two zero options.
+        None too if ``msg`` does not fit the type (``serialize_cdr`` then says how).
         """
         buffer = memoryview(bytearray(capacity))
         buffer[1] = int(LITTLE_ENDIAN)
         try:
             end = CDR_HEADER_BYTES + fill(buffer[CDR_HEADER_BYTES:], 0, msg, self._store)
-        except (struct.error, ValueError):  # past the buffer's end, or a bad message
+        except _SERIALISE_ERRORS:  # past the buffer's end, or a bad message
             return None
         return buffer[:end].toreadonly()
 
@@ -230,7 +235,7 @@ class BagWriter:
         """
         try:
             data = self._serialiser.serialise(msg, msgtype)
-        except (KeyError, AttributeError, TypeError, ValueError, struct.error) as error:
+        except _SERIALISE_ERRORS as error:
             message = f'{self.path}: cannot serialise {msgtype} on {topic}: {error}'
             raise BagError(message) from None
         self.write_raw(topic, msgtype, data, stamp_ns)
