@@ -132,6 +132,20 @@ def test_message_of_wrong_type_raises_bag_error(tmp_path: Path, store: Typestore
         bag.write('face/state', FACE_STATE, shape, T0)
 
 
+def test_fixed_array_of_another_length_raises_bag_error(tmp_path: Path, store: Typestore) -> None:
+    state = to_rosbags(store, FACE_STATE, sample_fields(store, FACE_STATE))
+    state.omega = np.zeros(2)  # float64[3]: rosbags raises its SerdeError
+
+    with BagWriter(tmp_path / 'bag') as bag:
+        with pytest.raises(BagError, match='cannot serialise .* on face/state: Unexpected array'):
+            bag.write('face/state', FACE_STATE, state, T0)
+        state.omega = np.zeros(3)
+        bag.write('face/state', FACE_STATE, state, T0)  # the writer is still usable
+    assert [message.msg.omega.tolist() for message in read_messages(tmp_path / 'bag')] == [
+        [0.0, 0.0, 0.0]
+    ]
+
+
 def _mesh(factory: RosbagsMessages, frame_id: str, nodes: int, edges: int) -> object:
     """A FaceMesh of ``nodes`` points and ``edges`` edges (every kind of field that grows)."""
     points = np.arange(3.0 * nodes).reshape(nodes, 3) / 7.0

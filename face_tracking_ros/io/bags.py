@@ -62,8 +62,9 @@ LITTLE_ENDIAN = sys.byteorder == 'little'  # messages are written in the host's 
 # 1 kB, or an eighth of the message if that is more.
 SLACK_BYTES = 1024
 SLACK_FRACTION = 8
-# What rosbags' serialisers raise for an unknown type or a message not fitting it
-_SERIALISE_ERRORS = (KeyError, AttributeError, TypeError, ValueError, struct.error)
+# What rosbags' serialisers raise for an unknown type or a message not fitting it (SerdeError:
+# a fixed-size array of another length)
+_SERIALISE_ERRORS = (SerdeError, KeyError, AttributeError, TypeError, ValueError, struct.error)
 MAX_NAMED_BAGS = 5  # bags named in the error for a directory of bags given as one
 # (OverflowError: rosbags seeks past a record whose length, read from damaged bytes, is >= 2**63;
 # MemoryError: it asks for a buffer of such a length, hundreds of gigabytes, to read the record)
@@ -136,7 +137,7 @@ class CdrSerialiser:
         """The CDR of ``msg`` with its encapsulation header (``Typestore.serialize_cdr``'s).
 
         Raises:
-            KeyError, AttributeError, TypeError, ValueError, struct.error: as
+            SerdeError, KeyError, AttributeError, TypeError, ValueError, struct.error: as
                 ``Typestore.serialize_cdr`` does, for an unknown type or a message not fitting it.
         """
         sized = self._sized.get(msgtype)
