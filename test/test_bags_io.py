@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 import re
+import tracemalloc
 
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
@@ -174,6 +175,30 @@ def test_cdr_serialiser_gives_serialize_cdrs_bytes(store: Typestore, sizes: list
         mesh = _mesh(factory, frame_id, nodes, edges)
         expected = bytes(store.serialize_cdr(mesh, 'face_tracking_msgs/msg/FaceMesh'))
         assert bytes(serialiser.serialise(mesh, 'face_tracking_msgs/msg/FaceMesh')) == expected
+
+
+def test_cdr_serialiser_keeps_no_image_sized_buffer(store: Typestore) -> None:
+    """A small image after a large one allocates about its own size, not the large one's."""
+    factory, serialiser = RosbagsMessages(store), CdrSerialiser(store)
+    large, small = (
+        factory.make(
+            'sensor_msgs/msg/Image',
+            height=side,
+            width=side,
+            encoding='mono8',
+            step=side,
+            data=np.full(side * side, 7, np.uint8),
+        )
+        for side in (2000, 300)
+    )
+    for image in (large, small):  # 4 MB, then 90 kB
+        expected = bytes(store.serialize_cdr(image, 'sensor_msgs/msg/Image'))
+        tracemalloc.start()
+        data = serialiser.serialise(image, 'sensor_msgs/msg/Image')
+        peak = tracemalloc.get_traced_memory()[1]
+        tracemalloc.stop()
+        assert bytes(data) == expected
+        assert peak < 1.5 * len(expected)
 
 
 def test_cdr_serialiser_refuses_a_message_of_another_type(store: Typestore) -> None:

@@ -58,10 +58,11 @@ BAG_VERSION = 9  # rosbag2 metadata version written (Jazzy and later read it)
 NS_PER_S = 1_000_000_000
 CDR_HEADER_BYTES = 4  # the encapsulation header before a message's CDR
 LITTLE_ENDIAN = sys.byteorder == 'little'  # messages are written in the host's byte order
-# A serialising buffer's room beyond the largest message of its type so far (CdrSerialiser):
-# 1 kB, or an eighth of the message if that is more.
+# A serialising buffer's room beyond the largest message of its type so far (CdrSerialiser),
+# and the largest message it is kept for: a larger one (an image) is cheap to size and dear to
+# zero a buffer for (a 640x480 rgb8 Image: serialize_cdr 13 us, into a kept buffer 18 us).
 SLACK_BYTES = 1024
-SLACK_FRACTION = 8
+BUFFERED_MAX_BYTES = 65536
 # What rosbags' serialisers raise for an unknown type or a message not fitting it (SerdeError:
 # a fixed-size array of another length)
 _SERIALISE_ERRORS = (SerdeError, KeyError, AttributeError, TypeError, ValueError, struct.error)
@@ -123,9 +124,9 @@ class CdrSerialiser:
     (``struct.pack_into`` and memoryview slices refuse it): a larger message (or a bad one) goes
     to ``serialize_cdr`` after all, which sizes the next buffers, or raises its own error, as
     before (its sizing walk runs first: it may find another of a bad message's faults than the
-    fill, or word the same one otherwise). The slack is small beside a large message (an image),
-    whose sizing is cheap and whose buffer's zeroing is not: twice its size made a 640x480
-    image's serialisation 13 -> 23 us.
+    fill, or word the same one otherwise). Messages over :data:`BUFFERED_MAX_BYTES` (images)
+    always go to ``serialize_cdr``: sizing them is cheap and zeroing a buffer is not, and a
+    buffer kept for one would be zeroed for every later message of its type.
     """
 
     def __init__(self, store: Typestore) -> None:
@@ -148,12 +149,16 @@ class CdrSerialiser:
         return data
 
     def _keep_size(self, msgtype: str, size: int) -> None:
-        """Make ``msgtype``'s next buffers hold ``size`` bytes and the slack, unless larger."""
+        """Make ``msgtype``'s next buffers hold ``size`` bytes and the slack, unless larger.
+
+        Not for a message over :data:`BUFFERED_MAX_BYTES`: its type's buffers stay as they were.
+        """
+        if size > BUFFERED_MAX_BYTES:
+            return
         msgdef = self._store.get_msgdef(msgtype)
         fill = msgdef.serialize_cdr_le if LITTLE_ENDIAN else msgdef.serialize_cdr_be
         capacity = self._sized.get(msgtype, (fill, 0))[1]
-        slack = max(SLACK_BYTES, size // SLACK_FRACTION)
-        self._sized[msgtype] = (fill, max(capacity, size + slack))
+        self._sized[msgtype] = (fill, max(capacity, size + SLACK_BYTES))
 
     def _into_buffer(self, msg: Any, fill: CDRSer, capacity: int) -> memoryview | None:
         """``msg`` serialised by ``fill`` into a new ``capacity``-byte buffer; None if it is short.
