@@ -111,7 +111,7 @@ class StereoTrackerConfig:
             too, made for it alone; the other pairs are solved as before, to the bit. Rendered
             free motion, 150 pairs at 10 fps, 2 pairs dropped every 8-20: LOST 120 / 92 / 70 /
             96 -> 0 on four sequences (with the face-model term's fit moved to the prediction;
-            README, "Loss and recovery (stereo)").
+            docs/stereo_tracker.md, "Loss and recovery (stereo)").
         max_iterations: Levenberg-Marquardt iterations per pyramid level.
         step_tolerance: level 0 has converged when no node's projection moves more than this
             in an iteration, px (that last step is taken without evaluating its cost).
