@@ -2,7 +2,7 @@
 
 One short training sequence (neutral start, then a smile) of the synthetic world, rendered once
 per module. Bounds are those measured on this sequence with some margin; the 380-frame figures
-are in the README of the tracker (issue 5 closing note).
+are in docs/benchmarks.md, "The stereo protocol (issue 5)" (issue 5 closing note).
 """
 
 from __future__ import annotations
