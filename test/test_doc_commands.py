@@ -23,6 +23,7 @@ from repo_root import REPO
 DOCS = (
     'README.md',
     'docs/nodes.md',
+    'docs/parameters.md',
     'docs/mono_tracker.md',
     'docs/stereo_tracker.md',
     'docs/recordings.md',

@@ -1,4 +1,4 @@
-"""README's node parameter tables, node table and message table match the code and msg_defs."""
+"""The node parameter tables (docs/parameters.md), the README's node and message tables match."""
 
 from __future__ import annotations
 
@@ -13,14 +13,15 @@ from face_tracking_ros.processing.parameters import OverrideParameters
 from face_tracking_ros.processing.registry import PROCESSORS, processor_factory
 
 README = Path(__file__).resolve().parents[1] / 'README.md'
+PARAMETERS = README.parent / 'docs' / 'parameters.md'
 
 
 def test_node_parameter_tables_are_current():
-    text = README.read_text()
+    text = PARAMETERS.read_text()
     section = text[text.index(BEGIN) : text.index(END) + len(END)]
     assert section == markdown(), (
-        'README node parameters are stale: run '
-        '`.venv/bin/python -m face_tracking_ros.nodes.reference --write README.md`'
+        'docs/parameters.md is stale: run '
+        '`.venv/bin/python -m face_tracking_ros.nodes.reference --write docs/parameters.md`'
     )
 
 

@@ -2,8 +2,9 @@
 
 Each node declares its parameters from frozen config dataclasses
 (:class:`~face_tracking_ros.nodes.processor_node.NodeParameters`); this module renders the same
-dataclasses as Markdown tables for the README, so the documentation cannot drift from the code
-(``python -m face_tracking_ros.nodes.reference --write README.md`` updates it; a test checks it).
+dataclasses as Markdown tables for docs/parameters.md, so the documentation cannot drift from the
+code (``python -m face_tracking_ros.nodes.reference --write docs/parameters.md`` updates it; a test
+checks it).
 """
 
 from __future__ import annotations
@@ -73,7 +74,7 @@ def parameter_rows(prefix: str, config_type: type) -> list[tuple[str, str, str]]
 
 
 def markdown() -> str:
-    """The parameter tables of every node, between the README markers."""
+    """The parameter tables of every node, between the markers of docs/parameters.md."""
     lines = [BEGIN]
     for node, configs in NODE_CONFIGS.items():
         lines += [
@@ -97,15 +98,15 @@ def replace_section(text: str, section: str) -> str:
     """
     start, end = text.find(BEGIN), text.find(END)
     if start < 0 or end < start:
-        msg = f'the README lacks the markers {BEGIN!r} ... {END!r}'
+        msg = f'the page lacks the markers {BEGIN!r} ... {END!r}'
         raise ConfigError(msg)
     return text[:start] + section + text[end + len(END) :]
 
 
 def main() -> None:
-    """Print the tables, or write them into a README between the markers."""
+    """Print the tables, or write them into a page (docs/parameters.md) between the markers."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument('--write', type=Path, help='README to update in place')
+    parser.add_argument('--write', type=Path, help='page to update in place (docs/parameters.md)')
     args = parser.parse_args()
     if args.write:
         args.write.write_text(replace_section(args.write.read_text(), markdown()))
