@@ -79,7 +79,7 @@ def markdown() -> str:
     for node, configs in NODE_CONFIGS.items():
         lines += [
             '',
-            f'Parameters of `{node}`:',
+            f'## {node}',
             '',
             '| name | default | meaning |',
             '| --- | --- | --- |',
