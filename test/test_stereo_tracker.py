@@ -1207,11 +1207,24 @@ def test_loss_reason_names_each_check_by_hand() -> None:
     behind = nodes.copy()
     behind[3, 2] = -0.1
     assert reason(behind) == 'a node went behind the camera'
-    # 50 px from the left image's edge, the right camera sees the node f B / z = 110 px further.
+    # 50 px from the left image's edge, the right camera sees the node f B / z = 110 px further:
+    # outside its image, carried by the left one's terms.
     edge = nodes.copy()
     edge[3] = [(50.0 - 319.5) * 0.6 / 600.0, 0.0, 0.6]
     assert RIG.left.project(edge)[3] == pytest.approx([50.0, 239.5])
-    assert reason(edge) == 'a node left the image'
+    assert RIG.right.project(edge)[3, 0] == pytest.approx(-60.0)
+    assert reason(edge) == ''
+    edge[3, 1] = -0.5  # above both images
+    assert reason(edge) == 'a node left both images'
+    # Half the nodes must be seen by both cameras: 17 of 34 are enough, 16 are not.
+    moved = nodes + np.array([-0.25, 0.0, 0.0])  # left of the right image, in the left one
+    in_right = RIG.right.project(moved)[:, 0] >= 0
+    assert not in_right.all() and np.all(RIG.left.project(moved)[:, 0] >= 0)
+    for count, expected in ((17, ''), (18, 'fewer than half the nodes are inside both images')):
+        outside = np.zeros(34, dtype=bool)
+        outside[:count] = True
+        points = np.where(outside[:, None], moved[np.argmin(in_right)], nodes)
+        assert reason(points) == expected
     assert reason(nodes, rms=8.0) == ''
     assert reason(nodes, rms=8.5) == 'patch residual / contrast 0.85 exceeds 0.8'
     assert reason(nodes, image_contrast=3.0) == ''
