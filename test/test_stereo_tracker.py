@@ -944,7 +944,7 @@ def test_initialisation_failure_is_reported() -> None:
     result = tracker.step(np.zeros_like(left), np.zeros_like(right))
     # No estimate: INITIALIZING (LOST carries the last valid estimate), until a reset.
     assert result.status == TrackStatus.INITIALIZING and 'initialisation failed' in result.reason
-    assert 'both images show the face with some texture' in result.reason  # black images
+    assert 'both images show the whole face with some texture' in result.reason  # black images
     later = tracker.step(left, right)
     assert later.status == TrackStatus.INITIALIZING and later.reason == result.reason
     assert np.all(np.isnan(later.nodes_cam))
@@ -1207,24 +1207,24 @@ def test_loss_reason_names_each_check_by_hand() -> None:
     behind = nodes.copy()
     behind[3, 2] = -0.1
     assert reason(behind) == 'a node went behind the camera'
-    # 50 px from the left image's edge, the right camera sees the node f B / z = 110 px further:
-    # outside its image, carried by the left one's terms.
-    edge = nodes.copy()
-    edge[3] = [(50.0 - 319.5) * 0.6 / 600.0, 0.0, 0.6]
-    assert RIG.left.project(edge)[3] == pytest.approx([50.0, 239.5])
-    assert RIG.right.project(edge)[3, 0] == pytest.approx(-60.0)
-    assert reason(edge) == ''
-    edge[3, 1] = -0.5  # above both images
-    assert reason(edge) == 'a node left both images'
-    # Half the nodes must be seen by both cameras: 17 of 34 are enough, 16 are not.
-    moved = nodes + np.array([-0.25, 0.0, 0.0])  # left of the right image, in the left one
-    in_right = RIG.right.project(moved)[:, 0] >= 0
-    assert not in_right.all() and np.all(RIG.left.project(moved)[:, 0] >= 0)
-    for count, expected in ((17, ''), (18, 'fewer than half the nodes are inside both images')):
-        outside = np.zeros(34, dtype=bool)
-        outside[:count] = True
-        points = np.where(outside[:, None], moved[np.argmin(in_right)], nodes)
-        assert reason(points) == expected
+    # 50 px from the left image's edge, the right camera sees a node f B / z = 110 px further:
+    # outside its image. A face-edge node may be (the left image carries it), an inner one not.
+    topology = mesh_topology(34)
+    edge_node, inner_node = np.flatnonzero(topology.group_mask(Group.EDGE))[0], 3
+    assert not topology.group_mask(Group.EDGE)[inner_node]
+    side = [(50.0 - 319.5) * 0.6 / 600.0, 0.0, 0.6]
+    assert RIG.left.project(np.array([side]))[0] == pytest.approx([50.0, 239.5])
+    assert RIG.right.project(np.array([side]))[0, 0] == pytest.approx(-60.0)
+    for index, expected in (
+        (edge_node, ''),
+        (inner_node, f'inner nodes outside the right image ({topology.node_names[inner_node]})'),
+    ):
+        moved = nodes.copy()
+        moved[index] = side
+        assert reason(moved) == expected
+    moved = nodes.copy()
+    moved[edge_node] = [0.0, -0.5, 0.6]  # above both images
+    assert reason(moved) == 'a face-edge node outside both images'
     assert reason(nodes, rms=8.0) == ''
     assert reason(nodes, rms=8.5) == 'patch residual / contrast 0.85 exceeds 0.8'
     assert reason(nodes, image_contrast=3.0) == ''

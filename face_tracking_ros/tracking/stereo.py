@@ -83,6 +83,7 @@ from face_tracking_ros.tracking.stereo_init import (
     InitialNodes,
     check_baseline,
     check_face_scale,
+    check_in_view,
     check_raw_not_swapped,
     initial_nodes,
 )
@@ -446,6 +447,7 @@ class StereoTracker:
                     break
                 initial = self._initial_nodes(pyramids, left_px)  # matched on the corrected pair
             check_face_scale(initial, self._topology, self._rig, config.init)
+            check_in_view(initial, self._topology, self._rig)
         except FaceTrackingError as error:  # no estimate yet: INITIALIZING, as the mono tracker
             self._status = TrackStatus.INITIALIZING
             reason = self._failure_reason(error, left_px, exchanged)

@@ -28,6 +28,7 @@ from face_tracking_ros.model.topology import Group, MeshTopology
 from face_tracking_ros.tracking.initialisation import check_inside
 from face_tracking_ros.tracking.stereo_config import StereoInitConfig
 from face_tracking_ros.tracking.stereo_data import SampleLayout, SampleSet, depth_terms
+from face_tracking_ros.tracking.stereo_loss import view_problem
 from face_tracking_ros.wording import counted
 
 FLAT_STD = 0.5  # grey levels: a correlation window flatter than this cannot be matched
@@ -472,8 +473,8 @@ def _trimmed_reference(
             msg = (
                 f'only {counted(int(use.sum()), "inner (non-boundary) node")} matched in the '
                 f'right image consistently with a face (need {MIN_FIT_NODES}); check the rig '
-                'calibration, the initial positions and that both images show the face with '
-                'some texture (exposure, focus)'
+                'calibration, the initial positions and that both images show the whole face '
+                'with some texture (exposure, focus)'
             )
             raise InputError(msg)
         reference = _fit_reference(topology, nodes, use)
@@ -514,6 +515,25 @@ def check_face_scale(
             f'adult-sized face needs B = {rig.baseline / scale:.3g} m (P[0,3] = '
             f'{tx / scale:.4g}); then the focal length, that raw images are rectified (rectify) '
             'and that the initial positions are on the face'
+        )
+        raise InputError(msg)
+
+
+def check_in_view(initial: InitialNodes, topology: MeshTopology, rig: StereoRig) -> None:
+    """Refuse initial nodes that the track would lose at once: the cameras do not see them.
+
+    :func:`~.stereo_loss.view_problem`: an inner node outside either image (the right camera
+    sees the face f B / z px further to the side than the left one), or a face-edge node
+    outside both.
+
+    Raises:
+        InputError: naming the nodes and what to do.
+    """
+    problem = view_problem(initial.nodes, rig, topology)
+    if problem:
+        msg = (
+            f'{problem}: the eyes, nose, mouth and brows must be inside both images; move the '
+            'face towards the middle of the frame (or the rig away from it)'
         )
         raise InputError(msg)
 

@@ -1,10 +1,9 @@
 """The checks that declare the stereo track lost (§3.3; the mono tracker's are :mod:`.mono_loss`).
 
 Loss of track gives status LOST with the last valid nodes. A pair's solution is declared lost
-when a node is not finite, lies behind the camera or projects outside both images, when fewer
-than half the nodes project inside both images, or when the node patches
-(:class:`~.stereo_data.GroupStatistics` of level 0, both cameras) tell that the images no longer
-show the face tracked:
+when a node is not finite or lies behind the camera, when the cameras do not see the face's
+nodes (:func:`view_problem`), or when the node patches (:class:`~.stereo_data.GroupStatistics`
+of level 0, both cameras) tell that the images no longer show the face tracked:
 
     median_i r_i / c_i > ``lost_ratio``            the patches do not match their templates
                                                    (``gap_lost_ratio`` if lower, for a pair
@@ -16,13 +15,6 @@ its frame n - 1 template in the same camera (brightness ramp or, face-edge nodes
 about c_i for an unrelated image), c_i the template's contrast (the standard deviation of its
 grey levels) and t_i the image's. A blank or dark pair passes the first test (its residual is
 the template's own contrast less the ramp), hence the second.
-
-A node that one camera does not see is carried by the other camera's terms of eq. 4, eq. 5 and
-the face-model term (its samples outside an image are not used): a face near the side of the
-frame, whose nearer edge the other camera sees beyond its image (f B / z px further: 100 px at
-0.65 m on a 0.11 m, 600 px rig), is tracked, not lost on its first pair. On the synthetic
-training sequences whose right image cut off up to 14 of the 34 nodes (the subject's right
-half), the tracker kept 2.9-4.2 mm node RMS against 2.7-3.8 mm for faces in full view.
 """
 
 from __future__ import annotations
@@ -31,11 +23,41 @@ import numpy as np
 
 from face_tracking_ros.geometry.camera import StereoRig
 from face_tracking_ros.imaging import inside_image
+from face_tracking_ros.model.topology import Group, MeshTopology, mesh_topology
 from face_tracking_ros.tracking.robust import nanmedian
 from face_tracking_ros.tracking.stereo_config import StereoTrackerConfig
 from face_tracking_ros.tracking.stereo_data import GroupStatistics
 
-MIN_SEEN_BY_BOTH = 0.5  # share of the nodes that must project inside both images
+
+def view_problem(nodes: np.ndarray, rig: StereoRig, topology: MeshTopology) -> str:
+    """What keeps the cameras from seeing the face's nodes ('' if nothing does).
+
+    Every inner node (eyes, nose, mouth, brows) must project inside both images: its depth is
+    measured between them. A face-edge node needs one of them only: its depth comes from the
+    reference face and the face-model term whether the other camera sees it or not (the solve
+    leaves out samples outside an image), and a face near the side of the frame shows its
+    nearer edge to one camera only (the other sees it f B / z px further to the side: 100 px at
+    0.65 m on a 0.11 m, 600 px rig). Until 2026-12-06 any node outside either image lost the
+    track on the pair after the initialisation. Inner nodes that the right camera misses are
+    a guess: the reference face fitted to the rest of a synthetic face put them up to 24 mm off
+    in depth.
+
+    Args:
+        nodes: (N, 3) nodes in the left camera frame, m, in front of both cameras.
+        rig: the rig (its image size and projections).
+        topology: the mesh (its face-edge nodes).
+    """
+    shape = (rig.left.height, rig.left.width)
+    edge = topology.group_mask(Group.EDGE)
+    seen = [inside_image(camera.project(nodes), shape) for camera in (rig.left, rig.right)]
+    for name, inside in zip(('left', 'right'), seen, strict=True):
+        missing = np.flatnonzero(~inside & ~edge)
+        if missing.size:
+            names = ', '.join(topology.node_names[i] for i in missing)
+            return f'inner nodes outside the {name} image ({names})'
+    if not np.all(seen[0] | seen[1]):
+        return 'a face-edge node outside both images'
+    return ''
 
 
 def loss_reason(
@@ -61,14 +83,9 @@ def loss_reason(
         return 'non-finite nodes'
     if np.any(nodes[:, 2] <= 0):
         return 'a node went behind the camera'
-    shape = (rig.left.height, rig.left.width)
-    inside = np.stack(
-        [inside_image(camera.project(nodes), shape) for camera in (rig.left, rig.right)]
-    )
-    if not np.all(inside.any(axis=0)):
-        return 'a node left both images'
-    if np.count_nonzero(inside.all(axis=0)) < MIN_SEEN_BY_BOTH * len(nodes):
-        return 'fewer than half the nodes are inside both images'
+    problem = view_problem(nodes, rig, mesh_topology(len(nodes)))
+    if problem:
+        return problem
     with np.errstate(invalid='ignore', divide='ignore'):
         ratios = statistics.rms[0] / statistics.contrast
     ratio = nanmedian(ratios)
