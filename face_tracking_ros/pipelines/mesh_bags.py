@@ -245,6 +245,8 @@ def _tracked_frames(
 ) -> tuple[list[_Frame], int]:
     """The frames of ``topic`` that were tracked, with their truth, and how many were not.
 
+    Not tracked: those its FaceStates, or the face/state beside its FaceMeshes, say so.
+
     The truth of a frame is its FaceTruth message's, else the truth bag's of its stamp; its
     subject is the truth's, else the one named by ``name`` (:func:`~.learn_options.subject_of`).
     Truth is read by ``truth_of``, meshes of FaceTruth too.
@@ -273,7 +275,9 @@ def _tracked_frames(
                 raise BagError(msg)
         subject = sample.subject_id if sample else subject_of(name, options)
         frames.append(_Frame(subject, index, nodes, sample))
-    return frames, skipped
+    # Beside a face/state, every frame it says untracked, with a mesh or not: the stereo
+    # tracker publishes none while it looks for a lost face (59 of 60 frames read as 1).
+    return frames, len(untracked) or skipped
 
 
 def _untracked_stamps(bag: Path, topics: dict[str, str]) -> set[int]:
