@@ -215,14 +215,23 @@ class ViewAdjuster:
         """The bundle adjustment of frame 1 and the views so far, staged (:mod:`.stages`).
 
         Stages: setting up the problem, :func:`~.bundle.adjustment_stages`, then the new ROIs
-        one pyramid level at a time. An adjustment that lowers the bundle cost and turns frame 1
-        and its newest view by less than ``bundle.max_change`` returns what replaces sigma, the
-        skin depth and frame 1's estimate (and its templates); otherwise None, and the track
-        goes on as it was. Either way its views stay views, so the next adjustment has more
-        views to agree with and waits for the head to reach a new rotation. (Dropping a rejected
-        view instead retried at once on the next frame: on the mono protocol's 19-node seed 1
-        all eight adjustments then ran on consecutive frames with two views each, every one
-        rejected, and the track kept the clicks' pose, 6.8 degrees of pitch error against 2.7.)
+        one pyramid level at a time. An adjustment that lowers the bundle cost, turns frame 1 and
+        its newest view by less than ``bundle.max_change`` and moves the newest view's nodes in
+        its image by less than that turn would (``max_change`` times their spread about their
+        mean, :meth:`_image_spread`) returns what replaces sigma, the skin depth and frame 1's
+        estimate (and its templates); otherwise None, and the track goes on as it was. Either
+        way its views stay views, so the next adjustment has more views to agree with and waits
+        for the head to reach a new rotation. (Dropping a rejected view instead retried at once
+        on the next frame: on the mono protocol's 19-node seed 1 all eight adjustments then ran
+        on consecutive frames with two views each, every one rejected, and the track kept the
+        clicks' pose, 6.8 degrees of pitch error against 2.7.)
+
+        The track goes on from the newest view, so its move is bounded in the image too: on a
+        small face (60-70 px from temple to temple, rendered at 1.2 m) with the 19-node mesh, an
+        adjustment turned frame 1 by 1.8 degrees and its newest view by 0.5, but older views by
+        6-12, with a sigma that moved the newest view's nodes 6.0 px (its spread: 25 px); applied,
+        the track went on 6-7 px off the face for 45 frames, TRACKING (now 0.6-1.5 px). On the
+        protocol's sequences the adjustments applied move it 0.1-2.5 px, a spread of 40-50 px.
         """
         kept = list(views.views)
         poses = [(v.params.omega, v.params.t, v.params.alpha) for v in kept]
@@ -239,12 +248,17 @@ class ViewAdjuster:
             problem, [v.image for v in kept], [v.visibility for v in kept], start
         )
         estimate = adjustment.estimate
+        newest = kept[-1].params
+        max_change = self._config.bundle.max_change
         moved = max(
             rotation_angle(poses[0][0], estimate.first[0]),
             rotation_angle(poses[-1][0], estimate.views[-1][0]),
         )
+        shifted = self._image_shift(newest, Params(*estimate.views[-1], estimate.sigma))
         if not (
-            adjustment.cost < adjustment.initial_cost and moved < self._config.bundle.max_change
+            adjustment.cost < adjustment.initial_cost
+            and moved < max_change
+            and shifted < max_change * self._image_spread(newest)
         ):
             return None
         yield
@@ -332,6 +346,19 @@ class ViewAdjuster:
             for view, p in zip(views.views, params + later, strict=True)
         ]
         return carried_views, now
+
+    def _image_shift(self, before: Params, after: Params) -> float:
+        """RMS move of the nodes' pixels from ``before`` to ``after``, px."""
+        moves = self._face.nodes(after)[1] - self._face.nodes(before)[1]
+        return float(np.sqrt(np.mean(np.sum(moves**2, axis=1))))
+
+    def _image_spread(self, params: Params) -> float:
+        """RMS distance of the nodes' pixels at ``params`` from their mean, px.
+
+        A turn of the face by a small angle a moves its nodes in the image by about a times this.
+        """
+        pixels = self._face.nodes(params)[1]
+        return float(np.sqrt(np.mean(np.sum((pixels - pixels.mean(axis=0)) ** 2, axis=1))))
 
     def _node_distance(self, params: Params) -> float:
         """Mean distance of the nodes from the camera centre at ``params``, m."""
