@@ -175,12 +175,43 @@ def test_inner_nodes_the_right_image_cuts_off_are_named(scene) -> None:
     assert np.all(run.status == TrackStatus.INITIALIZING)
     assert run.results[-1].reason == (
         'initialisation failed: inner nodes outside the right image (right_brow_outer, '
-        'right_eye_outer): the eyes, nose, mouth and brows must be inside both images; move '
-        'the face towards the middle of the frame (or the rig away from it)'
+        'right_eye_outer): the eyes, nose, mouth and brows must be inside both images and the '
+        "face's edge inside one at least; move the face towards the middle of the frame (or the "
+        'rig away from it)'
     )
     _, out, run = _cut_off_run(scene, 250)
     assert out.sum() == 12 and np.all(run.status == TrackStatus.INITIALIZING)
     assert 'both images show the whole face' in run.results[-1].reason
+
+
+def test_a_face_edge_both_images_cut_off_is_named(scene) -> None:
+    """Both images keep their top 330 rows: the chin (at row 333) is below them.
+
+    The eyes, nose, mouth and brows are inside both images and given, the chin is not (its
+    position is the reference face's); no camera sees it, so the initialisation is refused,
+    naming it. Until 2026-12-06 the reason named no node and asked for the eyes, nose, mouth
+    and brows to be inside both images, which they were.
+    """
+    rig, pairs, truth, _, _ = scene
+    rows = 330
+
+    def crop(camera):
+        return replace(camera, height=rows)
+
+    cropped = StereoRig(crop(rig.left), crop(rig.right))
+    clicks = rig.left.project(truth[0])
+    below = clicks[:, 1] > rows - 1
+    assert [TOPOLOGY.node_names[i] for i in np.flatnonzero(below)] == ['chin']
+    clicks[below] = np.nan
+    tracker = StereoTracker(cropped, StereoTrackerConfig(refine_depths=True))
+    cut = [(left[:rows], right[:rows]) for left, right in pairs[:2]]
+    run = track_sequence(tracker, cut, clicks)
+    assert np.all(run.status == TrackStatus.INITIALIZING)
+    assert run.results[-1].reason == (
+        'initialisation failed: face-edge nodes outside both images (chin): the eyes, nose, '
+        "mouth and brows must be inside both images and the face's edge inside one at least; "
+        'move the face towards the middle of the frame (or the rig away from it)'
+    )
 
 
 def test_model_fit_gives_the_head_pose(scene) -> None:

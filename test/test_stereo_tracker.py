@@ -1224,7 +1224,8 @@ def test_loss_reason_names_each_check_by_hand() -> None:
         assert reason(moved) == expected
     moved = nodes.copy()
     moved[edge_node] = [0.0, -0.5, 0.6]  # above both images
-    assert reason(moved) == 'a face-edge node outside both images'
+    name = topology.node_names[edge_node]
+    assert reason(moved) == f'face-edge nodes outside both images ({name})'
     assert reason(nodes, rms=8.0) == ''
     assert reason(nodes, rms=8.5) == 'patch residual / contrast 0.85 exceeds 0.8'
     assert reason(nodes, image_contrast=3.0) == ''

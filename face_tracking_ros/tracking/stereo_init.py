@@ -532,8 +532,9 @@ def check_in_view(initial: InitialNodes, topology: MeshTopology, rig: StereoRig)
     problem = view_problem(initial.nodes, rig, topology)
     if problem:
         msg = (
-            f'{problem}: the eyes, nose, mouth and brows must be inside both images; move the '
-            'face towards the middle of the frame (or the rig away from it)'
+            f'{problem}: the eyes, nose, mouth and brows must be inside both images and the '
+            "face's edge inside one at least; move the face towards the middle of the frame (or "
+            'the rig away from it)'
         )
         raise InputError(msg)
 

@@ -30,7 +30,7 @@ from face_tracking_ros.tracking.stereo_data import GroupStatistics
 
 
 def view_problem(nodes: np.ndarray, rig: StereoRig, topology: MeshTopology) -> str:
-    """What keeps the cameras from seeing the face's nodes ('' if nothing does).
+    """What keeps the cameras from seeing the face's nodes, naming them ('' if nothing does).
 
     Every inner node (eyes, nose, mouth, brows) must project inside both images: its depth is
     measured between them. A face-edge node needs one of them only: its depth comes from the
@@ -50,13 +50,15 @@ def view_problem(nodes: np.ndarray, rig: StereoRig, topology: MeshTopology) -> s
     shape = (rig.left.height, rig.left.width)
     edge = topology.group_mask(Group.EDGE)
     seen = [inside_image(camera.project(nodes), shape) for camera in (rig.left, rig.right)]
-    for name, inside in zip(('left', 'right'), seen, strict=True):
-        missing = np.flatnonzero(~inside & ~edge)
-        if missing.size:
-            names = ', '.join(topology.node_names[i] for i in missing)
-            return f'inner nodes outside the {name} image ({names})'
-    if not np.all(seen[0] | seen[1]):
-        return 'a face-edge node outside both images'
+    missing = [
+        (f'inner nodes outside the {name} image', ~inside & ~edge)
+        for name, inside in zip(('left', 'right'), seen, strict=True)
+    ]
+    missing.append(('face-edge nodes outside both images', ~(seen[0] | seen[1])))
+    for problem, mask in missing:
+        if mask.any():
+            names = ', '.join(topology.node_names[i] for i in np.flatnonzero(mask))
+            return f'{problem} ({names})'
     return ''
 
 
