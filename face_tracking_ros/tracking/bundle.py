@@ -107,9 +107,9 @@ class BundleConfig:
             tracker's ``prior_weight`` (> 0): neighbouring ROI samples are far from independent,
             so the photometric term overstates its evidence by about an order of magnitude.
         max_change: an adjustment that turns frame 1 or the newest view by more than this, or
-            moves the newest view's nodes in its image by more than such a turn would, is not
-            applied, rad (> 0): the views did not agree (an occlusion, a fast motion, the
-            ambiguous pose of a small face).
+            moves the newest view's nodes in its image by more than such a turn would (and
+            2 px), is not applied, rad (> 0): the views did not agree (an occlusion, a fast
+            motion, the ambiguous pose of a small face).
         stages_per_frame: how many stages of an adjustment (setting it up, each iteration,
             each pyramid level's new ROIs) run per frame (>= 0), after the frame's result; the
             track continues from it after the frame its last stage ran on, the head's motion

@@ -43,6 +43,10 @@ from face_tracking_ros.tracking.mono_projection import FaceProjection
 from face_tracking_ros.tracking.mono_rois import Params, Roi, RoiLayout
 from face_tracking_ros.tracking.stages import Stages, run_stages
 
+# px: an adjustment may move the newest view's nodes this far in its image whatever their spread
+# (within the track's own error); max_change x the spread of a face 45 px wide allowed 1.35 px.
+MIN_ALLOWED_SHIFT_PX = 2.0
+
 
 class View(NamedTuple):
     """A frame kept for the bundle adjustment (:mod:`.bundle`).
@@ -218,13 +222,14 @@ class ViewAdjuster:
         one pyramid level at a time. An adjustment that lowers the bundle cost, turns frame 1 and
         its newest view by less than ``bundle.max_change`` and moves the newest view's nodes in
         its image by less than that turn would (``max_change`` times their spread about their
-        mean, :meth:`_image_spread`) returns what replaces sigma, the skin depth and frame 1's
-        estimate (and its templates); otherwise None, and the track goes on as it was. Either
-        way its views stay views, so the next adjustment has more views to agree with and waits
-        for the head to reach a new rotation. (Dropping a rejected view instead retried at once
-        on the next frame: on the mono protocol's 19-node seed 1 all eight adjustments then ran
-        on consecutive frames with two views each, every one rejected, and the track kept the
-        clicks' pose, 6.8 degrees of pitch error against 2.7.)
+        mean, :meth:`_image_spread`, or :data:`MIN_ALLOWED_SHIFT_PX` if more) returns what
+        replaces sigma, the skin depth and frame 1's estimate (and its templates); otherwise
+        None, and the track goes on as it was. Either way its views stay views, so the next
+        adjustment has more views to agree with and waits for the head to reach a new rotation.
+        (Dropping a rejected view instead retried at once on the next frame: on the mono
+        protocol's 19-node seed 1 all eight adjustments then ran on consecutive frames with two
+        views each, every one rejected, and the track kept the clicks' pose, 6.8 degrees of pitch
+        error against 2.7.)
 
         The track goes on from the newest view, so its move is bounded in the image too: on a
         small face (60-70 px from temple to temple, rendered at 1.2 m) with the 19-node mesh, an
@@ -232,6 +237,10 @@ class ViewAdjuster:
         6-12, with a sigma that moved the newest view's nodes 6.0 px (its spread: 25 px); applied,
         the track went on 6-7 px off the face for 45 frames, TRACKING (now 0.6-1.5 px). On the
         protocol's sequences the adjustments applied move it 0.1-2.5 px, a spread of 40-50 px.
+        The bound is never below :data:`MIN_ALLOWED_SHIFT_PX`: on a face 45 px wide (a spread of
+        13.5 px) an adjustment moving it 1.41 px was refused, the identity stayed wrong, every
+        later adjustment moved it further and was refused too, and the track went on up to
+        3.3 px off (2.3 px with the bound).
         """
         kept = list(views.views)
         poses = [(v.params.omega, v.params.t, v.params.alpha) for v in kept]
@@ -258,7 +267,7 @@ class ViewAdjuster:
         if not (
             adjustment.cost < adjustment.initial_cost
             and moved < max_change
-            and shifted < max_change * self._image_spread(newest)
+            and shifted < max(max_change * self._image_spread(newest), MIN_ALLOWED_SHIFT_PX)
         ):
             return None
         yield
