@@ -226,8 +226,8 @@ def test_frames_a_tracker_did_not_track_are_left_out(tmp_path, world, capsys):
         assert f'{bags[0]}: 6 frames the tracker did not track' in capsys.readouterr().out
         report = json.loads((tmp_path / 'r.json').read_text())
         assert report['frames'] == 4 * (len(status) - 6)
-    # The stereo tracker publishes no mesh while it looks for a lost face: the frames its
-    # face/state says untracked are counted all the same (until 2026-12-06, 0 of 6 here).
+    # A tracker publishes no mesh while INITIALIZING: the frames its face/state says
+    # untracked are counted all the same (until 2026-12-06, 0 of 6 here).
     untracked = {START_NS + f * 33_000_000 for f in np.flatnonzero(status != 1)}
     sparse = tmp_path / 'sparse'
     with BagWriter(sparse) as writer:

@@ -275,8 +275,8 @@ def _tracked_frames(
                 raise BagError(msg)
         subject = sample.subject_id if sample else subject_of(name, options)
         frames.append(_Frame(subject, index, nodes, sample))
-    # Beside a face/state, every frame it says untracked, with a mesh or not: the stereo
-    # tracker publishes none while it looks for a lost face (59 of 60 frames read as 1).
+    # Beside a face/state, every frame it says untracked, with a mesh or not: a tracker
+    # publishes none while INITIALIZING (before its first fit, or after a reset).
     return frames, len(untracked) or skipped
 
 

@@ -235,6 +235,7 @@ class StereoTracker:
         self._detect = False
         self._state: _State | None = None
         self._lost: _State | None = None  # a lost track's, re-acquired without a detector
+        self._lost_result: StereoResult | None = None  # its last tracked pair's, kept while LOST
         self._status = TrackStatus.INITIALIZING
         self._reason = 'not initialised: call reset() with the initial node positions'
 
@@ -281,7 +282,7 @@ class StereoTracker:
             msg = 'reset() without node positions needs a landmark detector'
             raise ConfigError(msg)
         pending = None if init is None else self._left_px(init)
-        self._state = self._lost = None
+        self._state = self._lost = self._lost_result = None
         self._right_gain = 1.0  # the initialisation measures them afresh, on the raw images
         self._use_rig(self._calibrated_rig)
         self._status = TrackStatus.INITIALIZING
@@ -974,7 +975,7 @@ class StereoTracker:
         self._state, previous = None, self._state
         assert previous is not None
         self._lost = None if self._detect else previous  # re-acquired (_reacquire)
-        last = previous.result
+        last = self._lost_result = previous.result
         return StereoResult(
             status=TrackStatus.LOST,
             nodes_cam=last.nodes_cam,
@@ -989,9 +990,15 @@ class StereoTracker:
         )
 
     def _not_tracking(self, status: TrackStatus, reason: str) -> StereoResult:
-        """A result without a new estimate (the last valid nodes if any, else NaN)."""
+        """A result without a new estimate: the last valid nodes if any, else NaN.
+
+        The last valid nodes are the track's, or while LOST the lost track's last tracked pair's
+        (``face/state`` says LOST with the last valid estimate, as the mono tracker's does).
+        """
         n = self._topology.num_nodes
         last = None if self._state is None else self._state.result
+        if last is None and status == TrackStatus.LOST:
+            last = self._lost_result
         nan = np.full((n, 3), np.nan)
         return StereoResult(
             status=status,
