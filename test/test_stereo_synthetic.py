@@ -214,6 +214,41 @@ def test_a_face_edge_both_images_cut_off_is_named(scene) -> None:
     )
 
 
+def test_a_track_lost_to_an_occluder_is_found_again_after_it() -> None:
+    """An occluder passes over the face: the track is lost, then re-acquired, not LOST to the end.
+
+    Subject 0 of the synthetic world at 320x240 (focal 300 px), 60 pairs at 30 fps, exact
+    clicks. The pairs before the loss had the occluder over part of the face under the loss
+    check's median, so the last tracked pair's templates and face view show it; re-acquiring
+    from them alone, the track stayed LOST from pair 27 to the end (26 pairs). Now re-acquired
+    from frame 1 on pair 29, 2.1 px off at most. (The still passing occluder then drags the
+    mouth and chin nodes 12-14 px, median 1.1-1.4 px: another matter.)
+    """
+    config = SceneConfig(
+        kind='stereo',
+        frames=60,
+        fps=30.0,
+        seed=0,
+        occlusion=True,
+        width=320,
+        height=240,
+        focal=300.0,
+    )
+    renderer = SequenceRenderer(config, 0)
+    rig = StereoRig(renderer.cameras['left'], renderer.cameras['right'])
+    frames = list(renderer.frames(0))
+    truth = np.array([frame.truth.nodes_camera for frame in frames])
+    pairs = [(frame.images['left'], frame.images['right']) for frame in frames]
+    tracker = StereoTracker(rig, StereoTrackerConfig(refine_depths=True))
+    run = track_sequence(tracker, pairs, rig.left.project(truth[0]))
+    lost = np.flatnonzero(run.status != TrackStatus.TRACKING)
+    assert 1 <= lost.size <= 5  # measured 3 (pairs 25, 27, 28); 26 before
+    found = lost[-1] + 1
+    assert found < 40
+    error = rig.left.project(run.meshes[found]) - rig.left.project(truth[found])
+    assert np.linalg.norm(error, axis=1).max() < 3.0  # px; measured 2.1
+
+
 def test_model_fit_gives_the_head_pose(scene) -> None:
     rig, pairs, truth, truths, renderer = scene
     model = truth_model(renderer.population)
