@@ -115,7 +115,9 @@ def register(parser: argparse.ArgumentParser) -> None:
         '--distortion',
         type=_coefficients,
         default=(),
-        help='plumb_bob k1,k2,p1,p2,k3 of the cameras (raw images; default none)',
+        metavar='K1,K2,P1,P2,K3',
+        help='plumb_bob coefficients of the cameras (raw images; default none); with a '
+        'negative k1 write --distortion=-0.3,0.1,0,0,0 (argparse reads -0.3,... as an option)',
     )
     parser.add_argument(
         '--toe-in',
