@@ -634,6 +634,9 @@ class StereoTracker:
         had gone, the face view correlated best 150 px off the face, and even solved from the
         true nodes the residual against those templates stayed at 0.66-0.91 of their contrast,
         above ``gap_lost_ratio``: the track stayed LOST to the end (48 of 90 pairs).
+
+        A pair not found again is LOST with the reason the track was lost and the last
+        attempt's (the mono tracker gives each lost image's own reason too).
         """
         state = self._lost
         assert state is not None
@@ -642,7 +645,8 @@ class StereoTracker:
             state = self._from_first_pair(state)
             attempt = self._attempt(state, pyramids, self._searched(state, pyramids), state.nodes)
         if attempt.problem:
-            return self._not_tracking(TrackStatus.LOST, self._reason)
+            reason = f'{self._reason}; not found again: {attempt.problem}'
+            return self._not_tracking(TrackStatus.LOST, reason)
         self._state, self._lost = state, None
         return self._advance(state, pyramids, attempt)
 
