@@ -1226,6 +1226,18 @@ def test_loss_reason_names_each_check_by_hand() -> None:
         moved = nodes.copy()
         moved[index] = side
         assert reason(moved) == expected
+    # While tracking, a node counts as seen while its patch (half size 3) reaches into the
+    # image: an inner node 2.5 px beyond the right image's side is, 3.5 px beyond is not.
+    for beyond, expected in (
+        (2.5, ''),
+        (3.5, f'inner nodes outside the right image ({topology.node_names[inner_node]})'),
+    ):
+        moved = nodes.copy()
+        moved[inner_node] = [(110.0 - beyond - 319.5) * 0.6 / 600.0, 0.0, 0.6]
+        assert RIG.right.project(moved[inner_node : inner_node + 1])[0, 0] == pytest.approx(
+            -beyond
+        )
+        assert reason(moved) == expected
     moved = nodes.copy()
     moved[edge_node] = [0.0, -0.5, 0.6]  # above both images
     name = topology.node_names[edge_node]
