@@ -99,7 +99,9 @@ class StereoTrackerConfig:
             0 disables the texture term. It covers the triangles that have a face-edge node
             (none in the 19-node mesh).
         texture_subdivisions: barycentric grid order of the texture samples (3 to 16).
-        patch_half_size: node patches are (2 h + 1)^2 samples about one pixel apart (1 to 15).
+        patch_half_size: node patches are (2 h + 1)^2 samples about one pixel apart (1 to 15);
+            while tracking, a node counts as seen by an image until its patch leaves it (its
+            centre h px beyond the side).
         pyramid_levels: coarse-to-fine levels (1 = full resolution only; the coarsest at least
             16 px).
         gap_pyramid_levels: coarse-to-fine levels of a pair after dropped pairs or bad frames
