@@ -222,7 +222,7 @@ class ViewAdjuster:
         one pyramid level at a time. An adjustment that lowers the bundle cost, turns frame 1 and
         its newest view by less than ``bundle.max_change`` and moves the newest view's nodes in
         its image by less than that turn would (``max_change`` times their spread about their
-        mean, :meth:`_image_spread`, or :data:`MIN_ALLOWED_SHIFT_PX` if more) returns what
+        mean, :meth:`_image_move`, or :data:`MIN_ALLOWED_SHIFT_PX` if more) returns what
         replaces sigma, the skin depth and frame 1's estimate (and its templates); otherwise
         None, and the track goes on as it was. Either way its views stay views, so the next
         adjustment has more views to agree with and waits for the head to reach a new rotation.
@@ -263,11 +263,11 @@ class ViewAdjuster:
             rotation_angle(poses[0][0], estimate.first[0]),
             rotation_angle(poses[-1][0], estimate.views[-1][0]),
         )
-        shifted = self._image_shift(newest, Params(*estimate.views[-1], estimate.sigma))
+        shifted, spread = self._image_move(newest, Params(*estimate.views[-1], estimate.sigma))
         if not (
             adjustment.cost < adjustment.initial_cost
             and moved < max_change
-            and shifted < max(max_change * self._image_spread(newest), MIN_ALLOWED_SHIFT_PX)
+            and shifted < max(max_change * spread, MIN_ALLOWED_SHIFT_PX)
         ):
             return None
         yield
@@ -356,18 +356,15 @@ class ViewAdjuster:
         ]
         return carried_views, now
 
-    def _image_shift(self, before: Params, after: Params) -> float:
-        """RMS move of the nodes' pixels from ``before`` to ``after``, px."""
-        moves = self._face.nodes(after)[1] - self._face.nodes(before)[1]
-        return float(np.sqrt(np.mean(np.sum(moves**2, axis=1))))
+    def _image_move(self, before: Params, after: Params) -> tuple[float, float]:
+        """The nodes' pixels: their RMS move from ``before`` to ``after``, and their spread, px.
 
-    def _image_spread(self, params: Params) -> float:
-        """RMS distance of the nodes' pixels at ``params`` from their mean, px.
-
-        A turn of the face by a small angle a moves its nodes in the image by about a times this.
+        The spread is their RMS distance from their mean at ``before``: a turn of the face by a
+        small angle a moves its nodes in the image by about a times it.
         """
-        pixels = self._face.nodes(params)[1]
-        return float(np.sqrt(np.mean(np.sum((pixels - pixels.mean(axis=0)) ** 2, axis=1))))
+        pixels = self._face.nodes(before)[1]
+        moves = self._face.nodes(after)[1] - pixels
+        return _rms_length(moves), _rms_length(pixels - pixels.mean(axis=0))
 
     def _node_distance(self, params: Params) -> float:
         """Mean distance of the nodes from the camera centre at ``params``, m."""
@@ -394,3 +391,8 @@ def carried(current: Params, before: Params, after: Params, scale: float) -> Par
         alpha=current.alpha + after.alpha - before.alpha,
         sigma=after.sigma,
     )
+
+
+def _rms_length(vectors: np.ndarray) -> float:
+    """Root mean square length of (N, 2) vectors."""
+    return float(np.sqrt(np.mean(np.sum(vectors**2, axis=1))))
