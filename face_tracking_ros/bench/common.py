@@ -47,6 +47,11 @@ def jpeg_compressed(image: np.ndarray, quality: int) -> np.ndarray:
     return cv2.imdecode(encoded, cv2.IMREAD_UNCHANGED)
 
 
+def last_lines(text: str, count: int) -> str:
+    """The last ``count`` lines of ``text`` (a failed process's output), joined by ' | '."""
+    return ' | '.join(text.strip().splitlines()[-count:])
+
+
 def skipped(reason: str) -> dict[str, str]:
     """The JSON entry of a benchmark piece that cannot run yet, with why."""
     return {'skipped': reason}

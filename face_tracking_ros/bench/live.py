@@ -27,7 +27,7 @@ from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 
-from face_tracking_ros.bench.common import dds_env, pin_to_core, proc_status_mb
+from face_tracking_ros.bench.common import dds_env, last_lines, pin_to_core, proc_status_mb
 from face_tracking_ros.bench.world import model_file, render_sequence, scene_config
 from face_tracking_ros.errors import ConfigError
 from face_tracking_ros.geometry.camera import PinholeCamera
@@ -112,7 +112,7 @@ class NodeProcess:
 
     def tail(self, lines: int = 5) -> str:
         """The last lines of its log (for error reports)."""
-        return ' | '.join(self.log.read_text(errors='replace').splitlines()[-lines:])
+        return last_lines(self.log.read_text(errors='replace'), lines)
 
 
 @dataclass(frozen=True)

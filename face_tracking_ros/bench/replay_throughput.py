@@ -26,7 +26,7 @@ import sys
 import time
 from typing import Any
 
-from face_tracking_ros.bench.common import BenchOptions
+from face_tracking_ros.bench.common import BenchOptions, last_lines
 from face_tracking_ros.bench.world import model_file, recorded_bag, scene_config
 from face_tracking_ros.processing.parameters import OverrideParameters
 from face_tracking_ros.processing.registry import processor_factory
@@ -97,7 +97,7 @@ def _command_seconds(node: str, bag: Path, out: Path, params: list[str]) -> floa
     child = subprocess.run(command, capture_output=True, text=True, check=False)
     seconds = time.perf_counter() - start
     if child.returncode != 0:
-        tail = ' | '.join(child.stderr.strip().splitlines()[-FAILURE_LINES:])
+        tail = last_lines(child.stderr, FAILURE_LINES)
         msg = f'face-tracking replay {node} exited with status {child.returncode}: {tail}'
         raise RuntimeError(msg)
     return seconds

@@ -24,7 +24,7 @@ import sys
 import time
 from typing import Any
 
-from face_tracking_ros.bench.common import BenchOptions, dds_env, pin_to_core
+from face_tracking_ros.bench.common import BenchOptions, dds_env, last_lines, pin_to_core
 from face_tracking_ros.errors import ConfigError
 from face_tracking_ros.io.atomic import write_json_atomically
 from face_tracking_ros.wording import listed
@@ -112,8 +112,8 @@ def _run_child(name: str, options: BenchOptions) -> dict[str, Any]:
     except subprocess.TimeoutExpired:
         return {'failed': f'timed out after {timeout:g} s'}
     if child.returncode != 0 or not part.is_file():
-        tail = child.stderr.strip().splitlines()[-FAILURE_LINES:]
-        return {'failed': f'exit status {child.returncode}: ' + ' | '.join(tail)}
+        tail = last_lines(child.stderr, FAILURE_LINES)
+        return {'failed': f'exit status {child.returncode}: {tail}'}
     return json.loads(part.read_text())
 
 
