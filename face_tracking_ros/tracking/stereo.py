@@ -88,6 +88,12 @@ from face_tracking_ros.tracking.stereo_init import (
     initial_nodes,
 )
 from face_tracking_ros.tracking.stereo_loss import loss_reason
+from face_tracking_ros.tracking.stereo_occlusion import (
+    covered_nodes,
+    held_nodes,
+    kept_templates,
+    stereo_disagreement,
+)
 from face_tracking_ros.tracking.stereo_result import StereoResult, TrackedSequence, split_tracks
 from face_tracking_ros.tracking.stereo_solve import Level, LevelSolver, PairEnergy, Point
 from face_tracking_ros.tracking.stereo_templates import (
@@ -226,6 +232,9 @@ class StereoTracker:
         self._topology: MeshTopology = mesh_topology(config.num_nodes)
         self._template_samples = TemplateSamples(config, self._topology)
         self._boundary = self._topology.group_mask(Group.EDGE)
+        # The nodes checked for an occluder: not the face edge's nor the nose's (their patches
+        # are seen from the two cameras differently without one, :mod:`.stereo_occlusion`).
+        self._occludable = ~self._topology.group_mask(Group.EDGE, Group.NOSE)
         self._alignment_weights = self._topology.alignment_weights()  # of the head's rotation
         self._fit_weights = np.where(self._boundary, config.fit_edge_weight, 1.0)
         self._use_rig(rig)
@@ -818,21 +827,35 @@ class StereoTracker:
     def _advance(
         self, state: _State, pyramids: tuple[ImagePyramid, ImagePyramid], attempt: _Attempt
     ) -> StereoResult:
-        """Take this pair's solved nodes into the state: noise, rotation, depths, templates."""
+        """Take this pair's solved nodes into the state: noise, rotation, depths, templates.
+
+        Nodes an occluder covers (their left and right patches disagree, ``occlusion_ratio``)
+        are moved with the head's rigid motion instead, keep their templates and add nothing to
+        the frame-1 depths (:mod:`.stereo_occlusion`).
+        """
         config = self._config
         nodes, statistics, solves = attempt.nodes, attempt.statistics, attempt.solves
         assert statistics is not None
+        covered = self._covered(state, attempt)
+        if covered.any():
+            nodes = held_nodes(state.nodes, nodes, covered, self._alignment_weights)
         state.theta = solves.theta  # the face-model term's fit, moved on by the solve
         state.noise = np.array([max(config.noise_floor, nanmedian(rms)) for rms in statistics.rms])
         state.rotation = self._rotation(state.first_nodes, nodes)
         if state.depths is not None:
-            nodes = self._refine_depths(state, pyramids, nodes, statistics.rms[0][LEFT])
+            unknown = np.where(covered, np.nan, statistics.rms[0][LEFT])  # no covered evidence
+            nodes = self._refine_depths(state, pyramids, nodes, unknown)
         state.before, state.nodes, state.previous_pyramids = state.nodes, nodes, pyramids
         state.span, state.elapsed = state.elapsed, 0
         state.offsets = state.samples.level_offsets(state.rotation, 0)
         field = patch_field(state.deformation, nodes, state.first_nodes, state.rotation)
-        state.previous_templates = templates(
+        sampled = templates(
             pyramids, self._projections, state.samples, nodes, state.offsets, field
+        )
+        state.previous_templates = (
+            kept_templates(state.previous_templates, sampled, covered, state.samples)
+            if covered.any()
+            else sampled
         )
         result = self._result(
             nodes,
@@ -845,6 +868,23 @@ class StereoTracker:
         )
         state.result = result
         return result
+
+    def _covered(self, state: _State, attempt: _Attempt) -> np.ndarray:
+        """(N,) bool, the nodes an occluder covers on this pair (``occlusion_ratio``).
+
+        Read from the left and right images at level 0's last accepted point of the solve
+        (:func:`~.stereo_occlusion.stereo_disagreement`); none when the check is off.
+        """
+        ratio = self._config.occlusion_ratio
+        if ratio == 0:
+            return np.zeros(self._topology.num_nodes, dtype=bool)
+        assert attempt.statistics is not None
+        disagreement = stereo_disagreement(
+            state.samples,
+            attempt.solves.levels[-1][1].sampled,
+            attempt.statistics.image_contrast[LEFT],
+        )
+        return covered_nodes(disagreement, self._occludable, ratio)
 
     def _rotation(self, first_nodes: np.ndarray, nodes: np.ndarray) -> np.ndarray:
         """The head's rotation since frame 1 (weighted Procrustes of the nodes, §3.3)."""

@@ -566,6 +566,36 @@ def group_summaries(
     return rms, contrast, image_contrast
 
 
+@numba.njit('f8[::1](f4[:, :], b1[:, ::1], i8, i8)', **EXACT)
+def stereo_contrast(
+    values: np.ndarray, valid: np.ndarray, groups: int, members: int
+) -> np.ndarray:
+    """(G,) RMS of the left - right difference of each of the first G groups about its mean.
+
+    Over the samples valid in both images (NaN for a group without any), as
+    :func:`~.stereo_data.group_contrast` of the float32 differences, for
+    :func:`~.stereo_occlusion.stereo_disagreement`.
+
+    Args:
+        values: (2, S) float32 grey levels of the left and right images (any strides).
+        valid: (2, S) the samples in use.
+        groups: G, the groups of M consecutive samples from sample 0 (the node patches).
+        members: M.
+    """
+    size = groups * members
+    difference = np.empty(size, dtype=np.float32)
+    both = np.empty(size, dtype=np.bool_)
+    for s in range(size):
+        difference[s] = values[0, s] - values[1, s]
+        both[s] = valid[0, s] and valid[1, s]
+    masked = np.empty(members, dtype=np.float32)
+    centred = np.empty(members)
+    contrast = np.empty(groups)
+    for g in range(groups):
+        contrast[g] = _contrast(difference, both, g * members, members, masked, centred)
+    return contrast
+
+
 @numba.njit(
     'void(f8[:, :], f8[:, :], f8[:, ::1], f8, i8[:, ::1], f8[:, ::1], i8, f8[:, ::1])', **EXACT
 )

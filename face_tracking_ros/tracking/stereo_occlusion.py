@@ -1,0 +1,100 @@
+"""Node patches an object in front of the face covers, and how the stereo track holds them (§3.3).
+
+The templates of eq. 4 at frame n - 1 are the last pair's, sampled at its nodes. Once an
+occluder (a hand, a mug) lies over part of a node patch, that part becomes the next pair's
+template, and the node matches the occluder as it moves on: rendered occluders 15 cm in front
+of the face dragged the covered mouth nodes 27-88 px (640x480) while the track stayed TRACKING.
+
+The occluder is not at the face's depth, so at a covered node the left and right images show
+different things: at the solved nodes the left-right ZSSD difference of each node patch
+(:func:`stereo_disagreement`, its RMS over the left patch's contrast) read 0.6-1.8 where the
+left image showed a rendered occluder over the node, and 0.1-0.6 on the eye, brow and mouth
+patches of the unoccluded sequences measured (docs/performance.md, 2026-12-06 thirty-third
+session). The face-edge patches read up to 2.7 without one (their one-sided patches see the face
+turn away differently from each camera) and the nose's up to 1.1 (each camera sees its own side
+of the nose, most when the mouth puckers): they are not checked.
+
+A node whose patch disagrees beyond ``occlusion_ratio`` is taken as covered on that pair
+(:func:`covered_nodes`): it is moved from the last pair's position as the head moved, the
+weighted rigid motion of the others (:func:`held_nodes`), and its patch keeps the templates of
+the last pair that saw it (:func:`kept_templates`), so the occluder never enters them and the
+node matches the face again once the occluder has gone.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from face_tracking_ros.geometry.procrustes import rigid_align
+from face_tracking_ros.tracking.stereo_data import Sampled, SampleSet
+from face_tracking_ros.tracking.stereo_kernels import stereo_contrast
+
+# Fewest nodes left uncovered for the others to be held to their rigid motion: a rendered
+# occluder covered up to 23 of the 34 nodes (their patches in either image).
+MIN_UNCOVERED_NODES = 8
+
+
+def stereo_disagreement(
+    samples: SampleSet, sampled: Sampled, left_contrast: np.ndarray
+) -> np.ndarray:
+    """(N,) RMS of each node patch's left - right difference (ZSSD) over its left contrast.
+
+    Args:
+        samples: the sample set (node patches first).
+        sampled: the left and right images sampled at its points (level 0), as a solve's last
+            accepted point has them.
+        left_contrast: (N,) the contrast of each node patch in that left image
+            (:attr:`~.stereo_data.GroupStatistics.image_contrast`).
+
+    Returns:
+        The ratio per node patch, NaN where the patch has no sample valid in both images.
+    """
+    members = int(samples.group_sizes[0])
+    difference = stereo_contrast(sampled.values, sampled.valid, left_contrast.size, members)
+    with np.errstate(invalid='ignore', divide='ignore'):
+        return difference / left_contrast
+
+
+def covered_nodes(disagreement: np.ndarray, checked: np.ndarray, ratio: float) -> np.ndarray:
+    """(N,) bool, the checked nodes whose patches disagree beyond ``ratio`` (NaN: not covered).
+
+    None when fewer than :data:`MIN_UNCOVERED_NODES` would be left to hold them.
+    """
+    covered = checked & (disagreement > ratio)
+    if covered.size - np.count_nonzero(covered) < MIN_UNCOVERED_NODES:
+        covered[:] = False
+    return covered
+
+
+def held_nodes(
+    previous: np.ndarray, nodes: np.ndarray, covered: np.ndarray, weights: np.ndarray
+) -> np.ndarray:
+    """``nodes`` with the covered ones moved from ``previous`` as the others moved, rigidly.
+
+    Args:
+        previous: (N, 3) the last pair's nodes, m.
+        nodes: (N, 3) this pair's solved nodes, m.
+        covered: (N,) bool, the nodes to hold.
+        weights: (N,) the Procrustes weights of the head's motion (§3.3).
+    """
+    moved = rigid_align(previous, nodes, np.where(covered, 0.0, weights)).aligned
+    return np.where(covered[:, None], moved, nodes)
+
+
+def kept_templates(
+    last: tuple[np.ndarray, ...],
+    sampled: tuple[np.ndarray, ...],
+    covered: np.ndarray,
+    samples: SampleSet,
+) -> tuple[np.ndarray, ...]:
+    """The new templates of every level, the covered node patches' kept from the last ones.
+
+    Args:
+        last: per level, (2, S) the templates the pair was solved against.
+        sampled: per level, (2, S) the templates sampled on this pair.
+        covered: (N,) bool, the nodes whose patches keep their last templates.
+        samples: the sample set (node patches first).
+    """
+    kept = np.zeros(samples.size, dtype=bool)
+    kept[: samples.bounds[1]] = np.repeat(covered, samples.group_sizes[0])
+    return tuple(np.where(kept, old, new) for old, new in zip(last, sampled, strict=True))

@@ -1,0 +1,35 @@
+"""The stereo tracker's occlusion check and hold (:mod:`.stereo_occlusion`), on made-up nodes."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from face_tracking_ros.geometry.rotation import rodrigues
+from face_tracking_ros.tracking.stereo_occlusion import (
+    MIN_UNCOVERED_NODES,
+    covered_nodes,
+    held_nodes,
+)
+
+
+def test_covered_nodes_move_as_the_others_moved_rigidly() -> None:
+    rng = np.random.default_rng(0)
+    previous = rng.normal([0.0, 0.0, 0.6], 0.05, (12, 3))
+    turn, _ = rodrigues(np.array([0.02, -0.05, 0.01]))
+    moved = previous @ turn.T + [0.004, -0.002, 0.01]
+    solved = moved.copy()
+    covered = np.zeros(12, dtype=bool)
+    covered[[2, 7]] = True
+    solved[covered] += 0.02  # dragged by an occluder
+    held = held_nodes(previous, solved, covered, np.ones(12))
+    np.testing.assert_allclose(held, moved, atol=1e-12)
+
+
+def test_a_patch_is_covered_beyond_the_ratio_unless_too_few_nodes_are_left() -> None:
+    checked = np.ones(12, dtype=bool)
+    checked[0] = False
+    disagreement = np.full(12, 0.3)
+    disagreement[[0, 1, 2]] = [1.5, 0.9, np.nan]
+    np.testing.assert_array_equal(np.flatnonzero(covered_nodes(disagreement, checked, 0.7)), [1])
+    disagreement[: 12 - MIN_UNCOVERED_NODES + 1] = 1.0
+    assert not covered_nodes(disagreement, np.ones(12, dtype=bool), 0.7).any()
