@@ -27,9 +27,12 @@ def test_covered_nodes_move_as_the_others_moved_rigidly() -> None:
 
 def test_a_patch_is_covered_beyond_the_ratio_unless_too_few_nodes_are_left() -> None:
     checked = np.ones(12, dtype=bool)
-    checked[0] = False
+    checked[[0, 3]] = False  # say, face-edge nodes
+    edges = np.array([[0, 1], [1, 2], [3, 4], [4, 5]])
     disagreement = np.full(12, 0.3)
-    disagreement[[0, 1, 2]] = [1.5, 0.9, np.nan]
-    np.testing.assert_array_equal(np.flatnonzero(covered_nodes(disagreement, checked, 0.7)), [1])
+    disagreement[[0, 1, 2, 3]] = [1.5, 0.9, np.nan, 1.5]
+    covered = covered_nodes(disagreement, checked, 0.7, edges)
+    # node 0: unchecked, next to covered node 1, beyond twice the ratio; node 3: no neighbour
+    np.testing.assert_array_equal(np.flatnonzero(covered), [0, 1])
     disagreement[: 12 - MIN_UNCOVERED_NODES + 1] = 1.0
-    assert not covered_nodes(disagreement, np.ones(12, dtype=bool), 0.7).any()
+    assert not covered_nodes(disagreement, np.ones(12, dtype=bool), 0.7, edges).any()

@@ -884,7 +884,7 @@ class StereoTracker:
             attempt.solves.levels[-1][1].sampled,
             attempt.statistics.image_contrast[LEFT],
         )
-        return covered_nodes(disagreement, self._occludable, ratio)
+        return covered_nodes(disagreement, self._occludable, ratio, self._topology.edges)
 
     def _rotation(self, first_nodes: np.ndarray, nodes: np.ndarray) -> np.ndarray:
         """The head's rotation since frame 1 (weighted Procrustes of the nodes, §3.3)."""
