@@ -232,8 +232,8 @@ class StereoTracker:
         self._topology: MeshTopology = mesh_topology(config.num_nodes)
         self._template_samples = TemplateSamples(config, self._topology)
         self._boundary = self._topology.group_mask(Group.EDGE)
-        # The nodes checked for an occluder: not the face edge's nor the nose's (their patches
-        # are seen from the two cameras differently without one, :mod:`.stereo_occlusion`).
+        # The nodes whose own patches tell an occluder: not the face edge's nor the nose's (the
+        # two cameras see those differently without one, :mod:`.stereo_occlusion`).
         self._occludable = ~self._topology.group_mask(Group.EDGE, Group.NOSE)
         self._alignment_weights = self._topology.alignment_weights()  # of the head's rotation
         self._fit_weights = np.where(self._boundary, config.fit_edge_weight, 1.0)

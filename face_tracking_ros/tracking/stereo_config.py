@@ -158,10 +158,10 @@ class StereoTrackerConfig:
             the solved nodes (the RMS of their ZSSD difference over the left patch's contrast)
             is taken as covered by something in front of the face: it moves with the head's
             rigid motion and keeps its templates until they agree again
-            (:mod:`.stereo_occlusion`); the face-edge and nose nodes are not checked (each
-            camera sees them differently without an occluder). Unoccluded rendered sequences
-            read 0.1-0.6 on the other nodes, nodes under a passing occluder 0.6-1.8. 0 turns
-            the check off.
+            (:mod:`.stereo_occlusion`). The face-edge and nose nodes, which each camera sees
+            differently without an occluder, are covered only next to a covered node and
+            beyond twice this. Unoccluded rendered sequences read 0.1-0.7 on the other nodes,
+            nodes under a passing occluder 0.6-1.8. 0 turns the check off.
         min_texture_ratio: the track is LOST when the median over node patches of their
             contrast in the image divided by the template's (about 1 while the face is seen)
             falls below this: a dark, blank or saturated image, which the residual test passes

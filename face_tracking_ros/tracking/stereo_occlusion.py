@@ -8,11 +8,11 @@ of the face dragged the covered mouth nodes 27-88 px (640x480) while the track s
 The occluder is not at the face's depth, so at a covered node the left and right images show
 different things: at the solved nodes the left-right ZSSD difference of each node patch
 (:func:`stereo_disagreement`, its RMS over the left patch's contrast) read 0.6-1.8 where the
-left image showed a rendered occluder over the node, and 0.1-0.6 on the eye, brow and mouth
+left image showed a rendered occluder over the node, and 0.1-0.7 on the eye, brow and mouth
 patches of the unoccluded sequences measured (docs/performance.md, 2026-12-06 thirty-third
 session). The face-edge patches read up to 2.7 without one (their one-sided patches see the face
 turn away differently from each camera) and the nose's up to 1.1 (each camera sees its own side
-of the nose, most when the mouth puckers): they are not checked.
+of the nose, most when the mouth puckers): they count as covered only next to a covered node.
 
 A node whose patch disagrees beyond ``occlusion_ratio`` is taken as covered on that pair
 (:func:`covered_nodes`): it is moved from the last pair's position as the head moved, the
