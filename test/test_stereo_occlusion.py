@@ -7,6 +7,7 @@ import numpy as np
 from face_tracking_ros.geometry.rotation import rodrigues
 from face_tracking_ros.tracking.stereo_occlusion import (
     MIN_UNCOVERED_NODES,
+    agreeing,
     covered_nodes,
     held_nodes,
 )
@@ -31,8 +32,24 @@ def test_a_patch_is_covered_beyond_the_ratio_unless_too_few_nodes_are_left() -> 
     edges = np.array([[0, 1], [1, 2], [3, 4], [4, 5]])
     disagreement = np.full(12, 0.3)
     disagreement[[0, 1, 2, 3]] = [1.5, 0.9, np.nan, 1.5]
-    covered = covered_nodes(disagreement, checked, 0.7, edges)
+    agreed = np.ones(12, dtype=bool)
+    covered = covered_nodes(disagreement, checked, 0.7, edges, agreed)
     # node 0: unchecked, next to covered node 1, beyond twice the ratio; node 3: no neighbour
     np.testing.assert_array_equal(np.flatnonzero(covered), [0, 1])
     disagreement[: 12 - MIN_UNCOVERED_NODES + 1] = 1.0
-    assert not covered_nodes(disagreement, np.ones(12, dtype=bool), 0.7, edges).any()
+    assert not covered_nodes(disagreement, np.ones(12, dtype=bool), 0.7, edges, agreed).any()
+
+
+def test_only_a_patch_that_agreed_before_can_be_covered() -> None:
+    """A wrong depth makes left and right disagree from the start; an occluder arrives."""
+    checked = np.ones(12, dtype=bool)
+    checked[0] = False
+    edges = np.array([[0, 1], [1, 2], [2, 3]])
+    first = np.full(12, 0.2)
+    first[:3] = [1.2, 0.3, 1.1]  # node 2 at a wrong depth
+    agreed = agreeing(first, checked, 0.7)
+    np.testing.assert_array_equal(np.flatnonzero(~agreed), [2])
+    later = first.copy()
+    later[:2] = [1.6, 1.2]  # an occluder over nodes 0 and 1
+    covered = covered_nodes(later, checked, 0.7, edges, agreed)
+    np.testing.assert_array_equal(np.flatnonzero(covered), [0, 1])

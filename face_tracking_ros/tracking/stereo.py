@@ -89,6 +89,7 @@ from face_tracking_ros.tracking.stereo_init import (
 )
 from face_tracking_ros.tracking.stereo_loss import loss_reason
 from face_tracking_ros.tracking.stereo_occlusion import (
+    agreeing,
     covered_nodes,
     held_nodes,
     kept_templates,
@@ -142,6 +143,7 @@ class _State:
     noise: np.ndarray
     depths: DepthRefinement | None
     result: StereoResult
+    agreed: np.ndarray  # (N,) bool, node patches seen agreeing left and right (.stereo_occlusion)
     before: np.ndarray | None = None  # the pair before's nodes (the motion prediction)
     span: int = 1  # frame intervals from ``before`` to ``nodes``
     elapsed: int = 0  # frame intervals from ``nodes`` to the pair being tracked (bad frames too)
@@ -516,6 +518,7 @@ class StereoTracker:
             noise=np.full(len(layouts), config.noise_floor),
             depths=DepthRefinement.start(nodes, depth_std) if config.refine_depths else None,
             result=replace(self._result(nodes, nodes, np.eye(3), None), new_track=True),
+            agreed=np.zeros(self._topology.num_nodes, dtype=bool),
         )
 
     def _initial_nodes(
@@ -873,7 +876,8 @@ class StereoTracker:
         """(N,) bool, the nodes an occluder covers on this pair (``occlusion_ratio``).
 
         Read from the left and right images at level 0's last accepted point of the solve
-        (:func:`~.stereo_occlusion.stereo_disagreement`); none when the check is off.
+        (:func:`~.stereo_occlusion.stereo_disagreement`); none when the check is off. The nodes
+        whose patches agree now count as seen agreeing from here on.
         """
         ratio = self._config.occlusion_ratio
         if ratio == 0:
@@ -884,7 +888,11 @@ class StereoTracker:
             attempt.solves.levels[-1][1].sampled,
             attempt.statistics.image_contrast[LEFT],
         )
-        return covered_nodes(disagreement, self._occludable, ratio, self._topology.edges)
+        covered = covered_nodes(
+            disagreement, self._occludable, ratio, self._topology.edges, state.agreed
+        )
+        state.agreed = state.agreed | agreeing(disagreement, self._occludable, ratio)
+        return covered
 
     def _rotation(self, first_nodes: np.ndarray, nodes: np.ndarray) -> np.ndarray:
         """The head's rotation since frame 1 (weighted Procrustes of the nodes, §3.3)."""

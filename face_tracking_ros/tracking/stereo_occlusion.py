@@ -19,6 +19,12 @@ A node whose patch disagrees beyond ``occlusion_ratio`` is taken as covered on t
 weighted rigid motion of the others (:func:`held_nodes`), and its patch keeps the templates of
 the last pair that saw it (:func:`kept_templates`), so the occluder never enters them and the
 node matches the face again once the occluder has gone.
+
+Left and right also disagree at a node whose depth is wrong (the other camera's patch is then
+sampled beside the feature): a 320x240 initialisation put a brow node 28 mm off, its patch read
+1.1-1.2 on every pair, and holding it kept the error. So only a node whose patch has agreed on an
+earlier pair of the track (:func:`agreeing`) can be taken as covered: an occluder arrives over a
+face that was seen, a wrong depth is there from the start.
 """
 
 from __future__ import annotations
@@ -60,28 +66,43 @@ def stereo_disagreement(
         return difference / left_contrast
 
 
+def agreeing(disagreement: np.ndarray, checked: np.ndarray, ratio: float) -> np.ndarray:
+    """(N,) bool, the node patches whose left and right images agree (NaN: not agreeing).
+
+    Within ``ratio`` for a checked node, :data:`UNCHECKED_FACTOR` times it for the others.
+    """
+    return disagreement <= np.where(checked, ratio, UNCHECKED_FACTOR * ratio)
+
+
 def covered_nodes(
-    disagreement: np.ndarray, checked: np.ndarray, ratio: float, edges: np.ndarray
+    disagreement: np.ndarray,
+    checked: np.ndarray,
+    ratio: float,
+    edges: np.ndarray,
+    agreed: np.ndarray,
 ) -> np.ndarray:
     """(N,) bool, the nodes an occluder covers, read from their patches' disagreement.
 
     A checked node is covered when its patch disagrees beyond ``ratio`` (NaN: not covered). A
     node not checked (the face edge, the nose) is when a mesh neighbour is covered and its own
-    patch disagrees beyond :data:`UNCHECKED_FACTOR` times ``ratio``. None when fewer than
-    :data:`MIN_UNCOVERED_NODES` would be left to hold them.
+    patch disagrees beyond :data:`UNCHECKED_FACTOR` times ``ratio``. Only nodes that ``agreed``
+    before can be covered, and none is when fewer than :data:`MIN_UNCOVERED_NODES` would be
+    left to hold them.
 
     Args:
         disagreement: (N,) :func:`stereo_disagreement`.
         checked: (N,) bool, the nodes whose patches alone tell.
         ratio: the disagreement beyond which a checked patch is covered.
         edges: (E, 2) the mesh's edges.
+        agreed: (N,) bool, the nodes whose patches were :func:`agreeing` on an earlier pair of
+            the track.
     """
-    covered = checked & (disagreement > ratio)
+    covered = agreed & checked & (disagreement > ratio)
     if covered.any():
         near = np.zeros(covered.size, dtype=bool)
         near[edges[covered[edges[:, 1]], 0]] = True
         near[edges[covered[edges[:, 0]], 1]] = True
-        covered |= ~checked & near & (disagreement > UNCHECKED_FACTOR * ratio)
+        covered |= agreed & ~checked & near & (disagreement > UNCHECKED_FACTOR * ratio)
     if covered.size - np.count_nonzero(covered) < MIN_UNCOVERED_NODES:
         covered[:] = False
     return covered
