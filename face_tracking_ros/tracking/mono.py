@@ -290,7 +290,17 @@ class MonoTracker:
         track = self._track
         try:
             adjusted = self._adjuster.advance(
-                track.first_views, pyramid, track.current, track.previous.visibility, track.frames
+                track.first_views,
+                pyramid,
+                track.current,
+                track.previous.visibility,
+                track.frames,
+                lambda: self._loss.steady(
+                    track.current,
+                    result.node_residuals,
+                    track.previous.levels[0],
+                    track.previous.visibility,
+                ),
             )
             if adjusted is not None:
                 self._apply_adjustment(pyramid, adjusted, result)

@@ -122,7 +122,9 @@ class MonoTrackerConfig:
         reacquire_residual_ratio: the same ratio for the solves that may resume a lost track,
             for the keyframe-only solves tried when tracking fails and, before
             ``lost_residual_ratio``, for the first image after dropped ones (> 0). Stricter: such
-            a solve can settle a few px off the face, which later frames do not correct.
+            a solve can settle a few px off the face, which later frames do not correct. A
+            frame becomes a view of the bundle adjustment only if it passes this ratio's vote
+            too (a face dragged by an occluder passes ``lost_residual_ratio``).
         drift_residual_ratio: LOST when the median, over the visible textured nodes, of a
             node's RMS residual against the nearest keyframe's templates alone (frame 1's by
             default; no blend with frame n-1) exceeds this multiple of its ROI's texture: the
