@@ -282,13 +282,17 @@ def _memory_rows(memory: dict[str, Any]) -> list[tuple[str, str, str]]:
 
 def _accuracy_rows(table: dict[str, Any]) -> list[tuple[str, str, str]]:
     rows = []
-    for tracker in ('mono', 'baseline'):
-        f = table.get(tracker, {})
+    for key, label in (
+        ('mono', f'mono accuracy ({table.get("scene")})'),
+        ('baseline', f'baseline accuracy ({table.get("scene")})'),
+        ('mono_occlusion', 'mono accuracy (same scene), an occluder passing'),
+    ):
+        f = table.get(key, {})
         if 'node_rms_mm' in f:
             rotation = ' / '.join(f'{v:.2f}' for v in f['rotation_mae_deg'])
             rows.append(
                 (
-                    f'{tracker} accuracy ({table["scene"]})',
+                    label,
                     f'node RMS {f["node_rms_mm"]:.1f} mm, rotation MAE {rotation} deg, '
                     f'{f["tracked"]}/{f["frames"]} tracked',
                     '',
