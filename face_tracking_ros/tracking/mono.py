@@ -46,12 +46,12 @@ Design, in the seed's terms:
   is solved against the keyframe templates alone from the initial pose translated onto the best
   normalised cross-correlation of frame 1's inner face over the image (:mod:`.mono_search`),
   and from a fresh detection when a detector was given. After dropped images it is first solved
-  as a followed frame from where the last valid frame's inner face correlates best. Every solve
-  passes only at the stricter ``reacquire_residual_ratio``: the keyframe-only ones and those of
-  the first image after dropped ones can settle a few pixels off, and a face an occluder passes
-  in front of is dragged by the covered nodes. A followed solve of the first image after
-  dropped ones that passes only at ``lost_residual_ratio`` is taken if solving the last valid
-  frame's image back from it returns to that frame's estimate (a forward-backward check).
+  as a followed frame from where the last valid frame's inner face correlates best. The
+  keyframe-only solves, every solve while LOST and those of the first image after dropped ones
+  pass only at the stricter ``reacquire_residual_ratio``: they can settle a few pixels off. A
+  followed solve of the first image after dropped ones that passes only at
+  ``lost_residual_ratio`` is taken if solving the last valid frame's image back from it returns
+  to that frame's estimate (a forward-backward check).
 """
 
 from __future__ import annotations
@@ -290,7 +290,17 @@ class MonoTracker:
         track = self._track
         try:
             adjusted = self._adjuster.advance(
-                track.first_views, pyramid, track.current, track.previous.visibility, track.frames
+                track.first_views,
+                pyramid,
+                track.current,
+                track.previous.visibility,
+                track.frames,
+                lambda: self._loss.steady(
+                    track.current,
+                    result.node_residuals,
+                    track.previous.levels[0],
+                    track.previous.visibility,
+                ),
             )
             if adjusted is not None:
                 self._apply_adjustment(pyramid, adjusted, result)
@@ -391,7 +401,7 @@ class MonoTracker:
         track = self._track
         ratio = self._config.reacquire_residual_ratio
         if track.bridging:
-            result = self._followed_frame(pyramid, True, self._returned_to())
+            result = self._followed_frame(pyramid, ratio, True, self._returned_to())
             if result.ok:
                 return result
         detected = self._detect(pyramid)
@@ -457,29 +467,22 @@ class MonoTracker:
     def _follow(self, pyramid: ImagePyramid) -> TrackResult:
         """Track one frame (eq. 6) from the last valid estimate; if that fails, re-acquire.
 
-        The solve is checked at the stricter ``reacquire_residual_ratio``, as every solve that
-        may resume a lost track is: a solve that passes only at ``lost_residual_ratio`` can be
-        off the face. So it was after dropped images (:attr:`_Track.bridging`): over the gap
-        the prediction can be several px off, and the solve from it settled 7-21 px off the face
-        yet passed at ``lost_residual_ratio``, the track then staying that far off, TRACKING.
-        Measured on rendered free motion (true model, 10 fps, seeds 1-6 with 2 / 3 / 5 images
-        dropped every 8-20 frames), that took 59 images TRACKING 3.8-21 px off on 3 of 18 runs
-        (then 0; the re-acquisition from the last valid frame's face finds most of them) and
-        kept one run's 9 images from a gap on right (0.8-1.0 px), which the solve back now takes
-        (:meth:`_solve_frame`). And so it was with an occluder (a hand, a mug) passing in front
-        of the face: the covered nodes drag the estimate, TRACKING, while more than half the
-        textured nodes fail at ``reacquire_residual_ratio`` (0.66-0.97 of them on the first
-        frame more than 3 px off), and the templates sampled on the dragged face keep it off
-        after the occluder has gone. Measured on 12 rendered 300-frame free-motion sequences
-        with an occluder (seeds 1-3, subjects 0 and 3, 640x480 and 320x240; 19 and 34 nodes,
-        true and packaged models: 48 runs), frames TRACKING more than 5 px off 84 -> 7 (36 ->
-        3 runs, all at 320x240 with 19 nodes; worst 27.6 -> 10.8 px), LOST frames 2666 -> 2663
-        (a track lost before its templates hold the occluder is found again sooner), node RMS
-        14.5 -> 11.4 mm on average; the same sequences without the occluder, and issue 6's (at
-        most 0.33 of the nodes failing at this ratio on any frame), the same to the digit. If it
-        fails, the image is re-acquired (:meth:`_reacquire`), or else LOST.
+        While LOST this is the solve of the frame after the last valid one, checked at the
+        stricter ``reacquire_residual_ratio``. So is the first image after dropped ones
+        (:attr:`_Track.bridging`): over the gap the prediction can be several px off, and the
+        solve from it settle 7-21 px off the face yet pass at ``lost_residual_ratio``, the track
+        then staying that far off, TRACKING. If it fails there, the image is re-acquired
+        (:meth:`_reacquire`), or else LOST; it is no longer accepted at ``lost_residual_ratio``
+        after all. Measured on rendered free motion (true model, 10 fps, seeds 1-6 with 2 / 3 /
+        5 images dropped every 8-20 frames), that took 59 images TRACKING 3.8-21 px off on 3 of
+        18 runs (now 0; the re-acquisition from the last valid frame's face finds most of them)
+        and kept one run's 9 images from a gap on right (0.8-1.0 px), which the solve back
+        now takes (:meth:`_solve_frame`).
         """
-        result = self._followed_frame(pyramid, returned=self._returned_to())
+        config = self._config
+        strict = self._track.lost or self._track.bridging
+        ratio = config.reacquire_residual_ratio if strict else config.lost_residual_ratio
+        result = self._followed_frame(pyramid, ratio, returned=self._returned_to())
         if result.ok:
             return result
         return self._reacquire(pyramid, result.reason)
@@ -487,16 +490,16 @@ class MonoTracker:
     def _followed_frame(
         self,
         pyramid: ImagePyramid,
+        ratio: float,
         searched: bool = False,
         returned: ImagePyramid | None = None,
     ) -> TrackResult:
-        """Eq. 6's solve from the last valid estimate, or its motion prediction, checked.
+        """Eq. 6's solve from the last valid estimate, or its motion prediction, at ``ratio``.
 
-        The loss checks run at ``reacquire_residual_ratio`` (:meth:`_follow`). ``searched``: the
-        start's position is moved to where the last valid frame's inner face correlates best
-        with the image, near where the start puts it (:meth:`_searched`).
-        ``returned``: the last valid frame's pyramid, to confirm a solve that fails there but
-        passes at ``lost_residual_ratio`` (:meth:`_solve_frame`).
+        ``searched``: the start's position is moved to where the last valid frame's inner face
+        correlates best with the image, near where the start puts it (:meth:`_searched`).
+        ``returned``: the last valid frame's pyramid, to confirm a solve that fails at ``ratio``
+        but passes at ``lost_residual_ratio`` (:meth:`_solve_frame`).
         A result that passes the loss checks is accepted as a followed frame.
         """
         track, config = self._track, self._config
@@ -516,7 +519,7 @@ class MonoTracker:
             start,
             blended,
             weights,
-            config.reacquire_residual_ratio,
+            ratio,
             free_sigma,
             first_level,
             track.current,

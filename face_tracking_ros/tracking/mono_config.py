@@ -115,16 +115,16 @@ class MonoTrackerConfig:
             2 px, 3 of 6 lost frames.
         visibility_cos: a node's weight ramps from 0 to 1 as the cosine between its outward
             normal and the ray to the camera goes from this value to twice it (in [0, 0.5)).
-        lost_residual_ratio: the lenient ratio of ``reacquire_residual_ratio``, at which a
-            followed solve of the first image after dropped ones is taken when solving the last
-            valid frame's image back from it returns to that frame's estimate (> 0).
-        reacquire_residual_ratio: a node fails when its RMS residual exceeds this multiple of
-            its ROI's texture in the image (the RMS left after removing its mean and, for
+        lost_residual_ratio: a node fails when its RMS residual exceeds this multiple of its
+            ROI's texture in the image (the RMS left after removing its mean and, for
             GAIN_FIELD, its linear ramp), i.e. when sqrt(1 - R^2) of the template's fit to that
-            texture exceeds it, or when that texture is below ``residual_scale_floor``; the
-            ratio of every solve's loss checks, followed, re-acquired or after dropped images
-            (> 0). A solve that passes only at ``lost_residual_ratio`` can settle a few px off
-            the face, which later frames do not correct, or be dragged by an occluder.
+            texture exceeds it, or when that texture is below ``residual_scale_floor`` (> 0).
+        reacquire_residual_ratio: the same ratio for the solves that may resume a lost track,
+            for the keyframe-only solves tried when tracking fails and, before
+            ``lost_residual_ratio``, for the first image after dropped ones (> 0). Stricter: such
+            a solve can settle a few px off the face, which later frames do not correct. A
+            frame becomes a view of the bundle adjustment only if it passes this ratio's vote
+            too (a face dragged by an occluder passes ``lost_residual_ratio``).
         drift_residual_ratio: LOST when the median, over the visible textured nodes, of a
             node's RMS residual against the nearest keyframe's templates alone (frame 1's by
             default; no blend with frame n-1) exceeds this multiple of its ROI's texture: the

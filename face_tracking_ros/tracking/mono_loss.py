@@ -142,6 +142,34 @@ class LossChecks:
             return f'drifted: residual against the keyframe {drift:.2f} x the ROI texture'
         return ''
 
+    def steady(
+        self, params: Params, node_rms: np.ndarray, samples: np.ndarray, visibility: np.ndarray
+    ) -> bool:
+        """Whether a valid estimate matches the image as closely as a resumed track must.
+
+        The vote of :meth:`reason` at ``reacquire_residual_ratio`` over the visible nodes whose
+        ROI shows texture in the image: at most ``lost_node_fraction`` of them may fail. The
+        bundle adjustment keeps only such frames as views (:mod:`.mono_adjustment`).
+
+        Args:
+            params: the estimate.
+            node_rms: (N,) RMS of each node's residual there.
+            samples: (N, M) level-0 samples of the image there.
+            visibility: (N,) node visibility there.
+        """
+        config = self._config
+        texture = row_rms(self._untextured.apply(samples))
+        votes = loss_votes(
+            visibility,
+            self._face.nodes(params)[1],
+            (self._camera.width, self._camera.height),
+            (texture, texture),
+            node_rms,
+            config.residual_scale_floor,
+            config.reacquire_residual_ratio,
+        )
+        return 0 < votes.voting and votes.failing <= config.lost_node_fraction * votes.voting
+
     def _textures(
         self, samples: np.ndarray, template: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray]:
