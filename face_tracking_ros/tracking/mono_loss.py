@@ -23,7 +23,12 @@ from face_tracking_ros.geometry.rotation import angle_between
 from face_tracking_ros.imaging import PhotometricModel
 from face_tracking_ros.imaging.photometric import PhotometricProjection
 from face_tracking_ros.tracking.mono_config import MonoTrackerConfig
-from face_tracking_ros.tracking.mono_kernels import loss_votes, median_rms_ratio, row_rms
+from face_tracking_ros.tracking.mono_kernels import (
+    Votes,
+    loss_votes,
+    median_rms_ratio,
+    row_rms,
+)
 from face_tracking_ros.tracking.mono_projection import FaceProjection
 from face_tracking_ros.tracking.mono_rois import Params
 from face_tracking_ros.tracking.mono_templates import Keyframe, nearest_keyframe
@@ -117,14 +122,8 @@ class LossChecks:
         # template explains none of it. Nodes flat in both the image and the template abstain.
         floor = config.residual_scale_floor
         image_texture, template_texture = self._textures(samples, template)
-        votes = loss_votes(
-            visibility,
-            self._face.nodes(params)[1],
-            (self._camera.width, self._camera.height),
-            (image_texture, template_texture),
-            node_rms,
-            floor,
-            residual_ratio,
+        votes = self._votes(
+            params, visibility, (image_texture, template_texture), node_rms, residual_ratio
         )
         nodes = len(votes.visible)
         if votes.visible_count / nodes < config.min_visible_fraction:
@@ -159,16 +158,29 @@ class LossChecks:
         """
         config = self._config
         texture = row_rms(self._untextured.apply(samples))
-        votes = loss_votes(
+        votes = self._votes(
+            params, visibility, (texture, texture), node_rms, config.reacquire_residual_ratio
+        )
+        return 0 < votes.voting and votes.failing <= config.lost_node_fraction * votes.voting
+
+    def _votes(
+        self,
+        params: Params,
+        visibility: np.ndarray,
+        texture: tuple[np.ndarray, np.ndarray],
+        node_rms: np.ndarray,
+        ratio: float,
+    ) -> Votes:
+        """:func:`~.mono_kernels.loss_votes` of the nodes at ``params`` in this camera's image."""
+        return loss_votes(
             visibility,
             self._face.nodes(params)[1],
             (self._camera.width, self._camera.height),
-            (texture, texture),
+            texture,
             node_rms,
-            config.residual_scale_floor,
-            config.reacquire_residual_ratio,
+            self._config.residual_scale_floor,
+            ratio,
         )
-        return 0 < votes.voting and votes.failing <= config.lost_node_fraction * votes.voting
 
     def _textures(
         self, samples: np.ndarray, template: np.ndarray
