@@ -187,20 +187,14 @@ class ViewAdjuster:
         (:meth:`~.mono_loss.LossChecks.steady`, asked of such a frame only). A frame that passes
         the loss checks at ``lost_residual_ratio`` alone can be a face dragged by an occluder
         (a hand, a mug): its estimate turns with the covered nodes and shows new rotations, and
-        such frames became views 5-27 px off the face, the adjustments over them applied.
-        Measured on 12 rendered 300-frame free-motion sequences with an occluder passing (3
-        seeds x 2 subjects x 640x480 and 320x240), each tracked with 19 and 34 nodes, true and
-        packaged models: of the frames at a new rotation 4.5-28 px off while it passed, 56 had
-        56-97 % of their textured nodes above ``reacquire_residual_ratio`` and are refused, 3
-        (5.2-10.8 px, 19 nodes) 29-43 %; frames the occluder did not cover had at most 24 %,
-        and issue 6's 1000-frame sequences at most 22 % (none refused; the protocol's rows
-        unchanged). The track's final identity error (true model, the 8 runs that changed) 1.00
-        -> 0.84 mm RMS on average. A track the occluder has already dragged matches its own
-        templates and passes: on the accuracy table's scene with an occluder, frames 113-116
-        (3.1-8.2 px off, 59-68 %) are refused, frame 117 (8.2 px, 35 %) and two later ones
-        4.6-5.5 px off are kept. When no adjustment is under way and some views are in none
-        yet, one starts over frame 1 and every view so far (:meth:`_adjustment`). It runs
-        ``bundle.stages_per_frame`` stages per followed frame (all on this frame if 0).
+        such frames became views 5-27 px off the face, the adjustments over them applied. On 48
+        rendered runs with an occluder passing, the rule refused 56 such frames and let 3
+        through (5.2-10.8 px off); no frame of issue 6's sequences is refused
+        (docs/performance.md, 2026-12-06, thirty-third session). A track the occluder has
+        already dragged matches its own templates and passes. When no adjustment is under way
+        and some views are in none yet, one starts over frame 1 and every view so far
+        (:meth:`_adjustment`). It runs ``bundle.stages_per_frame`` stages per followed frame (all
+        on this frame if 0).
 
         Args:
             views: the track's views.

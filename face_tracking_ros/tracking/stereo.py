@@ -839,7 +839,7 @@ class StereoTracker:
         config = self._config
         nodes, statistics, solves = attempt.nodes, attempt.statistics, attempt.solves
         assert statistics is not None
-        covered = self._covered(state, attempt)
+        covered, state.agreed = self._covered(state, attempt)
         if covered.any():
             nodes = held_nodes(state.nodes, nodes, covered, self._alignment_weights)
         state.theta = solves.theta  # the face-model term's fit, moved on by the solve
@@ -872,16 +872,17 @@ class StereoTracker:
         state.result = result
         return result
 
-    def _covered(self, state: _State, attempt: _Attempt) -> np.ndarray:
-        """(N,) bool, the nodes an occluder covers on this pair (``occlusion_ratio``).
+    def _covered(self, state: _State, attempt: _Attempt) -> tuple[np.ndarray, np.ndarray]:
+        """(N,) bool each: the nodes an occluder covers on this pair, and those seen agreeing.
 
         Read from the left and right images at level 0's last accepted point of the solve
-        (:func:`~.stereo_occlusion.stereo_disagreement`); none when the check is off. The nodes
-        whose patches agree now count as seen agreeing from here on.
+        (:func:`~.stereo_occlusion.stereo_disagreement`, ``occlusion_ratio``): a node is covered
+        only if it was seen agreeing on an earlier pair (``state.agreed``); the second mask adds
+        the nodes that agree on this one. None is covered when the check is off.
         """
         ratio = self._config.occlusion_ratio
         if ratio == 0:
-            return np.zeros(self._topology.num_nodes, dtype=bool)
+            return np.zeros(self._topology.num_nodes, dtype=bool), state.agreed
         assert attempt.statistics is not None
         disagreement = stereo_disagreement(
             state.samples,
@@ -891,8 +892,7 @@ class StereoTracker:
         covered = covered_nodes(
             disagreement, self._occludable, ratio, self._topology.edges, state.agreed
         )
-        state.agreed = state.agreed | agreeing(disagreement, self._occludable, ratio)
-        return covered
+        return covered, state.agreed | agreeing(disagreement, self._occludable, ratio)
 
     def _rotation(self, first_nodes: np.ndarray, nodes: np.ndarray) -> np.ndarray:
         """The head's rotation since frame 1 (weighted Procrustes of the nodes, §3.3)."""
