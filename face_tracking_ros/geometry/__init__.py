@@ -1,1 +1,1 @@
-"""Geometry: rotations (Rodrigues), pinhole and stereo cameras (eq. 1 and 2), Procrustes."""
+"""Geometry: rotations (Rodrigues), cameras (eq. 1 and 2), Procrustes and RMS distances."""

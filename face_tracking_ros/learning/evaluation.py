@@ -43,6 +43,7 @@ from sklearn.metrics import silhouette_score
 from sklearn.neighbors import NearestCentroid
 
 from face_tracking_ros.errors import ConfigError
+from face_tracking_ros.geometry.distances import rms_length
 from face_tracking_ros.geometry.procrustes import generalized_procrustes, rigid_align
 from face_tracking_ros.learning.methods import Learner
 from face_tracking_ros.learning.result import LearningResult
@@ -291,7 +292,7 @@ def fit_identity(model: FaceModel, nodes: np.ndarray) -> tuple[np.ndarray, float
         alignment = rigid_align(nodes, model.identity_shape(sigma))
         sigma = model.shape_basis.T @ (alignment.aligned.ravel() - model.mean_shape)
         residual = alignment.aligned - model.identity_shape(sigma)
-        previous, rms = rms, float(np.sqrt(np.mean(np.sum(residual**2, axis=1))))
+        previous, rms = rms, rms_length(residual)
         if previous - rms < 1e-12:
             break
     return sigma, rms

@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 
 from face_tracking_ros.errors import ModelFileError
+from face_tracking_ros.geometry.distances import rms_spread
 from face_tracking_ros.model.topology import MeshTopology, mesh_topology
 
 ORTHONORMALITY_TOLERANCE = 1e-6
@@ -159,7 +160,7 @@ def validate_model_arrays(model: FaceModel) -> None:
         _fail(f'node names differ from the {len(expected_names)}-node topology: {differing[0]}')
     _check(model.mean_shape, 'mean_shape', (n3,))
     nodes = model.mean_shape.reshape(-1, 3)
-    spread = float(np.sqrt(np.mean(np.sum((nodes - nodes.mean(axis=0)) ** 2, axis=1))))
+    spread = rms_spread(nodes)
     if not FACE_SPREAD_M[0] <= spread <= FACE_SPREAD_M[1]:
         _fail(
             f'mean_shape spans {spread:.3g} m RMS about its centroid, where a face spans about '

@@ -18,6 +18,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from face_tracking_ros.errors import InputError
+from face_tracking_ros.geometry.distances import rms_length
 from face_tracking_ros.geometry.rotation import omega_to_angles
 from face_tracking_ros.model.face_model import FaceModel
 from face_tracking_ros.recognition.node_fit import fit_model_to_nodes
@@ -144,8 +145,7 @@ def _alpha_rms_percent(estimated: np.ndarray, reference: np.ndarray) -> float:
     spread = float(np.ptp(reference, axis=0).max(initial=0.0))
     if spread < 1e-9:
         return float('nan')
-    rms = np.sqrt(np.mean(np.sum((estimated - reference) ** 2, axis=1)))
-    return float(100 * rms / spread)
+    return 100 * rms_length(estimated - reference) / spread
 
 
 def drift_window(tracked: int) -> int:

@@ -65,6 +65,7 @@ from numpy.linalg import LinAlgError
 
 from face_tracking_ros.errors import ConfigError, InputError
 from face_tracking_ros.geometry.camera import PinholeCamera
+from face_tracking_ros.geometry.distances import rms_length
 from face_tracking_ros.geometry.rotation import matrix_to_omega, rodrigues
 from face_tracking_ros.imaging import ImagePyramid, check_levels_fit, square_offsets
 from face_tracking_ros.imaging.photometric import PhotometricInvariance
@@ -706,7 +707,7 @@ class MonoTracker:
         """
         inner = ~self._edge_nodes
         moved = self._face.nodes(back)[1][inner] - self._face.nodes(self._track.current)[1][inner]
-        return float(np.sqrt(np.mean(np.sum(moved**2, axis=1)))) <= _RETURN_PX
+        return rms_length(moved) <= _RETURN_PX
 
     def _checked(
         self,

@@ -25,6 +25,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from face_tracking_ros.geometry.distances import rms_length, rms_spread
 from face_tracking_ros.geometry.rotation import matrix_to_omega, rodrigues, rotation_angle
 from face_tracking_ros.imaging import ImagePyramid
 from face_tracking_ros.imaging.photometric import PhotometricInvariance
@@ -377,7 +378,7 @@ class ViewAdjuster:
         """
         pixels = self._face.nodes(before)[1]
         moves = self._face.nodes(after)[1] - pixels
-        return _rms_length(moves), _rms_length(pixels - pixels.mean(axis=0))
+        return rms_length(moves), rms_spread(pixels)
 
     def _node_distance(self, params: Params) -> float:
         """Mean distance of the nodes from the camera centre at ``params``, m."""
@@ -404,8 +405,3 @@ def carried(current: Params, before: Params, after: Params, scale: float) -> Par
         alpha=current.alpha + after.alpha - before.alpha,
         sigma=after.sigma,
     )
-
-
-def _rms_length(vectors: np.ndarray) -> float:
-    """Root mean square length of (N, 2) vectors."""
-    return float(np.sqrt(np.mean(np.sum(vectors**2, axis=1))))
