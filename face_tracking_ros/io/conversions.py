@@ -435,6 +435,7 @@ def face_messages(
         right_node_residuals=_nan_as_zero(
             np.zeros(0) if result.right_node_residuals is None else result.right_node_residuals
         ),
+        occluded=np.zeros(0, dtype=bool) if result.occluded is None else result.occluded,
         mean_residual=float(_nan_as_zero(result.mean_residual)),
         iterations=int(result.iterations),
     )

@@ -10,11 +10,13 @@ A bag holds one of:
   :attr:`~.learn_options.LearnOptions.subject` or the bag's name (its
   :func:`~face_tracking_ros.io.bags.recording_name`), and the first
   ``neutral_frames`` frames of each bag are taken as neutral. Frames the tracker did not track
-  are left out.
+  are left out, and so are those with nodes it held under an occluder (``FaceState.occluded``:
+  such a node follows the head's rigid motion, not the face's expression).
 """
 
 from __future__ import annotations
 
+from collections import Counter
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -45,6 +47,8 @@ MESH_TYPES = ('face_tracking_msgs/msg/FaceMesh', STATE_TYPE)
 TRUTH_TOPIC = 'truth/face'
 STATE_TOPIC = 'face/state'
 TRACKED = int(TrackStatus.TRACKING)  # FaceState.STATUS_TRACKING
+UNTRACKED = 'untracked'  # a frame left out of learning: not TRACKING
+OCCLUDED = 'occluded'  # a frame left out of learning: nodes held under an occluder
 DEFAULT_TOPICS = (TRUTH_TOPIC, 'face/mesh_raw', STATE_TOPIC)
 
 
@@ -102,13 +106,18 @@ def read_bag_meshes(
     """
     topics = reads.topics(bag)
     topic = _checked_mesh_topic(bag, topics, options)
-    frames, skipped = _tracked_frames(bag, topics, topic, options, truth_bag, name, reads.truth)
-    if skipped:
-        untracked = counted(skipped, 'frame')
+    frames, left_out = _tracked_frames(bag, topics, topic, options, truth_bag, name, reads.truth)
+    if left_out[UNTRACKED]:
+        untracked = counted(left_out[UNTRACKED], 'frame')
         say(f'{bag}: {untracked} the tracker did not track (initialising or lost) left out')
+    if left_out[OCCLUDED]:
+        occluded = counted(left_out[OCCLUDED], 'frame')
+        say(f'{bag}: {occluded} with nodes held under an occluder (FaceState.occluded) left out')
     if not frames:
+        skipped = left_out.total()
         msg = (
             f'{bag}: none of the {counted(skipped, "frame")} on {topic} was tracked'
+            + (' with every node seen' if left_out[OCCLUDED] else '')
             if skipped
             else f'{bag}: no message on {topic}'
         )
@@ -242,10 +251,12 @@ def _tracked_frames(
     truth_bag: Path | None,
     name: str,
     truth_of: Callable[[Path, str], Sequence[TruthSample]],
-) -> tuple[list[_Frame], int]:
-    """The frames of ``topic`` that were tracked, with their truth, and how many were not.
+) -> tuple[list[_Frame], Counter[str]]:
+    """The frames of ``topic`` to learn from, with their truth, and how many were left out, why.
 
-    Not tracked: those its FaceStates, or the face/state beside its FaceMeshes, say so.
+    Left out (:func:`_left_out`): those its FaceStates, or the face/state beside its FaceMeshes,
+    say were not tracked (:data:`UNTRACKED`) or had nodes held under an occluder
+    (:data:`OCCLUDED`).
 
     The truth of a frame is its FaceTruth message's, else the truth bag's of its stamp; its
     subject is the truth's, else the one named by ``name`` (:func:`~.learn_options.subject_of`).
@@ -257,16 +268,16 @@ def _tracked_frames(
     """
     msgtype = topics[topic]
     truth = _by_stamp(truth_of(truth_bag, TRUTH_TOPIC)) if truth_bag is not None else {}
-    # A FaceState says itself whether it was tracked; a FaceMesh by its bag's face/state.
-    untracked = _untracked_stamps(bag, topics) if msgtype == MESH_TYPES[0] else set()
+    # A FaceState says itself whether to leave it out; a FaceMesh by its bag's face/state.
+    beside = _left_out_stamps(bag, topics) if msgtype == MESH_TYPES[0] else {}
     frames: list[_Frame] = []
-    skipped = 0
+    skipped: Counter[str] = Counter()
     for index, (msg, (stamp_ns, nodes, sample)) in enumerate(
         _mesh_messages(bag, topic, msgtype, truth_of)
     ):
-        state_untracked = msgtype == MESH_TYPES[1] and msg.status != TRACKED
-        if stamp_ns in untracked or state_untracked:
-            skipped += 1
+        why = _left_out(msg) if msgtype == MESH_TYPES[1] else beside.get(stamp_ns)
+        if why is not None:
+            skipped[why] += 1
             continue
         if truth_bag is not None:
             sample = truth.get(stamp_ns)
@@ -275,25 +286,38 @@ def _tracked_frames(
                 raise BagError(msg)
         subject = sample.subject_id if sample else subject_of(name, options)
         frames.append(_Frame(subject, index, nodes, sample))
-    # Beside a face/state, every frame it says untracked, with a mesh or not: a tracker
+    # Beside a face/state, every frame it leaves out counts, with a mesh or not: a tracker
     # publishes none while INITIALIZING (before its first fit, or after a reset).
-    return frames, len(untracked) or skipped
+    return frames, Counter(beside.values()) if beside else skipped
 
 
-def _untracked_stamps(bag: Path, topics: dict[str, str]) -> set[int]:
-    """Header stamps of the frames a tracker's output bag says it did not track.
+def _left_out(state: Any) -> str | None:
+    """Why a FaceState's frame is no training mesh (:data:`UNTRACKED`, :data:`OCCLUDED`), or None.
 
-    Its face/state messages whose status is not TRACKING: the mesh of such a frame is none
-    (zeros before the first initialisation) or the last one tracked, not the face.
+    Not tracked: its mesh is none (zeros before the first initialisation) or the last one
+    tracked, not the face. Occluded: a node held under an occluder moved with the head's rigid
+    motion, so the mesh does not show the face's expression there. A FaceState written before
+    the field existed (read with its bag's own definition,
+    :mod:`~face_tracking_ros.io.bag_definitions`) has no ``occluded``.
+    """
+    if state.status != TRACKED:
+        return UNTRACKED
+    return OCCLUDED if np.any(getattr(state, 'occluded', ())) else None
+
+
+def _left_out_stamps(bag: Path, topics: dict[str, str]) -> dict[int, str]:
+    """Header stamps of the frames a tracker's output bag leaves out, and why.
+
+    Its face/state messages that :func:`_left_out` gives a reason for.
     """
     state_topic = bag_spelling(STATE_TOPIC, topics)
     if topics.get(state_topic) != MESH_TYPES[1]:
-        return set()
-    return {
-        stamp_to_ns(message.msg.header.stamp)
+        return {}
+    left_out = (
+        (stamp_to_ns(message.msg.header.stamp), _left_out(message.msg))
         for message in read_messages(bag, [state_topic])
-        if message.msg.status != TRACKED
-    }
+    )
+    return {stamp: why for stamp, why in left_out if why is not None}
 
 
 def _mesh_messages(

@@ -42,6 +42,9 @@ class TrackResult:
         reason: why the status is LOST or INITIALIZING ('' when tracking).
         right_node_residuals: (N,) a stereo tracker's residuals in the right image; None for a
             monocular tracker.
+        occluded: (N,) bool, a stereo tracker's nodes judged covered by an occluder on this
+            image, moved with the head's rigid motion instead of measured
+            (:mod:`.stereo_occlusion`); None when not judged (a monocular tracker, no estimate).
     """
 
     status: TrackStatus
@@ -57,6 +60,7 @@ class TrackResult:
     cost_history: tuple[float, ...] = field(default_factory=tuple)
     reason: str = ''
     right_node_residuals: np.ndarray | None = None
+    occluded: np.ndarray | None = None
 
     @property
     def ok(self) -> bool:

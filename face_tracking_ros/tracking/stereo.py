@@ -868,6 +868,7 @@ class StereoTracker:
             solves.iterations,
             tuple(solves.history),
             fit_start=state.result.fit,
+            occluded=covered,
         )
         state.result = result
         return result
@@ -1008,10 +1009,12 @@ class StereoTracker:
         iterations: int = 0,
         history: tuple[float, ...] = (),
         fit_start: NodeFit | None = None,
+        occluded: np.ndarray | None = None,
     ) -> StereoResult:
         """A TRACKING result; residuals are zero on the initial pair (it is its own template).
 
-        The model fit starts from ``fit_start`` when given (:meth:`_fit`).
+        The model fit starts from ``fit_start`` when given (:meth:`_fit`); ``occluded`` are the
+        nodes held under an occluder (none when not given).
         """
         n = nodes.shape[0]
         left_res = np.zeros(n) if statistics is None else statistics.rms[0][LEFT]
@@ -1029,6 +1032,7 @@ class StereoTracker:
             fit=self._fit(nodes, fit_start),
             first_nodes=first_nodes,
             rotation=rotation,
+            occluded=np.zeros(n, dtype=bool) if occluded is None else occluded,
         )
 
     def _fit(self, nodes: np.ndarray, start: NodeFit | None) -> NodeFit | None:

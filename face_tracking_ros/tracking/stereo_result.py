@@ -41,6 +41,9 @@ class StereoResult:
             (:mod:`.depth_refinement`), m; None before the first pair.
         rotation: (3, 3) the head's rotation since frame 1; None before the first pair.
         new_track: this pair is frame 1 of a track (after a reset, or a detection after a loss).
+        occluded: (N,) bool, the nodes judged covered by an occluder on this pair, held to the
+            head's rigid motion (:mod:`.stereo_occlusion`); None without a new estimate (LOST,
+            INITIALIZING).
     """
 
     status: TrackStatus
@@ -57,6 +60,7 @@ class StereoResult:
     first_nodes: np.ndarray | None = None
     rotation: np.ndarray | None = None
     new_track: bool = False
+    occluded: np.ndarray | None = None
 
     @property
     def ok(self) -> bool:
@@ -80,6 +84,7 @@ class StereoResult:
             cost_history=self.cost_history,
             reason=self.reason,
             right_node_residuals=self.right_residuals,
+            occluded=self.occluded,
         )
 
 

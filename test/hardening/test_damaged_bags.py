@@ -378,12 +378,13 @@ def test_a_type_unknown_to_the_project_and_undefined_in_the_bag_is_named(
 
 
 def test_a_bag_of_another_version_of_a_message_is_read_as_it_defines_it(tmp_path):
-    """face/state written before FaceState had right_node_residuals stays readable."""
+    """face/state written before FaceState had right_node_residuals or occluded stays readable."""
     state = 'face_tracking_msgs/msg/FaceState'
     text, _ = typestore().generate_msgdef(state)
     assert 'float64[] right_node_residuals\n' in text  # this version's FaceState has it
     other = get_typestore(Stores.EMPTY)
-    other.register(get_types_from_msg(text.replace('float64[] right_node_residuals\n', ''), state))
+    earlier = text.replace('float64[] right_node_residuals\n', '').replace('bool[] occluded\n', '')
+    other.register(get_types_from_msg(earlier, state))
     header = other.types['std_msgs/msg/Header'](
         stamp=other.types['builtin_interfaces/msg/Time'](sec=1, nanosec=2), frame_id='cam'
     )
@@ -402,7 +403,7 @@ def test_a_bag_of_another_version_of_a_message_is_read_as_it_defines_it(tmp_path
     read = next(read_messages(path)).msg
     assert (read.face_id, read.status, read.iterations) == ('face_0', 1, 7)
     assert (read.mean_residual, list(read.node_residuals), list(read.alpha)) == (3.5, [3.0], [0.5])
-    assert not hasattr(read, 'right_node_residuals')
+    assert not hasattr(read, 'right_node_residuals') and not hasattr(read, 'occluded')
 
 
 # --- offline replay -----------------------------------------------------------------------------

@@ -712,6 +712,7 @@ def test_stereo_state_carries_each_camera_s_residuals(pairs):
     assert left.shape == right.shape == (34,)
     assert np.all(left > 0.0) and np.all(right > 0.0) and not np.allclose(left, right)
     assert state.mean_residual == pytest.approx(np.mean(np.concatenate([left, right])))
+    assert np.array_equal(state.occluded, np.zeros(34, dtype=bool))  # judged: none covered
 
 
 def test_stereo_waits_for_both_calibrations_holding_the_latest_pair(pairs, stereo_reference):
