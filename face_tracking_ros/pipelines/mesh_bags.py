@@ -114,10 +114,9 @@ def read_bag_meshes(
         occluded = counted(left_out[OCCLUDED], 'frame')
         say(f'{bag}: {occluded} with nodes held under an occluder (FaceState.occluded) left out')
     if not frames:
-        skipped = left_out.total()
+        skipped, seen = left_out.total(), ' with every node seen' if left_out[OCCLUDED] else ''
         msg = (
-            f'{bag}: none of the {counted(skipped, "frame")} on {topic} was tracked'
-            + (' with every node seen' if left_out[OCCLUDED] else '')
+            f'{bag}: none of the {counted(skipped, "frame")} on {topic} was tracked{seen}'
             if skipped
             else f'{bag}: no message on {topic}'
         )
