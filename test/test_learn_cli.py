@@ -18,6 +18,7 @@ from face_tracking_ros.cli.main import build_parser, main
 from face_tracking_ros.io import conversions
 from face_tracking_ros.io.bags import BagWriter, read_raw
 from face_tracking_ros.io.messages import RosbagsMessages
+from face_tracking_ros.io.series import load_states
 from face_tracking_ros.io.typestore import typestore
 from face_tracking_ros.learning.training_set import MeshSequence
 from face_tracking_ros.model.model_file import load_model
@@ -286,6 +287,10 @@ def test_frames_with_nodes_held_under_an_occluder_are_left_out(tmp_path, world, 
             in printed
         )
         assert json.loads((tmp_path / 'r.json').read_text())['frames'] == 4 * (frames - 8)
+    held = load_states(bags[0]).occluded
+    assert held.shape == (frames, 34) and np.array_equal(
+        np.flatnonzero(held.any(axis=1)), range(20, 27)
+    )
     text, _ = typestore().generate_msgdef(STATE_TYPE)
     assert 'bool[] occluded\n' in text  # this version's FaceState has it
     earlier = get_typestore(Stores.EMPTY)

@@ -47,6 +47,7 @@ def _black_edge_columns(frame: np.ndarray) -> int:
 def test_frames_are_rectified_before_the_mesh_is_drawn(turned, tmp_path):
     bag, out = turned
     states = load_states(out)
+    assert states.occluded.shape == (3, 34) and not states.occluded.any()  # mono: none judged
     rectified = list(overlay_frames(bag, states))
     recorded = list(overlay_frames(bag, states, rectify=False))
     assert len(rectified) == len(recorded) == 3
@@ -79,6 +80,11 @@ def test_the_mesh_is_drawn_on_its_nodes_and_edges_in_the_status_colour():
     rows, columns = np.nonzero(np.any(tracking != 50, axis=2))
     assert rows.min() >= 10 - 3 and rows.max() <= 30 + 3
     assert columns.min() >= 10 - 3 and columns.max() <= 50 + 3
+    # A node held under an occluder (FaceState.occluded) is a ring of radius 3 px, not a dot.
+    held = draw_mesh(gray, nodes, edges, TrackStatus.TRACKING, occluded=np.eye(4, dtype=bool)[2])
+    assert np.all(held[[10, 10], [10, 50]] == NODE_RGB)
+    assert np.all(held[[27, 33, 30, 30], [30, 30, 27, 33], 0] > 200)  # on the ring, anti-aliased
+    assert np.all(held[31, 30] == 50) and np.all(tracking[31, 30] == NODE_RGB)  # inside it
 
 
 def test_compressed_frames_are_drawn_like_raw_ones(turned, tmp_path):

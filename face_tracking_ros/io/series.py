@@ -36,6 +36,8 @@ class StateSeries:
         image_points: (F, N, 2) node projections, px.
         mean_residual: (F,) mean photometric residual, grey levels.
         iterations: (F,) solver iterations.
+        occluded: (F, N) bool, nodes held under an occluder (a stereo tracker's
+            FaceState.occluded); False where not judged.
     """
 
     stamps: np.ndarray
@@ -48,6 +50,7 @@ class StateSeries:
     image_points: np.ndarray
     mean_residual: np.ndarray
     iterations: np.ndarray
+    occluded: np.ndarray
 
 
 @dataclass(frozen=True)
@@ -98,6 +101,9 @@ def load_states(bag: Path) -> StateSeries:
     def stacked(field: str, values: list[np.ndarray]) -> np.ndarray:
         return _stacked(values, where, f'FaceState.{field}')
 
+    image_points = stacked('image_points', [_points(r.image_points)[:, :2] for r in rows])
+    # A FaceState of an earlier version (read with its bag's own definition) has no `occluded`.
+    occluded = stacked('occluded', [getattr(r, 'occluded', ()) for r in rows]) == 1
     return StateSeries(
         stamps=np.array([stamp_to_ns(r.header.stamp) for r in rows], dtype=np.int64),
         status=status,
@@ -106,9 +112,10 @@ def load_states(bag: Path) -> StateSeries:
         alpha=stacked('alpha', [r.alpha for r in rows]),
         sigma=stacked('sigma', [r.sigma for r in rows]),
         nodes=stacked('nodes', [_points(r.nodes) for r in rows]),
-        image_points=stacked('image_points', [_points(r.image_points)[:, :2] for r in rows]),
+        image_points=image_points,
         mean_residual=np.array([r.mean_residual for r in rows], dtype=float),
         iterations=np.array([r.iterations for r in rows], dtype=int),
+        occluded=occluded if occluded.size else np.zeros(image_points.shape[:2], dtype=bool),
     )
 
 

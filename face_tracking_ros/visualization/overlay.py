@@ -12,6 +12,7 @@ _STATUS_COLOURS = {
     TrackStatus.INITIALIZING: (240, 200, 40),
     TrackStatus.LOST: (230, 50, 50),
 }
+_NODE_COLOUR = (255, 90, 30)
 
 
 def draw_mesh(
@@ -20,6 +21,7 @@ def draw_mesh(
     edges: np.ndarray,
     status: TrackStatus,
     label: str = '',
+    occluded: np.ndarray | None = None,
 ) -> np.ndarray:
     """An (H, W, 3) rgb8 copy of a grey image with the mesh drawn on it.
 
@@ -29,6 +31,8 @@ def draw_mesh(
         edges: (E, 2) node index pairs.
         status: tracking status, which sets the colour (green tracking, red lost).
         label: text drawn in the top-left corner.
+        occluded: (N,) bool, nodes held under an occluder (FaceState.occluded): drawn as rings,
+            not dots.
     """
     canvas = cv2.cvtColor(gray, cv2.COLOR_GRAY2RGB)
     colour = _STATUS_COLOURS[TrackStatus(status)]
@@ -38,8 +42,10 @@ def draw_mesh(
     for i, j in edges:
         if valid[i] and valid[j]:
             cv2.line(canvas, points[i], points[j], colour, 1, cv2.LINE_AA, shift)
-    for point in points[valid]:
-        cv2.circle(canvas, point, 2 << shift, (255, 90, 30), -1, cv2.LINE_AA, shift)
+    held = np.zeros(len(points), dtype=bool) if occluded is None else occluded
+    for point, ring in zip(points[valid], held[valid], strict=True):
+        radius, thickness = (3, 1) if ring else (2, -1)
+        cv2.circle(canvas, point, radius << shift, _NODE_COLOUR, thickness, cv2.LINE_AA, shift)
     if label:
         cv2.putText(canvas, label, (8, 20), cv2.FONT_HERSHEY_SIMPLEX, 0.5, colour, 1, cv2.LINE_AA)
     return canvas

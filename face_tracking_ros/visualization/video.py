@@ -111,7 +111,8 @@ def overlay_frames(
         size = _one_size(gray.shape, size, name)
         status = TrackStatus(states.status[index])
         label = f'{status.name.lower()}  frame {count}'
-        yield draw_mesh(gray, states.image_points[index], edges, status, label)
+        points, occluded = states.image_points[index], states.occluded[index]
+        yield draw_mesh(gray, points, edges, status, label, occluded)
 
 
 def _one_size(shape: tuple[int, ...], first: tuple[int, ...] | None, name: str) -> tuple[int, ...]:
