@@ -56,9 +56,11 @@ Design, in the seed's terms:
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
-from dataclasses import dataclass, replace
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass, field, replace
+import itertools
 import math
+from typing import NamedTuple
 
 import numpy as np
 from numpy.linalg import LinAlgError
@@ -97,12 +99,32 @@ _START_LEVEL = 1
 # How far from where the motion prediction puts it the last valid frame's face is searched after
 # dropped images, in x and y, in the larger side of its view (:meth:`MonoTracker._searched`).
 _LAST_VIEW_REACH = 0.5
+# How many of the bundle adjustment's views, the nearest the last valid rotation, a LOST image
+# is searched for (:meth:`MonoTracker._viewed`): each is a search and a solve.
+_VIEWS_SEARCHED = 2
+# How far from where the last valid estimate puts the face a view's face is searched, in x and y,
+# in the larger side of its view (:meth:`MonoTracker._viewed`).
+_VIEW_REACH = 1.0
 # How near the last valid estimate (inner nodes' RMS, level-0 px) the solve back from a solve after
 # dropped images must land to confirm it (:meth:`MonoTracker._returns`).
 _RETURN_PX = 1.5
 # How far (level-0 px, in x and in y) from the last valid estimate that solve back starts: it must
 # come back, not stay where it started (:meth:`MonoTracker._solved_back`).
 _RETURN_START_PX = 3.0
+
+
+class _ViewFace(NamedTuple):
+    """A view of the bundle adjustment as a LOST image is searched for and solved against.
+
+    Attributes:
+        face: its inner face (:class:`.FaceView`).
+        centre: (2,) level-0 px, the mean of its inner nodes.
+        templates: its templates, every level sampled, at the view's estimate.
+    """
+
+    face: FaceView
+    centre: np.ndarray
+    templates: Templates
 
 
 @dataclass
@@ -117,7 +139,10 @@ class _Track:
     point, ``span`` the frame intervals from it to ``current`` (more than 1 when images were
     dropped between them). ``missed`` counts the images since ``current`` that gave no valid
     estimate (LOST); ``elapsed`` the frame intervals from ``current`` to the image being
-    tracked, dropped images included (``missed + 1`` in a stream without gaps).
+    tracked, dropped images included (``missed + 1`` in a stream without gaps). ``view_faces``
+    holds the bundle adjustment's views' inner faces and templates by frame, made when a LOST
+    image is first searched for them (:meth:`MonoTracker._viewed`), dropped when an adjustment is
+    applied.
     """
 
     rois: tuple[Roi, ...]
@@ -135,6 +160,7 @@ class _Track:
     elapsed: int = 0
     before: Params | None = None
     span: int = 1
+    view_faces: dict[int, _ViewFace] = field(default_factory=dict)
 
     @property
     def lost(self) -> bool:
@@ -408,12 +434,15 @@ class MonoTracker:
         detected = self._detect(pyramid)
         fit, error = self._fit(detected) if detected is not None else (None, '')
         # A detection resumes the track with the track's sigma, or starts a new one with its own.
-        candidates = [fit._replace(sigma=track.current.sigma)] if fit is not None else []
-        candidates.append(self._search(pyramid))
-        for start in candidates:
-            keyframe = nearest_keyframe(track.keyframes, start.omega).templates
-            weights = keyframe.visibility * self._face.visibility(start, track.normals)
-            result, templates = self._solve_frame(pyramid, start, keyframe.levels, weights, ratio)
+        starts = [fit._replace(sigma=track.current.sigma)] if fit is not None else []
+        starts.append(self._search(pyramid))
+        keyframed = (
+            (start, nearest_keyframe(track.keyframes, start.omega).templates) for start in starts
+        )
+        candidates = itertools.chain(keyframed, self._viewed(pyramid) if track.lost else ())
+        for start, reference in candidates:
+            weights = reference.visibility * self._face.visibility(start, track.normals)
+            result, templates = self._solve_frame(pyramid, start, reference.levels, weights, ratio)
             if not result.ok and track.bridging:
                 found, templates = self._solve_frame(
                     pyramid, templates.params, *self._blended_templates(), ratio
@@ -430,6 +459,39 @@ class MonoTracker:
         """The initial fit moved onto where frame 1's inner face correlates best with the image."""
         track = self._track
         return self._moved(track.start, track.view.shift(pyramid))
+
+    def _viewed(self, pyramid: ImagePyramid) -> Iterator[tuple[Params, Templates]]:
+        """Starts from the bundle adjustment's views, each with the templates it is solved against.
+
+        The ``_VIEWS_SEARCHED`` views (frame 1's aside: :meth:`_search`) whose rotations are
+        nearest the last valid estimate's, nearest first: each view's estimate moved to where its
+        inner face correlates best with the image within ``_VIEW_REACH`` of where the last valid
+        estimate puts the face, and the view's own templates.
+        """
+        track = self._track
+        views = track.first_views.views[1:]
+        rotation = self._face.rotation(track.current)
+        nearest = np.argsort([-np.sum(view.rotation * rotation) for view in views])
+        here = self._face.nodes(track.current)[1][~self._edge_nodes].mean(axis=0)
+        for index in nearest[:_VIEWS_SEARCHED]:
+            view = views[index]
+            viewed = track.view_faces.get(view.frame) or self._view_face(view)
+            track.view_faces[view.frame] = viewed
+            shift = viewed.face.shift(pyramid, here - viewed.centre, _VIEW_REACH)
+            yield self._moved(view.params, shift), viewed.templates
+
+    def _view_face(self, view: View) -> _ViewFace:
+        """A view's inner face and templates, sampled on its image's pyramid at its estimate."""
+        track, config = self._track, self._config
+        pyramid = ImagePyramid.build(view.image, config.pyramid_levels, config.smooth_base)
+        nodes_px = self._face.nodes(view.params)[1]
+        inner = ~self._edge_nodes
+        templates = self._sampler.templates(pyramid, view.params, track.rois, track.normals)
+        return _ViewFace(
+            FaceView.of(pyramid, nodes_px, inner),
+            nodes_px[inner].mean(axis=0),
+            templates.sampled(),
+        )
 
     def _searched(self, pyramid: ImagePyramid, start: Params) -> Params:
         """``start`` moved to where the last valid frame's inner face correlates best.
@@ -768,6 +830,7 @@ class MonoTracker:
         keyframe = self._sampler.keyframe(start.omega, first)
         previous = self._sampler.templates(pyramid, current, adjusted.rois, normals)
         track.rois, track.normals, track.keyframes = adjusted.rois, normals, [keyframe]
+        track.view_faces = {}
         track.first_views.rebase(views, adjusted)
         track.start, track.previous, track.current, track.before = start, previous, current, None
         track.last_good = self._result(
