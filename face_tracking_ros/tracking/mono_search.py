@@ -3,8 +3,10 @@
 The monocular tracker re-acquires a lost face without a detector: it solves eq. 6 against the
 keyframe templates from the initial pose translated parallel to the image plane onto the spot
 where frame 1's inner face (the nodes off the face edge) correlates best with the image
-(normalised cross-correlation, robust to a gain and bias). After dropped images it also solves
-eq. 6 of a followed frame from where the last valid frame's inner face correlates best.
+(normalised cross-correlation, robust to a gain and bias), and while LOST also against the
+templates of the bundle adjustment's views nearest the last valid pose, from where each view's
+inner face correlates best near where the face was. After dropped images it also solves eq. 6 of
+a followed frame from where the last valid frame's inner face correlates best.
 :class:`FaceView` is such a view.
 """
 
