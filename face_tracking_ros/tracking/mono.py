@@ -101,8 +101,8 @@ _START_LEVEL = 1
 # How far from where the motion prediction puts it the last valid frame's face is searched after
 # dropped images, in x and y, in the larger side of its view (:meth:`MonoTracker._searched`).
 _LAST_VIEW_REACH = 0.5
-# How many of the bundle adjustment's views, the nearest the last valid rotation, a LOST image
-# is searched for (:meth:`MonoTracker._viewed`): each is a search and a solve.
+# How many of the bundle adjustment's views a LOST image is searched for and solved from
+# (:meth:`MonoTracker._viewed`): each is a search and a solve.
 _VIEWS_SEARCHED = 2
 # How far from where the last valid estimate puts the face a view's face is searched, in x and y,
 # in the larger side of its view (:meth:`MonoTracker._viewed`).
@@ -487,8 +487,7 @@ class MonoTracker:
         """
         track = self._track
         views = track.first_views.views[1:]
-        rotation = self._face.rotation(track.current)
-        ranked = [views[i] for i in np.argsort([-np.sum(v.rotation * rotation) for v in views])]
+        ranked = [views[i] for i in np.argsort(-keyframe_cosines(views, track.current.omega))]
         tried, rest = ranked[: _VIEWS_SEARCHED - 1], ranked[_VIEWS_SEARCHED - 1 :]
         if rest:
             tried.append(rest[(track.missed - 1) % len(rest)])

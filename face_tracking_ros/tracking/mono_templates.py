@@ -14,7 +14,7 @@ I_1 alone (keyframes inherit the error of the pose they were taken at), so it is
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from typing import NamedTuple
+from typing import NamedTuple, Protocol
 
 import numpy as np
 
@@ -159,7 +159,15 @@ def nearest_keyframe(keyframes: Sequence[Keyframe], omega: np.ndarray) -> Keyfra
     return keyframes[int(np.argmax(keyframe_cosines(keyframes, omega)))]
 
 
-def keyframe_cosines(keyframes: Sequence[Keyframe], omega: np.ndarray) -> np.ndarray:
-    """trace(R_k' R(omega)) of every keyframe k: larger means nearer (3 = same rotation)."""
+class Rotated(Protocol):
+    """Anything seen at a rotation: a keyframe, or a view of the bundle adjustment."""
+
+    @property
+    def rotation(self) -> np.ndarray:
+        """(3, 3) R(omega) it was seen at."""
+
+
+def keyframe_cosines(keyframes: Sequence[Rotated], omega: np.ndarray) -> np.ndarray:
+    """trace(R_k' R(omega)) of every keyframe (or view) k: larger means nearer (3 = same)."""
     rotation, _ = rodrigues(omega)
     return np.array([np.sum(k.rotation * rotation) for k in keyframes])
