@@ -169,6 +169,19 @@ def mesh_topology(num_nodes: int = 34) -> MeshTopology:
     )
 
 
+def mesh_neighbours(nodes: np.ndarray, edges: np.ndarray) -> np.ndarray:
+    """(N,) bool, the nodes an edge of the mesh joins to one of ``nodes``.
+
+    Args:
+        nodes: (N,) bool, the nodes whose neighbours are wanted.
+        edges: (E, 2) the mesh's edges (:attr:`MeshTopology.edges`).
+    """
+    near = np.zeros(nodes.size, dtype=bool)
+    near[edges[nodes[edges[:, 1]], 0]] = True
+    near[edges[nodes[edges[:, 0]], 1]] = True
+    return near
+
+
 def _edges_of(triangles: np.ndarray) -> np.ndarray:
     """Unique sorted (E, 2) edges of a triangle list."""
     pairs = np.concatenate([triangles[:, [0, 1]], triangles[:, [1, 2]], triangles[:, [0, 2]]])

@@ -41,6 +41,16 @@ Design, in the seed's terms:
   then :meth:`MonoTracker.adjust`; ``step`` does both), so a live node publishes the pose before
   it spends time on them, and an adjustment takes effect from the frame after its last stage.
 - Loss of track gives status LOST with the last valid estimate (:mod:`.mono_loss`).
+- Nodes an occluder covers (a hand passing in front of the face) are told from the others by how
+  they fit their templates (:func:`.mono_loss.covered_nodes`); a frame where some are newly
+  covered is solved again without them (:meth:`MonoTracker._solve_frame`), and while they stay
+  covered they weigh nothing in eq. 6, keep the templates of the last image that saw them and
+  count as not visible in the loss checks, so the pose follows the visible nodes and the track
+  is LOST only when fewer than ``min_visible_fraction`` of the nodes are left. A LOST image
+  checks every node again. Measured on 48 rendered runs with an occluder passing (seeds 1-3,
+  two subjects, 640x480 and 320x240, 19 and 34 nodes, true and packaged model): TRACKING frames
+  more than 5 px off 86 -> 42, more than 10 px 35 -> 15, LOST frames 2666 -> 2394; the same runs
+  without the occluder the same to the digit.
 - Recovery needs no detector. While LOST, each image is solved as the frame after the last valid
   one (eq. 6 from its estimate and templates); if that fails, as when tracking fails, it is solved
   against the keyframe templates alone from the initial pose translated onto the best normalised
@@ -170,6 +180,15 @@ class _Track:
         return self.missed > 0
 
     @property
+    def covered(self) -> np.ndarray:
+        """(N,) bool, the nodes covered at ``current``; none once an image since was LOST.
+
+        A LOST image's solves weigh and check every node again, the covered ones against the
+        templates kept from before they were covered.
+        """
+        return self.previous.covered & (not self.lost)
+
+    @property
     def bridging(self) -> bool:
         """Whether images were dropped since ``current`` (more intervals than images tracked)."""
         return self.elapsed > self.missed + 1
@@ -211,7 +230,7 @@ class MonoTracker:
         self._rois = RoiLayout(model, camera.focal, grid, config)
         self._sampler = TemplateSampler(self._face, invariance)
         self._solver = MonoSolver(model, config, self._face, invariance, priors)
-        self._loss = LossChecks(config, camera, self._face, grid)
+        self._loss = LossChecks(config, camera, self._face, grid, model.topology)
         self._adjuster = ViewAdjuster(
             model, config, self._rois, self._face, invariance, self._roi_weights, priors
         )
@@ -324,11 +343,14 @@ class MonoTracker:
                 track.current,
                 track.previous.visibility,
                 track.frames,
-                lambda: self._loss.steady(
-                    track.current,
-                    result.node_residuals,
-                    track.previous.levels[0],
-                    track.previous.visibility,
+                lambda: (
+                    not track.previous.covered.any()
+                    and self._loss.steady(
+                        track.current,
+                        result.node_residuals,
+                        track.previous.levels[0],
+                        track.previous.visibility,
+                    )
                 ),
             )
             if adjusted is not None:
@@ -636,7 +658,7 @@ class MonoTracker:
             len(previous),
             lambda level: blended_template(previous[level], keyframe.levels[level], epsilon),
         )
-        return blended, track.previous.visibility
+        return blended, np.where(track.covered, 0.0, track.previous.visibility)
 
     def _first_level(self, current: Params, predicted: Params) -> int:
         """The level a predicted frame's solve starts on: 0 for a small predicted motion."""
@@ -656,6 +678,7 @@ class MonoTracker:
         track = self._track
         track.before = None if track.lost else track.current
         track.span = track.elapsed
+        templates = templates.kept(track.previous)
         config = self._config
         if len(track.keyframes) < config.max_keyframes:
             # trace(R) = 1 + 2 cos(angle)
@@ -699,6 +722,10 @@ class MonoTracker:
         against 9.7-12 ms). Solves started on level 1 (re-acquisition among them) are not made
         again: that doubled the time of a LOST frame (10 -> 18 ms).
 
+        A solve whose outcome has nodes newly covered by an occluder (:meth:`_checked`) is made
+        again from the same start without them, and checked with them covered: the first solve
+        fits them to the occluder in part, which drags the face and raises the others' residuals.
+
         ``returned`` is the last valid frame's pyramid (given for the first image after dropped
         images): a solve that fails the checks at ``residual_ratio`` but passes them at
         ``lost_residual_ratio`` is taken if solving that pyramid back from it returns to the
@@ -710,7 +737,8 @@ class MonoTracker:
             samples).
         """
         node_weights = node_weights * self._roi_weights
-        rois = self._track.rois
+        track = self._track
+        rois = track.rois
 
         def attempt(
             begin: Params, level: int, restart_px: float
@@ -718,7 +746,19 @@ class MonoTracker:
             solution = self._solver.solve(
                 pyramid, begin, templates, node_weights, rois, free_sigma, level, restart_px
             )
-            return (solution, *self._checked(solution, pyramid, templates[0], residual_ratio))
+            result, sampled = self._checked(solution, pyramid, templates[0], residual_ratio)
+            weights = np.where(sampled.covered, 0.0, node_weights)
+            if not (weights < node_weights).any():
+                return solution, result, sampled
+            # Nodes newly covered: solved again without them, from the same start, and every
+            # node covered before checked again there (the first solve's drag can uncover some).
+            again = self._solver.solve(
+                pyramid, begin, templates, weights, rois, free_sigma, level, restart_px
+            )
+            found, sampled = self._checked(
+                again, pyramid, templates[0], residual_ratio, sampled.covered | track.covered
+            )
+            return again, _summed(result, found), sampled
 
         solution, result, sampled = attempt(start, first_level, self._config.coarsest_level_px)
         total = result
@@ -764,7 +804,7 @@ class MonoTracker:
             pyramid,
             self._moved(track.current, offset),
             templates.levels,
-            templates.visibility * self._roi_weights,
+            templates.seen * self._roi_weights,
             track.rois,
             False,
             _START_LEVEL,
@@ -795,10 +835,13 @@ class MonoTracker:
         pyramid: ImagePyramid,
         template: np.ndarray,
         residual_ratio: float,
+        covered: np.ndarray | None = None,
     ) -> tuple[TrackResult, Templates]:
         """The result of a solution that passes the loss checks (TRACKING) or not (LOST).
 
-        ``template`` is the level-0 template the solution was compared with.
+        ``template`` is the level-0 template the solution was compared with; ``covered`` the
+        nodes taken as covered before it (the last valid frame's by default), which stay covered
+        until they fit their templates again (:func:`~.mono_loss.covered_nodes`).
 
         Returns:
             The result and the templates sampled at its estimate.
@@ -809,12 +852,18 @@ class MonoTracker:
             pyramid, params, track.rois, track.normals, solution.sampled
         )
         node_rms = row_rms(solution.residuals)
+        before = track.covered if covered is None else covered
+        sampled = sampled._replace(
+            covered=self._loss.covered(
+                params, node_rms, sampled.levels[0], sampled.visibility, before
+            )
+        )
         reason = self._loss.reason(
             params,
             node_rms,
             sampled.levels[0],
             template,
-            sampled.visibility,
+            sampled.seen,
             solution.condition,
             residual_ratio,
             Reference(track.current, track.elapsed, track.keyframes),

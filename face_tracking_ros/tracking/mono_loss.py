@@ -9,6 +9,12 @@ texture in the image: what is left of the ROI after removing the brightness chan
 no template (its mean and, for GAIN_FIELD, its linear ramp, which alone fit a smooth backdrop or
 hand). An image ROI with no texture above ``residual_scale_floor`` cannot confirm a textured
 template.
+
+An occluder passing in front of the face (a hand, a mug) covers some nodes while the others fit
+as before. The covered nodes are told from the others per image (:func:`covered_nodes`) and are
+left out: of the checks (they count as not visible, so too few nodes left uncovered is a loss),
+of the next image's solve, and of the templates, whose rows for them stay those of the last image
+that saw them (:meth:`~.mono_templates.Templates.kept`).
 """
 
 from __future__ import annotations
@@ -22,6 +28,7 @@ from face_tracking_ros.geometry.camera import PinholeCamera
 from face_tracking_ros.geometry.rotation import angle_between
 from face_tracking_ros.imaging import PhotometricModel
 from face_tracking_ros.imaging.photometric import PhotometricProjection
+from face_tracking_ros.model.topology import Group, MeshTopology, mesh_neighbours
 from face_tracking_ros.tracking.mono_config import MonoTrackerConfig
 from face_tracking_ros.tracking.mono_kernels import (
     Votes,
@@ -35,6 +42,21 @@ from face_tracking_ros.tracking.mono_templates import Keyframe, nearest_keyframe
 from face_tracking_ros.wording import counted
 
 _MIN_DEPTH = 0.05  # m; a face nearer the camera than this has diverged
+# A node newly covered fits this many times worse than the lower quartile of the visible inner
+# nodes not covered. A change of light raises every node's residual (rendered, on its first frame:
+# lower quartile 0.35, worst inner node 0.72 of the ROI texture); an occluder raises those it
+# covers alone (0.6-1.0 against a lower quartile of 0.07-0.2).
+_COVER_FACTOR = 3.0
+# Fewest inner nodes failing at once that start a cover away from a covered node, each next to
+# another: on the 48 unoccluded runs of docs/performance.md two neighbours failed together now
+# and then (an eye's outer corner and brow end as the head turned, the lips' corners with the
+# expression) and, covered, stayed so; with three no cover started there (the runs the same to
+# the digit).
+_COVER_START = 3
+# A covered node is uncovered once it fits its kept template within this fraction of
+# occlusion_residual_ratio: an occluder's edge over part of its ROI leaves it fitting at 0.4-0.5,
+# and uncovered there its templates took the edge in, which dragged the face along with it.
+_UNCOVER_FRACTION = 0.5
 
 
 class Reference(NamedTuple):
@@ -57,10 +79,11 @@ class LossChecks:
     Args:
         config: the tracker's tunables (the checks': ``max_rotation_step``, ``max_condition``,
             ``min_visible_fraction``, ``residual_scale_floor``, ``lost_node_fraction``,
-            ``drift_residual_ratio``, and ``photometric``).
+            ``drift_residual_ratio``, ``occlusion_residual_ratio`` and ``photometric``).
         camera: the camera (its image size).
         face: the model posed and projected.
         grid: (M, 2) the ROI's sample offsets in grid steps.
+        topology: the model's mesh (which nodes are on the face edge, which are neighbours).
     """
 
     def __init__(
@@ -69,11 +92,14 @@ class LossChecks:
         camera: PinholeCamera,
         face: FaceProjection,
         grid: np.ndarray,
+        topology: MeshTopology,
     ) -> None:
         """Keep the collaborators; make the projection that leaves a ROI's texture."""
         self._config = config
         self._camera = camera
         self._face = face
+        self._inner = ~topology.group_mask(Group.EDGE)
+        self._edges = topology.edges
         # The brightness change of a ROI that needs no template (a flat template's projection):
         # its mean, and for GAIN_FIELD its linear ramp; what is left is the ROI's texture.
         self._untextured = PhotometricProjection.of(
@@ -141,6 +167,35 @@ class LossChecks:
             return f'drifted: residual against the keyframe {drift:.2f} x the ROI texture'
         return ''
 
+    def covered(
+        self,
+        params: Params,
+        node_rms: np.ndarray,
+        samples: np.ndarray,
+        visibility: np.ndarray,
+        before: np.ndarray,
+    ) -> np.ndarray:
+        """(N,) bool, the nodes an occluder covers at this estimate (:func:`covered_nodes`).
+
+        Args:
+            params: the estimate.
+            node_rms: (N,) RMS of each node's residual there.
+            samples: (N, M) level-0 samples of the image there.
+            visibility: (N,) node visibility there.
+            before: (N,) bool, the nodes covered at the last valid estimate.
+        """
+        config = self._config
+        texture = np.maximum(row_rms(self._untextured.apply(samples)), config.residual_scale_floor)
+        votes = self._votes(params, visibility, (texture, texture), node_rms, 1.0)
+        return covered_nodes(
+            node_rms / texture,
+            votes.visible,
+            self._inner,
+            before,
+            config.occlusion_residual_ratio,
+            self._edges,
+        )
+
     def steady(
         self, params: Params, node_rms: np.ndarray, samples: np.ndarray, visibility: np.ndarray
     ) -> bool:
@@ -192,6 +247,47 @@ class LossChecks:
         """
         rms = row_rms(self._untextured.apply(np.concatenate((samples, template))))
         return rms[: len(samples)], rms[len(samples) :]
+
+
+def covered_nodes(
+    ratios: np.ndarray,
+    visible: np.ndarray,
+    inner: np.ndarray,
+    before: np.ndarray,
+    ratio: float,
+    edges: np.ndarray,
+) -> np.ndarray:
+    """(N,) bool, the nodes an occluder covers, read from how each fits its template (eq. 6).
+
+    A covered node stays covered while it fits its (kept) template worse than
+    :data:`_UNCOVER_FRACTION` of ``ratio``. A visible inner node not covered before is newly
+    covered when it fits worse than ``ratio`` and than :data:`_COVER_FACTOR` times the lower
+    quartile of the visible inner nodes not covered before, and it is next to a covered node (an
+    occluder grows over its neighbours) or :data:`_COVER_START` nodes fail so at once and a mesh
+    neighbour of it is one of them (an occluder covers a region). A face-edge node failing so is
+    covered only next to a covered node: its patch changes most with pose and light. A change of
+    light raises the residuals of the whole face, the lower quartile with them.
+
+    Args:
+        ratios: (N,) each node's RMS residual over its ROI's texture in the image (floored at
+            ``residual_scale_floor``).
+        visible: (N,) bool, the nodes visible in the image.
+        inner: (N,) bool, the nodes off the face edge.
+        before: (N,) bool, the nodes covered at the last valid estimate.
+        ratio: ``occlusion_residual_ratio``.
+        edges: (E, 2) the mesh's edges.
+    """
+    kept = before & visible & (ratios > _UNCOVER_FRACTION * ratio)
+    fitting = visible & ~before
+    if not (fitting & inner).any():
+        return kept
+    bound = max(ratio, _COVER_FACTOR * float(np.percentile(ratios[fitting & inner], 25)))
+    failing = fitting & (ratios > bound)
+    grown = failing & inner & mesh_neighbours(kept, edges)
+    if np.count_nonzero(failing & inner) >= _COVER_START:
+        grown |= failing & inner & mesh_neighbours(failing & inner, edges)
+    covered = kept | grown
+    return covered | (failing & ~inner & mesh_neighbours(covered, edges))
 
 
 def _drift_ratio(

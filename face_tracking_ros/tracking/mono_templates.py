@@ -81,12 +81,35 @@ class Templates(NamedTuple):
         visibility: (N,) node visibility weights.
         inside: (N, M) level-0 samples inside the image.
         params: the parameter vector they were sampled at.
+        covered: (N,) bool, the nodes an occluder covers in the image
+            (:func:`~.mono_loss.covered_nodes`): once the frame is accepted their rows hold the
+            last templates that saw them (:meth:`kept`), and they weigh nothing.
     """
 
     levels: Sequence[np.ndarray]
     visibility: np.ndarray
     inside: np.ndarray
     params: Params
+    covered: np.ndarray
+
+    @property
+    def seen(self) -> np.ndarray:
+        """(N,) the visibility weights of the nodes not covered (the covered ones 0)."""
+        return np.where(self.covered, 0.0, self.visibility)
+
+    def kept(self, last: Templates) -> Templates:
+        """These templates with the covered nodes' rows of every level kept from ``last``.
+
+        Every level is sampled now (of both) when a node is covered: the occluder never enters
+        a covered node's templates, so it matches the face again once the occluder has gone.
+        """
+        if not self.covered.any():
+            return self
+        rows = self.covered[:, None]
+        levels = tuple(
+            np.where(rows, old, new) for old, new in zip(last.levels, self.levels, strict=True)
+        )
+        return self._replace(levels=levels)
 
     def sampled(self) -> Templates:
         """These templates with every level sampled (to keep past their pyramid)."""
@@ -144,7 +167,9 @@ class TemplateSampler:
             return self._face.sample(pyramid, params, level, rois[level]).samples
 
         levels = OnDemand(pyramid.num_levels, sample, source=pyramid, first=first.samples)
-        return Templates(levels, self._face.visibility(params, normals), first.inside, params)
+        visibility = self._face.visibility(params, normals)
+        covered = np.zeros(visibility.shape, dtype=bool)
+        return Templates(levels, visibility, first.inside, params, covered)
 
     def keyframe(self, omega: np.ndarray, templates: Templates) -> Keyframe:
         """A keyframe of ``templates`` sampled at rotation R(omega), every level sampled now."""

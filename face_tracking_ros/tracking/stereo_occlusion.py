@@ -32,6 +32,7 @@ from __future__ import annotations
 import numpy as np
 
 from face_tracking_ros.geometry.procrustes import rigid_align
+from face_tracking_ros.model.topology import mesh_neighbours
 from face_tracking_ros.tracking.stereo_data import Sampled, SampleSet
 from face_tracking_ros.tracking.stereo_kernels import stereo_contrast
 
@@ -99,9 +100,7 @@ def covered_nodes(
     """
     covered = agreed & checked & (disagreement > ratio)
     if covered.any():
-        near = np.zeros(covered.size, dtype=bool)
-        near[edges[covered[edges[:, 1]], 0]] = True
-        near[edges[covered[edges[:, 0]], 1]] = True
+        near = mesh_neighbours(covered, edges)
         covered |= agreed & ~checked & near & (disagreement > UNCHECKED_FACTOR * ratio)
     if covered.size - np.count_nonzero(covered) < MIN_UNCOVERED_NODES:
         covered[:] = False

@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 
 from face_tracking_ros.imaging.photometric import PhotometricInvariance, PhotometricModel
-from face_tracking_ros.tracking.mono_loss import _drift_ratio
+from face_tracking_ros.model.topology import Group, mesh_topology
+from face_tracking_ros.tracking.mono_loss import _drift_ratio, covered_nodes
 from face_tracking_ros.tracking.mono_rois import Params
 from face_tracking_ros.tracking.mono_templates import Keyframe, Templates
 
@@ -23,6 +24,7 @@ def _keyframe(template: np.ndarray, visibility: np.ndarray) -> Keyframe:
         visibility=visibility,
         inside=np.ones(template.shape, dtype=bool),
         params=Params(omega=zeros, t=zeros, alpha=np.zeros(1), sigma=np.zeros(1)),
+        covered=np.zeros(len(template), dtype=bool),
     )
     return Keyframe(np.eye(3), templates, invariance.projection(template))
 
@@ -57,3 +59,40 @@ def test_drift_ratio_counts_only_nodes_the_keyframe_sees() -> None:
 
     assert np.isclose(hidden_first, np.sqrt(8 / 9))  # node 1 alone: node 0's 50 is not counted
     assert none_seen == 0.0  # no textured node the keyframe sees: no evidence of drift
+
+
+def _covered(ratios: np.ndarray, before: np.ndarray | None = None) -> set[int]:
+    """The 34-node mesh's nodes :func:`covered_nodes` gives at ratio 0.5, all visible."""
+    topology = mesh_topology(34)
+    before = np.zeros(34, dtype=bool) if before is None else before
+    inner = ~topology.group_mask(Group.EDGE)
+    visible = np.ones(34, dtype=bool)
+    return set(np.flatnonzero(covered_nodes(ratios, visible, inner, before, 0.5, topology.edges)))
+
+
+def test_an_occluder_covers_the_nodes_that_fail_together_while_the_rest_fit() -> None:
+    """The right eye and its neighbours fail (0.9), the other nodes fit (0.1)."""
+    topology = mesh_topology(34)
+    ratios = np.full(34, 0.1)
+    eye = [topology.index(n) for n in ('right_eye', 'right_eye_outer', 'right_brow_middle')]
+    temple = topology.index('right_temple')  # a face-edge node next to the eye
+    jaw = topology.index('left_jaw')  # a face-edge node next to no failing node
+    ratios[[*eye, temple, jaw]] = 0.9
+    assert _covered(ratios) == {*eye, temple}
+    # A single inner node failing, or two, starts no cover: their shading changes as the head
+    # turns, or the mouth's with the expression.
+    assert _covered(np.where(np.isin(np.arange(34), eye[:2]), 0.9, 0.1)) == set()
+
+
+def test_a_change_of_light_covers_nothing() -> None:
+    """Every node fits worse (0.3-0.8 of the texture): none is 3 x the lower quartile."""
+    ratios = np.linspace(0.3, 0.8, 34)
+    assert _covered(ratios) == set()
+
+
+def test_a_covered_node_is_uncovered_once_it_fits_its_template_again() -> None:
+    before = np.zeros(34, dtype=bool)
+    before[[0, 19]] = True
+    ratios = np.full(34, 0.1)
+    ratios[0], ratios[19] = 0.4, 0.2  # above and below half of 0.5
+    assert _covered(ratios, before) == {0}

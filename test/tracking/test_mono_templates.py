@@ -45,6 +45,7 @@ def test_templates_sampled_in_full_are_kept_as_they_are() -> None:
         visibility=np.ones(2),
         inside=np.ones((2, 9), dtype=bool),
         params=Params(zeros, zeros, np.zeros(1), np.zeros(1)),
+        covered=np.zeros(2, dtype=bool),
     )
     assert templates.sampled() is templates
     assert not templates.reads(object())
@@ -71,6 +72,7 @@ def test_a_keyframes_projection_is_its_level_0_templates(model_factory) -> None:
         visibility=np.ones(2),
         inside=np.ones((2, 9), dtype=bool),
         params=Params(zeros, zeros, np.zeros(1), np.zeros(1)),
+        covered=np.zeros(2, dtype=bool),
     )
     invariance = PhotometricInvariance.of(PhotometricModel.GAIN_BIAS, square_offsets(1))
     face = FaceProjection(model_factory(), PinholeCamera.ideal(), 1, 0.1)
@@ -81,3 +83,21 @@ def test_a_keyframes_projection_is_its_level_0_templates(model_factory) -> None:
     np.testing.assert_array_equal(keyframe.rotation, rodrigues(omega)[0])
     assert np.abs(keyframe.projection.apply(2.0 * level_0 + 5.0)).max() < 1e-9
     assert np.abs(keyframe.projection.apply(level_1)).max() > 1.0
+
+
+def test_covered_nodes_keep_the_last_templates_of_every_level() -> None:
+    zeros = np.zeros(3)
+    params = Params(zeros, zeros, np.zeros(1), np.zeros(1))
+    last = Templates(
+        (np.zeros((3, 9)), np.zeros((3, 4))),
+        np.ones(3),
+        np.ones((3, 9), dtype=bool),
+        params,
+        np.zeros(3, dtype=bool),
+    )
+    covered = np.array([False, True, False])
+    new = Templates((np.ones((3, 9)), np.ones((3, 4))), np.ones(3), last.inside, params, covered)
+    kept = new.kept(last)
+    assert [level[:, 0].tolist() for level in kept.levels] == [[1.0, 0.0, 1.0]] * 2
+    assert kept.seen.tolist() == [1.0, 0.0, 1.0]
+    assert last.kept(new) is last  # nothing covered: the templates as they are
