@@ -854,17 +854,16 @@ class MonoTracker:
             pyramid, params, track.rois, track.normals, solution.sampled
         )
         node_rms = row_rms(solution.residuals)
+        textures = self._loss.textures(sampled.levels[0], template)
         before = track.covered if covered is None else covered
         sampled = sampled._replace(
-            covered=self._loss.covered(
-                params, node_rms, sampled.levels[0], sampled.visibility, before
-            )
+            covered=self._loss.covered(params, node_rms, textures[0], sampled.visibility, before)
         )
         reason = self._loss.reason(
             params,
             node_rms,
             sampled.levels[0],
-            template,
+            textures,
             sampled.seen,
             solution.condition,
             residual_ratio,

@@ -111,7 +111,7 @@ class LossChecks:
         params: Params,
         node_rms: np.ndarray,
         samples: np.ndarray,
-        template: np.ndarray,
+        textures: tuple[np.ndarray, np.ndarray],
         visibility: np.ndarray,
         condition: float,
         residual_ratio: float,
@@ -123,7 +123,8 @@ class LossChecks:
             params: the solution.
             node_rms: (N,) RMS of each node's (photometrically projected) residual.
             samples: (N, M) level-0 samples of the image at the solution.
-            template: (N, M) level-0 template they were compared with.
+            textures: (N,) their ROIs' texture and that of the level-0 template they were
+                compared with (:meth:`textures`).
             visibility: (N,) node visibility at the solution.
             condition: the solve's condition number.
             residual_ratio: a node fails when its residual exceeds this multiple of its texture.
@@ -147,10 +148,8 @@ class LossChecks:
         # Each node's residual against the texture of its ROI in the image: near 1 when the
         # template explains none of it. Nodes flat in both the image and the template abstain.
         floor = config.residual_scale_floor
-        image_texture, template_texture = self._textures(samples, template)
-        votes = self._votes(
-            params, visibility, (image_texture, template_texture), node_rms, residual_ratio
-        )
+        image_texture = textures[0]
+        votes = self._votes(params, visibility, textures, node_rms, residual_ratio)
         nodes = len(votes.visible)
         if votes.visible_count / nodes < config.min_visible_fraction:
             return f'only {votes.visible_count} of {nodes} nodes visible in the image'
@@ -171,7 +170,7 @@ class LossChecks:
         self,
         params: Params,
         node_rms: np.ndarray,
-        samples: np.ndarray,
+        texture: np.ndarray,
         visibility: np.ndarray,
         before: np.ndarray,
     ) -> np.ndarray:
@@ -180,15 +179,18 @@ class LossChecks:
         Args:
             params: the estimate.
             node_rms: (N,) RMS of each node's residual there.
-            samples: (N, M) level-0 samples of the image there.
+            texture: (N,) the texture of the image's ROIs there (:meth:`textures`).
             visibility: (N,) node visibility there.
             before: (N,) bool, the nodes covered at the last valid estimate.
         """
         config = self._config
-        texture = np.maximum(row_rms(self._untextured.apply(samples)), config.residual_scale_floor)
+        texture = np.maximum(texture, config.residual_scale_floor)
+        ratios = node_rms / texture
+        if not (before.any() or (ratios[self._inner] > config.occlusion_residual_ratio).any()):
+            return np.zeros_like(before)  # most frames of a track: nothing to cover
         votes = self._votes(params, visibility, (texture, texture), node_rms, 1.0)
         return covered_nodes(
-            node_rms / texture,
+            ratios,
             votes.visible,
             self._inner,
             before,
@@ -237,9 +239,7 @@ class LossChecks:
             ratio,
         )
 
-    def _textures(
-        self, samples: np.ndarray, template: np.ndarray
-    ) -> tuple[np.ndarray, np.ndarray]:
+    def textures(self, samples: np.ndarray, template: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The ROIs' texture in the image and in the template, in one projection.
 
         Each is the (N,) RMS of the (N, M) ROI values beyond the brightness change that needs
@@ -279,10 +279,11 @@ def covered_nodes(
     """
     kept = before & visible & (ratios > _UNCOVER_FRACTION * ratio)
     fitting = visible & ~before
-    if not (fitting & inner).any():
+    failing = fitting & (ratios > ratio)
+    candidates = failing & (inner | mesh_neighbours(kept, edges))
+    if not (candidates.any() and (fitting & inner).any()):  # on most frames of a track
         return kept
-    bound = max(ratio, _COVER_FACTOR * float(np.percentile(ratios[fitting & inner], 25)))
-    failing = fitting & (ratios > bound)
+    failing &= ratios > _COVER_FACTOR * float(np.percentile(ratios[fitting & inner], 25))
     grown = failing & inner & mesh_neighbours(kept, edges)
     if np.count_nonzero(failing & inner) >= _COVER_START:
         grown |= failing & inner & mesh_neighbours(failing & inner, edges)
@@ -302,7 +303,7 @@ def _drift_ratio(
     Args:
         keyframe: the keyframe nearest the solution.
         samples: (N, M) level-0 samples of the image at the solution.
-        texture: (N,) their ROIs' texture (:meth:`LossChecks._textures`).
+        texture: (N,) their ROIs' texture (:meth:`LossChecks.textures`).
         nodes: (N,) the visible nodes whose ROI shows texture.
     """
     key = keyframe.templates
