@@ -173,6 +173,7 @@ class LossChecks:
         texture: np.ndarray,
         visibility: np.ndarray,
         before: np.ndarray,
+        expired: np.ndarray,
     ) -> np.ndarray:
         """(N,) bool, the nodes an occluder covers at this estimate (:func:`covered_nodes`).
 
@@ -182,6 +183,7 @@ class LossChecks:
             texture: (N,) the texture of the image's ROIs there (:meth:`textures`).
             visibility: (N,) node visibility there.
             before: (N,) bool, the nodes covered at the last valid estimate.
+            expired: (N,) bool, those of them to uncover now, however they fit.
         """
         config = self._config
         texture = np.maximum(texture, config.residual_scale_floor)
@@ -196,6 +198,7 @@ class LossChecks:
             before,
             config.occlusion_residual_ratio,
             self._edges,
+            expired,
         )
 
     def steady(
@@ -256,17 +259,20 @@ def covered_nodes(
     before: np.ndarray,
     ratio: float,
     edges: np.ndarray,
+    expired: np.ndarray,
 ) -> np.ndarray:
     """(N,) bool, the nodes an occluder covers, read from how each fits its template (eq. 6).
 
     A covered node stays covered while it fits its (kept) template worse than
-    :data:`_UNCOVER_FRACTION` of ``ratio``. A visible inner node not covered before is newly
-    covered when it fits worse than ``ratio`` and than :data:`_COVER_FACTOR` times the lower
-    quartile of the visible inner nodes not covered before, and it is next to a covered node (an
-    occluder grows over its neighbours) or :data:`_COVER_START` nodes fail so at once and a mesh
-    neighbour of it is one of them (an occluder covers a region). A face-edge node failing so is
-    covered only next to a covered node: its patch changes most with pose and light. A change of
-    light raises the residuals of the whole face, the lower quartile with them.
+    :data:`_UNCOVER_FRACTION` of ``ratio``, unless its cover has ``expired``: then it is
+    uncovered and not covered anew on this image (its templates are sampled afresh). A visible
+    inner node not covered before is newly covered when it fits worse than ``ratio`` and than
+    :data:`_COVER_FACTOR` times the lower quartile of the visible inner nodes not covered
+    before, and it is next to a covered node (an occluder grows over its neighbours) or
+    :data:`_COVER_START` nodes fail so at once and a mesh neighbour of it is one of them (an
+    occluder covers a region). A face-edge node failing so is covered only next to a covered
+    node: its patch changes most with pose and light. A change of light raises the residuals of
+    the whole face, the lower quartile with them.
 
     Args:
         ratios: (N,) each node's RMS residual over its ROI's texture in the image (floored at
@@ -276,8 +282,9 @@ def covered_nodes(
         before: (N,) bool, the nodes covered at the last valid estimate.
         ratio: ``occlusion_residual_ratio``.
         edges: (E, 2) the mesh's edges.
+        expired: (N,) bool, the covered nodes to uncover now, however they fit.
     """
-    kept = before & visible & (ratios > _UNCOVER_FRACTION * ratio)
+    kept = before & ~expired & visible & (ratios > _UNCOVER_FRACTION * ratio)
     fitting = visible & ~before
     failing = fitting & (ratios > ratio)
     candidates = failing & (inner | mesh_neighbours(kept, edges))

@@ -61,13 +61,17 @@ def test_drift_ratio_counts_only_nodes_the_keyframe_sees() -> None:
     assert none_seen == 0.0  # no textured node the keyframe sees: no evidence of drift
 
 
-def _covered(ratios: np.ndarray, before: np.ndarray | None = None) -> set[int]:
+def _covered(
+    ratios: np.ndarray, before: np.ndarray | None = None, expired: np.ndarray | None = None
+) -> set[int]:
     """The 34-node mesh's nodes :func:`covered_nodes` gives at ratio 0.5, all visible."""
     topology = mesh_topology(34)
     before = np.zeros(34, dtype=bool) if before is None else before
     inner = ~topology.group_mask(Group.EDGE)
     visible = np.ones(34, dtype=bool)
-    return set(np.flatnonzero(covered_nodes(ratios, visible, inner, before, 0.5, topology.edges)))
+    expired = np.zeros(34, dtype=bool) if expired is None else expired
+    covered = covered_nodes(ratios, visible, inner, before, 0.5, topology.edges, expired)
+    return set(np.flatnonzero(covered))
 
 
 def test_an_occluder_covers_the_nodes_that_fail_together_while_the_rest_fit() -> None:
@@ -96,3 +100,6 @@ def test_a_covered_node_is_uncovered_once_it_fits_its_template_again() -> None:
     ratios = np.full(34, 0.1)
     ratios[0], ratios[19] = 0.4, 0.2  # above and below half of 0.5
     assert _covered(ratios, before) == {0}
+    # A cover that has lasted too long ends however the node fits, and starts no new one.
+    ratios[19] = 0.9
+    assert _covered(ratios, before, expired=before) == set()
