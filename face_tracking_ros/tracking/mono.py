@@ -49,7 +49,7 @@ Design, in the seed's terms:
   is LOST only when fewer than ``min_visible_fraction`` of the nodes are left. A LOST image
   checks every node again. Measured on 48 rendered runs with an occluder passing (seeds 1-3,
   two subjects, 640x480 and 320x240, 19 and 34 nodes, true and packaged model): TRACKING frames
-  more than 5 px off 86 -> 32, more than 10 px 35 -> 8, LOST frames 2666 -> 2400; the same runs
+  more than 5 px off 86 -> 34, more than 10 px 35 -> 8, LOST frames 2666 -> 2400; the same runs
   without the occluder the same to the digit.
 - Recovery needs no detector. While LOST, each image is solved as the frame after the last valid
   one (eq. 6 from its estimate and templates); if that fails, as when tracking fails, it is solved

@@ -140,7 +140,7 @@ class MonoTrackerConfig:
             kept from the last image that saw it, within half of it (> 0). A covered node weighs
             nothing in eq. 6, keeps its templates and counts as not visible in the loss checks.
             Measured on 48 rendered 300-frame runs with an occluder passing: TRACKING frames more
-            than 5 px off 86 -> 32 at 0.5 (76 at 0.7), LOST frames 2666 -> 2400; the 48 runs
+            than 5 px off 86 -> 34 at 0.5 (76 at 0.7), LOST frames 2666 -> 2400; the 48 runs
             without it the same to the digit (docs/performance.md).
         lost_node_fraction: LOST when more than this fraction of the visible nodes that show
             texture (in the image or the template) fail (in (0, 1]).
