@@ -283,7 +283,7 @@ def test_frames_with_nodes_held_under_an_occluder_are_left_out(tmp_path, world, 
         printed = capsys.readouterr().out
         assert f'{bags[0]}: 1 frame the tracker did not track (initialising or lost)' in printed
         assert (
-            f'{bags[0]}: 7 frames with nodes held under an occluder (FaceState.occluded) left out'
+            f'{bags[0]}: 7 frames with nodes covered by an occluder (FaceState.occluded) left out'
             in printed
         )
         assert json.loads((tmp_path / 'r.json').read_text())['frames'] == 4 * (frames - 8)

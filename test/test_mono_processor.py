@@ -100,7 +100,7 @@ def test_tracks_and_carries_stamp_and_frame(scene):
     assert conversions.stamp_to_ns(state.header.stamp) == 11 * FRAME_NS
     assert state.header.frame_id == 'camera_optical'
     assert len(state.node_residuals) == 34 and len(state.right_node_residuals) == 0  # one camera
-    assert len(state.occluded) == 0  # not judged by the mono tracker
+    assert np.array_equal(state.occluded, np.zeros(34, dtype=bool))  # judged: none covered
     # Monocular depth trades off against face size, so score what the image shows: the nodes'
     # projections, against the true nodes' projections.
     tracked_px = conversions.points_to_array(state.image_points, 'image_points')[:, :2]

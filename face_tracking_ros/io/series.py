@@ -36,8 +36,8 @@ class StateSeries:
         image_points: (F, N, 2) node projections, px.
         mean_residual: (F,) mean photometric residual, grey levels.
         iterations: (F,) solver iterations.
-        occluded: (F, N) bool, nodes held under an occluder (a stereo tracker's
-            FaceState.occluded); False where not judged.
+        occluded: (F, N) bool, nodes judged covered by an occluder (FaceState.occluded); False
+            where not judged.
     """
 
     stamps: np.ndarray

@@ -10,8 +10,9 @@ A bag holds one of:
   :attr:`~.learn_options.LearnOptions.subject` or the bag's name (its
   :func:`~face_tracking_ros.io.bags.recording_name`), and the first
   ``neutral_frames`` frames of each bag are taken as neutral. Frames the tracker did not track
-  are left out, and so are those with nodes it held under an occluder (``FaceState.occluded``:
-  such a node follows the head's rigid motion, not the face's expression).
+  are left out, and so are those with nodes it judged covered by an occluder
+  (``FaceState.occluded``: such a node was not measured, so the mesh does not show the face's
+  expression there).
 """
 
 from __future__ import annotations
@@ -48,7 +49,7 @@ TRUTH_TOPIC = 'truth/face'
 STATE_TOPIC = 'face/state'
 TRACKED = int(TrackStatus.TRACKING)  # FaceState.STATUS_TRACKING
 UNTRACKED = 'untracked'  # a frame left out of learning: not TRACKING
-OCCLUDED = 'occluded'  # a frame left out of learning: nodes held under an occluder
+OCCLUDED = 'occluded'  # a frame left out of learning: nodes covered by an occluder
 DEFAULT_TOPICS = (TRUTH_TOPIC, 'face/mesh_raw', STATE_TOPIC)
 
 
@@ -112,7 +113,7 @@ def read_bag_meshes(
         say(f'{bag}: {untracked} the tracker did not track (initialising or lost) left out')
     if left_out[OCCLUDED]:
         occluded = counted(left_out[OCCLUDED], 'frame')
-        say(f'{bag}: {occluded} with nodes held under an occluder (FaceState.occluded) left out')
+        say(f'{bag}: {occluded} with nodes covered by an occluder (FaceState.occluded) left out')
     if not frames:
         skipped, seen = left_out.total(), ' with every node seen' if left_out[OCCLUDED] else ''
         msg = (
@@ -254,7 +255,7 @@ def _tracked_frames(
     """The frames of ``topic`` to learn from, with their truth, and how many were left out, why.
 
     Left out (:func:`_left_out`): those its FaceStates, or the face/state beside its FaceMeshes,
-    say were not tracked (:data:`UNTRACKED`) or had nodes held under an occluder
+    say were not tracked (:data:`UNTRACKED`) or had nodes covered by an occluder
     (:data:`OCCLUDED`).
 
     The truth of a frame is its FaceTruth message's, else the truth bag's of its stamp; its
@@ -294,8 +295,9 @@ def _left_out(state: Any) -> str | None:
     """Why a FaceState's frame is no training mesh (:data:`UNTRACKED`, :data:`OCCLUDED`), or None.
 
     Not tracked: its mesh is none (zeros before the first initialisation) or the last one
-    tracked, not the face. Occluded: a node held under an occluder moved with the head's rigid
-    motion, so the mesh does not show the face's expression there. A FaceState written before
+    tracked, not the face. Occluded: a node covered by an occluder was not measured (the stereo
+    tracker moved it with the head's rigid motion, the mono tracker's face model placed it), so
+    the mesh does not show the face's expression there. A FaceState written before
     the field existed (read with its bag's own definition,
     :mod:`~face_tracking_ros.io.bag_definitions`) has no ``occluded``.
     """

@@ -304,7 +304,9 @@ class MonoProcessor:
         topology = self._model.topology
         outputs = face_outputs(self._factory, out_header, self._config.face_id, result, topology)
         if 'face/overlay' in wanted:
-            canvas = draw_mesh(gray, result.nodes_px, topology.edges, result.status)
+            canvas = draw_mesh(
+                gray, result.nodes_px, topology.edges, result.status, occluded=result.occluded
+            )
             overlay = conversions.array_to_image(self._factory, out_header, canvas)
             outputs.append(Output('face/overlay', overlay))
         return outputs

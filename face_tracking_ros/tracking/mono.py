@@ -883,7 +883,7 @@ class MonoTracker:
         )
         status = TrackStatus.LOST if reason else TrackStatus.TRACKING
         result = self._result(
-            status, params, node_rms, solution.iterations, solution.costs, reason
+            status, params, node_rms, solution.iterations, solution.costs, reason, sampled.covered
         )
         return result, sampled
 
@@ -932,8 +932,9 @@ class MonoTracker:
         iterations: int,
         costs: tuple[float, ...],
         reason: str,
+        occluded: np.ndarray | None = None,
     ) -> TrackResult:
-        """A TrackResult for ``params``."""
+        """A TrackResult for ``params``; ``occluded``, the nodes covered (none when not given)."""
         nodes_cam, nodes_px = self._face.nodes(params)
         return TrackResult(
             status=status,
@@ -948,6 +949,7 @@ class MonoTracker:
             iterations=iterations,
             cost_history=costs,
             reason=reason,
+            occluded=np.zeros(len(node_residuals), dtype=bool) if occluded is None else occluded,
         )
 
     def _failure(self, reason: str) -> TrackResult:

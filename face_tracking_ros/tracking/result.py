@@ -42,9 +42,11 @@ class TrackResult:
         reason: why the status is LOST or INITIALIZING ('' when tracking).
         right_node_residuals: (N,) a stereo tracker's residuals in the right image; None for a
             monocular tracker.
-        occluded: (N,) bool, a stereo tracker's nodes judged covered by an occluder on this
-            image, moved with the head's rigid motion instead of measured
-            (:mod:`.stereo_occlusion`); None when not judged (a monocular tracker, no estimate).
+        occluded: (N,) bool, the nodes judged covered by an occluder on this image, not measured:
+            the stereo tracker moves them with the head's rigid motion
+            (:mod:`.stereo_occlusion`), the mono tracker leaves them out of eq. 6 and the face
+            model places them (:func:`.mono_loss.covered_nodes`); LOST carries the last valid
+            estimate's; None before any estimate (or from a tracker without the check).
     """
 
     status: TrackStatus

@@ -1072,6 +1072,7 @@ class StereoTracker:
             reason=self._reason,
             first_nodes=last.first_nodes,
             rotation=last.rotation,
+            occluded=last.occluded,
         )
 
     def _not_tracking(self, status: TrackStatus, reason: str) -> StereoResult:
@@ -1096,6 +1097,7 @@ class StereoTracker:
             reason=reason,
             first_nodes=None if last is None else last.first_nodes,
             rotation=None if last is None else last.rotation,
+            occluded=None if last is None else last.occluded,
         )
 
     def _pyramids(self, left: np.ndarray, right: np.ndarray) -> tuple[ImagePyramid, ImagePyramid]:

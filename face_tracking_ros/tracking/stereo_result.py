@@ -42,8 +42,8 @@ class StereoResult:
         rotation: (3, 3) the head's rotation since frame 1; None before the first pair.
         new_track: this pair is frame 1 of a track (after a reset, or a detection after a loss).
         occluded: (N,) bool, the nodes judged covered by an occluder on this pair, held to the
-            head's rigid motion (:mod:`.stereo_occlusion`); None without a new estimate (LOST,
-            INITIALIZING).
+            head's rigid motion (:mod:`.stereo_occlusion`); LOST carries the last valid pair's;
+            None before any estimate.
     """
 
     status: TrackStatus

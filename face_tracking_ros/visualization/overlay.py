@@ -31,7 +31,7 @@ def draw_mesh(
         edges: (E, 2) node index pairs.
         status: tracking status, which sets the colour (green tracking, red lost).
         label: text drawn in the top-left corner.
-        occluded: (N,) bool, nodes held under an occluder (FaceState.occluded): drawn as rings,
+        occluded: (N,) bool, nodes judged covered by an occluder (FaceState.occluded): rings,
             not dots.
     """
     canvas = cv2.cvtColor(gray, cv2.COLOR_GRAY2RGB)
