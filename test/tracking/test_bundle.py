@@ -420,14 +420,14 @@ def test_a_face_dragged_by_an_occluder_gives_no_view():
     assert max(views) < 2.5, views
 
 
-def test_a_face_lost_behind_an_occluder_away_from_frame_1_is_reacquired_from_a_view():
-    # Seed 1's free motion at 640x480 with an occluder passing over frames 109-130, subject 0,
-    # true model: the track is lost at frame 118, the head 32 degrees from frame 1's pose and
-    # turning on (36 at frame 144); frame 1's face and templates found it again at frame 178
-    # only, LOST till then. A view of the bundle adjustment near the last valid rotation finds
-    # it at frame 129.
+def _occluded_track(subject: int) -> tuple[list, np.ndarray, np.ndarray, np.ndarray]:
+    """Seed 1's free motion at 640x480, an occluder passing over frames 109-130, 145 frames.
+
+    The subject tracked with the true model from 1-px clicks. Returns the frames, and per frame
+    the status, the RMS node error (px) and the nodes taken as covered.
+    """
     config = SceneConfig(kind='mono', frames=300, fps=30.0, seed=1, motion='free', occlusion=True)
-    renderer = SequenceRenderer(config, 0)
+    renderer = SequenceRenderer(config, subject)
     frames = list(itertools.islice(renderer.frames(0), 145))
     camera = config.cameras()['image']
     model = true_face_model(renderer.population)
@@ -436,18 +436,39 @@ def test_a_face_lost_behind_an_occluder_away_from_frame_1_is_reacquired_from_a_v
     )
     tracker = MonoTracker(model, camera)
     tracker.reset(init)
-    status, error = [], []
+    status, error, occluded = [], [], []
     for frame in frames:
         result = tracker.step(frame.images['image'])
         offsets = result.nodes_px - camera.project(frame.truth.nodes_camera)
         status.append(result.status)
         error.append(float(np.sqrt(np.mean(np.sum(offsets**2, axis=1)))))
-    status, error = np.array(status), np.array(error)
+        occluded.append(result.occluded)
+    return frames, np.array(status), np.array(error), np.array(occluded)
+
+
+def test_a_face_lost_behind_an_occluder_away_from_frame_1_is_reacquired_from_a_view():
+    # Subject 0: the track is lost at frame 118, the head 32 degrees from frame 1's pose and
+    # turning on (36 at frame 144); frame 1's face and templates found it again at frame 178
+    # only, LOST till then. A view of the bundle adjustment near the last valid rotation finds
+    # it at frame 129.
+    frames, status, error, _ = _occluded_track(0)
     turned = rotation_angle(frames[0].truth.omega, frames[135].truth.omega)
     assert np.degrees(turned) > 20.0, np.degrees(turned)
     # Measured: LOST at frames 118-128, then TRACKING 0.8-1.9 px off to frame 144.
     assert (status[135:] == TrackStatus.TRACKING).all(), status[118:]
     assert error[135:].max() < 3.0, error[135:]
+
+
+def test_a_face_reacquired_after_an_occluder_has_passed_covers_no_node():
+    # Subject 3: lost from frame 66 under the occluder. A re-acquiring solve's nodes that fit
+    # badly say its start was off, not that an occluder came: taken as covered there, up to 17
+    # of the 34 nodes (mouth, nose, lower cheeks) held the track re-acquired at frame 122 3.0-7.9
+    # px off to frame 144. Now re-acquired at frame 140, 0.8-1.0 px off, no node covered.
+    _, status, error, occluded = _occluded_track(3)
+    tracked = np.flatnonzero(status[66:] == TrackStatus.TRACKING) + 66
+    assert tracked.size, status[66:]
+    assert error[tracked].max() < 3.0, error[tracked]
+    assert not occluded[tracked].any()
 
 
 def _turned(pose: tuple, angle: float) -> tuple:
