@@ -384,6 +384,25 @@ def test_an_adjustment_that_moves_the_newest_view_in_its_image_is_not_applied():
     assert np.percentile(off, 95) < 1.5, np.percentile(off, 95)
 
 
+def _rendered_track(
+    config: SceneConfig, subject: int, count: int
+) -> tuple[list, PinholeCamera, MonoTracker]:
+    """The first ``count`` frames of a subject's rendered sequence, its camera, and a tracker.
+
+    The tracker has the population's true model and starts from 1-px clicks on frame 1 (drawn
+    with the scene's seed).
+    """
+    renderer = SequenceRenderer(config, subject)
+    frames = list(itertools.islice(renderer.frames(0), count))
+    camera = config.cameras()['image']
+    model = true_face_model(renderer.population)
+    clicks = np.random.default_rng(config.seed)
+    init = simulated_clicks(model.node_names, frames[0].truth.nodes_camera, camera, 1.0, clicks)
+    tracker = MonoTracker(model, camera)
+    tracker.reset(init)
+    return frames, camera, tracker
+
+
 def test_a_face_dragged_by_an_occluder_gives_no_view():
     # Seed 3's free motion at 320x240 with an occluder passing over frames 72-95: it drags the
     # estimate, TRACKING, and the dragged pose turns; frames 81 and 82 became views 13.7 and
@@ -399,15 +418,7 @@ def test_a_face_dragged_by_an_occluder_gives_no_view():
         focal=300.0,
         occlusion=True,
     )
-    renderer = SequenceRenderer(config, 0)
-    frames = list(itertools.islice(renderer.frames(0), 100))
-    camera = config.cameras()['image']
-    model = true_face_model(renderer.population)
-    init = simulated_clicks(
-        model.node_names, frames[0].truth.nodes_camera, camera, 1.0, np.random.default_rng(3)
-    )
-    tracker = MonoTracker(model, camera)
-    tracker.reset(init)
+    frames, camera, tracker = _rendered_track(config, 0, 100)
     views = []  # the RMS node error (px) of each frame kept as a view
     for frame in frames:
         kept = len(tracker._track.first_views.views) if tracker._track else 1
@@ -427,15 +438,7 @@ def _occluded_track(subject: int) -> tuple[list, np.ndarray, np.ndarray, np.ndar
     the status, the RMS node error (px) and the nodes taken as covered.
     """
     config = SceneConfig(kind='mono', frames=300, fps=30.0, seed=1, motion='free', occlusion=True)
-    renderer = SequenceRenderer(config, subject)
-    frames = list(itertools.islice(renderer.frames(0), 145))
-    camera = config.cameras()['image']
-    model = true_face_model(renderer.population)
-    init = simulated_clicks(
-        model.node_names, frames[0].truth.nodes_camera, camera, 1.0, np.random.default_rng(1)
-    )
-    tracker = MonoTracker(model, camera)
-    tracker.reset(init)
+    frames, camera, tracker = _rendered_track(config, subject, 145)
     status, error, occluded = [], [], []
     for frame in frames:
         result = tracker.step(frame.images['image'])
