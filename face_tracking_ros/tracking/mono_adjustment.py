@@ -44,6 +44,7 @@ from face_tracking_ros.tracking.mono_config import MonoTrackerConfig
 from face_tracking_ros.tracking.mono_priors import Priors
 from face_tracking_ros.tracking.mono_projection import FaceProjection
 from face_tracking_ros.tracking.mono_rois import Params, Roi, RoiLayout
+from face_tracking_ros.tracking.mono_templates import keyframe_cosines
 from face_tracking_ros.tracking.stages import Stages, run_stages
 
 # px: an adjustment may move the newest view's nodes this far in its image whatever their spread
@@ -225,8 +226,7 @@ class ViewAdjuster:
         bundle = self._config.bundle
         if len(views.views) > bundle.views or frame <= self._config.sigma_frames:
             return False
-        rotation = rodrigues(omega)[0]
-        nearest = max(float(np.sum(view.rotation * rotation)) for view in views.views)
+        nearest = np.max(keyframe_cosines(views.views, omega))
         return nearest <= 1.0 + 2.0 * np.cos(bundle.view_spacing)  # trace = 1 + 2 cos(angle)
 
     def _adjustment(self, views: FirstViews, num_levels: int) -> Stages[Adjusted | None]:
