@@ -469,6 +469,15 @@ def face_messages(
 _UNTRACKED_COLOUR = (0.5, 0.5, 0.5, 0.5)  # RGBA of the mesh of a face that is not tracked
 
 
+def occluded_nodes(state: Any) -> np.ndarray:
+    """A FaceState's ``occluded`` flags as a bool array: (N,), or empty where none were judged.
+
+    A FaceState written before the field existed (read with its bag's own definition,
+    :mod:`.bag_definitions`) has none: empty too.
+    """
+    return np.asarray(getattr(state, 'occluded', ()), dtype=bool)
+
+
 def _nan_as_zero(values: Any) -> np.ndarray:
     """Float array of ``values`` with NaN (no estimate yet, INITIALIZING) as 0."""
     values = np.array(values, dtype=float)

@@ -102,8 +102,7 @@ def load_states(bag: Path) -> StateSeries:
         return _stacked(values, where, f'FaceState.{field}')
 
     image_points = stacked('image_points', [_points(r.image_points)[:, :2] for r in rows])
-    # A FaceState of an earlier version (read with its bag's own definition) has no `occluded`.
-    occluded = stacked('occluded', [getattr(r, 'occluded', ()) for r in rows]) == 1
+    occluded = stacked('occluded', [conversions.occluded_nodes(r) for r in rows]) == 1
     return StateSeries(
         stamps=np.array([stamp_to_ns(r.header.stamp) for r in rows], dtype=np.int64),
         status=status,

@@ -31,6 +31,7 @@ from face_tracking_ros.io.conversions import (
     STATE_TYPE,
     TRUTH_TYPE,
     TruthSample,
+    occluded_nodes,
     points_to_array,
     stamp_to_ns,
     truth_from_msg,
@@ -298,12 +299,11 @@ def _left_out(state: Any) -> str | None:
     tracked, not the face. Occluded: a node covered by an occluder was not measured (the stereo
     tracker moved it with the head's rigid motion, the mono tracker's face model placed it), so
     the mesh does not show the face's expression there. A FaceState written before
-    the field existed (read with its bag's own definition,
-    :mod:`~face_tracking_ros.io.bag_definitions`) has no ``occluded``.
+    the field existed has no flags (:func:`~face_tracking_ros.io.conversions.occluded_nodes`).
     """
     if state.status != TRACKED:
         return UNTRACKED
-    return OCCLUDED if np.any(getattr(state, 'occluded', ())) else None
+    return OCCLUDED if occluded_nodes(state).any() else None
 
 
 def _left_out_stamps(bag: Path, topics: dict[str, str]) -> dict[int, str]:
