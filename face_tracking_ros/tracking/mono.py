@@ -346,7 +346,7 @@ class MonoTracker:
             return
         (pyramid, result), self._followed = self._followed, None
         track = self._track
-        if track.previous.covered.any():
+        if track.covered.any():
             return
         try:
             adjusted = self._adjuster.advance(
