@@ -137,11 +137,11 @@ class MonoTrackerConfig:
             residual exceeds this multiple of its ROI's texture in the image (and 3 times the
             lower quartile of the other inner nodes', with neighbours failing too:
             :func:`~.mono_loss.covered_nodes`), and as uncovered again once it fits its template,
-            kept from the last image that saw it, within half of it (> 0). A covered node weighs
-            nothing in eq. 6, keeps its templates and counts as not visible in the loss checks.
-            Measured on 48 rendered 300-frame runs with an occluder passing: TRACKING frames more
-            than 5 px off 86 -> 34 at 0.5 (76 at 0.7), LOST frames 2666 -> 2400; the 48 runs
-            without it the same to the digit (docs/performance.md).
+            the nearest keyframe's, within half of it (> 0). A covered node weighs nothing in
+            eq. 6 and counts as not visible in the loss checks. Measured on 48 rendered 300-frame
+            runs with an occluder passing: TRACKING frames more than 5 px off 86 -> 31 at 0.5,
+            LOST frames 2666 -> 1738 with the re-acquisition from the adjustment's views; the 48
+            runs without it the same to the digit (docs/performance.md).
         lost_node_fraction: LOST when more than this fraction of the visible nodes that show
             texture (in the image or the template) fail (in (0, 1]).
         min_visible_fraction: LOST when fewer nodes are visible and inside the image (in [0, 1]).

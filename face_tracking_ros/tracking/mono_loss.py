@@ -265,7 +265,9 @@ def covered_nodes(
 
     A covered node stays covered while it fits its (kept) template worse than
     :data:`_UNCOVER_FRACTION` of ``ratio``, unless its cover has ``expired``: then it is
-    uncovered and not covered anew on this image (its templates are sampled afresh). A visible
+    uncovered and not covered anew on this image (its templates are sampled afresh). A covered
+    face-edge node stays covered only next to a covered inner node: its patch fits its kept
+    template worse as the head turns, whether the occluder is still there or not. A visible
     inner node not covered before is newly covered when it fits worse than ``ratio`` and than
     :data:`_COVER_FACTOR` times the lower quartile of the visible inner nodes not covered
     before, and it is next to a covered node (an occluder grows over its neighbours) or
@@ -285,6 +287,7 @@ def covered_nodes(
         expired: (N,) bool, the covered nodes to uncover now, however they fit.
     """
     kept = before & ~expired & visible & (ratios > _UNCOVER_FRACTION * ratio)
+    kept &= inner | mesh_neighbours(kept & inner, edges)
     fitting = visible & ~before
     failing = fitting & (ratios > ratio)
     candidates = failing & (inner | mesh_neighbours(kept, edges))

@@ -83,7 +83,7 @@ class Templates(NamedTuple):
         params: the parameter vector they were sampled at.
         covered: (N,) bool, the nodes an occluder covers in the image
             (:func:`~.mono_loss.covered_nodes`): once the frame is accepted their rows hold the
-            last templates that saw them (:meth:`kept`), and they weigh nothing.
+            nearest keyframe's (:meth:`kept`), and they weigh nothing.
     """
 
     levels: Sequence[np.ndarray]
@@ -98,10 +98,13 @@ class Templates(NamedTuple):
         return np.where(self.covered, 0.0, self.visibility)
 
     def kept(self, last: Templates) -> Templates:
-        """These templates with the covered nodes' rows of every level kept from ``last``.
+        """These templates with the covered nodes' rows of every level taken from ``last``.
 
-        Every level is sampled now (of both) when a node is covered: the occluder never enters
-        a covered node's templates, so it matches the face again once the occluder has gone.
+        The tracker passes the keyframe nearest the pose. Every level is sampled now (of both)
+        when a node is covered: the occluder never enters a covered node's templates, so it
+        matches the face again once the occluder has gone. Not the last frame's rows: an
+        occluder is seen a few frames after it has come over a node, so those may show it (on a
+        rendered hand passing, six nodes then stayed covered 8 frames after the hand had gone).
         """
         if not self.covered.any():
             return self

@@ -103,3 +103,22 @@ def test_a_covered_node_is_uncovered_once_it_fits_its_template_again() -> None:
     # A cover that has lasted too long ends however the node fits, and starts no new one.
     ratios[19] = 0.9
     assert _covered(ratios, before, expired=before) == set()
+
+
+def test_a_covered_face_edge_node_is_uncovered_with_its_inner_neighbours() -> None:
+    """The right temple still fits badly (0.4) once the eye corner and brow beside it fit.
+
+    A face-edge node's patch changes with pose and light more than the inner nodes', so it
+    stays covered only next to a covered inner node, as it was covered only next to one.
+    """
+    topology = mesh_topology(34)
+    temple, corner, brow = (
+        topology.index(n) for n in ('right_temple', 'right_eye_outer', 'right_brow_outer')
+    )
+    before = np.zeros(34, dtype=bool)
+    before[[temple, corner, brow]] = True
+    ratios = np.full(34, 0.1)
+    ratios[[temple, corner]] = 0.4
+    assert _covered(ratios, before) == {temple, corner}
+    ratios[corner] = 0.1
+    assert _covered(ratios, before) == set()
