@@ -14,16 +14,29 @@ expression with an offset at that state's stamp: the trackers publish no action 
 is lost, and an action of an image whose state said so (from a tracker that does) is ignored.
 The face's neutral baseline stays, and the feature window (a sixth of a second) has dropped the
 samples before the loss by the time a longer one ends.
+
+While the states say an occluder covers mouth or brow nodes
+(:class:`~.track_status.CoveredExpressions`), for at most ``occlusion_hold`` seconds from the
+first such image, the active expression is held: its alpha is not classified (no scores either),
+and a LOST state (the face lost behind the occluder) does not end it; one after the hold does, at
+its stamp. The tracker has not measured those nodes (the mono tracker places them by the face
+model fitted to the others, the stereo tracker moves them with the head), so alpha does not show
+what they do: on rendered mono sequences a held expression was ended under the cover and started
+again (a surprise whose brows were covered read as jaw_open), or ended at the LOST images behind
+it. With no expression active, alpha of covered images is classified as before, so one that the
+uncovered nodes show starts on time (no onset under a cover was wrong there).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+import math
 from typing import Any
 
 import numpy as np
 
 from face_tracking_ros.data import default_classifier_path, default_model_path
+from face_tracking_ros.errors import FieldError
 from face_tracking_ros.io import conversions
 from face_tracking_ros.io.bags import NS_PER_S, stamp_to_ns
 from face_tracking_ros.io.messages import MessageFactory
@@ -31,7 +44,7 @@ from face_tracking_ros.model.model_file import load_model
 from face_tracking_ros.processing.base import Output, Port
 from face_tracking_ros.processing.model_agreement import MODEL_PORT, ModelAgreement
 from face_tracking_ros.processing.parameters import ParameterSource
-from face_tracking_ros.processing.track_status import STATE_PORT, TrackEnds
+from face_tracking_ros.processing.track_status import STATE_PORT, CoveredExpressions, TrackEnds
 from face_tracking_ros.recognition.events import (
     EventConfig,
     ExpressionEvent,
@@ -54,25 +67,52 @@ class ExpressionNodeConfig:
         model_file: face model the tracker uses; a classifier of another q, or trained on another
             model's alpha (``train-expressions --model``), is refused. Empty: the packaged
             default model.
+        occlusion_hold: longest time, s, for which an occluder over mouth or brow nodes (the
+            tracker's ``FaceState.occluded``) holds the active expression from the cover's first
+            image: its alpha is not classified and a LOST state does not end it. 0: no hold (a
+            covered image's alpha is classified, a LOST state ends the expression). It bounds how
+            long an expression outlives a face lost behind a hand; on rendered mono sequences 1 s
+            let a held surprise be ended under a brow cover (the tracker's flags linger up to a
+            second after the occluder has gone), 2 s and 3 s none.
     """
 
     classifier_file: str = ''
     model_file: str = ''
+    occlusion_hold: float = 2.0
+
+    def __post_init__(self) -> None:
+        """Validate the hold.
+
+        Raises:
+            FieldError: for a hold below 0 or not finite.
+        """
+        if not 0.0 <= self.occlusion_hold < math.inf:
+            msg = f'occlusion_hold must be >= 0 s and finite, got {self.occlusion_hold}'
+            raise FieldError(msg, 'occlusion_hold', '>= 0 s and finite')
 
 
 class ExpressionProcessor:
     """Turns a face's action parameters into expression events (§3.6, §4.5)."""
 
     def __init__(
-        self, factory: MessageFactory, classifier: ExpressionClassifier, events: EventConfig
+        self,
+        factory: MessageFactory,
+        classifier: ExpressionClassifier,
+        events: EventConfig,
+        covered: CoveredExpressions,
     ) -> None:
-        """Classify with ``classifier``; emit events with the ``events`` hysteresis."""
+        """Classify with ``classifier``; emit events with the ``events`` hysteresis.
+
+        ``covered`` says at which images an occluder hides the expression: the active one is
+        held there.
+        """
         self._factory = factory
         self._recognizer = ExpressionRecognizer(classifier)
         self._detector = ExpressionEventDetector(classifier.labels, events)
         self._labels = ','.join(classifier.labels)
         self._last_stamp: int | None = None
         self._track_ends = TrackEnds()
+        self._covered = covered
         self._agreement = ModelAgreement(
             classifier.model,
             'the expression classifier',
@@ -98,8 +138,11 @@ class ExpressionProcessor:
             return []
         stamp = stamp_to_ns(msg.header.stamp)
         if topic == STATE_PORT.topic:
+            self._covered.update(msg)
+            if self._held(stamp):  # lost behind the occluder: the expression goes on
+                return []
             return self._end(msg, stamp) if self._track_ends.ended(msg) else []
-        if self._track_ends.untracked(stamp):
+        if self._track_ends.untracked(stamp) or self._held(stamp):
             return []
         self._agreement.check()
         alpha = conversions.finite_vector(msg.alpha, 'ActionParams.alpha')
@@ -115,6 +158,10 @@ class ExpressionProcessor:
         if SCORES in wanted:
             outputs.append(Output(SCORES, self._scores_msg(scores.probabilities)))
         return outputs
+
+    def _held(self, stamp: int) -> bool:
+        """Whether the active expression is held at the image stamped ``stamp`` (covered)."""
+        return self._detector.active is not None and self._covered.held(stamp)
 
     def _end(self, msg: Any, stamp: int) -> list[Output]:
         """End the active expression at a state that says the face is not tracked."""
@@ -167,5 +214,8 @@ def make_expression_processor(
     model = load_model(config.model_file or default_model_path())
     classifier_file = config.classifier_file or default_classifier_path()
     return ExpressionProcessor(
-        factory, ExpressionClassifier.load(classifier_file, model.q, model.fingerprint), events
+        factory,
+        ExpressionClassifier.load(classifier_file, model.q, model.fingerprint),
+        events,
+        CoveredExpressions(model.topology, config.occlusion_hold),
     )

@@ -41,6 +41,7 @@ from face_tracking_ros.processing.stereo import (
     StereoProcessor,
     make_stereo_processor,
 )
+from face_tracking_ros.processing.track_status import CoveredExpressions
 from face_tracking_ros.recognition.events import EventConfig, EventKind
 from face_tracking_ros.recognition.identity import IdentityConfig, IdentityGallery
 from face_tracking_ros.tracking.initialisation import Initialisation
@@ -1063,6 +1064,13 @@ def _action(alpha, stamp_ns, face_id='face_0'):
     )
 
 
+def _expression_processor():
+    """The smile classifier's processor, an occluder over mouth or brows holding for 2 s."""
+    return ExpressionProcessor(
+        FACTORY, smile_classifier(), EventConfig(), CoveredExpressions(mesh_topology(34), 2.0)
+    )
+
+
 def _events(processor, alphas, start_s):
     events = []
     for m, alpha in enumerate(alphas):
@@ -1080,7 +1088,7 @@ def _events(processor, alphas, start_s):
     ],
 )
 def test_expression_bad_alpha_is_named_and_recognition_goes_on(alpha, match):
-    processor = ExpressionProcessor(FACTORY, smile_classifier(), EventConfig())
+    processor = _expression_processor()
     assert _events(processor, [0.0] * 10, 10.0) == []
     with pytest.raises(InputError, match=match):
         processor.handle('face/action', _action(alpha, round(10.4e9)), NONE)
@@ -1088,15 +1096,19 @@ def test_expression_bad_alpha_is_named_and_recognition_goes_on(alpha, match):
     assert [(e.label, e.event) for e in events] == [('smile', EventKind.ONSET)]
 
 
-def _state(status, stamp_ns, face_id='face_0'):
+def _state(status, stamp_ns, face_id='face_0', occluded=()):
     header = conversions.make_header(FACTORY, stamp_ns, 'camera_optical')
     return FACTORY.make(
-        'face_tracking_msgs/msg/FaceState', header=header, face_id=face_id, status=int(status)
+        'face_tracking_msgs/msg/FaceState',
+        header=header,
+        face_id=face_id,
+        status=int(status),
+        occluded=np.isin(mesh_topology(34).node_names, occluded),
     )
 
 
 def test_expression_of_a_lost_face_ends_when_the_state_says_so():
-    processor = ExpressionProcessor(FACTORY, smile_classifier(), EventConfig())
+    processor = _expression_processor()
     onset = _events(processor, [0.0] * 5 + [1.0] * 10, 30.0)
     assert [(e.label, e.event) for e in onset] == [('smile', EventKind.ONSET)]
     onset_s = stamp_to_ns(onset[0].header.stamp) / 1e9
@@ -1118,8 +1130,64 @@ def test_expression_of_a_lost_face_ends_when_the_state_says_so():
     assert [(e.label, e.event) for e in again] == [('smile', EventKind.ONSET)]
 
 
+def _covered_images(processor, images, start_s, state_first):
+    """The events of (alpha, status, covered nodes) images at 30 Hz from ``start_s``.
+
+    Each image's state and action (an action only for a tracked image) in the given order.
+    """
+    events = []
+    for m, (alpha, status, occluded) in enumerate(images):
+        stamp_ns = round((start_s + m / 30.0) * 1e9)
+        messages = [('face/state', _state(status, stamp_ns, occluded=occluded))]
+        if status == TrackStatus.TRACKING:
+            messages.append(('face/action', _action([alpha], stamp_ns)))
+        for topic, msg in messages if state_first else reversed(messages):
+            events += [o.msg for o in processor.handle(topic, msg, NONE)]
+    return events
+
+
+MOUTH = ('upper_lip', 'lower_lip', 'mouth_left')
+
+
+@pytest.mark.parametrize('state_first', [True, False])
+def test_expression_is_held_while_an_occluder_covers_the_mouth(state_first):
+    # Under the cover the tracker does not measure the mouth (it places it by the face model or
+    # moves it with the head): alpha need not show the smile. Held through the LOST images
+    # behind the occluder too, whichever of an image's state and action comes first; it ends
+    # once the mouth is seen again without it.
+    processor = _expression_processor()
+    onset = _events(processor, [0.0] * 5 + [1.0] * 10, 30.0)
+    assert [(e.label, e.event) for e in onset] == [('smile', EventKind.ONSET)]
+    tracking, lost = TrackStatus.TRACKING, TrackStatus.LOST
+    covered = [(0.0, tracking, MOUTH)] * 10 + [(0.0, lost, MOUTH)] * 10
+    covered += [(0.0, tracking, ('upper_lip', 'lower_lip'))] * 10
+    assert _covered_images(processor, covered, 30.5, state_first) == []
+    seen = _covered_images(processor, [(0.0, tracking, ('lower_lip',))] * 10, 31.5, state_first)
+    assert [(e.label, e.event) for e in seen] == [('smile', EventKind.OFFSET)]
+    assert stamp_to_ns(seen[0].header.stamp) < round(31.7e9)
+
+
+def test_expression_held_under_an_occluder_ends_at_a_lost_state_after_the_hold():
+    processor = _expression_processor()
+    assert len(_events(processor, [0.0] * 5 + [1.0] * 10, 30.0)) == 1
+    tracking, lost = TrackStatus.TRACKING, TrackStatus.LOST
+    images = [(1.0, tracking, MOUTH)] * 30 + [(1.0, lost, MOUTH)] * 40
+    ended = _covered_images(processor, images, 30.5, state_first=True)
+    assert [(e.label, e.event) for e in ended] == [('smile', EventKind.OFFSET)]
+    assert stamp_to_ns(ended[0].header.stamp) == round(32.5e9)  # 2 s into the cover
+
+
+def test_expression_starts_under_an_occluder_when_none_is_active():
+    # With nothing to hold, a covered image's alpha is classified: the uncovered nodes show it.
+    processor = _expression_processor()
+    assert _events(processor, [0.0] * 10, 30.0) == []
+    images = [(0.0, TrackStatus.TRACKING, MOUTH)] * 5 + [(1.0, TrackStatus.TRACKING, MOUTH)] * 10
+    started = _covered_images(processor, images, 30.5, state_first=True)
+    assert [(e.label, e.event) for e in started] == [('smile', EventKind.ONSET)]
+
+
 def test_expression_earlier_stamp_restarts_window_and_events():
-    processor = ExpressionProcessor(FACTORY, smile_classifier(), EventConfig())
+    processor = _expression_processor()
     first = _events(processor, [0.0] * 5 + [1.0] * 10, 20.0)
     assert [e.event for e in first] == [EventKind.ONSET]
     # The stream restarts 10 s earlier (a looped bag): no offset of the old track's smile with
@@ -1135,7 +1203,7 @@ def test_expression_earlier_stamp_restarts_window_and_events():
 
 def test_expression_scores_are_the_classifier_s_posteriors_when_wanted():
     """A constant alpha 0.45: posteriors softmax(0, 20 * 0.45 - 10) = (e, 1) / (1 + e)."""
-    processor = ExpressionProcessor(FACTORY, smile_classifier(), EventConfig())
+    processor = _expression_processor()
     for m in range(5):
         msg = _action([0.45], round((10.0 + m / 30.0) * 1e9))
         assert processor.handle('face/action', msg, NONE) == []  # no scores unless wanted
