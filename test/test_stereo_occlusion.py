@@ -31,11 +31,11 @@ def test_a_patch_is_covered_beyond_the_ratio_unless_too_few_nodes_are_left() -> 
     checked[[0, 3]] = False  # say, face-edge nodes
     edges = np.array([[0, 1], [1, 2], [3, 4], [4, 5]])
     disagreement = np.full(12, 0.3)
-    disagreement[[0, 1, 2, 3]] = [1.5, 0.9, 0.8, 1.5]
+    disagreement[[0, 1, 2, 3]] = [1.5, 0.9, np.nan, 1.5]
     agreed = np.ones(12, dtype=bool)
     covered = covered_nodes(disagreement, checked, 0.7, edges, agreed)
     # node 0: unchecked, next to covered node 1, beyond twice the ratio; node 3: no neighbour
-    np.testing.assert_array_equal(np.flatnonzero(covered), [0, 1, 2])
+    np.testing.assert_array_equal(np.flatnonzero(covered), [0, 1])
     disagreement[: 12 - MIN_UNCOVERED_NODES + 1] = 1.0
     assert not covered_nodes(disagreement, np.ones(12, dtype=bool), 0.7, edges, agreed).any()
 
@@ -44,31 +44,12 @@ def test_only_a_patch_that_agreed_before_can_be_covered() -> None:
     """A wrong depth makes left and right disagree from the start; an occluder arrives."""
     checked = np.ones(12, dtype=bool)
     checked[0] = False
-    edges = np.array([[0, 1], [1, 2], [2, 3], [1, 3]])
+    edges = np.array([[0, 1], [1, 2], [2, 3]])
     first = np.full(12, 0.2)
     first[:3] = [1.2, 0.3, 1.1]  # node 2 at a wrong depth
     agreed = agreeing(first, checked, 0.7)
     np.testing.assert_array_equal(np.flatnonzero(~agreed), [2])
     later = first.copy()
-    later[:4] = [1.6, 1.2, 1.1, 0.9]  # an occluder over nodes 0, 1 and 3 (and 2)
+    later[:2] = [1.6, 1.2]  # an occluder over nodes 0 and 1
     covered = covered_nodes(later, checked, 0.7, edges, agreed)
-    np.testing.assert_array_equal(np.flatnonzero(covered), [0, 1, 3])
-
-
-def test_a_patch_disagreeing_alone_is_not_covered() -> None:
-    """A turned head's far brow end disagrees alone; an occluder covers neighbours together.
-
-    On rendered free-motion stereo sequences (yaw up to 30 degrees, no occluder) a single
-    eye-corner or brow patch read beyond 0.7 on up to 265 of 300 pairs; under occluders the
-    covered checked patches had a neighbour beyond it too on 98 % of their pairs.
-    """
-    checked = np.ones(12, dtype=bool)
-    edges = np.array([[0, 1], [1, 2], [2, 3], [4, 5]])
-    disagreement = np.full(12, 0.3)
-    disagreement[[1, 4]] = 1.1
-    agreed = np.ones(12, dtype=bool)
-    assert not covered_nodes(disagreement, checked, 0.7, edges, agreed).any()
-    disagreement[5] = 0.8
-    np.testing.assert_array_equal(
-        np.flatnonzero(covered_nodes(disagreement, checked, 0.7, edges, agreed)), [4, 5]
-    )
+    np.testing.assert_array_equal(np.flatnonzero(covered), [0, 1])

@@ -154,14 +154,14 @@ class StereoTrackerConfig:
             there at 0.5-0.65; the 34-node mesh's gap pairs tracked right measured 0.18-0.61).
             At 0.7 a 19-node track settled 18 px off at 0.70 and went on there; with 0.65, pairs
             more than 3 px off on four such sequences 66 / 0 / 0 / 42 -> 29 / 0 / 0 / 6.
-        occlusion_ratio: a node whose patch's left and right images disagree beyond this at the
-            solved nodes (the RMS of their ZSSD difference over the left patch's contrast), and a
-            neighbour's too, is taken as covered by something in front of the face: it moves with
-            the head's rigid motion and keeps its templates until they agree again
+        occlusion_ratio: a node whose patch's left and right images disagree beyond this at
+            the solved nodes (the RMS of their ZSSD difference over the left patch's contrast)
+            is taken as covered by something in front of the face: it moves with the head's
+            rigid motion and keeps its templates until they agree again
             (:mod:`.stereo_occlusion`). The face-edge and nose nodes, which each camera sees
-            differently without an occluder, are covered only next to a covered node and beyond
-            twice this. Unoccluded rendered sequences read 0.1-0.7 on the other nodes, nodes under
-            a passing occluder 0.6-1.8. 0 turns the check off.
+            differently without an occluder, are covered only next to a covered node and
+            beyond twice this. Unoccluded rendered sequences read 0.1-0.7 on the other nodes,
+            nodes under a passing occluder 0.6-1.8. 0 turns the check off.
         min_texture_ratio: the track is LOST when the median over node patches of their
             contrast in the image divided by the template's (about 1 while the face is seen)
             falls below this: a dark, blank or saturated image, which the residual test passes

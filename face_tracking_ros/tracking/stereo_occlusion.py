@@ -14,16 +14,11 @@ session). The face-edge patches read up to 2.7 without one (their one-sided patc
 turn away differently from each camera) and the nose's up to 1.1 (each camera sees its own side
 of the nose, most when the mouth puckers): they count as covered only next to a covered node.
 
-A node whose patch disagrees beyond ``occlusion_ratio``, with a mesh neighbour's patch beyond it
-too, is taken as covered on that pair (:func:`covered_nodes`). An occluder covers a region; a patch
-alone disagrees where the head has turned from one camera (the far brow end or eye corner,
-foreshortened differently in the two views): on rendered 640x480 free-motion sequences (yaw up to
-30 degrees, 1 px clicks, no occluder) a node was taken as covered on 265, 87 and 22 of 299 pairs
-when a patch alone could be, 91, 1 and 0 since, while the checked nodes under a passing occluder
-were found on 96-99 % of their pairs either way. A covered node is moved from the last pair's
-position as the head moved, the weighted rigid motion of the others (:func:`held_nodes`), and its
-patch keeps the templates of the last pair that saw it (:func:`kept_templates`), so the occluder
-never enters them and the node matches the face again once the occluder has gone.
+A node whose patch disagrees beyond ``occlusion_ratio`` is taken as covered on that pair
+(:func:`covered_nodes`): it is moved from the last pair's position as the head moved, the
+weighted rigid motion of the others (:func:`held_nodes`), and its patch keeps the templates of
+the last pair that saw it (:func:`kept_templates`), so the occluder never enters them and the
+node matches the face again once the occluder has gone.
 
 Left and right also disagree at a node whose depth is wrong (the other camera's patch is then
 sampled beside the feature): a 320x240 initialisation put a brow node 28 mm off, its patch read
@@ -89,23 +84,21 @@ def covered_nodes(
 ) -> np.ndarray:
     """(N,) bool, the nodes an occluder covers, read from their patches' disagreement.
 
-    A checked node is covered when its patch disagrees beyond ``ratio`` (NaN: not covered) and so
-    does a checked mesh neighbour's (an occluder covers a region, a turned head's far brow end
-    disagrees alone). A node not checked (the face edge, the nose) is when a mesh neighbour is
-    covered and its own patch disagrees beyond :data:`UNCHECKED_FACTOR` times ``ratio``. Only nodes
-    that ``agreed`` before can be covered, and none is when fewer than :data:`MIN_UNCOVERED_NODES`
-    would be left to hold them.
+    A checked node is covered when its patch disagrees beyond ``ratio`` (NaN: not covered). A
+    node not checked (the face edge, the nose) is when a mesh neighbour is covered and its own
+    patch disagrees beyond :data:`UNCHECKED_FACTOR` times ``ratio``. Only nodes that ``agreed``
+    before can be covered, and none is when fewer than :data:`MIN_UNCOVERED_NODES` would be
+    left to hold them.
 
     Args:
         disagreement: (N,) :func:`stereo_disagreement`.
-        checked: (N,) bool, the nodes whose own patches tell.
+        checked: (N,) bool, the nodes whose patches alone tell.
         ratio: the disagreement beyond which a checked patch is covered.
         edges: (E, 2) the mesh's edges.
         agreed: (N,) bool, the nodes whose patches were :func:`agreeing` on an earlier pair of
             the track.
     """
     covered = agreed & checked & (disagreement > ratio)
-    covered &= mesh_neighbours(covered, edges)
     if covered.any():
         near = mesh_neighbours(covered, edges)
         covered |= agreed & ~checked & near & (disagreement > UNCHECKED_FACTOR * ratio)
