@@ -57,10 +57,13 @@ class View(NamedTuple):
 
     Attributes:
         image: (H, W) float32 level 0 of its pyramid.
-        visibility: (N,) node visibility weights at ``params``.
+        visibility: (N,) node visibility weights at ``params``, 0 for the ``covered`` nodes.
         params: its estimate.
         frame: its frame number in the track (1 for frame 1).
         rotation: R(omega) of ``params``.
+        covered: (N,) bool, the nodes an occluder covered in ``image``
+            (:func:`~.mono_loss.covered_nodes`): they weigh nothing in the adjustment and in a
+            re-acquisition from the view, as in eq. 6.
     """
 
     image: np.ndarray
@@ -68,11 +71,20 @@ class View(NamedTuple):
     params: Params
     frame: int
     rotation: np.ndarray
+    covered: np.ndarray
 
     @classmethod
-    def of(cls, image: np.ndarray, visibility: np.ndarray, params: Params, frame: int) -> View:
-        """A view of ``image`` at ``params``, the track's ``frame``-th frame."""
-        return cls(image, visibility, params, frame, rodrigues(params.omega)[0])
+    def of(
+        cls,
+        image: np.ndarray,
+        visibility: np.ndarray,
+        params: Params,
+        frame: int,
+        covered: np.ndarray,
+    ) -> View:
+        """A view of ``image`` at ``params``, the track's ``frame``-th frame, ``covered`` out."""
+        seen = np.where(covered, 0.0, visibility)
+        return cls(image, seen, params, frame, rodrigues(params.omega)[0], covered)
 
 
 class Adjusted(NamedTuple):
@@ -172,16 +184,17 @@ class ViewAdjuster:
         self._node_weights = node_weights
         self._priors = priors
 
-    def advance(
+    def keep_view(
         self,
         views: FirstViews,
         pyramid: ImagePyramid,
         params: Params,
         visibility: np.ndarray,
+        covered: np.ndarray,
         frame: int,
         steady: Callable[[], bool],
-    ) -> Adjusted | None:
-        """Keep a followed frame as a view if it shows a new rotation; run the adjustment.
+    ) -> None:
+        """Keep a followed frame as a view if it shows a new rotation and matches the image.
 
         A frame whose rotation differs from every view's by ``bundle.view_spacing`` (once sigma
         is no longer estimated by eq. 6) becomes a view, up to ``bundle.views`` of them, if it
@@ -193,29 +206,39 @@ class ViewAdjuster:
         rendered runs with an occluder passing, the rule refused 56 such frames and let 3
         through (5.2-10.8 px off); no frame of issue 6's sequences is refused
         (docs/performance.md, 2026-12-06, thirty-third session). A track the occluder has
-        already dragged matches its own templates and passes. When no adjustment is under way
-        and some views are in none yet, one starts over frame 1 and every view so far
-        (:meth:`_adjustment`). It runs ``bundle.stages_per_frame`` stages per followed frame (all
-        on this frame if 0).
+        already dragged matches its own templates and passes.
 
         Args:
             views: the track's views.
             pyramid: the frame's pyramid.
             params: the frame's estimate.
             visibility: (N,) the node visibility at ``params``.
+            covered: (N,) bool, the nodes an occluder covers in the frame (left out of the view).
             frame: the frame's number in the track.
             steady: whether the frame matches the image closely enough to be a view.
+        """
+        if self._is_new_view(views, params.omega, frame) and steady():
+            image = pyramid.levels[0].copy()  # the pyramid's levels are reused
+            views.keep(View.of(image, visibility, params, frame, covered))
+
+    def advance(self, views: FirstViews, num_levels: int) -> Adjusted | None:
+        """Run the adjustment's stages for a followed frame.
+
+        When no adjustment is under way and some views are in none yet, one starts over frame 1
+        and every view so far (:meth:`_adjustment`). It runs ``bundle.stages_per_frame`` stages
+        per followed frame (all on this frame if 0).
+
+        Args:
+            views: the track's views.
+            num_levels: the pyramid's levels (the new ROIs' levels).
 
         Returns:
             The adjustment that ended on this frame, unless it was rejected or none did.
         """
-        if self._is_new_view(views, params.omega, frame) and steady():
-            image = pyramid.levels[0].copy()  # the pyramid's levels are reused
-            views.keep(View.of(image, visibility, params, frame))
         if views.adjustment is None:
             if views.covered_views == len(views.views):
                 return None
-            views.start_adjustment(self._adjustment(views, pyramid.num_levels))
+            views.start_adjustment(self._adjustment(views, num_levels))
         done, adjusted = run_stages(views.adjustment, self._config.bundle.stages_per_frame or None)
         if done:
             views.drop_adjustment()
@@ -365,7 +388,7 @@ class ViewAdjuster:
             for view in views.views[len(params) :]
         ]
         carried_views = [
-            View.of(view.image, self._face.visibility(p, normals), p, view.frame)
+            View.of(view.image, self._face.visibility(p, normals), p, view.frame, view.covered)
             for view, p in zip(views.views, params + later, strict=True)
         ]
         return carried_views, now
