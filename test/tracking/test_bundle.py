@@ -795,7 +795,7 @@ def test_an_adjustments_rois_share_one_thin_plate_solve(turning_head, monkeypatc
 def test_a_view_kept_while_an_adjustment_ran_is_carried_as_the_frame_now_is(model_factory):
     # carry(): the views an adjustment covered take its estimates; a view kept after its newest
     # one is moved into the adjusted scene by the head's motion since that view, as the current
-    # estimate of the same frame is.
+    # estimate of the same frame is. The nodes an occluder covered in a view stay left out.
     model = model_factory()
     adjuster = MonoTracker(model, CAMERA)._adjuster
     zeros_sigma = np.zeros(model.p)
@@ -810,11 +810,13 @@ def test_a_view_kept_while_an_adjustment_ran_is_carried_as_the_frame_now_is(mode
     ]
     image, visibility = np.zeros((480, 640), np.float32), np.ones(model.num_nodes)
     no_cover = np.zeros(model.num_nodes, dtype=bool)
+    cover = no_cover.copy()
+    cover[[3, 7]] = True
     views = FirstViews(
         None,
         [
-            View.of(image, visibility, p, f, no_cover)
-            for p, f in zip(tracked, (1, 5, 9), strict=True)
+            View.of(image, visibility, p, f, c)
+            for p, f, c in zip(tracked, (1, 5, 9), (no_cover, no_cover, cover), strict=True)
         ],
         None,
         None,
@@ -830,6 +832,9 @@ def test_a_view_kept_while_an_adjustment_ran_is_carried_as_the_frame_now_is(mode
     carried_views, now = adjuster.carry(views, estimate, tracked[2], 9, normals)
 
     assert [v.frame for v in carried_views] == [1, 5, 9]
+    np.testing.assert_array_equal(carried_views[2].covered, cover)
+    assert (carried_views[2].visibility[cover] == 0.0).all()
+    assert (carried_views[2].visibility[~cover] > 0.0).all()
     for view, pose in zip(carried_views[:2], (estimate.first, *estimate.views), strict=True):
         for got, want in zip(view.params, (*pose, estimate.sigma), strict=True):
             np.testing.assert_array_equal(got, want)
