@@ -342,7 +342,7 @@ class MonoTracker:
         re-acquired from it (:meth:`_viewed`). Measured on the 48 rendered runs with an occluder
         passing (docs/performance.md, thirty-fifth session): LOST frames 1743 -> 1497, no frame
         TRACKING more than 5 px off added; when covered frames kept no view, two runs (320x240,
-        19 nodes) whose last view was 30 frames before the loss stayed LOST for 144 frames where
+        19 nodes) whose last view was 37 frames before the loss stayed LOST for 144 frames where
         a view kept as the occluder came re-acquired the face after 11-12.
         An adjustment that ends here replaces the track's estimate from the next frame on
         (:meth:`_apply_adjustment`). One that fails (numerically, or on input it cannot use) is

@@ -206,7 +206,8 @@ class ViewAdjuster:
         rendered runs with an occluder passing, the rule refused 56 such frames and let 3
         through (5.2-10.8 px off); no frame of issue 6's sequences is refused
         (docs/performance.md, 2026-12-06, thirty-third session). A track the occluder has
-        already dragged matches its own templates and passes.
+        already dragged matches its own templates and passes. A frame with ``covered`` nodes
+        can be a view (``steady`` then asks the nodes not covered), those nodes left out of it.
 
         Args:
             views: the track's views.
