@@ -340,7 +340,7 @@ class MonoTracker:
         occluder (on a rendered run, 19 nodes, the track then slid 34 px off with the occluder,
         TRACKING). Such a view holds the pose the face is next lost at, and a LOST image is
         re-acquired from it (:meth:`_viewed`). Measured on the 48 rendered runs with an occluder
-        passing (docs/performance.md, thirty-fifth session): LOST frames 1743 -> 1497, no frame
+        passing (docs/performance.md, thirty-fifth session): LOST frames 1738 -> 1477, no frame
         TRACKING more than 5 px off added; when covered frames kept no view, two runs (320x240,
         19 nodes) whose last view was 37 frames before the loss stayed LOST for 144 frames where
         a view kept as the occluder came re-acquired the face after 11-12.
@@ -365,7 +365,7 @@ class MonoTracker:
                     track.current,
                     result.node_residuals,
                     track.previous.levels[0],
-                    track.previous.seen,
+                    track.previous.visibility,
                 ),
             )
             if track.covered.any():
