@@ -404,22 +404,26 @@ def _rendered_track(
     return frames, camera, tracker
 
 
-def test_a_face_dragged_by_an_occluder_gives_no_view():
-    # Seed 3's free motion at 320x240 with an occluder passing over frames 72-95: it drags the
-    # estimate, TRACKING, and the dragged pose turns; frames 81 and 82 became views 13.7 and
-    # 23.3 px off the face (most of their textured nodes above reacquire_residual_ratio).
-    config = SceneConfig(
+def _small_occluded(seed: int) -> SceneConfig:
+    """A seed's 300-frame free motion at 320x240 (focal 300 px) with its occluder passing."""
+    return SceneConfig(
         kind='mono',
         frames=300,
         fps=30.0,
-        seed=3,
+        seed=seed,
         motion='free',
         width=320,
         height=240,
         focal=300.0,
         occlusion=True,
     )
-    frames, camera, tracker = _rendered_track(config, 0, 100)
+
+
+def test_a_face_dragged_by_an_occluder_gives_no_view():
+    # Seed 3's free motion at 320x240 with an occluder passing over frames 72-95: it drags the
+    # estimate, TRACKING, and the dragged pose turns; frames 81 and 82 became views 13.7 and
+    # 23.3 px off the face (most of their textured nodes above reacquire_residual_ratio).
+    frames, camera, tracker = _rendered_track(_small_occluded(3), 0, 100)
     views = []  # the RMS node error (px) of each frame kept as a view
     for frame in frames:
         kept = len(tracker._track.first_views.views) if tracker._track else 1
@@ -481,18 +485,7 @@ def test_a_frame_with_covered_nodes_is_kept_as_a_view_and_reacquires_the_face():
     # track is lost at frame 119 under it. When a frame with covered nodes was no view, the
     # views' poses were too far from where the face came back: LOST to frame 262. Frame 113,
     # kept as a view with its 2 covered nodes left out, finds the face at frame 130.
-    config = SceneConfig(
-        kind='mono',
-        frames=300,
-        fps=30.0,
-        seed=1,
-        motion='free',
-        width=320,
-        height=240,
-        focal=300.0,
-        occlusion=True,
-    )
-    frames, camera, tracker = _rendered_track(config, 0, 150, 19)
+    frames, camera, tracker = _rendered_track(_small_occluded(1), 0, 150, 19)
     status, error = [], []
     for frame in frames:
         result = tracker.step(frame.images['image'])
