@@ -50,7 +50,7 @@ Design, in the seed's terms:
   checks every node again. Measured on 48 rendered runs with an occluder passing (seeds 1-3,
   two subjects, 640x480 and 320x240, 19 and 34 nodes, true and packaged model), with the
   re-acquisition below: TRACKING frames more than 5 px off 86 -> 31, more than 10 px 35 -> 6,
-  LOST frames 2666 -> 1738; the same runs without the occluder the same to the digit.
+  LOST frames 2666 -> 1477; the same runs without the occluder the same to the digit.
 - Recovery needs no detector. While LOST, each image is solved as the frame after the last valid
   one (eq. 6 from its estimate and templates); if that fails, as when tracking fails, it is solved
   against the keyframe templates alone from the initial pose translated onto the best normalised

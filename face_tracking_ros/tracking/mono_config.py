@@ -140,7 +140,7 @@ class MonoTrackerConfig:
             the nearest keyframe's, within half of it (> 0). A covered node weighs nothing in
             eq. 6 and counts as not visible in the loss checks. Measured on 48 rendered 300-frame
             runs with an occluder passing: TRACKING frames more than 5 px off 86 -> 31 at 0.5,
-            LOST frames 2666 -> 1738 with the re-acquisition from the adjustment's views; the 48
+            LOST frames 2666 -> 1477 with the re-acquisition from the adjustment's views; the 48
             runs without it the same to the digit (docs/performance.md).
         lost_node_fraction: LOST when more than this fraction of the visible nodes that show
             texture (in the image or the template) fail (in (0, 1]).
