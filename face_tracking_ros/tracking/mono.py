@@ -709,7 +709,8 @@ class MonoTracker:
         track = self._track
         track.before = None if track.lost else track.current
         track.span = track.elapsed
-        templates = templates.kept(nearest_keyframe(track.keyframes, result.omega).templates)
+        if templates.covered.any():  # looked up only then: most frames cover nothing
+            templates = templates.kept(nearest_keyframe(track.keyframes, result.omega).templates)
         config = self._config
         if len(track.keyframes) < config.max_keyframes:
             # trace(R) = 1 + 2 cos(angle)
