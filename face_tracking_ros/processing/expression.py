@@ -72,8 +72,9 @@ class ExpressionNodeConfig:
             image: its alpha is not classified and a LOST state does not end it. 0: no hold (a
             covered image's alpha is classified, a LOST state ends the expression). It bounds how
             long an expression outlives a face lost behind a hand; on rendered mono sequences 1 s
-            let a held surprise be ended under a brow cover (the tracker's flags linger up to a
-            second after the occluder has gone), 2 s and 3 s none.
+            let a held surprise be ended under a brow cover (the tracker's flags lingered up to a
+            second after the occluder had gone, before covered nodes took the keyframe's
+            templates), 2 s and 3 s none.
     """
 
     classifier_file: str = ''
