@@ -547,7 +547,8 @@ class MonoTracker:
 
         The nodes an occluder covered in the view are left out of both: the crop spans the
         inner nodes not covered (all of them if every one was), and their templates weigh
-        nothing.
+        nothing (the view's visibility, :meth:`~.mono_adjustment.View.of`, sampled with the
+        track's normals as these templates are).
         """
         track, config = self._track, self._config
         pyramid = ImagePyramid.build(view.image, config.pyramid_levels, config.smooth_base)
@@ -558,9 +559,7 @@ class MonoTracker:
         return _ViewFace(
             FaceView.of(pyramid, nodes_px, seen if seen.any() else inner),
             nodes_px[inner].mean(axis=0),
-            templates.sampled()._replace(
-                visibility=np.where(view.covered, 0.0, templates.visibility)
-            ),
+            templates.sampled()._replace(visibility=view.visibility),
         )
 
     def _searched(self, pyramid: ImagePyramid, start: Params) -> Params:

@@ -13,8 +13,8 @@ template.
 An occluder passing in front of the face (a hand, a mug) covers some nodes while the others fit
 as before. The covered nodes are told from the others per image (:func:`covered_nodes`) and are
 left out: of the checks (they count as not visible, so too few nodes left uncovered is a loss),
-of the next image's solve, and of the templates, whose rows for them stay those of the last image
-that saw them (:meth:`~.mono_templates.Templates.kept`).
+of the next image's solve, and of the templates, whose rows for them are the nearest keyframe's
+(:meth:`~.mono_templates.Templates.kept`).
 """
 
 from __future__ import annotations
