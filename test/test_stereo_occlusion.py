@@ -10,6 +10,7 @@ from face_tracking_ros.tracking.stereo_occlusion import (
     agreeing,
     covered_nodes,
     held_nodes,
+    occluder_nodes,
 )
 
 
@@ -53,3 +54,17 @@ def test_only_a_patch_that_agreed_before_can_be_covered() -> None:
     later[:2] = [1.6, 1.2]  # an occluder over nodes 0 and 1
     covered = covered_nodes(later, checked, 0.7, edges, agreed)
     np.testing.assert_array_equal(np.flatnonzero(covered), [0, 1])
+
+
+def test_only_held_nodes_with_a_held_neighbour_are_flagged() -> None:
+    """An occluder covers a region; a turned head's far brow end disagrees alone.
+
+    Node 1 is held alone and node 0 (not checked) beside it: neither is flagged. Nodes 4 and 5
+    are held together and flagged, and node 6 (not checked) beside them with them.
+    """
+    checked = np.ones(12, dtype=bool)
+    checked[[0, 6]] = False
+    edges = np.array([[0, 1], [1, 2], [2, 3], [4, 5], [5, 6], [6, 7]])
+    held = np.zeros(12, dtype=bool)
+    held[[0, 1, 4, 5, 6]] = True
+    np.testing.assert_array_equal(np.flatnonzero(occluder_nodes(held, checked, edges)), [4, 5, 6])

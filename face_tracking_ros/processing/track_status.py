@@ -60,8 +60,9 @@ class TrackEnds:
 EXPRESSIVE_GROUPS = (Group.MOUTH, Group.BROW)
 # Fewest of them flagged at once for a cover: an occluder covers neighbouring nodes together (the
 # mono tracker takes a node as covered only next to a covered one or with two more), while the
-# stereo tracker flags a single brow or mouth node on most images of an unoccluded face turning
-# (one on 251 of 300 rendered 640x480 pairs, two or more on 87).
+# stereo tracker flags brow or mouth nodes of an unoccluded face turning (on a rendered 640x480
+# free-motion sequence, yaw up to 30 degrees: one or more on 94 of 300 pairs, two or more on 32;
+# 251 and 87 when it flagged a patch disagreeing alone).
 MIN_COVERED_EXPRESSIVE = 2
 
 

@@ -93,6 +93,7 @@ from face_tracking_ros.tracking.stereo_occlusion import (
     covered_nodes,
     held_nodes,
     kept_templates,
+    occluder_nodes,
     stereo_disagreement,
 )
 from face_tracking_ros.tracking.stereo_result import StereoResult, TrackedSequence, split_tracks
@@ -834,7 +835,8 @@ class StereoTracker:
 
         Nodes an occluder covers (their left and right patches disagree, ``occlusion_ratio``)
         are moved with the head's rigid motion instead, keep their templates and add nothing to
-        the frame-1 depths (:mod:`.stereo_occlusion`).
+        the frame-1 depths (:mod:`.stereo_occlusion`); the result flags those of them with a
+        held neighbour (:func:`~.stereo_occlusion.occluder_nodes`).
         """
         config = self._config
         nodes, statistics, solves = attempt.nodes, attempt.statistics, attempt.solves
@@ -868,7 +870,7 @@ class StereoTracker:
             solves.iterations,
             tuple(solves.history),
             fit_start=state.result.fit,
-            occluded=covered,
+            occluded=occluder_nodes(covered, self._occludable, self._topology.edges),
         )
         state.result = result
         return result
@@ -1014,7 +1016,7 @@ class StereoTracker:
         """A TRACKING result; residuals are zero on the initial pair (it is its own template).
 
         The model fit starts from ``fit_start`` when given (:meth:`_fit`); ``occluded`` are the
-        nodes held under an occluder (none when not given).
+        nodes flagged as under an occluder (none when not given).
         """
         n = nodes.shape[0]
         left_res = np.zeros(n) if statistics is None else statistics.rms[0][LEFT]

@@ -42,8 +42,9 @@ class StereoResult:
         rotation: (3, 3) the head's rotation since frame 1; None before the first pair.
         new_track: this pair is frame 1 of a track (after a reset, or a detection after a loss).
         occluded: (N,) bool, the nodes judged covered by an occluder on this pair, held to the
-            head's rigid motion (:mod:`.stereo_occlusion`); LOST carries the last valid pair's;
-            None before any estimate.
+            head's rigid motion (:func:`~.stereo_occlusion.occluder_nodes`; a patch that
+            disagrees alone is held but not flagged); LOST carries the last valid pair's; None
+            before any estimate.
     """
 
     status: TrackStatus
