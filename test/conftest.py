@@ -26,6 +26,8 @@ from face_tracking_ros.threads import limit_blas_threads
 
 from repo_root import REPO
 
+pytest.register_assert_rewrite('tracked_expressions')  # its checks report their values
+
 os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
 os.environ.setdefault('ROS_DOMAIN_ID', '42')
 os.environ.setdefault(
