@@ -92,10 +92,10 @@ from face_tracking_ros.tracking.mono_config import MonoTrackerConfig
 from face_tracking_ros.tracking.mono_kernels import blended_template, row_rms
 from face_tracking_ros.tracking.mono_loss import LossChecks, Reference
 from face_tracking_ros.tracking.mono_priors import Priors
-from face_tracking_ros.tracking.mono_projection import FaceProjection
+from face_tracking_ros.tracking.mono_projection import FaceProjection, Sampled
 from face_tracking_ros.tracking.mono_rois import Params, Roi, RoiLayout
 from face_tracking_ros.tracking.mono_search import FaceView, PendingView
-from face_tracking_ros.tracking.mono_solve import MonoSolver, Solution
+from face_tracking_ros.tracking.mono_solve import Hopeless, MonoSolver, Solution
 from face_tracking_ros.tracking.mono_templates import (
     Keyframe,
     OnDemand,
@@ -129,6 +129,10 @@ _RETURN_START_PX = 3.0
 # turned on: it stayed covered for the 671-861 frames left. The occluders rendered cover a node
 # for at most 28 frames (30 fps).
 _COVER_FRAMES = 30
+# A solve while the track is LOST is given up before level 0 when, at level 1's solution seen on
+# level 0, more than lost_node_fraction of the textured nodes fail at this multiple of
+# reacquire_residual_ratio (:meth:`MonoTracker._hopeless`): it would fail the checks.
+_HOPELESS_RATIO = 2.0
 
 
 class _ViewFace(NamedTuple):
@@ -758,6 +762,9 @@ class MonoTracker:
         again from the same start without them, and checked with them covered: the first solve
         fits them to the occluder in part, which drags the face and raises the others' residuals.
 
+        While the track is LOST, a solve whose level-1 solution cannot pass the checks is given
+        up before level 0 (:meth:`_hopeless`).
+
         ``returned`` is the last valid frame's pyramid (given for the first image after dropped
         images): a solve that fails the checks at ``residual_ratio`` but passes them at
         ``lost_residual_ratio`` is taken if solving that pyramid back from it returns to the
@@ -771,12 +778,21 @@ class MonoTracker:
         node_weights = node_weights * self._roi_weights
         track = self._track
         rois = track.rois
+        hopeless = self._hopeless(templates[0]) if track.lost and not track.bridging else None
 
         def attempt(
             begin: Params, level: int, restart_px: float
         ) -> tuple[Solution, TrackResult, Templates]:
             solution = self._solver.solve(
-                pyramid, begin, templates, node_weights, rois, free_sigma, level, restart_px
+                pyramid,
+                begin,
+                templates,
+                node_weights,
+                rois,
+                free_sigma,
+                level,
+                restart_px,
+                hopeless,
             )
             result, sampled = self._checked(solution, pyramid, templates[0], residual_ratio)
             weights = np.where(sampled.covered, 0.0, node_weights)
@@ -817,6 +833,34 @@ class MonoTracker:
             iterations=total.iterations + back.iterations,
             cost_history=total.cost_history + back.costs,
         ), sampled
+
+    def _hopeless(self, template: np.ndarray) -> Hopeless:
+        """Whether a solve while LOST is given up before level 0 (:data:`.mono_solve.Hopeless`).
+
+        It is when the vote of the loss checks, at level 1's solution seen on level 0 against
+        ``template`` (level 0's), fails at ``_HOPELESS_RATIO`` times ``reacquire_residual_ratio``.
+        The result is then checked as any other's (:meth:`_checked`) and fails: a node failing
+        at the larger ratio fails at the smaller. Most solves of a LOST image settle far off the
+        face (the face is still covered, or elsewhere), and level 0, a third of such a solve's
+        iterations, is not seen to bring one that far back. Not on the image the face is first
+        lost on, nor on the first after dropped images: there a failed solve may still have its
+        newly covered nodes left out, or be carried on (:meth:`_reacquire`).
+
+        Measured over the LOST images of 12 rendered runs with an occluder passing (34 nodes,
+        true model; docs/performance.md, thirty-sixth session): the 12 solves that re-acquired
+        the face had at most 36 % of their voting nodes failing at that ratio, and 96 % of the
+        1731 that failed more than half. On the 48 runs of that grid every frame's status and
+        nodes are the same as without it.
+        """
+        track = self._track
+        ratio = _HOPELESS_RATIO * self._config.reacquire_residual_ratio
+
+        def hopeless(params: Params, sampled: Sampled, residuals: np.ndarray) -> bool:
+            textures = self._loss.textures(sampled.samples, template)
+            visibility = self._face.visibility(params, track.normals)
+            return self._loss.mismatched(params, row_rms(residuals), textures, visibility, ratio)
+
+        return hopeless
 
     def _solved_back(self, pyramid: ImagePyramid, templates: Templates) -> Solution:
         """Eq. 6 solved on the last valid frame's ``pyramid`` against a later image's templates.

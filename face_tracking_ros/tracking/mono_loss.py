@@ -166,6 +166,21 @@ class LossChecks:
             return f'drifted: residual against the keyframe {drift:.2f} x the ROI texture'
         return ''
 
+    def mismatched(
+        self,
+        params: Params,
+        node_rms: np.ndarray,
+        textures: tuple[np.ndarray, np.ndarray],
+        visibility: np.ndarray,
+        ratio: float,
+    ) -> bool:
+        """Whether more than ``lost_node_fraction`` of the voting nodes fail at ``ratio``.
+
+        The vote of :meth:`reason` alone (its arguments as there), at any ratio.
+        """
+        votes = self._votes(params, visibility, textures, node_rms, ratio)
+        return votes.failing > self._config.lost_node_fraction * votes.voting
+
     def covered(
         self,
         params: Params,

@@ -20,11 +20,14 @@ Sigma_sigma^-1 sigma``, :class:`~.mono_priors.Priors`):
   raises the cost, and a coarser level runs only when the first step on a finer one shows the
   face is too far for it (:func:`.coarse_to_fine`). The loops over the ROI samples are compiled
   (:mod:`.mono_kernels`).
+- A caller can give a solve up before level 0 (``hopeless``): level 0 then is not solved when the
+  coarser levels' solution, seen on level 0, already shows the solve cannot pass the caller's
+  checks (the tracker's re-acquisition of a lost face, whose solves mostly fail).
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import NamedTuple
 
 import numpy as np
@@ -44,6 +47,11 @@ from face_tracking_ros.tracking.mono_priors import Priors
 from face_tracking_ros.tracking.mono_projection import FaceProjection, Sampled
 from face_tracking_ros.tracking.mono_rois import Params, Roi
 from face_tracking_ros.tracking.projection import POSE_DIM
+
+Hopeless = Callable[[Params, Sampled, np.ndarray], bool]
+"""``hopeless(params, sampled, residuals)``: whether a solve is given up before level 0, from the
+coarser levels' solution ``params``, its level-0 samples and their (N, M) photometrically projected
+residuals against level 0's template."""
 
 
 class Level(NamedTuple):
@@ -115,12 +123,15 @@ class Solution(NamedTuple):
 
     Attributes:
         params: the solution: level 0's last point, or the one before it if the last step (which
-            no iteration evaluated) raised the cost.
+            no iteration evaluated) raised the cost; level 1's solution if the solve was given up
+            before level 0 (``hopeless`` of :meth:`MonoSolver.solve`).
         sampled: level 0's samples at ``params``.
         residuals: (N, M) their photometrically projected residuals against level 0's template.
         iterations: the iterations of every level solved.
-        costs: the cost of each iteration, in the order they were run, then that of ``params``.
-        condition: condition number of level 0's Jacobi-scaled normal matrix.
+        costs: the cost of each iteration, in the order they were run, then that of ``params``
+            (not when given up: no level-0 cost was evaluated).
+        condition: condition number of the last solved level's Jacobi-scaled normal matrix
+            (level 0's unless given up).
         coarsest_solved: whether the coarsest pyramid level was solved.
     """
 
@@ -175,6 +186,7 @@ class MonoSolver:
         free_sigma: bool,
         first_level: int,
         restart_px: float,
+        hopeless: Hopeless | None = None,
     ) -> Solution:
         """Solve eq. 6 from ``start``, coarse to fine.
 
@@ -198,6 +210,9 @@ class MonoSolver:
             first_level: the level solved first.
             restart_px: start over on a coarser level when the first step moves a node more
                 than this, px of level 0.
+            hopeless: when given, level 0 reached from a coarser level is solved only if this
+                is false at the coarser levels' solution (:data:`Hopeless`); else the solve
+                ends there, with that solution.
         """
         costs: list[float] = []
         projections: list[PhotometricProjection | None] = [None] * pyramid.num_levels
@@ -211,9 +226,16 @@ class MonoSolver:
         accepted: list[tuple[Params, System]] = []  # each level's last accepted point
         coarsest = pyramid.num_levels - 1
         coarsest_solved = False  # the coarsest level is always solved once it is started
+        given_up: tuple[Sampled, np.ndarray] | None = None  # level 0 at the coarser solution
 
         def solve(index: int, params: Params, first_step_limit: float) -> Params | None:
-            nonlocal coarsest_solved
+            nonlocal coarsest_solved, given_up
+            if index == 0 and accepted and hopeless is not None:
+                sampled = self._face.sample(pyramid, params, 0, rois[0])
+                residuals = projection(0).residuals(sampled.samples, templates[0])
+                if hopeless(params, sampled, residuals):
+                    given_up = (sampled, residuals)
+                    return params  # level 0 left unsolved
             level = Level(
                 index=index,
                 pyramid=pyramid,
@@ -229,8 +251,12 @@ class MonoSolver:
             return solution
 
         params = coarse_to_fine(pyramid.num_levels, first_level, restart_px, start, solve)
-        fallback, system = accepted[-1]  # level 0's
+        fallback, system = accepted[-1]  # level 0's, or the coarser one's if given up
         condition = condition_number(system.hessian)
+        if given_up is not None:
+            return Solution(
+                params, *given_up, len(costs), tuple(costs), condition, coarsest_solved
+            )
         first = self._face.sample(pyramid, params, 0, rois[0])
         residuals, cost = point_cost(
             first.samples,
