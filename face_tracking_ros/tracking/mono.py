@@ -841,16 +841,17 @@ class MonoTracker:
         ``template`` (level 0's), fails at ``_HOPELESS_RATIO`` times ``reacquire_residual_ratio``.
         The result is then checked as any other's (:meth:`_checked`) and fails: a node failing
         at the larger ratio fails at the smaller. Most solves of a LOST image settle far off the
-        face (the face is still covered, or elsewhere), and level 0, a third of such a solve's
+        face (the face is still covered, or elsewhere), and level 0, a quarter of such a solve's
         iterations, is not seen to bring one that far back. Not on the image the face is first
         lost on, nor on the first after dropped images: there a failed solve may still have its
         newly covered nodes left out, or be carried on (:meth:`_reacquire`).
 
-        Measured over the LOST images of 12 rendered runs with an occluder passing (34 nodes,
-        true model; docs/performance.md, thirty-sixth session): the 12 solves that re-acquired
-        the face had at most 36 % of their voting nodes failing at that ratio, and 96 % of the
-        1731 that failed more than half. On the 48 runs of that grid every frame's status and
-        nodes are the same as without it.
+        Measured on the 48 rendered runs with an occluder passing (seeds 1-3, two subjects,
+        640x480 and 320x240, 19 and 34 nodes, true and packaged model; docs/performance.md,
+        thirty-sixth session), over the solves made while LOST: the 48 that re-acquired the face
+        had at most 36 % of their voting nodes failing at that ratio, and 96 % of the 5881 that
+        failed more than half. Every frame's status and nodes are the same as without it; the
+        CPU of a LOST image (34 nodes, true model), median / p90, 21.3 / 24.7 -> 16.5 / 19.4 ms.
         """
         track = self._track
         ratio = _HOPELESS_RATIO * self._config.reacquire_residual_ratio

@@ -195,7 +195,7 @@ class MonoSolver:
         coarser level (:func:`.coarse_to_fine`). The Jacobian is evaluated where a level
         starts and re-evaluated only once the samples have moved ``jacobian_refresh_px`` since,
         for an iteration to come (not after a level's ``max_iterations``-th: the solves of a LOST
-        image, far off the face, moved that far on most levels' last step, and 11 % of their
+        image, far off the face, moved that far on most levels' last step, and 12 % of their
         Jacobians went unused); the iterations in between only sample the image (one
         ``cv2.remap`` of the ROI points each). A level ends when the nodes stop moving
         (``convergence_px``, ``coarse_convergence_px``) or at the first step that raises the

@@ -529,7 +529,7 @@ def test_a_lost_track_gives_up_hopeless_solves_and_finds_the_face_as_without(mon
 def test_every_jacobian_a_solve_makes_is_used_by_an_iteration(monkeypatch):
     # The run above: the solves of its LOST images start far off the face and move more than
     # jacobian_refresh_px on most levels' last iteration; the Jacobian was evaluated there too,
-    # for no iteration (11 % of those solves' Jacobians over 12 rendered runs).
+    # for no iteration (12 % of those solves' Jacobians over 12 rendered runs).
     frames, _, tracker = _rendered_track(_small_occluded(1), 0, 150, 19)
     calls = []
     solver = tracker._solver
