@@ -216,10 +216,11 @@ class StereoTrackerConfig:
             its smallest modes, those the expression classifier weighs most (a frown after a
             jaw_open, the head turned 30 degrees). With 2 mm the packaged classifier's events on
             24 such sequences (six expressions, held or starting under an occluder's pass, with
-            and without the occluder): F1 0.889 -> 1.000 without it, 0.529 -> 0.667 with it;
-            from the true nodes 1.000 either way, onsets a frame or two later. The prior shrinks
-            a mode of variance l by l / (l + s^2), the smallest (the frown's) by 0.57 at 2 mm:
-            at 3 mm the frowns were not recognised.
+            and without the occluder): F1 0.889 -> 1.000 without it, 0.529 -> 0.667 with it
+            (0.621 with the flags of held nodes only beside another, which end the recogniser's
+            hold sooner); from the true nodes 1.000 either way, onsets a frame or two later.
+            The prior shrinks a mode of variance l by l / (l + s^2), the smallest (the frown's)
+            by 0.57 at 2 mm: at 3 mm the frowns were not recognised.
         gain_compensation: measure the right camera's gain relative to the left at each
             (re)initialisation, on the node patches, and divide it out of the right images
             (:mod:`.camera_gain`): eq. 4's cross-camera terms assume equal gains.
