@@ -121,9 +121,9 @@ def occluder_nodes(held: np.ndarray, checked: np.ndarray, edges: np.ndarray) -> 
 
     An occluder covers a region, so a held checked node is flagged next to another held checked
     node, and a held node not checked (the face edge, the nose) next to a flagged one. A checked
-    patch that disagrees alone is a head turned from one camera (the far brow end or eye corner,
-    foreshortened differently in the two views): it is held all the same, since its tracking
-    goes wrong on the turned side, but no occluder is reported.
+    patch that disagrees alone is a head turned from one camera (the far brow end, whose frame-1
+    depth is wrong on such a head): it is held all the same, since its tracking goes wrong on
+    the turned side, but no occluder is reported.
 
     Args:
         held: (N,) bool, :func:`covered_nodes`.
