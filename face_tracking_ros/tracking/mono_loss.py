@@ -158,7 +158,7 @@ class LossChecks:
                 f'no visible node shows texture above {floor:g} grey levels, in the image or its '
                 'template: a blank, dark or saturated image'
             )
-        if votes.failing > config.lost_node_fraction * votes.voting:
+        if self._outvoted(votes):
             return f'{votes.failing} of {votes.voting} textured nodes do not match their templates'
         keyframe = nearest_keyframe(reference.keyframes, params.omega)
         drift = _drift_ratio(keyframe, samples, image_texture, votes.textured)
@@ -178,8 +178,7 @@ class LossChecks:
 
         The vote of :meth:`reason` alone (its arguments as there), at any ratio.
         """
-        votes = self._votes(params, visibility, textures, node_rms, ratio)
-        return votes.failing > self._config.lost_node_fraction * votes.voting
+        return self._outvoted(self._votes(params, visibility, textures, node_rms, ratio))
 
     def covered(
         self,
@@ -236,7 +235,11 @@ class LossChecks:
         votes = self._votes(
             params, visibility, (texture, texture), node_rms, config.reacquire_residual_ratio
         )
-        return 0 < votes.voting and votes.failing <= config.lost_node_fraction * votes.voting
+        return 0 < votes.voting and not self._outvoted(votes)
+
+    def _outvoted(self, votes: Votes) -> bool:
+        """Whether more than ``lost_node_fraction`` of the voting nodes fail: the loss vote."""
+        return votes.failing > self._config.lost_node_fraction * votes.voting
 
     def _votes(
         self,
