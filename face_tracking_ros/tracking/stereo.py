@@ -66,6 +66,7 @@ from face_tracking_ros.tracking.coarse_to_fine import coarse_to_fine
 from face_tracking_ros.tracking.depth_refinement import DepthRefinement, depth_evidence
 from face_tracking_ros.tracking.detector import Detector
 from face_tracking_ros.tracking.initialisation import Initialisation
+from face_tracking_ros.tracking.mono_priors import Priors
 from face_tracking_ros.tracking.mono_search import FaceView
 from face_tracking_ros.tracking.regularisation import Regulariser
 from face_tracking_ros.tracking.result import TrackStatus
@@ -1188,11 +1189,12 @@ def _move_fit(energy: PairEnergy, nodes: np.ndarray) -> None:
 def _fit_precision(config: StereoTrackerConfig, model: FaceModel | None) -> np.ndarray | None:
     """``s^2 Sigma_alpha^-1`` of the reported fit's prior on alpha (s: ``fit_node_noise``).
 
-    None without a model or with ``fit_node_noise`` 0.
+    The §4.1 prior as the mono tracker weighs it (:class:`~.mono_priors.Priors`), with lambda
+    ``s^2``. None without a model or with ``fit_node_noise`` 0.
     """
     if model is None or config.fit_node_noise == 0.0:
         return None
-    return config.fit_node_noise**2 * np.linalg.inv(model.alpha_prior_covariance)
+    return Priors.of(model, config.fit_node_noise**2).alpha_precision
 
 
 def _prior_model(config: StereoTrackerConfig, model: FaceModel | None) -> FaceModel | None:
