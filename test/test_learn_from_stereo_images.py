@@ -547,7 +547,7 @@ def _with_baseline_times(bag: Path, factor: float, out: Path) -> Path:
 def test_a_bag_of_a_doubled_baseline_is_not_learned_from_and_the_calibration_named(
     tmp_path, capsys
 ):
-    """Its face triangulates twice its size (1.99 of an adult's).
+    """Its face triangulates twice its size (2.00 of an adult's).
 
     Before the size check allowed only 0.7-1.5 (it allowed 0.5-2), learn learned from its
     meshes, a face twice the size twice as far, with nothing said.
@@ -555,10 +555,10 @@ def test_a_bag_of_a_doubled_baseline_is_not_learned_from_and_the_calibration_nam
     bag = _with_baseline_times(BAGS[0], 2.0, tmp_path / 'bags' / 'doubled')
     tracked, error = _tracked_and_learned(bag, tmp_path, capsys, learn_clicks='0')
     reason = (
-        'initialisation failed: the matched inner nodes triangulate to a face 1.99 times the '
+        'initialisation failed: the matched inner nodes triangulate to a face 2.00 times the '
         'size of an adult face (allowed 0.7-1.5): the stereo calibration does not fit these '
         "images. Check its baseline first: the right camera_info's P[0,3] = -66 (-fx B) gives "
-        'B = 0.22 m, and an adult-sized face needs B = 0.111 m (P[0,3] = -33.23); then the '
+        'B = 0.22 m, and an adult-sized face needs B = 0.11 m (P[0,3] = -33.07); then the '
         'focal length, that raw images are rectified (rectify) and that the initial positions '
         'are on the face'
     )

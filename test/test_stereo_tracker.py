@@ -191,6 +191,21 @@ def test_a_faint_stretch_of_the_right_image_is_never_matched() -> None:
     assert np.abs(found - true_px).max() < 0.1 and 0.95 < score[0] < 0.999
 
 
+def test_a_correlation_rising_to_the_end_of_the_range_is_no_match() -> None:
+    """A range ending a pixel of disparity short of the nose: its best is the end, no peak."""
+    left, right = PLANE.pair()
+    nose = PLANE.nodes()[2:3]
+    left_px, true_px = RIG.left.project(nose), RIG.right.project(nose)
+    focal_baseline = (left_px[0, 0] - true_px[0, 0]) * nose[0, 2]  # disparity d = f B / z
+    for short in (1.0, -1.0):  # the range's far end beyond, then its near end short of it
+        end = np.full(1, focal_baseline / (left_px[0, 0] - true_px[0, 0] + short))
+        ranges = (np.full(1, 0.3), end) if short > 0 else (end, np.full(1, 1.5))
+        found, score = epipolar_match(RIG, left, right, left_px, ranges, 7)
+        assert score[0] == -1.0 and np.isnan(found).all()
+    found, score = epipolar_match(RIG, left, right, left_px, (end - 0.01, end + 0.01), 7)
+    assert np.abs(found - true_px).max() < 0.1 and score[0] > 0.95
+
+
 def test_four_inner_nodes_place_the_face_and_three_do_not() -> None:
     left, right = PLANE.pair()
     topology = mesh_topology(34)

@@ -67,7 +67,11 @@ def epipolar_match(
     Returns:
         ``(right_px, score)``: (K, 2) matched right positions (sub-pixel along the row; NaN
         where nothing could be matched) and the (K,) normalised cross-correlation of each match
-        (-1 where nothing could be matched).
+        (-1 where nothing could be matched). A correlation highest at either end of the range
+        is no match: it only rises towards a peak outside the range (on a head turned 19-22
+        degrees from the cameras, the far brow end's window straddles the face's outline; its
+        correlation within the band of the fitted face rose to the band's far end, 16-34 mm
+        too far, and was refined further out).
     """
     rays = _rays(rig, left_px)
     near = rig.right.project(rays * depth_range[0][:, None])
@@ -113,6 +117,8 @@ def _row_match(
         # flat ones in OpenCV 5.0): exclude them.
         response[_window_std(strip, h) < FLAT_STD] = -1.0
         best = int(np.argmax(response))
+        if best in (0, response.size - 1):  # rising to the range's end: no peak inside it
+            continue
         scores[k] = float(response[best])
         right_px[k] = [columns_k[h] + best + _parabola_peak(response, best), rows[k]]
     return right_px, scores
