@@ -5,11 +5,13 @@ from __future__ import annotations
 import numpy as np
 
 from face_tracking_ros.geometry.rotation import rodrigues
+from face_tracking_ros.tracking.stereo_data import SampleLayout, SampleSet
 from face_tracking_ros.tracking.stereo_occlusion import (
     MIN_UNCOVERED_NODES,
     agreeing,
     covered_nodes,
     held_nodes,
+    kept_templates,
     occluder_nodes,
 )
 
@@ -68,3 +70,24 @@ def test_only_held_nodes_with_a_held_neighbour_are_flagged() -> None:
     held = np.zeros(12, dtype=bool)
     held[[0, 1, 4, 5, 6]] = True
     np.testing.assert_array_equal(np.flatnonzero(occluder_nodes(held, checked, edges)), [4, 5, 6])
+
+
+def test_a_held_node_keeps_its_patch_and_its_triangles_texture() -> None:
+    """A held node's samples keep their templates, the face texture it moves with its patch.
+
+    Node 1 is held: its patch and the texture inside triangles (0, 1, 2) and (1, 2, 3) keep
+    their templates; the other patches and triangle (2, 3, 4) take the new ones.
+    """
+    nodes = np.random.default_rng(1).normal([0.0, 0.0, 0.6], 0.03, (6, 3))
+    patches = SampleLayout.node_patches(nodes, np.full(6, 1e-3), 1, np.zeros(6, dtype=bool))
+    triangles = np.array([[0, 1, 2], [1, 2, 3], [2, 3, 4]])
+    samples = SampleSet.of((patches, SampleLayout.triangle_texture(triangles, 4)), 6)
+    last, sampled = np.zeros((2, samples.size)), np.ones((2, samples.size))
+    covered = np.zeros(6, dtype=bool)
+    covered[1] = True
+    (kept,) = kept_templates((last,), (sampled,), covered, samples)
+    patch = samples.group_sizes[0]
+    texture = np.split(kept[0, samples.bounds[1] :], 3)
+    np.testing.assert_array_equal(kept[0, : samples.bounds[1]] == 0, np.repeat(covered, patch))
+    assert [np.all(part == 0) for part in texture] == [True, True, False]
+    assert np.all(texture[2] == 1)

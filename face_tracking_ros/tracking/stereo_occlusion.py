@@ -159,11 +159,11 @@ def kept_templates(
     """The new templates of every level, those of the samples moving with a covered node kept.
 
     A sample keeps its last templates when a covered node moves it: the node's own patch, and
-    the face-texture samples of the triangles it is a corner of (their barycentric weight on it
-    not 0). The texture lies under the occluder as the patch does; had it taken the occluder in
-    and then the face at the held mesh, it would hold the mesh where the hold left it once the
-    occluder had gone: an expression that started under the occluder was not found again (the
-    mouth corners of a smile 10-11 px off to its end on a rendered 640x480 track).
+    the face-texture samples inside the triangles it is a corner of. The texture lies under the
+    occluder as the patch does; sampled afresh, it took in the occluder and then the face at the
+    held mesh, and held the mesh there once the occluder had gone: an expression that started
+    under the occluder was not found again (a smile's mouth corners 10-15 px off to its end on
+    a rendered 640x480 track, 3-6 px from 1 s after the occluder with the texture kept).
 
     Args:
         last: per level, (2, S) the templates the pair was solved against.
@@ -171,10 +171,5 @@ def kept_templates(
         covered: (N,) bool, the nodes whose samples keep their last templates.
         samples: the sample set.
     """
-    kept = np.concatenate(
-        [
-            np.any(covered[gather] & (weights > 0), axis=0)
-            for gather, weights in zip(samples.gather, samples.weights, strict=True)
-        ]
-    )
+    kept = np.concatenate([np.any(covered[gather], axis=0) for gather in samples.gather])
     return tuple(np.where(kept, old, new) for old, new in zip(last, sampled, strict=True))
