@@ -836,9 +836,10 @@ class StereoTracker:
         """Take this pair's solved nodes into the state: noise, rotation, depths, templates.
 
         Nodes an occluder covers (their left and right patches disagree, ``occlusion_ratio``)
-        are moved with the head's rigid motion instead, keep their templates and add nothing to
-        the frame-1 depths (:mod:`.stereo_occlusion`); the result flags those of them with a
-        held neighbour (:func:`~.stereo_occlusion.occluder_nodes`).
+        are moved with the head's rigid motion instead, keep their templates (their patches' and
+        the face texture of their triangles) and add nothing to the frame-1 depths
+        (:mod:`.stereo_occlusion`); the result flags those of them with a held neighbour
+        (:func:`~.stereo_occlusion.occluder_nodes`).
         """
         config = self._config
         nodes, statistics, solves = attempt.nodes, attempt.statistics, attempt.solves
