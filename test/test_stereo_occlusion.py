@@ -10,6 +10,7 @@ from face_tracking_ros.tracking.stereo_occlusion import (
     MIN_UNCOVERED_NODES,
     agreeing,
     covered_nodes,
+    first_frame_coefficients,
     held_nodes,
     kept_templates,
     occluder_nodes,
@@ -72,16 +73,21 @@ def test_only_held_nodes_with_a_held_neighbour_are_flagged() -> None:
     np.testing.assert_array_equal(np.flatnonzero(occluder_nodes(held, checked, edges)), [4, 5, 6])
 
 
+def samples_of_six_nodes() -> SampleSet:
+    """3x3 patches of six made-up nodes; texture in triangles (0, 1, 2), (1, 2, 3), (2, 3, 4)."""
+    nodes = np.random.default_rng(1).normal([0.0, 0.0, 0.6], 0.03, (6, 3))
+    patches = SampleLayout.node_patches(nodes, np.full(6, 1e-3), 1, np.zeros(6, dtype=bool))
+    triangles = np.array([[0, 1, 2], [1, 2, 3], [2, 3, 4]])
+    return SampleSet.of((patches, SampleLayout.triangle_texture(triangles, 4)), 6)
+
+
 def test_a_held_node_keeps_its_patch_and_its_triangles_texture() -> None:
     """A held node's samples keep their templates, the face texture it moves with its patch.
 
     Node 1 is held: its patch and the texture inside triangles (0, 1, 2) and (1, 2, 3) keep
     their templates; the other patches and triangle (2, 3, 4) take the new ones.
     """
-    nodes = np.random.default_rng(1).normal([0.0, 0.0, 0.6], 0.03, (6, 3))
-    patches = SampleLayout.node_patches(nodes, np.full(6, 1e-3), 1, np.zeros(6, dtype=bool))
-    triangles = np.array([[0, 1, 2], [1, 2, 3], [2, 3, 4]])
-    samples = SampleSet.of((patches, SampleLayout.triangle_texture(triangles, 4)), 6)
+    samples = samples_of_six_nodes()
     last, sampled = np.zeros((2, samples.size)), np.ones((2, samples.size))
     covered = np.zeros(6, dtype=bool)
     covered[1] = True
@@ -91,3 +97,18 @@ def test_a_held_node_keeps_its_patch_and_its_triangles_texture() -> None:
     np.testing.assert_array_equal(kept[0, : samples.bounds[1]] == 0, np.repeat(covered, patch))
     assert [np.all(part == 0) for part in texture] == [True, True, False]
     assert np.all(texture[2] == 1)
+
+
+def test_a_region_found_again_weighs_frame_1_alone() -> None:
+    """Node 4's samples (its patch, triangle (2, 3, 4)) move their frame n - 1 share to frame 1."""
+    samples = samples_of_six_nodes()
+    coefficients = np.array([[0.6], [0.2], [0.15], [0.05]]) * np.ones(samples.size)
+    region = np.zeros(6, dtype=bool)
+    region[4] = True
+    first = first_frame_coefficients(coefficients, samples, region)
+    moved = np.zeros(samples.size, dtype=bool)
+    moved[4 * samples.group_sizes[0] : 5 * samples.group_sizes[0]] = True
+    moved[samples.bounds[1] :][2 * (samples.size - samples.bounds[1]) // 3 :] = True
+    expected = np.broadcast_to([[0.0], [0.0], [0.75], [0.25]], (4, np.count_nonzero(moved)))
+    np.testing.assert_allclose(first[:, moved], expected)
+    np.testing.assert_array_equal(first[:, ~moved], coefficients[:, ~moved])

@@ -92,6 +92,7 @@ from face_tracking_ros.tracking.stereo_loss import loss_reason
 from face_tracking_ros.tracking.stereo_occlusion import (
     agreeing,
     covered_nodes,
+    first_frame_coefficients,
     held_nodes,
     kept_templates,
     occluder_nodes,
@@ -146,6 +147,7 @@ class _State:
     depths: DepthRefinement | None
     result: StereoResult
     agreed: np.ndarray  # (N,) bool, node patches seen agreeing left and right (.stereo_occlusion)
+    region: np.ndarray  # (N,) bool, nodes flagged since the last pair with none (an occluder's)
     before: np.ndarray | None = None  # the pair before's nodes (the motion prediction)
     span: int = 1  # frame intervals from ``before`` to ``nodes``
     elapsed: int = 0  # frame intervals from ``nodes`` to the pair being tracked (bad frames too)
@@ -181,6 +183,7 @@ class _Attempt(NamedTuple):
     statistics: GroupStatistics | None  # None when a level's solve failed
     solves: _Solves
     problem: str  # '' when the nodes pass the loss checks
+    reference: np.ndarray  # (N, 3) the nodes eq. 5 measured the motion from
 
 
 class StereoTracker:
@@ -522,6 +525,7 @@ class StereoTracker:
             depths=DepthRefinement.start(nodes, depth_std) if config.refine_depths else None,
             result=replace(self._result(nodes, nodes, np.eye(3), None), new_track=True),
             agreed=np.zeros(self._topology.num_nodes, dtype=bool),
+            region=np.zeros(self._topology.num_nodes, dtype=bool),
         )
 
     def _initial_nodes(
@@ -732,22 +736,26 @@ class StereoTracker:
         pyramids: tuple[ImagePyramid, ImagePyramid],
         start: np.ndarray,
         reference: np.ndarray,
+        region: np.ndarray | None = None,
     ) -> _Attempt:
         """This pair solved from ``start`` (:meth:`_solve_pair`) and checked (:mod:`.stereo_loss`).
 
-        ``reference``: (N, 3) the nodes eq. 5 measures the motion from. A pair after a gap is
-        checked at the stricter ``gap_lost_ratio`` too.
+        ``reference``: (N, 3) the nodes eq. 5 measures the motion from; ``region``: the nodes
+        found again once an occluder has gone (:meth:`_solve_pair`). A pair after a gap, and a
+        pair solved for a region, are checked at the stricter ``gap_lost_ratio`` too (solved
+        from coarser levels).
         """
         try:
-            nodes, solves = self._solve_pair(state, pyramids, start, reference)
+            nodes, solves = self._solve_pair(state, pyramids, start, reference, region)
         except (LinAlgError, FaceTrackingError) as error:
-            return _Attempt(start, None, _Solves(), f'solver failed: {error}')
+            return _Attempt(start, None, _Solves(), f'solver failed: {error}', reference)
         level, accepted = solves.levels[-1]  # level 0's
         statistics = group_statistics(
             state.samples, accepted.sampled, accepted.residuals, level.templates[:, 0]
         )
-        problem = loss_reason(nodes, statistics, self._rig, self._config, state.after_gap)
-        return _Attempt(nodes, statistics, solves, problem)
+        strict = state.after_gap or region is not None
+        problem = loss_reason(nodes, statistics, self._rig, self._config, strict)
+        return _Attempt(nodes, statistics, solves, problem, reference)
 
     def _solve_pair(
         self,
@@ -755,11 +763,19 @@ class StereoTracker:
         pyramids: tuple[ImagePyramid, ImagePyramid],
         start: np.ndarray,
         reference: np.ndarray,
+        region: np.ndarray | None = None,
     ) -> tuple[np.ndarray, _Solves]:
         """The nodes that minimise eq. 4 + eq. 5 on this pair from ``start``, coarse to fine.
 
         Eq. 5 measures the nodes' motion from ``reference`` (the last tracked nodes, or over a
         gap their rigid prediction).
+
+        ``region`` ((N,) bool, or None): the nodes an occluder covered, found again on the pair
+        it has gone (:meth:`_advance`). The samples they move weigh frame 1 alone
+        (:func:`~.stereo_occlusion.first_frame_coefficients`), and the pair is solved from the
+        coarser levels too, as after a gap: an expression made under the occluder moved them
+        beyond the two levels' reach from where the hold left them (rendered 640x480: a smile's
+        mouth corners 10-12 px, a lower lip dropped 8-10 px).
 
         After dropped pairs or bad frames (more than one frame interval since the last tracked
         pair) the prediction can be off by more than the coarsest level reaches (rendered free
@@ -783,10 +799,15 @@ class StereoTracker:
         """
         config = self._config
         energy = self._energy(state, reference)
+        if region is not None:
+            energy.coefficients = first_frame_coefficients(
+                energy.coefficients, state.samples, region
+            )
         nodes = start
         coarser: tuple[Level, ...] = ()
-        if state.after_gap:
+        if state.after_gap or region is not None:
             coarser = self._coarser_levels(state, pyramids)
+        if state.after_gap:
             _move_fit(energy, nodes)
         images_alone = replace(energy, prior=None) if coarser else energy  # the coarser levels
         solves = _Solves()
@@ -840,11 +861,29 @@ class StereoTracker:
         the face texture of their triangles) and add nothing to the frame-1 depths
         (:mod:`.stereo_occlusion`); the result flags those of them with a held neighbour
         (:func:`~.stereo_occlusion.occluder_nodes`).
+
+        On the first pair with no node flagged after some were, the occluder has gone: the
+        nodes flagged since the last pair with none (``state.region``) are found again, the
+        pair solved once more from its solution for them (:meth:`_solve_pair`), taken if that
+        passes the loss checks. Held nodes whose expression changed under the occluder were
+        left off the face, some of them disagreeing left and right there, so held on (rendered
+        640x480 onsets under the occluder: a lower lip 8-10 px off and held for 50 pairs after
+        it had gone; a smile's corners released 10-11 px off).
         """
         config = self._config
+        covered, agreed = self._covered(state, attempt)
+        flagged = occluder_nodes(covered, self._occludable, self._topology.edges)
+        gone = state.region.any() and not flagged.any()
+        if gone:
+            found = self._attempt(state, pyramids, attempt.nodes, attempt.reference, state.region)
+            if not found.problem:
+                attempt = found
+                covered, agreed = self._covered(state, attempt)
+                flagged = occluder_nodes(covered, self._occludable, self._topology.edges)
+        state.agreed = agreed
+        state.region = flagged if gone else state.region | flagged
         nodes, statistics, solves = attempt.nodes, attempt.statistics, attempt.solves
         assert statistics is not None
-        covered, state.agreed = self._covered(state, attempt)
         if covered.any():
             nodes = held_nodes(state.nodes, nodes, covered, self._alignment_weights)
         state.theta = solves.theta  # the face-model term's fit, moved on by the solve
@@ -873,7 +912,7 @@ class StereoTracker:
             solves.iterations,
             tuple(solves.history),
             fit_start=state.result.fit,
-            occluded=occluder_nodes(covered, self._occludable, self._topology.edges),
+            occluded=flagged,
         )
         state.result = result
         return result

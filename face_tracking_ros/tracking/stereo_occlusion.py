@@ -19,6 +19,9 @@ A node whose patch disagrees beyond ``occlusion_ratio`` is taken as covered on t
 weighted rigid motion of the others (:func:`held_nodes`), and its patch, with the face texture
 of its triangles, keeps the templates of the last pair that saw it (:func:`kept_templates`), so
 the occluder never enters them and the node matches the face again once the occluder has gone.
+An expression made under the occluder moves the face away from where the hold left the nodes,
+so once no node is flagged any more the tracker solves the pair again for the nodes it flagged,
+their samples weighing frame 1 alone (:func:`first_frame_coefficients`), from coarser levels.
 
 An occluder covers a region, so only a held node with a held neighbour is reported as covered
 (:func:`occluder_nodes`, ``FaceState.occluded``). A patch disagrees alone where the head has
@@ -171,5 +174,32 @@ def kept_templates(
         covered: (N,) bool, the nodes whose samples keep their last templates.
         samples: the sample set.
     """
-    kept = np.concatenate([np.any(covered[gather], axis=0) for gather in samples.gather])
+    kept = moved_samples(samples, covered)
     return tuple(np.where(kept, old, new) for old, new in zip(last, sampled, strict=True))
+
+
+def moved_samples(samples: SampleSet, nodes: np.ndarray) -> np.ndarray:
+    """(S,) bool, the samples that ``nodes`` ((N,) bool) move: their patches, their triangles'."""
+    return np.concatenate([np.any(nodes[gather], axis=0) for gather in samples.gather])
+
+
+def first_frame_coefficients(
+    coefficients: np.ndarray, samples: SampleSet, region: np.ndarray
+) -> np.ndarray:
+    """The a_k of eq. 4 with the samples the ``region``'s nodes move weighing frame 1 alone.
+
+    Their frame n - 1 share goes to the frame-1 templates (the drift term's, epsilon = 1): once
+    an occluder has gone, their frame n - 1 templates are those kept from before it or, for a
+    node released while it passed, sampled where the hold had left it, and an expression made
+    under the occluder has moved the face away from both.
+
+    Args:
+        coefficients: (4, S) a_k (:meth:`~.stereo_templates.TemplateSamples.coefficients`).
+        samples: the sample set.
+        region: (N,) bool, the nodes whose samples weigh frame 1 alone.
+    """
+    moved = moved_samples(samples, region)
+    first = coefficients.copy()
+    first[2:, moved] += first[:2, moved]
+    first[:2, moved] = 0.0
+    return first
