@@ -70,6 +70,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field, replace
+import functools
 import itertools
 import math
 from typing import NamedTuple
@@ -117,8 +118,23 @@ _VIEWS_SEARCHED = 2
 # How far from where the last valid estimate puts the face a view's face is searched, in x and y,
 # in the larger side of its view (:meth:`MonoTracker._viewed`).
 _VIEW_REACH = 1.0
-# How near the last valid estimate (inner nodes' RMS, level-0 px) the solve back from a solve after
-# dropped images must land to confirm it (:meth:`MonoTracker._returns`).
+# The coarsest level a LOST image's solve from a view solves is the coarsest on which the view's
+# inner face spans at least this many px (its larger side; :meth:`MonoTracker._view_face`): on
+# the coarsest level of a 320x240 image (the inner face 5-7 px) solves from the true pose settled
+# 10-20 px off. The inner face spans 80-115 px at 640x480 (all 4 levels solved), 40-57 at 320x240.
+_VIEW_FACE_PX = 10.0
+# A solve from a view that passes only at lost_residual_ratio is confirmed by solving the view's
+# image back only if at most this fraction of its voting nodes fail at that ratio: on the
+# occluder grid, the solves 0.4-1.9 px off the face had at most 21 %, one 6.7 px off, dragged by
+# an occluder over 15 of its 34 nodes, 47 % (and it solved back within 1.4 px).
+_VIEW_CONFIRM_FRACTION = 0.25
+# How near a view's estimate the solve back to its image must land to confirm a solve from the
+# view (level-0 px; :meth:`MonoTracker._returns`): on the occluder grid, the solves 0.4-1.9 px off
+# the face returned within 0.37-0.96 px, two 5.2 and 6.7 px off (an occluder over 5 and 15 of
+# their nodes) within 1.27 and 1.43.
+_VIEW_RETURN_PX = 1.0
+# How near the frame it solves back to (inner nodes' RMS, level-0 px) the solve back from a solve
+# that passed only at lost_residual_ratio must land to confirm it (:meth:`MonoTracker._returns`).
 _RETURN_PX = 1.5
 # How far (level-0 px, in x and in y) from the last valid estimate that solve back starts: it must
 # come back, not stay where it started (:meth:`MonoTracker._solved_back`).
@@ -142,11 +158,32 @@ class _ViewFace(NamedTuple):
         face: its inner face (:class:`.FaceView`).
         centre: (2,) level-0 px, the mean of its inner nodes.
         templates: its templates, every level sampled, at the view's estimate.
+        levels: how many of the finest pyramid levels a solve from it solves (``_VIEW_FACE_PX``).
     """
 
     face: FaceView
     centre: np.ndarray
     templates: Templates
+    levels: int
+
+
+class _Return(NamedTuple):
+    """A frame a solve that passes only ``lost_residual_ratio`` is solved back to.
+
+    Attributes:
+        pyramid: builds the frame's pyramid (called only when a solve back is made).
+        params: the frame's estimate, which the solve back must return to.
+        levels: how many of the finest levels the solves solve (all if None).
+        fraction: the largest fraction of the voting nodes that may fail at
+            ``lost_residual_ratio`` (``lost_node_fraction`` if None).
+        return_px: how near ``params`` the solve back must land (:meth:`MonoTracker._returns`).
+    """
+
+    pyramid: Callable[[], ImagePyramid]
+    params: Params
+    levels: int | None = None
+    fraction: float | None = None
+    return_px: float = _RETURN_PX
 
 
 @dataclass
@@ -500,12 +537,15 @@ class MonoTracker:
         starts = [fit._replace(sigma=track.current.sigma)] if fit is not None else []
         starts.append(self._search(pyramid))
         keyframed = (
-            (start, nearest_keyframe(track.keyframes, start.omega).templates) for start in starts
+            (start, nearest_keyframe(track.keyframes, start.omega).templates, None)
+            for start in starts
         )
         candidates = itertools.chain(keyframed, self._viewed(pyramid) if track.lost else ())
-        for start, reference in candidates:
+        for start, reference, returned in candidates:
             weights = reference.visibility * self._face.visibility(start, track.normals)
-            result, templates = self._solve_frame(pyramid, start, reference.levels, weights, ratio)
+            result, templates = self._solve_frame(
+                pyramid, start, reference.levels, weights, ratio, returned=returned
+            )
             if not result.ok and track.bridging:
                 found, templates = self._solve_frame(
                     pyramid, templates.params, *self._blended_templates(), ratio
@@ -523,7 +563,7 @@ class MonoTracker:
         track = self._track
         return self._moved(track.start, track.view.shift(pyramid))
 
-    def _viewed(self, pyramid: ImagePyramid) -> Iterator[tuple[Params, Templates]]:
+    def _viewed(self, pyramid: ImagePyramid) -> Iterator[tuple[Params, Templates, _Return]]:
         """Starts from the bundle adjustment's views, each with the templates it is solved against.
 
         ``_VIEWS_SEARCHED`` of the views (frame 1's aside: :meth:`_search`), ranked by the
@@ -544,7 +584,19 @@ class MonoTracker:
             viewed = track.view_faces.get(view.frame) or self._view_face(view)
             track.view_faces[view.frame] = viewed
             shift = viewed.face.shift(pyramid, here - viewed.centre, _VIEW_REACH)
-            yield self._moved(view.params, shift), viewed.templates
+            returned = _Return(
+                functools.partial(self._view_pyramid, view),
+                view.params,
+                viewed.levels,
+                _VIEW_CONFIRM_FRACTION,
+                _VIEW_RETURN_PX,
+            )
+            yield self._moved(view.params, shift), viewed.templates, returned
+
+    def _view_pyramid(self, view: View) -> ImagePyramid:
+        """The pyramid of a view's image."""
+        config = self._config
+        return ImagePyramid.build(view.image, config.pyramid_levels, config.smooth_base)
 
     def _view_face(self, view: View) -> _ViewFace:
         """A view's inner face and templates, sampled on its image's pyramid at its estimate.
@@ -554,16 +606,19 @@ class MonoTracker:
         nothing (the view's visibility, :meth:`~.mono_adjustment.View.of`, sampled with the
         track's normals as these templates are).
         """
-        track, config = self._track, self._config
-        pyramid = ImagePyramid.build(view.image, config.pyramid_levels, config.smooth_base)
+        track = self._track
+        pyramid = self._view_pyramid(view)
         nodes_px = self._face.nodes(view.params)[1]
         inner = ~self._edge_nodes
         seen = inner & ~view.covered
         templates = self._sampler.templates(pyramid, view.params, track.rois, track.normals)
+        span = np.ptp(nodes_px[inner], axis=0).max()
+        levels = int(np.log2(max(span / _VIEW_FACE_PX, 1.0))) + 1
         return _ViewFace(
             FaceView.of(pyramid, nodes_px, seen if seen.any() else inner),
             nodes_px[inner].mean(axis=0),
             templates.sampled()._replace(visibility=view.visibility),
+            min(levels, pyramid.num_levels),
         )
 
     def _searched(self, pyramid: ImagePyramid, start: Params) -> Params:
@@ -628,14 +683,14 @@ class MonoTracker:
         pyramid: ImagePyramid,
         ratio: float,
         searched: bool = False,
-        returned: ImagePyramid | None = None,
+        returned: _Return | None = None,
     ) -> TrackResult:
         """Eq. 6's solve from the last valid estimate, or its motion prediction, at ``ratio``.
 
         ``searched``: the start's position is moved to where the last valid frame's inner face
         correlates best with the image, near where the start puts it (:meth:`_searched`).
-        ``returned``: the last valid frame's pyramid, to confirm a solve that fails at ``ratio``
-        but passes at ``lost_residual_ratio`` (:meth:`_solve_frame`).
+        ``returned``: the last valid frame (:class:`_Return`), to confirm a solve that fails at
+        ``ratio`` but passes at ``lost_residual_ratio`` (:meth:`_solve_frame`).
         A result that passes the loss checks is accepted as a followed frame.
         """
         track, config = self._track, self._config
@@ -666,14 +721,17 @@ class MonoTracker:
             self._followed = (pyramid, result)
         return result
 
-    def _returned_to(self) -> ImagePyramid | None:
-        """The last valid frame's pyramid for the first image after dropped images, else None.
+    def _returned_to(self) -> _Return | None:
+        """The last valid frame for the first image after dropped images, else None.
 
         That frame is then the image before this one, whose pyramid is the older of the two
-        kept (:meth:`_pyramid`).
+        kept (:meth:`_pyramid`); it is solved back to from level 1, the coarsest on demand.
         """
         track = self._track
-        return self._buffers[0] if track.bridging and not track.lost else None
+        if not track.bridging or track.lost:
+            return None
+        last = self._buffers[0]
+        return _Return(lambda: last, track.current)
 
     def _blended_templates(self) -> tuple[OnDemand, np.ndarray]:
         """Eq. 6's templates of a followed frame and the node weights they are solved with.
@@ -739,7 +797,7 @@ class MonoTracker:
         free_sigma: bool = False,
         first_level: int = _START_LEVEL,
         still: Params | None = None,
-        returned: ImagePyramid | None = None,
+        returned: _Return | None = None,
     ) -> tuple[TrackResult, Templates]:
         """Solve eq. 6 coarse to fine from ``start``; check the outcome for loss of track.
 
@@ -765,10 +823,12 @@ class MonoTracker:
         While the track is LOST, a solve whose level-1 solution cannot pass the checks is given
         up before level 0 (:meth:`_hopeless`).
 
-        ``returned`` is the last valid frame's pyramid (given for the first image after dropped
-        images): a solve that fails the checks at ``residual_ratio`` but passes them at
-        ``lost_residual_ratio`` is taken if solving that pyramid back from it returns to the
-        last valid estimate (:meth:`_returns`).
+        ``returned`` is an earlier frame (:class:`_Return`): the last valid one for the first image
+        after dropped images, or the view a LOST image is solved from. A solve that fails the
+        checks at ``residual_ratio`` but passes them at ``lost_residual_ratio`` (with at most
+        ``returned.fraction`` of its voting nodes failing there, :meth:`_confirmable`) is taken
+        if solving that frame back from it returns to its estimate (:meth:`_returns`). Every
+        solve made solves only the finest ``returned.levels`` levels.
 
         Returns:
             The frame's result (TRACKING or LOST with a reason; its iterations those of every
@@ -779,6 +839,7 @@ class MonoTracker:
         track = self._track
         rois = track.rois
         hopeless = self._hopeless(templates[0]) if track.lost and not track.bridging else None
+        levels = None if returned is None else returned.levels
 
         def attempt(
             begin: Params, level: int, restart_px: float
@@ -793,6 +854,7 @@ class MonoTracker:
                 level,
                 restart_px,
                 hopeless,
+                levels,
             )
             result, sampled = self._checked(solution, pyramid, templates[0], residual_ratio)
             weights = np.where(sampled.covered, 0.0, node_weights)
@@ -801,7 +863,16 @@ class MonoTracker:
             # Nodes newly covered: solved again without them, from the same start, and every
             # node covered before checked again there (the first solve's drag can uncover some).
             again = self._solver.solve(
-                pyramid, begin, templates, weights, rois, free_sigma, level, restart_px
+                pyramid,
+                begin,
+                templates,
+                weights,
+                rois,
+                free_sigma,
+                level,
+                restart_px,
+                None,
+                levels,
             )
             found, sampled = self._checked(
                 again, pyramid, templates[0], residual_ratio, sampled.covered | track.covered
@@ -824,10 +895,10 @@ class MonoTracker:
         lenient, sampled = self._checked(
             solution, pyramid, templates[0], self._config.lost_residual_ratio
         )
-        if not lenient.ok:
+        if not (lenient.ok and self._confirmable(lenient, sampled, templates[0], returned)):
             return total, sampled
         back = self._solved_back(returned, sampled)
-        taken = lenient if self._returns(back.params) else total
+        taken = lenient if self._returns(back.params, returned) else total
         return replace(
             taken,
             iterations=total.iterations + back.iterations,
@@ -863,11 +934,35 @@ class MonoTracker:
 
         return hopeless
 
-    def _solved_back(self, pyramid: ImagePyramid, templates: Templates) -> Solution:
-        """Eq. 6 solved on the last valid frame's ``pyramid`` against a later image's templates.
+    def _confirmable(
+        self, result: TrackResult, sampled: Templates, template: np.ndarray, returned: _Return
+    ) -> bool:
+        """Whether a result passing ``lost_residual_ratio`` may be confirmed by a solve back.
 
-        The solve starts ``_RETURN_START_PX`` from the last valid estimate in x and y (moved
-        parallel to the image plane) on level 1, the coarsest on demand, with ``templates``
+        It may when at most ``returned.fraction`` of its voting nodes fail at that ratio (always
+        when that is None: the ordinary check's vote, which it passed). ``sampled`` holds the
+        templates sampled at it, ``template`` the level-0 template it was compared with.
+        """
+        if returned.fraction is None:
+            return True
+        textures = self._loss.textures(sampled.levels[0], template)
+        ratio = self._config.lost_residual_ratio
+        return not self._loss.mismatched(
+            sampled.params,
+            result.node_residuals,
+            textures,
+            sampled.visibility,
+            ratio,
+            returned.fraction,
+        )
+
+    def _solved_back(self, returned: _Return, templates: Templates) -> Solution:
+        """Eq. 6 solved on an earlier frame's pyramid against a later image's templates.
+
+        The earlier frame is the last valid one after dropped images (:meth:`_returned_to`), or
+        the view a LOST image was solved from (:meth:`_viewed`). The solve starts
+        ``_RETURN_START_PX`` from that frame's estimate in x and y (moved parallel to the image
+        plane) on level 1, the coarsest of ``returned.levels`` on demand, with ``templates``
         (sampled in the later image at its solution) as I_(n-1) alone and their visibility as
         the node weights: a forward-backward check. Templates that match nothing near that
         estimate give the solve no gradient, and started on it, it stayed there: the frame-1
@@ -875,24 +970,25 @@ class MonoTracker:
         ``lost_residual_ratio``, returned within 0.3-1.2 px when started on the estimate, and
         landed 9.1 px away (the one that got that far) when started 3 px off in x and y.
         """
-        track = self._track
         offset = np.full(2, _RETURN_START_PX)
         return self._solver.solve(
-            pyramid,
-            self._moved(track.current, offset),
+            returned.pyramid(),
+            self._moved(returned.params, offset),
             templates.levels,
             templates.seen * self._roi_weights,
-            track.rois,
+            self._track.rois,
             False,
             _START_LEVEL,
             self._config.coarsest_level_px,
+            levels=returned.levels,
         )
 
-    def _returns(self, back: Params) -> bool:
-        """Whether the solve back (:meth:`_solved_back`) returned to the last valid estimate.
+    def _returns(self, back: Params, returned: _Return) -> bool:
+        """Whether the solve back (:meth:`_solved_back`) returned to the earlier frame's estimate.
 
-        It does when the inner nodes (off the face edge) are within ``_RETURN_PX`` RMS of where
-        the last valid estimate puts them. A later solve that settled off the face carries its
+        It does when the inner nodes (off the face edge) are within ``returned.return_px`` RMS
+        (``_RETURN_PX`` for the last valid frame, ``_VIEW_RETURN_PX`` for a view) of where that
+        estimate puts them. A later solve that settled off the face carries its
         offset into its templates, so the solve back lands off by about as much. Measured on
         rendered free motion (true model; 10 fps, seeds 1-6 with 2 / 3 / 5 images dropped every
         8-20 frames; 30 fps, seeds 1-2 with 20 dropped every 10-18), the solves of a first image
@@ -903,8 +999,8 @@ class MonoTracker:
         -> 20 / 0), none TRACKING more than 3 px off before or after.
         """
         inner = ~self._edge_nodes
-        moved = self._face.nodes(back)[1][inner] - self._face.nodes(self._track.current)[1][inner]
-        return rms_length(moved) <= _RETURN_PX
+        moved = self._face.nodes(back)[1][inner] - self._face.nodes(returned.params)[1][inner]
+        return rms_length(moved) <= returned.return_px
 
     def _checked(
         self,

@@ -173,12 +173,14 @@ class LossChecks:
         textures: tuple[np.ndarray, np.ndarray],
         visibility: np.ndarray,
         ratio: float,
+        fraction: float | None = None,
     ) -> bool:
-        """Whether more than ``lost_node_fraction`` of the voting nodes fail at ``ratio``.
+        """Whether more than ``fraction`` of the voting nodes fail at ``ratio``.
 
-        The vote of :meth:`reason` alone (its arguments as there), at any ratio.
+        The vote of :meth:`reason` alone (its arguments as there), at any ratio and, when
+        ``fraction`` is given, any fraction (``lost_node_fraction`` otherwise).
         """
-        return self._outvoted(self._votes(params, visibility, textures, node_rms, ratio))
+        return self._outvoted(self._votes(params, visibility, textures, node_rms, ratio), fraction)
 
     def covered(
         self,
@@ -237,9 +239,13 @@ class LossChecks:
         )
         return 0 < votes.voting and not self._outvoted(votes)
 
-    def _outvoted(self, votes: Votes) -> bool:
-        """Whether more than ``lost_node_fraction`` of the voting nodes fail: the loss vote."""
-        return votes.failing > self._config.lost_node_fraction * votes.voting
+    def _outvoted(self, votes: Votes, fraction: float | None = None) -> bool:
+        """Whether more than ``fraction`` of the voting nodes fail: the loss vote.
+
+        ``fraction`` is ``lost_node_fraction`` unless given.
+        """
+        fraction = self._config.lost_node_fraction if fraction is None else fraction
+        return votes.failing > fraction * votes.voting
 
     def _votes(
         self,

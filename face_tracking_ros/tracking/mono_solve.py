@@ -187,6 +187,7 @@ class MonoSolver:
         first_level: int,
         restart_px: float,
         hopeless: Hopeless | None = None,
+        levels: int | None = None,
     ) -> Solution:
         """Solve eq. 6 from ``start``, coarse to fine.
 
@@ -215,9 +216,12 @@ class MonoSolver:
             hopeless: when given, level 0 reached from a coarser level is solved only if this
                 is false at the coarser levels' solution (:data:`Hopeless`); else the solve
                 ends there, with that solution.
+            levels: how many of the pyramid's finest levels are solved (all if None): the
+                coarsest of them is the coarsest solved.
         """
+        num_levels = pyramid.num_levels if levels is None else levels
         costs: list[float] = []
-        projections: list[PhotometricProjection | None] = [None] * pyramid.num_levels
+        projections: list[PhotometricProjection | None] = [None] * num_levels
 
         def projection(index: int) -> PhotometricProjection:
             made = projections[index]  # made for the levels solved only
@@ -226,7 +230,7 @@ class MonoSolver:
             return made
 
         accepted: list[tuple[Params, System]] = []  # each level's last accepted point
-        coarsest = pyramid.num_levels - 1
+        coarsest = num_levels - 1
         coarsest_solved = False  # the coarsest level is always solved once it is started
         given_up: tuple[Sampled, np.ndarray] | None = None  # level 0 at the coarser solution
 
@@ -252,7 +256,7 @@ class MonoSolver:
             coarsest_solved |= index == coarsest
             return solution
 
-        params = coarse_to_fine(pyramid.num_levels, first_level, restart_px, start, solve)
+        params = coarse_to_fine(num_levels, first_level, restart_px, start, solve)
         fallback, system = accepted[-1]  # level 0's, or the coarser one's if given up
         condition = condition_number(system.hessian)
         if given_up is not None:
