@@ -50,7 +50,8 @@ Design, in the seed's terms:
   checks every node again. Measured on 48 rendered runs with an occluder passing (seeds 1-3,
   two subjects, 640x480 and 320x240, 19 and 34 nodes, true and packaged model), with the
   re-acquisition below: TRACKING frames more than 5 px off 86 -> 31, more than 10 px 35 -> 6,
-  LOST frames 2666 -> 1477; the same runs without the occluder the same to the digit.
+  LOST frames 2666 -> 1477 (1029 with a view's solve confirmed by solving back, below); the same
+  runs without the occluder the same to the digit.
 - Recovery needs no detector. While LOST, each image is solved as the frame after the last valid
   one (eq. 6 from its estimate and templates); if that fails, as when tracking fails, it is solved
   against the keyframe templates alone from the initial pose translated onto the best normalised
@@ -63,7 +64,9 @@ Design, in the seed's terms:
   only at the stricter ``reacquire_residual_ratio``: they can settle a few pixels off. A followed
   solve of the first image after dropped ones that passes only at ``lost_residual_ratio`` is taken
   if solving the last valid frame's image back from it returns to that frame's estimate (a
-  forward-backward check).
+  forward-backward check); so is a solve from a view that passes only there, if solving the
+  view's image back returns to the view's estimate. A solve from a view solves only the levels on
+  which the view's face spans ``_VIEW_FACE_PX``.
 """
 
 from __future__ import annotations
@@ -489,6 +492,21 @@ class MonoTracker:
         21-35 ms at 640x480 and 320x240). The image the face is first lost on does not search the
         views: a run that never goes LOST is the same to the bit.
 
+        A solve from a view solves only the levels on which the view's inner face spans
+        ``_VIEW_FACE_PX`` (the coarsest of a 320x240 image is left out), and one that fails at
+        ``reacquire_residual_ratio`` but passes at ``lost_residual_ratio`` with at most
+        ``_VIEW_CONFIRM_FRACTION`` of its voting nodes failing there is taken if solving the
+        view's image back from it lands within ``_VIEW_RETURN_PX`` of the view's estimate
+        (:meth:`_solve_frame`). A head lost between views, 5-20 degrees from each, was found by
+        the nearest view's search 1-6 px off, but the solve from the coarsest level (the inner
+        face 5-7 px there) settled 5-20 px off where one from level 1 or 2 converged to 0.7-1 px,
+        and there the view's templates, sampled at the view's pose, matched at more than
+        ``reacquire_residual_ratio`` (23-27 of 34 nodes failing). Measured on the 48 occluder
+        runs (docs/performance.md, thirty-seventh session): LOST frames 1477 -> 1029 (seed 1,
+        subject 0, 320x240, 34 nodes: 139 / 140 -> 10 / 10), the 448 frames newly TRACKING
+        within 2.7 px, the frames more than 5 px off the same; the runs without the occluder
+        the same to the digit.
+
         When images were dropped since the last valid estimate (:attr:`_Track.bridging`), eq.
         6's solve of a followed frame is tried first from where the last valid frame's inner
         face correlates best with the image (:attr:`_Track.last_view`), checked at the same
@@ -571,7 +589,9 @@ class MonoTracker:
         nearest on every LOST image, and one of the rest, the next on each image in turn, so that
         a long loss tries every view at the cost of a few. Each gives the view's estimate moved to
         where its inner face correlates best with the image within ``_VIEW_REACH`` of where the
-        last valid estimate puts the face, and the view's own templates.
+        last valid estimate puts the face, the view's own templates, and the view as the frame
+        a solve from it is confirmed by solving back to (:class:`_Return`; its pyramid built only
+        then), with the levels solved (``_VIEW_FACE_PX``).
         """
         track = self._track
         views = track.first_views.views[1:]

@@ -504,8 +504,8 @@ def test_a_face_lost_between_views_at_320x240_is_reacquired_from_the_nearest_vie
     # nearest view's search found the face 1-6 px off on most LOST images, but its solve, made
     # from the coarsest level (the face 8-15 px across), settled 5-20 px off, and a solve that
     # converged matched the view's templates, 5-15 degrees from the head's pose, at more than
-    # reacquire_residual_ratio: LOST to frame 257. Started on level 2 and confirmed by solving
-    # the view's image back, the face is found at frame 129.
+    # reacquire_residual_ratio: LOST to frame 257. Solved without the coarsest level and
+    # confirmed by solving the view's image back, the face is found at frame 129.
     frames, camera, tracker = _rendered_track(_small_occluded(1), 0, 150)
     status, error = [], []
     for frame in frames:
@@ -514,7 +514,8 @@ def test_a_face_lost_between_views_at_320x240_is_reacquired_from_the_nearest_vie
         status.append(result.status)
         error.append(float(np.sqrt(np.mean(np.sum(offsets**2, axis=1)))))
     status, error = np.array(status), np.array(error)
-    # Measured: LOST at frames 119-128, then TRACKING within 1.5 px (0.7-0.9 from frame 130).
+    # Measured: LOST at frames 119-128, then TRACKING 1.9 px off at frame 129 and 1.0-1.4 px to
+    # frame 149.
     assert (status[130:] == TrackStatus.TRACKING).all(), status[119:]
     assert error[130:].max() < 2.0, error[130:]
 
