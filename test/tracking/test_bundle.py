@@ -502,7 +502,7 @@ def test_a_frame_with_covered_nodes_is_kept_as_a_view_and_reacquires_the_face():
 def test_a_face_lost_between_views_at_320x240_is_reacquired_from_the_nearest_view():
     # The run above with 34 nodes: lost at frame 119 under the occluder, the head rolling on. The
     # nearest view's search found the face 1-6 px off on most LOST images, but its solve, made
-    # from the coarsest level (the face 8-15 px across), settled 5-20 px off, and a solve that
+    # from the coarsest level (the inner face 5-7 px across), settled 5-20 px off, and a solve that
     # converged matched the view's templates, 5-15 degrees from the head's pose, at more than
     # reacquire_residual_ratio: LOST to frame 257. Solved without the coarsest level and
     # confirmed by solving the view's image back, the face is found at frame 129.
