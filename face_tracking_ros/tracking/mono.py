@@ -128,13 +128,14 @@ _VIEW_REACH = 1.0
 _VIEW_FACE_PX = 10.0
 # A solve from a view that passes only at lost_residual_ratio is confirmed by solving the view's
 # image back only if at most this fraction of its voting nodes fail at that ratio: on the
-# occluder grid, the solves 0.4-1.9 px off the face had at most 21 %, one 6.7 px off, dragged by
-# an occluder over 15 of its 34 nodes, 47 % (and it solved back within 1.4 px).
+# occluder grid, the 16 such solves that re-acquire (0.7-2.7 px off the face) had at most 21 %;
+# one 6.7 px off (a variant solving from level 2), dragged by an occluder over 15 of its 34
+# nodes, 47 %, and it solved back within 1.4 px.
 _VIEW_CONFIRM_FRACTION = 0.25
 # How near a view's estimate the solve back to its image must land to confirm a solve from the
-# view (level-0 px; :meth:`MonoTracker._returns`): on the occluder grid, the solves 0.4-1.9 px off
-# the face returned within 0.37-0.96 px, two 5.2 and 6.7 px off (an occluder over 5 and 15 of
-# their nodes) within 1.27 and 1.43.
+# view (level-0 px; :meth:`MonoTracker._returns`): on the occluder grid, the 16 solves that
+# re-acquire returned within 0.18-0.87 px (within 0.96 px in the variants tried); two 5.2 and
+# 6.7 px off (an occluder over 5 and 15 of their nodes) within 1.27 and 1.43.
 _VIEW_RETURN_PX = 1.0
 # How near the frame it solves back to (inner nodes' RMS, level-0 px) the solve back from a solve
 # that passed only at lost_residual_ratio must land to confirm it (:meth:`MonoTracker._returns`).
