@@ -892,8 +892,7 @@ class MonoTracker:
                 free_sigma,
                 level,
                 restart_px,
-                None,
-                levels,
+                levels=levels,
             )
             found, sampled = self._checked(
                 again, pyramid, templates[0], residual_ratio, sampled.covered | track.covered
