@@ -871,15 +871,13 @@ class StereoTracker:
         it had gone; a smile's corners released 10-11 px off).
         """
         config = self._config
-        covered, agreed = self._covered(state, attempt)
-        flagged = occluder_nodes(covered, self._occludable, self._topology.edges)
+        covered, agreed, flagged = self._cover(state, attempt)
         gone = state.region.any() and not flagged.any()
         if gone:
             found = self._attempt(state, pyramids, attempt.nodes, attempt.reference, state.region)
             if not found.problem:
                 attempt = found
-                covered, agreed = self._covered(state, attempt)
-                flagged = occluder_nodes(covered, self._occludable, self._topology.edges)
+                covered, agreed, flagged = self._cover(state, attempt)
         state.agreed = agreed
         state.region = flagged if gone else state.region | flagged
         nodes, statistics, solves = attempt.nodes, attempt.statistics, attempt.solves
@@ -916,6 +914,16 @@ class StereoTracker:
         )
         state.result = result
         return result
+
+    def _cover(
+        self, state: _State, attempt: _Attempt
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(N,) bool each: :meth:`_covered`'s two masks and the covered nodes flagged.
+
+        Flagged: those :func:`~.stereo_occlusion.occluder_nodes` reports in ``FaceState.occluded``.
+        """
+        covered, agreed = self._covered(state, attempt)
+        return covered, agreed, occluder_nodes(covered, self._occludable, self._topology.edges)
 
     def _covered(self, state: _State, attempt: _Attempt) -> tuple[np.ndarray, np.ndarray]:
         """(N,) bool each: the nodes an occluder covers on this pair, and those seen agreeing.

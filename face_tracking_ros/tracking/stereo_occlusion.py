@@ -25,12 +25,13 @@ their samples weighing frame 1 alone (:func:`first_frame_coefficients`), from co
 
 An occluder covers a region, so only a held node with a held neighbour is reported as covered
 (:func:`occluder_nodes`, ``FaceState.occluded``). A patch disagrees alone where the head has
-turned from one camera: the far brow end, whose frame-1 depth the epipolar match put 16-23 mm too
-far on rendered heads turned 19-22 degrees. It is held all the same (holding or not, it ends
-9-12 px off on such a head), but no occluder is reported: on rendered 640x480 free-motion
-sequences (yaw up to 30 degrees, no occluder) pairs with a node flagged 265 / 87 / 22 -> 94 / 2 /
-0 (seeds 1, 6, 2), while under a passing occluder 0.61-0.73 of the covered node-pairs are
-flagged, 0.61-0.75 before; the tracks are the same.
+turned from one camera: the far brow end, whose correlation window at frame 1 straddles the
+face's outline, so that its frame-1 depth is off (8 mm on a rendered head turned 19 degrees, held
+on 23 of 80 pairs; :mod:`.stereo_init`). It is held all the same, but no occluder is reported:
+on rendered 640x480 free-motion sequences (yaw up to 30 degrees, no occluder) pairs with a node
+flagged went 265 / 87 / 22 -> 94 / 2 / 0 (seeds 1, 6, 2) when lone patches stopped being flagged,
+while under a passing occluder 0.61-0.73 of the covered node-pairs are flagged (0.61-0.75
+before).
 
 Left and right also disagree at a node whose depth is wrong (the other camera's patch is then
 sampled beside the feature): a 320x240 initialisation put a brow node 28 mm off, its patch read
