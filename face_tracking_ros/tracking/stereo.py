@@ -95,6 +95,7 @@ from face_tracking_ros.tracking.stereo_occlusion import (
     first_frame_coefficients,
     held_nodes,
     kept_templates,
+    occluder_leaving,
     occluder_nodes,
     stereo_disagreement,
 )
@@ -862,24 +863,29 @@ class StereoTracker:
         (:mod:`.stereo_occlusion`); the result flags those of them with a held neighbour
         (:func:`~.stereo_occlusion.occluder_nodes`).
 
-        On the first pair with no node flagged after some were, the occluder has gone: the
-        nodes flagged since the last pair with none (``state.region``) are found again, the
-        pair solved once more from its solution for them (:meth:`_solve_pair`), taken if that
-        passes the loss checks. Held nodes whose expression changed under the occluder were
-        left off the face, some of them disagreeing left and right there, so held on (rendered
-        640x480 onsets under the occluder: a lower lip 8-10 px off and held for 50 pairs after
-        it had gone; a smile's corners released 10-11 px off).
+        On a pair on which the occluder is leaving (:func:`~.stereo_occlusion.occluder_leaving`:
+        no node flagged that was not on the last pair, and fewer of them), the nodes flagged
+        since the last pair with none (``state.region``) are found again: the pair is solved
+        once more from its solution for them (:meth:`_solve_pair`), taken if it passes the loss
+        checks and, while nodes are still flagged, flags fewer. Held nodes whose expression
+        changed under the occluder were left off the face, some of them disagreeing left and
+        right there, so held on (rendered 640x480 onsets under the occluder: a lower lip 8-10 px
+        off and held for 50 pairs after it had gone; a smile's corners released 10-11 px off; a
+        pucker's far brow end, eye corner and temple flagged for 28 pairs after it, the face's
+        far side drifting 25 px off, until the region was all 34 nodes and its solve failed).
         """
         config = self._config
         covered, agreed, flagged = self._cover(state, attempt)
-        gone = state.region.any() and not flagged.any()
-        if gone:
+        found_again = False
+        if state.region.any() and occluder_leaving(flagged, state.result.occluded):
             found = self._attempt(state, pyramids, attempt.nodes, attempt.reference, state.region)
             if not found.problem:
-                attempt = found
-                covered, agreed, flagged = self._cover(state, attempt)
+                cover = self._cover(state, found)
+                if not flagged.any() or np.count_nonzero(cover[2]) < np.count_nonzero(flagged):
+                    attempt, found_again = found, True
+                    covered, agreed, flagged = cover
         state.agreed = agreed
-        state.region = flagged if gone else state.region | flagged
+        state.region = flagged if found_again or not flagged.any() else state.region | flagged
         nodes, statistics, solves = attempt.nodes, attempt.statistics, attempt.solves
         assert statistics is not None
         if covered.any():
