@@ -4,7 +4,8 @@ Seed 1's subject 0 moving freely (yaw 18 -> 28 -> -20 -> 30 degrees) at 640x480,
 tracked by the stereo tracker with the packaged model from 1-px clicks, as the stereo_tracker
 node streams it; the face opens its jaw from 2.5 s to 7.1 s. Each pair's ``face/state`` and
 ``face/action`` go to the expression recogniser in the order the tracker publishes them. And
-seed 6's, smiling from 4.5 s while an occluder passes in front of its mouth (4.0 s to 5.5 s).
+seed 6's, smiling from 4.5 s while an occluder passes in front of its mouth (4.0 s to 5.5 s),
+and seed 4's, puckering then.
 """
 
 from __future__ import annotations
@@ -30,6 +31,7 @@ from face_tracking_ros.tracking.stereo_config import StereoTrackerConfig
 FRAMES = 300
 JAW_OPEN = ExpressionSegment('jaw_open', 2.5, 0.3, 4.0, 0.3, 0.9)
 SMILE = ExpressionSegment('smile', 4.5, 0.3, 2.0, 0.3, 0.9)
+PUCKER = replace(SMILE, label='pucker')
 OCCLUDER_PASS = (4.0, 1.5)  # s: start, duration
 SMILE_FRAMES = 225  # to 7.5 s, the smile gone at 7.1 s
 
@@ -88,6 +90,20 @@ def test_a_held_expression_of_a_turning_head_is_one_event(tracked) -> None:
     assert abs(events[1].stamp - (start + JAW_OPEN.end)) < 0.2
 
 
+def after_the_pass(seed: int, segment: ExpressionSegment) -> tuple[list, np.ndarray, list]:
+    """Seed ``seed``'s pairs with ``segment`` starting under the occluder, all tracked.
+
+    Returns the pairs, the node errors (px) from the end of the pass to the segment's fall, and
+    each pair's state and action.
+    """
+    frames, errors, outputs = tracks(seed, SMILE_FRAMES, segment, OCCLUDER_PASS)
+    status = np.array([image[0].msg.status for image in outputs])
+    assert np.all(status == TrackStatus.TRACKING)
+    seconds = np.array([frame.stamp_ns - frames[0].stamp_ns for frame in frames]) / 1e9
+    after = (seconds > sum(OCCLUDER_PASS)) & (seconds < segment.end - segment.fall)
+    return frames, errors[after], outputs
+
+
 def test_mouth_nodes_held_while_a_smile_starts_under_an_occluder_are_found_again() -> None:
     """Mouth nodes held while a smile starts under an occluder are found when it has gone.
 
@@ -97,11 +113,23 @@ def test_mouth_nodes_held_while_a_smile_starts_under_an_occluder_are_found_again
     nothing found again, 8.7 px and the smile from frame 181; with the texture sampled afresh
     on every pair (the occluder, then the face at the held mesh), 15.9 px and no smile read.
     """
-    frames, errors, outputs = tracks(6, SMILE_FRAMES, SMILE, OCCLUDER_PASS)
-    status = np.array([image[0].msg.status for image in outputs])
-    assert np.all(status == TrackStatus.TRACKING)
+    frames, errors, outputs = after_the_pass(6, SMILE)
     mouth = load_model(default_model_path()).topology.group_mask(Group.MOUTH)
-    seconds = np.array([frame.stamp_ns - frames[0].stamp_ns for frame in frames]) / 1e9
-    after = (seconds > sum(OCCLUDER_PASS)) & (seconds < SMILE.end - SMILE.fall)
-    assert errors[after][:, mouth].max() < 6.0
+    assert errors[:, mouth].max() < 6.0
     one_expression(frames, outputs, SMILE)
+
+
+def test_nodes_still_flagged_as_the_occluder_leaves_are_found_again() -> None:
+    """A pucker started under the occluder: the nodes found again while a few are still flagged.
+
+    Seed 4's occluder covers up to 23 nodes as it passes. Measured, with the region found again
+    on the first pair with none flagged: its far brow end, eye corner and temple stayed flagged
+    28 pairs after it, off the face, the far cheek drifting; the region grew to all 34 nodes,
+    whose solve failed (residual 0.74 of the contrast): from the end of the pass to the pucker's
+    fall nodes up to 25.6 px off, a smile read and not ended. Found again as the occluder leaves
+    (no node newly flagged, fewer than on the last pair; frame 154, 4 nodes still flagged, none
+    after): at most 5.5 px, the pucker read from 5.2 s to 7.07 s.
+    """
+    frames, errors, outputs = after_the_pass(4, PUCKER)
+    assert errors.max() < 7.0
+    one_expression(frames, outputs, PUCKER)

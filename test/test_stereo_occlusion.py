@@ -13,6 +13,7 @@ from face_tracking_ros.tracking.stereo_occlusion import (
     first_frame_coefficients,
     held_nodes,
     kept_templates,
+    occluder_leaving,
     occluder_nodes,
 )
 
@@ -112,3 +113,12 @@ def test_a_region_found_again_weighs_frame_1_alone() -> None:
     expected = np.broadcast_to([[0.0], [0.0], [0.75], [0.25]], (4, np.count_nonzero(moved)))
     np.testing.assert_allclose(first[:, moved], expected)
     np.testing.assert_array_equal(first[:, ~moved], coefficients[:, ~moved])
+
+
+def test_the_occluder_leaves_when_no_node_is_newly_flagged_and_fewer_are() -> None:
+    """Fewer flagged, none anew: leaving; one anew (the occluder moving on) or as many: not."""
+    last = np.array([True, True, True, False, False])
+    assert occluder_leaving(np.zeros(5, dtype=bool), last)
+    assert occluder_leaving(np.array([True, False, True, False, False]), last)
+    assert not occluder_leaving(np.array([True, False, False, True, False]), last)
+    assert not occluder_leaving(last, last)
