@@ -492,6 +492,7 @@ def test_a_face_turned_beyond_every_view_is_confirmed_by_solving_the_view_back_f
     # frame 144, no node taken as covered (main: LOST to frame 139).
     assert (status[90:] == TrackStatus.TRACKING).all(), status[66:]
     assert error[90:].max() < 3.0, error[90:]
+    assert not occluded[90:].any()
 
 
 def test_a_frame_with_covered_nodes_is_kept_as_a_view_and_reacquires_the_face():
