@@ -177,20 +177,20 @@ class _Return(NamedTuple):
     Attributes:
         pyramid: builds the frame's pyramid (called only when a solve back is made).
         params: the frame's estimate, which the solve back must return to.
+        restart_px: the solve back's first step on level 1 beyond which it starts over on the
+            coarsest level (:meth:`MonoTracker._solved_back`).
         levels: how many of the finest levels the solves solve (all if None).
         fraction: the largest fraction of the voting nodes that may fail at
             ``lost_residual_ratio`` (``lost_node_fraction`` if None).
         return_px: how near ``params`` the solve back must land (:meth:`MonoTracker._returns`).
-        restart_px: the solve back's first step on level 1 beyond which it starts over on the
-            coarsest level (``coarsest_level_px`` if None; :meth:`MonoTracker._solved_back`).
     """
 
     pyramid: Callable[[], ImagePyramid]
     params: Params
+    restart_px: float
     levels: int | None = None
     fraction: float | None = None
     return_px: float = _RETURN_PX
-    restart_px: float | None = None
 
 
 @dataclass
@@ -611,10 +611,10 @@ class MonoTracker:
             returned = _Return(
                 functools.partial(self._view_pyramid, view),
                 view.params,
+                math.inf,
                 viewed.levels,
                 _VIEW_CONFIRM_FRACTION,
                 _VIEW_RETURN_PX,
-                math.inf,
             )
             yield self._moved(view.params, shift), viewed.templates, returned
 
@@ -756,7 +756,7 @@ class MonoTracker:
         if not track.bridging or track.lost:
             return None
         last = self._buffers[0]
-        return _Return(lambda: last, track.current)
+        return _Return(lambda: last, track.current, self._config.coarsest_level_px)
 
     def _blended_templates(self) -> tuple[OnDemand, np.ndarray]:
         """Eq. 6's templates of a followed frame and the node weights they are solved with.
@@ -1011,7 +1011,7 @@ class MonoTracker:
             self._track.rois,
             False,
             _START_LEVEL,
-            self._config.coarsest_level_px if returned.restart_px is None else returned.restart_px,
+            returned.restart_px,
             levels=returned.levels,
         )
 

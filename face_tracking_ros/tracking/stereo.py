@@ -187,6 +187,14 @@ class _Attempt(NamedTuple):
     reference: np.ndarray  # (N, 3) the nodes eq. 5 measured the motion from
 
 
+class _Cover(NamedTuple):
+    """What an occluder covers on a pair (:meth:`StereoTracker._cover`), (N,) bool each."""
+
+    covered: np.ndarray  # the nodes held to the head's rigid motion
+    agreed: np.ndarray  # node patches seen agreeing left and right, this pair's included
+    flagged: np.ndarray  # the covered nodes reported in ``FaceState.occluded``
+
+
 class StereoTracker:
     """Tracks the N mesh nodes in 3-D through a rectified stereo sequence (eq. 4 and 5).
 
@@ -881,7 +889,8 @@ class StereoTracker:
             found = self._attempt(state, pyramids, attempt.nodes, attempt.reference, state.region)
             if not found.problem:
                 cover = self._cover(state, found)
-                if not flagged.any() or np.count_nonzero(cover[2]) < np.count_nonzero(flagged):
+                fewer = np.count_nonzero(cover.flagged) < np.count_nonzero(flagged)
+                if not flagged.any() or fewer:
                     attempt, found_again = found, True
                     covered, agreed, flagged = cover
         state.agreed = agreed
@@ -921,15 +930,11 @@ class StereoTracker:
         state.result = result
         return result
 
-    def _cover(
-        self, state: _State, attempt: _Attempt
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(N,) bool each: :meth:`_covered`'s two masks and the covered nodes flagged.
-
-        Flagged: those :func:`~.stereo_occlusion.occluder_nodes` reports in ``FaceState.occluded``.
-        """
+    def _cover(self, state: _State, attempt: _Attempt) -> _Cover:
+        """:meth:`_covered`'s two masks and the covered nodes flagged (:func:`.occluder_nodes`)."""
         covered, agreed = self._covered(state, attempt)
-        return covered, agreed, occluder_nodes(covered, self._occludable, self._topology.edges)
+        flagged = occluder_nodes(covered, self._occludable, self._topology.edges)
+        return _Cover(covered, agreed, flagged)
 
     def _covered(self, state: _State, attempt: _Attempt) -> tuple[np.ndarray, np.ndarray]:
         """(N,) bool each: the nodes an occluder covers on this pair, and those seen agreeing.
