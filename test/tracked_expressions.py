@@ -9,7 +9,7 @@ tracker publishes them, and the events the expression processor makes of them (t
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from dataclasses import replace
+from itertools import islice
 
 from face_tracking_ros.io import conversions
 from face_tracking_ros.io.messages import RosbagsMessages
@@ -35,14 +35,12 @@ def scripted_frames(
     script: ExpressionScript,
     occluder_pass: tuple[float, float] | None = None,
 ) -> list[SyntheticFrame]:
-    """The renderer's first sequence with ``script``; its occluder's (start, duration), s."""
-    sequence = renderer._sequence(0)._replace(script=script)
-    if occluder_pass is not None:
-        start, duration = occluder_pass
-        sequence = sequence._replace(
-            occluder=replace(sequence.occluder, start=start, duration=duration)
-        )
-    return [renderer._frame(sequence, index) for index in range(frames)]
+    """The first ``frames`` of the renderer's first sequence, with ``script``.
+
+    ``occluder_pass``: the occluder's (start, duration), s, instead of the sequence's own.
+    """
+    scripted = renderer.frames(0, script=script, occluder_pass=occluder_pass)
+    return list(islice(scripted, frames))
 
 
 def recognised_outputs(

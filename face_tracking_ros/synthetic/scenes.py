@@ -273,16 +273,34 @@ class SequenceRenderer:
         self.cameras = config.cameras()
         self.renderer = FaceRenderer(_texture(config, self.subject), Sensor(), seed=config.seed)
 
-    def frames(self, sequence_index: int) -> Iterator[SyntheticFrame]:
+    def frames(
+        self,
+        sequence_index: int,
+        *,
+        script: ExpressionScript | None = None,
+        occluder_pass: tuple[float, float] | None = None,
+    ) -> Iterator[SyntheticFrame]:
         """Render the frames of one sequence in order.
 
+        Args:
+            sequence_index: which sequence of the subject (its head path, light, backdrop...).
+            script: expressions to make instead of the sequence's own (e.g. one expression held
+                while the occluder passes).
+            occluder_pass: (start, duration), s, of the occluder's pass instead of the
+                sequence's own; the scene must have ``occlusion``.
+
         Raises:
-            ConfigError: for a negative sequence index.
+            ConfigError: for a negative sequence index, or an occluder pass in a scene without
+                occlusion or not positive in duration.
         """
         if sequence_index < 0:
             msg = f'sequence index must be >= 0, got {sequence_index}'
             raise ConfigError(msg)
         sequence = self._sequence(sequence_index)
+        if script is not None:
+            sequence = sequence._replace(script=script)
+        if occluder_pass is not None:
+            sequence = sequence._replace(occluder=self._passing(sequence, *occluder_pass))
         for index in range(self.config.frames):
             yield self._frame(sequence, index)
 
@@ -311,6 +329,20 @@ class SequenceRenderer:
             name: backdrop.view(camera, config.encoding) for name, camera in self.cameras.items()
         }
         return _Sequence(seeds, trajectory, script, light, occluder, backgrounds)
+
+    def _passing(self, sequence: _Sequence, start: float, duration: float) -> _OccluderPass:
+        """The sequence's occluder passing from ``start`` for ``duration`` s.
+
+        Raises:
+            ConfigError: in a scene without occlusion, or for a duration not above zero.
+        """
+        if sequence.occluder is None:
+            msg = 'an occluder pass needs a scene with occlusion (SceneConfig.occlusion)'
+            raise ConfigError(msg)
+        if not duration > 0.0:
+            msg = f'an occluder pass must last more than 0 s, got {duration}'
+            raise ConfigError(msg)
+        return replace(sequence.occluder, start=start, duration=duration)
 
     def _frame(self, sequence: _Sequence, index: int) -> SyntheticFrame:
         """Render frame ``index`` of ``sequence`` in every camera, with its truth."""

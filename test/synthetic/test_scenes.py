@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 import re
 
@@ -16,6 +17,7 @@ from face_tracking_ros.errors import ConfigError
 from face_tracking_ros.geometry.rotation import omega_to_quaternion, rodrigues
 from face_tracking_ros.io.bags import read_messages
 from face_tracking_ros.synthetic.faces import FacePopulation
+from face_tracking_ros.synthetic.motion import ExpressionScript, ExpressionSegment
 from face_tracking_ros.synthetic.recording import TRUTH_TOPIC, record
 from face_tracking_ros.synthetic.scenes import (
     SceneConfig,
@@ -302,6 +304,30 @@ def test_an_occluder_passes_15_cm_in_front_of_the_face_once_mid_sequence():
     )
     after = renderer._frame(sequence, 39).images['image'].astype(float)
     assert (after - before).std() < 6.0 < (during - before).std()
+
+
+def test_a_sequence_rendered_with_a_given_script_and_occluder_pass():
+    config = SceneConfig(kind='mono', motion='static', occlusion=True, frames=15, **SMALL_VIEW)
+    renderer = SequenceRenderer(config, 0)
+    smile = ExpressionSegment('smile', 0.2, 0.3, 0.4, 0.1, 0.8)
+
+    smiling = list(renderer.frames(0, script=ExpressionScript((smile,))))
+    early, late = (list(renderer.frames(0, occluder_pass=(start, 0.25))) for start in (0.0, 1.0))
+
+    labels = [frame.truth.label for frame in smiling]
+    assert labels == ['neutral'] * 3 + ['smile'] * 7 + ['neutral'] * 5
+    assert [frame.truth.intensity for frame in smiling[5:8]] == [0.8] * 3  # its apex
+    # The same head, light and noise: the images differ only while either pass is on (at 0.0,
+    # 0.1, 0.2 s and 1.0, 1.1, 1.2 s), not elsewhere, to the bit.
+    differs = [
+        not np.array_equal(one.images['image'], other.images['image'])
+        for one, other in zip(early, late, strict=True)
+    ]
+    assert differs == [True] * 3 + [False] * 7 + [True] * 3 + [False] * 2
+    with pytest.raises(ConfigError, match='an occluder pass needs a scene with occlusion'):
+        next(SequenceRenderer(replace(config, occlusion=False), 0).frames(0, occluder_pass=(0, 1)))
+    with pytest.raises(ConfigError, match='must last more than 0 s, got 0.0'):
+        next(renderer.frames(0, occluder_pass=(0.5, 0.0)))
 
 
 def test_motion_blur_averages_the_poses_over_half_the_frame_period():
