@@ -252,7 +252,10 @@ def test_live_latency_finds_the_highest_rate_without_drops(
     saved = os.sched_getaffinity(0)
     monkeypatch.setattr(live_latency, 'pin_to_core', lambda core: os.sched_setaffinity(0, {1}))
     monkeypatch.setattr(live_latency, 'tracker_inputs', lambda *args: ([], {}))
-    monkeypatch.setattr(live_latency, 'NodeProcess', _FakeNode)
+    started = []
+    monkeypatch.setattr(
+        live_latency, 'NodeProcess', lambda node, *_: started.append(node) or _FakeNode()
+    )
     monkeypatch.setattr(live_latency, 'Driver', driver)
 
     if 1 not in saved:
@@ -262,15 +265,19 @@ def test_live_latency_finds_the_highest_rate_without_drops(
     finally:
         os.sched_setaffinity(0, saved)
 
-    assert driver.runs[:2] == [(30.0, 1.0), (30.0, 60.0)]  # warm-up, then the timed run
-    assert driver.runs[2:] == [(rate, 4.0) for rate in stepped]
-    assert result['max_rate_without_drops_hz'] == highest
-    assert result['at_30hz']['seconds'] == 60.0
-    assert result['at_30hz']['dropped'] == (0 if drops_from > 30.0 else 1)
-    assert [step['rate_hz'] for step in result['rate_steps']] == stepped
-    assert result['node_peak_rss_mb'] == 250.0
-    assert result['cores'] == {'node': [0], 'driver': [1]}  # the driver's: this process's
-    assert result['stream_frames'] == 1830
+    assert list(result) == ['mono', 'stereo']
+    assert started == ['mono_tracker', 'stereo_tracker']
+    runs = [(30.0, 1.0), (30.0, 60.0)] + [(rate, 4.0) for rate in stepped]  # warm-up, timed, steps
+    assert driver.runs == runs * 2
+    for kind in ('mono', 'stereo'):
+        figures = result[kind]
+        assert figures['max_rate_without_drops_hz'] == highest
+        assert figures['at_30hz']['seconds'] == 60.0
+        assert figures['at_30hz']['dropped'] == (0 if drops_from > 30.0 else 1)
+        assert [step['rate_hz'] for step in figures['rate_steps']] == stepped
+        assert figures['node_peak_rss_mb'] == 250.0
+        assert figures['cores'] == {'node': [0], 'driver': [1]}  # the driver's: this process's
+        assert figures['stream_frames'] == 1830
 
 
 def test_replay_throughput_is_frames_per_second_and_multiple_of_real_time(monkeypatch, tmp_path):

@@ -74,14 +74,15 @@ def test_quick_run_writes_finite_figures(tmp_path):
     learner = results['benchmarks']['learner_scaling']
     assert [row['meshes'] for row in learner['meshes']] == [1000, 10000]
     assert set(learner['meshes_exponent']) == {'align_s', 'seed_s', 'joint_s'}
-    live = results['benchmarks']['live_latency']
-    assert live['at_30hz']['published'] == 150
-    assert 0 < live['at_30hz']['received'] == live['at_30hz']['tracked']  # all TRACKING
-    assert live['node_peak_rss_mb'] > 0
-    cores = sorted(os.sched_getaffinity(0))
-    if len(cores) > 1:  # the node on the benchmark's core, the driver on another
-        assert len(live['cores']['node']) == len(live['cores']['driver']) == 1
-        assert live['cores']['node'] != live['cores']['driver']
+    for kind in ('mono', 'stereo'):
+        live = results['benchmarks']['live_latency'][kind]
+        assert live['at_30hz']['published'] == 150, kind
+        assert 0 < live['at_30hz']['received'] == live['at_30hz']['tracked'], kind  # all TRACKING
+        assert live['node_peak_rss_mb'] > 0
+        cores = sorted(os.sched_getaffinity(0))
+        if len(cores) > 1:  # the node on the benchmark's core, the driver on another
+            assert len(live['cores']['node']) == len(live['cores']['driver']) == 1
+            assert live['cores']['node'] != live['cores']['driver']
     protocol = results['benchmarks']['mono_accuracy']
     rows = ('true_model', 'unfiltered', 'learned_model', 'baseline', 'nodes_19')
     rows += ('epsilon_0', 'prior_off', 'bundle_off', 'true_model_click_draws')
@@ -242,8 +243,9 @@ def test_table_says_so_when_no_state_came_back():
     run = {'seconds': 60.0, 'published': 1800, 'received': 0, 'dropped': 1800}
     run |= {'latency_p50_ms': None, 'latency_p99_ms': None}
     live = {'size': '640x480', 'at_30hz': run, 'max_rate_without_drops_hz': 0.0}
-    table = format_table({'benchmarks': {'live_latency': live}})
-    assert 'no face/state received, 1800 of 1800 dropped' in table
+    table = format_table({'benchmarks': {'live_latency': {'stereo': live}}})
+    row = '| live latency image -> face/state, stereo, 640x480 at 30 Hz, 60 s | '
+    assert f'{row}no face/state received, 1800 of 1800 dropped |' in table
 
 
 def test_table_shows_the_learner_against_meshes_and_against_subjects():

@@ -1,8 +1,9 @@
 """Live latency over DDS on loopback: image published to face/state received (issue 9).
 
-A mono_tracker node runs in its own process on one core; this process publishes rendered 640x480
-images (and their camera_info) at 30 Hz with the wall-clock time as stamp, over the package's
-Fast DDS profile, and times each ``face/state`` back. Then the rate is stepped up until frames
+Each tracker node in turn (mono_tracker, then stereo_tracker) runs in its own process on one
+core; this process publishes rendered 640x480 images (image pairs, left and right with one stamp)
+and their camera_info at 30 Hz with the wall-clock time as stamp, over the package's Fast DDS
+profile, and times each ``face/state`` back. Then the rate is stepped up until frames
 are dropped (the node's image QoS is rclpy's sensor-data profile, best effort with depth 5: a busy
 tracker works through at most the 5 newest frames and drops older ones).
 Target: p99 <= 10 ms at 30 Hz with no drops.
@@ -35,26 +36,34 @@ QUICK_STEP_RATES = (15.0, 30.0)
 STEP_SECONDS, QUICK_STEP_SECONDS = 4.0, 1.5
 
 
+TRACKERS = {Kind.MONO: 'mono_tracker', Kind.STEREO: 'stereo_tracker'}
+
+
 def run(options: BenchOptions) -> dict[str, Any]:
-    """Latency p50/p99 and drops at 30 Hz; the highest stepped rate without drops.
+    """Each tracker node's latency p50/p99 and drops at 30 Hz and highest rate without drops.
 
     Returns:
-        ``{'at_30hz': {...}, 'rate_steps': [...], 'max_rate_without_drops_hz': r,
-        'node_peak_rss_mb': m, 'cores': {'node': [...], 'driver': [...]}, 'stream_frames': f}``
-        (``r`` is 0 when even the lowest step dropped frames; ``cores`` the CPU affinities the
-        node and the driver ran with; ``f`` the rendered frames the stream plays).
+        ``{'mono': {...}, 'stereo': {...}}``, each as :func:`tracker_latency` returns.
     """
     pin_to_core(DRIVER_CORE)
+    return {kind.value: tracker_latency(kind, node, options) for kind, node in TRACKERS.items()}
+
+
+def tracker_latency(kind: Kind, node: str, options: BenchOptions) -> dict[str, Any]:
+    """One tracker node fed its camera streams: latency at 30 Hz, then the rate stepped up.
+
+    Returns:
+        ``{'size', 'at_30hz': {...}, 'rate_steps': [...], 'max_rate_without_drops_hz': r,
+        'node_peak_rss_mb': m, 'cores': {'node': [...], 'driver': [...]}, 'stream_frames': f}``
+        (``r`` is 0 when even the lowest step dropped frames; ``cores`` the CPU affinities the
+        node and the driver ran with; ``f`` the rendered frames (pairs) the stream plays).
+    """
     frames = QUICK_FRAMES if options.quick else FRAMES
-    streams, params = tracker_inputs(
-        options.work_dir, Kind.MONO, WIDTH, HEIGHT, frames, options.seed
-    )
-    node = NodeProcess(
-        'mono_tracker', params, options.domain_id, options.work_dir / 'live_mono_tracker.log'
-    )
+    streams, params = tracker_inputs(options.work_dir, kind, WIDTH, HEIGHT, frames, options.seed)
+    process = NodeProcess(node, params, options.domain_id, options.work_dir / f'live_{node}.log')
     driver = Driver(streams)
     try:
-        driver.wait_for([node])
+        driver.wait_for([process])
         driver.run(RATE_HZ, WARM_UP_S)
         main = driver.run(RATE_HZ, QUICK_SECONDS if options.quick else SECONDS)
         steps = []
@@ -62,11 +71,11 @@ def run(options: BenchOptions) -> dict[str, Any]:
             steps.append(driver.run(rate, QUICK_STEP_SECONDS if options.quick else STEP_SECONDS))
             if steps[-1].dropped:
                 break
-        peak_rss = node.peak_rss_mb()
-        cores = {'node': node.cores(), 'driver': sorted(os.sched_getaffinity(0))}
+        peak_rss = process.peak_rss_mb()
+        cores = {'node': process.cores(), 'driver': sorted(os.sched_getaffinity(0))}
     finally:
         driver.close()
-        node.stop()
+        process.stop()
     sustained = [step.rate_hz for step in steps if not step.dropped]
     return {
         'size': f'{WIDTH}x{HEIGHT}',

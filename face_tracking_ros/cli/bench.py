@@ -228,9 +228,16 @@ def _replay_rows(replay: dict[str, Any]) -> list[tuple[str, str, str]]:
 
 
 def _live_rows(live: dict[str, Any]) -> list[tuple[str, str, str]]:
-    if 'at_30hz' not in live:
-        return []
+    rows = []
+    for kind, tracker in live.items():
+        if isinstance(tracker, dict) and 'at_30hz' in tracker:
+            rows += _tracker_live_rows(kind, tracker)
+    return rows
+
+
+def _tracker_live_rows(kind: str, live: dict[str, Any]) -> list[tuple[str, str, str]]:
     f = live['at_30hz']
+    run = f'{kind}, {live["size"]} at 30 Hz, {f["seconds"]:g} s'
     latency = (
         f'{f["latency_p50_ms"]:.1f} ms p50, {f["latency_p99_ms"]:.1f} ms p99'
         if f['received']
@@ -238,12 +245,12 @@ def _live_rows(live: dict[str, Any]) -> list[tuple[str, str, str]]:
     )
     return [
         (
-            f'live latency image -> face/state, {live["size"]} at 30 Hz, {f["seconds"]:g} s',
+            f'live latency image -> face/state, {run}',
             f'{latency}, {f["dropped"]} of {f["published"]} dropped',
             'p99 <= 10 ms, no drops',
         ),
         (
-            'highest rate without drops (stepped)',
+            f'highest rate without drops (stepped), {kind}',
             f'{live["max_rate_without_drops_hz"]:g} Hz',
             '>= 30 Hz',
         ),
