@@ -10,6 +10,7 @@ from face_tracking_ros.tracking.stereo_occlusion import (
     MIN_UNCOVERED_NODES,
     agreeing,
     covered_nodes,
+    face_hidden,
     first_frame_coefficients,
     held_nodes,
     kept_templates,
@@ -31,7 +32,7 @@ def test_covered_nodes_move_as_the_others_moved_rigidly() -> None:
     np.testing.assert_allclose(held, moved, atol=1e-12)
 
 
-def test_a_patch_is_covered_beyond_the_ratio_unless_too_few_nodes_are_left() -> None:
+def test_a_patch_is_covered_beyond_the_ratio_and_too_many_covered_hide_the_face() -> None:
     checked = np.ones(12, dtype=bool)
     checked[[0, 3]] = False  # say, face-edge nodes
     edges = np.array([[0, 1], [1, 2], [3, 4], [4, 5]])
@@ -41,8 +42,13 @@ def test_a_patch_is_covered_beyond_the_ratio_unless_too_few_nodes_are_left() -> 
     covered = covered_nodes(disagreement, checked, 0.7, edges, agreed)
     # node 0: unchecked, next to covered node 1, beyond twice the ratio; node 3: no neighbour
     np.testing.assert_array_equal(np.flatnonzero(covered), [0, 1])
-    disagreement[: 12 - MIN_UNCOVERED_NODES + 1] = 1.0
-    assert not covered_nodes(disagreement, np.ones(12, dtype=bool), 0.7, edges, agreed).any()
+    assert not face_hidden(covered)
+    disagreement[: 12 - MIN_UNCOVERED_NODES] = 1.0
+    covered = covered_nodes(disagreement, np.ones(12, dtype=bool), 0.7, edges, agreed)
+    assert np.count_nonzero(covered) == 12 - MIN_UNCOVERED_NODES and not face_hidden(covered)
+    disagreement[12 - MIN_UNCOVERED_NODES] = 1.0
+    covered = covered_nodes(disagreement, np.ones(12, dtype=bool), 0.7, edges, agreed)
+    assert np.count_nonzero(covered) == 12 - MIN_UNCOVERED_NODES + 1 and face_hidden(covered)
 
 
 def test_only_a_patch_that_agreed_before_can_be_covered() -> None:

@@ -92,6 +92,7 @@ from face_tracking_ros.tracking.stereo_loss import loss_reason
 from face_tracking_ros.tracking.stereo_occlusion import (
     agreeing,
     covered_nodes,
+    face_hidden,
     first_frame_coefficients,
     held_nodes,
     kept_templates,
@@ -177,6 +178,14 @@ class _Solves:
     theta: ModelPoint | None = None  # the face-model term's fit, moved on by the solves
 
 
+class _Cover(NamedTuple):
+    """What an occluder covers on a pair (:meth:`StereoTracker._cover`), (N,) bool each."""
+
+    covered: np.ndarray  # the nodes held to the head's rigid motion
+    agreed: np.ndarray  # node patches seen agreeing left and right, this pair's included
+    flagged: np.ndarray  # the covered nodes reported in ``FaceState.occluded``
+
+
 class _Attempt(NamedTuple):
     """A pair solved from some start: the nodes, their level-0 statistics and why they fail."""
 
@@ -185,14 +194,7 @@ class _Attempt(NamedTuple):
     solves: _Solves
     problem: str  # '' when the nodes pass the loss checks
     reference: np.ndarray  # (N, 3) the nodes eq. 5 measured the motion from
-
-
-class _Cover(NamedTuple):
-    """What an occluder covers on a pair (:meth:`StereoTracker._cover`), (N,) bool each."""
-
-    covered: np.ndarray  # the nodes held to the head's rigid motion
-    agreed: np.ndarray  # node patches seen agreeing left and right, this pair's included
-    flagged: np.ndarray  # the covered nodes reported in ``FaceState.occluded``
+    cover: _Cover | None = None  # what an occluder covers there (None when the solve failed)
 
 
 class StereoTracker:
@@ -753,6 +755,16 @@ class StereoTracker:
         found again once an occluder has gone (:meth:`_solve_pair`). A pair after a gap, and a
         pair solved for a region, are checked at the stricter ``gap_lost_ratio`` too (solved
         from coarser levels).
+
+        Nodes that pass fail all the same where an occluder hides the face
+        (:func:`~.stereo_occlusion.face_hidden`: too few nodes left uncovered to hold the
+        covered ones to the head's motion). Taken with none held, as until 2026-12-07, such a
+        pair's templates took in the occluder over the whole face, and the next pair was lost
+        with the occluder's flags gone (rendered 640x480, seed 3: 29 of 34 nodes under the
+        occluder, 26 flagged on the pair before; the pair after lost at a residual of 0.89 of
+        the contrast): the expression recogniser ended the held expression there. Lost on the
+        pair the occluder hides, the track keeps the last pair's held nodes and their templates,
+        and ``face/state`` says LOST with that pair's flags.
         """
         try:
             nodes, solves = self._solve_pair(state, pyramids, start, reference, region)
@@ -764,7 +776,13 @@ class StereoTracker:
         )
         strict = state.after_gap or region is not None
         problem = loss_reason(nodes, statistics, self._rig, self._config, strict)
-        return _Attempt(nodes, statistics, solves, problem, reference)
+        cover = self._cover(state, statistics, accepted)
+        if not problem and face_hidden(cover.covered):
+            problem = (
+                f'an occluder hides the face ({np.count_nonzero(cover.covered)} of '
+                f'{counted(cover.covered.size, "node")} covered)'
+            )
+        return _Attempt(nodes, statistics, solves, problem, reference, cover)
 
     def _solve_pair(
         self,
@@ -883,12 +901,14 @@ class StereoTracker:
         far side drifting 25 px off, until the region was all 34 nodes and its solve failed).
         """
         config = self._config
-        covered, agreed, flagged = self._cover(state, attempt)
+        assert attempt.cover is not None
+        covered, agreed, flagged = attempt.cover
         found_again = False
         if state.region.any() and occluder_leaving(flagged, state.result.occluded):
             found = self._attempt(state, pyramids, attempt.nodes, attempt.reference, state.region)
             if not found.problem:
-                cover = self._cover(state, found)
+                cover = found.cover
+                assert cover is not None
                 fewer = np.count_nonzero(cover.flagged) < np.count_nonzero(flagged)
                 if not flagged.any() or fewer:
                     attempt, found_again = found, True
@@ -930,16 +950,19 @@ class StereoTracker:
         state.result = result
         return result
 
-    def _cover(self, state: _State, attempt: _Attempt) -> _Cover:
+    def _cover(self, state: _State, statistics: GroupStatistics, accepted: Point) -> _Cover:
         """:meth:`_covered`'s two masks and the covered nodes flagged (:func:`.occluder_nodes`)."""
-        covered, agreed = self._covered(state, attempt)
+        covered, agreed = self._covered(state, statistics, accepted)
         flagged = occluder_nodes(covered, self._occludable, self._topology.edges)
         return _Cover(covered, agreed, flagged)
 
-    def _covered(self, state: _State, attempt: _Attempt) -> tuple[np.ndarray, np.ndarray]:
+    def _covered(
+        self, state: _State, statistics: GroupStatistics, accepted: Point
+    ) -> tuple[np.ndarray, np.ndarray]:
         """(N,) bool each: the nodes an occluder covers on this pair, and those seen agreeing.
 
         Read from the left and right images at level 0's last accepted point of the solve
+        (``accepted``, its statistics ``statistics``)
         (:func:`~.stereo_occlusion.stereo_disagreement`, ``occlusion_ratio``): a node is covered
         only if it was seen agreeing on an earlier pair (``state.agreed``); the second mask adds
         the nodes that agree on this one. None is covered when the check is off.
@@ -947,11 +970,8 @@ class StereoTracker:
         ratio = self._config.occlusion_ratio
         if ratio == 0:
             return np.zeros(self._topology.num_nodes, dtype=bool), state.agreed
-        assert attempt.statistics is not None
         disagreement = stereo_disagreement(
-            state.samples,
-            attempt.solves.levels[-1][1].sampled,
-            attempt.statistics.image_contrast[LEFT],
+            state.samples, accepted.sampled, statistics.image_contrast[LEFT]
         )
         covered = covered_nodes(
             disagreement, self._occludable, ratio, self._topology.edges, state.agreed

@@ -24,6 +24,10 @@ so once the occluder is leaving (:func:`occluder_leaving`) the tracker solves th
 the nodes it flagged, their samples weighing frame 1 alone (:func:`first_frame_coefficients`),
 from coarser levels.
 
+An occluder that leaves fewer than :data:`MIN_UNCOVERED_NODES` nodes uncovered hides the face
+(:func:`face_hidden`): the others no longer measure the head's motion, and the stereo tracker
+loses that pair, keeping the last pair's held nodes and templates.
+
 An occluder covers a region, so only a held node with a held neighbour is reported as covered
 (:func:`occluder_nodes`, ``FaceState.occluded``). A patch disagrees alone where the head has
 turned from one camera: the far brow end, whose correlation window at frame 1 straddles the
@@ -51,7 +55,8 @@ from face_tracking_ros.tracking.stereo_data import Sampled, SampleSet
 from face_tracking_ros.tracking.stereo_kernels import stereo_contrast
 
 # Fewest nodes left uncovered for the others to be held to their rigid motion: a rendered
-# occluder covered up to 23 of the 34 nodes (their patches in either image).
+# occluder covered up to 23 of the 34 nodes (their patches in either image), seed 3's at
+# 640x480 29 (:func:`face_hidden`).
 MIN_UNCOVERED_NODES = 8
 # A face-edge or nose node next to a covered node is covered beyond this times the ratio: the
 # occluder dragged the chin and jaw 20 px (320x240 subject 0, 1 px clicks) while the nodes above
@@ -101,8 +106,7 @@ def covered_nodes(
     A checked node is covered when its patch disagrees beyond ``ratio`` (NaN: not covered). A
     node not checked (the face edge, the nose) is when a mesh neighbour is covered and its own
     patch disagrees beyond :data:`UNCHECKED_FACTOR` times ``ratio``. Only nodes that ``agreed``
-    before can be covered, and none is when fewer than :data:`MIN_UNCOVERED_NODES` would be
-    left to hold them.
+    before can be covered. Too many of them for the others to hold is :func:`face_hidden`.
 
     Args:
         disagreement: (N,) :func:`stereo_disagreement`.
@@ -116,9 +120,20 @@ def covered_nodes(
     if covered.any():
         near = mesh_neighbours(covered, edges)
         covered |= agreed & ~checked & near & (disagreement > UNCHECKED_FACTOR * ratio)
-    if covered.size - np.count_nonzero(covered) < MIN_UNCOVERED_NODES:
-        covered[:] = False
     return covered
+
+
+def face_hidden(covered: np.ndarray) -> bool:
+    """Whether an occluder hides the face: too few nodes left uncovered to hold the others.
+
+    The covered nodes move with the weighted rigid motion of the others (:func:`held_nodes`),
+    which fewer than :data:`MIN_UNCOVERED_NODES` do not measure; the stereo tracker loses
+    such a pair (:meth:`~.stereo.StereoTracker._attempt`).
+
+    Args:
+        covered: (N,) bool, :func:`covered_nodes`.
+    """
+    return covered.size - np.count_nonzero(covered) < MIN_UNCOVERED_NODES
 
 
 def occluder_nodes(held: np.ndarray, checked: np.ndarray, edges: np.ndarray) -> np.ndarray:
