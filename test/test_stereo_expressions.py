@@ -165,7 +165,7 @@ def test_a_face_lost_while_an_occluder_hid_it_is_found_again_where_it_was(hidden
     """A track lost under the occluder is found again from its last nodes as it leaves.
 
     Measured: LOST on pairs 140-148, then within 2.5 px RMS. Before, the search (which followed
-    the occluder in the last tracked image, 18-230 px off) and frame 1's start failed to pair
+    the occluder in the last tracked image, 18-140 px off) and frame 1's start failed to pair
     154: LOST on pairs 140-154, found again 7.4 px off.
     """
     _, errors, outputs = hidden

@@ -657,9 +657,10 @@ class StereoTracker:
         last tracked nodes (the head's motion before the loss says nothing of where it is now).
         If that fails, the pair is solved from those nodes as they were: the search follows
         what the last tracked image shows, and a track lost under an occluder's pass shows the
-        occluder there (rendered 640x480, seed 3, 27 of 34 nodes covered: the searched start
-        18-230 px off the face while the head had moved 0.3-6.4 px; found again 6 pairs
-        sooner, 2.6 px off, where frame 1's start below found it 6.3 px off).
+        occluder there (rendered 640x480, seed 3, 27 of 34 nodes covered: the searched starts
+        18-140 px off the face over pairs 141-155, while the head had moved 0.6-7.6 px from the
+        last tracked pair; found again from its nodes at pair 149, 2.5 px off, where frame 1's
+        start below found it at pair 155, 7.4 px off).
 
         If that fails too, the pair is solved and checked once more as if frame 1 were the last
         tracked pair (:meth:`_from_first_pair`): the last tracked pair can show what lost the
