@@ -194,7 +194,7 @@ class _Attempt(NamedTuple):
     solves: _Solves
     problem: str  # '' when the nodes pass the loss checks
     reference: np.ndarray  # (N, 3) the nodes eq. 5 measured the motion from
-    cover: _Cover | None = None  # what an occluder covers there (None when the solve failed)
+    cover: _Cover | None = None  # what an occluder covers there (None: the checks failed)
 
 
 class StereoTracker:
@@ -785,8 +785,8 @@ class StereoTracker:
         )
         strict = state.after_gap or region is not None
         problem = loss_reason(nodes, statistics, self._rig, self._config, strict)
-        cover = self._cover(state, statistics, accepted)
-        if not problem and face_hidden(cover.covered):
+        cover = None if problem else self._cover(state, statistics, accepted)
+        if cover is not None and face_hidden(cover.covered):
             problem = (
                 f'an occluder hides the face ({np.count_nonzero(cover.covered)} of '
                 f'{counted(cover.covered.size, "node")} covered)'
@@ -970,11 +970,11 @@ class StereoTracker:
     ) -> tuple[np.ndarray, np.ndarray]:
         """(N,) bool each: the nodes an occluder covers on this pair, and those seen agreeing.
 
-        Read from the left and right images at level 0's last accepted point of the solve
-        (``accepted``, its statistics ``statistics``)
-        (:func:`~.stereo_occlusion.stereo_disagreement`, ``occlusion_ratio``): a node is covered
-        only if it was seen agreeing on an earlier pair (``state.agreed``); the second mask adds
-        the nodes that agree on this one. None is covered when the check is off.
+        Read from the left and right images at level 0's last accepted point of the solve,
+        ``accepted`` with its ``statistics`` (:func:`~.stereo_occlusion.stereo_disagreement`,
+        ``occlusion_ratio``): a node is covered only if it was seen agreeing on an earlier pair
+        (``state.agreed``); the second mask adds the nodes that agree on this one. None is
+        covered when the check is off.
         """
         ratio = self._config.occlusion_ratio
         if ratio == 0:
