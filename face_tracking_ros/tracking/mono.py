@@ -58,8 +58,11 @@ Design, in the seed's terms:
   cross-correlation of frame 1's inner face over the image (:mod:`.mono_search`), and from a fresh
   detection when a detector was given; from the second LOST image on, also against the templates of
   the bundle adjustment's views nearest the last valid rotation, from each view's pose moved to
-  where its inner face correlates best near where the face was. After dropped images it is first
-  solved as a followed frame from where the last valid frame's inner face correlates best. The
+  where its inner face correlates best near where the face was. The first image after dropped
+  ones is solved as a followed frame both from the motion prediction and from where the last valid
+  frame's inner face correlates best, and of the solves that pass, the one whose nodes match their
+  templates best is taken; no node is newly taken as covered on it (nodes that fit badly after a
+  gap say the solve is off, as while LOST), and it is re-acquired only if both fail. The
   keyframe-only solves, every solve while LOST and those of the first image after dropped ones pass
   only at the stricter ``reacquire_residual_ratio``: they can settle a few pixels off. A followed
   solve of the first image after dropped ones that passes only at ``lost_residual_ratio`` is taken
@@ -511,19 +514,9 @@ class MonoTracker:
         within 2.7 px, the frames more than 5 px off the same; the runs without the occluder
         the same to the digit.
 
-        When images were dropped since the last valid estimate (:attr:`_Track.bridging`), eq.
-        6's solve of a followed frame is tried first from where the last valid frame's inner
-        face correlates best with the image (:attr:`_Track.last_view`), checked at the same
-        ratio. Frame 1's face is found only within some 25 degrees of its pose, while a head
-        seen just before the gap is found as it turned on; the solve from the motion
-        prediction alone can settle 7-21 px off after a gap of fast motion. Measured (with the
-        change in :meth:`_follow`) at 10 fps with 5 images dropped every 8-20 frames (true
-        model, seeds 1 / 3 / 4 / 6): LOST frames 13 / 66 / 46 / 14 -> 0 / 3 / 16 / 8; at 30 fps
-        with 20 dropped (seeds 1 / 2): 75 / 16 -> 36 / 12. That solve too is taken at
-        ``lost_residual_ratio`` if it solves back to the last valid frame (:meth:`_solve_frame`;
-        there with 20 dropped: LOST 36 / 12 -> 20 / 0).
-        Then a keyframe-only solve that fails the checks is made again from its solution with
-        eq. 6's templates of a followed frame (:meth:`_blended_templates`), at the same ratio.
+        When images were dropped since the last valid estimate (:attr:`_Track.bridging`), a
+        keyframe-only solve that fails the checks is made again from its solution with eq. 6's
+        templates of a followed frame (:meth:`_blended_templates`), at the same ratio.
         After a long gap of fast motion the keyframe-only solve finds the face, but frame 1's
         templates, sampled 15-25 degrees from the head's pose, match it at 0.3-0.45 x the ROI
         texture (median) even where the pose is right (1.2 px off), while the last valid
@@ -549,10 +542,6 @@ class MonoTracker:
         """
         track = self._track
         ratio = self._config.reacquire_residual_ratio
-        if track.bridging:
-            result = self._followed_frame(pyramid, ratio, True, self._returned_to())
-            if result.ok:
-                return result
         detected = self._detect(pyramid)
         fit, error = self._fit(detected) if detected is not None else (None, '')
         # A detection resumes the track with the track's sigma, or starts a new one with its own.
@@ -704,47 +693,86 @@ class MonoTracker:
         return self._reacquire(pyramid, result.reason)
 
     def _followed_frame(
-        self,
-        pyramid: ImagePyramid,
-        ratio: float,
-        searched: bool = False,
-        returned: _Return | None = None,
+        self, pyramid: ImagePyramid, ratio: float, returned: _Return | None = None
     ) -> TrackResult:
         """Eq. 6's solve from the last valid estimate, or its motion prediction, at ``ratio``.
 
-        ``searched``: the start's position is moved to where the last valid frame's inner face
-        correlates best with the image, near where the start puts it (:meth:`_searched`).
         ``returned``: the last valid frame (:class:`_Return`), to confirm a solve that fails at
         ``ratio`` but passes at ``lost_residual_ratio`` (:meth:`_solve_frame`).
         A result that passes the loss checks is accepted as a followed frame.
+
+        After dropped images (:attr:`_Track.bridging`) the image is solved from a second start
+        too: the first's position moved to where the last valid frame's inner face correlates
+        best with the image, near where the first puts it (:meth:`_searched`). Frame 1's face is
+        found only within some 25 degrees of its pose, while a head seen just before the gap is
+        found as it turned on; the solve from the motion prediction alone can settle 7-21 px off
+        after a gap of fast motion. Measured (tried when the prediction's solve failed, with the
+        change in :meth:`_follow`) at 10 fps with 5 images dropped every 8-20 frames (true
+        model, seeds 1 / 3 / 4 / 6): LOST frames 13 / 66 / 46 / 14 -> 0 / 3 / 16 / 8; at 30 fps
+        with 20 dropped (seeds 1 / 2): 75 / 16 -> 36 / 12. That solve too is taken at
+        ``lost_residual_ratio`` if it solves back to the last valid frame (:meth:`_solve_frame`;
+        there with 20 dropped: LOST 36 / 12 -> 20 / 0).
+
+        Of the solves that pass the checks, the one whose nodes match their templates best is taken
+        (:meth:`_mismatch`; the first on a tie). Over a gap of fast motion the prediction can be
+        15-25 px off, and its solve settle in a minimum that passes with the lower face wrong: on
+        rendered seed 3 at 10 fps with images 19-21 dropped, the jaw and lips 13-15 px off (the
+        nodes 6.3 px RMS), 15 of 31 nodes failing at ``reacquire_residual_ratio``, where the solve
+        from the search, 2.8 px off, found the face 1.1 px off with 5 failing. Of the 159 first
+        images after a gap on 20 rendered runs (true model; 10 fps, seeds 1-6 with 2 / 3 / 5 images
+        dropped every 8-20 frames; 30 fps, seeds 1-2 with 20 dropped every 10-18), both solves
+        passed on 102, 100 of them with as many nodes failing (the same minimum, the prediction's
+        taken); on the other two the one with fewer failing was right (1.1 px) and the other wrong
+        (3.4 and 6.3 px).
         """
         track, config = self._track, self._config
         blended, weights = self._blended_templates()
         free_sigma = track.frames <= config.sigma_frames
         start, first_level = track.current, _START_LEVEL
-        predict = config.predict_motion and track.before is not None and not track.lost
-        if predict:
+        if config.predict_motion and track.before is not None and not track.lost:
             ahead = track.elapsed / track.span
             start = _predicted(track.current, track.before, ahead, self._face.rotation)
-        if searched:
-            start = self._searched(pyramid, start)
-        if predict or searched:
             first_level = self._first_level(track.current, start)
-        result, templates = self._solve_frame(
-            pyramid,
-            start,
-            blended,
-            weights,
-            ratio,
-            free_sigma,
-            first_level,
-            track.current,
-            returned,
+        starts = [(start, first_level)]
+        if track.bridging:
+            searched = self._searched(pyramid, start)
+            starts.append((searched, self._first_level(track.current, searched)))
+        solved = [
+            self._solve_frame(
+                pyramid,
+                begin,
+                blended,
+                weights,
+                ratio,
+                free_sigma,
+                level,
+                track.current,
+                returned,
+            )
+            for begin, level in starts
+        ]
+        passed = [(result, templates) for result, templates in solved if result.ok]
+        if not passed:
+            return solved[0][0]
+        result, templates = min(
+            passed, key=lambda found: self._mismatch(*found, blended[0], ratio)
         )
-        if result.ok:
-            self._accept(pyramid, result, templates)
-            self._followed = (pyramid, result)
+        self._accept(pyramid, result, templates)
+        self._followed = (pyramid, result)
         return result
+
+    def _mismatch(
+        self, result: TrackResult, sampled: Templates, template: np.ndarray, ratio: float
+    ) -> float:
+        """The fraction of a result's voting nodes that fail the loss checks' vote at ``ratio``.
+
+        ``sampled`` holds the templates sampled at it, ``template`` the level-0 template it was
+        compared with (:meth:`~.mono_loss.LossChecks.mismatch`).
+        """
+        textures = self._loss.textures(sampled.levels[0], template)
+        return self._loss.mismatch(
+            sampled.params, result.node_residuals, textures, sampled.seen, ratio
+        )
 
     def _returned_to(self) -> _Return | None:
         """The last valid frame for the first image after dropped images, else None.

@@ -182,6 +182,21 @@ class LossChecks:
         """
         return self._outvoted(self._votes(params, visibility, textures, node_rms, ratio), fraction)
 
+    def mismatch(
+        self,
+        params: Params,
+        node_rms: np.ndarray,
+        textures: tuple[np.ndarray, np.ndarray],
+        visibility: np.ndarray,
+        ratio: float,
+    ) -> float:
+        """The fraction of the voting nodes that fail at ``ratio`` (0 when none votes).
+
+        The vote of :meth:`reason` (its arguments as there) at any ratio.
+        """
+        votes = self._votes(params, visibility, textures, node_rms, ratio)
+        return votes.failing / votes.voting if votes.voting else 0.0
+
     def covered(
         self,
         params: Params,
