@@ -714,16 +714,16 @@ class MonoTracker:
         there with 20 dropped: LOST 36 / 12 -> 20 / 0).
 
         Of the solves that pass the checks, the one whose nodes match their templates best is taken
-        (:meth:`_mismatch`; the first on a tie). Over a gap of fast motion the prediction can be
-        15-25 px off, and its solve settle in a minimum that passes with the lower face wrong: on
-        rendered seed 3 at 10 fps with images 19-21 dropped, the jaw and lips 13-15 px off (the
-        nodes 6.3 px RMS), 15 of 31 nodes failing at ``reacquire_residual_ratio``, where the solve
-        from the search, 2.8 px off, found the face 1.1 px off with 5 failing. Of the 159 first
-        images after a gap on 20 rendered runs (true model; 10 fps, seeds 1-6 with 2 / 3 / 5 images
-        dropped every 8-20 frames; 30 fps, seeds 1-2 with 20 dropped every 10-18), both solves
-        passed on 102, 100 of them with as many nodes failing (the same minimum, the prediction's
-        taken); on the other two the one with fewer failing was right (1.1 px) and the other wrong
-        (3.4 and 6.3 px).
+        (:meth:`_failing_fraction`; the first on a tie). Over a gap of fast motion the prediction
+        can be 15-25 px off, and its solve settle in a minimum that passes with the lower face
+        wrong: on rendered seed 3 at 10 fps with images 19-21 dropped, the jaw and lips 13-15 px
+        off (the nodes 6.3 px RMS), 15 of 31 nodes failing at ``reacquire_residual_ratio``, where
+        the solve from the search, 2.8 px off, found the face 1.1 px off with 5 failing. Of the 159
+        first images after a gap on 20 rendered runs (true model; 10 fps, seeds 1-6 with 2 / 3 / 5
+        images dropped every 8-20 frames; 30 fps, seeds 1-2 with 20 dropped every 10-18), both
+        solves passed on 102, 100 of them with as many nodes failing (the same minimum, the
+        prediction's taken); on the other two the one with fewer failing was right (1.1 px) and the
+        other wrong (3.4 and 6.3 px).
         """
         track, config = self._track, self._config
         blended, weights = self._blended_templates()
@@ -755,22 +755,22 @@ class MonoTracker:
         if not passed:
             return solved[0][0]
         result, templates = min(
-            passed, key=lambda found: self._mismatch(*found, blended[0], ratio)
+            passed, key=lambda found: self._failing_fraction(*found, blended[0], ratio)
         )
         self._accept(pyramid, result, templates)
         self._followed = (pyramid, result)
         return result
 
-    def _mismatch(
+    def _failing_fraction(
         self, result: TrackResult, sampled: Templates, template: np.ndarray, ratio: float
     ) -> float:
         """The fraction of a result's voting nodes that fail the loss checks' vote at ``ratio``.
 
         ``sampled`` holds the templates sampled at it, ``template`` the level-0 template it was
-        compared with (:meth:`~.mono_loss.LossChecks.mismatch`).
+        compared with (:meth:`~.mono_loss.LossChecks.failing_fraction`).
         """
         textures = self._loss.textures(sampled.levels[0], template)
-        return self._loss.mismatch(
+        return self._loss.failing_fraction(
             sampled.params, result.node_residuals, textures, sampled.seen, ratio
         )
 

@@ -182,7 +182,7 @@ class LossChecks:
         """
         return self._outvoted(self._votes(params, visibility, textures, node_rms, ratio), fraction)
 
-    def mismatch(
+    def failing_fraction(
         self,
         params: Params,
         node_rms: np.ndarray,
