@@ -202,16 +202,15 @@ class _Track:
 
     ``rois`` holds each level's ROI samples, ``first_views`` the views kept for the bundle
     adjustment of the first views and the adjustment under way. ``view`` is frame 1's inner face
-    and ``last_view`` the last valid frame's (:mod:`.mono_search`). ``before`` is the estimate of
-    the frame before ``current`` when the two are consecutive valid frames (followed, or the
-    second re-acquired) in the same face frame (None otherwise): the motion prediction's other
-    point, ``span`` the frame intervals from it to ``current`` (more than 1 when images were
-    dropped between them). ``missed`` counts the images since ``current`` that gave no valid
-    estimate (LOST); ``elapsed`` the frame intervals from ``current`` to the image being
-    tracked, dropped images included (``missed + 1`` in a stream without gaps). ``view_faces``
-    holds the bundle adjustment's views' inner faces and templates by frame, made when a LOST
-    image is first searched for them (:meth:`MonoTracker._viewed`), dropped when an adjustment is
-    applied.
+    and ``last_view`` the last valid frame's (:mod:`.mono_search`). ``before`` is the valid
+    estimate before ``current`` in the same face frame (None on the track's first frame and
+    after an adjustment): the motion prediction's other point, ``span`` the frame intervals from
+    it to ``current`` (more than 1 when images were dropped or LOST between them). ``missed``
+    counts the images since ``current`` that gave no valid estimate (LOST); ``elapsed`` the
+    frame intervals from ``current`` to the image being tracked, dropped images included
+    (``missed + 1`` in a stream without gaps). ``view_faces`` holds the bundle adjustment's
+    views' inner faces and templates by frame, made when a LOST image is first searched for them
+    (:meth:`MonoTracker._viewed`), dropped when an adjustment is applied.
     """
 
     rois: tuple[Roi, ...]
@@ -534,11 +533,12 @@ class MonoTracker:
         keyframes show (turned far, or lit anew), and a track of its own fits its sigma and
         samples its templates and keyframes. The image the face is first lost on stays LOST, so
         that a non-TRACKING state separates any two tracks (the identity recogniser starts over
-        at one). A face re-acquired in the image right after a valid estimate keeps the motion
-        prediction, as a followed one does: the head moved on from that estimate in one frame.
-        Measured on fast motion (every 5th frame of issue 6's sequences, true model): dropping
-        it, seed 1 was LOST on 160 of 200 frames with rotation errors of 6.8 / 3.1 degrees;
-        keeping it, 49 frames and 1.1 / 1.1 degrees.
+        at one). A re-acquired face keeps the motion prediction, as a followed one does: the head
+        moved on from the last valid estimate, in one frame or over the LOST images since
+        (:meth:`_accept`). Measured on fast motion (every 5th frame of issue 6's sequences, true
+        model), a face re-acquired right after a valid estimate: dropping the prediction, seed 1
+        was LOST on 160 of 200 frames with rotation errors of 6.8 / 3.1 degrees; keeping it, 49
+        frames and 1.1 / 1.1 degrees.
         """
         track = self._track
         ratio = self._config.reacquire_residual_ratio
@@ -816,12 +816,15 @@ class MonoTracker:
 
         The covered nodes take the nearest keyframe's templates (:meth:`Templates.kept`). Its
         inner face in ``pyramid`` becomes the track's ``last_view``. The last valid
-        estimate becomes ``before`` (the motion prediction's other point) if no
-        image was LOST since it, however this frame was found (followed or re-acquired), the
-        frame intervals since it its ``span``.
+        estimate becomes ``before`` (the motion prediction's other point) however this frame was
+        found (followed or re-acquired, after LOST images too), the frame intervals since it its
+        ``span``: after a re-acquisition the next image is predicted by the motion averaged over
+        the LOST images. Solved from the re-acquired estimate instead, the next image of a head
+        moving 8 px a frame (rendered seed 7, 10 fps, image 30) settled 8.1 px off, passed at
+        ``lost_residual_ratio``, and the track stayed 8.1-9.1 px off, TRACKING, for 5 images.
         """
         track = self._track
-        track.before = None if track.lost else track.current
+        track.before = track.current
         track.span = track.elapsed
         if templates.covered.any():  # looked up only then: most frames cover nothing
             templates = templates.kept(nearest_keyframe(track.keyframes, result.omega).templates)
