@@ -96,7 +96,7 @@ from face_tracking_ros.tracking.detector import Detector
 from face_tracking_ros.tracking.initialisation import Initialisation, fit_model_to_points
 from face_tracking_ros.tracking.mono_adjustment import Adjusted, FirstViews, View, ViewAdjuster
 from face_tracking_ros.tracking.mono_config import MonoTrackerConfig
-from face_tracking_ros.tracking.mono_kernels import blended_template, row_rms
+from face_tracking_ros.tracking.mono_kernels import Votes, blended_template, row_rms
 from face_tracking_ros.tracking.mono_loss import LossChecks, Reference
 from face_tracking_ros.tracking.mono_priors import Priors
 from face_tracking_ros.tracking.mono_projection import FaceProjection, Sampled
@@ -767,10 +767,21 @@ class MonoTracker:
         """The fraction of a result's voting nodes that fail the loss checks' vote at ``ratio``.
 
         ``sampled`` holds the templates sampled at it, ``template`` the level-0 template it was
-        compared with (:meth:`~.mono_loss.LossChecks.failing_fraction`).
+        compared with (0 when no node votes).
+        """
+        votes = self._vote(result, sampled, template, ratio)
+        return votes.failing / votes.voting if votes.voting else 0.0
+
+    def _vote(
+        self, result: TrackResult, sampled: Templates, template: np.ndarray, ratio: float
+    ) -> Votes:
+        """The loss checks' vote (:meth:`~.mono_loss.LossChecks.vote`) on a result at ``ratio``.
+
+        ``sampled`` holds the templates sampled at it (its nodes not covered vote),
+        ``template`` the level-0 template it was compared with.
         """
         textures = self._loss.textures(sampled.levels[0], template)
-        return self._loss.failing_fraction(
+        return self._loss.vote(
             sampled.params, result.node_residuals, textures, sampled.seen, ratio
         )
 
@@ -985,7 +996,8 @@ class MonoTracker:
         def hopeless(params: Params, sampled: Sampled, residuals: np.ndarray) -> bool:
             textures = self._loss.textures(sampled.samples, template)
             visibility = self._face.visibility(params, track.normals)
-            return self._loss.mismatched(params, row_rms(residuals), textures, visibility, ratio)
+            votes = self._loss.vote(params, row_rms(residuals), textures, visibility, ratio)
+            return self._loss.outvoted(votes)
 
         return hopeless
 
@@ -1000,16 +1012,8 @@ class MonoTracker:
         """
         if returned.fraction is None:
             return True
-        textures = self._loss.textures(sampled.levels[0], template)
-        ratio = self._config.lost_residual_ratio
-        return not self._loss.mismatched(
-            sampled.params,
-            result.node_residuals,
-            textures,
-            sampled.visibility,
-            ratio,
-            returned.fraction,
-        )
+        votes = self._vote(result, sampled, template, self._config.lost_residual_ratio)
+        return not self._loss.outvoted(votes, returned.fraction)
 
     def _solved_back(self, returned: _Return, templates: Templates) -> Solution:
         """Eq. 6 solved on an earlier frame's pyramid against a later image's templates.

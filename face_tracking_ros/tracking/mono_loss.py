@@ -158,7 +158,7 @@ class LossChecks:
                 f'no visible node shows texture above {floor:g} grey levels, in the image or its '
                 'template: a blank, dark or saturated image'
             )
-        if self._outvoted(votes):
+        if self.outvoted(votes):
             return f'{votes.failing} of {votes.voting} textured nodes do not match their templates'
         keyframe = nearest_keyframe(reference.keyframes, params.omega)
         drift = _drift_ratio(keyframe, samples, image_texture, votes.textured)
@@ -166,36 +166,19 @@ class LossChecks:
             return f'drifted: residual against the keyframe {drift:.2f} x the ROI texture'
         return ''
 
-    def mismatched(
+    def vote(
         self,
         params: Params,
         node_rms: np.ndarray,
         textures: tuple[np.ndarray, np.ndarray],
         visibility: np.ndarray,
         ratio: float,
-        fraction: float | None = None,
-    ) -> bool:
-        """Whether more than ``fraction`` of the voting nodes fail at ``ratio``.
+    ) -> Votes:
+        """The vote of :meth:`reason` (its arguments as there) at any ``ratio``.
 
-        The vote of :meth:`reason` alone (its arguments as there), at any ratio and, when
-        ``fraction`` is given, any fraction (``lost_node_fraction`` otherwise).
+        :meth:`outvoted` says whether it fails; ``failing / voting`` is the fraction failing.
         """
-        return self._outvoted(self._votes(params, visibility, textures, node_rms, ratio), fraction)
-
-    def failing_fraction(
-        self,
-        params: Params,
-        node_rms: np.ndarray,
-        textures: tuple[np.ndarray, np.ndarray],
-        visibility: np.ndarray,
-        ratio: float,
-    ) -> float:
-        """The fraction of the voting nodes that fail at ``ratio`` (0 when none votes).
-
-        The vote of :meth:`reason` (its arguments as there) at any ratio.
-        """
-        votes = self._votes(params, visibility, textures, node_rms, ratio)
-        return votes.failing / votes.voting if votes.voting else 0.0
+        return self._votes(params, visibility, textures, node_rms, ratio)
 
     def covered(
         self,
@@ -252,9 +235,9 @@ class LossChecks:
         votes = self._votes(
             params, visibility, (texture, texture), node_rms, config.reacquire_residual_ratio
         )
-        return 0 < votes.voting and not self._outvoted(votes)
+        return 0 < votes.voting and not self.outvoted(votes)
 
-    def _outvoted(self, votes: Votes, fraction: float | None = None) -> bool:
+    def outvoted(self, votes: Votes, fraction: float | None = None) -> bool:
         """Whether more than ``fraction`` of the voting nodes fail: the loss vote.
 
         ``fraction`` is ``lost_node_fraction`` unless given.
