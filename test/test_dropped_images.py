@@ -94,6 +94,19 @@ def _tracked(tracker: MonoTracker, images: list[np.ndarray], kept: list[int]) ->
     return [tracker.step(images[i], int(n)) for i, n in zip(kept, intervals, strict=True)]
 
 
+def _tracked_from(
+    model: FaceModel,
+    camera: PinholeCamera,
+    init: Initialisation,
+    images: list[np.ndarray],
+    kept: list[int],
+) -> list[TrackResult]:
+    """The kept images tracked (:func:`_tracked`) by a new tracker reset to ``init``."""
+    tracker = MonoTracker(model, camera)
+    tracker.reset(init)
+    return _tracked(tracker, images, kept)
+
+
 def _accuracy(model: FaceModel, results: list[TrackResult], nodes: np.ndarray) -> TrackingAccuracy:
     """The results' accuracy against the true (F, N, 3) nodes (errors over TRACKING frames)."""
     estimated = tracked_sequence(results, np.zeros(len(results)))
@@ -112,9 +125,7 @@ def _accuracy(model: FaceModel, results: list[TrackResult], nodes: np.ndarray) -
 def tracked(rendered) -> list[TrackResult]:
     """The kept images tracked, each with the frame intervals since the image before."""
     images, _, camera, model, init = rendered
-    tracker = MonoTracker(model, camera)
-    tracker.reset(init)
-    return _tracked(tracker, images, KEPT)
+    return _tracked_from(model, camera, init, images, KEPT)
 
 
 def test_tracker_bridges_a_gap_of_dropped_images(gapped, tracked):
@@ -141,9 +152,7 @@ def test_a_face_lost_after_a_long_gap_is_reacquired_at_once(rendered):
     """
     images, nodes, camera, model, init = rendered
     kept = [*range(12), *range(17, 40)]
-    tracker = MonoTracker(model, camera)
-    tracker.reset(init)
-    results = _tracked(tracker, images, kept)
+    results = _tracked_from(model, camera, init, images, kept)
     assert [r.status for r in results].count(TrackStatus.LOST) == 0
     assert max(_accuracy(model, results, nodes[kept]).rotation_mae_deg) < 1.5
 
@@ -158,9 +167,9 @@ def test_another_face_after_a_long_gap_is_not_taken_for_the_lost_one(rendered):
     """
     images, _, camera, model, init = rendered
     other = [frame.images['image'] for frame in SequenceRenderer(SCENE, 1).frames(0)]
-    tracker = MonoTracker(model, camera)
-    tracker.reset(init)
-    results = _tracked(tracker, images[:12] + other[12:], [*range(12), *range(17, 40)])
+    results = _tracked_from(
+        model, camera, init, images[:12] + other[12:], [*range(12), *range(17, 40)]
+    )
     assert all(r.ok for r in results[:12])
     assert [r.status for r in results[12:]] == [TrackStatus.LOST] * 23
 
@@ -215,9 +224,7 @@ def test_the_image_after_a_gap_is_not_followed_to_a_wrong_pose():
     starts = [0, 33, 63, 98, 133, 164, 202]
     ends = [13, 43, 78, 113, 144, 182, 213]
     kept = [i for start, end in zip(starts, ends, strict=True) for i in range(start, end)]
-    tracker = MonoTracker(model, camera)
-    tracker.reset(init)
-    results = _tracked(tracker, images, kept)
+    results = _tracked_from(model, camera, init, images, kept)
     tracking = np.array([r.status == TrackStatus.TRACKING for r in results])
     errors = _pixel_errors(camera, results, nodes[kept])
     assert np.flatnonzero(tracking & (errors > 3.0)).tolist() == []
@@ -237,9 +244,7 @@ def test_a_wrong_solve_after_a_gap_is_not_taken_where_the_last_frame_finds_the_f
     scene = SceneConfig(kind='mono', frames=150, fps=10.0, seed=5, motion='free')
     images, nodes, camera, model, init = _rendered_start(scene, 63)
     kept = [*range(11), *range(14, 30), *range(33, 53), *range(56, 63)]
-    tracker = MonoTracker(model, camera)
-    tracker.reset(init)
-    results = _tracked(tracker, images, kept)
+    results = _tracked_from(model, camera, init, images, kept)
     assert [r.status for r in results] == [TrackStatus.TRACKING] * len(kept)
     assert _pixel_errors(camera, results, nodes[kept]).max() < 2.0
 
@@ -267,9 +272,7 @@ def test_a_right_solve_after_a_gap_is_taken_when_solving_back_returns_to_the_las
     scene = SceneConfig(kind='mono', frames=150, fps=10.0, seed=seed, motion='free')
     images, nodes, camera, model, init = _rendered_start(scene, count)
     kept = [image for image in range(count) if image not in dropped]
-    tracker = MonoTracker(model, camera)
-    tracker.reset(init)
-    results = _tracked(tracker, images, kept)
+    results = _tracked_from(model, camera, init, images, kept)
     assert [r.status for r in results] == [TrackStatus.TRACKING] * len(kept)
     assert _pixel_errors(camera, results, nodes[kept]).max() < 2.0
 
@@ -287,9 +290,7 @@ def test_no_node_is_taken_as_covered_on_the_image_after_a_gap():
     scene = SceneConfig(kind='mono', frames=150, fps=10.0, seed=4, motion='free')
     images, nodes, camera, model, init = _rendered_start(scene, 30)
     kept = [*range(20), *range(25, 30)]
-    tracker = MonoTracker(model, camera)
-    tracker.reset(init)
-    results = _tracked(tracker, images, kept)
+    results = _tracked_from(model, camera, init, images, kept)
     assert [r.status for r in results] == [TrackStatus.TRACKING] * len(kept)
     assert not any(r.occluded.any() for r in results)
     assert _pixel_errors(camera, results, nodes[kept]).max() < 2.0
@@ -306,9 +307,7 @@ def test_the_image_after_a_gap_takes_the_solve_that_fits_best():
     scene = SceneConfig(kind='mono', frames=150, fps=10.0, seed=3, motion='free')
     images, nodes, camera, model, init = _rendered_start(scene, 27)
     kept = [*range(19), *range(22, 27)]
-    tracker = MonoTracker(model, camera)
-    tracker.reset(init)
-    results = _tracked(tracker, images, kept)
+    results = _tracked_from(model, camera, init, images, kept)
     assert [r.status for r in results] == [TrackStatus.TRACKING] * len(kept)
     assert _pixel_errors(camera, results, nodes[kept]).max() < 2.0
 
