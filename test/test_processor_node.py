@@ -1,4 +1,8 @@
-"""The node glue on its own (no traffic): publish a message's outputs, then the deferred work."""
+"""The node glue on its own (no traffic): publish a message's outputs, then the deferred work.
+
+Messages cross rclpy as CDR bytes (rclpy's serialisation here, as DDS carries them) and reach
+the processor as rosbags messages, as in a replay.
+"""
 
 from __future__ import annotations
 
@@ -12,10 +16,12 @@ import rclpy
 from rclpy.clock import ClockType
 from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, ReliabilityPolicy
+from rclpy.serialization import deserialize_message, serialize_message
 from std_msgs.msg import Float64
 
 from face_tracking_ros.errors import ConfigError, InputError, check_fields
 from face_tracking_ros.imaging.photometric import PhotometricModel
+from face_tracking_ros.io.typestore import typestore
 from face_tracking_ros.nodes import processor_node
 from face_tracking_ros.processing.base import Output, Port, QosClass
 from face_tracking_ros.processing.parameters import OverrideParameters
@@ -24,6 +30,7 @@ from face_tracking_ros.tracking.mono_config import MonoTrackerConfig
 from face_tracking_ros.tracking.result import TrackStatus
 
 FLOAT = 'std_msgs/msg/Float64'
+ROSBAGS_FLOAT = typestore().types[FLOAT]
 OK, WARN = DiagnosticStatus.OK, DiagnosticStatus.WARN
 
 
@@ -42,7 +49,7 @@ class Doubling:
         self._events.append('handle')
         if msg.data < 0:
             raise InputError('negative')
-        return [Output('out', Float64(data=2.0 * msg.data))]
+        return [Output('out', ROSBAGS_FLOAT(data=2.0 * msg.data))]
 
     def run_deferred(self):
         """Record the run."""
@@ -63,12 +70,32 @@ def test_deferred_work_runs_after_the_outputs_are_published_even_after_a_bad_inp
     node = _node_running(monkeypatch, ros_context, Doubling(events), 'doubling')
     try:
         publisher = node._output_publishers['out']
-        monkeypatch.setattr(publisher, 'publish', lambda msg: events.append(msg.data))
-        node._handle('in', Float64(data=1.5))
-        node._handle('in', Float64(data=-1.0))
+
+        def publish(cdr):
+            events.append(deserialize_message(cdr, Float64).data)
+
+        monkeypatch.setattr(publisher, 'publish', publish)
+        (subscription,) = node._input_subscriptions
+        subscription.callback(serialize_message(Float64(data=1.5)))
+        subscription.callback(serialize_message(Float64(data=-1.0)))
     finally:
         node.destroy_node()
     assert events == ['handle', 3.0, 'deferred', 'handle', 'deferred']
+
+
+def test_bytes_that_are_not_the_input_s_type_are_a_warning_naming_it(monkeypatch, ros_context):
+    events: list = []
+    node = _node_running(monkeypatch, ros_context, Doubling(events), 'doubling')
+    statuses: list = []
+    try:
+        monkeypatch.setattr(node._diagnostics, 'publish', lambda a: statuses.extend(a.status))
+        (subscription,) = node._input_subscriptions
+        subscription.callback(serialize_message(Float64(data=1.5))[:6])  # cut short
+    finally:
+        node.destroy_node()
+    assert events == []  # never reached the processor
+    assert [s.level for s in statuses] == [WARN]
+    assert statuses[0].message.startswith('in: cannot deserialise 6 bytes as std_msgs/msg/Float64')
 
 
 class CountingDoubling(Doubling):

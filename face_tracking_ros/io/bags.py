@@ -79,6 +79,7 @@ _READ_ERRORS = (
     MemoryError,
     struct.error,
 )
+DESERIALISE_ERRORS = (SerdeError, *_READ_ERRORS)  # what rosbags raises for bytes not of the type
 
 
 class StampLike(Protocol):
@@ -315,7 +316,7 @@ def read_messages(path: Path | str, topics: Iterable[str] | None = None) -> Iter
         try:
             # A view: rosbags slices off the 4-byte header, which copies bytes (300 KB per image)
             msg = reading.deserialize_cdr(memoryview(data), msgtype)
-        except (SerdeError, *_READ_ERRORS) as error:
+        except DESERIALISE_ERRORS as error:
             message = f'{path}: cannot read bag: {topic}: {type(error).__name__}: {error}'
             raise BagError(message) from None
         yield BagMessage(topic, msgtype, stamp_ns, msg)
