@@ -14,9 +14,7 @@ Messages cross rclpy as CDR bytes: subscriptions are raw, each message is deseri
 package's rosbags typestore, and outputs are built as rosbags messages and serialised as the
 replay serialises them (:class:`~face_tracking_ros.io.bags.CdrSerialiser`), so a processor sees
 the same message objects live as in an offline replay. rosbags' generated (de)serialisers cost
-less than rclpy's conversion of message objects: on the live benchmark's stereo pairs (six
-outputs of 34 nodes each), building and serialising the outputs took 4.7 + 0.43 ms with rclpy
-messages and 4.3 + 0.27 ms with rosbags ones (handle, serialise; medians on one core).
+less than rclpy's conversion of message objects (docs/nodes.md has the figures).
 """
 
 from __future__ import annotations
