@@ -647,6 +647,31 @@ def test_tracks_a_moving_plane_in_3d() -> None:
     assert np.abs(final.left_px - RIG.left.project(frames[-1].nodes(19))).max() < 1.0
 
 
+def test_templates_left_to_prepare_give_the_same_track_whenever_it_runs() -> None:
+    """prepare() after each step (a node, once the outputs are out) or in the next step.
+
+    The caller writes every pair into the same two arrays, as a camera driver's buffers: the
+    templates the next step samples must be the last pair's, not the next one's.
+    """
+    pairs = [f.pair() for f in MOVING_PLANE]
+    left, right = (np.empty_like(image) for image in pairs[0])
+    runs = []
+    for prepared in (False, True):
+        tracker = StereoTracker(RIG, PLANE_CONFIG)
+        tracker.reset(RIG.left.project(PLANE.nodes(19)))
+        meshes = []
+        for pair in pairs:
+            left[:], right[:] = pair
+            meshes.append(tracker.step(left, right).nodes_cam)
+            if prepared:
+                tracker.prepare()
+                tracker.prepare()  # nothing left to do
+        runs.append(np.array(meshes))
+    assert np.array_equal(*runs)
+    errors = [_rms_mm(mesh, f.nodes(19)) for mesh, f in zip(runs[1], MOVING_PLANE, strict=True)]
+    assert max(errors) < 0.5, errors
+
+
 def _moving_plane_error(
     config: StereoTrackerConfig, pairs: list[tuple[np.ndarray, np.ndarray]]
 ) -> tuple[StereoTracker, float]:

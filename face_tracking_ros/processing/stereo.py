@@ -216,6 +216,14 @@ class StereoProcessor:
             report['right_row_offset_px'] = f'{self._tracker.right_row_offset:.2f}'
         return report
 
+    def run_deferred(self) -> None:
+        """The templates the tracker samples for the next pair (``StereoTracker.prepare``).
+
+        The node runs it once a pair's outputs are published, so they do not wait for it.
+        """
+        if self._tracker is not None:
+            self._tracker.prepare()
+
     def finish(self) -> list[Output]:
         """The end of the input stream: the outputs held back (``retroactive_depths``), if any.
 
