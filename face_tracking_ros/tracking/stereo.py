@@ -88,7 +88,7 @@ from face_tracking_ros.tracking.stereo_init import (
     check_raw_not_swapped,
     initial_nodes,
 )
-from face_tracking_ros.tracking.stereo_loss import loss_reason
+from face_tracking_ros.tracking.stereo_loss import loss_reason, residual_ratio
 from face_tracking_ros.tracking.stereo_occlusion import (
     agreeing,
     covered_nodes,
@@ -355,7 +355,8 @@ class StereoTracker:
                 stream, n + 1 after n dropped pairs; the motion prediction is carried on over
                 them, and over those of bad frames since the last tracked pair (as over
                 dropped pairs: a bad frame keeps the track), and a pair after such a gap is
-                solved from coarser pyramid levels too (``gap_pyramid_levels``).
+                solved from coarser pyramid levels too (``gap_pyramid_levels``); after more
+                than ``pause_intervals``, from the last tracked nodes too.
             exchanged: for raw images the caller rectified, the pair made from them exchanged
                 (:data:`ExchangedPair`, grey images as ``left`` and ``right``): an
                 initialisation that fails on this pair is tried on it, to name image topics
@@ -666,18 +667,39 @@ class StereoTracker:
         last pair's templates instead (rendered free motion at 10 fps, 5 pairs dropped: the
         head turned 22 degrees, the solve 7, and settled 3.4 px off at a residual ratio of 0.48,
         where the check refuses above 0.65; the track went on there).
+
+        After a pause of the stream (more than ``pause_intervals`` since the last tracked pair:
+        a camera or a bag that stalled) the pair is solved as a lost track's is re-acquired as
+        well (:meth:`_found_again`: eq. 5 from the last tracked nodes, no motion predicted), and
+        of the two solutions that pass the checks the one at the lower residual ratio is taken
+        (:func:`_better`), as the mono tracker takes the better of its solves after a gap. The
+        motion of one interval carried on over a pause is no estimate of where the head is: after
+        1 s at 30 fps (30 intervals) with the head moved one frame's worth, the prediction
+        started 63 px off, and eq. 5, measured from the rigid prediction as far off, pulled the
+        solve from the searched start (0.5 px off) to 11 px: LOST (rendered seed 4; on the live
+        benchmark's sequence TRACKING 4.5 px off, 25 mm, and after 3 s LOST). Now 0.24 px.
         """
         state = self._state
         assert state is not None
+        attempt = self._followed(state, pyramids)
+        if state.elapsed > self._config.pause_intervals:
+            attempt = _better(attempt, self._found_again(state, pyramids))
+        if attempt.problem:
+            return self._lose(attempt.problem)
+        return self._advance(state, pyramids, attempt)
+
+    def _followed(self, state: _State, pyramids: tuple[ImagePyramid, ImagePyramid]) -> _Attempt:
+        """The pair solved from the motion prediction, after a gap from the searched start too.
+
+        Eq. 5 measures a gap pair's motion from the rigid prediction (see :meth:`_track`).
+        """
         gap = state.after_gap
         reference = self._rigid_predicted(state) if gap else state.nodes
         attempt = self._attempt(state, pyramids, self._predicted(state), reference)
         if attempt.problem and gap:
             found = self._attempt(state, pyramids, self._searched(state, pyramids), reference)
             attempt = attempt if found.problem else found
-        if attempt.problem:
-            return self._lose(attempt.problem)
-        return self._advance(state, pyramids, attempt)
+        return attempt
 
     def _reacquire(self, pyramids: tuple[ImagePyramid, ImagePyramid]) -> StereoResult:
         """Solve a lost track's pair from where its face is found; LOST unless that passes.
@@ -709,10 +731,7 @@ class StereoTracker:
         """
         state = self._lost
         assert state is not None
-        attempt = self._attempt(state, pyramids, self._searched(state, pyramids), state.nodes)
-        if attempt.problem:
-            still = self._attempt(state, pyramids, state.nodes, state.nodes)
-            attempt = attempt if still.problem else still
+        attempt = self._found_again(state, pyramids)
         if attempt.problem:
             state = self._from_first_pair(state)
             attempt = self._attempt(state, pyramids, self._searched(state, pyramids), state.nodes)
@@ -721,6 +740,22 @@ class StereoTracker:
             return self._not_tracking(TrackStatus.LOST, reason)
         self._state, self._lost = state, None
         return self._advance(state, pyramids, attempt)
+
+    def _found_again(self, state: _State, pyramids: tuple[ImagePyramid, ImagePyramid]) -> _Attempt:
+        """The pair solved from the face found in it, or else from the last tracked nodes.
+
+        The solve from the last tracked nodes moved onto the face's displacement in the left
+        image (:meth:`_searched`) and, if that fails the loss checks, from those nodes as they
+        were; eq. 5 measures the motion from them (no motion is predicted). The first attempt
+        that passes, or the search's if neither does. A lost track is re-acquired so
+        (:meth:`_reacquire`), and a pair after a pause of the stream is solved so too
+        (:meth:`_track`).
+        """
+        attempt = self._attempt(state, pyramids, self._searched(state, pyramids), state.nodes)
+        if attempt.problem:
+            still = self._attempt(state, pyramids, state.nodes, state.nodes)
+            attempt = attempt if still.problem else still
+        return attempt
 
     def _from_first_pair(self, state: _State) -> _State:
         """A lost track's state with frame 1 as its last tracked pair: nodes, images, templates.
@@ -1292,6 +1327,21 @@ def _make_level(
         offsets=float(1 << index) * offsets,
         templates=np.stack([previous, previous[::-1], first, first[::-1]], axis=1),
     )
+
+
+def _better(first: _Attempt, second: _Attempt) -> _Attempt:
+    """Of two attempts at a pair, the one that passes the loss checks at the lower ratio.
+
+    The ratio is :func:`~.stereo_loss.residual_ratio`; the first attempt on a tie or if neither
+    passes.
+    """
+    if second.problem:
+        return first
+    if first.problem:
+        return second
+    assert first.statistics is not None and second.statistics is not None
+    better = residual_ratio(second.statistics) < residual_ratio(first.statistics)
+    return second if better else first
 
 
 def _move_fit(energy: PairEnergy, nodes: np.ndarray) -> None:

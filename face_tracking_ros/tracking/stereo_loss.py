@@ -97,9 +97,7 @@ def loss_reason(
     problem = view_problem(nodes, rig, mesh_topology(len(nodes)), config.patch_half_size)
     if problem:
         return problem
-    with np.errstate(invalid='ignore', divide='ignore'):
-        ratios = statistics.rms[0] / statistics.contrast
-    ratio = nanmedian(ratios)
+    ratio = residual_ratio(statistics)
     limit = min(config.lost_ratio, config.gap_lost_ratio) if after_gap else config.lost_ratio
     if not ratio <= limit:
         return f'patch residual / contrast {ratio:.2f} exceeds {limit}'
@@ -111,3 +109,9 @@ def loss_reason(
             f'{texture:.2f} of the template contrast, below {config.min_texture_ratio})'
         )
     return ''
+
+
+def residual_ratio(statistics: GroupStatistics) -> float:
+    """median_i r_i / c_i over the node patches of both images (see the module's docstring)."""
+    with np.errstate(invalid='ignore', divide='ignore'):
+        return nanmedian(statistics.rms[0] / statistics.contrast)
