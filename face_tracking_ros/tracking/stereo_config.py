@@ -142,8 +142,11 @@ class StereoTrackerConfig:
             over 30 (1 s at 30 fps) put the start 50-250 px off a head that had not moved, and
             eq. 5 held the searched start's solve to it: rendered 640x480, the live benchmark's
             sequence, 4.5 px (25 mm) off after 1 s and LOST after 3 s, now 2.2 px (4.4 mm, as
-            without the pause). 15 (0.5 s at 30 fps) leaves every gap of the dropped-pair runs
-            (up to 11 intervals) as it was.
+            without the pause). 9 takes 1 s at 10 fps for a pause (rendered, 4 seeds: 4.7-14.5
+            -> 2.6-6.1 mm RMS) and leaves the 10-fps dropped-pair runs (gaps up to 6 intervals)
+            as they were; at 30 fps with 10 pairs dropped, taken as pauses, no pair is LOST or
+            wrong either way. Every gap taken as a pause (1): at 10 fps with 5 pairs dropped,
+            pairs tracked more than 3 px off 1 -> 7 on four sequences.
         coarsest_level_px: the solve starts on level 0, and the coarser levels are solved
             (from level 1, :func:`.coarse_to_fine`; with the default two levels that is the
             coarsest) only when level 0's first step moves a node more than this, px
@@ -257,7 +260,7 @@ class StereoTrackerConfig:
     coarse_step_tolerance: float = 0.5
     damping: float = 1e-4
     predict_motion: bool = True
-    pause_intervals: int = 15
+    pause_intervals: int = 9
     coarsest_level_px: float = 0.0
     huber_k: float = 1.345
     noise_floor: float = 2.0
