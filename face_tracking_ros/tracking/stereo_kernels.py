@@ -638,3 +638,159 @@ def layout_points(
             if start + s < deformed:
                 offset += scale * field[a, start + s]
             points[a, start + s] = placed + offset
+
+
+# The face-model term (:mod:`.action_prior`): M = R (B + A alpha) + t, its refit and its
+# Gauss-Newton terms (6 + q unknowns, 3N rows), some thirty small numpy calls a trial point as
+# numpy expressions. The model and its difference to the nodes are exact (an unmoved mesh costs
+# exactly nothing); the normal matrices and the Hessian equal numpy's to rounding.
+
+
+@numba.njit(
+    'Tuple((f8[:, ::1], f8[:, ::1]))(f8[:, ::1], f8[:, :, ::1], f8[::1], f8[:, ::1])', **EXACT
+)
+def model_shape(
+    base: np.ndarray, action_basis: np.ndarray, theta: np.ndarray, rotation: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """``(shape, nodes)``: (N, 3) B + A alpha in the face frame and M = R shape + t, m.
+
+    Args:
+        base: (N, 3) base shape B, m.
+        action_basis: (N, 3, q) A.
+        theta: (6 + q,) omega, t, alpha.
+        rotation: (3, 3) R(omega).
+    """
+    count, _, actions = action_basis.shape
+    shape = np.empty((count, 3))
+    nodes = np.empty((count, 3))
+    for n in range(count):
+        for a in range(3):
+            value = 0.0
+            for j in range(actions):
+                value += action_basis[n, a, j] * theta[6 + j]
+            shape[n, a] = base[n, a] + value
+        for a in range(3):
+            nodes[n, a] = (
+                rotation[a, 0] * shape[n, 0]
+                + rotation[a, 1] * shape[n, 1]
+                + rotation[a, 2] * shape[n, 2]
+            ) + theta[3 + a]
+    return shape, nodes
+
+
+@numba.njit('Tuple((f8[::1], f8))(f8[:, ::1], f8[:, ::1], f8[:, ::1], f8[::1])', **EXACT)
+def model_difference(
+    motion: np.ndarray, nodes: np.ndarray, first_model: np.ndarray, row_weights: np.ndarray
+) -> tuple[np.ndarray, float]:
+    """``(difference, cost)``: (3N,) (X - X(1)) - (M - M(1)) and its weighted square sum.
+
+    Args:
+        motion: (N, 3) X - X(1), m.
+        nodes: (N, 3) M, m.
+        first_model: (N, 3) M(1), m.
+        row_weights: (3N,) lambda_i of every coordinate.
+    """
+    difference = (motion - (nodes - first_model)).ravel()
+    cost = 0.0
+    for r in range(difference.size):
+        cost += difference[r] * (row_weights[r] * difference[r])
+    return difference, cost
+
+
+@numba.njit(
+    'Tuple((f8[:, ::1], f8[:, ::1], f8[:, ::1]))(f8[:, ::1], f8[:, ::1], f8[:, :, ::1], '
+    'f8[:, :, ::1], f8[::1], f8)',
+    **FAST,
+)
+def model_normal(
+    shape: np.ndarray,
+    rotation: np.ndarray,
+    d_rotation: np.ndarray,
+    action_basis: np.ndarray,
+    row_weights: np.ndarray,
+    damping: float,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(W J, J' W J, damped)`` of J = dM / d(omega, t, alpha) (3N, 6 + q).
+
+    ``damped`` is J' W J with its diagonal times ``1 + damping``.
+
+    Args:
+        shape: (N, 3) B + A alpha, m.
+        rotation: (3, 3) R(omega).
+        d_rotation: (3, 3, 3) dR / d omega_k.
+        action_basis: (N, 3, q) A.
+        row_weights: (3N,) lambda_i of every coordinate.
+        damping: the relative Levenberg damping of ``damped``.
+    """
+    count, _, actions = action_basis.shape
+    unknowns = 6 + actions
+    jacobian = np.zeros((3 * count, unknowns))
+    for n in range(count):
+        for a in range(3):
+            row = 3 * n + a
+            for k in range(3):
+                jacobian[row, k] = (
+                    d_rotation[k, a, 0] * shape[n, 0]
+                    + d_rotation[k, a, 1] * shape[n, 1]
+                    + d_rotation[k, a, 2] * shape[n, 2]
+                )
+            jacobian[row, 3 + a] = 1.0
+            for j in range(actions):
+                jacobian[row, 6 + j] = (
+                    rotation[a, 0] * action_basis[n, 0, j]
+                    + rotation[a, 1] * action_basis[n, 1, j]
+                    + rotation[a, 2] * action_basis[n, 2, j]
+                )
+    weighted = np.empty_like(jacobian)
+    for row in range(3 * count):
+        for c in range(unknowns):
+            weighted[row, c] = jacobian[row, c] * row_weights[row]
+    normal = np.zeros((unknowns, unknowns))
+    for row in range(3 * count):
+        for c in range(unknowns):
+            for e in range(c, unknowns):
+                normal[c, e] += jacobian[row, c] * weighted[row, e]
+    for c in range(unknowns):
+        for e in range(c):
+            normal[c, e] = normal[e, c]
+    damped = normal.copy()
+    for c in range(unknowns):
+        damped[c, c] *= 1.0 + damping
+    return weighted, normal, damped
+
+
+@numba.njit('f8[::1](f8[:, ::1], f8[:, ::1], f8[::1], f8[::1])', **FAST)
+def model_step(
+    weighted: np.ndarray, damped: np.ndarray, difference: np.ndarray, theta: np.ndarray
+) -> np.ndarray:
+    """(6 + q,) theta moved by the Gauss-Newton step ``damped^-1 (W J)' difference``."""
+    unknowns = theta.size
+    gradient = np.zeros(unknowns)
+    for row in range(difference.size):
+        for c in range(unknowns):
+            gradient[c] += weighted[row, c] * difference[row]
+    return theta + np.linalg.solve(damped, gradient)
+
+
+@numba.njit('f8[:, ::1](f8[:, ::1], f8[:, ::1], f8[::1])', **FAST)
+def model_hessian(weighted: np.ndarray, normal: np.ndarray, row_weights: np.ndarray) -> np.ndarray:
+    """(3N, 3N) W - W J (J' W J)^-1 J' W, the Hessian of the variable projection.
+
+    As W - K K' with K = W J L^-T, ``J' W J = L L'`` (Cholesky): one product of BLAS.
+
+    Raises:
+        LinAlgError: if J' W J is not positive definite.
+    """
+    rows, unknowns = weighted.shape
+    lower = np.linalg.cholesky(normal)
+    solved = np.empty((unknowns, rows))  # K' = L^-1 (W J)', forward substitution
+    for c in range(unknowns):
+        for r in range(rows):
+            value = weighted[r, c]
+            for k in range(c):
+                value -= lower[c, k] * solved[k, r]
+            solved[c, r] = value / lower[c, c]
+    hessian = -np.dot(solved.T, solved)
+    for r in range(rows):
+        hessian[r, r] += row_weights[r]
+    return hessian
