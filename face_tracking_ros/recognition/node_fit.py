@@ -89,43 +89,105 @@ def fit_model_to_nodes(
             finite non-negative (N,) array, start is a fit of another number of frames or
             parameters, or alpha_precision is not a symmetric positive definite (q, q) matrix.
     """
-    nodes, w = _checked(model, nodes, weights)
-    prior_root = None if alpha_precision is None else _prior_root(model, alpha_precision)
-    row_scale = np.repeat(np.sqrt(w), 3)
-    bases = np.hstack([model.shape_basis, model.action_basis])
-    bases_nodes = bases.reshape(model.num_nodes, 3, -1)
-    mean = model.mean_shape.reshape(-1, 3)
-    if start is None:
-        omega, t, coefficients = _initial_estimate(model, nodes, w, bases)
-    else:
-        omega, t, coefficients = _start_of(start, len(nodes), bases.shape[1])
-    iterations, converged = 0, False
-    while not converged and iterations < max_iterations:
-        iterations += 1
-        residual, jacobian = _residual_and_jacobian(
-            mean, bases_nodes, nodes, omega, t, coefficients
+    problem = NodeFitProblem.of(model, weights, alpha_precision)
+    return problem.fit(nodes, tolerance, max_iterations, start)
+
+
+@dataclass(frozen=True)
+class NodeFitProblem:
+    """A model with node weights and a prior, checked and prepared for many fits (a tracker's).
+
+    :func:`fit_model_to_nodes` with the same model, weights and prior, without checking and
+    preparing them again on every call.
+
+    Attributes:
+        model: the face model (N nodes).
+        weights: (N,) node weights w_i.
+        row_scale: (3N,) sqrt(w_i) of every coordinate.
+        bases: (3N, p + q) [S A].
+        bases_nodes: (N, 3, p + q) the bases per node.
+        mean: (N, 3) the mean shape.
+        prior_root: (q, q) ``L'`` of the prior's precision (None: no prior).
+    """
+
+    model: FaceModel
+    weights: np.ndarray
+    row_scale: np.ndarray
+    bases: np.ndarray
+    bases_nodes: np.ndarray
+    mean: np.ndarray
+    prior_root: np.ndarray | None
+
+    @classmethod
+    def of(
+        cls,
+        model: FaceModel,
+        weights: np.ndarray | None = None,
+        alpha_precision: np.ndarray | None = None,
+    ) -> NodeFitProblem:
+        """The prepared fit (arguments as :func:`fit_model_to_nodes`'s).
+
+        Raises:
+            InputError: if weights or alpha_precision are not usable (as
+                :func:`fit_model_to_nodes`).
+        """
+        w = _checked_weights(model, weights)
+        bases = np.hstack([model.shape_basis, model.action_basis])
+        return cls(
+            model=model,
+            weights=w,
+            row_scale=np.repeat(np.sqrt(w), 3),
+            bases=bases,
+            bases_nodes=bases.reshape(model.num_nodes, 3, -1),
+            mean=model.mean_shape.reshape(-1, 3),
+            prior_root=None if alpha_precision is None else _prior_root(model, alpha_precision),
         )
-        residual, jacobian = residual * row_scale, jacobian * row_scale[:, None]
-        if prior_root is not None:
-            residual, jacobian = _with_prior(residual, jacobian, coefficients, prior_root)
-        step = _damped_step(residual, jacobian)
-        omega, t, coefficients = omega + step[:, :3], t + step[:, 3:6], coefficients + step[:, 6:]
-        converged = bool(np.max(np.abs(step)) < tolerance)
-    residual = _residual(mean, bases_nodes, nodes, omega, t, coefficients)[0]
-    return NodeFit(
-        omega=omega,
-        t=t,
-        sigma=coefficients[:, : model.p],
-        alpha=coefficients[:, model.p :],
-        rms=np.sqrt(3.0 * np.mean(residual**2, axis=1)),
-        iterations=iterations,
-    )
+
+    def fit(
+        self,
+        nodes: np.ndarray,
+        tolerance: float = 1e-12,
+        max_iterations: int = 20,
+        start: NodeFit | None = None,
+    ) -> NodeFit:
+        """:func:`fit_model_to_nodes` of (F, N, 3) meshes (arguments as its).
+
+        Raises:
+            InputError: if nodes is not a finite (F, N, 3) array with F >= 1, or start is a
+                fit of another number of frames or parameters.
+        """
+        model, row_scale, prior_root = self.model, self.row_scale, self.prior_root
+        nodes = _checked_nodes(model, nodes)
+        if start is None:
+            omega, t, coefficients = _initial_estimate(model, nodes, self.weights, self.bases)
+        else:
+            omega, t, coefficients = _start_of(start, len(nodes), self.bases.shape[1])
+        iterations, converged = 0, False
+        while not converged and iterations < max_iterations:
+            iterations += 1
+            residual, jacobian = _residual_and_jacobian(
+                self.mean, self.bases_nodes, nodes, omega, t, coefficients
+            )
+            residual, jacobian = residual * row_scale, jacobian * row_scale[:, None]
+            if prior_root is not None:
+                residual, jacobian = _with_prior(residual, jacobian, coefficients, prior_root)
+            step = _damped_step(residual, jacobian)
+            omega, t = omega + step[:, :3], t + step[:, 3:6]
+            coefficients = coefficients + step[:, 6:]
+            converged = bool(np.max(np.abs(step)) < tolerance)
+        residual = _residual(self.mean, self.bases_nodes, nodes, omega, t, coefficients)[0]
+        return NodeFit(
+            omega=omega,
+            t=t,
+            sigma=coefficients[:, : model.p],
+            alpha=coefficients[:, model.p :],
+            rms=np.sqrt(3.0 * np.mean(residual**2, axis=1)),
+            iterations=iterations,
+        )
 
 
-def _checked(
-    model: FaceModel, nodes: np.ndarray, weights: np.ndarray | None
-) -> tuple[np.ndarray, np.ndarray]:
-    """The meshes and node weights (ones if None) as float arrays, checked.
+def _checked_nodes(model: FaceModel, nodes: np.ndarray) -> np.ndarray:
+    """The meshes as a float array, checked.
 
     Raises:
         InputError: as :func:`fit_model_to_nodes`.
@@ -137,11 +199,20 @@ def _checked(
     if not np.all(np.isfinite(nodes)):
         msg = 'nodes to fit hold NaN or Inf'
         raise InputError(msg)
+    return nodes
+
+
+def _checked_weights(model: FaceModel, weights: np.ndarray | None) -> np.ndarray:
+    """The node weights (ones if None) as a float array, checked.
+
+    Raises:
+        InputError: as :func:`fit_model_to_nodes`.
+    """
     w = np.ones(model.num_nodes) if weights is None else np.asarray(weights, dtype=float)
     if w.shape != (model.num_nodes,) or not np.all(np.isfinite(w)) or np.any(w < 0):
         msg = f'weights must be finite and >= 0 with shape ({model.num_nodes},)'
         raise InputError(msg)
-    return nodes, w
+    return w
 
 
 def _prior_root(model: FaceModel, precision: np.ndarray) -> np.ndarray:
