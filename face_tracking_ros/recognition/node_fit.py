@@ -12,8 +12,8 @@ squares on the nodes brought into the face frame (or a given fit, such as the pr
 when the meshes are tracked). Then Gauss-Newton on all of (omega, t, sigma,
 alpha) with the analytic Jacobian of eq. 1 and 3 (the ``cv2.Rodrigues`` derivatives of
 :func:`face_tracking_ros.geometry.rotation.rodrigues`) and a tiny Levenberg damping for
-bases that nearly contain a rigid motion; all frames are solved at once as a batch of small
-normal equations. It converges quadratically: on exact model meshes the parameters come out to
+bases that nearly contain a rigid motion; an iteration forms and solves every frame's small
+normal equations in one compiled pass (:mod:`.node_fit_kernels`). It converges quadratically: on exact model meshes the parameters come out to
 about 1e-12 in 3 to 5 iterations. (Alternating the two block minimisations instead converges only
 linearly, in hundreds of iterations, because pose and bases are coupled.)
 
@@ -156,26 +156,37 @@ class NodeFitProblem:
             InputError: if nodes is not a finite (F, N, 3) array with F >= 1, or start is a
                 fit of another number of frames or parameters.
         """
-        model, row_scale, prior_root = self.model, self.row_scale, self.prior_root
+        model = self.model
         nodes = _checked_nodes(model, nodes)
         if start is None:
             omega, t, coefficients = _initial_estimate(model, nodes, self.weights, self.bases)
         else:
             omega, t, coefficients = _start_of(start, len(nodes), self.bases.shape[1])
+        from face_tracking_ros.recognition.node_fit_kernels import (  # noqa: PLC0415
+            gauss_newton_steps,  # numba at the first fit alone (module notes)
+        )
+
+        prior_root = np.zeros((0, 0)) if self.prior_root is None else self.prior_root
         iterations, converged = 0, False
         while not converged and iterations < max_iterations:
             iterations += 1
-            residual, jacobian = _residual_and_jacobian(
-                self.mean, self.bases_nodes, nodes, omega, t, coefficients
+            rotation, d_rotation = _rotations(omega)
+            step = gauss_newton_steps(
+                self.mean,
+                self.bases_nodes,
+                nodes,
+                coefficients,
+                rotation,
+                d_rotation,
+                t,
+                self.row_scale,
+                prior_root,
+                LEVENBERG_DAMPING,
             )
-            residual, jacobian = residual * row_scale, jacobian * row_scale[:, None]
-            if prior_root is not None:
-                residual, jacobian = _with_prior(residual, jacobian, coefficients, prior_root)
-            step = _damped_step(residual, jacobian)
             omega, t = omega + step[:, :3], t + step[:, 3:6]
             coefficients = coefficients + step[:, 6:]
             converged = bool(np.max(np.abs(step)) < tolerance)
-        residual = _residual(self.mean, self.bases_nodes, nodes, omega, t, coefficients)[0]
+        residual = _residual(self.mean, self.bases_nodes, nodes, omega, t, coefficients)
         return NodeFit(
             omega=omega,
             t=t,
@@ -237,32 +248,6 @@ def _prior_root(model: FaceModel, precision: np.ndarray) -> np.ndarray:
         raise InputError(msg) from None
 
 
-def _with_prior(
-    residual: np.ndarray, jacobian: np.ndarray, coefficients: np.ndarray, root: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
-    """Residuals (F, R) and Jacobian (F, R, D) with the prior's rows ``L' alpha`` appended.
-
-    Alpha is the last q of the D coefficients' columns (``coefficients`` (F, p + q), sigma then
-    alpha).
-    """
-    q = len(root)
-    rows = np.zeros((len(residual), q, jacobian.shape[2]))
-    rows[:, :, -q:] = root
-    return (
-        np.concatenate([residual, coefficients[:, -q:] @ root.T], axis=1),
-        np.concatenate([jacobian, rows], axis=1),
-    )
-
-
-def _damped_step(residual: np.ndarray, jacobian: np.ndarray) -> np.ndarray:
-    """(F, D) Levenberg-Marquardt steps of every frame, damped by :data:`LEVENBERG_DAMPING`."""
-    normal = np.swapaxes(jacobian, 1, 2) @ jacobian
-    diagonal = np.einsum('fii->fi', normal)  # a view
-    diagonal += LEVENBERG_DAMPING * diagonal
-    gradient = np.swapaxes(jacobian, 1, 2) @ residual[..., None]
-    return -np.linalg.solve(normal, gradient)[..., 0]
-
-
 def _initial_estimate(
     model: FaceModel, nodes: np.ndarray, weights: np.ndarray, bases: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -300,37 +285,10 @@ def _start_of(
     return start.omega, start.t, coefficients
 
 
-def _residual_and_jacobian(
-    mean: np.ndarray,
-    bases_nodes: np.ndarray,
-    nodes: np.ndarray,
-    omega: np.ndarray,
-    t: np.ndarray,
-    coefficients: np.ndarray,
-) -> tuple[np.ndarray, np.ndarray]:
-    """Residuals (F, 3N) of eq. 1 and 3 and their Jacobian (F, 3N, 6 + p + q).
-
-    Args:
-        mean: (N, 3) mean shape.
-        bases_nodes: (N, 3, D) the bases [S A] per node.
-        nodes: (F, N, 3) target meshes, camera frame.
-        omega: (F, 3) rotation vectors.
-        t: (F, 3) translations.
-        coefficients: (F, D) sigma then alpha.
-    """
-    frames, num_nodes = nodes.shape[:2]
-    residual, shapes, rotation, d_rotation = _residual(
-        mean, bases_nodes, nodes, omega, t, coefficients
-    )
-    jacobian = np.concatenate(
-        [
-            np.einsum('fkab,fnb->fnak', d_rotation, shapes),
-            np.broadcast_to(np.eye(3), (frames, num_nodes, 3, 3)),
-            rotation[:, None] @ bases_nodes[None],
-        ],
-        axis=3,
-    )
-    return residual, jacobian.reshape(frames, 3 * num_nodes, -1)
+def _rotations(omega: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(F, 3, 3) R(omega) and (F, 3, 3, 3) dR / d omega_k of (F, 3) rotation vectors."""
+    rotation, d_rotation = (np.array(a) for a in zip(*map(rodrigues, omega), strict=True))
+    return rotation, d_rotation
 
 
 def _residual(
@@ -340,14 +298,18 @@ def _residual(
     omega: np.ndarray,
     t: np.ndarray,
     coefficients: np.ndarray,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Residuals (F, 3N) of eq. 1 and 3 (arguments as :func:`_residual_and_jacobian`'s).
+) -> np.ndarray:
+    """Residuals (F, 3N) of eq. 1 and 3.
 
-    Returns:
-        ``(residual, shapes, rotation, d_rotation)``: also the (F, N, 3) face-frame shapes and
-        the (F, 3, 3) R(omega) and (F, 3, 3, 3) dR/d omega they were posed with.
+    Args:
+        mean: (N, 3) mean shape.
+        bases_nodes: (N, 3, D) the bases [S A] per node.
+        nodes: (F, N, 3) target meshes, camera frame.
+        omega: (F, 3) rotation vectors.
+        t: (F, 3) translations.
+        coefficients: (F, D) sigma then alpha.
     """
     shapes = mean + np.einsum('ncd,fd->fnc', bases_nodes, coefficients)
-    rotation, d_rotation = (np.array(a) for a in zip(*map(rodrigues, omega), strict=True))
+    rotation, _ = _rotations(omega)
     residual = shapes @ np.swapaxes(rotation, 1, 2) + t[:, None, :] - nodes
-    return residual.reshape(len(nodes), -1), shapes, rotation, d_rotation
+    return residual.reshape(len(nodes), -1)
