@@ -13,9 +13,10 @@ when the meshes are tracked). Then Gauss-Newton on all of (omega, t, sigma,
 alpha) with the analytic Jacobian of eq. 1 and 3 (the ``cv2.Rodrigues`` derivatives of
 :func:`face_tracking_ros.geometry.rotation.rodrigues`) and a tiny Levenberg damping for
 bases that nearly contain a rigid motion; an iteration forms and solves every frame's small
-normal equations in one compiled pass (:mod:`.node_fit_kernels`). It converges quadratically: on exact model meshes the parameters come out to
-about 1e-12 in 3 to 5 iterations. (Alternating the two block minimisations instead converges only
-linearly, in hundreds of iterations, because pose and bases are coupled.)
+normal equations in one compiled pass (:mod:`.node_fit_kernels`). It converges quadratically: on
+exact model meshes the parameters come out to about 1e-12 in 3 to 5 iterations. (Alternating the
+two block minimisations instead converges only linearly, in hundreds of iterations, because pose
+and bases are coupled.)
 
 Meshes that are measured, not true, can add the §4.1 Gaussian prior on alpha: with nodes in error
 by s per coordinate, the maximum a posteriori fit minimises the node distance plus
