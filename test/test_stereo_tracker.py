@@ -42,6 +42,7 @@ from face_tracking_ros.tracking.stereo_data import (
     depth_terms,
     group_contrast,
     group_statistics,
+    homogeneous_pixels,
     level_projections,
     node_blocks,
     rim_points,
@@ -54,6 +55,7 @@ from face_tracking_ros.tracking.stereo_init import (
     epipolar_match,
     initial_nodes,
 )
+from face_tracking_ros.tracking.stereo_kernels import space_rows
 from face_tracking_ros.tracking.stereo_loss import loss_reason
 from face_tracking_ros.tracking.stereo_solve import (
     LevelSolver,
@@ -1263,3 +1265,21 @@ def test_loss_reason_names_each_check_by_hand() -> None:
     assert reason(nodes, image_contrast=2.9).startswith(
         'the images show almost no texture where the face was (patch contrast 0.29 of'
     )
+
+
+def test_space_rows_carry_the_image_gradient_to_the_points() -> None:
+    """``h = (P_(1, 2)' g - (g . x) P_3) / (P X)_3`` of eq. 2, zero where not valid."""
+    rng = np.random.default_rng(39)
+    projections = level_projections((RIG.left, RIG.right), 1)
+    points = PLANE.nodes().T + rng.normal(0, 0.01, (3, 34))
+    homogeneous = homogeneous_pixels(projections, points)
+    gradient = rng.normal(0, 20, (2, 2, 34)).astype(np.float32)
+    valid = rng.random((2, 34)) < 0.8
+    rows = space_rows(projections, homogeneous, gradient, valid)
+    pixels = homogeneous[:, :2] / homogeneous[:, 2:]
+    for camera in range(2):
+        for s in range(34):
+            p, g = projections[camera, :, :3], gradient[camera, :, s].astype(float)
+            jacobian = (p[:2] - pixels[camera, :, s, None] * p[2]) / homogeneous[camera, 2, s]
+            expected = jacobian.T @ g if valid[camera, s] else np.zeros(3)
+            np.testing.assert_allclose(rows[camera, :, s], expected, rtol=1e-12, atol=1e-9)

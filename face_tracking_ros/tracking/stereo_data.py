@@ -66,12 +66,12 @@ from face_tracking_ros.imaging import (
     sample_xy,
     square_offsets,
 )
-from face_tracking_ros.tracking.projection import space_gradient
 from face_tracking_ros.tracking.stereo_kernels import (
     group_summaries,
     layout_points,
     node_normal_blocks,
     pixel_maps,
+    space_rows,
     stencil_maps,
     zssd_residuals,
 )
@@ -545,7 +545,7 @@ def node_blocks(
     """Gauss-Newton terms J^T W J and J^T W r of the image terms, by group, summed over images.
 
     The Jacobian of a sample with respect to its k slot nodes is ``b_k (d pi / d P)^T grad I``
-    (eq. 2; :func:`~.projection.space_gradient`), minus its group's mean (ZSSD) or brightness
+    (eq. 2; :func:`~.stereo_kernels.space_rows`), minus its group's mean (ZSSD) or brightness
     ramp, as the residuals; the blocks are summed by
     :func:`~.stereo_kernels.node_normal_blocks`.
 
@@ -560,10 +560,7 @@ def node_blocks(
         group (grey^2 / m^2, grey^2 / m), for :meth:`SampleSet.assemble`.
     """
     valid = sampled.valid
-    rows = space_gradient(
-        projections[:, :, :3], sampled.homogeneous, sampled.gradient.astype(float)
-    )
-    rows *= valid[:, None, :]
+    rows = space_rows(projections, sampled.homogeneous, sampled.gradient, valid)
     blocks, vectors = [], []
     for index, (counts, slot_weights) in enumerate(
         zip(residuals.counts, samples.weights, strict=True)

@@ -263,6 +263,43 @@ def zssd_residuals(
     return differences, counts, weight, weighted_residual, cost
 
 
+@numba.njit('f8[:, :, ::1](f8[:, :, :], f8[:, :, ::1], f4[:, :, ::1], b1[:, ::1])', **FAST)
+def space_rows(
+    projections: np.ndarray, homogeneous: np.ndarray, gradient: np.ndarray, valid: np.ndarray
+) -> np.ndarray:
+    """The image gradient carried to the camera-frame points: ``h = (d pi / d X_c)' grad I``.
+
+    With ``x = (P X)_(1, 2) / (P X)_3`` (eq. 2), ``d x / d X = (P_(1, 2) - x P_3) / (P X)_3``, so
+    ``h = (P_(1, 2)' g - (g . x) P_3) / (P X)_3``: the change of a sample's grey level per metre
+    of its point's motion (0 where the sample is not valid).
+
+    Args:
+        projections: (C, 3, 3+) the cameras' P (its left 3x3 part is used), px per m.
+        homogeneous: (C, 3, S) ``P X`` of the samples' points, homogeneous pixels.
+        gradient: (C, 2, S) image gradient at their pixels, grey levels / px.
+        valid: (C, S) the samples in use.
+
+    Returns:
+        (C, 3, S) h, grey levels / m.
+    """
+    cameras, _, size = homogeneous.shape
+    rows = np.zeros((cameras, 3, size))
+    for c in range(cameras):
+        for s in range(size):
+            if not valid[c, s]:
+                continue
+            g_x, g_y = float(gradient[c, 0, s]), float(gradient[c, 1, s])
+            inverse_depth = 1.0 / homogeneous[c, 2, s]
+            along = (g_x * homogeneous[c, 0, s] + g_y * homogeneous[c, 1, s]) * inverse_depth
+            for a in range(3):
+                rows[c, a, s] = (
+                    projections[c, 0, a] * g_x
+                    + projections[c, 1, a] * g_y
+                    - projections[c, 2, a] * along
+                ) * inverse_depth
+    return rows
+
+
 @numba.njit(
     'Tuple((f8[:, :, ::1], f8[:, ::1]))(f8[:, :, ::1], b1[:, ::1], f8[:, ::1], f8[:, ::1], '
     'i8[:, :], f8[:, ::1], i8, i8, f8[:, ::1], i8[::1])',
@@ -283,7 +320,7 @@ def node_normal_blocks(
     """Gauss-Newton blocks ``J' W J`` and ``J' W r`` of one layout's groups, summed over images.
 
     The Jacobian of a sample with respect to slot node j is ``b_j h`` with h its image
-    gradient carried to the point (eq. 2, :func:`~.projection.space_gradient`), minus the
+    gradient carried to the point (eq. 2, :func:`space_rows`), minus the
     group's mean over its valid samples (ZSSD), or minus its fit by the group's brightness
     terms, as :func:`zssd_residuals` removes from the residuals.
 
