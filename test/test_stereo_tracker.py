@@ -55,7 +55,7 @@ from face_tracking_ros.tracking.stereo_init import (
     epipolar_match,
     initial_nodes,
 )
-from face_tracking_ros.tracking.stereo_kernels import space_rows
+from face_tracking_ros.tracking.stereo_kernels import largest_motion, space_rows
 from face_tracking_ros.tracking.stereo_loss import loss_reason
 from face_tracking_ros.tracking.stereo_solve import (
     LevelSolver,
@@ -1283,3 +1283,15 @@ def test_space_rows_carry_the_image_gradient_to_the_points() -> None:
             jacobian = (p[:2] - pixels[camera, :, s, None] * p[2]) / homogeneous[camera, 2, s]
             expected = jacobian.T @ g if valid[camera, s] else np.zeros(3)
             np.testing.assert_allclose(rows[camera, :, s], expected, rtol=1e-12, atol=1e-9)
+
+
+def test_largest_motion_is_the_largest_pixel_shift_in_either_image() -> None:
+    rng = np.random.default_rng(40)
+    nodes = PLANE.nodes()
+    moved = nodes + rng.normal(0, 0.002, nodes.shape)
+    projections = level_projections((RIG.left, RIG.right), 0)
+    shifts = [camera.project(moved) - camera.project(nodes) for camera in (RIG.left, RIG.right)]
+    expected = np.abs(shifts).max()
+    assert largest_motion(projections, nodes, moved) == pytest.approx(expected, rel=1e-12)
+    moved[3, 2] = np.nan
+    assert np.isnan(largest_motion(projections, nodes, moved))

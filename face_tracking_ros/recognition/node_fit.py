@@ -164,7 +164,8 @@ class NodeFitProblem:
         else:
             omega, t, coefficients = _start_of(start, len(nodes), self.bases.shape[1])
         from face_tracking_ros.recognition.node_fit_kernels import (  # noqa: PLC0415
-            gauss_newton_steps,  # numba at the first fit alone (module notes)
+            gauss_newton_iteration,  # numba at the first fit alone (module notes)
+            rms_distances,
         )
 
         prior_root = np.zeros((0, 0)) if self.prior_root is None else self.prior_root
@@ -172,28 +173,28 @@ class NodeFitProblem:
         while not converged and iterations < max_iterations:
             iterations += 1
             rotation, d_rotation = _rotations(omega)
-            step = gauss_newton_steps(
+            omega, t, coefficients, largest = gauss_newton_iteration(
                 self.mean,
                 self.bases_nodes,
                 nodes,
+                omega,
+                t,
                 coefficients,
                 rotation,
                 d_rotation,
-                t,
                 self.row_scale,
                 prior_root,
                 LEVENBERG_DAMPING,
             )
-            omega, t = omega + step[:, :3], t + step[:, 3:6]
-            coefficients = coefficients + step[:, 6:]
-            converged = bool(np.max(np.abs(step)) < tolerance)
-        residual = _residual(self.mean, self.bases_nodes, nodes, omega, t, coefficients)
+            converged = bool(largest < tolerance)
+        rotation, _ = _rotations(omega)
+        rms = rms_distances(self.mean, self.bases_nodes, nodes, coefficients, rotation, t)
         return NodeFit(
             omega=omega,
             t=t,
             sigma=coefficients[:, : model.p],
             alpha=coefficients[:, model.p :],
-            rms=np.sqrt(3.0 * np.mean(residual**2, axis=1)),
+            rms=rms,
             iterations=iterations,
         )
 
@@ -290,27 +291,3 @@ def _rotations(omega: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(F, 3, 3) R(omega) and (F, 3, 3, 3) dR / d omega_k of (F, 3) rotation vectors."""
     rotation, d_rotation = (np.array(a) for a in zip(*map(rodrigues, omega), strict=True))
     return rotation, d_rotation
-
-
-def _residual(
-    mean: np.ndarray,
-    bases_nodes: np.ndarray,
-    nodes: np.ndarray,
-    omega: np.ndarray,
-    t: np.ndarray,
-    coefficients: np.ndarray,
-) -> np.ndarray:
-    """Residuals (F, 3N) of eq. 1 and 3.
-
-    Args:
-        mean: (N, 3) mean shape.
-        bases_nodes: (N, 3, D) the bases [S A] per node.
-        nodes: (F, N, 3) target meshes, camera frame.
-        omega: (F, 3) rotation vectors.
-        t: (F, 3) translations.
-        coefficients: (F, D) sigma then alpha.
-    """
-    shapes = mean + np.einsum('ncd,fd->fnc', bases_nodes, coefficients)
-    rotation, _ = _rotations(omega)
-    residual = shapes @ np.swapaxes(rotation, 1, 2) + t[:, None, :] - nodes
-    return residual.reshape(len(nodes), -1)

@@ -17,19 +17,20 @@ from face_tracking_ros.compiled import FAST
 
 
 @numba.njit(**FAST)
-def gauss_newton_steps(
+def gauss_newton_iteration(
     mean: np.ndarray,
     bases_nodes: np.ndarray,
     nodes: np.ndarray,
+    omega: np.ndarray,
+    t: np.ndarray,
     coefficients: np.ndarray,
     rotation: np.ndarray,
     d_rotation: np.ndarray,
-    t: np.ndarray,
     row_scale: np.ndarray,
     prior_root: np.ndarray,
     damping: float,
-) -> np.ndarray:
-    """(F, 6 + D) damped Gauss-Newton steps of (omega, t, coefficients) of every frame.
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+    """One damped Gauss-Newton step of (omega, t, coefficients) of every frame.
 
     The residuals ``sqrt(w_i) (R (mean_i + B_i c) + t - X_i)``, with the prior's rows ``L' alpha``
     after them, are linearised in (omega, t, c); the step solves the normal equations with
@@ -39,13 +40,18 @@ def gauss_newton_steps(
         mean: (N, 3) mean shape.
         bases_nodes: (N, 3, D) the bases [S A] per node.
         nodes: (F, N, 3) target meshes, camera frame.
+        omega: (F, 3) rotation vectors.
+        t: (F, 3) translations.
         coefficients: (F, D) sigma then alpha.
         rotation: (F, 3, 3) R(omega).
         d_rotation: (F, 3, 3, 3) dR / d omega_k.
-        t: (F, 3) translations.
         row_scale: (3N,) sqrt(w_i) of every coordinate.
         prior_root: (q, q) ``L'`` of the prior on the last q coefficients ((0, 0): none).
         damping: relative Levenberg damping of the normal matrix's diagonal.
+
+    Returns:
+        ``(omega, t, coefficients, largest)``: the moved parameters and the largest step's
+        magnitude (NaN if a step is).
     """
     frames, count = nodes.shape[0], nodes.shape[1]
     parameters = bases_nodes.shape[2]
@@ -104,4 +110,44 @@ def gauss_newton_steps(
             for j in range(i):
                 normal[i, j] = normal[j, i]
         steps[f] = -np.linalg.solve(normal, gradient)
-    return steps
+    largest = 0.0
+    for value in steps.ravel():
+        magnitude = abs(value)
+        if np.isnan(magnitude) or magnitude > largest:
+            largest = magnitude
+    return omega + steps[:, :3], t + steps[:, 3:6], coefficients + steps[:, 6:], largest
+
+
+@numba.njit(**FAST)
+def rms_distances(
+    mean: np.ndarray,
+    bases_nodes: np.ndarray,
+    nodes: np.ndarray,
+    coefficients: np.ndarray,
+    rotation: np.ndarray,
+    t: np.ndarray,
+) -> np.ndarray:
+    """(F,) RMS node distance of the posed model ``R (mean + B c) + t`` to each frame's mesh.
+
+    Args as :func:`gauss_newton_iteration`'s.
+    """
+    frames, count = nodes.shape[0], nodes.shape[1]
+    rms = np.empty(frames)
+    for f in range(frames):
+        total = 0.0
+        for n in range(count):
+            shape = mean[n].copy()
+            for c in range(3):
+                for d in range(bases_nodes.shape[2]):
+                    shape[c] += bases_nodes[n, c, d] * coefficients[f, d]
+            for a in range(3):
+                residual = (
+                    shape[0] * rotation[f, a, 0]
+                    + shape[1] * rotation[f, a, 1]
+                    + shape[2] * rotation[f, a, 2]
+                    + t[f, a]
+                    - nodes[f, n, a]
+                )
+                total += residual * residual
+        rms[f] = np.sqrt(total / count)
+    return rms

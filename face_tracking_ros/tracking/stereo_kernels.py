@@ -494,26 +494,33 @@ def pixel_maps(homogeneous: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndar
     return x_32, y_32, boxes, non_finite == 0
 
 
-@numba.njit('f8(f8[:, :, ::1])', **EXACT)
-def largest_motion(homogeneous: np.ndarray) -> float:
+@numba.njit(**EXACT)
+def _pixel(projection: np.ndarray, point: np.ndarray, axis: int) -> float:
+    """Pixel coordinate ``axis`` (0: x, 1: y) of a point (3,) through a projection P (3, 4)."""
+    x, y, z = point[0], point[1], point[2]
+    depth = projection[2, 0] * x + projection[2, 1] * y + projection[2, 2] * z + projection[2, 3]
+    row = projection[axis]
+    return (row[0] * x + row[1] * y + row[2] * z + row[3]) / depth
+
+
+@numba.njit('f8(f8[:, :, ::1], f8[:, ::1], f8[:, ::1])', **EXACT)
+def largest_motion(projections: np.ndarray, nodes: np.ndarray, moved: np.ndarray) -> float:
     """The largest pixel motion of N points between two estimates, in any of C images (NaN if any).
 
     Args:
-        homogeneous: (C, 3, 2 N) ``P X`` of the N points at the first estimate, then at the
-            second, homogeneous pixels.
+        projections: (C, 3, 4) the images' P of eq. 2.
+        nodes: (N, 3) the points at the first estimate, m.
+        moved: (N, 3) the points at the second, m.
 
     Returns:
         ``max |x_2 - x_1|`` over the points, both pixel coordinates and the images, px.
     """
-    images, _, size = homogeneous.shape
-    count = size // 2
     largest = 0.0
-    for c in range(images):
+    for c in range(projections.shape[0]):
         for a in range(2):
-            for i in range(count):
-                before = homogeneous[c, a, i] / homogeneous[c, 2, i]
-                after = homogeneous[c, a, count + i] / homogeneous[c, 2, count + i]
-                motion = abs(after - before)
+            for i in range(nodes.shape[0]):
+                before = _pixel(projections[c], nodes[i], a)
+                motion = abs(_pixel(projections[c], moved[i], a) - before)
                 if np.isnan(motion):
                     return np.nan
                 largest = max(largest, motion)
