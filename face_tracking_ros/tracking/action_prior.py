@@ -25,7 +25,8 @@ grey^2 / m^2, like eq. 5's rho.
 
 The solver evaluates the term at every trial point (:meth:`ActionPrior.evaluate` refits the
 parameters from the last fit, a :class:`ModelPoint` that keeps M and its Jacobian) and forms
-its normal equations only where it linearises, from that evaluation.
+its normal equations only where it linearises, from that evaluation. The arithmetic of both is
+compiled (:mod:`.stereo_kernels`: some thirty small numpy calls a trial point otherwise).
 """
 
 from __future__ import annotations
@@ -55,8 +56,8 @@ ALPHA_DAMPING = 1e-9  # relative Levenberg damping on the normal matrix of the f
 class ModelPoint:
     """The animated mesh at one parameter vector, with the normal matrix of a fit from there.
 
-    The Jacobian and what follows from it are made when first asked for: the solver needs them
-    only at the points it linearises at.
+    The weighted Jacobian and the normal matrices are made when first asked for, in one compiled
+    pass: the solver needs them only at the points it linearises at.
 
     Attributes:
         theta: (6 + q,) parameters (omega, t, alpha).

@@ -15,6 +15,9 @@ from the residuals and the Jacobian alike (the variable projection of the ramp's
 unknowns). Kernels are typed (compiled on import, or loaded from numba's on-disk cache); the
 residuals use IEEE arithmetic without reassociation (those of mean-only groups equal numpy's to
 the bit), the normal blocks' sums may be reassociated (vectorised).
+
+The face-model term's arithmetic (:mod:`.action_prior`) and the image gradient carried to the
+sample points (:func:`space_rows`) are here too.
 """
 
 from __future__ import annotations
