@@ -1295,3 +1295,25 @@ def test_largest_motion_is_the_largest_pixel_shift_in_either_image() -> None:
     assert largest_motion(projections, nodes, moved) == pytest.approx(expected, rel=1e-12)
     moved[3, 2] = np.nan
     assert np.isnan(largest_motion(projections, nodes, moved))
+
+
+def test_assembled_normal_equations_are_bincounts_sums_to_the_bit() -> None:
+    rng = np.random.default_rng(41)
+    truth = PLANE.nodes()
+    layouts = (
+        SampleLayout.node_patches(truth, truth[:, 2] / 600, 3, np.zeros(34, dtype=bool)),
+        SampleLayout.triangle_texture(mesh_topology(34).triangles, 4),
+    )
+    for samples in (SampleSet.of(layouts, 34), SampleSet.of(layouts[:1], 34)):
+        sizes = [
+            (len(layout.mask), 3 * len(gather))  # groups, 3 k (k slot nodes)
+            for layout, gather in zip(layouts, samples.gather, strict=False)
+        ]
+        blocks = [rng.normal(size=(groups, size, size)) for groups, size in sizes]
+        vectors = [rng.normal(size=(groups, size)) for groups, size in sizes]
+        matrix, vector = samples.assemble(blocks, vectors)
+        values = np.concatenate([block.ravel() for block in blocks])
+        expected = np.bincount(samples.block_index, weights=values, minlength=102 * 102)
+        assert np.array_equal(matrix, expected.reshape(102, 102))
+        values = np.concatenate([part.ravel() for part in vectors])
+        assert np.array_equal(vector, np.bincount(samples.vector_index, values, minlength=102))

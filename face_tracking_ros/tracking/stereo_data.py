@@ -71,6 +71,7 @@ from face_tracking_ros.tracking.stereo_kernels import (
     layout_points,
     node_normal_blocks,
     pixel_maps,
+    scatter_sums,
     space_rows,
     stencil_maps,
     zssd_residuals,
@@ -325,18 +326,9 @@ class SampleSet:
             blocks: per layout, (G_l, 3k, 3k) blocks (:func:`node_blocks`).
             vectors: per layout, (G_l, 3k) vectors.
         """
-        size = 3 * self.num_nodes
-        matrix = np.bincount(
-            self.block_index,
-            weights=np.concatenate([block.ravel() for block in blocks]),
-            minlength=size * size,
+        return scatter_sums(
+            tuple(blocks), tuple(vectors), self.block_index, self.vector_index, 3 * self.num_nodes
         )
-        vector = np.bincount(
-            self.vector_index,
-            weights=np.concatenate([vector.ravel() for vector in vectors]),
-            minlength=size,
-        )
-        return matrix.reshape(size, size), vector
 
 
 class Sampled(NamedTuple):

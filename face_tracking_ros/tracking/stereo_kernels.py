@@ -497,6 +497,42 @@ def pixel_maps(homogeneous: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndar
     return x_32, y_32, boxes, non_finite == 0
 
 
+@numba.njit(
+    [
+        f'Tuple((f8[:, ::1], f8[::1]))(UniTuple(f8[:, :, ::1], {layouts}), '
+        f'UniTuple(f8[:, ::1], {layouts}), i8[::1], i8[::1], i8)'
+        for layouts in (1, 2)  # node patches alone, or with the face texture
+    ],
+    **EXACT,
+)
+def scatter_sums(
+    blocks: tuple[np.ndarray, ...],
+    vectors: tuple[np.ndarray, ...],
+    block_index: np.ndarray,
+    vector_index: np.ndarray,
+    size: int,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The layouts' node blocks and vectors summed into a (size, size) matrix and (size,) vector.
+
+    Entry e of the blocks (of the vectors), raveled layout after layout, goes to flat index
+    ``block_index[e]`` (``vector_index[e]``), added in that order: ``np.bincount``'s sums, to
+    the bit.
+    """
+    matrix = np.zeros(size * size)
+    entry = 0
+    for block in blocks:
+        for value in block.ravel():
+            matrix[block_index[entry]] += value
+            entry += 1
+    vector = np.zeros(size)
+    entry = 0
+    for part in vectors:
+        for value in part.ravel():
+            vector[vector_index[entry]] += value
+            entry += 1
+    return matrix.reshape(size, size), vector
+
+
 @numba.njit(**EXACT)
 def _pixel(projection: np.ndarray, point: np.ndarray, axis: int) -> float:
     """Pixel coordinate ``axis`` (0: x, 1: y) of a point (3,) through a projection P (3, 4)."""
