@@ -3,11 +3,12 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from recognition_streams import truth_model
 
 from face_tracking_ros.geometry.rotation import rodrigues
 from face_tracking_ros.synthetic.faces import FacePopulation
-from face_tracking_ros.tracking.action_prior import ActionPrior
+from face_tracking_ros.tracking.action_prior import ALPHA_DAMPING, ActionPrior
 
 MODEL = truth_model(FacePopulation('default', 0))
 RNG = np.random.default_rng(40)
@@ -89,3 +90,48 @@ def test_moved_term_follows_the_refined_first_nodes() -> None:
     for _ in range(5):
         point = moved.fit(turned, point)
     assert moved.evaluate(turned, point).cost < 1e-6 * WEIGHTS[0] * 1e-6
+
+
+def test_compiled_terms_equal_the_numpy_expressions() -> None:
+    prior, theta = ActionPrior.build(MODEL, FIRST, WEIGHTS)
+    moved = _mesh(RNG.normal(size=MODEL.q) * 0.01, np.array([0.08, 0.02, 0.01]), np.zeros(3))
+    theta = theta + RNG.normal(size=theta.size) * 1e-3
+    point = prior.point(theta)
+    omega, t, alpha = theta[:3], theta[3:6], theta[6:]
+    rotation, d_rotation = rodrigues(omega)
+    shape = prior.base + prior.action_basis @ alpha
+    np.testing.assert_allclose(point.shape, shape, rtol=0, atol=1e-15)
+    np.testing.assert_allclose(point.nodes, shape @ rotation.T + t, rtol=0, atol=1e-15)
+    # dM / d(omega, t, alpha) and the weighted normal matrices of eq. 1 and 3.
+    jacobian = np.concatenate(
+        [
+            np.einsum('kab,nb->nak', d_rotation, shape),
+            np.broadcast_to(np.eye(3), (len(shape), 3, 3)),
+            np.einsum('ab,nbq->naq', rotation, prior.action_basis),
+        ],
+        axis=2,
+    ).reshape(len(prior.row_weights), -1)
+    weighted = jacobian * prior.row_weights[:, None]
+    normal = jacobian.T @ weighted
+    scale = np.abs(normal).max()  # sums cancel: compared to rounding of the largest entry
+    np.testing.assert_allclose(point.weighted, weighted, rtol=0, atol=1e-15 * WEIGHTS[0])
+    np.testing.assert_allclose(point.normal, normal, rtol=0, atol=1e-13 * scale)
+    np.testing.assert_allclose(
+        np.diag(point.damped_normal), np.diag(normal) * (1.0 + ALPHA_DAMPING), rtol=1e-13
+    )
+    # The refit, the cost and the normal equations at the moved nodes.
+    motion = moved - prior.first_nodes
+    difference = (motion - (point.nodes - prior.first_model)).ravel()
+    step = np.linalg.solve(point.damped_normal, weighted.T @ difference)
+    evaluation = prior.evaluate(moved, point)
+    np.testing.assert_allclose(evaluation.point.theta, theta + step, rtol=1e-12, atol=1e-15)
+    refit = evaluation.point
+    difference = (motion - (refit.nodes - prior.first_model)).ravel()
+    np.testing.assert_array_equal(evaluation.difference, difference)
+    assert evaluation.cost == pytest.approx(difference @ (prior.row_weights * difference), 1e-13)
+    hessian, gradient = prior.normal_equations(evaluation)
+    expected = np.diag(prior.row_weights) - refit.weighted @ np.linalg.solve(
+        refit.normal, refit.weighted.T
+    )
+    np.testing.assert_allclose(hessian, expected, rtol=0, atol=1e-9 * WEIGHTS[0])
+    np.testing.assert_array_equal(gradient, prior.row_weights * difference)

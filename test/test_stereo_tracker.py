@@ -42,6 +42,7 @@ from face_tracking_ros.tracking.stereo_data import (
     depth_terms,
     group_contrast,
     group_statistics,
+    homogeneous_pixels,
     level_projections,
     node_blocks,
     rim_points,
@@ -54,6 +55,7 @@ from face_tracking_ros.tracking.stereo_init import (
     epipolar_match,
     initial_nodes,
 )
+from face_tracking_ros.tracking.stereo_kernels import largest_motion, space_rows
 from face_tracking_ros.tracking.stereo_loss import loss_reason
 from face_tracking_ros.tracking.stereo_solve import (
     LevelSolver,
@@ -1288,3 +1290,55 @@ def test_loss_reason_names_each_check_by_hand() -> None:
     assert reason(nodes, image_contrast=2.9).startswith(
         'the images show almost no texture where the face was (patch contrast 0.29 of'
     )
+
+
+def test_space_rows_carry_the_image_gradient_to_the_points() -> None:
+    """``h = (P_(1, 2)' g - (g . x) P_3) / (P X)_3`` of eq. 2, zero where not valid."""
+    rng = np.random.default_rng(39)
+    projections = level_projections((RIG.left, RIG.right), 1)
+    points = PLANE.nodes().T + rng.normal(0, 0.01, (3, 34))
+    homogeneous = homogeneous_pixels(projections, points)
+    gradient = rng.normal(0, 20, (2, 2, 34)).astype(np.float32)
+    valid = rng.random((2, 34)) < 0.8
+    rows = space_rows(projections, homogeneous, gradient, valid)
+    pixels = homogeneous[:, :2] / homogeneous[:, 2:]
+    for camera in range(2):
+        for s in range(34):
+            p, g = projections[camera, :, :3], gradient[camera, :, s].astype(float)
+            jacobian = (p[:2] - pixels[camera, :, s, None] * p[2]) / homogeneous[camera, 2, s]
+            expected = jacobian.T @ g if valid[camera, s] else np.zeros(3)
+            np.testing.assert_allclose(rows[camera, :, s], expected, rtol=1e-12, atol=1e-9)
+
+
+def test_largest_motion_is_the_largest_pixel_shift_in_either_image() -> None:
+    rng = np.random.default_rng(40)
+    nodes = PLANE.nodes()
+    moved = nodes + rng.normal(0, 0.002, nodes.shape)
+    projections = level_projections((RIG.left, RIG.right), 0)
+    shifts = [camera.project(moved) - camera.project(nodes) for camera in (RIG.left, RIG.right)]
+    expected = np.abs(shifts).max()
+    assert largest_motion(projections, nodes, moved) == pytest.approx(expected, rel=1e-12)
+    moved[3, 2] = np.nan
+    assert np.isnan(largest_motion(projections, nodes, moved))
+
+
+def test_assembled_normal_equations_are_bincounts_sums_to_the_bit() -> None:
+    rng = np.random.default_rng(41)
+    truth = PLANE.nodes()
+    layouts = (
+        SampleLayout.node_patches(truth, truth[:, 2] / 600, 3, np.zeros(34, dtype=bool)),
+        SampleLayout.triangle_texture(mesh_topology(34).triangles, 4),
+    )
+    for samples in (SampleSet.of(layouts, 34), SampleSet.of(layouts[:1], 34)):
+        sizes = [
+            (len(layout.mask), 3 * len(gather))  # groups, 3 k (k slot nodes)
+            for layout, gather in zip(layouts, samples.gather, strict=False)
+        ]
+        blocks = [rng.normal(size=(groups, size, size)) for groups, size in sizes]
+        vectors = [rng.normal(size=(groups, size)) for groups, size in sizes]
+        matrix, vector = samples.assemble(blocks, vectors)
+        values = np.concatenate([block.ravel() for block in blocks])
+        expected = np.bincount(samples.block_index, weights=values, minlength=102 * 102)
+        assert np.array_equal(matrix, expected.reshape(102, 102))
+        values = np.concatenate([part.ravel() for part in vectors])
+        assert np.array_equal(vector, np.bincount(samples.vector_index, values, minlength=102))

@@ -12,10 +12,11 @@ squares on the nodes brought into the face frame (or a given fit, such as the pr
 when the meshes are tracked). Then Gauss-Newton on all of (omega, t, sigma,
 alpha) with the analytic Jacobian of eq. 1 and 3 (the ``cv2.Rodrigues`` derivatives of
 :func:`face_tracking_ros.geometry.rotation.rodrigues`) and a tiny Levenberg damping for
-bases that nearly contain a rigid motion; all frames are solved at once as a batch of small
-normal equations. It converges quadratically: on exact model meshes the parameters come out to
-about 1e-12 in 3 to 5 iterations. (Alternating the two block minimisations instead converges only
-linearly, in hundreds of iterations, because pose and bases are coupled.)
+bases that nearly contain a rigid motion; an iteration forms and solves every frame's small
+normal equations in one compiled pass (:mod:`.node_fit_kernels`). It converges quadratically: on
+exact model meshes the parameters come out to about 1e-12 in 3 to 5 iterations. (Alternating the
+two block minimisations instead converges only linearly, in hundreds of iterations, because pose
+and bases are coupled.)
 
 Meshes that are measured, not true, can add the §4.1 Gaussian prior on alpha: with nodes in error
 by s per coordinate, the maximum a posteriori fit minimises the node distance plus
@@ -89,43 +90,117 @@ def fit_model_to_nodes(
             finite non-negative (N,) array, start is a fit of another number of frames or
             parameters, or alpha_precision is not a symmetric positive definite (q, q) matrix.
     """
-    nodes, w = _checked(model, nodes, weights)
-    prior_root = None if alpha_precision is None else _prior_root(model, alpha_precision)
-    row_scale = np.repeat(np.sqrt(w), 3)
-    bases = np.hstack([model.shape_basis, model.action_basis])
-    bases_nodes = bases.reshape(model.num_nodes, 3, -1)
-    mean = model.mean_shape.reshape(-1, 3)
-    if start is None:
-        omega, t, coefficients = _initial_estimate(model, nodes, w, bases)
-    else:
-        omega, t, coefficients = _start_of(start, len(nodes), bases.shape[1])
-    iterations, converged = 0, False
-    while not converged and iterations < max_iterations:
-        iterations += 1
-        residual, jacobian = _residual_and_jacobian(
-            mean, bases_nodes, nodes, omega, t, coefficients
+    problem = NodeFitProblem.of(model, weights, alpha_precision)
+    return problem.fit(nodes, tolerance, max_iterations, start)
+
+
+@dataclass(frozen=True)
+class NodeFitProblem:
+    """A model with node weights and a prior, checked and prepared for many fits (a tracker's).
+
+    :func:`fit_model_to_nodes` with the same model, weights and prior, without checking and
+    preparing them again on every call.
+
+    Attributes:
+        model: the face model (N nodes).
+        weights: (N,) node weights w_i.
+        row_scale: (3N,) sqrt(w_i) of every coordinate.
+        bases: (3N, p + q) [S A].
+        bases_nodes: (N, 3, p + q) the bases per node.
+        mean: (N, 3) the mean shape.
+        prior_root: (q, q) ``L'`` of the prior's precision (None: no prior).
+    """
+
+    model: FaceModel
+    weights: np.ndarray
+    row_scale: np.ndarray
+    bases: np.ndarray
+    bases_nodes: np.ndarray
+    mean: np.ndarray
+    prior_root: np.ndarray | None
+
+    @classmethod
+    def of(
+        cls,
+        model: FaceModel,
+        weights: np.ndarray | None = None,
+        alpha_precision: np.ndarray | None = None,
+    ) -> NodeFitProblem:
+        """The prepared fit (arguments as :func:`fit_model_to_nodes`'s).
+
+        Raises:
+            InputError: if weights or alpha_precision are not usable (as
+                :func:`fit_model_to_nodes`).
+        """
+        w = _checked_weights(model, weights)
+        bases = np.hstack([model.shape_basis, model.action_basis])
+        return cls(
+            model=model,
+            weights=w,
+            row_scale=np.repeat(np.sqrt(w), 3),
+            bases=bases,
+            bases_nodes=bases.reshape(model.num_nodes, 3, -1),
+            mean=model.mean_shape.reshape(-1, 3),
+            prior_root=None if alpha_precision is None else _prior_root(model, alpha_precision),
         )
-        residual, jacobian = residual * row_scale, jacobian * row_scale[:, None]
-        if prior_root is not None:
-            residual, jacobian = _with_prior(residual, jacobian, coefficients, prior_root)
-        step = _damped_step(residual, jacobian)
-        omega, t, coefficients = omega + step[:, :3], t + step[:, 3:6], coefficients + step[:, 6:]
-        converged = bool(np.max(np.abs(step)) < tolerance)
-    residual = _residual(mean, bases_nodes, nodes, omega, t, coefficients)[0]
-    return NodeFit(
-        omega=omega,
-        t=t,
-        sigma=coefficients[:, : model.p],
-        alpha=coefficients[:, model.p :],
-        rms=np.sqrt(3.0 * np.mean(residual**2, axis=1)),
-        iterations=iterations,
-    )
+
+    def fit(
+        self,
+        nodes: np.ndarray,
+        tolerance: float = 1e-12,
+        max_iterations: int = 20,
+        start: NodeFit | None = None,
+    ) -> NodeFit:
+        """:func:`fit_model_to_nodes` of (F, N, 3) meshes (arguments as its).
+
+        Raises:
+            InputError: if nodes is not a finite (F, N, 3) array with F >= 1, or start is a
+                fit of another number of frames or parameters.
+        """
+        model = self.model
+        nodes = _checked_nodes(model, nodes)
+        if start is None:
+            omega, t, coefficients = _initial_estimate(model, nodes, self.weights, self.bases)
+        else:
+            omega, t, coefficients = _start_of(start, len(nodes), self.bases.shape[1])
+        from face_tracking_ros.recognition.node_fit_kernels import (  # noqa: PLC0415
+            gauss_newton_iteration,  # numba at the first fit alone (module notes)
+            rms_distances,
+        )
+
+        prior_root = np.zeros((0, 0)) if self.prior_root is None else self.prior_root
+        iterations, converged = 0, False
+        while not converged and iterations < max_iterations:
+            iterations += 1
+            rotation, d_rotation = _rotations(omega)
+            omega, t, coefficients, largest = gauss_newton_iteration(
+                self.mean,
+                self.bases_nodes,
+                nodes,
+                omega,
+                t,
+                coefficients,
+                rotation,
+                d_rotation,
+                self.row_scale,
+                prior_root,
+                LEVENBERG_DAMPING,
+            )
+            converged = bool(largest < tolerance)
+        rotation, _ = _rotations(omega)
+        rms = rms_distances(self.mean, self.bases_nodes, nodes, coefficients, rotation, t)
+        return NodeFit(
+            omega=omega,
+            t=t,
+            sigma=coefficients[:, : model.p],
+            alpha=coefficients[:, model.p :],
+            rms=rms,
+            iterations=iterations,
+        )
 
 
-def _checked(
-    model: FaceModel, nodes: np.ndarray, weights: np.ndarray | None
-) -> tuple[np.ndarray, np.ndarray]:
-    """The meshes and node weights (ones if None) as float arrays, checked.
+def _checked_nodes(model: FaceModel, nodes: np.ndarray) -> np.ndarray:
+    """The meshes as a float array, checked.
 
     Raises:
         InputError: as :func:`fit_model_to_nodes`.
@@ -137,11 +212,20 @@ def _checked(
     if not np.all(np.isfinite(nodes)):
         msg = 'nodes to fit hold NaN or Inf'
         raise InputError(msg)
+    return nodes
+
+
+def _checked_weights(model: FaceModel, weights: np.ndarray | None) -> np.ndarray:
+    """The node weights (ones if None) as a float array, checked.
+
+    Raises:
+        InputError: as :func:`fit_model_to_nodes`.
+    """
     w = np.ones(model.num_nodes) if weights is None else np.asarray(weights, dtype=float)
     if w.shape != (model.num_nodes,) or not np.all(np.isfinite(w)) or np.any(w < 0):
         msg = f'weights must be finite and >= 0 with shape ({model.num_nodes},)'
         raise InputError(msg)
-    return nodes, w
+    return w
 
 
 def _prior_root(model: FaceModel, precision: np.ndarray) -> np.ndarray:
@@ -164,32 +248,6 @@ def _prior_root(model: FaceModel, precision: np.ndarray) -> np.ndarray:
     except np.linalg.LinAlgError:
         msg = 'alpha_precision must be positive definite'
         raise InputError(msg) from None
-
-
-def _with_prior(
-    residual: np.ndarray, jacobian: np.ndarray, coefficients: np.ndarray, root: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
-    """Residuals (F, R) and Jacobian (F, R, D) with the prior's rows ``L' alpha`` appended.
-
-    Alpha is the last q of the D coefficients' columns (``coefficients`` (F, p + q), sigma then
-    alpha).
-    """
-    q = len(root)
-    rows = np.zeros((len(residual), q, jacobian.shape[2]))
-    rows[:, :, -q:] = root
-    return (
-        np.concatenate([residual, coefficients[:, -q:] @ root.T], axis=1),
-        np.concatenate([jacobian, rows], axis=1),
-    )
-
-
-def _damped_step(residual: np.ndarray, jacobian: np.ndarray) -> np.ndarray:
-    """(F, D) Levenberg-Marquardt steps of every frame, damped by :data:`LEVENBERG_DAMPING`."""
-    normal = np.swapaxes(jacobian, 1, 2) @ jacobian
-    diagonal = np.einsum('fii->fi', normal)  # a view
-    diagonal += LEVENBERG_DAMPING * diagonal
-    gradient = np.swapaxes(jacobian, 1, 2) @ residual[..., None]
-    return -np.linalg.solve(normal, gradient)[..., 0]
 
 
 def _initial_estimate(
@@ -229,54 +287,7 @@ def _start_of(
     return start.omega, start.t, coefficients
 
 
-def _residual_and_jacobian(
-    mean: np.ndarray,
-    bases_nodes: np.ndarray,
-    nodes: np.ndarray,
-    omega: np.ndarray,
-    t: np.ndarray,
-    coefficients: np.ndarray,
-) -> tuple[np.ndarray, np.ndarray]:
-    """Residuals (F, 3N) of eq. 1 and 3 and their Jacobian (F, 3N, 6 + p + q).
-
-    Args:
-        mean: (N, 3) mean shape.
-        bases_nodes: (N, 3, D) the bases [S A] per node.
-        nodes: (F, N, 3) target meshes, camera frame.
-        omega: (F, 3) rotation vectors.
-        t: (F, 3) translations.
-        coefficients: (F, D) sigma then alpha.
-    """
-    frames, num_nodes = nodes.shape[:2]
-    residual, shapes, rotation, d_rotation = _residual(
-        mean, bases_nodes, nodes, omega, t, coefficients
-    )
-    jacobian = np.concatenate(
-        [
-            np.einsum('fkab,fnb->fnak', d_rotation, shapes),
-            np.broadcast_to(np.eye(3), (frames, num_nodes, 3, 3)),
-            rotation[:, None] @ bases_nodes[None],
-        ],
-        axis=3,
-    )
-    return residual, jacobian.reshape(frames, 3 * num_nodes, -1)
-
-
-def _residual(
-    mean: np.ndarray,
-    bases_nodes: np.ndarray,
-    nodes: np.ndarray,
-    omega: np.ndarray,
-    t: np.ndarray,
-    coefficients: np.ndarray,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Residuals (F, 3N) of eq. 1 and 3 (arguments as :func:`_residual_and_jacobian`'s).
-
-    Returns:
-        ``(residual, shapes, rotation, d_rotation)``: also the (F, N, 3) face-frame shapes and
-        the (F, 3, 3) R(omega) and (F, 3, 3, 3) dR/d omega they were posed with.
-    """
-    shapes = mean + np.einsum('ncd,fd->fnc', bases_nodes, coefficients)
+def _rotations(omega: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(F, 3, 3) R(omega) and (F, 3, 3, 3) dR / d omega_k of (F, 3) rotation vectors."""
     rotation, d_rotation = (np.array(a) for a in zip(*map(rodrigues, omega), strict=True))
-    residual = shapes @ np.swapaxes(rotation, 1, 2) + t[:, None, :] - nodes
-    return residual.reshape(len(nodes), -1), shapes, rotation, d_rotation
+    return rotation, d_rotation

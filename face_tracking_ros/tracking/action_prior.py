@@ -25,7 +25,8 @@ grey^2 / m^2, like eq. 5's rho.
 
 The solver evaluates the term at every trial point (:meth:`ActionPrior.evaluate` refits the
 parameters from the last fit, a :class:`ModelPoint` that keeps M and its Jacobian) and forms
-its normal equations only where it linearises, from that evaluation.
+its normal equations only where it linearises, from that evaluation. The arithmetic of both is
+compiled (:mod:`.stereo_kernels`: some thirty small numpy calls a trial point otherwise).
 """
 
 from __future__ import annotations
@@ -39,6 +40,13 @@ import numpy as np
 from face_tracking_ros.geometry.rotation import rodrigues, rotate_with_jacobian
 from face_tracking_ros.model.face_model import FaceModel
 from face_tracking_ros.recognition.node_fit import fit_model_to_nodes
+from face_tracking_ros.tracking.stereo_kernels import (
+    model_difference,
+    model_hessian,
+    model_normal,
+    model_shape,
+    model_step,
+)
 
 FIT_ITERATIONS = 1  # Gauss-Newton steps of (omega, t, alpha), warm-started from the last fit
 ALPHA_DAMPING = 1e-9  # relative Levenberg damping on the normal matrix of the fit
@@ -48,8 +56,8 @@ ALPHA_DAMPING = 1e-9  # relative Levenberg damping on the normal matrix of the f
 class ModelPoint:
     """The animated mesh at one parameter vector, with the normal matrix of a fit from there.
 
-    The Jacobian and what follows from it are made when first asked for: the solver needs them
-    only at the points it linearises at.
+    The weighted Jacobian and the normal matrices are made when first asked for, in one compiled
+    pass: the solver needs them only at the points it linearises at.
 
     Attributes:
         theta: (6 + q,) parameters (omega, t, alpha).
@@ -70,35 +78,31 @@ class ModelPoint:
     row_weights: np.ndarray
 
     @cached_property
-    def jacobian(self) -> np.ndarray:
-        """(3N, 6 + q) dM / d(omega, t, alpha)."""
-        n = self.shape.shape[0]
-        jacobian = np.concatenate(
-            [
-                np.einsum('kab,nb->nak', self.d_rotation, self.shape),
-                np.broadcast_to(np.eye(3), (n, 3, 3)),
-                np.einsum('ab,nbq->naq', self.rotation, self.action_basis),
-            ],
-            axis=2,
+    def _linear(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """W J, J^T W J and that damped (one compiled pass, :func:`.model_normal`)."""
+        return model_normal(
+            self.shape,
+            self.rotation,
+            self.d_rotation,
+            self.action_basis,
+            self.row_weights,
+            ALPHA_DAMPING,
         )
-        return jacobian.reshape(3 * n, -1)
 
-    @cached_property
+    @property
     def weighted(self) -> np.ndarray:
-        """(3N, 6 + q) W J."""
-        return self.jacobian * self.row_weights[:, None]
+        """(3N, 6 + q) W J, J = dM / d(omega, t, alpha)."""
+        return self._linear[0]
 
-    @cached_property
+    @property
     def normal(self) -> np.ndarray:
         """(6 + q, 6 + q) J^T W J."""
-        return self.jacobian.T @ self.weighted
+        return self._linear[1]
 
-    @cached_property
+    @property
     def damped_normal(self) -> np.ndarray:
         """J^T W J with the fit's relative Levenberg damping on its diagonal."""
-        normal = self.normal.copy()
-        normal.flat[:: len(normal) + 1] *= 1.0 + ALPHA_DAMPING  # the diagonal, in place
-        return normal
+        return self._linear[2]
 
 
 class PriorEvaluation(NamedTuple):
@@ -154,7 +158,7 @@ class ActionPrior:
         """
         fit = fit_model_to_nodes(model, first_nodes[None], tolerance=1e-9)
         omega, t, alpha = fit.omega[0], fit.t[0], fit.alpha[0]
-        action = model.action_basis_nodes()
+        action = np.ascontiguousarray(model.action_basis_nodes())  # the kernels'
         rotated, _ = rotate_with_jacobian(-omega, first_nodes - t)
         base = rotated - action @ alpha
         theta = np.concatenate([omega, t, alpha])
@@ -180,10 +184,8 @@ class ActionPrior:
 
     def point(self, theta: np.ndarray) -> ModelPoint:
         """M(theta) (N, 3), with its Jacobian (3N, 6 + q) with respect to (omega, t, alpha)."""
-        omega, t, alpha = theta[:3], theta[3:6], theta[6:]
-        shape = self.base + self.action_basis @ alpha
-        rotation, d_rotation = rodrigues(omega)
-        nodes = shape @ rotation.T + t
+        rotation, d_rotation = rodrigues(theta[:3])
+        shape, nodes = model_shape(self.base, self.action_basis, theta, rotation)
         return ModelPoint(
             theta, nodes, shape, rotation, d_rotation, self.action_basis, self.row_weights
         )
@@ -199,8 +201,9 @@ class ActionPrior:
         """E_model at ``nodes`` (N, 3), m, refitting the parameters from ``start``."""
         motion = nodes - self.first_nodes
         point = self._fit(motion, start)
-        difference = self._difference(motion, point)
-        cost = float(difference @ (self.row_weights * difference))
+        difference, cost = model_difference(
+            motion, point.nodes, self.first_model, self.row_weights
+        )
         return PriorEvaluation(cost, point, difference)
 
     def normal_equations(self, evaluation: PriorEvaluation) -> tuple[np.ndarray, np.ndarray]:
@@ -210,25 +213,17 @@ class ActionPrior:
             ``(hessian, gradient)``: (3N, 3N) W - W J (J^T W J)^-1 J^T W; (3N,) W (X - M).
         """
         point = evaluation.point
-        weighted = point.weighted
-        hessian = weighted @ np.linalg.solve(point.normal, weighted.T)
-        np.subtract(self._weight_matrix, hessian, out=hessian)  # W - that, in place
+        hessian = model_hessian(point.weighted, point.normal, self.row_weights)
         return hessian, self.row_weights * evaluation.difference
-
-    @cached_property
-    def _weight_matrix(self) -> np.ndarray:
-        """(3N, 3N) W, diag(row_weights) (made once: the term's arrays are never changed)."""
-        return np.diag(self.row_weights)
 
     def _fit(self, motion: np.ndarray, start: ModelPoint) -> ModelPoint:
         """:meth:`fit` to the nodes' motion since frame 1, X - X(1) (N, 3), m."""
         point = start
         for _ in range(FIT_ITERATIONS):
-            difference = self._difference(motion, point)
-            step = np.linalg.solve(point.damped_normal, point.weighted.T @ difference)
-            point = self.point(point.theta + step)
+            difference, _ = model_difference(
+                motion, point.nodes, self.first_model, self.row_weights
+            )
+            point = self.point(
+                model_step(point.weighted, point.damped_normal, difference, point.theta)
+            )
         return point
-
-    def _difference(self, motion: np.ndarray, point: ModelPoint) -> np.ndarray:
-        """(3N,) X - M(theta) as (X - X(1)) - (M - M(1)), from the motion X - X(1) (N, 3)."""
-        return (motion - (point.nodes - self.first_model)).ravel()

@@ -345,7 +345,7 @@ def roi_jacobian(
 
     The chain rule of eq. 1-3 contracted with the image gradient g first: per sample,
     ``h = (P_(1,2)' g - (g . x) P_3) / h_3`` carries g to the camera-frame point (eq. 2,
-    :func:`~.projection.space_gradient`); the omega rows are ``j_k . (R P x h)`` (eq. 1,
+    :func:`~.stereo_kernels.space_rows`); the omega rows are ``j_k . (R P x h)`` (eq. 1,
     ``dR/domega_k = [j_k]x R``), the t rows ``h`` and the coefficient rows
     ``(R' h)' (B_n + D_nm)`` (eq. 3), B_n the node's basis and D_nm the sample's own deformation
     (:func:`~.surface_patches.patch_basis`). The node pixels' Jacobian comes with it, to

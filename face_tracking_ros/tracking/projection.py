@@ -71,30 +71,3 @@ def project_with_jacobian(
         points_cam=points_cam.reshape(*lead, 3),
         jacobian=np.concatenate(blocks, axis=-1),
     )
-
-
-def space_gradient(
-    projection: np.ndarray, homogeneous: np.ndarray, gradient: np.ndarray
-) -> np.ndarray:
-    """The image gradient carried to the camera-frame point: ``h = (d pi / d X_c)^T grad I``.
-
-    With ``x = (P X)_(1, 2) / (P X)_3`` (eq. 2), ``d x / d X = (P_(1, 2) - x P_3) / (P X)_3``, so
-    ``h = (P_(1, 2)^T g - (g . x) P_3) / (P X)_3``: the change of a sample's grey level per metre
-    of its point's motion. Leading axes of all three arrays broadcast (one per camera, say).
-
-    Args:
-        projection: (..., 3, 3) the left 3x3 part of a camera's P, px (per m).
-        homogeneous: (..., 3, K) ``P X`` of K points, homogeneous pixels.
-        gradient: (..., 2, K) float64 image gradient at their pixels, grey levels / px.
-
-    Returns:
-        (..., 3, K) h, grey levels / m.
-    """
-    inverse_depth = 1.0 / homogeneous[..., 2, :]
-    along = (
-        gradient[..., 0, :] * homogeneous[..., 0, :] + gradient[..., 1, :] * homogeneous[..., 1, :]
-    ) * inverse_depth
-    h = np.swapaxes(projection[..., :2, :], -1, -2) @ gradient
-    h -= projection[..., 2, :, None] * along[..., None, :]
-    h *= inverse_depth[..., None, :]
-    return h

@@ -59,7 +59,7 @@ from face_tracking_ros.imaging import (
 from face_tracking_ros.model.face_model import FaceModel
 from face_tracking_ros.model.model_file import load_model
 from face_tracking_ros.model.topology import Group, MeshTopology, mesh_topology
-from face_tracking_ros.recognition.node_fit import NodeFit, fit_model_to_nodes
+from face_tracking_ros.recognition.node_fit import NodeFit, NodeFitProblem
 from face_tracking_ros.tracking.action_prior import ActionPrior, ModelPoint
 from face_tracking_ros.tracking.camera_gain import GAIN_RESOLUTION, relative_gain
 from face_tracking_ros.tracking.coarse_to_fine import coarse_to_fine
@@ -247,7 +247,6 @@ class StereoTracker:
         check_baseline(rig, config.init)
         self._calibrated_rig = rig
         self._config = config
-        self._model = model
         self._prior_model = _prior_model(config, model)
         self._detector = detector
         self._topology: MeshTopology = mesh_topology(config.num_nodes)
@@ -257,8 +256,10 @@ class StereoTracker:
         # two cameras see those differently without one, :mod:`.stereo_occlusion`).
         self._occludable = ~self._topology.group_mask(Group.EDGE, Group.NOSE)
         self._alignment_weights = self._topology.alignment_weights()  # of the head's rotation
-        self._fit_weights = np.where(self._boundary, config.fit_edge_weight, 1.0)
-        self._fit_precision = _fit_precision(config, model)
+        self._fit_problem = None
+        if model is not None:  # the reported fit's, prepared once (weights, prior: _fit)
+            weights = np.where(self._boundary, config.fit_edge_weight, 1.0)
+            self._fit_problem = NodeFitProblem.of(model, weights, _fit_precision(config, model))
         self._use_rig(rig)
         self._spare: tuple[ImagePyramid, ImagePyramid] | None = None
         self._right_gain = 1.0  # divided out of the right images (measured at initialisation)
@@ -1197,16 +1198,9 @@ class StereoTracker:
         given, instead of Procrustes: 1.90 -> 1.26 ms per fit over a tracked 380-pair sequence
         (on a slow machine), the fits equal to 4e-8.
         """
-        if self._model is None:
+        if self._fit_problem is None:
             return None
-        return fit_model_to_nodes(
-            self._model,
-            nodes[None],
-            tolerance=FIT_TOLERANCE,
-            weights=self._fit_weights,
-            start=start,
-            alpha_precision=self._fit_precision,
-        )
+        return self._fit_problem.fit(nodes[None], tolerance=FIT_TOLERANCE, start=start)
 
     def _lose(self, reason: str) -> StereoResult:
         """Drop the track: LOST until re-acquired (:meth:`_reacquire`) or a new detection."""

@@ -66,12 +66,13 @@ from face_tracking_ros.imaging import (
     sample_xy,
     square_offsets,
 )
-from face_tracking_ros.tracking.projection import space_gradient
 from face_tracking_ros.tracking.stereo_kernels import (
     group_summaries,
     layout_points,
     node_normal_blocks,
     pixel_maps,
+    scatter_sums,
+    space_rows,
     stencil_maps,
     zssd_residuals,
 )
@@ -325,18 +326,9 @@ class SampleSet:
             blocks: per layout, (G_l, 3k, 3k) blocks (:func:`node_blocks`).
             vectors: per layout, (G_l, 3k) vectors.
         """
-        size = 3 * self.num_nodes
-        matrix = np.bincount(
-            self.block_index,
-            weights=np.concatenate([block.ravel() for block in blocks]),
-            minlength=size * size,
+        return scatter_sums(
+            tuple(blocks), tuple(vectors), self.block_index, self.vector_index, 3 * self.num_nodes
         )
-        vector = np.bincount(
-            self.vector_index,
-            weights=np.concatenate([vector.ravel() for vector in vectors]),
-            minlength=size,
-        )
-        return matrix.reshape(size, size), vector
 
 
 class Sampled(NamedTuple):
@@ -545,7 +537,7 @@ def node_blocks(
     """Gauss-Newton terms J^T W J and J^T W r of the image terms, by group, summed over images.
 
     The Jacobian of a sample with respect to its k slot nodes is ``b_k (d pi / d P)^T grad I``
-    (eq. 2; :func:`~.projection.space_gradient`), minus its group's mean (ZSSD) or brightness
+    (eq. 2; :func:`~.stereo_kernels.space_rows`), minus its group's mean (ZSSD) or brightness
     ramp, as the residuals; the blocks are summed by
     :func:`~.stereo_kernels.node_normal_blocks`.
 
@@ -560,10 +552,7 @@ def node_blocks(
         group (grey^2 / m^2, grey^2 / m), for :meth:`SampleSet.assemble`.
     """
     valid = sampled.valid
-    rows = space_gradient(
-        projections[:, :, :3], sampled.homogeneous, sampled.gradient.astype(float)
-    )
-    rows *= valid[:, None, :]
+    rows = space_rows(projections, sampled.homogeneous, sampled.gradient, valid)
     blocks, vectors = [], []
     for index, (counts, slot_weights) in enumerate(
         zip(residuals.counts, samples.weights, strict=True)

@@ -15,6 +15,9 @@ from the residuals and the Jacobian alike (the variable projection of the ramp's
 unknowns). Kernels are typed (compiled on import, or loaded from numba's on-disk cache); the
 residuals use IEEE arithmetic without reassociation (those of mean-only groups equal numpy's to
 the bit), the normal blocks' sums may be reassociated (vectorised).
+
+The face-model term's arithmetic (:mod:`.action_prior`) and the image gradient carried to the
+sample points (:func:`space_rows`) are here too.
 """
 
 from __future__ import annotations
@@ -263,6 +266,43 @@ def zssd_residuals(
     return differences, counts, weight, weighted_residual, cost
 
 
+@numba.njit('f8[:, :, ::1](f8[:, :, :], f8[:, :, ::1], f4[:, :, ::1], b1[:, ::1])', **FAST)
+def space_rows(
+    projections: np.ndarray, homogeneous: np.ndarray, gradient: np.ndarray, valid: np.ndarray
+) -> np.ndarray:
+    """The image gradient carried to the camera-frame points: ``h = (d pi / d X_c)' grad I``.
+
+    With ``x = (P X)_(1, 2) / (P X)_3`` (eq. 2), ``d x / d X = (P_(1, 2) - x P_3) / (P X)_3``, so
+    ``h = (P_(1, 2)' g - (g . x) P_3) / (P X)_3``: the change of a sample's grey level per metre
+    of its point's motion (0 where the sample is not valid).
+
+    Args:
+        projections: (C, 3, 3+) the cameras' P (its left 3x3 part is used), px per m.
+        homogeneous: (C, 3, S) ``P X`` of the samples' points, homogeneous pixels.
+        gradient: (C, 2, S) image gradient at their pixels, grey levels / px.
+        valid: (C, S) the samples in use.
+
+    Returns:
+        (C, 3, S) h, grey levels / m.
+    """
+    cameras, _, size = homogeneous.shape
+    rows = np.zeros((cameras, 3, size))
+    for c in range(cameras):
+        for s in range(size):
+            if not valid[c, s]:
+                continue
+            g_x, g_y = float(gradient[c, 0, s]), float(gradient[c, 1, s])
+            inverse_depth = 1.0 / homogeneous[c, 2, s]
+            along = (g_x * homogeneous[c, 0, s] + g_y * homogeneous[c, 1, s]) * inverse_depth
+            for a in range(3):
+                rows[c, a, s] = (
+                    projections[c, 0, a] * g_x
+                    + projections[c, 1, a] * g_y
+                    - projections[c, 2, a] * along
+                ) * inverse_depth
+    return rows
+
+
 @numba.njit(
     'Tuple((f8[:, :, ::1], f8[:, ::1]))(f8[:, :, ::1], b1[:, ::1], f8[:, ::1], f8[:, ::1], '
     'i8[:, :], f8[:, ::1], i8, i8, f8[:, ::1], i8[::1])',
@@ -283,7 +323,7 @@ def node_normal_blocks(
     """Gauss-Newton blocks ``J' W J`` and ``J' W r`` of one layout's groups, summed over images.
 
     The Jacobian of a sample with respect to slot node j is ``b_j h`` with h its image
-    gradient carried to the point (eq. 2, :func:`~.projection.space_gradient`), minus the
+    gradient carried to the point (eq. 2, :func:`space_rows`), minus the
     group's mean over its valid samples (ZSSD), or minus its fit by the group's brightness
     terms, as :func:`zssd_residuals` removes from the residuals.
 
@@ -457,26 +497,69 @@ def pixel_maps(homogeneous: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndar
     return x_32, y_32, boxes, non_finite == 0
 
 
-@numba.njit('f8(f8[:, :, ::1])', **EXACT)
-def largest_motion(homogeneous: np.ndarray) -> float:
+@numba.njit(
+    [
+        f'Tuple((f8[:, ::1], f8[::1]))(UniTuple(f8[:, :, ::1], {layouts}), '
+        f'UniTuple(f8[:, ::1], {layouts}), i8[::1], i8[::1], i8)'
+        for layouts in (1, 2)  # node patches alone, or with the face texture
+    ],
+    **EXACT,
+)
+def scatter_sums(
+    blocks: tuple[np.ndarray, ...],
+    vectors: tuple[np.ndarray, ...],
+    block_index: np.ndarray,
+    vector_index: np.ndarray,
+    size: int,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The layouts' node blocks and vectors summed into a (size, size) matrix and (size,) vector.
+
+    Entry e of the blocks (of the vectors), raveled layout after layout, goes to flat index
+    ``block_index[e]`` (``vector_index[e]``), added in that order: ``np.bincount``'s sums, to
+    the bit.
+    """
+    matrix = np.zeros(size * size)
+    entry = 0
+    for block in blocks:
+        for value in block.ravel():
+            matrix[block_index[entry]] += value
+            entry += 1
+    vector = np.zeros(size)
+    entry = 0
+    for part in vectors:
+        for value in part.ravel():
+            vector[vector_index[entry]] += value
+            entry += 1
+    return matrix.reshape(size, size), vector
+
+
+@numba.njit(**EXACT)
+def _pixel(projection: np.ndarray, point: np.ndarray, axis: int) -> float:
+    """Pixel coordinate ``axis`` (0: x, 1: y) of a point (3,) through a projection P (3, 4)."""
+    x, y, z = point[0], point[1], point[2]
+    depth = projection[2, 0] * x + projection[2, 1] * y + projection[2, 2] * z + projection[2, 3]
+    row = projection[axis]
+    return (row[0] * x + row[1] * y + row[2] * z + row[3]) / depth
+
+
+@numba.njit('f8(f8[:, :, ::1], f8[:, ::1], f8[:, ::1])', **EXACT)
+def largest_motion(projections: np.ndarray, nodes: np.ndarray, moved: np.ndarray) -> float:
     """The largest pixel motion of N points between two estimates, in any of C images (NaN if any).
 
     Args:
-        homogeneous: (C, 3, 2 N) ``P X`` of the N points at the first estimate, then at the
-            second, homogeneous pixels.
+        projections: (C, 3, 4) the images' P of eq. 2.
+        nodes: (N, 3) the points at the first estimate, m.
+        moved: (N, 3) the points at the second, m.
 
     Returns:
         ``max |x_2 - x_1|`` over the points, both pixel coordinates and the images, px.
     """
-    images, _, size = homogeneous.shape
-    count = size // 2
     largest = 0.0
-    for c in range(images):
+    for c in range(projections.shape[0]):
         for a in range(2):
-            for i in range(count):
-                before = homogeneous[c, a, i] / homogeneous[c, 2, i]
-                after = homogeneous[c, a, count + i] / homogeneous[c, 2, count + i]
-                motion = abs(after - before)
+            for i in range(nodes.shape[0]):
+                before = _pixel(projections[c], nodes[i], a)
+                motion = abs(_pixel(projections[c], moved[i], a) - before)
                 if np.isnan(motion):
                     return np.nan
                 largest = max(largest, motion)
@@ -638,3 +721,159 @@ def layout_points(
             if start + s < deformed:
                 offset += scale * field[a, start + s]
             points[a, start + s] = placed + offset
+
+
+# The face-model term (:mod:`.action_prior`): M = R (B + A alpha) + t, its refit and its
+# Gauss-Newton terms (6 + q unknowns, 3N rows), some thirty small numpy calls a trial point as
+# numpy expressions. The model and its difference to the nodes are exact (an unmoved mesh costs
+# exactly nothing); the normal matrices and the Hessian equal numpy's to rounding.
+
+
+@numba.njit(
+    'Tuple((f8[:, ::1], f8[:, ::1]))(f8[:, ::1], f8[:, :, ::1], f8[::1], f8[:, ::1])', **EXACT
+)
+def model_shape(
+    base: np.ndarray, action_basis: np.ndarray, theta: np.ndarray, rotation: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """``(shape, nodes)``: (N, 3) B + A alpha in the face frame and M = R shape + t, m.
+
+    Args:
+        base: (N, 3) base shape B, m.
+        action_basis: (N, 3, q) A.
+        theta: (6 + q,) omega, t, alpha.
+        rotation: (3, 3) R(omega).
+    """
+    count, _, actions = action_basis.shape
+    shape = np.empty((count, 3))
+    nodes = np.empty((count, 3))
+    for n in range(count):
+        for a in range(3):
+            value = 0.0
+            for j in range(actions):
+                value += action_basis[n, a, j] * theta[6 + j]
+            shape[n, a] = base[n, a] + value
+        for a in range(3):
+            nodes[n, a] = (
+                rotation[a, 0] * shape[n, 0]
+                + rotation[a, 1] * shape[n, 1]
+                + rotation[a, 2] * shape[n, 2]
+            ) + theta[3 + a]
+    return shape, nodes
+
+
+@numba.njit('Tuple((f8[::1], f8))(f8[:, ::1], f8[:, ::1], f8[:, ::1], f8[::1])', **EXACT)
+def model_difference(
+    motion: np.ndarray, nodes: np.ndarray, first_model: np.ndarray, row_weights: np.ndarray
+) -> tuple[np.ndarray, float]:
+    """``(difference, cost)``: (3N,) (X - X(1)) - (M - M(1)) and its weighted square sum.
+
+    Args:
+        motion: (N, 3) X - X(1), m.
+        nodes: (N, 3) M, m.
+        first_model: (N, 3) M(1), m.
+        row_weights: (3N,) lambda_i of every coordinate.
+    """
+    difference = (motion - (nodes - first_model)).ravel()
+    cost = 0.0
+    for r in range(difference.size):
+        cost += difference[r] * (row_weights[r] * difference[r])
+    return difference, cost
+
+
+@numba.njit(
+    'Tuple((f8[:, ::1], f8[:, ::1], f8[:, ::1]))(f8[:, ::1], f8[:, ::1], f8[:, :, ::1], '
+    'f8[:, :, ::1], f8[::1], f8)',
+    **FAST,
+)
+def model_normal(
+    shape: np.ndarray,
+    rotation: np.ndarray,
+    d_rotation: np.ndarray,
+    action_basis: np.ndarray,
+    row_weights: np.ndarray,
+    damping: float,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(W J, J' W J, damped)`` of J = dM / d(omega, t, alpha) (3N, 6 + q).
+
+    ``damped`` is J' W J with its diagonal times ``1 + damping``.
+
+    Args:
+        shape: (N, 3) B + A alpha, m.
+        rotation: (3, 3) R(omega).
+        d_rotation: (3, 3, 3) dR / d omega_k.
+        action_basis: (N, 3, q) A.
+        row_weights: (3N,) lambda_i of every coordinate.
+        damping: the relative Levenberg damping of ``damped``.
+    """
+    count, _, actions = action_basis.shape
+    unknowns = 6 + actions
+    jacobian = np.zeros((3 * count, unknowns))
+    for n in range(count):
+        for a in range(3):
+            row = 3 * n + a
+            for k in range(3):
+                jacobian[row, k] = (
+                    d_rotation[k, a, 0] * shape[n, 0]
+                    + d_rotation[k, a, 1] * shape[n, 1]
+                    + d_rotation[k, a, 2] * shape[n, 2]
+                )
+            jacobian[row, 3 + a] = 1.0
+            for j in range(actions):
+                jacobian[row, 6 + j] = (
+                    rotation[a, 0] * action_basis[n, 0, j]
+                    + rotation[a, 1] * action_basis[n, 1, j]
+                    + rotation[a, 2] * action_basis[n, 2, j]
+                )
+    weighted = np.empty_like(jacobian)
+    for row in range(3 * count):
+        for c in range(unknowns):
+            weighted[row, c] = jacobian[row, c] * row_weights[row]
+    normal = np.zeros((unknowns, unknowns))
+    for row in range(3 * count):
+        for c in range(unknowns):
+            for e in range(c, unknowns):
+                normal[c, e] += jacobian[row, c] * weighted[row, e]
+    for c in range(unknowns):
+        for e in range(c):
+            normal[c, e] = normal[e, c]
+    damped = normal.copy()
+    for c in range(unknowns):
+        damped[c, c] *= 1.0 + damping
+    return weighted, normal, damped
+
+
+@numba.njit('f8[::1](f8[:, ::1], f8[:, ::1], f8[::1], f8[::1])', **FAST)
+def model_step(
+    weighted: np.ndarray, damped: np.ndarray, difference: np.ndarray, theta: np.ndarray
+) -> np.ndarray:
+    """(6 + q,) theta moved by the Gauss-Newton step ``damped^-1 (W J)' difference``."""
+    unknowns = theta.size
+    gradient = np.zeros(unknowns)
+    for row in range(difference.size):
+        for c in range(unknowns):
+            gradient[c] += weighted[row, c] * difference[row]
+    return theta + np.linalg.solve(damped, gradient)
+
+
+@numba.njit('f8[:, ::1](f8[:, ::1], f8[:, ::1], f8[::1])', **FAST)
+def model_hessian(weighted: np.ndarray, normal: np.ndarray, row_weights: np.ndarray) -> np.ndarray:
+    """(3N, 3N) W - W J (J' W J)^-1 J' W, the Hessian of the variable projection.
+
+    As W - K K' with K = W J L^-T, ``J' W J = L L'`` (Cholesky): one product of BLAS.
+
+    Raises:
+        LinAlgError: if J' W J is not positive definite.
+    """
+    rows, unknowns = weighted.shape
+    lower = np.linalg.cholesky(normal)
+    solved = np.empty((unknowns, rows))  # K' = L^-1 (W J)', forward substitution
+    for c in range(unknowns):
+        for r in range(rows):
+            value = weighted[r, c]
+            for k in range(c):
+                value -= lower[c, k] * solved[k, r]
+            solved[c, r] = value / lower[c, c]
+    hessian = -np.dot(solved.T, solved)
+    for r in range(rows):
+        hessian[r, r] += row_weights[r]
+    return hessian

@@ -28,7 +28,6 @@ from face_tracking_ros.tracking.stereo_data import (
     Residuals,
     Sampled,
     SampleSet,
-    homogeneous_pixels,
     node_blocks,
     robust_residuals,
     sample_images,
@@ -202,8 +201,7 @@ class LevelSolver:
 
     def _pixel_motion(self, nodes: np.ndarray, moved: np.ndarray) -> float:
         """Largest image motion of a node between two estimates, in either camera, px."""
-        points = np.concatenate([nodes, moved]).T
-        return largest_motion(homogeneous_pixels(self._projections, points))
+        return largest_motion(self._projections, nodes, moved)
 
 
 def _step_tolerance(config: StereoTrackerConfig, index: int) -> float:
@@ -228,10 +226,11 @@ def _damped_step(system: System, damping: float) -> np.ndarray:
 
     The normal equations are finite: images are finite and non-finite sample points raise.
     """
-    augmented = system.hessian.copy()
+    augmented = np.array(system.hessian, order='F')  # LAPACK's layout: f2py copies no more
     diagonal = np.einsum('ii->i', augmented)  # a view
     diagonal += damping * diagonal
-    factor, info = dpotrf(augmented, lower=0, clean=0)  # the routines of cho_factor, cho_solve
+    # The routines of cho_factor and cho_solve.
+    factor, info = dpotrf(augmented, lower=0, clean=0, overwrite_a=1)
     if info != 0:
         msg = f'damped normal matrix is not positive definite (LAPACK potrf info {info})'
         raise LinAlgError(msg)
