@@ -512,18 +512,26 @@ def test_stereo_intervals_below_one_are_refused(stereo_gapped):
         tracker.step(*pairs[0], 0)
 
 
+def _stereo_processor(
+    factory: RosbagsMessages, rig: StereoRig, first: np.ndarray
+) -> StereoProcessor:
+    """A stereo processor with both camera_infos, clicked exactly on the (34, 3) ``first``."""
+    init = Initialisation(mesh_topology(34).node_names, rig.left.project(first))
+    processor = StereoProcessor(factory, StereoNodeConfig(), StereoTrackerConfig(), None, init)
+    for side, camera in (('left', rig.left), ('right', rig.right)):
+        header = conversions.make_header(factory, 0, 'left_optical')
+        info = conversions.camera_to_info(factory, header, camera)
+        processor.handle(f'{side}/camera_info', info, NONE)
+    return processor
+
+
 def test_stereo_processor_counts_the_intervals_of_a_gap_from_the_stamps(
     stereo_gapped, stereo_tracked
 ):
     """The meshes published for each pair are the tracker's told the intervals passed."""
     pairs, nodes, rig = stereo_gapped
     factory = RosbagsMessages(typestore())
-    init = Initialisation(mesh_topology(34).node_names, rig.left.project(nodes[0]))
-    processor = StereoProcessor(factory, StereoNodeConfig(), StereoTrackerConfig(), None, init)
-    for side, camera in (('left', rig.left), ('right', rig.right)):
-        header = conversions.make_header(factory, 0, 'left_optical')
-        info = conversions.camera_to_info(factory, header, camera)
-        processor.handle(f'{side}/camera_info', info, NONE)
+    processor = _stereo_processor(factory, rig, nodes[0])
     meshes = []
     for frame, pair in zip(STEREO_KEPT, pairs, strict=True):
         header = conversions.make_header(factory, frame * STEREO_FRAME_NS, 'left_optical')
@@ -552,12 +560,7 @@ def test_a_stereo_pair_after_the_stream_stalled_is_tracked_where_the_head_is():
     rig = StereoRig(renderer.cameras['left'], renderer.cameras['right'])
     nodes = np.array([frame.truth.nodes_camera[:34] for frame in frames])
     factory = RosbagsMessages(typestore())
-    init = Initialisation(mesh_topology(34).node_names, rig.left.project(nodes[0]))
-    processor = StereoProcessor(factory, StereoNodeConfig(), StereoTrackerConfig(), None, init)
-    for side, camera in (('left', rig.left), ('right', rig.right)):
-        header = conversions.make_header(factory, 0, 'left_optical')
-        info = conversions.camera_to_info(factory, header, camera)
-        processor.handle(f'{side}/camera_info', info, NONE)
+    processor = _stereo_processor(factory, rig, nodes[0])
     inner = ~mesh_topology(34).group_mask(Group.EDGE)
     for index, frame in enumerate(frames):
         pause_ns = 1_000_000_000 - STEREO_FRAME_NS if index >= PAUSED_PAIR else 0

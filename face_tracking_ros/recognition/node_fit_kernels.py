@@ -64,20 +64,10 @@ def gauss_newton_iteration(
         normal = np.zeros((unknowns, unknowns))
         gradient = np.zeros(unknowns)
         for n in range(count):
-            for c in range(3):
-                value = mean[n, c]
-                for d in range(parameters):
-                    value += bases_nodes[n, c, d] * coefficients[f, d]
-                shape[c] = value
+            _model_node(mean, bases_nodes, coefficients[f], n, shape)
             for a in range(3):
                 scale = row_scale[3 * n + a]
-                residual = (
-                    shape[0] * rotation[f, a, 0]
-                    + shape[1] * rotation[f, a, 1]
-                    + shape[2] * rotation[f, a, 2]
-                    + t[f, a]
-                    - nodes[f, n, a]
-                ) * scale
+                residual = _node_residual(shape, rotation[f], t[f], nodes[f, n], a) * scale
                 for k in range(3):
                     row[k] = (
                         d_rotation[f, k, a, 0] * shape[0]
@@ -133,21 +123,39 @@ def rms_distances(
     """
     frames, count = nodes.shape[0], nodes.shape[1]
     rms = np.empty(frames)
+    shape = np.empty(3)
     for f in range(frames):
         total = 0.0
         for n in range(count):
-            shape = mean[n].copy()
-            for c in range(3):
-                for d in range(bases_nodes.shape[2]):
-                    shape[c] += bases_nodes[n, c, d] * coefficients[f, d]
+            _model_node(mean, bases_nodes, coefficients[f], n, shape)
             for a in range(3):
-                residual = (
-                    shape[0] * rotation[f, a, 0]
-                    + shape[1] * rotation[f, a, 1]
-                    + shape[2] * rotation[f, a, 2]
-                    + t[f, a]
-                    - nodes[f, n, a]
-                )
+                residual = _node_residual(shape, rotation[f], t[f], nodes[f, n], a)
                 total += residual * residual
         rms[f] = np.sqrt(total / count)
     return rms
+
+
+@numba.njit(**FAST)
+def _model_node(
+    mean: np.ndarray, bases_nodes: np.ndarray, coefficients: np.ndarray, n: int, shape: np.ndarray
+) -> None:
+    """Node ``n`` of the model's shape, ``mean_n + B_n c`` (eq. 3), written into ``shape`` (3,)."""
+    for c in range(3):
+        value = mean[n, c]
+        for d in range(bases_nodes.shape[2]):
+            value += bases_nodes[n, c, d] * coefficients[d]
+        shape[c] = value
+
+
+@numba.njit(**FAST)
+def _node_residual(
+    shape: np.ndarray, rotation: np.ndarray, t: np.ndarray, node: np.ndarray, a: int
+) -> float:
+    """Coordinate ``a`` of ``R shape + t - node``: a node's residual of eq. 1."""
+    return (
+        shape[0] * rotation[a, 0]
+        + shape[1] * rotation[a, 1]
+        + shape[2] * rotation[a, 2]
+        + t[a]
+        - node[a]
+    )
