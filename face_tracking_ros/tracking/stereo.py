@@ -35,6 +35,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field, replace
+from functools import cache, partial
 from typing import NamedTuple
 
 import numpy as np
@@ -407,7 +408,7 @@ class StereoTracker:
         The part of :meth:`step` that its result does not need, left for later: a node runs it
         once the pair's outputs are published (``run_deferred``), and the next ``step`` first
         runs it if no one has. Nodes an occluder covered keep their templates
-        (:func:`~.stereo_templates.kept_templates`). About 0.35 ms of a 640x480 pair's 4-5 ms
+        (:func:`~.stereo_occlusion.kept_templates`). About 0.3 ms of a 640x480 pair's 3 ms
         (34 nodes, one core).
         """
         state = self._state
@@ -682,23 +683,30 @@ class StereoTracker:
         """
         state = self._state
         assert state is not None
-        attempt = self._followed(state, pyramids)
+        searched = cache(partial(self._searched, state, pyramids))  # searched once at most
+        attempt = self._followed(state, pyramids, searched)
         if state.elapsed > self._config.pause_intervals:
-            attempt = _better(attempt, self._found_again(state, pyramids))
+            attempt = _better(attempt, self._found_again(state, pyramids, searched))
         if attempt.problem:
             return self._lose(attempt.problem)
         return self._advance(state, pyramids, attempt)
 
-    def _followed(self, state: _State, pyramids: tuple[ImagePyramid, ImagePyramid]) -> _Attempt:
+    def _followed(
+        self,
+        state: _State,
+        pyramids: tuple[ImagePyramid, ImagePyramid],
+        searched: Callable[[], np.ndarray],
+    ) -> _Attempt:
         """The pair solved from the motion prediction, after a gap from the searched start too.
 
         Eq. 5 measures a gap pair's motion from the rigid prediction (see :meth:`_track`).
+        ``searched()`` gives the searched start (:meth:`_searched`).
         """
         gap = state.after_gap
         reference = self._rigid_predicted(state) if gap else state.nodes
         attempt = self._attempt(state, pyramids, self._predicted(state), reference)
         if attempt.problem and gap:
-            found = self._attempt(state, pyramids, self._searched(state, pyramids), reference)
+            found = self._attempt(state, pyramids, searched(), reference)
             attempt = attempt if found.problem else found
         return attempt
 
@@ -732,7 +740,7 @@ class StereoTracker:
         """
         state = self._lost
         assert state is not None
-        attempt = self._found_again(state, pyramids)
+        attempt = self._found_again(state, pyramids, partial(self._searched, state, pyramids))
         if attempt.problem:
             state = self._from_first_pair(state)
             attempt = self._attempt(state, pyramids, self._searched(state, pyramids), state.nodes)
@@ -742,7 +750,12 @@ class StereoTracker:
         self._state, self._lost = state, None
         return self._advance(state, pyramids, attempt)
 
-    def _found_again(self, state: _State, pyramids: tuple[ImagePyramid, ImagePyramid]) -> _Attempt:
+    def _found_again(
+        self,
+        state: _State,
+        pyramids: tuple[ImagePyramid, ImagePyramid],
+        searched: Callable[[], np.ndarray],
+    ) -> _Attempt:
         """The pair solved from the face found in it, or else from the last tracked nodes.
 
         The solve from the last tracked nodes moved onto the face's displacement in the left
@@ -750,9 +763,9 @@ class StereoTracker:
         were; eq. 5 measures the motion from them (no motion is predicted). The first attempt
         that passes, or the search's if neither does. A lost track is re-acquired so
         (:meth:`_reacquire`), and a pair after a pause of the stream is solved so too
-        (:meth:`_track`).
+        (:meth:`_track`). ``searched()`` gives the searched start (:meth:`_searched`).
         """
-        attempt = self._attempt(state, pyramids, self._searched(state, pyramids), state.nodes)
+        attempt = self._attempt(state, pyramids, searched(), state.nodes)
         if attempt.problem:
             still = self._attempt(state, pyramids, state.nodes, state.nodes)
             attempt = attempt if still.problem else still
