@@ -68,20 +68,9 @@ def gauss_newton_iteration(
             for a in range(3):
                 scale = row_scale[3 * n + a]
                 residual = _node_residual(shape, rotation[f], t[f], nodes[f, n], a) * scale
-                for k in range(3):
-                    row[k] = (
-                        d_rotation[f, k, a, 0] * shape[0]
-                        + d_rotation[f, k, a, 1] * shape[1]
-                        + d_rotation[f, k, a, 2] * shape[2]
-                    ) * scale
-                for k in range(3):
-                    row[3 + k] = scale if k == a else 0.0
-                for d in range(parameters):
-                    row[6 + d] = (
-                        rotation[f, a, 0] * bases_nodes[n, 0, d]
-                        + rotation[f, a, 1] * bases_nodes[n, 1, d]
-                        + rotation[f, a, 2] * bases_nodes[n, 2, d]
-                    ) * scale
+                model_jacobian_row(shape, rotation[f], d_rotation[f], bases_nodes, n, a, row)
+                for i in range(unknowns):
+                    row[i] *= scale
                 for i in range(unknowns):
                     gradient[i] += row[i] * residual
                     for j in range(i, unknowns):
@@ -133,6 +122,48 @@ def rms_distances(
                 total += residual * residual
         rms[f] = np.sqrt(total / count)
     return rms
+
+
+@numba.njit(**FAST)
+def model_jacobian_row(
+    shape: np.ndarray,
+    rotation: np.ndarray,
+    d_rotation: np.ndarray,
+    bases_nodes: np.ndarray,
+    n: int,
+    a: int,
+    row: np.ndarray,
+) -> None:
+    """Coordinate ``a`` of node ``n`` of d(R shape + t) / d(omega, t, c), into ``row`` (6 + D,).
+
+    Eq. 1 and 3 with ``shape = mean_n + B_n c`` (3,) the node in the face frame: the omega
+    columns ``dR/domega_k shape``, the t columns the unit vector of ``a``, the coefficient
+    columns ``R B_n``. Shared with the stereo tracker's face-model term
+    (:func:`~face_tracking_ros.tracking.stereo_kernels.model_normal`, B = A there).
+
+    Args:
+        shape: (3,) the node in the face frame.
+        rotation: (3, 3) R(omega).
+        d_rotation: (3, 3, 3) dR / d omega_k.
+        bases_nodes: (N, 3, D) the bases per node.
+        n: the node.
+        a: the coordinate (0, 1, 2).
+        row: (6 + D,) written.
+    """
+    for k in range(3):
+        row[k] = (
+            d_rotation[k, a, 0] * shape[0]
+            + d_rotation[k, a, 1] * shape[1]
+            + d_rotation[k, a, 2] * shape[2]
+        )
+    for k in range(3):
+        row[3 + k] = 1.0 if k == a else 0.0
+    for d in range(bases_nodes.shape[2]):
+        row[6 + d] = (
+            rotation[a, 0] * bases_nodes[n, 0, d]
+            + rotation[a, 1] * bases_nodes[n, 1, d]
+            + rotation[a, 2] * bases_nodes[n, 2, d]
+        )
 
 
 @numba.njit(**FAST)

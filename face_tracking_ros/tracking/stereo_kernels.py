@@ -26,6 +26,7 @@ import numba
 import numpy as np
 
 from face_tracking_ros.compiled import EXACT, FAST
+from face_tracking_ros.recognition.node_fit_kernels import model_jacobian_row
 from face_tracking_ros.tracking.pixel_box import span
 
 RAMP_RIDGE = 1e-6  # added to the diagonal of a brightness ramp's normal matrix (terms ~ 1)
@@ -807,23 +808,12 @@ def model_normal(
     """
     count, _, actions = action_basis.shape
     unknowns = 6 + actions
-    jacobian = np.zeros((3 * count, unknowns))
+    jacobian = np.empty((3 * count, unknowns))
     for n in range(count):
         for a in range(3):
-            row = 3 * n + a
-            for k in range(3):
-                jacobian[row, k] = (
-                    d_rotation[k, a, 0] * shape[n, 0]
-                    + d_rotation[k, a, 1] * shape[n, 1]
-                    + d_rotation[k, a, 2] * shape[n, 2]
-                )
-            jacobian[row, 3 + a] = 1.0
-            for j in range(actions):
-                jacobian[row, 6 + j] = (
-                    rotation[a, 0] * action_basis[n, 0, j]
-                    + rotation[a, 1] * action_basis[n, 1, j]
-                    + rotation[a, 2] * action_basis[n, 2, j]
-                )
+            model_jacobian_row(
+                shape[n], rotation, d_rotation, action_basis, n, a, jacobian[3 * n + a]
+            )
     weighted = np.empty_like(jacobian)
     for row in range(3 * count):
         for c in range(unknowns):
