@@ -15,6 +15,7 @@ import os
 import subprocess
 import sys
 import threading
+import time
 from types import SimpleNamespace
 
 import numpy as np
@@ -37,6 +38,7 @@ from face_tracking_ros.bench.common import (
     BenchOptions,
     dds_env,
     proc_status_mb,
+    process_cpu_seconds,
     timing_summary,
 )
 from face_tracking_ros.bench.live import Driver, RunFigures
@@ -144,6 +146,22 @@ def test_a_gone_process_has_no_memory_figure():
     assert math.isnan(proc_status_mb(2**22 + 1, 'VmHWM'))  # above pid_max: no such process
 
 
+def test_process_cpu_seconds_counts_every_thread_of_a_process():
+    def burn(seconds):
+        end = time.thread_time() + seconds
+        while time.thread_time() < end:
+            pass
+
+    before = process_cpu_seconds(os.getpid())
+    worker = threading.Thread(target=burn, args=(0.2,))
+    worker.start()
+    burn(0.2)
+    worker.join()
+    used = process_cpu_seconds(os.getpid()) - before
+    assert 0.38 <= used <= 0.6  # both threads' 0.2 s, in clock ticks (10 ms), and this test's
+    assert math.isnan(process_cpu_seconds(2**22 + 1))  # no such process
+
+
 def test_a_benchmark_process_runs_on_one_blas_thread_and_loopback_dds(monkeypatch):
     monkeypatch.setenv('FASTDDS_DEFAULT_PROFILES_FILE', '/etc/mine.xml')
     monkeypatch.delenv('AMENT_PREFIX_PATH', raising=False)
@@ -203,6 +221,10 @@ class _FakeNode:
 
     def __init__(self, *args):
         self.stopped = False
+        self._cpu_seconds = iter([12.0, 12.006])  # before and after the timed 30-Hz run
+
+    def cpu_seconds(self):
+        return next(self._cpu_seconds)
 
     def peak_rss_mb(self):
         return 250.0
@@ -276,6 +298,8 @@ def test_live_latency_finds_the_highest_rate_without_drops(
         assert figures['at_30hz']['dropped'] == (0 if drops_from > 30.0 else 1)
         assert [step['rate_hz'] for step in figures['rate_steps']] == stepped
         assert figures['node_peak_rss_mb'] == 250.0
+        received = figures['at_30hz']['received']  # 6 ms of CPU over the timed run
+        assert figures['node_cpu_ms_per_frame'] == pytest.approx(6.0 / received)
         assert figures['cores'] == {'node': [0], 'driver': [1]}  # the driver's: this process's
         assert figures['stream_frames'] == 1830
 

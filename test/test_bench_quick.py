@@ -248,6 +248,17 @@ def test_table_says_so_when_no_state_came_back():
     assert f'{row}no face/state received, 1800 of 1800 dropped |' in table
 
 
+def test_table_gives_the_live_node_cpu_per_frame():
+    run = {'seconds': 60.0, 'published': 1800, 'received': 1800, 'dropped': 0}
+    run |= {'latency_p50_ms': 5.84, 'latency_p99_ms': 9.06}
+    live = {'size': '640x480', 'at_30hz': run, 'max_rate_without_drops_hz': 120.0}
+    live['node_cpu_ms_per_frame'] = 5.27
+    table = format_table({'benchmarks': {'live_latency': {'stereo': live}}})
+    row = '| live latency image -> face/state, stereo, 640x480 at 30 Hz, 60 s | '
+    latency = '5.8 ms p50, 9.1 ms p99, 0 of 1800 dropped, node CPU 5.3 ms a frame |'
+    assert f'{row}{latency}' in table
+
+
 def test_table_shows_the_learner_against_meshes_and_against_subjects():
     row = {'align_s': 0.5, 'seed_s': 1.25}
     learner = {

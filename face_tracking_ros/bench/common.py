@@ -94,6 +94,20 @@ def pin_to_core(core: int = BENCH_CORE) -> int:
     return core
 
 
+def process_cpu_seconds(pid: int) -> float:
+    """CPU time a process has used so far, user and system, all its threads (/proc/<pid>/stat).
+
+    Returns:
+        The seconds, or NaN once the process is gone.
+    """
+    try:
+        stat = Path(f'/proc/{pid}/stat').read_text()
+    except (FileNotFoundError, ProcessLookupError):
+        return float('nan')
+    fields = stat.rsplit(')', 1)[1].split()  # after the command name, which may hold spaces
+    return (int(fields[11]) + int(fields[12])) / os.sysconf('SC_CLK_TCK')  # utime, stime
+
+
 def proc_status_mb(pid: int, field: str) -> float:
     """A memory field of /proc/<pid>/status (e.g. 'VmHWM' peak RSS, 'VmRSS'), MB (2^20 bytes).
 

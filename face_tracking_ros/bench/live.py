@@ -27,7 +27,13 @@ from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 
-from face_tracking_ros.bench.common import dds_env, last_lines, pin_to_core, proc_status_mb
+from face_tracking_ros.bench.common import (
+    dds_env,
+    last_lines,
+    pin_to_core,
+    proc_status_mb,
+    process_cpu_seconds,
+)
 from face_tracking_ros.bench.world import model_file, render_sequence, scene_config
 from face_tracking_ros.errors import ConfigError
 from face_tracking_ros.geometry.camera import PinholeCamera
@@ -95,6 +101,10 @@ class NodeProcess:
     def peak_rss_mb(self) -> float:
         """Peak resident set size so far (VmHWM), MB."""
         return proc_status_mb(self.pid, 'VmHWM')
+
+    def cpu_seconds(self) -> float:
+        """CPU time the process has used so far, all its threads (DDS's too), s."""
+        return process_cpu_seconds(self.pid)
 
     def rss_mb(self) -> float:
         """Current resident set size (VmRSS), MB."""

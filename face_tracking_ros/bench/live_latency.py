@@ -18,6 +18,7 @@ sequence backwards from its end.
 
 from __future__ import annotations
 
+import math
 import os
 from typing import Any
 
@@ -54,9 +55,12 @@ def tracker_latency(kind: Kind, node: str, options: BenchOptions) -> dict[str, A
 
     Returns:
         ``{'size', 'at_30hz': {...}, 'rate_steps': [...], 'max_rate_without_drops_hz': r,
-        'node_peak_rss_mb': m, 'cores': {'node': [...], 'driver': [...]}, 'stream_frames': f}``
-        (``r`` is 0 when even the lowest step dropped frames; ``cores`` the CPU affinities the
-        node and the driver ran with; ``f`` the rendered frames (pairs) the stream plays).
+        'node_cpu_ms_per_frame': c, 'node_peak_rss_mb': m, 'cores': {'node': [...], 'driver':
+        [...]}, 'stream_frames': f}`` (``r`` is 0 when even the lowest step dropped frames;
+        ``c`` the node process's CPU time over the 30-Hz run, all its threads, per image (pair)
+        answered, NaN if none was: the node's work per frame, which the latency does not tell
+        apart from the machine's delays; ``cores`` the CPU affinities the node and the driver
+        ran with; ``f`` the rendered frames (pairs) the stream plays).
     """
     frames = QUICK_FRAMES if options.quick else FRAMES
     streams, params = tracker_inputs(options.work_dir, kind, WIDTH, HEIGHT, frames, options.seed)
@@ -65,7 +69,9 @@ def tracker_latency(kind: Kind, node: str, options: BenchOptions) -> dict[str, A
     try:
         driver.wait_for([process])
         driver.run(RATE_HZ, WARM_UP_S)
+        cpu_before = process.cpu_seconds()
         main = driver.run(RATE_HZ, QUICK_SECONDS if options.quick else SECONDS)
+        node_cpu = process.cpu_seconds() - cpu_before
         steps = []
         for rate in QUICK_STEP_RATES if options.quick else STEP_RATES:
             steps.append(driver.run(rate, QUICK_STEP_SECONDS if options.quick else STEP_SECONDS))
@@ -82,6 +88,7 @@ def tracker_latency(kind: Kind, node: str, options: BenchOptions) -> dict[str, A
         'at_30hz': main.summary(),
         'rate_steps': [step.summary() for step in steps],
         'max_rate_without_drops_hz': max(sustained, default=0.0),
+        'node_cpu_ms_per_frame': node_cpu / main.received * 1e3 if main.received else math.nan,
         'node_peak_rss_mb': peak_rss,
         'cores': cores,
         'stream_frames': frames,

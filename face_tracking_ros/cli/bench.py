@@ -243,10 +243,12 @@ def _tracker_live_rows(kind: str, live: dict[str, Any]) -> list[tuple[str, str, 
         if f['received']
         else 'no face/state received'
     )
+    cpu = live.get('node_cpu_ms_per_frame')  # runs before 2026-12-07 did not time it
+    node_cpu = f', node CPU {cpu:.1f} ms a frame' if f['received'] and cpu is not None else ''
     return [
         (
             f'live latency image -> face/state, {run}',
-            f'{latency}, {f["dropped"]} of {f["published"]} dropped',
+            f'{latency}, {f["dropped"]} of {f["published"]} dropped{node_cpu}',
             'p99 <= 10 ms, no drops',
         ),
         (
