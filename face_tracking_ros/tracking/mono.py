@@ -36,7 +36,10 @@ Design, in the seed's terms:
   again (:meth:`MonoTracker._solve_frame`).
 - Time is counted in frame intervals: a caller that knows images were dropped (a gap in the
   stamps) passes how many intervals passed (``intervals`` of :meth:`MonoTracker.track`), and
-  the motion prediction and the loss check's rotation limit run over that many.
+  the motion prediction and the loss check's rotation limit run over that many. More than
+  ``pause_intervals`` may be a pause of the stream, which resumes with the next frame: the image
+  is solved from the prediction over one interval too, and the motion found is taken as spread
+  over the intervals that keep the head's speed (:meth:`MonoTracker._span`).
 - The bundle adjustment's stages run after the frame's result is out (:meth:`MonoTracker.track`,
   then :meth:`MonoTracker.adjust`; ``step`` does both), so a live node publishes the pose before
   it spends time on them, and an adjustment takes effect from the frame after its last stage.
@@ -724,12 +727,22 @@ class MonoTracker:
         solves passed on 102, 100 of them with as many nodes failing (the same minimum, the
         prediction's taken); on the other two the one with fewer failing was right (1.1 px) and the
         other wrong (3.4 and 6.3 px).
+
+        After a pause of the stream (:meth:`_paused`) the image is solved from the prediction over
+        one interval too (:meth:`_stalled`): a stream that stalled resumes with the next frame,
+        and the prediction over the whole pause can put the start 65 px off, the search from it
+        keeping its rotation. On rendered seed 4 at 30 fps, image 10 told 31 intervals, the
+        search's solve settled 8.4 px off, failed ``reacquire_residual_ratio``, and was taken at
+        ``lost_residual_ratio`` because solving image 9 back from it returned within 1.2 px (the
+        head had moved one frame); the solve from one interval's prediction passes at 0.7 px with
+        9 % of its nodes failing against 52 %.
         """
         track, config = self._track, self._config
         blended, weights = self._blended_templates()
         free_sigma = track.frames <= config.sigma_frames
         start, first_level = track.current, _START_LEVEL
-        if config.predict_motion and track.before is not None and not track.lost:
+        predicted = config.predict_motion and track.before is not None and not track.lost
+        if predicted:
             ahead = track.elapsed / track.span
             start = _predicted(track.current, track.before, ahead, self._face.rotation)
             first_level = self._first_level(track.current, start)
@@ -737,6 +750,9 @@ class MonoTracker:
         if track.bridging:
             searched = self._searched(pyramid, start)
             starts.append((searched, self._first_level(track.current, searched)))
+        if predicted and self._paused():
+            stalled = self._stalled()
+            starts.append((stalled, self._first_level(track.current, stalled)))
         solved = [
             self._solve_frame(
                 pyramid,
@@ -829,14 +845,15 @@ class MonoTracker:
         inner face in ``pyramid`` becomes the track's ``last_view``. The last valid
         estimate becomes ``before`` (the motion prediction's other point) however this frame was
         found (followed or re-acquired, after LOST images too), the frame intervals since it its
-        ``span``: after a re-acquisition the next image is predicted by the motion averaged over
-        the LOST images. Solved from the re-acquired estimate instead, the next image of a head
+        ``span`` (after a pause, those that keep the head's speed: :meth:`_span`): after a
+        re-acquisition the next image is predicted by the motion averaged over the LOST images.
+        Solved from the re-acquired estimate instead, the next image of a head
         moving 8 px a frame (rendered seed 7, 10 fps, image 30) settled 8.1 px off, passed at
         ``lost_residual_ratio``, and the track stayed 8.1-9.1 px off, TRACKING, for 5 images.
         """
         track = self._track
+        track.span = self._span(templates.params)
         track.before = track.current
-        track.span = track.elapsed
         if templates.covered.any():  # looked up only then: most frames cover nothing
             templates = templates.kept(nearest_keyframe(track.keyframes, result.omega).templates)
         config = self._config
@@ -853,6 +870,42 @@ class MonoTracker:
         track.frames += 1
         track.missed = 0
         track.elapsed = 0
+
+    def _paused(self) -> bool:
+        """Whether the stream paused since the last valid estimate (``pause_intervals``).
+
+        The image follows that estimate's (no image LOST since) after more than
+        ``pause_intervals`` frame intervals.
+        """
+        track = self._track
+        return not track.lost and track.elapsed > self._config.pause_intervals
+
+    def _stalled(self) -> Params:
+        """The motion prediction over one frame interval (the next frame of a stalled stream)."""
+        track = self._track
+        return _predicted(track.current, track.before, 1 / track.span, self._face.rotation)
+
+    def _span(self, params: Params) -> int:
+        """The frame intervals the motion from the last valid estimate to ``params`` spans.
+
+        Those since it (``elapsed``), except after a pause (:meth:`_paused`): then the number k
+        in 1 to ``elapsed`` whose motion per interval, the inner nodes' image motion to
+        ``params`` over k, is nearest (least squares) that of one interval before it
+        (:meth:`_stalled`): 1 for a head that moved one frame while the stream stalled, so that
+        it is predicted to move on at that speed, not at that motion spread over the pause;
+        ``elapsed`` for one that moved on at its speed, or turned back.
+        """
+        track = self._track
+        if track.before is None or not self._paused():
+            return track.elapsed
+        inner = ~self._edge_nodes
+        at = self._face.nodes(track.current)[1][inner]
+        step = self._face.nodes(self._stalled())[1][inner] - at
+        moved = self._face.nodes(params)[1][inner] - at
+        along = float(np.sum(moved * step))
+        if along <= 0.0:
+            return track.elapsed
+        return int(np.clip(round(float(np.sum(moved**2)) / along), 1, track.elapsed))
 
     def _solve_frame(
         self,
