@@ -363,13 +363,16 @@ class ViewAdjuster:
         current: Params,
         frame: int,
         normals: np.ndarray,
-    ) -> tuple[list[View], Params]:
+        before: Params | None = None,
+    ) -> tuple[list[View], Params, Params | None]:
         """The views and the current estimate in the scene of an adjustment.
 
         The views the adjustment covered take its estimates. When it ended on a later frame
         than its newest view's, the current estimate (of track frame ``frame``) is carried into
         the adjusted face frame by the head's motion since that view, in the scene scaled as
-        the adjustment scaled it (:func:`carried`); so are the views kept while it ran.
+        the adjustment scaled it (:func:`carried`); so are the views kept while it ran, and the
+        estimate ``before`` the current one (the motion prediction's other point), by the head's
+        motion from the current estimate to it: the motion between the two is kept, scaled.
 
         Args:
             views: the track's views.
@@ -377,9 +380,11 @@ class ViewAdjuster:
             current: the track's current estimate.
             frame: its frame number in the track.
             normals: (N, 3) the node normals at the adjustment's sigma (the views' visibility).
+            before: the estimate of the frame before the current one, or None.
 
         Returns:
-            The views, each with its visibility at its new estimate, and the current estimate.
+            The views, each with its visibility at its new estimate, the current estimate and
+            the one before it (None if ``before`` is).
         """
         poses = (estimate.first, *estimate.views)
         params = [Params(omega, t, alpha, estimate.sigma) for omega, t, alpha in poses]
@@ -396,7 +401,9 @@ class ViewAdjuster:
             View.of(view.image, self._face.visibility(p, normals), p, view.frame, view.covered)
             for view, p in zip(views.views, params + later, strict=True)
         ]
-        return carried_views, now
+        if before is not None:
+            before = carried(before, current, now, scale)
+        return carried_views, now, before
 
     def _image_move(self, before: Params, after: Params) -> tuple[float, float]:
         """The nodes' pixels: their RMS move from ``before`` to ``after``, and their spread, px.

@@ -902,7 +902,7 @@ def test_a_view_kept_while_an_adjustment_ran_is_carried_as_the_frame_now_is(mode
     )
     normals = np.tile([0.0, 0.0, -1.0], (model.num_nodes, 1))
 
-    carried_views, now = adjuster.carry(views, estimate, tracked[2], 9, normals)
+    carried_views, now, _ = adjuster.carry(views, estimate, tracked[2], 9, normals)
 
     assert [v.frame for v in carried_views] == [1, 5, 9]
     np.testing.assert_array_equal(carried_views[2].covered, cover)
