@@ -245,6 +245,7 @@ class StereoTracker:
         check_levels_fit(config.pyramid_levels, rig.left.width, rig.left.height)
         fitting = tracking_levels(rig.left.width, rig.left.height)
         self._gap_levels = max(config.pyramid_levels, min(config.gap_pyramid_levels, fitting))
+        self._fast_levels = max(config.pyramid_levels, min(config.pyramid_levels + 1, fitting))
         check_baseline(rig, config.init)
         self._calibrated_rig = rig
         self._config = config
@@ -816,6 +817,24 @@ class StereoTracker:
         centre, centre_before = share @ state.nodes, share @ state.before
         return centre + ahead * (centre - centre_before) + (state.nodes - centre) @ turn.T
 
+    def _moving_fast(self, state: _State) -> bool:
+        """Whether the head is moving more than ``fast_motion_px`` a frame interval.
+
+        The head's motion carried on from the last two pairs (:meth:`_rigid_predicted`): its
+        largest displacement of a node in the left image, per interval since the last pair.
+        The head's, not each node's: a node found again as an occluder leaves jumps by 10 px
+        and more, which says nothing of the frame rate. False with the threshold 0 or without
+        a pair before the last, and while an occluder is flagged (``state.region``): solved from
+        the coarser level then, the nodes it had covered were left up to 50 px off as it left
+        (rendered 30 fps, a pucker started under the occluder; 5.5 px without).
+        """
+        limit = self._config.fast_motion_px
+        if limit <= 0 or state.before is None or state.region.any():
+            return False
+        left = self._rig.left
+        moved = left.project(self._rigid_predicted(state)) - left.project(state.nodes)
+        return float(np.linalg.norm(moved, axis=1).max()) > limit * state.elapsed
+
     def _searched(self, state: _State, pyramids: tuple[ImagePyramid, ImagePyramid]) -> np.ndarray:
         """The last tracked nodes moved with the face's displacement in this left image.
 
@@ -904,7 +923,16 @@ class StereoTracker:
         levels of ``gap_pyramid_levels`` too (:meth:`_coarser_levels`), the fit moved to the
         start first.
 
-        The coarser levels leave the face-model term out: a level's image terms weigh 4 times
+        A pair after one on which the head moved fast (``fast_motion_px``) is solved from one
+        coarser level too (:meth:`_moving_fast`), the face-model term kept on it: an
+        expression's onset is not predicted, and at 10 fps the jaw drops beyond the two levels'
+        reach in one interval. Left to two levels, the lower lip and chin settled on the neck
+        and were followed there (rendered free motion at 10 fps, 100 pairs each: pairs TRACKING
+        more than 3 px RMS off, over the nodes both cameras see, 156 -> 29 on seeds 0-7 and 236
+        -> 185 on seeds 8-15; at 15 fps 69 -> 3 on seeds 0-7; the face-model term left out of
+        that level, 37 on seeds 0-7).
+
+        A gap's coarser levels leave the face-model term out: a level's image terms weigh 4 times
         less per m^2 of node motion than the next finer one's (its pixels are twice as far
         apart), the model term's the same on every level, so on level 3 it weighs 64 times
         more against the images than on level 0, and it held the nodes 10-16 px off (rendered
@@ -923,16 +951,19 @@ class StereoTracker:
             )
         nodes = start
         coarser: tuple[Level, ...] = ()
+        coarser_terms = energy
         if state.after_gap or region is not None:
-            coarser = self._coarser_levels(state, pyramids)
+            coarser = self._coarser_levels(state, pyramids, self._gap_levels)
+            coarser_terms = replace(energy, prior=None)  # the images alone
+        elif self._moving_fast(state):
+            coarser = self._coarser_levels(state, pyramids, self._fast_levels)
         if state.after_gap:
             _move_fit(energy, nodes)
-        images_alone = replace(energy, prior=None) if coarser else energy  # the coarser levels
         solves = _Solves()
 
         def solve(index: int, start: np.ndarray, first_step_limit: float) -> np.ndarray | None:
             if index >= config.pyramid_levels:
-                level, terms = coarser[index - config.pyramid_levels], images_alone
+                level, terms = coarser[index - config.pyramid_levels], coarser_terms
             else:
                 level, terms = self._level(state, pyramids, index), energy
                 if solves.levels and solves.levels[-1][0].index >= config.pyramid_levels:
@@ -1138,16 +1169,15 @@ class StereoTracker:
         )
 
     def _coarser_levels(
-        self, state: _State, pyramids: tuple[ImagePyramid, ImagePyramid]
+        self, state: _State, pyramids: tuple[ImagePyramid, ImagePyramid], count: int
     ) -> tuple[Level, ...]:
-        """The levels below the coarsest down to ``gap_pyramid_levels``, made for this pair.
+        """The levels below the coarsest, to ``count`` levels in all, made for this pair.
 
         Their images are this pair's pyramids, the last tracked pair's and frame 1's deepened
         (:meth:`~face_tracking_ros.imaging.ImagePyramid.deepened`), their templates sampled
         where the state's are (frame n - 1 at ``nodes`` as :meth:`_advance` samples it, frame 1
         at the frame-1 nodes as :meth:`_start` does).
         """
-        count = self._gap_levels
         current, previous, first = (
             (pair[LEFT].deepened(count), pair[RIGHT].deepened(count))
             for pair in (pyramids, state.previous_pyramids, state.first_pyramids)
