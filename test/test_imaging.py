@@ -138,6 +138,26 @@ def test_pyramid_deepened_equals_the_deeper_build(smooth_base: bool) -> None:
         pyramid.deepened(4)  # level 3 would keep 7 px
 
 
+def test_pyramid_deepened_again_makes_no_level_twice_and_scales_with_it() -> None:
+    """The added levels are made once and kept: deepened again, to as many or more levels.
+
+    A stereo pair's deepened pyramids are the last pair's on the next pair, and frame 1's on
+    every pair a fast head or a gap solves from an added level; :meth:`scale` multiplies the
+    kept levels too, so a later deepening carries the factor as a deeper build scaled does.
+    """
+    image = np.random.default_rng(6).integers(0, 256, size=(64, 96), dtype=np.uint8)
+    pyramid = ImagePyramid.build(image, 2)
+    third = pyramid.deepened(3).levels[2]
+    again = pyramid.deepened(4)
+    assert again.levels[2] is third
+    assert pyramid.deepened(3).levels[2] is third and pyramid.deepened(3).num_levels == 3
+    pyramid.scale(0.5)
+    expected = ImagePyramid.build(image, 4)
+    expected.scale(0.5)
+    for got, want in zip(pyramid.deepened(4).levels, expected.levels, strict=True):
+        np.testing.assert_allclose(got, want, rtol=1e-6, atol=1e-4)
+
+
 def test_pyramid_deepened_of_a_borrowed_image_owned_carries_the_factor() -> None:
     """A borrowed, partly made pyramid owning its image deepens as a deeper build scaled.
 

@@ -121,6 +121,7 @@ class ImagePyramid:
         self._box = (0, 0, width, height) if source is None else (0, 0, 0, 0)
         self._coarse_box = (0, 0, 0, 0)
         self._complete = source is None and (coarse_made or len(self._levels) == 1)
+        self._deeper: list[np.ndarray] = []  # levels below the coarsest that deepened() made
 
     @classmethod
     def build(
@@ -256,7 +257,7 @@ class ImagePyramid:
         relative to the left out of the right images
         (:mod:`~face_tracking_ros.tracking.camera_gain`). Every level is made first.
         """
-        for level in self.levels:
+        for level in (*self.levels, *self._deeper):
             level *= np.float32(factor)
 
     def level_shape(self, index: int) -> tuple[int, int]:
@@ -271,9 +272,11 @@ class ImagePyramid:
         ``pyrDown`` of the one above, as :meth:`build` would have made it. It so carries the
         factor the levels above were multiplied by (:meth:`build`'s, :meth:`scale`'s), within
         float32 rounding of a deeper build's levels multiplied by it. A tracker that needs a
-        deeper pyramid for an occasional frame so makes only the levels it lacks. One built
-        from a borrowed image reads it unless complete: the caller keeps it unchanged until
-        then, or the pyramid owns a copy (:meth:`own`).
+        deeper pyramid for an occasional frame so makes only the levels it lacks, and each of
+        them once: this pyramid keeps them for later calls (a stereo pair's deepened pyramids
+        are the last pair's on the next pair, frame 1's on every pair). One built from a
+        borrowed image reads it unless complete: the caller keeps it unchanged until then, or
+        the pyramid owns a copy (:meth:`own`).
 
         Raises:
             InputError: if the coarsest level would keep fewer than 8 pixels on a side.
@@ -281,10 +284,11 @@ class ImagePyramid:
         if num_levels > _levels_that_fit(min(self.shape), MIN_LEVEL_SIZE):
             msg = f'cannot build {num_levels} pyramid levels from a {self.shape} image'
             raise InputError(msg)
-        levels = list(self.levels)
+        levels = [*self.levels, *self._deeper]
         while len(levels) < num_levels:
             levels.append(cv2.pyrDown(levels[-1]))
-        return ImagePyramid(levels)
+            self._deeper.append(levels[-1])
+        return ImagePyramid(levels[:num_levels])
 
     def own(self) -> None:
         """Copy a borrowed image (:meth:`build`), for the caller to change its own meanwhile.
