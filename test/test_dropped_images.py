@@ -314,6 +314,25 @@ def test_the_image_after_a_gap_takes_the_solve_that_fits_best():
     assert _pixel_errors(camera, results, nodes[kept]).max() < 2.0
 
 
+def test_a_head_turned_far_over_a_gap_is_reacquired_from_a_turned_start():
+    """Rendered seed 10 at 30 fps, images 11-30 dropped: the head found within a few images.
+
+    Over the 0.67-s gap the head turned 22 degrees from image 10 (32 from frame 1) and went on
+    turning. Every start kept image 10's rotation: the solves from the prediction, from where
+    image 10's face correlates best and from frame 1's face settled far off, and images 31-43
+    were LOST (on to image 176, 66 of 124 images). From image 10's rotation turned by 15 degrees
+    of pitch at the searched position the solve finds the head at image 36.
+    """
+    scene = SceneConfig(kind='mono', frames=300, fps=30.0, seed=10, motion='free')
+    images, nodes, camera, model, init = _rendered_start(scene, 44)
+    kept = [*range(11), *range(31, 44)]
+    results = _tracked_from(model, camera, init, images, kept)
+    tracking = np.array([r.status == TrackStatus.TRACKING for r in results])
+    errors = _pixel_errors(camera, results, nodes[kept])
+    assert np.flatnonzero(tracking & (errors > 3.0)).tolist() == []
+    assert tracking[kept.index(36) :].all()
+
+
 @pytest.mark.parametrize(
     ('fps', 'seed', 'intervals'), [(30.0, 4, 31), (10.0, 0, 10), (10.0, 2, 30)]
 )
