@@ -978,17 +978,15 @@ class MonoTracker:
         against 9.7-12 ms). Solves started on level 1 (re-acquisition among them) are not made
         again: that doubled the time of a LOST frame (10 -> 18 ms).
 
-        A solve checked at the ordinary ``lost_residual_ratio`` that passes with more than
-        ``lost_node_fraction`` of its voting nodes above ``reacquire_residual_ratio``
-        (:meth:`_doubtful`), without having solved the coarsest level, is made again the same two
-        ways, whatever level it started on; the first of those that passes and is not doubtful is
-        taken, else the first solve stands. A head moving 7-14 px a frame (rendered free motion at
-        5 fps) left solves from the prediction settled 4-6 px off in a local minimum that passed
-        with 38-39 % of the voting nodes above ``lost_residual_ratio`` and 91-100 % above
-        ``reacquire_residual_ratio``; the track then followed its own templates sampled there,
-        TRACKING 4-7 px off for 38 images on two runs. Made again they converge 0.5-0.6 px off
-        with 5-19 % failing at the stricter ratio. No followed frame of 88 such runs at 10 and 30
-        fps is doubtful (14,311 frames, at most 45 % failing there): those runs are unchanged.
+        A solve checked at the ordinary ``lost_residual_ratio`` that passes doubtfully
+        (:meth:`_doubtful`) is made again: from ``still`` on level 1 (the coarsest on demand:
+        the head may have moved far) and, unless it solved the coarsest level, from ``start`` on
+        the coarsest. The first of those that passes and is not doubtful is taken, else the first
+        solve stands. A head moving 7-14 px a frame (rendered free motion at 5 fps, true model)
+        left solves from the prediction settled 4-7 px off in a local minimum of eq. 6 that
+        passed, and the track followed its own templates sampled there: TRACKING images more than
+        3 px off on 16 such runs 252 -> 103; 88 runs at 10 and 30 fps are unchanged
+        (docs/performance.md, forty-first session).
 
         A solve whose outcome has nodes newly covered by an occluder (:meth:`_checked`) is made
         again from the same start without them, and checked with them covered: the first solve
@@ -1093,13 +1091,18 @@ class MonoTracker:
         ), sampled
 
     def _doubtful(self, result: TrackResult, sampled: Templates, template: np.ndarray) -> bool:
-        """Whether a result that passed the checks fails the vote at ``reacquire_residual_ratio``.
+        """Whether a result that passed the checks at ``lost_residual_ratio`` may be off the face.
 
-        More than ``lost_node_fraction`` of its voting nodes then fit worse than a resumed track
-        must (``sampled`` holds the templates sampled at it, ``template`` the level-0 template it
-        was compared with). On 88 rendered 150- and 300-frame runs at 10 and 30 fps (free motion,
-        true model) no followed frame had more than 45 % failing there; solves that settled 4-6
-        px off in a local minimum of eq. 6 and passed at ``lost_residual_ratio`` had 91-100 %.
+        It may when nodes are newly taken as covered on it, or when more than
+        ``lost_node_fraction`` of its voting nodes fit worse than ``reacquire_residual_ratio``
+        (a resumed track's ratio). ``sampled`` holds the templates sampled at it, ``template``
+        the level-0 template it was compared with. Of the followed frames of 88 rendered runs at
+        10 and 30 fps (free motion, true model), none had more than 45 % of the voting nodes
+        failing at that ratio; solves that settled 4-7 px off at 5 fps had 91-100 %, or the
+        expression wrong and 7-12 nodes taken as covered, the rest passing (no occluder).
+        A covered node is no vote: passed without them, such a solve looks like a face with a
+        hand over its mouth; an occluder that is there covers the nodes of the solves made
+        again too, and the first stands.
         """
         if (sampled.covered & ~self._track.covered).any():
             return True
