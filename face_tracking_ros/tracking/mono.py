@@ -779,6 +779,7 @@ class MonoTracker:
             start = _predicted(track.current, track.before, ahead, self._face.rotation)
             first_level = self._first_level(track.current, start)
         starts = [(start, first_level)]
+        searched = None  # after dropped images: where the last valid frame's face is found
         if track.bridging:
             searched = self._searched(pyramid, start)
             starts.append((searched, self._first_level(track.current, searched)))
@@ -804,10 +805,10 @@ class MonoTracker:
 
         outcomes = solved(starts)
         passed = [found for found in outcomes if found[0].ok]
-        if not passed and track.lost and track.bridging:
+        if not passed and track.lost and searched is not None:
             turned = [
                 (begin, self._first_level(track.current, begin))
-                for begin in self._turned(starts[1][0])
+                for begin in self._turned(searched)
             ]
             passed = [found for found in solved(turned) if found[0].ok]
         if not passed:
