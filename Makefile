@@ -3,6 +3,8 @@ SHELL := /bin/bash
 VENV ?= .venv
 PYTHON := $(VENV)/bin/python
 ROS_DOMAIN_ID ?= 42
+# pytest-xdist processes of `make test`, each with its own DDS domain (test/xdist_workers.py).
+TEST_WORKERS ?= 2
 
 # DDS stays on this host: see README.md, "DDS on this host".
 export ROS_AUTOMATIC_DISCOVERY_RANGE ?= LOCALHOST
@@ -28,7 +30,7 @@ setup:
 	VENV=$(abspath $(VENV)) bash tools/setup_env.sh
 
 test: setup
-	$(PYTHON) -m pytest
+	$(PYTHON) -m pytest -n $(TEST_WORKERS) --dist loadfile
 
 demo: setup
 	$(call run_subcommand,demo)

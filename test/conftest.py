@@ -25,11 +25,13 @@ from face_tracking_ros.io.typestore import typestore
 from face_tracking_ros.threads import limit_blas_threads
 
 from repo_root import REPO
+from xdist_workers import worker_domain
 
 pytest.register_assert_rewrite('tracked_expressions')  # its checks report their values
 
 os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
 os.environ.setdefault('ROS_DOMAIN_ID', '42')
+os.environ['ROS_DOMAIN_ID'] = worker_domain(os.environ['ROS_DOMAIN_ID'])
 os.environ.setdefault(
     'FASTDDS_DEFAULT_PROFILES_FILE', str(REPO / 'config' / 'fastdds_profile.xml')
 )
