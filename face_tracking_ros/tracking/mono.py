@@ -206,6 +206,22 @@ class _Return(NamedTuple):
     return_px: float = _RETURN_PX
 
 
+class _Checked(NamedTuple):
+    """A solve's outcome as the loss checks saw it (:meth:`MonoTracker._checked`).
+
+    Attributes:
+        result: the result (TRACKING or LOST with a reason).
+        sampled: the templates sampled at its estimate (the next frame's I_(n-1) samples).
+        textures: (N,) the texture of the image's ROIs there and of the level-0 template the
+            solve was compared with (:meth:`~.mono_loss.LossChecks.textures`), made once for
+            every vote on the result (:meth:`MonoTracker._vote`).
+    """
+
+    result: TrackResult
+    sampled: Templates
+    textures: tuple[np.ndarray, np.ndarray]
+
+
 @dataclass
 class _Track:
     """State of a running track; ``keyframes[0]`` holds frame 1 (the seed's I_1).
@@ -564,11 +580,11 @@ class MonoTracker:
         candidates = itertools.chain(keyframed, self._viewed(pyramid) if track.lost else ())
         for start, reference, returned in candidates:
             weights = reference.visibility * self._face.visibility(start, track.normals)
-            result, templates = self._solve_frame(
+            result, templates, _ = self._solve_frame(
                 pyramid, start, reference.levels, weights, ratio, returned=returned
             )
             if not result.ok and track.bridging:
-                found, templates = self._solve_frame(
+                found, templates, _ = self._solve_frame(
                     pyramid, templates.params, *self._blended_templates(), ratio
                 )
                 result = _summed(result, found)
@@ -787,7 +803,7 @@ class MonoTracker:
             stalled = self._stalled()
             starts.append((stalled, self._first_level(track.current, stalled)))
 
-        def solved(begins: list[tuple[Params, int]]) -> list[tuple[TrackResult, Templates]]:
+        def solved(begins: list[tuple[Params, int]]) -> list[_Checked]:
             return [
                 self._solve_frame(
                     pyramid,
@@ -804,44 +820,36 @@ class MonoTracker:
             ]
 
         outcomes = solved(starts)
-        passed = [found for found in outcomes if found[0].ok]
+        passed = [found for found in outcomes if found.result.ok]
         if not passed and track.lost and searched is not None:
             turned = [
                 (begin, self._first_level(track.current, begin))
                 for begin in self._turned(searched)
             ]
-            passed = [found for found in solved(turned) if found[0].ok]
+            passed = [found for found in solved(turned) if found.result.ok]
         if not passed:
-            return outcomes[0][0]
-        result, templates = min(
-            passed, key=lambda found: self._failing_fraction(*found, blended[0], ratio)
-        )
+            return outcomes[0].result
+        result, templates, _ = min(passed, key=lambda found: self._failing_fraction(found, ratio))
         self._accept(pyramid, result, templates)
         self._followed = (pyramid, result)
         return result
 
-    def _failing_fraction(
-        self, result: TrackResult, sampled: Templates, template: np.ndarray, ratio: float
-    ) -> float:
+    def _failing_fraction(self, checked: _Checked, ratio: float) -> float:
         """The fraction of a result's voting nodes that fail the loss checks' vote at ``ratio``.
 
-        ``sampled`` holds the templates sampled at it, ``template`` the level-0 template it was
-        compared with (0 when no node votes).
+        0 when no node votes.
         """
-        votes = self._vote(result, sampled, template, ratio)
+        votes = self._vote(checked, ratio)
         return votes.failing / votes.voting if votes.voting else 0.0
 
-    def _vote(
-        self, result: TrackResult, sampled: Templates, template: np.ndarray, ratio: float
-    ) -> Votes:
+    def _vote(self, checked: _Checked, ratio: float) -> Votes:
         """The loss checks' vote (:meth:`~.mono_loss.LossChecks.vote`) on a result at ``ratio``.
 
-        ``sampled`` holds the templates sampled at it (its nodes not covered vote),
-        ``template`` the level-0 template it was compared with.
+        The nodes of its templates not covered vote, with the textures its check made.
         """
-        textures = self._loss.textures(sampled.levels[0], template)
+        sampled = checked.sampled
         return self._loss.vote(
-            sampled.params, result.node_residuals, textures, sampled.seen, ratio
+            sampled.params, checked.result.node_residuals, checked.textures, sampled.seen, ratio
         )
 
     def _returned_to(self) -> _Return | None:
@@ -961,7 +969,7 @@ class MonoTracker:
         first_level: int = _START_LEVEL,
         still: Params | None = None,
         returned: _Return | None = None,
-    ) -> tuple[TrackResult, Templates]:
+    ) -> _Checked:
         """Solve eq. 6 coarse to fine from ``start``; check the outcome for loss of track.
 
         ``residual_ratio`` is the loss checks' ratio of a node's residual to its texture;
@@ -1005,8 +1013,8 @@ class MonoTracker:
 
         Returns:
             The frame's result (TRACKING or LOST with a reason; its iterations those of every
-            solve made) and the templates sampled at its solution (the next frame's I_(n-1)
-            samples).
+            solve made), the templates sampled at its solution (the next frame's I_(n-1)
+            samples) and its ROIs' textures (:class:`_Checked`).
         """
         node_weights = node_weights * self._roi_weights
         track = self._track
@@ -1014,9 +1022,7 @@ class MonoTracker:
         hopeless = self._hopeless(templates[0]) if track.lost and not track.bridging else None
         levels = None if returned is None else returned.levels
 
-        def attempt(
-            begin: Params, level: int, restart_px: float
-        ) -> tuple[Solution, TrackResult, Templates]:
+        def attempt(begin: Params, level: int, restart_px: float) -> tuple[Solution, _Checked]:
             solution = self._solver.solve(
                 pyramid,
                 begin,
@@ -1029,10 +1035,10 @@ class MonoTracker:
                 hopeless,
                 levels,
             )
-            result, sampled = self._checked(solution, pyramid, templates[0], residual_ratio)
-            weights = np.where(sampled.covered, 0.0, node_weights)
+            checked = self._checked(solution, pyramid, templates[0], residual_ratio)
+            weights = np.where(checked.sampled.covered, 0.0, node_weights)
             if not (weights < node_weights).any():
-                return solution, result, sampled
+                return solution, checked
             # Nodes newly covered: solved again without them, from the same start, and every
             # node covered before checked again there (the first solve's drag can uncover some).
             again = self._solver.solve(
@@ -1046,16 +1052,20 @@ class MonoTracker:
                 restart_px,
                 levels=levels,
             )
-            found, sampled = self._checked(
-                again, pyramid, templates[0], residual_ratio, sampled.covered | track.covered
+            found = self._checked(
+                again,
+                pyramid,
+                templates[0],
+                residual_ratio,
+                checked.sampled.covered | track.covered,
             )
-            return again, _summed(result, found), sampled
+            return again, found._replace(result=_summed(checked.result, found.result))
 
-        solution, result, sampled = attempt(start, first_level, self._config.coarsest_level_px)
-        total = result
+        solution, checked = attempt(start, first_level, self._config.coarsest_level_px)
+        total = checked.result
         strict = residual_ratio <= self._config.reacquire_residual_ratio
-        doubtful = result.ok and not strict and self._doubtful(result, sampled, templates[0])
-        if doubtful or not (solution.coarsest_solved or result.ok or first_level > 0):
+        doubtful = checked.result.ok and not strict and self._doubtful(checked)
+        if doubtful or not (solution.coarsest_solved or checked.result.ok or first_level > 0):
             retries = []
             if not solution.coarsest_solved:
                 retries.append((start, pyramid.num_levels - 1, self._config.coarsest_level_px))
@@ -1066,38 +1076,39 @@ class MonoTracker:
                 retries.insert(0, (still, 1, restart_px))
             for begin, level, restart_px in retries:
                 again = attempt(begin, level, restart_px)
-                total = _summed(total, again[1])
+                total = _summed(total, again[1].result)
                 if doubtful:  # taken only if it passes and matches closely enough
-                    if again[1].ok and not self._doubtful(again[1], again[2], templates[0]):
-                        solution, result, sampled = again
+                    if again[1].result.ok and not self._doubtful(again[1]):
+                        solution, checked = again
                         break
                     continue
-                solution, result, sampled = again  # the last made, as the first failed
-                if result.ok:
+                solution, checked = again  # the last made, as the first failed
+                if checked.result.ok:
                     break
-            total = replace(result, iterations=total.iterations, cost_history=total.cost_history)
-        if result.ok or returned is None:
-            return total, sampled
-        lenient, sampled = self._checked(
-            solution, pyramid, templates[0], self._config.lost_residual_ratio
+            total = replace(
+                checked.result, iterations=total.iterations, cost_history=total.cost_history
+            )
+        if checked.result.ok or returned is None:
+            return checked._replace(result=total)
+        lenient = self._checked(solution, pyramid, templates[0], self._config.lost_residual_ratio)
+        if not (lenient.result.ok and self._confirmable(lenient, returned)):
+            return lenient._replace(result=total)
+        back = self._solved_back(returned, lenient.sampled)
+        taken = lenient.result if self._returns(back.params, returned) else total
+        return lenient._replace(
+            result=replace(
+                taken,
+                iterations=total.iterations + back.iterations,
+                cost_history=total.cost_history + back.costs,
+            )
         )
-        if not (lenient.ok and self._confirmable(lenient, sampled, templates[0], returned)):
-            return total, sampled
-        back = self._solved_back(returned, sampled)
-        taken = lenient if self._returns(back.params, returned) else total
-        return replace(
-            taken,
-            iterations=total.iterations + back.iterations,
-            cost_history=total.cost_history + back.costs,
-        ), sampled
 
-    def _doubtful(self, result: TrackResult, sampled: Templates, template: np.ndarray) -> bool:
+    def _doubtful(self, checked: _Checked) -> bool:
         """Whether a result that passed the checks at ``lost_residual_ratio`` may be off the face.
 
         It may when nodes are newly taken as covered on it, or when more than
         ``lost_node_fraction`` of its voting nodes fit worse than ``reacquire_residual_ratio``
-        (a resumed track's ratio). ``sampled`` holds the templates sampled at it, ``template``
-        the level-0 template it was compared with. Of the followed frames of 88 rendered runs at
+        (a resumed track's ratio). Of the followed frames of 88 rendered runs at
         10 and 30 fps (free motion, true model), none had more than 45 % of the voting nodes
         failing at that ratio; solves that settled 4-7 px off at 5 fps had 91-100 %, or the
         expression wrong and 7-12 nodes taken as covered, the rest passing (no occluder).
@@ -1105,9 +1116,9 @@ class MonoTracker:
         hand over its mouth; an occluder that is there covers the nodes of the solves made
         again too, and the first stands.
         """
-        if (sampled.covered & ~self._track.covered).any():
+        if (checked.sampled.covered & ~self._track.covered).any():
             return True
-        votes = self._vote(result, sampled, template, self._config.reacquire_residual_ratio)
+        votes = self._vote(checked, self._config.reacquire_residual_ratio)
         return self._loss.outvoted(votes)
 
     def _hopeless(self, template: np.ndarray) -> Hopeless:
@@ -1140,18 +1151,15 @@ class MonoTracker:
 
         return hopeless
 
-    def _confirmable(
-        self, result: TrackResult, sampled: Templates, template: np.ndarray, returned: _Return
-    ) -> bool:
+    def _confirmable(self, checked: _Checked, returned: _Return) -> bool:
         """Whether a result passing ``lost_residual_ratio`` may be confirmed by a solve back.
 
         It may when at most ``returned.fraction`` of its voting nodes fail at that ratio (always
-        when that is None: the ordinary check's vote, which it passed). ``sampled`` holds the
-        templates sampled at it, ``template`` the level-0 template it was compared with.
+        when that is None: the ordinary check's vote, which it passed).
         """
         if returned.fraction is None:
             return True
-        votes = self._vote(result, sampled, template, self._config.lost_residual_ratio)
+        votes = self._vote(checked, self._config.lost_residual_ratio)
         return not self._loss.outvoted(votes, returned.fraction)
 
     def _solved_back(self, returned: _Return, templates: Templates) -> Solution:
@@ -1215,7 +1223,7 @@ class MonoTracker:
         template: np.ndarray,
         residual_ratio: float,
         covered: np.ndarray | None = None,
-    ) -> tuple[TrackResult, Templates]:
+    ) -> _Checked:
         """The result of a solution that passes the loss checks (TRACKING) or not (LOST).
 
         ``template`` is the level-0 template the solution was compared with; ``covered`` the
@@ -1234,7 +1242,8 @@ class MonoTracker:
         with 5 dropped, seed 2 at 30 fps with 20), none since; LOST images 92 -> 82.
 
         Returns:
-            The result and the templates sampled at its estimate.
+            The result, the templates sampled at its estimate and the textures of their level-0
+            samples and of ``template`` (:class:`_Checked`).
         """
         track = self._track
         params = solution.params
@@ -1267,7 +1276,7 @@ class MonoTracker:
         result = self._result(
             status, params, node_rms, solution.iterations, solution.costs, reason, sampled.covered
         )
-        return result, sampled
+        return _Checked(result, sampled, textures)
 
     # --- bundle adjustment of the first views ---------------------------------------------------
 
