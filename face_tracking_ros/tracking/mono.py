@@ -829,7 +829,10 @@ class MonoTracker:
             passed = [found for found in solved(turned) if found.result.ok]
         if not passed:
             return outcomes[0].result
-        result, templates, _ = min(passed, key=lambda found: self._failing_fraction(found, ratio))
+        best = passed[0]  # most images: one solve, which needs no vote to rank (min votes on it)
+        if len(passed) > 1:
+            best = min(passed, key=lambda found: self._failing_fraction(found, ratio))
+        result, templates, _ = best
         self._accept(pyramid, result, templates)
         self._followed = (pyramid, result)
         return result
