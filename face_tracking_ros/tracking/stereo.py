@@ -91,6 +91,7 @@ from face_tracking_ros.tracking.stereo_init import (
 )
 from face_tracking_ros.tracking.stereo_loss import loss_reason, residual_ratio
 from face_tracking_ros.tracking.stereo_occlusion import (
+    MIN_UNCOVERED_NODES,
     agreeing,
     covered_nodes,
     face_hidden,
@@ -701,13 +702,19 @@ class StereoTracker:
         """The pair solved from the motion prediction, after a gap from the searched start too.
 
         Eq. 5 measures a gap pair's motion from the rigid prediction (see :meth:`_track`).
-        ``searched()`` gives the searched start (:meth:`_searched`).
+        ``searched()`` gives the searched start (:meth:`_searched`). Any other pair starts
+        from :meth:`_followed_start`, from one coarser level too if the head is moving fast
+        (:meth:`_moving_fast`); the head's rigid motion is carried on once for both.
         """
         gap = state.after_gap
-        reference = self._rigid_predicted(state) if gap else state.nodes
-        attempt = self._attempt(state, pyramids, self._predicted(state), reference)
+        rigid = self._rigid_predicted(state)
+        if gap:
+            attempt = self._attempt(state, pyramids, self._predicted(state), rigid)
+        else:
+            start, fast = self._followed_start(state, rigid), self._moving_fast(state, rigid)
+            attempt = self._attempt(state, pyramids, start, state.nodes, fast=fast)
         if attempt.problem and gap:
-            found = self._attempt(state, pyramids, searched(), reference)
+            found = self._attempt(state, pyramids, searched(), rigid)
             attempt = attempt if found.problem else found
         return attempt
 
@@ -798,17 +805,42 @@ class StereoTracker:
         ahead = state.elapsed / state.span
         return (1.0 + ahead) * state.nodes - ahead * state.before
 
-    def _rigid_predicted(self, state: _State) -> np.ndarray:
+    def _followed_start(self, state: _State, rigid: np.ndarray) -> np.ndarray:
+        """Where a pair one interval after the last tracked one starts: see ``rigid_start_px``.
+
+        Each node's own motion carried on (:meth:`_predicted`), unless a node moved more than
+        ``rigid_start_px`` between the last two pairs beyond the head's rigid motion ``rigid``
+        (the expression changed that fast): then the head's rigid motion alone, measured on the
+        nodes that did not (:meth:`_rigid_predicted`), unless fewer than
+        :data:`~.stereo_occlusion.MIN_UNCOVERED_NODES` did not. An expression's motion of one
+        interval that large is sampled too coarsely to be carried on: a talking jaw opens and
+        closes every few 10-fps pairs, and carried on, its motion doubled the error of a jaw
+        that turned back (the lower lip and chin then settled 9-12 px off and were followed
+        there). Each node's own motion while an occluder is flagged (``state.region``), as the
+        region's solve was measured with.
+        """
+        predicted = self._predicted(state)
+        limit = self._config.rigid_start_px
+        if limit <= 0 or state.before is None or state.region.any():
+            return predicted
+        left = self._rig.left
+        moved = np.linalg.norm(left.project(predicted) - left.project(rigid), axis=1)
+        moving = moved > limit * state.elapsed / state.span
+        if not moving.any() or np.count_nonzero(~moving) < MIN_UNCOVERED_NODES:
+            return predicted
+        return self._rigid_predicted(state, np.where(moving, 0.0, self._alignment_weights))
+
+    def _rigid_predicted(self, state: _State, weights: np.ndarray | None = None) -> np.ndarray:
         """The last tracked nodes moved rigidly as the head moved between the last two pairs.
 
-        The head's turn and shift from the pair before to the last pair (weighted Procrustes,
-        as :meth:`_rotation`) are carried on over the intervals since the last pair, about the
-        nodes' weighted centroid; the mesh keeps its shape. The last nodes without
-        ``predict_motion`` or a pair before.
+        The head's turn and shift from the pair before to the last pair (Procrustes weighted by
+        ``weights``, :meth:`_rotation`'s when None) are carried on over the intervals since the
+        last pair, about the nodes' weighted centroid; the mesh keeps its shape. The last nodes
+        without ``predict_motion`` or a pair before.
         """
         if not self._config.predict_motion or state.before is None:
             return state.nodes
-        weights = self._alignment_weights
+        weights = self._alignment_weights if weights is None else weights
         ahead = state.elapsed / state.span
         turn, _ = rodrigues(
             ahead * matrix_to_omega(rigid_rotation(state.before, state.nodes, weights))
@@ -817,11 +849,12 @@ class StereoTracker:
         centre, centre_before = share @ state.nodes, share @ state.before
         return centre + ahead * (centre - centre_before) + (state.nodes - centre) @ turn.T
 
-    def _moving_fast(self, state: _State) -> bool:
+    def _moving_fast(self, state: _State, rigid: np.ndarray) -> bool:
         """Whether the head is moving more than ``fast_motion_px`` a frame interval.
 
-        The head's motion carried on from the last two pairs (:meth:`_rigid_predicted`): its
-        largest displacement of a node in the left image, per interval since the last pair.
+        The head's motion carried on from the last two pairs (``rigid``,
+        :meth:`_rigid_predicted`): its largest displacement of a node in the left image, per
+        interval since the last pair.
         The head's, not each node's: a node found again as an occluder leaves jumps by 10 px
         and more, which says nothing of the frame rate. False with the threshold 0 or without
         a pair before the last, and while an occluder is flagged (``state.region``): solved from
@@ -832,7 +865,7 @@ class StereoTracker:
         if limit <= 0 or state.before is None or state.region.any():
             return False
         left = self._rig.left
-        moved = left.project(self._rigid_predicted(state)) - left.project(state.nodes)
+        moved = left.project(rigid) - left.project(state.nodes)
         return float(np.linalg.norm(moved, axis=1).max()) > limit * state.elapsed
 
     def _searched(self, state: _State, pyramids: tuple[ImagePyramid, ImagePyramid]) -> np.ndarray:
@@ -858,13 +891,14 @@ class StereoTracker:
         start: np.ndarray,
         reference: np.ndarray,
         region: np.ndarray | None = None,
+        fast: bool = False,
     ) -> _Attempt:
         """This pair solved from ``start`` (:meth:`_solve_pair`) and checked (:mod:`.stereo_loss`).
 
         ``reference``: (N, 3) the nodes eq. 5 measures the motion from; ``region``: the nodes
-        found again once an occluder has gone (:meth:`_solve_pair`). A pair after a gap, and a
-        pair solved for a region, are checked at the stricter ``gap_lost_ratio`` too (solved
-        from coarser levels).
+        found again once an occluder has gone; ``fast``: the head is moving fast (both
+        :meth:`_solve_pair`). A pair after a gap, and a pair solved for a region, are checked at
+        the stricter ``gap_lost_ratio`` too (solved from coarser levels).
 
         Nodes that pass fail all the same where an occluder hides the face
         (:func:`~.stereo_occlusion.face_hidden`: too few nodes left uncovered to hold the
@@ -877,7 +911,7 @@ class StereoTracker:
         and ``face/state`` says LOST with that pair's flags.
         """
         try:
-            nodes, solves = self._solve_pair(state, pyramids, start, reference, region)
+            nodes, solves = self._solve_pair(state, pyramids, start, reference, region, fast)
         except (LinAlgError, FaceTrackingError) as error:
             return _Attempt(start, None, _Solves(), f'solver failed: {error}', reference)
         level, accepted = solves.levels[-1]  # level 0's
@@ -901,6 +935,7 @@ class StereoTracker:
         start: np.ndarray,
         reference: np.ndarray,
         region: np.ndarray | None = None,
+        fast: bool = False,
     ) -> tuple[np.ndarray, _Solves]:
         """The nodes that minimise eq. 4 + eq. 5 on this pair from ``start``, coarse to fine.
 
@@ -923,14 +958,14 @@ class StereoTracker:
         levels of ``gap_pyramid_levels`` too (:meth:`_coarser_levels`), the fit moved to the
         start first.
 
-        A pair after one on which the head moved fast (``fast_motion_px``) is solved from one
-        coarser level too (:meth:`_moving_fast`), the face-model term kept on it: an
-        expression's onset is not predicted, and at 10 fps the jaw drops beyond the two levels'
-        reach in one interval. Left to two levels, the lower lip and chin settled on the neck
-        and were followed there (rendered free motion at 10 fps, 100 pairs each: pairs TRACKING
-        more than 3 px RMS off, over the nodes both cameras see, 156 -> 29 on seeds 0-7 and 236
-        -> 185 on seeds 8-15; at 15 fps 69 -> 3 on seeds 0-7; the face-model term left out of
-        that level, 37 on seeds 0-7).
+        A pair on which the head is moving fast (``fast``, :meth:`_moving_fast`) is solved from
+        one coarser level too, the face-model term kept on it: an expression's onset is not
+        predicted, and at 10 fps the jaw drops beyond the two levels' reach in one interval.
+        Left to two levels, the lower lip and chin settled on the neck and were followed there
+        (rendered free motion at 10 fps, 100 pairs each: pairs TRACKING more than 3 px RMS off,
+        over the nodes both cameras see, 156 -> 29 on seeds 0-7 and 236 -> 185 on seeds 8-15;
+        at 15 fps 69 -> 3 on seeds 0-7; the face-model term left out of that level, 37 on seeds
+        0-7).
 
         A gap's coarser levels leave the face-model term out: a level's image terms weigh 4 times
         less per m^2 of node motion than the next finer one's (its pixels are twice as far
@@ -955,7 +990,7 @@ class StereoTracker:
         if state.after_gap or region is not None:
             coarser = self._coarser_levels(state, pyramids, self._gap_levels)
             coarser_terms = replace(energy, prior=None)  # the images alone
-        elif self._moving_fast(state):
+        elif fast:
             coarser = self._coarser_levels(state, pyramids, self._fast_levels)
         if state.after_gap:
             _move_fit(energy, nodes)
