@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from dataclasses import replace
 import itertools
+from typing import NamedTuple
 
 import numpy as np
 import pytest
@@ -395,32 +396,47 @@ def test_soft_brows_keep_up_with_a_fast_frown() -> None:
     assert largest_error(RegularisationConfig(brow=0.2)) > 1.35
 
 
+class _Followed(NamedTuple):
+    """A rendered sequence tracked from its true nodes (:func:`_followed_at_10_fps`)."""
+
+    frames: list
+    status: np.ndarray  # (F,)
+    errors: np.ndarray  # (F, N) each node's left-image distance from the truth, px
+    rms: np.ndarray  # (F,) over the nodes both cameras see, px
+
+
+def _followed_at_10_fps(seed: int, frames: int, tracked: int) -> _Followed:
+    """Subject 0 moving freely at 10 fps (``frames`` rendered): the first ``tracked`` pairs."""
+    scene = SceneConfig(kind='stereo', frames=frames, fps=10.0, seed=seed, motion='free')
+    renderer = SequenceRenderer(scene, 0)
+    rig = StereoRig(renderer.cameras['left'], renderer.cameras['right'])
+    shown = list(itertools.islice(renderer.frames(0), tracked))
+    truth = np.array([frame.truth.nodes_camera[:34] for frame in shown])
+    pairs = [(frame.images['left'], frame.images['right']) for frame in shown]
+    run = track_sequence(
+        StereoTracker(rig, StereoTrackerConfig()), pairs, rig.left.project(truth[0])
+    )
+    seen = np.array([f.truth.visible['left'] & f.truth.visible['right'] for f in shown])
+    errors = np.linalg.norm(
+        rig.left.project(run.meshes.reshape(-1, 3)) - rig.left.project(truth.reshape(-1, 3)),
+        axis=1,
+    ).reshape(seen.shape)
+    rms = np.sqrt([np.mean(error[mask] ** 2) for error, mask in zip(errors, seen, strict=True)])
+    return _Followed(shown, run.status, errors, rms)
+
+
 def test_a_jaw_closing_at_10_fps_is_followed_on_a_turning_head() -> None:
     # Seed 6's subject 0 moving freely at 10 fps (the head 5-6 px a pair) holds its jaw open,
     # then closes it over pairs 26-28 while the head turns; 40 pairs tracked from the true nodes.
     # Solved from two pyramid levels (``fast_motion_px`` 0), the lower lip and chin were left
     # below the closed mouth from pair 29, TRACKING.
-    scene = SceneConfig(kind='stereo', frames=40, fps=10.0, seed=6, motion='free')
-    renderer = SequenceRenderer(scene, 0)
-    rig = StereoRig(renderer.cameras['left'], renderer.cameras['right'])
-    frames = list(renderer.frames(0))
+    followed = _followed_at_10_fps(6, 40, 40)
+    frames = followed.frames
     assert frames[25].truth.label == 'jaw_open' and frames[29].truth.label == 'neutral'
-    truth = np.array([frame.truth.nodes_camera[:34] for frame in frames])
-    pairs = [(frame.images['left'], frame.images['right']) for frame in frames]
-    tracked = track_sequence(
-        StereoTracker(rig, StereoTrackerConfig()), pairs, rig.left.project(truth[0])
-    )
-    assert np.all(tracked.status == TrackStatus.TRACKING)
-    seen = np.array([f.truth.visible['left'] & f.truth.visible['right'] for f in frames])
-    errors = np.linalg.norm(
-        rig.left.project(tracked.meshes.reshape(-1, 3)) - rig.left.project(truth.reshape(-1, 3)),
-        axis=1,
-    ).reshape(seen.shape)
-    squared = [np.mean(error[mask] ** 2) for error, mask in zip(errors, seen, strict=True)]
-    rms = np.sqrt(squared)
+    assert np.all(followed.status == TrackStatus.TRACKING)
     # Measured: at most 0.82 px RMS over the nodes both cameras see; 5.0 px without the third
     # level.
-    assert rms.max() < 3.0
+    assert followed.rms.max() < 3.0
 
 
 def test_a_talking_jaw_at_10_fps_is_followed() -> None:
@@ -429,29 +445,16 @@ def test_a_talking_jaw_at_10_fps_is_followed() -> None:
     # the true nodes. Started from each node's own motion, the jaw's motion carried on was
     # doubled where it turned back, and from pair 47 the lower lip and chin were 9-13 px off,
     # TRACKING.
-    scene = SceneConfig(kind='stereo', frames=100, fps=10.0, seed=13, motion='free')
-    renderer = SequenceRenderer(scene, 0)
-    rig = StereoRig(renderer.cameras['left'], renderer.cameras['right'])
-    frames = list(itertools.islice(renderer.frames(0), 56))
-    intensity = np.array([frame.truth.intensity for frame in frames[37:]])
-    assert {frame.truth.label for frame in frames[37:]} == {'jaw_open'}
-    assert np.abs(np.diff(intensity)).max() > 0.3
-    truth = np.array([frame.truth.nodes_camera[:34] for frame in frames])
-    pairs = [(frame.images['left'], frame.images['right']) for frame in frames]
-    tracker = StereoTracker(rig, StereoTrackerConfig())
-    tracked = track_sequence(tracker, pairs, rig.left.project(truth[0]))
-    assert np.all(tracked.status == TrackStatus.TRACKING)
-    seen = np.array([f.truth.visible['left'] & f.truth.visible['right'] for f in frames])
-    errors = np.linalg.norm(
-        rig.left.project(tracked.meshes.reshape(-1, 3)) - rig.left.project(truth.reshape(-1, 3)),
-        axis=1,
-    ).reshape(seen.shape)
-    rms = np.sqrt([np.mean(error[mask] ** 2) for error, mask in zip(errors, seen, strict=True)])
-    lower = [tracker.topology.index(name) for name in ('lower_lip', 'chin')]
+    followed = _followed_at_10_fps(13, 100, 56)
+    talking = followed.frames[37:]
+    assert {frame.truth.label for frame in talking} == {'jaw_open'}
+    assert np.abs(np.diff([frame.truth.intensity for frame in talking])).max() > 0.3
+    assert np.all(followed.status == TrackStatus.TRACKING)
+    lower = [mesh_topology(34).index(name) for name in ('lower_lip', 'chin')]
     # Measured: at most 2.75 px RMS over the nodes both cameras see, the lower lip and chin
     # 6.8 px off at most; from each node's own motion 5.07 px and 12.7 px.
-    assert rms.max() < 3.5
-    assert errors[:, lower].max() < 9.0
+    assert followed.rms.max() < 3.5
+    assert followed.errors[:, lower].max() < 9.0
 
 
 def test_initial_depths_of_smooth_lips_and_brows() -> None:
