@@ -809,15 +809,15 @@ class StereoTracker:
         """Where a pair one interval after the last tracked one starts: see ``rigid_start_px``.
 
         Each node's own motion carried on (:meth:`_predicted`), unless a node moved more than
-        ``rigid_start_px`` between the last two pairs beyond the head's rigid motion ``rigid``
-        (the expression changed that fast): then the head's rigid motion alone, measured on the
-        nodes that did not (:meth:`_rigid_predicted`), unless fewer than
+        ``rigid_start_px`` a frame interval between the last two pairs beyond the head's rigid
+        motion ``rigid`` (the expression changed that fast): then the head's rigid motion alone,
+        measured on the nodes that did not (:meth:`_rigid_predicted`), unless fewer than
         :data:`~.stereo_occlusion.MIN_UNCOVERED_NODES` did not. An expression's motion of one
         interval that large is sampled too coarsely to be carried on: a talking jaw opens and
-        closes every few 10-fps pairs, and carried on, its motion doubled the error of a jaw
-        that turned back (the lower lip and chin then settled 9-12 px off and were followed
-        there). Each node's own motion while an occluder is flagged (``state.region``), as the
-        region's solve was measured with.
+        closes every few 10-fps pairs, and carried on, its motion doubled the error of a jaw that
+        turned back (the lower lip and chin then settled 9-12 px off and were followed there). Each
+        node's own motion while an occluder is flagged (``state.region``), as the region's solve
+        was measured with.
         """
         predicted = self._predicted(state)
         limit = self._config.rigid_start_px
@@ -825,7 +825,7 @@ class StereoTracker:
             return predicted
         left = self._rig.left
         moved = np.linalg.norm(left.project(predicted) - left.project(rigid), axis=1)
-        moving = moved > limit * state.elapsed / state.span
+        moving = moved > limit * state.elapsed  # per frame interval, as carried on
         if not moving.any() or np.count_nonzero(~moving) < MIN_UNCOVERED_NODES:
             return predicted
         return self._rigid_predicted(state, np.where(moving, 0.0, self._alignment_weights))

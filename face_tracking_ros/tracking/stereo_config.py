@@ -125,15 +125,15 @@ class StereoTrackerConfig:
             were followed there, TRACKING. Rendered free motion, 100 pairs at 10 fps: pairs
             more than 3 px RMS off (the nodes both cameras see) 156 -> 29 on seeds 0-7, 236 ->
             185 on seeds 8-15; 120 pairs at 15 fps: 69 -> 3; 150 at 30 fps: 2 -> 2.
-        rigid_start_px: a pair one frame interval after the last tracked one starts from the
-            head's rigid motion alone (measured on the other nodes) when a node moved more than
-            this between the last two pairs, px in the left image beyond the head's rigid
+        rigid_start_px: a pair one frame interval after the last tracked one starts from the head's
+            rigid motion alone (measured on the other nodes) when a node moved more than this a
+            frame interval between the last two pairs, px in the left image beyond the head's rigid
             motion, instead of from each node's own motion (``predict_motion``; 0: always each
-            node's own; not while an occluder is flagged). An expression that moves that far in
-            one interval is sampled too coarsely for its motion to be carried on: a talking jaw
-            opens and closes every few pairs at 10 fps, and the lower lip and chin were left
-            9-12 px off. Rendered free motion, 100 pairs at 10 fps: pairs more than 3 px RMS off
-            29 -> 12 on seeds 0-7, 185 -> 115 on seeds 8-15.
+            node's own; not while an occluder is flagged). An expression that moves that far in one
+            interval is sampled too coarsely for its motion to be carried on: a talking jaw opens
+            and closes every few pairs at 10 fps, and the lower lip and chin were left 9-12 px off.
+            Rendered free motion, 100 pairs at 10 fps: pairs more than 3 px RMS off 29 -> 12 on
+            seeds 0-7, 185 -> 115 on seeds 8-15, 92 -> 48 on seeds 16-31; 15 and 30 fps as before.
         max_iterations: Levenberg-Marquardt iterations per pyramid level.
         step_tolerance: level 0 has converged when no node's projection moves more than this
             in an iteration, px (that last step is taken without evaluating its cost).
