@@ -703,15 +703,25 @@ class StereoTracker:
 
         Eq. 5 measures a gap pair's motion from the rigid prediction (see :meth:`_track`).
         ``searched()`` gives the searched start (:meth:`_searched`). Any other pair starts
-        from :meth:`_followed_start`, from one coarser level too if the head is moving fast
-        (:meth:`_moving_fast`); the head's rigid motion is carried on once for both.
+        from each node's own motion carried on (:meth:`_predicted`), or from the head's rigid
+        motion alone after a fast expression (:meth:`_followed_start`), and is solved from one
+        coarser level too if the head is moving fast (:meth:`_moving_fast`); both measure the
+        head's rigid motion carried on, made and projected once. Neither applies without a pair
+        before the last, nor while an occluder is flagged (``state.region``): the region's solve
+        was measured from each node's own motion on two levels (from the coarser level, the
+        nodes it had covered were left up to 50 px off as it left: rendered 30 fps, a pucker
+        started under the occluder; 5.5 px without).
         """
         gap = state.after_gap
-        rigid = self._rigid_predicted(state)
         if gap:
+            rigid = self._rigid_predicted(state)
             attempt = self._attempt(state, pyramids, self._predicted(state), rigid)
         else:
-            start, fast = self._followed_start(state, rigid), self._moving_fast(state, rigid)
+            start, fast = self._predicted(state), False
+            if state.before is not None and not state.region.any():
+                rigid_px = self._rig.left.project(self._rigid_predicted(state))
+                start = self._followed_start(state, start, rigid_px)
+                fast = self._moving_fast(state, rigid_px)
             attempt = self._attempt(state, pyramids, start, state.nodes, fast=fast)
         if attempt.problem and gap:
             found = self._attempt(state, pyramids, searched(), rigid)
@@ -805,26 +815,25 @@ class StereoTracker:
         ahead = state.elapsed / state.span
         return (1.0 + ahead) * state.nodes - ahead * state.before
 
-    def _followed_start(self, state: _State, rigid: np.ndarray) -> np.ndarray:
+    def _followed_start(
+        self, state: _State, predicted: np.ndarray, rigid_px: np.ndarray
+    ) -> np.ndarray:
         """Where a pair one interval after the last tracked one starts: see ``rigid_start_px``.
 
-        Each node's own motion carried on (:meth:`_predicted`), unless a node moved more than
-        ``rigid_start_px`` a frame interval between the last two pairs beyond the head's rigid
-        motion ``rigid`` (the expression changed that fast): then the head's rigid motion alone,
+        Each node's own motion carried on (``predicted``, :meth:`_predicted`), unless a node
+        moved more than ``rigid_start_px`` a frame interval between the last two pairs beyond
+        the head's rigid motion (``rigid_px``, :meth:`_rigid_predicted` in the left image; the
+        expression changed that fast): then the head's rigid motion alone,
         measured on the nodes that did not (:meth:`_rigid_predicted`), unless fewer than
         :data:`~.stereo_occlusion.MIN_UNCOVERED_NODES` did not. An expression's motion of one
         interval that large is sampled too coarsely to be carried on: a talking jaw opens and
         closes every few 10-fps pairs, and carried on, its motion doubled the error of a jaw that
-        turned back (the lower lip and chin then settled 9-12 px off and were followed there). Each
-        node's own motion while an occluder is flagged (``state.region``), as the region's solve
-        was measured with.
+        turned back (the lower lip and chin then settled 9-12 px off and were followed there).
         """
-        predicted = self._predicted(state)
         limit = self._config.rigid_start_px
-        if limit <= 0 or state.before is None or state.region.any():
+        if limit <= 0:
             return predicted
-        left = self._rig.left
-        moved = np.linalg.norm(left.project(predicted) - left.project(rigid), axis=1)
+        moved = np.linalg.norm(self._rig.left.project(predicted) - rigid_px, axis=1)
         moving = moved > limit * state.elapsed  # per frame interval, as carried on
         if not moving.any() or np.count_nonzero(~moving) < MIN_UNCOVERED_NODES:
             return predicted
@@ -849,23 +858,19 @@ class StereoTracker:
         centre, centre_before = share @ state.nodes, share @ state.before
         return centre + ahead * (centre - centre_before) + (state.nodes - centre) @ turn.T
 
-    def _moving_fast(self, state: _State, rigid: np.ndarray) -> bool:
+    def _moving_fast(self, state: _State, rigid_px: np.ndarray) -> bool:
         """Whether the head is moving more than ``fast_motion_px`` a frame interval.
 
-        The head's motion carried on from the last two pairs (``rigid``,
-        :meth:`_rigid_predicted`): its largest displacement of a node in the left image, per
-        interval since the last pair.
-        The head's, not each node's: a node found again as an occluder leaves jumps by 10 px
-        and more, which says nothing of the frame rate. False with the threshold 0 or without
-        a pair before the last, and while an occluder is flagged (``state.region``): solved from
-        the coarser level then, the nodes it had covered were left up to 50 px off as it left
-        (rendered 30 fps, a pucker started under the occluder; 5.5 px without).
+        The head's motion carried on from the last two pairs (``rigid_px``,
+        :meth:`_rigid_predicted` in the left image): its largest displacement of a node in the
+        left image, per interval since the last pair. The head's, not each node's: a node found
+        again as an occluder leaves jumps by 10 px and more, which says nothing of the frame
+        rate. False with the threshold 0.
         """
         limit = self._config.fast_motion_px
-        if limit <= 0 or state.before is None or state.region.any():
+        if limit <= 0:
             return False
-        left = self._rig.left
-        moved = left.project(rigid) - left.project(state.nodes)
+        moved = rigid_px - self._rig.left.project(state.nodes)
         return float(np.linalg.norm(moved, axis=1).max()) > limit * state.elapsed
 
     def _searched(self, state: _State, pyramids: tuple[ImagePyramid, ImagePyramid]) -> np.ndarray:
