@@ -1078,14 +1078,14 @@ class MonoTracker:
                 restart_px = self._config.coarsest_level_px if doubtful else math.inf
                 retries.insert(0, (still, 1, restart_px))
             for begin, level, restart_px in retries:
-                again = attempt(begin, level, restart_px)
-                total = _summed(total, again[1].result)
+                retried, rechecked = attempt(begin, level, restart_px)
+                total = _summed(total, rechecked.result)
                 if doubtful:  # taken only if it passes and matches closely enough
-                    if again[1].result.ok and not self._doubtful(again[1]):
-                        solution, checked = again
+                    if rechecked.result.ok and not self._doubtful(rechecked):
+                        solution, checked = retried, rechecked
                         break
                     continue
-                solution, checked = again  # the last made, as the first failed
+                solution, checked = retried, rechecked  # the last made, as the first failed
                 if checked.result.ok:
                     break
             total = replace(
