@@ -36,6 +36,7 @@ from face_tracking_ros.bench import (
 )
 from face_tracking_ros.bench.common import (
     BenchOptions,
+    Cores,
     dds_env,
     proc_status_mb,
     process_cpu_seconds,
@@ -482,11 +483,12 @@ def test_runner_gives_a_child_its_options_and_reads_its_part(monkeypatch, tmp_pa
     monkeypatch.setattr(runner, 'machine', lambda: {'nproc': 1})
     clock = iter([0.0, 2.5, 10.0, 70.0])  # memory 2.5 s, soak 60 s
     monkeypatch.setattr(runner, 'time', SimpleNamespace(perf_counter=lambda: next(clock)))
-    options = BenchOptions(quick=True, work_dir=tmp_path, minutes=2.0, domain_id=9, seed=4)
+    options = BenchOptions(True, tmp_path, 2.0, 9, 4, Cores(3, 5))
     results = runner.run_benchmarks(['memory', 'soak'], options)
     assert results['benchmarks'] == {'memory': {'figure': 1.5}, 'soak': {'figure': 1.5}}
     assert results['seconds'] == {'memory': 2.5, 'soak': 60.0}
     assert results['quick'] is True
+    assert results['cores'] == {'bench': 3, 'driver': 5}
     assert commands[1][3:] == [
         'soak',
         '--part',
@@ -499,6 +501,10 @@ def test_runner_gives_a_child_its_options_and_reads_its_part(monkeypatch, tmp_pa
         '9',
         '--seed',
         '4',
+        '--bench-core',
+        '3',
+        '--driver-core',
+        '5',
         '--quick',
     ]
 

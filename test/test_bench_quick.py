@@ -17,7 +17,7 @@ import re
 import pytest
 
 from face_tracking_ros.bench import runner
-from face_tracking_ros.bench.common import BENCH_CORE, DRIVER_CORE, BenchOptions, pin_to_core
+from face_tracking_ros.bench.common import BenchOptions, Cores, pin_to_core
 from face_tracking_ros.bench.runner import run_benchmarks
 from face_tracking_ros.cli import bench
 from face_tracking_ros.cli.bench import format_table
@@ -127,16 +127,36 @@ def test_quick_run_writes_finite_figures(tmp_path):
 def test_pin_to_core_moves_a_pinned_process_to_another_core():
     """The runner pins a benchmark to one core; a live one then moves its driver to another."""
     saved = os.sched_getaffinity(0)
-    if not {BENCH_CORE, DRIVER_CORE} <= saved:
-        pytest.skip(f'cores {BENCH_CORE} and {DRIVER_CORE} are not both available here')
+    if len(saved) < 2:
+        pytest.skip('one core here')
+    cores = Cores.of()
     try:
-        assert pin_to_core() == BENCH_CORE
-        assert pin_to_core(DRIVER_CORE) == DRIVER_CORE
-        assert os.sched_getaffinity(0) == {DRIVER_CORE}
-        assert pin_to_core(4095) == DRIVER_CORE  # no such core: the lowest of the affinity
+        assert pin_to_core(cores.bench) == cores.bench
+        assert pin_to_core(cores.driver) == cores.driver
+        assert os.sched_getaffinity(0) == {cores.driver}
+        assert pin_to_core(4095) == cores.driver  # no such core: the lowest of the affinity
         os.sched_setaffinity(0, saved)
         assert pin_to_core(4095) == min(saved)
         assert os.sched_getaffinity(0) == {min(saved)}  # this process's, not another's
+    finally:
+        os.sched_setaffinity(0, saved)
+
+
+@pytest.mark.parametrize(
+    ('affinity', 'bench', 'driver'),
+    [({0, 1}, 0, 1), ({3, 1, 7}, 1, 3), ({5}, 5, 5)],  # one core both measures and drives
+)
+def test_benchmarks_run_on_the_lowest_cores_they_are_given(affinity, bench, driver):
+    assert Cores.of(affinity) == Cores(bench, driver)
+
+
+def test_benchmark_options_take_their_cores_from_the_affinity_the_command_started_with():
+    """`taskset -c 1 face-tracking bench` measures on core 1, not on core 0."""
+    saved = os.sched_getaffinity(0)
+    highest = max(saved)
+    try:
+        os.sched_setaffinity(0, {highest})
+        assert BenchOptions().cores == Cores(highest, highest)
     finally:
         os.sched_setaffinity(0, saved)
 
@@ -227,6 +247,24 @@ def test_a_run_with_a_failed_benchmark_keeps_the_earlier_results(tmp_path, capsy
     assert main(argv) == 0
     assert json.loads(results.read_text())['benchmarks'] == parts
     assert f'results: {results}\n' in capsys.readouterr().out
+
+
+def test_the_command_says_which_cores_measured_and_drove(tmp_path, capsys, monkeypatch):
+    monkeypatch.setattr(runner, '_run_child', lambda name, options: {})
+    saved = os.sched_getaffinity(0)
+    argv = ['bench', '--out', str(tmp_path), '--only', 'tracker_speed']
+    try:
+        os.sched_setaffinity(0, {max(saved)})  # as under `taskset -c N`
+        assert main(argv) == 0
+    finally:
+        os.sched_setaffinity(0, saved)
+    core = max(saved)
+    printed = capsys.readouterr().out
+    assert f'measured on core {core}, live drivers on core {core} (one core: ' in printed
+    assert json.loads((tmp_path / 'bench' / 'results.json').read_text())['cores'] == {
+        'bench': core,
+        'driver': core,
+    }
 
 
 def test_unknown_benchmark_is_refused(tmp_path):

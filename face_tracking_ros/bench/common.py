@@ -2,8 +2,8 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass, field
 import os
 from pathlib import Path
 import sys
@@ -15,8 +15,29 @@ import numpy as np
 from face_tracking_ros.threads import ONE_THREAD_ENV
 
 PROFILE = Path(__file__).resolve().parents[2] / 'config' / 'fastdds_profile.xml'
-BENCH_CORE = 0  # the core the measured code runs on
-DRIVER_CORE = 1  # the core of live-benchmark drivers (publisher, subscriber), when there is one
+
+
+@dataclass(frozen=True)
+class Cores:
+    """The two cores benchmarks run on.
+
+    Attributes:
+        bench: the core the measured code runs on (a node, a tracker, the learner).
+        driver: the core of live benchmarks' drivers (publisher, subscriber); ``bench`` too
+            when there is only one.
+    """
+
+    bench: int
+    driver: int
+
+    @classmethod
+    def of(cls, affinity: Iterable[int] | None = None) -> Cores:
+        """The lowest two cores of ``affinity``, by default this process's CPU affinity.
+
+        So ``taskset -c 2,3 face-tracking bench`` measures on core 2 and drives on core 3.
+        """
+        ordered = sorted(os.sched_getaffinity(0) if affinity is None else affinity)
+        return cls(ordered[0], ordered[min(1, len(ordered) - 1)])
 
 
 @dataclass(frozen=True)
@@ -29,6 +50,8 @@ class BenchOptions:
         minutes: duration of the soak run, min.
         domain_id: ROS_DOMAIN_ID of the live benchmarks' DDS traffic.
         seed: seed of every synthetic scene and random draw.
+        cores: the cores to measure and to drive on (by default from the CPU affinity the
+            command was started with).
     """
 
     quick: bool = False
@@ -36,6 +59,7 @@ class BenchOptions:
     minutes: float = 30.0
     domain_id: int = 70
     seed: int = 0
+    cores: Cores = field(default_factory=Cores.of)
 
 
 def jpeg_compressed(image: np.ndarray, quality: int) -> np.ndarray:
@@ -78,13 +102,13 @@ def time_calls(calls: Sequence[Callable[[], object]]) -> list[float]:
     return durations
 
 
-def pin_to_core(core: int = BENCH_CORE) -> int:
+def pin_to_core(core: int) -> int:
     """Pin the calling process to one core; its id.
 
-    ``core`` need not be in the process's affinity: a live benchmark's process, pinned to
-    BENCH_CORE by the runner, moves its driver to DRIVER_CORE, and starts its nodes on
-    BENCH_CORE from there. A core the process may not run on (a one-core machine, a cpuset
-    without it) gives the lowest core of its affinity instead.
+    ``core`` need not be in the process's affinity: a live benchmark's process, pinned to the
+    bench core by the runner, moves its driver to the driver core, and starts its nodes on the
+    bench core from there (:class:`Cores`). A core the process may not run on (a one-core
+    machine, a cpuset without it) gives the lowest core of its affinity instead.
     """
     try:
         os.sched_setaffinity(0, {core})

@@ -1,17 +1,18 @@
 """Live benchmarks' machinery: node processes on one core and a DDS driver on loopback.
 
-:class:`NodeProcess` starts a node executable (``mono_tracker``, ...) as a subprocess pinned to
-:data:`~.common.BENCH_CORE` with one BLAS thread, on the benchmark's ROS domain, loopback only
-(``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST`` and the package's Fast DDS profile). :class:`Driver`
-is the other end, in the benchmark process: it publishes pre-converted image (pair) messages and
-their camera_info with the wall-clock time as stamp, at a fixed rate, and records when each
-``face/state`` of a stamp arrives, so latency = receipt time - image stamp (one clock).
+:class:`NodeProcess` starts a node executable (``mono_tracker``, ...) as a subprocess pinned to the
+bench core (:class:`~.common.Cores`) with one BLAS thread, on the benchmark's ROS domain, loopback
+only (``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST`` and the package's Fast DDS profile).
+:class:`Driver` is the other end, in the benchmark process: it publishes pre-converted image (pair)
+messages and their camera_info with the wall-clock time as stamp, at a fixed rate, and records when
+each ``face/state`` of a stamp arrives, so latency = receipt time - image stamp (one clock).
 """
 
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+import functools
 import os
 from pathlib import Path
 import signal
@@ -28,6 +29,7 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 
 from face_tracking_ros.bench.common import (
+    BenchOptions,
     dds_env,
     last_lines,
     pin_to_core,
@@ -52,19 +54,22 @@ LATE_GRACE = 1.0  # s, waited after the last image for its state
 
 
 class NodeProcess:
-    """A node executable running in its own process on :data:`~.common.BENCH_CORE`.
+    """A node executable running in its own process on one core.
 
     Args:
         node: executable name (a console script next to the Python interpreter).
         params: ROS parameters, name -> value.
-        domain_id: ROS_DOMAIN_ID.
+        options: the benchmark's ROS domain (ROS_DOMAIN_ID) and cores (the node runs on the
+            bench core).
         log: file receiving the node's stdout and stderr.
 
     Raises:
         ConfigError: if the executable is not installed.
     """
 
-    def __init__(self, node: str, params: Mapping[str, object], domain_id: int, log: Path) -> None:
+    def __init__(
+        self, node: str, params: Mapping[str, object], options: BenchOptions, log: Path
+    ) -> None:
         """Start the node."""
         executable = Path(sys.executable).parent / node
         if not executable.is_file():
@@ -79,10 +84,10 @@ class NodeProcess:
         with log.open('w') as stream:
             self._process = subprocess.Popen(
                 arguments,
-                env=dds_env(domain_id),
+                env=dds_env(options.domain_id),
                 stdout=stream,
                 stderr=subprocess.STDOUT,
-                preexec_fn=pin_to_core,  # BENCH_CORE
+                preexec_fn=functools.partial(pin_to_core, options.cores.bench),
             )
 
     @property

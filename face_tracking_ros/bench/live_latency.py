@@ -22,7 +22,7 @@ import math
 import os
 from typing import Any
 
-from face_tracking_ros.bench.common import DRIVER_CORE, BenchOptions, pin_to_core
+from face_tracking_ros.bench.common import BenchOptions, pin_to_core
 from face_tracking_ros.bench.live import Driver, NodeProcess, tracker_inputs
 from face_tracking_ros.synthetic.scenes import Kind
 
@@ -46,7 +46,7 @@ def run(options: BenchOptions) -> dict[str, Any]:
     Returns:
         ``{'mono': {...}, 'stereo': {...}}``, each as :func:`tracker_latency` returns.
     """
-    pin_to_core(DRIVER_CORE)
+    pin_to_core(options.cores.driver)
     return {kind.value: tracker_latency(kind, node, options) for kind, node in TRACKERS.items()}
 
 
@@ -64,7 +64,7 @@ def tracker_latency(kind: Kind, node: str, options: BenchOptions) -> dict[str, A
     """
     frames = QUICK_FRAMES if options.quick else FRAMES
     streams, params = tracker_inputs(options.work_dir, kind, WIDTH, HEIGHT, frames, options.seed)
-    process = NodeProcess(node, params, options.domain_id, options.work_dir / f'live_{node}.log')
+    process = NodeProcess(node, params, options, options.work_dir / f'live_{node}.log')
     driver = Driver(streams)
     try:
         driver.wait_for([process])

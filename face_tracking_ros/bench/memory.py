@@ -16,7 +16,7 @@ import shutil
 import time
 from typing import Any
 
-from face_tracking_ros.bench.common import DRIVER_CORE, BenchOptions, pin_to_core, skipped
+from face_tracking_ros.bench.common import BenchOptions, pin_to_core, skipped
 from face_tracking_ros.bench.live import Driver, NodeProcess, tracker_inputs
 from face_tracking_ros.bench.world import classifier_file, recorded_bag, scene_config
 from face_tracking_ros.errors import ConfigError
@@ -40,7 +40,7 @@ def run(options: BenchOptions) -> dict[str, Any]:
     Returns:
         ``{'<node>': {'peak_rss_mb': m, 'run': '...'} | {'skipped': reason}}``.
     """
-    pin_to_core(DRIVER_CORE)
+    pin_to_core(options.cores.driver)
     seconds = QUICK_SECONDS if options.quick else SECONDS
     work = options.work_dir
     streams, params = tracker_inputs(work, Kind.MONO, WIDTH, HEIGHT, FRAMES, options.seed)
@@ -117,7 +117,7 @@ def _peak_until(
     A node that exits first, or is not done within NODE_TIMEOUT_S, is reported as failed.
     """
     try:
-        node = NodeProcess(name, params, options.domain_id, options.work_dir / f'{name}.log')
+        node = NodeProcess(name, params, options, options.work_dir / f'{name}.log')
     except ConfigError as error:
         return skipped(str(error))
     deadline = time.monotonic() + NODE_TIMEOUT_S
@@ -146,9 +146,7 @@ def _measure(
     running: list[NodeProcess] = []
     for name, params in nodes.items():
         try:
-            running.append(
-                NodeProcess(name, params, options.domain_id, options.work_dir / f'{name}.log')
-            )
+            running.append(NodeProcess(name, params, options, options.work_dir / f'{name}.log'))
         except ConfigError as error:
             results[name] = skipped(str(error))
     driver = Driver(streams, name='bench_memory_driver')

@@ -1,12 +1,12 @@
 """Runs benchmarks, each in its own process on one core, and gathers one results JSON.
 
-Every benchmark runs as ``python -m face_tracking_ros.bench.runner NAME --part FILE ...`` with
-one BLAS/OpenMP thread set in its environment before numpy loads, pinned to
-:data:`~.common.BENCH_CORE` (the live ones move their DDS driver to the other core and run the
-nodes on this one), and on the benchmark ROS domain with loopback-only DDS. A benchmark that
-fails is recorded as ``{'failed': <last lines of its stderr>}``; one that cannot run yet reports
-``{'skipped': reason}`` itself. NaN figures (not applicable, e.g. the alpha error of a sequence
-without expressions) are written as null.
+Every benchmark runs as ``python -m face_tracking_ros.bench.runner NAME --part FILE ...`` with one
+BLAS/OpenMP thread set in its environment before numpy loads, pinned to the bench core of
+:class:`~.common.Cores` (the lowest core the command may run on; the live ones move their DDS
+driver to the next one and run the nodes on the bench core), and on the benchmark ROS domain with
+loopback-only DDS. A benchmark that fails is recorded as ``{'failed': <last lines of its
+stderr>}``; one that cannot run yet reports ``{'skipped': reason}`` itself. NaN figures (not
+applicable, e.g. the alpha error of a sequence without expressions) are written as null.
 """
 
 from __future__ import annotations
@@ -24,7 +24,7 @@ import sys
 import time
 from typing import Any
 
-from face_tracking_ros.bench.common import BenchOptions, dds_env, last_lines, pin_to_core
+from face_tracking_ros.bench.common import BenchOptions, Cores, dds_env, last_lines, pin_to_core
 from face_tracking_ros.errors import ConfigError
 from face_tracking_ros.io.atomic import write_json_atomically
 from face_tracking_ros.wording import listed
@@ -53,7 +53,8 @@ def run_benchmarks(names: Sequence[str], options: BenchOptions) -> dict[str, Any
         options: sizes, work directory, soak duration, ROS domain, seed.
 
     Returns:
-        ``{'date', 'machine', 'quick', 'benchmarks': {name: result}, 'seconds': {name: s}}``.
+        ``{'date', 'machine', 'cores': {'bench', 'driver'}, 'quick', 'benchmarks': {name:
+        result}, 'seconds': {name: s}}``.
 
     Raises:
         ConfigError: for an unknown benchmark name.
@@ -72,6 +73,7 @@ def run_benchmarks(names: Sequence[str], options: BenchOptions) -> dict[str, Any
     return {
         'date': datetime.datetime.now(datetime.UTC).isoformat(timespec='seconds'),
         'machine': machine(),
+        'cores': {'bench': options.cores.bench, 'driver': options.cores.driver},
         'quick': options.quick,
         'benchmarks': results,
         'seconds': seconds,
@@ -97,6 +99,10 @@ def _run_child(name: str, options: BenchOptions) -> dict[str, Any]:
         str(options.domain_id),
         '--seed',
         str(options.seed),
+        '--bench-core',
+        str(options.cores.bench),
+        '--driver-core',
+        str(options.cores.driver),
     ]
     if options.quick:
         command.append('--quick')
@@ -145,10 +151,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument('--minutes', type=float, default=BenchOptions.minutes)
     parser.add_argument('--domain-id', type=int, default=BenchOptions.domain_id)
     parser.add_argument('--seed', type=int, default=BenchOptions.seed)
+    parser.add_argument('--bench-core', type=int, required=True)
+    parser.add_argument('--driver-core', type=int, required=True)
     parser.add_argument('--quick', action='store_true')
     args = parser.parse_args(argv)
-    pin_to_core()
-    options = BenchOptions(args.quick, args.work_dir, args.minutes, args.domain_id, args.seed)
+    cores = Cores(pin_to_core(args.bench_core), args.driver_core)
+    options = BenchOptions(
+        args.quick, args.work_dir, args.minutes, args.domain_id, args.seed, cores
+    )
     result = importlib.import_module(f'{__package__}.{args.name}').run(options)
     write_json_atomically(args.part, result, indent=1)
     return 0

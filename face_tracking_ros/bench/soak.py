@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from face_tracking_ros.bench.common import DRIVER_CORE, BenchOptions, pin_to_core
+from face_tracking_ros.bench.common import BenchOptions, pin_to_core
 from face_tracking_ros.bench.live import Driver, NodeProcess, RunFigures, tracker_inputs
 from face_tracking_ros.io.bags import read_messages
 from face_tracking_ros.synthetic.scenes import Kind
@@ -40,17 +40,17 @@ def run(options: BenchOptions) -> dict[str, Any]:
         'latency_p50_slope_ms_per_min', 'published', 'received', 'recorded', 'recorder_missing',
         'tracker_peak_rss_mb', 'recorder_peak_rss_mb'}``.
     """
-    pin_to_core(DRIVER_CORE)
+    pin_to_core(options.cores.driver)
     minutes = min(options.minutes, QUICK_MINUTES) if options.quick else options.minutes
     work = options.work_dir
     streams, params = tracker_inputs(work, Kind.MONO, WIDTH, HEIGHT, FRAMES, options.seed)
     recording = work / 'soak_recording'
     shutil.rmtree(recording, ignore_errors=True)
-    tracker = NodeProcess('mono_tracker', params, options.domain_id, work / 'soak_tracker.log')
+    tracker = NodeProcess('mono_tracker', params, options, work / 'soak_tracker.log')
     recorder = NodeProcess(
         'bag_recorder',
         {'output': recording, 'topics': f'[{STATE_TOPIC}]'},
-        options.domain_id,
+        options,
         work / 'soak_recorder.log',
     )
     driver = Driver(streams, name='bench_soak_driver')

@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from face_tracking_ros.bench.common import BenchOptions
+from face_tracking_ros.bench.common import BenchOptions, Cores
 from face_tracking_ros.bench.runner import BENCHMARKS, DEFAULT_BENCHMARKS, run_benchmarks
 from face_tracking_ros.errors import ConfigError
 from face_tracking_ros.io.atomic import check_output_path, write_json_atomically
@@ -91,10 +91,19 @@ def run(args: argparse.Namespace) -> int:
     written.parent.mkdir(parents=True, exist_ok=True)
     write_json_atomically(written, results, indent=1)
     print(format_table(results))
+    print(_cores_line(options.cores))
     print(f'results: {written}' + (f' ({path} not replaced)' if failed else ''))
     for name in failed:
         print(f'{name} failed: {results["benchmarks"][name]["failed"]}')
     return 1 if failed else 0
+
+
+def _cores_line(cores: Cores) -> str:
+    """Which cores measured and drove, and a warning when one core did both."""
+    line = f'measured on core {cores.bench}, live drivers on core {cores.driver}'
+    if cores.bench == cores.driver:
+        line += " (one core: the live figures include the driver's work)"
+    return line
 
 
 def _check_options(args: argparse.Namespace) -> int:
