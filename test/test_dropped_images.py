@@ -1,7 +1,7 @@
 """Dropped images: the trackers and their processors count the frame intervals of a gap.
 
-A stream can miss images (a bag with missing frames; a live node whose depth-1 image queue keeps
-only the newest while the tracker is busy). A tracker must carry its motion prediction over the
+A stream can miss images (a bag with missing frames; a live node whose image queue, depth 5,
+drops the oldest while the tracker is busy). A tracker must carry its motion prediction over the
 gap (and the mono tracker allow the rotation of that many frames); the processors tell them how
 many frame intervals passed from the image stamps (:class:`FrameIntervals`). Rendered free head
 motion of subject 0, seed 1: mono at 10 fps with two images dropped, stereo at 30 fps with five
