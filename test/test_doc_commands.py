@@ -153,6 +153,37 @@ def _flattened(parameters: dict, prefix: str = '') -> list[str]:
     return names
 
 
+# A default quoted in prose, its name then its value with a unit: `tracker.fast_motion_px` (4 px a
+# frame interval ...), `tracker.epsilon`, 0.2 as in the seed, `occlusion_hold` seconds (2).
+QUOTED_DEFAULT = re.compile(
+    r'`([a-z_][a-z0-9_.]*)`(?:\s+seconds)?\s*[(,]\s*(-?\d+(?:\.\d+)?)(?:\s+(?:px|s|ms|mm|Hz|degrees))?'
+    r'(?=\s*[);]|\s+(?:a|as|in)\s)'
+)
+
+
+def _numeric_defaults() -> dict[str, set[float]]:
+    """Every numeric parameter's defaults, over the nodes that declare it."""
+    defaults: dict[str, set[float]] = {}
+    for configs in NODE_CONFIGS.values():
+        for prefix, config in configs:
+            for name, default, _ in parameter_rows(prefix, config):
+                if re.fullmatch(r'-?\d+(\.\d+)?(e-?\d+)?', default):
+                    defaults.setdefault(name, set()).add(float(default))
+    return defaults
+
+
+def test_the_defaults_quoted_in_prose_are_the_codes() -> None:
+    defaults = _numeric_defaults()
+    quoted = [
+        (doc, name, float(value))
+        for doc in DOCS
+        for name, value in QUOTED_DEFAULT.findall(' '.join(_text(doc).split()))
+        if name in defaults
+    ]
+    assert len(quoted) >= 10  # the pattern still finds them
+    assert [q for q in quoted if q[2] not in defaults[q[1]]] == []
+
+
 def test_parameter_files_name_declared_parameters() -> None:
     files = [
         yaml.safe_load(block)

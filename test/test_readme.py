@@ -3,9 +3,11 @@
 from __future__ import annotations
 
 from pathlib import Path
+import re
 
 import pytest
 
+from face_tracking_ros.imaging.gray import SUPPORTED_ENCODINGS
 from face_tracking_ros.io.messages import RosbagsMessages
 from face_tracking_ros.io.typestore import typestore
 from face_tracking_ros.nodes.reference import BEGIN, END, NODE_CONFIGS, markdown
@@ -86,3 +88,10 @@ def test_the_message_table_lists_every_message_and_service() -> None:
     defined = [p.stem for p in (msg_defs / 'msg').glob('*.msg')]
     defined += [p.name for p in (msg_defs / 'srv').glob('*.srv')]  # listed as Name.srv
     assert listed == sorted(defined)
+
+
+def test_the_node_table_names_every_image_encoding_the_trackers_read() -> None:
+    subscribes, *_ = _node_row('mono_tracker')
+    image = subscribes[: subscribes.index('or `image/compressed`')]
+    named = re.findall(r'\b(mono8|rgba?8|bgra?8|bayer_\w+8|yuv422\w*|8UC\d)\b', image)
+    assert set(named) == set(SUPPORTED_ENCODINGS)
