@@ -16,6 +16,7 @@ from face_tracking_ros.tracking.stereo_occlusion import (
     kept_templates,
     occluder_leaving,
     occluder_nodes,
+    occluder_shown,
 )
 
 
@@ -78,6 +79,17 @@ def test_only_held_nodes_with_a_held_neighbour_are_flagged() -> None:
     held = np.zeros(12, dtype=bool)
     held[[0, 1, 4, 5, 6]] = True
     np.testing.assert_array_equal(np.flatnonzero(occluder_nodes(held, checked, edges)), [4, 5, 6])
+
+
+def test_only_a_patch_the_cameras_see_unrelated_shows_an_occluder() -> None:
+    """Brows drifted together (0.77-0.80, seed 9 at 10 fps) against a covered patch (1.4-1.8).
+
+    Only the flagged nodes are asked: node 0 reads 1.5 but is not flagged.
+    """
+    flagged = np.array([False, True, True, False])
+    assert not occluder_shown(flagged, np.array([1.5, 0.80, 0.77, np.nan]), 0.7)
+    assert occluder_shown(flagged, np.array([0.3, 0.80, 1.5, np.nan]), 0.7)
+    assert not occluder_shown(np.zeros(4, dtype=bool), np.full(4, 2.0), 0.7)
 
 
 def samples_of_six_nodes() -> SampleSet:

@@ -100,6 +100,7 @@ from face_tracking_ros.tracking.stereo_occlusion import (
     kept_templates,
     occluder_leaving,
     occluder_nodes,
+    occluder_shown,
     stereo_disagreement,
 )
 from face_tracking_ros.tracking.stereo_result import StereoResult, TrackedSequence, split_tracks
@@ -152,6 +153,7 @@ class _State:
     result: StereoResult
     agreed: np.ndarray  # (N,) bool, node patches seen agreeing left and right (.stereo_occlusion)
     region: np.ndarray  # (N,) bool, nodes flagged since the last pair with none (an occluder's)
+    shown: bool  # a patch of the region has shown an occluder (.stereo_occlusion.occluder_shown)
     before: np.ndarray | None = None  # the pair before's nodes (the motion prediction)
     span: int = 1  # frame intervals from ``before`` to ``nodes``
     elapsed: int = 0  # frame intervals from ``nodes`` to the pair being tracked (bad frames too)
@@ -187,6 +189,7 @@ class _Cover(NamedTuple):
     covered: np.ndarray  # the nodes held to the head's rigid motion
     agreed: np.ndarray  # node patches seen agreeing left and right, this pair's included
     flagged: np.ndarray  # the covered nodes reported in ``FaceState.occluded``
+    shown: bool  # a flagged patch shows an occluder (.stereo_occlusion.occluder_shown)
 
 
 class _Attempt(NamedTuple):
@@ -575,6 +578,7 @@ class StereoTracker:
             result=replace(self._result(nodes, nodes, np.eye(3), None), new_track=True),
             agreed=np.zeros(self._topology.num_nodes, dtype=bool),
             region=np.zeros(self._topology.num_nodes, dtype=bool),
+            shown=False,
         )
 
     def _initial_nodes(
@@ -707,10 +711,15 @@ class StereoTracker:
         motion alone after a fast expression (:meth:`_followed_start`), and is solved from one
         coarser level too if the head is moving fast (:meth:`_moving_fast`); both measure the
         head's rigid motion carried on, made and projected once. Neither applies without a pair
-        before the last, nor while an occluder is flagged (``state.region``): the region's solve
-        was measured from each node's own motion on two levels (from the coarser level, the
-        nodes it had covered were left up to 50 px off as it left: rendered 30 fps, a pucker
-        started under the occluder; 5.5 px without).
+        before the last, nor while a region of flagged nodes has shown an occluder
+        (``state.shown``, :func:`~.stereo_occlusion.occluder_shown`): the region's solve was
+        measured from each node's own motion on two levels (from the coarser level, the nodes
+        it had covered were left up to 50 px off as it left: rendered 30 fps, a pucker started
+        under the occluder; 5.5 px without). Nodes drifted off their features are flagged too,
+        with no occluder, but do not show one: on rendered free motion at 10 fps (seed 9, the
+        head pitching 2 degrees a pair) the inner brows, 2-3 px off, were flagged together at
+        0.77-0.80 of their contrast, and with both off from then the smile's lower lip and chin
+        were left 10-17 px off.
         """
         gap = state.after_gap
         if gap:
@@ -718,7 +727,7 @@ class StereoTracker:
             attempt = self._attempt(state, pyramids, self._predicted(state), rigid)
         else:
             start, fast = self._predicted(state), False
-            if state.before is not None and not state.region.any():
+            if state.before is not None and not state.shown:
                 rigid_px = self._rig.left.project(self._rigid_predicted(state))
                 start = self._followed_start(state, start, rigid_px)
                 fast = self._moving_fast(state, rigid_px)
@@ -1066,7 +1075,7 @@ class StereoTracker:
         """
         config = self._config
         assert attempt.cover is not None
-        covered, agreed, flagged = attempt.cover
+        covered, agreed, flagged, shown = attempt.cover
         found_again = False
         if state.region.any() and occluder_leaving(flagged, state.result.occluded):
             found = self._attempt(state, pyramids, attempt.nodes, attempt.reference, state.region)
@@ -1076,9 +1085,11 @@ class StereoTracker:
                 fewer = np.count_nonzero(cover.flagged) < np.count_nonzero(flagged)
                 if not flagged.any() or fewer:
                     attempt, found_again = found, True
-                    covered, agreed, flagged = cover
+                    covered, agreed, flagged, shown = cover
+        restart = found_again or not flagged.any()
         state.agreed = agreed
-        state.region = flagged if found_again or not flagged.any() else state.region | flagged
+        state.region = flagged if restart else state.region | flagged
+        state.shown = shown if restart else state.shown or shown
         nodes, statistics, solves = attempt.nodes, attempt.statistics, attempt.solves
         assert statistics is not None
         if covered.any():
@@ -1106,32 +1117,29 @@ class StereoTracker:
         return result
 
     def _cover(self, state: _State, statistics: GroupStatistics, accepted: Point) -> _Cover:
-        """:meth:`_covered`'s two masks and the covered nodes flagged (:func:`.occluder_nodes`)."""
-        covered, agreed = self._covered(state, statistics, accepted)
-        flagged = occluder_nodes(covered, self._occludable, self._topology.edges)
-        return _Cover(covered, agreed, flagged)
-
-    def _covered(
-        self, state: _State, statistics: GroupStatistics, accepted: Point
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """(N,) bool each: the nodes an occluder covers on this pair, and those seen agreeing.
+        """What an occluder covers on this pair: the held nodes, those seen agreeing, the flagged.
 
         Read from the left and right images at level 0's last accepted point of the solve,
         ``accepted`` with its ``statistics`` (:func:`~.stereo_occlusion.stereo_disagreement`,
         ``occlusion_ratio``): a node is covered only if it was seen agreeing on an earlier pair
-        (``state.agreed``); the second mask adds the nodes that agree on this one. None is
-        covered when the check is off.
+        (``state.agreed``); the second mask adds the nodes that agree on this one. The covered
+        nodes with a covered neighbour are flagged (:func:`~.stereo_occlusion.occluder_nodes`),
+        and ``shown`` says whether one of them disagrees as an occluder makes it
+        (:func:`~.stereo_occlusion.occluder_shown`). None is covered when the check is off.
         """
         ratio = self._config.occlusion_ratio
         if ratio == 0:
-            return np.zeros(self._topology.num_nodes, dtype=bool), state.agreed
+            none = np.zeros(self._topology.num_nodes, dtype=bool)
+            return _Cover(none, state.agreed, none, False)
         disagreement = stereo_disagreement(
             state.samples, accepted.sampled, statistics.image_contrast[LEFT]
         )
         covered = covered_nodes(
             disagreement, self._occludable, ratio, self._topology.edges, state.agreed
         )
-        return covered, state.agreed | agreeing(disagreement, self._occludable, ratio)
+        agreed = state.agreed | agreeing(disagreement, self._occludable, ratio)
+        flagged = occluder_nodes(covered, self._occludable, self._topology.edges)
+        return _Cover(covered, agreed, flagged, occluder_shown(flagged, disagreement, ratio))
 
     def _rotation(self, first_nodes: np.ndarray, nodes: np.ndarray) -> np.ndarray:
         """The head's rotation since frame 1 (weighted Procrustes of the nodes, §3.3)."""

@@ -119,19 +119,21 @@ class StereoTrackerConfig:
             interval in the left image (the largest node displacement of the head's rigid
             motion between the last two pairs), is solved from one pyramid level more than
             ``pyramid_levels``, made for it alone, the face-model term on it (0: never; not
-            while an occluder is flagged). An expression's onset is not predicted, and where
-            the head moves that fast a frame interval is long enough for the jaw to drop beyond
-            the two levels' reach (about 5 px): the lower lip and chin settled on the neck and
-            were followed there, TRACKING. Rendered free motion, 100 pairs at 10 fps: pairs
+            while flagged nodes have shown an occluder, :mod:`.stereo_occlusion`). An
+            expression's onset is not predicted, and where the head moves that fast a frame
+            interval is long enough for the jaw to drop beyond the two levels' reach (about 5
+            px): the lower lip and chin settled on the neck and were followed there, TRACKING.
+            Rendered free motion, 100 pairs at 10 fps: pairs
             more than 3 px RMS off (the nodes both cameras see) 156 -> 29 on seeds 0-7, 236 ->
             185 on seeds 8-15; 120 pairs at 15 fps: 69 -> 3; 150 at 30 fps: 2 -> 2.
         rigid_start_px: a pair one frame interval after the last tracked one starts from the head's
             rigid motion alone (measured on the other nodes) when a node moved more than this a
             frame interval between the last two pairs, px in the left image beyond the head's rigid
             motion, instead of from each node's own motion (``predict_motion``; 0: always each
-            node's own; not while an occluder is flagged). An expression that moves that far in one
-            interval is sampled too coarsely for its motion to be carried on: a talking jaw opens
-            and closes every few pairs at 10 fps, and the lower lip and chin were left 9-12 px off.
+            node's own; not while flagged nodes have shown an occluder). An expression that moves
+            that far in one interval is sampled too coarsely for its motion to be carried on: a
+            talking jaw opens and closes every few pairs at 10 fps, and the lower lip and chin
+            were left 9-12 px off.
             Rendered free motion, 100 pairs at 10 fps: pairs more than 3 px RMS off 29 -> 12 on
             seeds 0-7, 185 -> 115 on seeds 8-15, 92 -> 48 on seeds 16-31; 15 and 30 fps as before.
         max_iterations: Levenberg-Marquardt iterations per pyramid level.

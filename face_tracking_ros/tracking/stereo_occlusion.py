@@ -38,6 +38,12 @@ flagged went 265 / 87 / 22 -> 94 / 2 / 0 (seeds 1, 6, 2) when lone patches stopp
 while under a passing occluder 0.61-0.73 of the covered node-pairs are flagged (0.61-0.75
 before).
 
+Nodes drifted off their features disagree too, a few neighbours together, and are flagged with
+no occluder. The flags since the last pair with none (the region) keep a fast-moving head's pairs
+from the head's motion and the coarser level meant for it
+(:meth:`~.stereo.StereoTracker._followed`) only once one of its patches has disagreed as an
+occluder makes it, its two images about unrelated (:func:`occluder_shown`).
+
 Left and right also disagree at a node whose depth is wrong (the other camera's patch is then
 sampled beside the feature): a 320x240 initialisation put a brow node 28 mm off, its patch read
 1.1-1.2 on every pair, and holding it kept the error. So only a node whose patch has agreed on an
@@ -153,6 +159,27 @@ def occluder_nodes(held: np.ndarray, checked: np.ndarray, edges: np.ndarray) -> 
     region = held & checked
     region &= mesh_neighbours(region, edges)
     return region | (held & ~checked & mesh_neighbours(region, edges))
+
+
+def occluder_shown(flagged: np.ndarray, disagreement: np.ndarray, ratio: float) -> bool:
+    """Whether the flagged nodes show what an occluder makes: a patch the cameras see unrelated.
+
+    An occluder 15 cm in front of the face shows each camera another part of itself, so the
+    left and right images of a patch it covers are about unrelated: their ZSSD difference is
+    about sqrt(2) times the patch's contrast (medians 1.3-1.8 under rendered occluders). A node
+    drifted off its feature is sampled beside it in the other camera, and its patch disagrees
+    less: on rendered free motion at 10 fps (seed 9, the head pitching 2 degrees a pair) the
+    inner brows drifted 1.8-2.8 px off and were flagged together at 0.77-0.80, with no occluder.
+    So an occluder is shown where a flagged patch disagrees beyond :data:`UNCHECKED_FACTOR`
+    times ``ratio``; the stereo tracker's fast-motion level and rigid start stay on until one
+    has (:meth:`~.stereo.StereoTracker._followed`).
+
+    Args:
+        flagged: (N,) bool, :func:`occluder_nodes`.
+        disagreement: (N,) :func:`stereo_disagreement`.
+        ratio: ``occlusion_ratio``.
+    """
+    return bool(np.any(disagreement[flagged] > UNCHECKED_FACTOR * ratio))
 
 
 def occluder_leaving(flagged: np.ndarray, last: np.ndarray) -> bool:
