@@ -215,11 +215,14 @@ class _Checked(NamedTuple):
         textures: (N,) the texture of the image's ROIs there and of the level-0 template the
             solve was compared with (:meth:`~.mono_loss.LossChecks.textures`), made once for
             every vote on the result (:meth:`MonoTracker._vote`).
+        doubtful: whether it passed doubtfully and no solve made again replaced it
+            (:meth:`MonoTracker._solve_frame`).
     """
 
     result: TrackResult
     sampled: Templates
     textures: tuple[np.ndarray, np.ndarray]
+    doubtful: bool = False
 
 
 @dataclass
@@ -580,11 +583,11 @@ class MonoTracker:
         candidates = itertools.chain(keyframed, self._viewed(pyramid) if track.lost else ())
         for start, reference, returned in candidates:
             weights = reference.visibility * self._face.visibility(start, track.normals)
-            result, templates, _ = self._solve_frame(
+            result, templates, *_ = self._solve_frame(
                 pyramid, start, reference.levels, weights, ratio, returned=returned
             )
             if not result.ok and track.bridging:
-                found, templates, _ = self._solve_frame(
+                found, templates, *_ = self._solve_frame(
                     pyramid, templates.params, *self._blended_templates(), ratio
                 )
                 result = _summed(result, found)
@@ -752,6 +755,21 @@ class MonoTracker:
         ``lost_residual_ratio`` if it solves back to the last valid frame (:meth:`_solve_frame`;
         there with 20 dropped: LOST 36 / 12 -> 20 / 0).
 
+        A followed image whose solve passed doubtfully and was not mended by the solves made
+        again (:meth:`_solve_frame`) is solved from that searched start too (there only: a
+        search, under 1 ms, and a solve), and that solve is taken if it passes and is not
+        doubtful. The track's second image has no motion prediction: it starts from the first
+        image's estimate, 17-20 px off on rendered free motion at 5 fps (seeds 9 and 12); there,
+        a later image's prediction was 11 px off (seed 4). The solves from them and from the last
+        estimate settled 4-7 px off with the expression wrong and 7-9 nodes taken as covered (no
+        occluder), and the track stayed off, TRACKING; from the searched start (3.1-7.9 px off)
+        they converged 0.6-0.7 px off. Measured on rendered free motion (true model, 1-px
+        clicks; docs/performance.md, forty-third session): at 5 fps (16 runs) images TRACKING
+        more than 3 px off 103 -> 9; 88 runs at 10 and 30 fps the same to 0.01 px. Tried for a
+        failed solve as well, it took seed 14's 4 LOST images at 5 fps, but a face leaving the
+        image (test/hardening) was tracked again only 31 frames after it was whole again (the
+        test allows 15).
+
         Of the solves that pass the checks, the one whose nodes match their templates best is taken
         (:meth:`_failing_fraction`; the first on a tie). Over a gap of fast motion the prediction
         can be 15-25 px off, and its solve settle in a minimum that passes with the lower face
@@ -803,23 +821,22 @@ class MonoTracker:
             stalled = self._stalled()
             starts.append((stalled, self._first_level(track.current, stalled)))
 
-        def solved(begins: list[tuple[Params, int]]) -> list[_Checked]:
+        def solved(
+            begins: list[tuple[Params, int]], still: Params | None = track.current
+        ) -> list[_Checked]:
             return [
                 self._solve_frame(
-                    pyramid,
-                    begin,
-                    blended,
-                    weights,
-                    ratio,
-                    free_sigma,
-                    level,
-                    track.current,
-                    returned,
+                    pyramid, begin, blended, weights, ratio, free_sigma, level, still, returned
                 )
                 for begin, level in begins
             ]
 
         outcomes = solved(starts)
+        if outcomes[0].doubtful:
+            searched = self._searched(pyramid, start)
+            again = solved([(searched, self._first_level(track.current, searched))], None)[0]
+            if again.result.ok and not again.doubtful:
+                outcomes = [again._replace(result=_summed(outcomes[0].result, again.result))]
         passed = [found for found in outcomes if found.result.ok]
         if not passed and track.lost and searched is not None:
             turned = [
@@ -832,7 +849,7 @@ class MonoTracker:
         best = passed[0]  # most images: one solve, which needs no vote to rank (min votes on it)
         if len(passed) > 1:
             best = min(passed, key=lambda found: self._failing_fraction(found, ratio))
-        result, templates, _ = best
+        result, templates, *_ = best
         self._accept(pyramid, result, templates)
         self._followed = (pyramid, result)
         return result
@@ -992,12 +1009,14 @@ class MonoTracker:
 
         A solve checked at the ordinary ``lost_residual_ratio`` that passes doubtfully
         (:meth:`_doubtful`) is made again: from ``still`` on level 1 (the coarsest on demand:
-        the head may have moved far) and, unless it solved the coarsest level, from ``start`` on
-        the coarsest. The first of those that passes and is not doubtful is taken, else the first
-        solve stands. A head moving 7-14 px a frame (rendered free motion at 5 fps, true model)
-        left solves from the prediction settled 4-7 px off in a local minimum of eq. 6 that
-        passed, and the track followed its own templates sampled there: TRACKING images more than
-        3 px off on 16 such runs 252 -> 103; 88 runs at 10 and 30 fps are unchanged
+        the head may have moved far; not when ``start`` is ``still``, the same solve) and, unless
+        it solved the coarsest level, from ``start`` on the coarsest. The first of those that
+        passes and is not doubtful is taken, else the first solve stands, flagged
+        (``_Checked.doubtful``; :meth:`_followed_frame` then tries one more start). A head
+        moving 7-14 px a frame (rendered free motion at 5 fps, true model) left solves from the
+        prediction settled 4-7 px off in a local minimum of eq. 6 that passed, and the track
+        followed its own templates sampled there: TRACKING images more than 3 px off on 16 such
+        runs 252 -> 103; 88 runs at 10 and 30 fps are unchanged
         (docs/performance.md, forty-first session).
 
         A solve whose outcome has nodes newly covered by an occluder (:meth:`_checked`) is made
@@ -1072,7 +1091,7 @@ class MonoTracker:
             retries = []
             if not solution.coarsest_solved:
                 retries.append((start, pyramid.num_levels - 1, self._config.coarsest_level_px))
-            if still is not None and pyramid.num_levels > 1:
+            if still is not None and still is not start and pyramid.num_levels > 1:
                 # Level 1 solved whatever its first step, but for a doubtful solve's retry: the
                 # coarsest on demand (it may have moved far from the last estimate).
                 restart_px = self._config.coarsest_level_px if doubtful else math.inf
@@ -1082,7 +1101,7 @@ class MonoTracker:
                 total = _summed(total, rechecked.result)
                 if doubtful:  # taken only if it passes and matches closely enough
                     if rechecked.result.ok and not self._doubtful(rechecked):
-                        solution, checked = retried, rechecked
+                        solution, checked, doubtful = retried, rechecked, False
                         break
                     continue
                 solution, checked = retried, rechecked  # the last made, as the first failed
@@ -1092,7 +1111,7 @@ class MonoTracker:
                 checked.result, iterations=total.iterations, cost_history=total.cost_history
             )
         if checked.result.ok or returned is None:
-            return checked._replace(result=total)
+            return checked._replace(result=total, doubtful=doubtful)
         lenient = self._checked(solution, pyramid, templates[0], self._config.lost_residual_ratio)
         if not (lenient.result.ok and self._confirmable(lenient, returned)):
             return lenient._replace(result=total)
