@@ -127,14 +127,19 @@ def test_occluded_face_is_lost_then_reacquired(free_sequence, true_model_factory
 FAST = SceneConfig(kind='mono', frames=150, fps=10.0, seed=7, motion='free')
 
 
+def _rendered(config: SceneConfig, start: int, stop: int):
+    """Images start to stop - 1 of ``config`` (subject 0), true nodes, camera, population."""
+    renderer = SequenceRenderer(config, 0)
+    frames = list(itertools.islice(renderer.frames(0), start, stop))
+    images = [f.images['image'] for f in frames]
+    nodes = np.array([f.truth.nodes_camera for f in frames])
+    return images, nodes, config.cameras()['image'], renderer.population
+
+
 @pytest.fixture(scope='module')
 def fast_sequence():
     """Images 0-34 of FAST, subject 0 (the head moves about 8 px a frame), and its camera."""
-    renderer = SequenceRenderer(FAST, 0)
-    frames = list(itertools.islice(renderer.frames(0), 35))
-    images = [f.images['image'] for f in frames]
-    nodes = np.array([f.truth.nodes_camera for f in frames])
-    return images, nodes, FAST.cameras()['image'], renderer.population
+    return _rendered(FAST, 0, 35)
 
 
 def _tracked(fast_sequence, model, images) -> tuple[list[TrackStatus], np.ndarray]:
@@ -152,6 +157,14 @@ def _tracked(fast_sequence, model, images) -> tuple[list[TrackStatus], np.ndarra
     return [r.status for r in results], np.array(errors)
 
 
+def _assert_followed_closely(sequence, true_model_factory) -> None:
+    """Every image of ``sequence`` TRACKING within 1.5 px of the truth (the true model)."""
+    images, *_, population = sequence
+    statuses, errors = _tracked(sequence, true_model_factory(population), images)
+    assert statuses == [TrackStatus.TRACKING] * len(images)
+    assert errors.max() < 1.5, np.round(errors, 1)
+
+
 def test_the_image_after_a_bundle_adjustment_is_solved_from_the_motion_prediction(
     fast_sequence, true_model_factory
 ):
@@ -160,10 +173,7 @@ def test_the_image_after_a_bundle_adjustment_is_solved_from_the_motion_predictio
     Solved from image 27's adjusted estimate instead, with no motion, image 28 settled 7.9 px
     off with 19 of 34 nodes failing, LOST.
     """
-    images, *_, population = fast_sequence
-    statuses, errors = _tracked(fast_sequence, true_model_factory(population), images)
-    assert statuses == [TrackStatus.TRACKING] * len(images)
-    assert errors.max() < 1.5, np.round(errors, 1)
+    _assert_followed_closely(fast_sequence, true_model_factory)
 
 
 def test_the_image_after_a_reacquisition_is_solved_from_the_motion_prediction(
@@ -194,23 +204,7 @@ def test_a_followed_solve_that_matches_loosely_is_made_again(true_model_factory)
     passed), and the track stayed there, 5.8-6.0 px off, TRACKING. Made again from the last
     estimate on level 1 it converges 0.7 px off with 1 of 31 failing, and is taken.
     """
-    renderer = SequenceRenderer(FASTER, 0)
-    frames = list(itertools.islice(renderer.frames(0), 89))[83:]
-    images = [f.images['image'] for f in frames]
-    nodes = np.array([f.truth.nodes_camera for f in frames])
-    sequence = images, nodes, FASTER.cameras()['image'], renderer.population
-    statuses, errors = _tracked(sequence, true_model_factory(renderer.population), images)
-    assert statuses == [TrackStatus.TRACKING] * len(images)
-    assert errors.max() < 1.5, np.round(errors, 1)
-
-
-def _first_images(config: SceneConfig, count: int):
-    """The first ``count`` images of ``config`` (subject 0), true nodes, camera and population."""
-    renderer = SequenceRenderer(config, 0)
-    frames = list(itertools.islice(renderer.frames(0), count))
-    images = [f.images['image'] for f in frames]
-    nodes = np.array([f.truth.nodes_camera for f in frames])
-    return images, nodes, config.cameras()['image'], renderer.population
+    _assert_followed_closely(_rendered(FASTER, 83, 89), true_model_factory)
 
 
 # Seed 12 at 5 fps: the head moves 20 px between images 0 and 1.
@@ -225,11 +219,7 @@ def test_a_track_whose_second_image_moved_far_finds_the_face_there(true_model_fa
     covered (no occluder), and the track stayed 6-7 px off, TRACKING. Solved from where image
     0's inner face correlates best (3.1 px off) it converges 0.6 px off, and is taken.
     """
-    sequence = _first_images(FAST_START, 6)
-    images, *_, population = sequence
-    statuses, errors = _tracked(sequence, true_model_factory(population), images)
-    assert statuses == [TrackStatus.TRACKING] * len(images)
-    assert errors.max() < 1.5, np.round(errors, 1)
+    _assert_followed_closely(_rendered(FAST_START, 0, 6), true_model_factory)
 
 
 # Seed 4 at 5 fps: at image 14 the head moves 13 px and the motion prediction is 11 px off.
@@ -246,8 +236,4 @@ def test_a_doubtful_solve_not_mended_by_its_retries_is_solved_from_where_the_fac
     stood, and images 14-15 were TRACKING 6.8 px off. Solved from where image 13's inner face
     correlates best (5.2 px off) it converges 0.7 px off, none covered, and is taken.
     """
-    sequence = _first_images(FAST_TURN, 16)
-    images, *_, population = sequence
-    statuses, errors = _tracked(sequence, true_model_factory(population), images)
-    assert statuses == [TrackStatus.TRACKING] * len(images)
-    assert errors.max() < 1.5, np.round(errors, 1)
+    _assert_followed_closely(_rendered(FAST_TURN, 0, 16), true_model_factory)
