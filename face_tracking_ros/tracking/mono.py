@@ -821,9 +821,8 @@ class MonoTracker:
             stalled = self._stalled()
             starts.append((stalled, self._first_level(track.current, stalled)))
 
-        def solved(
-            begins: list[tuple[Params, int]], still: Params | None = track.current
-        ) -> list[_Checked]:
+        def solved(begins: list[tuple[Params, int]], still: Params | None) -> list[_Checked]:
+            """Each start's solve; ``still`` for its retries (:meth:`_solve_frame`)."""
             return [
                 self._solve_frame(
                     pyramid, begin, blended, weights, ratio, free_sigma, level, still, returned
@@ -831,7 +830,7 @@ class MonoTracker:
                 for begin, level in begins
             ]
 
-        outcomes = solved(starts)
+        outcomes = solved(starts, track.current)
         if outcomes[0].doubtful:
             searched = self._searched(pyramid, start)
             again = solved([(searched, self._first_level(track.current, searched))], None)[0]
@@ -843,7 +842,7 @@ class MonoTracker:
                 (begin, self._first_level(track.current, begin))
                 for begin in self._turned(searched)
             ]
-            passed = [found for found in solved(turned) if found.result.ok]
+            passed = [found for found in solved(turned, track.current) if found.result.ok]
         if not passed:
             return outcomes[0].result
         best = passed[0]  # most images: one solve, which needs no vote to rank (min votes on it)
