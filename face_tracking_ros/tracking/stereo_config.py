@@ -123,9 +123,9 @@ class StereoTrackerConfig:
             expression's onset is not predicted, and where the head moves that fast a frame
             interval is long enough for the jaw to drop beyond the two levels' reach (about 5
             px): the lower lip and chin settled on the neck and were followed there, TRACKING.
-            Rendered free motion, 100 pairs at 10 fps: pairs
-            more than 3 px RMS off (the nodes both cameras see) 156 -> 29 on seeds 0-7, 236 ->
-            185 on seeds 8-15; 120 pairs at 15 fps: 69 -> 3; 150 at 30 fps: 2 -> 2.
+            Rendered free motion, 100 pairs at 10 fps: pairs more than 3 px RMS off (the nodes
+            both cameras see) 156 -> 29 on seeds 0-7, 236 -> 185 on seeds 8-15; 120 pairs at
+            15 fps: 69 -> 3; 150 at 30 fps: 2 -> 2.
         rigid_start_px: a pair one frame interval after the last tracked one starts from the head's
             rigid motion alone (measured on the other nodes) when a node moved more than this a
             frame interval between the last two pairs, px in the left image beyond the head's rigid

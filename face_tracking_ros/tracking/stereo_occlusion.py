@@ -69,6 +69,10 @@ MIN_UNCOVERED_NODES = 8
 # them were held; their patches read up to 1.1 (nose) and 2.7 (face edge) without an occluder,
 # but only next to a covered node is that asked.
 UNCHECKED_FACTOR = 2.0
+# A flagged patch shows an occluder beyond this times the ratio (:func:`occluder_shown`): the
+# two images of a patch an occluder covers are about unrelated, sqrt(2) times its contrast
+# (1.3-1.8 under rendered occluders), and patches drifted off their features read 0.77-0.80.
+OCCLUDER_FACTOR = 2.0
 
 
 def stereo_disagreement(
@@ -170,7 +174,7 @@ def occluder_shown(flagged: np.ndarray, disagreement: np.ndarray, ratio: float) 
     drifted off its feature is sampled beside it in the other camera, and its patch disagrees
     less: on rendered free motion at 10 fps (seed 9, the head pitching 2 degrees a pair) the
     inner brows drifted 1.8-2.8 px off and were flagged together at 0.77-0.80, with no occluder.
-    So an occluder is shown where a flagged patch disagrees beyond :data:`UNCHECKED_FACTOR`
+    So an occluder is shown where a flagged patch disagrees beyond :data:`OCCLUDER_FACTOR`
     times ``ratio``; the stereo tracker's fast-motion level and rigid start stay on until one
     has (:meth:`~.stereo.StereoTracker._followed`).
 
@@ -179,7 +183,7 @@ def occluder_shown(flagged: np.ndarray, disagreement: np.ndarray, ratio: float) 
         disagreement: (N,) :func:`stereo_disagreement`.
         ratio: ``occlusion_ratio``.
     """
-    return bool(np.any(disagreement[flagged] > UNCHECKED_FACTOR * ratio))
+    return bool(np.any(disagreement[flagged] > OCCLUDER_FACTOR * ratio))
 
 
 def occluder_leaving(flagged: np.ndarray, last: np.ndarray) -> bool:
