@@ -37,7 +37,7 @@ class Cores:
         So ``taskset -c 2,3 face-tracking bench`` measures on core 2 and drives on core 3.
         """
         ordered = sorted(os.sched_getaffinity(0) if affinity is None else affinity)
-        return cls(ordered[0], ordered[min(1, len(ordered) - 1)])
+        return cls(ordered[0], ordered[1] if len(ordered) > 1 else ordered[0])
 
 
 @dataclass(frozen=True)
