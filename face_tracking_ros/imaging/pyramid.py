@@ -8,6 +8,7 @@ centres output pixel ``i`` on input pixel ``2 i``, so a point at pixel ``x`` of 
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
+from functools import partial
 import math
 from typing import NamedTuple
 
@@ -29,6 +30,14 @@ _SAMPLE_REACH = 3
 # frame (2.0 a stereo pair), 0 px in 1.28; 4 px smooths 30 % (mono) and 26 % (stereo) fewer
 # pixels than 16 (thirtieth session).
 _BOX_MARGIN = 4
+# A coarser level added by ``deepen`` is made by boxes as ``pyrDown`` of the float level above,
+# which is not exact: OpenCV's vector path (multiply-adds) and its scalar one (a row's last few
+# columns, where the vectors do not fit) round differently. A box is so reduced from columns
+# starting at a multiple of _VECTOR_ALIGN and reaching _VECTOR_PAD columns beyond the ones it
+# keeps (or the level's edge), so that each kept column takes the path it takes in the whole
+# level: the same bits (8 float lanes here; 32 allows 16, and the vectors unrolled twice).
+_VECTOR_ALIGN = 32
+_VECTOR_PAD = 32
 
 
 def _levels_that_fit(side: int, min_size: int) -> int:
@@ -71,14 +80,14 @@ class ImagePyramid:
     :attr:`levels` gives every level in full. A tracker that samples a few patches of a frame
     reads them through :meth:`level` or :meth:`level_reaching` instead, which make a level only
     over the box its samples reach, a face's patches being a tenth or so of a 640x480 frame:
-    level 0, and level 1 too for an 8-bit image; the other levels are made in full when first
-    asked for. Every value read either way is the full build's: smoothing a box of the image
-    (``smooth_base``) with a 2-px border of it gives the values of smoothing the whole image,
-    whose reflected border lies at its own edges, and ``pyrDown`` of a box with a 2-px border
-    the values of ``pyrDown`` of the whole level (a smoothed level 1 is level 0 decimated); to
-    the bit for an 8-bit image (its weighted sums are exact in float32), within float32
-    rounding for a smoothed float one (the filter's vector and scalar paths meet at other
-    columns).
+    level 0, level 1 too for an 8-bit image, and the levels :meth:`deepen` adds; the other
+    levels are made in full when first asked for. Every value read either way is the full
+    build's: smoothing a box of the image (``smooth_base``) with a 2-px border of it gives the
+    values of smoothing the whole image, whose reflected border lies at its own edges, and
+    ``pyrDown`` of a box with a 2-px border the values of ``pyrDown`` of the whole level (a
+    smoothed level 1 is level 0 decimated); to the bit for an 8-bit image (its weighted sums are
+    exact in float32) and for an added level (``_VECTOR_ALIGN``), within float32 rounding for a
+    smoothed float one (the filter's vector and scalar paths meet at other columns).
     """
 
     def __init__(
@@ -106,7 +115,8 @@ class ImagePyramid:
             spare: an array of a borrowed ``source``'s shape and type, for :meth:`own` to copy
                 it into (else it allocates one).
         """
-        self._levels = tuple(levels)
+        self._levels = list(levels)
+        self._built = len(self._levels)  # the levels below these are deepen()'s
         self._source = source
         self._owned = owned
         self._spare = spare
@@ -116,12 +126,11 @@ class ImagePyramid:
         self._coarse_boxed = source is not None and source.dtype == np.uint8
         self._factor = np.float32(factor)
         height, width = self._levels[0].shape
-        # The boxes of level 0 and level 1 made so far, (x0, y0, x1, y1) exclusive (level 1's
-        # only for an 8-bit image), and whether all is.
-        self._box = (0, 0, width, height) if source is None else (0, 0, 0, 0)
-        self._coarse_box = (0, 0, 0, 0)
-        self._complete = source is None and (coarse_made or len(self._levels) == 1)
-        self._deeper: list[np.ndarray] = []  # levels below the coarsest that deepened() made
+        # The box of each level made so far, (x0, y0, x1, y1) exclusive (used for level 0, for
+        # level 1 of an 8-bit image and for deepen()'s levels), and whether all built levels are.
+        self._boxes = [(0, 0, width, height) if source is None else (0, 0, 0, 0)]
+        self._boxes += [(0, 0, 0, 0)] * (self._built - 1)
+        self._complete = source is None and (coarse_made or self._built == 1)
 
     @classmethod
     def build(
@@ -195,7 +204,10 @@ class ImagePyramid:
         In [0, 255] as built (:meth:`scale` may change that); every level made in full.
         """
         self.make_all()
-        return self._levels
+        for index in range(self._built, len(self._levels)):
+            height, width = self.level_shape(index)
+            self._made_over(index, (0, 0, width, height))
+        return tuple(self._levels)
 
     def level(self, index: int, x: np.ndarray, y: np.ndarray) -> np.ndarray:
         """Level ``index``, made at least where samples at points (x, y) of it read it.
@@ -209,7 +221,7 @@ class ImagePyramid:
             InputError: if the points hold NaN or Inf while their level is still being made
                 (the samplers refuse such points in any case).
         """
-        if self._complete or not np.size(x):
+        if (self._complete and index < self._built) or not np.size(x):
             return self.level_reaching(index, (0.0, -1.0, 0.0, -1.0))  # nothing to make there
         x, y = np.asarray(x), np.asarray(y)
         return self.level_reaching(index, (x.min(), x.max(), y.min(), y.max()))  # methods: faster
@@ -222,10 +234,7 @@ class ImagePyramid:
         Raises:
             InputError: if the box is not finite while its level is still being made.
         """
-        boxed = index == 0 or (index == 1 and self._coarse_boxed)
-        if not boxed:
-            self.make_all()
-        if self._complete or (index == 0 and self._source is None):
+        if self._made_whole(index):
             return self._levels[index]
         low_x, high_x, low_y, high_y = box
         if not math.isfinite(low_x + high_x + low_y + high_y):
@@ -241,12 +250,7 @@ class ImagePyramid:
             min(max(math.floor(high_x) + _SAMPLE_REACH + 1, 1), width),
             min(max(math.floor(high_y) + _SAMPLE_REACH + 1, 1), height),
         )
-        if index == 0:
-            self._box = self._make_box(self._box, reach, (height, width), self._make_base)
-        else:
-            self._coarse_box = self._make_box(
-                self._coarse_box, reach, (height, width), self._make_coarse
-            )
+        self._made_over(index, reach)
         return self._levels[index]
 
     def scale(self, factor: float) -> None:
@@ -257,7 +261,7 @@ class ImagePyramid:
         relative to the left out of the right images
         (:mod:`~face_tracking_ros.tracking.camera_gain`). Every level is made first.
         """
-        for level in (*self.levels, *self._deeper):
+        for level in self.levels:
             level *= np.float32(factor)
 
     def level_shape(self, index: int) -> tuple[int, int]:
@@ -265,18 +269,18 @@ class ImagePyramid:
         height, width = self._levels[index].shape
         return height, width
 
-    def deepened(self, num_levels: int) -> ImagePyramid:
-        """This pyramid with coarser levels added below its coarsest, ``num_levels`` in all.
+    def deepen(self, num_levels: int) -> None:
+        """Add coarser levels below the built ones, to ``num_levels`` in all, made as read.
 
-        The levels it has are shared, not copied (and made in full first); each added one is
-        ``pyrDown`` of the one above, as :meth:`build` would have made it. It so carries the
-        factor the levels above were multiplied by (:meth:`build`'s, :meth:`scale`'s), within
-        float32 rounding of a deeper build's levels multiplied by it. A tracker that needs a
-        deeper pyramid for an occasional frame so makes only the levels it lacks, and each of
-        them once: this pyramid keeps them for later calls (a stereo pair's deepened pyramids
-        are the last pair's on the next pair, frame 1's on every pair). One built from a
-        borrowed image reads it unless complete: the caller keeps it unchanged until then, or
-        the pyramid owns a copy (:meth:`own`).
+        Each added level is ``pyrDown`` of the one above, as :meth:`build` would have made it,
+        made over the boxes its samples reach (:meth:`level_reaching`) from a box of the level
+        above, itself so made: the same bits as ``pyrDown`` of the whole level above. It so
+        carries the factor the levels above were multiplied by (:meth:`build`'s,
+        :meth:`scale`'s), within float32 rounding of a deeper build's levels multiplied by it.
+        A tracker that needs a deeper pyramid for an occasional frame so makes what it reads
+        of the levels it lacks, and each part once: the pyramid keeps them (a stereo pair's
+        deepened pyramids are the last pair's on the next pair, frame 1's on every pair). A
+        pyramid with as many levels already is left as it is.
 
         Raises:
             InputError: if the coarsest level would keep fewer than 8 pixels on a side.
@@ -284,11 +288,10 @@ class ImagePyramid:
         if num_levels > _levels_that_fit(min(self.shape), MIN_LEVEL_SIZE):
             msg = f'cannot build {num_levels} pyramid levels from a {self.shape} image'
             raise InputError(msg)
-        levels = [*self.levels, *self._deeper]
-        while len(levels) < num_levels:
-            levels.append(cv2.pyrDown(levels[-1]))
-            self._deeper.append(levels[-1])
-        return ImagePyramid(levels[:num_levels])
+        while len(self._levels) < num_levels:
+            height, width = self._levels[-1].shape
+            self._levels.append(np.empty(((height + 1) // 2, (width + 1) // 2), np.float32))
+            self._boxes.append((0, 0, 0, 0))
 
     def own(self) -> None:
         """Copy a borrowed image (:meth:`build`), for the caller to change its own meanwhile.
@@ -344,6 +347,29 @@ class ImagePyramid:
         make(slice(y0, y1), slice(x0, x1))
         return x0, y0, x1, y1
 
+    def _made_whole(self, index: int) -> bool:
+        """Whether level ``index`` is made in full, after making it so if it is not made by boxes.
+
+        Level 0, level 1 of an 8-bit image and the levels :meth:`deepen` added are made by boxes.
+        """
+        if index >= self._built:
+            return False
+        if not (index == 0 or (index == 1 and self._coarse_boxed)):
+            self.make_all()
+        return self._complete or (index == 0 and self._source is None)
+
+    def _made_over(self, index: int, reach: tuple[int, int, int, int]) -> None:
+        """Make level ``index`` over at least the pixel box ``reach``, (x0, y0, x1, y1)."""
+        if self._made_whole(index):
+            return
+        if index >= self._built:
+            make = partial(self._make_deeper, index)
+        else:
+            make = self._make_base if index == 0 else self._make_coarse
+        self._boxes[index] = self._make_box(
+            self._boxes[index], reach, self.level_shape(index), make
+        )
+
     def _make_base(self, rows: slice, cols: slice) -> None:
         """Make level 0 over ``rows`` and ``cols`` (inside the image)."""
         assert self._source is not None
@@ -376,8 +402,7 @@ class ImagePyramid:
         height, width = self.shape
         if self._smoothed:
             below, right = min(2 * rows.stop - 1, height), min(2 * cols.stop - 1, width)
-            reach = (2 * cols.start, 2 * rows.start, right, below)
-            self._box = self._make_box(self._box, reach, (height, width), self._make_base)
+            self._made_over(0, (2 * cols.start, 2 * rows.start, right, below))
             self._levels[1][rows, cols] = self._levels[0][
                 2 * rows.start : below : 2, 2 * cols.start : right : 2
             ]
@@ -392,6 +417,25 @@ class ImagePyramid:
         ]
         self._scale_box(made)
 
+    def _make_deeper(self, index: int, rows: slice, cols: slice) -> None:
+        """Make level ``index``, one that :meth:`deepen` added, over ``rows`` and ``cols``.
+
+        ``pyrDown`` of the level above over the box holding the 5-px reach of each pixel, made
+        first; the box reduced reaches from a column that is a multiple of ``_VECTOR_ALIGN`` to
+        ``_VECTOR_PAD`` columns beyond the last kept one (see there), the pixels outside the
+        reach, made or not, reading only into columns not kept.
+        """
+        height, width = self.level_shape(index - 1)
+        top, bottom = max(2 * rows.start - 2, 0), min(2 * rows.stop + 1, height)
+        left, right = max(2 * cols.start - 2, 0), min(2 * cols.stop + 1, width)
+        self._made_over(index - 1, (left, top, right, bottom))
+        start = (max(cols.start - 1, 0) // _VECTOR_ALIGN) * _VECTOR_ALIGN
+        stop = min(2 * (cols.stop + _VECTOR_PAD) + 1, width)
+        reduced = cv2.pyrDown(self._levels[index - 1][top:bottom, 2 * start : stop])
+        self._levels[index][rows, cols] = reduced[
+            rows.start - top // 2 : rows.stop - top // 2, cols.start - start : cols.stop - start
+        ]
+
     def _scale_box(self, values: np.ndarray) -> None:
         """Multiply ``values`` (a view of a level) by the pyramid's factor, in place."""
         if self._factor != 1.0:
@@ -404,7 +448,7 @@ class ImagePyramid:
         """
         if self._complete:
             return
-        levels = self._levels
+        levels = self._levels[: self._built]
         if self._smoothed:
             cv2.sepFilter2D(
                 self._source,
@@ -442,13 +486,13 @@ class ImagePyramid:
         ]
         if (
             reuse is None
-            or [level.shape for level in reuse._levels] != sizes
+            or [level.shape for level in reuse._levels[: reuse._built]] != sizes
             or reuse._smoothed != smooth_base
             or reuse._source is None
         ):
             return None, tuple(np.empty(size, np.float32) for size in sizes)
         fits = reuse._owned and reuse._source.dtype == dtype
-        return reuse._source if fits else None, reuse._levels
+        return reuse._source if fits else None, tuple(reuse._levels[: reuse._built])
 
 
 class PyramidLevel(NamedTuple):

@@ -1222,14 +1222,13 @@ class StereoTracker:
         """The levels below the coarsest, to ``count`` levels in all, made for this pair.
 
         Their images are this pair's pyramids, the last tracked pair's and frame 1's deepened
-        (:meth:`~face_tracking_ros.imaging.ImagePyramid.deepened`), their templates sampled
-        where the state's are (frame n - 1 at ``nodes`` as :meth:`_advance` samples it, frame 1
-        at the frame-1 nodes as :meth:`_start` does).
+        (:meth:`~face_tracking_ros.imaging.ImagePyramid.deepen`: made where they are read),
+        their templates sampled where the state's are (frame n - 1 at ``nodes`` as
+        :meth:`_advance` samples it, frame 1 at the frame-1 nodes as :meth:`_start` does).
         """
-        current, previous, first = (
-            (pair[LEFT].deepened(count), pair[RIGHT].deepened(count))
-            for pair in (pyramids, state.previous_pyramids, state.first_pyramids)
-        )
+        current, previous, first = pyramids, state.previous_pyramids, state.first_pyramids
+        for pyramid in (*current, *previous, *first):
+            pyramid.deepen(count)
         samples = state.samples
         field = patch_field(state.deformation, state.nodes, state.first_nodes, state.rotation)
         first_offsets = samples.level_offsets(np.eye(3), 0)
