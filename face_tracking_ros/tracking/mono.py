@@ -33,7 +33,9 @@ Design, in the seed's terms:
   positions most.
 - Each frame starts from the constant-velocity prediction of the last two estimates, on level 0
   when that moves the nodes little (``fine_start_px``); a solve from level 0 that fails is made
-  again (:meth:`MonoTracker._solve_frame`).
+  again (:meth:`MonoTracker._solve_frame`). One that still fails, or passes doubtfully, is made
+  once more from where the last valid frame's inner face correlates best, a failed one's taken
+  only if the last valid frame solves back from it (:meth:`MonoTracker._followed_frame`).
 - Time is counted in frame intervals: a caller that knows images were dropped (a gap in the
   stamps) passes how many intervals passed (``intervals`` of :meth:`MonoTracker.track`), and
   the motion prediction and the loss check's rotation limit run over that many. More than
@@ -756,8 +758,8 @@ class MonoTracker:
         there with 20 dropped: LOST 36 / 12 -> 20 / 0).
 
         A followed image whose solve passed doubtfully and was not mended by the solves made
-        again (:meth:`_solve_frame`) is solved from that searched start too (there only: a
-        search, under 1 ms, and a solve), and that solve is taken if it passes and is not
+        again (:meth:`_solve_frame`) is solved from that searched start too (a search, under
+        1 ms, and a solve), and that solve is taken if it passes and is not
         doubtful. The track's second image has no motion prediction: it starts from the first
         image's estimate, 17-20 px off on rendered free motion at 5 fps (seeds 9 and 12); there,
         a later image's prediction was 11 px off (seed 4). The solves from them and from the last
@@ -765,10 +767,20 @@ class MonoTracker:
         occluder), and the track stayed off, TRACKING; from the searched start (3.1-7.9 px off)
         they converged 0.6-0.7 px off. Measured on rendered free motion (true model, 1-px
         clicks; docs/performance.md, forty-third session): at 5 fps (16 runs) images TRACKING
-        more than 3 px off 103 -> 9; 88 runs at 10 and 30 fps the same to 0.01 px. Tried for a
-        failed solve as well, it took seed 14's 4 LOST images at 5 fps, but on a face that left
-        the image and came back (test/hardening) the image after its re-acquisition took a
-        solve 5.8 px off that passed, and the track drifted to 11.7 px off, TRACKING.
+        more than 3 px off 103 -> 9; 88 runs at 10 and 30 fps the same to 0.01 px.
+
+        A followed image whose solve failed (not while LOST, nor after dropped images: those have
+        their own starts) is solved from that searched start too, and that solve is taken if it
+        passes, is not doubtful, and solving the last valid frame (the image before) back from it
+        returns to that frame's estimate (:meth:`_returned_from`); else the image is re-acquired.
+        At 5 fps (rendered seed 14) the prediction was 6.8-11.6 px off on four images, its solve
+        failed, and so did the re-acquisition from frame 1's face: LOST, each found on the next
+        image. From the searched start (1.4-2.4 px off) the solves converged 0.8 px off and solved
+        back within 0.04-0.12 px. The solve back is what tells a wrong face: on a face coming back
+        into the image (test/hardening) the image after its re-acquisition, the prediction 8.4 px
+        off, took from the searched start (0.7 px off) a solve 5.8 px off that passed even at
+        ``reacquire_residual_ratio`` (36 % of its voting nodes failing there), and the track then
+        drifted 11.7 px off, TRACKING; its solve back lands 4.0 px away.
 
         Of the solves that pass the checks, the one whose nodes match their templates best is taken
         (:meth:`_failing_fraction`; the first on a tie). Over a gap of fast motion the prediction
@@ -831,11 +843,17 @@ class MonoTracker:
             ]
 
         outcomes = solved(starts, track.current)
-        if outcomes[0].doubtful:
+        first = outcomes[0]
+        failed = not (first.result.ok or track.lost or track.bridging)
+        if first.doubtful or failed:
             searched = self._searched(pyramid, start)
             again = solved([(searched, self._first_level(track.current, searched))], None)[0]
             if again.result.ok and not again.doubtful:
-                outcomes = [again._replace(result=_summed(outcomes[0].result, again.result))]
+                found = _summed(first.result, again.result)
+                if failed:
+                    found = self._returned_from(again, found)
+                if found is not None:
+                    outcomes = [again._replace(result=found)]
         passed = [found for found in outcomes if found.result.ok]
         if not passed and track.lost and searched is not None:
             turned = [
@@ -871,17 +889,38 @@ class MonoTracker:
             sampled.params, checked.result.node_residuals, checked.textures, sampled.seen, ratio
         )
 
-    def _returned_to(self) -> _Return | None:
-        """The last valid frame for the first image after dropped images, else None.
+    def _returned_from(self, checked: _Checked, result: TrackResult) -> TrackResult | None:
+        """``result`` if the last valid frame solved back from ``checked`` returns, else None.
 
-        That frame is then the image before this one, whose pyramid is the older of the two
-        kept (:meth:`_pyramid`); it is solved back to from level 1, the coarsest on demand.
+        For a followed image's solve from the searched start after the solve from the motion
+        prediction failed (:meth:`_followed_frame`; :meth:`_returns`); ``result`` carries the
+        iterations of the solves made, to which the solve back's are added.
         """
+        returned = self._last_frame()
+        back = self._solved_back(returned, checked.sampled)
+        if not self._returns(back.params, returned):
+            return None
+        return replace(
+            result,
+            iterations=result.iterations + back.iterations,
+            cost_history=result.cost_history + back.costs,
+        )
+
+    def _returned_to(self) -> _Return | None:
+        """The last valid frame for the first image after dropped images, else None."""
         track = self._track
         if not track.bridging or track.lost:
             return None
+        return self._last_frame()
+
+    def _last_frame(self) -> _Return:
+        """The last valid frame as a solve back's, when it is the image before (none LOST since).
+
+        Its pyramid is then the older of the two kept (:meth:`_pyramid`); it is solved back to
+        from level 1, the coarsest on demand.
+        """
         last = self._buffers[0]
-        return _Return(lambda: last, track.current, self._config.coarsest_level_px)
+        return _Return(lambda: last, self._track.current, self._config.coarsest_level_px)
 
     def _blended_templates(self) -> tuple[OnDemand, np.ndarray]:
         """Eq. 6's templates of a followed frame and the node weights they are solved with.
@@ -1186,8 +1225,9 @@ class MonoTracker:
     def _solved_back(self, returned: _Return, templates: Templates) -> Solution:
         """Eq. 6 solved on an earlier frame's pyramid against a later image's templates.
 
-        The earlier frame is the last valid one after dropped images (:meth:`_returned_to`), or
-        the view a LOST image was solved from (:meth:`_viewed`). The solve starts
+        The earlier frame is the last valid one after dropped images (:meth:`_returned_to`) or
+        after a followed solve that failed (:meth:`_returned_from`), or the view a LOST image
+        was solved from (:meth:`_viewed`). The solve starts
         ``_RETURN_START_PX`` from that frame's estimate in x and y (moved parallel to the image
         plane) on level 1, started over on the coarsest level when its first step exceeds
         ``returned.restart_px``, with ``templates``

@@ -325,8 +325,13 @@ def test_a_failed_level_0_solve_is_made_again_from_the_last_estimate_then_the_co
 def test_a_face_reacquired_after_a_valid_frame_keeps_the_motion_prediction(
     scene, monkeypatch
 ) -> None:
-    """Motion too fast for the solver alone: the search finds frame 1, the prediction the rest."""
+    """Motion too fast for the solver alone: the search finds frame 1, the prediction the rest.
+
+    The search for the last valid frame's face, which finds frame 1 as a followed image
+    (:meth:`MonoTracker._searched`), is held where it starts, so that frame 1 is re-acquired.
+    """
     model, image, init = scene
+    monkeypatch.setattr(MonoTracker, '_searched', lambda _, pyramid, start: start)
     searches = record_method(monkeypatch, MonoTracker, '_search', lambda *_: True)
     tracker = _started(model, image, init)
     velocity = np.array([40.0, -20.0])  # px per frame
