@@ -189,6 +189,117 @@ def test_pyramid_deepened_of_a_borrowed_image_owned_carries_the_factor() -> None
     assert np.abs(pyramid.levels[2] - ImagePyramid.build(image, 3).levels[2]).max() > 1.0
 
 
+@pytest.mark.parametrize('dtype', [np.uint8, np.float32])
+@pytest.mark.parametrize('smooth_base', [False, True])
+def test_pyramid_read_where_sampled_equals_the_full_build(smooth_base: bool, dtype: type) -> None:
+    """Samples through ``level`` (level 0 made over boxes only) equal the full build's.
+
+    The buffers are reused from another image's pyramid, so a pixel read outside the box made
+    holds that image's value, and clusters of points all over (some beyond the image's edges,
+    where the border pixels are read) grow the box one after the other.
+    """
+    rng = np.random.default_rng(7)
+    height, width = 97, 131
+    other, image = (rng.random((2, height, width)) * 255).astype(dtype)
+    previous = ImagePyramid.build(other, 3, smooth_base)
+    previous.levels  # noqa: B018 - made in full, as a tracker's previous frame may be
+    pyramid = ImagePyramid.build(image, 3, smooth_base, reuse=previous)
+    full = ImagePyramid.build(image, 3, smooth_base).levels
+    # 8-bit images: the same to the bit; float ones within float32 rounding.
+    same = np.testing.assert_array_equal if dtype == np.uint8 else np.testing.assert_allclose
+    for cluster in range(40):
+        centre = rng.uniform([-10, -10], [width + 10, height + 10])
+        x, y = (centre[:, None, None] + rng.normal(0.0, 3.0, (2, 5, 9))).astype(np.float32)
+        values, gradient = sample_with_gradient_xy(pyramid.level(0, x, y), x, y)
+        expected_values, expected_gradient = sample_with_gradient_xy(full[0], x, y)
+        same(values, expected_values)
+        same(gradient, expected_gradient)
+        if cluster == 20:  # a coarse level is made in full, level 0 with it
+            x1, y1 = x / 2, y / 2
+            same(sample_xy(pyramid.level(1, x1, y1), x1, y1), sample_xy(full[1], x1, y1))
+    for got, expected in zip(pyramid.levels, full, strict=True):
+        same(got, expected)
+
+
+def test_pyramid_made_where_sampled_only() -> None:
+    """A read of a few points makes level 0 around them, not the whole image (its purpose)."""
+    image = np.full((200, 300), 100, np.uint8)
+    previous = ImagePyramid.build(np.zeros_like(image), 2, smooth_base=True)
+    previous.levels  # noqa: B018
+    pyramid = ImagePyramid.build(image, 2, smooth_base=True, reuse=previous)
+    x, y = np.float32([[150.5, 152.5]]), np.float32([[100.5, 101.5]])
+    level = pyramid.level(0, x, y)
+    made = level == 100
+    rows, cols = np.nonzero(made)
+    assert made[100, 150] and made.sum() < 0.05 * made.size
+    # Made: the pixels the samples read (floor - 1 to floor + 2 of x and y, central
+    # differences), 2 more either side for rounding to 1/32 px (_SAMPLE_REACH = 3, exclusive
+    # end + 1), the margin of 4 and the 2 px the 5-tap kernel writes around its box.
+    assert (rows.min(), rows.max()) == (100 - 3 - 4 - 2, 101 + 3 + 4 + 2)
+    assert (cols.min(), cols.max()) == (150 - 3 - 4 - 2, 152 + 3 + 4 + 2)
+    with pytest.raises(InputError, match='NaN'):
+        pyramid.level(0, np.float32([np.nan]), np.float32([1.0]))
+
+
+@pytest.mark.parametrize('smooth_base', [False, True])
+@pytest.mark.parametrize('borrow', [False, True])
+@pytest.mark.parametrize('factor', [1.0, 1 / 1.0077])
+def test_8_bit_levels_read_by_boxes_equal_the_scaled_full_build(
+    factor: float, borrow: bool, smooth_base: bool
+) -> None:
+    """Levels 0 and 1 of an 8-bit image, made by boxes, are the full build's bits.
+
+    As the trackers read them (the stereo tracker's scaled by the right camera's gain at build,
+    its image borrowed), the buffers of another image's pyramid reused; clusters of points all
+    over (some beyond the edges, odd sizes) grow the boxes.
+    """
+    rng = np.random.default_rng(11)
+    height, width = 97, 131
+    other, image = rng.integers(0, 256, (2, height, width), dtype=np.uint8)
+    previous = ImagePyramid.build(other, 3, smooth_base, borrow=borrow)
+    previous.levels  # noqa: B018 - made in full, so a pixel read outside a box holds other's
+    kept = image.copy()
+    image.flags.writeable = False  # as a message's buffer may be
+    pyramid = ImagePyramid.build(image, 3, smooth_base, previous, factor, borrow)
+    full = ImagePyramid.build(image, 3, smooth_base)
+    full.scale(factor)
+    for cluster in range(40):
+        level = cluster % 2
+        size = np.array([width, height]) / (1 << level)
+        centre = rng.uniform(-5, size + 5)
+        x, y = (centre[:, None, None] + rng.normal(0.0, 3.0, (2, 5, 9))).astype(np.float32)
+        values, gradient = sample_with_gradient_xy(pyramid.level(level, x, y), x, y)
+        expected_values, expected_gradient = sample_with_gradient_xy(full.levels[level], x, y)
+        np.testing.assert_array_equal(values, expected_values)
+        np.testing.assert_array_equal(gradient, expected_gradient)
+    np.testing.assert_array_equal(image, kept)  # a borrowed image is read, never written
+    for got, expected in zip(pyramid.levels, full.levels, strict=True):
+        np.testing.assert_array_equal(got, expected)
+    image.flags.writeable = True
+    image[...] = 0  # the caller's buffer, free once the pyramid is made in full
+    np.testing.assert_array_equal(pyramid.levels[0], full.levels[0])
+
+
+def test_unsmoothed_level_1_made_where_sampled_only() -> None:
+    """A read of a few points of level 1 makes it around them, to the bit, level 0 not at all.
+
+    (Smoothed, level 1 is made from level 0, made over the box first.)
+    """
+    image = np.random.default_rng(5).integers(1, 256, (200, 300), dtype=np.uint8)
+    previous = ImagePyramid.build(np.zeros_like(image), 2)
+    previous.levels  # noqa: B018
+    pyramid = ImagePyramid.build(image, 2, reuse=previous, borrow=True)
+    x, y = np.float32([[70.5, 71.5]]), np.float32([[50.5, 51.5]])
+    level = pyramid.level(1, x, y)
+    made = level > 0
+    np.testing.assert_array_equal(level[made], ImagePyramid.build(image, 2).levels[1][made])
+    rows, cols = np.nonzero(made)
+    # The pixels the samples read (_SAMPLE_REACH = 3, exclusive end + 1) and the margin of 4.
+    assert (rows.min(), rows.max()) == (50 - 3 - 4, 51 + 3 + 4)
+    assert (cols.min(), cols.max()) == (70 - 3 - 4, 71 + 3 + 4)
+    assert not pyramid.level(0, np.float32([]), np.float32([])).any()
+
+
 @pytest.mark.parametrize('factor', [1.0, 1 / 1.0077])
 def test_added_levels_read_by_boxes_are_the_bits_of_the_whole_levels_reduced(
     factor: float,
