@@ -772,7 +772,7 @@ class MonoTracker:
         A followed image whose solve failed (not while LOST, nor after dropped images: those have
         their own starts) is solved from that searched start too, and that solve is taken if it
         passes, is not doubtful, and solving the last valid frame (the image before) back from it
-        returns to that frame's estimate (:meth:`_returned_from`); else the image is re-acquired.
+        returns to that frame's estimate (:meth:`_returned`); else the image is re-acquired.
         At 5 fps (rendered seed 14) the prediction was 6.8-11.6 px off on four images, its solve
         failed, and so did the re-acquisition from frame 1's face: LOST, each found on the next
         image. From the searched start (1.4-2.4 px off) the solves converged 0.8 px off and solved
@@ -825,7 +825,9 @@ class MonoTracker:
             start = _predicted(track.current, track.before, ahead, self._face.rotation)
             first_level = self._first_level(track.current, start)
         starts = [(start, first_level)]
-        searched = None  # after dropped images: where the last valid frame's face is found
+        # Where the last valid frame's face is found: after dropped images, and below for a
+        # solve that failed or stands doubtful.
+        searched = None
         if track.bridging:
             searched = self._searched(pyramid, start)
             starts.append((searched, self._first_level(track.current, searched)))
@@ -849,10 +851,10 @@ class MonoTracker:
             searched = self._searched(pyramid, start)
             again = solved([(searched, self._first_level(track.current, searched))], None)[0]
             if again.result.ok and not again.doubtful:
-                found = _summed(first.result, again.result)
-                if failed:
-                    found = self._returned_from(again, found)
-                if found is not None:
+                found, returns = _summed(first.result, again.result), True
+                if failed:  # taken only if the last valid frame solves back from it
+                    returns, found = self._returned(self._last_frame(), again.sampled, found)
+                if returns:
                     outcomes = [again._replace(result=found)]
         passed = [found for found in outcomes if found.result.ok]
         if not passed and track.lost and searched is not None:
@@ -889,22 +891,22 @@ class MonoTracker:
             sampled.params, checked.result.node_residuals, checked.textures, sampled.seen, ratio
         )
 
-    def _returned_from(self, checked: _Checked, result: TrackResult) -> TrackResult | None:
-        """``result`` if the last valid frame solved back from ``checked`` returns, else None.
+    def _returned(
+        self, returned: _Return, sampled: Templates, result: TrackResult
+    ) -> tuple[bool, TrackResult]:
+        """Whether ``returned``'s frame, solved back from ``sampled``, returns; ``result`` counted.
 
-        For a followed image's solve from the searched start after the solve from the motion
-        prediction failed (:meth:`_followed_frame`; :meth:`_returns`); ``result`` carries the
-        iterations of the solves made, to which the solve back's are added.
+        The solve back (:meth:`_solved_back`) confirms a later solve whose templates were
+        sampled at ``sampled`` when it returns to that frame's estimate (:meth:`_returns`). Its
+        iterations and costs are added to ``result``'s, the solves made for the image so far.
         """
-        returned = self._last_frame()
-        back = self._solved_back(returned, checked.sampled)
-        if not self._returns(back.params, returned):
-            return None
-        return replace(
+        back = self._solved_back(returned, sampled)
+        counted = replace(
             result,
             iterations=result.iterations + back.iterations,
             cost_history=result.cost_history + back.costs,
         )
+        return self._returns(back.params, returned), counted
 
     def _returned_to(self) -> _Return | None:
         """The last valid frame for the first image after dropped images, else None."""
@@ -1153,15 +1155,12 @@ class MonoTracker:
         lenient = self._checked(solution, pyramid, templates[0], self._config.lost_residual_ratio)
         if not (lenient.result.ok and self._confirmable(lenient, returned)):
             return lenient._replace(result=total)
-        back = self._solved_back(returned, lenient.sampled)
-        taken = lenient.result if self._returns(back.params, returned) else total
-        return lenient._replace(
-            result=replace(
-                taken,
-                iterations=total.iterations + back.iterations,
-                cost_history=total.cost_history + back.costs,
+        returns, counted = self._returned(returned, lenient.sampled, total)
+        if returns:
+            counted = replace(
+                lenient.result, iterations=counted.iterations, cost_history=counted.cost_history
             )
-        )
+        return lenient._replace(result=counted)
 
     def _doubtful(self, checked: _Checked) -> bool:
         """Whether a result that passed the checks at ``lost_residual_ratio`` may be off the face.
@@ -1226,7 +1225,7 @@ class MonoTracker:
         """Eq. 6 solved on an earlier frame's pyramid against a later image's templates.
 
         The earlier frame is the last valid one after dropped images (:meth:`_returned_to`) or
-        after a followed solve that failed (:meth:`_returned_from`), or the view a LOST image
+        after a followed solve that failed (:meth:`_followed_frame`), or the view a LOST image
         was solved from (:meth:`_viewed`). The solve starts
         ``_RETURN_START_PX`` from that frame's estimate in x and y (moved parallel to the image
         plane) on level 1, started over on the coarsest level when its first step exceeds
