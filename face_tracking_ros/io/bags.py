@@ -790,9 +790,13 @@ def _metadata_topics(path: Path) -> dict[str, str]:
 
 
 def _metadata(path: Path) -> dict[str, Any]:
-    """A bag's ``metadata.yaml`` information ({} if it is missing or unreadable)."""
+    """A bag's ``metadata.yaml`` information ({} if it is missing or unreadable).
+
+    Unreadable includes bytes that are not UTF-8 text (a file overwritten by another's blocks):
+    the bag is then read from its MCAP files, as without the file.
+    """
     try:
         info = parse_yaml((path / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
-    except (OSError, yaml.YAMLError, KeyError, TypeError):
+    except (OSError, UnicodeDecodeError, yaml.YAMLError, KeyError, TypeError):
         return {}
     return info if isinstance(info, dict) else {}

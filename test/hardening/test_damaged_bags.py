@@ -164,6 +164,19 @@ def test_a_stray_mcap_file_beside_a_bag_is_not_counted_as_its_messages(bag, tmp_
     assert len(list(read_raw(copied))) == len(list(read_raw(bag)))  # and no BagError
 
 
+@pytest.mark.parametrize(
+    'metadata', [b'\x89PNG\r\n\x1a\n\xff\xfe', b'rosbag2_bagfile_information: [', b'']
+)
+def test_a_metadata_file_that_is_not_yaml_text_is_read_around(bag, tmp_path, metadata):
+    """A metadata.yaml of binary bytes, broken YAML or nothing: the MCAP file is the bag."""
+    damaged = shutil.copytree(bag, tmp_path / 'damaged')
+    (damaged / 'metadata.yaml').write_bytes(metadata)
+    assert bag_topics(damaged) == bag_topics(bag)
+    assert [(m.topic, m.stamp_ns) for m in read_raw(damaged)] == [
+        (m.topic, m.stamp_ns) for m in read_raw(bag)
+    ]
+
+
 def test_a_bag_zeroed_anywhere_yields_messages_of_its_own_or_a_bag_error(bag, tmp_path):
     """Short stretches of zeros at random: a record length read from them can pass 2**63."""
     data = next(bag.glob('*.mcap')).read_bytes()
