@@ -34,7 +34,7 @@ import sys
 from types import TracebackType
 from typing import Any, BinaryIO, NamedTuple, Protocol
 
-from mcap.exceptions import EndOfFile, McapError
+from mcap.exceptions import EndOfFile, InvalidMagic, McapError
 from mcap.reader import make_reader
 from mcap.records import Channel, McapRecord, Message, Schema
 from mcap.stream_reader import StreamReader
@@ -624,17 +624,27 @@ def _stream_records(path: Path, topics: Iterable[str] | None) -> Iterator[RawMes
                             count += 1
                             yield RawMessage(topic, msgtype, record.log_time, record.data, msgdef)
         except (McapError, *_READ_ERRORS) as error:
-            damage = (
-                'the file ends part way (truncated)'
-                if isinstance(error, EndOfFile)
-                else f'{type(error).__name__}: {error}'
-            )
+            damage = _damage(error)
             recovered = wording.counted(count, 'message')
             message = f'{file}: damaged MCAP file, {recovered} recovered before: {damage}'
             raise BagError(message) from None
     missing = (wanted or set()) - {topic for topic, _, _ in channels.values()}
     if missing:
         raise BagError(f'{path}: no topic {", ".join(sorted(missing))} in bag')
+
+
+def _damage(error: Exception) -> str:
+    """What a damage the MCAP stream reader stopped at is, in the user's words.
+
+    The reader's InvalidMagic quotes the 8 bytes it found, as numbers; a file that does not
+    begin (or end) with the MCAP magic is no MCAP file, or one whose first or last bytes were
+    lost.
+    """
+    if isinstance(error, EndOfFile):
+        return 'the file ends part way (truncated)'
+    if isinstance(error, InvalidMagic):
+        return 'its first or last 8 bytes are not the MCAP magic (not an MCAP file?)'
+    return f'{type(error).__name__}: {error}'
 
 
 def _file_records(stream: BinaryIO, size: int) -> Iterator[McapRecord]:
@@ -755,11 +765,19 @@ def _salvaged_connections(path: Path) -> list[Connection]:
     """Connections (topic, type, readable message count) of a damaged bag, by streaming it.
 
     Topics that ``metadata.yaml`` lists but the damaged file does not reach have a count of 0.
+
+    Raises:
+        BagError: naming the damage, when neither the file nor ``metadata.yaml`` gives a topic
+            (a file that is no MCAP file, or one cut before its first channel): a bag without
+            topics would be refused for the topics it lacks, not for what it is.
     """
     counts: Counter[tuple[str, str]] = Counter(dict.fromkeys(_metadata_topics(path).items(), 0))
-    with contextlib.suppress(BagError):
+    try:
         for topic, msgtype, *_ in _stream_records(path, None):
             counts[topic, msgtype] += 1
+    except BagError:
+        if not counts:
+            raise
     return [
         Connection(i, topic, msgtype, None, '', n, None, None)  # type: ignore[arg-type]
         for i, ((topic, msgtype), n) in enumerate(counts.items())

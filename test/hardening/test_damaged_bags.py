@@ -177,6 +177,24 @@ def test_a_metadata_file_that_is_not_yaml_text_is_read_around(bag, tmp_path, met
     ]
 
 
+@pytest.mark.parametrize('directory', [False, True])
+def test_a_file_that_is_no_mcap_file_is_named_as_such_not_as_a_bag_without_topics(
+    tmp_path, directory
+):
+    """Notes saved as .mcap, alone or in a directory without metadata.yaml: no topic to name."""
+    folder = tmp_path / 'notes' if directory else tmp_path
+    folder.mkdir(exist_ok=True)
+    (folder / 'notes.mcap').write_text('these are my notes, not a recording\n')
+    given = folder if directory else folder / 'notes.mcap'
+    for read in (bag_topics, read_raw):
+        with pytest.raises(BagError) as raised:
+            list(read(given))
+        assert str(raised.value) == (
+            f'{folder / "notes.mcap"}: damaged MCAP file, 0 messages recovered before: its first '
+            'or last 8 bytes are not the MCAP magic (not an MCAP file?)'
+        )
+
+
 def test_a_bag_zeroed_anywhere_yields_messages_of_its_own_or_a_bag_error(bag, tmp_path):
     """Short stretches of zeros at random: a record length read from them can pass 2**63."""
     data = next(bag.glob('*.mcap')).read_bytes()
