@@ -7,6 +7,7 @@ plot after drawing).
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 import time
 
@@ -14,9 +15,10 @@ import numpy as np
 import pytest
 
 from face_tracking_ros.cli.main import main
-from face_tracking_ros.errors import ConfigError
-from face_tracking_ros.io.atomic import check_output_path
+from face_tracking_ros.errors import ConfigError, ModelFileError
+from face_tracking_ros.io.atomic import check_output_path, read_npz, write_json_atomically
 from face_tracking_ros.io.bags import read_messages
+from face_tracking_ros.visualization.video import write_overlay_video
 
 from repo_root import REPO
 
@@ -66,6 +68,49 @@ def test_an_output_of_the_wrong_kind_is_named(tmp_path, capsys):
     assert f'--json {tmp_path} is a directory, not a file' in capsys.readouterr().err
     assert notes.read_text() == 'mine'
     assert not (tmp_path / 'b').exists()
+
+
+def _special_file_commands(tmp_path: Path, fifo: Path) -> dict[str, list[str]]:
+    """Each command with one output file at ``fifo`` (its other outputs in ``tmp_path``)."""
+    track = ['track', str(MONO), '--simulate-clicks', '1', '--out', str(tmp_path / 'tracked')]
+    synth = ['synth', '--kind', 'mono', '--frames', '2', '--out', str(tmp_path / 'bags')]
+    return {
+        '--report': [*track, '--report', str(fifo)],
+        '--contact-sheet': [*synth, '--contact-sheet', str(fifo)],
+        '--json': ['bench', '--quick', '--out', str(tmp_path / 'b'), '--json', str(fifo)],
+        '--png': ['plot', str(MONO), '--png', str(fifo)],
+        '--gallery': ['enroll', str(MONO), '--name', 'ann', '--gallery', str(fifo)],
+        '--out': ['train-expressions', str(MONO), '--out', str(fifo)],
+    }
+
+
+@pytest.mark.parametrize(
+    'option', ['--report', '--contact-sheet', '--json', '--png', '--gallery', '--out']
+)
+def test_an_output_that_is_a_named_pipe_is_refused_not_replaced(tmp_path, capsys, option):
+    """A file renamed over a pipe, a device or a socket replaced it (as root, /dev/null too)."""
+    fifo = tmp_path / 'out.png' if option in ('--png', '--contact-sheet') else tmp_path / 'out.npz'
+    os.mkfifo(fifo)
+    assert main(_special_file_commands(tmp_path, fifo)[option]) == 2
+    assert capsys.readouterr().err == (
+        f'error: {option} {fifo} is a named pipe, not a regular file: not written over\n'
+    )
+    assert fifo.is_fifo()
+    assert sorted(path.name for path in tmp_path.iterdir()) == [fifo.name]  # no work done
+
+
+def test_an_atomic_write_or_a_video_over_a_named_pipe_is_refused_and_a_pipe_read_is_named(
+    tmp_path,
+):
+    fifo = tmp_path / 'out.mp4'
+    os.mkfifo(fifo)
+    with pytest.raises(ConfigError, match=f'^output {fifo} is a named pipe, not a regular file'):
+        write_json_atomically(fifo, {})
+    with pytest.raises(ConfigError, match=f'^video file {fifo} is a named pipe, not a regular'):
+        write_overlay_video(MONO, None, fifo)  # type: ignore[arg-type]  # refused before use
+    with pytest.raises(ModelFileError, match=f'^{fifo}: is a named pipe, not a regular file$'):
+        read_npz(fifo)  # (not opened: reading a pipe without a writer waits for ever)
+    assert fifo.is_fifo()
 
 
 def test_a_contact_sheet_opencv_writes_no_format_of_is_named_before_rendering(tmp_path, capsys):

@@ -34,7 +34,9 @@ def check_output_path(
     The nearest existing ancestor of ``path`` must be a directory (the missing ones below it
     are made by the commands that make them; for the others, ``parent_made`` False, the
     directory ``path`` goes in must exist); ``path`` itself, if it exists, must be a directory
-    when ``directory`` is set, else must not be one.
+    when ``directory`` is set, else a regular file: a device, named pipe or socket (``--report
+    /dev/stdout``, a FIFO) would be replaced by the file renamed over it (:func:`os.replace`),
+    as root even ``/dev/null``.
 
     Args:
         path: the output file, or directory with ``directory``.
@@ -59,6 +61,28 @@ def check_output_path(
     if not directory and path.is_dir():
         msg = f'{option} {path} is a directory, not a file'
         raise ConfigError(msg)
+    if not directory:
+        _check_regular(path, option)
+
+
+def _check_regular(path: Path, named: str) -> None:
+    """Refuse to write over ``path`` (``named`` so) if it exists and is no regular file.
+
+    Raises:
+        ConfigError: naming the path and what it is.
+    """
+    if path.exists() and not path.is_file() and not path.is_dir():
+        msg = f'{named} {path} is {_special_kind(path)}, not a regular file: not written over'
+        raise ConfigError(msg)
+
+
+def _special_kind(path: Path) -> str:
+    """What an existing path that is neither a regular file nor a directory is."""
+    if path.is_fifo():
+        return 'a named pipe'
+    if path.is_socket():
+        return 'a socket'
+    return 'a device' if path.is_char_device() or path.is_block_device() else 'a special file'
 
 
 def check_replaceable(path: Path, option: str, what: str, load: Callable[[Path], object]) -> None:
@@ -124,10 +148,15 @@ def finite_or_null(value: Any) -> Any:
 
 
 def _write_atomically(path: Path, write: Callable[[BinaryIO], object]) -> None:
-    """Write ``path`` through ``write`` on a synced temporary file renamed over it."""
+    """Write ``path`` through ``write`` on a synced temporary file renamed over it.
+
+    Raises:
+        ConfigError: if ``path`` is a device, named pipe or socket (the rename would replace it).
+    """
     if not path.parent.is_dir():
         msg = f'no directory {path.parent} to write {path.name} in'
         raise FileNotFoundError(msg)
+    _check_regular(path, 'output')
     prefix = f'.{path.name}.'
     try:
         descriptor, name = tempfile.mkstemp(dir=path.parent, prefix=prefix, suffix='.tmp')
@@ -155,7 +184,11 @@ def read_npz(path: Path) -> dict[str, np.ndarray]:
             pickled objects.
     """
     if not path.is_file():
-        msg = f'{path}: is a directory, not a file' if path.is_dir() else f'{path}: no such file'
+        msg = f'{path}: no such file'
+        if path.is_dir():
+            msg = f'{path}: is a directory, not a file'
+        elif path.exists():
+            msg = f'{path}: is {_special_kind(path)}, not a regular file'
         raise ModelFileError(msg)
     if not zipfile.is_zipfile(path):
         msg = f'{path}: not an .npz archive, or a damaged one (no zip directory)'

@@ -17,6 +17,7 @@ import numpy as np
 from face_tracking_ros.errors import BagError, ConfigError, InputError
 from face_tracking_ros.imaging.rectification import Rectifier
 from face_tracking_ros.io import conversions
+from face_tracking_ros.io.atomic import check_output_path
 from face_tracking_ros.io.bags import bag_topics, read_messages, stamp_to_ns, topic_has_word
 from face_tracking_ros.io.series import StateSeries
 from face_tracking_ros.model.topology import mesh_topology
@@ -156,6 +157,7 @@ def write_overlay_video(
     if video.suffix not in writers:
         msg = f'video file must end in .mp4 or .gif: {video}'
         raise ConfigError(msg)
+    check_output_path(video, 'video file')  # the partial file is renamed over it
     partial = video.with_name(f'{video.stem}.partial{video.suffix}')
     frames = overlay_frames(bag, states, topic, every, rectify)
     try:
