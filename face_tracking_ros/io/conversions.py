@@ -20,7 +20,7 @@ from face_tracking_ros.errors import ConfigError, InputError
 from face_tracking_ros.geometry.camera import PinholeCamera
 from face_tracking_ros.geometry.rotation import omega_to_quaternion
 from face_tracking_ros.imaging.gray import encoding_channels, to_gray
-from face_tracking_ros.io.bags import stamp_to_ns
+from face_tracking_ros.io.bags import NS_PER_S, stamp_to_ns
 from face_tracking_ros.io.messages import MessageFactory
 from face_tracking_ros.model.face_model import FaceModel
 from face_tracking_ros.model.topology import MeshTopology
@@ -43,6 +43,26 @@ def make_header(factory: MessageFactory, stamp_ns: int, frame_id: str) -> Any:
         nanosec=stamp_ns % 1_000_000_000,
     )
     return factory.make('std_msgs/msg/Header', stamp=stamp, frame_id=frame_id)
+
+
+def checked_stamp_ns(header: Any) -> int:
+    """The stamp of an input's ``header``, ns since the epoch, refusing an invalid one.
+
+    builtin_interfaces/Time's ``nanosec`` is below 10^9; a larger one (a driver that adds
+    nanoseconds without carrying them into ``sec``) reads as a stamp up to 4.3 s late, and the
+    next image's, which went back from it, restarted the track.
+
+    Raises:
+        InputError: naming the field and its value.
+    """
+    nanosec = int(header.stamp.nanosec)
+    if not 0 <= nanosec < NS_PER_S:
+        msg = (
+            f'header.stamp.nanosec = {nanosec} is not below 10^9 (1 s): an invalid stamp, '
+            'message skipped'
+        )
+        raise InputError(msg)
+    return stamp_to_ns(header.stamp)
 
 
 def copy_header(factory: MessageFactory, header: Any) -> Any:

@@ -161,6 +161,7 @@ class MonoProcessor:
             self._model = model
             self._rebuild()
             return self._track_held_image(wanted)  # (held for the camera_info and this model)
+        conversions.checked_stamp_ns(msg.header)  # before the image is held
         gray = conversions.message_to_gray(msg)
         if self._calibration.camera is None:  # held until the calibration comes
             dropped = self._held.hold((msg.header, gray))

@@ -248,7 +248,7 @@ class StereoProcessor:
             self._rebuild()
             return []
         topic = COMPRESSED.get(topic, topic)  # pairs by side, whatever the transport
-        pair = self._pairing.offer(topic, stamp_to_ns(msg.header.stamp), msg)
+        pair = self._pairing.offer(topic, conversions.checked_stamp_ns(msg.header), msg)
         if pair is not None and self._tracker is None:  # held until the calibration comes
             dropped = self._held.hold(pair)
             if self._unfit:

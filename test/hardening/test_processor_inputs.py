@@ -387,6 +387,31 @@ def test_mono_repeated_stamp_is_refused_and_an_earlier_stamp_restarts_the_track(
     assert processor.status()['restarts'] == '1'
 
 
+def _late_nanosec(msg: object) -> object:
+    """``msg`` with 2 s added to its stamp's nanosec, not carried into sec (an invalid stamp)."""
+    msg.header.stamp.nanosec += 2 * 10**9
+    return msg
+
+
+INVALID_STAMP = r'^header.stamp.nanosec = \d+ is not below 10\^9 \(1 s\): an invalid stamp'
+
+
+def test_mono_image_stamp_of_nanosec_past_a_second_is_refused_and_the_track_goes_on(
+    scene, frames, mono_reference
+):
+    """Read as 2 s late, it was tracked, and the next image restarted the track (went back)."""
+    processor = _mono(scene, frames)
+    processor.handle('camera_info', info_msg(), NONE)
+    processor.handle('image', image_msg(frames[0].image, stamp(0)), NONE)
+    late = _late_nanosec(image_msg(frames[1].image, stamp(1)))
+    with pytest.raises(InputError, match=INVALID_STAMP):
+        processor.handle('image', late, NONE)
+    for f in (1, 2):
+        outputs = processor.handle('image', image_msg(frames[f].image, stamp(f)), NONE)
+        np.testing.assert_array_equal(_image_points(outputs), mono_reference[f])
+    assert processor.status()['restarts'] == '0'
+
+
 def test_mono_stamps_that_keep_going_back_are_warned_of(scene, frames):
     """Two sources on one image topic (a bag played while the camera runs), stamps 100 s apart.
 
@@ -821,6 +846,22 @@ def test_stereo_repeated_stamp_is_refused_and_an_earlier_stamp_restarts_the_trac
     assert stamp_to_ns(outputs[0].msg.header.stamp) == stamp(0)
     np.testing.assert_array_equal(_mesh(outputs), stereo_reference[0])
     np.testing.assert_array_equal(_mesh(_pair(processor, pairs, 1)), stereo_reference[1])
+
+
+def test_stereo_image_stamp_of_nanosec_past_a_second_is_refused_and_the_track_goes_on(
+    pairs, stereo_reference
+):
+    processor = _stereo(pairs)
+    _stereo_infos(processor)
+    _pair(processor, pairs, 0)
+    for topic, side in (('left/image_raw', 0), ('right/image_raw', 1)):
+        late = _late_nanosec(image_msg(pairs[side][1].image, stamp(1)))
+        with pytest.raises(InputError, match=INVALID_STAMP):
+            processor.handle(topic, late, NONE)
+    for f in (1, 2):
+        np.testing.assert_array_equal(_mesh(_pair(processor, pairs, f)), stereo_reference[f])
+    assert processor.status()['restarts'] == '0'
+    assert processor.unpaired == 0
 
 
 def _retroactive(pairs) -> StereoProcessor:
