@@ -194,6 +194,7 @@ class BagWriter:
         self._serialiser = CdrSerialiser(self._store)
         self._writer: Writer | None = None
         self._connections: dict[str, Connection] = {}
+        self._failed = False  # a write failed: the bag is left as it is
 
     def __enter__(self) -> BagWriter:
         """Open the bag for writing.
@@ -223,9 +224,24 @@ class BagWriter:
         exc: BaseException | None,
         traceback: TracebackType | None,
     ) -> None:
-        """Close the bag, writing its metadata."""
-        self._open_writer().close()
+        """Close the bag, writing its summary and metadata; after a failed write, only drop it.
+
+        A bag whose write failed is left as it is (its file closed as the writer goes): a close
+        would write its summary after the damage, and fail again on a full disk.
+
+        Raises:
+            BagError: if the close cannot write (:meth:`_write_failed`), unless an error is
+                already on its way out of the block: that one is the error said.
+        """
+        writer = self._open_writer()
         self._writer = None
+        if self._failed:
+            return
+        try:
+            writer.close()
+        except OSError as error:
+            if exc is None:
+                raise self._write_failed(error) from None
 
     def write(self, topic: str, msgtype: str, msg: Any, stamp_ns: int) -> None:
         """Serialise one message to CDR and write it.
@@ -238,7 +254,7 @@ class BagWriter:
 
         Raises:
             BagError: If the topic has another type, the type is unknown or ``msg`` does not
-                fit it.
+                fit it, or the bag cannot be written.
         """
         try:
             data = self._serialiser.serialise(msg, msgtype)
@@ -258,9 +274,29 @@ class BagWriter:
             stamp_ns: Record time, ns since the epoch.
 
         Raises:
-            BagError: If the topic has another type or the type is unknown.
+            BagError: If the topic has another type or the type is unknown, or the bag cannot
+                be written (:meth:`_write_failed`).
         """
-        self._open_writer().write(self._connection(topic, msgtype), stamp_ns, data)
+        connection = self._connection(topic, msgtype)
+        try:
+            self._open_writer().write(connection, stamp_ns, data)
+        except OSError as error:
+            self._failed = True
+            raise self._write_failed(error) from None
+
+    def _write_failed(self, error: OSError) -> BagError:
+        """The error of a write to the bag that failed (a full disk, a file size limit).
+
+        The messages in the MCAP chunks written before stay readable, as in a bag cut off
+        (:func:`read_raw`); the summary and ``metadata.yaml`` that a close writes are missing.
+        """
+        reason = error.strerror or str(error)
+        msg = (
+            f'{self.path}: cannot write the bag: {reason}; it ends where the write failed, '
+            'without its summary and metadata.yaml (the messages before stay readable, as in a '
+            'bag cut off)'
+        )
+        return BagError(msg)
 
     def _open_writer(self) -> Writer:
         """Return the rosbags writer, raising BagError outside the ``with`` block."""

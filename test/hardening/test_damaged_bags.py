@@ -8,7 +8,11 @@ from __future__ import annotations
 
 from collections import Counter
 from pathlib import Path
+import resource
 import shutil
+import signal
+import subprocess
+import sys
 
 from fault_scenes import CAMERA, image_msg, info_msg, stamp
 from mcap.records import Channel, Message
@@ -33,10 +37,13 @@ from face_tracking_ros.io.bags import (
 from face_tracking_ros.io.messages import RosbagsMessages
 from face_tracking_ros.io.typestore import typestore
 
+from repo_root import REPO
+
 FRAMES = 40
 CUTS = 24
 IMAGE, INFO = 'sensor_msgs/msg/Image', 'sensor_msgs/msg/CameraInfo'
 CHANNEL_OPCODE = 0x04
+MONO = REPO / 'bags' / 'mono_test' / 'subject_00_seq_00'
 
 
 @pytest.fixture(scope='module')
@@ -555,3 +562,40 @@ def test_a_bag_cut_inside_a_record_header_says_it_is_truncated(bag, tmp_path, cu
     messages, error = _read_until_damage(cut)
     assert len(messages) == (2 * FRAMES if cut_from_end else 0)
     assert error.endswith(' recovered before: the file ends part way (truncated)'), error
+
+
+def test_a_track_whose_output_cannot_be_written_names_the_bag_and_keeps_what_was_written(
+    tmp_path,
+):
+    """A full disk part way, as a file size limit: its errno text alone named no file.
+
+    The track records its inputs, so that the 2.5 MB limit comes after two MCAP chunks (1 MiB
+    each) were written: their frames, images with their tracked states, stay readable.
+    """
+    out, limit = tmp_path / 'tracked', 2_500_000
+
+    def limited() -> None:
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)  # a write past the limit fails, EFBIG
+        resource.setrlimit(resource.RLIMIT_FSIZE, (limit, limit))
+
+    track = ['track', str(MONO), '--simulate-clicks', '1', '--record-inputs', '--out', str(out)]
+    finished = subprocess.run(
+        [sys.executable, '-m', 'face_tracking_ros.cli.main', *track, '--quiet'],
+        preexec_fn=limited,
+        capture_output=True,
+        text=True,
+        timeout=600,
+        check=False,
+    )
+    assert finished.returncode == 2
+    assert finished.stderr == (
+        f'error: {out}: cannot write the bag: File too large; it ends where the write failed, '
+        'without its summary and metadata.yaml (the messages before stay readable, as in a bag '
+        'cut off)\n'
+    )
+    messages, error = _read_until_damage(out)
+    assert error.endswith('recovered before: the file ends part way (truncated)')
+    read = Counter(message.topic for message in messages)
+    assert read['image'] >= 3 and read['face/state'] >= 3
+    images = list(read_raw(MONO, ['image']))[: read['image']]
+    assert [m.data for m in messages if m.topic == 'image'] == [m.data for m in images]
