@@ -595,3 +595,14 @@ def test_an_init_file_naming_a_node_the_model_lacks_is_named_not_the_model(tmp_p
         f'error: init file {init} names 1 node (nose_tipp) that the 34-node face model lacks '
         f'(misspelt? its nodes: {", ".join(model.node_names)})\n'
     )
+
+
+def test_an_init_file_whose_sigma_is_of_another_length_is_named(tmp_path, capsys):
+    """It said 'the initialisation holds 3 sigma values', naming no file."""
+    mono = REPO / 'bags' / 'mono_test' / 'subject_00_seq_00'
+    clicks = replace(clicks_from_bag(mono, 1.0), sigma=np.zeros(3))
+    init = write_init_file(clicks, tmp_path / 'clicks.json')
+    assert main(['track', str(mono), '--init', str(init), '--out', str(tmp_path / 'o')]) == 2
+    assert capsys.readouterr().err == (
+        f'error: init file {init} holds 3 sigma values, the face model p = 2\n'
+    )

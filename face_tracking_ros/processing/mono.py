@@ -361,7 +361,8 @@ def _check_model(
         raise error(unknown)
     sigma = initialisation.sigma if initialisation else None
     if sigma is not None and len(sigma) != model.p:
-        msg = f'the initialisation holds {len(sigma)} sigma values, the face model p = {model.p}'
+        source = initialisation.source  # e.g. 'init file clicks.yaml'
+        msg = f'{source} holds {len(sigma)} sigma values, the face model p = {model.p}'
         raise error(msg)
 
 
