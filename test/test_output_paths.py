@@ -113,6 +113,36 @@ def test_an_atomic_write_or_a_video_over_a_named_pipe_is_refused_and_a_pipe_read
     assert fifo.is_fifo()
 
 
+def test_an_output_directory_the_process_may_not_write_in_is_refused_before_learning(
+    tmp_path, capsys, monkeypatch
+):
+    """An --out it could not write was found by learn at the write, after the learning.
+
+    A read-only file system or a directory of another user, as os.access tells it, simulated
+    here (as root, a test may write anywhere but on a read-only mount).
+    """
+    locked = tmp_path / 'locked'
+    locked.mkdir()
+    access = os.access
+    monkeypatch.setattr(
+        os, 'access', lambda path, mode: Path(path) != locked and access(path, mode)
+    )
+    bags = [str(path) for path in sorted((REPO / 'bags' / 'stereo_train').iterdir())]
+    learn = ['learn', *bags, '--report', str(tmp_path / 'report.json')]
+    assert main([*learn, '--out', str(locked / 'model.npz')]) == 2
+    assert capsys.readouterr() == (
+        '',
+        f'error: --out {locked / "model.npz"}: cannot create files in {locked} (a read-only file '
+        'system, or no permission to write there)\n',
+    )
+    assert main(['track', str(MONO), '--simulate-clicks', '1', '--out', str(locked / 't')]) == 2
+    assert f'error: --out {locked / "t"}: cannot create files in {locked} (' in (
+        capsys.readouterr().err
+    )
+    assert sorted(path.name for path in tmp_path.iterdir()) == ['locked']  # no work done
+    assert list(locked.iterdir()) == []
+
+
 def test_a_contact_sheet_opencv_writes_no_format_of_is_named_before_rendering(tmp_path, capsys):
     synth = ['synth', '--kind', 'mono', '--frames', '2', '--out', str(tmp_path / 'bags')]
     for name, suffix in (('sheet.txt', '.txt'), ('sheet', 'none')):

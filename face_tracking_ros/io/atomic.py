@@ -36,7 +36,8 @@ def check_output_path(
     directory ``path`` goes in must exist); ``path`` itself, if it exists, must be a directory
     when ``directory`` is set, else a regular file: a device, named pipe or socket (``--report
     /dev/stdout``, a FIFO) would be replaced by the file renamed over it (:func:`os.replace`),
-    as root even ``/dev/null``.
+    as root even ``/dev/null``. The directory the output goes into must be one the process may
+    write in (:func:`_check_writable`).
 
     Args:
         path: the output file, or directory with ``directory``.
@@ -63,6 +64,27 @@ def check_output_path(
         raise ConfigError(msg)
     if not directory:
         _check_regular(path, option)
+    _check_writable(path if path.is_dir() else ancestor, path, option)
+
+
+def _check_writable(directory: Path | None, path: Path, option: str) -> None:
+    """Refuse an output if the process may not create files in ``directory``, where it goes.
+
+    ``directory`` is the output's nearest existing directory; :func:`os.access` says whether
+    files can be made there (not on a read-only file system, nor against its permissions).
+    ``learn`` found such an ``--out`` only when it wrote the model, after the learning. As
+    root, permissions pass: a directory the kernel refuses to root (such as one under
+    ``/sys``) is still found at the write.
+
+    Raises:
+        ConfigError: naming the option, the path and the directory.
+    """
+    if directory is not None and not os.access(directory, os.W_OK | os.X_OK):
+        msg = (
+            f'{option} {path}: cannot create files in {directory} (a read-only file system, or '
+            'no permission to write there)'
+        )
+        raise ConfigError(msg)
 
 
 def _check_regular(path: Path, named: str) -> None:
