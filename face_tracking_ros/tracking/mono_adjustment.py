@@ -50,6 +50,10 @@ from face_tracking_ros.tracking.stages import Stages, run_stages
 # px: an adjustment may move the newest view's nodes this far in its image whatever their spread
 # (within the track's own error); max_change x the spread of a face 45 px wide allowed 1.35 px.
 MIN_ALLOWED_SHIFT_PX = 2.0
+# px: an adjustment may leave frame 1's nodes this far off the skin it measured, as the newest
+# view sees their common depth (:meth:`ViewAdjuster._off_skin`); seed 36's three adjustments at
+# 10 fps: 0.60, 2.98 (applied, the track then 4.6 px off, TRACKING) and 0.24 px.
+MAX_OFF_SKIN_PX = 1.5
 
 
 class View(NamedTuple):
@@ -264,8 +268,10 @@ class ViewAdjuster:
         one pyramid level at a time. An adjustment that lowers the bundle cost, turns frame 1 and
         its newest view by less than ``bundle.max_change`` and moves the newest view's nodes in
         its image by less than that turn would (``max_change`` times their spread about their
-        mean, :meth:`_image_move`, or :data:`MIN_ALLOWED_SHIFT_PX` if more) returns what
-        replaces sigma, the skin depth and frame 1's estimate (and its templates); otherwise
+        mean, :meth:`_image_move`, or :data:`MIN_ALLOWED_SHIFT_PX` if more), and leaves frame 1's
+        nodes within :data:`MAX_OFF_SKIN_PX` of its skin as the newest view sees them
+        (:meth:`_off_skin`), returns what replaces sigma, the skin depth and frame 1's estimate
+        (and its templates); otherwise
         None, and the track goes on as it was. Either way its views stay views, so the next
         adjustment has more views to agree with and waits for the head to reach a new rotation.
         (Dropping a rejected view instead retried at once on the next frame: on the mono
@@ -310,6 +316,7 @@ class ViewAdjuster:
             adjustment.cost < adjustment.initial_cost
             and moved < max_change
             and shifted < max(max_change * spread, MIN_ALLOWED_SHIFT_PX)
+            and self._off_skin(estimate) < MAX_OFF_SKIN_PX
         ):
             return None
         yield
@@ -414,6 +421,33 @@ class ViewAdjuster:
         pixels = self._face.nodes(before)[1]
         moves = self._face.nodes(after)[1] - pixels
         return rms_length(moves), rms_spread(pixels)
+
+    def _off_skin(self, estimate: Estimate) -> float:
+        """How far an adjustment leaves frame 1's nodes off its skin, seen in the newest view, px.
+
+        The node depth term (:mod:`.bundle`) holds the skin under the nodes to its mean depth
+        only, so a depth common to all nodes between them and the skin is seen by no view's
+        photometric term: along frame 1's rays it moves nothing in frame 1's image, but a view
+        turned by theta from it sees it as about that depth times sin(theta). The track goes on
+        from the newest view with templates sampled on the skin, so its nodes then lie that far
+        off in the image. On rendered seed 36 at 10 fps (views 16-45 degrees from frame 1) an
+        adjustment set the nodes a common 4.2 mm before the skin, 2.98 px in the newest view:
+        applied, that view went from 2.0 to 4.7 px off the true nodes and the track stayed 4.6 px
+        off, TRACKING, until the next adjustment (docs/performance.md, forty-fifth session).
+
+        Returns:
+            The RMS image distance in the newest view between frame 1's nodes and the nodes
+            moved along frame 1's rays by the skin's mean depth under them.
+        """
+        first = Params(*estimate.first, estimate.sigma)
+        newest = Params(*estimate.views[-1], estimate.sigma)
+        rays = self._face.nodes(first)[0]
+        rays = rays / np.linalg.norm(rays, axis=1, keepdims=True)
+        # frame 1's camera frame -> the face frame -> the newest view's camera frame (row vectors)
+        turned = rays @ self._face.rotation(first) @ self._face.rotation(newest).T
+        nodes, pixels = self._face.nodes(newest)
+        on_skin = nodes + float(np.mean(estimate.depth[:, 0])) * turned
+        return rms_length(self._face.project(on_skin) - pixels)
 
     def _node_distance(self, params: Params) -> float:
         """Mean distance of the nodes from the camera centre at ``params``, m."""

@@ -151,6 +151,10 @@ class FaceProjection:
         """(N, 3) camera-frame nodes (eq. 1, 3) and (N, 2) pixels (eq. 2); kept: read only."""
         return self._posed_at(params).nodes
 
+    def project(self, points: np.ndarray) -> np.ndarray:
+        """(N, 2) level-0 pixels of (N, 3) camera-frame points, m (eq. 2)."""
+        return self._camera.project(points)
+
     def visibility(self, params: Params, normals: np.ndarray) -> np.ndarray:
         """(N,) weights in [0, 1] from the angle between node normals and rays to the camera."""
         posed = self._posed_at(params)
