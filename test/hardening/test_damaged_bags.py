@@ -8,9 +8,7 @@ from __future__ import annotations
 
 from collections import Counter
 from pathlib import Path
-import resource
 import shutil
-import signal
 import subprocess
 import sys
 
@@ -573,15 +571,18 @@ def test_a_track_whose_output_cannot_be_written_names_the_bag_and_keeps_what_was
     each) were written: their frames, images with their tracked states, stay readable.
     """
     out, limit = tmp_path / 'tracked', 2_500_000
-
-    def limited() -> None:
-        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)  # a write past the limit fails, EFBIG
-        resource.setrlimit(resource.RLIMIT_FSIZE, (limit, limit))
-
+    # The limit is set in the child itself: a preexec_fn may deadlock a parent with threads
+    # (a test process that has started DDS has some). A write past it fails with EFBIG.
+    limited = (
+        'import resource, signal, sys; '
+        'signal.signal(signal.SIGXFSZ, signal.SIG_IGN); '
+        f'resource.setrlimit(resource.RLIMIT_FSIZE, ({limit}, {limit})); '
+        'from face_tracking_ros.cli.main import main; '
+        'sys.exit(main(sys.argv[1:]))'
+    )
     track = ['track', str(MONO), '--simulate-clicks', '1', '--record-inputs', '--out', str(out)]
     finished = subprocess.run(
-        [sys.executable, '-m', 'face_tracking_ros.cli.main', *track, '--quiet'],
-        preexec_fn=limited,
+        [sys.executable, '-c', limited, *track, '--quiet'],
         capture_output=True,
         text=True,
         timeout=600,
