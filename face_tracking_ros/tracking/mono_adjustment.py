@@ -439,12 +439,11 @@ class ViewAdjuster:
             The RMS image distance in the newest view between frame 1's nodes and the nodes
             moved along frame 1's rays by the skin's mean depth under them.
         """
-        first = Params(*estimate.first, estimate.sigma)
+        omega, t, _ = estimate.first
+        shape = self._face.pose(Params(*estimate.first, estimate.sigma))[1]
         newest = Params(*estimate.views[-1], estimate.sigma)
-        rays = self._face.nodes(first)[0]
-        rays = rays / np.linalg.norm(rays, axis=1, keepdims=True)
-        # frame 1's camera frame -> the face frame -> the newest view's camera frame (row vectors)
-        turned = rays @ self._face.rotation(first) @ self._face.rotation(newest).T
+        # frame 1's rays to the nodes, face frame, turned into the newest view's camera frame
+        turned = ray_directions(shape, omega, t) @ self._face.rotation(newest).T
         nodes, pixels = self._face.nodes(newest)
         on_skin = nodes + float(np.mean(estimate.depth[:, 0])) * turned
         return rms_length(self._face.project(on_skin) - pixels)
