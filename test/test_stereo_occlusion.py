@@ -8,7 +8,7 @@ from face_tracking_ros.geometry.rotation import rodrigues
 from face_tracking_ros.tracking.stereo_data import SampleLayout, SampleSet
 from face_tracking_ros.tracking.stereo_occlusion import (
     MIN_UNCOVERED_NODES,
-    agreeing,
+    Agreement,
     covered_nodes,
     face_hidden,
     first_frame_coefficients,
@@ -39,7 +39,7 @@ def test_a_patch_is_covered_beyond_the_ratio_and_too_many_covered_hide_the_face(
     edges = np.array([[0, 1], [1, 2], [3, 4], [4, 5]])
     disagreement = np.full(12, 0.3)
     disagreement[[0, 1, 2, 3]] = [1.5, 0.9, np.nan, 1.5]
-    agreed = np.ones(12, dtype=bool)
+    agreed = Agreement.none(12).with_pair(np.full(12, 0.3), checked, 0.7)
     covered = covered_nodes(disagreement, checked, 0.7, edges, agreed)
     # node 0: unchecked, next to covered node 1, beyond twice the ratio; node 3: no neighbour
     np.testing.assert_array_equal(np.flatnonzero(covered), [0, 1])
@@ -59,12 +59,36 @@ def test_only_a_patch_that_agreed_before_can_be_covered() -> None:
     edges = np.array([[0, 1], [1, 2], [2, 3]])
     first = np.full(12, 0.2)
     first[:3] = [1.2, 0.3, 1.1]  # node 2 at a wrong depth
-    agreed = agreeing(first, checked, 0.7)
-    np.testing.assert_array_equal(np.flatnonzero(~agreed), [2])
+    agreed = Agreement.none(12).with_pair(first, checked, 0.7)
+    np.testing.assert_array_equal(np.flatnonzero(agreed.count == 0), [2])
     later = first.copy()
     later[:2] = [1.6, 1.2]  # an occluder over nodes 0 and 1
     covered = covered_nodes(later, checked, 0.7, edges, agreed)
     np.testing.assert_array_equal(np.flatnonzero(covered), [0, 1])
+
+
+def test_a_patch_that_usually_disagrees_is_covered_only_well_beyond_its_usual_level() -> None:
+    """A middle brow read 0.71 on its feature (issue 5's protocol, seed 2, subject 1).
+
+    Held whenever it read above the ratio, it stopped as the brow moved, 5 px off. Node 1
+    usually reads 0.65: covered beyond twice that, 1.3, where an occluder puts a patch (about
+    sqrt(2) times its contrast); node 0, usually 0.2, beyond the ratio as before.
+    """
+    checked = np.ones(4, dtype=bool)
+    edges = np.array([[0, 1], [1, 2], [2, 3]])
+    agreement = Agreement.none(4)
+    for usual in ([0.2, 0.6, 0.2, 0.2], [0.2, 0.7, 0.2, 0.2], [0.2, 0.65, 0.2, 0.2]):
+        agreement = agreement.with_pair(np.array(usual), checked, 0.7)
+    agreement = agreement.with_pair(np.array([0.2, 0.9, 0.2, 0.2]), checked, 0.7)  # not agreeing
+    np.testing.assert_allclose(agreement.limits(checked, 0.7), [0.7, 1.3, 0.7, 0.7])
+    moving = np.array([0.75, 0.9, 0.3, 0.3])
+    np.testing.assert_array_equal(
+        np.flatnonzero(covered_nodes(moving, checked, 0.7, edges, agreement)), [0]
+    )
+    occluded = np.array([0.3, 1.4, 0.3, 0.3])
+    np.testing.assert_array_equal(
+        np.flatnonzero(covered_nodes(occluded, checked, 0.7, edges, agreement)), [1]
+    )
 
 
 def test_only_held_nodes_with_a_held_neighbour_are_flagged() -> None:

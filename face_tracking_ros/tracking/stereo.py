@@ -92,7 +92,7 @@ from face_tracking_ros.tracking.stereo_init import (
 from face_tracking_ros.tracking.stereo_loss import loss_reason, residual_ratio
 from face_tracking_ros.tracking.stereo_occlusion import (
     MIN_UNCOVERED_NODES,
-    agreeing,
+    Agreement,
     covered_nodes,
     face_hidden,
     first_frame_coefficients,
@@ -151,7 +151,7 @@ class _State:
     noise: np.ndarray
     depths: DepthRefinement | None
     result: StereoResult
-    agreed: np.ndarray  # (N,) bool, node patches seen agreeing left and right (.stereo_occlusion)
+    agreement: Agreement  # how the node patches' left and right images agreed so far
     region: np.ndarray  # (N,) bool, nodes flagged since the last pair with none (an occluder's)
     shown: bool  # a patch of the region has shown an occluder (.stereo_occlusion.occluder_shown)
     before: np.ndarray | None = None  # the pair before's nodes (the motion prediction)
@@ -184,10 +184,10 @@ class _Solves:
 
 
 class _Cover(NamedTuple):
-    """What an occluder covers on a pair (:meth:`StereoTracker._cover`), (N,) bool each."""
+    """What an occluder covers on a pair (:meth:`StereoTracker._cover`): (N,) bool masks."""
 
     covered: np.ndarray  # the nodes held to the head's rigid motion
-    agreed: np.ndarray  # node patches seen agreeing left and right, this pair's included
+    agreement: Agreement  # the patches' agreement so far, this pair's included
     flagged: np.ndarray  # the covered nodes reported in ``FaceState.occluded``
     shown: bool  # a flagged patch shows an occluder (.stereo_occlusion.occluder_shown)
 
@@ -576,7 +576,7 @@ class StereoTracker:
             noise=np.full(len(layouts), config.noise_floor),
             depths=DepthRefinement.start(nodes, depth_std) if config.refine_depths else None,
             result=replace(self._result(nodes, nodes, np.eye(3), None), new_track=True),
-            agreed=np.zeros(self._topology.num_nodes, dtype=bool),
+            agreement=Agreement.none(self._topology.num_nodes),
             region=np.zeros(self._topology.num_nodes, dtype=bool),
             shown=False,
         )
@@ -1075,7 +1075,7 @@ class StereoTracker:
         """
         config = self._config
         assert attempt.cover is not None
-        covered, agreed, flagged, shown = attempt.cover
+        covered, agreement, flagged, shown = attempt.cover
         found_again = False
         if state.region.any() and occluder_leaving(flagged, state.result.occluded):
             found = self._attempt(state, pyramids, attempt.nodes, attempt.reference, state.region)
@@ -1085,9 +1085,9 @@ class StereoTracker:
                 fewer = np.count_nonzero(cover.flagged) < np.count_nonzero(flagged)
                 if not flagged.any() or fewer:
                     attempt, found_again = found, True
-                    covered, agreed, flagged, shown = cover
+                    covered, agreement, flagged, shown = cover
         restart = found_again or not flagged.any()
-        state.agreed = agreed
+        state.agreement = agreement
         state.region = flagged if restart else state.region | flagged
         state.shown = shown if restart else state.shown or shown
         nodes, statistics, solves = attempt.nodes, attempt.statistics, attempt.solves
@@ -1117,29 +1117,30 @@ class StereoTracker:
         return result
 
     def _cover(self, state: _State, statistics: GroupStatistics, accepted: Point) -> _Cover:
-        """What an occluder covers on this pair: the held nodes, those seen agreeing, the flagged.
+        """What an occluder covers on this pair: the held nodes, the agreement, the flagged.
 
         Read from the left and right images at level 0's last accepted point of the solve,
         ``accepted`` with its ``statistics`` (:func:`~.stereo_occlusion.stereo_disagreement`,
         ``occlusion_ratio``): a node is covered only if it was seen agreeing on an earlier pair
-        (``state.agreed``); the second mask adds the nodes that agree on this one. The covered
-        nodes with a covered neighbour are flagged (:func:`~.stereo_occlusion.occluder_nodes`),
-        and ``shown`` says whether one of them disagrees as an occluder makes it
-        (:func:`~.stereo_occlusion.occluder_shown`). None is covered when the check is off.
+        (``state.agreement``), beyond its limit (:meth:`~.stereo_occlusion.Agreement.limits`);
+        the agreement returned takes this pair in. The covered nodes with a covered neighbour
+        are flagged (:func:`~.stereo_occlusion.occluder_nodes`), and ``shown`` says whether one
+        of them disagrees as an occluder makes it (:func:`~.stereo_occlusion.occluder_shown`).
+        None is covered when the check is off.
         """
         ratio = self._config.occlusion_ratio
         if ratio == 0:
             none = np.zeros(self._topology.num_nodes, dtype=bool)
-            return _Cover(none, state.agreed, none, False)
+            return _Cover(none, state.agreement, none, False)
         disagreement = stereo_disagreement(
             state.samples, accepted.sampled, statistics.image_contrast[LEFT]
         )
         covered = covered_nodes(
-            disagreement, self._occludable, ratio, self._topology.edges, state.agreed
+            disagreement, self._occludable, ratio, self._topology.edges, state.agreement
         )
-        agreed = state.agreed | agreeing(disagreement, self._occludable, ratio)
+        agreement = state.agreement.with_pair(disagreement, self._occludable, ratio)
         flagged = occluder_nodes(covered, self._occludable, self._topology.edges)
-        return _Cover(covered, agreed, flagged, occluder_shown(flagged, disagreement, ratio))
+        return _Cover(covered, agreement, flagged, occluder_shown(flagged, disagreement, ratio))
 
     def _rotation(self, first_nodes: np.ndarray, nodes: np.ndarray) -> np.ndarray:
         """The head's rotation since frame 1 (weighted Procrustes of the nodes, §3.3)."""

@@ -197,7 +197,10 @@ class StereoTrackerConfig:
             (:mod:`.stereo_occlusion`). The face-edge and nose nodes, which each camera sees
             differently without an occluder, are covered only next to a covered node and
             beyond twice this. Unoccluded rendered sequences read 0.1-0.7 on the other nodes,
-            nodes under a passing occluder 0.6-1.8. 0 turns the check off.
+            nodes under a passing occluder 0.6-1.8. A patch whose usual disagreement (its mean
+            over the pairs it agreed on) is above half of this is covered only beyond twice that
+            (a brow reading 0.71 on the median pair of a training sequence, on its feature, was
+            held and left 5 px off as it fell). 0 turns the check off.
         min_texture_ratio: the track is LOST when the median over node patches of their
             contrast in the image divided by the template's (about 1 while the face is seen)
             falls below this: a dark, blank or saturated image, which the residual test passes
