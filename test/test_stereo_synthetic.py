@@ -459,19 +459,24 @@ def test_a_talking_jaw_at_10_fps_is_followed() -> None:
     assert followed.errors[:, lower].max() < 9.0
 
 
-def test_drifted_brows_flagged_together_leave_a_fast_head_its_coarser_level() -> None:
+def test_brows_drifting_on_a_fast_head_are_not_held_off_their_features() -> None:
     # Seed 9's subject 0 moving freely at 10 fps, the head pitching 2 degrees and moving 10-12
-    # px a pair, starts to smile at pair 8; its first 20 pairs tracked from the true nodes. The
-    # inner brows drift 1.8-2.8 px off by pair 8 and disagree left and right together (0.77-0.80
-    # of their contrast), with no occluder rendered, and are flagged. While flags that showed
-    # no occluder turned off the start from the head's motion and the coarser level of a fast
-    # head, the smile's lower lip and chin were left 10-17 px off from pair 16, TRACKING.
-    followed = _followed_at_10_fps(9, 100, 20)
+    # px a pair, starts to smile at pair 8; 100 pairs tracked from the true nodes. The inner
+    # brows drift 1.8-2.8 px off by pair 8 and disagree left and right together (0.77-0.80 of
+    # their contrast), with no occluder rendered. Until 2026-12-07 that was beyond the ratio
+    # (0.7): they were flagged and held to the head's rigid motion on 90 of the 92 pairs from
+    # pair 8, and 20 pairs were tracked more than 3 px RMS off (14.8 px at worst). (Before the
+    # forty-third session such flags also turned off the start from the head's motion and the
+    # coarser level of a fast head, and the smile's lower lip and chin were left 10-17 px off
+    # from pair 16; `occluder_shown` keeps them on, tested on made-up patches.) A patch is now
+    # covered only beyond twice its usual disagreement: flagged on 13 pairs, none more than
+    # 3 px off.
+    followed = _followed_at_10_fps(9, 100, 100)
     assert followed.frames[8].truth.label == 'smile'
     assert np.all(followed.status == TrackStatus.TRACKING)
-    assert followed.occluded[8:].any(axis=1).mean() > 0.5  # the brows, flagged
-    # Measured: at most 1.80 px RMS over the nodes both cameras see; 6.73 px before.
-    assert followed.rms.max() < 3.0
+    assert followed.occluded[8:].any(axis=1).mean() < 0.5  # measured 0.14; 0.98 before
+    # Measured: at most 2.89 px RMS over the nodes both cameras see; 14.79 px before.
+    assert followed.rms.max() < 4.0
 
 
 def test_initial_depths_of_smooth_lips_and_brows() -> None:
