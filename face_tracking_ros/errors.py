@@ -1,15 +1,21 @@
-"""Error types of face_tracking_ros.
+"""Error and warning types of face_tracking_ros.
 
 Every error the package raises on bad input derives from :class:`FaceTrackingError`, so callers
 (nodes, the command line) can catch one type and report its message, which always names the
-offending file, topic, field or parameter.
+offending file, topic, field or parameter. Its warnings (a damaged bag used as far as it is
+readable) derive from :class:`FaceTrackingWarning`, which :func:`warnings_to` sends to the
+command line's stderr or a node's log.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable, Iterator
+import contextlib
 import math
 from numbers import Integral, Real
 import re
+from typing import TextIO
+import warnings
 
 _NUMBER = re.compile(r'\d+(\.\d+)?(e[-+]?\d+)?')
 
@@ -79,6 +85,62 @@ class ModelFileError(FaceTrackingError):
 
 class BagError(FaceTrackingError):
     """A bag is missing, truncated, corrupt or lacks the topics asked for."""
+
+
+class DamagedBagError(BagError):
+    """A bag damaged part way: the messages before the damage (or around it) have been read.
+
+    Attributes:
+        cut_off: whether the damage is the end of an MCAP file part way (a bag cut off: a
+            recording or a track killed, or a full disk), not damage inside the file.
+    """
+
+    def __init__(self, message: str, cut_off: bool) -> None:
+        """An error ``message`` naming the file and the damage."""
+        super().__init__(message)
+        self.cut_off = cut_off
+
+
+class FaceTrackingWarning(UserWarning):
+    """Base class of the warnings of face_tracking_ros.
+
+    The ``face-tracking`` command prints them as ``warning: <message>`` on stderr, a node logs
+    them as warnings (:func:`warnings_to`).
+    """
+
+
+class DamagedBagWarning(FaceTrackingWarning):
+    """A damaged bag was read as far as it is readable, and what was read is used."""
+
+
+@contextlib.contextmanager
+def warnings_to(say: Callable[[str], None]) -> Iterator[None]:
+    """Within the block, the package's warnings go to ``say`` as their message alone.
+
+    Python's own form (file, line and source of the call) is for programmers; other warnings
+    (a library's) keep it. Python's default filter shows a warning once per message.
+
+    Args:
+        say: where a warning's message goes (a printer, a node's logger).
+    """
+    with warnings.catch_warnings():  # the showwarning and filters before, restored after
+        shown = warnings.showwarning
+
+        def show(
+            message: Warning | str,
+            category: type[Warning],
+            filename: str,
+            lineno: int,
+            file: TextIO | None = None,
+            line: str | None = None,
+        ) -> None:
+            if issubclass(category, FaceTrackingWarning):
+                say(str(message))
+            else:
+                shown(message, category, filename, lineno, file, line)
+
+        warnings.showwarning = show
+        yield
 
 
 def problem_kind(message: str) -> str:

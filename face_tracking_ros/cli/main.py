@@ -15,11 +15,13 @@ machine, for all of them together), once parsing has chosen it.
 A :class:`~face_tracking_ros.errors.FaceTrackingError` raised by a subcommand, or an OSError
 (a file or directory that is missing or cannot be written: the user's or the machine's matter),
 is printed as ``error: <message>`` on stderr with exit status 2; other exceptions propagate
-(they are bugs). SIGTERM (``timeout``, CI runners, schedulers) stops a command as Ctrl-C does,
-so that the bags it writes are closed and stay readable; a command that does not handle the
-interruption itself ends with ``interrupted`` and exit status 130. Output piped into a reader
-that stops early (``face-tracking msgs FaceState | head -3``) ends the command quietly with exit
-status 141, as a tool stopped by SIGPIPE ends.
+(they are bugs). A :class:`~face_tracking_ros.errors.FaceTrackingWarning` (a damaged bag read
+as far as it is readable) is printed as ``warning: <message>`` on stderr, once. SIGTERM
+(``timeout``, CI runners, schedulers) stops a command as Ctrl-C does, so that the bags it
+writes are closed and stay readable; a command that does not handle the interruption itself
+ends with ``interrupted`` and exit status 130. Output piped into a reader that stops early
+(``face-tracking msgs FaceState | head -3``) ends the command quietly with exit status 141, as
+a tool stopped by SIGPIPE ends.
 """
 
 from __future__ import annotations
@@ -35,7 +37,7 @@ import sys
 import threading
 from typing import Any
 
-from face_tracking_ros.errors import FaceTrackingError
+from face_tracking_ros.errors import FaceTrackingError, warnings_to
 from face_tracking_ros.threads import limit_blas_threads
 
 # Module names under face_tracking_ros.cli, one per subcommand (named as its module with '-'
@@ -131,7 +133,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         output's reader has gone.
     """
     try:
-        with _sigterm_as_ctrl_c():
+        with _sigterm_as_ctrl_c(), warnings_to(_print_warning):
             # Inside: parsing imports the chosen subcommand's modules (a second or more on a
             # loaded machine), and a Ctrl-C or SIGTERM then ends the command as any other does.
             args = build_parser(()).parse_args(argv)
@@ -167,6 +169,11 @@ def _stdout_reader_gone() -> bool:
     os.dup2(devnull, fd)
     os.close(devnull)
     return True
+
+
+def _print_warning(message: str) -> None:
+    """Print a warning of the package (:func:`~face_tracking_ros.errors.warnings_to`)."""
+    print(f'warning: {message}', file=sys.stderr)
 
 
 @contextlib.contextmanager

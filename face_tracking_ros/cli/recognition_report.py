@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from face_tracking_ros.errors import BagError, ConfigError
-from face_tracking_ros.io.bags import NS_PER_S, read_messages
+from face_tracking_ros.io.bags import NS_PER_S, read_usable
 from face_tracking_ros.io.conversions import stamp_to_ns, truth_from_msg
 from face_tracking_ros.io.provenance import other_source, tracked_with
 from face_tracking_ros.io.series import read_converted, require_parameters
@@ -203,7 +203,7 @@ def tracked_sequence(tracked: Path, truth: Path) -> ParameterSequence:
         subject = sample.subject_id
     frames = [
         message.msg
-        for message in read_messages(tracked, topics=[STATE_TOPIC])
+        for message in read_usable(tracked, topics=[STATE_TOPIC])
         if message.msg.status == STATUS_TRACKING
         and stamp_to_ns(message.msg.header.stamp) in labels
     ]

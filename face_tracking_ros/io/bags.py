@@ -9,6 +9,11 @@ Example:
 Messages already serialised to CDR (what DDS carries) go in and out unchanged with
 :meth:`BagWriter.write_raw` and :func:`read_raw`: the bag recorder and player never deserialise.
 
+A damaged bag (cut off, or with a stretch that cannot be read) is read as far as it is
+readable, then :class:`~face_tracking_ros.errors.DamagedBagError` says where it stopped;
+:func:`read_usable` gives the commands that use a bag's messages (plots, enrolments, learning)
+its readable messages with one warning instead.
+
 Messages are read as the bag defines their types (:mod:`.bag_definitions`), so bags of earlier
 versions of a message stay readable. Every failure of the underlying libraries (missing or
 truncated bag, a type neither the package nor the bag defines, topic re-used with another type,
@@ -33,6 +38,7 @@ import struct
 import sys
 from types import TracebackType
 from typing import Any, BinaryIO, NamedTuple, Protocol
+import warnings
 
 from mcap.exceptions import EndOfFile, InvalidMagic, McapError
 from mcap.reader import make_reader
@@ -48,7 +54,7 @@ from rosbags.typesys.store import Typestore
 import yaml
 
 from face_tracking_ros import wording
-from face_tracking_ros.errors import BagError, ConfigError
+from face_tracking_ros.errors import BagError, ConfigError, DamagedBagError, DamagedBagWarning
 from face_tracking_ros.io.bag_definitions import BagDefinitions
 from face_tracking_ros.io.typestore import typestore
 from face_tracking_ros.io.yaml_text import parse_yaml
@@ -336,9 +342,10 @@ def read_messages(path: Path | str, topics: Iterable[str] | None = None) -> Iter
         One :class:`BagMessage` per message.
 
     Raises:
-        BagError: If the bag is missing, truncated or corrupt, lacks a requested topic, or holds
-            a type neither the typestore nor the bag defines (naming the topic and type, when
-            its first message is reached).
+        DamagedBagError: where a damaged bag's readable messages end (:func:`read_raw`).
+        BagError: If the bag is missing or corrupt, lacks a requested topic, or holds a type
+            neither the typestore nor the bag defines (naming the topic and type, when its
+            first message is reached).
     """
     definitions = BagDefinitions(typestore())
     for topic, msgtype, stamp_ns, data, msgdef in read_raw(path, topics):
@@ -358,6 +365,48 @@ def read_messages(path: Path | str, topics: Iterable[str] | None = None) -> Iter
         yield BagMessage(topic, msgtype, stamp_ns, msg)
 
 
+def read_usable(path: Path | str, topics: Iterable[str] | None = None) -> Iterator[BagMessage]:
+    """The messages of a bag as :func:`read_messages` reads them; of a damaged bag, those readable.
+
+    For the commands that use what a bag holds (plots, videos, enrolments, learning): a bag cut
+    off (its MCAP file without its end, summary and metadata.yaml: a ``track`` or ``replay``
+    killed, a full disk) or with a stretch that cannot be read gives the messages
+    :func:`read_raw` reads of it, and a :class:`~face_tracking_ros.errors.DamagedBagWarning`
+    names the bag, the damage and how many messages were read, where :func:`read_messages`
+    raises: the outputs written before the damage stay usable. (A replay reads with
+    :func:`read_messages`: it says the damage in its summary and ends with status 1.)
+
+    Args:
+        path: Bag directory (holding ``metadata.yaml``) or MCAP file.
+        topics: Topics to read; default all. Every one must be in the bag.
+
+    Yields:
+        One :class:`BagMessage` per readable message.
+
+    Raises:
+        BagError: as :func:`read_messages` does, and for a damaged bag none of whose messages
+            (on ``topics``) can be read: nothing to use.
+    """
+    wanted = None if topics is None else list(topics)
+    read = 0
+    try:
+        for message in read_messages(path, wanted):
+            read += 1
+            yield message
+    except DamagedBagError as error:
+        on = '' if wanted is None else f' on {", ".join(wanted)}'
+        if not read:
+            msg = f'{path}: no message{on} could be read, nothing to use: {error}'
+            raise BagError(msg) from None
+        messages = f'{wording.counted(read, "message")}{on}'
+        said = (
+            f'{path} is cut off: using the {messages} read before the cut ({error})'
+            if error.cut_off
+            else f'{path} is damaged: using the {messages} that could be read ({error})'
+        )
+        warnings.warn(said, DamagedBagWarning, stacklevel=1)
+
+
 def read_raw(path: Path | str, topics: Iterable[str] | None = None) -> Iterator[RawMessage]:
     """Read the serialised messages of a rosbag2 bag (MCAP or SQLite 3) in record-time order.
 
@@ -374,7 +423,9 @@ def read_raw(path: Path | str, topics: Iterable[str] | None = None) -> Iterator[
         One :class:`RawMessage` per message; no type needs to be known.
 
     Raises:
-        BagError: If the bag is missing, truncated or corrupt, or lacks a requested topic.
+        DamagedBagError: where a damaged bag's readable messages end (:func:`read_usable` uses
+            them).
+        BagError: If the bag is missing or corrupt, or lacks a requested topic.
     """
     path = Path(path)
     opened = _open_reader(path)
@@ -406,7 +457,8 @@ def _check_all_read(
     records of opcode 0, which readers skip: the messages there vanish without an error.
 
     Raises:
-        BagError: naming the bag and, per short topic, how many of how many messages were read.
+        DamagedBagError: naming the bag and, per short topic, how many of how many messages
+            were read.
     """
     short = [
         f'{read[topic]} of the {wording.counted(counted[topic], "message")} on {topic}'
@@ -418,7 +470,7 @@ def _check_all_read(
             f'{path}: damaged MCAP file, read only {", ".join(short)} that its summary counts '
             '(the others are unreadable)'
         )
-        raise BagError(message)
+        raise DamagedBagError(message, cut_off=False)
 
 
 def _summaries(path: Path) -> list[tuple[Path, Summary | None]]:
@@ -637,8 +689,8 @@ def _stream_records(path: Path, topics: Iterable[str] | None) -> Iterator[RawMes
         The raw messages, with their log time.
 
     Raises:
-        BagError: At the damage, naming the file and the number of messages recovered; or, for
-            an undamaged file, if a requested topic is not in it.
+        DamagedBagError: At the damage, naming the file and the number of messages recovered.
+        BagError: for an undamaged file, if a requested topic is not in it.
     """
     wanted = None if topics is None else set(topics)
     channels: dict[int, tuple[str, str, str]] = {}
@@ -663,7 +715,7 @@ def _stream_records(path: Path, topics: Iterable[str] | None) -> Iterator[RawMes
             damage = _damage(error)
             recovered = wording.counted(count, 'message')
             message = f'{file}: damaged MCAP file, {recovered} recovered before: {damage}'
-            raise BagError(message) from None
+            raise DamagedBagError(message, cut_off=isinstance(error, EndOfFile)) from None
     missing = (wanted or set()) - {topic for topic, _, _ in channels.values()}
     if missing:
         raise BagError(f'{path}: no topic {", ".join(sorted(missing))} in bag')

@@ -1,7 +1,8 @@
 """Time series read from bags: a tracker's FaceState outputs and the synthetic world's truth.
 
 Plots, overlays, accuracy reports and benchmarks read whole sequences as arrays, one row per
-frame, through these two loaders.
+frame, through these two loaders. A damaged bag gives its readable messages, with a warning
+(:func:`~face_tracking_ros.io.bags.read_usable`): the outputs of a track cut off stay usable.
 """
 
 from __future__ import annotations
@@ -15,7 +16,7 @@ import numpy as np
 
 from face_tracking_ros.errors import BagError, InputError
 from face_tracking_ros.io import conversions
-from face_tracking_ros.io.bags import bag_topics, read_messages, stamp_to_ns
+from face_tracking_ros.io.bags import bag_topics, read_usable, stamp_to_ns
 from face_tracking_ros.tracking.result import TrackStatus
 
 T = TypeVar('T')
@@ -81,13 +82,14 @@ class TruthSeries:
 
 
 def load_states(bag: Path) -> StateSeries:
-    """The FaceState series of a bag (its only FaceState topic).
+    """The FaceState series of a bag (its only FaceState topic); of a damaged bag, those readable.
 
     Raises:
-        BagError: if the bag has no or several FaceState topics.
+        BagError: if the bag has no or several FaceState topics, or none of its states can be
+            read.
     """
     topic = _only_topic(bag, conversions.STATE_TYPE)
-    rows = [m.msg for m in read_messages(bag, topics=[topic])]
+    rows = [m.msg for m in read_usable(bag, topics=[topic])]
     if not rows:
         msg = f'{bag}: topic {topic} holds no FaceState message'
         raise BagError(msg)
@@ -188,6 +190,8 @@ def truth_series(samples: Sequence[conversions.TruthSample], where: str) -> Trut
 def read_converted(bag: Path, topic: str, convert: Callable[[Any], T]) -> Iterator[tuple[Any, T]]:
     """Each message of ``topic`` (one with a header) and its conversion, in record order.
 
+    Of a damaged bag, the readable messages (:func:`~face_tracking_ros.io.bags.read_usable`).
+
     Args:
         bag: bag directory.
         topic: the topic to read.
@@ -197,7 +201,7 @@ def read_converted(bag: Path, topic: str, convert: Callable[[Any], T]) -> Iterat
         InputError: for a message ``convert`` refuses (a NaN, a malformed field), naming the
             bag, the topic, the message's index and header stamp, and what is wrong with it.
     """
-    for index, message in enumerate(read_messages(bag, topics=[topic])):
+    for index, message in enumerate(read_usable(bag, topics=[topic])):
         try:
             converted = convert(message.msg)
         except InputError as error:

@@ -20,7 +20,7 @@ from pathlib import Path
 from face_tracking_msgs.msg import FaceModel as FaceModelMsg
 from rclpy.node import Node
 
-from face_tracking_ros.errors import ConfigError, check_fields
+from face_tracking_ros.errors import ConfigError, check_fields, warnings_to
 from face_tracking_ros.io import conversions
 from face_tracking_ros.io.bags import is_bag_directory
 from face_tracking_ros.io.messages import RclpyMessages
@@ -230,7 +230,8 @@ class LearnerNode(Endless, Node):
             f'learning from {counted(len(options.bags), "bag")} by {options.method} '
             f'(p={options.p}, q={options.q}) into {options.out} and {options.report}'
         )
-        saved = learn_from_bags(options, say=self.get_logger().info)
+        with warnings_to(self.get_logger().warning):  # a damaged bag read in part
+            saved = learn_from_bags(options, say=self.get_logger().info)
         model = load_model(saved)
         factory = RclpyMessages()
         stamp_ns = self.get_clock().now().nanoseconds

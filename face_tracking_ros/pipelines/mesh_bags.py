@@ -26,7 +26,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from face_tracking_ros.errors import BagError, ConfigError, InputError
-from face_tracking_ros.io.bags import read_messages, recording_name
+from face_tracking_ros.io.bags import read_usable, recording_name
 from face_tracking_ros.io.conversions import (
     STATE_TYPE,
     TRUTH_TYPE,
@@ -316,7 +316,7 @@ def _left_out_stamps(bag: Path, topics: dict[str, str]) -> dict[int, str]:
         return {}
     left_out = (
         (stamp_to_ns(message.msg.header.stamp), _left_out(message.msg))
-        for message in read_messages(bag, [state_topic])
+        for message in read_usable(bag, [state_topic])
     )
     return {stamp: why for stamp, why in left_out if why is not None}
 

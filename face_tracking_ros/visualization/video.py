@@ -18,7 +18,7 @@ from face_tracking_ros.errors import BagError, ConfigError, InputError
 from face_tracking_ros.imaging.rectification import Rectifier
 from face_tracking_ros.io import conversions
 from face_tracking_ros.io.atomic import check_output_path
-from face_tracking_ros.io.bags import bag_topics, read_messages, stamp_to_ns, topic_has_word
+from face_tracking_ros.io.bags import bag_topics, read_usable, stamp_to_ns, topic_has_word
 from face_tracking_ros.io.series import StateSeries
 from face_tracking_ros.model.topology import mesh_topology
 from face_tracking_ros.tracking.result import TrackStatus
@@ -75,7 +75,8 @@ def overlay_frames(
     """(H, W, 3) rgb frames of ``bag`` with the mesh of the state of the same stamp drawn.
 
     With ``rectify``, each frame is rectified with the latest CameraInfo beside its topic (the
-    first one until then; none in the bag: drawn as it is).
+    first one until then; none in the bag: drawn as it is). A damaged bag gives the frames it
+    can be read to, with a warning (:func:`~face_tracking_ros.io.bags.read_usable`).
 
     Raises:
         InputError: for an image of another size than its camera_info says, or than the frames
@@ -90,11 +91,11 @@ def overlay_frames(
     info = camera_info_topic(bag, chosen) if rectify else None
     cameras = conversions.CameraInfoReader()
     rectifier = None
-    first_info = next(read_messages(bag, topics=[info]), None) if info is not None else None
+    first_info = next(read_usable(bag, topics=[info]), None) if info is not None else None
     if first_info is not None:  # from the first frame on, even if its camera_info comes after it
         rectifier = Rectifier(cameras.read(first_info.msg))
     count, size = -1, None
-    for message in read_messages(bag, topics=[chosen, *([info] if info else [])]):
+    for message in read_usable(bag, topics=[chosen, *([info] if info else [])]):
         if message.topic == info:
             camera = cameras.read(message.msg)
             if rectifier is None or rectifier.camera is not camera:
@@ -146,7 +147,8 @@ def write_overlay_video(
 
     Raises:
         ConfigError: for another file suffix or a directory that does not exist.
-        BagError: if no frame of the bag has a state, or the bag is damaged part way.
+        BagError: if no frame of the bag has a state, or no image of a damaged bag can be
+            read (one damaged part way is drawn as far as it is readable, with a warning).
         InputError: for a frame that cannot be drawn (see :func:`overlay_frames`).
         OSError: if the video cannot be written.
     """

@@ -12,6 +12,7 @@ import shutil
 import subprocess
 import sys
 
+from cut_bags import cut_copy, read_until_damage
 from fault_scenes import CAMERA, image_msg, info_msg, stamp
 from mcap.records import Channel, Message
 from mcap.stream_reader import StreamReader
@@ -57,17 +58,6 @@ def bag(tmp_path_factory) -> Path:
     return path
 
 
-def _cut_copy(bag: Path, target: Path, fraction: float, keep_metadata: bool = True) -> Path:
-    """A copy of ``bag`` whose MCAP file is cut after ``fraction`` of its bytes."""
-    shutil.copytree(bag, target)
-    if not keep_metadata:
-        (target / 'metadata.yaml').unlink()
-    mcap_file = next(target.glob('*.mcap'))
-    data = mcap_file.read_bytes()
-    mcap_file.write_bytes(data[: round(fraction * len(data))])
-    return target
-
-
 def _refusals(path: Path) -> list[str]:
     """The BagError of bag_topics, read_raw and read_messages on ``path`` (each must raise)."""
     refusals = []
@@ -92,24 +82,14 @@ def mcap_opens(monkeypatch) -> Counter[str]:
     return opened
 
 
-def _read_until_damage(path: Path) -> tuple[list, str]:
-    """Raw messages read before the reader stopped, and its error ('' if it did not)."""
-    messages = []
-    try:
-        messages.extend(read_raw(path))
-    except BagError as error:
-        return messages, str(error)
-    return messages, ''
-
-
 def test_a_bag_cut_anywhere_yields_an_unchanged_prefix_and_says_where_it_stopped(bag, tmp_path):
     original = list(read_raw(bag))
     assert len(original) == 2 * FRAMES
     fractions = np.sort(np.random.default_rng(1).uniform(0.0, 1.0, CUTS))
     recovered = []
     for n, fraction in enumerate(fractions):
-        cut = _cut_copy(bag, tmp_path / f'cut{n}', fraction, keep_metadata=n % 2 == 0)
-        messages, error = _read_until_damage(cut)
+        cut = cut_copy(bag, tmp_path / f'cut{n}', fraction, keep_metadata=n % 2 == 0)
+        messages, error = read_until_damage(cut)
         assert messages == original[: len(messages)], f'cut at {fraction:.3f}: not a prefix'
         assert f'damaged MCAP file, {len(messages)} messages recovered before' in error
         assert str(next(cut.glob('*.mcap'))) in error
@@ -132,7 +112,7 @@ def test_a_bag_zeroed_in_its_middle_is_read_around_the_damage_then_says_what_is_
     zeroed = tmp_path / 'zeroed'
     lost = zeroed_copy(bag, zeroed)
     assert lost['/cam/image'] > 0 and lost['/cam/camera_info'] > 0
-    messages, error = _read_until_damage(zeroed)
+    messages, error = read_until_damage(zeroed)
     original, read = list(read_raw(bag)), set(messages)
     assert messages == [m for m in original if m in read]  # the others, in order and unchanged
     assert len(messages) == len(original) - lost.total()
@@ -210,15 +190,15 @@ def test_a_bag_zeroed_anywhere_yields_messages_of_its_own_or_a_bag_error(bag, tm
         end = start + round(rng.uniform(0.001, 0.05) * len(data))
         zeroed = shutil.copytree(bag, tmp_path / f'zeroed{n}')
         next(zeroed.glob('*.mcap')).write_bytes(data[:start] + bytes(end - start) + data[end:])
-        messages, error = _read_until_damage(zeroed)  # no other exception
+        messages, error = read_until_damage(zeroed)  # no other exception
         assert {(m.topic, m.stamp_ns) for m in messages} <= original
         assert error.startswith(f'{zeroed}: ') or not error and len(messages) == len(original)
         shutil.rmtree(zeroed)
 
 
 def test_a_bag_cut_inside_its_header_reports_nothing_recovered(bag, tmp_path):
-    cut = _cut_copy(bag, tmp_path / 'cut', 4 / next(bag.glob('*.mcap')).stat().st_size)
-    messages, error = _read_until_damage(cut)
+    cut = cut_copy(bag, tmp_path / 'cut', 4 / next(bag.glob('*.mcap')).stat().st_size)
+    messages, error = read_until_damage(cut)
     assert messages == []
     assert 'damaged MCAP file, 0 messages recovered before' in error
 
@@ -232,7 +212,7 @@ def test_an_empty_bag_directory_is_a_bag_error(tmp_path):
 def test_a_directory_of_bags_given_as_a_bag_names_the_bags_it_holds(bag, tmp_path):
     recordings = tmp_path / 'recordings'
     shutil.copytree(bag, recordings / 'anna_1')
-    _cut_copy(bag, recordings / 'ben_1', 1.0, keep_metadata=False)  # a directory with its .mcap
+    cut_copy(bag, recordings / 'ben_1', 1.0, keep_metadata=False)  # a directory with its .mcap
     (recordings / 'notes').mkdir()
     with pytest.raises(BagError) as raised:
         list(read_messages(recordings))
@@ -272,7 +252,7 @@ def test_a_subdirectory_that_cannot_be_entered_is_not_among_the_bags_named(
 
 
 def test_without_metadata_a_requested_topic_the_bag_lacks_is_named(bag, tmp_path):
-    copy = _cut_copy(bag, tmp_path / 'copy', 1.0, keep_metadata=False)
+    copy = cut_copy(bag, tmp_path / 'copy', 1.0, keep_metadata=False)
     assert len(list(read_messages(copy, topics=['/cam/image']))) == FRAMES
     with pytest.raises(BagError, match='no topic /cam/depth in bag'):
         list(read_messages(copy, topics=['/cam/image', '/cam/depth']))
@@ -288,7 +268,7 @@ def _retype(bag: Path, stored: str, said: str) -> None:
 
 def test_a_type_in_metadata_that_contradicts_the_mcap_schema_names_both(bag, tmp_path, capsys):
     """The reader pairs metadata and MCAP channels by topic and type: the image went unread."""
-    copy = _cut_copy(bag, tmp_path / 'copy', 1.0)
+    copy = cut_copy(bag, tmp_path / 'copy', 1.0)
     _retype(copy, IMAGE, INFO)
     expected = (
         f'{copy}: metadata.yaml says topic /cam/image is {INFO}, but camera.mcap stores it as '
@@ -357,8 +337,8 @@ def test_a_bag_without_summary_reads_every_message_and_streams_what_a_cut_leaves
     mcap_opens.clear()
     assert list(read_raw(mcap_file)) == original
     assert mcap_opens['late.mcap'] == 2
-    cut = _cut_copy(copy, tmp_path / 'cut', 0.5)
-    messages, error = _read_until_damage(cut)
+    cut = cut_copy(copy, tmp_path / 'cut', 0.5)
+    messages, error = read_until_damage(cut)
     assert 0 < len(messages) < len(original)
     assert messages == original[: len(messages)]
     assert error.startswith(f'{cut / "late.mcap"}: damaged MCAP file, {len(messages)} messages ')
@@ -453,8 +433,8 @@ def _replay(bag: Path, out: Path, capsys) -> tuple[int, str]:
 def test_replay_of_a_cut_bag_processes_the_readable_part_and_exits_1(bag, tmp_path, capsys):
     tracked = []
     for n, fraction in enumerate((0.3, 0.7, 0.95)):
-        cut = _cut_copy(bag, tmp_path / f'cut{n}', fraction)
-        readable = _read_until_damage(cut)[0]
+        cut = cut_copy(bag, tmp_path / f'cut{n}', fraction)
+        readable = read_until_damage(cut)[0]
         images = [m.stamp_ns - 1 for m in readable if m.topic == '/cam/image']
         infos = len(readable) - len(images)
         status, output = _replay(cut, tmp_path / f'out{n}', capsys)
@@ -495,8 +475,8 @@ def test_replay_of_a_bag_without_any_input_topic_names_what_it_needs(
 
 def test_a_cut_bag_is_decoded_up_to_the_damage(bag, tmp_path):
     """read_messages on a cut bag deserialises exactly the raw messages read_raw yields."""
-    cut = _cut_copy(bag, tmp_path / 'cut', 0.5, keep_metadata=False)
-    raw, _ = _read_until_damage(cut)
+    cut = cut_copy(bag, tmp_path / 'cut', 0.5, keep_metadata=False)
+    raw, _ = read_until_damage(cut)
     decoded = []
     with pytest.raises(BagError, match='damaged MCAP file'):
         decoded.extend(read_messages(cut))
@@ -544,7 +524,7 @@ def test_a_bag_whose_summary_misnames_a_channel_is_read_whole(bag, tmp_path, fie
         offset += 9 + length
     assert summary_channel is not None
     damaged = _damaged_copy(bag, tmp_path / field, summary_channel + 9 + at, 0x5A)
-    messages, error = _read_until_damage(damaged)
+    messages, error = read_until_damage(damaged)
     assert messages == list(read_raw(bag))
     assert error == ''
 
@@ -556,8 +536,8 @@ def test_a_bag_cut_inside_a_record_header_says_it_is_truncated(bag, tmp_path, cu
     It said 'error: unpack requires a buffer of 8 bytes' (struct's words for a short read).
     """
     size = next(bag.glob('*.mcap')).stat().st_size
-    cut = _cut_copy(bag, tmp_path / 'cut', (size - 1 if cut_from_end else 8 + 1 + 3) / size)
-    messages, error = _read_until_damage(cut)
+    cut = cut_copy(bag, tmp_path / 'cut', (size - 1 if cut_from_end else 8 + 1 + 3) / size)
+    messages, error = read_until_damage(cut)
     assert len(messages) == (2 * FRAMES if cut_from_end else 0)
     assert error.endswith(' recovered before: the file ends part way (truncated)'), error
 
@@ -594,7 +574,7 @@ def test_a_track_whose_output_cannot_be_written_names_the_bag_and_keeps_what_was
         'without its summary and metadata.yaml (the messages before stay readable, as in a bag '
         'cut off)\n'
     )
-    messages, error = _read_until_damage(out)
+    messages, error = read_until_damage(out)
     assert error.endswith('recovered before: the file ends part way (truncated)')
     read = Counter(message.topic for message in messages)
     assert read['image'] >= 3 and read['face/state'] >= 3
