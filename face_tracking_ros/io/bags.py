@@ -47,6 +47,7 @@ from mcap.stream_reader import StreamReader
 from mcap.summary import Summary
 from rosbags.interfaces import CDRSer
 from rosbags.rosbag2 import Reader, ReaderError, StoragePlugin, Writer, WriterError
+from rosbags.rosbag2.storage_mcap import McapWriter
 from rosbags.rosbag2.writer import Connection
 from rosbags.serde import SerdeError
 from rosbags.typesys.base import TypesysError
@@ -61,6 +62,12 @@ from face_tracking_ros.io.yaml_text import parse_yaml
 from face_tracking_ros.wording import counted
 
 BAG_VERSION = 9  # rosbag2 metadata version written (Jazzy and later read it)
+# An MCAP chunk is written to the file once it holds this many bytes. A run killed (SIGKILL) or
+# a full disk loses the chunk still open: at rosbags' own 1 MiB (it has no setting), up to 97
+# frames of a mono track's outputs (3.2 s at 30 fps), at 64 KiB 7. Measured 2026-12-07 on the
+# 900-frame mono replay: the output 0.37 % larger, its writing 8 ms of CPU more (of 3.2 s);
+# image bags hold one image a chunk (three before) and were decoded in 30 % less CPU time.
+CHUNK_BYTES = 64 << 10
 NS_PER_S = 1_000_000_000
 CDR_HEADER_BYTES = 4  # the encapsulation header before a message's CDR
 LITTLE_ENDIAN = sys.byteorder == 'little'  # messages are written in the host's byte order
@@ -188,14 +195,19 @@ class BagWriter:
     Connections are created on first use of a topic. A topic keeps the type of its first message.
     """
 
-    def __init__(self, path: Path | str, store: Typestore | None = None) -> None:
+    def __init__(
+        self, path: Path | str, store: Typestore | None = None, chunk_bytes: int = CHUNK_BYTES
+    ) -> None:
         """Prepare a writer; the bag directory is created on ``__enter__``.
 
         Args:
             path: Bag directory to create; must not exist.
             store: Typestore knowing every type written; default :func:`typestore`.
+            chunk_bytes: an MCAP chunk is written out once it holds this many bytes
+                (:data:`CHUNK_BYTES`; rosbags writes one out at 1 MiB whatever this is).
         """
         self.path = Path(path)
+        self._chunk_bytes = chunk_bytes
         self._store = typestore() if store is None else store
         self._serialiser = CdrSerialiser(self._store)
         self._writer: Writer | None = None
@@ -284,11 +296,23 @@ class BagWriter:
                 be written (:meth:`_write_failed`).
         """
         connection = self._connection(topic, msgtype)
+        writer = self._open_writer()
         try:
-            self._open_writer().write(connection, stamp_ns, data)
+            writer.write(connection, stamp_ns, data)
+            self._close_full_chunk(writer)
         except OSError as error:
             self._failed = True
             raise self._write_failed(error) from None
+
+    def _close_full_chunk(self, writer: Writer) -> None:
+        """Write the open MCAP chunk out once it holds ``chunk_bytes`` (by rosbags' own close).
+
+        Raises:
+            OSError: if the chunk cannot be written.
+        """
+        storage = writer.storage
+        if isinstance(storage, McapWriter) and storage.chunk.bio.tell() >= self._chunk_bytes:
+            storage.close_chunk()
 
     def _write_failed(self, error: OSError) -> BagError:
         """The error of a write to the bag that failed (a full disk, a file size limit).

@@ -29,12 +29,12 @@ from repo_root import REPO
 
 MONO = REPO / 'bags' / 'mono_test' / 'subject_00_seq_00'
 CLASSIFIER = REPO / 'face_tracking_ros' / 'data' / 'default_expressions.npz'
-CUT_AT = 0.5  # of the MCAP file's bytes: 11 of the 30 states read (1-MiB chunks of ~3 frames)
+CUT_AT = 0.5  # of the MCAP file's bytes: 14 of the 30 states read (a chunk per frame)
 
 
 @pytest.fixture(scope='module')
 def tracked(tmp_path_factory) -> Path:
-    """The sample bag tracked with its inputs recorded: 9.6 MB, 10 MCAP chunks of 30 frames."""
+    """The sample bag tracked with its inputs recorded: 9.6 MB, 31 MCAP chunks of 30 frames."""
     out = tmp_path_factory.mktemp('tracked') / 'subject_00_seq_00'
     track = ['track', str(MONO), '--simulate-clicks', '1', '--record-inputs', '--out', str(out)]
     assert main([*track, '--quiet']) == 0
@@ -171,7 +171,7 @@ def test_train_expressions_trains_on_the_truth_before_the_cut(tmp_path, capsys):
 
 def test_a_bag_cut_before_what_a_command_needs_is_refused_named(tracked, cut, tmp_path, capsys):
     """Nothing readable at all, or none of the messages needed: an error naming the bag."""
-    early = cut_copy(tracked, tmp_path / 'early', 0.05, keep_metadata=False)  # in chunk 1
+    early = cut_copy(tracked, tmp_path / 'early', 0.005, keep_metadata=False)  # in chunk 1
     assert read_until_damage(early)[0] == []
     assert main(['plot', str(early), '--png', str(tmp_path / 'p.png')]) == 2
     mcap_file = next(early.glob('*.mcap'))

@@ -47,10 +47,14 @@ MONO = REPO / 'bags' / 'mono_test' / 'subject_00_seq_00'
 
 @pytest.fixture(scope='module')
 def bag(tmp_path_factory) -> Path:
-    """40 frames of camera_info and a 320x240 noise image (~3 MB: several MCAP chunks)."""
+    """40 frames of camera_info and a 320x240 noise image (~3 MB: several MCAP chunks).
+
+    In chunks of 1 MiB (13 frames, both topics), as a recorder writing them so leaves them: the
+    zeroed stretch of its middle chunk hides messages of both topics.
+    """
     path = tmp_path_factory.mktemp('bags') / 'camera'
     rng = np.random.default_rng(0)
-    with BagWriter(path) as writer:
+    with BagWriter(path, chunk_bytes=1 << 20) as writer:
         for f in range(FRAMES):
             writer.write('/cam/camera_info', INFO, info_msg(CAMERA, stamp(f)), stamp(f))
             pixels = rng.integers(0, 256, (CAMERA.height, CAMERA.width), dtype=np.uint8)
@@ -542,13 +546,37 @@ def test_a_bag_cut_inside_a_record_header_says_it_is_truncated(bag, tmp_path, cu
     assert error.endswith(' recovered before: the file ends part way (truncated)'), error
 
 
+def test_a_bag_whose_writer_is_killed_keeps_all_but_its_last_chunk(tmp_path):
+    """What a writer killed (SIGKILL) or stopped by a full disk leaves: the file written so far.
+
+    Its messages stay readable but for those of the chunk still open in memory, 64 KiB of them
+    at most (bags.CHUNK_BYTES). In rosbags' own chunks of 1 MiB, these 300 messages of 1.1 kB
+    (330 kB) were all in it: none was readable; a mono track's outputs lost up to 97 frames so.
+    """
+    path, copy = tmp_path / 'open', tmp_path / 'killed'
+    rng = np.random.default_rng(0)
+    images = [
+        image_msg(rng.integers(0, 256, (32, 32), dtype=np.uint8), stamp(f)) for f in range(300)
+    ]
+    with BagWriter(path) as writer:
+        for f, image in enumerate(images):
+            writer.write('/cam/image', IMAGE, image, stamp(f))
+        shutil.copytree(path, copy)  # as the file is now: what is still buffered is not in it
+    messages, error = read_until_damage(copy)
+    assert error.endswith('recovered before: the file ends part way (truncated)'), error
+    written = list(read_raw(path))
+    assert messages == written[: len(messages)]
+    open_chunk = (64 << 10) // len(written[0].data) + 1  # messages of 64 KiB, at most
+    assert len(messages) >= len(written) - open_chunk, len(messages)
+
+
 def test_a_track_whose_output_cannot_be_written_names_the_bag_and_keeps_what_was_written(
     tmp_path,
 ):
     """A full disk part way, as a file size limit: its errno text alone named no file.
 
-    The track records its inputs, so that the 2.5 MB limit comes after two MCAP chunks (1 MiB
-    each) were written: their frames, images with their tracked states, stay readable.
+    The track records its inputs, so that the 2.5 MB limit comes after MCAP chunks of several
+    frames were written: their frames, images with their tracked states, stay readable.
     """
     out, limit = tmp_path / 'tracked', 2_500_000
     # The limit is set in the child itself: a preexec_fn may deadlock a parent with threads
