@@ -103,6 +103,14 @@ class StereoTrackerConfig:
         patch_half_size: node patches are (2 h + 1)^2 samples about one pixel apart (1 to 15);
             while tracking, a node counts as seen by an image until its patch leaves it (its
             centre h px beyond the side).
+        cross_taper: weigh a two-sided node patch's samples in the cross-camera terms of eq. 4
+            and in the depth refinement by a Gaussian of their distance from the node, this
+            standard deviation in samples; 0 (the default): all alike. The patches lie on the
+            thin plate through the nodes, flatter than the skin around the nose tip, upper lip
+            and chin, and a flat patch's error grows away from its node. On issue 5's protocol
+            1.5 takes node RMS 0.79 -> 0.69 mm (19 nodes; half size 2.52 -> 1.86 mm) but the
+            drift 0.24 -> 0.33 mm (realistic faces 0.39 -> 0.70 mm): the tracked pairs no longer
+            sit at the refined frame-1 depths (docs/performance.md, forty-sixth session).
         pyramid_levels: coarse-to-fine levels (1 = full resolution only; the coarsest at least
             16 px).
         gap_pyramid_levels: coarse-to-fine levels of a pair after dropped pairs or bad frames
@@ -277,6 +285,7 @@ class StereoTrackerConfig:
     texture_weight: float = 0.5
     texture_subdivisions: int = 4
     patch_half_size: int = 3
+    cross_taper: float = 0.0
     pyramid_levels: int = 2
     gap_pyramid_levels: int = 4
     fast_motion_px: float = 4.0
@@ -323,6 +332,7 @@ class StereoTrackerConfig:
             'texture_weight': self.texture_weight >= 0.0,
             'texture_subdivisions': 3 <= self.texture_subdivisions <= MAX_SUBDIVISIONS,
             'patch_half_size': 1 <= self.patch_half_size <= MAX_HALF_SIZE,
+            'cross_taper': self.cross_taper >= 0.0,
             'pyramid_levels': self.pyramid_levels >= 1,
             'gap_pyramid_levels': self.gap_pyramid_levels >= 1,
             'fast_motion_px': self.fast_motion_px >= 0.0,

@@ -99,6 +99,8 @@ class SampleLayout:
             over a node patch's grid (u, v in [-1, 1]); see :func:`robust_residuals`.
         terms: (G,) int, how many leading brightness terms each group's residuals are fitted
             with and freed of: 1 (the mean, ZSSD) or BRIGHTNESS_TERMS (a brightness ramp).
+        cross: (G, M) weight of each sample in the cross-camera terms (mean 1 over a group's
+            grid; see :meth:`node_patches`).
     """
 
     nodes: np.ndarray
@@ -107,6 +109,7 @@ class SampleLayout:
     mask: np.ndarray
     brightness: np.ndarray
     terms: np.ndarray
+    cross: np.ndarray
 
     @classmethod
     def node_patches(
@@ -115,6 +118,7 @@ class SampleLayout:
         spacing: np.ndarray,
         half_size: int,
         one_sided: np.ndarray,
+        taper: float = 0.0,
     ) -> SampleLayout:
         """Patches of (2 h + 1)^2 samples on the face surface around each node (ROI of eq. 4).
 
@@ -136,11 +140,23 @@ class SampleLayout:
         passes through one point beyond each boundary node (:func:`rim_points`), which halves
         that: 0.8 mm RMS off the skin, the cost's minimum 1.6 mm RMS off.
 
+        Inside the face the thin plate is flatter than the skin where the skin curves between
+        the nodes: it runs in front of the skin around a convex node (the nose tip, the upper
+        lip, the chin, the eye corners; 0.4-0.8 mm over a 7x7 patch on issue 5's subjects,
+        1.4-3.7 mm at its corners) and the left-right cost of the patch has its minimum too far
+        (the nose tip 0.6-1.2 mm). The error of the patch grows with the square of the distance
+        from the node, so the cross-camera terms of a two-sided patch weigh its samples by a
+        Gaussian of their grid distance from the node (``taper`` samples standard deviation;
+        0: all alike), scaled to a mean of 1 over the grid (``cross``). One-sided patches keep
+        equal weights: their node lies on the rim and their surface is the rim points'.
+
         Args:
             nodes: (N, 3) nodes in the left camera frame, m.
             spacing: (N,) sample spacing at level 0, m (about one pixel: depth / focal).
             half_size: h, samples each side of the node.
             one_sided: (N,) bool, the boundary nodes whose patch keeps the face side only.
+            taper: standard deviation of the cross-camera weights of a two-sided patch, in
+                samples; 0 for equal weights.
         """
         one_sided = np.asarray(one_sided, dtype=bool)
         square = square_offsets(half_size).astype(float)
@@ -157,6 +173,7 @@ class SampleLayout:
             mask=facing | ~one_sided[:, None],
             brightness=np.column_stack([np.ones(len(square)), square / max(half_size, 1)]),
             terms=np.where(one_sided, 1, BRIGHTNESS_TERMS),
+            cross=np.where(one_sided[:, None], 1.0, gaussian_taper(square, taper)),
         )
 
     @classmethod
@@ -182,12 +199,26 @@ class SampleLayout:
             mask=np.ones(shape, dtype=bool),
             brightness=brightness,
             terms=np.ones(shape[0], dtype=np.int64),
+            cross=np.ones(shape),
         )
 
     @property
     def slot_count(self) -> int:
         """Nodes each group depends on: 1 for node patches, 3 for triangles."""
         return 1 if not np.any(self.bary[:, 1:]) else 3
+
+
+def gaussian_taper(square: np.ndarray, sigma: float) -> np.ndarray:
+    """(M,) weights of a patch's grid samples, Gaussian in their distance from the node, mean 1.
+
+    Args:
+        square: (M, 2) grid offsets in samples (:func:`~face_tracking_ros.imaging.square_offsets`).
+        sigma: standard deviation, samples; 0 for equal weights.
+    """
+    if sigma == 0:
+        return np.ones(len(square))
+    weights = np.exp(-0.5 * np.sum(square**2, axis=1) / sigma**2)
+    return weights / weights.mean()
 
 
 def rim_points(nodes: np.ndarray, boundary: np.ndarray) -> np.ndarray:
@@ -665,8 +696,9 @@ def depth_terms(
     """The cross-camera term of eq. 4 within one pair, per node patch, along ``directions``.
 
     The patches are sampled in the left image (the template) and compared with the right image
-    at the same points, with the patches' brightness terms removed (:class:`SampleLayout`);
-    each node's 3x3 block of the normal equations is projected on its direction.
+    at the same points, with the patches' brightness terms removed and each sample weighed as
+    in the cross-camera terms of eq. 4 (:class:`SampleLayout`, ``cross``); each node's 3x3
+    block of the normal equations is projected on its direction.
 
     Args:
         rig: the rectified rig.
@@ -682,7 +714,7 @@ def depth_terms(
     left_projection, right_projection = level_projections((rig.left, rig.right), 0)
     template = sample_values((left,), left_projection[None], points)
     sampled = sample_images((right,), right_projection[None], points, patches.mask)
-    coefficients = np.ones((1, patches.size))
+    coefficients = np.concatenate([layout.cross.ravel() for layout in patches.layouts])[None]
     residuals = robust_residuals(
         patches, sampled, template[:, None], coefficients, Huber.of(patches, [huber])
     )

@@ -31,8 +31,8 @@ class TemplateSamples:
 
     Args:
         config: the tracker's tunables (the templates': ``patch_half_size``,
-            ``boundary_one_sided``, ``texture_weight``, ``texture_subdivisions``, ``gamma``,
-            ``boundary_gamma``, ``epsilon``).
+            ``boundary_one_sided``, ``cross_taper``, ``texture_weight``,
+            ``texture_subdivisions``, ``gamma``, ``boundary_gamma``, ``epsilon``).
         topology: the mesh tracked (its face-edge nodes and triangles).
     """
 
@@ -46,9 +46,11 @@ class TemplateSamples:
         """(4, S) a_k of every sample, weighing the T_k of a :class:`~.stereo_solve.Level`.
 
         Node patches: eq. 4 (same camera 1 - gamma, other camera gamma) at frame n - 1 and
-        frame 1 in the ratio (1 - epsilon) : epsilon. Texture: same camera only, scaled by the
-        texture weight (the flat triangles are not the curved face, so the cross-camera terms
-        would be biased there).
+        frame 1 in the ratio (1 - epsilon) : epsilon, the other camera's terms times each
+        sample's cross-camera weight (the layout's ``cross``: the depth refinement weighs the
+        samples so, and the two would otherwise pull the depth to different minima). Texture:
+        same camera only, scaled by the texture weight (the flat triangles are not the curved
+        face, so the cross-camera terms would be biased there).
         """
         config = self._config
         keep = 1.0 - config.epsilon
@@ -57,7 +59,10 @@ class TemplateSamples:
         patches = np.array(
             [keep * same, keep * cross, config.epsilon * same, config.epsilon * cross]
         )
-        columns = [np.repeat(patches, samples.layouts[0].mask.shape[1], axis=1)]
+        layout = samples.layouts[0]
+        patches = np.repeat(patches, layout.mask.shape[1], axis=1)
+        patches[[1, 3]] *= layout.cross.ravel()
+        columns = [patches]
         if len(samples.layouts) > 1:
             texture = [keep * config.texture_weight, 0.0, config.epsilon * config.texture_weight]
             columns.append(
@@ -88,6 +93,7 @@ class TemplateSamples:
             nodes[:, 2] / focal,
             config.patch_half_size,
             self._boundary & config.boundary_one_sided,
+            config.cross_taper,
         )
 
 
