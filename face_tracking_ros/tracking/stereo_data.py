@@ -141,14 +141,15 @@ class SampleLayout:
         that: 0.8 mm RMS off the skin, the cost's minimum 1.6 mm RMS off.
 
         Inside the face the thin plate is flatter than the skin where the skin curves between
-        the nodes: it runs in front of the skin around a convex node (the nose tip, the upper
-        lip, the chin, the eye corners; 0.4-0.8 mm over a 7x7 patch on issue 5's subjects,
-        1.4-3.7 mm at its corners) and the left-right cost of the patch has its minimum too far
-        (the nose tip 0.6-1.2 mm). The error of the patch grows with the square of the distance
-        from the node, so the cross-camera terms of a two-sided patch weigh its samples by a
-        Gaussian of their grid distance from the node (``taper`` samples standard deviation;
-        0: all alike), scaled to a mean of 1 over the grid (``cross``). One-sided patches keep
-        equal weights: their node lies on the rim and their surface is the rim points'.
+        the nodes: it runs in front of the skin around a convex node (on three of issue 5's
+        subjects the nose tip by 0.5-1.1 mm on average over a 7x7 patch, up to 3.7 mm at its
+        corners; the upper lip and the chin by 0.4-0.7 mm), and the left-right cost of the
+        patch has its minimum too far (the nose tip 0.6-1.2 mm). The error of the patch grows
+        with the square of the distance from the node, so the cross-camera terms of a
+        two-sided patch can weigh its samples by a Gaussian of their grid distance from the
+        node (``taper`` samples standard deviation, the tracker's ``cross_taper``; 0: all
+        alike), scaled to a mean of 1 over the grid (``cross``). One-sided patches keep equal
+        weights: their node lies on the rim and their surface is the rim points'.
 
         Args:
             nodes: (N, 3) nodes in the left camera frame, m.
