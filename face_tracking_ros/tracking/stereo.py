@@ -70,6 +70,7 @@ from face_tracking_ros.tracking.initialisation import Initialisation
 from face_tracking_ros.tracking.mono_priors import Priors
 from face_tracking_ros.tracking.mono_search import FaceView
 from face_tracking_ros.tracking.regularisation import Regulariser
+from face_tracking_ros.tracking.residual_spikes import PatchResiduals
 from face_tracking_ros.tracking.result import TrackStatus
 from face_tracking_ros.tracking.robust import nanmedian
 from face_tracking_ros.tracking.row_offset import ROW_OFFSET_RESOLUTION_PX, row_offset
@@ -89,7 +90,12 @@ from face_tracking_ros.tracking.stereo_init import (
     check_raw_not_swapped,
     initial_nodes,
 )
-from face_tracking_ros.tracking.stereo_loss import loss_reason, residual_ratio
+from face_tracking_ros.tracking.stereo_loss import (
+    loss_reason,
+    patch_ratios,
+    residual_ratio,
+    residual_total,
+)
 from face_tracking_ros.tracking.stereo_occlusion import (
     MIN_UNCOVERED_NODES,
     Agreement,
@@ -154,6 +160,7 @@ class _State:
     agreement: Agreement  # how the node patches' left and right images agreed so far
     region: np.ndarray  # (N,) bool, nodes flagged since the last pair with none (an occluder's)
     shown: bool  # a patch of the region has shown an occluder (.stereo_occlusion.occluder_shown)
+    residuals: PatchResiduals  # the inner node patches' recent residual ratios, left image
     before: np.ndarray | None = None  # the pair before's nodes (the motion prediction)
     span: int = 1  # frame intervals from ``before`` to ``nodes``
     elapsed: int = 0  # frame intervals from ``nodes`` to the pair being tracked (bad frames too)
@@ -579,6 +586,7 @@ class StereoTracker:
             agreement=Agreement.none(self._topology.num_nodes),
             region=np.zeros(self._topology.num_nodes, dtype=bool),
             shown=False,
+            residuals=PatchResiduals(),
         )
 
     def _initial_nodes(
@@ -732,10 +740,42 @@ class StereoTracker:
                 start = self._followed_start(state, start, rigid_px)
                 fast = self._moving_fast(state, rigid_px)
             attempt = self._attempt(state, pyramids, start, state.nodes, fast=fast)
+            if state.before is not None and not state.shown and not fast:
+                attempt = self._onset_solved(state, pyramids, start, attempt)
         if attempt.problem and gap:
             found = self._attempt(state, pyramids, searched(), rigid)
             attempt = attempt if found.problem else found
+        if attempt.statistics is not None and not attempt.problem:
+            state.residuals.add(self._inner_ratios(attempt.statistics))
         return attempt
+
+    def _inner_ratios(self, statistics: GroupStatistics) -> np.ndarray:
+        """The inner node patches' residual-to-contrast ratios in the left image (.stereo_loss)."""
+        return patch_ratios(statistics)[LEFT][~self._boundary]
+
+    def _onset_solved(
+        self,
+        state: _State,
+        pyramids: tuple[ImagePyramid, ImagePyramid],
+        start: np.ndarray,
+        attempt: _Attempt,
+    ) -> _Attempt:
+        """``attempt``, or the pair solved from one coarser level too if that fits it better.
+
+        Asked only when an inner node patch's residual leapt on ``attempt`` in the left image
+        (:class:`~.residual_spikes.PatchResiduals`): an expression's onset beyond the two
+        levels' reach. Taken when it passes the loss checks at a lower total residual
+        (:func:`~.stereo_loss.residual_total`).
+        """
+        if attempt.problem or attempt.statistics is None:
+            return attempt
+        if not state.residuals.leapt(self._inner_ratios(attempt.statistics)):
+            return attempt
+        again = self._attempt(state, pyramids, start, state.nodes, fast=True)
+        if again.problem or again.statistics is None:
+            return attempt
+        lower = residual_total(again.statistics) < residual_total(attempt.statistics)
+        return again if lower else attempt
 
     def _reacquire(self, pyramids: tuple[ImagePyramid, ImagePyramid]) -> StereoResult:
         """Solve a lost track's pair from where its face is found; LOST unless that passes.

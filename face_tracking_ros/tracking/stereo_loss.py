@@ -111,7 +111,17 @@ def loss_reason(
     return ''
 
 
+def patch_ratios(statistics: GroupStatistics) -> np.ndarray:
+    """(C, N) r_i / c_i of every node patch in each image (NaN where it has no valid sample)."""
+    with np.errstate(invalid='ignore', divide='ignore'):
+        return statistics.rms[0] / statistics.contrast
+
+
 def residual_ratio(statistics: GroupStatistics) -> float:
     """median_i r_i / c_i over the node patches of both images (see the module's docstring)."""
-    with np.errstate(invalid='ignore', divide='ignore'):
-        return nanmedian(statistics.rms[0] / statistics.contrast)
+    return nanmedian(patch_ratios(statistics))
+
+
+def residual_total(statistics: GroupStatistics) -> float:
+    """sum_i (r_i / c_i)^2 over the node patches of both images: a few nodes' residual counts."""
+    return float(np.nansum(patch_ratios(statistics) ** 2))
