@@ -27,5 +27,5 @@ def test_a_flat_patch_does_not_leap_below_the_floor_and_old_pairs_are_forgotten(
     assert not residuals.leapt(np.array([0.2, 0.3]))  # 10 times, but below the floor
     for _ in range(MEMORY):
         residuals.add(np.array([0.3, 0.3]))
-    assert len(residuals.recent) == MEMORY
+    assert residuals.recent is not None and residuals.recent.shape == (MEMORY, 2)
     assert not residuals.leapt(np.array([0.9, 0.3]))  # the usual level is now 0.3

@@ -24,9 +24,11 @@ were solved twice, for nothing there (seeds 0-7, pairs more than 3 px off 2 -> 2
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
+
+from face_tracking_ros.tracking.robust import nanmedian_columns
 
 SPIKE_FACTOR = 4.0  # a patch's ratio beyond this times its usual level leaps
 SPIKE_FLOOR = 0.25  # and beyond this: a patch of flat skin leaps from its noise floor
@@ -36,14 +38,17 @@ MIN_PAIRS = 3  # fewer pairs since the track started tell no usual level
 
 @dataclass
 class PatchResiduals:
-    """The left node patches' residual-to-contrast ratios on a track's recent pairs.
+    """The inner node patches' residual-to-contrast ratios on a track's recent pairs.
 
     Attributes:
-        recent: (N,) ratios of each of the last :data:`MEMORY` pairs, oldest first (NaN for a
-            patch without valid samples).
+        recent: (:data:`MEMORY`, N) the ratios of the last pairs, row ``pairs % MEMORY`` the
+            next to be replaced (NaN: a row not filled yet, or a patch without valid samples);
+            None before the first pair.
+        pairs: pairs taken in since the track started.
     """
 
-    recent: list[np.ndarray] = field(default_factory=list)
+    recent: np.ndarray | None = None
+    pairs: int = 0
 
     def leapt(self, ratios: np.ndarray) -> bool:
         """Whether a patch's ratio on this pair leapt from its usual level.
@@ -54,13 +59,18 @@ class PatchResiduals:
         Args:
             ratios: (N,) this pair's ratios (NaN: not compared).
         """
-        if len(self.recent) < MIN_PAIRS:
+        if self.recent is None or self.pairs < MIN_PAIRS:
             return False
+        candidates = ratios > SPIKE_FLOOR  # most pairs have none: no median to take
+        if not candidates.any():
+            return False
+        usual = nanmedian_columns(self.recent[:, candidates])
         with np.errstate(invalid='ignore'):
-            usual = np.nanmedian(np.array(self.recent), axis=0)
-            return bool(np.any((ratios > SPIKE_FACTOR * usual) & (ratios > SPIKE_FLOOR)))
+            return bool(np.any(ratios[candidates] > SPIKE_FACTOR * usual))
 
     def add(self, ratios: np.ndarray) -> None:
-        """Take a tracked pair's ratios in, forgetting those beyond :data:`MEMORY` pairs."""
-        self.recent.append(ratios)
-        del self.recent[:-MEMORY]
+        """Take a tracked pair's ratios in, in place of those :data:`MEMORY` pairs before."""
+        if self.recent is None:
+            self.recent = np.full((MEMORY, ratios.size), np.nan)
+        self.recent[self.pairs % MEMORY] = ratios
+        self.pairs += 1
