@@ -70,7 +70,7 @@ from face_tracking_ros.tracking.initialisation import Initialisation
 from face_tracking_ros.tracking.mono_priors import Priors
 from face_tracking_ros.tracking.mono_search import FaceView
 from face_tracking_ros.tracking.regularisation import Regulariser
-from face_tracking_ros.tracking.residual_spikes import PatchResiduals
+from face_tracking_ros.tracking.residual_spikes import SOLVE_GAIN, PatchResiduals
 from face_tracking_ros.tracking.result import TrackStatus
 from face_tracking_ros.tracking.robust import nanmedian
 from face_tracking_ros.tracking.row_offset import ROW_OFFSET_RESOLUTION_PX, row_offset
@@ -764,8 +764,9 @@ class StereoTracker:
 
         Asked only when an inner node patch's residual leapt on ``attempt`` in the left image
         (:class:`~.residual_spikes.PatchResiduals`): an expression's onset beyond the two
-        levels' reach. Taken when it passes the loss checks at a lower total residual
-        (:func:`~.stereo_loss.residual_total`).
+        levels' reach. Taken when it passes the loss checks at a total residual
+        (:func:`~.stereo_loss.residual_total`) below :data:`~.residual_spikes.SOLVE_GAIN` times
+        the first solve's.
         """
         if attempt.problem or attempt.statistics is None:
             return attempt
@@ -774,7 +775,7 @@ class StereoTracker:
         again = self._attempt(state, pyramids, start, state.nodes, fast=True)
         if again.problem or again.statistics is None:
             return attempt
-        lower = residual_total(again.statistics) < residual_total(attempt.statistics)
+        lower = residual_total(again.statistics) < SOLVE_GAIN * residual_total(attempt.statistics)
         return again if lower else attempt
 
     def _reacquire(self, pyramids: tuple[ImagePyramid, ImagePyramid]) -> StereoResult:
