@@ -191,7 +191,7 @@ class _Solves:
 
 
 class _Cover(NamedTuple):
-    """What an occluder covers on a pair (:meth:`StereoTracker._cover`): (N,) bool masks."""
+    """What an occluder covers on a pair (:meth:`StereoTracker._cover`)."""
 
     covered: np.ndarray  # the nodes held to the head's rigid motion
     agreement: Agreement  # the patches' agreement so far, this pair's included
@@ -717,9 +717,10 @@ class StereoTracker:
         ``searched()`` gives the searched start (:meth:`_searched`). Any other pair starts
         from each node's own motion carried on (:meth:`_predicted`), or from the head's rigid
         motion alone after a fast expression (:meth:`_followed_start`), and is solved from one
-        coarser level too if the head is moving fast (:meth:`_moving_fast`); both measure the
-        head's rigid motion carried on, made and projected once. Neither applies without a pair
-        before the last, nor while a region of flagged nodes has shown an occluder
+        coarser level too if the head is moving fast (:meth:`_moving_fast`), or else if an inner
+        patch's residual leapt on it (:meth:`_onset_solved`); the first two measure the head's
+        rigid motion carried on, made and projected once. None applies without a pair before
+        the last, nor while a region of flagged nodes has shown an occluder
         (``state.shown``, :func:`~.stereo_occlusion.occluder_shown`): the region's solve was
         measured from each node's own motion on two levels (from the coarser level, the nodes
         it had covered were left up to 50 px off as it left: rendered 30 fps, a pucker started
