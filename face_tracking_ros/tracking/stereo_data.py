@@ -260,6 +260,7 @@ class SampleSet:
         group_terms: (G,) int, ``terms`` of every group, layout after layout.
         group_sizes: (L,) int, M_l, the samples of a group of each layout.
         group_bounds: (L + 1,) the first group of every layout, then G.
+        cross: (S,) every sample's weight in the cross-camera terms (:class:`SampleLayout`).
     """
 
     layouts: tuple[SampleLayout, ...]
@@ -276,6 +277,7 @@ class SampleSet:
     group_terms: np.ndarray
     group_sizes: np.ndarray
     group_bounds: tuple[int, ...]
+    cross: np.ndarray
 
     @classmethod
     def of(cls, layouts: Sequence[SampleLayout], num_nodes: int) -> SampleSet:
@@ -311,6 +313,7 @@ class SampleSet:
             group_terms=np.concatenate(terms),
             group_sizes=np.array([layout.mask.shape[1] for layout in layouts]),
             group_bounds=tuple(int(b) for b in np.cumsum([0, *group_counts])),
+            cross=np.concatenate([layout.cross.ravel() for layout in layouts]),
         )
 
     @property
@@ -715,7 +718,7 @@ def depth_terms(
     left_projection, right_projection = level_projections((rig.left, rig.right), 0)
     template = sample_values((left,), left_projection[None], points)
     sampled = sample_images((right,), right_projection[None], points, patches.mask)
-    coefficients = np.concatenate([layout.cross.ravel() for layout in patches.layouts])[None]
+    coefficients = patches.cross[None]
     residuals = robust_residuals(
         patches, sampled, template[:, None], coefficients, Huber.of(patches, [huber])
     )
