@@ -234,7 +234,7 @@ class ImagePyramid:
         Raises:
             InputError: if the box is not finite while its level is still being made.
         """
-        if self._made_whole(index):
+        if self._make_whole_unless_boxed(index):
             return self._levels[index]
         low_x, high_x, low_y, high_y = box
         if not math.isfinite(low_x + high_x + low_y + high_y):
@@ -347,10 +347,12 @@ class ImagePyramid:
         make(slice(y0, y1), slice(x0, x1))
         return x0, y0, x1, y1
 
-    def _made_whole(self, index: int) -> bool:
-        """Whether level ``index`` is made in full, after making it so if it is not made by boxes.
+    def _make_whole_unless_boxed(self, index: int) -> bool:
+        """Make level ``index`` in full unless it is made by boxes; whether it is whole now.
 
-        Level 0, level 1 of an 8-bit image and the levels :meth:`deepen` added are made by boxes.
+        Level 0, level 1 of an 8-bit image and the levels :meth:`deepen` added are made by boxes
+        (whole only once the pyramid is complete, or level 0 given made); the other levels are
+        made in full (every level, :meth:`make_all`) when first read.
         """
         if index >= self._built:
             return False
@@ -360,7 +362,7 @@ class ImagePyramid:
 
     def _made_over(self, index: int, reach: tuple[int, int, int, int]) -> None:
         """Make level ``index`` over at least the pixel box ``reach``, (x0, y0, x1, y1)."""
-        if self._made_whole(index):
+        if self._make_whole_unless_boxed(index):
             return
         if index >= self._built:
             make = partial(self._make_deeper, index)
